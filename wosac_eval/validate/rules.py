@@ -1,0 +1,393 @@
+"""The validation rules, as pure functions from parsed messages to findings.
+
+Three families:
+- metadata rules on one `SimAgentsChallengeSubmission` shard (and consistency
+  of the metadata between shards);
+- coverage rules: the submitted scenario ids against the scenario set;
+- rollout rules on one `ScenarioRollouts`: 32 joint scenes, each with exactly
+  the sim agents (objects valid at the current step, index 10), each simulated
+  trajectory with 80 finite values in center_x, center_y, center_z, heading.
+
+The per-value checks are vectorised: one pass over the trajectories of a joint
+scene collects, per (trajectory, field), the value count and the sum of the
+values (computed in C by `sum`, in float64). The counts are compared with numpy;
+a float64 sum of float32 values cannot overflow (it would take ~1e270 values),
+so it is finite exactly when every value is, and numpy's `isfinite` over the
+sums, shaped (num_trajectories, 4), finds the faulty fields without a Python
+loop over values. Only the (rare) faulty fields are converted to arrays to
+locate the first non-finite index.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable, Sequence
+from typing import Any
+
+import numpy as np
+
+from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
+
+N_ROLLOUTS = 32  # joint scenes required per scenario
+N_SIMULATION_STEPS = 80  # 8 s at 10 Hz after the current step
+CURRENT_TIME_INDEX = 10  # objects valid at this step of the scenario are sim agents
+TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
+SIM_AGENTS_SUBMISSION = 1  # SimAgentsChallengeSubmission.SubmissionType
+
+# "200K", "1.5B", "7000000": a number, optionally with a multiplier suffix.
+_PARAMETER_COUNT = re.compile(r"^\s*\d+(\.\d+)?\s*[KMBTkmbt]?\s*$")
+
+_REQUIRED_TEXT = ("account_name", "unique_method_name", "affiliation", "description")
+_REQUIRED_FLAGS = ("uses_lidar_data", "uses_camera_data", "uses_public_model_pretraining")
+METADATA_FIELDS = (
+    "submission_type",
+    "account_name",
+    "unique_method_name",
+    "authors",
+    "affiliation",
+    "description",
+    "method_link",
+    "uses_lidar_data",
+    "uses_camera_data",
+    "uses_public_model_pretraining",
+    "public_model_names",
+    "num_model_parameters",
+    "acknowledge_complies_with_closed_loop_requirement",
+)
+
+
+def sim_agent_ids(scenario: Any, current_time_index: int = CURRENT_TIME_INDEX) -> np.ndarray:
+    """Sorted unique ids of the scenario's objects valid at the current step, shape (num_sim_agents,).
+
+    A track too short to have a current step has no valid state there.
+    """
+    ids = [
+        track.id
+        for track in scenario.tracks
+        if len(track.states) > current_time_index and track.states[current_time_index].valid
+    ]
+    return np.unique(np.asarray(ids, dtype=np.int64))
+
+
+# --------------------------------------------------------------------------
+# Metadata
+# --------------------------------------------------------------------------
+def _blank(text: str) -> bool:
+    return not text.strip()
+
+
+def check_metadata(submission: Any, shard: str | None = None) -> list[Finding]:
+    """Metadata rules on one shard's `SimAgentsChallengeSubmission`."""
+    out: list[Finding] = []
+
+    def missing(field: str, detail: str) -> None:
+        out.append(make_finding("metadata.missing", detail, shard=shard, field=field))
+
+    def invalid(field: str, detail: str) -> None:
+        out.append(make_finding("metadata.invalid", detail, shard=shard, field=field))
+
+    if not submission.HasField("submission_type"):
+        missing("submission_type", "submission_type is not set; it must be SIM_AGENTS_SUBMISSION")
+    elif submission.submission_type != SIM_AGENTS_SUBMISSION:
+        name = submission.DESCRIPTOR.fields_by_name["submission_type"].enum_type.values_by_number.get(
+            submission.submission_type
+        )
+        shown = name.name if name is not None else str(submission.submission_type)
+        invalid("submission_type", f"submission_type is {shown}, expected SIM_AGENTS_SUBMISSION")
+
+    for field in _REQUIRED_TEXT:
+        if _blank(getattr(submission, field)):
+            missing(field, f"{field} is empty")
+    if not _blank(submission.account_name) and "@" not in submission.account_name:
+        invalid(
+            "account_name",
+            f"account_name {submission.account_name!r} is not an email address; it must be the "
+            "full email used to register at waymo.com/open",
+        )
+
+    if not submission.authors:
+        missing("authors", "authors is empty; list at least one author")
+    for i, author in enumerate(submission.authors):
+        if _blank(author):
+            invalid("authors", f"authors[{i}] is empty")
+
+    if _blank(submission.method_link):
+        out.append(
+            make_finding(
+                "metadata.recommended",
+                "method_link is empty; a link to a paper or page describing the method is expected",
+                shard=shard,
+                field="method_link",
+                severity=WARNING,
+            )
+        )
+
+    for field in _REQUIRED_FLAGS:
+        if not submission.HasField(field):
+            missing(field, f"{field} is not set; it is required (true or false)")
+    if submission.uses_public_model_pretraining and not [n for n in submission.public_model_names if not _blank(n)]:
+        missing(
+            "public_model_names",
+            "public_model_names is empty although uses_public_model_pretraining is true; name the models used",
+        )
+
+    params = submission.num_model_parameters
+    if _blank(params):
+        missing("num_model_parameters", "num_model_parameters is empty; give an estimate such as '200K' or '1.5B'")
+    elif not _PARAMETER_COUNT.match(params):
+        invalid(
+            "num_model_parameters",
+            f"num_model_parameters {params!r} is not a number with an optional K/M/B/T suffix (e.g. '200K')",
+        )
+
+    ack = "acknowledge_complies_with_closed_loop_requirement"
+    if not submission.HasField(ack):
+        missing(ack, f"{ack} is not set; it must be true (closed-loop simulation at 10 Hz)")
+    elif not getattr(submission, ack):
+        invalid(ack, f"{ack} is false; it must be true (closed-loop simulation at 10 Hz)")
+    return out
+
+
+def metadata_of(submission: Any) -> dict[str, Any]:
+    """The metadata fields of a shard as plain values (None where unset), to compare shards."""
+    values: dict[str, Any] = {}
+    for field in METADATA_FIELDS:
+        value = getattr(submission, field)
+        if field in ("authors", "public_model_names"):
+            values[field] = tuple(value)
+        else:
+            values[field] = value if submission.HasField(field) else None
+    return values
+
+
+def check_metadata_consistency(
+    reference: dict[str, Any], reference_shard: str, metadata: dict[str, Any], shard: str
+) -> list[Finding]:
+    """One finding per metadata field whose value in `shard` differs from `reference_shard`."""
+    return [
+        make_finding(
+            "metadata.inconsistent",
+            f"{field} is {metadata[field]!r} but {reference[field]!r} in {reference_shard}",
+            shard=shard,
+            field=field,
+        )
+        for field in METADATA_FIELDS
+        if metadata[field] != reference[field]
+    ]
+
+
+# --------------------------------------------------------------------------
+# Coverage
+# --------------------------------------------------------------------------
+def check_missing_scenarios(expected: Iterable[str], submitted: Iterable[str] | set[str]) -> list[Finding]:
+    """One finding per scenario of the scenario set that the submission lacks (in scenario-set order)."""
+    submitted = submitted if isinstance(submitted, (set, dict, frozenset)) else set(submitted)
+    missing = [sid for sid in expected if sid not in submitted]
+    total = len(missing)
+    return [
+        make_finding(
+            "coverage.missing_scenario",
+            f"missing from the submission ({total} scenario(s) of the set are missing)",
+            scenario_id=sid,
+        )
+        for sid in missing
+    ]
+
+
+def unknown_scenario(scenario_id: str, shard: str, index: int) -> Finding:
+    return make_finding(
+        "coverage.unknown_scenario",
+        f"not in the scenario set (scenario_rollouts[{index}])",
+        shard=shard,
+        scenario_id=scenario_id,
+    )
+
+
+def duplicate_scenario(scenario_id: str, shard: str, index: int, first: tuple[str, int]) -> Finding:
+    return make_finding(
+        "coverage.duplicate_scenario",
+        f"submitted again at scenario_rollouts[{index}]; first in {first[0]} at scenario_rollouts[{first[1]}]",
+        shard=shard,
+        scenario_id=scenario_id,
+    )
+
+
+def missing_scenario_id(shard: str, index: int) -> Finding:
+    return make_finding(
+        "coverage.missing_scenario_id",
+        f"scenario_rollouts[{index}] has no scenario_id; its rollouts cannot be matched to a scenario",
+        shard=shard,
+    )
+
+
+# --------------------------------------------------------------------------
+# Rollouts
+# --------------------------------------------------------------------------
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _packed_headers(n_steps: int) -> np.ndarray:
+    """Wire headers (tag, byte length) of the four packed float fields 2..5 holding n_steps values each."""
+    length = _varint(4 * n_steps)
+    return np.array([list(bytes([(number << 3) | 2]) + length) for number in (2, 3, 4, 5)], dtype=np.uint8)
+
+
+def _non_finite_fields(trajectories: Sequence[Any], counts: np.ndarray, n_steps: int) -> np.ndarray:
+    """Mask of (trajectory, field) holding a NaN or infinite value, shape (num_trajectories, 4).
+
+    Fast path, for trajectories whose four fields all hold n_steps values: the
+    serialized trajectory (written by protobuf in field-number order) starts
+    with the four packed fields center_x..heading, so the first bytes of every
+    trajectory are stacked into one (m, 4, header + 4 * n_steps) uint8 array,
+    the headers checked, and the values read as float32 without touching them
+    one by one in Python. Anything else (other lengths, unexpected layout) falls
+    back to a float64 sum per field, which is finite exactly when every value is.
+    """
+    n = len(trajectories)
+    mask = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
+    regular = np.flatnonzero((counts == n_steps).all(axis=1)) if n else np.zeros(0, dtype=np.int64)
+    fallback = set(range(n)) - set(regular.tolist())
+    if regular.size and n_steps > 0:
+        headers = _packed_headers(n_steps)
+        block = headers.shape[1] + 4 * n_steps
+        prefix = 4 * block
+        raw = b"".join(trajectories[k].SerializeToString()[:prefix] for k in regular)
+        if len(raw) == prefix * regular.size:
+            stacked = np.frombuffer(raw, dtype=np.uint8).reshape(regular.size, 4, block)
+            layout_ok = (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
+            values = np.ascontiguousarray(stacked[:, :, headers.shape[1] :]).view("<f4")
+            mask[regular] = ~np.isfinite(values).all(axis=2) & layout_ok[:, None]
+            fallback.update(regular[~layout_ok].tolist())
+        else:
+            fallback.update(regular.tolist())
+    for k in sorted(fallback):
+        t = trajectories[k]
+        sums = (sum(t.center_x), sum(t.center_y), sum(t.center_z), sum(t.heading))
+        mask[k] = ~np.isfinite(np.array(sums, dtype=np.float64))
+    return mask
+
+
+def _non_finite_detail(field: str, values: Any) -> str:
+    array = np.asarray(values, dtype=np.float64)
+    bad = np.flatnonzero(~np.isfinite(array))
+    first = int(bad[0])
+    kind = "NaN" if np.isnan(array[first]) else ("+inf" if array[first] > 0 else "-inf")
+    detail = f"{field}[{first}] is {kind}"
+    if len(bad) > 1:
+        detail += f" ({len(bad)} non-finite values, at indices {format_ids(bad.tolist(), 10)})"
+    return detail
+
+
+def check_joint_scene(
+    scene: Any,
+    sim_agent_ids: np.ndarray | None,
+    *,
+    shard: str | None,
+    scenario_id: str | None,
+    rollout: int,
+    n_steps: int = N_SIMULATION_STEPS,
+) -> list[Finding]:
+    """Rules on one JointScene: the object ids against the sim agents, the field lengths and values.
+
+    sim_agent_ids: sorted unique int64 ids, shape (num_sim_agents,), or None when
+    the scenario is unknown (then only duplicates, lengths and values are checked).
+    """
+    out: list[Finding] = []
+    loc = {"shard": shard, "scenario_id": scenario_id, "rollout": rollout}
+    trajectories = list(scene.simulated_trajectories)
+    n = len(trajectories)
+    has_id = np.fromiter((t.HasField("object_id") for t in trajectories), dtype=bool, count=n)
+    ids = np.fromiter((t.object_id for t in trajectories), dtype=np.int64, count=n)
+    counts = np.array(
+        [(len(t.center_x), len(t.center_y), len(t.center_z), len(t.heading)) for t in trajectories], dtype=np.int64
+    ).reshape(n, len(TRAJECTORY_FIELDS))
+
+    for k in np.flatnonzero(~has_id):
+        out.append(make_finding("rollouts.missing_object_id", f"simulated_trajectories[{k}] has no object_id", **loc))
+
+    present, multiplicity = np.unique(ids[has_id], return_counts=True)
+    repeated = multiplicity > 1
+    if repeated.any():
+        dup = ", ".join(f"{i} ({m} times)" for i, m in zip(present[repeated].tolist(), multiplicity[repeated].tolist()))
+        out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}", **loc))
+
+    if sim_agent_ids is not None:
+        missing = np.setdiff1d(sim_agent_ids, present, assume_unique=True)
+        if missing.size:
+            out.append(
+                make_finding(
+                    "rollouts.missing_sim_agents",
+                    f"missing sim agents {format_ids(missing.tolist())} "
+                    f"({missing.size} of {sim_agent_ids.size} objects valid at step {CURRENT_TIME_INDEX})",
+                    **loc,
+                )
+            )
+        extra = np.setdiff1d(present, sim_agent_ids, assume_unique=True)
+        if extra.size:
+            out.append(
+                make_finding(
+                    "rollouts.extra_objects",
+                    f"objects {format_ids(extra.tolist())} are not sim agents "
+                    f"(not in the scenario, or not valid at step {CURRENT_TIME_INDEX})",
+                    **loc,
+                )
+            )
+
+    def object_id(k: int) -> int | None:
+        return int(ids[k]) if has_id[k] else None
+
+    for k, f in np.argwhere(counts != n_steps):
+        field = TRAJECTORY_FIELDS[f]
+        out.append(
+            make_finding(
+                "rollouts.wrong_length",
+                f"field {field} has {counts[k, f]} values, expected {n_steps}",
+                object_id=object_id(k),
+                field=field,
+                **loc,
+            )
+        )
+    for k, f in np.argwhere(_non_finite_fields(trajectories, counts, n_steps)):
+        field = TRAJECTORY_FIELDS[f]
+        detail = _non_finite_detail(field, getattr(trajectories[k], field))
+        out.append(make_finding("rollouts.non_finite", detail, object_id=object_id(k), field=field, **loc))
+    return out
+
+
+def check_scenario_rollouts(
+    rollouts: Any,
+    sim_agent_ids: Sequence[int] | np.ndarray | None,
+    *,
+    shard: str | None = None,
+    n_rollouts: int = N_ROLLOUTS,
+    n_steps: int = N_SIMULATION_STEPS,
+) -> list[Finding]:
+    """Rules on one ScenarioRollouts: the joint-scene count, then each joint scene.
+
+    sim_agent_ids: ids of the scenario's objects valid at step 10, shape
+    (num_sim_agents,); None when the scenario is not in the scenario set.
+    """
+    scenario_id = rollouts.scenario_id if rollouts.HasField("scenario_id") else None
+    out: list[Finding] = []
+    found = len(rollouts.joint_scenes)
+    if found != n_rollouts:
+        out.append(
+            make_finding(
+                "rollouts.wrong_count",
+                f"found {found} joint scenes, expected {n_rollouts}",
+                shard=shard,
+                scenario_id=scenario_id,
+            )
+        )
+    expected = None if sim_agent_ids is None else np.unique(np.asarray(sim_agent_ids, dtype=np.int64))
+    for r, scene in enumerate(rollouts.joint_scenes):
+        out.extend(
+            check_joint_scene(scene, expected, shard=shard, scenario_id=scenario_id, rollout=r, n_steps=n_steps)
+        )
+    return out

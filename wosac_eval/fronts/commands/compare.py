@@ -1,0 +1,59 @@
+"""`wosac-eval compare BASE.json NEW.json`: paired comparison of two scoring runs, and a CI gate.
+
+Exit codes: 0 compared (and every gate passed), 1 a gate failed, 2 the results
+could not be compared (unreadable file, unknown metric, bad gate, no shared scenario).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from wosac_eval.fronts.gate.compare import METRICS, CompareError, Gate, compare_results, format_table
+from wosac_eval.fronts.gate.results import ResultError, load_result
+
+NAME = "compare"
+HELP = "Compare two `score` results scenario by scenario (paired bootstrap CI, permutation p-value); gate on regressions."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("base", metavar="BASE.json", help="result of the reference run (`wosac-eval score --output`)")
+    parser.add_argument("new", metavar="NEW.json", help="result of the run under test")
+    parser.add_argument("--metric", action="append", metavar="NAME",
+                        help="report only this metric (repeatable; default all): " + ", ".join(METRICS))
+    parser.add_argument("--fail-if-worse", action="append", default=[], metavar="METRIC:DELTA",
+                        help="exit 1 when NEW is worse than BASE on METRIC by more than DELTA (in the metric's "
+                             "units, mean over shared scenarios; repeatable), e.g. metametric:0.005")
+    parser.add_argument("--only-significant", action="store_true",
+                        help="a gate fails only when the regression is also statistically significant")
+    parser.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05: 95%% CIs)")
+    parser.add_argument("--adjust", choices=("none", "holm"), default="none",
+                        help="base verdicts on Holm-adjusted p-values (family-wise error control over the metrics)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and permutation draws (default 0)")
+    parser.add_argument("--n-boot", type=int, default=5000, help="bootstrap resamples (default 5000)")
+    parser.add_argument("--n-perm", type=int, default=5000, help="random sign flips of the permutation test (default 5000)")
+    parser.add_argument("--min-shared", type=int, default=1, metavar="N",
+                        help="error (exit 2) when the results share fewer than N scenarios (default 1)")
+    parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        gates = [Gate.parse(g) for g in args.fail_if_worse]
+        base = load_result(args.base)
+        new = load_result(args.new)
+        comparison = compare_results(
+            base, new, metrics=args.metric, gates=gates, alpha=args.alpha, adjust=args.adjust, seed=args.seed,
+            n_boot=args.n_boot, n_perm=args.n_perm, min_shared=args.min_shared,
+            only_significant=args.only_significant)
+    except (ResultError, CompareError) as e:
+        print(f"wosac-eval compare: error: {e}", file=sys.stderr)
+        return 2
+    if args.json:
+        for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
+            print(f"wosac-eval compare: warning: {w}", file=sys.stderr)
+        json.dump(comparison.to_json(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(format_table(comparison))
+    return 0 if comparison.passed else 1

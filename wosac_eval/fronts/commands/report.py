@@ -1,0 +1,51 @@
+"""`wosac-eval report RESULT.json --html report.html`: a self-contained HTML report of a scoring run.
+
+Exit codes: 0 report written, 2 a result could not be read or compared, or the
+output could not be written.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from wosac_eval.fronts.gate.compare import CompareError, compare_results
+from wosac_eval.fronts.gate.report import render_report
+from wosac_eval.fronts.gate.results import ResultError, load_result
+
+NAME = "report"
+HELP = "Write a self-contained HTML report (scores, buckets, rates, distributions, worst scenarios) of a `score` result."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("result", metavar="RESULT.json", help="result of `wosac-eval score --output`")
+    parser.add_argument("--html", required=True, metavar="PATH", help="where to write the report")
+    parser.add_argument("--compare", metavar="BASE.json", help="add a paired comparison against this baseline result")
+    parser.add_argument("--top", type=int, default=10, metavar="K", help="worst scenarios listed per metric (default 10)")
+    parser.add_argument("--title", help="page title (default: from the result's file name)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the comparison's bootstrap / permutation draws")
+    parser.add_argument("--n-boot", type=int, default=5000, help="bootstrap resamples of the comparison (default 5000)")
+    parser.add_argument("--n-perm", type=int, default=5000, help="sign flips of the comparison (default 5000)")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.top < 1:
+        print("wosac-eval report: error: --top must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        result = load_result(args.result)
+        base = comparison = None
+        if args.compare:
+            base = load_result(args.compare)
+            comparison = compare_results(base, result, seed=args.seed, n_boot=args.n_boot, n_perm=args.n_perm)
+    except (ResultError, CompareError) as e:
+        print(f"wosac-eval report: error: {e}", file=sys.stderr)
+        return 2
+    page = render_report(result, base=base, comparison=comparison, top_k=args.top, title=args.title)
+    try:
+        Path(args.html).write_text(page, encoding="utf-8")
+    except OSError as e:
+        print(f"wosac-eval report: error: cannot write {args.html}: {e.strerror}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.html} ({len(page) // 1024} KiB)")
+    return 0

@@ -1,0 +1,1 @@
+"""Regression gate and reports: compare two scoring runs, render an HTML report."""

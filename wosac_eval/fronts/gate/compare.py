@@ -1,0 +1,382 @@
+"""Comparing two scoring runs: paired statistics per metric, verdicts and gates.
+
+The comparison is paired: only scenarios scored in both runs count, and each
+metric's difference is the mean over those scenarios of `new - base`. That is
+what makes a 0.002 change in the meta-metric detectable on a few thousand
+scenarios: scenario difficulty, which dominates the spread of the raw scores,
+cancels out in the differences.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import textwrap
+from typing import Any
+
+import numpy as np
+
+from wosac_eval.fronts.gate import stats
+from wosac_eval.fronts.gate.results import (
+    BUCKET_FIELDS,
+    BUCKET_MEMBERS,
+    SCENARIO_FIELDS,
+    ScoringResult,
+    higher_is_better,
+)
+
+# Metrics in display order: the headline, the weighted buckets, the likelihoods,
+# then displacement errors and the rates (lower is better for those).
+METRICS: tuple[str, ...] = (
+    "metametric",
+    *BUCKET_MEMBERS,
+    *[f for f, higher in SCENARIO_FIELDS.items() if higher and f != "metametric"],
+    "min_average_displacement_error",
+    "average_displacement_error",
+    "simulated_collision_rate",
+    "simulated_offroad_rate",
+    "simulated_traffic_light_violation_rate",
+)
+
+# Other names accepted on the command line (the leaderboard's bucket names).
+ALIASES: dict[str, str] = {
+    "realism_meta_metric": "metametric",
+    "min_ade": "min_average_displacement_error",
+    "ade": "average_displacement_error",
+}
+
+# When fewer scenarios than this are shared, intervals and p-values are rough.
+FEW_SCENARIOS = 30
+
+BETTER, WORSE, NO_DIFFERENCE, NOT_TESTED = "better", "worse", "no significant difference", "n/a (aggregate only)"
+
+
+class CompareError(ValueError):
+    """The two results cannot be compared (usage error, exit code 2)."""
+
+
+def canonical_metric(name: str) -> str:
+    """The canonical metric name for a user-given name or alias.
+
+    Raises:
+      CompareError: the name is unknown (the message lists the known names).
+    """
+    key = name.strip().lower()
+    key = ALIASES.get(key, key)
+    if key not in METRICS:
+        raise CompareError(f"unknown metric {name!r}; known metrics: {', '.join(METRICS)} "
+                           f"(aliases: {', '.join(f'{a}={m}' for a, m in ALIASES.items())})")
+    return key
+
+
+@dataclasses.dataclass(frozen=True)
+class Gate:
+    """`--fail-if-worse METRIC:DELTA`: fail when new is worse than base by more than DELTA."""
+
+    metric: str
+    delta: float
+
+    @classmethod
+    def parse(cls, text: str) -> "Gate":
+        name, sep, delta = text.rpartition(":")
+        if not sep or not name:
+            raise CompareError(f"gate {text!r}: expected METRIC:DELTA, e.g. metametric:0.005")
+        try:
+            value = float(delta)
+        except ValueError:
+            raise CompareError(f"gate {text!r}: DELTA {delta!r} is not a number") from None
+        if not np.isfinite(value) or value < 0:
+            raise CompareError(f"gate {text!r}: DELTA must be a finite number >= 0 (the tolerated regression)")
+        return cls(canonical_metric(name), value)
+
+
+@dataclasses.dataclass
+class MetricComparison:
+    """One metric of the comparison.
+
+    `base` and `new` are means over the shared scenarios when `paired`; otherwise
+    (the values exist only as file aggregates) each file's own aggregate, and the
+    statistics are None.
+    """
+
+    metric: str
+    higher_is_better: bool
+    paired: bool
+    base: float
+    new: float
+    difference: float
+    ci_low: float | None = None
+    ci_high: float | None = None
+    p_value: float | None = None
+    p_holm: float | None = None
+    verdict: str = NOT_TESTED
+
+    @property
+    def regression(self) -> float:
+        """How much worse new is than base (positive = worse), in the metric's units."""
+        return -self.difference if self.higher_is_better else self.difference
+
+
+@dataclasses.dataclass
+class GateOutcome:
+    gate: Gate
+    regression: float
+    passed: bool
+    reason: str
+
+
+@dataclasses.dataclass
+class Comparison:
+    base_path: str
+    new_path: str
+    base_config: str
+    new_config: str
+    num_shared: int
+    num_base_only: int
+    num_new_only: int
+    alpha: float
+    adjust: str
+    seed: int
+    n_boot: int
+    n_perm: int
+    exact_permutation: bool
+    metrics: list[MetricComparison]
+    gates: list[GateOutcome]
+    warnings: list[str]
+
+    @property
+    def passed(self) -> bool:
+        return all(g.passed for g in self.gates)
+
+    def metric(self, name: str) -> MetricComparison:
+        name = canonical_metric(name)
+        for m in self.metrics:
+            if m.metric == name:
+                return m
+        raise KeyError(name)
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "base": {"path": self.base_path, "config": self.base_config},
+            "new": {"path": self.new_path, "config": self.new_config},
+            "scenarios": {"shared": self.num_shared, "base_only": self.num_base_only, "new_only": self.num_new_only},
+            "settings": {"alpha": self.alpha, "adjust": self.adjust, "seed": self.seed, "n_boot": self.n_boot,
+                         "n_perm": self.n_perm, "exact_permutation": self.exact_permutation,
+                         "difference": "new - base, mean over shared scenarios"},
+            "metrics": [dataclasses.asdict(m) for m in self.metrics],
+            "gates": [{"metric": g.gate.metric, "max_regression": g.gate.delta, "regression": g.regression,
+                       "passed": g.passed, "reason": g.reason} for g in self.gates],
+            "warnings": list(self.warnings),
+            "passed": self.passed,
+        }
+
+
+def _same_config(a: str, b: str) -> bool:
+    if a == b:
+        return True
+    if os.path.isfile(a) and os.path.isfile(b):
+        with open(a, "rb") as fa, open(b, "rb") as fb:
+            return fa.read() == fb.read()
+    return False
+
+
+def _verdict(m: MetricComparison, p: float, alpha: float) -> str:
+    if p >= alpha or m.difference == 0:
+        return NO_DIFFERENCE
+    return BETTER if m.regression < 0 else WORSE
+
+
+def _describe_ids(ids: np.ndarray, limit: int = 3) -> str:
+    shown = ", ".join(str(i) for i in ids[:limit])
+    return shown + (f", ... ({ids.size} in all)" if ids.size > limit else "")
+
+
+def compare_results(
+    base: ScoringResult,
+    new: ScoringResult,
+    metrics: list[str] | None = None,
+    gates: list[Gate] | None = None,
+    alpha: float = 0.05,
+    adjust: str = "none",
+    seed: int = 0,
+    n_boot: int = 5000,
+    n_perm: int = 5000,
+    min_shared: int = 1,
+    only_significant: bool = False,
+) -> Comparison:
+    """Compares `new` against `base` on the scenarios both contain.
+
+    Args:
+      metrics: metric names (aliases accepted) to report; None for all. Gated
+        metrics are always included.
+      gates: regressions to fail on.
+      alpha: significance level of the verdicts.
+      adjust: "none" or "holm": verdicts from raw or Holm-adjusted p-values.
+      seed: seeds the bootstrap and permutation draws.
+      min_shared: fewer shared scenarios than this is an error.
+      only_significant: a gate fails only when its regression is also significant.
+
+    Raises:
+      CompareError: no (or too few) shared scenarios, unknown metric, bad settings.
+    """
+    if adjust not in ("none", "holm"):
+        raise CompareError(f"adjust must be 'none' or 'holm', got {adjust!r}")
+    if not 0 < alpha < 1:
+        raise CompareError(f"alpha must be between 0 and 1, got {alpha}")
+    if n_boot < 1 or n_perm < 1:
+        raise CompareError("n_boot and n_perm must be at least 1")
+    gates = list(gates or [])
+    wanted = [canonical_metric(m) for m in metrics] if metrics else list(METRICS)
+    wanted += [g.metric for g in gates if g.metric not in wanted]
+    wanted = [m for m in METRICS if m in wanted]  # display order, no duplicates
+
+    warnings: list[str] = []
+    if not _same_config(base.config, new.config):
+        warnings.append(f"the results were scored with different configs: base {base.config!r}, "
+                        f"new {new.config!r}; differences mix the simulator change with the config change")
+
+    in_new = {sid: i for i, sid in enumerate(new.scenario_ids)}
+    base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in in_new], dtype=np.int64)
+    new_rows = np.array([in_new[base.scenario_ids[i]] for i in base_rows], dtype=np.int64)
+    n = int(base_rows.size)
+    base_only = np.setdiff1d(np.arange(base.num_scenarios), base_rows)
+    new_only = np.setdiff1d(np.arange(new.num_scenarios), new_rows)
+    if n == 0:
+        raise CompareError(f"{base.path} ({base.num_scenarios} scenarios) and {new.path} ({new.num_scenarios} "
+                           f"scenarios) share no scenario: they were scored on different data sets")
+    if n < min_shared:
+        raise CompareError(f"{base.path} and {new.path} share only {n} scenarios, fewer than --min-shared {min_shared}")
+    if base_only.size or new_only.size:
+        parts = []
+        if base_only.size:
+            parts.append(f"{base_only.size} only in base ({_describe_ids(base.scenario_ids[base_only])})")
+        if new_only.size:
+            parts.append(f"{new_only.size} only in new ({_describe_ids(new.scenario_ids[new_only])})")
+        warnings.append(f"the scenario sets differ: compared on the {n} shared scenarios; " + "; ".join(parts))
+    if n < FEW_SCENARIOS:
+        warnings.append(f"only {n} shared scenarios: confidence intervals and p-values are rough")
+    skipped_base = {s.get("scenario_id") for s in base.skipped}
+    skipped_new = {s.get("scenario_id") for s in new.skipped}
+    if skipped_base != skipped_new:
+        warnings.append(f"the scorer skipped different scenarios: {len(skipped_base)} in base, "
+                        f"{len(skipped_new)} in new")
+
+    paired = [m for m in wanted if base.has_per_scenario(m) and new.has_per_scenario(m)]
+    results: dict[str, MetricComparison] = {}
+    exact = False
+    if paired:
+        b = np.stack([base.per_scenario(m)[base_rows] for m in paired], axis=1)  # (shared, metrics)
+        w = np.stack([new.per_scenario(m)[new_rows] for m in paired], axis=1)
+        test = stats.paired_test(b, w, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
+        exact = test.exact_permutation
+        for j, m in enumerate(paired):
+            results[m] = MetricComparison(
+                metric=m, higher_is_better=higher_is_better(m), paired=True,
+                base=float(b[:, j].mean()), new=float(w[:, j].mean()),
+                difference=float(test.mean_difference[j]),
+                ci_low=float(test.ci_low[j]), ci_high=float(test.ci_high[j]), p_value=float(test.p_value[j]))
+        holm = stats.holm_adjust(test.p_value)
+        for j, m in enumerate(paired):
+            results[m].p_holm = float(holm[j])
+            results[m].verdict = _verdict(results[m], results[m].p_holm if adjust == "holm" else results[m].p_value,
+                                          alpha)
+
+    unpaired = [m for m in wanted if m not in results]
+    for m in unpaired:
+        bv, nv = base.headline(m), new.headline(m)
+        if bv is None or nv is None:
+            warnings.append(f"{m}: not in both results, left out")
+            continue
+        results[m] = MetricComparison(metric=m, higher_is_better=higher_is_better(m), paired=False,
+                                      base=bv, new=nv, difference=nv - bv)
+    if any(m in results for m in unpaired):
+        names = ", ".join(m for m in unpaired if m in results)
+        scope = "all of each file's scenarios" if not (base_only.size or new_only.size) else \
+            "each file's own scenarios (the sets differ!)"
+        warnings.append(f"no per-scenario values for {names}: compared the files' aggregates over {scope}, "
+                        f"without interval or p-value")
+
+    ordered = [results[m] for m in wanted if m in results]
+    outcomes = [_apply_gate(g, results.get(g.metric), only_significant) for g in gates]
+    return Comparison(
+        base_path=base.path, new_path=new.path, base_config=base.config, new_config=new.config,
+        num_shared=n, num_base_only=int(base_only.size), num_new_only=int(new_only.size),
+        alpha=alpha, adjust=adjust, seed=seed, n_boot=n_boot, n_perm=n_perm, exact_permutation=exact,
+        metrics=ordered, gates=outcomes, warnings=warnings)
+
+
+def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) -> GateOutcome:
+    if m is None:
+        return GateOutcome(gate, float("nan"), False, f"{gate.metric} is not in both results, cannot check the gate")
+    regression = m.regression
+    too_much = regression > gate.delta
+    if too_much and only_significant and m.paired and m.verdict != WORSE:
+        return GateOutcome(gate, regression, True,
+                           f"worse by {regression:.6g} > allowed {gate.delta:g}, but not significant "
+                           f"(p={m.p_value:.4g}); passing because of --only-significant")
+    if too_much:
+        return GateOutcome(gate, regression, False, f"worse by {regression:.6g} > allowed {gate.delta:g}")
+    if regression > 0:
+        return GateOutcome(gate, regression, True, f"worse by {regression:.6g} <= allowed {gate.delta:g}")
+    return GateOutcome(gate, regression, True, f"not worse (change {m.difference:+.6g})")
+
+
+# ---------------------------------------------------------------------------------------------
+# Terminal output
+
+
+def _fmt(x: float | None, signed: bool = False) -> str:
+    if x is None:
+        return "-"
+    return f"{x:+.4f}" if signed else f"{x:.4f}"
+
+
+def _fmt_p(p: float | None) -> str:
+    if p is None:
+        return "-"
+    return "<0.0001" if p < 0.0001 else f"{p:.4f}"
+
+
+def _wrap(text: str) -> str:
+    return textwrap.fill(text, width=110, subsequent_indent="  ", break_on_hyphens=False)
+
+
+def format_table(c: Comparison) -> str:
+    """The comparison as a plain-text table with warnings, a multiple-testing note and the gates."""
+    conf = f"{round((1 - c.alpha) * 100):d}% CI"
+    header = ["metric", "best", "base", "new", "diff", conf, "p", "verdict"]
+    rows = []
+    for m in c.metrics:
+        ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
+        p = m.p_holm if c.adjust == "holm" else m.p_value
+        verdict = m.verdict.upper() if m.verdict == WORSE else m.verdict
+        rows.append([m.metric, "high" if m.higher_is_better else "low", _fmt(m.base), _fmt(m.new),
+                     _fmt(m.difference, True), ci, _fmt_p(p), verdict])
+    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
+    right = {2, 3, 4, 6}
+
+    def line(cells):
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+
+    out = [f"base: {c.base_path}  (config {c.base_config})",
+           f"new:  {c.new_path}  (config {c.new_config})",
+           f"paired over {c.num_shared} shared scenarios; diff = new - base; "
+           f"seed {c.seed}, {c.n_boot} bootstrap resamples, "
+           + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips"),
+           "", line(header), line(["-" * w for w in widths])]
+    out += [line(r) for r in rows]
+    tested = sum(1 for m in c.metrics if m.paired)
+    if tested > 1:
+        p_kind = "Holm-adjusted p-values" if c.adjust == "holm" else "unadjusted p-values"
+        out += ["", _wrap(f"note: {tested} metrics tested at alpha={c.alpha:g} with {p_kind}."
+                + ("" if c.adjust == "holm" else
+                   f" With no real change, about {tested * c.alpha:.1f} of them can still come out"
+                   " better/worse by chance; use --adjust holm to control that.")
+                + " The metrics are correlated (buckets are weighted means of the likelihoods).")]
+    if c.warnings:
+        out += [""] + [_wrap(f"warning: {w}") for w in c.warnings]
+    if c.gates:
+        out.append("")
+        for g in c.gates:
+            out.append(f"gate {g.gate.metric}:{g.gate.delta:g}  {'PASS' if g.passed else 'FAIL'}  {g.reason}")
+        out.append("result: " + ("all gates passed" if c.passed else "GATE FAILED"))
+    return "\n".join(out)

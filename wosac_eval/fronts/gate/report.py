@@ -1,0 +1,391 @@
+"""A self-contained HTML report of one scoring run, optionally compared with a baseline.
+
+The page loads nothing from anywhere: styles are inline and the plots are PNGs
+drawn with matplotlib's Agg canvas (no pyplot, so no global backend is touched)
+and embedded as base64 `data:` URIs. It can be attached to a CI run, mailed, or
+opened offline.
+
+Sections (each an element with this id): `headline`, `buckets`, `rates`,
+`distributions`, `worst`, `comparison` (only with a baseline), `skipped`.
+"""
+from __future__ import annotations
+
+import base64
+import datetime
+import html
+import io
+from typing import Iterable
+
+import numpy as np
+
+from wosac_eval.fronts.gate.compare import BETTER, WORSE, Comparison
+from wosac_eval.fronts.gate.results import (
+    BUCKET_ALIASES,
+    BUCKET_FIELDS,
+    RATE_FIELDS,
+    SCENARIO_FIELDS,
+    ScoringResult,
+    higher_is_better,
+)
+
+SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
+
+RATE_LABELS = {
+    "simulated_collision_rate": "Collision rate",
+    "simulated_offroad_rate": "Offroad rate",
+    "simulated_traffic_light_violation_rate": "Red-light violation rate",
+}
+
+# Metrics whose per-scenario distribution and worst scenarios the report shows.
+DISTRIBUTION_METRICS = (
+    "metametric",
+    "kinematic_metrics", "interactive_metrics", "map_based_metrics",
+    *[f for f, higher in SCENARIO_FIELDS.items() if higher and f != "metametric"],
+    "min_average_displacement_error",
+    *RATE_FIELDS,
+)
+
+_BASE_COLOR, _NEW_COLOR = "#9aa5b1", "#1f6feb"
+
+_CSS = """
+body{font-family:system-ui,-apple-system,'Segoe UI',Roboto,sans-serif;margin:0;color:#1b1f24;background:#f6f8fa}
+main{max-width:1200px;margin:0 auto;padding:16px 24px 48px}
+h1{font-size:1.5rem;margin:8px 0 4px}h2{font-size:1.2rem;margin:0 0 12px}
+section{background:#fff;border:1px solid #d0d7de;border-radius:8px;padding:16px 20px;margin:16px 0}
+.meta{color:#57606a;font-size:.9rem}
+.score{font-size:2.6rem;font-weight:600;margin:4px 16px 4px 0}
+.cards{display:flex;flex-wrap:wrap;gap:12px;align-items:baseline}
+.card{border:1px solid #d0d7de;border-radius:6px;padding:8px 14px;min-width:150px}
+.card .v{font-size:1.3rem;font-weight:600}.card .k{color:#57606a;font-size:.8rem}
+table{border-collapse:collapse;font-size:.88rem;margin:6px 0}
+th,td{padding:3px 10px;border-bottom:1px solid #eaeef2;text-align:left}
+td.n,th.n{text-align:right;font-variant-numeric:tabular-nums}
+.better{color:#1a7f37;font-weight:600}.worse{color:#cf222e;font-weight:600}.same{color:#57606a}
+.warn{background:#fff8c5;border:1px solid #d4a72c;border-radius:6px;padding:6px 10px;margin:6px 0}
+.pass{color:#1a7f37;font-weight:600}.fail{color:#cf222e;font-weight:600}
+details{margin:4px 0}summary{cursor:pointer;font-weight:600}
+.row{display:flex;flex-wrap:wrap;gap:8px 32px;align-items:center}
+.worst-grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:4px 24px}
+img{max-width:100%;height:auto}
+code{font-size:.85rem}
+"""
+
+
+def _png(fig) -> str:
+    """The figure as an `<img>` with a base64 PNG data URI."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(fig)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight", metadata={"Software": None})
+    data = base64.b64encode(buf.getvalue()).decode("ascii")
+    return f'<img alt="plot" src="data:image/png;base64,{data}">'
+
+
+def _figure(width: float, height: float):
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width, height))
+
+
+def _label(metric: str) -> str:
+    return metric.removesuffix("_likelihood").replace("_", " ")
+
+
+def _esc(x) -> str:
+    return html.escape(str(x), quote=True)
+
+
+def _num(x: float | None, digits: int = 4, signed: bool = False) -> str:
+    if x is None:
+        return "-"
+    return f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
+
+
+def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
+    key = BUCKET_ALIASES.get(metric, metric)
+    return result.values.get(key)
+
+
+# ------------------------------------------------------------------------------------------------
+# Plots
+
+
+def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
+    names = [b for b in ("realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics")
+             if result.headline(b) is not None]
+    fig = _figure(5.6, 2.6)
+    ax = fig.add_subplot()
+    y = np.arange(len(names))
+    height = 0.38 if base is not None else 0.6
+    new_vals = [result.headline(n) for n in names]
+    ax.barh(y, new_vals, height=height, color=_NEW_COLOR, label="this run")
+    if base is not None:
+        base_vals = [base.headline(n) or 0.0 for n in names]
+        ax.barh(y + height, base_vals, height=height, color=_BASE_COLOR, label="baseline")
+        ax.legend(loc="lower right", fontsize=8)
+    for yi, v in zip(y, new_vals):
+        ax.text(v + 0.01, yi, f"{v:.4f}", va="center", fontsize=8)
+    ax.set_yticks(y + (height / 2 if base is not None else 0), [_label(n) for n in names])
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1.08)
+    ax.set_xlabel("score (higher is better)")
+    ax.grid(axis="x", alpha=0.3)
+    return _png(fig)
+
+
+def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
+    fig = _figure(5.2, 2.0)
+    ax = fig.add_subplot()
+    y = np.arange(len(RATE_FIELDS))
+    height = 0.38 if base is not None else 0.6
+    vals = [100 * (result.headline(r) or 0.0) for r in RATE_FIELDS]
+    ax.barh(y, vals, height=height, color="#d1242f", label="this run")
+    if base is not None:
+        ax.barh(y + height, [100 * (base.headline(r) or 0.0) for r in RATE_FIELDS], height=height,
+                color=_BASE_COLOR, label="baseline")
+        ax.legend(loc="lower right", fontsize=8)
+    for yi, v in zip(y, vals):
+        ax.text(v, yi, f" {v:.2f}%", va="center", fontsize=8)
+    ax.set_yticks(y + (height / 2 if base is not None else 0), [RATE_LABELS[r] for r in RATE_FIELDS])
+    ax.invert_yaxis()
+    ax.set_xlim(0, max(vals + [1.0]) * 1.25)
+    ax.set_xlabel("% of simulated objects (lower is better)")
+    ax.grid(axis="x", alpha=0.3)
+    return _png(fig)
+
+
+def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metrics: list[str]) -> str:
+    cols = 4
+    rows = (len(metrics) + cols - 1) // cols
+    fig = _figure(14, 2.3 * rows)
+    for k, metric in enumerate(metrics):
+        ax = fig.add_subplot(rows, cols, k + 1)
+        v = _values(result, metric)
+        b = _values(base, metric) if base is not None else None
+        data = np.concatenate([v, b]) if b is not None else v
+        lo, hi = float(data.min()), float(data.max())
+        bins = np.linspace(lo, hi if hi > lo else lo + 1e-6, 31)
+        ax.hist(v, bins=bins, color=_NEW_COLOR, alpha=0.75, label="this run")
+        if b is not None:
+            ax.hist(b, bins=bins, histtype="step", color="#444c56", linewidth=1.2, label="baseline")
+        ax.axvline(float(v.mean()), color="#cf222e", linewidth=1)
+        ax.set_title(f"{_label(metric)}  (mean {v.mean():.3f})", fontsize=9)
+        ax.tick_params(labelsize=7)
+        if k == 0 and b is not None:
+            ax.legend(fontsize=7)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _forest_plot(comparison: Comparison) -> str | None:
+    # Displacement errors are in metres, the rest in [0, 1]: they would crush the scale.
+    rows = [m for m in comparison.metrics if m.paired and "displacement" not in m.metric]
+    if not rows:
+        return None
+    fig = _figure(8, 0.32 * len(rows) + 1.0)
+    ax = fig.add_subplot()
+    y = np.arange(len(rows))
+    for yi, m in zip(y, rows):
+        color = {BETTER: "#1a7f37", WORSE: "#cf222e"}.get(m.verdict, "#57606a")
+        ax.plot([m.ci_low, m.ci_high], [yi, yi], color=color, linewidth=2)
+        ax.plot([m.difference], [yi], "o", color=color, markersize=4)
+    ax.axvline(0.0, color="#1b1f24", linewidth=0.8)
+    ax.set_yticks(y, [_label(m.metric) for m in rows], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xlabel("new - base, mean over shared scenarios, with 95% CI", fontsize=9)
+    ax.grid(axis="x", alpha=0.3)
+    return _png(fig)
+
+
+def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
+    in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
+    pairs = [(i, in_new[s]) for i, s in enumerate(base.scenario_ids) if s in in_new]
+    if not pairs:
+        return None
+    bi, ni = np.array(pairs).T
+    b, n = base.values["metametric"][bi], result.values["metametric"][ni]
+    fig = _figure(4.2, 4.0)
+    ax = fig.add_subplot()
+    ax.scatter(b, n, s=4, alpha=0.4 if b.size > 500 else 0.8, color=_NEW_COLOR, edgecolors="none")
+    lo, hi = float(min(b.min(), n.min())), float(max(b.max(), n.max()))
+    ax.plot([lo, hi], [lo, hi], color="#1b1f24", linewidth=0.8)
+    ax.set_xlabel("baseline meta-metric", fontsize=9)
+    ax.set_ylabel("this run's meta-metric", fontsize=9)
+    ax.set_title("per scenario (above the line: improved)", fontsize=9)
+    ax.tick_params(labelsize=7)
+    return _png(fig)
+
+
+# ------------------------------------------------------------------------------------------------
+# Sections
+
+
+def _section(sid: str, title: str, body: Iterable[str]) -> str:
+    return f'<section id="{sid}"><h2>{_esc(title)}</h2>{"".join(body)}</section>'
+
+
+def _headline(result: ScoringResult, base: ScoringResult | None, comparison: Comparison | None) -> str:
+    score = result.headline("realism_meta_metric")
+    cards = [f'<div class="score">{_num(score)}</div>']
+    if comparison is not None:
+        m = next((m for m in comparison.metrics if m.metric == "metametric"), None)
+        if m is not None:
+            cls = {BETTER: "better", WORSE: "worse"}.get(m.verdict, "same")
+            cards.append(f'<div class="card"><div class="k">vs baseline (paired, {comparison.num_shared} scenarios)'
+                         f'</div><div class="v {cls}">{_num(m.difference, signed=True)} &middot; {_esc(m.verdict)}'
+                         f'</div></div>')
+    cards.append(f'<div class="card"><div class="k">scenarios scored</div><div class="v">{result.num_scenarios}'
+                 f'</div></div>')
+    cards.append(f'<div class="card"><div class="k">scenarios skipped</div><div class="v">{len(result.skipped)}'
+                 f'</div></div>')
+    cards.append(f'<div class="card"><div class="k">min ADE (m)</div><div class="v">'
+                 f'{_num(result.headline("min_ade"))}</div></div>')
+    body = [f'<p class="meta">Realism meta-metric (the leaderboard score), config <code>{_esc(result.config)}</code>'
+            f'</p>', f'<div class="cards">{"".join(cards)}</div>']
+    return _section("headline", "Headline score", body)
+
+
+def _bucket_section(result: ScoringResult, base: ScoringResult | None) -> str:
+    names = list(BUCKET_FIELDS)
+    head = "<tr><th>bucket</th><th class=n>this run</th>" + (
+        "<th class=n>baseline</th><th class=n>diff</th>" if base is not None else "") + "<th>better if</th></tr>"
+    rows = []
+    for name in names:
+        v = result.headline(name)
+        cells = f"<td>{_esc(name)}</td><td class=n>{_num(v)}</td>"
+        if base is not None:
+            b = base.headline(name)
+            cells += f"<td class=n>{_num(b)}</td><td class=n>" + (
+                _num(v - b, signed=True) if v is not None and b is not None else "-") + "</td>"
+        cells += f"<td>{'higher' if BUCKET_FIELDS[name] else 'lower'}</td>"
+        rows.append(f"<tr>{cells}</tr>")
+    note = ('<p class="meta">Baseline figures are each file\'s own aggregate over all its scenarios; the paired '
+            'comparison below uses only the scenarios both share.</p>' if base is not None else "")
+    return _section("buckets", "Buckets", [f'<div class="row">{_bucket_plot(result, base)}'
+                                            f"<table>{head}{''.join(rows)}</table></div>", note])
+
+
+def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:
+    rows = []
+    for r in RATE_FIELDS:
+        v = result.headline(r)
+        worst = float(result.values[r].max()) if result.num_scenarios else None
+        share = float((result.values[r] > 0).mean()) if result.num_scenarios else None
+        b = f"<td class=n>{100 * base.headline(r):.2f}%</td>" if base is not None and base.headline(r) is not None \
+            else ("<td class=n>-</td>" if base is not None else "")
+        rows.append(f"<tr><td>{RATE_LABELS[r]}</td><td class=n>{100 * v:.2f}%</td>{b}"
+                    f"<td class=n>{_num(None if share is None else 100 * share, 1)}%</td>"
+                    f"<td class=n>{_num(None if worst is None else 100 * worst, 1)}%</td></tr>")
+    head = ("<tr><th>rate</th><th class=n>this run</th>" + ("<th class=n>baseline</th>" if base is not None else "")
+            + "<th class=n>scenarios with any</th><th class=n>worst scenario</th></tr>")
+    return _section("rates", "Collision, offroad and red-light rates",
+                    [f'<div class="row">{_rate_plot(result, base)}<table>{head}{"".join(rows)}</table></div>'])
+
+
+def _available(result: ScoringResult, base: ScoringResult | None) -> list[str]:
+    return [m for m in DISTRIBUTION_METRICS
+            if _values(result, m) is not None and (base is None or _values(base, m) is not None)]
+
+
+def _distribution_section(result: ScoringResult, base: ScoringResult | None) -> str:
+    if result.num_scenarios == 0:
+        return _section("distributions", "Per-scenario distributions", ["<p>No scenarios.</p>"])
+    metrics = _available(result, base)
+    note = ('<p class="meta">Histograms over scenarios; red line: mean.'
+            + (' Outline: baseline.' if base is not None else "") + "</p>")
+    return _section("distributions", "Per-scenario distributions", [note, _distribution_plot(result, base, metrics)])
+
+
+def _worst_section(result: ScoringResult, top_k: int) -> str:
+    blocks = []
+    for k, metric in enumerate(m for m in DISTRIBUTION_METRICS if _values(result, m) is not None):
+        v = _values(result, metric)
+        order = np.argsort(v if higher_is_better(metric) else -v, kind="stable")[:top_k]
+        rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
+                       f"<td class=n>{v[i]:.4f}</td></tr>" for r, i in enumerate(order))
+        direction = "lowest" if higher_is_better(metric) else "highest"
+        blocks.append(f'<details{" open" if k == 0 else ""} data-metric="{_esc(metric)}"><summary>{_esc(metric)}'
+                      f' &mdash; {direction} {len(order)}</summary><table><tr><th class=n>#</th><th>scenario</th>'
+                      f'<th class=n>value</th></tr>{rows}</table></details>')
+    return _section("worst", f"Worst scenarios per metric (top {top_k})",
+                    [f'<div class="worst-grid">{"".join(blocks)}</div>'])
+
+
+def _comparison_section(result: ScoringResult, base: ScoringResult, c: Comparison) -> str:
+    body = [f'<p class="meta">Baseline <code>{_esc(c.base_path)}</code> (config <code>{_esc(c.base_config)}</code>). '
+            f'Paired over {c.num_shared} shared scenarios ({c.num_base_only} only in baseline, {c.num_new_only} only '
+            f'in this run); diff = this run - baseline; {c.n_boot} bootstrap resamples, '
+            + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips")
+            + f", seed {c.seed}, alpha {c.alpha:g}" + (", Holm-adjusted" if c.adjust == "holm" else "") + ".</p>"]
+    body += [f'<div class="warn">{_esc(w)}</div>' for w in c.warnings]
+    conf = f"{round((1 - c.alpha) * 100):d}% CI"
+    rows = []
+    for m in c.metrics:
+        cls = {BETTER: "better", WORSE: "worse"}.get(m.verdict, "same")
+        p = m.p_holm if c.adjust == "holm" else m.p_value
+        ci = f"[{_num(m.ci_low, signed=True)}, {_num(m.ci_high, signed=True)}]" if m.paired else "-"
+        rows.append(f"<tr><td>{_esc(m.metric)}</td><td>{'higher' if m.higher_is_better else 'lower'}</td>"
+                    f"<td class=n>{_num(m.base)}</td><td class=n>{_num(m.new)}</td>"
+                    f"<td class=n>{_num(m.difference, signed=True)}</td><td class=n>{ci}</td>"
+                    f"<td class=n>{'-' if p is None else f'{p:.4f}'}</td><td class={cls}>{_esc(m.verdict)}</td></tr>")
+    body.append("<table><tr><th>metric</th><th>better if</th><th class=n>baseline</th><th class=n>this run</th>"
+                f"<th class=n>diff</th><th class=n>{conf}</th><th class=n>p</th><th>verdict</th></tr>"
+                + "".join(rows) + "</table>")
+    tested = sum(1 for m in c.metrics if m.paired)
+    if tested > 1 and c.adjust != "holm":
+        body.append(f'<p class="meta">{tested} metrics tested with unadjusted p-values: with no real change about '
+                    f'{tested * c.alpha:.1f} can still come out better/worse by chance.</p>')
+    if c.gates:
+        gates = "".join(f"<li><code>{_esc(g.gate.metric)}:{g.gate.delta:g}</code> "
+                        f"<span class={'pass' if g.passed else 'fail'}>{'PASS' if g.passed else 'FAIL'}</span> "
+                        f"{_esc(g.reason)}</li>" for g in c.gates)
+        body.append(f"<h3>Gates</h3><ul>{gates}</ul>")
+    plots = [p for p in (_forest_plot(c), _scatter_plot(result, base)) if p]
+    body.append('<div class="cards">' + "".join(plots) + "</div>")
+    return _section("comparison", "Comparison with the baseline", body)
+
+
+def _skipped_section(result: ScoringResult) -> str:
+    if not result.skipped:
+        return _section("skipped", "Skipped scenarios", ["<p>None: every scenario was scored.</p>"])
+    rows = "".join(f"<tr><td><code>{_esc(s.get('scenario_id', ''))}</code></td><td>{_esc(s.get('reason', ''))}</td>"
+                   f"</tr>" for s in result.skipped)
+    return _section("skipped", f"Skipped scenarios ({len(result.skipped)})",
+                    [f"<table><tr><th>scenario</th><th>reason</th></tr>{rows}</table>"])
+
+
+def render_report(
+    result: ScoringResult,
+    base: ScoringResult | None = None,
+    comparison: Comparison | None = None,
+    top_k: int = 10,
+    title: str | None = None,
+) -> str:
+    """The report as one HTML document (a string with no external references).
+
+    Args:
+      result: the run to report on.
+      base: a baseline run; with `comparison` (from `compare_results(base, result)`)
+        adds the comparison section and baseline overlays.
+      top_k: how many worst scenarios to list per metric.
+    """
+    if (base is None) != (comparison is None):
+        raise ValueError("pass both the baseline result and its comparison, or neither")
+    title = title or f"WOSAC evaluation report: {result.path}"
+    now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    parts = [
+        _headline(result, base, comparison),
+        _bucket_section(result, base),
+        _rate_section(result, base),
+    ]
+    if comparison is not None:
+        parts.append(_comparison_section(result, base, comparison))
+    parts += [_distribution_section(result, base), _worst_section(result, top_k), _skipped_section(result)]
+    return (
+        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
+        f"<meta name=viewport content='width=device-width,initial-scale=1'><title>{_esc(title)}</title>"
+        f"<style>{_CSS}</style></head><body><main><h1>{_esc(title)}</h1>"
+        f'<p class="meta">Generated by wosac-eval on {now} from <code>{_esc(result.path)}</code></p>'
+        + "".join(parts) + "</main></body></html>\n"
+    )

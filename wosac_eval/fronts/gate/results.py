@@ -1,0 +1,255 @@
+"""Reading the result JSON written by `wosac-eval score --output` into arrays.
+
+A result holds per-scenario metrics (`scenarios`), their mean (`aggregate`)
+and the leaderboard buckets (`buckets`). The gate compares per-scenario values,
+so it turns the scenario list into one `(num_scenarios,)` array per metric.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+# Per-scenario fields of a result, in display order, and whether a higher value is better.
+SCENARIO_FIELDS: dict[str, bool] = {
+    "metametric": True,
+    "linear_speed_likelihood": True,
+    "linear_acceleration_likelihood": True,
+    "angular_speed_likelihood": True,
+    "angular_acceleration_likelihood": True,
+    "distance_to_nearest_object_likelihood": True,
+    "collision_indication_likelihood": True,
+    "time_to_collision_likelihood": True,
+    "distance_to_road_edge_likelihood": True,
+    "offroad_indication_likelihood": True,
+    "traffic_light_violation_likelihood": True,
+    "average_displacement_error": False,
+    "min_average_displacement_error": False,
+    "simulated_collision_rate": False,
+    "simulated_offroad_rate": False,
+    "simulated_traffic_light_violation_rate": False,
+}
+
+# The three weighted buckets: likelihood fields they average, keyed by the config field
+# whose `metametric_weight` weighs them.
+BUCKET_MEMBERS: dict[str, tuple[str, ...]] = {
+    "kinematic_metrics": ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration"),
+    "interactive_metrics": ("distance_to_nearest_object", "collision_indication", "time_to_collision"),
+    "map_based_metrics": ("distance_to_road_edge", "offroad_indication", "traffic_light_violation"),
+}
+
+# Leaderboard bucket names, in display order; higher is better except the last four.
+BUCKET_FIELDS: dict[str, bool] = {
+    "realism_meta_metric": True,
+    "kinematic_metrics": True,
+    "interactive_metrics": True,
+    "map_based_metrics": True,
+    "min_ade": False,
+    "simulated_collision_rate": False,
+    "simulated_offroad_rate": False,
+    "simulated_traffic_light_violation_rate": False,
+}
+
+# Buckets that are plain means of one per-scenario field.
+BUCKET_ALIASES: dict[str, str] = {
+    "realism_meta_metric": "metametric",
+    "min_ade": "min_average_displacement_error",
+    "simulated_collision_rate": "simulated_collision_rate",
+    "simulated_offroad_rate": "simulated_offroad_rate",
+    "simulated_traffic_light_violation_rate": "simulated_traffic_light_violation_rate",
+}
+
+RATE_FIELDS = ("simulated_collision_rate", "simulated_offroad_rate", "simulated_traffic_light_violation_rate")
+
+
+class ResultError(ValueError):
+    """A result file that cannot be read, with the file (and scenario, field) at fault."""
+
+
+def higher_is_better(metric: str) -> bool:
+    if metric in SCENARIO_FIELDS:
+        return SCENARIO_FIELDS[metric]
+    return BUCKET_FIELDS[metric]
+
+
+@dataclasses.dataclass
+class ScoringResult:
+    """One scoring run.
+
+    Attributes:
+      path: the file it was read from (for messages).
+      config: the config name or textproto path it was scored with.
+      scenario_ids: `(num_scenarios,)` ids, unique, in file order.
+      values: metric name -> `(num_scenarios,)` per-scenario values. Holds every
+        field of SCENARIO_FIELDS, plus the weighted buckets when the file carries
+        them per scenario or the config's weights are known.
+      aggregate: metric name -> the file's own aggregate (mean over its scenarios).
+      buckets: bucket name -> the file's leaderboard bucket value.
+      skipped: `{"scenario_id", "reason"}` entries the scorer left out.
+    """
+
+    path: str
+    config: str
+    scenario_ids: np.ndarray
+    values: dict[str, np.ndarray]
+    aggregate: dict[str, float]
+    buckets: dict[str, float]
+    skipped: list[dict[str, Any]]
+
+    @property
+    def num_scenarios(self) -> int:
+        return int(self.scenario_ids.size)
+
+    def has_per_scenario(self, metric: str) -> bool:
+        return metric in self.values
+
+    def per_scenario(self, metric: str) -> np.ndarray:
+        """`(num_scenarios,)` values of a field or bucket (bucket names accepted)."""
+        return self.values[BUCKET_ALIASES.get(metric, metric)]
+
+    def headline(self, metric: str) -> float | None:
+        """The file's own figure for a field or bucket (mean over all its scenarios)."""
+        if metric in self.buckets:
+            return self.buckets[metric]
+        if metric in self.aggregate:
+            return self.aggregate[metric]
+        if metric in self.values:
+            return float(self.values[metric].mean()) if self.num_scenarios else None
+        return None
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ResultError(f"{where}: expected a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value):
+        raise ResultError(f"{where}: value is {value}, expected a finite number")
+    return value
+
+
+def _numbers(obj: Any, where: str) -> dict[str, float]:
+    if obj is None:
+        return {}
+    if not isinstance(obj, dict):
+        raise ResultError(f"{where}: expected an object, got {type(obj).__name__}")
+    return {k: _number(v, f"{where}.{k}") for k, v in obj.items() if k != "scenario_id"}
+
+
+def default_bucket_weights(config: str) -> dict[str, float] | None:
+    """Metametric weights of the config, by config field name, or None if unavailable.
+
+    Comes from the metrics package's config loader; None when that loader is not
+    installed or the config cannot be found (then per-scenario weighted buckets are
+    only available when the result file carries them).
+    """
+    try:
+        from wosac_eval.metrics.config import load_config  # provided by the metrics package
+    except ImportError:
+        return None
+    try:
+        proto = load_config(config)
+    except Exception:  # an unknown name or a textproto path that is not on this machine
+        return None
+    weights = {}
+    for members in BUCKET_MEMBERS.values():
+        for field in members:
+            weights[field] = float(getattr(proto, field).metametric_weight) if proto.HasField(field) else 0.0
+    return weights
+
+
+def weighted_buckets(values: dict[str, np.ndarray], weights: dict[str, float]) -> dict[str, np.ndarray]:
+    """Per-scenario kinematic / interactive / map-based buckets, each `(num_scenarios,)`.
+
+    A bucket is the mean of its likelihoods weighted by their metametric weights
+    (normalised within the bucket). A bucket whose weights are all zero is left out.
+    """
+    out = {}
+    for bucket, members in BUCKET_MEMBERS.items():
+        w = np.array([weights.get(f, 0.0) for f in members])
+        if w.sum() <= 0:
+            continue
+        stacked = np.stack([values[f"{f}_likelihood"] for f in members], axis=-1)  # (num_scenarios, members)
+        out[bucket] = stacked @ (w / w.sum())
+    return out
+
+
+def parse_result(
+    data: Any,
+    path: str = "<result>",
+    weights_for: Callable[[str], dict[str, float] | None] = default_bucket_weights,
+) -> ScoringResult:
+    """Validates a decoded result JSON and returns it as arrays.
+
+    Raises:
+      ResultError: naming the file, scenario and field at fault.
+    """
+    if not isinstance(data, dict):
+        raise ResultError(f"{path}: expected a JSON object at the top level, got {type(data).__name__}")
+    scenarios = data.get("scenarios")
+    if not isinstance(scenarios, list):
+        raise ResultError(f"{path}: missing 'scenarios' list (is this a `wosac-eval score --output` file?)")
+    config = data.get("config")
+    if not isinstance(config, str):
+        raise ResultError(f"{path}: missing 'config' (expected the config name or textproto path as a string)")
+
+    ids: list[str] = []
+    seen: dict[str, int] = {}
+    columns: dict[str, list[float]] = {f: [] for f in SCENARIO_FIELDS}
+    bucket_columns: dict[str, list[float]] = {b: [] for b in BUCKET_MEMBERS}
+    for i, entry in enumerate(scenarios):
+        if not isinstance(entry, dict):
+            raise ResultError(f"{path}: scenarios[{i}] is not an object")
+        sid = entry.get("scenario_id")
+        if not isinstance(sid, str) or not sid:
+            raise ResultError(f"{path}: scenarios[{i}] has no 'scenario_id' string")
+        if sid in seen:
+            raise ResultError(f"{path}: scenario {sid!r} appears twice (scenarios[{seen[sid]}] and scenarios[{i}])")
+        seen[sid] = i
+        ids.append(sid)
+        for field in SCENARIO_FIELDS:
+            if field not in entry:
+                raise ResultError(f"{path}: scenario {sid!r} (scenarios[{i}]) has no field {field!r}")
+            columns[field].append(_number(entry[field], f"{path}: scenario {sid!r} field {field!r}"))
+        for bucket in BUCKET_MEMBERS:
+            if bucket in entry:
+                bucket_columns[bucket].append(_number(entry[bucket], f"{path}: scenario {sid!r} field {bucket!r}"))
+
+    values = {f: np.asarray(c, dtype=np.float64) for f, c in columns.items()}
+    carried = {b: np.asarray(c, dtype=np.float64) for b, c in bucket_columns.items() if len(c) == len(ids) and ids}
+    if len(carried) < len(BUCKET_MEMBERS) and ids:
+        weights = weights_for(config)
+        if weights is not None:
+            carried = {**weighted_buckets(values, weights), **carried}
+    values.update(carried)
+
+    skipped = data.get("skipped") or []
+    if not isinstance(skipped, list):
+        raise ResultError(f"{path}: 'skipped' must be a list")
+    return ScoringResult(
+        path=path,
+        config=config,
+        scenario_ids=np.asarray(ids, dtype=object),
+        values=values,
+        aggregate=_numbers(data.get("aggregate"), f"{path}: aggregate"),
+        buckets=_numbers(data.get("buckets"), f"{path}: buckets"),
+        skipped=[s if isinstance(s, dict) else {"scenario_id": str(s), "reason": ""} for s in skipped],
+    )
+
+
+def load_result(path: str | Path, **kwargs) -> ScoringResult:
+    """Reads and validates a result JSON file (see `parse_result`)."""
+    path = str(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = json.load(f)
+    except FileNotFoundError:
+        raise ResultError(f"{path}: no such file") from None
+    except json.JSONDecodeError as e:
+        raise ResultError(f"{path}: not valid JSON ({e})") from None
+    except OSError as e:
+        raise ResultError(f"{path}: cannot read ({e.strerror})") from None
+    return parse_result(data, path, **kwargs)

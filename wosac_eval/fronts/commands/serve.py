@@ -1,0 +1,74 @@
+"""`wosac-eval serve`: run the HTTP scoring service (API + scoring worker processes).
+
+Configured by `WOSAC_*` environment variables (see `wosac_eval.fronts.server.settings`);
+the flags below override the most common ones. Exit codes: 0 stopped cleanly,
+2 the configuration is unusable (no scenario shard found, bad value).
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+
+NAME = "serve"
+HELP = "Run the HTTP scoring service (upload submissions, follow scoring, leaderboard)."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--host", default=os.environ.get("WOSAC_HOST", "127.0.0.1"),
+                        help="address to listen on (default 127.0.0.1; WOSAC_HOST)")
+    parser.add_argument("--port", type=int, default=int(os.environ.get("WOSAC_PORT", "8000")),
+                        help="TCP port (default 8000; WOSAC_PORT)")
+    parser.add_argument("--scenarios", help="scenario shards, comma-separated paths or globs (WOSAC_SCENARIOS)")
+    parser.add_argument("--data-dir", help="uploads, results, SQLite file (WOSAC_DATA_DIR)")
+    parser.add_argument("--workers", type=int, help="scoring worker processes (WOSAC_WORKERS)")
+    parser.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+
+
+def run(args: argparse.Namespace) -> int:
+    # Flags become environment so the worker processes see the same configuration.
+    for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"),
+                      ("workers", "WOSAC_WORKERS")):
+        value = getattr(args, flag)
+        if value is not None:
+            os.environ[var] = str(value)
+
+    from pydantic import ValidationError
+
+    from wosac_eval.fronts.server.settings import load_settings
+
+    try:
+        settings = load_settings()
+    except ValidationError as exc:
+        print(f"wosac-eval serve: bad configuration:\n{exc}", file=sys.stderr)
+        return 2
+    scenarios = settings.scenario_paths()
+    if not scenarios:
+        print("wosac-eval serve: no scenario shard found; set WOSAC_SCENARIOS (or --scenarios) to the "
+              f"TFRecord files to score against (got {settings.scenarios or 'nothing'})", file=sys.stderr)
+        return 2
+    os.environ["WOSAC_DATA_DIR"] = str(settings.data_dir)
+
+    import uvicorn
+
+    from wosac_eval.fronts.server import jobs
+    from wosac_eval.fronts.server.app import create_app
+    from wosac_eval.fronts.server.worker import WorkerPool
+
+    logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    app = create_app(settings)
+    # Jobs left running by a previous server that died go back to the queue at once.
+    jobs.reap_expired(app.state.store, settings.max_attempts)
+    print(f"wosac-eval serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
+          f"{settings.workers} worker(s), http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
+    pool = WorkerPool(settings.workers)
+    pool.start()
+    app.state.worker_pool = pool
+    try:
+        server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
+                                               timeout_graceful_shutdown=10))
+        server.run()
+    finally:
+        pool.stop()
+    return 0

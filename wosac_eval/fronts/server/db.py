@@ -1,0 +1,161 @@
+"""A small store over the DB-API: SQLite (WAL, one file) or PostgreSQL (psycopg 3).
+
+SQL in this package is written once, portably, with `?` placeholders; the
+PostgreSQL path rewrites them to `%s`. Column types are the ones both engines
+understand (TEXT, INTEGER, BIGINT, DOUBLE PRECISION), times are float epoch
+seconds, ids are server-generated hex strings. Connections are per thread, so
+the API's thread pool and a worker's heartbeat thread never share one.
+"""
+from __future__ import annotations
+
+import contextlib
+import sqlite3
+import threading
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+SCHEMA_VERSION = 1
+
+SCHEMA = [
+    """CREATE TABLE IF NOT EXISTS api_keys (
+        id TEXT PRIMARY KEY,
+        name TEXT NOT NULL UNIQUE,
+        salt TEXT NOT NULL,
+        key_hash TEXT NOT NULL,
+        created_at DOUBLE PRECISION NOT NULL,
+        revoked_at DOUBLE PRECISION,
+        max_concurrent INTEGER NOT NULL,
+        max_daily INTEGER NOT NULL,
+        max_daily_bytes BIGINT NOT NULL
+    )""",
+    """CREATE TABLE IF NOT EXISTS submissions (
+        id TEXT PRIMARY KEY,
+        key_id TEXT NOT NULL,
+        method TEXT NOT NULL,
+        config TEXT NOT NULL,
+        allow_partial INTEGER NOT NULL,
+        published INTEGER NOT NULL,
+        state TEXT NOT NULL,
+        file_name TEXT NOT NULL,
+        upload_bytes BIGINT NOT NULL,
+        created_at DOUBLE PRECISION NOT NULL,
+        updated_at DOUBLE PRECISION NOT NULL,
+        started_at DOUBLE PRECISION,
+        finished_at DOUBLE PRECISION,
+        scenarios_done INTEGER NOT NULL,
+        scenarios_total INTEGER,
+        attempts INTEGER NOT NULL,
+        lease_owner TEXT,
+        lease_expires DOUBLE PRECISION,
+        error TEXT,
+        report TEXT,
+        realism_meta_metric DOUBLE PRECISION,
+        buckets TEXT
+    )""",
+    "CREATE INDEX IF NOT EXISTS submissions_state ON submissions (state, created_at)",
+    "CREATE INDEX IF NOT EXISTS submissions_key ON submissions (key_id, created_at)",
+    """CREATE TABLE IF NOT EXISTS uploads (
+        id TEXT PRIMARY KEY,
+        key_id TEXT NOT NULL,
+        method TEXT NOT NULL,
+        config TEXT NOT NULL,
+        allow_partial INTEGER NOT NULL,
+        published INTEGER NOT NULL,
+        declared_length BIGINT,
+        received_bytes BIGINT NOT NULL,
+        created_at DOUBLE PRECISION NOT NULL,
+        updated_at DOUBLE PRECISION NOT NULL,
+        submission_id TEXT
+    )""",
+    "CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)",
+]
+
+
+class Store:
+    """One database, reached through per-thread DB-API connections."""
+
+    def __init__(self, url: str):
+        self.url = url
+        if url.startswith("sqlite:///"):
+            self.dialect = "sqlite"
+            self.sqlite_path = Path(url[len("sqlite:///"):])
+        elif url.startswith(("postgresql://", "postgres://")):
+            self.dialect = "postgresql"
+        else:
+            raise ValueError(f"unsupported WOSAC_DB_URL {url!r}: use sqlite:///PATH or postgresql://...")
+        self._local = threading.local()
+
+    # -- connections -------------------------------------------------------------
+    def _connect(self):
+        if self.dialect == "sqlite":
+            self.sqlite_path.parent.mkdir(parents=True, exist_ok=True)
+            # isolation_level=None: we issue BEGIN ourselves, so a read never holds a lock.
+            conn = sqlite3.connect(self.sqlite_path, timeout=60.0, isolation_level=None,
+                                   check_same_thread=False)
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA journal_mode=WAL")
+            # FULL: a COMMIT is on disk before we answer 202 (durability over a few ms).
+            conn.execute("PRAGMA synchronous=FULL")
+            conn.execute("PRAGMA busy_timeout=60000")
+            return conn
+        import psycopg
+        from psycopg.rows import dict_row
+
+        return psycopg.connect(self.url, autocommit=True, row_factory=dict_row)
+
+    def _conn(self):
+        conn = getattr(self._local, "conn", None)
+        if conn is None:
+            conn = self._connect()
+            self._local.conn = conn
+        return conn
+
+    def close(self) -> None:
+        conn = getattr(self._local, "conn", None)
+        if conn is not None:
+            conn.close()
+            self._local.conn = None
+
+    def _sql(self, sql: str) -> str:
+        return sql.replace("?", "%s") if self.dialect == "postgresql" else sql
+
+    # -- statements ----------------------------------------------------------------
+    def execute(self, sql: str, params: Sequence[Any] = ()) -> int:
+        """Run one statement; returns the affected row count."""
+        cur = self._conn().execute(self._sql(sql), tuple(params))
+        return cur.rowcount
+
+    def fetchall(self, sql: str, params: Sequence[Any] = ()) -> list[dict]:
+        cur = self._conn().execute(self._sql(sql), tuple(params))
+        return [dict(r) for r in cur.fetchall()]
+
+    def fetchone(self, sql: str, params: Sequence[Any] = ()) -> dict | None:
+        rows = self.fetchall(sql, params)
+        return rows[0] if rows else None
+
+    @contextlib.contextmanager
+    def transaction(self) -> Iterator["Store"]:
+        """A write transaction; on SQLite it takes the write lock up front (BEGIN IMMEDIATE)
+        so check-then-insert sequences (quotas) cannot interleave."""
+        conn = self._conn()
+        if self.dialect == "sqlite":
+            conn.execute("BEGIN IMMEDIATE")
+            try:
+                yield self
+            except BaseException:
+                conn.execute("ROLLBACK")
+                raise
+            conn.execute("COMMIT")
+        else:
+            with conn.transaction():
+                yield self
+
+    def migrate(self) -> None:
+        with self.transaction():
+            for stmt in SCHEMA:
+                self.execute(stmt)
+            if self.fetchone("SELECT version FROM schema_version") is None:
+                self.execute("INSERT INTO schema_version (version) VALUES (?)", (SCHEMA_VERSION,))
+
+    def ping(self) -> bool:
+        return self.fetchone("SELECT 1 AS ok") is not None

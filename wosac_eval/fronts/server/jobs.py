@@ -1,0 +1,215 @@
+"""The job queue: submission rows, their life cycle, leases and the reaper.
+
+Life cycle: queued -> validating (claimed by a worker) -> scoring -> done | failed.
+A claim is a compare-and-set UPDATE (`... WHERE id = ? AND state = 'queued'`),
+atomic on both SQLite and PostgreSQL, so two workers never run the same job.
+A claimed job carries a lease (`lease_owner`, `lease_expires`) that the worker
+renews while it scores; when a worker dies the lease goes stale and the reaper
+(run by every worker before it polls) puts the job back in the queue, or fails
+it once it has been interrupted `max_attempts` times.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+import uuid
+from pathlib import Path
+
+from .db import Store
+
+STATES = ("queued", "validating", "scoring", "done", "failed")
+RUNNING = ("validating", "scoring")
+
+# Magic numbers of the accepted containers; anything else is treated as one binproto shard.
+GZIP_MAGIC = b"\x1f\x8b"
+
+
+def new_id() -> str:
+    """A server-generated id; also the stem of every file stored for it."""
+    return uuid.uuid4().hex
+
+
+def sniff_suffix(path: Path) -> str:
+    """The file suffix that matches the bytes of an uploaded submission."""
+    with open(path, "rb") as f:
+        head = f.read(512)
+    if head.startswith(GZIP_MAGIC):
+        return ".tar.gz"
+    if len(head) >= 262 and head[257:262] == b"ustar":
+        return ".tar"
+    return ".binproto"
+
+
+def fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def write_json_atomically(path: Path, payload: dict) -> None:
+    """Write, fsync, rename: a reader sees the old file or the whole new one, never half."""
+    tmp = path.with_name(path.name + f".{os.getpid()}.tmp")
+    with open(tmp, "w") as f:
+        json.dump(payload, f, allow_nan=True)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    fsync_dir(path.parent)
+
+
+# -- submissions ----------------------------------------------------------------------
+def insert_submission(store: Store, *, submission_id: str, key_id: str, method: str, config: str,
+                      allow_partial: bool, published: bool, file_name: str, upload_bytes: int) -> None:
+    now = time.time()
+    store.execute(
+        "INSERT INTO submissions (id, key_id, method, config, allow_partial, published, state, file_name,"
+        " upload_bytes, created_at, updated_at, scenarios_done, attempts)"
+        " VALUES (?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?, ?, 0, 0)",
+        (submission_id, key_id, method, config, int(allow_partial), int(published), file_name,
+         upload_bytes, now, now))
+
+
+def get_submission(store: Store, submission_id: str) -> dict | None:
+    return store.fetchone("SELECT * FROM submissions WHERE id = ?", (submission_id,))
+
+
+def list_submissions(store: Store, key_id: str, limit: int = 100) -> list[dict]:
+    return store.fetchall(
+        "SELECT * FROM submissions WHERE key_id = ? ORDER BY created_at DESC LIMIT ?", (key_id, limit))
+
+
+def claim_next(store: Store, owner: str, lease_s: float) -> dict | None:
+    """Take the oldest queued job for `owner`, or None when the queue is empty."""
+    for _ in range(16):  # lost races only; each retry sees a newer queue head
+        head = store.fetchone(
+            "SELECT id FROM submissions WHERE state = 'queued' ORDER BY created_at, id LIMIT 1")
+        if head is None:
+            return None
+        now = time.time()
+        won = store.execute(
+            "UPDATE submissions SET state = 'validating', lease_owner = ?, lease_expires = ?,"
+            " attempts = attempts + 1, started_at = ?, updated_at = ?, scenarios_done = 0"
+            " WHERE id = ? AND state = 'queued'",
+            (owner, now + lease_s, now, now, head["id"]))
+        if won == 1:
+            return get_submission(store, head["id"])
+    return None
+
+
+def renew_lease(store: Store, submission_id: str, owner: str, lease_s: float) -> bool:
+    """Extend the lease; False means the job is no longer ours (the reaper took it back)."""
+    now = time.time()
+    return store.execute(
+        "UPDATE submissions SET lease_expires = ?, updated_at = ? WHERE id = ? AND lease_owner = ?"
+        " AND state IN ('validating', 'scoring')",
+        (now + lease_s, now, submission_id, owner)) == 1
+
+
+def record_progress(store: Store, submission_id: str, owner: str, done: int, total: int) -> bool:
+    return store.execute(
+        "UPDATE submissions SET state = 'scoring', scenarios_done = ?, scenarios_total = ?, updated_at = ?"
+        " WHERE id = ? AND lease_owner = ? AND state IN ('validating', 'scoring')",
+        (done, total, time.time(), submission_id, owner)) == 1
+
+
+def finish_done(store: Store, submission_id: str, owner: str, result: dict) -> bool:
+    buckets = result.get("buckets") or {}
+    meta = buckets.get("realism_meta_metric")
+    n = len(result.get("scenarios") or [])
+    now = time.time()
+    return store.execute(
+        "UPDATE submissions SET state = 'done', finished_at = ?, updated_at = ?, lease_owner = NULL,"
+        " lease_expires = NULL, scenarios_done = ?, scenarios_total = ?, realism_meta_metric = ?,"
+        " buckets = ?, error = NULL WHERE id = ? AND lease_owner = ?",
+        (now, now, n, n, None if meta is None else float(meta), json.dumps(buckets), submission_id,
+         owner)) == 1
+
+
+def finish_failed(store: Store, submission_id: str, owner: str | None, error: str,
+                  report: dict | None = None) -> bool:
+    now = time.time()
+    owner_clause = "lease_owner = ?" if owner is not None else "lease_owner IS NULL"
+    params = [now, now, error, None if report is None else json.dumps(report), submission_id]
+    if owner is not None:
+        params.append(owner)
+    return store.execute(
+        "UPDATE submissions SET state = 'failed', finished_at = ?, updated_at = ?, lease_owner = NULL,"
+        " lease_expires = NULL, error = ?, report = ? WHERE id = ? AND state IN ('queued', 'validating',"
+        f" 'scoring') AND {owner_clause}", params) == 1
+
+
+def release(store: Store, submission_id: str, owner: str) -> bool:
+    """Give a job back to the queue on a clean shutdown (the attempt does not count)."""
+    return store.execute(
+        "UPDATE submissions SET state = 'queued', lease_owner = NULL, lease_expires = NULL,"
+        " attempts = attempts - 1, scenarios_done = 0, updated_at = ?"
+        " WHERE id = ? AND lease_owner = ? AND state IN ('validating', 'scoring')",
+        (time.time(), submission_id, owner)) == 1
+
+
+def reap_expired(store: Store, max_attempts: int, now: float | None = None) -> tuple[int, int]:
+    """Re-queue jobs whose lease went stale; fail those interrupted `max_attempts` times.
+
+    Returns (re-queued, failed). Safe to run from many processes at once: each
+    UPDATE re-checks the stale lease in its WHERE clause.
+    """
+    now = time.time() if now is None else now
+    failed = store.execute(
+        "UPDATE submissions SET state = 'failed', finished_at = ?, updated_at = ?, lease_owner = NULL,"
+        " lease_expires = NULL, error = ? WHERE state IN ('validating', 'scoring') AND lease_expires < ?"
+        " AND attempts >= ?",
+        (now, now, f"scoring was interrupted {max_attempts} times (its worker process died or stopped "
+         "responding each time); giving up on this submission", now, max_attempts))
+    requeued = store.execute(
+        "UPDATE submissions SET state = 'queued', lease_owner = NULL, lease_expires = NULL,"
+        " scenarios_done = 0, updated_at = ? WHERE state IN ('validating', 'scoring') AND lease_expires < ?",
+        (now, now))
+    return requeued, failed
+
+
+def leaderboard(store: Store, config: str) -> list[dict]:
+    """Best published, finished submission per method for `config`, best first."""
+    rows = store.fetchall(
+        "SELECT id, method, realism_meta_metric, buckets, finished_at FROM submissions"
+        " WHERE state = 'done' AND published = 1 AND config = ? AND realism_meta_metric IS NOT NULL",
+        (config,))
+    best: dict[str, dict] = {}
+    for r in rows:
+        cur = best.get(r["method"])
+        if cur is None or (r["realism_meta_metric"], -r["finished_at"]) > (
+                cur["realism_meta_metric"], -cur["finished_at"]):
+            best[r["method"]] = r
+    ranked = sorted(best.values(), key=lambda r: (-r["realism_meta_metric"], r["finished_at"]))
+    return [
+        {"rank": i + 1, "method": r["method"], "submission_id": r["id"],
+         "realism_meta_metric": r["realism_meta_metric"], "buckets": json.loads(r["buckets"] or "{}"),
+         "finished_at": r["finished_at"]}
+        for i, r in enumerate(ranked)
+    ]
+
+
+# -- resumable uploads ------------------------------------------------------------------
+def insert_upload(store: Store, *, upload_id: str, key_id: str, method: str, config: str,
+                  allow_partial: bool, published: bool, declared_length: int | None) -> None:
+    now = time.time()
+    store.execute(
+        "INSERT INTO uploads (id, key_id, method, config, allow_partial, published, declared_length,"
+        " received_bytes, created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, 0, ?, ?)",
+        (upload_id, key_id, method, config, int(allow_partial), int(published), declared_length, now, now))
+
+
+def get_upload(store: Store, upload_id: str) -> dict | None:
+    return store.fetchone("SELECT * FROM uploads WHERE id = ?", (upload_id,))
+
+
+def set_upload_offset(store: Store, upload_id: str, received: int) -> None:
+    store.execute("UPDATE uploads SET received_bytes = ?, updated_at = ? WHERE id = ?",
+                  (received, time.time(), upload_id))
+
+
+def expired_uploads(store: Store, older_than: float) -> list[dict]:
+    return store.fetchall(
+        "SELECT id FROM uploads WHERE submission_id IS NULL AND updated_at < ?", (older_than,))

@@ -1,0 +1,101 @@
+"""Service configuration, read once from `WOSAC_*` environment variables.
+
+Every knob has a safe default so `wosac-eval serve` runs with only
+`WOSAC_SCENARIOS` set. Values are validated by pydantic at start-up, so a typo
+in a number fails loudly before the first request instead of mid-job.
+"""
+from __future__ import annotations
+
+import glob
+import os
+from pathlib import Path
+
+from pydantic import BaseModel, Field, field_validator
+
+ENV_PREFIX = "WOSAC_"
+
+GiB = 1024**3
+
+
+class Settings(BaseModel):
+    """The service's whole configuration (one instance per process)."""
+
+    scenarios: list[str] = Field(
+        default_factory=list,
+        description="Scenario TFRecord shards to score against (WOSAC_SCENARIOS: paths or globs, "
+        "separated by ',' or os.pathsep).",
+    )
+    data_dir: Path = Field(Path("wosac-data"), description="Uploads, results and the SQLite file.")
+    db_url: str = Field("", description="sqlite:///path or postgresql://...; default: SQLite in data_dir.")
+    max_upload_bytes: int = Field(16 * GiB, gt=0, description="Largest accepted submission body.")
+    workers: int = Field(1, ge=0, le=256, description="Scoring worker processes (0: API only).")
+    score_threads: int = Field(1, ge=1, le=256, description="`workers=` passed to score_submission per job.")
+    job_time_budget_s: float = Field(6 * 3600.0, gt=0, description="Wall time one scoring attempt may take.")
+    lease_s: float = Field(30.0, gt=0, description="A claimed job is re-queued when its lease is this stale.")
+    heartbeat_s: float = Field(5.0, gt=0, description="How often a busy worker renews its lease.")
+    poll_s: float = Field(1.0, gt=0, description="How often an idle worker looks for a queued job.")
+    max_attempts: int = Field(3, ge=1, description="Attempts before a job whose workers keep dying fails.")
+    default_max_concurrent: int = Field(2, ge=1, description="Per-key running+queued jobs (new keys).")
+    default_max_daily: int = Field(50, ge=1, description="Per-key submissions per 24 h (new keys).")
+    default_max_daily_bytes: int = Field(64 * GiB, ge=1, description="Per-key upload bytes per 24 h (new keys).")
+    configs: list[str] = Field(
+        default_factory=lambda: ["2025", "2024", "2023"],
+        description="Metric configs a submission may ask for (WOSAC_CONFIGS, comma-separated).")
+    upload_ttl_s: float = Field(7 * 24 * 3600.0, gt=0, description="Unfinished resumable uploads expire after this.")
+
+    @field_validator("configs", mode="before")
+    @classmethod
+    def _split_configs(cls, value):
+        if isinstance(value, str):
+            return [p.strip() for p in value.split(",") if p.strip()]
+        return value
+
+    @field_validator("scenarios", mode="before")
+    @classmethod
+    def _split_scenarios(cls, value):
+        if isinstance(value, str):
+            parts = [p.strip() for chunk in value.split(",") for p in chunk.split(os.pathsep)]
+            return [p for p in parts if p]
+        return value
+
+    @property
+    def resolved_db_url(self) -> str:
+        return self.db_url or f"sqlite:///{(self.data_dir / 'wosac.sqlite3').resolve()}"
+
+    def scenario_paths(self) -> list[Path]:
+        """The configured scenario shards with globs expanded, sorted, de-duplicated."""
+        found: set[Path] = set()
+        for pattern in self.scenarios:
+            matches = glob.glob(os.path.expanduser(pattern))
+            found.update(Path(m).resolve() for m in matches)
+        return sorted(found)
+
+    # Folders inside data_dir; every file the service writes lives under one of them.
+    @property
+    def uploads_dir(self) -> Path:
+        return self.data_dir / "uploads"
+
+    @property
+    def submissions_dir(self) -> Path:
+        return self.data_dir / "submissions"
+
+    @property
+    def results_dir(self) -> Path:
+        return self.data_dir / "results"
+
+    def ensure_dirs(self) -> None:
+        for d in (self.data_dir, self.uploads_dir, self.submissions_dir, self.results_dir):
+            d.mkdir(parents=True, exist_ok=True)
+
+
+def load_settings(environ: dict[str, str] | None = None) -> Settings:
+    """Build `Settings` from `WOSAC_<FIELD>` variables (field name upper-cased)."""
+    env = os.environ if environ is None else environ
+    values = {}
+    for name in Settings.model_fields:
+        raw = env.get(ENV_PREFIX + name.upper())
+        if raw is not None and raw != "":
+            values[name] = raw
+    settings = Settings(**values)
+    settings.data_dir = settings.data_dir.expanduser().resolve()
+    return settings

@@ -1,0 +1,228 @@
+"""Scoring workers: OS processes that pull jobs from the database queue.
+
+Each worker loops: reap stale leases, claim the oldest queued job, score it.
+While it scores, a heartbeat thread renews the lease every `heartbeat_s` and
+enforces the per-attempt time budget: past the budget it marks the job failed
+with the reason and ends the process (a Python thread cannot be interrupted, a
+process can), and the pool starts a fresh worker. A worker killed outright
+(kill -9, OOM) simply stops renewing; its lease expires and the reaper puts the
+job back in the queue for another worker.
+
+Run one with `python -m wosac_eval.fronts.server.worker` (configured by the same
+`WOSAC_*` environment as the API); `WorkerPool` starts and supervises N of them.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import secrets
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Callable
+
+from . import jobs
+from .db import Store
+from .settings import Settings, load_settings
+
+log = logging.getLogger("wosac_eval.server.worker")
+
+EXIT_BUDGET = 3       # the job ran past its time budget and was failed
+EXIT_LOST_LEASE = 4   # the reaper gave our job to someone else (we stalled)
+
+
+def score(scenario_paths: list[Path], submission_path: Path, config: str, *, workers: int,
+          allow_partial: bool, progress: Callable[[int, int], None]) -> dict:
+    """The one place the service calls the scorer: the same function `wosac-eval score` uses."""
+    from wosac_eval.metrics.submission import score_submission
+
+    return score_submission(scenario_paths, submission_path, config, workers=workers,
+                            allow_partial=allow_partial, progress=progress)
+
+
+def _invalid_submission_error() -> type[BaseException]:
+    try:
+        from wosac_eval.metrics.submission import InvalidSubmissionError
+    except ImportError:  # scorer not installed: nothing can be judged invalid
+        return type("NeverRaised", (Exception,), {})
+    return InvalidSubmissionError
+
+
+class _Heartbeat(threading.Thread):
+    """Renews one job's lease and ends the process when the job must stop."""
+
+    def __init__(self, worker: "Worker", job: dict):
+        super().__init__(name=f"heartbeat-{job['id']}", daemon=True)
+        self.worker = worker
+        self.job = job
+        self.deadline = time.monotonic() + worker.settings.job_time_budget_s
+        self.done = threading.Event()
+
+    def run(self) -> None:
+        w, job_id = self.worker, self.job["id"]
+        while not self.done.wait(w.settings.heartbeat_s):
+            if w.stopping or not w.parent_alive():
+                jobs.release(w.store, job_id, w.owner)
+                log.info("worker %s: released job %s on shutdown", os.getpid(), job_id)
+                os._exit(0)
+            if time.monotonic() > self.deadline:
+                budget = w.settings.job_time_budget_s
+                jobs.finish_failed(
+                    w.store, job_id, w.owner,
+                    f"scoring exceeded its time budget of {budget:g} s (WOSAC_JOB_TIME_BUDGET_S) and "
+                    "was stopped; a submission this large needs a larger budget")
+                log.error("worker %s: job %s exceeded its %g s budget", os.getpid(), job_id, budget)
+                os._exit(EXIT_BUDGET)
+            if not jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s):
+                log.error("worker %s: lost the lease of job %s", os.getpid(), job_id)
+                os._exit(EXIT_LOST_LEASE)
+
+
+class Worker:
+    """One worker process's loop."""
+
+    def __init__(self, settings: Settings):
+        self.settings = settings
+        self.store = Store(settings.resolved_db_url)
+        self.owner = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(4)}"
+        self.parent_pid = os.getppid()
+        self.stopping = False
+        self._last_upload_sweep = 0.0
+
+    def parent_alive(self) -> bool:
+        # Re-parented means the supervisor died; stop rather than score unsupervised forever.
+        return os.getppid() == self.parent_pid
+
+    def run_forever(self) -> None:
+        signal.signal(signal.SIGTERM, self._on_term)
+        signal.signal(signal.SIGINT, self._on_term)
+        while not self.stopping and self.parent_alive():
+            if not self.run_once():
+                time.sleep(self.settings.poll_s)
+
+    def _on_term(self, signum, frame) -> None:
+        self.stopping = True
+
+    def run_once(self) -> bool:
+        """Reap, then claim and score one job; False when the queue was empty."""
+        jobs.reap_expired(self.store, self.settings.max_attempts)
+        self._sweep_stale_uploads()
+        job = jobs.claim_next(self.store, self.owner, self.settings.lease_s)
+        if job is None:
+            return False
+        self.score_job(job)
+        return True
+
+    def score_job(self, job: dict) -> None:
+        settings, job_id = self.settings, job["id"]
+        log.info("worker %s: scoring %s (attempt %d)", os.getpid(), job_id, job["attempts"])
+        heartbeat = _Heartbeat(self, job)
+        heartbeat.start()
+        invalid_error = _invalid_submission_error()
+        last_write = [0.0]
+
+        def progress(done: int, total: int) -> None:
+            now = time.monotonic()
+            if done in (0, total) or now - last_write[0] >= 0.5:
+                last_write[0] = now
+                jobs.record_progress(self.store, job_id, self.owner, done, total)
+
+        try:
+            scenarios = settings.scenario_paths()
+            if not scenarios:
+                jobs.finish_failed(self.store, job_id, self.owner,
+                                   "the server has no scenario shards configured (WOSAC_SCENARIOS)")
+                return
+            submission_path = settings.submissions_dir / job["file_name"]
+            result = score(scenarios, submission_path, job["config"], workers=settings.score_threads,
+                           allow_partial=bool(job["allow_partial"]), progress=progress)
+            jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
+            jobs.finish_done(self.store, job_id, self.owner, result)
+            log.info("worker %s: %s done", os.getpid(), job_id)
+        except invalid_error as exc:
+            report = getattr(exc, "report", None)
+            payload = None
+            if report is not None:
+                payload = {"text": report.format_text(), "details": report.to_dict()}
+            jobs.finish_failed(self.store, job_id, self.owner, f"the submission is invalid: {exc}", payload)
+        except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
+            log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
+            jobs.finish_failed(self.store, job_id, self.owner,
+                               f"internal error while scoring ({type(exc).__name__}: {exc})")
+        finally:
+            heartbeat.done.set()
+            heartbeat.join()
+
+    def _sweep_stale_uploads(self) -> None:
+        now = time.time()
+        if now - self._last_upload_sweep < 60:
+            return
+        self._last_upload_sweep = now
+        for row in jobs.expired_uploads(self.store, now - self.settings.upload_ttl_s):
+            part = self.settings.uploads_dir / f"{row['id']}.part"
+            part.unlink(missing_ok=True)
+            self.store.execute("DELETE FROM uploads WHERE id = ? AND submission_id IS NULL", (row["id"],))
+
+
+class WorkerPool:
+    """Starts `n` worker processes and restarts any that exit until `stop()`."""
+
+    def __init__(self, n: int, env: dict[str, str] | None = None, check_s: float = 0.5):
+        self.n = n
+        self.env = dict(os.environ if env is None else env)
+        self.check_s = check_s
+        self.procs: list[subprocess.Popen] = []
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._monitor = threading.Thread(target=self._watch, name="worker-pool", daemon=True)
+
+    def _spawn(self) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "wosac_eval.fronts.server.worker"], env=self.env)
+
+    def start(self) -> None:
+        with self._lock:
+            self.procs = [self._spawn() for _ in range(self.n)]
+        self._monitor.start()
+
+    def pids(self) -> list[int]:
+        with self._lock:
+            return [p.pid for p in self.procs]
+
+    def _watch(self) -> None:
+        while not self._stop.wait(self.check_s):
+            with self._lock:
+                for i, proc in enumerate(self.procs):
+                    code = proc.poll()
+                    if code is not None and not self._stop.is_set():
+                        log.warning("worker %d exited with %s; starting a new one", proc.pid, code)
+                        self.procs[i] = self._spawn()
+
+    def stop(self, grace_s: float = 10.0) -> None:
+        self._stop.set()
+        with self._lock:
+            procs = list(self.procs)
+        for proc in procs:
+            if proc.poll() is None:
+                proc.terminate()
+        deadline = time.monotonic() + grace_s
+        for proc in procs:
+            try:
+                proc.wait(max(0.0, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def main() -> int:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    Worker(load_settings()).run_forever()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,531 @@
+"""Read submission shards from a file, a folder or a tar archive, safely and streaming.
+
+A submission is one or more serialized `SimAgentsChallengeSubmission` shards.
+`iter_submission_shards(path)` accepts:
+
+* a single shard file (any name; `.binproto` by convention), optionally
+  gzip/bzip2/xz-compressed as a whole (`submission.binproto.gz`);
+* a folder: every file below it (recursively, sorted by relative path) whose
+  name contains ".binproto" is a shard;
+* a tar archive, plain or gzip/bzip2/xz-compressed (`.tar`, `.tar.gz`,
+  `.tgz`, ...): every regular member whose name contains ".binproto" is a
+  shard, in archive order.
+
+In folders and archives, hidden entries (name starting with "."), `__MACOSX/`
+and documentation (README*, LICENSE*, NOTICE*, *.md, *.txt, *.rst) are
+skipped; any other file is an error, so a mis-named shard is never silently
+dropped.
+
+The content decides the format, not the name: magic bytes are sniffed, and a
+name that lies (a plain tar named .tar.gz, an archive named .binproto) gives an
+`ArchiveNameWarning` and is read as what it is. A name promising an archive on
+bytes that are neither tar nor compressed is an error.
+
+Safety: archives are never extracted to disk and never held whole in memory;
+one member at a time is read from a decompressing stream. Members with `..`
+components or absolute names, symbolic and hard links, devices, FIFOs and other
+special types are refused. Each shard's decompressed size is limited by
+`max_member_bytes` and the archive's total decompressed size (headers and
+skipped members included) by `max_total_bytes`. Every failure is a
+`ParseError` subclass naming the archive and member.
+"""
+
+from __future__ import annotations
+
+import bz2
+import gzip
+import lzma
+import os
+import re
+import tarfile
+import warnings
+import zlib
+from collections.abc import Iterator
+from pathlib import Path, PurePosixPath
+from typing import BinaryIO, Union
+
+from google.protobuf.message import DecodeError
+
+from wosac_eval.parse.errors import (
+    ArchiveError,
+    InvalidShardError,
+    SizeLimitError,
+    UnsafeArchiveMemberError,
+)
+from wosac_eval.protos import sim_agents_submission_pb2
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+DEFAULT_MAX_MEMBER_BYTES = 4 << 30  # one shard, decompressed
+DEFAULT_MAX_TOTAL_BYTES = 64 << 30  # the whole archive, decompressed
+
+SHARD_NAME_MARKER = ".binproto"
+_DOC_PREFIXES = ("README", "LICENSE", "LICENCE", "NOTICE", "CHANGELOG")
+_DOC_SUFFIXES = (".md", ".txt", ".rst")
+_CHUNK_BYTES = 1 << 20
+_SNIFF_BYTES = tarfile.BLOCKSIZE  # 512: one tar header
+
+# Errors the decompressors and tarfile raise on broken or truncated input.
+_STREAM_ERRORS = (tarfile.TarError, OSError, EOFError, zlib.error, lzma.LZMAError)
+
+_COMPRESSION_MAGIC = {
+    b"\x1f\x8b": "gzip",
+    b"BZh": "bzip2",
+    b"\xfd7zXZ\x00": "xz",
+}
+_OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
+_ZIP_MAGIC = b"PK\x03\x04"
+
+SubmissionShard = tuple[str, bytes]
+
+
+class ArchiveNameWarning(UserWarning):
+    """A submission file whose name claims another format than its bytes show."""
+
+
+# --------------------------------------------------------------------------- names
+
+
+def is_shard_name(name: str) -> bool:
+    """True for a file or member name that holds a submission shard."""
+    return SHARD_NAME_MARKER in PurePosixPath(name).name
+
+
+def is_ignored_name(name: str) -> bool:
+    """True for hidden entries, macOS resource forks and documentation."""
+    parts = PurePosixPath(name).parts
+    base = parts[-1] if parts else ""
+    if any(part.startswith(".") or part == "__MACOSX" for part in parts):
+        return True
+    return base.upper().startswith(_DOC_PREFIXES) or base.lower().endswith(_DOC_SUFFIXES)
+
+
+def _not_a_shard_error(container: object, name: str) -> ArchiveError:
+    return ArchiveError(
+        f"{container}: {name!r} is neither a submission shard (a name containing "
+        f"{SHARD_NAME_MARKER!r}) nor documentation (README*, *.md, *.txt); "
+        "rename or remove it"
+    )
+
+
+def safe_member_name(archive: object, name: str) -> str:
+    """The member name normalized to 'a/b/c', refusing names that could escape.
+
+    Refused: empty names, NUL bytes, absolute paths (/x, \\x, C:x) and any
+    '..' component (with / or \\ as separator).
+    """
+    if not name or "\x00" in name:
+        raise UnsafeArchiveMemberError(f"{archive}: member with an empty or NUL-containing name")
+    if name.startswith(("/", "\\")) or re.match(r"^[A-Za-z]:", name):
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} has an absolute path")
+    parts = [part for part in re.split(r"[/\\]", name) if part not in ("", ".")]
+    if ".." in parts:
+        raise UnsafeArchiveMemberError(
+            f"{archive}: member {name!r} has a '..' component (would escape the archive)"
+        )
+    return "/".join(parts)
+
+
+# --------------------------------------------------------------------------- sniffing
+
+
+def _compression_of(head: bytes) -> str | None:
+    """'gzip', 'bzip2' or 'xz' from the first bytes of a stream, else None."""
+    for magic, kind in _COMPRESSION_MAGIC.items():
+        if head.startswith(magic):
+            return kind
+    return None
+
+
+def _is_tar_header(block: bytes) -> bool:
+    """True when block is a valid tar header, or the all-zero block of an empty tar."""
+    try:
+        tarfile.TarInfo.frombuf(block, "utf-8", "surrogateescape")
+    except tarfile.EOFHeaderError:
+        return len(block) == tarfile.BLOCKSIZE
+    except tarfile.HeaderError:
+        return False
+    return True
+
+
+def _claimed_format(name: str) -> str | None:
+    """The format a file name promises: 'tar', 'tar.gz', 'compressed' or None."""
+    lower = name.lower()
+    if lower.endswith((".tar.gz", ".tgz", ".tar.bz2", ".tbz2", ".tbz", ".tar.xz", ".txz")):
+        return "compressed tar"
+    if lower.endswith(".tar"):
+        return "tar"
+    if lower.endswith((".gz", ".bz2", ".xz")):
+        return "compressed"
+    return None
+
+
+def _describe(compression: str | None, is_tar: bool) -> str:
+    """Human description of what the bytes are."""
+    if is_tar:
+        return f"{compression}-compressed tar" if compression else "uncompressed tar"
+    return f"{compression}-compressed single shard" if compression else "single shard"
+
+
+def _check_name_against_content(path: Path, compression: str | None, is_tar: bool) -> None:
+    """Warn when the name lies about the content; refuse a promised archive that is not one."""
+    claimed = _claimed_format(path.name)
+    actual = _describe(compression, is_tar)
+    if claimed is None:
+        if is_tar:
+            warnings.warn(
+                f"{path}: the name does not say so, but this is a {actual}; reading it as one",
+                ArchiveNameWarning,
+                stacklevel=4,
+            )
+        return
+    if compression is None and not is_tar:
+        raise ArchiveError(
+            f"{path}: named like a {claimed} archive but is neither tar nor gzip/bzip2/xz "
+            "(truncated or not an archive?); a single shard should be named *.binproto"
+        )
+    matches = {
+        "compressed tar": compression is not None and is_tar,
+        "tar": compression is None and is_tar,
+        "compressed": compression is not None,
+    }[claimed]
+    if not matches:
+        warnings.warn(
+            f"{path}: the name says {claimed}, but this is a {actual}; reading it as a {actual}",
+            ArchiveNameWarning,
+            stacklevel=4,
+        )
+
+
+# --------------------------------------------------------------------------- streams
+
+
+class _LimitedStream:
+    """A read-only stream over a (decompressing) source that counts the bytes read.
+
+    Raises SizeLimitError once more than `limit` bytes were read, naming the
+    member being read at the time (kept up to date by the tar reader).
+    """
+
+    def __init__(self, archive: Path, source: BinaryIO, limit: int) -> None:
+        self.archive, self._source, self.limit = archive, source, limit
+        self.bytes_read = 0
+        self.member = "(archive header)"
+
+    def read(self, size: int = -1) -> bytes:
+        if size is None or size < 0:
+            size = self.limit + 1 - self.bytes_read  # never more than the limit allows
+        data = self._source.read(size)
+        self.bytes_read += len(data)
+        if self.bytes_read > self.limit:
+            raise SizeLimitError(
+                f"{self.archive}: decompresses to more than the total limit of {self.limit} bytes "
+                f"(while reading member {self.member!r}); raise max_total_bytes if this is genuine"
+            )
+        return data
+
+
+def _open_decompressed(path: Path, compression: str | None) -> BinaryIO:
+    """The file's bytes, decompressed on the fly when compression is set."""
+    if compression is None:
+        return open(path, "rb")
+    return _OPENERS[compression](path, "rb")  # type: ignore[return-value]
+
+
+def _sniff(path: Path) -> tuple[str | None, bytes]:
+    """(compression, first decompressed bytes) of a file, refusing zip archives."""
+    with open(path, "rb") as raw:
+        head = raw.read(_SNIFF_BYTES)
+    if head.startswith(_ZIP_MAGIC):
+        raise ArchiveError(f"{path}: zip archives are not supported; package shards as .tar or .tar.gz")
+    compression = _compression_of(head)
+    if compression is None:
+        return None, head
+    try:
+        with _open_decompressed(path, compression) as stream:
+            return compression, stream.read(_SNIFF_BYTES)
+    except _STREAM_ERRORS as error:
+        raise ArchiveError(f"{path}: broken {compression} stream at its start: {error}") from error
+
+
+# --------------------------------------------------------------------------- tar
+
+
+def _recording_tarinfo_class() -> type[tarfile.TarInfo]:
+    """A TarInfo subclass remembering why header parsing last stopped.
+
+    tarfile ends iteration silently on a truncated or garbage header after the
+    first member; remembering the header error lets us tell a clean end (an
+    all-zero block) from a truncated or corrupt archive.
+    """
+
+    class RecordingTarInfo(tarfile.TarInfo):
+        last_header_error: Exception | None = None
+
+        @classmethod
+        def frombuf(cls, buf, encoding, errors):  # noqa: ANN001 - tarfile's signature
+            try:
+                info = super().frombuf(buf, encoding, errors)
+            except tarfile.HeaderError as error:
+                RecordingTarInfo.last_header_error = error
+                raise
+            RecordingTarInfo.last_header_error = None
+            return info
+
+    return RecordingTarInfo
+
+
+def _check_member_type(archive: Path, name: str, info: tarfile.TarInfo) -> None:
+    """Refuse links, devices, FIFOs and every type that is not a file or folder."""
+    if info.issym():
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a symbolic link")
+    if info.islnk():
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a hard link")
+    if info.ischr() or info.isblk():
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a device file")
+    if info.isfifo():
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a FIFO")
+    if info.issparse() or not (info.isreg() or info.isdir()):
+        raise UnsafeArchiveMemberError(
+            f"{archive}: member {name!r} has an unsupported type {info.type!r}"
+        )
+
+
+def _read_member(tar: tarfile.TarFile, archive: Path, name: str, info: tarfile.TarInfo) -> bytes:
+    """The full content of one regular member."""
+    member_file = tar.extractfile(info)
+    assert member_file is not None  # regular members always have a file object
+    try:
+        data = member_file.read()
+    except _STREAM_ERRORS as error:
+        raise ArchiveError(f"{archive}: truncated or corrupt data in member {name!r}: {error}") from error
+    if len(data) != info.size:
+        raise ArchiveError(
+            f"{archive}: member {name!r} is truncated ({len(data)} of {info.size} bytes)"
+        )
+    return data
+
+
+def _check_clean_end(archive: Path, info_class: type, last_member: str | None) -> None:
+    """Raise unless tar iteration stopped at a proper end-of-archive block."""
+    error = info_class.last_header_error
+    after = f"after member {last_member!r}" if last_member else "before the first member"
+    if isinstance(error, tarfile.EOFHeaderError):
+        return
+    if isinstance(error, (tarfile.EmptyHeaderError, tarfile.TruncatedHeaderError)):
+        raise ArchiveError(f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)")
+    raise ArchiveError(f"{archive}: corrupt tar header {after}: {error}")
+
+
+def _next_member(tar: tarfile.TarFile, archive: Path, last_member: str | None) -> tarfile.TarInfo | None:
+    """The next member header, translating stream errors into ArchiveError."""
+    try:
+        info = tar.next()
+    except (SizeLimitError, UnsafeArchiveMemberError):
+        raise
+    except _STREAM_ERRORS as error:
+        after = f"after member {last_member!r}" if last_member else "at its start"
+        raise ArchiveError(f"{archive}: truncated or corrupt archive {after}: {error}") from error
+    # Stream mode keeps every header in tar.members; drop them so memory stays
+    # flat however many members the archive has (we never look members up).
+    tar.members.clear()
+    return info
+
+
+def _iter_tar(
+    archive: Path, stream: _LimitedStream, max_member_bytes: int
+) -> Iterator[SubmissionShard]:
+    """Yield (name, bytes) for every shard member of a tar stream, in order."""
+    info_class = _recording_tarinfo_class()
+    try:
+        tar = tarfile.open(fileobj=stream, mode="r|", tarinfo=info_class)  # type: ignore[arg-type]
+    except _STREAM_ERRORS as error:
+        raise ArchiveError(f"{archive}: not a readable tar archive: {error}") from error
+    seen: set[str] = set()
+    last_member: str | None = None
+    with tar:
+        while (info := _next_member(tar, archive, last_member)) is not None:
+            name = safe_member_name(archive, info.name)
+            _check_member_type(archive, name, info)
+            last_member = stream.member = name
+            if info.isdir() or is_ignored_name(name):
+                continue
+            if not is_shard_name(name):
+                raise _not_a_shard_error(archive, name)
+            if name in seen:
+                raise ArchiveError(f"{archive}: member {name!r} appears twice")
+            seen.add(name)
+            if info.size > max_member_bytes:
+                raise SizeLimitError(
+                    f"{archive}: member {name!r} is {info.size} bytes, over the per-member "
+                    f"limit of {max_member_bytes} bytes"
+                )
+            yield name, _read_member(tar, archive, name, info)
+    _check_clean_end(archive, info_class, last_member)
+    if not seen:
+        raise ArchiveError(f"{archive}: archive holds no submission shard (no member name "
+                           f"containing {SHARD_NAME_MARKER!r})")
+
+
+def _drain(stream: _LimitedStream, archive: Path) -> None:
+    """Read a compressed stream to its end so its trailer (CRC, size) gets checked."""
+    try:
+        while stream.read(_CHUNK_BYTES):
+            pass
+    except SizeLimitError:
+        raise
+    except _STREAM_ERRORS as error:
+        raise ArchiveError(
+            f"{archive}: compressed stream is truncated or corrupt after member "
+            f"{stream.member!r}: {error}"
+        ) from error
+
+
+def _iter_archive_file(
+    path: Path, compression: str | None, max_member_bytes: int, max_total_bytes: int
+) -> Iterator[SubmissionShard]:
+    """Shards of a (possibly compressed) tar file, streamed member by member."""
+    with _open_decompressed(path, compression) as source:
+        stream = _LimitedStream(path, source, max_total_bytes)
+        yield from _iter_tar(path, stream, max_member_bytes)
+        if compression is not None:
+            _drain(stream, path)
+
+
+# --------------------------------------------------------------------------- single files
+
+
+def _read_single_shard(
+    path: Path, compression: str | None, max_member_bytes: int
+) -> SubmissionShard:
+    """One shard file, decompressed when needed, within the size limit."""
+    name = path.name
+    if compression is None:
+        size = path.stat().st_size
+        if size > max_member_bytes:
+            raise SizeLimitError(
+                f"{path}: shard is {size} bytes, over the per-member limit of {max_member_bytes} bytes"
+            )
+        return name, path.read_bytes()
+    try:
+        with _open_decompressed(path, compression) as stream:
+            data = stream.read(max_member_bytes + 1)
+    except _STREAM_ERRORS as error:
+        raise ArchiveError(f"{path}: truncated or corrupt {compression} stream: {error}") from error
+    if len(data) > max_member_bytes:
+        raise SizeLimitError(
+            f"{path}: shard decompresses to more than the per-member limit of {max_member_bytes} bytes"
+        )
+    return re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), data
+
+
+def _iter_folder(folder: Path, max_member_bytes: int, max_total_bytes: int) -> Iterator[SubmissionShard]:
+    """Shards below a folder, sorted by relative path (symlinked files are followed)."""
+    found: list[tuple[str, Path]] = []
+    for root, dirs, files in os.walk(folder):
+        dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
+        for file_name in files:
+            path = Path(root) / file_name
+            relative = path.relative_to(folder).as_posix()
+            if is_ignored_name(relative):
+                continue
+            if not is_shard_name(relative):
+                raise _not_a_shard_error(folder, relative)
+            found.append((relative, path))
+    if not found:
+        raise ArchiveError(f"{folder}: folder holds no submission shard (no file name containing "
+                           f"{SHARD_NAME_MARKER!r})")
+    total = 0
+    for relative, path in sorted(found):
+        size = path.stat().st_size
+        if size > max_member_bytes:
+            raise SizeLimitError(
+                f"{folder}: shard {relative!r} is {size} bytes, over the per-member limit of "
+                f"{max_member_bytes} bytes"
+            )
+        total += size
+        if total > max_total_bytes:
+            raise SizeLimitError(
+                f"{folder}: shards exceed the total limit of {max_total_bytes} bytes at {relative!r}"
+            )
+        yield relative, path.read_bytes()
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def iter_submission_shards(
+    path: PathLike,
+    *,
+    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES,
+    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES,
+) -> Iterator[SubmissionShard]:
+    """Yield (shard_name, raw_bytes) for every submission shard found at path.
+
+    path is a shard file, a folder of shards or a (compressed) tar archive; see
+    the module docstring for the rules. Shards are yielded one at a time, so at
+    most one shard's bytes are held. Raises ParseError subclasses
+    (ArchiveError, UnsafeArchiveMemberError, SizeLimitError) naming the archive
+    and member at fault; FileNotFoundError when path does not exist.
+    """
+    path = Path(path)
+    if path.is_dir():
+        yield from _iter_folder(path, max_member_bytes, max_total_bytes)
+        return
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such submission file or folder")
+    compression, head = _sniff(path)
+    is_tar = _is_tar_header(head)
+    _check_name_against_content(path, compression, is_tar)
+    if is_tar:
+        yield from _iter_archive_file(path, compression, max_member_bytes, max_total_bytes)
+    else:
+        yield _read_single_shard(path, compression, min(max_member_bytes, max_total_bytes))
+
+
+def _string_fields_are_text(submission: sim_agents_submission_pb2.SimAgentsChallengeSubmission) -> str | None:
+    """The first string field holding invalid UTF-8, as 'field (index)', else None.
+
+    proto2 strings are not UTF-8-checked when parsing; the Python runtime
+    then hands back bytes instead of str, which must not reach later stages.
+    """
+    for field in ("account_name", "unique_method_name", "affiliation", "description",
+                  "method_link", "num_model_parameters"):
+        if not isinstance(getattr(submission, field), str):
+            return field
+    for field in ("authors", "public_model_names"):
+        for index, value in enumerate(getattr(submission, field)):
+            if not isinstance(value, str):
+                return f"{field}[{index}]"
+    for index, rollouts in enumerate(submission.scenario_rollouts):
+        if not isinstance(rollouts.scenario_id, str):
+            return f"scenario_rollouts[{index}].scenario_id"
+    return None
+
+
+def parse_submission_shard(
+    name: str, raw: bytes
+) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
+    """Parse one shard's bytes, raising InvalidShardError naming the shard if invalid."""
+    try:
+        submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
+    except DecodeError as error:
+        raise InvalidShardError(
+            f"shard {name}: not a valid SimAgentsChallengeSubmission message ({len(raw)} bytes): {error}"
+        ) from error
+    bad_field = _string_fields_are_text(submission)
+    if bad_field is not None:
+        raise InvalidShardError(f"shard {name}: field {bad_field} is not valid UTF-8 text")
+    return submission
+
+
+__all__ = [
+    "ArchiveNameWarning",
+    "DEFAULT_MAX_MEMBER_BYTES",
+    "DEFAULT_MAX_TOTAL_BYTES",
+    "is_ignored_name",
+    "is_shard_name",
+    "iter_submission_shards",
+    "parse_submission_shard",
+    "safe_member_name",
+]

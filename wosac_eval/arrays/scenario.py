@@ -1,0 +1,140 @@
+"""A `Scenario` message as columnar arrays: logged boxes, map polylines, signals."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from wosac_eval.arrays.trajectories import ObjectTrajectories
+from wosac_eval.protos import map_pb2, scenario_pb2
+
+CURRENT_TIME_INDEX = 10   # the 11th step is "now"; the simulation starts after it
+NUM_SIMULATION_STEPS = 80
+NUM_ROLLOUTS = 32
+STEP_SECONDS = 0.1
+
+
+@dataclasses.dataclass(frozen=True)
+class TrafficSignals:
+    """Traffic-signal states per step, one column per signalled lane.
+
+    Attributes:
+      lane_id: int64 `(num_signals,)`, the lane each column describes.
+      state: int32 `(num_steps, num_signals)`; 0 (unknown) where the lane has
+        no state at that step.
+      stop_point: float32 `(num_steps, num_signals, 2)`, xy of the stop point.
+    """
+
+    lane_id: np.ndarray
+    state: np.ndarray
+    stop_point: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class ScenarioArrays:
+    """Everything the metrics need from a `Scenario`.
+
+    Attributes:
+      scenario_id: the scenario's id.
+      log: logged trajectories of every track, `(num_objects, 91)`, in track order.
+      sim_agent_ids: ids of tracks valid at the current step (must be simulated),
+        in track order, `(num_sim_agents,)`.
+      evaluated_ids: sorted ids of the SDC and `tracks_to_predict`, `(num_evaluated,)`.
+      road_edges: road-edge polylines, each float32 `(num_points, 3)`.
+      lane_ids: int64 `(num_lanes,)`, surface-street lanes only.
+      lanes: the matching lane centre polylines, each float32 `(num_points, 3)`.
+      signals: per-step traffic-signal states, or None when the scenario has
+        no dynamic map states.
+    """
+
+    scenario_id: str
+    log: ObjectTrajectories
+    sim_agent_ids: np.ndarray
+    evaluated_ids: np.ndarray
+    road_edges: tuple
+    lane_ids: np.ndarray
+    lanes: tuple
+    signals: TrafficSignals | None
+
+
+def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
+    tracks = scenario.tracks
+    num_steps = max((len(t.states) for t in tracks), default=0)
+    if any(len(t.states) != num_steps for t in tracks):
+        lengths = sorted({len(t.states) for t in tracks})
+        raise ValueError(f"scenario {scenario.scenario_id}: tracks have different numbers "
+                         f"of states {lengths}")
+    fields = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
+    # One float64 pass per field, then a single rounding to float32, as the
+    # official converter does with Python floats.
+    values = np.array([[[getattr(s, f) for f in fields] for s in t.states] for t in tracks],
+                      dtype=np.float64).reshape(len(tracks), num_steps, len(fields))
+    values = values.astype(np.float32)
+    valid = np.array([[s.valid for s in t.states] for t in tracks], dtype=bool).reshape(
+        len(tracks), num_steps)
+    return ObjectTrajectories(
+        x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
+        length=values[..., 4], width=values[..., 5], height=values[..., 6], valid=valid,
+        object_id=np.array([t.id for t in tracks], dtype=np.int64),
+        object_type=np.array([t.object_type for t in tracks], dtype=np.int32))
+
+
+def _polyline(points) -> np.ndarray:
+    return np.array([(p.x, p.y, p.z) for p in points], dtype=np.float64).reshape(-1, 3).astype(
+        np.float32)
+
+
+def _traffic_signals(scenario: scenario_pb2.Scenario) -> TrafficSignals | None:
+    states = scenario.dynamic_map_states
+    if not states:
+        return None
+    lanes = sorted({s.lane for step in states for s in step.lane_states})
+    if not lanes:
+        # A column of "unknown" states keeps shapes uniform; it never signals a stop.
+        lanes = [-1]
+    column = {lane: i for i, lane in enumerate(lanes)}
+    state = np.zeros((len(states), len(lanes)), dtype=np.int32)
+    stop = np.zeros((len(states), len(lanes), 2), dtype=np.float64)
+    for t, step in enumerate(states):
+        for s in step.lane_states:  # a later entry for the same lane wins, as officially
+            state[t, column[s.lane]] = s.state
+            stop[t, column[s.lane]] = (s.stop_point.x, s.stop_point.y)
+    return TrafficSignals(lane_id=np.array(lanes, dtype=np.int64), state=state,
+                          stop_point=stop.astype(np.float32))
+
+
+def evaluated_object_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
+    """Sorted ids of the SDC and of every `tracks_to_predict` entry."""
+    ids = {scenario.tracks[scenario.sdc_track_index].id}
+    ids.update(scenario.tracks[r.track_index].id for r in scenario.tracks_to_predict)
+    return np.array(sorted(ids), dtype=np.int64)
+
+
+def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
+    """Ids of the tracks valid at the current step, in track order."""
+    return np.array([t.id for t in scenario.tracks
+                     if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
+                    dtype=np.int64)
+
+
+def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
+    """Converts a parsed `Scenario` into `ScenarioArrays`."""
+    surface = map_pb2.LaneCenter.TYPE_SURFACE_STREET
+    road_edges, lane_ids, lanes = [], [], []
+    for feature in scenario.map_features:
+        kind = feature.WhichOneof("feature_data")
+        if kind == "road_edge":
+            road_edges.append(_polyline(feature.road_edge.polyline))
+        elif kind == "lane" and feature.lane.type == surface:
+            lane_ids.append(feature.id)
+            lanes.append(_polyline(feature.lane.polyline))
+    return ScenarioArrays(
+        scenario_id=scenario.scenario_id,
+        log=_track_arrays(scenario),
+        sim_agent_ids=sim_agent_ids(scenario),
+        evaluated_ids=evaluated_object_ids(scenario),
+        road_edges=tuple(road_edges),
+        lane_ids=np.array(lane_ids, dtype=np.int64),
+        lanes=tuple(lanes),
+        signals=_traffic_signals(scenario),
+    )

@@ -1,0 +1,128 @@
+"""Log-likelihood of logged values under the distribution of simulated values.
+
+Histogram estimates count the simulated samples in fixed bins (with an
+additive pseudo-count) and score each logged value by the log-probability of
+its bin. Bernoulli estimates are two-bin histograms over booleans. With
+independent timesteps, one distribution per object pools all rollouts and
+steps; otherwise each (object, step) has its own distribution over rollouts.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from wosac_eval.protos import sim_agents_metrics_pb2
+
+_F = np.float32
+FeatureConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig
+
+
+def histogram_edges(min_val: float, max_val: float, num_bins: int) -> np.ndarray:
+    """`num_bins + 1` float32 edges, rounded like the official linspace.
+
+    Interior edges are start + i * step with every operation in float32, and
+    the last edge is exactly `max_val`.
+    """
+    start, stop = _F(min_val), _F(max_val)
+    step = (stop - start) / _F(num_bins)
+    interior = start + np.arange(1, num_bins, dtype=_F) * step
+    return np.concatenate([[start], interior, [stop]]).astype(_F)
+
+
+def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Bin index of each value after clipping to the edges' range.
+
+    Bins are closed on the left; the last bin also holds the upper edge. NaN
+    values land in the last bin, as in the official histogram.
+    """
+    clipped = np.clip(values.astype(_F), edges[0], edges[-1])
+    index = np.searchsorted(edges, clipped, side="right") - 1
+    return np.clip(index, 0, len(edges) - 2)
+
+
+def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
+                             log_samples: np.ndarray, sim_samples: np.ndarray) -> np.ndarray:
+    """Per-population histogram log-likelihoods.
+
+    Args:
+      log_samples: `(batch, num_log_samples)`.
+      sim_samples: `(batch, num_sim_samples)`.
+    Returns:
+      float32 `(batch, num_log_samples)`.
+    """
+    edges = histogram_edges(min_val, max_val, num_bins)
+    sim_bins = histogram_bins(sim_samples, edges)
+    batch = sim_bins.shape[0]
+    counts = np.zeros((batch, num_bins), dtype=np.float64)
+    np.add.at(counts, (np.repeat(np.arange(batch), sim_bins.shape[1]), sim_bins.reshape(-1)), 1.0)
+    counts = (counts.astype(_F) + _F(pseudocount)).astype(np.float64)
+    log_prob = np.log(counts) - np.log(counts.sum(axis=1, keepdims=True))
+    log_bins = histogram_bins(log_samples, edges)
+    return np.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
+
+
+def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples) -> np.ndarray:
+    """Two-bin histogram over booleans: bins [-0.5, 0.5) and [0.5, 1.5]."""
+    return histogram_log_likelihood(-0.5, 1.5, 2, pseudocount,
+                                    log_samples.astype(_F), sim_samples.astype(_F))
+
+
+def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples) -> np.ndarray:
+    """Gaussian KDE log-density, shifted so that a Dirac sample scores 0."""
+    if bandwidth <= 0:
+        raise ValueError("kernel density bandwidth must be positive")
+    diff = (log_samples[:, :, None].astype(np.float64) - sim_samples[:, None, :]) / bandwidth
+    log_kernel = -0.5 * diff * diff
+    peak = log_kernel.max(axis=-1, keepdims=True)
+    log_mean = np.log(np.mean(np.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
+    return log_mean.astype(_F)
+
+
+def _estimate(config: FeatureConfig, log_samples, sim_samples):
+    kind = config.WhichOneof("estimator")
+    if kind == "histogram":
+        h = config.histogram
+        return histogram_log_likelihood(h.min_val, h.max_val, h.num_bins,
+                                        h.additive_smoothing_pseudocount, log_samples, sim_samples)
+    if kind == "bernoulli":
+        return bernoulli_log_likelihood(config.bernoulli.additive_smoothing_pseudocount,
+                                        log_samples, sim_samples)
+    if kind == "kernel_density":
+        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples)
+    raise ValueError(f"feature config has no estimator (got {kind!r})")
+
+
+def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
+                              sim_values: np.ndarray) -> np.ndarray:
+    """Log-likelihood of each logged value.
+
+    Args:
+      log_values: `(num_objects, num_steps)`.
+      sim_values: `(num_rollouts, num_objects, num_steps)`.
+    Returns:
+      float32 `(num_objects, num_steps)`.
+    """
+    n_rollouts, n_objects, n_steps = sim_values.shape
+    if log_values.shape != (n_objects, n_steps):
+        raise ValueError(f"log values must have shape {(n_objects, n_steps)}, got {log_values.shape}")
+    if config.aggregate_objects:
+        # One distribution for the whole scene (per step, or pooled over steps).
+        if config.independent_timesteps:
+            sim = np.transpose(sim_values, (1, 0, 2)).reshape(1, -1)
+            log = log_values.T.reshape(1, -1)
+        else:
+            sim = np.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
+            log = log_values.T
+        return _estimate(config, log, sim).reshape(n_steps, n_objects).T
+    if config.independent_timesteps:
+        sim = np.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
+        log = log_values
+    else:
+        sim = np.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
+        log = log_values.reshape(n_objects * n_steps, 1)
+    return _estimate(config, log, sim).reshape(n_objects, n_steps)
+
+
+def scenario_level_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
+                                  sim_values: np.ndarray) -> np.ndarray:
+    """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
+    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None])[:, 0]

@@ -1,0 +1,79 @@
+"""Speeds and accelerations from positions and headings by central differences.
+
+All arithmetic is float32 in the official order of operations.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+_F = np.float32
+
+
+def central_difference(values: np.ndarray) -> np.ndarray:
+    """(v[t+1] - v[t-1]) / 2 along the last axis, NaN at both ends.
+
+    Args:
+      values: float32 `(..., num_steps)`.
+    Returns:
+      float32 `(..., num_steps)`.
+    """
+    values = np.asarray(values, dtype=_F)
+    out = np.full(values.shape, np.nan, dtype=_F)
+    out[..., 1:-1] = (values[..., 2:] - values[..., :-2]) / _F(2)
+    return out
+
+
+def central_and(valid: np.ndarray) -> np.ndarray:
+    """valid[t-1] and valid[t+1] along the last axis, False at both ends.
+
+    Args:
+      valid: bool `(..., num_steps)`.
+    """
+    out = np.zeros(valid.shape, dtype=bool)
+    out[..., 1:-1] = valid[..., 2:] & valid[..., :-2]
+    return out
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Maps angles to [-pi, pi) in float32 (floored modulo, as officially)."""
+    return np.mod(angle + _F(np.pi), _F(2 * np.pi)) - _F(np.pi)
+
+
+def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: float) -> np.ndarray:
+    """3D speed in m/s, float32 `(..., num_steps)` (NaN at both ends)."""
+    dx, dy, dz = central_difference(x), central_difference(y), central_difference(z)
+    return np.sqrt(dx * dx + dy * dy + dz * dz) / _F(seconds_per_step)
+
+
+def kinematic_features(x, y, z, heading, seconds_per_step: float):
+    """Linear speed, linear acceleration, angular speed, angular acceleration.
+
+    Args:
+      x, y, z, heading: float32 `(..., num_steps)`; everything is treated as
+        valid (mask afterwards with `kinematic_validity`).
+    Returns:
+      Four float32 arrays `(..., num_steps)`. Speeds are NaN at the first and
+      last step, accelerations at the first two and last two.
+    """
+    dt = _F(seconds_per_step)
+    speed = linear_speed(x, y, z, seconds_per_step)
+    acceleration = central_difference(speed) / dt
+    # Heading deltas are doubled before wrapping so that the two-step delta of
+    # the central difference picks the acute solution, then halved back.
+    heading_step = wrap_angle(central_difference(heading) * _F(2)) / _F(2)
+    angular_speed = heading_step / dt
+    heading_step2 = wrap_angle(central_difference(heading_step) * _F(2)) / _F(2)
+    angular_acceleration = heading_step2 / _F(seconds_per_step ** 2)
+    return speed, acceleration, angular_speed, angular_acceleration
+
+
+def kinematic_validity(valid: np.ndarray):
+    """Validity of speeds (one central step) and accelerations (two steps).
+
+    Args:
+      valid: bool `(..., num_steps)`.
+    Returns:
+      (speed_valid, acceleration_valid), bool `(..., num_steps)`.
+    """
+    speed_valid = central_and(valid)
+    return speed_valid, central_and(speed_valid)

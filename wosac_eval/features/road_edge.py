@@ -1,0 +1,213 @@
+"""Signed distance from box corners to the road edge; offroad.
+
+Road edges are polylines with the road on their left. For each query point the
+relevant segment is the nearest one in 3D, with heights stretched 3x so that a
+road edge on another level (a bridge) is not picked; the returned distance is
+the planar distance to that segment, negative on the road side. Where the
+point projects past a segment end, the sign follows the convexity of the
+corner between the segment and its neighbour.
+
+Segment search uses a k-d tree over points sampled along every segment, then
+evaluates the exact float32 distance on the few candidates that can be
+nearest, so results equal an all-pairs search.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+_F = np.float32
+EXTREMELY_LARGE_DISTANCE = _F(1e10)
+OFFROAD_DISTANCE_THRESHOLD = 0.0
+Z_STRETCH = 3.0
+CYCLIC_TOLERANCE_M2 = 1.0
+_SAMPLE_SPACING = 1.0  # metres between candidate-search samples along a segment
+
+
+@dataclasses.dataclass(frozen=True)
+class SegmentTable:
+    """Road-edge segments flattened in the official (polyline, segment) order.
+
+    Polylines are padded to the longest one, as the official code does; padding
+    segments are invalid. Attributes are `(num_segments,)` or `(num_segments, 3)`.
+    """
+
+    start: np.ndarray        # float32 (S, 3)
+    delta: np.ndarray        # float32 (S, 3): end - start
+    valid: np.ndarray        # bool (S,)
+    prior: np.ndarray        # int64 (S,): neighbour used when projecting before the start
+    next: np.ndarray         # int64 (S,): neighbour used when projecting past the end
+    prior_valid: np.ndarray  # bool (S,)
+    next_valid: np.ndarray   # bool (S,)
+    convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
+    convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
+    tree: cKDTree | None
+    sample_segment: np.ndarray  # int64: segment of each k-d tree sample
+    spacing: float
+
+
+def _cross(ax, ay, bx, by):
+    return ax * by - ay * bx
+
+
+def build_segment_table(polylines) -> SegmentTable:
+    """Pads polylines to a common length and precomputes segment neighbours.
+
+    Args:
+      polylines: sequence of float32 `(num_points, 3)`; those with fewer than
+        two points are ignored.
+    """
+    kept = [np.asarray(p, _F) for p in polylines if len(p) >= 2]
+    if not kept:
+        raise ValueError("the scenario has no road edges")
+    num_points = max(len(p) for p in kept)
+    seg = num_points - 1
+    padded = np.zeros((len(kept), num_points, 3), _F)
+    point_valid = np.zeros((len(kept), num_points), bool)
+    cyclic = np.zeros(len(kept), bool)
+    for i, p in enumerate(kept):
+        padded[i, : len(p)] = p
+        point_valid[i, : len(p)] = True
+        gap = p[0] - p[-1]
+        cyclic[i] = np.sum(gap * gap, dtype=_F) < _F(CYCLIC_TOLERANCE_M2)
+    start = padded[:, :-1]
+    delta = padded[:, 1:] - padded[:, :-1]
+    valid = point_valid[:, :-1] & point_valid[:, 1:]
+    local = np.arange(seg)
+    base = (np.arange(len(kept)) * seg)[:, None]
+    # Neighbours wrap around only for cyclic polylines; elsewhere a segment is
+    # its own neighbour at the ends, which leaves its sign unchanged.
+    prior_local = np.where(local[None] > 0, local[None] - 1, np.where(cyclic[:, None], seg - 1, 0))
+    next_local = np.where(local[None] < seg - 1, local[None] + 1, np.where(cyclic[:, None], 0, seg - 1))
+    prior = (base + prior_local).reshape(-1)
+    nxt = (base + next_local).reshape(-1)
+    # Convexity always looks at the cyclically previous/next padded segment.
+    dx, dy = delta[..., 0], delta[..., 1]
+    wrap_prev = np.concatenate([delta[:, -1:], delta[:, :-1]], axis=1)
+    wrap_next = np.concatenate([delta[:, 1:], delta[:, :1]], axis=1)
+    convex_before = _cross(wrap_prev[..., 0], wrap_prev[..., 1], dx, dy) > 0
+    convex_after = _cross(dx, dy, wrap_next[..., 0], wrap_next[..., 1]) > 0
+    valid_flat = valid.reshape(-1)
+    tree, sample_segment = _sample_tree(start.reshape(-1, 3), delta.reshape(-1, 3), valid_flat)
+    return SegmentTable(
+        start=start.reshape(-1, 3), delta=delta.reshape(-1, 3), valid=valid_flat,
+        prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
+        convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
+        tree=tree, sample_segment=sample_segment, spacing=_SAMPLE_SPACING)
+
+
+def _stretch(xyz):
+    out = np.asarray(xyz, np.float64).copy()
+    out[..., 2] *= Z_STRETCH
+    return out
+
+
+def _sample_tree(start, delta, valid):
+    """k-d tree over points every `_SAMPLE_SPACING` metres along valid segments."""
+    idx = np.flatnonzero(valid)
+    if idx.size == 0:
+        return None, np.zeros(0, np.int64)
+    s = _stretch(start[idx])
+    d = _stretch(delta[idx])
+    length = np.linalg.norm(d, axis=-1)
+    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64)) + 1
+    seg_of = np.repeat(np.arange(idx.size), count)
+    first = np.repeat(np.cumsum(count) - count, count)
+    frac = (np.arange(seg_of.size) - first) / np.repeat(count - 1, count)
+    points = s[seg_of] + d[seg_of] * frac[:, None]
+    return cKDTree(points), idx[seg_of]
+
+
+def _candidates(table: SegmentTable, queries: np.ndarray):
+    """(query index, segment index) pairs that include every possible nearest segment.
+
+    A segment's stretched distance is at least the distance to its nearest
+    sample minus half the spacing, and the nearest sample bounds the minimum
+    from above, so segments with no sample within that bound plus half the
+    spacing cannot be the nearest.
+    """
+    q = _stretch(queries)
+    nearest, _ = table.tree.query(q, k=1)
+    radius = nearest + table.spacing * 0.5 + 1e-3 + 1e-5 * nearest
+    k = min(16, table.tree.n)
+    dist, which = table.tree.query(q, k=k)
+    dist, which = dist.reshape(len(q), k), which.reshape(len(q), k)
+    within = dist <= radius[:, None]
+    # When the k-th sample is already beyond the radius, the k nearest hold them all.
+    complete = ~within[:, -1] | (k == table.tree.n)
+    take = within & complete[:, None]
+    qi = np.nonzero(take)[0]
+    si = table.sample_segment[which[take]]
+    rest = np.flatnonzero(~complete)
+    if rest.size:
+        lists = table.tree.query_ball_point(q[rest], radius[rest])
+        qi = np.concatenate([qi, np.repeat(rest, [len(l) for l in lists])])
+        si = np.concatenate([si, table.sample_segment[np.concatenate(
+            [np.asarray(l, np.int64) for l in lists])]])
+    num_segments = np.int64(len(table.valid))
+    pairs = np.unique(qi.astype(np.int64) * num_segments + si)
+    return pairs // num_segments, pairs % num_segments
+
+
+def _side(table: SegmentTable, query_xy, seg):
+    """Sign of the cross product: +1 on the right (off-road) side of a segment."""
+    sx = query_xy[:, 0] - table.start[seg, 0]
+    sy = query_xy[:, 1] - table.start[seg, 1]
+    return np.sign(_cross(sx, sy, table.delta[seg, 0], table.delta[seg, 1]))
+
+
+def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np.ndarray:
+    """Signed planar distance from points to the road-edge boundary.
+
+    Args:
+      table: the road edges, from `build_segment_table`.
+      queries: float32 `(num_points, 3)`.
+    Returns:
+      float32 `(num_points,)`, negative on the road side.
+    """
+    queries = np.asarray(queries, _F)
+    qi, si = _candidates(table, queries)
+    start, delta = table.start[si], table.delta[si]
+    to_point = queries[qi] - start
+    along = to_point[:, 0] * delta[:, 0] + to_point[:, 1] * delta[:, 1]
+    squared = delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel_t = np.where(squared == 0, _F(0), along / squared)
+    clipped = np.clip(rel_t, _F(0), _F(1))
+    offset = to_point - delta * clipped[:, None]
+    oz = offset[:, 2] * _F(Z_STRETCH)
+    d3 = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + oz * oz)
+    d2 = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
+    # Nearest in 3D, ties to the lowest segment index (pairs are sorted by it).
+    order = np.lexsort((si, d3, qi))
+    first = np.ones(order.size, bool)
+    first[1:] = qi[order[1:]] != qi[order[:-1]]
+    best = order[first]
+    bq, bs, bt = qi[best], si[best], rel_t[best]
+    xy = queries[bq, :2]
+    n = _side(table, xy, bs)
+    n_prior = _side(table, xy, table.prior[bs])
+    n_next = _side(table, xy, table.next[bs])
+    before = np.where(table.convex_before[bs], np.maximum(n, n_prior), np.minimum(n, n_prior))
+    after = np.where(table.convex_after[bs], np.maximum(n, n_next), np.minimum(n, n_next))
+    sign = np.where((bt < 0) & table.prior_valid[bs], before,
+                    np.where((bt > 1) & table.next_valid[bs], after, n))
+    out = np.empty(len(queries), _F)
+    out[bq] = (sign * d2[best]).astype(_F)
+    return out
+
+
+def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:
+    """Signed distance of the most off-road corner of each box.
+
+    Args:
+      corners_xyz: float32 `(..., num_objects, num_steps, 4, 3)` bottom corners.
+      valid: bool `(..., num_objects, num_steps)`.
+    Returns:
+      float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
+    """
+    flat = corners_xyz.reshape(-1, 3)
+    distance = signed_distance_to_polylines(table, flat).reshape(corners_xyz.shape[:-1])
+    return np.where(valid, distance.max(axis=-1), -EXTREMELY_LARGE_DISTANCE)

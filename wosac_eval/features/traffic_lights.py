@@ -1,0 +1,166 @@
+"""Red-light violations: crossing a signal's stop point while it shows stop.
+
+An object violates a red light at step t when, at that step, it is valid, its
+nearest surface-street lane carries a signal in a stop state, and between t-1
+and t it passed from behind to ahead of the signal's stop point, measured along
+the lane segment nearest to that stop point.
+
+The nearest-lane search reproduces the official measure exactly, including its
+quirks: the "distance" to a segment is |p + t d| (p from the segment start to
+the point, d along the segment, t the clamped projection) rather than
+|p - t d|, and each shorter lane keeps a segment from its last point to the
+origin (the official padding), which counts as valid. That measure lies
+between |p| and 2|p|, so a k-d tree over segment starts finds all candidates.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from wosac_eval.arrays.scenario import TrafficSignals
+
+_F = np.float32
+LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
+
+
+@dataclasses.dataclass(frozen=True)
+class LaneTable:
+    """Lane segments in the official padded (lane, segment) order.
+
+    Attributes:
+      points: float32 `(num_lanes, max_points, 2)`, zero padded.
+      start, delta: float32 `(num_lanes * (max_points - 1), 2)`.
+      valid: bool, segments whose start point is a real point.
+      lane_ids: int64 `(num_lanes,)`.
+    """
+
+    points: np.ndarray
+    start: np.ndarray
+    delta: np.ndarray
+    valid: np.ndarray
+    lane_ids: np.ndarray
+    num_segments: int
+    tree: cKDTree
+    tree_segment: np.ndarray
+
+
+def build_lane_table(lanes, lane_ids) -> LaneTable | None:
+    kept = [(np.asarray(p, _F)[:, :2], i) for p, i in zip(lanes, lane_ids) if len(p) >= 2]
+    if not kept:
+        return None
+    max_points = max(len(p) for p, _ in kept)
+    points = np.zeros((len(kept), max_points, 2), _F)
+    point_valid = np.zeros((len(kept), max_points), bool)
+    for k, (p, _) in enumerate(kept):
+        points[k, : len(p)] = p
+        point_valid[k, : len(p)] = True
+    start = points[:, :-1].reshape(-1, 2)
+    delta = (points[:, 1:] - points[:, :-1]).reshape(-1, 2)
+    valid = point_valid[:, :-1].reshape(-1)
+    tree_segment = np.flatnonzero(valid)
+    return LaneTable(points=points, start=start, delta=delta, valid=valid,
+                     lane_ids=np.array([i for _, i in kept], np.int64),
+                     num_segments=max_points - 1,
+                     tree=cKDTree(start[tree_segment].astype(np.float64)),
+                     tree_segment=tree_segment)
+
+
+def _lane_measure(xy, start, delta):
+    """The official nearest-lane measure |p + clamp(t) d| in float32."""
+    px = xy[..., 0] - start[..., 0]
+    py = xy[..., 1] - start[..., 1]
+    along = px * delta[..., 0] + py * delta[..., 1]
+    squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(squared == 0, _F(0), along / squared), _F(0), _F(1))
+    mx = px + delta[..., 0] * t
+    my = py + delta[..., 1] * t
+    return np.sqrt(mx * mx + my * my)
+
+
+def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
+    """Flat (lane * num_segments + segment) index of the nearest segment.
+
+    Args:
+      xy: float32 `(num_points, 2)`.
+    Returns:
+      int64 `(num_points,)`.
+    """
+    q = np.asarray(xy, np.float64)
+    r1, _ = table.tree.query(q, k=1)
+    radius = 2.0 * r1 * (1 + 1e-5) + 1e-3
+    lists = table.tree.query_ball_point(q, radius)
+    qi = np.repeat(np.arange(len(q)), [len(l) for l in lists])
+    si = table.tree_segment[np.concatenate([np.asarray(l, np.int64) for l in lists])]
+    d = _lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
+    order = np.lexsort((si, d, qi))
+    first = np.ones(order.size, bool)
+    first[1:] = qi[order[1:]] != qi[order[:-1]]
+    out = np.empty(len(q), np.int64)
+    out[qi[order[first]]] = si[order[first]]
+    return out
+
+
+def _stop_point_segments(table: LaneTable, signals: TrafficSignals):
+    """For each (step, signal): the lane segment nearest the stop point.
+
+    Returns (segment_start, segment_delta, lane_known), float32 `(steps, signals, 2)`
+    twice and bool `(steps, signals)`.
+    """
+    match = table.lane_ids[None, :] == signals.lane_id[:, None]  # (signals, lanes)
+    lane_known = match.any(axis=1)
+    lane_index = np.argmax(match, axis=1)
+    pts = table.points[lane_index]                                  # (signals, P, 2)
+    seg_valid = np.zeros(pts.shape[:2], bool)
+    seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
+    start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]            # (signals, S, 2)
+    stop = signals.stop_point                                       # (steps, signals, 2)
+    d = _lane_measure(stop[:, :, None, :], start[None], delta[None])
+    d = np.where(seg_valid[None, :, :-1], d, _F(1e10))
+    seg = np.argmin(d, axis=-1)                                     # (steps, signals)
+    sig = np.arange(len(signals.lane_id))[None, :]
+    seg_start = pts[sig, seg]
+    seg_delta = pts[sig, seg + 1] - seg_start
+    return seg_start, seg_delta, np.broadcast_to(lane_known, seg.shape)
+
+
+def red_light_violation(x, y, valid, lanes: LaneTable | None,
+                        signals: TrafficSignals | None) -> np.ndarray:
+    """Per-step red-light violations of the given objects.
+
+    Args:
+      x, y: float32 `(..., num_objects, num_steps)`.
+      valid: bool `(..., num_objects, num_steps)`.
+      lanes: surface-street lanes, or None when the scenario has none.
+      signals: per-step signal states, `num_steps` long, or None.
+    Returns:
+      bool `(..., num_objects, num_steps)`; all False without lanes or signals.
+    """
+    if lanes is None or signals is None:
+        return np.zeros(np.shape(valid), bool)
+    num_steps = x.shape[-1]
+    if signals.state.shape[0] != num_steps:
+        raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
+                         f"expected one per step ({num_steps})")
+    xy = np.stack([x, y], axis=-1).astype(_F)
+    flat = xy.reshape(-1, 2)
+    lane_row = nearest_lane_segment(lanes, flat) // lanes.num_segments
+    current_lane = lanes.lane_ids[lane_row].reshape(x.shape)             # (..., O, T)
+    seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
+    squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]
+    to_stop = signals.stop_point - seg_start
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stop_t = np.where(squared == 0, _F(0),
+                          (to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1]) / squared)
+        rel = xy[..., :, :, None, :] - seg_start                          # (..., O, T, S, 2)
+        obj_t = np.where(squared == 0, _F(0),
+                         (rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1]) / squared)
+    behind = obj_t < stop_t
+    ahead = obj_t > stop_t
+    crossed = np.zeros_like(behind)
+    crossed[..., 1:, :] = behind[..., :-1, :] & ahead[..., 1:, :]
+    is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
+    on_lane = current_lane[..., None] == signals.lane_id                  # (..., O, T, S)
+    return np.any(valid[..., None] & on_lane & is_stop & lane_known & crossed, axis=-1)

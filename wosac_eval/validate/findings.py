@@ -24,7 +24,9 @@ CODES: dict[str, str] = {
     "container.unreadable": "Submission file or archive cannot be read",
     "container.unsafe_member": "Archive member rejected as unsafe (escaping path, link or device)",
     "container.size_limit": "Archive decompresses past the size limit",
-    "container.no_shards": "Submission holds no shard",
+    "container.not_a_shard": "File in the submission folder that is not a shard",
+    "container.misnamed": "File name does not match its format",
+    "container.not_gzipped": "Uncompressed tar (the challenge server expects .tar.gz)",
     # One shard (one SimAgentsChallengeSubmission message).
     "shard.unparseable": "Shard is not a SimAgentsChallengeSubmission",
     "shard.empty": "Shard holds no scenario",

@@ -1,0 +1,86 @@
+"""`wosac-eval validate --scenarios PATH... --submission PATH`: every problem of a submission, before scoring or upload.
+
+Exit codes: 0 the submission is valid (warnings allowed), 1 it is invalid (the
+report says why), 2 usage error (bad arguments, missing paths, unreadable
+scenario set) or an internal error.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+
+from wosac_eval.validate.validator import Limits, ScenarioSetError, load_sim_agents, validate_submission
+
+NAME = "validate"
+HELP = "Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set and report every problem."
+
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
+_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+def parse_size(text: str) -> int:
+    """'4096', '512M', '40G', '1.5TiB' -> bytes (binary multiples)."""
+    match = _SIZE.match(text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 40G, 512M, 1048576)")
+    unit = (match.group(2) or "").upper()[:1]
+    value = int(float(match.group(1)) * _UNITS[unit])
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the size must be positive")
+    return value
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
+                        help="scenario TFRecord files, folders or globs: the scenario set the submission must cover")
+    parser.add_argument("--submission", required=True, metavar="PATH",
+                        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
+    parser.add_argument("--max-listed", type=int, default=20, metavar="N",
+                        help="findings shown in full per kind of problem; the rest are counted (default 20)")
+    parser.add_argument("--max-bytes", type=parse_size, default=Limits.max_total_bytes, metavar="SIZE",
+                        help="refuse a submission that decompresses past SIZE in total (default 64G)")
+    parser.add_argument("--max-shard-bytes", type=parse_size, default=Limits.max_member_bytes, metavar="SIZE",
+                        help="refuse a shard that decompresses past SIZE (default 4G)")
+
+
+def _progress_bar(total: int):
+    """A tqdm bar on stderr when stdout is a terminal (never in pipes, CI logs or --json), else None."""
+    if not sys.stdout.isatty():
+        return None
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.max_listed < 0:
+        print("wosac-eval validate: error: --max-listed must be >= 0", file=sys.stderr)
+        return 2
+    limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
+    bar = None
+    try:
+        agents = load_sim_agents(args.scenarios)
+        bar = None if args.json else _progress_bar(len(agents))
+        report = validate_submission(
+            args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
+            progress=bar.update if bar is not None else None, sim_agents=agents,
+        )
+    except (ScenarioSetError, FileNotFoundError, NotADirectoryError, PermissionError) as error:
+        print(f"wosac-eval validate: error: {error}", file=sys.stderr)
+        return 2
+    except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed
+        print(f"wosac-eval validate: internal error while validating {args.submission}: "
+              f"{type(error).__name__}: {error} (please report this)", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
+    if args.json:
+        json.dump(report.to_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        print(report.format_text())
+    return 0 if report.ok else 1

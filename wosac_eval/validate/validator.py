@@ -1,0 +1,297 @@
+"""Validate a whole submission against a scenario set, streaming shard by shard.
+
+Memory stays bounded: from the scenario set only the sim agent ids of each
+scenario are kept (a few hundred bytes per scenario); from the submission one
+shard is held at a time (bytes, then the parsed message); the report keeps
+counts and the first findings of each kind.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from wosac_eval.parse.archive import (
+    DEFAULT_MAX_MEMBER_BYTES,
+    DEFAULT_MAX_TOTAL_BYTES,
+    ArchiveNameWarning,
+    is_ignored_name,
+    is_shard_name,
+    iter_submission_shards,
+    parse_submission_shard,
+)
+from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
+from wosac_eval.validate import rules
+from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
+
+PathLike = str | os.PathLike
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Decompressed size limits: per shard, and for the whole submission."""
+
+    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES
+    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES
+
+
+class ScenarioSetError(ValueError):
+    """The scenario set itself cannot be read: the submission cannot be judged (a usage error)."""
+
+
+def load_sim_agents(scenarios: ScenarioIndex | PathLike | Iterable[PathLike]) -> dict[str, np.ndarray]:
+    """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
+
+    Streams the scenarios (or loads them one by one from a ScenarioIndex) and
+    keeps only the ids of objects valid at step 10. Raises ScenarioSetError when
+    a scenario file is missing or corrupt, or a scenario_id occurs twice.
+    """
+    agents: dict[str, np.ndarray] = {}
+    try:
+        if isinstance(scenarios, ScenarioIndex):
+            for scenario_id in scenarios:
+                agents[scenario_id] = rules.sim_agent_ids(scenarios.load(scenario_id))
+        else:
+            first_source: dict[str, Any] = {}
+            for scenario, source in iter_scenarios(scenarios):
+                sid = scenario.scenario_id
+                if sid in agents:
+                    raise ScenarioSetError(f"scenario {sid!r} occurs twice: in {first_source[sid]} and in {source}")
+                first_source[sid] = source
+                agents[sid] = rules.sim_agent_ids(scenario)
+    except (ParseError, OSError) as error:
+        raise ScenarioSetError(f"cannot read the scenario set: {error}") from error
+    return agents
+
+
+def _container_finding(error: ParseError) -> Finding:
+    """A finding for an archive-level problem raised by the submission reader (its message names archive and member)."""
+    if isinstance(error, UnsafeArchiveMemberError):
+        code = "container.unsafe_member"
+    elif isinstance(error, SizeLimitError):
+        code = "container.size_limit"
+    else:
+        code = "container.unreadable"
+    return Finding(code, str(error))
+
+
+def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iterator[tuple[str, bytes]]:
+    """Shards below a folder (as the reader takes them), reporting stray files and going on past them."""
+    found: list[tuple[str, Path]] = []
+    for root, dirs, files in os.walk(folder):
+        dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
+        for file_name in sorted(files):
+            path = Path(root) / file_name
+            relative = path.relative_to(folder).as_posix()
+            if is_ignored_name(relative):
+                continue
+            if is_shard_name(relative):
+                found.append((relative, path))
+            else:
+                report.add(
+                    Finding(
+                        "container.not_a_shard",
+                        f"{folder}: {relative!r} is neither a shard (a name containing '.binproto') nor "
+                        "documentation (README*, *.md, *.txt); rename or remove it",
+                        shard=relative,
+                    )
+                )
+    if not found:
+        report.add(Finding("container.unreadable", f"{folder}: folder holds no submission shard (no file name "
+                                                   "containing '.binproto')"))
+    total = 0
+    for relative, path in sorted(found):
+        size = path.stat().st_size
+        total += size
+        if size > limits.max_member_bytes:
+            report.add(
+                Finding(
+                    "container.size_limit",
+                    f"{folder}: shard {relative!r} is {size} bytes, over the per-shard limit of "
+                    f"{limits.max_member_bytes} bytes",
+                    shard=relative,
+                )
+            )
+        elif total > limits.max_total_bytes:
+            report.add(
+                Finding(
+                    "container.size_limit",
+                    f"{folder}: shards exceed the total limit of {limits.max_total_bytes} bytes at {relative!r}; "
+                    "the remaining shards are not read",
+                    shard=relative,
+                )
+            )
+            return
+        else:
+            yield relative, path.read_bytes()
+
+
+def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator[tuple[str, bytes]]:
+    """Shards of a single shard or tar archive; reader errors and name warnings become findings."""
+    shards = iter_submission_shards(
+        path, max_member_bytes=limits.max_member_bytes, max_total_bytes=limits.max_total_bytes
+    )
+    # The reader checks the name against the content before its first shard:
+    # record the warning there, without leaving a filter installed while we yield.
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ArchiveNameWarning)
+        try:
+            first = next(shards, None)
+        except ParseError as error:
+            report.add(_container_finding(error))
+            return
+    misnamed = [w for w in caught if issubclass(w.category, ArchiveNameWarning)]
+    for w in misnamed:
+        report.add(Finding("container.misnamed", str(w.message), severity=WARNING))
+    if not misnamed and path.name.lower().endswith(".tar"):
+        report.add(
+            Finding(
+                "container.not_gzipped",
+                f"{path}: an uncompressed tar; the challenge server expects a gzip-compressed tar "
+                "(tar czf submission.tar.gz ...)",
+                severity=WARNING,
+            )
+        )
+    if first is None:
+        return
+    yield first
+    try:
+        yield from shards
+    except ParseError as error:
+        # The reader cannot go on past this point (e.g. truncated gzip): what
+        # follows is unread, and its scenarios are reported missing.
+        report.add(_container_finding(error))
+
+
+def iter_checked_shards(
+    submission_path: PathLike, limits: Limits, report: ValidationReport
+) -> Iterator[tuple[str, bytes]]:
+    """(shard name, bytes) of every readable shard; every container problem is added to report."""
+    path = Path(submission_path)
+    if path.is_dir():
+        return _iter_folder(path, limits, report)
+    return _iter_file(path, limits, report)
+
+
+def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None) -> list[Finding]:
+    """The per-scenario rules (32 joint scenes, sim agents, 80 finite values per field) on one ScenarioRollouts.
+
+    sim_agent_ids: ids of the scenario's objects valid at step 10, shape
+    (num_sim_agents,), or None for a scenario outside the scenario set. For the
+    scorer, which reuses these rules on the scenarios it scores.
+    """
+    return rules.check_scenario_rollouts(rollouts_msg, sim_agent_ids, shard=shard)
+
+
+class _Validation:
+    """State of one validation run: what was seen, the reference metadata, the report."""
+
+    def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None):
+        self.agents = agents
+        self.report = report
+        self.progress = progress
+        self.first_seen: dict[str, tuple[str, int]] = {}
+        self.reference_metadata: dict[str, Any] | None = None
+        self.reference_shard = ""
+        self.checked_metadata: set[tuple] = set()
+
+    def shard(self, name: str, data: bytes) -> None:
+        report = self.report
+        report.stats.shards += 1
+        report.stats.bytes_read += len(data)
+        try:
+            submission = parse_submission_shard(name, data)
+        except ParseError as error:
+            report.add(Finding("shard.unparseable", str(error), shard=name))
+            return
+        del data
+        self.metadata(name, submission)
+        if not submission.scenario_rollouts:
+            report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard=name))
+        for index, rollouts in enumerate(submission.scenario_rollouts):
+            self.scenario(name, index, rollouts)
+
+    def metadata(self, name: str, submission: Any) -> None:
+        metadata = rules.metadata_of(submission)
+        key = tuple(metadata.values())
+        # Shards written by one tool share their metadata: check each distinct
+        # set once, so a fault common to 150 shards is one finding, not 150.
+        if key not in self.checked_metadata:
+            self.checked_metadata.add(key)
+            self.report.extend(rules.check_metadata(submission, name))
+        if self.reference_metadata is None:
+            self.reference_metadata, self.reference_shard = metadata, name
+        else:
+            self.report.extend(
+                rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
+            )
+
+    def scenario(self, name: str, index: int, rollouts: Any) -> None:
+        report = self.report
+        report.stats.scenarios_submitted += 1
+        if not rollouts.HasField("scenario_id"):
+            report.add(rules.missing_scenario_id(name, index))
+        else:
+            sid = rollouts.scenario_id
+            first = self.first_seen.get(sid)
+            if first is not None:
+                report.add(rules.duplicate_scenario(sid, name, index, first))
+            else:
+                self.first_seen[sid] = (name, index)
+            agents = self.agents.get(sid)
+            if agents is None:
+                report.add(rules.unknown_scenario(sid, name, index))
+            report.extend(validate_scenario_rollouts(rollouts, agents, name))
+        if self.progress is not None:
+            self.progress(1)
+
+
+def validate_submission(
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
+    submission_path: PathLike,
+    *,
+    max_listed: int = 20,
+    limits: Limits | None = None,
+    progress: Callable[[int], Any] | None = None,
+    sim_agents: dict[str, np.ndarray] | None = None,
+) -> ValidationReport:
+    """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
+
+    Every rule is applied and every fault reported (grouped by code, counted,
+    the first `max_listed` of each code in full): container safety, each shard
+    a SimAgentsChallengeSubmission, metadata, scenario coverage, and per
+    scenario 32 joint scenes of exactly the sim agents with 80 finite values in
+    center_x, center_y, center_z and heading.
+
+    scenarios: scenario files / folders / globs, or a ScenarioIndex.
+    limits: decompressed size limits (per shard and in total).
+    progress: called with 1 after each submitted scenario is checked.
+    sim_agents: precomputed `load_sim_agents(scenarios)`, to skip reading the scenarios again.
+    Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
+    when the submission path does not exist (both usage errors, not findings).
+    """
+    start = time.perf_counter()
+    agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios)
+    report = ValidationReport(str(submission_path), max_listed=max_listed)
+    report.stats.scenarios_expected = len(agents)
+    run = _Validation(agents, report, progress)
+    if not Path(submission_path).exists():
+        raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
+    for name, data in iter_checked_shards(submission_path, limits or Limits(), report):
+        run.shard(name, data)
+    missing = rules.check_missing_scenarios(agents, run.first_seen)
+    report.missing_scenarios = [f.scenario_id for f in missing]
+    report.extend(missing)
+    report.stats.scenarios_valid = sum(
+        1 for sid in run.first_seen if sid in agents and sid not in report.invalid_scenarios
+    )
+    report.stats.elapsed_s = time.perf_counter() - start
+    return report

@@ -1,0 +1,256 @@
+"""A small closed-loop traffic simulator: agents follow fixed paths with an IDM law.
+
+Shared by the synthetic scene generator (one batch: the logged world) and the
+rule-based baseline policy (one batch entry per rollout). Every agent moves
+along its own path (a polyline sampled every `ds` metres); its longitudinal
+acceleration follows the intelligent driver model (Treiber et al., 2000) with
+respect to the nearest obstacle on its path ahead: another agent whose box
+touches the path, or a stop line whose signal is red (or yellow, when the
+agent can still stop comfortably).
+
+Shapes: B batch entries (rollouts), A agents, S path samples, T steps.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wosac_eval.sim import geometry as geo
+from wosac_eval.sim.signals import CAUTION_STATES, STOP_STATES
+
+ALWAYS_RED = -2  # stop-line signal index of a stop that never turns green (e.g. parking off the road)
+NO_SIGNAL = -1
+
+LOOKAHEAD_SPACING_M = 2.0
+LOOKAHEAD_POINTS = 26  # ~50 m of path ahead of the nose
+MAX_BRAKE = 8.0
+NEIGHBOURS = 16  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
+
+
+@dataclass
+class Paths:
+    """Agent paths, sampled every `ds` metres.
+
+    xy: (B, A, S, 2) points; tangent: (B, A, S, 2) unit tangents.
+    """
+
+    xy: np.ndarray
+    tangent: np.ndarray
+    ds: float
+
+    @classmethod
+    def from_polylines(cls, polylines: list[list[np.ndarray]], ds: float, min_length: float) -> "Paths":
+        """Resamples nested lists [batch][agent] of polylines to one array, extending each
+        straight past its end so that all have the same number of samples covering `min_length`."""
+        num_s = int(np.ceil(min_length / ds)) + 1
+        b, a = len(polylines), len(polylines[0])
+        xy = np.zeros((b, a, num_s, 2))
+        for i, row in enumerate(polylines):
+            for j, poly in enumerate(row):
+                xy[i, j] = extend_resample(poly, ds, num_s)
+        tangent = np.gradient(xy, axis=2)
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
+        return cls(xy, tangent, ds)
+
+    def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Positions (B, A, ..., 2) and headings (B, A, ...) at arc lengths `s` of shape (B, A, ...)."""
+        num_s = self.xy.shape[2]
+        f = np.clip(s / self.ds, 0.0, num_s - 1.000001)
+        i0 = np.floor(f).astype(np.int64)
+        w = (f - i0)[..., None]
+        idx = i0.reshape(i0.shape[:2] + (-1,))
+        def take(arr, index):
+            return np.take_along_axis(arr, index[..., None], axis=2).reshape(s.shape + (2,))
+        x0, x1 = take(self.xy, idx), take(self.xy, idx + 1)
+        t0, t1 = take(self.tangent, idx), take(self.tangent, idx + 1)
+        xy = x0 + w * (x1 - x0)
+        t = t0 + w * (t1 - t0)
+        return xy, np.arctan2(t[..., 1], t[..., 0])
+
+
+def extend_resample(poly: np.ndarray, ds: float, num_s: int) -> np.ndarray:
+    """Resamples `poly` every `ds` metres to exactly `num_s` points, extending straight."""
+    poly = np.asarray(poly, float)[:, :2]
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(poly, axis=0), axis=1) > 1e-6])
+    poly = poly[keep]
+    if len(poly) < 2:
+        raise ValueError("a path needs two distinct points")
+    s = geo.arc_lengths(poly)
+    targets = np.arange(num_s) * ds
+    out = np.stack([np.interp(targets, s, poly[:, 0]), np.interp(targets, s, poly[:, 1])], axis=1)
+    beyond = targets > s[-1]
+    if beyond.any():
+        direction = poly[-1] - poly[-2]
+        direction /= np.linalg.norm(direction)
+        out[beyond] = poly[-1] + (targets[beyond] - s[-1])[:, None] * direction
+    return out
+
+
+@dataclass
+class Drivers:
+    """Per-agent parameters, each of shape (B, A) unless noted.
+
+    v0: (B, A, T) desired speed over time (m/s).
+    moving: agents that move at all (parked cars do not).
+    blind: (B, A, A) True where agent i ignores agent j (used to script a collision).
+    crash_pairs: (B, A, A) pairs whose contact stops both (a scripted collision).
+    """
+
+    length: np.ndarray
+    width: np.ndarray
+    v0: np.ndarray
+    a_max: np.ndarray
+    b_comf: np.ndarray
+    headway: np.ndarray
+    s0: np.ndarray
+    margin: np.ndarray
+    max_brake: np.ndarray
+    moving: np.ndarray
+    ignore_signals: np.ndarray
+    blind: np.ndarray
+    crash_pairs: np.ndarray
+
+
+@dataclass
+class Rollout:
+    """Simulated states, each (B, A, T)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    speed: np.ndarray
+    s: np.ndarray
+
+
+def simulate(
+    paths: Paths,
+    drivers: Drivers,
+    s_init: np.ndarray,
+    v_init: np.ndarray,
+    stop_s: np.ndarray,
+    stop_signal: np.ndarray,
+    signal_states: np.ndarray,
+    num_steps: int,
+    dt: float = 0.1,
+) -> Rollout:
+    """Runs the closed loop for `num_steps` states (the first is the initial state).
+
+    Args:
+      s_init, v_init: (B, A) initial arc length along the path and speed.
+      stop_s: (B, A, K) arc lengths of stop lines on each path (nan: none).
+      stop_signal: (B, A, K) column of `signal_states` controlling each stop line,
+        or ALWAYS_RED / NO_SIGNAL.
+      signal_states: (num_steps, G) TrafficSignalLaneState.State values.
+    """
+    b, a = s_init.shape
+    s = s_init.astype(float).copy()
+    v = v_init.astype(float).copy()
+    crashed = np.zeros((b, a), bool)
+    out_s = np.zeros((b, a, num_steps))
+    out_v = np.zeros((b, a, num_steps))
+    not_self = ~np.eye(a, dtype=bool)[None]
+    k = np.arange(LOOKAHEAD_POINTS) * LOOKAHEAD_SPACING_M
+    signal_states = np.asarray(signal_states).reshape(num_steps, -1)
+    for t in range(num_steps):
+        out_s[..., t], out_v[..., t] = s, v
+        if t == num_steps - 1:
+            break
+        xy, heading = paths.at(s)
+        gap, lead_speed = _agent_gaps(paths, s, v, xy, heading, drivers, k)  # (B, i, j)
+        seen = np.isfinite(gap) & not_self & ~drivers.blind
+        # Two agents that each see the other on their path: the one nearer to the
+        # conflict goes first, the other yields (avoids a standoff).
+        mutual = seen & np.swapaxes(seen, 1, 2)
+        gap_t = np.swapaxes(gap, 1, 2)
+        index = np.arange(a)
+        first_goes = (gap < gap_t) | ((gap == gap_t) & (index[None, :, None] < index[None, None, :]))
+        seen &= ~(mutual & first_goes)
+        gap = np.where(seen, gap, np.inf)
+        lead = np.argmin(gap, axis=-1)
+        lead_gap = np.take_along_axis(gap, lead[..., None], axis=-1)[..., 0]
+        lead_v = np.take_along_axis(lead_speed, lead[..., None], axis=-1)[..., 0]
+        # Stop lines.
+        nose = s + drivers.length / 2
+        stop_gap = stop_s - nose[..., None]
+        column = np.clip(stop_signal, 0, None)
+        state = signal_states[t][column] if signal_states.size else np.zeros_like(column)
+        # Yellow: stop only when it is comfortable. Red: stop unless it would take an
+        # emergency stop (a driver committed on yellow carries on over the line).
+        can_stop = stop_gap > v[..., None] ** 2 / (2 * drivers.b_comf[..., None])
+        can_brake = stop_gap > v[..., None] ** 2 / (2 * 0.6 * drivers.max_brake[..., None])
+        red = (stop_signal == ALWAYS_RED) | ((stop_signal >= 0) & np.isin(state, STOP_STATES) & can_brake)
+        yellow = (stop_signal >= 0) & np.isin(state, CAUTION_STATES) & can_stop
+        holding = (red | yellow) & (stop_gap > -0.5) & ~drivers.ignore_signals[..., None]
+        line_gap = np.where(holding & np.isfinite(stop_s), stop_gap + drivers.s0[..., None] - 1.0, np.inf).min(axis=-1, initial=np.inf)
+        use_line = line_gap < lead_gap
+        lead_gap = np.where(use_line, line_gap, lead_gap)
+        lead_v = np.where(use_line, 0.0, lead_v)
+        acc = idm(v, drivers.v0[..., t], lead_gap, lead_v, drivers)
+        acc = np.where(drivers.moving & ~crashed, acc, 0.0)
+        v_new = np.where(drivers.moving & ~crashed, np.maximum(v + acc * dt, 0.0), 0.0 * v)
+        s = s + 0.5 * (v + v_new) * dt
+        v = v_new
+        if drivers.crash_pairs.any():
+            crashed |= _contacts(paths, s, drivers)
+    x_y, hdg = paths.at(out_s)
+    return Rollout(x_y[..., 0], x_y[..., 1], hdg, out_v, out_s)
+
+
+def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gap along each agent's path to every other agent that touches it, and that agent's speed along it.
+
+    Only the NEIGHBOURS nearest agents are tested (a leader is always among them),
+    which keeps the cost linear in the number of agents.
+    Returns:
+      gap: (B, i, j) metres from i's nose to j (inf where j is not on i's path ahead).
+      speed: (B, i, j) j's speed projected on i's path (>= 0).
+    """
+    b, a = s.shape
+    m = min(NEIGHBOURS, a - 1)
+    gap_full = np.full((b, a, a), np.inf)
+    speed_full = np.zeros((b, a, a))
+    if m <= 0:
+        return gap_full, speed_full
+    centre_dist = np.linalg.norm(xy[:, :, None] - xy[:, None, :], axis=-1)
+    centre_dist[:, np.arange(a), np.arange(a)] = np.inf
+    nb = np.argpartition(centre_dist, m - 1, axis=-1)[..., :m]  # (B, A, M)
+
+    def gather(arr):  # (B, A) -> (B, A, M) values of the neighbours
+        return np.take_along_axis(np.broadcast_to(arr[:, None, :], (b, a, a)), nb, axis=-1)
+
+    nb_x = gather(xy[..., 0])
+    nb_y = gather(xy[..., 1])
+    ahead_s = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
+    pts, pts_heading = paths.at(ahead_s)  # (B, A, K, 2), (B, A, K)
+    dist = np.hypot(nb_x[..., None] - pts[:, :, None, :, 0], nb_y[..., None] - pts[:, :, None, :, 1])  # (B, A, M, K)
+    dtheta = gather(heading)[..., None] - pts_heading[:, :, None, :]
+    cos_d, sin_d = np.abs(np.cos(dtheta)), np.abs(np.sin(dtheta))
+    len_j = gather(d.length)[..., None] / 2
+    wid_j = gather(d.width)[..., None] / 2
+    reach = d.width[:, :, None, None] / 2 + len_j * sin_d + wid_j * cos_d + d.margin[:, :, None, None]
+    gap_k = np.where(dist < reach, k - (len_j * cos_d + wid_j * sin_d) - LOOKAHEAD_SPACING_M / 2, np.inf)
+    first = np.argmin(gap_k, axis=-1)[..., None]
+    gap = np.take_along_axis(gap_k, first, axis=-1)[..., 0]
+    along = np.cos(np.take_along_axis(dtheta, first, axis=-1)[..., 0])
+    speed = np.maximum(gather(v) * along, 0.0)
+    np.put_along_axis(gap_full, nb, gap, axis=-1)
+    np.put_along_axis(speed_full, nb, speed, axis=-1)
+    return gap_full, speed_full
+
+
+def idm(v, v0, gap, lead_v, d: Drivers) -> np.ndarray:
+    """Intelligent-driver-model acceleration (B, A); free road when `gap` is inf."""
+    v0 = np.maximum(v0, 0.1)
+    free = np.where(v <= v0, d.a_max * (1.0 - (v / v0) ** 4), -d.b_comf * (1.0 - (v0 / np.maximum(v, 1e-3)) ** 2))
+    s_star = d.s0 + np.maximum(0.0, v * d.headway + v * (v - lead_v) / (2.0 * np.sqrt(d.a_max * d.b_comf)))
+    interaction = np.where(np.isfinite(gap), (s_star / np.maximum(gap, 0.1)) ** 2, 0.0)
+    return np.clip(free - d.a_max * interaction, -d.max_brake, d.a_max)
+
+
+def _contacts(paths: Paths, s: np.ndarray, d: Drivers) -> np.ndarray:
+    """(B, A) agents whose box now overlaps a scripted crash partner."""
+    xy, heading = paths.at(s)
+    corners = geo.box_corners(xy[..., 0], xy[..., 1], heading, d.length, d.width)  # (B, A, 4, 2)
+    overlap = geo.boxes_overlap(corners[:, :, None], corners[:, None, :]) & d.crash_pairs
+    return overlap.any(axis=2) | overlap.any(axis=1)

@@ -117,9 +117,13 @@ def expand_scenario_paths(paths: PathLike | Iterable[PathLike]) -> list[Path]:
 def parse_scenario(data: bytes, source: ScenarioSource) -> scenario_pb2.Scenario:
     """Parse one record as a Scenario, naming the source when it is not one."""
     try:
-        return scenario_pb2.Scenario.FromString(data)
+        scenario = scenario_pb2.Scenario.FromString(data)
     except DecodeError as error:
         raise ParseError(f"{source}: not a valid Scenario message: {error}") from error
+    # proto2 strings are not UTF-8-checked on parse; the runtime returns bytes then.
+    if not isinstance(scenario.scenario_id, str):
+        raise ParseError(f"{source}: scenario_id is not valid UTF-8 text")
+    return scenario
 
 
 def iter_scenarios(paths: PathLike | Iterable[PathLike]) -> Iterator[SourcedScenario]:

@@ -107,6 +107,14 @@ def test_undecodable_record_names_file_and_offset(tmp_path):
             action()
 
 
+def test_scenario_id_must_be_text(tmp_path):
+    path = tmp_path / "bytes-id.tfrecord"
+    write_records(path, [b"\x2a\x02\xff\xfe"])  # scenario_id = b"\xff\xfe"
+    for action in (lambda: list(iter_scenarios(path)), lambda: ScenarioIndex(path)):
+        with pytest.raises(ParseError, match="(?i)bytes-id.tfrecord \\(record at byte offset 0\\).*utf-8"):
+            action()
+
+
 def test_index_loads_single_scenarios_on_demand(shard_folder):
     index = ScenarioIndex(shard_folder)
     assert len(index) == 4 and index.ids() == ["a", "b", "c", "d"] and list(index) == index.ids()

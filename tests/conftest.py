@@ -1,0 +1,21 @@
+"""Shared fixtures: the reference material in ../shared, when present."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+
+
+def require_shared() -> Path:
+    if not (SHARED / "golden").is_dir():
+        pytest.skip("../shared/golden is absent: golden parity needs the official reference outputs "
+                    "(present on developer machines and in CI, not in a user's clone)")
+    return SHARED
+
+
+@pytest.fixture
+def shared() -> Path:
+    return require_shared()

@@ -1,0 +1,56 @@
+"""`wosac-eval score` end to end on real files: result JSON equals the official outputs."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from conftest import REPO, require_shared
+
+
+def _score(tmp_path, *args):
+    out = tmp_path / "result.json"
+    proc = subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args, "-o", str(out)],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    return proc, (json.loads(out.read_text()) if out.exists() else None)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_score_matches_golden(tmp_path, workers):
+    shared = require_shared()
+    case = "637f20cafde22ff8__official_test_submission"
+    proc, result = _score(tmp_path, "--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
+                          "--submission", str(shared / "golden" / f"{case}.binproto"),
+                          "--workers", str(workers))
+    assert proc.returncode == 0, proc.stderr
+    golden = json.loads((shared / "golden" / f"{case}.json").read_text())["metrics"]["2025"]
+    assert result["config"] == "2025"
+    assert [s["scenario_id"] for s in result["scenarios"]] == ["637f20cafde22ff8"]
+    for field, value in result["aggregate"].items():
+        assert value == pytest.approx(golden[field], abs=1e-5), field
+    for field, value in result["buckets"].items():
+        assert value == pytest.approx(golden["buckets"][field], abs=1e-5), field
+
+
+def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path):
+    shared = require_shared()
+    args = ["--scenarios", str(shared / "womd"),
+            "--submission", str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto")]
+    proc, result = _score(tmp_path, *args)
+    assert proc.returncode == 1
+    assert "ee519cf571686d19" in proc.stderr and result is None
+    proc, result = _score(tmp_path, *args, "--partial")
+    assert proc.returncode == 0, proc.stderr
+    assert [s["scenario_id"] for s in result["skipped"]] == ["ee519cf571686d19"]
+    assert "missing from the submission" in result["skipped"][0]["reason"]
+    assert result["num_scenarios"] == 1
+
+
+def test_score_usage_error_on_unknown_config(tmp_path):
+    shared = require_shared()
+    proc, _ = _score(tmp_path, "--scenarios", str(shared / "womd"), "--submission",
+                     str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"), "--config", "2019")
+    assert proc.returncode == 2
+    assert "2019" in proc.stderr

@@ -1,0 +1,86 @@
+"""`wosac-eval score`: the official realism metrics of a submission.
+
+Exit codes: 0 scored, 1 the submission is invalid (the validation report is
+printed; `--partial` scores the valid scenarios instead), 2 usage error.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from wosac_eval.metrics.config import PRESET_NAMES
+from wosac_eval.metrics.submission import InvalidSubmissionError, score_submission
+from wosac_eval.parse.errors import ParseError
+from wosac_eval.validate import ScenarioSetError
+
+NAME = "score"
+HELP = "Score a submission with the official WOSAC realism metrics and write result JSON."
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
+                        help="scenario TFRecord files, folders or globs")
+    parser.add_argument("--submission", required=True, metavar="PATH",
+                        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
+    parser.add_argument("--config", default="2025", metavar="2025|2024|2023|FILE.textproto",
+                        help=f"metrics config: a preset ({', '.join(PRESET_NAMES)}) or a "
+                             "SimAgentMetricsConfig textproto (default 2025)")
+    parser.add_argument("--output", "-o", metavar="result.json",
+                        help="where to write the result JSON (default: stdout)")
+    parser.add_argument("--workers", type=int, default=1, metavar="N",
+                        help="score scenarios in N processes (identical results)")
+    parser.add_argument("--partial", action="store_true",
+                        help="score the valid scenarios of an invalid submission; skipped ones are listed")
+
+
+def _progress():
+    if not sys.stderr.isatty():
+        return None, None
+    from tqdm import tqdm
+    bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
+
+    def update(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+    return update, bar
+
+
+def _headline(result: dict) -> str:
+    b = result["buckets"]
+    return (f"scored {result['num_scenarios']} scenario(s) with config {result['config']}: "
+            f"realism meta-metric {b['realism_meta_metric']:.4f} (kinematic {b['kinematic_metrics']:.4f}, "
+            f"interactive {b['interactive_metrics']:.4f}, map-based {b['map_based_metrics']:.4f}), "
+            f"minADE {b['min_ade']:.3f} m")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        print("wosac-eval score: error: --workers must be >= 1", file=sys.stderr)
+        return 2
+    update, bar = _progress()
+    try:
+        result = score_submission(args.scenarios, args.submission, args.config, workers=args.workers,
+                                  allow_partial=args.partial, progress=update)
+    except InvalidSubmissionError as error:
+        print(error.report.format_text(), file=sys.stderr)
+        print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
+              "its valid scenarios", file=sys.stderr)
+        return 1
+    except (ScenarioSetError, FileNotFoundError, ValueError, ParseError) as error:
+        print(f"wosac-eval score: error: {error}", file=sys.stderr)
+        return 2
+    finally:
+        if bar is not None:
+            bar.close()
+    text = json.dumps(result, indent=1)
+    if args.output:
+        Path(args.output).write_text(text + "\n")
+        print(_headline(result), file=sys.stderr)
+        print(f"results written to {args.output}", file=sys.stderr)
+    else:
+        print(text)
+    if result["skipped"]:
+        print(f"skipped {len(result['skipped'])} scenario(s) (listed under \"skipped\")", file=sys.stderr)
+    return 0

@@ -237,7 +237,9 @@ def _sniff(path: Path) -> tuple[str | None, bytes]:
     with open(path, "rb") as raw:
         head = raw.read(_SNIFF_BYTES)
     if head.startswith(_ZIP_MAGIC):
-        raise ArchiveError(f"{path}: zip archives are not supported; package shards as .tar or .tar.gz")
+        raise ArchiveError(
+            f"{path}: zip archives are not supported; package shards as .tar or .tar.gz"
+        )
     compression = _compression_of(head)
     if compression is None:
         return None, head
@@ -298,7 +300,9 @@ def _read_member(tar: tarfile.TarFile, archive: Path, name: str, info: tarfile.T
     try:
         data = member_file.read()
     except _STREAM_ERRORS as error:
-        raise ArchiveError(f"{archive}: truncated or corrupt data in member {name!r}: {error}") from error
+        raise ArchiveError(
+            f"{archive}: truncated or corrupt data in member {name!r}: {error}"
+        ) from error
     if len(data) != info.size:
         raise ArchiveError(
             f"{archive}: member {name!r} is truncated ({len(data)} of {info.size} bytes)"
@@ -313,11 +317,15 @@ def _check_clean_end(archive: Path, info_class: type, last_member: str | None) -
     if isinstance(error, tarfile.EOFHeaderError):
         return
     if isinstance(error, (tarfile.EmptyHeaderError, tarfile.TruncatedHeaderError)):
-        raise ArchiveError(f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)")
+        raise ArchiveError(
+            f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)"
+        )
     raise ArchiveError(f"{archive}: corrupt tar header {after}: {error}")
 
 
-def _next_member(tar: tarfile.TarFile, archive: Path, last_member: str | None) -> tarfile.TarInfo | None:
+def _next_member(
+    tar: tarfile.TarFile, archive: Path, last_member: str | None
+) -> tarfile.TarInfo | None:
     """The next member header, translating stream errors into ArchiveError."""
     try:
         info = tar.next()
@@ -363,8 +371,10 @@ def _iter_tar(
             yield name, _read_member(tar, archive, name, info)
     _check_clean_end(archive, info_class, last_member)
     if not seen:
-        raise ArchiveError(f"{archive}: archive holds no submission shard (no member name "
-                           f"containing {SHARD_NAME_MARKER!r})")
+        raise ArchiveError(
+            f"{archive}: archive holds no submission shard (no member name "
+            f"containing {SHARD_NAME_MARKER!r})"
+        )
 
 
 def _drain(stream: _LimitedStream, archive: Path) -> None:
@@ -404,7 +414,8 @@ def _read_single_shard(
         size = path.stat().st_size
         if size > max_member_bytes:
             raise SizeLimitError(
-                f"{path}: shard is {size} bytes, over the per-member limit of {max_member_bytes} bytes"
+                f"{path}: shard is {size} bytes, over the per-member limit of "
+                f"{max_member_bytes} bytes"
             )
         return name, path.read_bytes()
     try:
@@ -414,12 +425,15 @@ def _read_single_shard(
         raise ArchiveError(f"{path}: truncated or corrupt {compression} stream: {error}") from error
     if len(data) > max_member_bytes:
         raise SizeLimitError(
-            f"{path}: shard decompresses to more than the per-member limit of {max_member_bytes} bytes"
+            f"{path}: shard decompresses to more than the per-member limit of "
+            f"{max_member_bytes} bytes"
         )
     return re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), data
 
 
-def _iter_folder(folder: Path, max_member_bytes: int, max_total_bytes: int) -> Iterator[SubmissionShard]:
+def _iter_folder(
+    folder: Path, max_member_bytes: int, max_total_bytes: int
+) -> Iterator[SubmissionShard]:
     """Shards below a folder, sorted by relative path (symlinked files are followed)."""
     found: list[tuple[str, Path]] = []
     for root, dirs, files in os.walk(folder):
@@ -433,8 +447,10 @@ def _iter_folder(folder: Path, max_member_bytes: int, max_total_bytes: int) -> I
                 raise _not_a_shard_error(folder, relative)
             found.append((relative, path))
     if not found:
-        raise ArchiveError(f"{folder}: folder holds no submission shard (no file name containing "
-                           f"{SHARD_NAME_MARKER!r})")
+        raise ArchiveError(
+            f"{folder}: folder holds no submission shard (no file name containing "
+            f"{SHARD_NAME_MARKER!r})"
+        )
     total = 0
     for relative, path in sorted(found):
         size = path.stat().st_size
@@ -446,7 +462,8 @@ def _iter_folder(folder: Path, max_member_bytes: int, max_total_bytes: int) -> I
         total += size
         if total > max_total_bytes:
             raise SizeLimitError(
-                f"{folder}: shards exceed the total limit of {max_total_bytes} bytes at {relative!r}"
+                f"{folder}: shards exceed the total limit of {max_total_bytes} bytes "
+                f"at {relative!r}"
             )
         yield relative, path.read_bytes()
 
@@ -483,14 +500,22 @@ def iter_submission_shards(
         yield _read_single_shard(path, compression, min(max_member_bytes, max_total_bytes))
 
 
-def _string_fields_are_text(submission: sim_agents_submission_pb2.SimAgentsChallengeSubmission) -> str | None:
+def _string_fields_are_text(
+    submission: sim_agents_submission_pb2.SimAgentsChallengeSubmission,
+) -> str | None:
     """The first string field holding invalid UTF-8, as 'field (index)', else None.
 
     proto2 strings are not UTF-8-checked when parsing; the Python runtime
     then hands back bytes instead of str, which must not reach later stages.
     """
-    for field in ("account_name", "unique_method_name", "affiliation", "description",
-                  "method_link", "num_model_parameters"):
+    for field in (
+        "account_name",
+        "unique_method_name",
+        "affiliation",
+        "description",
+        "method_link",
+        "num_model_parameters",
+    ):
         if not isinstance(getattr(submission, field), str):
             return field
     for field in ("authors", "public_model_names"):
@@ -511,7 +536,8 @@ def parse_submission_shard(
         submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
     except DecodeError as error:
         raise InvalidShardError(
-            f"shard {name}: not a valid SimAgentsChallengeSubmission message ({len(raw)} bytes): {error}"
+            f"shard {name}: not a valid SimAgentsChallengeSubmission message "
+            f"({len(raw)} bytes): {error}"
         ) from error
     bad_field = _string_fields_are_text(submission)
     if bad_field is not None:

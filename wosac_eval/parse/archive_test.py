@@ -35,7 +35,12 @@ def small_submission(scenario_id: str, num_steps: int = 80) -> bytes:
     submission = Submission(submission_type=Submission.SIM_AGENTS_SUBMISSION, account_name="me@x")
     scene = submission.scenario_rollouts.add(scenario_id=scenario_id).joint_scenes.add()
     trajectory = scene.simulated_trajectories.add(object_id=1)
-    for values in (trajectory.center_x, trajectory.center_y, trajectory.center_z, trajectory.heading):
+    for values in (
+        trajectory.center_x,
+        trajectory.center_y,
+        trajectory.center_z,
+        trajectory.heading,
+    ):
         values.extend(float(step) for step in range(num_steps))
     return submission.SerializeToString()
 
@@ -113,7 +118,13 @@ def test_folder_with_a_stray_file_or_no_shard_is_an_error(tmp_path):
 
 @pytest.mark.parametrize(
     "file_name, mode",
-    [("s.tar", "w"), ("s.tar.gz", "w:gz"), ("s.tgz", "w:gz"), ("s.tar.bz2", "w:bz2"), ("s.tar.xz", "w:xz")],
+    [
+        ("s.tar", "w"),
+        ("s.tar.gz", "w:gz"),
+        ("s.tgz", "w:gz"),
+        ("s.tar.bz2", "w:bz2"),
+        ("s.tar.xz", "w:xz"),
+    ],
 )
 def test_tar_archives_stream_every_shard_in_order(tmp_path, shards, file_name, mode):
     if mode in ("w:bz2", "w:xz"):  # slow compressors: small shards keep the test quick
@@ -130,7 +141,9 @@ def test_tar_archives_stream_every_shard_in_order(tmp_path, shards, file_name, m
 
 def test_a_plain_tar_named_tar_gz_is_read_with_a_warning(tmp_path, shards):
     path = make_tar(tmp_path / "lying.tar.gz", shards, "w")
-    with pytest.warns(ArchiveNameWarning, match="name says compressed tar, but this is a uncompressed tar"):
+    with pytest.warns(
+        ArchiveNameWarning, match="name says compressed tar, but this is a uncompressed tar"
+    ):
         found = read_all(path)
     assert [data for _, data in found] == list(shards.values())
 
@@ -144,7 +157,9 @@ def test_an_archive_named_binproto_is_read_with_a_warning(tmp_path, shards):
 def test_random_bytes_named_like_an_archive_are_refused(tmp_path):
     path = tmp_path / "sub.tar.gz"
     path.write_bytes(bytes(range(256)) * 4)
-    with pytest.raises(ArchiveError, match="sub.tar.gz: named like a compressed tar archive but is neither"):
+    with pytest.raises(
+        ArchiveError, match="sub.tar.gz: named like a compressed tar archive but is neither"
+    ):
         read_all(path)
 
 
@@ -152,7 +167,9 @@ def test_random_bytes_named_binproto_fail_when_parsed(tmp_path):
     path = tmp_path / "sub.binproto"
     path.write_bytes(b"\xff" * 64)
     ((name, data),) = read_all(path)
-    with pytest.raises(InvalidShardError, match="shard sub.binproto: not a valid SimAgentsChallengeSubmission"):
+    with pytest.raises(
+        InvalidShardError, match="shard sub.binproto: not a valid SimAgentsChallengeSubmission"
+    ):
         parse_submission_shard(name, data)
 
 
@@ -205,7 +222,12 @@ def test_special_members_are_refused(tmp_path, fields, problem):
     data = small_submission("a")
 
     def add_special(tar):
-        add_member(tar, "submission/special.binproto", data if fields["type"] == tarfile.CONTTYPE else b"", **fields)
+        add_member(
+            tar,
+            "submission/special.binproto",
+            data if fields["type"] == tarfile.CONTTYPE else b"",
+            **fields,
+        )
 
     path = make_tar(tmp_path / "special.tar", {}, extra=add_special)
     if problem is None:
@@ -217,16 +239,28 @@ def test_special_members_are_refused(tmp_path, fields, problem):
 
 
 def test_oversize_member_is_named(tmp_path, shards):
-    path = make_tar(tmp_path / "big.tar.gz", {"ok.binproto": b"\x10\x01", "big.binproto": b"\x00" * 5000}, "w:gz")
-    with pytest.raises(SizeLimitError, match="member 'submission/big.binproto' is 5000 bytes, over the per-member limit of 4096"):
+    path = make_tar(
+        tmp_path / "big.tar.gz",
+        {"ok.binproto": b"\x10\x01", "big.binproto": b"\x00" * 5000},
+        "w:gz",
+    )
+    with pytest.raises(
+        SizeLimitError,
+        match="member 'submission/big.binproto' is 5000 bytes, over the per-member limit of 4096",
+    ):
         read_all(path, max_member_bytes=4096)
 
 
 def test_total_decompressed_size_is_limited(tmp_path):
-    members = {f"m{i}.binproto": b"\x00" * 3000 for i in range(10)}  # 30 kB of zeros, tiny when gzipped
+    members = {
+        f"m{i}.binproto": b"\x00" * 3000 for i in range(10)
+    }  # 30 kB of zeros, tiny when gzipped
     path = make_tar(tmp_path / "bomb.tar.gz", members, "w:gz")
     assert path.stat().st_size < 2000
-    with pytest.raises(SizeLimitError, match="bomb.tar.gz: decompresses to more than the total limit of 10000 bytes"):
+    with pytest.raises(
+        SizeLimitError,
+        match="bomb.tar.gz: decompresses to more than the total limit of 10000 bytes",
+    ):
         read_all(path, max_total_bytes=10_000)
     single = tmp_path / "bomb.binproto.gz"
     single.write_bytes(gzip.compress(b"\x10\x01" * 50_000))
@@ -250,7 +284,10 @@ def test_truncated_tar_gz_names_archive_and_member_after_streaming_earlier_ones(
     stream = iter_submission_shards(path)
     first_name, first_data = next(stream)  # streaming: the intact first shard comes out first
     assert first_data == shards[first_name.removeprefix("submission/")]
-    with pytest.raises(ArchiveError, match="cut.tar.gz: truncated or corrupt data in member 'submission/sub.binproto-00001"):
+    with pytest.raises(
+        ArchiveError,
+        match="cut.tar.gz: truncated or corrupt data in member 'submission/sub.binproto-00001",
+    ):
         list(stream)
 
 
@@ -267,14 +304,21 @@ def test_truncated_plain_tar_inside_data_and_inside_header(tmp_path):
     raw = make_tar(tmp_path / "full.tar", members).read_bytes()
     last_header = raw.rfind(b"submission/b.binproto")
     (tmp_path / "data.tar").write_bytes(raw[: last_header + 512 + 100])
-    with pytest.raises(ArchiveError, match="member 'submission/b.binproto' is truncated|unexpected end"):
+    with pytest.raises(
+        ArchiveError, match="member 'submission/b.binproto' is truncated|unexpected end"
+    ):
         read_all(tmp_path / "data.tar")
     (tmp_path / "header.tar").write_bytes(raw[: last_header + 200])
-    with pytest.raises(ArchiveError, match="header.tar: truncated tar archive \\(ends after member 'submission/a.binproto'"):
+    with pytest.raises(
+        ArchiveError,
+        match="header.tar: truncated tar archive \\(ends after member 'submission/a.binproto'",
+    ):
         read_all(tmp_path / "header.tar")
     garbage = raw[:last_header] + b"\x7f" * 512 + raw[last_header + 512 :]
     (tmp_path / "garbage.tar").write_bytes(garbage)
-    with pytest.raises(ArchiveError, match="garbage.tar: corrupt tar header after member 'submission/a.binproto'"):
+    with pytest.raises(
+        ArchiveError, match="garbage.tar: corrupt tar header after member 'submission/a.binproto'"
+    ):
         read_all(tmp_path / "garbage.tar")
 
 
@@ -292,7 +336,10 @@ def test_stray_member_is_an_error(tmp_path):
 
 def test_invalid_utf8_in_a_string_field_is_named():
     bad_id = Submission.FromString(b"\x0a\x04\x0a\x02\xff\xfe")  # scenario_id = b"\xff\xfe"
-    with pytest.raises(InvalidShardError, match="shard s.binproto: field scenario_rollouts\\[0\\].scenario_id is not valid UTF-8"):
+    with pytest.raises(
+        InvalidShardError,
+        match="shard s.binproto: field scenario_rollouts\\[0\\].scenario_id is not valid UTF-8",
+    ):
         parse_submission_shard("s.binproto", bad_id.SerializeToString())
     with pytest.raises(InvalidShardError, match="field authors\\[0\\]"):
         parse_submission_shard("s.binproto", b"\x2a\x01\xff")

@@ -21,7 +21,9 @@ from wosac_eval.protos import sim_agents_submission_pb2
 
 # WOSAC_FUZZ_EXAMPLES=5000 for a longer local hunt; the default keeps CI quick.
 FUZZ = settings(
-    max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")), deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+    max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")),
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
 )
 
 

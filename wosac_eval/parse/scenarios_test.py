@@ -103,7 +103,9 @@ def test_undecodable_record_names_file_and_offset(tmp_path):
     write_records(path, [small_scenario("ok").SerializeToString(), b"\xff\xff\xff"])
     second_offset = list(iter_records(path))[1].offset
     for action in (lambda: list(iter_scenarios(path)), lambda: ScenarioIndex(path)):
-        with pytest.raises(ParseError, match=f"bad.tfrecord \\(record at byte offset {second_offset}\\)"):
+        with pytest.raises(
+            ParseError, match=f"bad.tfrecord \\(record at byte offset {second_offset}\\)"
+        ):
             action()
 
 
@@ -111,7 +113,9 @@ def test_scenario_id_must_be_text(tmp_path):
     path = tmp_path / "bytes-id.tfrecord"
     write_records(path, [b"\x2a\x02\xff\xfe"])  # scenario_id = b"\xff\xfe"
     for action in (lambda: list(iter_scenarios(path)), lambda: ScenarioIndex(path)):
-        with pytest.raises(ParseError, match="(?i)bytes-id.tfrecord \\(record at byte offset 0\\).*utf-8"):
+        with pytest.raises(
+            ParseError, match="(?i)bytes-id.tfrecord \\(record at byte offset 0\\).*utf-8"
+        ):
             action()
 
 
@@ -139,7 +143,10 @@ def test_duplicate_ids_across_shards_name_both_places(tmp_path):
         ScenarioIndex([first, second])
     message = str(caught.value)
     assert "'dup' occurs twice" in message
-    assert f"{first} (record at byte offset" in message and f"{second} (record at byte offset 0)" in message
+    assert (
+        f"{first} (record at byte offset" in message
+        and f"{second} (record at byte offset 0)" in message
+    )
 
 
 def test_index_notices_a_shard_rewritten_after_indexing(tmp_path):
@@ -155,10 +162,18 @@ def test_skimmed_id_matches_a_full_parse():
     source = ScenarioSource(Path("mem"), 0)
     assert scenario_id_of(scenario.SerializeToString(), source) == "id-with-ünicode"
     # The last occurrence wins, as protobuf merging does.
-    doubled = scenario.SerializeToString() + scenario_pb2.Scenario(scenario_id="z").SerializeToString()
+    doubled = (
+        scenario.SerializeToString() + scenario_pb2.Scenario(scenario_id="z").SerializeToString()
+    )
     assert scenario_id_of(doubled, source) == scenario_pb2.Scenario.FromString(doubled).scenario_id
-    for bad in (b"", scenario_pb2.Scenario(current_time_index=3).SerializeToString(), b"\x2a\x05ab"):
-        with pytest.raises(ParseError, match="mem \\(record at byte offset 0\\): not a valid Scenario"):
+    for bad in (
+        b"",
+        scenario_pb2.Scenario(current_time_index=3).SerializeToString(),
+        b"\x2a\x05ab",
+    ):
+        with pytest.raises(
+            ParseError, match="mem \\(record at byte offset 0\\): not a valid Scenario"
+        ):
             scenario_id_of(bad, source)
 
 

@@ -95,8 +95,9 @@ def _read_header(stream: BinaryIO, path: Path, offset: int, max_record_bytes: in
         return None
     if len(header) != HEADER_BYTES:
         raise CorruptRecordError(
-            path, offset, f"file truncated: record header needs {HEADER_BYTES} bytes, "
-            f"only {len(header)} left"
+            path,
+            offset,
+            f"file truncated: record header needs {HEADER_BYTES} bytes, only {len(header)} left",
         )
     length_bytes, crc_bytes = header[: _LENGTH.size], header[_LENGTH.size :]
     if masked_crc32c(length_bytes) != _CRC.unpack(crc_bytes)[0]:

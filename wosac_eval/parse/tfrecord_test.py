@@ -80,7 +80,7 @@ def test_writer_rejects_non_bytes_and_leaves_no_file(tmp_path):
 def test_random_access_by_offset(tmp_path):
     path = tmp_path / "good.tfrecord"
     path.write_bytes(hand_built(PAYLOADS))
-    for offset, data in zip(offsets_of(PAYLOADS), PAYLOADS):
+    for offset, data in zip(offsets_of(PAYLOADS), PAYLOADS, strict=True):
         assert read_record_at(path, offset) == data
     with pytest.raises(CorruptRecordError, match="length field fails"):
         read_record_at(path, 1)
@@ -172,5 +172,7 @@ def test_truncated_gzip_is_a_corrupt_record(tmp_path):
 def test_not_gzip_despite_the_name(tmp_path):
     path = tmp_path / "plain.tfrecord.gz"
     path.write_bytes(hand_built(PAYLOADS))
-    with pytest.raises(CorruptRecordError, match="plain.tfrecord.gz: corrupt TFRecord at byte offset 0"):
+    with pytest.raises(
+        CorruptRecordError, match="plain.tfrecord.gz: corrupt TFRecord at byte offset 0"
+    ):
         list(iter_records(path))

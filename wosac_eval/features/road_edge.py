@@ -18,6 +18,8 @@ import dataclasses
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wosac_eval.features.spatial import tree_candidates
+
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
 OFFROAD_DISTANCE_THRESHOLD = 0.0
@@ -129,26 +131,10 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     spacing cannot be the nearest.
     """
     q = _stretch(queries)
-    nearest, _ = table.tree.query(q, k=1)
-    radius = nearest + table.spacing * 0.5 + 1e-3 + 1e-5 * nearest
-    k = min(16, table.tree.n)
-    dist, which = table.tree.query(q, k=k)
-    dist, which = dist.reshape(len(q), k), which.reshape(len(q), k)
-    within = dist <= radius[:, None]
-    # When the k-th sample is already beyond the radius, the k nearest hold them all.
-    complete = ~within[:, -1] | (k == table.tree.n)
-    take = within & complete[:, None]
-    qi = np.nonzero(take)[0]
-    si = table.sample_segment[which[take]]
-    rest = np.flatnonzero(~complete)
-    if rest.size:
-        lists = table.tree.query_ball_point(q[rest], radius[rest])
-        qi = np.concatenate([qi, np.repeat(rest, [len(l) for l in lists])])
-        si = np.concatenate([si, table.sample_segment[np.concatenate(
-            [np.asarray(l, np.int64) for l in lists])]])
-    num_segments = np.int64(len(table.valid))
-    pairs = np.unique(qi.astype(np.int64) * num_segments + si)
-    return pairs // num_segments, pairs % num_segments
+    qi, sample = tree_candidates(
+        table.tree, q, lambda nearest: nearest + table.spacing * 0.5 + 1e-3 + 1e-5 * nearest)
+    # Duplicates (several samples of one segment) are harmless: they tie exactly.
+    return qi, table.sample_segment[sample]
 
 
 def _side(table: SegmentTable, query_xy, seg):

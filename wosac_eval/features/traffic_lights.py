@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
+from wosac_eval.features.spatial import tree_candidates
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -89,11 +90,8 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
       int64 `(num_points,)`.
     """
     q = np.asarray(xy, np.float64)
-    r1, _ = table.tree.query(q, k=1)
-    radius = 2.0 * r1 * (1 + 1e-5) + 1e-3
-    lists = table.tree.query_ball_point(q, radius)
-    qi = np.repeat(np.arange(len(q)), [len(l) for l in lists])
-    si = table.tree_segment[np.concatenate([np.asarray(l, np.int64) for l in lists])]
+    qi, si = tree_candidates(table.tree, q, lambda nearest: 2.0 * nearest * (1 + 1e-5) + 1e-3)
+    si = table.tree_segment[si]
     d = _lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
     order = np.lexsort((si, d, qi))
     first = np.ones(order.size, bool)

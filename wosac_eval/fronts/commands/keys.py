@@ -41,6 +41,14 @@ def run(args: argparse.Namespace) -> int:
     store = Store(settings.resolved_db_url)
     store.migrate()
     if args.action == "create":
+        import re
+
+        from wosac_eval.fronts.server.app import METHOD_PATTERN
+
+        if not re.match(METHOD_PATTERN, args.name):
+            print(f"wosac-eval keys: the name {args.name!r} must match {METHOD_PATTERN} "
+                  "(it is the default method name on the leaderboard)", file=sys.stderr)
+            return 2
         limits = {
             "max_concurrent": args.max_concurrent or settings.default_max_concurrent,
             "max_daily": args.max_daily or settings.default_max_daily,

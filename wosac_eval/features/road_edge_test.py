@@ -1,0 +1,236 @@
+"""Tests of the signed distance to road edges on hand-built maps and against brute force."""
+import math
+
+import numpy as np
+import pytest
+
+from wosac_eval.features import road_edge
+from wosac_eval.features.box_geometry import box_corners_xy
+
+F = np.float32
+
+
+def polyline(*points, z=0.0):
+    p = np.array(points, np.float64)
+    if p.shape[1] == 2:
+        p = np.concatenate([p, np.full((len(p), 1), z)], axis=1)
+    return p.astype(F)
+
+
+def distances(table, *points):
+    q = np.array([p if len(p) == 3 else (*p, 0.0) for p in points], F)
+    return road_edge.signed_distance_to_polylines(table, q)
+
+
+# A 100 m square road, counter-clockwise: the road is on the left, i.e. inside.
+SQUARE = polyline((0, 0), (100, 0), (100, 100), (0, 100), (0, 0))
+
+
+@pytest.fixture(scope="module")
+def square():
+    return road_edge.build_segment_table([SQUARE])
+
+
+def test_square_inside_and_outside(square):
+    d = distances(square, (10, 50), (-5, 50), (50, 97), (50, 130), (3, 4), (50, 0))
+    assert d.dtype == F
+    np.testing.assert_array_equal(d, [-10, 5, -3, 30, -3, 0])
+
+
+def test_square_outside_a_convex_corner(square):
+    # Beyond the corner (0, 0) the nearest point is the corner itself, 5 m away,
+    # and the point is off the road although it is "left" of one of the two sides' lines.
+    np.testing.assert_array_equal(distances(square, (-3, -4), (-4, -3), (103, 104), (-3, 104)), 5)
+
+
+def test_square_is_cyclic_and_closed(square):
+    assert square.valid.sum() == 4
+    # Each segment's neighbours wrap around the loop.
+    np.testing.assert_array_equal(square.prior, [3, 0, 1, 2])
+    np.testing.assert_array_equal(square.next, [1, 2, 3, 0])
+    assert square.convex_before.all() and square.convex_after.all()
+
+
+# An L-shaped road, counter-clockwise, with a reflex corner at (10, 10).
+L_SHAPE = polyline((0, 0), (20, 0), (20, 10), (10, 10), (10, 20), (0, 20), (0, 0))
+
+
+def test_concave_corner():
+    table = road_edge.build_segment_table([L_SHAPE])
+    d = distances(table, (8, 8), (12, 12), (11, 11), (5, 5))
+    # (8, 8): on the road, nearest to the reflex corner at distance sqrt(8).
+    # (12, 12) and (11, 11): in the notch, off the road, 2 m and 1 m from the two sides.
+    np.testing.assert_allclose(d, [-math.sqrt(8), 2, 1, -5], rtol=1e-7)
+
+
+def test_straight_non_cyclic_edge():
+    table = road_edge.build_segment_table([polyline((0, 0), (10, 0))])
+    d = distances(table, (5, 3), (5, -3), (13, 4), (13, -4), (-3, 4), (-3, -4))
+    # Past the ends the distance is to the end point and the side is that of the segment's line.
+    np.testing.assert_array_equal(d, [-3, 3, -5, 5, -5, 5])
+
+
+def test_open_polyline_convex_turn():
+    table = road_edge.build_segment_table([polyline((0, 0), (10, 0), (10, 10))])
+    # Outside the left turn at (10, 0): off the road.
+    np.testing.assert_allclose(distances(table, (12, -2), (8, 2)), [math.sqrt(8), -2], rtol=1e-7)
+    # A non-cyclic polyline's ends are their own neighbours.
+    np.testing.assert_array_equal(table.prior, [0, 0])
+    np.testing.assert_array_equal(table.next, [1, 1])
+
+
+def test_z_stretch_picks_the_edge_at_the_right_height():
+    # Two parallel edges 2 m apart in the plane but 10 m apart in height:
+    # the lower one runs +x (road at y > 0), the upper one runs -x (road at y < 2).
+    lower = polyline((0, 0), (10, 0), z=0.0)
+    upper = polyline((10, 2), (0, 2), z=10.0)
+    table = road_edge.build_segment_table([lower, upper])
+    d = distances(table, (5, 1.5, 0.0), (5, 1.5, 10.0), (5, -1.0, 0.0), (5, 3.0, 9.0))
+    # Planar distances: 1.5 to the lower edge, 0.5 to the upper one.
+    np.testing.assert_array_equal(d, [-1.5, -0.5, 1.0, 1.0])
+
+
+def test_height_difference_is_stretched_threefold():
+    # A point 1 m above the plane of edge A, which is 3.1 m away in the plane,
+    # and level with edge B 3.2 m away on the other side: stretched, A is
+    # sqrt(3.1^2 + 3^2) = 4.31 m away, B 3.2 m, so B is picked.
+    a = polyline((-10, -3.1), (10, -3.1), z=0.0)   # runs +x: the point (y = 0) is on its road side
+    b = polyline((10, 3.2), (-10, 3.2), z=1.0)     # runs -x: the point is on its road side too
+    table = road_edge.build_segment_table([a, b])
+    np.testing.assert_allclose(distances(table, (0, 0, 1.0)), [-3.2], rtol=1e-7)
+    # Without the height difference A would win.
+    np.testing.assert_allclose(distances(table, (0, 0, 0.5)), [-3.1], rtol=1e-7)
+
+
+def test_short_polylines_are_ignored(square):
+    with_short = road_edge.build_segment_table([polyline((50, 50)), SQUARE, np.zeros((0, 3), F)])
+    queries = [(50, 50), (10, 50), (-5, 50)]
+    np.testing.assert_array_equal(distances(with_short, *queries), distances(square, *queries))
+
+
+def test_no_road_edges_is_an_error():
+    with pytest.raises(ValueError, match="no road edges"):
+        road_edge.build_segment_table([polyline((1, 1))])
+
+
+def test_padding_of_shorter_polylines():
+    table = road_edge.build_segment_table([polyline((0, 0), (10, 0)), SQUARE])
+    # The first polyline is padded to the square's 5 points: 4 segments, 1 valid.
+    assert table.start.shape == (8, 3)
+    np.testing.assert_array_equal(table.valid, [True, False, False, False, True, True, True, True])
+    np.testing.assert_array_equal(distances(table, (5, -1)), [1])
+
+
+def boxes_distance(table, x, y, length, width, heading, valid=None, z=0.0):
+    x, y, length, width, heading = (np.atleast_2d(np.asarray(v, F)) for v in (x, y, length, width, heading))
+    cx, cy = box_corners_xy(x, y, length, width, np.cos(heading).astype(F), np.sin(heading).astype(F))
+    corners = np.stack([cx, cy, np.full(cx.shape, z, F)], axis=-1)
+    if valid is None:
+        valid = np.ones(x.shape, bool)
+    return road_edge.distance_to_road_edge(corners, np.asarray(valid, bool), table)
+
+
+def test_box_distance_is_the_most_off_road_corner(square):
+    # One object over three steps: inside (20 m from x = 0, corners 2 m closer),
+    # straddling the edge, outside.
+    d = boxes_distance(square, [[20, 1, -10]], [[50, 50, 50]], [[4, 4, 4]], [[2, 2, 2]], [[0, 0, 0]])
+    assert d.shape == (1, 3) and d.dtype == F
+    np.testing.assert_array_equal(d, [[-18, 1, 12]])
+    assert np.array_equal(d > road_edge.OFFROAD_DISTANCE_THRESHOLD, [[False, True, True]])
+
+
+def test_box_distance_turned_box(square):
+    # A 4 x 2 box turned 90 degrees 10 m from the bottom side: its rear corners are 8 m from it.
+    d = boxes_distance(square, [[50]], [[10]], [[4]], [[2]], [[math.pi / 2]])
+    np.testing.assert_allclose(d, [[-8]], atol=1e-5)
+
+
+def test_box_distance_invalid_is_large_negative(square):
+    d = boxes_distance(square, [[-10, -10]], [[50, 50]], [[4, 4]], [[2, 2]], [[0, 0]], valid=[[True, False]])
+    assert d[0, 0] == 12
+    assert d[0, 1] == -road_edge.EXTREMELY_LARGE_DISTANCE
+
+
+# --- Brute force ---------------------------------------------------------------------------------
+
+def brute_force(table, queries):
+    """Signed distance with every valid segment evaluated, same float32 operations."""
+    q = np.asarray(queries, F)[:, None, :]
+    idx = np.flatnonzero(table.valid)
+    start, delta = table.start[idx][None], table.delta[idx][None]
+    to_point = q - start
+    along = to_point[..., 0] * delta[..., 0] + to_point[..., 1] * delta[..., 1]
+    squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel_t = np.where(squared == 0, F(0), along / squared)
+    clipped = np.clip(rel_t, F(0), F(1))
+    offset = to_point - delta * clipped[..., None]
+    oz = offset[..., 2] * F(3)
+    d3 = np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1] + oz * oz)
+    d2 = np.sqrt(offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1])
+    best = np.argmin(d3, axis=1)  # first minimum: ties go to the lowest segment index
+    rows = np.arange(len(q))
+    seg, t, dist = idx[best], rel_t[rows, best], d2[rows, best]
+    xy = q[:, 0, :2]
+
+    def side(s):
+        sx, sy = xy[:, 0] - table.start[s, 0], xy[:, 1] - table.start[s, 1]
+        return np.sign(sx * table.delta[s, 1] - sy * table.delta[s, 0])
+
+    n, n_prior, n_next = side(seg), side(table.prior[seg]), side(table.next[seg])
+    sign = n.copy()
+    before = (t < 0) & table.prior_valid[seg]
+    after = (t > 1) & table.next_valid[seg]
+    sign[before] = np.where(table.convex_before[seg], np.maximum(n, n_prior), np.minimum(n, n_prior))[before]
+    sign[after] = np.where(table.convex_after[seg], np.maximum(n, n_next), np.minimum(n, n_next))[after]
+    return (sign * dist).astype(F)
+
+
+def random_map(rng):
+    polylines = []
+    for k in range(40):
+        n = int(rng.integers(2, 40))
+        step = np.exp(rng.uniform(math.log(0.05), math.log(30), n))  # 5 cm to 30 m segments
+        angle = np.cumsum(rng.normal(0, 0.6, n))
+        xy = rng.uniform(-150, 150, 2) + np.cumsum(np.stack([step * np.cos(angle), step * np.sin(angle)], 1), 0)
+        level = rng.choice([0.0, 0.0, 6.0, 12.0])
+        z = level + np.cumsum(rng.normal(0, 0.05, n))
+        p = np.concatenate([xy, z[:, None]], 1)
+        if k % 5 == 0:
+            p = np.concatenate([p, p[:1]])  # closed loop
+        if k % 7 == 0:
+            p = np.concatenate([p[:3], p[2:3], p[3:]])  # a zero-length segment
+        polylines.append(p.astype(F))
+    # A dense ring: from its centre hundreds of samples are equally near, which
+    # overflows the k nearest samples and exercises the ball-query path.
+    t = np.linspace(0, 2 * math.pi, 400)
+    polylines.append(np.stack([400 + 5 * np.cos(t), 400 + 5 * np.sin(t), np.zeros_like(t)], 1).astype(F))
+    return polylines
+
+
+def test_candidate_search_equals_brute_force():
+    rng = np.random.default_rng(1234)
+    polylines = random_map(rng)
+    table = road_edge.build_segment_table(polylines)
+    queries = np.concatenate([
+        np.stack([rng.uniform(-250, 250, 3000), rng.uniform(-250, 250, 3000), rng.uniform(-2, 14, 3000)], 1),
+        # Far away from everything.
+        np.array([[2000, 2000, 0], [-3000, 100, 50]]),
+        # Exactly on vertices, and at the ring centre and near it.
+        np.concatenate(polylines)[::7],
+        np.array([[400, 400, 0], [400.3, 399.8, 0.1], [400, 400, 5]]),
+    ]).astype(F)
+    # The ring centre really has more than 16 candidate samples.
+    ring_centre_samples, _ = table.tree.query([400, 400, 0], k=17)
+    assert ring_centre_samples[-1] - ring_centre_samples[0] < table.spacing / 2
+    ours = road_edge.signed_distance_to_polylines(table, queries)
+    reference = brute_force(table, queries)
+    mismatch = np.flatnonzero(ours != reference)
+    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
+                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+
+
+def test_hand_cases_equal_brute_force(square):
+    table = road_edge.build_segment_table([L_SHAPE, SQUARE, polyline((0, 0), (10, 0), (10, 10))])
+    q = np.array([(8, 8, 0), (12, 12, 0), (-3, -4, 0), (12, -2, 0), (50, 50, 0), (10, 10, 0)], F)
+    np.testing.assert_array_equal(road_edge.signed_distance_to_polylines(table, q), brute_force(table, q))

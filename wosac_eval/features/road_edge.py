@@ -122,17 +122,36 @@ def _sample_tree(start, delta, valid):
     return cKDTree(points), idx[seg_of]
 
 
+def _segment_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
+    """Projection parameter, stretched 3D distance and planar distance, float32, per pair."""
+    start, delta = table.start[si], table.delta[si]
+    to_point = queries[qi] - start
+    along = to_point[:, 0] * delta[:, 0] + to_point[:, 1] * delta[:, 1]
+    squared = delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel_t = np.where(squared == 0, _F(0), along / squared)
+    clipped = np.clip(rel_t, _F(0), _F(1))
+    offset = to_point - delta * clipped[:, None]
+    oz = offset[:, 2] * _F(Z_STRETCH)
+    planar2 = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1]
+    return rel_t, np.sqrt(planar2 + oz * oz), np.sqrt(planar2)
+
+
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
     A segment's stretched distance is at least the distance to its nearest
-    sample minus half the spacing, and the nearest sample bounds the minimum
-    from above, so segments with no sample within that bound plus half the
-    spacing cannot be the nearest.
+    sample minus half the spacing; the exact distance to the segments of the
+    nearest samples bounds the minimum from above. Segments with no sample
+    within that bound plus half the spacing cannot be the nearest.
     """
     q = _stretch(queries)
+
+    def measure(rows, samples):
+        return _segment_distances(table, queries, rows, table.sample_segment[samples])[1]
+
     qi, sample = tree_candidates(
-        table.tree, q, lambda nearest: nearest + table.spacing * 0.5 + 1e-3 + 1e-5 * nearest)
+        table.tree, q, lambda best: best + table.spacing * 0.5 + 1e-3 + 1e-5 * best, measure)
     # Duplicates (several samples of one segment) are harmless: they tie exactly.
     return qi, table.sample_segment[sample]
 
@@ -155,17 +174,7 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     """
     queries = np.asarray(queries, _F)
     qi, si = _candidates(table, queries)
-    start, delta = table.start[si], table.delta[si]
-    to_point = queries[qi] - start
-    along = to_point[:, 0] * delta[:, 0] + to_point[:, 1] * delta[:, 1]
-    squared = delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel_t = np.where(squared == 0, _F(0), along / squared)
-    clipped = np.clip(rel_t, _F(0), _F(1))
-    offset = to_point - delta * clipped[:, None]
-    oz = offset[:, 2] * _F(Z_STRETCH)
-    d3 = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1] + oz * oz)
-    d2 = np.sqrt(offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1])
+    rel_t, d3, d2 = _segment_distances(table, queries, qi, si)
     # Nearest in 3D, ties to the lowest segment index (pairs are sorted by it).
     order = np.lexsort((si, d3, qi))
     first = np.ones(order.size, bool)

@@ -5,16 +5,24 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of):
-    """(query, tree point) pairs within `radius_of(nearest distance)` of each query.
+def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None):
+    """(query, tree point) pairs within a search radius of each query.
 
-    The k nearest points usually contain them all; queries where they might
-    not fall back to a ball search.
+    The radius is `radius_of(bound)`, where `bound` is the smallest exact
+    measure (`measure(query_index, point_index)`) over the k tree points
+    nearest to the query, or the distance to the nearest point when no
+    measure is given. The k nearest points usually contain every point within
+    the radius; queries where they might not fall back to a ball search.
     """
     k = min(16, tree.n)
     dist, which = tree.query(q, k=k)
     dist, which = dist.reshape(len(q), k), which.reshape(len(q), k)
-    radius = radius_of(dist[:, 0])
+    if measure is None:
+        bound = dist[:, 0]
+    else:
+        rows = np.repeat(np.arange(len(q)), k)
+        bound = np.asarray(measure(rows, which.reshape(-1)), np.float64).reshape(len(q), k).min(axis=1)
+    radius = radius_of(bound)
     within = dist <= radius[:, None]
     complete = ~within[:, -1] | (k == tree.n)
     take = within & complete[:, None]

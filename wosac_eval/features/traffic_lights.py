@@ -10,7 +10,7 @@ quirks: the "distance" to a segment is |p + t d| (p from the segment start to
 the point, d along the segment, t the clamped projection) rather than
 |p - t d|, and each shorter lane keeps a segment from its last point to the
 origin (the official padding), which counts as valid. That measure lies
-between |p| and 2|p|, so a k-d tree over segment starts finds all candidates.
+at least |p|, so a k-d tree over segment starts finds all candidates.
 """
 from __future__ import annotations
 
@@ -90,7 +90,15 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
       int64 `(num_points,)`.
     """
     q = np.asarray(xy, np.float64)
-    qi, si = tree_candidates(table.tree, q, lambda nearest: 2.0 * nearest * (1 + 1e-5) + 1e-3)
+    xy32 = np.asarray(xy, _F)
+
+    def measure(rows, points):
+        seg = table.tree_segment[points]
+        return _lane_measure(xy32[rows], table.start[seg], table.delta[seg])
+
+    # The measure is at least the distance to the segment start, so segments
+    # whose start is farther than the best measure found cannot win.
+    qi, si = tree_candidates(table.tree, q, lambda best: best * (1 + 1e-5) + 1e-3, measure)
     si = table.tree_segment[si]
     d = _lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
     order = np.lexsort((si, d, qi))

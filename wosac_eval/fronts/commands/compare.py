@@ -35,6 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--min-shared", type=int, default=1, metavar="N",
                         help="error (exit 2) when the results share fewer than N scenarios (default 1)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
+    parser.add_argument("--json-output", metavar="PATH",
+                        help="also write the comparison as JSON to PATH (the table still goes to stdout)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,6 +51,13 @@ def run(args: argparse.Namespace) -> int:
     except (ResultError, CompareError) as e:
         print(f"wosac-eval compare: error: {e}", file=sys.stderr)
         return 2
+    if args.json_output:
+        try:
+            with open(args.json_output, "w", encoding="utf-8") as f:
+                json.dump(comparison.to_json(), f, indent=2)
+        except OSError as e:
+            print(f"wosac-eval compare: error: cannot write {args.json_output}: {e.strerror}", file=sys.stderr)
+            return 2
     if args.json:
         for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
             print(f"wosac-eval compare: warning: {w}", file=sys.stderr)

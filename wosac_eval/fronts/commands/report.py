@@ -32,6 +32,10 @@ def run(args: argparse.Namespace) -> int:
     if args.top < 1:
         print("wosac-eval report: error: --top must be at least 1", file=sys.stderr)
         return 2
+    folder = Path(args.html).resolve().parent
+    if not folder.is_dir():  # checked first: rendering takes seconds on a large result
+        print(f"wosac-eval report: error: cannot write {args.html}: folder {folder} does not exist", file=sys.stderr)
+        return 2
     try:
         result = load_result(args.result)
         base = comparison = None

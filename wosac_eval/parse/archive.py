@@ -213,8 +213,8 @@ class _LimitedStream:
         self.member = "(archive header)"
 
     def read(self, size: int = -1) -> bytes:
-        if size is None or size < 0:
-            size = self.limit + 1 - self.bytes_read  # never more than the limit allows
+        if size is None or size < 0:  # read to the end, a bounded chunk at a time
+            return b"".join(iter(lambda: self.read(_CHUNK_BYTES), b""))
         data = self._source.read(size)
         self.bytes_read += len(data)
         if self.bytes_read > self.limit:

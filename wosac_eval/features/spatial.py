@@ -5,7 +5,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None):
+def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k: int = 16):
     """(query, tree point) pairs within a search radius of each query.
 
     The radius is `radius_of(bound)`, where `bound` is the smallest exact
@@ -14,7 +14,7 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None):
     measure is given. The k nearest points usually contain every point within
     the radius; queries where they might not fall back to a ball search.
     """
-    k = min(16, tree.n)
+    k = min(k, tree.n)
     dist, which = tree.query(q, k=k)
     dist, which = dist.reshape(len(q), k), which.reshape(len(q), k)
     if measure is None:

@@ -233,44 +233,47 @@ def _varint(value: int) -> bytes:
 
 
 def _packed_headers(n_steps: int) -> np.ndarray:
-    """Wire headers (tag, byte length) of the four packed float fields 2..5 holding n_steps values each."""
+    """Wire headers (tag, byte length) of the four packed float fields 2..5 holding n_steps values each, shape (4, header)."""
     length = _varint(4 * n_steps)
     return np.array([list(bytes([(number << 3) | 2]) + length) for number in (2, 3, 4, 5)], dtype=np.uint8)
 
 
-def _non_finite_fields(trajectories: Sequence[Any], counts: np.ndarray, n_steps: int) -> np.ndarray:
-    """Mask of (trajectory, field) holding a NaN or infinite value, shape (num_trajectories, 4).
+def _counts_and_non_finite(trajectories: Sequence[Any], n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """Value counts and non-finite mask of center_x, center_y, center_z, heading, both shape (num_trajectories, 4).
 
-    Fast path, for trajectories whose four fields all hold n_steps values: the
-    serialized trajectory (written by protobuf in field-number order) starts
-    with the four packed fields center_x..heading, so the first bytes of every
-    trajectory are stacked into one (m, 4, header + 4 * n_steps) uint8 array,
-    the headers checked, and the values read as float32 without touching them
-    one by one in Python. Anything else (other lengths, unexpected layout) falls
-    back to a float64 sum per field, which is finite exactly when every value is.
+    Fast path: protobuf serializes a parsed message canonically (known fields
+    in field-number order, each packed field once), so a trajectory whose four
+    fields hold n_steps values each serializes to bytes that start with four
+    blocks "tag, length 4 * n_steps, values". The first bytes of every
+    trajectory are stacked into one (num_trajectories, 4, block) uint8 array:
+    where the four headers match, the counts are proven to be n_steps and the
+    values are read as float32 and checked with one `isfinite`, without a
+    Python loop over values. Any other trajectory (a field of another length,
+    an unexpected layout) takes the slow path: len() per field, and a float64
+    sum per field, which is finite exactly when every value is (a float64 sum
+    of float32 values cannot overflow below ~1e270 values).
     """
     n = len(trajectories)
-    mask = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
-    regular = np.flatnonzero((counts == n_steps).all(axis=1)) if n else np.zeros(0, dtype=np.int64)
-    fallback = set(range(n)) - set(regular.tolist())
-    if regular.size and n_steps > 0:
-        headers = _packed_headers(n_steps)
-        block = headers.shape[1] + 4 * n_steps
-        prefix = 4 * block
-        raw = b"".join(trajectories[k].SerializeToString()[:prefix] for k in regular)
-        if len(raw) == prefix * regular.size:
-            stacked = np.frombuffer(raw, dtype=np.uint8).reshape(regular.size, 4, block)
-            layout_ok = (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
-            values = np.ascontiguousarray(stacked[:, :, headers.shape[1] :]).view("<f4")
-            mask[regular] = ~np.isfinite(values).all(axis=2) & layout_ok[:, None]
-            fallback.update(regular[~layout_ok].tolist())
-        else:
-            fallback.update(regular.tolist())
-    for k in sorted(fallback):
-        t = trajectories[k]
-        sums = (sum(t.center_x), sum(t.center_y), sum(t.center_z), sum(t.heading))
-        mask[k] = ~np.isfinite(np.array(sums, dtype=np.float64))
-    return mask
+    counts = np.full((n, len(TRAJECTORY_FIELDS)), n_steps, dtype=np.int64)
+    non_finite = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
+    if n == 0:
+        return counts, non_finite
+    headers = _packed_headers(n_steps)
+    block = headers.shape[1] + 4 * n_steps
+    prefix = 4 * block
+    heads = [t.SerializeToString()[:prefix] for t in trajectories]
+    long_enough = np.fromiter(map(len, heads), dtype=np.int64, count=n) == prefix
+    if not long_enough.all():
+        heads = [b.ljust(prefix, b"\0") for b in heads]
+    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(n, 4, block)
+    regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
+    values = np.ascontiguousarray(stacked[regular, :, headers.shape[1] :]).view("<f4")
+    non_finite[regular] = ~np.isfinite(values).all(axis=2)
+    for k in np.flatnonzero(~regular).tolist():
+        fields = [getattr(trajectories[k], name) for name in TRAJECTORY_FIELDS]
+        counts[k] = [len(f) for f in fields]
+        non_finite[k] = ~np.isfinite(np.array([sum(f) for f in fields], dtype=np.float64))
+    return counts, non_finite
 
 
 def _non_finite_detail(field: str, values: Any) -> str:
@@ -284,39 +287,30 @@ def _non_finite_detail(field: str, values: Any) -> str:
     return detail
 
 
-def check_joint_scene(
-    scene: Any,
+def check_scene_object_ids(
+    ids: np.ndarray,
+    has_id: np.ndarray,
     sim_agent_ids: np.ndarray | None,
     *,
     shard: str | None,
     scenario_id: str | None,
     rollout: int,
-    n_steps: int = N_SIMULATION_STEPS,
 ) -> list[Finding]:
-    """Rules on one JointScene: the object ids against the sim agents, the field lengths and values.
+    """Object-id rules on one joint scene: no trajectory without an id, no duplicate, exactly the sim agents.
 
+    ids, has_id: the scene's trajectories' object ids and whether each is set, shape (num_trajectories,).
     sim_agent_ids: sorted unique int64 ids, shape (num_sim_agents,), or None when
-    the scenario is unknown (then only duplicates, lengths and values are checked).
+    the scenario is unknown (then only missing ids and duplicates are checked).
     """
     out: list[Finding] = []
     loc = {"shard": shard, "scenario_id": scenario_id, "rollout": rollout}
-    trajectories = list(scene.simulated_trajectories)
-    n = len(trajectories)
-    has_id = np.fromiter((t.HasField("object_id") for t in trajectories), dtype=bool, count=n)
-    ids = np.fromiter((t.object_id for t in trajectories), dtype=np.int64, count=n)
-    counts = np.array(
-        [(len(t.center_x), len(t.center_y), len(t.center_z), len(t.heading)) for t in trajectories], dtype=np.int64
-    ).reshape(n, len(TRAJECTORY_FIELDS))
-
-    for k in np.flatnonzero(~has_id):
+    for k in np.flatnonzero(~has_id).tolist():
         out.append(make_finding("rollouts.missing_object_id", f"simulated_trajectories[{k}] has no object_id", **loc))
-
     present, multiplicity = np.unique(ids[has_id], return_counts=True)
     repeated = multiplicity > 1
     if repeated.any():
         dup = ", ".join(f"{i} ({m} times)" for i, m in zip(present[repeated].tolist(), multiplicity[repeated].tolist()))
         out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}", **loc))
-
     if sim_agent_ids is not None:
         missing = np.setdiff1d(sim_agent_ids, present, assume_unique=True)
         if missing.size:
@@ -338,25 +332,6 @@ def check_joint_scene(
                     **loc,
                 )
             )
-
-    def object_id(k: int) -> int | None:
-        return int(ids[k]) if has_id[k] else None
-
-    for k, f in np.argwhere(counts != n_steps):
-        field = TRAJECTORY_FIELDS[f]
-        out.append(
-            make_finding(
-                "rollouts.wrong_length",
-                f"field {field} has {counts[k, f]} values, expected {n_steps}",
-                object_id=object_id(k),
-                field=field,
-                **loc,
-            )
-        )
-    for k, f in np.argwhere(_non_finite_fields(trajectories, counts, n_steps)):
-        field = TRAJECTORY_FIELDS[f]
-        detail = _non_finite_detail(field, getattr(trajectories[k], field))
-        out.append(make_finding("rollouts.non_finite", detail, object_id=object_id(k), field=field, **loc))
     return out
 
 
@@ -368,26 +343,70 @@ def check_scenario_rollouts(
     n_rollouts: int = N_ROLLOUTS,
     n_steps: int = N_SIMULATION_STEPS,
 ) -> list[Finding]:
-    """Rules on one ScenarioRollouts: the joint-scene count, then each joint scene.
+    """Rules on one ScenarioRollouts: n_rollouts joint scenes, each with exactly the sim agents, each
+    trajectory with n_steps finite values in center_x, center_y, center_z and heading.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
     (num_sim_agents,); None when the scenario is not in the scenario set.
+    All joint scenes are checked together: the trajectories of the scenario
+    are flattened to shape (num_trajectories,), `rollout_of` maps each to its
+    joint scene, and the checks run on whole arrays.
     """
     scenario_id = rollouts.scenario_id if rollouts.HasField("scenario_id") else None
     out: list[Finding] = []
-    found = len(rollouts.joint_scenes)
-    if found != n_rollouts:
+    scenes = list(rollouts.joint_scenes)
+    if len(scenes) != n_rollouts:
         out.append(
             make_finding(
                 "rollouts.wrong_count",
-                f"found {found} joint scenes, expected {n_rollouts}",
+                f"found {len(scenes)} joint scenes, expected {n_rollouts}",
                 shard=shard,
                 scenario_id=scenario_id,
             )
         )
     expected = None if sim_agent_ids is None else np.unique(np.asarray(sim_agent_ids, dtype=np.int64))
-    for r, scene in enumerate(rollouts.joint_scenes):
+    trajectories = [t for scene in scenes for t in scene.simulated_trajectories]
+    n = len(trajectories)
+    scene_sizes = np.fromiter((len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes))
+    rollout_of = np.repeat(np.arange(len(scenes)), scene_sizes)
+    starts = np.concatenate([[0], np.cumsum(scene_sizes)])
+    has_id = np.fromiter((t.HasField("object_id") for t in trajectories), dtype=bool, count=n)
+    ids = np.fromiter((t.object_id for t in trajectories), dtype=np.int64, count=n)
+
+    # Object ids. The common case (every scene holds exactly the sim agents) is
+    # proven for all scenes at once; only the other scenes are looked at one by one.
+    scene_ok = np.zeros(len(scenes), dtype=bool)
+    if expected is not None and len(scenes) and (scene_sizes == expected.size).all() and has_id.all():
+        per_scene = np.sort(ids.reshape(len(scenes), expected.size), axis=1)
+        scene_ok = (per_scene == expected).all(axis=1)
+    for r in np.flatnonzero(~scene_ok).tolist():
+        span = slice(starts[r], starts[r + 1])
         out.extend(
-            check_joint_scene(scene, expected, shard=shard, scenario_id=scenario_id, rollout=r, n_steps=n_steps)
+            check_scene_object_ids(ids[span], has_id[span], expected, shard=shard, scenario_id=scenario_id, rollout=r)
         )
+
+    counts, non_finite = _counts_and_non_finite(trajectories, n_steps)
+
+    def where_(k: int) -> dict[str, Any]:
+        return {
+            "shard": shard,
+            "scenario_id": scenario_id,
+            "rollout": int(rollout_of[k]),
+            "object_id": int(ids[k]) if has_id[k] else None,
+        }
+
+    for k, f in np.argwhere(counts != n_steps).tolist():
+        field = TRAJECTORY_FIELDS[f]
+        out.append(
+            make_finding(
+                "rollouts.wrong_length",
+                f"field {field} has {counts[k, f]} values, expected {n_steps}",
+                field=field,
+                **where_(k),
+            )
+        )
+    for k, f in np.argwhere(non_finite).tolist():
+        field = TRAJECTORY_FIELDS[f]
+        detail = _non_finite_detail(field, getattr(trajectories[k], field))
+        out.append(make_finding("rollouts.non_finite", detail, field=field, **where_(k)))
     return out

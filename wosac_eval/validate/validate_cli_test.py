@@ -346,7 +346,7 @@ def test_unknown_duplicate_and_id_less_scenarios(tmp_path, capsys, template, man
         "s0.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[:20]]).SerializeToString(),
         "s1.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[18:]] + [stranger, anonymous]).SerializeToString(),
     }
-    code, report = validate_json(capsys, [scenario_path], write(tmp_path / "s.tar.gz", tar_bytes(members)))
+    code, report = validate_json(capsys, [scenario_path], write(tmp_path / "s.tar", tar_bytes(members, gzip=False)))
     assert code == 1
     assert group(report, "coverage.unknown_scenario")["listed"][0]["message"] == (
         "s1.binproto: scenario not-in-the-set: not in the scenario set (scenario_rollouts[12])"

@@ -163,6 +163,7 @@ def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator
     if first is None:
         return
     yield first
+    del first  # hold no shard while the next one is read
     try:
         yield from shards
     except ParseError as error:
@@ -203,19 +204,21 @@ class _Validation:
         self.reference_shard = ""
         self.checked_metadata: set[tuple] = set()
 
-    def shard(self, name: str, data: bytes) -> None:
-        report = self.report
-        report.stats.shards += 1
-        report.stats.bytes_read += len(data)
+    def parse(self, name: str, data: bytes) -> Any | None:
+        """The shard's SimAgentsChallengeSubmission, or None (and a finding) when it is not one."""
+        self.report.stats.shards += 1
+        self.report.stats.bytes_read += len(data)
         try:
-            submission = parse_submission_shard(name, data)
+            return parse_submission_shard(name, data)
         except ParseError as error:
-            report.add(Finding("shard.unparseable", str(error), shard=name))
-            return
-        del data
+            self.report.add(Finding("shard.unparseable", str(error), shard=name))
+            return None
+
+    def check(self, name: str, submission: Any) -> None:
+        """Metadata, then every ScenarioRollouts of one parsed shard."""
         self.metadata(name, submission)
         if not submission.scenario_rollouts:
-            report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard=name))
+            self.report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard=name))
         for index, rollouts in enumerate(submission.scenario_rollouts):
             self.scenario(name, index, rollouts)
 
@@ -286,7 +289,11 @@ def validate_submission(
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
     for name, data in iter_checked_shards(submission_path, limits or Limits(), report):
-        run.shard(name, data)
+        submission = run.parse(name, data)
+        del data  # from here on only the parsed shard is held, never two shards at once
+        if submission is not None:
+            run.check(name, submission)
+            del submission
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]
     report.extend(missing)

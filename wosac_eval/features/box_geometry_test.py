@@ -296,6 +296,28 @@ def test_touching_pairs_against_fcl():
         assert abs(ref) < 1e-9
 
 
+def test_right_angle_headings_against_fcl():
+    # Headings that are multiples of 90 degrees give two equally low corners,
+    # the tie case of the Minkowski vertex ordering: every pair of the four
+    # orientations, at offsets from nested to apart.
+    rng = np.random.default_rng(13)
+    quarter = np.array([1, 0, -1, 0], F), np.array([0, 1, 0, -1], F)
+    pairs = []
+    for turn_a in range(4):
+        for turn_b in range(4):
+            for _ in range(12):
+                a = (*rng.uniform(-50, 50, 2), *rng.uniform(0.5, 8, 2))
+                b = (a[0] + rng.uniform(-8, 8), a[1] + rng.uniform(-8, 8), *rng.uniform(0.5, 8, 2))
+                pairs.append((np.array(a, F), turn_a, np.array(b, F), turn_b))
+    for a, turn_a, b, turn_b in pairs:
+        ax, ay = box_geometry.box_corners_xy(*a, quarter[0][turn_a], quarter[1][turn_a])
+        bx, by = box_geometry.box_corners_xy(*b, quarter[0][turn_b], quarter[1][turn_b])
+        ours = float(box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by)))
+        reference = fcl_signed_distance((*map(float, a), turn_a * math.pi / 2), (*map(float, b), turn_b * math.pi / 2))
+        scale = float(np.abs(np.concatenate([ax, ay, bx, by])).max())
+        assert abs(ours - reference) <= _tolerance(scale), (a, turn_a, b, turn_b, ours, reference)
+
+
 def test_separated_pairs_against_shapely():
     rng = np.random.default_rng(99)
     pairs = _random_pairs(rng, 1500)

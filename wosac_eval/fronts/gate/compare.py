@@ -327,6 +327,7 @@ def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) 
 def _fmt(x: float | None, signed: bool = False) -> str:
     if x is None:
         return "-"
+    x = round(x, 4) or 0.0  # no "-0.0000" for a change that rounds away
     return f"{x:+.4f}" if signed else f"{x:.4f}"
 
 

@@ -58,7 +58,7 @@ section{background:#fff;border:1px solid #d0d7de;border-radius:8px;padding:16px 
 .card{border:1px solid #d0d7de;border-radius:6px;padding:8px 14px;min-width:150px}
 .card .v{font-size:1.3rem;font-weight:600}.card .k{color:#57606a;font-size:.8rem}
 table{border-collapse:collapse;font-size:.88rem;margin:6px 0}
-th,td{padding:3px 10px;border-bottom:1px solid #eaeef2;text-align:left}
+th,td{padding:3px 8px;border-bottom:1px solid #eaeef2;text-align:left}
 td.n,th.n{text-align:right;font-variant-numeric:tabular-nums}
 .better{color:#1a7f37;font-weight:600}.worse{color:#cf222e;font-weight:600}.same{color:#57606a}
 .warn{background:#fff8c5;border:1px solid #d4a72c;border-radius:6px;padding:6px 10px;margin:6px 0}
@@ -103,6 +103,7 @@ def _esc(x) -> str:
 def _num(x: float | None, digits: int = 4, signed: bool = False) -> str:
     if x is None:
         return "-"
+    x = round(x, digits) or 0.0  # no "-0.0000" for a change that rounds away
     return f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
 
 
@@ -139,7 +140,7 @@ def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
 
 
 def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
-    fig = _figure(5.2, 2.0)
+    fig = _figure(4.6, 2.0)
     ax = fig.add_subplot()
     y = np.arange(len(RATE_FIELDS))
     height = 0.38 if base is not None else 0.6

@@ -41,7 +41,8 @@ def synthetic_scenarios(
         into the metametric (with the 2025 weights); rate and ADE shifts are
         added to those fields.
       jitter: standard deviation of independent noise added to each likelihood
-        (a run that differs by more than a constant).
+        (and a quarter of it to the collision and offroad rates): a run that
+        differs by more than a constant.
       jitter_seed: seeds that noise.
     """
     shift = dict(shift or {})
@@ -65,6 +66,8 @@ def synthetic_scenarios(
         noise = np.random.default_rng(jitter_seed)
         for field in LIKELIHOODS:
             values[field] = np.clip(values[field] + noise.normal(0.0, jitter, n), 0.0, 1.0)
+        for field in RATE_FIELDS[:2]:
+            values[field] = np.clip(values[field] + noise.normal(0.0, jitter / 4, n), 0.0, 1.0)
     for field in LIKELIHOODS:
         values[field] = values[field] + shift.pop(field, 0.0)
     values["metametric"] = sum(WEIGHTS_2025[f.removesuffix("_likelihood")] * values[f] for f in LIKELIHOODS)

@@ -1,0 +1,63 @@
+"""Demo results for trying `compare` / `report` without a simulator, and the docs screenshot.
+
+    python -m wosac_eval.fronts.gate.demo OUT_DIR [--screenshot docs/report.png]
+
+Writes OUT_DIR/baseline.json and OUT_DIR/new.json (synthetic results of 2000
+scenarios: the new run collides less and drives off-road more, and skipped 10
+scenarios), OUT_DIR/report.html, and with --screenshot a PNG of the report
+rendered by headless Chromium.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+from wosac_eval.fronts.gate.synthetic import result_json, synthetic_scenarios
+
+TITLE = "WOSAC realism: my-sim (PR) vs baseline (main)"
+
+
+def write_demo_results(folder: Path, num_scenarios: int = 2000) -> tuple[Path, Path]:
+    """Writes baseline.json and new.json into `folder` and returns their paths."""
+    folder.mkdir(parents=True, exist_ok=True)
+    base = synthetic_scenarios(num_scenarios, seed=0)
+    new = synthetic_scenarios(num_scenarios, seed=0, jitter=0.02, jitter_seed=7, shift={
+        "collision_indication_likelihood": 0.012, "offroad_indication_likelihood": -0.006,
+        "simulated_collision_rate": -0.004})
+    kept = num_scenarios - 10
+    skipped = [{"scenario_id": s["scenario_id"], "reason": "no rollouts in the submission (scored with --partial)"}
+               for s in new[kept:]]
+    base_path, new_path = folder / "baseline.json", folder / "new.json"
+    base_path.write_text(json.dumps(result_json(base)))
+    new_path.write_text(json.dumps(result_json(new[:kept], skipped=skipped)))
+    return base_path, new_path
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("out_dir", type=Path)
+    parser.add_argument("--screenshot", type=Path, help="also write a PNG screenshot of the report here")
+    args = parser.parse_args(argv)
+    write_demo_results(args.out_dir)
+    from wosac_eval.fronts.cli import main as cli
+
+    # Run from the folder so that the report shows short file names.
+    here = os.getcwd()
+    screenshot = args.screenshot.resolve() if args.screenshot else None
+    os.chdir(args.out_dir)
+    try:
+        code = cli(["report", "new.json", "--compare", "baseline.json", "--html", "report.html", "--title", TITLE])
+        if code == 0 and screenshot is not None:
+            from wosac_eval.fronts.gate import browser
+
+            browser.screenshot("report.html", screenshot, width=1280, height=2000, palette_colors=96)
+            print(f"wrote {screenshot}")
+    finally:
+        os.chdir(here)
+    return code
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

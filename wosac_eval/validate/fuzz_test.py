@@ -94,3 +94,35 @@ def test_mutated_archive_gives_a_report(agents, small_shard, edits, gz):
     archive = tar_bytes({"a.binproto": small_shard, "b/c.binproto": small_shard}, gzip=gz)
     report = run(agents, "s.tar.gz" if gz else "s.tar", mutate(archive, edits))
     assert not report.ok
+
+
+@FUZZ
+@given(edits=EDITS)
+def test_corrupt_scenario_set_is_a_clean_usage_error(edits):
+    from wosac_eval.validate import ScenarioSetError
+
+    original = scenario_path(SID).read_bytes()
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "set.tfrecord"
+        path.write_bytes(mutate(original, edits))
+        try:
+            agents = load_sim_agents([path])
+        except ScenarioSetError as error:
+            assert "set.tfrecord" in str(error)  # names the file at fault
+        else:
+            assert all(a.dtype.kind == "i" for a in agents.values())
+
+
+@settings(FUZZ, max_examples=min(FUZZ.max_examples, 30), suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@given(data=st.binary(max_size=2048), name=st.sampled_from(["s.binproto", "s.tar.gz", "s.tar"]))
+def test_cli_on_random_bytes_exits_1_with_a_report(capsys, data, name):
+    from wosac_eval.fronts.cli import main
+
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / name
+        path.write_bytes(data)
+        code = main(["validate", "--scenarios", str(scenario_path(SID)), "--submission", str(path), "--json"])
+    out = capsys.readouterr()
+    assert code == 1, out.err
+    report = json.loads(out.out)
+    assert report["valid"] is False and report["groups"]

@@ -231,9 +231,10 @@ class ValidationReport:
         order = list(CODES)
         return sorted(self.groups.values(), key=lambda g: (g.severity != ERROR, order.index(g.code)))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, include_skipped: bool = False) -> dict[str, Any]:
+        """The report as JSON-ready data; include_skipped adds {scenario_id: reason} of every unscorable scenario."""
         s = self.stats
-        return {
+        data = {
             "submission": self.submission,
             "valid": self.ok,
             "errors": self.error_count,
@@ -251,6 +252,9 @@ class ValidationReport:
             "groups": [g.to_dict() for g in self._sorted_groups()],
             "max_listed": self.max_listed,
         }
+        if include_skipped:
+            data["skipped_scenarios"] = self.skipped_scenarios
+        return data
 
     def format_text(self) -> str:
         s = self.stats

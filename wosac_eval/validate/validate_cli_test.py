@@ -508,3 +508,10 @@ def test_json_report_is_machine_readable(tmp_path, capsys, scenario_file, templa
     assert report["stats"]["scenarios_submitted"] == 2 and report["stats"]["shards"] == 2
     g = group(report, "rollouts.wrong_count")
     assert g["title"] == "Wrong number of joint scenes (rollouts)" and g["severity"] == "error" and g["count"] == 1
+
+
+def test_report_can_list_every_skipped_scenario_for_partial_scoring(tmp_path, scenario_file, template, rollouts_a):
+    path = write(tmp_path / "s.binproto", with_rollouts(template, [rollouts_a]).SerializeToString())
+    data = validate_submission([scenario_file], path).to_dict(include_skipped=True)
+    assert list(data["skipped_scenarios"]) == [B]
+    json.dumps(data)

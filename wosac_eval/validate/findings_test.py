@@ -1,0 +1,53 @@
+"""The report: grouping by code, counts, the first N in full, warnings that do not invalidate."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from wosac_eval.validate.findings import WARNING, ValidationReport, format_ids, make_finding, where
+
+
+def test_location_prefix_names_what_applies():
+    assert where("s.binproto", "ab12", 3, 1234) == "s.binproto: scenario ab12 rollout 3 object 1234"
+    assert where(scenario_id="ab12") == "scenario ab12"
+    assert where("s.binproto") == "s.binproto"
+
+
+def test_report_keeps_counts_and_first_n_per_code():
+    report = ValidationReport("sub.tar.gz", max_listed=2)
+    for i in range(5):
+        report.add(make_finding("rollouts.wrong_count", f"found {i} joint scenes, expected 32", scenario_id=f"s{i}"))
+    report.add(make_finding("metadata.recommended", "method_link is empty", shard="a", severity=WARNING))
+    assert not report.ok and report.error_count == 5 and report.warning_count == 1
+    assert report.count("rollouts.wrong_count") == 5
+    assert [f.scenario_id for f in report.findings("rollouts.wrong_count")] == ["s0", "s1"]
+    assert set(report.invalid_scenarios) == {f"s{i}" for i in range(5)}  # all remembered, not only those listed
+    text = report.format_text()
+    assert "ERROR rollouts.wrong_count — Wrong number of joint scenes (rollouts): 5" in text
+    assert "  ... and 3 more (raise --max-listed to see them)" in text
+    assert text.index("ERROR") < text.index("WARNING")  # errors first
+    json.dumps(report.to_dict())
+
+
+def test_warnings_alone_keep_a_submission_valid():
+    report = ValidationReport()
+    report.add(make_finding("container.not_gzipped", "plain tar", severity=WARNING))
+    assert report.ok and "VALID submission — 0 error(s), 1 warning(s)" in report.format_text()
+
+
+def test_max_listed_zero_counts_only():
+    report = ValidationReport(max_listed=0)
+    report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard="x"))
+    assert report.count("shard.empty") == 1 and report.findings() == []
+
+
+def test_unknown_code_is_a_programming_error():
+    with pytest.raises(KeyError):
+        make_finding("no.such.code", "x")
+
+
+def test_long_id_lists_are_cut_with_a_count():
+    assert format_ids(range(3)) == "[0, 1, 2]"
+    assert format_ids(range(25), limit=2) == "[0, 1, ... (+23 more)]"

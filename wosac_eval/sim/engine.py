@@ -23,9 +23,9 @@ ALWAYS_RED = -2  # stop-line signal index of a stop that never turns green (e.g.
 NO_SIGNAL = -1
 
 LOOKAHEAD_SPACING_M = 2.0
-LOOKAHEAD_POINTS = 26  # ~50 m of path ahead of the nose
+LOOKAHEAD_POINTS = 26  # 50 m of path ahead of the nose
 MAX_BRAKE = 8.0
-NEIGHBOURS = 16  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
+NEIGHBOURS = 10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
 
 
 @dataclass
@@ -55,18 +55,32 @@ class Paths:
 
     def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (B, A, ..., 2) and headings (B, A, ...) at arc lengths `s` of shape (B, A, ...)."""
-        num_s = self.xy.shape[2]
+        b, a, num_s = self.xy.shape[:3]
+        if getattr(self, "_flat", None) is None:
+            self._flat = np.concatenate([self.xy, self.tangent], axis=-1).reshape(-1, 4)
         f = np.clip(s / self.ds, 0.0, num_s - 1.000001)
         i0 = np.floor(f).astype(np.int64)
         w = (f - i0)[..., None]
-        idx = i0.reshape(i0.shape[:2] + (-1,))
-        def take(arr, index):
-            return np.take_along_axis(arr, index[..., None], axis=2).reshape(s.shape + (2,))
-        x0, x1 = take(self.xy, idx), take(self.xy, idx + 1)
-        t0, t1 = take(self.tangent, idx), take(self.tangent, idx + 1)
-        xy = x0 + w * (x1 - x0)
-        t = t0 + w * (t1 - t0)
-        return xy, np.arctan2(t[..., 1], t[..., 0])
+        base = (np.arange(b * a) * num_s).reshape((b, a) + (1,) * (s.ndim - 2))
+        lo = self._flat[i0 + base]
+        hi = self._flat[i0 + base + 1]
+        v = lo + w * (hi - lo)
+        return v[..., :2], np.arctan2(v[..., 3], v[..., 2])
+
+
+    def at_pairs(self, batch: np.ndarray, agent: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Like `at` for selected paths: batch, agent (C,) and arc lengths s (C, K)."""
+        b, a, num_s = self.xy.shape[:3]
+        if getattr(self, "_flat", None) is None:
+            self._flat = np.concatenate([self.xy, self.tangent], axis=-1).reshape(-1, 4)
+        f = np.clip(s / self.ds, 0.0, num_s - 1.000001)
+        i0 = np.floor(f).astype(np.int64)
+        w = (f - i0)[..., None]
+        base = ((batch * a + agent) * num_s)[:, None]
+        lo = self._flat[i0 + base]
+        hi = self._flat[i0 + base + 1]
+        v = lo + w * (hi - lo)
+        return v[..., :2], np.arctan2(v[..., 3], v[..., 2])
 
 
 def extend_resample(poly: np.ndarray, ds: float, num_s: int) -> np.ndarray:
@@ -200,42 +214,51 @@ def simulate(
 def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gap along each agent's path to every other agent that touches it, and that agent's speed along it.
 
-    Only the NEIGHBOURS nearest agents are tested (a leader is always among them),
-    which keeps the cost linear in the number of agents.
+    A cheap test in each agent's heading frame first keeps only the pairs that can
+    touch the path within the lookahead; the exact test runs on those pairs alone.
     Returns:
       gap: (B, i, j) metres from i's nose to j (inf where j is not on i's path ahead).
       speed: (B, i, j) j's speed projected on i's path (>= 0).
     """
     b, a = s.shape
-    m = min(NEIGHBOURS, a - 1)
     gap_full = np.full((b, a, a), np.inf)
     speed_full = np.zeros((b, a, a))
-    if m <= 0:
+    if a < 2:
         return gap_full, speed_full
-    centre_dist = np.linalg.norm(xy[:, :, None] - xy[:, None, :], axis=-1)
-    centre_dist[:, np.arange(a), np.arange(a)] = np.inf
-    nb = np.argpartition(centre_dist, m - 1, axis=-1)[..., :m]  # (B, A, M)
-
-    def gather(arr):  # (B, A) -> (B, A, M) values of the neighbours
-        return np.take_along_axis(np.broadcast_to(arr[:, None, :], (b, a, a)), nb, axis=-1)
-
-    nb_x = gather(xy[..., 0])
-    nb_y = gather(xy[..., 1])
-    ahead_s = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
-    pts, pts_heading = paths.at(ahead_s)  # (B, A, K, 2), (B, A, K)
-    dist = np.hypot(nb_x[..., None] - pts[:, :, None, :, 0], nb_y[..., None] - pts[:, :, None, :, 1])  # (B, A, M, K)
-    dtheta = gather(heading)[..., None] - pts_heading[:, :, None, :]
-    cos_d, sin_d = np.abs(np.cos(dtheta)), np.abs(np.sin(dtheta))
-    len_j = gather(d.length)[..., None] / 2
-    wid_j = gather(d.width)[..., None] / 2
-    reach = d.width[:, :, None, None] / 2 + len_j * sin_d + wid_j * cos_d + d.margin[:, :, None, None]
-    gap_k = np.where(dist < reach, k - (len_j * cos_d + wid_j * sin_d) - LOOKAHEAD_SPACING_M / 2, np.inf)
-    first = np.argmin(gap_k, axis=-1)[..., None]
-    gap = np.take_along_axis(gap_k, first, axis=-1)[..., 0]
-    along = np.cos(np.take_along_axis(dtheta, first, axis=-1)[..., 0])
-    speed = np.maximum(gather(v) * along, 0.0)
-    np.put_along_axis(gap_full, nb, gap, axis=-1)
-    np.put_along_axis(speed_full, nb, speed, axis=-1)
+    ahead_all = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
+    pts_all, pts_heading_all = paths.at(ahead_all)
+    ch, sh = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    px, py = pts_all[..., 0] - xy[..., 0][..., None], pts_all[..., 1] - xy[..., 1][..., None]
+    path_lat = np.abs(-px * sh + py * ch).max(axis=-1)  # (B, A) how far the path strays from the heading line
+    rx = xy[:, None, :, 0] - xy[:, :, None, 0]  # (B, i, j)
+    ry = xy[:, None, :, 1] - xy[:, :, None, 1]
+    lon = rx * ch + ry * sh
+    lat = -rx * sh + ry * ch
+    radius_j = 0.5 * np.hypot(d.length, d.width)[:, None, :]  # (B, 1, j)
+    horizon = (k[-1] + d.length / 2)[..., None] + radius_j + 1.0
+    side = (path_lat + d.width / 2 + d.margin)[..., None] + radius_j + 1.0
+    near = (lon > -radius_j - 1.0) & (lon < horizon) & (np.abs(lat) < side)
+    near[:, np.arange(a), np.arange(a)] = False
+    cand_b, cand_i, cand_j = np.nonzero(near)
+    if len(cand_b) == 0:
+        return gap_full, speed_full
+    pts = pts_all[cand_b, cand_i]  # (C, K, 2)
+    pts_heading = pts_heading_all[cand_b, cand_i]  # (C, K)
+    dx = xy[cand_b, cand_j, 0][:, None] - pts[..., 0]
+    dy = xy[cand_b, cand_j, 1][:, None] - pts[..., 1]
+    dist = np.sqrt(dx * dx + dy * dy)
+    hj = heading[cand_b, cand_j][:, None]
+    cos_signed = np.cos(hj - pts_heading)
+    cos_d = np.abs(cos_signed)
+    sin_d = np.sqrt(np.maximum(1.0 - cos_d * cos_d, 0.0))
+    len_j = d.length[cand_b, cand_j][:, None] / 2
+    wid_j = d.width[cand_b, cand_j][:, None] / 2
+    reach = (d.width[cand_b, cand_i] / 2 + d.margin[cand_b, cand_i])[:, None] + len_j * sin_d + wid_j * cos_d
+    gap_k = np.where(dist < reach, (k - LOOKAHEAD_SPACING_M / 2) - (len_j * cos_d + wid_j * sin_d), np.inf)
+    first = np.argmin(gap_k, axis=-1)
+    rows = np.arange(len(first))
+    gap_full[cand_b, cand_i, cand_j] = gap_k[rows, first]
+    speed_full[cand_b, cand_i, cand_j] = np.maximum(v[cand_b, cand_j] * cos_signed[rows, first], 0.0)
     return gap_full, speed_full
 
 

@@ -31,6 +31,9 @@ from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import roads, signals
 
+# Bump when the generated scenes change, so that cached demo scenes are regenerated.
+GENERATOR_VERSION = 1
+
 NUM_STEPS = 91
 CURRENT_TIME_INDEX = 10
 DT = 0.1
@@ -357,8 +360,8 @@ def _recipe_red_light(rng) -> _Builder:
     stop_s = stops[0][0]
     runner = b.vehicle(path, stop_s - v * rng.uniform(2.5, 3.5), v, v, stops, ignore_signals=True)
     runner.tags.add("red_light_runner")
-    _intersection_traffic(b, 0.5, skip=frozenset(route))
-    b.sidewalk_walkers(int(rng.integers(2, 6)))
+    _intersection_traffic(b, 0.75, skip=frozenset(route))
+    b.sidewalk_walkers(int(rng.integers(4, 8)))
     return b
 
 
@@ -399,8 +402,8 @@ def _recipe_offroad(rng) -> _Builder:
     leaver = b.vehicle(path, s_start, v, v, [])
     leaver.stops = [(s_leave + 45.0, engine.ALWAYS_RED)]  # comes to rest beyond the curb
     leaver.tags.add("leaves_road")
-    _corridor_traffic(b, (1, 4), (9.0, 13.0), skip=frozenset(route))
-    b.sidewalk_walkers(int(rng.integers(2, 5)))
+    _corridor_traffic(b, (2, 5), (9.0, 13.0), skip=frozenset(route))
+    b.sidewalk_walkers(int(rng.integers(4, 8)))
     return b
 
 
@@ -425,12 +428,13 @@ def _recipe_collision(rng) -> _Builder:
     follower.length, follower.width = min(follower.length, 5.0), min(follower.width, 2.0)
     leader.tags.add("collision")
     follower.tags.add("collision")
-    _corridor_traffic(b, (1, 4), (9.0, 13.0), skip=frozenset(route))
+    _corridor_traffic(b, (2, 5), (9.0, 13.0), skip=frozenset(route))
+    b.sidewalk_walkers(int(rng.integers(3, 7)))
     return b
 
 
 def _recipe_large_coordinates(rng) -> _Builder:
-    return _recipe_intersection(rng, density=0.5)
+    return _recipe_intersection(rng, density=0.75)
 
 
 def _recipe_heading_wrap(rng) -> _Builder:
@@ -626,14 +630,16 @@ def _choose_evaluated(spec: SceneSpec, out: engine.Rollout, rng: np.random.Gener
     d_sdc = np.hypot(x[:, c] - x[sdc, c], y[:, c] - y[sdc, c])
     order = np.argsort(d_sdc + rng.uniform(0, 10, len(d_sdc)) - 20.0 * moving)
     chosen = list(tagged)
+    # WOMD's tracks_to_predict are mostly vehicles: at most one pedestrian and one cyclist here.
     for wanted in (TYPE_PEDESTRIAN, TYPE_CYCLIST):
-        of_type = [i for i in order if types[i] == wanted and moving[i] and d_sdc[i] < 60]
-        if of_type and len(chosen) < 8:
-            chosen.append(int(of_type[0]))
+        of_type = [int(i) for i in order if types[i] == wanted and moving[i] and d_sdc[i] < 60]
+        if of_type and len(chosen) < 8 and not any(types[c] == wanted for c in chosen):
+            chosen.append(of_type[0])
+    target = int(rng.integers(4, 9))
     for i in order:
-        if len(chosen) >= int(rng.integers(4, 9)):
+        if len(chosen) >= target:
             break
-        if i != sdc and int(i) not in chosen and d_sdc[i] < 60 and spec.agents[i].moving:
+        if i != sdc and int(i) not in chosen and d_sdc[i] < 60 and types[i] == TYPE_VEHICLE and spec.agents[i].moving:
             chosen.append(int(i))
     return sdc, chosen
 

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "create":
         import re
 
-        from wosac_eval.fronts.server.app import METHOD_PATTERN
+        from wosac_eval.fronts.server.auth import METHOD_PATTERN
 
         if not re.match(METHOD_PATTERN, args.name):
             print(f"wosac-eval keys: the name {args.name!r} must match {METHOD_PATTERN} "

@@ -29,11 +29,11 @@ from pydantic import BaseModel, Field
 from starlette.requests import ClientDisconnect
 
 from . import auth, jobs
+from .auth import METHOD_PATTERN
 from .db import Store
 from .settings import Settings, load_settings
 
 ID_PATTERN = r"^[0-9a-f]{32}$"
-METHOD_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9 ._+\-]{0,79}$"
 MAX_HEADER_INT = 2**62  # fits a BIGINT on every engine
 # After refusing an oversized body, read (and drop) this much more so the client,
 # still sending, gets to read our 413 instead of a reset connection.

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 from .db import Store
 
 KEY_PREFIX = "wosac_"
+# Method names (and key names, the default method) as shown on the leaderboard.
+METHOD_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9 ._+\-]{0,79}$"
 DAY_S = 24 * 3600.0
 ACTIVE_STATES = ("queued", "validating", "scoring")
 

@@ -2,36 +2,16 @@
 127.0.0.1, a real SQLite file under tmp_path), real keys, real submissions."""
 from __future__ import annotations
 
-import io
+import json
 import os
-import signal
-import socket
 import subprocess
-import sys
-import tarfile
-import time
 from pathlib import Path
 
-import httpx
 import pytest
 
-from wosac_eval.fronts.server import auth
 from wosac_eval.fronts.server.db import Store
-
-REPO = Path(__file__).resolve().parents[3]
-SHARED = REPO.parent / "shared"
-GOLDEN = SHARED / "golden"
-SCENARIO_FILES = [SHARED / "womd" / "motion_data_one_scenario.tfrecord",
-                  SHARED / "womd" / "womd_scenario_input.tfrecord"]
-# One golden submission per shared scenario: together they cover both.
-GOLDEN_PAIR = [GOLDEN / "637f20cafde22ff8__logreplay.binproto",
-               GOLDEN / "ee519cf571686d19__constvel_noise.binproto"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from wosac_eval.fronts.server.harness import (  # noqa: F401  (re-exported to the test modules)
+    GOLDEN_PAIR, SCENARIO_FILES, SHARED, Server, canonical, files_under, free_port, tar_bytes)
 
 
 def scorer_available() -> bool:
@@ -53,73 +33,15 @@ def need_shared():
         pytest.skip(f"../shared is absent ({missing[0]} missing): golden submissions unavailable")
 
 
-class Server:
-    """`wosac-eval serve` as a child process, with its own data dir and port."""
+@pytest.fixture(scope="session")
+def direct_single_result() -> dict:
+    """`score_submission` called directly on one golden binproto (one of the two
+    scenarios, so partial), as the service tests upload it."""
+    need_shared()
+    need_scorer()
+    from wosac_eval.metrics.submission import score_submission
 
-    def __init__(self, data_dir: Path, scenarios: list[Path], **env: object):
-        self.data_dir = data_dir
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        inherited = {k: v for k, v in os.environ.items() if not k.startswith("WOSAC_")}
-        self.env = {**inherited, "WOSAC_DATA_DIR": str(data_dir),
-                    "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
-                    "WOSAC_POLL_S": "0.1", "WOSAC_HEARTBEAT_S": "0.2", "WOSAC_LEASE_S": "1.5",
-                    "WOSAC_WORKERS": "1", "PYTHONUNBUFFERED": "1",
-                    "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
-        self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
-        self.proc: subprocess.Popen | None = None
-        self.log = data_dir.parent / f"server-{self.port}.log"
-
-    @property
-    def store(self) -> Store:
-        url = self.env.get("WOSAC_DB_URL") or f"sqlite:///{self.data_dir / 'wosac.sqlite3'}"
-        return Store(url)
-
-    def start(self, timeout: float = 30.0) -> "Server":
-        self.data_dir.mkdir(parents=True, exist_ok=True)
-        log = open(self.log, "ab")
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "wosac_eval.fronts.cli", "serve", "--host", "127.0.0.1",
-             "--port", str(self.port), "--log-level", "warning"],
-            env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
-            try:
-                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
-                    return self
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.1)
-        raise RuntimeError(f"server did not come up in {timeout} s:\n{self.log.read_text()}")
-
-    def stop(self) -> None:
-        if self.proc and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(20)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-
-    def key(self, name: str, **limits: int) -> str:
-        defaults = dict(max_concurrent=100, max_daily=1000, max_daily_bytes=10**12)
-        return auth.create_key(self.store, name, **{**defaults, **limits})
-
-    def client(self, key: str | None = None, timeout: float = 60.0) -> httpx.Client:
-        headers = {"Authorization": f"Bearer {key}"} if key else {}
-        return httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
-
-    def wait_state(self, client: httpx.Client, submission_id: str, states=("done", "failed"),
-                   timeout: float = 90.0) -> dict:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            body = client.get(f"/v1/submissions/{submission_id}").json()
-            if body["state"] in states:
-                return body
-            time.sleep(0.1)
-        raise AssertionError(f"{submission_id} still {body['state']} after {timeout} s:\n{self.log.read_text()}")
+    return json.loads(canonical(score_submission(SCENARIO_FILES, GOLDEN_PAIR[0], "2025", allow_partial=True)))
 
 
 def default_scenarios(tmp: Path) -> list[Path]:
@@ -151,9 +73,10 @@ def make_server(tmp_path):
         server.stop()
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def api_server(tmp_path_factory):
-    """A server with no workers (jobs stay queued), a 3 MB upload limit; shared by a module."""
+    """A server with no workers (jobs stay queued), a 3 MB upload limit; shared by the
+    tests that never score (each uses its own key, so they cannot see each other)."""
     root = tmp_path_factory.mktemp("api")
     make, started = _server_factory(root)
     yield make(workers=0, max_upload_bytes=3_000_000)
@@ -161,17 +84,79 @@ def api_server(tmp_path_factory):
         server.stop()
 
 
-def tar_bytes(members: dict[str, bytes], gz: bool = True) -> bytes:
-    """A .tar(.gz) holding `members` (name -> content), names taken verbatim."""
-    buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode="w:gz" if gz else "w") as tar:
-        for name, data in members.items():
-            info = tarfile.TarInfo(name)
-            info.size = len(data)
-            info.mtime = 0
-            tar.addfile(info, io.BytesIO(data))
-    return buf.getvalue()
+# -- PostgreSQL: a throwaway cluster started by the test run --------------------------------
+def _pg_bindir() -> Path | None:
+    for candidate in sorted(Path("/usr/lib/postgresql").glob("*/bin"), reverse=True):
+        if (candidate / "initdb").exists() and (candidate / "pg_ctl").exists():
+            return candidate
+    return None
 
 
-def files_under(root: Path) -> set[Path]:
-    return {p for p in root.rglob("*") if p.is_file()}
+@pytest.fixture(scope="session")
+def postgres_server():
+    """A PostgreSQL cluster in a temp dir on a free 127.0.0.1 port; yields a URL factory.
+
+    Run as the `postgres` system user when the tests run as root (initdb refuses root).
+    Skips, with the reason, when the server binaries are missing.
+    """
+    import shutil
+    import tempfile
+
+    bindir = _pg_bindir()
+    if bindir is None:
+        pytest.skip("PostgreSQL server binaries not found under /usr/lib/postgresql/*/bin "
+                    "(apt-get install -y postgresql)")
+    pytest.importorskip("psycopg", reason="psycopg 3 is not installed (pip install 'psycopg[binary]')")
+    root = Path(tempfile.mkdtemp(prefix="wosac-pg-"))
+    data, port = root / "data", free_port()
+    prefix: list[str] = []
+    if os.geteuid() == 0:
+        runuser = shutil.which("runuser")
+        import pwd
+
+        try:
+            pwd.getpwnam("postgres")
+        except KeyError:
+            pytest.skip("running as root and there is no 'postgres' user to run the cluster as")
+        if runuser is None:
+            pytest.skip("running as root and runuser is missing")
+        shutil.chown(root, "postgres")
+        os.chmod(root, 0o700)
+        prefix = [runuser, "-u", "postgres", "--"]
+
+    def pg(*args: str) -> None:
+        subprocess.run([*prefix, *args], check=True, capture_output=True, timeout=120, cwd=root)
+
+    pg(str(bindir / "initdb"), "-D", str(data), "-U", "wosac", "--auth=trust", "-E", "UTF8", "--no-sync")
+    pg(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(root / "log"), "-w", "-t", "60", "start", "-o",
+       f"-c listen_addresses=127.0.0.1 -p {port} -k {root} -c fsync=off")
+    base = f"postgresql://wosac@127.0.0.1:{port}"
+    created = iter(range(10**6))
+
+    def new_database() -> str:
+        import psycopg
+
+        name = f"wosac_{next(created)}"
+        with psycopg.connect(f"{base}/postgres", autocommit=True) as conn:
+            conn.execute(f"CREATE DATABASE {name}")
+        return f"{base}/{name}"
+
+    try:
+        yield new_database
+    finally:
+        subprocess.run([*prefix, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
+                       capture_output=True, timeout=60, cwd=root)
+        shutil.rmtree(root, ignore_errors=True)
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def store(request, tmp_path):
+    """A migrated job store on each engine: a SQLite file, a fresh PostgreSQL database."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'jobs.sqlite3'}"
+    else:
+        url = request.getfixturevalue("postgres_server")()
+    s = Store(url)
+    s.migrate()
+    yield s
+    s.close()

@@ -13,14 +13,9 @@ import time
 
 import pytest
 
-from .conftest import GOLDEN_PAIR, SCENARIO_FILES, need_scorer, need_shared, tar_bytes
+from .conftest import GOLDEN_PAIR, SCENARIO_FILES, canonical, need_scorer, need_shared, tar_bytes
 
 RUNNING = ("validating", "scoring")
-
-
-def canonical(result: dict) -> str:
-    """JSON text with sorted keys: NaN-safe equality of two results."""
-    return json.dumps(result, sort_keys=True, allow_nan=True)
 
 
 @pytest.fixture(scope="module")
@@ -38,16 +33,6 @@ def golden_pair_archive(tmp_path_factory) -> bytes:
     merged.scenario_rollouts.extend(second.scenario_rollouts)
     return tar_bytes({"shard-00000-of-00002.binproto": first.SerializeToString(),
                       "shard-00001-of-00002.binproto": merged.SerializeToString()})
-
-
-@pytest.fixture(scope="module")
-def direct_single_result() -> dict:
-    """`score_submission` on one golden binproto (one of the two scenarios: partial)."""
-    need_shared()
-    need_scorer()
-    from wosac_eval.metrics.submission import score_submission
-
-    return json.loads(canonical(score_submission(SCENARIO_FILES, GOLDEN_PAIR[0], "2025", allow_partial=True)))
 
 
 @pytest.fixture(scope="module")

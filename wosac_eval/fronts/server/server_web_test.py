@@ -48,8 +48,8 @@ def test_leaderboard_cells_are_escaped():
     assert '<td class="num">1.2500</td>' in table
 
 
-def test_page_uses_no_external_resources(make_server):
-    server = make_server(workers=0)
+def test_page_uses_no_external_resources(api_server):
+    server = api_server
     page = httpx.get(server.url + "/").text
     assert "<form id=\"upload-form\">" in page and "No published results yet" in page
     assert not re.search(r'(src|href)="(https?:)?//', page)  # nothing from a CDN

@@ -9,7 +9,7 @@ import argparse
 import json
 import sys
 
-from wosac_eval.fronts.gate.compare import METRICS, CompareError, Gate, compare_results, format_table
+from wosac_eval.fronts.gate.compare import ALIASES, METRICS, CompareError, Gate, compare_results, format_table
 from wosac_eval.fronts.gate.results import ResultError, load_result
 
 NAME = "compare"
@@ -20,7 +20,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("base", metavar="BASE.json", help="result of the reference run (`wosac-eval score --output`)")
     parser.add_argument("new", metavar="NEW.json", help="result of the run under test")
     parser.add_argument("--metric", action="append", metavar="NAME",
-                        help="report only this metric (repeatable; default all): " + ", ".join(METRICS))
+                        help="report only this metric (repeatable; default all): " + ", ".join(METRICS)
+                        + "; aliases: " + ", ".join(f"{a}={m}" for a, m in ALIASES.items()))
     parser.add_argument("--fail-if-worse", action="append", default=[], metavar="METRIC:DELTA",
                         help="exit 1 when NEW is worse than BASE on METRIC by more than DELTA (in the metric's "
                              "units, mean over shared scenarios; repeatable), e.g. metametric:0.005")

@@ -107,6 +107,10 @@ def _num(x: float | None, digits: int = 4, signed: bool = False) -> str:
     return f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
 
 
+def _pct(x: float | None, digits: int) -> str:
+    return "-" if x is None else f"{100 * x:.{digits}f}%"
+
+
 def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
     key = BUCKET_ALIASES.get(metric, metric)
     return result.values.get(key)
@@ -119,6 +123,8 @@ def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
 def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     names = [b for b in ("realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics")
              if result.headline(b) is not None]
+    if not names:
+        return ""
     fig = _figure(5.6, 2.6)
     ax = fig.add_subplot()
     y = np.arange(len(names))
@@ -284,11 +290,9 @@ def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:
         v = result.headline(r)
         worst = float(result.values[r].max()) if result.num_scenarios else None
         share = float((result.values[r] > 0).mean()) if result.num_scenarios else None
-        b = f"<td class=n>{100 * base.headline(r):.2f}%</td>" if base is not None and base.headline(r) is not None \
-            else ("<td class=n>-</td>" if base is not None else "")
-        rows.append(f"<tr><td>{RATE_LABELS[r]}</td><td class=n>{100 * v:.2f}%</td>{b}"
-                    f"<td class=n>{_num(None if share is None else 100 * share, 1)}%</td>"
-                    f"<td class=n>{_num(None if worst is None else 100 * worst, 1)}%</td></tr>")
+        b = f"<td class=n>{_pct(base.headline(r), 2)}</td>" if base is not None else ""
+        rows.append(f"<tr><td>{RATE_LABELS[r]}</td><td class=n>{_pct(v, 2)}</td>{b}"
+                    f"<td class=n>{_pct(share, 1)}</td><td class=n>{_pct(worst, 1)}</td></tr>")
     head = ("<tr><th>rate</th><th class=n>this run</th>" + ("<th class=n>baseline</th>" if base is not None else "")
             + "<th class=n>scenarios with any</th><th class=n>worst scenario</th></tr>")
     return _section("rates", "Collision, offroad and red-light rates",

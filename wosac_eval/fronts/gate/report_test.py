@@ -160,3 +160,16 @@ def test_report_screenshot_shows_content(with_baseline, tmp_path):
     # A page with text, tables and plots: many dark pixels and a wide spread, not a blank or error page.
     assert pixels.std() > 20
     assert (pixels < 100).mean() > 0.005
+
+
+def test_report_of_a_result_where_every_scenario_was_skipped():
+    # What `score --partial` writes when nothing could be scored: no scenarios, NaN aggregates.
+    from wosac_eval.fronts.gate.results import parse_result
+
+    result = parse_result({"config": "2025", "scenarios": [], "aggregate": {"metametric": float("nan")},
+                           "buckets": {"realism_meta_metric": float("nan")},
+                           "skipped": [{"scenario_id": "s1", "reason": "invalid rollouts"}]}, "empty.json")
+    text = render_report(result)
+    page = _Page(text)
+    assert sorted(page.sections) == sorted(s for s in SECTIONS if s != "comparison")
+    assert "No scenarios." in text and "invalid rollouts" in text and "Skipped scenarios (1)" in text

@@ -132,11 +132,13 @@ def _number(value: Any, where: str) -> float:
 
 
 def _numbers(obj: Any, where: str) -> dict[str, float]:
+    """The numeric entries of an aggregate / buckets object; NaN entries (nothing scored) are left out."""
     if obj is None:
         return {}
     if not isinstance(obj, dict):
         raise ResultError(f"{where}: expected an object, got {type(obj).__name__}")
-    return {k: _number(v, f"{where}.{k}") for k, v in obj.items() if k != "scenario_id"}
+    return {k: _number(v, f"{where}.{k}") for k, v in obj.items()
+            if k != "scenario_id" and not (isinstance(v, float) and math.isnan(v))}
 
 
 def default_bucket_weights(config: str) -> dict[str, float] | None:

@@ -8,14 +8,13 @@ Three families:
   the sim agents (objects valid at the current step, index 10), each simulated
   trajectory with 80 finite values in center_x, center_y, center_z, heading.
 
-The per-value checks are vectorised: one pass over the trajectories of a joint
-scene collects, per (trajectory, field), the value count and the sum of the
-values (computed in C by `sum`, in float64). The counts are compared with numpy;
-a float64 sum of float32 values cannot overflow (it would take ~1e270 values),
-so it is finite exactly when every value is, and numpy's `isfinite` over the
-sums, shaped (num_trajectories, 4), finds the faulty fields without a Python
-loop over values. Only the (rare) faulty fields are converted to arrays to
-locate the first non-finite index.
+The per-value checks are vectorised over a whole scenario: its trajectories
+are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
+four fields of every trajectory are read from its serialized bytes as one
+(num_trajectories, 4, 80) float32 array (see `_counts_and_non_finite`), and
+lengths, finiteness and object ids are checked with numpy on whole arrays, not
+with Python loops over values. Only faulty trajectories and scenes are looked
+at one by one, to name the fault precisely.
 """
 
 from __future__ import annotations

@@ -119,7 +119,7 @@ class MetricComparison:
 @dataclasses.dataclass
 class GateOutcome:
     gate: Gate
-    regression: float
+    regression: float | None  # None when the metric could not be compared (the gate then fails)
     passed: bool
     reason: str
 
@@ -306,7 +306,7 @@ def compare_results(
 
 def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) -> GateOutcome:
     if m is None:
-        return GateOutcome(gate, float("nan"), False, f"{gate.metric} is not in both results, cannot check the gate")
+        return GateOutcome(gate, None, False, f"{gate.metric} is not in both results, cannot check the gate")
     regression = m.regression
     too_much = regression > gate.delta
     if too_much and only_significant and m.paired and m.verdict != WORSE:

@@ -197,3 +197,14 @@ def test_paired_base_and_new_are_means_over_shared_scenarios(tmp_path):
     c = compare_results(base, new, metrics=["metametric"], **FAST)
     shared = base.values["metametric"][20:80]
     assert c.metric("metametric").base == pytest.approx(float(np.mean(shared)))
+
+
+def test_gate_on_a_metric_neither_file_has_fails_with_a_reason(tmp_path):
+    data = result_json(synthetic_scenarios(20, seed=0))
+    data["buckets"] = {}  # no aggregate buckets, and no weights to compute them per scenario
+    base, new = _load(tmp_path, data, "base.json"), _load(tmp_path, data, "new.json")
+    c = compare_results(base, new, gates=[Gate.parse("kinematic_metrics:0.1")], **FAST)
+    assert not c.passed and c.gates[0].regression is None
+    assert "not in both results" in c.gates[0].reason
+    assert any("kinematic_metrics: not in both results" in w for w in c.warnings)
+    json.dumps(c.to_json(), allow_nan=False)  # strict JSON: no NaN anywhere

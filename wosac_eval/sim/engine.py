@@ -25,6 +25,7 @@ NO_SIGNAL = -1
 LOOKAHEAD_SPACING_M = 2.0
 LOOKAHEAD_POINTS = 26  # 50 m of path ahead of the nose
 MAX_BRAKE = 8.0
+LATERAL_ACCELERATION = 2.5  # m/s^2 drivers accept in turns
 NEIGHBOURS = 10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
 
 
@@ -52,6 +53,15 @@ class Paths:
         tangent = np.gradient(xy, axis=2)
         tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
         return cls(xy, tangent, ds)
+
+    def curvature(self) -> np.ndarray:
+        """(B, A, S) absolute curvature (1/m), averaged over ~4 m so that map noise does not spike it."""
+        if getattr(self, "_curvature", None) is None:
+            angle = np.unwrap(np.arctan2(self.tangent[..., 1], self.tangent[..., 0]), axis=-1)
+            window = max(1, int(round(2.0 / self.ds)))
+            padded = np.concatenate([np.repeat(angle[..., :1], window, -1), angle, np.repeat(angle[..., -1:], window, -1)], -1)
+            self._curvature = np.abs(padded[..., 2 * window :] - padded[..., : -2 * window]) / (2 * window * self.ds)
+        return self._curvature
 
     def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (B, A, ..., 2) and headings (B, A, ...) at arc lengths `s` of shape (B, A, ...)."""
@@ -200,7 +210,8 @@ def simulate(
         use_line = line_gap < lead_gap
         lead_gap = np.where(use_line, line_gap, lead_gap)
         lead_v = np.where(use_line, 0.0, lead_v)
-        acc = idm(v, drivers.v0[..., t], lead_gap, lead_v, drivers)
+        v0 = np.minimum(drivers.v0[..., t], _turn_speed(paths, s, drivers, k))
+        acc = idm(v, v0, lead_gap, lead_v, drivers)
         acc = np.where(drivers.moving & ~crashed, acc, 0.0)
         v_new = np.where(drivers.moving & ~crashed, np.maximum(v + acc * dt, 0.0), 0.0 * v)
         s = s + 0.5 * (v + v_new) * dt
@@ -260,6 +271,17 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     gap_full[cand_b, cand_i, cand_j] = gap_k[rows, first]
     speed_full[cand_b, cand_i, cand_j] = np.maximum(v[cand_b, cand_j] * cos_signed[rows, first], 0.0)
     return gap_full, speed_full
+
+
+def _turn_speed(paths: Paths, s: np.ndarray, d: Drivers, k: np.ndarray) -> np.ndarray:
+    """(B, A) highest speed from which each agent can slow (comfortably) to take the bends ahead."""
+    curvature = paths.curvature()
+    num_s = curvature.shape[2]
+    ahead = s[..., None] + k  # from the centre: the current bend counts too
+    index = np.clip(np.round(ahead / paths.ds).astype(np.int64), 0, num_s - 1)
+    kappa = np.take_along_axis(curvature, index, axis=2)
+    v_bend = np.sqrt(LATERAL_ACCELERATION / np.maximum(kappa, 1e-6))
+    return np.sqrt(v_bend**2 + 2.0 * d.b_comf[..., None] * k).min(axis=-1)
 
 
 def idm(v, v0, gap, lead_v, d: Drivers) -> np.ndarray:

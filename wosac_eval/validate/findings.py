@@ -225,7 +225,8 @@ class ValidationReport:
         return skipped
 
     def is_scenario_valid(self, scenario_id: str) -> bool:
-        return scenario_id not in self.invalid_scenarios and scenario_id not in self.missing_scenarios
+        """False for a scenario with an error or missing from the submission (missing ones have a finding too)."""
+        return scenario_id not in self.invalid_scenarios
 
     def _sorted_groups(self) -> list[FindingGroup]:
         order = list(CODES)

@@ -10,6 +10,7 @@ reads and writes the job store.
 
 import asyncio
 import csv
+import errno
 import io
 import json
 import os
@@ -125,6 +126,11 @@ class BodyTooLarge(Exception):
     pass
 
 
+def disk_full(exc: OSError) -> HTTPException:
+    return HTTPException(507, f"the server could not store the upload ({os.strerror(exc.errno or 0)}); "
+                         "retry later (resumable uploads keep what was stored)")
+
+
 async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "wb") -> tuple[int, bool]:
     """Append the request body to `path` chunk by chunk, at most `limit` bytes.
 
@@ -148,6 +154,10 @@ async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "
                 written += len(chunk)
         except ClientDisconnect:
             disconnected = True
+        except OSError as exc:
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise disk_full(exc)
+            raise
         f.flush()
         await run_in_threadpool(os.fsync, f.fileno())
     return written, disconnected
@@ -184,6 +194,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings.ensure_dirs()
     store = Store(settings.resolved_db_url)
     store.migrate()
+    # Bodies of direct uploads cut short by a crash of a previous run: nobody will finish them.
+    for orphan in settings.uploads_dir.glob("*.body"):
+        orphan.unlink(missing_ok=True)
     upload_locks: dict[str, asyncio.Lock] = {}
 
     @asynccontextmanager
@@ -265,33 +278,42 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                              f"(server limit {settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)")
 
     def accept(key: auth.ApiKey, temp: Path, size: int, *, method: str | None, config: str,
-               allow_partial: bool, publish: bool) -> dict:
-        """Turn a complete, fsynced temp file into a queued submission (runs in a thread)."""
+               allow_partial: bool, publish: bool, upload_id: str | None = None) -> dict:
+        """Turn a complete, fsynced file into a queued submission (runs in a thread).
+
+        On refusal (HTTPException) `temp` is left where it was: the caller decides
+        whether the bytes are kept (a resumable upload refused by a quota) or dropped.
+        """
         if size == 0:
-            temp.unlink(missing_ok=True)
             raise HTTPException(422, "the upload is empty")
         suffix = jobs.sniff_suffix(temp)
         problem = check_archive(temp, suffix)
         if problem is not None:
-            temp.unlink(missing_ok=True)
             raise HTTPException(422, problem)
+        try:
+            auth.check_submission_quota(store, key, size)
+        except auth.QuotaExceeded as exc:
+            raise quota_error(exc)
         submission_id = jobs.new_id()
         file_name = submission_id + suffix
         final = settings.submissions_dir / file_name
+        # File first, row second: a committed row always has its file on disk.
         os.replace(temp, final)
         jobs.fsync_dir(settings.submissions_dir)
         try:
             with store.transaction():
-                auth.check_submission_quota(store, key, size)
+                auth.check_submission_quota(store, key, size)  # again, under the write lock
                 jobs.insert_submission(store, submission_id=submission_id, key_id=key.id,
                                        method=method or key.name, config=config,
                                        allow_partial=allow_partial, published=publish,
                                        file_name=file_name, upload_bytes=size)
+                if upload_id is not None:  # same transaction: the upload and its submission agree
+                    store.execute("UPDATE uploads SET submission_id = ? WHERE id = ?", (submission_id, upload_id))
         except auth.QuotaExceeded as exc:
-            final.unlink(missing_ok=True)
+            os.replace(final, temp)
             raise quota_error(exc)
         except BaseException:
-            final.unlink(missing_ok=True)
+            os.replace(final, temp)
             raise
         return jobs.get_submission(store, submission_id)
 
@@ -336,8 +358,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             temp.unlink(missing_ok=True)
             raise HTTPException(400, f"the body ended after {size} bytes (client disconnected or sent "
                                 "less than Content-Length); use /v1/uploads to resume large uploads")
-        row = await run_in_threadpool(accept, key, temp, size, method=method, config=config,
-                                      allow_partial=allow_partial, publish=publish)
+        try:
+            row = await run_in_threadpool(accept, key, temp, size, method=method, config=config,
+                                          allow_partial=allow_partial, publish=publish)
+        finally:
+            temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
         return accepted(row)
 
     @app.get("/v1/submissions", response_model=SubmissionList, tags=["submissions"])
@@ -393,6 +418,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(body, status_code=201, headers={
             "Location": f"/v1/uploads/{upload_id}", "Upload-Offset": "0"})
 
+    def check_part(part: Path, row: dict) -> None:
+        # Never let truncate() pad a lost file with zeros: refuse instead.
+        if not part.exists() or part.stat().st_size < row["received_bytes"]:
+            raise HTTPException(410, "the stored bytes of this upload are gone; start a new upload")
+
     def upload_headers(row: dict) -> dict[str, str]:
         headers = {"Upload-Offset": str(row["received_bytes"]), "Cache-Control": "no-store"}
         if row["declared_length"] is not None:
@@ -433,6 +463,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                     f"offset {offset}; HEAD the upload and resume from there",
                                     headers=upload_headers(row))
             part = settings.uploads_dir / f"{upload_id}.part"
+            check_part(part, row)
             # Bytes past the committed offset (a crash mid-PATCH) are not trusted: cut them.
             with open(part, "ab") as f:
                 f.truncate(offset)
@@ -468,23 +499,19 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                     f"{row['declared_length']} declared bytes; PATCH the rest first",
                                     headers=upload_headers(row))
             part = settings.uploads_dir / f"{upload_id}.part"
-            temp = settings.uploads_dir / f"{upload_id}.body"
-            # Keep the committed bytes only, then hand the file over under a new name.
+            check_part(part, row)
             with open(part, "ab") as f:
-                f.truncate(row["received_bytes"])
-            os.replace(part, temp)
+                f.truncate(row["received_bytes"])  # only the committed bytes count
             try:
                 sub = await run_in_threadpool(
-                    accept, key, temp, row["received_bytes"], method=row["method"], config=row["config"],
-                    allow_partial=bool(row["allow_partial"]), publish=bool(row["published"]))
+                    accept, key, part, row["received_bytes"], method=row["method"], config=row["config"],
+                    allow_partial=bool(row["allow_partial"]), publish=bool(row["published"]),
+                    upload_id=upload_id)
             except HTTPException as exc:
-                if exc.status_code == 429 and temp.exists():
-                    os.replace(temp, part)  # quota: keep the bytes so the client can retry later
-                else:
+                if exc.status_code != 429:  # a quota may free up: keep the bytes; the rest is final
+                    part.unlink(missing_ok=True)
                     await run_in_threadpool(store.execute, "DELETE FROM uploads WHERE id = ?", (upload_id,))
                 raise
-            await run_in_threadpool(store.execute, "UPDATE uploads SET submission_id = ? WHERE id = ?",
-                                    (sub["id"], upload_id))
         upload_locks.pop(upload_id, None)
         return accepted(sub)
 

@@ -321,3 +321,21 @@ def test_restart_keeps_accepted_submissions(make_server, tmp_path):
     for sid, body in zip(ids, bodies):
         stored = next((server.data_dir / "submissions").glob(f"{sid}.*"))
         assert stored.read_bytes() == body
+
+
+def test_complete_refused_by_a_quota_keeps_the_uploaded_bytes(api_server):
+    key = api_server.key("patient", max_concurrent=1)
+    body = os.urandom(50_000)
+    with api_server.client(key) as c:
+        upload_id = c.post("/v1/uploads").json()["upload_id"]
+        assert _patch(c, upload_id, 0, body).status_code == 204
+        blocker = c.post("/v1/submissions", content=b"takes the only slot").json()["id"]
+        r = c.post(f"/v1/uploads/{upload_id}/complete")
+        assert r.status_code == 429
+        assert c.head(f"/v1/uploads/{upload_id}").headers["upload-offset"] == str(len(body))
+        # The blocking job finishes (as a worker would record it); the retry goes through.
+        api_server.store.execute("UPDATE submissions SET state = 'done' WHERE id = ?", (blocker,))
+        r = c.post(f"/v1/uploads/{upload_id}/complete")
+        assert r.status_code == 202, r.text
+        assert c.get(f"/v1/uploads/{upload_id}").json()["submission_id"] == r.json()["id"]
+    assert (api_server.data_dir / "submissions" / f"{r.json()['id']}.binproto").read_bytes() == body

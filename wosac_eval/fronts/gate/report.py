@@ -217,11 +217,9 @@ def _forest_plot(comparison: Comparison) -> str | None:
 
 
 def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
-    in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
-    pairs = [(i, in_new[s]) for i, s in enumerate(base.scenario_ids) if s in in_new]
-    if not pairs:
+    bi, ni = _shared_rows(result, base)
+    if bi.size == 0:
         return None
-    bi, ni = np.array(pairs).T
     b, n = base.values["metametric"][bi], result.values["metametric"][ni]
     fig = _figure(4.2, 4.0)
     ax = fig.add_subplot()
@@ -328,7 +326,35 @@ def _worst_section(result: ScoringResult, top_k: int) -> str:
                     [f'<div class="worst-grid">{"".join(blocks)}</div>'])
 
 
-def _comparison_section(result: ScoringResult, base: ScoringResult, c: Comparison) -> str:
+def _shared_rows(result: ScoringResult, base: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices `(base_rows, result_rows)`, each `(num_shared,)`, of the scenarios both results hold."""
+    in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
+    pairs = [(i, in_new[s]) for i, s in enumerate(base.scenario_ids) if s in in_new]
+    if not pairs:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    bi, ni = np.array(pairs).T
+    return bi, ni
+
+
+def _changed_scenarios(result: ScoringResult, base: ScoringResult, top_k: int) -> str:
+    """Tables of the scenarios whose meta-metric dropped / rose the most: where to look first."""
+    bi, ni = _shared_rows(result, base)
+    if bi.size == 0:
+        return ""
+    b, n = base.values["metametric"][bi], result.values["metametric"][ni]
+    change = n - b
+    order = np.argsort(change, kind="stable")
+    tables = []
+    for title, picks in (("largest drops", order[:top_k]), ("largest gains", order[::-1][:top_k])):
+        rows = "".join(f"<tr><td><code>{_esc(result.scenario_ids[ni[j]])}</code></td><td class=n>{b[j]:.4f}</td>"
+                       f"<td class=n>{n[j]:.4f}</td><td class=n>{change[j]:+.4f}</td></tr>" for j in picks)
+        tables.append(f'<div data-changes="{title.split()[1]}"><h3>Meta-metric: {title}</h3><table><tr>'
+                      f"<th>scenario</th><th class=n>baseline</th><th class=n>this run</th><th class=n>change</th>"
+                      f"</tr>{rows}</table></div>")
+    return f'<div class="row">{"".join(tables)}</div>'
+
+
+def _comparison_section(result: ScoringResult, base: ScoringResult, c: Comparison, top_k: int) -> str:
     body = [f'<p class="meta">Baseline <code>{_esc(c.base_path)}</code> (config <code>{_esc(c.base_config)}</code>). '
             f'Paired over {c.num_shared} shared scenarios ({c.num_base_only} only in baseline, {c.num_new_only} only '
             f'in this run); diff = this run - baseline; {c.n_boot} bootstrap resamples, '
@@ -359,6 +385,7 @@ def _comparison_section(result: ScoringResult, base: ScoringResult, c: Compariso
         body.append(f"<h3>Gates</h3><ul>{gates}</ul>")
     plots = [p for p in (_forest_plot(c), _scatter_plot(result, base)) if p]
     body.append('<div class="cards">' + "".join(plots) + "</div>")
+    body.append(_changed_scenarios(result, base, top_k))
     return _section("comparison", "Comparison with the baseline", body)
 
 
@@ -396,7 +423,7 @@ def render_report(
         _rate_section(result, base),
     ]
     if comparison is not None:
-        parts.append(_comparison_section(result, base, comparison))
+        parts.append(_comparison_section(result, base, comparison, top_k))
     parts += [_distribution_section(result, base), _worst_section(result, top_k), _skipped_section(result)]
     return (
         "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"

@@ -96,6 +96,9 @@ def test_report_sections_and_worst_scenarios(with_baseline):
     _, text = with_baseline
     _assert_report_structure(_Page(text), with_comparison=True)
     assert "better" in text  # the metametric verdict
+    # Scenario 17's meta-metric was set to 0.001 in the new run: the largest drop against the baseline.
+    drops = text[text.index('data-changes="drops"'):]
+    assert drops[drops.index("<code>") + 6:].startswith("scn000017</code>")
 
 
 def test_report_without_baseline_has_no_comparison_and_plots_buckets(alone):

@@ -141,6 +141,41 @@ def _numbers(obj: Any, where: str) -> dict[str, float]:
             if k != "scenario_id" and not (isinstance(v, float) and math.isnan(v))}
 
 
+def _scenario_ids(scenarios: list, path: str) -> list[str]:
+    """The scenario ids, checked: every entry an object with a unique non-empty id string."""
+    if set(map(type, scenarios)) <= {dict}:
+        ids = [e.get("scenario_id") for e in scenarios]
+        if set(map(type, ids)) <= {str} and all(ids) and len(set(ids)) == len(ids):
+            return ids
+    seen: dict[str, int] = {}  # something is wrong: find the first entry at fault
+    for i, entry in enumerate(scenarios):
+        if not isinstance(entry, dict):
+            raise ResultError(f"{path}: scenarios[{i}] is not an object")
+        sid = entry.get("scenario_id")
+        if not isinstance(sid, str) or not sid:
+            raise ResultError(f"{path}: scenarios[{i}] has no 'scenario_id' string")
+        if sid in seen:
+            raise ResultError(f"{path}: scenario {sid!r} appears twice (scenarios[{seen[sid]}] and scenarios[{i}])")
+        seen[sid] = i
+    raise AssertionError("unreachable: the fast check failed but no entry is at fault")
+
+
+def _column(scenarios: list[dict], field: str, ids: list[str], path: str) -> np.ndarray:
+    """`(num_scenarios,)` values of one per-scenario field, checked to be finite numbers."""
+    raw = [e.get(field) for e in scenarios]
+    # Fast path, checked without a Python call per value: only ints and floats (bools and numeric
+    # strings would convert silently), all finite.
+    if set(map(type, raw)) <= {float, int}:
+        column = np.asarray(raw, dtype=np.float64).reshape(len(raw))
+        if np.isfinite(column).all():
+            return column
+    for i, value in enumerate(raw):  # find the first scenario at fault
+        if field not in scenarios[i]:
+            raise ResultError(f"{path}: scenario {ids[i]!r} (scenarios[{i}]) has no field {field!r}")
+        _number(value, f"{path}: scenario {ids[i]!r} field {field!r}")
+    raise AssertionError("unreachable: the fast check failed but no value is at fault")
+
+
 def default_bucket_weights(config: str) -> dict[str, float] | None:
     """Metametric weights of the config, by config field name, or None if unavailable.
 
@@ -198,30 +233,10 @@ def parse_result(
     if not isinstance(config, str):
         raise ResultError(f"{path}: missing 'config' (expected the config name or textproto path as a string)")
 
-    ids: list[str] = []
-    seen: dict[str, int] = {}
-    columns: dict[str, list[float]] = {f: [] for f in SCENARIO_FIELDS}
-    bucket_columns: dict[str, list[float]] = {b: [] for b in BUCKET_MEMBERS}
-    for i, entry in enumerate(scenarios):
-        if not isinstance(entry, dict):
-            raise ResultError(f"{path}: scenarios[{i}] is not an object")
-        sid = entry.get("scenario_id")
-        if not isinstance(sid, str) or not sid:
-            raise ResultError(f"{path}: scenarios[{i}] has no 'scenario_id' string")
-        if sid in seen:
-            raise ResultError(f"{path}: scenario {sid!r} appears twice (scenarios[{seen[sid]}] and scenarios[{i}])")
-        seen[sid] = i
-        ids.append(sid)
-        for field in SCENARIO_FIELDS:
-            if field not in entry:
-                raise ResultError(f"{path}: scenario {sid!r} (scenarios[{i}]) has no field {field!r}")
-            columns[field].append(_number(entry[field], f"{path}: scenario {sid!r} field {field!r}"))
-        for bucket in BUCKET_MEMBERS:
-            if bucket in entry:
-                bucket_columns[bucket].append(_number(entry[bucket], f"{path}: scenario {sid!r} field {bucket!r}"))
-
-    values = {f: np.asarray(c, dtype=np.float64) for f, c in columns.items()}
-    carried = {b: np.asarray(c, dtype=np.float64) for b, c in bucket_columns.items() if len(c) == len(ids) and ids}
+    ids = _scenario_ids(scenarios, path)
+    values = {f: _column(scenarios, f, ids, path) for f in SCENARIO_FIELDS}
+    carried = {b: _column(scenarios, b, ids, path) for b in BUCKET_MEMBERS
+               if ids and all(b in e for e in scenarios)}
     if len(carried) < len(BUCKET_MEMBERS) and ids:
         weights = weights_for(config)
         if weights is not None:
@@ -234,7 +249,7 @@ def parse_result(
     return ScoringResult(
         path=path,
         config=config,
-        scenario_ids=np.asarray(ids, dtype=object),
+        scenario_ids=np.asarray(ids, dtype=object).reshape(len(ids)),
         values=values,
         aggregate=_numbers(data.get("aggregate"), f"{path}: aggregate"),
         buckets=_numbers(data.get("buckets"), f"{path}: buckets"),

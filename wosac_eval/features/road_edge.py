@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wosac_eval.features.spatial import tree_candidates
+from wosac_eval.features.spatial import first_minimum, tree_candidates
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -137,23 +137,57 @@ def _segment_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray,
     return rel_t, np.sqrt(planar2 + oz * oz), np.sqrt(planar2)
 
 
+_CELL = 1.0  # metres: queries are grouped in cubic cells of the stretched space
+
+
+def _segment_distance64(table: SegmentTable, points: np.ndarray, seg: np.ndarray) -> np.ndarray:
+    """Stretched 3D distance from stretched points to segments, in float64 (for bounds only)."""
+    start = _stretch(table.start[seg])
+    delta = _stretch(table.delta[seg])
+    rel = points - start
+    squared = np.einsum("ij,ij->i", delta[:, :2], delta[:, :2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(squared > 0, np.einsum("ij,ij->i", rel[:, :2], delta[:, :2]) / squared, 0.0)
+    offset = rel - delta * np.clip(t, 0.0, 1.0)[:, None]
+    return np.sqrt(np.einsum("ij,ij->i", offset, offset))
+
+
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
-    A segment's stretched distance is at least the distance to its nearest
-    sample minus half the spacing; the exact distance to the segments of the
-    nearest samples bounds the minimum from above. Segments with no sample
-    within that bound plus half the spacing cannot be the nearest.
+    Queries are grouped in cells of side `_CELL` (half-diagonal h). For a
+    query p in a cell with centre c, the nearest segment k* satisfies
+    D(k*, c) <= D(k*, p) + h <= D(j, p) + h <= D(j, c) + 2h for every j, so the
+    cell's candidates are the segments within min_j D(j, c) + 2h of its centre.
+    Those are found through the k-d tree of samples: a segment is within half
+    the sample spacing of its nearest sample.
     """
     q = _stretch(queries)
-
-    def measure(rows, samples):
-        return _segment_distances(table, queries, rows, table.sample_segment[samples])[1]
-
-    qi, sample = tree_candidates(
-        table.tree, q, lambda best: best + table.spacing * 0.5 + 1e-3 + 1e-5 * best, measure)
-    # Duplicates (several samples of one segment) are harmless: they tie exactly.
-    return qi, table.sample_segment[sample]
+    cell_of = np.floor(q / _CELL).astype(np.int64)
+    cells, inverse = np.unique(cell_of, axis=0, return_inverse=True)
+    inverse = inverse.reshape(-1)
+    centre = (cells + 0.5) * _CELL
+    h = _CELL * np.sqrt(3.0) / 2
+    margin = 1e-3
+    # Superset per cell: samples within (nearest sample + 2h + spacing/2) of the centre.
+    ci, sample = tree_candidates(table.tree, centre,
+                                 lambda nearest: nearest + 2 * h + table.spacing * 0.5 + margin)
+    seg = table.sample_segment[sample]
+    pair = np.unique(ci * np.int64(len(table.valid)) + seg)
+    ci, seg = pair // len(table.valid), pair % len(table.valid)
+    d = _segment_distance64(table, centre[ci], seg)
+    best = np.full(len(cells), np.inf)
+    np.minimum.at(best, ci, d)
+    keep = d <= best[ci] + 2 * h + margin + 1e-5 * best[ci]
+    ci, seg = ci[keep], seg[keep]
+    # Expand each query to its cell's candidate list (ci is sorted by cell).
+    first = np.searchsorted(ci, np.arange(len(cells)))
+    count = np.bincount(ci, minlength=len(cells))
+    per_query = count[inverse]
+    qi = np.repeat(np.arange(len(q)), per_query)
+    offset = np.arange(qi.size) - np.repeat(np.cumsum(per_query) - per_query, per_query)
+    si = seg[first[inverse][qi] + offset]
+    return qi, si
 
 
 def _side(table: SegmentTable, query_xy, seg):
@@ -175,12 +209,9 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     queries = np.asarray(queries, _F)
     qi, si = _candidates(table, queries)
     rel_t, d3, d2 = _segment_distances(table, queries, qi, si)
-    # Nearest in 3D, ties to the lowest segment index (pairs are sorted by it).
-    order = np.lexsort((si, d3, qi))
-    first = np.ones(order.size, bool)
-    first[1:] = qi[order[1:]] != qi[order[:-1]]
-    best = order[first]
-    bq, bs, bt = qi[best], si[best], rel_t[best]
+    # Nearest in 3D, ties to the lowest segment index (pairs are grouped by query).
+    bq, best = first_minimum(qi, d3, si)
+    bs, bt = si[best], rel_t[best]
     xy = queries[bq, :2]
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])

@@ -5,16 +5,23 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k: int = 16):
+def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bound: int = 4):
     """(query, tree point) pairs within a search radius of each query.
 
     The radius is `radius_of(bound)`, where `bound` is the smallest exact
-    measure (`measure(query_index, point_index)`) over the k tree points
-    nearest to the query, or the distance to the nearest point when no
-    measure is given. The k nearest points usually contain every point within
-    the radius; queries where they might not fall back to a ball search.
+    measure (`measure(query_index, point_index)`) over the `k_bound` tree
+    points nearest to the query, or the distance to the nearest point when no
+    measure is given. Everything stays vectorised: the ball sizes are counted
+    first, then queries are answered in groups with a k-nearest search just
+    large enough for the group.
+
+    Args:
+      tree: k-d tree over `(num_points, d)`.
+      q: float64 `(num_queries, d)`.
+    Returns:
+      (query_index, point_index), int64 `(num_pairs,)` each, sorted by query.
     """
-    k = min(k, tree.n)
+    k = min(k_bound, tree.n)
     dist, which = tree.query(q, k=k)
     dist, which = dist.reshape(len(q), k), which.reshape(len(q), k)
     if measure is None:
@@ -23,13 +30,42 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k: in
         rows = np.repeat(np.arange(len(q)), k)
         bound = np.asarray(measure(rows, which.reshape(-1)), np.float64).reshape(len(q), k).min(axis=1)
     radius = radius_of(bound)
-    within = dist <= radius[:, None]
-    complete = ~within[:, -1] | (k == tree.n)
-    take = within & complete[:, None]
-    qi, pi = np.nonzero(take)[0], which[take]
-    rest = np.flatnonzero(~complete)
-    if rest.size:
-        lists = tree.query_ball_point(q[rest], radius[rest])
-        qi = np.concatenate([qi, np.repeat(rest, [len(l) for l in lists])])
-        pi = np.concatenate([pi, np.concatenate([np.asarray(l, np.int64) for l in lists])])
-    return qi, pi
+    counts = np.asarray(tree.query_ball_point(q, radius, return_length=True))
+    qi_parts, pi_parts = [], []
+    # Groups of queries whose balls hold up to 8, 32, 128, ... points.
+    limit, low = 8, -1
+    while low < counts.max(initial=0):
+        group = np.flatnonzero((counts > low) & (counts <= limit))
+        if group.size:
+            kk = min(limit, tree.n)
+            d, w = tree.query(q[group], k=kk)
+            d, w = d.reshape(len(group), kk), w.reshape(len(group), kk)
+            inside = d <= radius[group, None]
+            qi_parts.append(np.repeat(group, inside.sum(axis=1)))
+            pi_parts.append(w[inside])
+        low, limit = limit, limit * 4
+    if not qi_parts:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    qi, pi = np.concatenate(qi_parts), np.concatenate(pi_parts)
+    order = np.argsort(qi, kind="stable")
+    return qi[order], pi[order].astype(np.int64)
+
+
+def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
+    """Per group (contiguous, sorted): the position of the minimum value, ties to the lowest `tie`.
+
+    Returns (group ids present, positions into the pair arrays).
+    """
+    starts = np.flatnonzero(np.r_[True, group[1:] != group[:-1]])
+    lowest = np.minimum.reduceat(value, starts)
+    sizes = np.diff(np.r_[starts, len(group)])
+    is_min = value == np.repeat(lowest, sizes)
+    # Among the minima of each group, the smallest tie-breaker wins.
+    big = np.iinfo(np.int64).max
+    tie_key = np.where(is_min, tie, big)
+    best_tie = np.minimum.reduceat(tie_key, starts)
+    winner = is_min & (tie == np.repeat(best_tie, sizes))
+    position = np.flatnonzero(winner)
+    # Duplicated pairs tie completely: keep the first of each group.
+    keep = np.r_[True, group[position[1:]] != group[position[:-1]]]
+    return group[position[keep]], position[keep]

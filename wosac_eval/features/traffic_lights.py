@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
-from wosac_eval.features.spatial import tree_candidates
+from wosac_eval.features.spatial import first_minimum, tree_candidates
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -101,11 +101,9 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
     qi, si = tree_candidates(table.tree, q, lambda best: best * (1 + 1e-5) + 1e-3, measure)
     si = table.tree_segment[si]
     d = _lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
-    order = np.lexsort((si, d, qi))
-    first = np.ones(order.size, bool)
-    first[1:] = qi[order[1:]] != qi[order[:-1]]
+    rows, best = first_minimum(qi, d, si)
     out = np.empty(len(q), np.int64)
-    out[qi[order[first]]] = si[order[first]]
+    out[rows] = si[best]
     return out
 
 

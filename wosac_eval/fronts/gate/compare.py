@@ -17,7 +17,6 @@ import numpy as np
 
 from wosac_eval.fronts.gate import stats
 from wosac_eval.fronts.gate.results import (
-    BUCKET_FIELDS,
     BUCKET_MEMBERS,
     SCENARIO_FIELDS,
     ScoringResult,
@@ -76,7 +75,7 @@ class Gate:
     delta: float
 
     @classmethod
-    def parse(cls, text: str) -> "Gate":
+    def parse(cls, text: str) -> Gate:
         name, sep, delta = text.rpartition(":")
         if not sep or not name:
             raise CompareError(f"gate {text!r}: expected METRIC:DELTA, e.g. metametric:0.005")

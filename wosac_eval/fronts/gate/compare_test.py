@@ -18,7 +18,7 @@ from wosac_eval.fronts.gate.compare import (
 from wosac_eval.fronts.gate.results import load_result
 from wosac_eval.fronts.gate.synthetic import LIKELIHOODS, WEIGHTS_2025, result_json, synthetic_scenarios
 
-FAST = dict(n_boot=400, n_perm=400)
+FAST = {"n_boot": 400, "n_perm": 400}
 
 
 def _load(tmp_path, data, name, weights=None):

@@ -14,7 +14,7 @@ import base64
 import datetime
 import html
 import io
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -257,8 +257,8 @@ def _headline(result: ScoringResult, base: ScoringResult | None, comparison: Com
                  f'</div></div>')
     cards.append(f'<div class="card"><div class="k">min ADE (m)</div><div class="v">'
                  f'{_num(result.headline("min_ade"))}</div></div>')
-    body = [f'<p class="meta">Realism meta-metric (the leaderboard score), config <code>{_esc(result.config)}</code>'
-            f'</p>', f'<div class="cards">{"".join(cards)}</div>']
+    body = [f'<p class="meta">Realism meta-metric (the leaderboard score), config <code>{_esc(result.config)}</code></p>',
+            f'<div class="cards">{"".join(cards)}</div>']
     return _section("headline", "Headline score", body)
 
 
@@ -278,8 +278,8 @@ def _bucket_section(result: ScoringResult, base: ScoringResult | None) -> str:
         rows.append(f"<tr>{cells}</tr>")
     note = ('<p class="meta">Baseline figures are each file\'s own aggregate over all its scenarios; the paired '
             'comparison below uses only the scenarios both share.</p>' if base is not None else "")
-    return _section("buckets", "Buckets", [f'<div class="row">{_bucket_plot(result, base)}'
-                                            f"<table>{head}{''.join(rows)}</table></div>", note])
+    table = f"<table>{head}{''.join(rows)}</table>"
+    return _section("buckets", "Buckets", [f'<div class="row">{_bucket_plot(result, base)}{table}</div>', note])
 
 
 def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:

@@ -13,7 +13,7 @@ from wosac_eval.fronts.gate.report import SECTIONS, render_report
 from wosac_eval.fronts.gate.results import load_result
 from wosac_eval.fronts.gate.synthetic import WEIGHTS_2025, result_json, synthetic_scenarios
 
-FAST = dict(n_boot=300, n_perm=300)
+FAST = {"n_boot": 300, "n_perm": 300}
 
 
 class _Page(html.parser.HTMLParser):
@@ -62,7 +62,7 @@ def _results(tmp_path, weights=None):
     base_path, new_path = tmp_path / "base.json", tmp_path / "new.json"
     base_path.write_text(json.dumps(result_json(synthetic_scenarios(200, seed=0, shift={"metametric": -0.01}))))
     new_path.write_text(json.dumps(result_json(scenarios, skipped=skipped)))
-    load = lambda p: load_result(p, weights_for=lambda config: weights)  # noqa: E731
+    load = lambda p: load_result(p, weights_for=lambda config: weights)
     return load(new_path), load(base_path)
 
 

@@ -9,8 +9,9 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -189,7 +190,7 @@ def default_bucket_weights(config: str) -> dict[str, float] | None:
         return None
     try:
         proto = load_config(config)
-    except Exception:  # an unknown name or a textproto path that is not on this machine
+    except (ValueError, OSError):  # an unknown name, or a textproto path that is not on this machine
         return None
     weights = {}
     for members in BUCKET_MEMBERS.values():

@@ -66,7 +66,7 @@ def test_bucket_with_zero_weights_is_left_out():
 def _official_weights(config_path: Path) -> dict[str, float]:
     text = config_path.read_text()
     return {m.group(1): float(m.group(2))
-            for m in re.finditer(r"^(\w+): \{.*?metametric_weight: ([0-9.]+)", text, re.S | re.M)}
+            for m in re.finditer(r"^(\w+): \{.*?metametric_weight: ([0-9.]+)", text, re.DOTALL | re.MULTILINE)}
 
 
 def test_weighted_buckets_match_the_official_buckets_on_golden_outputs():

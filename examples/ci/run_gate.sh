@@ -3,7 +3,7 @@
 #
 #   run_gate.sh SUBMISSION BASELINE.json OUT_DIR SCENARIO_PATH...
 #
-# Writes OUT_DIR/new.json (the score), OUT_DIR/comparison.txt and .json, OUT_DIR/report.html.
+# Writes OUT_DIR/new.json (the score), OUT_DIR/comparison.{txt,json,md}, OUT_DIR/report.html.
 # Exit code: 0 scored and no gate failed (or no baseline yet), 1 a gate failed or the
 # submission is invalid, 2 usage error (bad paths, results that cannot be compared).
 #
@@ -54,19 +54,14 @@ gate_args=()
 for gate in $gates; do gate_args+=(--fail-if-worse "$gate"); done
 
 "${wosac_eval[@]}" compare "$baseline" "$out/new.json" "${gate_args[@]}" --seed "$seed" \
-  --json-output "$out/comparison.json" | tee "$out/comparison.txt"
+  --json-output "$out/comparison.json" --markdown-output "$out/comparison.md" | tee "$out/comparison.txt"
 status=${PIPESTATUS[0]}
 
 # The report is written whatever the gate said: it is what a reviewer opens when it failed.
 "${wosac_eval[@]}" report "$out/new.json" --compare "$baseline" --seed "$seed" --html "$out/report.html" \
   || echo "run_gate: the report could not be written" >&2
 
-{
-  echo "### WOSAC realism vs baseline"
-  echo '```'
-  cat "$out/comparison.txt"
-  echo '```'
-} | summary
+if [ -f "$out/comparison.md" ]; then summary < "$out/comparison.md"; fi
 
 case "$status" in
   0) echo "run_gate: all gates passed" ;;

@@ -9,7 +9,15 @@ import argparse
 import json
 import sys
 
-from wosac_eval.fronts.gate.compare import ALIASES, METRICS, CompareError, Gate, compare_results, format_table
+from wosac_eval.fronts.gate.compare import (
+    ALIASES,
+    METRICS,
+    CompareError,
+    Gate,
+    compare_results,
+    format_markdown,
+    format_table,
+)
 from wosac_eval.fronts.gate.results import ResultError, load_result
 
 NAME = "compare"
@@ -20,11 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("base", metavar="BASE.json", help="result of the reference run (`wosac-eval score --output`)")
     parser.add_argument("new", metavar="NEW.json", help="result of the run under test")
     parser.add_argument("--metric", action="append", metavar="NAME",
-                        help="report only this metric (repeatable; default all): " + ", ".join(METRICS)
+                        help="report only this metric (repeatable or comma-separated; default all): " + ", ".join(METRICS)
                         + "; aliases: " + ", ".join(f"{a}={m}" for a, m in ALIASES.items()))
     parser.add_argument("--fail-if-worse", action="append", default=[], metavar="METRIC:DELTA",
                         help="exit 1 when NEW is worse than BASE on METRIC by more than DELTA (in the metric's "
-                             "units, mean over shared scenarios; repeatable), e.g. metametric:0.005")
+                             "units, or with %% a share of the baseline value; mean over shared scenarios; "
+                             "repeatable), e.g. metametric:0.005 or metametric:1%%")
     parser.add_argument("--only-significant", action="store_true",
                         help="a gate fails only when the regression is also statistically significant")
     parser.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05: 95%% CIs)")
@@ -38,6 +47,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
     parser.add_argument("--json-output", metavar="PATH",
                         help="also write the comparison as JSON to PATH (the table still goes to stdout)")
+    parser.add_argument("--markdown-output", metavar="PATH",
+                        help="also write the comparison as a Markdown table to PATH (for a CI job summary)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,13 +63,16 @@ def run(args: argparse.Namespace) -> int:
     except (ResultError, CompareError) as e:
         print(f"wosac-eval compare: error: {e}", file=sys.stderr)
         return 2
-    if args.json_output:
-        try:
-            with open(args.json_output, "w", encoding="utf-8") as f:
-                json.dump(comparison.to_json(), f, indent=2)
-        except OSError as e:
-            print(f"wosac-eval compare: error: cannot write {args.json_output}: {e.strerror}", file=sys.stderr)
-            return 2
+    outputs = [(args.json_output, lambda: json.dumps(comparison.to_json(), indent=2) + "\n"),
+               (args.markdown_output, lambda: format_markdown(comparison))]
+    for path, render in outputs:
+        if path:
+            try:
+                with open(path, "w", encoding="utf-8") as f:
+                    f.write(render())
+            except OSError as e:
+                print(f"wosac-eval compare: error: cannot write {path}: {e.strerror}", file=sys.stderr)
+                return 2
     if args.json:
         for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
             print(f"wosac-eval compare: warning: {w}", file=sys.stderr)

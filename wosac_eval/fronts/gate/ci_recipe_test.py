@@ -51,7 +51,9 @@ def test_gate_script_fails_on_a_regression_and_still_writes_the_report(tmp_path)
     assert comparison["passed"] is False and comparison["scenarios"]["shared"] == 1
     assert (out / "comparison.txt").read_text() in proc.stdout
     assert 'id="comparison"' in (out / "report.html").read_text()
-    assert "WOSAC realism vs baseline" in summary.read_text() and "GATE FAILED" in summary.read_text()
+    text = summary.read_text()  # the Markdown table, in the GitHub job summary
+    assert "### WOSAC realism" in text and "**gate failed**" in text
+    assert "| `min_average_displacement_error` | lower |" in text and "**FAIL** `min_average_displacement_error:1`" in text
 
 
 def test_gate_script_without_baseline_scores_and_reports(tmp_path):

@@ -91,3 +91,17 @@ def test_report_command_errors_exit_2(results, tmp_path, capsys):
     base = results("base.json")
     assert main(["report", base, "--html", str(tmp_path / "missing-dir" / "r.html")]) == 2
     assert "cannot write" in capsys.readouterr().err
+
+
+def test_compare_markdown_output_and_comma_separated_metrics(results, tmp_path, capsys):
+    base = results("base.json")
+    new = results("new.json", shift={"metametric": 0.02})
+    md = tmp_path / "comparison.md"
+    assert main(["compare", base, new, *FAST, "--metric", "metametric,min_ade", "--markdown-output", str(md),
+                 "--fail-if-worse", "metametric:1%"]) == 0
+    lines = md.read_text().splitlines()
+    rows = [line for line in lines if line.startswith("| `")]
+    assert [r.split("|")[1].strip() for r in rows] == ["`metametric`", "`min_average_displacement_error`"]
+    assert "**better**" in rows[0] and "+0.0200" in rows[0]
+    assert "- PASS `metametric:1%`: not worse (change +0.02)" in lines
+    assert "metametric" in capsys.readouterr().out  # the table still goes to stdout

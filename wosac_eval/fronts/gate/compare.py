@@ -69,23 +69,37 @@ def canonical_metric(name: str) -> str:
 
 @dataclasses.dataclass(frozen=True)
 class Gate:
-    """`--fail-if-worse METRIC:DELTA`: fail when new is worse than base by more than DELTA."""
+    """`--fail-if-worse METRIC:DELTA`: fail when new is worse than base by more than DELTA.
+
+    DELTA is in the metric's units, or with a `%` suffix a fraction of the
+    baseline's value (`metametric:1%` tolerates a drop of 1% of the baseline).
+    """
 
     metric: str
     delta: float
+    relative: bool = False
 
     @classmethod
     def parse(cls, text: str) -> Gate:
         name, sep, delta = text.rpartition(":")
         if not sep or not name:
-            raise CompareError(f"gate {text!r}: expected METRIC:DELTA, e.g. metametric:0.005")
+            raise CompareError(f"gate {text!r}: expected METRIC:DELTA, e.g. metametric:0.005 or metametric:1%")
+        relative = delta.strip().endswith("%")
         try:
-            value = float(delta)
+            value = float(delta.strip().removesuffix("%"))
         except ValueError:
-            raise CompareError(f"gate {text!r}: DELTA {delta!r} is not a number") from None
+            raise CompareError(f"gate {text!r}: DELTA {delta!r} is not a number (or a percentage)") from None
         if not np.isfinite(value) or value < 0:
             raise CompareError(f"gate {text!r}: DELTA must be a finite number >= 0 (the tolerated regression)")
-        return cls(canonical_metric(name), value)
+        return cls(canonical_metric(name), value / 100 if relative else value, relative)
+
+    @property
+    def spec(self) -> str:
+        return f"{self.metric}:{self.delta * 100:g}%" if self.relative else f"{self.metric}:{self.delta:g}"
+
+    def allowed(self, base: float) -> float:
+        """The tolerated regression, in the metric's units, for a baseline value."""
+        return self.delta * abs(base) if self.relative else self.delta
 
 
 @dataclasses.dataclass
@@ -121,6 +135,7 @@ class GateOutcome:
     regression: float | None  # None when the metric could not be compared (the gate then fails)
     passed: bool
     reason: str
+    allowed: float | None = None  # the tolerated regression in the metric's units
 
 
 @dataclasses.dataclass
@@ -162,8 +177,8 @@ class Comparison:
                          "n_perm": self.n_perm, "exact_permutation": self.exact_permutation,
                          "difference": "new - base, mean over shared scenarios"},
             "metrics": [dataclasses.asdict(m) for m in self.metrics],
-            "gates": [{"metric": g.gate.metric, "max_regression": g.gate.delta, "regression": g.regression,
-                       "passed": g.passed, "reason": g.reason} for g in self.gates],
+            "gates": [{"gate": g.gate.spec, "metric": g.gate.metric, "max_regression": g.allowed,
+                       "regression": g.regression, "passed": g.passed, "reason": g.reason} for g in self.gates],
             "warnings": list(self.warnings),
             "passed": self.passed,
         }
@@ -205,8 +220,8 @@ def compare_results(
     """Compares `new` against `base` on the scenarios both contain.
 
     Args:
-      metrics: metric names (aliases accepted) to report; None for all. Gated
-        metrics are always included.
+      metrics: metric names (aliases accepted, comma-separated lists too) to
+        report; None for all. Gated metrics are always included.
       gates: regressions to fail on.
       alpha: significance level of the verdicts.
       adjust: "none" or "holm": verdicts from raw or Holm-adjusted p-values.
@@ -224,7 +239,8 @@ def compare_results(
     if n_boot < 1 or n_perm < 1:
         raise CompareError("n_boot and n_perm must be at least 1")
     gates = list(gates or [])
-    wanted = [canonical_metric(m) for m in metrics] if metrics else list(METRICS)
+    names = [n for m in metrics or [] for n in m.split(",") if n.strip()]  # "--metric a,b" or repeated
+    wanted = [canonical_metric(n) for n in names] if names else list(METRICS)
     wanted += [g.metric for g in gates if g.metric not in wanted]
     wanted = [m for m in METRICS if m in wanted]  # display order, no duplicates
 
@@ -307,16 +323,17 @@ def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) 
     if m is None:
         return GateOutcome(gate, None, False, f"{gate.metric} is not in both results, cannot check the gate")
     regression = m.regression
-    too_much = regression > gate.delta
+    allowed = gate.allowed(m.base)
+    too_much = regression > allowed
     if too_much and only_significant and m.paired and m.verdict != WORSE:
         return GateOutcome(gate, regression, True,
-                           f"worse by {regression:.6g} > allowed {gate.delta:g}, but not significant "
-                           f"(p={m.p_value:.4g}); passing because of --only-significant")
+                           f"worse by {regression:.6g} > allowed {allowed:.6g}, but not significant "
+                           f"(p={m.p_value:.4g}); passing because of --only-significant", allowed)
     if too_much:
-        return GateOutcome(gate, regression, False, f"worse by {regression:.6g} > allowed {gate.delta:g}")
+        return GateOutcome(gate, regression, False, f"worse by {regression:.6g} > allowed {allowed:.6g}", allowed)
     if regression > 0:
-        return GateOutcome(gate, regression, True, f"worse by {regression:.6g} <= allowed {gate.delta:g}")
-    return GateOutcome(gate, regression, True, f"not worse (change {m.difference:+.6g})")
+        return GateOutcome(gate, regression, True, f"worse by {regression:.6g} <= allowed {allowed:.6g}", allowed)
+    return GateOutcome(gate, regression, True, f"not worse (change {m.difference:+.6g})", allowed)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -377,6 +394,28 @@ def format_table(c: Comparison) -> str:
     if c.gates:
         out.append("")
         for g in c.gates:
-            out.append(f"gate {g.gate.metric}:{g.gate.delta:g}  {'PASS' if g.passed else 'FAIL'}  {g.reason}")
+            out.append(f"gate {g.gate.spec}  {'PASS' if g.passed else 'FAIL'}  {g.reason}")
         out.append("result: " + ("all gates passed" if c.passed else "GATE FAILED"))
     return "\n".join(out)
+
+
+def format_markdown(c: Comparison) -> str:
+    """The comparison as GitHub-flavoured Markdown (for a CI job summary or a pull-request comment)."""
+    conf = f"{round((1 - c.alpha) * 100):d}% CI"
+    status = "" if not c.gates else (" — all gates passed" if c.passed else " — **gate failed**")
+    out = [f"### WOSAC realism: `{c.new_path}` vs `{c.base_path}`{status}", "",
+           f"Paired over {c.num_shared} shared scenarios (config `{c.new_config}`); diff = new - base.", "",
+           f"| metric | better if | base | new | diff | {conf} | p | verdict |",
+           "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |"]
+    for m in c.metrics:
+        ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
+        p = m.p_holm if c.adjust == "holm" else m.p_value
+        verdict = f"**{m.verdict}**" if m.verdict in (BETTER, WORSE) else m.verdict
+        out.append(f"| `{m.metric}` | {'higher' if m.higher_is_better else 'lower'} | {_fmt(m.base)} | "
+                   f"{_fmt(m.new)} | {_fmt(m.difference, True)} | {ci} | {_fmt_p(p)} | {verdict} |")
+    if c.gates:
+        out.append("")
+        out += [f"- {'PASS' if g.passed else '**FAIL**'} `{g.gate.spec}`: {g.reason}" for g in c.gates]
+    for w in c.warnings:  # one quote block each: consecutive quoted lines would merge into one paragraph
+        out += ["", f"> warning: {w}"]
+    return "\n".join(out) + "\n"

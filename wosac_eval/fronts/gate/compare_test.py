@@ -181,8 +181,9 @@ def test_json_and_table_outputs(tmp_path):
     out = json.loads(json.dumps(c.to_json()))
     assert out["passed"] is False and out["scenarios"]["shared"] == 60
     assert [m["metric"] for m in out["metrics"]] == list(METRICS)
-    assert out["gates"][0] == {"metric": "metametric", "max_regression": 0.005, "regression": pytest.approx(0.01),
-                               "passed": False, "reason": out["gates"][0]["reason"]}
+    assert out["gates"][0] == {"gate": "metametric:0.005", "metric": "metametric", "max_regression": 0.005,
+                               "regression": pytest.approx(0.01), "passed": False,
+                               "reason": out["gates"][0]["reason"]}
     table = format_table(c)
     header = next(line for line in table.splitlines() if line.startswith("metric"))
     assert header.split() == ["metric", "best", "base", "new", "diff", "95%", "CI", "p", "verdict"]
@@ -208,3 +209,16 @@ def test_gate_on_a_metric_neither_file_has_fails_with_a_reason(tmp_path):
     assert "not in both results" in c.gates[0].reason
     assert any("kinematic_metrics: not in both results" in w for w in c.warnings)
     json.dumps(c.to_json(), allow_nan=False)  # strict JSON: no NaN anywhere
+
+
+def test_relative_gates_scale_with_the_baseline(tmp_path):
+    base, new = _pair(tmp_path, n=80, new_kwargs={"shift": {"metametric": -0.01}})
+    base_mean = float(base.values["metametric"].mean())  # about 0.45: a 0.01 drop is about 2.2%
+    c = compare_results(base, new, gates=[Gate.parse("metametric:2%"), Gate.parse("realism_meta_metric:3%")],
+                        **FAST)
+    assert [g.passed for g in c.gates] == [False, True]
+    assert c.gates[0].allowed == pytest.approx(0.02 * base_mean)
+    assert c.gates[0].gate.spec == "metametric:2%" and c.gates[0].gate.relative
+    assert "gate metametric:2%  FAIL" in format_table(c)
+    with pytest.raises(CompareError, match="not a number"):
+        Gate.parse("metametric:%")

@@ -379,7 +379,7 @@ def _comparison_section(result: ScoringResult, base: ScoringResult, c: Compariso
         body.append(f'<p class="meta">{tested} metrics tested with unadjusted p-values: with no real change about '
                     f'{tested * c.alpha:.1f} can still come out better/worse by chance.</p>')
     if c.gates:
-        gates = "".join(f"<li><code>{_esc(g.gate.metric)}:{g.gate.delta:g}</code> "
+        gates = "".join(f"<li><code>{_esc(g.gate.spec)}</code> "
                         f"<span class={'pass' if g.passed else 'fail'}>{'PASS' if g.passed else 'FAIL'}</span> "
                         f"{_esc(g.reason)}</li>" for g in c.gates)
         body.append(f"<h3>Gates</h3><ul>{gates}</ul>")

@@ -11,7 +11,8 @@ import pytest
 
 from wosac_eval.fronts.server.db import Store
 from wosac_eval.fronts.server.harness import (  # noqa: F401  (re-exported to the test modules)
-    GOLDEN_PAIR, SCENARIO_FILES, SHARED, Server, canonical, files_under, free_port, tar_bytes)
+    GOLDEN_PAIR, SCENARIO_FILES, SHARED, ScoringData, Server, canonical, files_under, free_port, tar_bytes)
+from wosac_eval.fronts.server.harness import scoring_data as harness_scoring_data
 
 
 def scorer_available() -> bool:
@@ -27,21 +28,28 @@ def need_scorer():
         pytest.skip("wosac_eval.metrics.submission.score_submission is not available yet")
 
 
-def need_shared():
-    missing = [p for p in [*SCENARIO_FILES, *GOLDEN_PAIR] if not p.exists()]
-    if missing:
-        pytest.skip(f"../shared is absent ({missing[0]} missing): golden submissions unavailable")
+@pytest.fixture(scope="session")
+def scoring_data(tmp_path_factory) -> ScoringData:
+    """The golden submissions of ../shared, or demo data from `wosac_eval.sim` when absent."""
+    need_scorer()
+    return harness_scoring_data(tmp_path_factory.mktemp("scoring-data"))
 
 
 @pytest.fixture(scope="session")
-def direct_single_result() -> dict:
-    """`score_submission` called directly on one golden binproto (one of the two
-    scenarios, so partial), as the service tests upload it."""
-    need_shared()
-    need_scorer()
+def direct_single_result(scoring_data) -> dict:
+    """`score_submission` called directly on the one-scenario submission (partial)."""
     from wosac_eval.metrics.submission import score_submission
 
-    return json.loads(canonical(score_submission(SCENARIO_FILES, GOLDEN_PAIR[0], "2025", allow_partial=True)))
+    return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.single, "2025",
+                                                 allow_partial=True)))
+
+
+@pytest.fixture(scope="session")
+def direct_full_result(scoring_data) -> dict:
+    """`score_submission` called directly on the submission covering every scenario."""
+    from wosac_eval.metrics.submission import score_submission
+
+    return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.full, "2025")))
 
 
 def default_scenarios(tmp: Path) -> list[Path]:

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import tarfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
@@ -26,6 +27,51 @@ SCENARIO_FILES = [SHARED / "womd" / "motion_data_one_scenario.tfrecord",
 # One golden submission per shared scenario: together they cover both.
 GOLDEN_PAIR = [GOLDEN / "637f20cafde22ff8__logreplay.binproto",
                GOLDEN / "ee519cf571686d19__constvel_noise.binproto"]
+
+
+@dataclass(frozen=True)
+class ScoringData:
+    """What the end-to-end tests and the load benchmark score."""
+
+    source: str            # "shared golden" or "demo"
+    scenarios: list[Path]  # the scenario shards the server scores against
+    full: Path             # a valid submission covering every scenario
+    single: Path           # a submission covering one scenario (score with allow_partial)
+
+
+def golden_data(workdir: Path) -> ScoringData | None:
+    """The golden submissions of ../shared: one binproto per shared scenario, and a
+    two-shard .tar.gz of both (the second shard's metadata set equal to the first's,
+    since shards of one submission must agree). None when ../shared is absent."""
+    if not all(p.exists() for p in [*SCENARIO_FILES, *GOLDEN_PAIR]):
+        return None
+    from wosac_eval.protos import sim_agents_submission_pb2 as pb
+
+    first, second = (pb.SimAgentsChallengeSubmission.FromString(p.read_bytes()) for p in GOLDEN_PAIR)
+    merged = pb.SimAgentsChallengeSubmission()
+    merged.CopyFrom(first)
+    del merged.scenario_rollouts[:]
+    merged.scenario_rollouts.extend(second.scenario_rollouts)
+    full = workdir / "golden-pair.tar.gz"
+    full.write_bytes(tar_bytes({"shard-00000-of-00002.binproto": first.SerializeToString(),
+                                "shard-00001-of-00002.binproto": merged.SerializeToString()}))
+    return ScoringData("shared golden", list(SCENARIO_FILES), full, GOLDEN_PAIR[0])
+
+
+def demo_data(workdir: Path) -> ScoringData:
+    """Two synthetic scenes from `wosac_eval.sim` and constant-velocity submissions."""
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import make_submission
+
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=0), workdir / "scenarios", num_shards=2)
+    full = make_submission(shards, "constant_velocity", workdir / "demo-full.tar.gz", num_shards=2)
+    single = make_submission(shards[:1], "constant_velocity", workdir / "demo-single.tar.gz", num_shards=1)
+    return ScoringData("demo", shards, full, single)
+
+
+def scoring_data(workdir: Path) -> ScoringData:
+    workdir.mkdir(parents=True, exist_ok=True)
+    return golden_data(workdir) or demo_data(workdir)
 
 
 def free_port() -> int:

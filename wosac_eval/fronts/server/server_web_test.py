@@ -10,7 +10,6 @@ import subprocess
 import httpx
 import pytest
 
-from .conftest import GOLDEN_PAIR, need_scorer, need_shared
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync"]
@@ -57,13 +56,11 @@ def test_page_uses_no_external_resources(api_server):
     assert httpx.get(server.url + "/docs").status_code == 404  # the CDN-backed docs page is off
 
 
-def test_leaderboard_and_status_page_in_chromium(make_server, tmp_path):
-    need_shared()
-    need_scorer()
-    server = make_server(workers=1)
+def test_leaderboard_and_status_page_in_chromium(make_server, scoring_data, tmp_path):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("browser")
     with server.client(key) as c:
-        sid = c.post("/v1/submissions", content=GOLDEN_PAIR[0].read_bytes(),
+        sid = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
                      params={"allow_partial": "true", "publish": "true", "method": "log-replay 1.0"}).json()["id"]
         status = server.wait_state(c, sid)
     assert status["state"] == "done", status

@@ -311,8 +311,8 @@ def test_metadata_inconsistent_between_shards(tmp_path, capsys, scenario_file, t
 
 @pytest.fixture(scope="module")
 def many(tmp_path_factory, template, rollouts_a):
-    """A scenario set of 30 renamed copies of scenario A, and its ScenarioRollouts per id."""
-    ids = [f"scenario{i:03d}" for i in range(30)]
+    """A scenario set of 12 renamed copies of scenario A, and its ScenarioRollouts per id."""
+    ids = [f"scenario{i:03d}" for i in range(12)]
     scenario = load_scenario(A)
     path = tmp_path_factory.mktemp("many") / "set.tfrecord"
     write_records(path, (renamed_scenario_bytes(scenario, sid) for sid in ids))
@@ -330,10 +330,10 @@ def test_missing_scenarios_counted_and_first_listed(tmp_path, capsys, template, 
     path = write(tmp_path / "s.binproto", shard.SerializeToString())
     code, out = validate(capsys, [scenario_path], path, "--max-listed", "3")
     assert code == 1
-    assert "ERROR coverage.missing_scenario — Scenario of the scenario set missing from the submission: 25" in out
-    assert "  - scenario scenario005: missing from the submission (25 scenario(s) of the set are missing)" in out
+    assert "ERROR coverage.missing_scenario — Scenario of the scenario set missing from the submission: 7" in out
+    assert "  - scenario scenario005: missing from the submission (7 scenario(s) of the set are missing)" in out
     assert "scenario008" not in out  # only the first 3 in full
-    assert "  ... and 22 more (raise --max-listed to see them)" in out
+    assert "  ... and 4 more (raise --max-listed to see them)" in out
 
 
 def test_unknown_duplicate_and_id_less_scenarios(tmp_path, capsys, template, many):
@@ -343,24 +343,24 @@ def test_unknown_duplicate_and_id_less_scenarios(tmp_path, capsys, template, man
     anonymous = copy(rollouts[ids[0]])
     anonymous.ClearField("scenario_id")
     members = {
-        "s0.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[:20]]).SerializeToString(),
-        "s1.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[18:]] + [stranger, anonymous]).SerializeToString(),
+        "s0.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[:8]]).SerializeToString(),
+        "s1.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[6:]] + [stranger, anonymous]).SerializeToString(),
     }
     code, report = validate_json(capsys, [scenario_path], write(tmp_path / "s.tar", tar_bytes(members, gzip=False)))
     assert code == 1
     assert group(report, "coverage.unknown_scenario")["listed"][0]["message"] == (
-        "s1.binproto: scenario not-in-the-set: not in the scenario set (scenario_rollouts[12])"
+        "s1.binproto: scenario not-in-the-set: not in the scenario set (scenario_rollouts[6])"
     )
     dups = group(report, "coverage.duplicate_scenario")
     assert dups["count"] == 2
     assert dups["listed"][0]["message"] == (
-        "s1.binproto: scenario scenario018: submitted again at scenario_rollouts[0]; first in s0.binproto at scenario_rollouts[18]"
+        "s1.binproto: scenario scenario006: submitted again at scenario_rollouts[0]; first in s0.binproto at scenario_rollouts[6]"
     )
     assert group(report, "coverage.missing_scenario_id")["listed"][0]["message"].startswith(
-        "s1.binproto: scenario_rollouts[13] has no scenario_id"
+        "s1.binproto: scenario_rollouts[7] has no scenario_id"
     )
     assert "coverage.missing_scenario" not in [g["code"] for g in report["groups"]]
-    assert report["stats"]["scenarios_valid"] == 28  # the two duplicated ones cannot be scored
+    assert report["stats"]["scenarios_valid"] == 10  # the two duplicated ones cannot be scored
 
 
 # -- per scenario ---------------------------------------------------------------------

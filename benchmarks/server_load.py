@@ -8,8 +8,9 @@ same submission must score the same every time).
 
     .venv/bin/python benchmarks/server_load.py [--uploads 20] [--workers 2] [--submission PATH]
 
-Needs ../shared (golden submission + scenarios); otherwise pass --submission and
---scenarios (e.g. demo data from `wosac_eval.sim`).
+Uploads the one-scenario golden submission of ../shared (scored with allow_partial
+against both shared scenarios); when ../shared is absent, demo data from
+`wosac_eval.sim` instead. --submission/--scenarios override both.
 """
 from __future__ import annotations
 
@@ -25,24 +26,29 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from wosac_eval.fronts.server.harness import GOLDEN_PAIR, SCENARIO_FILES, Server  # noqa: E402
+from wosac_eval.fronts.server.harness import Server, scoring_data  # noqa: E402
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--uploads", type=int, default=20, help="concurrent uploads (default 20)")
     parser.add_argument("--workers", type=int, default=2, help="scoring worker processes (default 2)")
-    parser.add_argument("--submission", type=Path, default=GOLDEN_PAIR[0])
-    parser.add_argument("--scenarios", type=Path, nargs="+", default=SCENARIO_FILES)
+    parser.add_argument("--submission", type=Path, help="default: a one-scenario golden (or demo) submission")
+    parser.add_argument("--scenarios", type=Path, nargs="+", help="default: the matching scenario shards")
     parser.add_argument("--timeout", type=float, default=900.0, help="give up after this many seconds")
     args = parser.parse_args()
-    for path in [args.submission, *args.scenarios]:
-        if not path.exists():
-            print(f"missing {path}: pass --submission/--scenarios", file=sys.stderr)
-            return 2
 
-    body = args.submission.read_bytes()
     with tempfile.TemporaryDirectory(prefix="wosac-load-") as tmp:
+        if args.submission is None or args.scenarios is None:
+            data = scoring_data(Path(tmp) / "inputs")
+            args.submission = args.submission or data.single
+            args.scenarios = args.scenarios or data.scenarios
+            print(f"inputs: {data.source} data")
+        for path in [args.submission, *args.scenarios]:
+            if not path.exists():
+                print(f"missing {path}", file=sys.stderr)
+                return 2
+        body = args.submission.read_bytes()
         server = Server(Path(tmp) / "data", args.scenarios, workers=args.workers, poll_s=0.2,
                         heartbeat_s=2, lease_s=30).start()
         try:

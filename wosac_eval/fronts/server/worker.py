@@ -150,6 +150,8 @@ class Worker:
             if report is not None:
                 payload = {"text": report.format_text(), "details": report.to_dict()}
             jobs.finish_failed(self.store, job_id, self.owner, f"the submission is invalid: {exc}", payload)
+        except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
+            jobs.finish_failed(self.store, job_id, self.owner, f"the submission could not be scored: {exc}")
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
             jobs.finish_failed(self.store, job_id, self.owner,

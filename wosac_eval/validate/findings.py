@@ -36,6 +36,7 @@ CODES: dict[str, str] = {
     "metadata.inconsistent": "Metadata differs between shards",
     "metadata.recommended": "Recommended metadata field missing",
     # Scenario coverage against the scenario set.
+    "coverage.no_overlap": "No submitted scenario is in the scenario set (wrong split?)",
     "coverage.missing_scenario": "Scenario of the scenario set missing from the submission",
     "coverage.unknown_scenario": "Scenario not in the scenario set",
     "coverage.duplicate_scenario": "Scenario submitted more than once",

@@ -193,6 +193,21 @@ def check_missing_scenarios(expected: Iterable[str], submitted: Iterable[str] | 
     ]
 
 
+def check_overlap(expected_count: int, submitted_ids: Iterable[str], expected: dict | set) -> list[Finding]:
+    """One finding when scenarios were submitted but none is in the scenario set: likely the wrong split."""
+    submitted = list(submitted_ids)
+    if not submitted or not expected_count or any(sid in expected for sid in submitted):
+        return []
+    return [
+        make_finding(
+            "coverage.no_overlap",
+            f"none of the {len(submitted)} submitted scenario(s) is in the scenario set of {expected_count} "
+            f"(e.g. {submitted[0]}); are --scenarios the split the submission was made for "
+            "(validation vs testing)?",
+        )
+    ]
+
+
 def unknown_scenario(scenario_id: str, shard: str, index: int) -> Finding:
     return make_finding(
         "coverage.unknown_scenario",

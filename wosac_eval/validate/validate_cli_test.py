@@ -515,3 +515,27 @@ def test_report_can_list_every_skipped_scenario_for_partial_scoring(tmp_path, sc
     data = validate_submission([scenario_file], path).to_dict(include_skipped=True)
     assert list(data["skipped_scenarios"]) == [B]
     json.dumps(data)
+
+
+def test_wrong_split_is_called_out(tmp_path, capsys, template, many, rollouts_a, rollouts_b):
+    _, other_split, _ = many  # a scenario set that shares no id with the submission
+    path = write(tmp_path / "s.binproto", with_rollouts(template, [rollouts_a, rollouts_b]).SerializeToString())
+    code, report = validate_json(capsys, [other_split], path)
+    assert code == 1
+    message = group(report, "coverage.no_overlap")["listed"][0]["message"]
+    assert "none of the 2 submitted scenario(s) is in the scenario set of 12" in message and "split" in message
+
+
+def test_scenario_set_with_a_scenario_twice_is_a_usage_error(tmp_path, capsys, good_shards):
+    twice = write_scenarios(tmp_path / "twice.tfrecord", [load_scenario(A), load_scenario(A)])
+    sub = write(tmp_path / "a.binproto", good_shards["sub/a.binproto"])
+    assert main(["validate", "--scenarios", str(twice), "--submission", str(sub)]) == 2
+    err = capsys.readouterr().err
+    assert f"scenario '{A}' occurs twice" in err and "twice.tfrecord" in err
+
+
+def test_zero_byte_shard_is_called_empty(tmp_path, capsys, scenario_file, good_shards):
+    members = {**good_shards, "sub/zero.binproto": b""}
+    code, report = validate_json(capsys, [scenario_file], write(tmp_path / "s.tar.gz", tar_bytes(members)))
+    assert code == 1
+    assert group(report, "shard.empty")["listed"][0]["message"] == "sub/zero.binproto: holds no scenario_rollouts (the shard is 0 bytes)"

@@ -218,7 +218,8 @@ class _Validation:
         """Metadata, then every ScenarioRollouts of one parsed shard."""
         self.metadata(name, submission)
         if not submission.scenario_rollouts:
-            self.report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard=name))
+            detail = "holds no scenario_rollouts" + (" (the shard is 0 bytes)" if not submission.ByteSize() else "")
+            self.report.add(make_finding("shard.empty", detail, shard=name))
         for index, rollouts in enumerate(submission.scenario_rollouts):
             self.scenario(name, index, rollouts)
 
@@ -294,6 +295,7 @@ def validate_submission(
         if submission is not None:
             run.check(name, submission)
             del submission
+    report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]
     report.extend(missing)

@@ -539,3 +539,41 @@ def test_zero_byte_shard_is_called_empty(tmp_path, capsys, scenario_file, good_s
     code, report = validate_json(capsys, [scenario_file], write(tmp_path / "s.tar.gz", tar_bytes(members)))
     assert code == 1
     assert group(report, "shard.empty")["listed"][0]["message"] == "sub/zero.binproto: holds no scenario_rollouts (the shard is 0 bytes)"
+
+
+@pytest.mark.parametrize(
+    "mutate,field,fragment",
+    [
+        (lambda s: setattr(s, "submission_type", 0), "submission_type", "submission_type is UNKNOWN, expected SIM_AGENTS_SUBMISSION"),
+        (lambda s: setattr(s, "account_name", "jdoe"), "account_name", "account_name 'jdoe' is not an email address"),
+        (lambda s: s.authors.append(""), "authors", "authors[1] is empty"),
+        (lambda s: setattr(s, "num_model_parameters", "big"), "num_model_parameters", "num_model_parameters 'big' is not a number"),
+        (lambda s: setattr(s, "acknowledge_complies_with_closed_loop_requirement", False),
+         "acknowledge_complies_with_closed_loop_requirement", "is false; it must be true"),
+    ],
+)
+def test_invalid_metadata_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b, mutate, field, fragment):
+    shard = with_rollouts(template, [rollouts_a, rollouts_b])
+    mutate(shard)
+    code, report = validate_json(capsys, [scenario_file], write(tmp_path / "one.binproto", shard.SerializeToString()))
+    assert code == 1 and report["errors"] == 1
+    (finding,) = group(report, "metadata.invalid")["listed"]
+    assert finding["field"] == field and finding["message"].startswith("one.binproto: ") and fragment in finding["message"]
+
+
+def test_pretraining_without_model_names_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
+    shard = with_rollouts(template, [rollouts_a, rollouts_b])
+    shard.uses_public_model_pretraining = True
+    code, report = validate_json(capsys, [scenario_file], write(tmp_path / "one.binproto", shard.SerializeToString()))
+    assert code == 1
+    (finding,) = group(report, "metadata.missing")["listed"]
+    assert finding["field"] == "public_model_names" and "uses_public_model_pretraining is true" in finding["message"]
+
+
+def test_missing_method_link_is_a_warning_only(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
+    shard = with_rollouts(template, [rollouts_a, rollouts_b])
+    shard.ClearField("method_link")
+    code, out = validate(capsys, [scenario_file], write(tmp_path / "one.binproto", shard.SerializeToString()))
+    assert code == 0
+    assert "WARNING metadata.recommended — Recommended metadata field missing: 1" in out
+    assert "  - one.binproto: method_link is empty" in out

@@ -65,13 +65,14 @@ def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
         raise ValueError(f"scenario {scenario.scenario_id}: tracks have different numbers "
                          f"of states {lengths}")
     fields = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
-    # One float64 pass per field, then a single rounding to float32, as the
-    # official converter does with Python floats.
-    values = np.array([[[getattr(s, f) for f in fields] for s in t.states] for t in tracks],
-                      dtype=np.float64).reshape(len(tracks), num_steps, len(fields))
-    values = values.astype(np.float32)
-    valid = np.array([[s.valid for s in t.states] for t in tracks], dtype=bool).reshape(
-        len(tracks), num_steps)
+    states = [state for t in tracks for state in t.states]
+    shape = (len(tracks), num_steps)
+    # Read field by field over all states; float64 values are rounded once to
+    # float32, as the official converter does with Python floats.
+    columns = [np.fromiter([getattr(st, f) for st in states], np.float64, len(states))
+               .astype(np.float32).reshape(shape) for f in fields]
+    valid = np.fromiter([st.valid for st in states], bool, len(states)).reshape(shape)
+    values = np.stack(columns, axis=-1)
     return ObjectTrajectories(
         x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
         length=values[..., 4], width=values[..., 5], height=values[..., 6], valid=valid,
@@ -80,8 +81,9 @@ def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
 
 
 def _polyline(points) -> np.ndarray:
-    return np.array([(p.x, p.y, p.z) for p in points], dtype=np.float64).reshape(-1, 3).astype(
-        np.float32)
+    n = len(points)
+    xyz = np.fromiter([c for p in points for c in (p.x, p.y, p.z)], np.float64, 3 * n)
+    return xyz.reshape(n, 3).astype(np.float32)
 
 
 def _traffic_signals(scenario: scenario_pb2.Scenario) -> TrafficSignals | None:

@@ -3,9 +3,9 @@
     python -m wosac_eval.fronts.gate.demo OUT_DIR [--screenshot docs/report.png]
 
 Writes OUT_DIR/baseline.json and OUT_DIR/new.json (synthetic results of 2000
-scenarios: the new run collides less and drives off-road more, and skipped 10
-scenarios), OUT_DIR/report.html, and with --screenshot a PNG of the report
-rendered by headless Chromium.
+scenarios: in the new run the collision likelihood and rate improve, the offroad
+likelihood gets worse, and 10 scenarios were skipped), OUT_DIR/report.html, and
+with --screenshot a PNG of the report rendered by headless Chromium.
 """
 from __future__ import annotations
 

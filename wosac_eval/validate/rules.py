@@ -366,7 +366,7 @@ def check_scenario_rollouts(
     are flattened to shape (num_trajectories,), `rollout_of` maps each to its
     joint scene, and the checks run on whole arrays.
     """
-    scenario_id = rollouts.scenario_id if rollouts.HasField("scenario_id") else None
+    scenario_id = rollouts.scenario_id or None
     out: list[Finding] = []
     scenes = list(rollouts.joint_scenes)
     if len(scenes) != n_rollouts:

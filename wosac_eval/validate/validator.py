@@ -86,7 +86,11 @@ def _container_finding(error: ParseError) -> Finding:
 def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iterator[tuple[str, bytes]]:
     """Shards below a folder (as the reader takes them), reporting stray files and going on past them."""
     found: list[tuple[str, Path]] = []
-    for root, dirs, files in os.walk(folder):
+
+    def unlistable(error: OSError) -> None:  # os.walk would skip such a folder silently
+        report.add(Finding("container.unreadable", f"{folder}: cannot list {error.filename}: {error.strerror}"))
+
+    for root, dirs, files in os.walk(folder, onerror=unlistable):
         dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
         for file_name in sorted(files):
             path = Path(root) / file_name
@@ -241,7 +245,7 @@ class _Validation:
     def scenario(self, name: str, index: int, rollouts: Any) -> None:
         report = self.report
         report.stats.scenarios_submitted += 1
-        if not rollouts.HasField("scenario_id"):
+        if not rollouts.scenario_id:  # unset or empty
             report.add(rules.missing_scenario_id(name, index))
         else:
             sid = rollouts.scenario_id

@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
             args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
             progress=bar.update if bar is not None else None, sim_agents=agents,
         )
-    except (ScenarioSetError, FileNotFoundError, NotADirectoryError, PermissionError) as error:
+    except (ScenarioSetError, OSError) as error:  # missing / unreadable paths, I/O errors
         print(f"wosac-eval validate: error: {error}", file=sys.stderr)
         return 2
     except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed

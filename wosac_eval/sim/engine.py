@@ -25,6 +25,7 @@ NO_SIGNAL = -1
 LOOKAHEAD_SPACING_M = 2.0
 LOOKAHEAD_POINTS = 26  # 50 m of path ahead of the nose
 MAX_BRAKE = 8.0
+WINDOW = 12  # lookahead points tested per candidate obstacle (24 m of path)
 LATERAL_ACCELERATION = 2.5  # m/s^2 drivers accept in turns
 NEIGHBOURS = 10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
 
@@ -47,9 +48,12 @@ class Paths:
         num_s = int(np.ceil(min_length / ds)) + 1
         b, a = len(polylines), len(polylines[0])
         xy = np.zeros((b, a, num_s, 2))
+        done: dict[int, np.ndarray] = {}  # rollouts often share a path object: resample it once
         for i, row in enumerate(polylines):
             for j, poly in enumerate(row):
-                xy[i, j] = extend_resample(poly, ds, num_s)
+                if id(poly) not in done:
+                    done[id(poly)] = extend_resample(poly, ds, num_s)
+                xy[i, j] = done[id(poly)]
         tangent = np.gradient(xy, axis=2)
         tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
         return cls(xy, tangent, ds)
@@ -62,6 +66,17 @@ class Paths:
             padded = np.concatenate([np.repeat(angle[..., :1], window, -1), angle, np.repeat(angle[..., -1:], window, -1)], -1)
             self._curvature = np.abs(padded[..., 2 * window :] - padded[..., : -2 * window]) / (2 * window * self.ds)
         return self._curvature
+
+    def nearest(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Like `at` but at the nearest sample (no interpolation): cheaper, for lookahead points."""
+        b, a, num_s = self.xy.shape[:3]
+        if getattr(self, "_flat_nearest", None) is None:
+            heading = np.arctan2(self.tangent[..., 1], self.tangent[..., 0])
+            self._flat_nearest = np.concatenate([self.xy, heading[..., None]], axis=-1).reshape(-1, 3)
+        index = np.clip(np.rint(s / self.ds).astype(np.int64), 0, num_s - 1)
+        base = (np.arange(b * a) * num_s).reshape((b, a) + (1,) * (s.ndim - 2))
+        v = self._flat_nearest[index + base]
+        return v[..., :2], v[..., 2]
 
     def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (B, A, ..., 2) and headings (B, A, ...) at arc lengths `s` of shape (B, A, ...)."""
@@ -237,7 +252,7 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     if a < 2:
         return gap_full, speed_full
     ahead_all = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
-    pts_all, pts_heading_all = paths.at(ahead_all)
+    pts_all, pts_heading_all = paths.nearest(ahead_all)
     ch, sh = np.cos(heading)[..., None], np.sin(heading)[..., None]
     px, py = pts_all[..., 0] - xy[..., 0][..., None], pts_all[..., 1] - xy[..., 1][..., None]
     path_lat = np.abs(-px * sh + py * ch).max(axis=-1)  # (B, A) how far the path strays from the heading line
@@ -253,8 +268,13 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     cand_b, cand_i, cand_j = np.nonzero(near)
     if len(cand_b) == 0:
         return gap_full, speed_full
-    pts = pts_all[cand_b, cand_i]  # (C, K, 2)
-    pts_heading = pts_heading_all[cand_b, cand_i]  # (C, K)
+    # Only a window of lookahead points around where j lies along the path can touch it.
+    start = np.floor((lon[cand_b, cand_i, cand_j] - d.length[cand_b, cand_i] / 2 - radius_j[cand_b, 0, cand_j] - 2.0)
+                     / LOOKAHEAD_SPACING_M).astype(np.int64)
+    window = np.clip(start, 0, len(k) - WINDOW)[:, None] + np.arange(WINDOW)  # (C, W)
+    pts = pts_all[cand_b[:, None], cand_i[:, None], window]  # (C, W, 2)
+    pts_heading = pts_heading_all[cand_b[:, None], cand_i[:, None], window]
+    k = k[window]
     dx = xy[cand_b, cand_j, 0][:, None] - pts[..., 0]
     dy = xy[cand_b, cand_j, 1][:, None] - pts[..., 1]
     dist = np.sqrt(dx * dx + dy * dy)
@@ -265,7 +285,7 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     len_j = d.length[cand_b, cand_j][:, None] / 2
     wid_j = d.width[cand_b, cand_j][:, None] / 2
     reach = (d.width[cand_b, cand_i] / 2 + d.margin[cand_b, cand_i])[:, None] + len_j * sin_d + wid_j * cos_d
-    gap_k = np.where(dist < reach, (k - LOOKAHEAD_SPACING_M / 2) - (len_j * cos_d + wid_j * sin_d), np.inf)
+    gap_k = np.where(dist < reach, (k - LOOKAHEAD_SPACING_M / 2) - (len_j * cos_d + wid_j * sin_d), np.inf)  # (C, W)
     first = np.argmin(gap_k, axis=-1)
     rows = np.arange(len(first))
     gap_full[cand_b, cand_i, cand_j] = gap_k[rows, first]

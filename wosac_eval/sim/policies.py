@@ -240,7 +240,7 @@ def _match_lanes(ctx: SimContext) -> list[tuple[int, int, float] | None]:
 
 def _route(ctx: SimContext, lane_id: int, seg: int, start: np.ndarray, rng: np.random.Generator, min_length: float):
     """Polyline from `start` along lane `lane_id` (from segment `seg`) and random successors,
-    with the arc lengths and signal columns of the signal-controlled lanes it enters."""
+    the (arc length, signal column) of the signal-controlled lanes it enters, and the lane ids taken."""
     column = {lid: c for c, lid in enumerate(ctx.signal_lanes)}
     lane = ctx.lanes[lane_id]
     pieces = [start[None], lane.polyline[seg + 1 :]]
@@ -248,18 +248,20 @@ def _route(ctx: SimContext, lane_id: int, seg: int, start: np.ndarray, rng: np.r
     length = float(geo.arc_lengths(np.concatenate(pieces))[-1])
     current = lane
     visited = {lane_id}
+    visited_order = [lane_id]
     while length < min_length and current.exits:
         options = [e for e in current.exits if e in ctx.lanes and e not in visited]
         if not options:
             break
         nxt = ctx.lanes[options[int(rng.integers(len(options)))]]
         visited.add(nxt.id)
+        visited_order.append(nxt.id)
         if nxt.id in column:  # WOMD puts the stop point at the start of the controlled lane
             stops.append((length, column[nxt.id]))
         pieces.append(nxt.polyline[1:])
         length += float(geo.arc_lengths(nxt.polyline)[-1])
         current = nxt
-    return np.concatenate(pieces), stops
+    return np.concatenate(pieces), stops, tuple(visited_order)
 
 
 def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLOUTS) -> np.ndarray:
@@ -291,8 +293,10 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
         t = np.clip(np.dot(pos[i] - a, b - a) / max(np.dot(b - a, b - a), 1e-9), 0, 1)
         start = a + t * (b - a)
         lateral[i] = lat
+        variants: dict[tuple, tuple] = {}  # identical routes share one array (resampled once)
         for k in range(r):
-            polylines[k][i], stops[k][i] = _route(ctx, lane_id, seg, start, rng, min_length)
+            poly, agent_stops, lanes_taken = _route(ctx, lane_id, seg, start, rng, min_length)
+            polylines[k][i], stops[k][i] = variants.setdefault(lanes_taken, (poly, agent_stops))
         limit = lane.speed_limit if lane.speed_limit > 0 else 11.0
         if ctx.object_type[i] == 3:
             limit = min(limit, 6.0)

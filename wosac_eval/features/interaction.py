@@ -24,15 +24,21 @@ SMALL_OVERLAP_THRESHOLD = _F(0.5)
 MAXIMUM_TIME_TO_COLLISION = _F(5.0)
 
 
-def _rounded_box_distance(cx, cy, radius, eval_idx, other_idx):
+def _rounded_box_distance(boxes, eval_idx, other_idx):
     """Exact float32 signed distance between rounded boxes for the given pairs.
 
     Args:
-      cx, cy: core corners `(num_boxes, 4)`; radius: `(num_boxes,)`.
+      boxes: flat float32 arrays (x, y, core_length, core_width, cos, sin, radius),
+        each `(num_boxes,)`.
       eval_idx, other_idx: int `(num_pairs,)` indices into the boxes.
     """
-    mx, my = box_geometry.minkowski_difference(cx[eval_idx], cy[eval_idx], cx[other_idx], cy[other_idx])
-    core = box_geometry.origin_signed_distance(mx, my)
+    x, y, core_l, core_w, cos_h, sin_h, radius = boxes
+
+    def corners(i):
+        return box_geometry.box_corners_xy(x[i], y[i], core_l[i], core_w[i], cos_h[i], sin_h[i])
+
+    (ax, ay), (bx, by) = corners(eval_idx), corners(other_idx)
+    core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
     return (core - radius[eval_idx]) - radius[other_idx]
 
 
@@ -59,45 +65,42 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
       invalid or no other valid object exists.
     """
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
+    e = num_evaluated
     radius = np.minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
-    cx, cy = box_geometry.box_corners_xy(x, y, length - _F(2) * radius, width - _F(2) * radius,
-                                         cos_h, sin_h)
-    # Flatten boxes to (batch, object, step) -> one index.
-    box_id = np.arange(int(np.prod(lead, dtype=np.int64)) * num_objects * num_steps).reshape(
-        (-1, num_objects, num_steps))
-    e = slice(0, num_evaluated)
-    xd, yd = x.reshape(box_id.shape).astype(np.float64), y.reshape(box_id.shape).astype(np.float64)
-    reach = 0.5 * np.hypot(length, width).reshape(box_id.shape).astype(np.float64)
-    v = valid.reshape(box_id.shape)
-    # Lower bounds (batch, eval, object, step); impossible pairs are +inf.
-    centre = np.hypot(xd[:, None] - xd[:, e, None], yd[:, None] - yd[:, e, None])
-    lower = centre - reach[:, e, None] - reach[:, None] - 1e-3
-    possible = v[:, e, None] & v[:, None] & ~np.eye(num_evaluated, num_objects, dtype=bool)[:, :, None]
+    flat = lambda a: np.ascontiguousarray(a).reshape(-1)
+    boxes = (flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
+             flat(cos_h), flat(sin_h), flat(radius))
+    # Step-major copies (batch, step, object) so that objects are the last axis.
+    step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))
+    xt, yt, vt = step_major(x), step_major(y), step_major(valid)
+    reach = step_major(_F(0.5) * np.hypot(length, width))
+    # Lower bounds (batch, eval, step, object); impossible pairs are +inf.
+    ex = np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
+    ey = np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
+    centre = np.hypot(xt[:, None] - ex, yt[:, None] - ey)
+    lower = centre - np.swapaxes(reach[:, :, :e], 1, 2)[..., None] - reach[:, None]
+    lower -= _F(1e-3) + _F(1e-5) * centre  # float32 rounding margin
+    possible = np.swapaxes(vt[:, :, :e], 1, 2)[..., None] & vt[:, None]
+    possible &= ~np.eye(e, num_objects, dtype=bool)[:, None, :]
     lower = np.where(possible, lower, np.inf)
-    flat_cx, flat_cy, flat_r = cx.reshape(-1, 4), cy.reshape(-1, 4), radius.reshape(-1)
-    b, ev, ob, st = np.indices(lower.shape, sparse=True)
-    eval_box = box_id[b, ev, st]
-    other_box = box_id[b, ob, st]
-    # First guesses: the objects with the smallest lower bounds.
+    batch = lower.shape[0]
+    b, ev, st = (i[..., None] for i in np.indices((batch, e, num_steps), sparse=True))
+    box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
     k = min(first_guesses, num_objects)
-    guess = np.argpartition(lower, k - 1, axis=2)[:, :, :k] if k < num_objects else np.broadcast_to(
-        np.arange(num_objects)[None, None, :, None], lower.shape)
-    guess_lower = np.take_along_axis(lower, guess, axis=2)
-    gb = np.broadcast_to(b, guess.shape)
-    ge = np.broadcast_to(ev, guess.shape)
-    gs = np.broadcast_to(st, guess.shape)
+    guess = (np.argpartition(lower, k - 1, axis=-1)[..., :k] if k < num_objects
+             else np.broadcast_to(np.arange(num_objects), lower.shape))
+    guess_lower = np.take_along_axis(lower, guess, axis=-1)
     finite = np.isfinite(guess_lower)
-    guess_d = np.full(guess.shape, np.inf)
-    guess_d[finite] = _rounded_box_distance(
-        flat_cx, flat_cy, flat_r, box_id[gb, ge, gs][finite], box_id[gb, guess, gs][finite])
-    best = guess_d.min(axis=2, keepdims=True)
-    candidate = possible & (lower <= best + 1e-3)
-    cb, ce, co, cs = np.nonzero(candidate)
-    distance = np.full((box_id.shape[0], num_evaluated, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
+    guess_d = np.full(guess.shape, np.inf, dtype=np.float32)
+    gb, ge, gs = (np.broadcast_to(i, guess.shape)[finite] for i in (b, ev, st))
+    guess_d[finite] = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, guess[finite], gs))
+    best = guess_d.min(axis=-1, keepdims=True)
+    cb, ce, cs, co = np.nonzero(possible & (lower <= best + _F(1e-3)))
+    distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
     if cb.size:
-        d = _rounded_box_distance(flat_cx, flat_cy, flat_r, box_id[cb, ce, cs], box_id[cb, co, cs])
+        d = _rounded_box_distance(boxes, box_of(cb, ce, cs), box_of(cb, co, cs))
         np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
-    return distance.reshape(*lead, num_evaluated, num_steps)
+    return distance.reshape(*lead, e, num_steps)
 
 
 def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,

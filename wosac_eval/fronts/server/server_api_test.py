@@ -339,3 +339,26 @@ def test_complete_refused_by_a_quota_keeps_the_uploaded_bytes(api_server):
         assert r.status_code == 202, r.text
         assert c.get(f"/v1/uploads/{upload_id}").json()["submission_id"] == r.json()["id"]
     assert (api_server.data_dir / "submissions" / f"{r.json()['id']}.binproto").read_bytes() == body
+
+
+def _peak_rss_mb(pid: int) -> float:
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError("no VmHWM in /proc status")
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux /proc to read peak RSS")
+def test_a_large_upload_is_streamed_not_held_in_memory(make_server):
+    server = make_server(workers=0, max_upload_bytes=400 * 2**20)
+    key = server.key("bulk")
+    chunk = bytes(range(256)) * 4096  # 1 MiB
+    with server.client(key) as c:
+        c.get("/v1/submissions")  # warm up every code path before the baseline
+        baseline = _peak_rss_mb(server.proc.pid)
+        r = c.post("/v1/submissions", content=(chunk for _ in range(256)))  # 256 MiB, chunked
+        assert r.status_code == 202, r.text
+        assert r.json()["upload_bytes"] == 256 * 2**20
+    growth = _peak_rss_mb(server.proc.pid) - baseline
+    assert growth < 48, f"the API process grew by {growth:.0f} MiB while receiving 256 MiB"
+    assert (server.data_dir / "submissions" / f"{r.json()['id']}.binproto").stat().st_size == 256 * 2**20

@@ -11,6 +11,7 @@ with the number of scenarios (only with the shard size):
 
     .venv/bin/python benchmarks/validate_throughput.py --scenarios 100
     .venv/bin/python benchmarks/validate_throughput.py --scenarios 400
+    .venv/bin/python benchmarks/validate_throughput.py --scenarios 100 --workers 2
 
 Needs ../shared (golden/ and womd/).
 """
@@ -70,13 +71,13 @@ def build(folder: Path, n_scenarios: int, per_shard: int, case: str) -> tuple[Pa
     return scenario_file, archive
 
 
-def child(scenario_file: str, archive: str) -> None:
+def child(scenario_file: str, archive: str, workers: int) -> None:
     """Validate once and print a JSON line of figures (runs in a fresh process)."""
     from wosac_eval.validate import validate_submission
 
     rss_before = _peak_rss_mib()
     start = time.perf_counter()
-    report = validate_submission([scenario_file], archive)
+    report = validate_submission([scenario_file], archive, workers=workers)
     wall = time.perf_counter() - start
     print(
         json.dumps(
@@ -89,6 +90,8 @@ def child(scenario_file: str, archive: str) -> None:
                 "wall_s": wall,
                 "rss_before_mib": rss_before,
                 "peak_rss_mib": _peak_rss_mib(),
+                # the largest peak among the worker processes (0 without workers)
+                "worker_peak_rss_mib": resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024,
             }
         )
     )
@@ -99,11 +102,12 @@ def main() -> None:
     parser.add_argument("--scenarios", type=int, default=100)
     parser.add_argument("--per-shard", type=int, default=25, help="scenarios per shard (default 25)")
     parser.add_argument("--case", default="637f20cafde22ff8__logreplay", help="golden case to replicate")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes of validate_submission (default 1)")
     parser.add_argument("--child", nargs=2, metavar=("SCENARIOS", "ARCHIVE"), help=argparse.SUPPRESS)
     parser.add_argument("--build", metavar="FOLDER", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
-        child(*args.child)
+        child(*args.child, args.workers)
         return
     if args.build:
         build(Path(args.build), args.scenarios, args.per_shard, args.case)
@@ -118,7 +122,7 @@ def main() -> None:
         built = time.perf_counter() - start
         scenario_file, archive = Path(tmp) / "set.tfrecord", Path(tmp) / "submission.tar.gz"
         out = subprocess.run(
-            [sys.executable, __file__, "--child", str(scenario_file), str(archive)],
+            [sys.executable, __file__, "--child", str(scenario_file), str(archive), "--workers", str(args.workers)],
             check=True, capture_output=True, text=True,
         ).stdout
         figures = json.loads(out.strip().splitlines()[-1])
@@ -129,7 +133,8 @@ def main() -> None:
           f"{size / 2**20:.1f} MiB .tar.gz ({figures['bytes_read'] / 2**20:.1f} MiB of shards); built in {built:.1f} s")
     print(f"validated in {figures['wall_s']:.2f} s: {args.scenarios / figures['wall_s']:.1f} scenarios/s "
           f"({figures['bytes_read'] / 2**20 / figures['wall_s']:.1f} MiB/s of shard bytes), valid={figures['valid']}")
-    print(f"peak RSS {figures['peak_rss_mib']:.0f} MiB (RSS after imports, before validating: "
+    workers = f", each of {args.workers} workers {figures['worker_peak_rss_mib']:.0f} MiB" if args.workers > 1 else ""
+    print(f"peak RSS {figures['peak_rss_mib']:.0f} MiB{workers} (RSS after imports, before validating: "
           f"{figures['rss_before_mib']:.0f} MiB; one shard is {figures['bytes_read'] / figures['shards'] / 2**20:.1f} MiB)")
 
 

@@ -196,6 +196,18 @@ class ValidationReport:
         for f in findings:
             self.add(f)
 
+    def merge(self, other: "ValidationReport") -> None:
+        """Add another report's findings (counts, listed findings, invalid scenarios) after this one's."""
+        for code, theirs in other.groups.items():
+            group = self.groups.get(code)
+            if group is None:
+                group = self.groups[code] = FindingGroup(code, theirs.severity)
+            group.count += theirs.count
+            room = self.max_listed - len(group.listed)
+            group.listed.extend(theirs.listed[: max(room, 0)])
+        for scenario_id, reason in other.invalid_scenarios.items():
+            self.invalid_scenarios.setdefault(scenario_id, reason)
+
     # -- reading ----------------------------------------------------------
     @property
     def ok(self) -> bool:

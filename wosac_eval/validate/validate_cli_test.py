@@ -464,6 +464,7 @@ def test_report_lists_scenarios_a_partial_scorer_skips(tmp_path, scenario_file, 
     [
         (["--submission", "/no/such/file.tar.gz"], "no such submission file or folder"),
         (["--submission", "X", "--max-listed", "-1"], "--max-listed must be >= 0"),
+        (["--submission", "X", "--workers", "0"], "--workers >= 1"),
     ],
 )
 def test_usage_errors_exit_2(capsys, scenario_file, argv_tail, fragment):
@@ -577,3 +578,32 @@ def test_missing_method_link_is_a_warning_only(tmp_path, capsys, scenario_file, 
     assert code == 0
     assert "WARNING metadata.recommended — Recommended metadata field missing: 1" in out
     assert "  - one.binproto: method_link is empty" in out
+
+
+def test_workers_give_the_same_report(tmp_path, capsys, template, many):
+    ids, scenario_path, rollouts = many
+    broken = copy(rollouts[ids[3]])
+    broken.joint_scenes[2].simulated_trajectories[0].heading[5] = math.nan
+    del broken.joint_scenes[4].simulated_trajectories[1]
+    stranger = copy(rollouts[ids[0]])
+    stranger.scenario_id = "stranger"
+    other = copy(template)
+    other.unique_method_name = "other"
+    members = {
+        "s0.binproto": with_rollouts(template, [rollouts[ids[0]], broken]).SerializeToString(),
+        "s1.binproto": b"not a shard",
+        "s2.binproto": with_rollouts(other, [rollouts[sid] for sid in ids[4:7]] + [stranger]).SerializeToString(),
+        "s3.binproto": with_rollouts(template, [rollouts[ids[4]]]).SerializeToString(),
+        "s4.binproto": with_rollouts(template, []).SerializeToString(),
+    }
+    path = write(tmp_path / "s.tar", tar_bytes(members, gzip=False))
+    code1, one = validate_json(capsys, [scenario_path], path, "--max-listed", "2")
+    code2, two = validate_json(capsys, [scenario_path], path, "--max-listed", "2", "--workers", "2")
+    for report in (one, two):
+        report["stats"].pop("elapsed_s"), report["stats"].pop("scenarios_per_s")
+    assert code1 == code2 == 1
+    assert one == two
+    assert {g["code"] for g in one["groups"]} >= {
+        "shard.unparseable", "shard.empty", "metadata.inconsistent", "coverage.unknown_scenario",
+        "coverage.duplicate_scenario", "coverage.missing_scenario", "rollouts.non_finite", "rollouts.missing_sim_agents",
+    }

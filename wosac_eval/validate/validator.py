@@ -8,11 +8,13 @@ counts and the first findings of each kind.
 
 from __future__ import annotations
 
+import collections
+import concurrent.futures as futures
 import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -196,8 +198,64 @@ def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str
     return rules.check_scenario_rollouts(rollouts_msg, sim_agent_ids, shard=shard)
 
 
+@dataclass
+class ShardResult:
+    """What checking one shard found, independent of the other shards (so shards can be checked in workers).
+
+    rollouts: a report holding only the per-scenario rollout findings of this shard.
+    entries: (index in scenario_rollouts, scenario_id or None) of every ScenarioRollouts, in order.
+    """
+
+    name: str
+    size: int
+    parse_error: str | None = None
+    metadata: dict[str, Any] | None = None
+    metadata_findings: list[Finding] = field(default_factory=list)
+    empty_detail: str | None = None
+    entries: list[tuple[int, str | None]] = field(default_factory=list)
+    rollouts: ValidationReport | None = None
+
+
+def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_listed: int) -> ShardResult:
+    """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts."""
+    result = ShardResult(name, len(data))
+    try:
+        submission = parse_submission_shard(name, data)
+    except ParseError as error:
+        result.parse_error = str(error)
+        return result
+    result.metadata = rules.metadata_of(submission)
+    result.metadata_findings = rules.check_metadata(submission, name)
+    if not submission.scenario_rollouts:
+        result.empty_detail = "holds no scenario_rollouts" + (" (the shard is 0 bytes)" if not data else "")
+    result.rollouts = ValidationReport(name, max_listed=max_listed)
+    for index, rollouts in enumerate(submission.scenario_rollouts):
+        scenario_id = rollouts.scenario_id or None  # unset or empty
+        result.entries.append((index, scenario_id))
+        if scenario_id is not None:
+            result.rollouts.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name))
+    return result
+
+
+_WORKER_AGENTS: dict[str, np.ndarray] = {}
+
+
+def _init_worker(agents: dict[str, np.ndarray]) -> None:
+    global _WORKER_AGENTS
+    _WORKER_AGENTS = agents
+
+
+def _check_shard_in_worker(name: str, data: bytes, max_listed: int) -> ShardResult:
+    return check_shard(name, data, _WORKER_AGENTS, max_listed)
+
+
 class _Validation:
-    """State of one validation run: what was seen, the reference metadata, the report."""
+    """Merges shard results, in shard order, into the report; applies the cross-shard rules.
+
+    Cross-shard rules (metadata consistency, duplicate and unknown scenarios)
+    need the order of the shards, so they run here, in the main process;
+    merging in shard order makes the report identical for any worker count.
+    """
 
     def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None):
         self.agents = agents
@@ -208,33 +266,30 @@ class _Validation:
         self.reference_shard = ""
         self.checked_metadata: set[tuple] = set()
 
-    def parse(self, name: str, data: bytes) -> Any | None:
-        """The shard's SimAgentsChallengeSubmission, or None (and a finding) when it is not one."""
-        self.report.stats.shards += 1
-        self.report.stats.bytes_read += len(data)
-        try:
-            return parse_submission_shard(name, data)
-        except ParseError as error:
-            self.report.add(Finding("shard.unparseable", str(error), shard=name))
-            return None
+    def merge(self, result: ShardResult) -> None:
+        report, name = self.report, result.name
+        report.stats.shards += 1
+        report.stats.bytes_read += result.size
+        if result.parse_error is not None:
+            report.add(Finding("shard.unparseable", result.parse_error, shard=name))
+            return
+        self.metadata(name, result.metadata, result.metadata_findings)
+        if result.empty_detail is not None:
+            report.add(make_finding("shard.empty", result.empty_detail, shard=name))
+        for index, scenario_id in result.entries:
+            self.coverage(name, index, scenario_id)
+        report.merge(result.rollouts)
+        report.stats.scenarios_submitted += len(result.entries)
+        if self.progress is not None and result.entries:
+            self.progress(len(result.entries))
 
-    def check(self, name: str, submission: Any) -> None:
-        """Metadata, then every ScenarioRollouts of one parsed shard."""
-        self.metadata(name, submission)
-        if not submission.scenario_rollouts:
-            detail = "holds no scenario_rollouts" + (" (the shard is 0 bytes)" if not submission.ByteSize() else "")
-            self.report.add(make_finding("shard.empty", detail, shard=name))
-        for index, rollouts in enumerate(submission.scenario_rollouts):
-            self.scenario(name, index, rollouts)
-
-    def metadata(self, name: str, submission: Any) -> None:
-        metadata = rules.metadata_of(submission)
+    def metadata(self, name: str, metadata: dict[str, Any], findings: list[Finding]) -> None:
         key = tuple(metadata.values())
-        # Shards written by one tool share their metadata: check each distinct
-        # set once, so a fault common to 150 shards is one finding, not 150.
+        # Shards written by one tool share their metadata: report each distinct
+        # set's faults once, so a fault common to 150 shards is one finding, not 150.
         if key not in self.checked_metadata:
             self.checked_metadata.add(key)
-            self.report.extend(rules.check_metadata(submission, name))
+            self.report.extend(findings)
         if self.reference_metadata is None:
             self.reference_metadata, self.reference_shard = metadata, name
         else:
@@ -242,24 +297,41 @@ class _Validation:
                 rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
             )
 
-    def scenario(self, name: str, index: int, rollouts: Any) -> None:
+    def coverage(self, name: str, index: int, scenario_id: str | None) -> None:
         report = self.report
-        report.stats.scenarios_submitted += 1
-        if not rollouts.scenario_id:  # unset or empty
+        if scenario_id is None:
             report.add(rules.missing_scenario_id(name, index))
+            return
+        first = self.first_seen.get(scenario_id)
+        if first is not None:
+            report.add(rules.duplicate_scenario(scenario_id, name, index, first))
         else:
-            sid = rollouts.scenario_id
-            first = self.first_seen.get(sid)
-            if first is not None:
-                report.add(rules.duplicate_scenario(sid, name, index, first))
-            else:
-                self.first_seen[sid] = (name, index)
-            agents = self.agents.get(sid)
-            if agents is None:
-                report.add(rules.unknown_scenario(sid, name, index))
-            report.extend(validate_scenario_rollouts(rollouts, agents, name))
-        if self.progress is not None:
-            self.progress(1)
+            self.first_seen[scenario_id] = (name, index)
+        if scenario_id not in self.agents:
+            report.add(rules.unknown_scenario(scenario_id, name, index))
+
+
+def _shard_results(
+    shards: Iterable[tuple[str, bytes]], agents: dict[str, np.ndarray], max_listed: int, workers: int
+) -> Iterator[ShardResult]:
+    """Check every shard, in worker processes when workers > 1; results come back in shard order.
+
+    At most workers + 1 shards are in flight, so memory stays bounded by a few shards.
+    """
+    if workers <= 1:
+        for name, data in shards:
+            yield check_shard(name, data, agents, max_listed)
+            del data  # hold no shard while the next one is read
+        return
+    with futures.ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(agents,)) as pool:
+        pending: collections.deque = collections.deque()
+        for name, data in shards:
+            pending.append(pool.submit(_check_shard_in_worker, name, data, max_listed))
+            del data
+            while len(pending) > workers:
+                yield pending.popleft().result()
+        while pending:
+            yield pending.popleft().result()
 
 
 def validate_submission(
@@ -270,6 +342,7 @@ def validate_submission(
     limits: Limits | None = None,
     progress: Callable[[int], Any] | None = None,
     sim_agents: dict[str, np.ndarray] | None = None,
+    workers: int = 1,
 ) -> ValidationReport:
     """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
 
@@ -283,6 +356,7 @@ def validate_submission(
     limits: decompressed size limits (per shard and in total).
     progress: called with 1 after each submitted scenario is checked.
     sim_agents: precomputed `load_sim_agents(scenarios)`, to skip reading the scenarios again.
+    workers: processes checking shards in parallel (the report is the same for any count).
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
     when the submission path does not exist (both usage errors, not findings).
     """
@@ -293,12 +367,9 @@ def validate_submission(
     run = _Validation(agents, report, progress)
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
-    for name, data in iter_checked_shards(submission_path, limits or Limits(), report):
-        submission = run.parse(name, data)
-        del data  # from here on only the parsed shard is held, never two shards at once
-        if submission is not None:
-            run.check(name, submission)
-            del submission
+    shards = iter_checked_shards(submission_path, limits or Limits(), report)
+    for result in _shard_results(shards, agents, max_listed, workers):
+        run.merge(result)
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]

@@ -40,6 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     parser.add_argument("--max-listed", type=int, default=20, metavar="N",
                         help="findings shown in full per kind of problem; the rest are counted (default 20)")
+    parser.add_argument("--workers", type=int, default=1, metavar="N",
+                        help="processes checking shards in parallel (default 1); the report is the same for any N")
     parser.add_argument("--max-bytes", type=parse_size, default=Limits.max_total_bytes, metavar="SIZE",
                         help="refuse a submission that decompresses past SIZE in total (default 64G)")
     parser.add_argument("--max-shard-bytes", type=parse_size, default=Limits.max_member_bytes, metavar="SIZE",
@@ -56,8 +58,8 @@ def _progress_bar(total: int):
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.max_listed < 0:
-        print("wosac-eval validate: error: --max-listed must be >= 0", file=sys.stderr)
+    if args.max_listed < 0 or args.workers < 1:
+        print("wosac-eval validate: error: --max-listed must be >= 0 and --workers >= 1", file=sys.stderr)
         return 2
     limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
@@ -66,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         bar = None if args.json else _progress_bar(len(agents))
         report = validate_submission(
             args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
-            progress=bar.update if bar is not None else None, sim_agents=agents,
+            progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,
         )
     except (ScenarioSetError, OSError) as error:  # missing / unreadable paths, I/O errors
         print(f"wosac-eval validate: error: {error}", file=sys.stderr)

@@ -32,7 +32,7 @@ from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import roads, signals
 
 # Bump when the generated scenes change, so that cached demo scenes are regenerated.
-GENERATOR_VERSION = 2
+GENERATOR_VERSION = 3
 
 NUM_STEPS = 91
 CURRENT_TIME_INDEX = 10
@@ -383,7 +383,7 @@ def _recipe_dense_following(rng) -> _Builder:
 
 
 def _recipe_offroad(rng) -> _Builder:
-    net = roads.corridor(lanes_per_direction=2, length=rng.uniform(200.0, 230.0))
+    net = roads.corridor(lanes_per_direction=2, length=rng.uniform(250.0, 280.0))
     b = _new_scene("offroad", rng, net)
     approach = [ln for ln in net.lanes_of_turn("approach") if ln.polyline[0, 0] < 0]  # eastbound
     outer = max(approach, key=lambda ln: -ln.polyline[0, 1])  # southmost = rightmost lane
@@ -402,8 +402,8 @@ def _recipe_offroad(rng) -> _Builder:
     leaver = b.vehicle(path, s_start, v, v, [])
     leaver.stops = [(s_leave + 45.0, engine.ALWAYS_RED)]  # comes to rest beyond the curb
     leaver.tags.add("leaves_road")
-    _corridor_traffic(b, (2, 5), (9.0, 13.0), skip=frozenset(route))
-    b.sidewalk_walkers(int(rng.integers(4, 8)))
+    _corridor_traffic(b, (3, 7), (9.0, 13.0), skip=frozenset(route))
+    b.sidewalk_walkers(int(rng.integers(5, 9)))
     return b
 
 
@@ -434,7 +434,7 @@ def _recipe_collision(rng) -> _Builder:
 
 
 def _recipe_large_coordinates(rng) -> _Builder:
-    return _recipe_intersection(rng, density=0.75)
+    return _recipe_intersection(rng, density=0.9, lanes=2)
 
 
 def _recipe_heading_wrap(rng) -> _Builder:

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import functools
+import sys
 
 import numpy as np
 import pytest
@@ -232,3 +233,15 @@ def test_objects_are_mixed_types_with_plausible_sizes():
     for object_type in (1, 2, 3):
         assert types.count(object_type) > 0
     assert types.count(1) > types.count(3)
+
+
+@pytest.mark.parametrize("kind", scenes.SCENE_KINDS)
+def test_other_seeds_are_plausible_and_collision_free_too(kind, monkeypatch):
+    sc = scenes.generate_scene(1, scenes.SCENE_KINDS.index(kind))
+    monkeypatch.setattr(sys.modules[__name__], "by_kind", lambda _kind: sc)
+    test_scene_has_the_structure_the_official_metrics_need(kind)
+    test_logged_motion_is_physically_plausible(kind)
+    if kind == "collision":
+        test_collision_scene_logs_exactly_the_scripted_collision()
+    else:
+        test_no_logged_collisions_unless_scripted(kind)

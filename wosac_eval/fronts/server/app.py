@@ -322,7 +322,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return JSONResponse(body, status_code=202, headers={"Location": f"/v1/submissions/{row['id']}"})
 
     # -- routes ------------------------------------------------------------------------------
-    @app.get("/healthz", response_model=Health, tags=["service"])
+    @app.get("/healthz", response_model=Health, tags=["service"], operation_id="health")
     def healthz():
         try:
             store.ping()
@@ -331,12 +331,21 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                  "scenarios": len(settings.scenario_paths())}, status_code=503)
         return Health(status="ok", database="ok", scenarios=len(settings.scenario_paths()))
 
+    # OpenAPI links: which operation can follow which, with the id taken from the answer.
+    submission_links = {"links": {
+        "status": {"operationId": "getSubmission", "parameters": {"submission_id": "$response.body#/id"}},
+        "results": {"operationId": "getResults", "parameters": {"submission_id": "$response.body#/id"}}}}
+    upload_links = {"links": {
+        op: {"operationId": op, "parameters": {"upload_id": "$response.body#/upload_id"}}
+        for op in ("getUpload", "headUpload", "patchUpload", "completeUpload", "deleteUpload")}}
+
     octet_body = {"requestBody": {"required": True, "content": {
         "application/octet-stream": {"schema": {"type": "string", "format": "binary"}}}}}
 
     @app.post("/v1/submissions", status_code=202, response_model=SubmissionStatus, tags=["submissions"],
-              openapi_extra=octet_body,
-              responses={413: {"description": "Body too large"}, 429: {"description": "Quota exceeded"},
+              openapi_extra=octet_body, operation_id="createSubmission",
+              responses={202: submission_links, 413: {"description": "Body too large"},
+                         429: {"description": "Quota exceeded"},
                          422: {"description": "Not a readable submission container"}})
     async def create_submission(request: Request, key: Key, config: ConfigQ = "2025", method: MethodQ = None,
                                 publish: PublishQ = False, allow_partial: PartialQ = False,
@@ -365,16 +374,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
         return accepted(row)
 
-    @app.get("/v1/submissions", response_model=SubmissionList, tags=["submissions"])
+    @app.get("/v1/submissions", response_model=SubmissionList, tags=["submissions"],
+             operation_id="listSubmissions")
     def list_submissions(key: Key, limit: Annotated[int, Query(ge=1, le=1000)] = 100):
         """Your submissions, newest first."""
         return SubmissionList(submissions=[status_of(r) for r in jobs.list_submissions(store, key.id, limit)])
 
-    @app.get("/v1/submissions/{submission_id}", response_model=SubmissionStatus, tags=["submissions"])
+    @app.get("/v1/submissions/{submission_id}", response_model=SubmissionStatus, tags=["submissions"],
+             operation_id="getSubmission")
     def get_submission(key: Key, submission_id: SubmissionId):
         return status_of(own_submission(key, submission_id))
 
-    @app.get("/v1/submissions/{submission_id}/results", tags=["submissions"],
+    @app.get("/v1/submissions/{submission_id}/results", tags=["submissions"], operation_id="getResults",
              responses={200: {"content": {"application/json": {}, "text/csv": {}}},
                         409: {"description": "Not scored (yet)"}})
     def get_results(key: Key, submission_id: SubmissionId,
@@ -392,7 +403,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         with open(path) as f:
             return PlainTextResponse(result_csv(json.load(f)), media_type="text/csv")
 
-    @app.get("/v1/leaderboard", response_model=Leaderboard, tags=["leaderboard"])
+    @app.get("/v1/leaderboard", response_model=Leaderboard, tags=["leaderboard"], operation_id="leaderboard")
     def get_leaderboard(config: ConfigQ = "2025"):
         """Best published result per method (public, no key needed)."""
         check_config(config)
@@ -402,7 +413,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     # -- resumable uploads (tus-like) --------------------------------------------------------
     @app.post("/v1/uploads", status_code=201, response_model=UploadStatus, tags=["uploads"],
-              responses={413: {"description": "Declared length too large"}, 429: {"description": "Quota"}})
+              operation_id="createUpload",
+              responses={201: upload_links, 413: {"description": "Declared length too large"},
+                         429: {"description": "Quota"}})
     def create_upload(key: Key, config: ConfigQ = "2025", method: MethodQ = None, publish: PublishQ = False,
                       allow_partial: PartialQ = False,
                       upload_length: Annotated[int | None, Header(ge=1, le=MAX_HEADER_INT)] = None):
@@ -429,12 +442,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             headers["Upload-Length"] = str(row["declared_length"])
         return headers
 
-    @app.head("/v1/uploads/{upload_id}", tags=["uploads"])
+    @app.head("/v1/uploads/{upload_id}", tags=["uploads"], operation_id="headUpload")
     def head_upload(key: Key, upload_id: UploadId):
         """The current offset, in the `Upload-Offset` header."""
         return Response(status_code=200, headers=upload_headers(own_upload(key, upload_id)))
 
-    @app.get("/v1/uploads/{upload_id}", response_model=UploadStatus, tags=["uploads"])
+    @app.get("/v1/uploads/{upload_id}", response_model=UploadStatus, tags=["uploads"], operation_id="getUpload")
     def get_upload(key: Key, upload_id: UploadId):
         row = own_upload(key, upload_id)
         return JSONResponse(UploadStatus(upload_id=row["id"], offset=row["received_bytes"],
@@ -443,6 +456,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                             headers=upload_headers(row))
 
     @app.patch("/v1/uploads/{upload_id}", status_code=204, tags=["uploads"], openapi_extra=octet_body,
+               operation_id="patchUpload",
                responses={409: {"description": "Upload-Offset does not match the stored offset"},
                           413: {"description": "Chunk would exceed the size limit"}})
     async def patch_upload(request: Request, key: Key, upload_id: UploadId,
@@ -485,7 +499,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return Response(status_code=204, headers={"Upload-Offset": str(offset + written)})
 
     @app.post("/v1/uploads/{upload_id}/complete", status_code=202, response_model=SubmissionStatus,
-              tags=["uploads"], responses={409: {"description": "Upload incomplete"}})
+              tags=["uploads"], operation_id="completeUpload",
+              responses={202: submission_links, 409: {"description": "Upload incomplete"}})
     async def complete_upload(key: Key, upload_id: UploadId):
         """Turn the uploaded bytes into a queued submission (idempotent)."""
         row = await run_in_threadpool(own_upload, key, upload_id)
@@ -515,7 +530,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         upload_locks.pop(upload_id, None)
         return accepted(sub)
 
-    @app.delete("/v1/uploads/{upload_id}", status_code=204, tags=["uploads"])
+    @app.delete("/v1/uploads/{upload_id}", status_code=204, tags=["uploads"], operation_id="deleteUpload")
     def delete_upload(key: Key, upload_id: UploadId):
         """Abandon an unfinished upload and free its disk space."""
         row = own_upload(key, upload_id)

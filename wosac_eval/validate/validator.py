@@ -49,18 +49,23 @@ class ScenarioSetError(ValueError):
     """The scenario set itself cannot be read: the submission cannot be judged (a usage error)."""
 
 
-def load_sim_agents(scenarios: ScenarioIndex | PathLike | Iterable[PathLike]) -> dict[str, np.ndarray]:
+def load_sim_agents(
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike], progress: Callable[[int], Any] | None = None
+) -> dict[str, np.ndarray]:
     """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
 
     Streams the scenarios (or loads them one by one from a ScenarioIndex) and
     keeps only the ids of objects valid at step 10. Raises ScenarioSetError when
     a scenario file is missing or corrupt, or a scenario_id occurs twice.
+    progress: called with 1 after each scenario read.
     """
     agents: dict[str, np.ndarray] = {}
     try:
         if isinstance(scenarios, ScenarioIndex):
             for scenario_id in scenarios:
                 agents[scenario_id] = rules.sim_agent_ids(scenarios.load(scenario_id))
+                if progress is not None:
+                    progress(1)
         else:
             first_source: dict[str, Any] = {}
             for scenario, source in iter_scenarios(scenarios):
@@ -69,6 +74,8 @@ def load_sim_agents(scenarios: ScenarioIndex | PathLike | Iterable[PathLike]) ->
                     raise ScenarioSetError(f"scenario {sid!r} occurs twice: in {first_source[sid]} and in {source}")
                 first_source[sid] = source
                 agents[sid] = rules.sim_agent_ids(scenario)
+                if progress is not None:
+                    progress(1)
     except (ParseError, OSError) as error:
         raise ScenarioSetError(f"cannot read the scenario set: {error}") from error
     return agents

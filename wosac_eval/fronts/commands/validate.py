@@ -48,13 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="refuse a shard that decompresses past SIZE (default 4G)")
 
 
-def _progress_bar(total: int):
-    """A tqdm bar on stderr when stdout is a terminal (never in pipes, CI logs or --json), else None."""
+def _progress_bar(total: int | None, what: str):
+    """A tqdm bar on stderr when stdout is a terminal (never in pipes or CI logs), else None."""
     if not sys.stdout.isatty():
         return None
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
+    return tqdm(total=total, desc=what, unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,8 +64,11 @@ def run(args: argparse.Namespace) -> int:
     limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
     try:
-        agents = load_sim_agents(args.scenarios)
-        bar = None if args.json else _progress_bar(len(agents))
+        bar = _progress_bar(None, "reading scenarios")
+        agents = load_sim_agents(args.scenarios, progress=bar.update if bar is not None else None)
+        if bar is not None:
+            bar.close()
+        bar = _progress_bar(len(agents), "validating")
         report = validate_submission(
             args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
             progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,

@@ -1,11 +1,16 @@
-"""The web page in a real headless Chromium: the leaderboard is server-rendered,
-the status page's script fetches the submission with the user's key."""
+"""The web page in a real headless Chromium: a file uploaded through the form is
+scored, the status page's script follows it to `done`, the leaderboard is
+server-rendered. The browser is driven over the DevTools protocol on a pipe."""
 from __future__ import annotations
 
 import html
+import json
+import os
 import re
+import select
 import shutil
 import subprocess
+import time
 
 import httpx
 import pytest
@@ -32,6 +37,83 @@ def rendered_dom(url: str, profile) -> str:
     return run.stdout
 
 
+class Browser:
+    """Headless Chromium driven over `--remote-debugging-pipe` (DevTools protocol:
+    JSON messages separated by NUL; Chromium reads fd 3 and writes fd 4)."""
+
+    def __init__(self, profile):
+        cmd_read, self._cmd = os.pipe()
+        self._replies, reply_write = os.pipe()
+
+        def wire_fds():  # in the child: its fd 3 and 4 become our pipes
+            a, b = os.dup(cmd_read), os.dup(reply_write)
+            os.dup2(a, 3)
+            os.dup2(b, 4)
+
+        self.proc = subprocess.Popen([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
+                                      "--remote-debugging-pipe", "about:blank"],
+                                     pass_fds=(3, 4), preexec_fn=wire_fds,
+                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        os.close(cmd_read)
+        os.close(reply_write)
+        self._buffer, self._last_id, self.session = b"", 0, None
+
+    def send(self, method: str, **params):
+        self._last_id += 1
+        message = {"id": self._last_id, "method": method, "params": params}
+        if self.session and not method.startswith(("Target.", "Browser.")):
+            message["sessionId"] = self.session
+        os.write(self._cmd, json.dumps(message).encode() + b"\0")
+        deadline = time.monotonic() + 30
+        while True:
+            while b"\0" in self._buffer:
+                raw, self._buffer = self._buffer.split(b"\0", 1)
+                reply = json.loads(raw)
+                if reply.get("id") == self._last_id:
+                    assert "error" not in reply, f"{method}: {reply['error']}"
+                    return reply["result"]
+            ready, _, _ = select.select([self._replies], [], [], max(0.0, deadline - time.monotonic()))
+            assert ready, f"Chromium did not answer {method}"
+            chunk = os.read(self._replies, 1 << 16)
+            assert chunk, "Chromium closed the DevTools pipe"
+            self._buffer += chunk
+
+    def open(self, url: str) -> None:
+        target = self.send("Target.createTarget", url=url)["targetId"]
+        self.session = self.send("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+        # The new tab starts on about:blank, itself "complete": wait for our page.
+        self.wait_for(f"location.href === {json.dumps(url)} && document.readyState === 'complete'")
+
+    def js(self, expression: str):
+        result = self.send("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        assert "exceptionDetails" not in result, result["exceptionDetails"]
+        return result["result"].get("value")
+
+    def wait_for(self, expression: str, timeout: float = 60.0):
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            value = self.js(expression)
+            if value:
+                return value
+            time.sleep(0.1)
+        raise AssertionError(f"still false after {timeout} s: {expression}")
+
+    def choose_file(self, selector: str, path) -> None:
+        root = self.send("DOM.getDocument")["root"]["nodeId"]
+        node = self.send("DOM.querySelector", nodeId=root, selector=selector)["nodeId"]
+        self.send("DOM.setFileInputFiles", files=[str(path)], nodeId=node)
+
+    def close(self) -> None:
+        try:
+            self.send("Browser.close")
+            self.proc.wait(10)
+        except (AssertionError, subprocess.TimeoutExpired):
+            self.proc.kill()
+            self.proc.wait()
+        os.close(self._cmd)
+        os.close(self._replies)
+
+
 def field(dom: str, element_id: str) -> str:
     match = re.search(rf'id="{element_id}"[^>]*>([^<]*)<', dom)
     assert match, f"no #{element_id} in the page"
@@ -56,14 +138,35 @@ def test_page_uses_no_external_resources(api_server):
     assert httpx.get(server.url + "/docs").status_code == 404  # the CDN-backed docs page is off
 
 
-def test_leaderboard_and_status_page_in_chromium(make_server, scoring_data, tmp_path):
+def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scoring_data, tmp_path):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("browser")
+    browser = Browser(tmp_path / "profile")
+    try:
+        browser.open(server.url + "/")
+        browser.choose_file("#upload-form input[type=file]", scoring_data.full)
+        browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
+            f.key.value = {json.dumps(key)}; f.method.value = "log-replay 1.0"; f.publish.checked = true;
+            f.requestSubmit(); }})()""")
+        # The form's script uploads, then goes to the status page, which polls until done.
+        path = browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
+        browser.wait_for("document.readyState === 'complete'")
+        state = browser.wait_for("['done', 'failed'].includes(document.getElementById('state').textContent)"
+                                 " && document.getElementById('state').textContent", timeout=90)
+        shown = browser.js("""(() => Object.fromEntries(['progress', 'method', 'meta'].map(
+            id => [id, document.getElementById(id).textContent])))()""")
+        links_visible = browser.js("!document.getElementById('links').hidden")
+    finally:
+        browser.close()
+    sid = path.rsplit("/", 1)[1]
     with server.client(key) as c:
-        sid = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
-                     params={"allow_partial": "true", "publish": "true", "method": "log-replay 1.0"}).json()["id"]
-        status = server.wait_state(c, sid)
-    assert status["state"] == "done", status
+        status = c.get(f"/v1/submissions/{sid}").json()
+    assert state == status["state"] == "done", status
+    assert status["upload_bytes"] == scoring_data.full.stat().st_size and status["published"]
+    n = len(scoring_data.scenarios)
+    assert shown == {"progress": f"{n} / {n} scenarios", "method": "log-replay 1.0",
+                     "meta": str(status["realism_meta_metric"])}
+    assert links_visible
 
     board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
     row = re.search(r'<td class="method">([^<]*)</td><td class="num meta">([^<]*)</td>', board)
@@ -71,12 +174,6 @@ def test_leaderboard_and_status_page_in_chromium(make_server, scoring_data, tmp_
     assert row.group(1) == "log-replay 1.0"
     assert float(row.group(2)) == pytest.approx(status["realism_meta_metric"], abs=5e-5)
 
-    page = rendered_dom(f"{server.url}/submissions/{sid}#key={key}", tmp_path / "profile-b")
-    assert field(page, "state") == "done"
-    assert field(page, "progress") == "1 / 1 scenarios"
-    assert float(field(page, "meta")) == status["realism_meta_metric"]
-    assert 'id="links" hidden' not in page  # result links shown once done
-
     other = server.key("someone-else")
-    page = rendered_dom(f"{server.url}/submissions/{sid}#key={other}", tmp_path / "profile-c")
+    page = rendered_dom(f"{server.url}/submissions/{sid}#key={other}", tmp_path / "profile-b")
     assert field(page, "state").startswith("error 404")

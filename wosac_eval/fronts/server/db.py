@@ -105,6 +105,8 @@ class Store:
 
     def _conn(self):
         conn = getattr(self._local, "conn", None)
+        if conn is not None and self.dialect == "postgresql" and (conn.closed or conn.broken):
+            conn = None  # the server restarted or the link dropped: reconnect on next use
         if conn is None:
             conn = self._connect()
             self._local.conn = conn
@@ -113,21 +115,36 @@ class Store:
     def close(self) -> None:
         conn = getattr(self._local, "conn", None)
         if conn is not None:
-            conn.close()
+            try:
+                conn.close()
+            except Exception:  # closing a broken connection may fail; it is dropped either way
+                pass
             self._local.conn = None
 
     def _sql(self, sql: str) -> str:
         return sql.replace("?", "%s") if self.dialect == "postgresql" else sql
 
     # -- statements ----------------------------------------------------------------
+    def _run(self, sql: str, params: Sequence[Any]):
+        try:
+            return self._conn().execute(self._sql(sql), tuple(params))
+        except Exception as exc:
+            # A dropped PostgreSQL connection outside a transaction: one retry on a new one.
+            if self.dialect != "postgresql" or getattr(self._local, "in_tx", False):
+                raise
+            import psycopg
+
+            if not isinstance(exc, psycopg.OperationalError):
+                raise
+            self.close()
+            return self._conn().execute(self._sql(sql), tuple(params))
+
     def execute(self, sql: str, params: Sequence[Any] = ()) -> int:
         """Run one statement; returns the affected row count."""
-        cur = self._conn().execute(self._sql(sql), tuple(params))
-        return cur.rowcount
+        return self._run(sql, params).rowcount
 
     def fetchall(self, sql: str, params: Sequence[Any] = ()) -> list[dict]:
-        cur = self._conn().execute(self._sql(sql), tuple(params))
-        return [dict(r) for r in cur.fetchall()]
+        return [dict(r) for r in self._run(sql, params).fetchall()]
 
     def fetchone(self, sql: str, params: Sequence[Any] = ()) -> dict | None:
         rows = self.fetchall(sql, params)
@@ -147,8 +164,12 @@ class Store:
                 raise
             conn.execute("COMMIT")
         else:
-            with conn.transaction():
-                yield self
+            self._local.in_tx = True
+            try:
+                with conn.transaction():
+                    yield self
+            finally:
+                self._local.in_tx = False
 
     def migrate(self) -> None:
         with self.transaction():

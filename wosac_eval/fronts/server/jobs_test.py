@@ -145,3 +145,20 @@ def test_quotas_count_unfinished_jobs_and_the_last_day(store):
     assert exc.value.status == 429 and "per day" in exc.value.message
     store.execute("UPDATE submissions SET created_at = created_at - 90000 WHERE key_id = ?", (key.id,))
     auth.check_submission_quota(store, key, 25)  # a day later, all of it is available again
+
+
+def test_store_reconnects_after_postgresql_drops_the_connection(postgres_server):
+    import psycopg
+
+    from .db import Store
+
+    url = postgres_server()
+    store = Store(url)
+    store.migrate()
+    sid = add_job(store)
+    backend = store.fetchone("SELECT pg_backend_pid() AS pid")["pid"]
+    with psycopg.connect(url, autocommit=True) as admin:
+        admin.execute("SELECT pg_terminate_backend(%s)", (backend,))
+    assert jobs.get_submission(store, sid)["state"] == "queued"  # served on a new connection
+    assert store.fetchone("SELECT pg_backend_pid() AS pid")["pid"] != backend
+    store.close()

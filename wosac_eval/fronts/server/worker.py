@@ -78,7 +78,12 @@ class _Heartbeat(threading.Thread):
                     "was stopped; a submission this large needs a larger budget")
                 log.error("worker %s: job %s exceeded its %g s budget", os.getpid(), job_id, budget)
                 os._exit(EXIT_BUDGET)
-            if not jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s):
+            try:
+                renewed = jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s)
+            except Exception as exc:  # database briefly unreachable: try again next beat
+                log.warning("worker %s: could not renew the lease of %s: %s", os.getpid(), job_id, exc)
+                continue
+            if not renewed:
                 log.error("worker %s: lost the lease of job %s", os.getpid(), job_id)
                 os._exit(EXIT_LOST_LEASE)
 

@@ -42,9 +42,13 @@ class Paths:
     ds: float
 
     @classmethod
-    def from_polylines(cls, polylines: list[list[np.ndarray]], ds: float, min_length: float) -> "Paths":
+    def from_polylines(cls, polylines: list[list[np.ndarray]], ds: float, min_length: float,
+                       smooth_m: float = 0.0) -> "Paths":
         """Resamples nested lists [batch][agent] of polylines to one array, extending each
-        straight past its end so that all have the same number of samples covering `min_length`."""
+        straight past its end so that all have the same number of samples covering `min_length`.
+
+        `smooth_m` averages the tangents over that length, so that noisy map polylines
+        (real WOMD lanes) and kinks where lanes join do not make headings jitter."""
         num_s = int(np.ceil(min_length / ds)) + 1
         b, a = len(polylines), len(polylines[0])
         xy = np.zeros((b, a, num_s, 2))
@@ -56,6 +60,12 @@ class Paths:
                 xy[i, j] = done[id(poly)]
         tangent = np.gradient(xy, axis=2)
         tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
+        half = int(round(smooth_m / ds / 2))
+        if half > 0:
+            padded = np.concatenate([np.repeat(tangent[:, :, :1], half, 2), tangent, np.repeat(tangent[:, :, -1:], half, 2)], 2)
+            cumulative = np.concatenate([np.zeros_like(padded[:, :, :1]), np.cumsum(padded, axis=2)], 2)
+            tangent = cumulative[:, :, 2 * half + 1 :] - cumulative[:, :, : -2 * half - 1]
+            tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
         return cls(xy, tangent, ds)
 
     def curvature(self) -> np.ndarray:

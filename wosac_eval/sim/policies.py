@@ -194,6 +194,7 @@ def log_replay_noise(ctx: SimContext, rng: np.random.Generator, num_rollouts: in
 _LANE_MATCH_M = 3.0
 _LANE_MATCH_RAD = np.deg2rad(50.0)
 _BLEND_M = 15.0  # distance over which an agent merges onto its lane centre
+_SMOOTH_M = 6.0  # heading smoothing along lanes (real lane polylines are noisy)
 
 
 def _lane_segments(ctx: SimContext):
@@ -302,7 +303,7 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
             limit = min(limit, 6.0)
         queued = speed[i] > 0.5 or abs(lat) < 1.0  # stopped in the middle of a lane: waiting, not parked
         v0[:, i] = np.maximum(speed[i], limit * rng.uniform(0.75, 1.05, r)) if queued else 0.0
-    paths = engine.Paths.from_polylines(polylines, 1.0, min_length)
+    paths = engine.Paths.from_polylines(polylines, 1.0, min_length, smooth_m=_SMOOTH_M)
     kmax = max(1, max(len(s) for row in stops for s in row))
     stop_s = np.full((r, n, kmax), np.nan)
     stop_signal = np.full((r, n, kmax), engine.NO_SIGNAL, np.int64)

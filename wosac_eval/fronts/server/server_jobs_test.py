@@ -111,3 +111,34 @@ def test_job_over_its_time_budget_fails_with_the_reason(make_server, scoring_dat
     assert status["state"] == "failed"
     assert "exceeded its time budget of 0.05 s" in status["error"]
     assert status["attempts"] == 1
+
+
+def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_restart(
+        make_server, scoring_data, direct_single_result):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    key = server.key("crash")
+    with server.client(key) as c:
+        sid = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
+                     params={"allow_partial": "true"}).json()["id"]
+    worker = _running_worker_pid(server, sid)
+    server.proc.kill()  # SIGKILL: no shutdown code runs in the server process
+    server.proc.wait()
+    deadline = time.monotonic() + 20
+    while _alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(worker), "the worker outlived its server"
+    again = make_server(data_dir=server.data_dir, workers=1, scenarios=scoring_data.scenarios)
+    with again.client(key) as c:
+        status = again.wait_state(c, sid)
+        assert status["state"] == "done", status
+        assert status["attempts"] == 1  # the orphaned worker gave the job back: no attempt lost
+        assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
+
+
+def _alive(pid: int) -> bool:
+    """Running (not gone, not a zombie waiting to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return "zombie" not in f.read()
+    except FileNotFoundError:
+        return False

@@ -154,6 +154,10 @@ def four_way_intersection(
                 line = geo.segment(at(a, r_stop, side * k * w), at(a, r_end, side * k * w), LANE_SPACING_M)
                 road_lines.append((ids(), ROAD_LINE_BROKEN_SINGLE_WHITE, line))
 
+    # Stop bars across the approach lanes, where the signalised connectors start.
+    for a in range(4):
+        road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(at(a, r_stop, 0.0), at(a, r_stop, half), 0.5)))
+
     # One curb per quadrant, between arm a (its left side) and arm a+1 (its right side).
     road_edges = []
     rc = corner_radius
@@ -275,6 +279,15 @@ def corridor(
     if bike_lane_width > 0 or parking_width > 0:
         for side in (1.0, -1.0):
             road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, offset_line(side * half_lanes)))
+
+    # Stop bars across each direction's lanes, through the first points of its signalised lanes.
+    for direction in (1, -1):
+        starts = np.array([lane.polyline[0] for lane in lanes.values()
+                           if lane.signal_group and np.sign(lane.polyline[-1, 0] - lane.polyline[0, 0]) == direction])
+        across = starts[-1] - starts[0] if len(starts) > 1 else np.array([0.0, -direction])
+        across = across / np.linalg.norm(across)
+        inner, outer = starts[0] - across * w / 2, starts[-1] + across * w / 2
+        road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(inner, outer, 0.5)))
 
     # Right edge runs along +s (road on its left); the left edge runs back along -s.
     road_edges = [

@@ -81,6 +81,12 @@ def test_scene_has_the_structure_the_official_metrics_need(kind):
     for f in sc.map_features:
         if f.HasField("lane"):
             assert all(e in features and features[e].HasField("lane") for e in [*f.lane.entry_lanes, *f.lane.exit_lanes])
+    # Stop bars (solid white road lines) cross the lanes where the signalised lanes start.
+    bars = [np.array([(p.x, p.y) for p in f.road_line.polyline]) for f in sc.map_features
+            if f.HasField("road_line") and f.road_line.type == map_pb2.RoadLine.TYPE_SOLID_SINGLE_WHITE]
+    for ls in sc.dynamic_map_states[0].lane_states:
+        start = np.array([ls.stop_point.x, ls.stop_point.y])
+        assert min(np.linalg.norm(bar - start, axis=1).min() for bar in bars) < 0.5
     assert len(sc.dynamic_map_states) == 91
     for dms in sc.dynamic_map_states:
         assert dms.lane_states, "every step lists the signal states"

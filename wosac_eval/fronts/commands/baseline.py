@@ -59,9 +59,16 @@ def run(args: argparse.Namespace) -> int:
     )
     start = time.perf_counter()
     count = [0]
+    bar = None
+    if sys.stderr.isatty():  # a progress bar for people, never in pipes or CI logs
+        from tqdm import tqdm
+
+        bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def progress(n: int) -> None:
         count[0] += n
+        if bar is not None:
+            bar.update(n)
 
     try:
         out = make_submission(args.scenarios, args.policy, args.output, seed=args.seed, num_shards=args.shards,
@@ -69,6 +76,9 @@ def run(args: argparse.Namespace) -> int:
     except (ParseError, FileNotFoundError, ValueError) as error:
         print(f"wosac-eval baseline: error: {error}", file=sys.stderr)
         return 2
+    finally:
+        if bar is not None:
+            bar.close()
     report = validate_submission(args.scenarios, out)
     elapsed = time.perf_counter() - start
     print(f"wrote {out} ({args.policy}, {count[0]} scenarios, {elapsed:.1f} s)")

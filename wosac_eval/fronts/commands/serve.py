@@ -67,8 +67,8 @@ def run(args: argparse.Namespace) -> int:
     app.state.worker_pool = pool
     try:
         server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
-                                               timeout_graceful_shutdown=10))
+                                               timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1))
         server.run()
     finally:
-        pool.stop()
+        pool.stop(grace_s=settings.shutdown_grace_s)
     return 0

@@ -96,7 +96,7 @@ class Server:
         self.env = {**inherited, "WOSAC_DATA_DIR": str(data_dir),
                     "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
                     "WOSAC_POLL_S": "0.1", "WOSAC_HEARTBEAT_S": "0.2", "WOSAC_LEASE_S": "1.5",
-                    "WOSAC_WORKERS": "1", "PYTHONUNBUFFERED": "1",
+                    "WOSAC_WORKERS": "1", "WOSAC_SHUTDOWN_GRACE_S": "2", "PYTHONUNBUFFERED": "1",
                     "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
         self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
         self.proc: subprocess.Popen | None = None

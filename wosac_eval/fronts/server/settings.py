@@ -38,6 +38,7 @@ class Settings(BaseModel):
     default_max_concurrent: int = Field(2, ge=1, description="Per-key running+queued jobs (new keys).")
     default_max_daily: int = Field(50, ge=1, description="Per-key submissions per 24 h (new keys).")
     default_max_daily_bytes: int = Field(64 * GiB, ge=1, description="Per-key upload bytes per 24 h (new keys).")
+    shutdown_grace_s: float = Field(10.0, gt=0, description="On SIGTERM: wait this long for requests in flight.")
     configs: list[str] = Field(
         default_factory=lambda: ["2025", "2024", "2023"],
         description="Metric configs a submission may ask for (WOSAC_CONFIGS, comma-separated).")

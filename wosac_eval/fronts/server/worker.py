@@ -53,6 +53,16 @@ def _invalid_submission_error() -> type[BaseException]:
     return InvalidSubmissionError
 
 
+def _exit_process(code: int) -> None:
+    """End this worker now, taking down the scorer's own worker processes first
+    (WOSAC_SCORE_THREADS > 1), which would otherwise outlive it."""
+    import multiprocessing
+
+    for child in multiprocessing.active_children():
+        child.kill()
+    os._exit(code)
+
+
 class _Heartbeat(threading.Thread):
     """Renews one job's lease and ends the process when the job must stop."""
 
@@ -69,7 +79,7 @@ class _Heartbeat(threading.Thread):
             if w.stopping or not w.parent_alive():
                 jobs.release(w.store, job_id, w.owner)
                 log.info("worker %s: released job %s on shutdown", os.getpid(), job_id)
-                os._exit(0)
+                _exit_process(0)
             if time.monotonic() > self.deadline:
                 budget = w.settings.job_time_budget_s
                 jobs.finish_failed(
@@ -77,7 +87,7 @@ class _Heartbeat(threading.Thread):
                     f"scoring exceeded its time budget of {budget:g} s (WOSAC_JOB_TIME_BUDGET_S) and "
                     "was stopped; a submission this large needs a larger budget")
                 log.error("worker %s: job %s exceeded its %g s budget", os.getpid(), job_id, budget)
-                os._exit(EXIT_BUDGET)
+                _exit_process(EXIT_BUDGET)
             try:
                 renewed = jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s)
             except Exception as exc:  # database briefly unreachable: try again next beat
@@ -85,7 +95,7 @@ class _Heartbeat(threading.Thread):
                 continue
             if not renewed:
                 log.error("worker %s: lost the lease of job %s", os.getpid(), job_id)
-                os._exit(EXIT_LOST_LEASE)
+                _exit_process(EXIT_LOST_LEASE)
 
 
 class Worker:

@@ -12,6 +12,7 @@ import numpy as np
 
 from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import cos32, packet_tail, sin32
+from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
 
 _F = np.float32
@@ -120,39 +121,53 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     Returns:
       float32 `(..., num_evaluated, len(steps))`.
     """
-    num_objects, num_steps = x.shape[-2:]
+    lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
-    # Work step-major like the official code: (..., steps, objects).
-    t = lambda a: np.swapaxes(a[..., steps], -1, -2)
+    # Work step-major like the official code: (batch, steps, objects).
+    t = lambda a: np.ascontiguousarray(np.swapaxes(a[..., steps], -1, -2)).reshape(
+        (-1,) + a[..., steps].shape[-1:] + (num_objects,))
     x, y, length, width, heading, speed, valid = map(t, (x, y, length, width, heading, speed, valid))
     e = slice(0, num_evaluated)
-    # (..., steps, num_evaluated, num_objects)
-    yaw_diff = np.abs(heading[..., None, :] - heading[..., e, None])
-    pair_tail = packet_tail((num_steps, num_evaluated, num_objects))[steps]
-    yaw_cos, yaw_sin = cos32(yaw_diff, pair_tail), sin32(yaw_diff, pair_tail)
-    half_l = length[..., None, :] / _F(2)
-    half_w = width[..., None, :] / _F(2)
-    other_long_offset = half_l * np.abs(yaw_cos) + half_w * np.abs(yaw_sin)
-    other_lat_offset = half_l * np.abs(yaw_sin) + half_w * np.abs(yaw_cos)
-    dx = x[..., None, :] - x[..., e, None]
-    dy = y[..., None, :] - y[..., e, None]
+    # Ego frame for every pair: (batch, steps, num_evaluated, num_objects).
     ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     minus_yaw = -heading[..., e, None]
     ego_cos, ego_sin = cos32(minus_yaw, ego_tail), sin32(minus_yaw, ego_tail)
+    dx = x[..., None, :] - x[..., e, None]
+    dy = y[..., None, :] - y[..., e, None]
     rel_x = ego_cos * dx - ego_sin * dy
     rel_y = ego_sin * dx + ego_cos * dy
-    long_distance = rel_x - length[..., e, None] / _F(2) - other_long_offset
-    lat_overlap = np.abs(rel_y) - width[..., e, None] / _F(2) - other_lat_offset
-    following = ((long_distance > 0) & (yaw_diff <= MAX_HEADING_DIFF) & (lat_overlap < 0)
-                 & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD)
-                    | (yaw_diff <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
-    candidate = valid[..., None, :] & following
-    masked = long_distance + (_F(1) - candidate.astype(_F)) * EXTREMELY_LARGE_DISTANCE
-    ahead = np.argmin(masked, axis=-1)[..., None]
-    gap = np.take_along_axis(masked, ahead, -1)[..., 0]
-    ahead_speed = np.take_along_axis(np.broadcast_to(speed[..., None, :], masked.shape), ahead, -1)[..., 0]
-    closing = speed[..., e] - ahead_speed
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        ttc = np.where(closing > 0, np.minimum(gap / closing, MAXIMUM_TIME_TO_COLLISION),
-                       MAXIMUM_TIME_TO_COLLISION)
-    return np.swapaxes(ttc, -1, -2)
+    ahead_of_front = rel_x - length[..., e, None] / _F(2)
+    beside_path = np.abs(rel_y) - width[..., e, None] / _F(2)
+    yaw_diff = np.abs(heading[..., None, :] - heading[..., e, None])
+    # Only pairs that can be "following" need the other box's extents: its
+    # offsets are non-negative and at most its half-diagonal, so a pair must be
+    # ahead of the front (the float32 sign of a difference is exact), beside
+    # the path within that half-diagonal, and aligned within 75 degrees.
+    reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
+    maybe = ((ahead_of_front > 0) & (beside_path < reach[..., None, :])
+             & (yaw_diff <= MAX_HEADING_DIFF) & valid[..., None, :])
+    b, st, ev, ob = np.nonzero(maybe)
+    pair_tail = np.broadcast_to(packet_tail((num_steps, num_evaluated, num_objects))[steps], maybe.shape)
+    yd = yaw_diff[b, st, ev, ob]
+    yaw_cos = cos32(yd, pair_tail[b, st, ev, ob])
+    yaw_sin = sin32(yd, pair_tail[b, st, ev, ob])
+    half_l = length[b, st, ob] / _F(2)
+    half_w = width[b, st, ob] / _F(2)
+    long_distance = ahead_of_front[b, st, ev, ob] - (half_l * np.abs(yaw_cos) + half_w * np.abs(yaw_sin))
+    lat_overlap = beside_path[b, st, ev, ob] - (half_l * np.abs(yaw_sin) + half_w * np.abs(yaw_cos))
+    following = ((long_distance > 0) & (lat_overlap < 0)
+                 & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yd <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
+    ttc = np.full(maybe.shape[:-1], MAXIMUM_TIME_TO_COLLISION, dtype=_F)
+    if following.any():
+        b, st, ev, ob, long_distance = (a[following] for a in (b, st, ev, ob, long_distance))
+        group = (b * maybe.shape[1] + st) * num_evaluated + ev
+        # The nearest followed object, ties to the lowest object index.
+        _, best = first_minimum(group, long_distance, ob)
+        b, st, ev, ob, gap = b[best], st[best], ev[best], ob[best], long_distance[best]
+        closing = speed[b, st, ev] - speed[b, st, ob]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            ttc[b, st, ev] = np.where(closing > 0, np.minimum(gap / closing, MAXIMUM_TIME_TO_COLLISION),
+                                      MAXIMUM_TIME_TO_COLLISION)
+    # Nothing followed: the official code divides a gap of about 1e10 by the
+    # closing speed and caps it, which is always the cap.
+    return np.swapaxes(ttc, -1, -2).reshape(*lead, num_evaluated, -1)

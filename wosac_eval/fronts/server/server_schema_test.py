@@ -28,7 +28,7 @@ def test_fuzzed_requests_never_get_a_server_error(api_server, tmp_path):
     key = server.key("fuzzer", max_concurrent=10**6, max_daily=10**6)
     run = subprocess.run(
         [*schemathesis_cli(), "run", f"{server.url}/openapi.json", "--checks", "not_a_server_error",
-         "--max-examples", "25", "--seed", "20251121", "--workers", "1", "--no-color",
+         "--max-examples", "15", "--seed", "20251121", "--workers", "1", "--no-color",
          "--generation-database", "none", "--request-timeout", "20", "--phases", "examples,coverage,fuzzing,stateful",
          "--header", f"Authorization: Bearer {key}"],
         cwd=tmp_path, capture_output=True, text=True, timeout=300)

@@ -87,15 +87,24 @@ def where(
     """
     parts = []
     if scenario_id is not None:
-        parts.append(f"scenario {scenario_id}")
+        parts.append(f"scenario {printable(scenario_id)}")
     if rollout is not None:
         parts.append(f"rollout {rollout}")
     if object_id is not None:
         parts.append(f"object {object_id}")
     text = " ".join(parts)
     if shard is not None:
-        text = f"{shard}: {text}" if text else shard
+        text = f"{printable(shard)}: {text}" if text else printable(shard)
     return text
+
+
+def printable(name: str) -> str:
+    """A name as is, or quoted with escapes when it holds newlines or other control characters.
+
+    Scenario ids and member names come from the submission: they must not be
+    able to forge extra lines in the report.
+    """
+    return name if name.isprintable() else repr(name)
 
 
 def make_finding(

@@ -51,3 +51,9 @@ def test_unknown_code_is_a_programming_error():
 def test_long_id_lists_are_cut_with_a_count():
     assert format_ids(range(3)) == "[0, 1, 2]"
     assert format_ids(range(25), limit=2) == "[0, 1, ... (+23 more)]"
+
+
+def test_control_characters_in_names_cannot_forge_report_lines():
+    f = make_finding("coverage.unknown_scenario", "not in the scenario set", shard="a\nb", scenario_id="x\nERROR fake")
+    assert "\n" not in f.message
+    assert f.message == "'a\\nb': scenario 'x\\nERROR fake': not in the scenario set"

@@ -607,3 +607,23 @@ def test_workers_give_the_same_report(tmp_path, capsys, template, many):
         "shard.unparseable", "shard.empty", "metadata.inconsistent", "coverage.unknown_scenario",
         "coverage.duplicate_scenario", "coverage.missing_scenario", "rollouts.non_finite", "rollouts.missing_sim_agents",
     }
+
+
+def test_subprocess_on_an_ascii_console_with_non_ascii_names(tmp_path, scenario_file, template, rollouts_a):
+    import os
+    import subprocess
+
+    shard = with_rollouts(template, [rollouts_a])
+    shard.affiliation = "Université"
+    other = copy(shard)
+    other.affiliation = "Universität"
+    members = {"é/0.binproto": shard.SerializeToString(), "é/1.binproto": with_rollouts(other, []).SerializeToString()}
+    path = write(tmp_path / "s.tar.gz", tar_bytes(members))
+    env = {**os.environ, "PYTHONIOENCODING": "ascii", "PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    done = subprocess.run(
+        [sys.executable, "-m", "wosac_eval.fronts.cli", "validate", "--scenarios", str(scenario_file), "--submission", str(path)],
+        capture_output=True, text=True, env=env, encoding="ascii", errors="strict",
+    )
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    assert "\\xe9/1.binproto: affiliation is 'Universit\\xe4t' but 'Universit\\xe9' in \\xe9/0.binproto" in done.stdout

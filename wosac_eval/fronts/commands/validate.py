@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if bar is not None:
             bar.close()
+    if hasattr(sys.stdout, "reconfigure"):  # names from the submission must not crash a non-UTF-8 console
+        sys.stdout.reconfigure(errors="backslashreplace")
     if args.json:
         json.dump(report.to_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -20,10 +20,10 @@ def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
     workdir = tmp_path / "demo"
-    done = cli("demo", "--workdir", str(workdir), "--scenes", "4", "--workers", "2", cwd=tmp_path)
+    done = cli("demo", "--workdir", str(workdir), "--scenes", "3", "--workers", "2", cwd=tmp_path)
     assert done.returncode == 0, done.stderr + done.stdout
     out = done.stdout
-    assert "generated 4 synthetic scenes" in out
+    assert "generated 3 synthetic scenes" in out
     lines = out.splitlines()
     header = next(i for i, line in enumerate(lines) if line.startswith("policy"))
     assert "meta" in lines[header] and "collision" in lines[header] and "red-light" in lines[header]
@@ -32,16 +32,16 @@ def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
     metas = {}
     for policy in ("log_replay_noise", "idm", "constant_velocity"):
         result = json.loads((workdir / "results" / f"{policy}.json").read_text())
-        assert result["num_scenarios"] == 4 and result["validation"]["errors"] == 0
+        assert result["num_scenarios"] == 3 and result["validation"]["errors"] == 0
         metas[policy] = result["buckets"]["realism_meta_metric"]
         assert str(workdir / "results" / f"{policy}.json") in out
         assert (workdir / "submissions" / f"{policy}.tar.gz").exists()
     assert metas["log_replay_noise"] > metas["idm"] > metas["constant_velocity"]
     # A second run reuses the cached scenes and gives the same numbers.
-    again = cli("demo", "--workdir", str(workdir), "--scenes", "4", "--policies", "constant_velocity",
+    again = cli("demo", "--workdir", str(workdir), "--scenes", "3", "--policies", "constant_velocity",
                 "--workers", "1", cwd=tmp_path)
     assert again.returncode == 0, again.stderr
-    assert "loaded 4 synthetic scenes" in again.stdout
+    assert "loaded 3 synthetic scenes" in again.stdout
     result = json.loads((workdir / "results" / "constant_velocity.json").read_text())
     assert result["buckets"]["realism_meta_metric"] == metas["constant_velocity"]
 

@@ -17,7 +17,7 @@ from wosac_eval.fronts import commands
 
 def _command_modules():
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
-        if not info.name.startswith("_"):
+        if not info.name.startswith("_") and not info.name.endswith("_test"):
             yield importlib.import_module(f"{commands.__name__}.{info.name}")
 
 

@@ -142,6 +142,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                for sid, reason in sorted(report.skipped_scenarios.items())]
     total = sum(1 for sid in index if report.is_scenario_valid(sid))
     per_scenario = []
+    if progress is not None:
+        progress(0, total)
     for result in _map_ordered(_rollouts_to_score(submission_path, index, report), workers,
                                metrics_config, index):
         per_scenario.append(result)

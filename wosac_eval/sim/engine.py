@@ -25,6 +25,7 @@ NO_SIGNAL = -1
 LOOKAHEAD_SPACING_M = 2.0
 LOOKAHEAD_POINTS = 26  # 50 m of path ahead of the nose
 MAX_BRAKE = 8.0
+PREDICTION_S = 1.5  # how far ahead drivers anticipate crossing traffic
 WINDOW = 12  # lookahead points tested per candidate obstacle (24 m of path)
 LATERAL_ACCELERATION = 2.5  # m/s^2 drivers accept in turns
 NEIGHBOURS = 10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
@@ -250,24 +251,45 @@ def simulate(
 def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gap along each agent's path to every other agent that touches it, and that agent's speed along it.
 
-    A cheap test in each agent's heading frame first keeps only the pairs that can
-    touch the path within the lookahead; the exact test runs on those pairs alone.
+    Agents crossing the path are also tested where they will be in PREDICTION_S
+    seconds (constant velocity), so that drivers yield to crossing traffic before it
+    is in front of them rather than braking hard when it arrives.
     Returns:
       gap: (B, i, j) metres from i's nose to j (inf where j is not on i's path ahead).
-      speed: (B, i, j) j's speed projected on i's path (>= 0).
+      speed: (B, i, j) j's speed projected on i's path (>= 0; 0 for a predicted conflict).
     """
     b, a = s.shape
-    gap_full = np.full((b, a, a), np.inf)
-    speed_full = np.zeros((b, a, a))
     if a < 2:
-        return gap_full, speed_full
+        return np.full((b, a, a), np.inf), np.zeros((b, a, a))
     ahead_all = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
     pts_all, pts_heading_all = paths.nearest(ahead_all)
+    gap_now, along_now = _touching(pts_all, pts_heading_all, xy, xy, heading, d, k)
+    direction = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
+    predicted = xy + (v * PREDICTION_S)[..., None] * direction
+    gap_pred, _ = _touching(pts_all, pts_heading_all, xy, predicted, heading, d, k)
+    crossing = np.abs(np.sin(heading[:, None, :] - heading[:, :, None])) > 0.5  # 30 to 150 degrees apart
+    soon = gap_pred < (v * (PREDICTION_S + 1.0) + 3.0)[..., None]  # i gets there about when j does
+    use_pred = crossing & soon & (gap_pred < gap_now)
+    gap = np.where(use_pred, gap_pred, gap_now)
+    speed = np.where(use_pred, 0.0, np.maximum(v[:, None, :] * along_now, 0.0))
+    return gap, speed
+
+
+def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.ndarray):
+    """Gaps (B, i, j) from each agent's nose along its lookahead points to agents placed at
+    `xy_j` (B, A, 2), and the cosine between j's heading and the path where it touches.
+
+    A cheap test in each agent's heading frame first keeps only the pairs that can
+    touch the path within the lookahead; the exact test runs on those pairs alone.
+    """
+    b, a = xy.shape[:2]
+    gap_full = np.full((b, a, a), np.inf)
+    along_full = np.zeros((b, a, a))
     ch, sh = np.cos(heading)[..., None], np.sin(heading)[..., None]
     px, py = pts_all[..., 0] - xy[..., 0][..., None], pts_all[..., 1] - xy[..., 1][..., None]
     path_lat = np.abs(-px * sh + py * ch).max(axis=-1)  # (B, A) how far the path strays from the heading line
-    rx = xy[:, None, :, 0] - xy[:, :, None, 0]  # (B, i, j)
-    ry = xy[:, None, :, 1] - xy[:, :, None, 1]
+    rx = xy_j[:, None, :, 0] - xy[:, :, None, 0]  # (B, i, j)
+    ry = xy_j[:, None, :, 1] - xy[:, :, None, 1]
     lon = rx * ch + ry * sh
     lat = -rx * sh + ry * ch
     radius_j = 0.5 * np.hypot(d.length, d.width)[:, None, :]  # (B, 1, j)
@@ -277,7 +299,7 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     near[:, np.arange(a), np.arange(a)] = False
     cand_b, cand_i, cand_j = np.nonzero(near)
     if len(cand_b) == 0:
-        return gap_full, speed_full
+        return gap_full, along_full
     # Only a window of lookahead points around where j lies along the path can touch it.
     start = np.floor((lon[cand_b, cand_i, cand_j] - d.length[cand_b, cand_i] / 2 - radius_j[cand_b, 0, cand_j] - 2.0)
                      / LOOKAHEAD_SPACING_M).astype(np.int64)
@@ -285,8 +307,8 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     pts = pts_all[cand_b[:, None], cand_i[:, None], window]  # (C, W, 2)
     pts_heading = pts_heading_all[cand_b[:, None], cand_i[:, None], window]
     k = k[window]
-    dx = xy[cand_b, cand_j, 0][:, None] - pts[..., 0]
-    dy = xy[cand_b, cand_j, 1][:, None] - pts[..., 1]
+    dx = xy_j[cand_b, cand_j, 0][:, None] - pts[..., 0]
+    dy = xy_j[cand_b, cand_j, 1][:, None] - pts[..., 1]
     dist = np.sqrt(dx * dx + dy * dy)
     hj = heading[cand_b, cand_j][:, None]
     cos_signed = np.cos(hj - pts_heading)
@@ -299,8 +321,8 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     first = np.argmin(gap_k, axis=-1)
     rows = np.arange(len(first))
     gap_full[cand_b, cand_i, cand_j] = gap_k[rows, first]
-    speed_full[cand_b, cand_i, cand_j] = np.maximum(v[cand_b, cand_j] * cos_signed[rows, first], 0.0)
-    return gap_full, speed_full
+    along_full[cand_b, cand_i, cand_j] = cos_signed[rows, first]
+    return gap_full, along_full
 
 
 def _turn_speed(paths: Paths, s: np.ndarray, d: Drivers, k: np.ndarray) -> np.ndarray:
@@ -320,7 +342,15 @@ def idm(v, v0, gap, lead_v, d: Drivers) -> np.ndarray:
     free = np.where(v <= v0, d.a_max * (1.0 - (v / v0) ** 4), -d.b_comf * (1.0 - (v0 / np.maximum(v, 1e-3)) ** 2))
     s_star = d.s0 + np.maximum(0.0, v * d.headway + v * (v - lead_v) / (2.0 * np.sqrt(d.a_max * d.b_comf)))
     interaction = np.where(np.isfinite(gap), (s_star / np.maximum(gap, 0.1)) ** 2, 0.0)
-    return np.clip(free - d.a_max * interaction, -d.max_brake, d.a_max)
+    acc = free - d.a_max * interaction
+    # Like the enhanced IDM (Kesting et al., 2010): when plain IDM over-reacts to a gap
+    # that a calmer deceleration handles (an obstacle appearing at a moderate
+    # distance), brake only somewhat harder than what stopping behind it needs.
+    closing = np.maximum(v - lead_v, 0.0)
+    needed = closing**2 / (2.0 * np.maximum(gap - 0.5 * d.s0, 0.1))
+    calm = -np.maximum(1.3 * needed, d.b_comf)
+    acc = np.where(np.isfinite(gap) & (gap > 0.5 * d.s0), np.maximum(acc, np.minimum(calm, free)), acc)
+    return np.clip(acc, -d.max_brake, d.a_max)
 
 
 def _contacts(paths: Paths, s: np.ndarray, d: Drivers) -> np.ndarray:

@@ -32,7 +32,7 @@ from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import roads, signals
 
 # Bump when the generated scenes change, so that cached demo scenes are regenerated.
-GENERATOR_VERSION = 4
+GENERATOR_VERSION = 5
 
 NUM_STEPS = 91
 CURRENT_TIME_INDEX = 10

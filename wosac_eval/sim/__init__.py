@@ -1,0 +1,9 @@
+"""Synthetic WOMD-like scenes and baseline sim agents: the demo needs no dataset.
+
+- `scenes`: deterministic scene generator (`generate_scenes(n, seed)` -> `Scenario` protos,
+  `write_scenario_shards`), built from `roads` (lanes, lines, edges, crosswalks, stop bars),
+  `signals` (fixed-time programs) and `engine` (closed-loop IDM traffic).
+- `policies`: constant velocity, noisy log replay and IDM lane following for any scenario.
+- `submission_writer` / `baselines`: official-layout sharded submissions with full metadata.
+- `demo`: scenes + every baseline + validation + scoring -> leaderboard (`wosac-eval demo`).
+"""

@@ -54,3 +54,20 @@ def test_score_usage_error_on_unknown_config(tmp_path):
                      str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"), "--config", "2019")
     assert proc.returncode == 2
     assert "2019" in proc.stderr
+
+
+def test_unscorable_scenario_is_named(tmp_path):
+    """A scenario the official code cannot score either (no road edges) gives a clear error."""
+    shared = require_shared()
+    from wosac_eval.metrics.submission import score_scenario
+    from wosac_eval.parse.scenarios import iter_scenarios
+    from wosac_eval.protos import sim_agents_submission_pb2
+
+    scenario = next(s for s, _ in iter_scenarios(shared / "womd" / "motion_data_one_scenario.tfrecord"))
+    kept = [f for f in scenario.map_features if f.WhichOneof("feature_data") != "road_edge"]
+    del scenario.map_features[:]
+    scenario.map_features.extend(kept)
+    raw = (shared / "golden" / "637f20cafde22ff8__logreplay.binproto").read_bytes()
+    rollouts = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts[0]
+    with pytest.raises(ValueError, match="scenario 637f20cafde22ff8: cannot be scored: .*road edges"):
+        score_scenario(scenario, rollouts)

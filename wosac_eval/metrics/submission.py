@@ -52,7 +52,11 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
     if rollouts.scenario_id != arrays.scenario_id:
         raise ValueError(f"rollouts are for scenario {rollouts.scenario_id!r}, "
                          f"not {arrays.scenario_id!r}")
-    log, sim = scenario_features(arrays, rollout_arrays(rollouts))
+    try:
+        log, sim = scenario_features(arrays, rollout_arrays(rollouts))
+    except (ValueError, KeyError) as error:
+        # e.g. a scenario without road edges, or rollouts missing an evaluated object
+        raise ValueError(f"scenario {arrays.scenario_id}: cannot be scored: {error}") from error
     return {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim)}
 
 

@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import concurrent.futures as futures
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.sim import policies
-from wosac_eval.sim.submission_writer import SubmissionMetadata, scenario_rollouts, write_submission
+from wosac_eval.sim.submission_writer import ShardWriter, SubmissionMetadata, scenario_rollouts
 
 PathLike = str | os.PathLike
 
@@ -19,13 +19,30 @@ DESCRIPTIONS = {
 }
 
 
-def _simulate(args: tuple[bytes, str, int]):
+def _simulate(args: tuple[bytes, str, int]) -> bytes:
     from wosac_eval.protos import scenario_pb2
 
     data, policy, seed = args
     scenario = scenario_pb2.Scenario.FromString(data)
     ids, traj = policies.simulate_scenario(scenario, policy, seed)
     return scenario_rollouts(scenario.scenario_id, ids, traj).SerializeToString()
+
+
+def _map_bounded(tasks: Iterator, workers: int) -> Iterator[bytes]:
+    """`_simulate` over tasks in order; in worker processes with a bounded number in flight,
+    so that memory does not grow with the size of the scenario set."""
+    if workers <= 1:
+        for task in tasks:
+            yield _simulate(task)
+        return
+    with futures.ProcessPoolExecutor(workers) as pool:
+        pending: list[futures.Future] = []
+        for task in tasks:
+            pending.append(pool.submit(_simulate, task))
+            if len(pending) >= 2 * workers:
+                yield pending.pop(0).result()
+        for future in pending:
+            yield future.result()
 
 
 def make_submission(
@@ -39,27 +56,24 @@ def make_submission(
     metadata: SubmissionMetadata | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> Path:
-    """Simulates `policy` on every scenario and writes an official-layout submission to `output`."""
+    """Simulates `policy` on every scenario and writes an official-layout submission to `output`.
+
+    Streams: scenarios are read, simulated and appended to the shards one at a time.
+    """
     if policy not in policies.POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(policies.POLICIES)}")
-    from wosac_eval.protos import sim_agents_submission_pb2
-
     metadata = metadata or SubmissionMetadata(
         unique_method_name=policy.replace("_", "-"), description=DESCRIPTIONS[policy]
     )
     tasks = ((s.scenario.SerializeToString(), policy, seed) for s in iter_scenarios(scenario_paths))
-    rollouts = []
-    if workers > 1:
-        with futures.ProcessPoolExecutor(workers) as pool:
-            for data in pool.map(_simulate, tasks):
-                rollouts.append(sim_agents_submission_pb2.ScenarioRollouts.FromString(data))
+    try:
+        with ShardWriter(metadata, output, num_shards) as writer:
+            for data in _map_bounded(tasks, workers):
+                writer.add(data)
                 if progress:
                     progress(1)
-    else:
-        for task in tasks:
-            rollouts.append(sim_agents_submission_pb2.ScenarioRollouts.FromString(_simulate(task)))
-            if progress:
-                progress(1)
-    if not rollouts:
-        raise ValueError(f"no scenarios found in {scenario_paths}")
-    return write_submission(rollouts, metadata, output, num_shards)
+    except ValueError as error:
+        if "no scenario rollouts" in str(error):
+            raise ValueError(f"no scenarios found in {scenario_paths}") from None
+        raise
+    return writer.path

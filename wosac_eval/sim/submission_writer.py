@@ -7,8 +7,9 @@ A submission is a set of shards `<method>.binproto-0000k-of-0000n`, each a
 from __future__ import annotations
 
 import gzip
-import io
+import shutil
 import tarfile
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -91,26 +92,100 @@ def build_shards(rollouts: list, metadata: SubmissionMetadata, num_shards: int) 
 
 
 def write_submission(rollouts: list, metadata: SubmissionMetadata, output: str | Path, num_shards: int = 4) -> Path:
-    """Writes the shards into `output`: a `.tar.gz`/`.tgz`/`.tar` archive, or else a folder."""
-    output = Path(output)
-    shards = build_shards(rollouts, metadata, num_shards)
-    output.parent.mkdir(parents=True, exist_ok=True)
-    name = output.name
-    if name.endswith((".tar.gz", ".tgz", ".tar")):
-        with open(output, "wb") as raw:
+    """Writes `ScenarioRollouts` messages as shards into `output` (see `ShardWriter`)."""
+    with ShardWriter(metadata, output, num_shards) as writer:
+        for msg in rollouts:
+            writer.add(msg.SerializeToString())
+    return writer.path
+
+
+def _varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+_ROLLOUTS_TAG = bytes([(1 << 3) | 2])  # field 1 (scenario_rollouts), length-delimited
+
+
+class ShardWriter:
+    """Streams `ScenarioRollouts` into shards on disk, so memory holds one scenario at a time.
+
+    A protobuf message is the concatenation of its fields, so each shard file is
+    written as one `scenario_rollouts` entry after another and the metadata fields
+    are appended when it is closed: the bytes are exactly those of
+    `SimAgentsChallengeSubmission.SerializeToString()`. Scenarios go to the shards
+    round-robin; with fewer scenarios than shards, only as many shards are made.
+    `output` ending in .tar.gz/.tgz/.tar becomes an archive (reproducible: mtime 0),
+    anything else a folder of `<method>.binproto-0000k-of-0000n` files.
+    """
+
+    def __init__(self, metadata: SubmissionMetadata, output: str | Path, num_shards: int = 4):
+        if num_shards < 1:
+            raise ValueError("num_shards must be >= 1")
+        self.metadata = metadata
+        self.path = Path(output)
+        self.num_shards = num_shards
+        self.count = 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._tmp = tempfile.TemporaryDirectory(prefix=".shards-", dir=self.path.parent)
+        self._files = [open(Path(self._tmp.name) / f"part-{k}", "wb") for k in range(num_shards)]
+
+    def add(self, rollouts_bytes: bytes) -> None:
+        """Appends one serialised `ScenarioRollouts`."""
+        shard = self._files[self.count % self.num_shards]
+        shard.write(_ROLLOUTS_TAG + _varint(len(rollouts_bytes)) + rollouts_bytes)
+        self.count += 1
+
+    def __enter__(self) -> "ShardWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        try:
+            if exc_type is None:
+                self._finish()
+        finally:
+            for f in self._files:
+                f.close()
+            self._tmp.cleanup()
+
+    def _finish(self) -> None:
+        if self.count == 0:
+            raise ValueError("no scenario rollouts to write")
+        message = sim_agents_submission_pb2.SimAgentsChallengeSubmission()
+        self.metadata.fill(message)
+        meta = message.SerializeToString()
+        used = min(self.num_shards, self.count)
+        names = [shard_name(self.metadata.unique_method_name, k, used) for k in range(used)]
+        for f in self._files:
+            f.write(meta)
+            f.close()
+        parts = [Path(self._tmp.name) / f"part-{k}" for k in range(used)]
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        if self.path.name.endswith((".tar.gz", ".tgz", ".tar")):
+            self._write_archive(list(zip(names, parts)))
+        else:
+            self.path.mkdir(parents=True, exist_ok=True)
+            for name, part in zip(names, parts):
+                shutil.move(str(part), self.path / name)
+
+    def _write_archive(self, members: list[tuple[str, Path]]) -> None:
+        with open(self.path, "wb") as raw:
             # mtime 0 everywhere: the same rollouts give a byte-identical archive.
-            stream = raw if name.endswith(".tar") else gzip.GzipFile(fileobj=raw, mode="wb", mtime=0)
+            stream = raw if self.path.name.endswith(".tar") else gzip.GzipFile(fileobj=raw, mode="wb", mtime=0)
             with tarfile.open(fileobj=stream, mode="w") as tar:
-                for shard, data in shards:
-                    info = tarfile.TarInfo(shard)
-                    info.size = len(data)
+                for name, part in members:
+                    info = tarfile.TarInfo(name)
+                    info.size = part.stat().st_size
                     info.mode = 0o644
                     info.mtime = 0
-                    tar.addfile(info, io.BytesIO(data))
+                    with open(part, "rb") as data:
+                        tar.addfile(info, data)
             if stream is not raw:
                 stream.close()
-    else:
-        output.mkdir(parents=True, exist_ok=True)
-        for shard, data in shards:
-            (output / shard).write_bytes(data)
-    return output

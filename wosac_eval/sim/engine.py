@@ -263,21 +263,23 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
         return np.full((b, a, a), np.inf), np.zeros((b, a, a))
     ahead_all = s[..., None] + d.length[..., None] / 2 + k  # (B, A, K)
     pts_all, pts_heading_all = paths.nearest(ahead_all)
-    gap_now, along_now = _touching(pts_all, pts_heading_all, xy, xy, heading, d, k)
+    gap_now, along_now = _touching(pts_all, pts_heading_all, xy, xy, heading, d, k, d.moving[..., None])
     direction = np.stack([np.cos(heading), np.sin(heading)], axis=-1)
     predicted = xy + (v * PREDICTION_S)[..., None] * direction
-    gap_pred, _ = _touching(pts_all, pts_heading_all, xy, predicted, heading, d, k)
-    crossing = np.abs(np.sin(heading[:, None, :] - heading[:, :, None])) > 0.5  # 30 to 150 degrees apart
+    # 30 to 150 degrees apart, and j actually moving.
+    crossing = (np.abs(np.sin(heading[:, None, :] - heading[:, :, None])) > 0.5) & (v > 0.5)[:, None, :]
+    gap_pred, _ = _touching(pts_all, pts_heading_all, xy, predicted, heading, d, k, crossing & d.moving[..., None])
     soon = gap_pred < (v * (PREDICTION_S + 1.0) + 3.0)[..., None]  # i gets there about when j does
-    use_pred = crossing & soon & (gap_pred < gap_now)
+    use_pred = soon & (gap_pred < gap_now)
     gap = np.where(use_pred, gap_pred, gap_now)
     speed = np.where(use_pred, 0.0, np.maximum(v[:, None, :] * along_now, 0.0))
     return gap, speed
 
 
-def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.ndarray):
+def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.ndarray, pairs: np.ndarray):
     """Gaps (B, i, j) from each agent's nose along its lookahead points to agents placed at
-    `xy_j` (B, A, 2), and the cosine between j's heading and the path where it touches.
+    `xy_j` (B, A, 2), and the cosine between j's heading and the path where it touches;
+    only for the (i, j) where `pairs` (broadcastable to (B, i, j)) is True.
 
     A cheap test in each agent's heading frame first keeps only the pairs that can
     touch the path within the lookahead; the exact test runs on those pairs alone.
@@ -295,7 +297,7 @@ def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.nda
     radius_j = 0.5 * np.hypot(d.length, d.width)[:, None, :]  # (B, 1, j)
     horizon = (k[-1] + d.length / 2)[..., None] + radius_j + 1.0
     side = (path_lat + d.width / 2 + d.margin)[..., None] + radius_j + 1.0
-    near = (lon > -radius_j - 1.0) & (lon < horizon) & (np.abs(lat) < side)
+    near = (lon > -radius_j - 1.0) & (lon < horizon) & (np.abs(lat) < side) & pairs
     near[:, np.arange(a), np.arange(a)] = False
     cand_b, cand_i, cand_j = np.nonzero(near)
     if len(cand_b) == 0:

@@ -164,8 +164,11 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     """
     q = _stretch(queries)
     cell_of = np.floor(q / _CELL).astype(np.int64)
-    cells, inverse = np.unique(cell_of, axis=0, return_inverse=True)
-    inverse = inverse.reshape(-1)
+    low = cell_of.min(axis=0)
+    span = cell_of.max(axis=0) - low + 1
+    key = ((cell_of[:, 0] - low[0]) * span[1] + (cell_of[:, 1] - low[1])) * span[2] + (cell_of[:, 2] - low[2])
+    keys, inverse = np.unique(key, return_inverse=True)
+    cells = np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + low
     centre = (cells + 0.5) * _CELL
     h = _CELL * np.sqrt(3.0) / 2
     margin = 1e-3
@@ -179,15 +182,30 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     best = np.full(len(cells), np.inf)
     np.minimum.at(best, ci, d)
     keep = d <= best[ci] + 2 * h + margin + 1e-5 * best[ci]
-    ci, seg = ci[keep], seg[keep]
-    # Expand each query to its cell's candidate list (ci is sorted by cell).
+    ci, seg, d = ci[keep], seg[keep], d[keep]
+    # Each query's distance to its cell's nearest segment bounds its own minimum:
+    # a candidate k can only win if D(k, centre) - h <= that distance.
     first = np.searchsorted(ci, np.arange(len(cells)))
+    cell_best = seg[first + _argmin_per_group(d, first)]
+    bound = _segment_distance64(table, q, cell_best[inverse])
+    # Expand each query to its cell's candidate list (ci is sorted by cell).
     count = np.bincount(ci, minlength=len(cells))
     per_query = count[inverse]
     qi = np.repeat(np.arange(len(q)), per_query)
     offset = np.arange(qi.size) - np.repeat(np.cumsum(per_query) - per_query, per_query)
-    si = seg[first[inverse][qi] + offset]
-    return qi, si
+    pos = first[inverse][qi] + offset
+    near = d[pos] - h <= bound[qi] + margin + 1e-5 * bound[qi]
+    return qi[near], seg[pos[near]]
+
+
+def _argmin_per_group(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
+    """Offset of the minimum within each contiguous group starting at `starts`."""
+    lowest = np.minimum.reduceat(values, starts)
+    sizes = np.diff(np.r_[starts, len(values)])
+    hit = np.flatnonzero(values == np.repeat(lowest, sizes))
+    group = np.searchsorted(starts, hit, side="right") - 1
+    first_hit = np.r_[True, group[1:] != group[:-1]]
+    return hit[first_hit] - starts[group[first_hit]]
 
 
 def _side(table: SegmentTable, query_xy, seg):
@@ -208,10 +226,11 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     """
     queries = np.asarray(queries, _F)
     qi, si = _candidates(table, queries)
-    rel_t, d3, d2 = _segment_distances(table, queries, qi, si)
+    d3 = _segment_distances(table, queries, qi, si)[1]
     # Nearest in 3D, ties to the lowest segment index (pairs are grouped by query).
     bq, best = first_minimum(qi, d3, si)
-    bs, bt = si[best], rel_t[best]
+    bs = si[best]
+    bt, _, d2 = _segment_distances(table, queries, bq, bs)
     xy = queries[bq, :2]
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])
@@ -221,7 +240,7 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     sign = np.where((bt < 0) & table.prior_valid[bs], before,
                     np.where((bt > 1) & table.next_valid[bs], after, n))
     out = np.empty(len(queries), _F)
-    out[bq] = (sign * d2[best]).astype(_F)
+    out[bq] = (sign * d2).astype(_F)
     return out
 
 

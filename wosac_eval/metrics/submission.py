@@ -139,7 +139,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     """
     metrics_config = load_config(config)
     index = ScenarioIndex(scenario_paths)
-    report = validate_submission(index, submission_path)
+    report = validate_submission(index, submission_path, workers=workers)
     if not report.ok and not allow_partial:
         raise InvalidSubmissionError(report)
     skipped = [{"scenario_id": sid, "reason": reason}

@@ -5,6 +5,7 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval.parse.wire import COORDINATE_FIELDS, packed_coordinates
 from wosac_eval.protos import sim_agents_submission_pb2
 
 
@@ -33,45 +34,9 @@ class RolloutArrays:
         return int(self.x.shape[0])
 
 
-_FIELDS = ("center_x", "center_y", "center_z", "heading")
-
-
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte, value = value & 0x7F, value >> 7
-        out.append(byte | (0x80 if value else 0))
-        if not value:
-            return bytes(out)
-
-
-def _packed_prefix(num_steps: int) -> np.ndarray:
-    """Wire headers of fields 2..5 (center_x, center_y, center_z, heading), packed floats."""
-    length = _varint(4 * num_steps)
-    return np.array([[(number << 3) | 2, *length] for number in (2, 3, 4, 5)], dtype=np.uint8)
-
-
-def _scene_values_fast(trajectories, num_steps: int, prefix: np.ndarray) -> np.ndarray | None:
-    """(num_agents, 4, num_steps) float32 read straight from the wire, or None.
-
-    Protobuf serialises a parsed message canonically (fields in number order,
-    each packed field as one block), so when every trajectory starts with the
-    four expected block headers the values can be viewed as float32 without a
-    Python loop over values.
-    """
-    block = prefix.shape[1] + 4 * num_steps
-    heads = [t.SerializeToString()[: 4 * block] for t in trajectories]
-    if any(len(h) != 4 * block for h in heads):
-        return None
-    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(len(heads), 4, block)
-    if not (stacked[:, :, : prefix.shape[1]] == prefix).all():
-        return None
-    return np.ascontiguousarray(stacked[:, :, prefix.shape[1]:]).view("<f4").astype(np.float32)
-
-
 def _scene_values_slow(rollouts, r: int, trajectories, num_steps: int) -> np.ndarray:
     values = np.empty((len(trajectories), 4, num_steps), dtype=np.float32)
-    for k, field in enumerate(_FIELDS):
+    for k, field in enumerate(COORDINATE_FIELDS):
         columns = [getattr(t, field) for t in trajectories]
         if any(len(v) != num_steps for v in columns):
             raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} "
@@ -91,7 +56,6 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts) -> Roll
         raise ValueError(f"scenario {rollouts.scenario_id}: no joint scenes")
     num_agents = len(scenes[0].simulated_trajectories)
     num_steps = len(scenes[0].simulated_trajectories[0].center_x) if num_agents else 0
-    prefix = _packed_prefix(num_steps)
     ids = np.empty((len(scenes), num_agents), dtype=np.int64)
     out = np.empty((len(scenes), num_agents, 4, num_steps), dtype=np.float32)
     for r, scene in enumerate(scenes):
@@ -100,7 +64,8 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts) -> Roll
             raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {len(trajectories)} "
                              f"trajectories, rollout 0 has {num_agents}")
         ids[r] = [t.object_id for t in trajectories]
-        fast = _scene_values_fast(trajectories, num_steps, prefix) if num_agents else None
-        out[r] = fast if fast is not None else _scene_values_slow(rollouts, r, trajectories, num_steps)
+        regular, values = packed_coordinates(trajectories, num_steps)
+        # Canonical layout: read from the wire; anything else: field by field.
+        out[r] = values if regular.all() else _scene_values_slow(rollouts, r, trajectories, num_steps)
     return RolloutArrays(scenario_id=rollouts.scenario_id, object_id=ids,
                          x=out[:, :, 0], y=out[:, :, 1], z=out[:, :, 2], heading=out[:, :, 3])

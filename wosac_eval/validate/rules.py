@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from wosac_eval.parse.wire import packed_coordinates
+
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
 N_ROLLOUTS = 32  # joint scenes required per scenario
@@ -237,21 +239,6 @@ def missing_scenario_id(shard: str, index: int) -> Finding:
 # --------------------------------------------------------------------------
 # Rollouts
 # --------------------------------------------------------------------------
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte, value = value & 0x7F, value >> 7
-        out.append(byte | (0x80 if value else 0))
-        if not value:
-            return bytes(out)
-
-
-def _packed_headers(n_steps: int) -> np.ndarray:
-    """Wire headers (tag, byte length) of the four packed float fields 2..5 holding n_steps values each, shape (4, header)."""
-    length = _varint(4 * n_steps)
-    return np.array([list(bytes([(number << 3) | 2]) + length) for number in (2, 3, 4, 5)], dtype=np.uint8)
-
-
 def _counts_and_non_finite(trajectories: Sequence[Any], n_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Value counts and non-finite mask of center_x, center_y, center_z, heading, both shape (num_trajectories, 4).
 
@@ -272,16 +259,7 @@ def _counts_and_non_finite(trajectories: Sequence[Any], n_steps: int) -> tuple[n
     non_finite = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
     if n == 0:
         return counts, non_finite
-    headers = _packed_headers(n_steps)
-    block = headers.shape[1] + 4 * n_steps
-    prefix = 4 * block
-    heads = [t.SerializeToString()[:prefix] for t in trajectories]
-    long_enough = np.fromiter(map(len, heads), dtype=np.int64, count=n) == prefix
-    if not long_enough.all():
-        heads = [b.ljust(prefix, b"\0") for b in heads]
-    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(n, 4, block)
-    regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
-    values = np.ascontiguousarray(stacked[regular, :, headers.shape[1] :]).view("<f4")
+    regular, values = packed_coordinates(trajectories, n_steps)
     non_finite[regular] = ~np.isfinite(values).all(axis=2)
     for k in np.flatnonzero(~regular).tolist():
         fields = [getattr(trajectories[k], name) for name in TRAJECTORY_FIELDS]

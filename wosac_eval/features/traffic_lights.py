@@ -149,9 +149,6 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
         raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
                          f"expected one per step ({num_steps})")
     xy = np.stack([x, y], axis=-1).astype(_F)
-    flat = xy.reshape(-1, 2)
-    lane_row = nearest_lane_segment(lanes, flat) // lanes.num_segments
-    current_lane = lanes.lane_ids[lane_row].reshape(x.shape)             # (..., O, T)
     seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
     squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]
     to_stop = signals.stop_point - seg_start
@@ -166,5 +163,13 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
     crossed = np.zeros_like(behind)
     crossed[..., 1:, :] = behind[..., :-1, :] & ahead[..., 1:, :]
     is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
-    on_lane = current_lane[..., None] == signals.lane_id                  # (..., O, T, S)
-    return np.any(valid[..., None] & on_lane & is_stop & lane_known & crossed, axis=-1)
+    # Everything but the object's lane; the lane search runs only where a
+    # stopped signal's line was crossed, which is rare.
+    suspect = valid[..., None] & is_stop & lane_known & crossed           # (..., O, T, S)
+    violation = np.zeros(valid.shape, dtype=bool)
+    where = np.nonzero(suspect.any(axis=-1))
+    if where[0].size:
+        lane_row = nearest_lane_segment(lanes, xy[where]) // lanes.num_segments
+        on_lane = lanes.lane_ids[lane_row][:, None] == signals.lane_id     # (points, S)
+        violation[where] = np.any(suspect[where] & on_lane, axis=-1)
+    return violation

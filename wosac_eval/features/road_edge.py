@@ -7,9 +7,10 @@ the planar distance to that segment, negative on the road side. Where the
 point projects past a segment end, the sign follows the convexity of the
 corner between the segment and its neighbour.
 
-Segment search uses a k-d tree over points sampled along every segment, then
-evaluates the exact float32 distance on the few candidates that can be
-nearest, so results equal an all-pairs search.
+Segment search groups the query points in 1 m cells, finds each cell's
+candidate segments with a k-d tree over points sampled along every segment,
+narrows them per point with a distance bound, then evaluates the exact float32
+distance on the few remaining candidates, so results equal an all-pairs search.
 """
 from __future__ import annotations
 

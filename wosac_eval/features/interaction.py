@@ -44,7 +44,7 @@ def _rounded_box_distance(boxes, eval_idx, other_idx):
 
 
 def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
-                               first_guesses: int = 3):
+                               first_guesses: int = 1):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of

@@ -92,27 +92,22 @@ class Paths:
     def at(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (B, A, ..., 2) and headings (B, A, ...) at arc lengths `s` of shape (B, A, ...)."""
         b, a, num_s = self.xy.shape[:3]
-        if getattr(self, "_flat", None) is None:
-            self._flat = np.concatenate([self.xy, self.tangent], axis=-1).reshape(-1, 4)
-        f = np.clip(s / self.ds, 0.0, num_s - 1.000001)
-        i0 = np.floor(f).astype(np.int64)
-        w = (f - i0)[..., None]
         base = (np.arange(b * a) * num_s).reshape((b, a) + (1,) * (s.ndim - 2))
-        lo = self._flat[i0 + base]
-        hi = self._flat[i0 + base + 1]
-        v = lo + w * (hi - lo)
-        return v[..., :2], np.arctan2(v[..., 3], v[..., 2])
-
+        return self._interpolate(base, s)
 
     def at_pairs(self, batch: np.ndarray, agent: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Like `at` for selected paths: batch, agent (C,) and arc lengths s (C, K)."""
-        b, a, num_s = self.xy.shape[:3]
+        a, num_s = self.xy.shape[1:3]
+        return self._interpolate(((batch * a + agent) * num_s)[:, None], s)
+
+    def _interpolate(self, base: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Linear interpolation along the flattened paths; `base` is each path's first sample index."""
+        num_s = self.xy.shape[2]
         if getattr(self, "_flat", None) is None:
             self._flat = np.concatenate([self.xy, self.tangent], axis=-1).reshape(-1, 4)
         f = np.clip(s / self.ds, 0.0, num_s - 1.000001)
         i0 = np.floor(f).astype(np.int64)
         w = (f - i0)[..., None]
-        base = ((batch * a + agent) * num_s)[:, None]
         lo = self._flat[i0 + base]
         hi = self._flat[i0 + base + 1]
         v = lo + w * (hi - lo)

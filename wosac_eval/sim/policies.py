@@ -25,13 +25,14 @@ import zlib
 
 import numpy as np
 
+from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX, NUM_ROLLOUTS, NUM_SIMULATION_STEPS, STEP_SECONDS
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
 
-CURRENT = 10
-NUM_FUTURE = 80
-NUM_ROLLOUTS = 32
-DT = 0.1
+# The challenge's timing, from the one place that defines it.
+CURRENT = CURRENT_TIME_INDEX
+NUM_FUTURE = NUM_SIMULATION_STEPS
+DT = STEP_SECONDS
 MPH = 0.44704
 
 

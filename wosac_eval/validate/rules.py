@@ -25,13 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX, NUM_ROLLOUTS, NUM_SIMULATION_STEPS
+from wosac_eval.arrays.scenario import sim_agent_ids as scenario_sim_agent_ids
 from wosac_eval.parse.wire import packed_coordinates
 
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
-N_ROLLOUTS = 32  # joint scenes required per scenario
-N_SIMULATION_STEPS = 80  # 8 s at 10 Hz after the current step
-CURRENT_TIME_INDEX = 10  # objects valid at this step of the scenario are sim agents
+N_ROLLOUTS = NUM_ROLLOUTS  # joint scenes required per scenario
+N_SIMULATION_STEPS = NUM_SIMULATION_STEPS  # 8 s at 10 Hz after the current step
 TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
 SIM_AGENTS_SUBMISSION = 1  # SimAgentsChallengeSubmission.SubmissionType
 
@@ -57,17 +58,12 @@ METADATA_FIELDS = (
 )
 
 
-def sim_agent_ids(scenario: Any, current_time_index: int = CURRENT_TIME_INDEX) -> np.ndarray:
+def sim_agent_ids(scenario: Any) -> np.ndarray:
     """Sorted unique ids of the scenario's objects valid at the current step, shape (num_sim_agents,).
 
     A track too short to have a current step has no valid state there.
     """
-    ids = [
-        track.id
-        for track in scenario.tracks
-        if len(track.states) > current_time_index and track.states[current_time_index].valid
-    ]
-    return np.unique(np.asarray(ids, dtype=np.int64))
+    return np.unique(scenario_sim_agent_ids(scenario))
 
 
 # --------------------------------------------------------------------------

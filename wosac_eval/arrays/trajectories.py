@@ -43,12 +43,6 @@ class ObjectTrajectories:
     def num_steps(self) -> int:
         return int(self.x.shape[-1])
 
-    def slice_steps(self, start: int = 0, stop: int | None = None) -> "ObjectTrajectories":
-        """Keeps steps `[start, stop)` of every time series."""
-        cut = lambda a: a[..., start:stop]
-        return dataclasses.replace(
-            self, **{f: cut(getattr(self, f)) for f in _TIME_SERIES})
-
     def take_objects(self, indices: np.ndarray) -> "ObjectTrajectories":
         """Selects objects by position, in the given order."""
         indices = np.asarray(indices, dtype=np.int64)

@@ -116,10 +116,6 @@ def _map_ordered(tasks: Iterable[tuple[str, bytes]], workers: int, config: SimAg
             yield future.result()
 
 
-def config_label(config) -> str:
-    return config if isinstance(config, str) else str(config)
-
-
 def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_path: PathLike,
                      config: str | PathLike = "2025", *, workers: int = 1, allow_partial: bool = False,
                      progress: Progress | None = None) -> dict:
@@ -156,7 +152,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     if not per_scenario:
         raise InvalidSubmissionError(report) if not report.ok else ValueError(
             "the submission has no scenario in common with the scenario set")
-    return {"config": config_label(config), "num_scenarios": len(per_scenario),
+    return {"config": str(config), "num_scenarios": len(per_scenario),
             "scenarios": per_scenario, **summarize(metrics_config, per_scenario),
             "skipped": skipped, "validation": {"errors": report.error_count,
                                                "warnings": report.warning_count}}

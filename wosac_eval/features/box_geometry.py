@@ -3,13 +3,15 @@
 The signed distance between two convex polygons A and B is the signed distance
 from the origin to their Minkowski difference A + (-B): negative when they
 overlap. For two rectangles the difference is an octagon whose vertex order is
-known in closed form, which keeps everything vectorised.
+known in closed form, which keeps everything vectorised. The functions take
+numpy or JAX arrays.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from wosac_eval.features.float32_math import cos32, fma32, packet_tail, sin32
+from wosac_eval.features.xp import array_namespace
 
 _F = np.float32
 # Counter-clockwise corner signs (front-left, rear-left, rear-right, front-right).
@@ -35,31 +37,35 @@ def box_corners_xy(x, y, length, width, cos_h, sin_h):
     return cx, cy
 
 
-def heading_cos_sin(heading: np.ndarray, steps: slice = slice(None)):
+def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
     """cos and sin of headings, rounded as the official box-corner code rounds them.
 
     Args:
       heading: float32 `(..., num_objects, num_steps)`, the full official tensor
         of one rollout per leading index.
       steps: the steps to return.
+      tail: the official op's trailing-packet mask `(num_objects, len(steps))`,
+        when `heading` is padded beyond the official shape (JAX buckets).
     Returns:
       (cos, sin), float32 `(..., num_objects, len(steps))`.
     """
-    tail = packet_tail(heading.shape[-2:])[:, steps]
+    if tail is None:
+        tail = packet_tail(heading.shape[-2:])[:, steps]
     h = heading[..., steps]
     return cos32(h, tail), sin32(h, tail)
 
 
 def _norm2(a, b):
-    return np.sqrt(a * a + b * b)
+    return array_namespace(a, b).sqrt(a * a + b * b)
 
 
 def _downmost_edge(px, py):
     """Index of the lowest vertex and the unit direction of the edge leaving it."""
-    start = np.argmin(py, axis=-1)[..., None]
+    xp = array_namespace(px, py)
+    start = xp.argmin(py, axis=-1)[..., None]
     end = (start + 1) % 4
-    ex = np.take_along_axis(px, end, -1) - np.take_along_axis(px, start, -1)
-    ey = np.take_along_axis(py, end, -1) - np.take_along_axis(py, start, -1)
+    ex = xp.take_along_axis(px, end, -1) - xp.take_along_axis(px, start, -1)
+    ey = xp.take_along_axis(py, end, -1) - xp.take_along_axis(py, start, -1)
     length = _norm2(ex, ey)
     return start, ex / length, ey / length
 
@@ -76,16 +82,17 @@ def minkowski_difference(ax, ay, bx, by):
     Returns:
       (mx, my), float32 `(..., 8)`.
     """
+    xp = array_namespace(ax, ay, bx, by)
     nbx, nby = -bx, -by
     a_start, a_dx, a_dy = _downmost_edge(ax, ay)
     b_start, b_dx, b_dy = _downmost_edge(nbx, nby)
     # Merge the two edge sequences by angle, starting from the lowest vertices;
     # whose edge comes first depends on the turn between the lowest edges.
     b_turns_left = (a_dx * b_dy - a_dy * b_dx) >= 0
-    a_order = (np.where(b_turns_left, _ORDER_B, _ORDER_A) + a_start) % 4
-    b_order = (np.where(b_turns_left, _ORDER_A, _ORDER_B) + b_start) % 4
-    mx = np.take_along_axis(ax, a_order, -1) + np.take_along_axis(nbx, b_order, -1)
-    my = np.take_along_axis(ay, a_order, -1) + np.take_along_axis(nby, b_order, -1)
+    a_order = (xp.where(b_turns_left, _ORDER_B, _ORDER_A) + a_start) % 4
+    b_order = (xp.where(b_turns_left, _ORDER_A, _ORDER_B) + b_start) % 4
+    mx = xp.take_along_axis(ax, a_order, -1) + xp.take_along_axis(nbx, b_order, -1)
+    my = xp.take_along_axis(ay, a_order, -1) + xp.take_along_axis(nby, b_order, -1)
     return mx, my
 
 
@@ -97,8 +104,9 @@ def origin_signed_distance(px, py):
     Returns:
       float32 `(...)`.
     """
-    ex = np.roll(px, -1, axis=-1) - px
-    ey = np.roll(py, -1, axis=-1) - py
+    xp = array_namespace(px, py)
+    ex = xp.roll(px, -1, axis=-1) - px
+    ey = xp.roll(py, -1, axis=-1) - py
     edge_length = _norm2(ex, ey)
     tx, ty = ex / edge_length, ey / edge_length
     # Vector from each vertex to the query point (the origin).
@@ -106,9 +114,9 @@ def origin_signed_distance(px, py):
     vertex_distance = _norm2(vx, vy)
     # Positive on the outward side of each edge (outward normal is (ty, -tx)).
     signed_perpendicular = ty * vx + (-tx) * vy
-    inside = np.all(signed_perpendicular <= 0, axis=-1)
+    inside = xp.all(signed_perpendicular <= 0, axis=-1)
     along = (tx * vx + ty * vy) / edge_length
     on_edge = (along >= 0) & (along <= 1)
-    edge_distance = np.where(on_edge, np.abs(signed_perpendicular), _F(np.inf))
-    nearest = np.minimum(edge_distance.min(axis=-1), vertex_distance.min(axis=-1))
-    return np.where(inside, -nearest, nearest)
+    edge_distance = xp.where(on_edge, xp.abs(signed_perpendicular), _F(np.inf))
+    nearest = xp.minimum(edge_distance.min(axis=-1), vertex_distance.min(axis=-1))
+    return xp.where(inside, -nearest, nearest)

@@ -9,6 +9,9 @@ collision threshold, so we reproduce the same arithmetic step by step:
 Cody-Waite reduction by pi/2 in four float32 pieces, then the minimax
 polynomials, each multiply and add rounded separately.
 
+The functions take numpy or JAX arrays (under JAX, x64 must be enabled while
+tracing: the libm and fma paths round through float64).
+
 Tensors whose length is not a multiple of the packet size have their last
 `n % 8` elements evaluated by the scalar libm routine instead; `packet_tail`
 marks those elements for a given official tensor shape.
@@ -16,6 +19,8 @@ marks those elements for a given official tensor shape.
 from __future__ import annotations
 
 import numpy as np
+
+from wosac_eval.features.xp import array_namespace, bitcast, errstate, is_numpy, require_float64
 
 _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
@@ -35,18 +40,19 @@ _SIN_COEFFS = (_F(-0.00019592341140837028984691969846210213290760293602943420410
 _HUGE = {True: 25966.0, False: 18838.0}
 
 
-def _packet_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
-    x = np.asarray(x, dtype=_F)
-    ax = np.abs(x)
-    with np.errstate(invalid="ignore", over="ignore"):
+def _packet_sincos(x, sine: bool):
+    xp = array_namespace(x)
+    x = xp.asarray(x, dtype=_F)
+    ax = xp.abs(x)
+    with errstate(xp, invalid="ignore", over="ignore"):
         y_round = ax * _TWO_OVER_PI + _ROUNDING_MAGIC
-        quadrant = y_round.view(np.int32)
+        quadrant = bitcast(y_round, np.int32, xp)
         y = y_round - _ROUNDING_MAGIC
         r = ax
         for part in _PIO2_PARTS:
             r = y * part + r
         if sine:
-            sign = (x.view(np.int32) ^ (quadrant << 30)) & np.int32(-2**31)
+            sign = (bitcast(x, np.int32, xp) ^ (quadrant << 30)) & np.int32(-2**31)
         else:
             sign = ((quadrant + 1) << 30) & np.int32(-2**31)
         use_first = (quadrant & 1) == 0
@@ -59,19 +65,21 @@ def _packet_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
             s = s * r2 + coeff
         s = (s * r2) * r + r
         if sine:
-            out = np.where(use_first, s, c)
+            out = xp.where(use_first, s, c)
         else:
-            out = np.where(use_first, c, s)
-        out = (out.view(np.int32) ^ sign).view(_F)
+            out = xp.where(use_first, c, s)
+        out = bitcast(bitcast(out, np.int32, xp) ^ sign, _F, xp)
     huge = ax >= _F(_HUGE[sine])
-    if np.any(huge):
-        exact = (np.sin if sine else np.cos)(x.astype(np.float64)).astype(_F)
-        out = np.where(huge & np.isfinite(x), exact, out)
+    # numpy skips the fallback when no value needs it; traced code cannot branch on data.
+    if not is_numpy(xp) or np.any(huge):
+        out = xp.where(huge & xp.isfinite(x), _libm(x, sine), out)
     return out
 
 
-def _libm(x: np.ndarray, sine: bool) -> np.ndarray:
-    return (np.sin if sine else np.cos)(np.asarray(x, np.float64)).astype(_F)
+def _libm(x, sine: bool):
+    xp = array_namespace(x)
+    require_float64(xp)
+    return (xp.sin if sine else xp.cos)(xp.asarray(x, np.float64)).astype(_F)
 
 
 def packet_tail(shape) -> np.ndarray:
@@ -88,13 +96,14 @@ def packet_tail(shape) -> np.ndarray:
     return mask.reshape(shape)
 
 
-def _elementwise(x, sine: bool, libm_mask) -> np.ndarray:
-    x = np.asarray(x, dtype=_F)
+def _elementwise(x, sine: bool, libm_mask):
+    xp = array_namespace(x, libm_mask)
+    x = xp.asarray(x, dtype=_F)
     out = _packet_sincos(x, sine)
     if libm_mask is not None:
-        mask = np.broadcast_to(libm_mask, x.shape)
-        if mask.any():
-            out = np.where(mask, _libm(x, sine), out)
+        mask = xp.broadcast_to(libm_mask, x.shape)
+        if not is_numpy(xp) or mask.any():
+            out = xp.where(mask, _libm(x, sine), out)
     return out
 
 
@@ -121,5 +130,7 @@ def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     to one rounding, which is then undone by the final rounding to float32 in
     all but double-rounding corner cases (~2**-29 of inputs).
     """
-    return (np.asarray(a, np.float64) * np.asarray(b, np.float64)
-            + np.asarray(c, np.float64)).astype(_F)
+    xp = array_namespace(a, b, c)
+    require_float64(xp)
+    return (xp.asarray(a, np.float64) * xp.asarray(b, np.float64)
+            + xp.asarray(c, np.float64)).astype(_F)

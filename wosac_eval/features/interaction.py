@@ -14,6 +14,7 @@ from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import cos32, packet_tail, sin32
 from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
+from wosac_eval.features.xp import array_namespace, errstate
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -25,6 +26,25 @@ SMALL_OVERLAP_THRESHOLD = _F(0.5)
 MAXIMUM_TIME_TO_COLLISION = _F(5.0)
 
 
+def corner_radius(length, width):
+    """Radius of the rounded corners: `0.7 * min(length, width) / 2`, float32 `(...)`."""
+    return array_namespace(length, width).minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
+
+
+def rounded_box_distance(a, b):
+    """Signed distance between rounded boxes given as (x, y, core_length, core_width, cos, sin, radius).
+
+    Args:
+      a, b: tuples of float32 arrays, all broadcast to one shape `(...)` (numpy or JAX).
+    Returns:
+      float32 `(...)`.
+    """
+    ax, ay = box_geometry.box_corners_xy(*a[:6])
+    bx, by = box_geometry.box_corners_xy(*b[:6])
+    core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
+    return (core - a[6]) - b[6]
+
+
 def _rounded_box_distance(boxes, eval_idx, other_idx):
     """Exact float32 signed distance between rounded boxes for the given pairs.
 
@@ -33,14 +53,7 @@ def _rounded_box_distance(boxes, eval_idx, other_idx):
         each `(num_boxes,)`.
       eval_idx, other_idx: int `(num_pairs,)` indices into the boxes.
     """
-    x, y, core_l, core_w, cos_h, sin_h, radius = boxes
-
-    def corners(i):
-        return box_geometry.box_corners_xy(x[i], y[i], core_l[i], core_w[i], cos_h[i], sin_h[i])
-
-    (ax, ay), (bx, by) = corners(eval_idx), corners(other_idx)
-    core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
-    return (core - radius[eval_idx]) - radius[other_idx]
+    return rounded_box_distance(tuple(a[eval_idx] for a in boxes), tuple(a[other_idx] for a in boxes))
 
 
 def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
@@ -104,6 +117,57 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
     return distance.reshape(*lead, e, num_steps)
 
 
+def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evaluated: int):
+    """Where every object lies in each evaluated object's frame.
+
+    Args:
+      x, y, length, width, heading: float32 `(..., num_objects)`.
+      ego_cos, ego_sin: float32 `(..., num_evaluated, 1)`, cos and sin of minus
+        the evaluated objects' headings.
+    Returns:
+      (ahead_of_front, beside_path, yaw_diff), float32 `(..., num_evaluated, num_objects)`:
+      the other centre's distance ahead of the front, its lateral distance
+      outside the path, and the absolute heading difference.
+    """
+    xp = array_namespace(x, ego_cos)
+    e = slice(0, num_evaluated)
+    dx = x[..., None, :] - x[..., e, None]
+    dy = y[..., None, :] - y[..., e, None]
+    rel_x = ego_cos * dx - ego_sin * dy
+    rel_y = ego_sin * dx + ego_cos * dy
+    ahead_of_front = rel_x - length[..., e, None] / _F(2)
+    beside_path = xp.abs(rel_y) - width[..., e, None] / _F(2)
+    yaw_diff = xp.abs(heading[..., None, :] - heading[..., e, None])
+    return ahead_of_front, beside_path, yaw_diff
+
+
+def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other_length, other_width):
+    """Longitudinal gap to the other box and whether it is being followed.
+
+    Args: float32 arrays `(...)` per (evaluated, other) pair; `yaw_cos`,
+      `yaw_sin` of `yaw_diff`. Pairs must already be known aligned within 75
+      degrees and the other object valid.
+    Returns:
+      (long_distance float32, following bool), `(...)`.
+    """
+    xp = array_namespace(ahead_of_front, yaw_cos)
+    half_l = other_length / _F(2)
+    half_w = other_width / _F(2)
+    long_distance = ahead_of_front - (half_l * xp.abs(yaw_cos) + half_w * xp.abs(yaw_sin))
+    lat_overlap = beside_path - (half_l * xp.abs(yaw_sin) + half_w * xp.abs(yaw_cos))
+    following = ((long_distance > 0) & (lat_overlap < 0)
+                 & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yaw_diff <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
+    return long_distance, following
+
+
+def capped_time_to_collision(gap, closing):
+    """gap / closing speed, capped at 5 s; 5 s when not closing in. float32 `(...)`."""
+    xp = array_namespace(gap, closing)
+    with errstate(xp, divide="ignore", invalid="ignore", over="ignore"):
+        return xp.where(closing > 0, xp.minimum(gap / closing, MAXIMUM_TIME_TO_COLLISION),
+                        MAXIMUM_TIME_TO_COLLISION)
+
+
 def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
                       seconds_per_step: float, steps: slice = slice(None)):
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
@@ -132,13 +196,8 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     minus_yaw = -heading[..., e, None]
     ego_cos, ego_sin = cos32(minus_yaw, ego_tail), sin32(minus_yaw, ego_tail)
-    dx = x[..., None, :] - x[..., e, None]
-    dy = y[..., None, :] - y[..., e, None]
-    rel_x = ego_cos * dx - ego_sin * dy
-    rel_y = ego_sin * dx + ego_cos * dy
-    ahead_of_front = rel_x - length[..., e, None] / _F(2)
-    beside_path = np.abs(rel_y) - width[..., e, None] / _F(2)
-    yaw_diff = np.abs(heading[..., None, :] - heading[..., e, None])
+    ahead_of_front, beside_path, yaw_diff = ego_frame_offsets(x, y, length, width, heading,
+                                                              ego_cos, ego_sin, num_evaluated)
     # Only pairs that can be "following" need the other box's extents: its
     # offsets are non-negative and at most its half-diagonal, so a pair must be
     # ahead of the front (the float32 sign of a difference is exact), beside
@@ -151,12 +210,8 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     yd = yaw_diff[b, st, ev, ob]
     yaw_cos = cos32(yd, pair_tail[b, st, ev, ob])
     yaw_sin = sin32(yd, pair_tail[b, st, ev, ob])
-    half_l = length[b, st, ob] / _F(2)
-    half_w = width[b, st, ob] / _F(2)
-    long_distance = ahead_of_front[b, st, ev, ob] - (half_l * np.abs(yaw_cos) + half_w * np.abs(yaw_sin))
-    lat_overlap = beside_path[b, st, ev, ob] - (half_l * np.abs(yaw_sin) + half_w * np.abs(yaw_cos))
-    following = ((long_distance > 0) & (lat_overlap < 0)
-                 & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yd <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
+    long_distance, following = following_gap(ahead_of_front[b, st, ev, ob], beside_path[b, st, ev, ob], yd,
+                                             yaw_cos, yaw_sin, length[b, st, ob], width[b, st, ob])
     ttc = np.full(maybe.shape[:-1], MAXIMUM_TIME_TO_COLLISION, dtype=_F)
     if following.any():
         b, st, ev, ob, long_distance = (a[following] for a in (b, st, ev, ob, long_distance))
@@ -164,10 +219,7 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
         # The nearest followed object, ties to the lowest object index.
         _, best = first_minimum(group, long_distance, ob)
         b, st, ev, ob, gap = b[best], st[best], ev[best], ob[best], long_distance[best]
-        closing = speed[b, st, ev] - speed[b, st, ob]
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            ttc[b, st, ev] = np.where(closing > 0, np.minimum(gap / closing, MAXIMUM_TIME_TO_COLLISION),
-                                      MAXIMUM_TIME_TO_COLLISION)
+        ttc[b, st, ev] = capped_time_to_collision(gap, speed[b, st, ev] - speed[b, st, ob])
     # Nothing followed: the official code divides a gap of about 1e10 by the
     # closing speed and caps it, which is always the cap.
     return np.swapaxes(ttc, -1, -2).reshape(*lead, num_evaluated, -1)

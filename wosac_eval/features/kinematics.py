@@ -1,10 +1,13 @@
 """Speeds and accelerations from positions and headings by central differences.
 
-All arithmetic is float32 in the official order of operations.
+All arithmetic is float32 in the official order of operations; the functions
+take numpy or JAX arrays.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from wosac_eval.features.xp import array_namespace
 
 _F = np.float32
 
@@ -17,10 +20,12 @@ def central_difference(values: np.ndarray) -> np.ndarray:
     Returns:
       float32 `(..., num_steps)`.
     """
-    values = np.asarray(values, dtype=_F)
-    out = np.full(values.shape, np.nan, dtype=_F)
-    out[..., 1:-1] = (values[..., 2:] - values[..., :-2]) / _F(2)
-    return out
+    xp = array_namespace(values)
+    values = xp.asarray(values, dtype=_F)
+    if values.shape[-1] < 3:
+        return xp.full(values.shape, np.nan, dtype=_F)
+    edge = xp.full(values.shape[:-1] + (1,), np.nan, dtype=_F)
+    return xp.concatenate([edge, (values[..., 2:] - values[..., :-2]) / _F(2), edge], axis=-1)
 
 
 def central_and(valid: np.ndarray) -> np.ndarray:
@@ -29,20 +34,22 @@ def central_and(valid: np.ndarray) -> np.ndarray:
     Args:
       valid: bool `(..., num_steps)`.
     """
-    out = np.zeros(valid.shape, dtype=bool)
-    out[..., 1:-1] = valid[..., 2:] & valid[..., :-2]
-    return out
+    xp = array_namespace(valid)
+    if valid.shape[-1] < 3:
+        return xp.zeros(valid.shape, dtype=bool)
+    edge = xp.zeros(valid.shape[:-1] + (1,), dtype=bool)
+    return xp.concatenate([edge, valid[..., 2:] & valid[..., :-2], edge], axis=-1)
 
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
     """Maps angles to [-pi, pi) in float32 (floored modulo, as officially)."""
-    return np.mod(angle + _F(np.pi), _F(2 * np.pi)) - _F(np.pi)
+    return array_namespace(angle).mod(angle + _F(np.pi), _F(2 * np.pi)) - _F(np.pi)
 
 
 def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: float) -> np.ndarray:
     """3D speed in m/s, float32 `(..., num_steps)` (NaN at both ends)."""
     dx, dy, dz = central_difference(x), central_difference(y), central_difference(z)
-    return np.sqrt(dx * dx + dy * dy + dz * dz) / _F(seconds_per_step)
+    return array_namespace(dx).sqrt(dx * dx + dy * dy + dz * dz) / _F(seconds_per_step)
 
 
 def kinematic_features(x, y, z, heading, seconds_per_step: float):

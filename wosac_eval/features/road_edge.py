@@ -20,6 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.xp import array_namespace, errstate
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -123,19 +124,31 @@ def _sample_tree(start, delta, valid):
     return cKDTree(points), idx[seg_of]
 
 
+def segment_pair_distances(query, start, delta):
+    """Projection parameter, stretched 3D distance and planar distance, float32, per pair.
+
+    Args:
+      query, start, delta: float32 `(..., 3)`, broadcast against each other
+        (numpy or JAX arrays).
+    Returns:
+      (rel_t, distance_3d, distance_2d), float32 `(...)`.
+    """
+    xp = array_namespace(query, start, delta)
+    to_point = query - start
+    along = to_point[..., 0] * delta[..., 0] + to_point[..., 1] * delta[..., 1]
+    squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
+    with errstate(xp, divide="ignore", invalid="ignore"):
+        rel_t = xp.where(squared == 0, _F(0), along / squared)
+    clipped = xp.clip(rel_t, _F(0), _F(1))
+    offset = to_point - delta * clipped[..., None]
+    oz = offset[..., 2] * _F(Z_STRETCH)
+    planar2 = offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]
+    return rel_t, xp.sqrt(planar2 + oz * oz), xp.sqrt(planar2)
+
+
 def _segment_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
-    """Projection parameter, stretched 3D distance and planar distance, float32, per pair."""
-    start, delta = table.start[si], table.delta[si]
-    to_point = queries[qi] - start
-    along = to_point[:, 0] * delta[:, 0] + to_point[:, 1] * delta[:, 1]
-    squared = delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rel_t = np.where(squared == 0, _F(0), along / squared)
-    clipped = np.clip(rel_t, _F(0), _F(1))
-    offset = to_point - delta * clipped[:, None]
-    oz = offset[:, 2] * _F(Z_STRETCH)
-    planar2 = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1]
-    return rel_t, np.sqrt(planar2 + oz * oz), np.sqrt(planar2)
+    """`segment_pair_distances` for (query index, segment index) pairs."""
+    return segment_pair_distances(queries[qi], table.start[si], table.delta[si])
 
 
 _CELL = 1.0  # metres: queries are grouped in cubic cells of the stretched space
@@ -209,11 +222,36 @@ def _argmin_per_group(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
     return hit[first_hit] - starts[group[first_hit]]
 
 
+def segment_side(query_xy, start, delta):
+    """Sign of the cross product: +1 on the right (off-road) side of a segment.
+
+    Args:
+      query_xy: float32 `(..., 2)`; start, delta: float32 `(..., 3)` (or `(..., 2)`).
+    Returns:
+      float32 `(...)` in {-1, 0, 1}.
+    """
+    sx = query_xy[..., 0] - start[..., 0]
+    sy = query_xy[..., 1] - start[..., 1]
+    return array_namespace(query_xy, start).sign(_cross(sx, sy, delta[..., 0], delta[..., 1]))
+
+
+def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_valid, next_valid):
+    """Side of the nearest segment, corrected where the point projects past an end.
+
+    Past an end the sign follows the corner with the neighbour segment: on a
+    convex corner the point is off-road if it is on the right of either
+    segment, on a concave one only if it is on the right of both.
+    All arguments are `(...)` arrays (numpy or JAX).
+    """
+    xp = array_namespace(rel_t, n)
+    before = xp.where(convex_before, xp.maximum(n, n_prior), xp.minimum(n, n_prior))
+    after = xp.where(convex_after, xp.maximum(n, n_next), xp.minimum(n, n_next))
+    return xp.where((rel_t < 0) & prior_valid, before,
+                    xp.where((rel_t > 1) & next_valid, after, n))
+
+
 def _side(table: SegmentTable, query_xy, seg):
-    """Sign of the cross product: +1 on the right (off-road) side of a segment."""
-    sx = query_xy[:, 0] - table.start[seg, 0]
-    sy = query_xy[:, 1] - table.start[seg, 1]
-    return np.sign(_cross(sx, sy, table.delta[seg, 0], table.delta[seg, 1]))
+    return segment_side(query_xy, table.start[seg], table.delta[seg])
 
 
 def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np.ndarray:
@@ -236,10 +274,8 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])
     n_next = _side(table, xy, table.next[bs])
-    before = np.where(table.convex_before[bs], np.maximum(n, n_prior), np.minimum(n, n_prior))
-    after = np.where(table.convex_after[bs], np.maximum(n, n_next), np.minimum(n, n_next))
-    sign = np.where((bt < 0) & table.prior_valid[bs], before,
-                    np.where((bt > 1) & table.next_valid[bs], after, n))
+    sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
+                       table.prior_valid[bs], table.next_valid[bs])
     out = np.empty(len(queries), _F)
     out[bq] = (sign * d2).astype(_F)
     return out

@@ -21,6 +21,7 @@ from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.xp import array_namespace, errstate
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -68,17 +69,24 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
                      tree_segment=tree_segment)
 
 
-def _lane_measure(xy, start, delta):
-    """The official nearest-lane measure |p + clamp(t) d| in float32."""
+def lane_measure(xy, start, delta):
+    """The official nearest-lane measure |p + clamp(t) d| in float32.
+
+    Args:
+      xy, start, delta: float32 `(..., 2)`, broadcast (numpy or JAX arrays).
+    Returns:
+      float32 `(...)`.
+    """
+    xp = array_namespace(xy, start, delta)
     px = xy[..., 0] - start[..., 0]
     py = xy[..., 1] - start[..., 1]
     along = px * delta[..., 0] + py * delta[..., 1]
     squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.where(squared == 0, _F(0), along / squared), _F(0), _F(1))
+    with errstate(xp, divide="ignore", invalid="ignore"):
+        t = xp.clip(xp.where(squared == 0, _F(0), along / squared), _F(0), _F(1))
     mx = px + delta[..., 0] * t
     my = py + delta[..., 1] * t
-    return np.sqrt(mx * mx + my * my)
+    return xp.sqrt(mx * mx + my * my)
 
 
 def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
@@ -94,13 +102,13 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
 
     def measure(rows, points):
         seg = table.tree_segment[points]
-        return _lane_measure(xy32[rows], table.start[seg], table.delta[seg])
+        return lane_measure(xy32[rows], table.start[seg], table.delta[seg])
 
     # The measure is at least the distance to the segment start, so segments
     # whose start is farther than the best measure found cannot win.
     qi, si = tree_candidates(table.tree, q, lambda best: best * (1 + 1e-5) + 1e-3, measure)
     si = table.tree_segment[si]
-    d = _lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
+    d = lane_measure(np.asarray(xy, _F)[qi], table.start[si], table.delta[si])
     rows, best = first_minimum(qi, d, si)
     out = np.empty(len(q), np.int64)
     out[rows] = si[best]
@@ -121,13 +129,44 @@ def _stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
     start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]            # (signals, S, 2)
     stop = signals.stop_point                                       # (steps, signals, 2)
-    d = _lane_measure(stop[:, :, None, :], start[None], delta[None])
+    d = lane_measure(stop[:, :, None, :], start[None], delta[None])
     d = np.where(seg_valid[None, :, :-1], d, _F(1e10))
     seg = np.argmin(d, axis=-1)                                     # (steps, signals)
     sig = np.arange(len(signals.lane_id))[None, :]
     seg_start = pts[sig, seg]
     seg_delta = pts[sig, seg + 1] - seg_start
     return seg_start, seg_delta, np.broadcast_to(lane_known, seg.shape)
+
+
+def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
+    """Crossings of stopped signals' lines: every red-light condition but the object's lane.
+
+    The lane search runs only where this is true, which is rare.
+
+    Args:
+      xy: float32 `(..., num_objects, num_steps, 2)`.
+      valid: bool `(..., num_objects, num_steps)`.
+      seg_start, seg_delta: float32 `(num_steps, num_signals, 2)`, the lane
+        segment nearest each stop point.
+      stop_point: float32 `(num_steps, num_signals, 2)`.
+      stopping: bool `(num_steps, num_signals)`, the signal shows stop and its lane is known.
+    Returns:
+      bool `(..., num_objects, num_steps, num_signals)`.
+    """
+    xp = array_namespace(xy, valid, seg_start)
+    squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]
+    to_stop = stop_point - seg_start
+    with errstate(xp, divide="ignore", invalid="ignore"):
+        stop_t = xp.where(squared == 0, _F(0),
+                          (to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1]) / squared)
+        rel = xy[..., :, :, None, :] - seg_start                          # (..., O, T, S, 2)
+        obj_t = xp.where(squared == 0, _F(0),
+                         (rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1]) / squared)
+    behind = obj_t < stop_t
+    ahead = obj_t > stop_t
+    no_step = xp.zeros(behind.shape[:-2] + (1,) + behind.shape[-1:], dtype=bool)
+    crossed = xp.concatenate([no_step, behind[..., :-1, :] & ahead[..., 1:, :]], axis=-2)
+    return valid[..., None] & stopping & crossed
 
 
 def red_light_violation(x, y, valid, lanes: LaneTable | None,
@@ -150,22 +189,8 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
                          f"expected one per step ({num_steps})")
     xy = np.stack([x, y], axis=-1).astype(_F)
     seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
-    squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]
-    to_stop = signals.stop_point - seg_start
-    with np.errstate(divide="ignore", invalid="ignore"):
-        stop_t = np.where(squared == 0, _F(0),
-                          (to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1]) / squared)
-        rel = xy[..., :, :, None, :] - seg_start                          # (..., O, T, S, 2)
-        obj_t = np.where(squared == 0, _F(0),
-                         (rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1]) / squared)
-    behind = obj_t < stop_t
-    ahead = obj_t > stop_t
-    crossed = np.zeros_like(behind)
-    crossed[..., 1:, :] = behind[..., :-1, :] & ahead[..., 1:, :]
     is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
-    # Everything but the object's lane; the lane search runs only where a
-    # stopped signal's line was crossed, which is rare.
-    suspect = valid[..., None] & is_stop & lane_known & crossed           # (..., O, T, S)
+    suspect = stop_line_crossings(xy, valid, seg_start, seg_delta, signals.stop_point, is_stop & lane_known)
     violation = np.zeros(valid.shape, dtype=bool)
     where = np.nonzero(suspect.any(axis=-1))
     if where[0].size:

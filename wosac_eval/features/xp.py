@@ -1,0 +1,48 @@
+"""Array-namespace dispatch: one kernel implementation for numpy and JAX.
+
+Kernels call `array_namespace(*arrays)` and use the returned module (`numpy`
+or `jax.numpy`) for their arithmetic. JAX is only looked up when it has
+already been imported by someone, so the numpy path never imports it.
+"""
+from __future__ import annotations
+
+import contextlib
+import sys
+
+import numpy as np
+
+
+def array_namespace(*arrays):
+    """`jax.numpy` if any argument is a JAX array or tracer, else `numpy`."""
+    jax = sys.modules.get("jax")
+    if jax is not None:
+        for a in arrays:
+            if isinstance(a, jax.Array):  # tracers under jit/vmap are jax.Array too
+                return jax.numpy
+    return np
+
+
+def is_numpy(xp) -> bool:
+    return xp is np
+
+
+def bitcast(x, dtype, xp):
+    """Reinterprets the bits of `x` as `dtype` (same item size)."""
+    if is_numpy(xp):
+        return x.view(dtype)
+    from jax import lax
+    return lax.bitcast_convert_type(x, dtype)
+
+
+def errstate(xp, **kwargs):
+    """`np.errstate` for numpy; JAX has no floating-point warnings to silence."""
+    return np.errstate(**kwargs) if is_numpy(xp) else contextlib.nullcontext()
+
+
+def require_float64(xp) -> None:
+    """Raises unless float64 is available (JAX needs x64 enabled while tracing)."""
+    if not is_numpy(xp):
+        import jax
+        if not jax.config.jax_enable_x64:
+            raise RuntimeError("this kernel rounds through float64: trace it under "
+                               "`with jax.enable_x64(True):`")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval.features.float32_math import cos32, fma32, packet_tail, sin32
-from wosac_eval.features.xp import array_namespace
+from wosac_eval.features.xp import array_namespace, divide
 
 _F = np.float32
 # Counter-clockwise corner signs (front-left, rear-left, rear-right, front-right).
@@ -67,7 +67,7 @@ def _downmost_edge(px, py):
     ex = xp.take_along_axis(px, end, -1) - xp.take_along_axis(px, start, -1)
     ey = xp.take_along_axis(py, end, -1) - xp.take_along_axis(py, start, -1)
     length = _norm2(ex, ey)
-    return start, ex / length, ey / length
+    return start, divide(ex, length), divide(ey, length)
 
 
 _ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3])
@@ -108,14 +108,14 @@ def origin_signed_distance(px, py):
     ex = xp.roll(px, -1, axis=-1) - px
     ey = xp.roll(py, -1, axis=-1) - py
     edge_length = _norm2(ex, ey)
-    tx, ty = ex / edge_length, ey / edge_length
+    tx, ty = divide(ex, edge_length), divide(ey, edge_length)
     # Vector from each vertex to the query point (the origin).
     vx, vy = _F(0) - px, _F(0) - py
     vertex_distance = _norm2(vx, vy)
     # Positive on the outward side of each edge (outward normal is (ty, -tx)).
     signed_perpendicular = ty * vx + (-tx) * vy
     inside = xp.all(signed_perpendicular <= 0, axis=-1)
-    along = (tx * vx + ty * vy) / edge_length
+    along = divide(tx * vx + ty * vy, edge_length)
     on_edge = (along >= 0) & (along <= 1)
     edge_distance = xp.where(on_edge, xp.abs(signed_perpendicular), _F(np.inf))
     nearest = xp.minimum(edge_distance.min(axis=-1), vertex_distance.min(axis=-1))

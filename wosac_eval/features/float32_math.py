@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, bitcast, errstate, is_numpy, require_float64
+from wosac_eval.features.xp import (array_namespace, bitcast, errstate, is_numpy, opaque,
+                                    require_float64)
 
 _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
@@ -45,9 +46,10 @@ def _packet_sincos(x, sine: bool):
     x = xp.asarray(x, dtype=_F)
     ax = xp.abs(x)
     with errstate(xp, invalid="ignore", over="ignore"):
-        y_round = ax * _TWO_OVER_PI + _ROUNDING_MAGIC
+        magic = opaque(_ROUNDING_MAGIC, xp)  # XLA would fold (v + magic) - magic into v
+        y_round = ax * _TWO_OVER_PI + magic
         quadrant = bitcast(y_round, np.int32, xp)
-        y = y_round - _ROUNDING_MAGIC
+        y = y_round - magic
         r = ax
         for part in _PIO2_PARTS:
             r = y * part + r

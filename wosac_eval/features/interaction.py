@@ -14,7 +14,7 @@ from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import cos32, packet_tail, sin32
 from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
-from wosac_eval.features.xp import array_namespace, errstate
+from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -164,7 +164,7 @@ def capped_time_to_collision(gap, closing):
     """gap / closing speed, capped at 5 s; 5 s when not closing in. float32 `(...)`."""
     xp = array_namespace(gap, closing)
     with errstate(xp, divide="ignore", invalid="ignore", over="ignore"):
-        return xp.where(closing > 0, xp.minimum(gap / closing, MAXIMUM_TIME_TO_COLLISION),
+        return xp.where(closing > 0, xp.minimum(divide(gap, closing), MAXIMUM_TIME_TO_COLLISION),
                         MAXIMUM_TIME_TO_COLLISION)
 
 

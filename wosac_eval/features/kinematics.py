@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace
+from wosac_eval.features.xp import array_namespace, divide
 
 _F = np.float32
 
@@ -49,7 +49,7 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
 def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: float) -> np.ndarray:
     """3D speed in m/s, float32 `(..., num_steps)` (NaN at both ends)."""
     dx, dy, dz = central_difference(x), central_difference(y), central_difference(z)
-    return array_namespace(dx).sqrt(dx * dx + dy * dy + dz * dz) / _F(seconds_per_step)
+    return divide(array_namespace(dx).sqrt(dx * dx + dy * dy + dz * dz), _F(seconds_per_step))
 
 
 def kinematic_features(x, y, z, heading, seconds_per_step: float):
@@ -64,13 +64,13 @@ def kinematic_features(x, y, z, heading, seconds_per_step: float):
     """
     dt = _F(seconds_per_step)
     speed = linear_speed(x, y, z, seconds_per_step)
-    acceleration = central_difference(speed) / dt
+    acceleration = divide(central_difference(speed), dt)
     # Heading deltas are doubled before wrapping so that the two-step delta of
     # the central difference picks the acute solution, then halved back.
     heading_step = wrap_angle(central_difference(heading) * _F(2)) / _F(2)
-    angular_speed = heading_step / dt
+    angular_speed = divide(heading_step, dt)
     heading_step2 = wrap_angle(central_difference(heading_step) * _F(2)) / _F(2)
-    angular_acceleration = heading_step2 / _F(seconds_per_step ** 2)
+    angular_acceleration = divide(heading_step2, _F(seconds_per_step ** 2))
     return speed, acceleration, angular_speed, angular_acceleration
 
 

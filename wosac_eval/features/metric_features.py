@@ -163,13 +163,7 @@ def compute_metric_features(scenario: ScenarioArrays, traj: ObjectTrajectories,
         traj.x[:, e, lights_from:], traj.y[:, e, lights_from:], traj.valid[:, e, lights_from:],
         context.lanes, None if signals is None else _signals_from(signals, lights_from))[..., 1:]
 
-    log_e = scenario.log.take_ids(scenario.evaluated_ids)
-    dx = traj.x[:, e] - log_e.x
-    dy = traj.y[:, e] - log_e.y
-    dz = traj.z[:, e] - log_e.z
-    displacement = np.sqrt(dx * dx + dy * dy + dz * dz)
-    ade = (np.where(log_e.valid, displacement, _F(0)).sum(axis=-1, dtype=_F)
-           / log_e.valid.sum(axis=-1).astype(_F))
+    ade = average_displacement_error(scenario, traj)
     return MetricFeatures(
         object_id=scenario.evaluated_ids,
         object_type=traj.object_type[:, e],
@@ -183,6 +177,18 @@ def compute_metric_features(scenario: ScenarioArrays, traj: ObjectTrajectories,
         distance_to_road_edge=edge,
         offroad_per_step=edge > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
         traffic_light_violation_per_step=red)
+
+
+def average_displacement_error(scenario: ScenarioArrays, traj: ObjectTrajectories) -> np.ndarray:
+    """Mean 3D distance to the log over the log's valid steps, float32 `(num_samples, num_evaluated)`."""
+    e = slice(0, len(scenario.evaluated_ids))
+    log_e = scenario.log.take_ids(scenario.evaluated_ids)
+    dx = traj.x[:, e] - log_e.x
+    dy = traj.y[:, e] - log_e.y
+    dz = traj.z[:, e] - log_e.z
+    displacement = np.sqrt(dx * dx + dy * dy + dz * dz)
+    return (np.where(log_e.valid, displacement, _F(0)).sum(axis=-1, dtype=_F)
+            / log_e.valid.sum(axis=-1).astype(_F))
 
 
 def _signals_from(signals, start: int):

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.features.spatial import first_minimum, tree_candidates
-from wosac_eval.features.xp import array_namespace, errstate
+from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -138,7 +138,7 @@ def segment_pair_distances(query, start, delta):
     along = to_point[..., 0] * delta[..., 0] + to_point[..., 1] * delta[..., 1]
     squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
     with errstate(xp, divide="ignore", invalid="ignore"):
-        rel_t = xp.where(squared == 0, _F(0), along / squared)
+        rel_t = xp.where(squared == 0, _F(0), divide(along, squared))
     clipped = xp.clip(rel_t, _F(0), _F(1))
     offset = to_point - delta * clipped[..., None]
     oz = offset[..., 2] * _F(Z_STRETCH)

@@ -21,7 +21,7 @@ from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features.spatial import first_minimum, tree_candidates
-from wosac_eval.features.xp import array_namespace, errstate
+from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -83,7 +83,7 @@ def lane_measure(xy, start, delta):
     along = px * delta[..., 0] + py * delta[..., 1]
     squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
     with errstate(xp, divide="ignore", invalid="ignore"):
-        t = xp.clip(xp.where(squared == 0, _F(0), along / squared), _F(0), _F(1))
+        t = xp.clip(xp.where(squared == 0, _F(0), divide(along, squared)), _F(0), _F(1))
     mx = px + delta[..., 0] * t
     my = py + delta[..., 1] * t
     return xp.sqrt(mx * mx + my * my)
@@ -158,10 +158,10 @@ def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
     to_stop = stop_point - seg_start
     with errstate(xp, divide="ignore", invalid="ignore"):
         stop_t = xp.where(squared == 0, _F(0),
-                          (to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1]) / squared)
+                          divide(to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1], squared))
         rel = xy[..., :, :, None, :] - seg_start                          # (..., O, T, S, 2)
         obj_t = xp.where(squared == 0, _F(0),
-                         (rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1]) / squared)
+                         divide(rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1], squared))
     behind = obj_t < stop_t
     ahead = obj_t > stop_t
     no_step = xp.zeros(behind.shape[:-2] + (1,) + behind.shape[-1:], dtype=bool)

@@ -46,3 +46,34 @@ def require_float64(xp) -> None:
         if not jax.config.jax_enable_x64:
             raise RuntimeError("this kernel rounds through float64: trace it under "
                                "`with jax.enable_x64(True):`")
+
+
+def divide(a, b):
+    """a / b, correctly rounded under JAX too.
+
+    XLA rewrites a division by a broadcast value (a scalar, or a row shared by
+    many elements) into a multiplication by its reciprocal, which rounds twice
+    and changes the last bit of about a quarter of the results. Under JAX the
+    divisor is therefore broadcast to the full shape behind an optimization
+    barrier, which hides the broadcast from the rewrite. Kernels use this for
+    every division except by powers of two (where both forms are exact).
+    """
+    xp = array_namespace(a, b)
+    if is_numpy(xp):
+        return a / b
+    from jax import lax
+    shape = xp.broadcast_shapes(xp.shape(a), xp.shape(b))
+    return a / lax.optimization_barrier(xp.broadcast_to(b, shape))
+
+
+def opaque(value, xp):
+    """`value`, hidden from XLA's algebraic simplifier under JAX.
+
+    XLA folds float expressions such as `(a + c) - c` into `a`, which is
+    wrong in floating point (the rounding trick of `float32_math` relies on
+    it); an optimization barrier keeps the operations as written.
+    """
+    if is_numpy(xp):
+        return value
+    from jax import lax
+    return lax.optimization_barrier(xp.asarray(value))

@@ -270,19 +270,25 @@ def _metric_features(p: PreparedScenario, out: dict, samples: slice) -> MetricFe
         traffic_light_violation_per_step=out["red_light"][samples])
 
 
-def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8
-                      ) -> list[tuple[MetricFeatures, MetricFeatures]]:
+def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
+                      min_bucket: tuple | None = None) -> list[tuple[MetricFeatures, MetricFeatures]]:
     """(log features, simulated features) of each prepared scenario, in order.
 
     Scenarios are grouped by bucket; each group is run `max_batch` at a time
     (a partial batch is padded to a power of two by repeating its first
     scenario, so a stream of scenarios reuses a few compiled functions).
+
+    Args:
+      min_bucket: optional lower bound of the bucket sizes (objects,
+        evaluated objects, road-edge segments, signals, lane segments), to
+        pad more than needed.
     """
     _warn_if_inexact()
     results: list = [None] * len(prepared)
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(prepared):
-        groups.setdefault(p.bucket_key, []).append(i)
+        key = p.bucket_key if min_bucket is None else tuple(map(max, p.bucket_key, min_bucket))
+        groups.setdefault(key, []).append(i)
     for key, members in groups.items():
         for lo in range(0, len(members), max_batch):
             chunk = members[lo: lo + max_batch]
@@ -311,6 +317,7 @@ def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays,
     return prepared_features([prepare(scenario, rollouts, context)])[0]
 
 
-def scenarios_features(pairs, max_batch: int = 8) -> list[tuple[MetricFeatures, MetricFeatures]]:
+def scenarios_features(pairs, max_batch: int = 8, min_bucket: tuple | None = None
+                       ) -> list[tuple[MetricFeatures, MetricFeatures]]:
     """Features of many (ScenarioArrays, RolloutArrays) pairs, batched by bucket."""
-    return prepared_features([prepare(s, r) for s, r in pairs], max_batch=max_batch)
+    return prepared_features([prepare(s, r) for s, r in pairs], max_batch=max_batch, min_bucket=min_bucket)

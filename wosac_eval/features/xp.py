@@ -54,16 +54,23 @@ def divide(a, b):
     XLA rewrites a division by a broadcast value (a scalar, or a row shared by
     many elements) into a multiplication by its reciprocal, which rounds twice
     and changes the last bit of about a quarter of the results. Under JAX the
-    divisor is therefore broadcast to the full shape behind an optimization
-    barrier, which hides the broadcast from the rewrite. Kernels use this for
-    every division except by powers of two (where both forms are exact).
+    divisor is therefore rebuilt element by element: its bits are OR-ed with
+    the dividend's bits AND-ed with an opaque zero, which leaves the value
+    unchanged but is no broadcast, also under `vmap` (where the divisor of a
+    batched dividend is often unbatched). Kernels use this for every division
+    except by powers of two (where both forms are exact).
     """
     xp = array_namespace(a, b)
     if is_numpy(xp):
         return a / b
     from jax import lax
+    b = xp.asarray(b)
     shape = xp.broadcast_shapes(xp.shape(a), xp.shape(b))
-    return a / lax.optimization_barrier(xp.broadcast_to(b, shape))
+    bits = np.dtype(f"int{8 * b.dtype.itemsize}")
+    zero = lax.optimization_barrier(xp.zeros((), bits))
+    a_bits = lax.bitcast_convert_type(xp.broadcast_to(a, shape).astype(b.dtype), bits)
+    b_bits = lax.bitcast_convert_type(xp.broadcast_to(b, shape), bits) | (a_bits & zero)
+    return a / lax.bitcast_convert_type(b_bits, b.dtype)
 
 
 def opaque(value, xp):

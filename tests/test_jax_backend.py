@@ -1,0 +1,161 @@
+"""The jax backend: features bit-identical to numpy (and to the official outputs) on CPU.
+
+Covers the golden cases (real scenarios, ../shared) and the synthetic oracle
+cases (in the repository), batched calls against per-scenario calls, and
+padding to larger buckets. Compiled functions are shared across the module:
+each bucket compiles once.
+"""
+from __future__ import annotations
+
+import gzip
+import json
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+# Imported first: it restricts XLA's CPU code generation (no fused multiply-add)
+# before JAX starts its CPU backend.
+from wosac_eval.backends import jax_backend
+
+import test_golden_parity as golden_parity
+import test_synthetic_oracle_parity as oracle_parity
+from conftest import SHARED, require_shared
+from wosac_eval.arrays.rollouts import rollout_arrays
+from wosac_eval.arrays.scenario import scenario_arrays
+from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.metrics.config import load_config
+from wosac_eval.metrics.scenario_metrics import bucket_metrics, scenario_metrics
+from wosac_eval.parse.scenarios import iter_scenarios
+from wosac_eval.protos import sim_agents_submission_pb2
+
+ORACLE = oracle_parity.DATA
+
+
+def _assert_features_equal(ours, expected: dict, names, where: str) -> None:
+    for prefix, features in (("log_", ours[0]), ("sim_", ours[1])):
+        for name in names:
+            actual = np.asarray(getattr(features, name))
+            wanted = expected[prefix + name]
+            assert actual.shape == wanted.shape, (where, prefix + name, actual.shape, wanted.shape)
+            np.testing.assert_array_equal(actual, wanted, err_msg=f"{where}: {prefix}{name}")
+
+
+def _as_dict(pair) -> dict:
+    return {f"{prefix}{name}": getattr(features, name)
+            for prefix, features in (("log_", pair[0]), ("sim_", pair[1]))
+            for name in ("object_id", "object_type", "valid", "average_displacement_error",
+                         *golden_parity.EXACT_FEATURES)}
+
+
+@lru_cache(maxsize=None)
+def _golden_inputs() -> dict:
+    scenarios = golden_parity._scenarios()
+    out = {}
+    for case in golden_parity.CASES:
+        raw = (SHARED / "golden" / f"{case}.binproto").read_bytes()
+        rollouts = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts[0]
+        out[case] = (scenario_arrays(scenarios[rollouts.scenario_id]), rollout_arrays(rollouts))
+    return out
+
+
+@lru_cache(maxsize=None)
+def _golden_jax() -> dict:
+    """All golden cases in one batched call."""
+    inputs = _golden_inputs()
+    return dict(zip(inputs, jax_backend.scenarios_features(list(inputs.values()))))
+
+
+@lru_cache(maxsize=None)
+def _oracle_inputs() -> dict:
+    scenarios = {s.scenario_id: s for s, _ in iter_scenarios(ORACLE / "scenes")}
+    out = {}
+    for case in oracle_parity.CASES:
+        raw = gzip.decompress((ORACLE / f"{case}.binproto.gz").read_bytes())
+        rollouts = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts[0]
+        out[case] = (scenario_arrays(scenarios[rollouts.scenario_id]), rollout_arrays(rollouts))
+    return out
+
+
+@lru_cache(maxsize=None)
+def _oracle_jax() -> dict:
+    inputs = _oracle_inputs()
+    return dict(zip(inputs, jax_backend.scenarios_features(list(inputs.values()))))
+
+
+def test_no_fused_multiply_add_on_cpu():
+    # Without this, float32 features differ from numpy in the last bit.
+    assert not jax_backend.fma_contraction()
+
+
+@pytest.mark.parametrize("n, minimum, expected", [(0, 8, 8), (1, 8, 8), (8, 8, 8), (9, 8, 16),
+                                                  (5251, 64, 8192), (3, 1, 4), (0, 1, 1)])
+def test_buckets_are_powers_of_two(n, minimum, expected):
+    assert jax_backend.bucket(n, minimum) == expected
+
+
+@pytest.mark.parametrize("case", golden_parity.CASES)
+def test_golden_features_bit_identical(case):
+    require_shared()
+    ours = _golden_jax()[case]
+    expected = np.load(SHARED / "golden" / f"{case}.features.npz")
+    _assert_features_equal(ours, expected, golden_parity.EXACT_FEATURES, case)
+    for prefix, features in (("log_", ours[0]), ("sim_", ours[1])):
+        np.testing.assert_allclose(features.average_displacement_error,
+                                   expected[prefix + "average_displacement_error"], rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("config_name", list(golden_parity.CONFIGS))
+@pytest.mark.parametrize("case", golden_parity.CASES)
+def test_golden_metrics_match_official(case, config_name):
+    require_shared()
+    golden = json.loads((SHARED / "golden" / f"{case}.json").read_text())["metrics"][config_name]
+    config = golden_parity._config(config_name)
+    ours = scenario_metrics(config, *_golden_jax()[case])
+    for field, expected in golden.items():
+        if field != "buckets":
+            assert ours[field] == pytest.approx(expected, abs=1e-5), field
+    for field, expected in golden["buckets"].items():
+        assert bucket_metrics(config, ours)[field] == pytest.approx(expected, abs=1e-5), f"buckets.{field}"
+
+
+@pytest.mark.parametrize("case", oracle_parity.CASES)
+def test_oracle_features_bit_identical_to_official_and_numpy(case):
+    ours = _oracle_jax()[case]
+    _assert_features_equal(ours, np.load(ORACLE / f"{case}.features.npz"), oracle_parity.EXACT, case)
+    numpy_features = _as_dict(scenario_features(*_oracle_inputs()[case]))
+    _assert_features_equal(ours, numpy_features, list(golden_parity.EXACT_FEATURES)
+                           + ["average_displacement_error"], f"{case} vs numpy")
+
+
+@pytest.mark.parametrize("config_name", oracle_parity.CONFIGS)
+@pytest.mark.parametrize("case", oracle_parity.CASES)
+def test_oracle_metrics_match_official(case, config_name):
+    golden = json.loads((ORACLE / f"{case}.json").read_text())["metrics"][config_name]
+    config = load_config(config_name)
+    ours = scenario_metrics(config, *_oracle_jax()[case])
+    for field, expected in golden.items():
+        if field != "buckets":
+            assert ours[field] == pytest.approx(expected, abs=1e-5), field
+
+
+def test_batched_call_equals_per_scenario_calls():
+    inputs = _oracle_inputs()
+    batched = _oracle_jax()
+    # Two scenes that share a bucket with others in the batched call, scored alone.
+    for case in list(inputs)[:2]:
+        alone = jax_backend.scenario_features(*inputs[case])
+        _assert_features_equal(alone, _as_dict(batched[case]),
+                               list(golden_parity.EXACT_FEATURES) + ["average_displacement_error"],
+                               f"{case} alone vs batched")
+
+
+def test_padding_to_larger_buckets_changes_nothing():
+    inputs = _oracle_inputs()
+    case = next(c for c in inputs if "red-light" in c)
+    key = jax_backend.prepare(*inputs[case]).bucket_key
+    larger = tuple(2 * k for k in key)
+    padded = jax_backend.scenarios_features([inputs[case]], min_bucket=larger)[0]
+    _assert_features_equal(padded, _as_dict(_oracle_jax()[case]),
+                           list(golden_parity.EXACT_FEATURES) + ["average_displacement_error"],
+                           f"{case} padded to {larger}")

@@ -159,3 +159,50 @@ def test_padding_to_larger_buckets_changes_nothing():
     _assert_features_equal(padded, _as_dict(_oracle_jax()[case]),
                            list(golden_parity.EXACT_FEATURES) + ["average_displacement_error"],
                            f"{case} padded to {larger}")
+
+
+TIMESERIES = ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration",
+              "distance_to_nearest_object", "time_to_collision", "distance_to_road_edge")
+INDICATORS = {"collision_indication": "collision_per_step", "offroad_indication": "offroad_per_step",
+              "traffic_light_violation": "traffic_light_violation_per_step"}
+
+
+@pytest.mark.parametrize("config_name", ["2025", "2023"])
+def test_estimators_under_jit_equal_numpy(config_name):
+    import jax
+
+    from wosac_eval.estimators import likelihoods
+    config = load_config(config_name)
+    case = next(c for c in oracle_parity.CASES if "collision" in c)
+    log, sim = _oracle_jax()[case]
+    for metric in TIMESERIES:
+        feature_config = getattr(config, metric)
+        expected = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric)[0],
+                                                         getattr(sim, metric))
+        fn = jax.jit(lambda lv, sv: likelihoods.timeseries_log_likelihood(feature_config, lv, sv))
+        with jax.enable_x64(True):
+            actual = np.asarray(fn(getattr(log, metric)[0], getattr(sim, metric)))
+        assert actual.dtype == expected.dtype
+        np.testing.assert_array_equal(actual, expected, err_msg=f"{config_name}: {metric}")
+    for metric, feature in INDICATORS.items():
+        feature_config = getattr(config, metric)
+        log_flags, sim_flags = getattr(log, feature)[0].any(axis=-1), getattr(sim, feature).any(axis=-1)
+        expected = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags)
+        fn = jax.jit(lambda lv, sv: likelihoods.scenario_level_log_likelihood(feature_config, lv, sv))
+        with jax.enable_x64(True):
+            actual = np.asarray(fn(log_flags, sim_flags))
+        np.testing.assert_array_equal(actual, expected, err_msg=f"{config_name}: {metric}")
+
+
+def test_kernel_density_under_jit_matches_numpy():
+    import jax
+
+    from wosac_eval.estimators import likelihoods
+    rng = np.random.default_rng(3)
+    log, sim = rng.normal(size=(4, 6)).astype(np.float32), rng.normal(size=(4, 32)).astype(np.float32)
+    expected = likelihoods.kernel_density_log_likelihood(0.5, log, sim)
+    with jax.enable_x64(True):
+        actual = np.asarray(jax.jit(lambda a, b: likelihoods.kernel_density_log_likelihood(0.5, a, b))(log, sim))
+    # Equal here too, but not guaranteed: XLA's float64 exp/log and the order of the float64 mean
+    # differ from numpy's, which can move a float32 rounding by one unit.
+    np.testing.assert_allclose(actual, expected, rtol=1e-6)

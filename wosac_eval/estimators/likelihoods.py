@@ -5,11 +5,14 @@ additive pseudo-count) and score each logged value by the log-probability of
 its bin. Bernoulli estimates are two-bin histograms over booleans. With
 independent timesteps, one distribution per object pools all rollouts and
 steps; otherwise each (object, step) has its own distribution over rollouts.
+The estimators take numpy or JAX arrays (JAX needs x64 enabled: the
+log-probabilities are computed in float64).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.features.xp import array_namespace, require_float64
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 _F = np.float32
@@ -34,9 +37,12 @@ def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     Bins are closed on the left; the last bin also holds the upper edge. NaN
     values land in the last bin, as in the official histogram.
     """
-    clipped = np.clip(values.astype(_F), edges[0], edges[-1])
-    index = np.searchsorted(edges, clipped, side="right") - 1
-    return np.clip(index, 0, len(edges) - 2)
+    xp = array_namespace(values)
+    clipped = xp.clip(values.astype(_F), edges[0], edges[-1])
+    # Edges at or below each value; NaN compares false everywhere and goes last.
+    index = (clipped[..., None] >= edges).sum(axis=-1) - 1
+    index = xp.where(xp.isnan(clipped), len(edges) - 2, index)
+    return xp.clip(index, 0, len(edges) - 2)
 
 
 def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
@@ -49,15 +55,16 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
     Returns:
       float32 `(batch, num_log_samples)`.
     """
+    xp = array_namespace(log_samples, sim_samples)
+    require_float64(xp)
     edges = histogram_edges(min_val, max_val, num_bins)
     sim_bins = histogram_bins(sim_samples, edges)
-    batch = sim_bins.shape[0]
-    counts = np.zeros((batch, num_bins), dtype=np.float64)
-    np.add.at(counts, (np.repeat(np.arange(batch), sim_bins.shape[1]), sim_bins.reshape(-1)), 1.0)
+    # Whole counts: exact in any summation order.
+    counts = (sim_bins[..., None] == np.arange(num_bins)).sum(axis=1, dtype=np.int64)
     counts = (counts.astype(_F) + _F(pseudocount)).astype(np.float64)
-    log_prob = np.log(counts) - np.log(counts.sum(axis=1, keepdims=True))
+    log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
     log_bins = histogram_bins(log_samples, edges)
-    return np.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
+    return xp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
 
 
 def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples) -> np.ndarray:
@@ -70,10 +77,12 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples) -> np.nda
     """Gaussian KDE log-density, shifted so that a Dirac sample scores 0."""
     if bandwidth <= 0:
         raise ValueError("kernel density bandwidth must be positive")
+    xp = array_namespace(log_samples, sim_samples)
+    require_float64(xp)
     diff = (log_samples[:, :, None].astype(np.float64) - sim_samples[:, None, :]) / bandwidth
     log_kernel = -0.5 * diff * diff
     peak = log_kernel.max(axis=-1, keepdims=True)
-    log_mean = np.log(np.mean(np.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
+    log_mean = xp.log(xp.mean(xp.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
     return log_mean.astype(_F)
 
 
@@ -101,23 +110,24 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
     Returns:
       float32 `(num_objects, num_steps)`.
     """
+    xp = array_namespace(log_values, sim_values)
     n_rollouts, n_objects, n_steps = sim_values.shape
     if log_values.shape != (n_objects, n_steps):
         raise ValueError(f"log values must have shape {(n_objects, n_steps)}, got {log_values.shape}")
     if config.aggregate_objects:
         # One distribution for the whole scene (per step, or pooled over steps).
         if config.independent_timesteps:
-            sim = np.transpose(sim_values, (1, 0, 2)).reshape(1, -1)
+            sim = xp.transpose(sim_values, (1, 0, 2)).reshape(1, -1)
             log = log_values.T.reshape(1, -1)
         else:
-            sim = np.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
+            sim = xp.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
             log = log_values.T
         return _estimate(config, log, sim).reshape(n_steps, n_objects).T
     if config.independent_timesteps:
-        sim = np.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
+        sim = xp.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
         log = log_values
     else:
-        sim = np.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
+        sim = xp.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
         log = log_values.reshape(n_objects * n_steps, 1)
     return _estimate(config, log, sim).reshape(n_objects, n_steps)
 

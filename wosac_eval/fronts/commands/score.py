@@ -10,6 +10,7 @@ import json
 import sys
 from pathlib import Path
 
+from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
 from wosac_eval.metrics.config import PRESET_NAMES
 from wosac_eval.metrics.submission import InvalidSubmissionError, score_submission
 from wosac_eval.parse.errors import ParseError
@@ -33,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="score scenarios in N processes (identical results)")
     parser.add_argument("--partial", action="store_true",
                         help="score the valid scenarios of an invalid submission; skipped ones are listed")
+    parser.add_argument("--backend", choices=BACKENDS, default="numpy",
+                        help="compute features with numpy (default) or with JAX (jit, batched "
+                             "over scenarios; needs `pip install 'wosac-eval[jax]'`); same results")
 
 
 def _progress():
@@ -59,10 +63,15 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         print("wosac-eval score: error: --workers must be >= 1", file=sys.stderr)
         return 2
+    try:
+        check_backend(args.backend)
+    except BackendUnavailableError as error:
+        print(f"wosac-eval score: error: {error}", file=sys.stderr)
+        return 2
     update, bar = _progress()
     try:
         result = score_submission(args.scenarios, args.submission, args.config, workers=args.workers,
-                                  allow_partial=args.partial, progress=update)
+                                  allow_partial=args.partial, progress=update, backend=args.backend)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "

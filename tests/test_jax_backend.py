@@ -94,6 +94,12 @@ def test_buckets_are_powers_of_two(n, minimum, expected):
     assert jax_backend.bucket(n, minimum) == expected
 
 
+@pytest.mark.parametrize("n, expected", [(0, 64), (64, 64), (65, 128), (300, 384), (5251, 6144),
+                                         (8192, 8192), (8193, 12288)])
+def test_fine_buckets_pad_at_most_a_third(n, expected):
+    assert jax_backend.fine_bucket(n) == expected
+
+
 @pytest.mark.parametrize("case", golden_parity.CASES)
 def test_golden_features_bit_identical(case):
     require_shared()

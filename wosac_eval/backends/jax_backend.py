@@ -4,8 +4,9 @@ Host side (numpy): the composite trajectories in the official object order,
 the road-edge and lane tables, the stop lines, and everything that depends on
 the official tensor shapes (the trailing-packet masks of `float32_math`) are
 prepared from the real shapes, then padded to a bucket: the next power of two
-of the object, evaluated-object, road-edge-segment, lane-segment and signal
-counts. Scenarios of one bucket share one compiled function and are stacked
+of the object, evaluated-object and signal counts, and the next multiple of a
+quarter of the next power of two of the road-edge and lane segment counts
+(`bucket`, `fine_bucket`). Scenarios of one bucket share one compiled function and are stacked
 and `vmap`ped. The dense drivers in `wosac_eval.features.dense` evaluate the
 same per-pair kernels as the numpy path, so features are bit-identical on CPU.
 
@@ -51,6 +52,17 @@ MIN_BUCKET = 8
 def bucket(n: int, minimum: int = MIN_BUCKET) -> int:
     """The padded size for `n` items: the next power of two, at least `minimum`."""
     return max(minimum, 1 << max(0, int(n) - 1).bit_length())
+
+
+def fine_bucket(n: int, minimum: int = 64) -> int:
+    """A padded size for large counts: the next multiple of a quarter of the next power of two.
+
+    At most a third is padding (instead of up to a half), for the road-edge
+    and lane segments, which dominate the work of the dense searches.
+    """
+    top = bucket(n, minimum)
+    step = max(minimum, top // 4)
+    return max(minimum, -(-int(n) // step) * step)
 
 
 @functools.lru_cache(maxsize=None)
@@ -101,9 +113,10 @@ class PreparedScenario:
 
     @property
     def bucket_key(self) -> tuple:
-        return (bucket(self.num_objects), bucket(self.num_evaluated),
-                bucket(len(self.maps["start"]), 64), bucket(len(self.maps["stopping"][0]), 1),
-                bucket(len(self.lanes["start"]), 64))
+        # Evaluated objects: every padded row is computed against everything, so no minimum.
+        return (bucket(self.num_objects), bucket(self.num_evaluated, 1),
+                fine_bucket(len(self.maps["start"])), bucket(len(self.maps["stopping"][0]), 1),
+                fine_bucket(len(self.lanes["start"])))
 
 
 def _segment_arrays(table: road_edge.SegmentTable) -> dict:

@@ -212,3 +212,16 @@ def test_kernel_density_under_jit_matches_numpy():
     # Equal here too, but not guaranteed: XLA's float64 exp/log and the order of the float64 mean
     # differ from numpy's, which can move a float32 rounding by one unit.
     np.testing.assert_allclose(actual, expected, rtol=1e-6)
+
+
+def test_scenario_without_signals_or_lanes_matches_numpy():
+    import dataclasses
+    inputs = _oracle_inputs()
+    case = next(c for c in inputs if "red-light" in c)
+    scenario, rollouts = inputs[case]
+    for variant in (dataclasses.replace(scenario, signals=None),
+                    dataclasses.replace(scenario, lanes=(), lane_ids=scenario.lane_ids[:0])):
+        expected = _as_dict(scenario_features(variant, rollouts))
+        assert not expected["sim_traffic_light_violation_per_step"].any()
+        _assert_features_equal(jax_backend.scenario_features(variant, rollouts), expected,
+                               list(golden_parity.EXACT_FEATURES), f"{case} without signals or lanes")

@@ -15,11 +15,12 @@ distance on the few remaining candidates, so results equal an all-pairs search.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.spatial import first_minimum
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -46,6 +47,10 @@ class SegmentTable:
     next_valid: np.ndarray   # bool (S,)
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
     convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
+    columns: np.ndarray      # float32 (6, S): start x, y, z, delta x, y, z, contiguous for gathers
+    columns64: np.ndarray    # float64 (6, S): the same with heights stretched, for the search bounds
+    lipschitz: np.ndarray    # float64 (S,): how fast the selection distance can change with the point
+    max_lipschitz: float
     tree: cKDTree | None
     sample_segment: np.ndarray  # int64: segment of each k-d tree sample
     spacing: float
@@ -94,10 +99,15 @@ def build_segment_table(polylines) -> SegmentTable:
     convex_after = _cross(dx, dy, wrap_next[..., 0], wrap_next[..., 1]) > 0
     valid_flat = valid.reshape(-1)
     tree, sample_segment = _sample_tree(start.reshape(-1, 3), delta.reshape(-1, 3), valid_flat)
+    lipschitz = _lipschitz(delta.reshape(-1, 3))
     return SegmentTable(
         start=start.reshape(-1, 3), delta=delta.reshape(-1, 3), valid=valid_flat,
         prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
         convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
+        columns=np.ascontiguousarray(np.concatenate([start.reshape(-1, 3), delta.reshape(-1, 3)], axis=1).T),
+        columns64=np.ascontiguousarray(np.concatenate([_stretch(start.reshape(-1, 3)),
+                                                       _stretch(delta.reshape(-1, 3))], axis=1).T),
+        lipschitz=lipschitz, max_lipschitz=float(lipschitz[valid_flat].max(initial=1.0)),
         tree=tree, sample_segment=sample_segment, spacing=_SAMPLE_SPACING)
 
 
@@ -105,6 +115,22 @@ def _stretch(xyz):
     out = np.asarray(xyz, np.float64).copy()
     out[..., 2] *= Z_STRETCH
     return out
+
+
+def _lipschitz(delta: np.ndarray) -> np.ndarray:
+    """Per segment, the most the selection distance changes per metre the point moves.
+
+    The projection is planar, so a point moving by v shifts the projected
+    point along the segment by v's along-track part times the segment's
+    stretched slope s = 3|dz| / |d_xy|: the offset changes by at most
+    sqrt(1 + s^2) |v| (1 for segments without planar length, whose projection
+    is pinned at the start). Used by the candidate search only, with margin.
+    """
+    d = _stretch(delta)
+    planar = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(planar > 0, np.abs(d[:, 2]) / planar, 0.0)
+    return np.sqrt(1.0 + slope * slope) * (1 + 1e-6)
 
 
 def _sample_tree(start, delta, valid):
@@ -123,47 +149,75 @@ def _sample_tree(start, delta, valid):
     return cKDTree(points), idx[seg_of]
 
 
-def _segment_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
-    """Projection parameter, stretched 3D distance and planar distance, float32, per pair."""
-    start, delta = table.start[si], table.delta[si]
-    to_point = queries[qi] - start
-    along = to_point[:, 0] * delta[:, 0] + to_point[:, 1] * delta[:, 1]
-    squared = delta[:, 0] * delta[:, 0] + delta[:, 1] * delta[:, 1]
+def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
+    """Projection parameter, stretched 3D distance and planar distance, float32.
+
+    Elementwise (broadcasting) over points p, segment starts s and segment
+    vectors d, in the official order of float32 operations.
+    """
+    tx, ty, tz = px - sx, py - sy, pz - sz
+    along = tx * dx + ty * dy
+    squared = dx * dx + dy * dy
     with np.errstate(divide="ignore", invalid="ignore"):
         rel_t = np.where(squared == 0, _F(0), along / squared)
     clipped = np.clip(rel_t, _F(0), _F(1))
-    offset = to_point - delta * clipped[:, None]
-    oz = offset[:, 2] * _F(Z_STRETCH)
-    planar2 = offset[:, 0] * offset[:, 0] + offset[:, 1] * offset[:, 1]
+    ox, oy = tx - dx * clipped, ty - dy * clipped
+    oz = (tz - dz * clipped) * _F(Z_STRETCH)
+    planar2 = ox * ox + oy * oy
     return rel_t, np.sqrt(planar2 + oz * oz), np.sqrt(planar2)
 
 
+def _pair_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
+    """`segment_distances` for (query, segment) index pairs, gathering one column at a time."""
+    p = [np.take(c, qi) for c in np.ascontiguousarray(queries.T)]
+    seg = [np.take(c, si) for c in table.columns]
+    return segment_distances(*p, *seg)
+
+
 _CELL = 1.0  # metres: queries are grouped in cubic cells of the stretched space
+_MARGIN = 1e-3  # metres of slack in every float64 bound, far above float32 rounding
 
 
 def _segment_distance64(table: SegmentTable, points: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Stretched 3D distance from stretched points to segments, in float64 (for bounds only)."""
-    start = _stretch(table.start[seg])
-    delta = _stretch(table.delta[seg])
-    rel = points - start
-    squared = np.einsum("ij,ij->i", delta[:, :2], delta[:, :2])
+    """Stretched 3D selection distance from stretched points `(3, n)` to segments, float64 (bounds only)."""
+    sx, sy, sz, dx, dy, dz = (np.take(c, seg) for c in table.columns64)
+    tx, ty, tz = points[0] - sx, points[1] - sy, points[2] - sz
+    squared = dx * dx + dy * dy
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(squared > 0, np.einsum("ij,ij->i", rel[:, :2], delta[:, :2]) / squared, 0.0)
-    offset = rel - delta * np.clip(t, 0.0, 1.0)[:, None]
-    return np.sqrt(np.einsum("ij,ij->i", offset, offset))
+        t = np.clip(np.where(squared > 0, (tx * dx + ty * dy) / squared, 0.0), 0.0, 1.0)
+    tx -= dx * t
+    ty -= dy * t
+    tz -= dz * t
+    return np.sqrt(tx * tx + ty * ty + tz * tz)
+
+
+def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
+    """(centre index, tree point) pairs within `radius` of each centre, sorted by centre."""
+    lists = tree.query_ball_point(centres, radius, return_sorted=True)
+    sizes = np.fromiter(map(len, lists), np.int64, len(lists))
+    points = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(sizes.sum()))
+    return np.repeat(np.arange(len(centres)), sizes), points
 
 
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
-    Queries are grouped in cells of side `_CELL` (half-diagonal h). For a
-    query p in a cell with centre c, the nearest segment k* satisfies
-    D(k*, c) <= D(k*, p) + h <= D(j, p) + h <= D(j, c) + 2h for every j, so the
-    cell's candidates are the segments within min_j D(j, c) + 2h of its centre.
-    Those are found through the k-d tree of samples: a segment is within half
-    the sample spacing of its nearest sample.
+    The selection distance D(k, p) projects p on segment k in the plane, then
+    measures the stretched 3D offset; it moves by at most L_k |p - q| between
+    points p and q (`SegmentTable.lipschitz`). Queries are grouped in cells of
+    side `_CELL` (half-diagonal h) with centre c:
+      - any segment j bounds the cell's minimum: D(j, p) <= D(j, c) + L_j h = U_j;
+      - a segment k can only be nearest somewhere in the cell if
+        D(k, c) - L_k h <= min_j U_j, and D(k, c) is at least the distance from c
+        to k's nearest k-d tree sample minus half the sample spacing, which
+        bounds the k-d tree search;
+      - for one query p at distance r from c, with b = D(cell's first candidate, p),
+        k can only win if D(k, c) <= b + L_max r, a cut made with one
+        `searchsorted` in the cell's candidates sorted by D(k, c).
+    Float32 results then pick the nearest among the survivors exactly.
     """
     q = _stretch(queries)
+    qt = np.ascontiguousarray(q.T)
     cell_of = np.floor(q / _CELL).astype(np.int64)
     low = cell_of.min(axis=0)
     span = cell_of.max(axis=0) - low + 1
@@ -172,41 +226,41 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     cells = np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + low
     centre = (cells + 0.5) * _CELL
     h = _CELL * np.sqrt(3.0) / 2
-    margin = 1e-3
-    # Superset per cell: samples within (nearest sample + 2h + spacing/2) of the centre.
-    ci, sample = tree_candidates(table.tree, centre,
-                                 lambda nearest: nearest + 2 * h + table.spacing * 0.5 + margin)
+    lipschitz = table.lipschitz
+    # An upper bound of each cell's minimum from the segment of its nearest sample.
+    _, nearest_sample = table.tree.query(centre, k=1)
+    first_guess = table.sample_segment[nearest_sample]
+    centre_t = np.ascontiguousarray(centre.T)
+    upper = _segment_distance64(table, centre_t, first_guess) + lipschitz[first_guess] * h
+    radius = upper + table.max_lipschitz * h + table.spacing * 0.5 + _MARGIN * (1 + upper)
+    ci, sample = _ball_pairs(table.tree, centre, radius)
+    # Pairs come sorted by cell, then sample, and samples are numbered along
+    # the segments, so repeated (cell, segment) pairs are adjacent.
     seg = table.sample_segment[sample]
-    pair = np.unique(ci * np.int64(len(table.valid)) + seg)
-    ci, seg = pair // len(table.valid), pair % len(table.valid)
-    d = _segment_distance64(table, centre[ci], seg)
-    best = np.full(len(cells), np.inf)
-    np.minimum.at(best, ci, d)
-    keep = d <= best[ci] + 2 * h + margin + 1e-5 * best[ci]
+    new = np.r_[True, (ci[1:] != ci[:-1]) | (seg[1:] != seg[:-1])]
+    ci, seg = ci[new], seg[new]
+    d = _segment_distance64(table, centre_t[:, ci], seg)
+    best_upper = np.full(len(cells), np.inf)
+    np.minimum.at(best_upper, ci, d + lipschitz[seg] * h)
+    keep = d - lipschitz[seg] * h <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
     ci, seg, d = ci[keep], seg[keep], d[keep]
-    # Each query's distance to its cell's nearest segment bounds its own minimum:
-    # a candidate k can only win if D(k, centre) - h <= that distance.
-    first = np.searchsorted(ci, np.arange(len(cells)))
-    cell_best = seg[first + _argmin_per_group(d, first)]
-    bound = _segment_distance64(table, q, cell_best[inverse])
-    # Expand each query to its cell's candidate list (ci is sorted by cell).
-    count = np.bincount(ci, minlength=len(cells))
-    per_query = count[inverse]
-    qi = np.repeat(np.arange(len(q)), per_query)
-    offset = np.arange(qi.size) - np.repeat(np.cumsum(per_query) - per_query, per_query)
-    pos = first[inverse][qi] + offset
-    near = d[pos] - h <= bound[qi] + margin + 1e-5 * bound[qi]
-    return qi[near], seg[pos[near]]
-
-
-def _argmin_per_group(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Offset of the minimum within each contiguous group starting at `starts`."""
-    lowest = np.minimum.reduceat(values, starts)
-    sizes = np.diff(np.r_[starts, len(values)])
-    hit = np.flatnonzero(values == np.repeat(lowest, sizes))
-    group = np.searchsorted(starts, hit, side="right") - 1
-    first_hit = np.r_[True, group[1:] != group[:-1]]
-    return hit[first_hit] - starts[group[first_hit]]
+    # Each cell's candidates sorted by distance to its centre, under one key:
+    # the cell index times a stride above any distance or limit below.
+    stride = 2.0 * (d.max() + 2 * table.max_lipschitz * h) + 1.0
+    key = ci * stride + d
+    order = np.argsort(key)
+    key, seg = key[order], seg[order]
+    first = np.searchsorted(ci, np.arange(len(cells)))  # ci is sorted already
+    cell_lipschitz = np.maximum.reduceat(lipschitz[seg], first)
+    r = np.sqrt(np.sum((qt - centre_t[:, inverse]) ** 2, axis=0))
+    bound = _segment_distance64(table, qt, seg[first][inverse])
+    limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)
+    lo = first[inverse]
+    hi = np.searchsorted(key, inverse * stride + limit, side="right")
+    count = hi - lo
+    qi = np.repeat(np.arange(len(q)), count)
+    pos = np.arange(qi.size) - np.repeat(np.cumsum(count) - count - lo, count)
+    return qi, seg[pos]
 
 
 def _side(table: SegmentTable, query_xy, seg):
@@ -227,11 +281,10 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     """
     queries = np.asarray(queries, _F)
     qi, si = _candidates(table, queries)
-    d3 = _segment_distances(table, queries, qi, si)[1]
+    rel_t, d3, d2 = _pair_distances(table, queries, qi, si)
     # Nearest in 3D, ties to the lowest segment index (pairs are grouped by query).
     bq, best = first_minimum(qi, d3, si)
-    bs = si[best]
-    bt, _, d2 = _segment_distances(table, queries, bq, bs)
+    bs, bt, d2 = si[best], rel_t[best], d2[best]
     xy = queries[bq, :2]
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])
@@ -240,7 +293,7 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     after = np.where(table.convex_after[bs], np.maximum(n, n_next), np.minimum(n, n_next))
     sign = np.where((bt < 0) & table.prior_valid[bs], before,
                     np.where((bt > 1) & table.next_valid[bs], after, n))
-    out = np.empty(len(queries), _F)
+    out = np.full(len(queries), np.nan, _F)  # every query has a candidate; NaN would show a bug
     out[bq] = (sign * d2).astype(_F)
     return out
 

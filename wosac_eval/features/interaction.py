@@ -43,8 +43,7 @@ def _rounded_box_distance(boxes, eval_idx, other_idx):
     return (core - radius[eval_idx]) - radius[other_idx]
 
 
-def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
-                               first_guesses: int = 1):
+def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of
@@ -53,9 +52,9 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
 
     Only pairs that can be nearest are evaluated exactly: the distance between
     two shapes is at least the distance between their centres minus their
-    bounding radii, so after evaluating the `first_guesses` most promising
-    objects, any pair whose lower bound exceeds the best distance found is
-    skipped. The result equals the all-pairs minimum bit for bit.
+    bounding radii, so after evaluating the most promising object (lowest
+    bound), any pair whose lower bound exceeds the distance found is skipped.
+    The result equals the all-pairs minimum bit for bit.
 
     Args:
       x, y, length, width, cos_h, sin_h: float32 `(..., num_objects, num_steps)`.
@@ -78,26 +77,27 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
     # Lower bounds (batch, eval, step, object); impossible pairs are +inf.
     ex = np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
     ey = np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
-    centre = np.hypot(xt[:, None] - ex, yt[:, None] - ey)
+    dx, dy = xt[:, None] - ex, yt[:, None] - ey
+    centre = np.sqrt(dx * dx + dy * dy)
     lower = centre - np.swapaxes(reach[:, :, :e], 1, 2)[..., None] - reach[:, None]
     lower -= _F(1e-3) + _F(1e-5) * centre  # float32 rounding margin
     possible = np.swapaxes(vt[:, :, :e], 1, 2)[..., None] & vt[:, None]
     possible &= ~np.eye(e, num_objects, dtype=bool)[:, None, :]
     lower = np.where(possible, lower, np.inf)
     batch = lower.shape[0]
-    b, ev, st = (i[..., None] for i in np.indices((batch, e, num_steps), sparse=True))
     box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
-    k = min(first_guesses, num_objects)
-    guess = (np.argpartition(lower, k - 1, axis=-1)[..., :k] if k < num_objects
-             else np.broadcast_to(np.arange(num_objects), lower.shape))
-    guess_lower = np.take_along_axis(lower, guess, axis=-1)
-    finite = np.isfinite(guess_lower)
-    guess_d = np.full(guess.shape, np.inf, dtype=np.float32)
-    gb, ge, gs = (np.broadcast_to(i, guess.shape)[finite] for i in (b, ev, st))
-    guess_d[finite] = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, guess[finite], gs))
-    best = guess_d.min(axis=-1, keepdims=True)
-    cb, ce, cs, co = np.nonzero(possible & (lower <= best + _F(1e-3)))
+    # First guess: the object with the lowest bound, evaluated exactly.
+    guess = np.argmin(lower, axis=-1)
+    gb, ge, gs = np.nonzero(np.isfinite(np.min(lower, axis=-1)))
+    go = guess[gb, ge, gs]
     distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
+    if gb.size == 0:
+        return distance.reshape(*lead, e, num_steps)
+    guess_d = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
+    distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
+    # Then every other pair whose bound does not exclude it.
+    lower[gb, ge, gs, go] = np.inf
+    cb, ce, cs, co = np.nonzero(lower <= distance[..., None] + _F(1e-3))
     if cb.size:
         d = _rounded_box_distance(boxes, box_of(cb, ce, cs), box_of(cb, co, cs))
         np.minimum.at(distance, (cb, ce, cs), d.astype(_F))

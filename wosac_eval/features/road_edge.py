@@ -224,15 +224,22 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     key = ((cell_of[:, 0] - low[0]) * span[1] + (cell_of[:, 1] - low[1])) * span[2] + (cell_of[:, 2] - low[2])
     keys, inverse = np.unique(key, return_inverse=True)
     cells = np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + low
-    centre = (cells + 0.5) * _CELL
-    h = _CELL * np.sqrt(3.0) / 2
+    # Each cell is represented by the centroid of its queries and the largest
+    # distance from it to one of them (at most the cell's half-diagonal).
+    count = np.bincount(inverse, minlength=len(keys)).astype(np.float64)
+    centre = np.stack([np.bincount(inverse, weights=q[:, k], minlength=len(keys)) for k in range(3)], axis=1)
+    centre /= count[:, None]
+    r = np.sqrt(np.sum((qt - centre.T[:, inverse]) ** 2, axis=0))
+    h_cell = np.zeros(len(keys))
+    np.maximum.at(h_cell, inverse, r)
+    h_cell += 1e-9
     lipschitz = table.lipschitz
     # An upper bound of each cell's minimum from the segment of its nearest sample.
     _, nearest_sample = table.tree.query(centre, k=1)
     first_guess = table.sample_segment[nearest_sample]
     centre_t = np.ascontiguousarray(centre.T)
-    upper = _segment_distance64(table, centre_t, first_guess) + lipschitz[first_guess] * h
-    radius = upper + table.max_lipschitz * h + table.spacing * 0.5 + _MARGIN * (1 + upper)
+    upper = _segment_distance64(table, centre_t, first_guess) + lipschitz[first_guess] * h_cell
+    radius = upper + table.max_lipschitz * h_cell + table.spacing * 0.5 + _MARGIN * (1 + upper)
     ci, sample = _ball_pairs(table.tree, centre, radius)
     # Pairs come sorted by cell, then sample, and samples are numbered along
     # the segments, so repeated (cell, segment) pairs are adjacent.
@@ -241,18 +248,17 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     ci, seg = ci[new], seg[new]
     d = _segment_distance64(table, centre_t[:, ci], seg)
     best_upper = np.full(len(cells), np.inf)
-    np.minimum.at(best_upper, ci, d + lipschitz[seg] * h)
-    keep = d - lipschitz[seg] * h <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
+    np.minimum.at(best_upper, ci, d + lipschitz[seg] * h_cell[ci])
+    keep = d - lipschitz[seg] * h_cell[ci] <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
     ci, seg, d = ci[keep], seg[keep], d[keep]
     # Each cell's candidates sorted by distance to its centre, under one key:
     # the cell index times a stride above any distance or limit below.
-    stride = 2.0 * (d.max() + 2 * table.max_lipschitz * h) + 1.0
+    stride = 2.0 * (d.max() + 2 * table.max_lipschitz * h_cell.max()) + 1.0
     key = ci * stride + d
     order = np.argsort(key)
     key, seg = key[order], seg[order]
     first = np.searchsorted(ci, np.arange(len(cells)))  # ci is sorted already
     cell_lipschitz = np.maximum.reduceat(lipschitz[seg], first)
-    r = np.sqrt(np.sum((qt - centre_t[:, inverse]) ** 2, axis=0))
     bound = _segment_distance64(table, qt, seg[first][inverse])
     limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)
     lo = first[inverse]

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.float32_math import cos32, fma32, packet_tail, sin32
+from wosac_eval.features.float32_math import fma32, packet_tail, sincos32
 
 _F = np.float32
 # Counter-clockwise corner signs (front-left, rear-left, rear-right, front-right).
@@ -46,8 +46,8 @@ def heading_cos_sin(heading: np.ndarray, steps: slice = slice(None)):
       (cos, sin), float32 `(..., num_objects, len(steps))`.
     """
     tail = packet_tail(heading.shape[-2:])[:, steps]
-    h = heading[..., steps]
-    return cos32(h, tail), sin32(h, tail)
+    sin, cos = sincos32(heading[..., steps], tail)
+    return cos, sin
 
 
 def _norm2(a, b):

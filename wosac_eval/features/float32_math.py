@@ -35,7 +35,8 @@ _SIN_COEFFS = (_F(-0.00019592341140837028984691969846210213290760293602943420410
 _HUGE = {True: 25966.0, False: 18838.0}
 
 
-def _packet_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
+def _packet_sincos(x: np.ndarray):
+    """(sin, cos) of float32 values by Eigen's packet algorithm; one shared reduction."""
     x = np.asarray(x, dtype=_F)
     ax = np.abs(x)
     with np.errstate(invalid="ignore", over="ignore"):
@@ -45,10 +46,8 @@ def _packet_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
         r = ax
         for part in _PIO2_PARTS:
             r = y * part + r
-        if sine:
-            sign = (x.view(np.int32) ^ (quadrant << 30)) & np.int32(-2**31)
-        else:
-            sign = ((quadrant + 1) << 30) & np.int32(-2**31)
+        sin_sign = (x.view(np.int32) ^ (quadrant << 30)) & np.int32(-2**31)
+        cos_sign = ((quadrant + 1) << 30) & np.int32(-2**31)
         use_first = (quadrant & 1) == 0
         r2 = r * r
         c = _COS_COEFFS[0]
@@ -58,16 +57,16 @@ def _packet_sincos(x: np.ndarray, sine: bool) -> np.ndarray:
         for coeff in _SIN_COEFFS[1:]:
             s = s * r2 + coeff
         s = (s * r2) * r + r
-        if sine:
-            out = np.where(use_first, s, c)
-        else:
-            out = np.where(use_first, c, s)
-        out = (out.view(np.int32) ^ sign).view(_F)
-    huge = ax >= _F(_HUGE[sine])
-    if np.any(huge):
-        exact = (np.sin if sine else np.cos)(x.astype(np.float64)).astype(_F)
-        out = np.where(huge & np.isfinite(x), exact, out)
-    return out
+        sin_out = (np.where(use_first, s, c).view(np.int32) ^ sin_sign).view(_F)
+        cos_out = (np.where(use_first, c, s).view(np.int32) ^ cos_sign).view(_F)
+    out = []
+    for sine, values in ((True, sin_out), (False, cos_out)):
+        huge = ax >= _F(_HUGE[sine])
+        if np.any(huge):
+            exact = (np.sin if sine else np.cos)(x.astype(np.float64)).astype(_F)
+            values = np.where(huge & np.isfinite(x), exact, values)
+        out.append(values)
+    return tuple(out)
 
 
 def _libm(x: np.ndarray, sine: bool) -> np.ndarray:
@@ -88,30 +87,34 @@ def packet_tail(shape) -> np.ndarray:
     return mask.reshape(shape)
 
 
-def _elementwise(x, sine: bool, libm_mask) -> np.ndarray:
-    x = np.asarray(x, dtype=_F)
-    out = _packet_sincos(x, sine)
-    if libm_mask is not None:
-        mask = np.broadcast_to(libm_mask, x.shape)
-        if mask.any():
-            out = np.where(mask, _libm(x, sine), out)
-    return out
-
-
-def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
-    """`sin` of float32 values, rounded as the official evaluator rounds them.
+def sincos32(x: np.ndarray, libm_mask: np.ndarray | None = None):
+    """(sin, cos) of float32 values, rounded as the official evaluator rounds them.
 
     Args:
       x: float32 array.
-      libm_mask: where True, the value is the correctly rounded one (the
+      libm_mask: where True, the values are the correctly rounded ones (the
         official op's trailing partial packet, see `packet_tail`).
     """
-    return _elementwise(x, True, libm_mask)
+    x = np.asarray(x, dtype=_F)
+    sin, cos = _packet_sincos(x)
+    if libm_mask is not None and x.ndim:
+        where = np.nonzero(np.broadcast_to(libm_mask, x.shape))
+        if where[0].size:
+            sin[where] = _libm(x[where], True)
+            cos[where] = _libm(x[where], False)
+    elif libm_mask is not None and np.any(libm_mask):
+        sin, cos = _libm(x, True), _libm(x, False)
+    return sin, cos
+
+
+def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
+    """`sin` of float32 values, rounded as the official evaluator rounds them (see `sincos32`)."""
+    return sincos32(x, libm_mask)[0]
 
 
 def cos32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
     """`cos` counterpart of `sin32`."""
-    return _elementwise(x, False, libm_mask)
+    return sincos32(x, libm_mask)[1]
 
 
 def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:

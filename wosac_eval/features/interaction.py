@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from wosac_eval.features import box_geometry
-from wosac_eval.features.float32_math import cos32, packet_tail, sin32
+from wosac_eval.features.float32_math import packet_tail, sincos32
 from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
 
@@ -131,7 +131,7 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     # Ego frame for every pair: (batch, steps, num_evaluated, num_objects).
     ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     minus_yaw = -heading[..., e, None]
-    ego_cos, ego_sin = cos32(minus_yaw, ego_tail), sin32(minus_yaw, ego_tail)
+    ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     dx = x[..., None, :] - x[..., e, None]
     dy = y[..., None, :] - y[..., e, None]
     rel_x = ego_cos * dx - ego_sin * dy
@@ -149,8 +149,7 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     b, st, ev, ob = np.nonzero(maybe)
     pair_tail = np.broadcast_to(packet_tail((num_steps, num_evaluated, num_objects))[steps], maybe.shape)
     yd = yaw_diff[b, st, ev, ob]
-    yaw_cos = cos32(yd, pair_tail[b, st, ev, ob])
-    yaw_sin = sin32(yd, pair_tail[b, st, ev, ob])
+    yaw_sin, yaw_cos = sincos32(yd, pair_tail[b, st, ev, ob])
     half_l = length[b, st, ob] / _F(2)
     half_w = width[b, st, ob] / _F(2)
     long_distance = ahead_of_front[b, st, ev, ob] - (half_l * np.abs(yaw_cos) + half_w * np.abs(yaw_sin))

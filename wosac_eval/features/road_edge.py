@@ -20,7 +20,6 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wosac_eval.features.spatial import first_minimum
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -202,6 +201,9 @@ def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
+    Returns (qi, si, starts): pairs grouped by query, every query has at least
+    one, and `starts[i]` is the first pair of query i.
+
     The selection distance D(k, p) projects p on segment k in the plane, then
     measures the stretched 3D offset; it moves by at most L_k |p - q| between
     points p and q (`SegmentTable.lipschitz`). Queries are grouped in cells of
@@ -264,9 +266,12 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     lo = first[inverse]
     hi = np.searchsorted(key, inverse * stride + limit, side="right")
     count = hi - lo
+    if count.min(initial=1) < 1:  # impossible by the bounds above; a bug if it happens
+        raise RuntimeError("road-edge candidate search left a query without candidates")
     qi = np.repeat(np.arange(len(q)), count)
-    pos = np.arange(qi.size) - np.repeat(np.cumsum(count) - count - lo, count)
-    return qi, seg[pos]
+    starts = np.cumsum(count) - count
+    pos = np.arange(qi.size) - np.repeat(starts - lo, count)
+    return qi, seg[pos], starts
 
 
 def _side(table: SegmentTable, query_xy, seg):
@@ -286,12 +291,16 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
       float32 `(num_points,)`, negative on the road side.
     """
     queries = np.asarray(queries, _F)
-    qi, si = _candidates(table, queries)
-    rel_t, d3, d2 = _pair_distances(table, queries, qi, si)
-    # Nearest in 3D, ties to the lowest segment index (pairs are grouped by query).
-    bq, best = first_minimum(qi, d3, si)
-    bs, bt, d2 = si[best], rel_t[best], d2[best]
-    xy = queries[bq, :2]
+    if len(queries) == 0:
+        return np.zeros(0, _F)
+    qi, si, starts = _candidates(table, queries)
+    d3 = _pair_distances(table, queries, qi, si)[1]
+    # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
+    # non-negative float32 values order like their bit patterns.
+    key = (d3.view(np.int32).astype(np.int64) << 32) | si
+    bs = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
+    bt, _, d2 = _pair_distances(table, queries, np.arange(len(queries)), bs)
+    xy = queries[:, :2]
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])
     n_next = _side(table, xy, table.next[bs])
@@ -299,9 +308,7 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     after = np.where(table.convex_after[bs], np.maximum(n, n_next), np.minimum(n, n_next))
     sign = np.where((bt < 0) & table.prior_valid[bs], before,
                     np.where((bt > 1) & table.next_valid[bs], after, n))
-    out = np.full(len(queries), np.nan, _F)  # every query has a candidate; NaN would show a bug
-    out[bq] = (sign * d2).astype(_F)
-    return out
+    return (sign * d2).astype(_F)
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:

@@ -54,18 +54,30 @@ def _norm2(a, b):
     return np.sqrt(a * a + b * b)
 
 
+_NEXT_VERTEX = np.array([1, 2, 3, 0])
+
+
 def _downmost_edge(px, py):
-    """Index of the lowest vertex and the unit direction of the edge leaving it."""
-    start = np.argmin(py, axis=-1)[..., None]
-    end = (start + 1) % 4
-    ex = np.take_along_axis(px, end, -1) - np.take_along_axis(px, start, -1)
-    ey = np.take_along_axis(py, end, -1) - np.take_along_axis(py, start, -1)
+    """Index of the lowest vertex `(...)` and the unit direction `(...)` of the edge leaving it.
+
+    Args:
+      px, py: float32 `(..., 4)`, contiguous.
+    """
+    start = np.argmin(py, axis=-1)
+    rows = np.arange(start.size).reshape(start.shape) * 4
+    first, second = rows + start, rows + _NEXT_VERTEX[start]
+    ex = np.take(px, second) - np.take(px, first)
+    ey = np.take(py, second) - np.take(py, first)
     length = _norm2(ex, ey)
     return start, ex / length, ey / length
 
 
 _ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3])
 _ORDER_B = np.array([0, 1, 1, 2, 2, 3, 3, 0])
+# Vertex orders by (whether B's lowest edge turns left of A's, lowest vertex):
+# _MERGE_A[t, k] is the order of A's vertices, _MERGE_B[t, k] of B's.
+_MERGE_A = np.stack([(_ORDER_A + k) % 4 for k in range(4)] + [(_ORDER_B + k) % 4 for k in range(4)]).reshape(2, 4, 8)
+_MERGE_B = np.stack([(_ORDER_B + k) % 4 for k in range(4)] + [(_ORDER_A + k) % 4 for k in range(4)]).reshape(2, 4, 8)
 
 
 def minkowski_difference(ax, ay, bx, by):
@@ -81,11 +93,12 @@ def minkowski_difference(ax, ay, bx, by):
     b_start, b_dx, b_dy = _downmost_edge(nbx, nby)
     # Merge the two edge sequences by angle, starting from the lowest vertices;
     # whose edge comes first depends on the turn between the lowest edges.
-    b_turns_left = (a_dx * b_dy - a_dy * b_dx) >= 0
-    a_order = (np.where(b_turns_left, _ORDER_B, _ORDER_A) + a_start) % 4
-    b_order = (np.where(b_turns_left, _ORDER_A, _ORDER_B) + b_start) % 4
-    mx = np.take_along_axis(ax, a_order, -1) + np.take_along_axis(nbx, b_order, -1)
-    my = np.take_along_axis(ay, a_order, -1) + np.take_along_axis(nby, b_order, -1)
+    b_turns_left = ((a_dx * b_dy - a_dy * b_dx) >= 0).astype(np.intp)
+    rows = (np.arange(b_turns_left.size).reshape(b_turns_left.shape) * 4)[..., None]
+    a_index = _MERGE_A[b_turns_left, a_start] + rows
+    b_index = _MERGE_B[b_turns_left, b_start] + rows
+    mx = np.take(ax, a_index) + np.take(nbx, b_index)
+    my = np.take(ay, a_index) + np.take(nby, b_index)
     return mx, my
 
 

@@ -72,18 +72,23 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
              flat(cos_h), flat(sin_h), flat(radius))
     # Step-major copies (batch, step, object) so that objects are the last axis.
     step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))
-    xt, yt, vt = step_major(x), step_major(y), step_major(valid)
-    reach = step_major(_F(0.5) * np.hypot(length, width))
-    # Lower bounds (batch, eval, step, object); impossible pairs are +inf.
-    ex = np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
-    ey = np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
-    dx, dy = xt[:, None] - ex, yt[:, None] - ey
-    centre = np.sqrt(dx * dx + dy * dy)
-    lower = centre - np.swapaxes(reach[:, :, :e], 1, 2)[..., None] - reach[:, None]
-    lower -= _F(1e-3) + _F(1e-5) * centre  # float32 rounding margin
-    possible = np.swapaxes(vt[:, :, :e], 1, 2)[..., None] & vt[:, None]
-    possible &= ~np.eye(e, num_objects, dtype=bool)[:, None, :]
-    lower = np.where(possible, lower, np.inf)
+    xt, yt = step_major(x), step_major(y)
+    # Bounding radii; invalid boxes get -inf so that their bounds become +inf.
+    reach = np.where(step_major(valid), step_major(_F(0.5) * np.hypot(length, width)), -np.inf).astype(_F)
+    # Lower bounds (batch, eval, step, object), computed in place:
+    # centre distance * (1 - 1e-5) - both radii - 1e-3 (float32 rounding margin).
+    lower = xt[:, None] - np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
+    lower *= lower
+    dy = yt[:, None] - np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
+    dy *= dy
+    lower += dy
+    np.sqrt(lower, out=lower)
+    lower *= _F(1 - 1e-5)
+    reach_sum = np.swapaxes(reach[:, :, :e], 1, 2)[..., None] + reach[:, None]
+    reach_sum += _F(1e-3)
+    lower -= reach_sum
+    evaluated = np.arange(e)
+    lower[:, evaluated, :, evaluated] = np.inf  # not against itself
     batch = lower.shape[0]
     box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
     # First guess: the object with the lowest bound, evaluated exactly.

@@ -118,7 +118,10 @@ def simulated_trajectories(scenario: ScenarioArrays, rollouts: RolloutArrays) ->
     """Each rollout's future after the logged history, every future step valid."""
     orders = np.stack([official_object_order(ids, scenario.evaluated_ids) for ids in rollouts.object_id])
     cols = np.stack([index_of_ids(ids, order) for ids, order in zip(rollouts.object_id, orders)])
-    take = lambda a: np.take_along_axis(a, cols[..., None], axis=1)
+    if (cols == cols[0]).all():  # usually every rollout lists the agents in the same order
+        take = lambda a: a if (cols[0] == np.arange(cols.shape[1])).all() else a[:, cols[0]]
+    else:
+        take = lambda a: np.take_along_axis(a, cols[..., None], axis=1)
     future = tuple(take(a) for a in (rollouts.x, rollouts.y, rollouts.z, rollouts.heading))
     return _composite(scenario, orders, future, np.ones(future[0].shape, dtype=bool))
 

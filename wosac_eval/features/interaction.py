@@ -139,18 +139,26 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     dx = x[..., None, :] - x[..., e, None]
     dy = y[..., None, :] - y[..., e, None]
-    rel_x = ego_cos * dx - ego_sin * dy
-    rel_y = ego_sin * dx + ego_cos * dy
-    ahead_of_front = rel_x - length[..., e, None] / _F(2)
-    beside_path = np.abs(rel_y) - width[..., e, None] / _F(2)
-    yaw_diff = np.abs(heading[..., None, :] - heading[..., e, None])
+    # rel_x = cos dx - sin dy, rel_y = sin dx + cos dy, in place (same float32 operations).
+    rel_x = ego_cos * dx
+    rel_y = np.multiply(ego_sin, dx, out=dx)
+    rel_x -= np.multiply(ego_sin, dy)
+    rel_y += np.multiply(ego_cos, dy, out=dy)
+    ahead_of_front = rel_x
+    ahead_of_front -= length[..., e, None] / _F(2)
+    beside_path = np.abs(rel_y, out=rel_y)
+    beside_path -= width[..., e, None] / _F(2)
+    yaw_diff = heading[..., None, :] - heading[..., e, None]
+    np.abs(yaw_diff, out=yaw_diff)
     # Only pairs that can be "following" need the other box's extents: its
     # offsets are non-negative and at most its half-diagonal, so a pair must be
     # ahead of the front (the float32 sign of a difference is exact), beside
     # the path within that half-diagonal, and aligned within 75 degrees.
     reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
-    maybe = ((ahead_of_front > 0) & (beside_path < reach[..., None, :])
-             & (yaw_diff <= MAX_HEADING_DIFF) & valid[..., None, :])
+    maybe = ahead_of_front > 0
+    maybe &= beside_path < reach[..., None, :]
+    maybe &= yaw_diff <= MAX_HEADING_DIFF
+    maybe &= valid[..., None, :]
     b, st, ev, ob = np.nonzero(maybe)
     pair_tail = np.broadcast_to(packet_tail((num_steps, num_evaluated, num_objects))[steps], maybe.shape)
     yd = yaw_diff[b, st, ev, ob]

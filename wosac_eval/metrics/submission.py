@@ -13,6 +13,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.features.metric_features import scenario_features
@@ -71,6 +72,7 @@ _WORKER: dict = {}
 
 
 def _init_worker(config_bytes: bytes, index: ScenarioIndex) -> None:
+    keep_freed_memory()
     _WORKER["config"] = SimAgentMetricsConfig.FromString(config_bytes)
     _WORKER["index"] = index
 

@@ -133,17 +133,22 @@ def _lipschitz(delta: np.ndarray) -> np.ndarray:
 
 
 def _sample_tree(start, delta, valid):
-    """k-d tree over points every `_SAMPLE_SPACING` metres along valid segments."""
+    """k-d tree over valid segments cut in pieces of at most `_SAMPLE_SPACING` (stretched) metres.
+
+    The tree holds each piece's midpoint, so every point of a segment is within
+    half the spacing of one of its tree points; points are numbered along the
+    segments in segment order.
+    """
     idx = np.flatnonzero(valid)
     if idx.size == 0:
         return None, np.zeros(0, np.int64)
     s = _stretch(start[idx])
     d = _stretch(delta[idx])
     length = np.linalg.norm(d, axis=-1)
-    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64)) + 1
+    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
     seg_of = np.repeat(np.arange(idx.size), count)
     first = np.repeat(np.cumsum(count) - count, count)
-    frac = (np.arange(seg_of.size) - first) / np.repeat(count - 1, count)
+    frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
     points = s[seg_of] + d[seg_of] * frac[:, None]
     return cKDTree(points), idx[seg_of]
 

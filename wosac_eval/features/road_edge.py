@@ -20,6 +20,8 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wosac_eval.features.spatial import pad_polylines
+
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -71,14 +73,11 @@ def build_segment_table(polylines) -> SegmentTable:
         raise ValueError("the scenario has no road edges")
     num_points = max(len(p) for p in kept)
     seg = num_points - 1
-    padded = np.zeros((len(kept), num_points, 3), _F)
-    point_valid = np.zeros((len(kept), num_points), bool)
-    cyclic = np.zeros(len(kept), bool)
-    for i, p in enumerate(kept):
-        padded[i, : len(p)] = p
-        point_valid[i, : len(p)] = True
-        gap = p[0] - p[-1]
-        cyclic[i] = np.sum(gap * gap, dtype=_F) < _F(CYCLIC_TOLERANCE_M2)
+    padded, point_valid = pad_polylines(kept, num_points)
+    lengths = point_valid.sum(axis=1)
+    gap = padded[:, 0] - padded[np.arange(len(kept)), lengths - 1]
+    squared = gap * gap
+    cyclic = (squared[:, 0] + squared[:, 1]) + squared[:, 2] < _F(CYCLIC_TOLERANCE_M2)
     start = padded[:, :-1]
     delta = padded[:, 1:] - padded[:, :-1]
     valid = point_valid[:, :-1] & point_valid[:, 1:]

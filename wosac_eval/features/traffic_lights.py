@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
-from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.spatial import first_minimum, pad_polylines, tree_candidates
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -52,11 +52,7 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     if not kept:
         return None
     max_points = max(len(p) for p, _ in kept)
-    points = np.zeros((len(kept), max_points, 2), _F)
-    point_valid = np.zeros((len(kept), max_points), bool)
-    for k, (p, _) in enumerate(kept):
-        points[k, : len(p)] = p
-        point_valid[k, : len(p)] = True
+    points, point_valid = pad_polylines([p for p, _ in kept], max_points)
     start = points[:, :-1].reshape(-1, 2)
     delta = (points[:, 1:] - points[:, :-1]).reshape(-1, 2)
     valid = point_valid[:, :-1].reshape(-1)

@@ -43,6 +43,29 @@ def _rounded_box_distance(boxes, eval_idx, other_idx):
     return (core - radius[eval_idx]) - radius[other_idx]
 
 
+# Pairs (samples x evaluated x steps x objects) processed at once: bounds the
+# working memory of the dense bounds (a few float32 arrays of this size).
+PAIRS_PER_CHUNK = 1 << 21
+
+
+def _sample_chunks(num_samples: int, pairs_per_sample: int):
+    """Slices of the samples axis holding at most `PAIRS_PER_CHUNK` pairs (at least one sample)."""
+    step = max(1, PAIRS_PER_CHUNK // max(1, pairs_per_sample))
+    return [slice(i, i + step) for i in range(0, max(num_samples, 1), step)]
+
+
+def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
+    """Runs `fn` over chunks of the flattened leading (samples) axes and joins the results."""
+    lead, (num_objects, num_steps) = arrays[0].shape[:-2], arrays[0].shape[-2:]
+    flat = [np.reshape(a, (-1,) + a.shape[-2:]) for a in arrays]
+    chunks = _sample_chunks(flat[0].shape[0], num_evaluated * num_objects * num_steps)
+    if len(chunks) == 1:
+        out = fn(*flat, num_evaluated, **kwargs)
+    else:
+        out = np.concatenate([fn(*(a[c] for a in flat), num_evaluated, **kwargs) for c in chunks])
+    return out.reshape(*lead, *out.shape[1:])
+
+
 def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
@@ -64,6 +87,10 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
       float32 `(..., num_evaluated, num_steps)`; 1e10 where the object is
       invalid or no other valid object exists.
     """
+    return _by_samples(_nearest_object_chunk, (x, y, length, width, cos_h, sin_h, valid), num_evaluated)
+
+
+def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     e = num_evaluated
     radius = np.minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
@@ -126,6 +153,12 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     Returns:
       float32 `(..., num_evaluated, len(steps))`.
     """
+    return _by_samples(_time_to_collision_chunk, (x, y, length, width, heading, valid), num_evaluated,
+                       seconds_per_step=seconds_per_step, steps=steps)
+
+
+def _time_to_collision_chunk(x, y, length, width, heading, valid, num_evaluated: int,
+                             seconds_per_step: float, steps: slice):
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
     # Work step-major like the official code: (batch, steps, objects).

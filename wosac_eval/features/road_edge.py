@@ -8,9 +8,11 @@ point projects past a segment end, the sign follows the convexity of the
 corner between the segment and its neighbour.
 
 Segment search groups the query points in 1 m cells, finds each cell's
-candidate segments with a k-d tree over points sampled along every segment,
-narrows them per point with a distance bound, then evaluates the exact float32
-distance on the few remaining candidates, so results equal an all-pairs search.
+candidate segments with a k-d tree over points along every segment, narrows
+them per point with a distance bound (one `searchsorted` in the cell's
+candidates sorted by distance), then evaluates the exact float32 distance on
+the few survivors; the bounds are proven, so results equal an all-pairs
+search (tests compare with brute force, steep ramps included).
 """
 from __future__ import annotations
 
@@ -211,12 +213,13 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     The selection distance D(k, p) projects p on segment k in the plane, then
     measures the stretched 3D offset; it moves by at most L_k |p - q| between
     points p and q (`SegmentTable.lipschitz`). Queries are grouped in cells of
-    side `_CELL` (half-diagonal h) with centre c:
+    side `_CELL`; a cell is represented by the centroid c of its queries and
+    the largest distance h from c to one of them:
       - any segment j bounds the cell's minimum: D(j, p) <= D(j, c) + L_j h = U_j;
       - a segment k can only be nearest somewhere in the cell if
         D(k, c) - L_k h <= min_j U_j, and D(k, c) is at least the distance from c
-        to k's nearest k-d tree sample minus half the sample spacing, which
-        bounds the k-d tree search;
+        to k's nearest k-d tree point minus half the spacing, which bounds
+        the k-d tree search;
       - for one query p at distance r from c, with b = D(cell's first candidate, p),
         k can only win if D(k, c) <= b + L_max r, a cut made with one
         `searchsorted` in the cell's candidates sorted by D(k, c).

@@ -144,6 +144,13 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
     if signals.state.shape[0] != num_steps:
         raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
                          f"expected one per step ({num_steps})")
+    # Only signals that show a stop at some step and sit on a known lane can be violated.
+    match = (lanes.lane_ids[None, :] == signals.lane_id[:, None]).any(axis=1)
+    relevant = np.isin(signals.state, LANE_STATE_STOP_VALUES).any(axis=0) & match
+    if not relevant.any():
+        return np.zeros(np.shape(valid), bool)
+    signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
+                                  stop_point=signals.stop_point[:, relevant])
     xy = np.stack([x, y], axis=-1).astype(_F)
     seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
     squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]

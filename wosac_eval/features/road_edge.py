@@ -204,6 +204,26 @@ def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
     return np.repeat(np.arange(len(centres)), sizes), points
 
 
+def _cells_of(points_t: np.ndarray):
+    """(number of occupied cells, cell of each point) for cubic cells of side `_CELL`.
+
+    Args:
+      points_t: float64 `(3, num_points)`.
+    Returns:
+      int, and int64 `(num_points,)` numbering the occupied cells in key order.
+    """
+    cell = np.floor(points_t / _CELL).astype(np.int64)
+    low = cell.min(axis=1)
+    span = cell.max(axis=1) - low + 1
+    key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
+    num_keys = int(np.prod(span, dtype=np.float64))
+    if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
+        occupied = np.bincount(key, minlength=num_keys) > 0
+        return int(occupied.sum()), (np.cumsum(occupied) - 1)[key]
+    keys, inverse = np.unique(key, return_inverse=True)
+    return len(keys), inverse.reshape(-1)
+
+
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
@@ -227,19 +247,14 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     """
     q = _stretch(queries)
     qt = np.ascontiguousarray(q.T)
-    cell_of = np.floor(q / _CELL).astype(np.int64)
-    low = cell_of.min(axis=0)
-    span = cell_of.max(axis=0) - low + 1
-    key = ((cell_of[:, 0] - low[0]) * span[1] + (cell_of[:, 1] - low[1])) * span[2] + (cell_of[:, 2] - low[2])
-    keys, inverse = np.unique(key, return_inverse=True)
-    cells = np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + low
+    num_cells, inverse = _cells_of(qt)
     # Each cell is represented by the centroid of its queries and the largest
     # distance from it to one of them (at most the cell's half-diagonal).
-    count = np.bincount(inverse, minlength=len(keys)).astype(np.float64)
-    centre = np.stack([np.bincount(inverse, weights=q[:, k], minlength=len(keys)) for k in range(3)], axis=1)
+    count = np.bincount(inverse, minlength=num_cells).astype(np.float64)
+    centre = np.stack([np.bincount(inverse, weights=qt[k], minlength=num_cells) for k in range(3)], axis=1)
     centre /= count[:, None]
     r = np.sqrt(np.sum((qt - centre.T[:, inverse]) ** 2, axis=0))
-    h_cell = np.zeros(len(keys))
+    h_cell = np.zeros(num_cells)
     np.maximum.at(h_cell, inverse, r)
     h_cell += 1e-9
     lipschitz = table.lipschitz
@@ -256,7 +271,7 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     new = np.r_[True, (ci[1:] != ci[:-1]) | (seg[1:] != seg[:-1])]
     ci, seg = ci[new], seg[new]
     d = _segment_distance64(table, centre_t[:, ci], seg)
-    best_upper = np.full(len(cells), np.inf)
+    best_upper = np.full(num_cells, np.inf)
     np.minimum.at(best_upper, ci, d + lipschitz[seg] * h_cell[ci])
     keep = d - lipschitz[seg] * h_cell[ci] <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
     ci, seg, d = ci[keep], seg[keep], d[keep]
@@ -266,7 +281,7 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     key = ci * stride + d
     order = np.argsort(key)
     key, seg = key[order], seg[order]
-    first = np.searchsorted(ci, np.arange(len(cells)))  # ci is sorted already
+    first = np.searchsorted(ci, np.arange(num_cells))  # ci is sorted already
     cell_lipschitz = np.maximum.reduceat(lipschitz[seg], first)
     bound = _segment_distance64(table, qt, seg[first][inverse])
     limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX
 from wosac_eval.metrics.submission import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios
@@ -71,6 +72,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--repeat", type=int, default=3)
     args = p.parse_args()
+    keep_freed_memory()  # as the CLI does
     base = next(s for s, _ in iter_scenarios(SHARED / "womd" / "motion_data_one_scenario.tfrecord"))
     rng = np.random.default_rng(0)
     print(f"{'agents':>6} {'evaluated':>9} {'s/scenario':>10} {'eval x agents':>13}")

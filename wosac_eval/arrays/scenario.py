@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 
 from wosac_eval.arrays.trajectories import ObjectTrajectories
+from wosac_eval.parse.wire import record_runs
 from wosac_eval.protos import map_pb2, scenario_pb2
 
 CURRENT_TIME_INDEX = 10   # the 11th step is "now"; the simulation starts after it
@@ -64,15 +65,12 @@ def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
         lengths = sorted({len(t.states) for t in tracks})
         raise ValueError(f"scenario {scenario.scenario_id}: tracks have different numbers "
                          f"of states {lengths}")
-    fields = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
-    states = [state for t in tracks for state in t.states]
     shape = (len(tracks), num_steps)
-    # Read field by field over all states; float64 values are rounded once to
-    # float32, as the official converter does with Python floats.
-    columns = [np.fromiter([getattr(st, f) for st in states], np.float64, len(states))
-               .astype(np.float32).reshape(shape) for f in fields]
-    valid = np.fromiter([st.valid for st in states], bool, len(states)).reshape(shape)
-    values = np.stack(columns, axis=-1)
+    values = np.empty(shape + (len(_STATE_FIELDS),), np.float32)
+    valid = np.empty(shape, bool)
+    runs, _ = record_runs([t.SerializeToString() for t in tracks], 3, _STATE_LAYOUT, [num_steps] * len(tracks))
+    for i, (track, run) in enumerate(zip(tracks, runs)):
+        values[i], valid[i] = _track_states(track, num_steps, run)
     return ObjectTrajectories(
         x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
         length=values[..., 4], width=values[..., 5], height=values[..., 6], valid=valid,
@@ -80,10 +78,41 @@ def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
         object_type=np.array([t.object_type for t in tracks], dtype=np.int32))
 
 
-def _polyline(points) -> np.ndarray:
-    n = len(points)
-    xyz = np.fromiter([c for p in points for c in (p.x, p.y, p.z)], np.float64, 3 * n)
-    return xyz.reshape(n, 3).astype(np.float32)
+# ObjectState fields 2..11 and MapPoint fields 1..3 as laid out on the wire.
+_STATE_LAYOUT = ((2, "d"), (3, "d"), (4, "d"), (5, "f"), (6, "f"), (7, "f"), (8, "f"), (9, "f"), (10, "f"),
+                 (11, "b"))
+_STATE_FIELDS = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
+_STATE_COLUMNS = (0, 1, 2, 6, 3, 4, 5)  # _STATE_FIELDS in _STATE_LAYOUT
+_POINT_LAYOUT = ((1, "d"), (2, "d"), (3, "d"))
+
+
+def _track_states(track, num_steps: int, run: np.ndarray | None = None):
+    """float32 `(num_steps, 7)` in `_STATE_FIELDS` order, bool `(num_steps,)` valid.
+
+    float64 values are rounded once to float32, as the official converter does
+    with Python floats. `run`: the states read from the wire (`record_runs`),
+    or None to read the parsed fields.
+    """
+    if run is not None:
+        return run[:, _STATE_COLUMNS].astype(np.float32), run[:, -1].astype(bool)
+    states = track.states
+    columns = [np.fromiter([getattr(st, f) for st in states], np.float64, num_steps) for f in _STATE_FIELDS]
+    valid = np.fromiter([st.valid for st in states], bool, num_steps)
+    return np.stack(columns, axis=-1).astype(np.float32), valid
+
+
+def _polylines(parents, field_number: int) -> list:
+    """float32 `(num_points, 3)` of a `repeated MapPoint` field, for each parent message."""
+    point_lists = [parent.polyline for parent in parents]
+    runs, _ = record_runs([parent.SerializeToString() for parent in parents], field_number, _POINT_LAYOUT,
+                          [len(points) for points in point_lists])
+    out = []
+    for points, xyz in zip(point_lists, runs):
+        if xyz is None:
+            n = len(points)
+            xyz = np.fromiter([c for p in points for c in (p.x, p.y, p.z)], np.float64, 3 * n).reshape(n, 3)
+        out.append(xyz.astype(np.float32))
+    return out
 
 
 def _traffic_signals(scenario: scenario_pb2.Scenario) -> TrafficSignals | None:
@@ -122,14 +151,15 @@ def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
 def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
     """Converts a parsed `Scenario` into `ScenarioArrays`."""
     surface = map_pb2.LaneCenter.TYPE_SURFACE_STREET
-    road_edges, lane_ids, lanes = [], [], []
+    edges, lane_ids, lanes = [], [], []
     for feature in scenario.map_features:
         kind = feature.WhichOneof("feature_data")
         if kind == "road_edge":
-            road_edges.append(_polyline(feature.road_edge.polyline))
+            edges.append(feature.road_edge)
         elif kind == "lane" and feature.lane.type == surface:
             lane_ids.append(feature.id)
-            lanes.append(_polyline(feature.lane.polyline))
+            lanes.append(feature.lane)
+    road_edges, lanes = _polylines(edges, 2), _polylines(lanes, 8)
     return ScenarioArrays(
         scenario_id=scenario.scenario_id,
         log=_track_arrays(scenario),

@@ -22,7 +22,7 @@ import numpy as np
 from jax import lax
 
 from wosac_eval.features import box_geometry, interaction, kinematics, road_edge, traffic_lights
-from wosac_eval.features.float32_math import cos32, sin32
+from wosac_eval.features.float32_math import sincos32
 
 _F = np.float32
 # Pairs evaluated at once in the chunked searches (bounds the working memory).
@@ -40,6 +40,11 @@ def _chunked(fn, xs, chunk: int):
     grouped = jax.tree_util.tree_map(lambda a: a.reshape((-1, chunk) + a.shape[1:]), padded)
     out = lax.map(fn, grouped)
     return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n], out)
+
+
+def _columns(xyz):
+    """x, y, z of float32 `(..., 3)`."""
+    return xyz[..., 0], xyz[..., 1], xyz[..., 2]
 
 
 def _rows_per_chunk(columns: int) -> int:
@@ -82,10 +87,10 @@ def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair
     """
     e = slice(0, num_evaluated)
     minus_yaw = -heading[:, e, None]
-    ego_cos, ego_sin = cos32(minus_yaw, ego_tail), sin32(minus_yaw, ego_tail)
+    ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     ahead, beside, yaw_diff = interaction.ego_frame_offsets(x, y, length, width, heading,
                                                             ego_cos, ego_sin, num_evaluated)
-    yaw_cos, yaw_sin = cos32(yaw_diff, pair_tail), sin32(yaw_diff, pair_tail)
+    yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
     gap, following = interaction.following_gap(ahead, beside, yaw_diff, yaw_cos, yaw_sin,
                                                length[:, None, :], width[:, None, :])
     following &= (ahead > 0) & (yaw_diff <= interaction.MAX_HEADING_DIFF) & valid[:, None, :]
@@ -112,12 +117,14 @@ def signed_distance_to_road_edge(queries, segments):
     s = segments
 
     def nearest(q):
-        d3 = road_edge.segment_pair_distances(q[:, None, :], s["start"][None], s["delta"][None])[1]
+        d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][None]),
+                                         *_columns(s["delta"][None]))[1]
         return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
 
     best = _chunked(nearest, queries, _rows_per_chunk(s["start"].shape[0]))
     pick = {k: v[best] for k, v in s.items()}
-    rel_t, _, d2 = road_edge.segment_pair_distances(queries, pick["start"], pick["delta"])
+    rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]),
+                                               *_columns(pick["delta"]))
     xy = queries[:, :2]
     sign = road_edge.corner_sign(
         rel_t, road_edge.segment_side(xy, pick["start"], pick["delta"]),
@@ -165,7 +172,7 @@ def sample_features(t, m, num_evaluated: int, seconds_per_step: float, future: s
         t["x"][:, e], t["y"][:, e], t["z"][:, e], t["heading"][:, e], seconds_per_step)
     f = lambda a: a[..., future]
     h = f(t["heading"])
-    cos_h, sin_h = cos32(h, t["heading_tail"]), sin32(h, t["heading_tail"])
+    sin_h, cos_h = sincos32(h, t["heading_tail"])
 
     def per_sample(args):
         x, y, length, width, c, s, valid = args

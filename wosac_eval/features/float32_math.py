@@ -41,7 +41,8 @@ _SIN_COEFFS = (_F(-0.00019592341140837028984691969846210213290760293602943420410
 _HUGE = {True: 25966.0, False: 18838.0}
 
 
-def _packet_sincos(x, sine: bool):
+def _packet_sincos(x):
+    """(sin, cos) of float32 values by Eigen's packet algorithm; one shared reduction."""
     xp = array_namespace(x)
     x = xp.asarray(x, dtype=_F)
     ax = xp.abs(x)
@@ -53,10 +54,8 @@ def _packet_sincos(x, sine: bool):
         r = ax
         for part in _PIO2_PARTS:
             r = y * part + r
-        if sine:
-            sign = (bitcast(x, np.int32, xp) ^ (quadrant << 30)) & np.int32(-2**31)
-        else:
-            sign = ((quadrant + 1) << 30) & np.int32(-2**31)
+        sin_sign = (bitcast(x, np.int32, xp) ^ (quadrant << 30)) & np.int32(-2**31)
+        cos_sign = ((quadrant + 1) << 30) & np.int32(-2**31)
         use_first = (quadrant & 1) == 0
         r2 = r * r
         c = _COS_COEFFS[0]
@@ -66,16 +65,17 @@ def _packet_sincos(x, sine: bool):
         for coeff in _SIN_COEFFS[1:]:
             s = s * r2 + coeff
         s = (s * r2) * r + r
-        if sine:
-            out = xp.where(use_first, s, c)
-        else:
-            out = xp.where(use_first, c, s)
-        out = bitcast(bitcast(out, np.int32, xp) ^ sign, _F, xp)
-    huge = ax >= _F(_HUGE[sine])
-    # numpy skips the fallback when no value needs it; traced code cannot branch on data.
-    if not is_numpy(xp) or np.any(huge):
-        out = xp.where(huge & xp.isfinite(x), _libm(x, sine), out)
-    return out
+        flip = lambda v, sign: bitcast(bitcast(v, np.int32, xp) ^ sign, _F, xp)
+        sin_out = flip(xp.where(use_first, s, c), sin_sign)
+        cos_out = flip(xp.where(use_first, c, s), cos_sign)
+    out = []
+    for sine, values in ((True, sin_out), (False, cos_out)):
+        huge = ax >= _F(_HUGE[sine])
+        # numpy skips the fallback when no value needs it; traced code cannot branch on data.
+        if not is_numpy(xp) or np.any(huge):
+            values = xp.where(huge & xp.isfinite(x), _libm(x, sine), values)
+        out.append(values)
+    return tuple(out)
 
 
 def _libm(x, sine: bool):
@@ -98,31 +98,43 @@ def packet_tail(shape) -> np.ndarray:
     return mask.reshape(shape)
 
 
-def _elementwise(x, sine: bool, libm_mask):
-    xp = array_namespace(x, libm_mask)
-    x = xp.asarray(x, dtype=_F)
-    out = _packet_sincos(x, sine)
-    if libm_mask is not None:
-        mask = xp.broadcast_to(libm_mask, x.shape)
-        if not is_numpy(xp) or mask.any():
-            out = xp.where(mask, _libm(x, sine), out)
-    return out
-
-
-def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
-    """`sin` of float32 values, rounded as the official evaluator rounds them.
+def sincos32(x: np.ndarray, libm_mask: np.ndarray | None = None):
+    """(sin, cos) of float32 values, rounded as the official evaluator rounds them.
 
     Args:
       x: float32 array.
-      libm_mask: where True, the value is the correctly rounded one (the
+      libm_mask: where True, the values are the correctly rounded ones (the
         official op's trailing partial packet, see `packet_tail`).
     """
-    return _elementwise(x, True, libm_mask)
+    xp = array_namespace(x, libm_mask)
+    if not is_numpy(xp):
+        x = xp.asarray(x, dtype=_F)
+        sin, cos = _packet_sincos(x)
+        if libm_mask is not None:
+            # Traced code selects instead of assigning in place.
+            mask = xp.broadcast_to(libm_mask, x.shape)
+            sin, cos = xp.where(mask, _libm(x, True), sin), xp.where(mask, _libm(x, False), cos)
+        return sin, cos
+    x = np.asarray(x, dtype=_F)
+    sin, cos = _packet_sincos(x)
+    if libm_mask is not None and x.ndim:
+        where = np.nonzero(np.broadcast_to(libm_mask, x.shape))
+        if where[0].size:
+            sin[where] = _libm(x[where], True)
+            cos[where] = _libm(x[where], False)
+    elif libm_mask is not None and np.any(libm_mask):
+        sin, cos = _libm(x, True), _libm(x, False)
+    return sin, cos
+
+
+def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
+    """`sin` of float32 values, rounded as the official evaluator rounds them (see `sincos32`)."""
+    return sincos32(x, libm_mask)[0]
 
 
 def cos32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
     """`cos` counterpart of `sin32`."""
-    return _elementwise(x, False, libm_mask)
+    return sincos32(x, libm_mask)[1]
 
 
 def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:

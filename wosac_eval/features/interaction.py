@@ -11,10 +11,10 @@ import math
 import numpy as np
 
 from wosac_eval.features import box_geometry
-from wosac_eval.features.float32_math import cos32, packet_tail, sin32
+from wosac_eval.features.float32_math import packet_tail, sincos32
 from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
-from wosac_eval.features.xp import array_namespace, divide, errstate
+from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -56,8 +56,30 @@ def _rounded_box_distance(boxes, eval_idx, other_idx):
     return rounded_box_distance(tuple(a[eval_idx] for a in boxes), tuple(a[other_idx] for a in boxes))
 
 
-def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
-                               first_guesses: int = 1):
+# Pairs (samples x evaluated x steps x objects) processed at once: bounds the
+# working memory of the dense bounds (a few float32 arrays of this size).
+PAIRS_PER_CHUNK = 1 << 21
+
+
+def _sample_chunks(num_samples: int, pairs_per_sample: int):
+    """Slices of the samples axis holding at most `PAIRS_PER_CHUNK` pairs (at least one sample)."""
+    step = max(1, PAIRS_PER_CHUNK // max(1, pairs_per_sample))
+    return [slice(i, i + step) for i in range(0, max(num_samples, 1), step)]
+
+
+def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
+    """Runs `fn` over chunks of the flattened leading (samples) axes and joins the results."""
+    lead, (num_objects, num_steps) = arrays[0].shape[:-2], arrays[0].shape[-2:]
+    flat = [np.reshape(a, (-1,) + a.shape[-2:]) for a in arrays]
+    chunks = _sample_chunks(flat[0].shape[0], num_evaluated * num_objects * num_steps)
+    if len(chunks) == 1:
+        out = fn(*flat, num_evaluated, **kwargs)
+    else:
+        out = np.concatenate([fn(*(a[c] for a in flat), num_evaluated, **kwargs) for c in chunks])
+    return out.reshape(*lead, *out.shape[1:])
+
+
+def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of
@@ -66,9 +88,9 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
 
     Only pairs that can be nearest are evaluated exactly: the distance between
     two shapes is at least the distance between their centres minus their
-    bounding radii, so after evaluating the `first_guesses` most promising
-    objects, any pair whose lower bound exceeds the best distance found is
-    skipped. The result equals the all-pairs minimum bit for bit.
+    bounding radii, so after evaluating the most promising object (lowest
+    bound), any pair whose lower bound exceeds the distance found is skipped.
+    The result equals the all-pairs minimum bit for bit.
 
     Args:
       x, y, length, width, cos_h, sin_h: float32 `(..., num_objects, num_steps)`.
@@ -78,6 +100,10 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
       float32 `(..., num_evaluated, num_steps)`; 1e10 where the object is
       invalid or no other valid object exists.
     """
+    return _by_samples(_nearest_object_chunk, (x, y, length, width, cos_h, sin_h, valid), num_evaluated)
+
+
+def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     e = num_evaluated
     radius = np.minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
@@ -86,31 +112,37 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
              flat(cos_h), flat(sin_h), flat(radius))
     # Step-major copies (batch, step, object) so that objects are the last axis.
     step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))
-    xt, yt, vt = step_major(x), step_major(y), step_major(valid)
-    reach = step_major(_F(0.5) * np.hypot(length, width))
-    # Lower bounds (batch, eval, step, object); impossible pairs are +inf.
-    ex = np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
-    ey = np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
-    centre = np.hypot(xt[:, None] - ex, yt[:, None] - ey)
-    lower = centre - np.swapaxes(reach[:, :, :e], 1, 2)[..., None] - reach[:, None]
-    lower -= _F(1e-3) + _F(1e-5) * centre  # float32 rounding margin
-    possible = np.swapaxes(vt[:, :, :e], 1, 2)[..., None] & vt[:, None]
-    possible &= ~np.eye(e, num_objects, dtype=bool)[:, None, :]
-    lower = np.where(possible, lower, np.inf)
+    xt, yt = step_major(x), step_major(y)
+    # Bounding radii; invalid boxes get -inf so that their bounds become +inf.
+    reach = np.where(step_major(valid), step_major(_F(0.5) * np.hypot(length, width)), -np.inf).astype(_F)
+    # Lower bounds (batch, eval, step, object), computed in place:
+    # centre distance * (1 - 1e-5) - both radii - 1e-3 (float32 rounding margin).
+    lower = xt[:, None] - np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
+    lower *= lower
+    dy = yt[:, None] - np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
+    dy *= dy
+    lower += dy
+    np.sqrt(lower, out=lower)
+    lower *= _F(1 - 1e-5)
+    reach_sum = np.swapaxes(reach[:, :, :e], 1, 2)[..., None] + reach[:, None]
+    reach_sum += _F(1e-3)
+    lower -= reach_sum
+    evaluated = np.arange(e)
+    lower[:, evaluated, :, evaluated] = np.inf  # not against itself
     batch = lower.shape[0]
-    b, ev, st = (i[..., None] for i in np.indices((batch, e, num_steps), sparse=True))
     box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
-    k = min(first_guesses, num_objects)
-    guess = (np.argpartition(lower, k - 1, axis=-1)[..., :k] if k < num_objects
-             else np.broadcast_to(np.arange(num_objects), lower.shape))
-    guess_lower = np.take_along_axis(lower, guess, axis=-1)
-    finite = np.isfinite(guess_lower)
-    guess_d = np.full(guess.shape, np.inf, dtype=np.float32)
-    gb, ge, gs = (np.broadcast_to(i, guess.shape)[finite] for i in (b, ev, st))
-    guess_d[finite] = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, guess[finite], gs))
-    best = guess_d.min(axis=-1, keepdims=True)
-    cb, ce, cs, co = np.nonzero(possible & (lower <= best + _F(1e-3)))
+    # First guess: the object with the lowest bound, evaluated exactly.
+    guess = np.argmin(lower, axis=-1)
+    gb, ge, gs = np.nonzero(np.isfinite(np.min(lower, axis=-1)))
+    go = guess[gb, ge, gs]
     distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
+    if gb.size == 0:
+        return distance.reshape(*lead, e, num_steps)
+    guess_d = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
+    distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
+    # Then every other pair whose bound does not exclude it.
+    lower[gb, ge, gs, go] = np.inf
+    cb, ce, cs, co = np.nonzero(lower <= distance[..., None] + _F(1e-3))
     if cb.size:
         d = _rounded_box_distance(boxes, box_of(cb, ce, cs), box_of(cb, co, cs))
         np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
@@ -133,6 +165,19 @@ def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evalua
     e = slice(0, num_evaluated)
     dx = x[..., None, :] - x[..., e, None]
     dy = y[..., None, :] - y[..., e, None]
+    if is_numpy(xp):
+        # rel_x = cos dx - sin dy, rel_y = sin dx + cos dy, in place (the same float32 operations).
+        rel_x = ego_cos * dx
+        rel_y = np.multiply(ego_sin, dx, out=dx)
+        rel_x -= np.multiply(ego_sin, dy)
+        rel_y += np.multiply(ego_cos, dy, out=dy)
+        ahead_of_front = rel_x
+        ahead_of_front -= length[..., e, None] / _F(2)
+        beside_path = np.abs(rel_y, out=rel_y)
+        beside_path -= width[..., e, None] / _F(2)
+        yaw_diff = heading[..., None, :] - heading[..., e, None]
+        np.abs(yaw_diff, out=yaw_diff)
+        return ahead_of_front, beside_path, yaw_diff
     rel_x = ego_cos * dx - ego_sin * dy
     rel_y = ego_sin * dx + ego_cos * dy
     ahead_of_front = rel_x - length[..., e, None] / _F(2)
@@ -185,6 +230,12 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     Returns:
       float32 `(..., num_evaluated, len(steps))`.
     """
+    return _by_samples(_time_to_collision_chunk, (x, y, length, width, heading, valid), num_evaluated,
+                       seconds_per_step=seconds_per_step, steps=steps)
+
+
+def _time_to_collision_chunk(x, y, length, width, heading, valid, num_evaluated: int,
+                             seconds_per_step: float, steps: slice):
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
     # Work step-major like the official code: (batch, steps, objects).
@@ -195,7 +246,7 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     # Ego frame for every pair: (batch, steps, num_evaluated, num_objects).
     ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     minus_yaw = -heading[..., e, None]
-    ego_cos, ego_sin = cos32(minus_yaw, ego_tail), sin32(minus_yaw, ego_tail)
+    ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     ahead_of_front, beside_path, yaw_diff = ego_frame_offsets(x, y, length, width, heading,
                                                               ego_cos, ego_sin, num_evaluated)
     # Only pairs that can be "following" need the other box's extents: its
@@ -203,13 +254,14 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
     # ahead of the front (the float32 sign of a difference is exact), beside
     # the path within that half-diagonal, and aligned within 75 degrees.
     reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
-    maybe = ((ahead_of_front > 0) & (beside_path < reach[..., None, :])
-             & (yaw_diff <= MAX_HEADING_DIFF) & valid[..., None, :])
+    maybe = ahead_of_front > 0
+    maybe &= beside_path < reach[..., None, :]
+    maybe &= yaw_diff <= MAX_HEADING_DIFF
+    maybe &= valid[..., None, :]
     b, st, ev, ob = np.nonzero(maybe)
     pair_tail = np.broadcast_to(packet_tail((num_steps, num_evaluated, num_objects))[steps], maybe.shape)
     yd = yaw_diff[b, st, ev, ob]
-    yaw_cos = cos32(yd, pair_tail[b, st, ev, ob])
-    yaw_sin = sin32(yd, pair_tail[b, st, ev, ob])
+    yaw_sin, yaw_cos = sincos32(yd, pair_tail[b, st, ev, ob])
     long_distance, following = following_gap(ahead_of_front[b, st, ev, ob], beside_path[b, st, ev, ob], yd,
                                              yaw_cos, yaw_sin, length[b, st, ob], width[b, st, ob])
     ttc = np.full(maybe.shape[:-1], MAXIMUM_TIME_TO_COLLISION, dtype=_F)

@@ -254,3 +254,32 @@ def test_all_steps_with_nan_speeds_at_the_ends():
     # At the first and last step the speeds are NaN: no closing speed, 5 s.
     assert full[0, 0] == 5.0 and full[0, -1] == 5.0
     np.testing.assert_array_equal(full[0, 1:4], np.array([5.5, 3.0, 0.5], F) / F(5))
+
+
+def random_traffic(rng, samples=5, objects=12, steps=91):
+    """Boxes drifting along a few lanes, so that there are neighbours and leaders."""
+    lane = rng.integers(0, 3, objects)
+    x = rng.uniform(0, 60, (samples, objects, 1)) + np.arange(steps) * rng.uniform(0.5, 1.5, (samples, objects, 1))
+    y = (lane * 3.5)[None, :, None] + rng.normal(0, 0.3, (samples, objects, steps))
+    heading = rng.normal(0, 0.1, (samples, objects, steps))
+    length = np.broadcast_to(rng.uniform(3.5, 5, (1, objects, 1)), x.shape)
+    width = np.broadcast_to(rng.uniform(1.6, 2.1, (1, objects, 1)), x.shape)
+    valid = rng.random(x.shape) > 0.05
+    return [np.ascontiguousarray(a, np.float32) for a in (x, y, length, width, heading)] + [valid]
+
+
+def test_chunks_over_samples_give_the_same_results(monkeypatch):
+    rng = np.random.default_rng(11)
+    x, y, length, width, heading, valid = random_traffic(rng)
+    steps = slice(11, None)
+    cos_h, sin_h = cos32(heading[..., steps]), sin32(heading[..., steps])
+    nearest_args = (x[..., steps], y[..., steps], length[..., steps], width[..., steps], cos_h, sin_h,
+                    valid[..., steps], 4)
+    whole_nearest = interaction.distance_to_nearest_object(*nearest_args)
+    whole_ttc = interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, steps)
+    assert (whole_ttc < interaction.MAXIMUM_TIME_TO_COLLISION).any()
+    monkeypatch.setattr(interaction, "PAIRS_PER_CHUNK", 4 * 12 * 91 * 2)  # two samples per chunk
+    assert len(interaction._sample_chunks(5, 4 * 12 * 91)) == 3
+    np.testing.assert_array_equal(interaction.distance_to_nearest_object(*nearest_args), whole_nearest)
+    np.testing.assert_array_equal(interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, steps),
+                                  whole_ttc)

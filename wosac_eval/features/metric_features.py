@@ -118,7 +118,10 @@ def simulated_trajectories(scenario: ScenarioArrays, rollouts: RolloutArrays) ->
     """Each rollout's future after the logged history, every future step valid."""
     orders = np.stack([official_object_order(ids, scenario.evaluated_ids) for ids in rollouts.object_id])
     cols = np.stack([index_of_ids(ids, order) for ids, order in zip(rollouts.object_id, orders)])
-    take = lambda a: np.take_along_axis(a, cols[..., None], axis=1)
+    if (cols == cols[0]).all():  # usually every rollout lists the agents in the same order
+        take = lambda a: a if (cols[0] == np.arange(cols.shape[1])).all() else a[:, cols[0]]
+    else:
+        take = lambda a: np.take_along_axis(a, cols[..., None], axis=1)
     future = tuple(take(a) for a in (rollouts.x, rollouts.y, rollouts.z, rollouts.heading))
     return _composite(scenario, orders, future, np.ones(future[0].shape, dtype=bool))
 
@@ -195,13 +198,31 @@ def _signals_from(signals, start: int):
     return dataclasses.replace(signals, state=signals.state[start:], stop_point=signals.stop_point[start:])
 
 
+def _stack_samples(a: ObjectTrajectories, b: ObjectTrajectories) -> ObjectTrajectories:
+    """The samples of `a` followed by those of `b` (same number of objects)."""
+    return ObjectTrajectories(**{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)])
+                                 for f in dataclasses.fields(ObjectTrajectories)})
+
+
+def _split_samples(features: MetricFeatures, first: int) -> tuple[MetricFeatures, MetricFeatures]:
+    """(the first `first` samples, the others)."""
+    def part(rows):
+        return MetricFeatures(**{f.name: getattr(features, f.name) if f.name == "object_id"
+                                 else getattr(features, f.name)[rows] for f in dataclasses.fields(MetricFeatures)})
+    return part(slice(0, first)), part(slice(first, None))
+
+
 def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays,
                       context: MapContext | None = None) -> tuple[MetricFeatures, MetricFeatures]:
-    """(log features with one sample, simulated features with one sample per rollout)."""
+    """(log features with one sample, simulated features with one sample per rollout).
+
+    The log is computed as one more sample beside the rollouts: every kernel
+    treats samples independently, and one call shares the map searches.
+    """
     context = context or map_context(scenario)
     log_traj = log_trajectories(scenario)
-    n_eval = len(scenario.evaluated_ids)
-    log = compute_metric_features(scenario, log_traj, context, log_traj.valid[:, :n_eval])
     sim_traj = simulated_trajectories(scenario, rollouts)
-    sim = compute_metric_features(scenario, sim_traj, context, sim_traj.valid[:, :n_eval])
-    return log, sim
+    n_eval = len(scenario.evaluated_ids)
+    both = _stack_samples(log_traj, sim_traj)
+    feature_valid = np.concatenate([log_traj.valid[:, :n_eval], sim_traj.valid[:, :n_eval]])
+    return _split_samples(compute_metric_features(scenario, both, context, feature_valid), 1)

@@ -8,19 +8,23 @@ point projects past a segment end, the sign follows the convexity of the
 corner between the segment and its neighbour.
 
 Segment search groups the query points in 1 m cells, finds each cell's
-candidate segments with a k-d tree over points sampled along every segment,
-narrows them per point with a distance bound, then evaluates the exact float32
-distance on the few remaining candidates, so results equal an all-pairs search.
+candidate segments with a k-d tree over points along every segment, narrows
+them per point with a distance bound (one `searchsorted` in the cell's
+candidates sorted by distance), then evaluates the exact float32 distance on
+the few survivors; the bounds are proven, so results equal an all-pairs
+search (tests compare with brute force, steep ramps included).
 """
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.spatial import pad_polylines
 from wosac_eval.features.xp import array_namespace, divide, errstate
+
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -47,6 +51,10 @@ class SegmentTable:
     next_valid: np.ndarray   # bool (S,)
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
     convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
+    columns: np.ndarray      # float32 (6, S): start x, y, z, delta x, y, z, contiguous for gathers
+    columns64: np.ndarray    # float64 (6, S): the same with heights stretched, for the search bounds
+    lipschitz: np.ndarray    # float64 (S,): how fast the selection distance can change with the point
+    max_lipschitz: float
     tree: cKDTree | None
     sample_segment: np.ndarray  # int64: segment of each k-d tree sample
     spacing: float
@@ -68,14 +76,11 @@ def build_segment_table(polylines) -> SegmentTable:
         raise ValueError("the scenario has no road edges")
     num_points = max(len(p) for p in kept)
     seg = num_points - 1
-    padded = np.zeros((len(kept), num_points, 3), _F)
-    point_valid = np.zeros((len(kept), num_points), bool)
-    cyclic = np.zeros(len(kept), bool)
-    for i, p in enumerate(kept):
-        padded[i, : len(p)] = p
-        point_valid[i, : len(p)] = True
-        gap = p[0] - p[-1]
-        cyclic[i] = np.sum(gap * gap, dtype=_F) < _F(CYCLIC_TOLERANCE_M2)
+    padded, point_valid = pad_polylines(kept, num_points)
+    lengths = point_valid.sum(axis=1)
+    gap = padded[:, 0] - padded[np.arange(len(kept)), lengths - 1]
+    squared = gap * gap
+    cyclic = (squared[:, 0] + squared[:, 1]) + squared[:, 2] < _F(CYCLIC_TOLERANCE_M2)
     start = padded[:, :-1]
     delta = padded[:, 1:] - padded[:, :-1]
     valid = point_valid[:, :-1] & point_valid[:, 1:]
@@ -95,10 +100,15 @@ def build_segment_table(polylines) -> SegmentTable:
     convex_after = _cross(dx, dy, wrap_next[..., 0], wrap_next[..., 1]) > 0
     valid_flat = valid.reshape(-1)
     tree, sample_segment = _sample_tree(start.reshape(-1, 3), delta.reshape(-1, 3), valid_flat)
+    lipschitz = _lipschitz(delta.reshape(-1, 3))
     return SegmentTable(
         start=start.reshape(-1, 3), delta=delta.reshape(-1, 3), valid=valid_flat,
         prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
         convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
+        columns=np.ascontiguousarray(np.concatenate([start.reshape(-1, 3), delta.reshape(-1, 3)], axis=1).T),
+        columns64=np.ascontiguousarray(np.concatenate([_stretch(start.reshape(-1, 3)),
+                                                       _stretch(delta.reshape(-1, 3))], axis=1).T),
+        lipschitz=lipschitz, max_lipschitz=float(lipschitz[valid_flat].max(initial=1.0)),
         tree=tree, sample_segment=sample_segment, spacing=_SAMPLE_SPACING)
 
 
@@ -108,118 +118,184 @@ def _stretch(xyz):
     return out
 
 
+def _lipschitz(delta: np.ndarray) -> np.ndarray:
+    """Per segment, the most the selection distance changes per metre the point moves.
+
+    The projection is planar, so a point moving by v shifts the projected
+    point along the segment by v's along-track part times the segment's
+    stretched slope s = 3|dz| / |d_xy|: the offset changes by at most
+    sqrt(1 + s^2) |v| (1 for segments without planar length, whose projection
+    is pinned at the start). Used by the candidate search only, with margin.
+    """
+    d = _stretch(delta)
+    planar = np.hypot(d[:, 0], d[:, 1])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(planar > 0, np.abs(d[:, 2]) / planar, 0.0)
+    return np.sqrt(1.0 + slope * slope) * (1 + 1e-6)
+
+
 def _sample_tree(start, delta, valid):
-    """k-d tree over points every `_SAMPLE_SPACING` metres along valid segments."""
+    """k-d tree over valid segments cut in pieces of at most `_SAMPLE_SPACING` (stretched) metres.
+
+    The tree holds each piece's midpoint, so every point of a segment is within
+    half the spacing of one of its tree points; points are numbered along the
+    segments in segment order.
+    """
     idx = np.flatnonzero(valid)
     if idx.size == 0:
         return None, np.zeros(0, np.int64)
     s = _stretch(start[idx])
     d = _stretch(delta[idx])
     length = np.linalg.norm(d, axis=-1)
-    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64)) + 1
+    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
     seg_of = np.repeat(np.arange(idx.size), count)
     first = np.repeat(np.cumsum(count) - count, count)
-    frac = (np.arange(seg_of.size) - first) / np.repeat(count - 1, count)
+    frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
     points = s[seg_of] + d[seg_of] * frac[:, None]
     return cKDTree(points), idx[seg_of]
 
 
-def segment_pair_distances(query, start, delta):
-    """Projection parameter, stretched 3D distance and planar distance, float32, per pair.
+def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
+    """Projection parameter, stretched 3D distance and planar distance, float32.
 
-    Args:
-      query, start, delta: float32 `(..., 3)`, broadcast against each other
-        (numpy or JAX arrays).
-    Returns:
-      (rel_t, distance_3d, distance_2d), float32 `(...)`.
+    Elementwise (broadcasting) over points p, segment starts s and segment
+    vectors d, in the official order of float32 operations (numpy or JAX arrays).
     """
-    xp = array_namespace(query, start, delta)
-    to_point = query - start
-    along = to_point[..., 0] * delta[..., 0] + to_point[..., 1] * delta[..., 1]
-    squared = delta[..., 0] * delta[..., 0] + delta[..., 1] * delta[..., 1]
+    xp = array_namespace(px, sx)
+    tx, ty, tz = px - sx, py - sy, pz - sz
+    along = tx * dx + ty * dy
+    squared = dx * dx + dy * dy
     with errstate(xp, divide="ignore", invalid="ignore"):
         rel_t = xp.where(squared == 0, _F(0), divide(along, squared))
     clipped = xp.clip(rel_t, _F(0), _F(1))
-    offset = to_point - delta * clipped[..., None]
-    oz = offset[..., 2] * _F(Z_STRETCH)
-    planar2 = offset[..., 0] * offset[..., 0] + offset[..., 1] * offset[..., 1]
+    ox, oy = tx - dx * clipped, ty - dy * clipped
+    oz = (tz - dz * clipped) * _F(Z_STRETCH)
+    planar2 = ox * ox + oy * oy
     return rel_t, xp.sqrt(planar2 + oz * oz), xp.sqrt(planar2)
 
 
-def _segment_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
-    """`segment_pair_distances` for (query index, segment index) pairs."""
-    return segment_pair_distances(queries[qi], table.start[si], table.delta[si])
+def _pair_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
+    """`segment_distances` for (query, segment) index pairs, gathering one column at a time."""
+    p = [np.take(c, qi) for c in np.ascontiguousarray(queries.T)]
+    seg = [np.take(c, si) for c in table.columns]
+    return segment_distances(*p, *seg)
 
 
 _CELL = 1.0  # metres: queries are grouped in cubic cells of the stretched space
+_MARGIN = 1e-3  # metres of slack in every float64 bound, far above float32 rounding
 
 
 def _segment_distance64(table: SegmentTable, points: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Stretched 3D distance from stretched points to segments, in float64 (for bounds only)."""
-    start = _stretch(table.start[seg])
-    delta = _stretch(table.delta[seg])
-    rel = points - start
-    squared = np.einsum("ij,ij->i", delta[:, :2], delta[:, :2])
+    """Stretched 3D selection distance from stretched points `(3, n)` to segments, float64 (bounds only)."""
+    sx, sy, sz, dx, dy, dz = (np.take(c, seg) for c in table.columns64)
+    tx, ty, tz = points[0] - sx, points[1] - sy, points[2] - sz
+    squared = dx * dx + dy * dy
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.where(squared > 0, np.einsum("ij,ij->i", rel[:, :2], delta[:, :2]) / squared, 0.0)
-    offset = rel - delta * np.clip(t, 0.0, 1.0)[:, None]
-    return np.sqrt(np.einsum("ij,ij->i", offset, offset))
+        t = np.clip(np.where(squared > 0, (tx * dx + ty * dy) / squared, 0.0), 0.0, 1.0)
+    tx -= dx * t
+    ty -= dy * t
+    tz -= dz * t
+    return np.sqrt(tx * tx + ty * ty + tz * tz)
+
+
+def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
+    """(centre index, tree point) pairs within `radius` of each centre, sorted by centre."""
+    lists = tree.query_ball_point(centres, radius, return_sorted=True)
+    sizes = np.fromiter(map(len, lists), np.int64, len(lists))
+    points = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(sizes.sum()))
+    return np.repeat(np.arange(len(centres)), sizes), points
+
+
+def _cells_of(points_t: np.ndarray):
+    """(number of occupied cells, cell of each point) for cubic cells of side `_CELL`.
+
+    Args:
+      points_t: float64 `(3, num_points)`.
+    Returns:
+      int, and int64 `(num_points,)` numbering the occupied cells in key order.
+    """
+    cell = np.floor(points_t / _CELL).astype(np.int64)
+    low = cell.min(axis=1)
+    span = cell.max(axis=1) - low + 1
+    key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
+    num_keys = int(np.prod(span, dtype=np.float64))
+    if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
+        occupied = np.bincount(key, minlength=num_keys) > 0
+        return int(occupied.sum()), (np.cumsum(occupied) - 1)[key]
+    keys, inverse = np.unique(key, return_inverse=True)
+    return len(keys), inverse.reshape(-1)
 
 
 def _candidates(table: SegmentTable, queries: np.ndarray):
     """(query index, segment index) pairs that include every possible nearest segment.
 
-    Queries are grouped in cells of side `_CELL` (half-diagonal h). For a
-    query p in a cell with centre c, the nearest segment k* satisfies
-    D(k*, c) <= D(k*, p) + h <= D(j, p) + h <= D(j, c) + 2h for every j, so the
-    cell's candidates are the segments within min_j D(j, c) + 2h of its centre.
-    Those are found through the k-d tree of samples: a segment is within half
-    the sample spacing of its nearest sample.
+    Returns (qi, si, starts): pairs grouped by query, every query has at least
+    one, and `starts[i]` is the first pair of query i.
+
+    The selection distance D(k, p) projects p on segment k in the plane, then
+    measures the stretched 3D offset; it moves by at most L_k |p - q| between
+    points p and q (`SegmentTable.lipschitz`). Queries are grouped in cells of
+    side `_CELL`; a cell is represented by the centroid c of its queries and
+    the largest distance h from c to one of them:
+      - any segment j bounds the cell's minimum: D(j, p) <= D(j, c) + L_j h = U_j;
+      - a segment k can only be nearest somewhere in the cell if
+        D(k, c) - L_k h <= min_j U_j, and D(k, c) is at least the distance from c
+        to k's nearest k-d tree point minus half the spacing, which bounds
+        the k-d tree search;
+      - for one query p at distance r from c, with b = D(cell's first candidate, p),
+        k can only win if D(k, c) <= b + L_max r, a cut made with one
+        `searchsorted` in the cell's candidates sorted by D(k, c).
+    Float32 results then pick the nearest among the survivors exactly.
     """
     q = _stretch(queries)
-    cell_of = np.floor(q / _CELL).astype(np.int64)
-    low = cell_of.min(axis=0)
-    span = cell_of.max(axis=0) - low + 1
-    key = ((cell_of[:, 0] - low[0]) * span[1] + (cell_of[:, 1] - low[1])) * span[2] + (cell_of[:, 2] - low[2])
-    keys, inverse = np.unique(key, return_inverse=True)
-    cells = np.stack([keys // (span[1] * span[2]), (keys // span[2]) % span[1], keys % span[2]], axis=1) + low
-    centre = (cells + 0.5) * _CELL
-    h = _CELL * np.sqrt(3.0) / 2
-    margin = 1e-3
-    # Superset per cell: samples within (nearest sample + 2h + spacing/2) of the centre.
-    ci, sample = tree_candidates(table.tree, centre,
-                                 lambda nearest: nearest + 2 * h + table.spacing * 0.5 + margin)
+    qt = np.ascontiguousarray(q.T)
+    num_cells, inverse = _cells_of(qt)
+    # Each cell is represented by the centroid of its queries and the largest
+    # distance from it to one of them (at most the cell's half-diagonal).
+    count = np.bincount(inverse, minlength=num_cells).astype(np.float64)
+    centre = np.stack([np.bincount(inverse, weights=qt[k], minlength=num_cells) for k in range(3)], axis=1)
+    centre /= count[:, None]
+    r = np.sqrt(np.sum((qt - centre.T[:, inverse]) ** 2, axis=0))
+    h_cell = np.zeros(num_cells)
+    np.maximum.at(h_cell, inverse, r)
+    h_cell += 1e-9
+    lipschitz = table.lipschitz
+    # An upper bound of each cell's minimum from the segment of its nearest sample.
+    _, nearest_sample = table.tree.query(centre, k=1)
+    first_guess = table.sample_segment[nearest_sample]
+    centre_t = np.ascontiguousarray(centre.T)
+    upper = _segment_distance64(table, centre_t, first_guess) + lipschitz[first_guess] * h_cell
+    radius = upper + table.max_lipschitz * h_cell + table.spacing * 0.5 + _MARGIN * (1 + upper)
+    ci, sample = _ball_pairs(table.tree, centre, radius)
+    # Pairs come sorted by cell, then sample, and samples are numbered along
+    # the segments, so repeated (cell, segment) pairs are adjacent.
     seg = table.sample_segment[sample]
-    pair = np.unique(ci * np.int64(len(table.valid)) + seg)
-    ci, seg = pair // len(table.valid), pair % len(table.valid)
-    d = _segment_distance64(table, centre[ci], seg)
-    best = np.full(len(cells), np.inf)
-    np.minimum.at(best, ci, d)
-    keep = d <= best[ci] + 2 * h + margin + 1e-5 * best[ci]
+    new = np.r_[True, (ci[1:] != ci[:-1]) | (seg[1:] != seg[:-1])]
+    ci, seg = ci[new], seg[new]
+    d = _segment_distance64(table, centre_t[:, ci], seg)
+    best_upper = np.full(num_cells, np.inf)
+    np.minimum.at(best_upper, ci, d + lipschitz[seg] * h_cell[ci])
+    keep = d - lipschitz[seg] * h_cell[ci] <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
     ci, seg, d = ci[keep], seg[keep], d[keep]
-    # Each query's distance to its cell's nearest segment bounds its own minimum:
-    # a candidate k can only win if D(k, centre) - h <= that distance.
-    first = np.searchsorted(ci, np.arange(len(cells)))
-    cell_best = seg[first + _argmin_per_group(d, first)]
-    bound = _segment_distance64(table, q, cell_best[inverse])
-    # Expand each query to its cell's candidate list (ci is sorted by cell).
-    count = np.bincount(ci, minlength=len(cells))
-    per_query = count[inverse]
-    qi = np.repeat(np.arange(len(q)), per_query)
-    offset = np.arange(qi.size) - np.repeat(np.cumsum(per_query) - per_query, per_query)
-    pos = first[inverse][qi] + offset
-    near = d[pos] - h <= bound[qi] + margin + 1e-5 * bound[qi]
-    return qi[near], seg[pos[near]]
-
-
-def _argmin_per_group(values: np.ndarray, starts: np.ndarray) -> np.ndarray:
-    """Offset of the minimum within each contiguous group starting at `starts`."""
-    lowest = np.minimum.reduceat(values, starts)
-    sizes = np.diff(np.r_[starts, len(values)])
-    hit = np.flatnonzero(values == np.repeat(lowest, sizes))
-    group = np.searchsorted(starts, hit, side="right") - 1
-    first_hit = np.r_[True, group[1:] != group[:-1]]
-    return hit[first_hit] - starts[group[first_hit]]
+    # Each cell's candidates sorted by distance to its centre, under one key:
+    # the cell index times a stride above any distance or limit below.
+    stride = 2.0 * (d.max() + 2 * table.max_lipschitz * h_cell.max()) + 1.0
+    key = ci * stride + d
+    order = np.argsort(key)
+    key, seg = key[order], seg[order]
+    first = np.searchsorted(ci, np.arange(num_cells))  # ci is sorted already
+    cell_lipschitz = np.maximum.reduceat(lipschitz[seg], first)
+    bound = _segment_distance64(table, qt, seg[first][inverse])
+    limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)
+    lo = first[inverse]
+    hi = np.searchsorted(key, inverse * stride + limit, side="right")
+    count = hi - lo
+    if count.min(initial=1) < 1:  # impossible by the bounds above; a bug if it happens
+        raise RuntimeError("road-edge candidate search left a query without candidates")
+    qi = np.repeat(np.arange(len(q)), count)
+    starts = np.cumsum(count) - count
+    pos = np.arange(qi.size) - np.repeat(starts - lo, count)
+    return qi, seg[pos], starts
 
 
 def segment_side(query_xy, start, delta):
@@ -264,21 +340,22 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
       float32 `(num_points,)`, negative on the road side.
     """
     queries = np.asarray(queries, _F)
-    qi, si = _candidates(table, queries)
-    d3 = _segment_distances(table, queries, qi, si)[1]
-    # Nearest in 3D, ties to the lowest segment index (pairs are grouped by query).
-    bq, best = first_minimum(qi, d3, si)
-    bs = si[best]
-    bt, _, d2 = _segment_distances(table, queries, bq, bs)
-    xy = queries[bq, :2]
+    if len(queries) == 0:
+        return np.zeros(0, _F)
+    qi, si, starts = _candidates(table, queries)
+    d3 = _pair_distances(table, queries, qi, si)[1]
+    # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
+    # non-negative float32 values order like their bit patterns.
+    key = (d3.view(np.int32).astype(np.int64) << 32) | si
+    bs = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
+    bt, _, d2 = _pair_distances(table, queries, np.arange(len(queries)), bs)
+    xy = queries[:, :2]
     n = _side(table, xy, bs)
     n_prior = _side(table, xy, table.prior[bs])
     n_next = _side(table, xy, table.next[bs])
     sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
                        table.prior_valid[bs], table.next_valid[bs])
-    out = np.empty(len(queries), _F)
-    out[bq] = (sign * d2).astype(_F)
-    return out
+    return (sign * d2).astype(_F)
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:

@@ -234,3 +234,34 @@ def test_hand_cases_equal_brute_force(square):
     table = road_edge.build_segment_table([L_SHAPE, SQUARE, polyline((0, 0), (10, 0), (10, 10))])
     q = np.array([(8, 8, 0), (12, 12, 0), (-3, -4, 0), (12, -2, 0), (50, 50, 0), (10, 10, 0)], F)
     np.testing.assert_array_equal(road_edge.signed_distance_to_polylines(table, q), brute_force(table, q))
+
+
+def steep_ramps():
+    """Ramps of short segments climbing up to 2 m per metre, side by side at different heights.
+
+    On a steep segment the planar projection slides along the slope as the point
+    moves, so the selection distance changes faster than the point itself: a
+    search bound that assumes distances change at most 1:1 misses the nearest
+    segment here.
+    """
+    x = np.arange(0, 20, 0.5, dtype=F)
+    ramps = []
+    for k, slope in enumerate((0.5, 1.0, 2.0)):
+        for side in (0.0, 1.5):
+            y = np.full_like(x, 3.0 * k + side)
+            ramps.append(np.stack([x, y, slope * x + 0.7 * k], 1))
+            ramps.append(np.stack([x[::-1], y[::-1] + 0.4, slope * x[::-1] + 0.7 * k + 1.0], 1))
+    return ramps
+
+
+def test_steep_ramps_equal_brute_force():
+    rng = np.random.default_rng(7)
+    table = road_edge.build_segment_table(steep_ramps())
+    assert table.max_lipschitz > 6  # 3x stretched slope of 2 -> sqrt(37)
+    n = 20000
+    queries = np.stack([rng.uniform(-2, 22, n), rng.uniform(-2, 11, n), rng.uniform(-2, 42, n)], 1).astype(F)
+    ours = road_edge.signed_distance_to_polylines(table, queries)
+    reference = brute_force(table, queries)
+    mismatch = np.flatnonzero(ours != reference)
+    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
+                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"

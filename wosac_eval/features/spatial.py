@@ -1,4 +1,4 @@
-"""Candidate search with k-d trees: every point that could be the nearest, and few more."""
+"""Map geometry helpers: padded polyline tables, and candidate search with k-d trees."""
 from __future__ import annotations
 
 import numpy as np
@@ -69,3 +69,16 @@ def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
     # Duplicated pairs tie completely: keep the first of each group.
     keep = np.r_[True, group[position[1:]] != group[position[:-1]]]
     return group[position[keep]], position[keep]
+
+
+def pad_polylines(polylines, num_points: int):
+    """Polylines stacked and zero padded: float `(num_polylines, num_points, dims)`, bool valid `(num_polylines, num_points)`."""
+    lengths = np.array([len(p) for p in polylines], np.int64)
+    flat = np.concatenate(polylines)
+    rows = np.repeat(np.arange(len(polylines)), lengths)
+    cols = np.arange(len(flat)) - np.repeat(np.cumsum(lengths) - lengths, lengths)
+    padded = np.zeros((len(polylines), num_points) + flat.shape[1:], flat.dtype)
+    valid = np.zeros((len(polylines), num_points), bool)
+    padded[rows, cols] = flat
+    valid[rows, cols] = True
+    return padded, valid

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
-from wosac_eval.features.spatial import first_minimum, tree_candidates
+from wosac_eval.features.spatial import first_minimum, pad_polylines, tree_candidates
 from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
@@ -53,11 +53,7 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     if not kept:
         return None
     max_points = max(len(p) for p, _ in kept)
-    points = np.zeros((len(kept), max_points, 2), _F)
-    point_valid = np.zeros((len(kept), max_points), bool)
-    for k, (p, _) in enumerate(kept):
-        points[k, : len(p)] = p
-        point_valid[k, : len(p)] = True
+    points, point_valid = pad_polylines([p for p, _ in kept], max_points)
     start = points[:, :-1].reshape(-1, 2)
     delta = (points[:, 1:] - points[:, :-1]).reshape(-1, 2)
     valid = point_valid[:, :-1].reshape(-1)
@@ -187,6 +183,13 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
     if signals.state.shape[0] != num_steps:
         raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
                          f"expected one per step ({num_steps})")
+    # Only signals that show a stop at some step and sit on a known lane can be violated.
+    match = (lanes.lane_ids[None, :] == signals.lane_id[:, None]).any(axis=1)
+    relevant = np.isin(signals.state, LANE_STATE_STOP_VALUES).any(axis=0) & match
+    if not relevant.any():
+        return np.zeros(np.shape(valid), bool)
+    signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
+                                  stop_point=signals.stop_point[:, relevant])
     xy = np.stack([x, y], axis=-1).astype(_F)
     seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
     is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)

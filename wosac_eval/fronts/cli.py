@@ -12,6 +12,7 @@ import importlib
 import pkgutil
 import sys
 
+from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.fronts import commands
 
 
@@ -40,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     if not hasattr(args, "_run"):
         parser.print_help(sys.stderr)
         return 2
+    keep_freed_memory()
     return int(args._run(args) or 0)
 
 

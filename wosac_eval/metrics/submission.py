@@ -16,6 +16,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.backends import check_backend
@@ -111,6 +112,7 @@ _WORKER: dict = {}
 
 
 def _init_worker(config_bytes: bytes, index: ScenarioIndex, backend: str = "numpy") -> None:
+    keep_freed_memory()
     _WORKER["config"] = SimAgentMetricsConfig.FromString(config_bytes)
     _WORKER["index"] = index
     _WORKER["backend"] = backend

@@ -56,3 +56,153 @@ def packed_coordinates(trajectories: Sequence, num_steps: int) -> tuple[np.ndarr
     regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
     values = np.ascontiguousarray(stacked[regular, :, headers.shape[1]:]).view("<f4").astype(np.float32)
     return regular, values
+
+
+def _skip_field(data: bytes, pos: int, wire_type: int) -> int:
+    """Offset just past the value of a field whose tag ended at `pos`."""
+    if wire_type == 0:
+        while data[pos] & 0x80:
+            pos += 1
+        return pos + 1
+    if wire_type == 1:
+        return pos + 8
+    if wire_type == 5:
+        return pos + 4
+    if wire_type == 2:
+        length, shift = 0, 0
+        while True:
+            byte = data[pos]
+            length |= (byte & 0x7F) << shift
+            pos, shift = pos + 1, shift + 7
+            if not byte & 0x80:
+                return pos + length
+    raise ValueError(f"unsupported wire type {wire_type}")
+
+
+_SIZE = {"d": 8, "f": 4, "b": 1}
+_WIRE_TYPE = {"d": 1, "f": 5, "b": 0}
+
+
+def record_run(data: bytes, field_number: int, layout: Sequence[tuple[int, str]], count: int) -> np.ndarray | None:
+    """`record_runs` for one parent message: float64 `(count, len(layout))`, or None."""
+    values, regular = record_runs([data], field_number, layout, [count])
+    return values[0] if regular[0] else None
+
+
+def _run_segments(data: bytes, field_number: int, count: int) -> list | None:
+    """The run's records as (offset, record size, number of records) segments of equal size.
+
+    None if the run is not laid out as expected. Records are located by
+    following their length bytes; equal-size neighbours are checked together
+    with strided byte slices, so a run costs a few operations per change of
+    record size, not per record.
+    """
+    tag = (field_number << 3) | 2
+    pos, end = 0, len(data)
+    # Skip the (few) lower-numbered fields in front of the run.
+    while pos < end and data[pos] != tag:
+        key = data[pos]
+        if key & 0x80 or (key >> 3) >= field_number:
+            return None
+        pos = _skip_field(data, pos + 1, key & 7)
+    segments, remaining = [], count
+    while remaining:
+        if pos + 2 > end or data[pos] != tag or data[pos + 1] & 0x80:
+            return None
+        size = 2 + data[pos + 1]
+        stop = pos + size * remaining
+        # Record k of the segment is aligned if record k - 1 was and had this size.
+        heads, lengths = data[pos:stop:size], data[pos + 1:stop:size]
+        n = min(len(heads) - len(heads.lstrip(bytes((tag,)))),
+                len(lengths) - len(lengths.lstrip(bytes((size - 2,)))))
+        if pos + size * n > end:
+            return None
+        segments.append((pos, size, n))
+        pos += size * n
+        remaining -= n
+    return segments
+
+
+def record_runs(parents: Sequence[bytes], field_number: int, layout: Sequence[tuple[int, str]],
+                counts: Sequence[int]) -> tuple[list, np.ndarray]:
+    """The elements of a repeated field of many serialised parents, read straight from the wire.
+
+    A parsed message serialises canonically: fields in number order, the
+    elements of a repeated field back to back. When an element holds a subset
+    of the scalar fields in `layout` ((field number, "d" double | "f" float |
+    "b" bool) pairs) it is a small fixed-layout record; records are grouped by
+    size and each group is read with one numpy gather. Fields an element does
+    not hold read as 0 (their proto2 default). A parent laid out otherwise (an
+    unknown field, a multi-byte tag or length) is reported irregular, for a
+    field-by-field fallback.
+
+    Args:
+      parents: serialised parent messages.
+      field_number: the repeated field (at most 15).
+      counts: its number of elements in each parent.
+    Returns:
+      (values, regular): per parent, float64 `(count, len(layout))` (None
+      where irregular); bool `(num_parents,)`.
+    """
+    regular = np.zeros(len(parents), bool)
+    values: list = [None] * len(parents)
+    if field_number > 15 or any(number > 15 for number, _ in layout):
+        return values, regular
+    bases = np.cumsum([0] + [len(p) for p in parents])
+    segments, first_row, rows = [], np.zeros(len(parents), np.int64), 0
+    for i, (data, count) in enumerate(zip(parents, counts)):
+        found = _run_segments(data, field_number, count) if count else []
+        regular[i] = found is not None
+        first_row[i] = rows
+        if found is not None:
+            rows += count
+            segments.extend((int(bases[i]) + offset, size, n, i) for offset, size, n in found)
+    buffer = np.frombuffer(b"".join(parents), np.uint8)
+    offset, size, n, parent = np.array(segments, np.int64).reshape(-1, 4).T
+    # Expand the segments to one start (and one record size) per record.
+    within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    sizes = np.repeat(size, n)
+    starts = np.repeat(offset, n) + sizes * within
+    owner = np.repeat(parent, n)
+    out = np.zeros((len(starts), len(layout)), np.float64)
+    for record in np.unique(sizes):
+        group = np.flatnonzero(sizes == record)
+        if not _read_group(buffer, starts[group], int(record), layout, out, group):
+            # Records of one size laid out unlike the first one: their parents are irregular.
+            regular[owner[group]] = False
+    for i in np.flatnonzero(regular):
+        values[i] = out[first_row[i]:first_row[i] + counts[i]]
+    return values, regular
+
+
+def _read_group(buffer: np.ndarray, starts: np.ndarray, record: int, layout, out: np.ndarray,
+                rows_out: np.ndarray) -> bool:
+    """Records of one size, whose fields must sit at the same offsets as in the first one."""
+    first = bytes(buffer[starts[0]:starts[0] + record])
+    fields, offset = [], 2
+    kinds = dict(layout)
+    while offset < record:
+        key = first[offset]
+        number, wire_type = key >> 3, key & 7
+        kind = kinds.get(number)
+        if key & 0x80 or kind is None or _WIRE_TYPE[kind] != wire_type or (fields and number <= fields[-1][0]):
+            return False
+        fields.append((number, offset))
+        offset += 1 + _SIZE[kind]
+    if offset != record:
+        return False
+    rows = buffer[starts[:, None] + np.arange(record)]
+    checks = [0, 1] + [o for _, o in fields]
+    if not (rows[:, checks] == rows[0, checks]).all():
+        return False
+    column = {number: j for j, (number, _) in enumerate(layout)}
+    for number, o in fields:
+        kind = kinds[number]
+        raw = np.ascontiguousarray(rows[:, o + 1:o + 1 + _SIZE[kind]])
+        if kind == "b":
+            if (raw > 1).any():
+                return False
+            out[rows_out, column[number]] = raw[:, 0]
+        else:
+            out[rows_out, column[number]] = raw.view("<f8" if kind == "d" else "<f4")[:, 0]
+    return True

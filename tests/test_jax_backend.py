@@ -101,11 +101,13 @@ def test_fine_buckets_pad_at_most_a_third(n, expected):
 
 
 @pytest.mark.parametrize("case", golden_parity.CASES)
-def test_golden_features_bit_identical(case):
+def test_golden_features_bit_identical_to_official_and_numpy(case):
     require_shared()
     ours = _golden_jax()[case]
     expected = np.load(SHARED / "golden" / f"{case}.features.npz")
     _assert_features_equal(ours, expected, golden_parity.EXACT_FEATURES, case)
+    _assert_features_equal(ours, _as_dict(golden_parity._features(case)),
+                           list(golden_parity.EXACT_FEATURES) + ["average_displacement_error"], f"{case} vs numpy")
     for prefix, features in (("log_", ours[0]), ("sim_", ours[1])):
         np.testing.assert_allclose(features.average_displacement_error,
                                    expected[prefix + "average_displacement_error"], rtol=1e-6, atol=1e-6)

@@ -47,6 +47,9 @@ from wosac_eval.features.metric_features import FUTURE, MetricFeatures  # noqa: 
 
 _F = np.float32
 MIN_BUCKET = 8
+# Object pairs (samples x steps x evaluated x objects) of one batched call, summed over its
+# scenarios: big scenes are batched fewer at a time so that memory stays bounded.
+PAIRS_PER_BATCH = 1 << 23
 
 
 def bucket(n: int, minimum: int = MIN_BUCKET) -> int:
@@ -287,9 +290,10 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
                       min_bucket: tuple | None = None) -> list[tuple[MetricFeatures, MetricFeatures]]:
     """(log features, simulated features) of each prepared scenario, in order.
 
-    Scenarios are grouped by bucket; each group is run `max_batch` at a time
-    (a partial batch is padded to a power of two by repeating its first
-    scenario, so a stream of scenarios reuses a few compiled functions).
+    Scenarios are grouped by bucket; each group is run up to `max_batch` at a
+    time (fewer for big scenes, see `PAIRS_PER_BATCH`; always a power of two,
+    a partial batch being padded by repeating its first scenario, so a stream
+    of scenarios reuses a few compiled functions).
 
     Args:
       min_bucket: optional lower bound of the bucket sizes (objects,
@@ -303,10 +307,13 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
         key = p.bucket_key if min_bucket is None else tuple(map(max, p.bucket_key, min_bucket))
         groups.setdefault(key, []).append(i)
     for key, members in groups.items():
-        for lo in range(0, len(members), max_batch):
-            chunk = members[lo: lo + max_batch]
+        samples, steps = prepared[members[0]].traj["x"].shape[0], prepared[members[0]].traj["x"].shape[-1]
+        fit = max(1, PAIRS_PER_BATCH // (samples * steps * key[0] * key[1]))
+        per_call = 1 << (min(max(max_batch, 1), fit).bit_length() - 1)  # a power of two
+        for lo in range(0, len(members), per_call):
+            chunk = members[lo: lo + per_call]
             padded = [_padded_inputs(prepared[i], key) for i in chunk]
-            size = min(bucket(len(chunk), 1), max(max_batch, 1))
+            size = min(bucket(len(chunk), 1), per_call)
             padded += [padded[0]] * (size - len(padded))
             traj = {k: np.stack([t[k] for t, _ in padded]) for k in padded[0][0]}
             maps = {k: np.stack([m[k] for _, m in padded]) for k in padded[0][1]}

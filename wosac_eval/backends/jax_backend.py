@@ -36,7 +36,6 @@ def _restrict_cpu_isa() -> None:
 _restrict_cpu_isa()
 
 import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wosac_eval.arrays.rollouts import RolloutArrays  # noqa: E402

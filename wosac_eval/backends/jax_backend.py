@@ -115,10 +115,14 @@ class PreparedScenario:
 
     @property
     def bucket_key(self) -> tuple:
+        """(objects, evaluated objects, road-edge segments, signals) after padding.
+
+        The lane segments are padded separately: only the red-light lane
+        search, run on the few crossing points, uses them.
+        """
         # Evaluated objects: every padded row is computed against everything, so no minimum.
         return (bucket(self.num_objects), bucket(self.num_evaluated, 1),
-                fine_bucket(len(self.maps["start"])), bucket(len(self.maps["stopping"][0]), 1),
-                fine_bucket(len(self.lanes["start"])))
+                fine_bucket(len(self.maps["start"])), bucket(len(self.maps["stopping"][0]), 1))
 
 
 def _segment_arrays(table: road_edge.SegmentTable) -> dict:
@@ -209,7 +213,7 @@ def _pad_axis(a: np.ndarray, size: int, axis: int, value=0) -> np.ndarray:
 
 def _padded_inputs(p: PreparedScenario, key: tuple) -> tuple[dict, dict]:
     """`traj` and `maps` padded to the bucket `key`; padding is invalid everywhere."""
-    n_obj, n_eval, n_seg, n_sig, _ = key
+    n_obj, n_eval, n_seg, n_sig = key
     traj = {}
     for name, a in p.traj.items():
         if name == "heading_tail":
@@ -244,7 +248,7 @@ def _lane_fn():
     return jax.jit(dense.nearest_lane_segment)
 
 
-def _red_light(p: PreparedScenario, suspect: np.ndarray, key: tuple) -> np.ndarray:
+def _red_light(p: PreparedScenario, suspect: np.ndarray) -> np.ndarray:
     """Violations from the crossings: the lane search runs on the crossing points only.
 
     Args:
@@ -258,7 +262,7 @@ def _red_light(p: PreparedScenario, suspect: np.ndarray, key: tuple) -> np.ndarr
     where = np.nonzero(suspect.any(axis=-1))
     if where[0].size:
         xy = np.stack([p.traj["x"][:, e, lights], p.traj["y"][:, e, lights]], axis=-1).astype(_F)[where]
-        n_lane = key[4]
+        n_lane = fine_bucket(len(p.lanes["start"]))
         lanes = {k: _pad_axis(v, n_lane, 0) for k, v in p.lanes.items()}
         lane_valid = np.arange(n_lane) < len(p.lanes["start"])
         points = _pad_axis(xy, bucket(len(xy)), 0)
@@ -296,8 +300,7 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
 
     Args:
       min_bucket: optional lower bound of the bucket sizes (objects,
-        evaluated objects, road-edge segments, signals, lane segments), to
-        pad more than needed.
+        evaluated objects, road-edge segments, signals), to pad more than needed.
     """
     _warn_if_inexact()
     results: list = [None] * len(prepared)
@@ -322,7 +325,7 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
                 p = prepared[i]
                 one = {k: np.asarray(v[j]) for k, v in out.items()}
                 suspect = one.pop("red_light_suspect")[:, : p.num_evaluated, :, : len(p.signal_lane_id)]
-                one["red_light"] = _red_light(p, suspect, key)
+                one["red_light"] = _red_light(p, suspect)
                 n_log = p.num_log_samples
                 results[i] = (_metric_features(p, one, slice(0, n_log)),
                               _metric_features(p, one, slice(n_log, None)))

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, require_float64
+from wosac_eval.features.xp import array_namespace, is_numpy, require_float64
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 _F = np.float32
@@ -39,8 +39,8 @@ def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """
     xp = array_namespace(values)
     clipped = xp.clip(values.astype(_F), edges[0], edges[-1])
-    # Edges at or below each value; NaN compares false everywhere and goes last.
-    index = (clipped[..., None] >= edges).sum(axis=-1) - 1
+    index = xp.searchsorted(edges, clipped, side="right") - 1
+    # numpy sorts NaN last; JAX's search does not, so say it for both.
     index = xp.where(xp.isnan(clipped), len(edges) - 2, index)
     return xp.clip(index, 0, len(edges) - 2)
 
@@ -59,8 +59,11 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
     require_float64(xp)
     edges = histogram_edges(min_val, max_val, num_bins)
     sim_bins = histogram_bins(sim_samples, edges)
-    # Whole counts: exact in any summation order.
-    counts = (sim_bins[..., None] == np.arange(num_bins)).sum(axis=1, dtype=np.int64)
+    batch = sim_bins.shape[0]
+    flat = (xp.arange(batch)[:, None] * num_bins + sim_bins).reshape(-1)
+    # Whole counts: exact in any order. JAX needs the output length to be static.
+    size = {"minlength": batch * num_bins} if is_numpy(xp) else {"length": batch * num_bins}
+    counts = xp.bincount(flat, **size).reshape(batch, num_bins)
     counts = (counts.astype(_F) + _F(pseudocount)).astype(np.float64)
     log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
     log_bins = histogram_bins(log_samples, edges)

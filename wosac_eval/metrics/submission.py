@@ -10,8 +10,6 @@ scenarios per call when `workers == 1`; results are the same.
 """
 from __future__ import annotations
 
-import concurrent.futures as futures
-import multiprocessing
 import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -26,6 +24,7 @@ from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metric
 from wosac_eval.parse.archive import iter_submission_shards, parse_submission_shard
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.processes import worker_pool
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 from wosac_eval.validate import validate_submission
 
@@ -169,9 +168,8 @@ def _map_ordered(tasks: Iterable[tuple[str, bytes]], workers: int, config: SimAg
             yield _score_task(sid, data)
         return
     # JAX runs threads once started: its workers are spawned, not forked.
-    context = multiprocessing.get_context("spawn") if backend == "jax" else None
-    with futures.ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, mp_context=context,
-                                     initargs=(config.SerializeToString(), index, backend)) as pool:
+    with worker_pool(workers, force_spawn=backend == "jax", initializer=_init_worker,
+                     initargs=(config.SerializeToString(), index, backend)) as pool:
         pending = []
         for task in tasks:
             pending.append(pool.submit(_score_task, *task))

@@ -7,6 +7,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from wosac_eval.parse.scenarios import iter_scenarios
+from wosac_eval.processes import worker_pool
 from wosac_eval.sim import policies
 from wosac_eval.sim.submission_writer import ShardWriter, SubmissionMetadata, scenario_rollouts
 
@@ -35,7 +36,7 @@ def _map_bounded(tasks: Iterator, workers: int) -> Iterator[bytes]:
         for task in tasks:
             yield _simulate(task)
         return
-    with futures.ProcessPoolExecutor(workers) as pool:
+    with worker_pool(workers) as pool:
         pending: list[futures.Future] = []
         for task in tasks:
             pending.append(pool.submit(_simulate, task))

@@ -9,7 +9,6 @@ counts and the first findings of each kind.
 from __future__ import annotations
 
 import collections
-import concurrent.futures as futures
 import os
 import time
 import warnings
@@ -31,6 +30,7 @@ from wosac_eval.parse.archive import (
 )
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
+from wosac_eval.processes import worker_pool
 from wosac_eval.validate import rules
 from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
 
@@ -330,7 +330,7 @@ def _shard_results(
             yield check_shard(name, data, agents, max_listed)
             del data  # hold no shard while the next one is read
         return
-    with futures.ProcessPoolExecutor(max_workers=workers, initializer=_init_worker, initargs=(agents,)) as pool:
+    with worker_pool(workers, initializer=_init_worker, initargs=(agents,)) as pool:
         pending: collections.deque = collections.deque()
         for name, data in shards:
             pending.append(pool.submit(_check_shard_in_worker, name, data, max_listed))

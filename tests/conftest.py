@@ -19,3 +19,9 @@ def require_shared() -> Path:
 @pytest.fixture
 def shared() -> Path:
     return require_shared()
+
+
+def pytest_collection_modifyitems(config, items):
+    """Tests that start JAX run last: JAX runs threads, and later tests fork worker processes."""
+    uses_jax = ("test_jax_backend.py", "test_jax_kernels.py", "test_score_backends.py")
+    items.sort(key=lambda item: item.path.name in uses_jax)

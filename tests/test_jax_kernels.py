@@ -1,4 +1,4 @@
-"""The dense JAX drivers and the kernels under `jax.jit` against the numpy path, on random inputs.
+"""The dense JAX drivers (features/dense.py) and the kernels under `jax.jit` against numpy, on random inputs.
 
 Random inputs reach corners the scenario data may miss: huge angles, the
 libm tail, degenerate segments, points past segment ends, ties.

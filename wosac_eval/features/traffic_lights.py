@@ -15,6 +15,7 @@ at least |p|, so a k-d tree over segment starts finds all candidates.
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -36,6 +37,7 @@ class LaneTable:
       start, delta: float32 `(num_lanes * (max_points - 1), 2)`.
       valid: bool, segments whose start point is a real point.
       lane_ids: int64 `(num_lanes,)`.
+      tree_segment: int64, the valid segments, in the order of `tree`'s points.
     """
 
     points: np.ndarray
@@ -44,8 +46,13 @@ class LaneTable:
     valid: np.ndarray
     lane_ids: np.ndarray
     num_segments: int
-    tree: cKDTree
     tree_segment: np.ndarray
+
+    @functools.cached_property
+    def tree(self) -> cKDTree:
+        """k-d tree over the valid segments' starts, built on first use: most
+        scenarios never need a lane search (see `red_light_violation`)."""
+        return cKDTree(self.start[self.tree_segment].astype(np.float64))
 
 
 def build_lane_table(lanes, lane_ids) -> LaneTable | None:
@@ -60,9 +67,7 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     tree_segment = np.flatnonzero(valid)
     return LaneTable(points=points, start=start, delta=delta, valid=valid,
                      lane_ids=np.array([i for _, i in kept], np.int64),
-                     num_segments=max_points - 1,
-                     tree=cKDTree(start[tree_segment].astype(np.float64)),
-                     tree_segment=tree_segment)
+                     num_segments=max_points - 1, tree_segment=tree_segment)
 
 
 def lane_measure(xy, start, delta):

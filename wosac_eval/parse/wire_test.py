@@ -70,14 +70,19 @@ def parsed_states(track):
     return values, np.array([s.valid for s in track.states])
 
 
-def test_track_states_from_the_wire_equal_the_parsed_fields():
-    track = make_track()
-    run = record_run(track.SerializeToString(), 3, scenario_module._STATE_LAYOUT, 5)
+def states_from_the_wire(track):
+    """The track's states read from the wire, checked against the parsed fields."""
+    run = record_run(track.SerializeToString(), 3, scenario_module._STATE_LAYOUT, len(track.states))
     assert run is not None
-    values, valid = scenario_module._track_states(track, 5, run)
+    values, valid = scenario_module._track_states(track, len(track.states), run)
     expected_values, expected_valid = parsed_states(track)
     np.testing.assert_array_equal(values, expected_values)
     np.testing.assert_array_equal(valid, expected_valid)
+    return values, valid
+
+
+def test_track_states_from_the_wire_equal_the_parsed_fields():
+    _, valid = states_from_the_wire(make_track())
     assert not valid.all() and valid.any()
 
 
@@ -87,12 +92,7 @@ def test_states_without_some_fields_read_as_defaults():
     invalid = track.states.add()
     invalid.center_z = -1.0
     invalid.valid = False
-    run = record_run(track.SerializeToString(), 3, scenario_module._STATE_LAYOUT, 6)
-    assert run is not None
-    values, valid = scenario_module._track_states(track, 6, run)
-    expected_values, expected_valid = parsed_states(track)
-    np.testing.assert_array_equal(values, expected_values)
-    np.testing.assert_array_equal(valid, expected_valid)
+    values, _ = states_from_the_wire(track)
     assert values[2, 1] == 0  # the missing center_y reads as its default
 
 

@@ -18,7 +18,6 @@ import statistics
 import time
 from pathlib import Path
 
-import numpy as np
 
 from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.arrays.rollouts import rollout_arrays
@@ -61,7 +60,6 @@ def _features(stages, scen, traj, ctx):
 
 def run_once(scenario_bytes: bytes, submission_bytes: bytes, config) -> dict:
     stages: dict[str, float] = {}
-    start = time.perf_counter()
     scenario = _timed(stages, "parse: protobuf", scenario_pb2.Scenario.FromString, scenario_bytes)
     submission = _timed(stages, "parse: protobuf", sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString,
                         submission_bytes)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterable, Iterator
-from pathlib import Path
 
 from wosac_eval.allocator import keep_freed_memory
 from wosac_eval.arrays.rollouts import rollout_arrays

@@ -16,7 +16,6 @@ import pytest
 
 from wosac_eval.fronts.cli import main
 from wosac_eval.parse.scenarios import ScenarioIndex
-from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.validate import validate_submission
 from wosac_eval.validate._fixtures import (
     golden_submission,

@@ -306,9 +306,13 @@ def segment_side(query_xy, start, delta):
     Returns:
       float32 `(...)` in {-1, 0, 1}.
     """
-    sx = query_xy[..., 0] - start[..., 0]
-    sy = query_xy[..., 1] - start[..., 1]
-    return array_namespace(query_xy, start).sign(_cross(sx, sy, delta[..., 0], delta[..., 1]))
+    return side_of_segment(query_xy[..., 0], query_xy[..., 1], start[..., 0], start[..., 1],
+                           delta[..., 0], delta[..., 1])
+
+
+def side_of_segment(px, py, sx, sy, dx, dy):
+    """`segment_side` on separate coordinates (elementwise, broadcasting)."""
+    return array_namespace(px, sx).sign(_cross(px - sx, py - sy, dx, dy))
 
 
 def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_valid, next_valid):
@@ -326,8 +330,10 @@ def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_va
                     xp.where((rel_t > 1) & next_valid, after, n))
 
 
-def _side(table: SegmentTable, query_xy, seg):
-    return segment_side(query_xy, table.start[seg], table.delta[seg])
+def _side(table: SegmentTable, qx, qy, seg):
+    """`segment_side` of points `(n,)` against table segments `(n,)`, gathering one column at a time."""
+    sx, sy, _, dx, dy, _ = (np.take(c, seg) for c in table.columns)
+    return side_of_segment(qx, qy, sx, sy, dx, dy)
 
 
 def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np.ndarray:
@@ -349,10 +355,10 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     key = (d3.view(np.int32).astype(np.int64) << 32) | si
     bs = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
     bt, _, d2 = _pair_distances(table, queries, np.arange(len(queries)), bs)
-    xy = queries[:, :2]
-    n = _side(table, xy, bs)
-    n_prior = _side(table, xy, table.prior[bs])
-    n_next = _side(table, xy, table.next[bs])
+    qx, qy = np.ascontiguousarray(queries[:, 0]), np.ascontiguousarray(queries[:, 1])
+    n = _side(table, qx, qy, bs)
+    n_prior = _side(table, qx, qy, table.prior[bs])
+    n_next = _side(table, qx, qy, table.next[bs])
     sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
                        table.prior_valid[bs], table.next_valid[bs])
     return (sign * d2).astype(_F)

@@ -23,6 +23,7 @@ from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metric
 from wosac_eval.parse.archive import iter_submission_shards, parse_submission_shard
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.parse.wire import field_spans
 from wosac_eval.processes import worker_pool
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 from wosac_eval.validate import validate_submission
@@ -129,20 +130,42 @@ def _score_batch(tasks: list[tuple[str, bytes]]) -> list[dict]:
     return score_scenarios_jax(pairs, _WORKER["config"])
 
 
+def _split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
+    """(scenario_id, serialized ScenarioRollouts) of every scenario of a shard.
+
+    The shard is split at the wire level (`field_spans`: scenario_rollouts is
+    field 1 of the submission, scenario_id field 1 of each element), so the
+    parent process hands the workers bytes without parsing and re-serialising
+    them; anything unexpected falls back to a full parse.
+    """
+    try:
+        items = []
+        for start, end in field_spans(raw, 1):
+            data = raw[start:end]
+            ids = field_spans(data, 1)  # a repeated singular field: the last one counts, as in a parse
+            items.append((data[ids[-1][0]:ids[-1][1]].decode("utf-8") if ids else "", data))
+        return items
+    except (ValueError, UnicodeDecodeError):
+        try:
+            submission = parse_submission_shard(name, raw)
+        except ParseError:
+            return []
+        return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
+
+
 def _rollouts_to_score(submission_path: PathLike, index: ScenarioIndex, report) -> Iterator[tuple[str, bytes]]:
     """(scenario_id, serialized ScenarioRollouts) of every valid scenario, once each."""
     seen: set[str] = set()
+    # Shards validation could not parse hold no valid scenario (only reached in partial mode).
+    unparseable = {finding.shard for finding in report.findings("shard.unparseable")}
     for shard_name, raw in iter_submission_shards(submission_path):
-        try:
-            submission = parse_submission_shard(shard_name, raw)
-        except ParseError:
-            continue  # already reported by validation; only reached in partial mode
-        for rollouts in submission.scenario_rollouts:
-            sid = rollouts.scenario_id
+        if shard_name in unparseable:
+            continue
+        for sid, data in _split_shard(shard_name, raw):
             if sid in seen or sid not in index or not report.is_scenario_valid(sid):
                 continue
             seen.add(sid)
-            yield sid, rollouts.SerializeToString()
+            yield sid, data
 
 
 _JAX_BATCH = 8  # scenarios per jax-backend call in a single process

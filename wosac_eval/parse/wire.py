@@ -1,4 +1,10 @@
-"""Reading the packed coordinates of `SimulatedTrajectory` messages straight from the wire.
+"""Reading protobuf messages straight from the wire, where a full parse would cost more.
+
+- `packed_coordinates`: the packed coordinates of `SimulatedTrajectory` messages;
+- `record_runs`: repeated small submessages (track states, map points) as fixed-size records;
+- `field_spans`: where each occurrence of a length-delimited field sits in a message.
+
+Packed coordinates:
 
 Protobuf serialises a parsed message canonically (known fields in field-number
 order, each packed field as one block), so a trajectory whose `center_x`,
@@ -206,3 +212,48 @@ def _read_group(buffer: np.ndarray, starts: np.ndarray, record: int, layout, out
         else:
             out[rows_out, column[number]] = raw.view("<f8" if kind == "d" else "<f4")[:, 0]
     return True
+
+
+def _read_varint(data: bytes, pos: int) -> tuple[int, int]:
+    value, shift = 0, 0
+    while True:
+        if pos >= len(data) or shift > 63:
+            raise ValueError("truncated or overlong varint")
+        byte = data[pos]
+        value |= (byte & 0x7F) << shift
+        pos, shift = pos + 1, shift + 7
+        if not byte & 0x80:
+            return value, pos
+
+
+def field_spans(data: bytes, field_number: int) -> list[tuple[int, int]]:
+    """(start, end) of the value of every occurrence of a length-delimited field.
+
+    Walks the top level of a serialised message, skipping other fields by
+    their wire type, so a large message is split without being parsed.
+
+    Raises:
+      ValueError: the bytes are not a well-formed message at the top level.
+    """
+    spans, pos, end = [], 0, len(data)
+    while pos < end:
+        key, pos = _read_varint(data, pos)
+        number, wire_type = key >> 3, key & 7
+        if number == 0:
+            raise ValueError("field number 0")
+        if wire_type == 0:
+            _, pos = _read_varint(data, pos)
+        elif wire_type == 1:
+            pos += 8
+        elif wire_type == 5:
+            pos += 4
+        elif wire_type == 2:
+            length, pos = _read_varint(data, pos)
+            if number == field_number:
+                spans.append((pos, pos + length))
+            pos += length
+        else:
+            raise ValueError(f"unsupported wire type {wire_type}")
+        if pos > end:
+            raise ValueError("truncated field")
+    return spans

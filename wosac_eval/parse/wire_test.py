@@ -2,7 +2,7 @@
 import numpy as np
 
 from wosac_eval.arrays import scenario as scenario_module
-from wosac_eval.parse.wire import record_run, record_runs
+from wosac_eval.parse.wire import field_spans, record_run, record_runs
 from wosac_eval.protos import map_pb2, scenario_pb2
 
 POINT = ((1, "d"), (2, "d"), (3, "d"))
@@ -124,3 +124,25 @@ def test_many_parents_at_once_with_one_irregular():
     # The scenario reader gives the same points for every lane, irregular or not.
     for lane, xyz in zip(lanes, scenario_module._polylines(lanes, 8)):
         np.testing.assert_array_equal(xyz, np.array([[p.x, p.y, p.z] for p in lane.polyline], np.float32))
+
+
+def test_field_spans_split_a_submission_like_a_parse():
+    from wosac_eval.protos import sim_agents_submission_pb2 as pb
+    submission = pb.SimAgentsChallengeSubmission(account_name="a", unique_method_name="m", authors=["x", "y"])
+    for sid in ("s1", "s2", "s3"):
+        rollouts = submission.scenario_rollouts.add(scenario_id=sid)
+        scene = rollouts.joint_scenes.add()
+        scene.simulated_trajectories.add(object_id=7, center_x=[1.0, 2.0], center_y=[0.5, 0.5],
+                                         center_z=[0.0, 0.0], heading=[0.1, 0.2])
+    raw = submission.SerializeToString()
+    spans = field_spans(raw, 1)
+    assert [pb.ScenarioRollouts.FromString(raw[a:b]) for a, b in spans] == list(submission.scenario_rollouts)
+    # The metadata strings are other fields of the same wire type.
+    assert [raw[a:b].decode() for a, b in field_spans(raw, 3)] == ["a"]
+
+
+def test_field_spans_reject_malformed_bytes():
+    import pytest
+    for bad in (b"\x0a\x05abc", b"\x0b\x00", b"\x08", b"\x00\x01", b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01"):
+        with pytest.raises(ValueError):
+            field_spans(bad, 1)

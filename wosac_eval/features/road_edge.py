@@ -373,6 +373,11 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
     Returns:
       float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
     """
-    flat = corners_xyz.reshape(-1, 3)
-    distance = signed_distance_to_polylines(table, flat).reshape(corners_xyz.shape[:-1])
-    return np.where(valid, distance.max(axis=-1), -EXTREMELY_LARGE_DISTANCE)
+    # Only valid boxes are searched: invalid log states sit at placeholder
+    # positions (often the origin, kilometres from the map) and are masked anyway.
+    boxes = corners_xyz.reshape(-1, 4, 3)
+    keep = np.flatnonzero(np.broadcast_to(valid, corners_xyz.shape[:-2]).reshape(-1))
+    out = np.full(len(boxes), -EXTREMELY_LARGE_DISTANCE, _F)
+    distance = signed_distance_to_polylines(table, boxes[keep].reshape(-1, 3)).reshape(-1, 4)
+    out[keep] = distance.max(axis=-1)
+    return out.reshape(corners_xyz.shape[:-2])

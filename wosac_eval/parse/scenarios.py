@@ -24,6 +24,7 @@ from wosac_eval.parse.errors import (
     UnknownScenarioError,
 )
 from wosac_eval.parse.tfrecord import iter_records, read_record_at
+from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import scenario_pb2
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -138,33 +139,6 @@ def iter_scenarios(paths: PathLike | Iterable[PathLike]) -> Iterator[SourcedScen
             yield SourcedScenario(parse_scenario(record.data, source), source)
 
 
-def _read_varint(data: bytes, position: int) -> tuple[int, int]:
-    """Decode a base-128 varint at position; returns (value, next position)."""
-    value, shift = 0, 0
-    while True:
-        if position >= len(data) or shift > 63:
-            raise ValueError("truncated or overlong varint")
-        byte = data[position]
-        value |= (byte & 0x7F) << shift
-        position, shift = position + 1, shift + 7
-        if byte < 0x80:
-            return value, position
-
-
-def _skip_field(data: bytes, position: int, wire_type: int) -> int:
-    """Position just past a field's payload of the given wire type."""
-    if wire_type == 0:
-        return _read_varint(data, position)[1]
-    if wire_type == 1:
-        return position + 8
-    if wire_type == 5:
-        return position + 4
-    if wire_type == 2:
-        length, position = _read_varint(data, position)
-        return position + length
-    raise ValueError(f"unsupported wire type {wire_type}")
-
-
 def scenario_id_of(data: bytes, source: ScenarioSource) -> str:
     """The scenario_id of a serialized Scenario, found by skimming its top-level fields.
 
@@ -172,21 +146,9 @@ def scenario_id_of(data: bytes, source: ScenarioSource) -> str:
     which is what makes indexing many shards fast. The last occurrence wins,
     as in a full parse.
     """
-    found: bytes | None = None
-    position = 0
     try:
-        while position < len(data):
-            tag, position = _read_varint(data, position)
-            number, wire_type = tag >> 3, tag & 7
-            if number == 0:
-                raise ValueError("field number 0")
-            end = _skip_field(data, position, wire_type)
-            if number == _SCENARIO_ID_FIELD and wire_type == 2:
-                payload_start = _read_varint(data, position)[1]
-                found = data[payload_start:end]
-            position = end
-        if position != len(data):
-            raise ValueError("last field runs past the end of the record")
+        spans = field_spans(data, _SCENARIO_ID_FIELD)
+        found = data[spans[-1][0]:spans[-1][1]] if spans else b""
         if not found:
             raise ValueError("no scenario_id")
         return found.decode("utf-8")

@@ -64,27 +64,6 @@ def packed_coordinates(trajectories: Sequence, num_steps: int) -> tuple[np.ndarr
     return regular, values
 
 
-def _skip_field(data: bytes, pos: int, wire_type: int) -> int:
-    """Offset just past the value of a field whose tag ended at `pos`."""
-    if wire_type == 0:
-        while data[pos] & 0x80:
-            pos += 1
-        return pos + 1
-    if wire_type == 1:
-        return pos + 8
-    if wire_type == 5:
-        return pos + 4
-    if wire_type == 2:
-        length, shift = 0, 0
-        while True:
-            byte = data[pos]
-            length |= (byte & 0x7F) << shift
-            pos, shift = pos + 1, shift + 7
-            if not byte & 0x80:
-                return pos + length
-    raise ValueError(f"unsupported wire type {wire_type}")
-
-
 _SIZE = {"d": 8, "f": 4, "b": 1}
 _WIRE_TYPE = {"d": 1, "f": 5, "b": 0}
 
@@ -110,7 +89,7 @@ def _run_segments(data: bytes, field_number: int, count: int) -> list | None:
         key = data[pos]
         if key & 0x80 or (key >> 3) >= field_number:
             return None
-        pos = _skip_field(data, pos + 1, key & 7)
+        pos = skip_field(data, pos + 1, key & 7)
     segments, remaining = [], count
     while remaining:
         if pos + 2 > end or data[pos] != tag or data[pos + 1] & 0x80:
@@ -214,7 +193,8 @@ def _read_group(buffer: np.ndarray, starts: np.ndarray, record: int, layout, out
     return True
 
 
-def _read_varint(data: bytes, pos: int) -> tuple[int, int]:
+def read_varint(data: bytes, pos: int) -> tuple[int, int]:
+    """(value, next offset) of the base-128 varint at `pos`; ValueError if truncated or overlong."""
     value, shift = 0, 0
     while True:
         if pos >= len(data) or shift > 63:
@@ -224,6 +204,20 @@ def _read_varint(data: bytes, pos: int) -> tuple[int, int]:
         pos, shift = pos + 1, shift + 7
         if not byte & 0x80:
             return value, pos
+
+
+def skip_field(data: bytes, pos: int, wire_type: int) -> int:
+    """Offset just past the value of a field whose tag ended at `pos`."""
+    if wire_type == 0:
+        return read_varint(data, pos)[1]
+    if wire_type == 1:
+        return pos + 8
+    if wire_type == 5:
+        return pos + 4
+    if wire_type == 2:
+        length, pos = read_varint(data, pos)
+        return pos + length
+    raise ValueError(f"unsupported wire type {wire_type}")
 
 
 def field_spans(data: bytes, field_number: int) -> list[tuple[int, int]]:
@@ -237,23 +231,14 @@ def field_spans(data: bytes, field_number: int) -> list[tuple[int, int]]:
     """
     spans, pos, end = [], 0, len(data)
     while pos < end:
-        key, pos = _read_varint(data, pos)
+        key, pos = read_varint(data, pos)
         number, wire_type = key >> 3, key & 7
         if number == 0:
             raise ValueError("field number 0")
-        if wire_type == 0:
-            _, pos = _read_varint(data, pos)
-        elif wire_type == 1:
-            pos += 8
-        elif wire_type == 5:
-            pos += 4
-        elif wire_type == 2:
-            length, pos = _read_varint(data, pos)
-            if number == field_number:
-                spans.append((pos, pos + length))
-            pos += length
-        else:
-            raise ValueError(f"unsupported wire type {wire_type}")
-        if pos > end:
-            raise ValueError("truncated field")
+        field_end = skip_field(data, pos, wire_type)
+        if field_end > end:
+            raise ValueError("last field runs past the end of the message")
+        if number == field_number and wire_type == 2:
+            spans.append((read_varint(data, pos)[1], field_end))
+        pos = field_end
     return spans

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from wosac_eval.parse.wire import varint
 from wosac_eval.protos import sim_agents_submission_pb2
 
 
@@ -99,18 +100,6 @@ def write_submission(rollouts: list, metadata: SubmissionMetadata, output: str |
     return writer.path
 
 
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte = value & 0x7F
-        value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
-
-
 _ROLLOUTS_TAG = bytes([(1 << 3) | 2])  # field 1 (scenario_rollouts), length-delimited
 
 
@@ -140,7 +129,7 @@ class ShardWriter:
     def add(self, rollouts_bytes: bytes) -> None:
         """Appends one serialised `ScenarioRollouts`."""
         shard = self._files[self.count % self.num_shards]
-        shard.write(_ROLLOUTS_TAG + _varint(len(rollouts_bytes)) + rollouts_bytes)
+        shard.write(_ROLLOUTS_TAG + varint(len(rollouts_bytes)) + rollouts_bytes)
         self.count += 1
 
     def __enter__(self) -> "ShardWriter":

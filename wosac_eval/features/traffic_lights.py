@@ -189,16 +189,15 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
         raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
                          f"expected one per step ({num_steps})")
     # Only signals that show a stop at some step and sit on a known lane can be violated.
-    match = (lanes.lane_ids[None, :] == signals.lane_id[:, None]).any(axis=1)
-    relevant = np.isin(signals.state, LANE_STATE_STOP_VALUES).any(axis=0) & match
+    is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
+    relevant = is_stop.any(axis=0) & np.isin(signals.lane_id, lanes.lane_ids)
     if not relevant.any():
         return np.zeros(np.shape(valid), bool)
     signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
                                   stop_point=signals.stop_point[:, relevant])
     xy = np.stack([x, y], axis=-1).astype(_F)
-    seg_start, seg_delta, lane_known = _stop_point_segments(lanes, signals)  # (T, S, 2)
-    is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
-    suspect = stop_line_crossings(xy, valid, seg_start, seg_delta, signals.stop_point, is_stop & lane_known)
+    seg_start, seg_delta, _ = _stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
+    suspect = stop_line_crossings(xy, valid, seg_start, seg_delta, signals.stop_point, is_stop[:, relevant])
     violation = np.zeros(valid.shape, dtype=bool)
     where = np.nonzero(suspect.any(axis=-1))
     if where[0].size:

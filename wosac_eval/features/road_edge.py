@@ -174,9 +174,15 @@ def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
     return rel_t, xp.sqrt(planar2 + oz * oz), xp.sqrt(planar2)
 
 
-def _pair_distances(table: SegmentTable, queries: np.ndarray, qi: np.ndarray, si: np.ndarray):
-    """`segment_distances` for (query, segment) index pairs, gathering one column at a time."""
-    p = [np.take(c, qi) for c in np.ascontiguousarray(queries.T)]
+def _pair_distances(table: SegmentTable, query_columns: np.ndarray, qi, si: np.ndarray):
+    """`segment_distances` for (query, segment) pairs, gathering one column at a time.
+
+    Args:
+      query_columns: float32 `(3, num_points)`.
+      qi: the query of each pair, or None when pair i is query i.
+      si: int `(num_pairs,)`, the segment of each pair.
+    """
+    p = query_columns if qi is None else [np.take(c, qi) for c in query_columns]
     seg = [np.take(c, si) for c in table.columns]
     return segment_distances(*p, *seg)
 
@@ -349,13 +355,14 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     if len(queries) == 0:
         return np.zeros(0, _F)
     qi, si, starts = _candidates(table, queries)
-    d3 = _pair_distances(table, queries, qi, si)[1]
+    columns = np.ascontiguousarray(queries.T)
+    d3 = _pair_distances(table, columns, qi, si)[1]
     # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
     # non-negative float32 values order like their bit patterns.
     key = (d3.view(np.int32).astype(np.int64) << 32) | si
     bs = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
-    bt, _, d2 = _pair_distances(table, queries, np.arange(len(queries)), bs)
-    qx, qy = np.ascontiguousarray(queries[:, 0]), np.ascontiguousarray(queries[:, 1])
+    bt, _, d2 = _pair_distances(table, columns, None, bs)
+    qx, qy = columns[0], columns[1]
     n = _side(table, qx, qy, bs)
     n_prior = _side(table, qx, qy, table.prior[bs])
     n_next = _side(table, qx, qy, table.next[bs])

@@ -106,7 +106,7 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
 def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
     lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
     e = num_evaluated
-    radius = np.minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
+    radius = corner_radius(length, width)
     flat = lambda a: np.ascontiguousarray(a).reshape(-1)
     boxes = (flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
              flat(cos_h), flat(sin_h), flat(radius))
@@ -133,7 +133,7 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
     # First guess: the object with the lowest bound, evaluated exactly.
     guess = np.argmin(lower, axis=-1)
-    gb, ge, gs = np.nonzero(np.isfinite(np.min(lower, axis=-1)))
+    gb, ge, gs = np.nonzero(np.isfinite(np.take_along_axis(lower, guess[..., None], axis=-1)[..., 0]))
     go = guess[gb, ge, gs]
     distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
     if gb.size == 0:

@@ -13,18 +13,14 @@ Usage:
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import subprocess
 import sys
-import tarfile
 import tempfile
 from pathlib import Path
 
-from wosac_eval.parse.tfrecord import read_records, write_records
-from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+from wosac_eval.validate._fixtures import GOLDEN, WOMD, replicated_submission
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
 CASE = "637f20cafde22ff8__official_test_submission"
 
 _RUNNER = """
@@ -40,35 +36,9 @@ print(json.dumps({"elapsed": elapsed, "rss_mib": rss / 1024, "n": result["num_sc
 
 
 def build(n: int, folder: Path) -> tuple[Path, Path]:
-    scenario = scenario_pb2.Scenario.FromString(next(iter(read_records(SHARED / "womd" / "motion_data_one_scenario.tfrecord"))))
-    golden = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(
-        (SHARED / "golden" / f"{CASE}.binproto").read_bytes())
-    rollouts = golden.scenario_rollouts[0]
-    ids = [f"{scenario.scenario_id}-{i:05d}" for i in range(n)]
-
-    def renamed_scenarios():
-        for sid in ids:
-            scenario.scenario_id = sid
-            yield scenario.SerializeToString()
-    scenarios = folder / f"scenarios-{n}.tfrecord"
-    write_records(scenarios, renamed_scenarios())
-    submission = folder / f"submission-{n}.tar.gz"
-    per_shard = 10
-    shards = (n + per_shard - 1) // per_shard
-    with tarfile.open(submission, "w:gz") as tar:
-        for s in range(shards):
-            shard = sim_agents_submission_pb2.SimAgentsChallengeSubmission()
-            shard.CopyFrom(golden)
-            del shard.scenario_rollouts[:]
-            for sid in ids[s * per_shard:(s + 1) * per_shard]:
-                r = shard.scenario_rollouts.add()
-                r.CopyFrom(rollouts)
-                r.scenario_id = sid
-            data = shard.SerializeToString()
-            info = tarfile.TarInfo(f"submission/bench.binproto-{s:05d}-of-{shards:05d}")
-            info.size = len(data)
-            tar.addfile(info, io.BytesIO(data))
-    return scenarios, submission
+    if not (GOLDEN.is_dir() and WOMD.is_dir()):
+        sys.exit(f"needs the reference data in {GOLDEN.parent} (golden/ and womd/)")
+    return replicated_submission(folder, n, per_shard=10, case=CASE)
 
 
 def run(scenarios: Path, submission: Path, workers: int) -> dict:

@@ -38,37 +38,12 @@ def _peak_rss_mib() -> float:
 
 
 def build(folder: Path, n_scenarios: int, per_shard: int, case: str) -> tuple[Path, Path]:
-    """Write set.tfrecord (N renamed scenarios) and submission.tar.gz (N replicated rollouts)."""
-    import tarfile
-
-    from wosac_eval.parse.tfrecord import write_records
-    from wosac_eval.validate._fixtures import GOLDEN, WOMD, golden_submission, load_scenario, renamed_scenario_bytes, with_rollouts
+    """Write the scenario set (N renamed scenarios) and the .tar.gz submission (N replicated rollouts)."""
+    from wosac_eval.validate._fixtures import GOLDEN, WOMD, replicated_submission
 
     if not (GOLDEN.is_dir() and WOMD.is_dir()):
         sys.exit(f"needs the reference data in {GOLDEN.parent} (golden/ and womd/)")
-    template = golden_submission(case)
-    scenario_id = template.scenario_rollouts[0].scenario_id
-    scenario = load_scenario(scenario_id)
-    ids = [f"{scenario_id}-{i:05d}" for i in range(n_scenarios)]
-    scenario_file = folder / "set.tfrecord"
-    write_records(scenario_file, (renamed_scenario_bytes(scenario, sid) for sid in ids))
-
-    rollouts = template.scenario_rollouts[0]
-    archive = folder / "submission.tar.gz"
-    with tarfile.open(archive, "w:gz", compresslevel=1) as tar:
-        for start in range(0, n_scenarios, per_shard):
-            shard = with_rollouts(template, [])
-            for sid in ids[start : start + per_shard]:
-                r = shard.scenario_rollouts.add()
-                r.CopyFrom(rollouts)
-                r.scenario_id = sid
-            data = shard.SerializeToString()
-            info = tarfile.TarInfo(f"submission/shard-{start // per_shard:05d}.binproto")
-            info.size = len(data)
-            import io
-
-            tar.addfile(info, io.BytesIO(data))
-    return scenario_file, archive
+    return replicated_submission(folder, n_scenarios, per_shard, case)
 
 
 def child(scenario_file: str, archive: str, workers: int) -> None:
@@ -120,7 +95,8 @@ def main() -> None:
             check=True,
         )
         built = time.perf_counter() - start
-        scenario_file, archive = Path(tmp) / "set.tfrecord", Path(tmp) / "submission.tar.gz"
+        scenario_file = Path(tmp) / f"scenarios-{args.scenarios}.tfrecord"
+        archive = Path(tmp) / f"submission-{args.scenarios}.tar.gz"
         out = subprocess.run(
             [sys.executable, __file__, "--child", str(scenario_file), str(archive), "--workers", str(args.workers)],
             check=True, capture_output=True, text=True,

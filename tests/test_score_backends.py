@@ -7,16 +7,9 @@ import sys
 
 import pytest
 
-from conftest import REPO, require_shared
+from conftest import REPO, require_shared, run_score
 
 CASE = "637f20cafde22ff8__official_test_submission"
-
-
-def _score(tmp_path, *args):
-    out = tmp_path / "result.json"
-    proc = subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args, "-o", str(out)],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
-    return proc, (json.loads(out.read_text()) if out.exists() else None)
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -24,7 +17,7 @@ def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
     shared = require_shared()
     args = ["--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
             "--submission", str(shared / "golden" / f"{CASE}.binproto"), "--workers", str(workers)]
-    proc, result = _score(tmp_path, *args, "--backend", "jax")
+    proc, result = run_score(tmp_path, *args, "--backend", "jax")
     assert proc.returncode == 0, proc.stderr
     golden = json.loads((shared / "golden" / f"{CASE}.json").read_text())["metrics"]["2025"]
     for field, value in result["aggregate"].items():
@@ -32,7 +25,7 @@ def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
     for field, value in result["buckets"].items():
         assert value == pytest.approx(golden["buckets"][field], abs=1e-5), field
     (tmp_path / "jax.json").write_text(json.dumps(result))
-    proc, numpy_result = _score(tmp_path, *args)
+    proc, numpy_result = run_score(tmp_path, *args)
     assert proc.returncode == 0, proc.stderr
     # Bit-identical features give identical metrics.
     assert result["scenarios"] == numpy_result["scenarios"]

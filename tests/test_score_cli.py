@@ -2,26 +2,17 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
-from conftest import REPO, require_shared
-
-
-def _score(tmp_path, *args):
-    out = tmp_path / "result.json"
-    proc = subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args, "-o", str(out)],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
-    return proc, (json.loads(out.read_text()) if out.exists() else None)
+from conftest import require_shared, run_score
 
 
 @pytest.mark.parametrize("workers", [1, 2])
 def test_score_matches_golden(tmp_path, workers):
     shared = require_shared()
     case = "637f20cafde22ff8__official_test_submission"
-    proc, result = _score(tmp_path, "--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
+    proc, result = run_score(tmp_path, "--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
                           "--submission", str(shared / "golden" / f"{case}.binproto"),
                           "--workers", str(workers))
     assert proc.returncode == 0, proc.stderr
@@ -38,10 +29,10 @@ def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path)
     shared = require_shared()
     args = ["--scenarios", str(shared / "womd"),
             "--submission", str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto")]
-    proc, result = _score(tmp_path, *args)
+    proc, result = run_score(tmp_path, *args)
     assert proc.returncode == 1
     assert "ee519cf571686d19" in proc.stderr and result is None
-    proc, result = _score(tmp_path, *args, "--partial")
+    proc, result = run_score(tmp_path, *args, "--partial")
     assert proc.returncode == 0, proc.stderr
     assert [s["scenario_id"] for s in result["skipped"]] == ["ee519cf571686d19"]
     assert "missing from the submission" in result["skipped"][0]["reason"]
@@ -50,7 +41,7 @@ def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path)
 
 def test_score_usage_error_on_unknown_config(tmp_path):
     shared = require_shared()
-    proc, _ = _score(tmp_path, "--scenarios", str(shared / "womd"), "--submission",
+    proc, _ = run_score(tmp_path, "--scenarios", str(shared / "womd"), "--submission",
                      str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"), "--config", "2019")
     assert proc.returncode == 2
     assert "2019" in proc.stderr

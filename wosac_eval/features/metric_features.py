@@ -119,7 +119,8 @@ def simulated_trajectories(scenario: ScenarioArrays, rollouts: RolloutArrays) ->
     orders = np.stack([official_object_order(ids, scenario.evaluated_ids) for ids in rollouts.object_id])
     cols = np.stack([index_of_ids(ids, order) for ids, order in zip(rollouts.object_id, orders)])
     if (cols == cols[0]).all():  # usually every rollout lists the agents in the same order
-        take = lambda a: a if (cols[0] == np.arange(cols.shape[1])).all() else a[:, cols[0]]
+        in_order = (cols[0] == np.arange(cols.shape[1])).all()
+        take = lambda a: a if in_order else a[:, cols[0]]
     else:
         take = lambda a: np.take_along_axis(a, cols[..., None], axis=1)
     future = tuple(take(a) for a in (rollouts.x, rollouts.y, rollouts.z, rollouts.heading))

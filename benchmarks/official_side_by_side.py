@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+from bench_env import SHARED
 SCENARIOS = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
 SUBMISSION = SHARED / "golden" / "637f20cafde22ff8__official_test_submission.binproto"
 CONFIG = SHARED / "official-configs" / "challenge_2025_sim_agents_config.textproto"

@@ -21,8 +21,7 @@ import statistics
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-SHARED = REPO.parent / "shared"
+from bench_env import REPO, SHARED
 ORACLE = REPO / "tests" / "data" / "oracle"
 
 # Before JAX starts: exact float32 on CPU (see wosac_eval.backends.jax_backend).

@@ -24,7 +24,7 @@ from wosac_eval.metrics.submission import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+from bench_env import SHARED
 
 
 def scene_with(base: scenario_pb2.Scenario, num_agents: int, num_evaluated: int) -> scenario_pb2.Scenario:

@@ -19,7 +19,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from wosac_eval.validate._fixtures import GOLDEN, WOMD, replicated_submission
+from bench_env import REPO  # noqa: F401  (puts tests/support on the path)
+from support.submissions import GOLDEN, WOMD, replicated_submission
 
 CASE = "637f20cafde22ff8__official_test_submission"
 

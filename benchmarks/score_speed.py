@@ -28,7 +28,7 @@ from wosac_eval.metrics.scenario_metrics import scenario_metrics
 from wosac_eval.parse.tfrecord import read_records
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
-SHARED = Path(__file__).resolve().parents[2] / "shared"
+from bench_env import SHARED
 
 
 def _timed(stages, name, fn, *args):

@@ -23,10 +23,9 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench_env import REPO  # noqa: E402
 
-from wosac_eval.fronts.server.harness import Server, scoring_data  # noqa: E402
+from support.server_harness import Server, scoring_data  # noqa: E402
 
 
 def main() -> int:

@@ -27,8 +27,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from bench_env import REPO  # noqa: E402
 
 
 def _peak_rss_mib() -> float:
@@ -39,7 +38,7 @@ def _peak_rss_mib() -> float:
 
 def build(folder: Path, n_scenarios: int, per_shard: int, case: str) -> tuple[Path, Path]:
     """Write the scenario set (N renamed scenarios) and the .tar.gz submission (N replicated rollouts)."""
-    from wosac_eval.validate._fixtures import GOLDEN, WOMD, replicated_submission
+    from support.submissions import GOLDEN, WOMD, replicated_submission
 
     if not (GOLDEN.is_dir() and WOMD.is_dir()):
         sys.exit(f"needs the reference data in {GOLDEN.parent} (golden/ and womd/)")

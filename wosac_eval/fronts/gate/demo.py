@@ -1,11 +1,11 @@
 """Demo results for trying `compare` / `report` without a simulator, and the docs screenshot.
 
-    python -m wosac_eval.fronts.gate.demo OUT_DIR [--screenshot docs/report.png]
+    python -m wosac_eval.fronts.gate.demo OUT_DIR
 
 Writes OUT_DIR/baseline.json and OUT_DIR/new.json (synthetic results of 2000
 scenarios: in the new run the collision likelihood and rate improve, the offroad
-likelihood gets worse, and 10 scenarios were skipped), OUT_DIR/report.html, and
-with --screenshot a PNG of the report rendered by headless Chromium.
+likelihood gets worse, and 10 scenarios were skipped) and OUT_DIR/report.html.
+`scripts/report_screenshot.py` renders that report to the docs' PNG.
 """
 from __future__ import annotations
 
@@ -38,25 +38,17 @@ def write_demo_results(folder: Path, num_scenarios: int = 2000) -> tuple[Path, P
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("out_dir", type=Path)
-    parser.add_argument("--screenshot", type=Path, help="also write a PNG screenshot of the report here")
     args = parser.parse_args(argv)
     write_demo_results(args.out_dir)
     from wosac_eval.fronts.cli import main as cli
 
     # Run from the folder so that the report shows short file names.
     here = os.getcwd()
-    screenshot = args.screenshot.resolve() if args.screenshot else None
     os.chdir(args.out_dir)
     try:
-        code = cli(["report", "new.json", "--compare", "baseline.json", "--html", "report.html", "--title", TITLE])
-        if code == 0 and screenshot is not None:
-            from wosac_eval.fronts.gate import browser
-
-            browser.screenshot("report.html", screenshot, width=1280, height=2000, palette_colors=96)
-            print(f"wrote {screenshot}")
+        return cli(["report", "new.json", "--compare", "baseline.json", "--html", "report.html", "--title", TITLE])
     finally:
         os.chdir(here)
-    return code
 
 
 if __name__ == "__main__":

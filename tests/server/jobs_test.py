@@ -1,0 +1,164 @@
+"""The job store on both engines (a real SQLite file, a real PostgreSQL server):
+atomic claims, leases, the reaper, keys, the leaderboard."""
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import pytest
+
+from wosac_eval.fronts.server import auth, jobs
+
+
+def add_job(store, key_id="k", method="m", config="2025", published=False, created=None) -> str:
+    sid = jobs.new_id()
+    jobs.insert_submission(store, submission_id=sid, key_id=key_id, method=method, config=config,
+                           allow_partial=False, published=published, file_name=sid + ".binproto",
+                           upload_bytes=10)
+    if created is not None:
+        store.execute("UPDATE submissions SET created_at = ? WHERE id = ?", (created, sid))
+    return sid
+
+
+def test_each_job_is_claimed_exactly_once_under_contention(store):
+    ids = {add_job(store) for _ in range(40)}
+    claimed: list[tuple[str, str]] = []
+    lock = threading.Lock()
+
+    def worker(owner: str) -> None:
+        while (job := jobs.claim_next(store, owner, lease_s=60)) is not None:
+            with lock:
+                claimed.append((job["id"], owner))
+        store.close()
+
+    threads = [threading.Thread(target=worker, args=(f"w{i}",)) for i in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(sid for sid, _ in claimed) == sorted(ids)  # every job once, none twice
+    for sid, owner in claimed:
+        row = jobs.get_submission(store, sid)
+        assert (row["state"], row["lease_owner"], row["attempts"]) == ("validating", owner, 1)
+
+
+def test_claims_follow_upload_order(store):
+    late = add_job(store, created=2000.0)
+    early = add_job(store, created=1000.0)
+    assert jobs.claim_next(store, "w", 60)["id"] == early
+    assert jobs.claim_next(store, "w", 60)["id"] == late
+    assert jobs.claim_next(store, "w", 60) is None
+
+
+def test_reaper_requeues_stale_leases_then_gives_up(store):
+    sid = add_job(store)
+    for attempt in (1, 2, 3):
+        job = jobs.claim_next(store, f"worker-{attempt}", lease_s=0.05)
+        assert job["id"] == sid and job["attempts"] == attempt
+        assert jobs.record_progress(store, sid, f"worker-{attempt}", 1, 5)
+        assert jobs.reap_expired(store, max_attempts=3, now=time.time()) == (0, 0)  # lease still fresh
+        time.sleep(0.06)
+        requeued, failed = jobs.reap_expired(store, max_attempts=3)
+        assert (requeued, failed) == ((1, 0) if attempt < 3 else (0, 1))
+        # The dead worker's late writes are refused: the job is not its any more.
+        assert not jobs.renew_lease(store, sid, f"worker-{attempt}", 60)
+        assert not jobs.finish_done(store, sid, f"worker-{attempt}", {"buckets": {}, "scenarios": []})
+    row = jobs.get_submission(store, sid)
+    assert row["state"] == "failed" and "interrupted 3 times" in row["error"]
+    assert row["lease_owner"] is None and row["finished_at"] is not None
+
+
+def test_heartbeat_keeps_the_lease_and_finish_records_the_score(store):
+    sid = add_job(store, method="good", published=True)
+    jobs.claim_next(store, "w", lease_s=0.2)
+    for _ in range(3):
+        time.sleep(0.1)
+        assert jobs.renew_lease(store, sid, "w", lease_s=0.2)
+        assert jobs.reap_expired(store, max_attempts=3) == (0, 0)
+    result = {"scenarios": [{"scenario_id": "a"}, {"scenario_id": "b"}],
+              "buckets": {"realism_meta_metric": 0.75, "min_ade": 1.5}}
+    assert jobs.finish_done(store, sid, "w", result)
+    row = jobs.get_submission(store, sid)
+    assert (row["state"], row["scenarios_done"], row["scenarios_total"]) == ("done", 2, 2)
+    assert row["realism_meta_metric"] == 0.75 and json.loads(row["buckets"])["min_ade"] == 1.5
+    assert not jobs.finish_failed(store, sid, "w", "too late")  # a finished job stays finished
+
+
+def test_release_on_shutdown_does_not_count_an_attempt(store):
+    sid = add_job(store)
+    jobs.claim_next(store, "w", 60)
+    assert jobs.release(store, sid, "w")
+    row = jobs.get_submission(store, sid)
+    assert (row["state"], row["attempts"], row["lease_owner"]) == ("queued", 0, None)
+
+
+def test_leaderboard_keeps_the_best_published_result_per_method(store):
+    def scored(method, meta, published=True, config="2025"):
+        sid = add_job(store, method=method, published=published, config=config)
+        job = jobs.claim_next(store, "w", 60)
+        assert job["id"] == sid
+        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta}})
+        return sid
+
+    scored("alpha", 0.50)
+    best_alpha = scored("alpha", 0.60)
+    scored("alpha", 0.55)
+    best_beta = scored("beta", 0.58)
+    scored("gamma", 0.99, published=False)
+    scored("delta", 0.99, config="2024")
+    board = jobs.leaderboard(store, "2025")
+    assert [(e["rank"], e["method"], e["submission_id"], e["realism_meta_metric"]) for e in board] == [
+        (1, "alpha", best_alpha, 0.60), (2, "beta", best_beta, 0.58)]
+    assert [e["method"] for e in jobs.leaderboard(store, "2024")] == ["delta"]
+
+
+def test_keys_are_hashed_and_verified(store):
+    key = auth.create_key(store, "team", max_concurrent=1, max_daily=2, max_daily_bytes=3)
+    found = auth.verify_key(store, key)
+    assert (found.name, found.max_concurrent, found.max_daily, found.max_daily_bytes) == ("team", 1, 2, 3)
+    secret = key.split("_", 2)[2]
+    row = store.fetchone("SELECT * FROM api_keys WHERE name = 'team'")
+    assert secret not in json.dumps(row)
+    assert auth.verify_key(store, key[:-1] + ("x" if key[-1] != "x" else "y")) is None
+    with pytest.raises(ValueError, match="already exists"):
+        auth.create_key(store, "team", max_concurrent=1, max_daily=1, max_daily_bytes=1)
+    assert auth.revoke_key(store, "team")
+    assert auth.verify_key(store, key) is None
+
+
+def test_quotas_count_unfinished_jobs_and_the_last_day(store):
+    key = auth.verify_key(store, auth.create_key(store, "q", max_concurrent=2, max_daily=3, max_daily_bytes=25))
+    add_job(store, key_id=key.id)
+    auth.check_submission_quota(store, key, 10)
+    add_job(store, key_id=key.id)
+    with pytest.raises(auth.QuotaExceeded) as exc:
+        auth.check_submission_quota(store, key, 1)
+    assert exc.value.status == 429 and "at a time" in exc.value.message
+    store.execute("UPDATE submissions SET state = 'done' WHERE key_id = ?", (key.id,))
+    with pytest.raises(auth.QuotaExceeded) as exc:
+        auth.check_submission_quota(store, key, 6)  # 20 bytes used of 25
+    assert exc.value.status == 413
+    add_job(store, key_id=key.id)
+    with pytest.raises(auth.QuotaExceeded) as exc:
+        auth.check_submission_quota(store, key, 1)
+    assert exc.value.status == 429 and "per day" in exc.value.message
+    store.execute("UPDATE submissions SET created_at = created_at - 90000 WHERE key_id = ?", (key.id,))
+    auth.check_submission_quota(store, key, 25)  # a day later, all of it is available again
+
+
+def test_store_reconnects_after_postgresql_drops_the_connection(postgres_server):
+    import psycopg
+
+    from wosac_eval.fronts.server.db import Store
+
+    url = postgres_server()
+    store = Store(url)
+    store.migrate()
+    sid = add_job(store)
+    backend = store.fetchone("SELECT pg_backend_pid() AS pid")["pid"]
+    with psycopg.connect(url, autocommit=True) as admin:
+        admin.execute("SELECT pg_terminate_backend(%s)", (backend,))
+    assert jobs.get_submission(store, sid)["state"] == "queued"  # served on a new connection
+    assert store.fetchone("SELECT pg_backend_pid() AS pid")["pid"] != backend
+    store.close()

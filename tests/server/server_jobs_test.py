@@ -1,0 +1,144 @@
+"""Scoring through the service, end to end: the golden submissions of ../shared (or
+demo data when it is absent) give exactly what `score_submission` gives; a worker
+killed with SIGKILL mid-job is replaced and the job completes; a job past its time
+budget fails with the reason; a restart keeps finished results. Real scorer, real
+worker processes, real SQLite file."""
+from __future__ import annotations
+
+import csv
+import io
+import os
+import signal
+import time
+
+from support.server_harness import canonical, tar_bytes
+
+RUNNING = ("validating", "scoring")
+
+
+def test_submissions_score_exactly_as_score_submission(make_server, scoring_data, direct_full_result,
+                                                       direct_single_result):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    n = len(scoring_data.scenarios)
+    with server.client(server.key("golden")) as c:
+        full_id = c.post("/v1/submissions", content=scoring_data.full.read_bytes(),
+                         params={"publish": "true", "method": "baseline-1"}).json()["id"]
+        single_id = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
+                           params={"allow_partial": "true"}).json()["id"]
+        full = server.wait_state(c, full_id)
+        assert full["state"] == "done", full
+        assert full["progress"] == {"scenarios_done": n, "scenarios_total": n}
+        assert full["attempts"] == 1 and full["error"] is None
+        served = c.get(f"/v1/submissions/{full_id}/results")
+        assert served.headers["content-type"] == "application/json"
+        assert canonical(served.json()) == canonical(direct_full_result)
+        assert full["realism_meta_metric"] == direct_full_result["buckets"]["realism_meta_metric"]
+
+        rows = list(csv.DictReader(io.StringIO(c.get(f"/v1/submissions/{full_id}/results",
+                                                     params={"format": "csv"}).text)))
+        assert [r["scenario_id"] for r in rows] == [s["scenario_id"] for s in direct_full_result["scenarios"]]
+        for row, scen in zip(rows, direct_full_result["scenarios"]):
+            assert float(row["metametric"]) == scen["metametric"]
+
+        board = c.get("/v1/leaderboard", params={"config": "2025"}).json()
+        assert [e["method"] for e in board["entries"]] == ["baseline-1"]
+        assert board["entries"][0]["realism_meta_metric"] == direct_full_result["buckets"]["realism_meta_metric"]
+        assert board["entries"][0]["buckets"] == direct_full_result["buckets"]
+
+        one = server.wait_state(c, single_id)
+        assert one["state"] == "done", one
+        assert canonical(c.get(f"/v1/submissions/{single_id}/results").json()) == canonical(direct_single_result)
+        assert [e["method"] for e in c.get("/v1/leaderboard").json()["entries"]] == ["baseline-1"]  # unpublished
+
+
+def test_invalid_submission_fails_with_its_report(make_server, scoring_data):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    with server.client(server.key("invalid")) as c:
+        # A well-formed archive whose shard is not a submission proto.
+        sid = c.post("/v1/submissions", content=tar_bytes({"shard.binproto": b"\xff" * 64})).json()["id"]
+        status = server.wait_state(c, sid)
+        assert c.get(f"/v1/submissions/{sid}/results").status_code == 409
+    assert status["state"] == "failed"
+    assert status["error"].startswith("the submission is invalid")
+    assert "shard.binproto" in status["validation_report"]["text"]
+    assert status["validation_report"]["details"]["valid"] is False
+
+
+def _running_worker_pid(server, submission_id: str, timeout: float = 60.0) -> int:
+    """The pid of the worker holding the job's lease, read from the job store."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        row = server.store.fetchone("SELECT state, lease_owner FROM submissions WHERE id = ?", (submission_id,))
+        if row["state"] in RUNNING and row["lease_owner"]:
+            return int(row["lease_owner"].split(":")[1])
+        assert row["state"] == "queued", f"job reached {row['state']} before it could be killed"
+        time.sleep(0.01)
+    raise AssertionError("no worker claimed the job")
+
+
+def test_job_of_a_killed_worker_completes_and_survives_restart(make_server, scoring_data, direct_single_result):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    key = server.key("killer")
+    body, partial = scoring_data.single.read_bytes(), {"allow_partial": "true"}
+    with server.client(key) as c:
+        sid = c.post("/v1/submissions", content=body, params=partial).json()["id"]
+        victim = _running_worker_pid(server, sid)
+        os.kill(victim, signal.SIGKILL)
+        status = server.wait_state(c, sid)
+        assert status["state"] == "done", status
+        assert status["attempts"] == 2  # the killed attempt, then the one that finished
+        assert _lease_owner_pid(server, sid) is None
+        assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
+        # Accepted while the server is going down: must be scored after the restart.
+        queued_id = c.post("/v1/submissions", content=body, params=partial).json()["id"]
+    server.stop()
+    again = make_server(data_dir=server.data_dir, workers=1, scenarios=scoring_data.scenarios)
+    with again.client(key) as c:
+        assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
+        assert again.wait_state(c, queued_id)["state"] == "done"
+        assert canonical(c.get(f"/v1/submissions/{queued_id}/results").json()) == canonical(direct_single_result)
+
+
+def _lease_owner_pid(server, sid):
+    return server.store.fetchone("SELECT lease_owner FROM submissions WHERE id = ?", (sid,))["lease_owner"]
+
+
+def test_job_over_its_time_budget_fails_with_the_reason(make_server, scoring_data):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, job_time_budget_s=0.05, heartbeat_s=0.02)
+    with server.client(server.key("slow")) as c:
+        sid = c.post("/v1/submissions", content=scoring_data.full.read_bytes()).json()["id"]
+        status = server.wait_state(c, sid, timeout=30)
+    assert status["state"] == "failed"
+    assert "exceeded its time budget of 0.05 s" in status["error"]
+    assert status["attempts"] == 1
+
+
+def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_restart(
+        make_server, scoring_data, direct_single_result):
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    key = server.key("crash")
+    with server.client(key) as c:
+        sid = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
+                     params={"allow_partial": "true"}).json()["id"]
+    worker = _running_worker_pid(server, sid)
+    server.proc.kill()  # SIGKILL: no shutdown code runs in the server process
+    server.proc.wait()
+    deadline = time.monotonic() + 20
+    while _alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not _alive(worker), "the worker outlived its server"
+    again = make_server(data_dir=server.data_dir, workers=1, scenarios=scoring_data.scenarios)
+    with again.client(key) as c:
+        status = again.wait_state(c, sid)
+        assert status["state"] == "done", status
+        assert status["attempts"] == 1  # the orphaned worker gave the job back: no attempt lost
+        assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
+
+
+def _alive(pid: int) -> bool:
+    """Running (not gone, not a zombie waiting to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return "zombie" not in f.read()
+    except FileNotFoundError:
+        return False

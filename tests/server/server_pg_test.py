@@ -1,0 +1,26 @@
+"""The whole service on PostgreSQL: a cluster started by the test run, the real
+server and workers using it through WOSAC_DB_URL."""
+from __future__ import annotations
+
+from support.server_harness import canonical
+
+
+def test_service_on_postgresql_scores_and_survives_restart(make_server, postgres_server, scoring_data,
+                                                            direct_single_result):
+    url = postgres_server()
+    server = make_server(workers=1, db_url=url, scenarios=scoring_data.scenarios)
+    assert not (server.data_dir / "wosac.sqlite3").exists()  # the data dir holds files only
+    key = server.key("pg-team", max_concurrent=1)
+    body = scoring_data.single.read_bytes()
+    with server.client(key) as c:
+        sid = c.post("/v1/submissions", content=body, params={"allow_partial": "true", "publish": "true"}).json()["id"]
+        assert c.post("/v1/submissions", content=body).status_code == 429  # quota counted in PostgreSQL
+        status = server.wait_state(c, sid)
+        assert status["state"] == "done", status
+        served = c.get(f"/v1/submissions/{sid}/results").json()
+    assert canonical(served) == canonical(direct_single_result)
+    server.stop()
+    again = make_server(data_dir=server.data_dir, workers=0, db_url=url, scenarios=scoring_data.scenarios)
+    with again.client(key) as c:
+        assert c.get(f"/v1/submissions/{sid}").json()["state"] == "done"
+        assert c.get("/v1/leaderboard").json()["entries"][0]["submission_id"] == sid

@@ -1,0 +1,169 @@
+"""Run the real service for tests and benchmarks: `wosac-eval serve` as a child
+process on 127.0.0.1 with its own data dir (a real SQLite file) and a free port."""
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tarfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import httpx
+
+from wosac_eval.fronts.server import auth
+from wosac_eval.fronts.server.db import Store
+
+from support.paths import REPO, SHARED
+GOLDEN = SHARED / "golden"
+SCENARIO_FILES = [SHARED / "womd" / "motion_data_one_scenario.tfrecord",
+                  SHARED / "womd" / "womd_scenario_input.tfrecord"]
+# One golden submission per shared scenario: together they cover both.
+GOLDEN_PAIR = [GOLDEN / "637f20cafde22ff8__logreplay.binproto",
+               GOLDEN / "ee519cf571686d19__constvel_noise.binproto"]
+
+
+@dataclass(frozen=True)
+class ScoringData:
+    """What the end-to-end tests and the load benchmark score."""
+
+    source: str            # "shared golden" or "demo"
+    scenarios: list[Path]  # the scenario shards the server scores against
+    full: Path             # a valid submission covering every scenario
+    single: Path           # a submission covering one scenario (score with allow_partial)
+
+
+def golden_data(workdir: Path) -> ScoringData | None:
+    """The golden submissions of ../shared: one binproto per shared scenario, and a
+    two-shard .tar.gz of both (the second shard's metadata set equal to the first's,
+    since shards of one submission must agree). None when ../shared is absent."""
+    if not all(p.exists() for p in [*SCENARIO_FILES, *GOLDEN_PAIR]):
+        return None
+    from wosac_eval.protos import sim_agents_submission_pb2 as pb
+
+    first, second = (pb.SimAgentsChallengeSubmission.FromString(p.read_bytes()) for p in GOLDEN_PAIR)
+    merged = pb.SimAgentsChallengeSubmission()
+    merged.CopyFrom(first)
+    del merged.scenario_rollouts[:]
+    merged.scenario_rollouts.extend(second.scenario_rollouts)
+    full = workdir / "golden-pair.tar.gz"
+    full.write_bytes(tar_bytes({"shard-00000-of-00002.binproto": first.SerializeToString(),
+                                "shard-00001-of-00002.binproto": merged.SerializeToString()}))
+    return ScoringData("shared golden", list(SCENARIO_FILES), full, GOLDEN_PAIR[0])
+
+
+def demo_data(workdir: Path) -> ScoringData:
+    """Two synthetic scenes from `wosac_eval.sim` and constant-velocity submissions."""
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import make_submission
+
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=0), workdir / "scenarios", num_shards=2)
+    full = make_submission(shards, "constant_velocity", workdir / "demo-full.tar.gz", num_shards=2)
+    single = make_submission(shards[:1], "constant_velocity", workdir / "demo-single.tar.gz", num_shards=1)
+    return ScoringData("demo", shards, full, single)
+
+
+def scoring_data(workdir: Path) -> ScoringData:
+    workdir.mkdir(parents=True, exist_ok=True)
+    return golden_data(workdir) or demo_data(workdir)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def canonical(result: dict) -> str:
+    """JSON text with sorted keys: NaN-safe equality of two results."""
+    return json.dumps(result, sort_keys=True, allow_nan=True)
+
+
+class Server:
+    """`wosac-eval serve` as a child process, with its own data dir and port."""
+
+    def __init__(self, data_dir: Path, scenarios: list[Path], **env: object):
+        self.data_dir = data_dir
+        self.port = free_port()
+        self.url = f"http://127.0.0.1:{self.port}"
+        inherited = {k: v for k, v in os.environ.items() if not k.startswith("WOSAC_")}
+        self.env = {**inherited, "WOSAC_DATA_DIR": str(data_dir),
+                    "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
+                    "WOSAC_POLL_S": "0.1", "WOSAC_HEARTBEAT_S": "0.2", "WOSAC_LEASE_S": "1.5",
+                    "WOSAC_WORKERS": "1", "WOSAC_SHUTDOWN_GRACE_S": "2", "PYTHONUNBUFFERED": "1",
+                    "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+        self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
+        self.proc: subprocess.Popen | None = None
+        self.log = data_dir.parent / f"server-{self.port}.log"
+
+    @property
+    def store(self) -> Store:
+        url = self.env.get("WOSAC_DB_URL") or f"sqlite:///{self.data_dir / 'wosac.sqlite3'}"
+        return Store(url)
+
+    def start(self, timeout: float = 30.0) -> "Server":
+        self.data_dir.mkdir(parents=True, exist_ok=True)
+        log = open(self.log, "ab")
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "wosac_eval.fronts.cli", "serve", "--host", "127.0.0.1",
+             "--port", str(self.port), "--log-level", "warning"],
+            env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
+            try:
+                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
+        raise RuntimeError(f"server did not come up in {timeout} s:\n{self.log.read_text()}")
+
+    def stop(self) -> None:
+        if self.proc and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(20)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+
+    def key(self, name: str, **limits: int) -> str:
+        defaults = dict(max_concurrent=100, max_daily=1000, max_daily_bytes=10**12)
+        return auth.create_key(self.store, name, **{**defaults, **limits})
+
+    def client(self, key: str | None = None, timeout: float = 60.0) -> httpx.Client:
+        headers = {"Authorization": f"Bearer {key}"} if key else {}
+        return httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
+
+    def wait_state(self, client: httpx.Client, submission_id: str, states=("done", "failed"),
+                   timeout: float = 90.0) -> dict:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            body = client.get(f"/v1/submissions/{submission_id}").json()
+            if body["state"] in states:
+                return body
+            time.sleep(0.1)
+        raise AssertionError(f"{submission_id} still {body['state']} after {timeout} s:\n{self.log.read_text()}")
+
+
+def tar_bytes(members: dict[str, bytes], gz: bool = True) -> bytes:
+    """A .tar(.gz) holding `members` (name -> content), names taken verbatim."""
+    buf = io.BytesIO()
+    with tarfile.open(fileobj=buf, mode="w:gz" if gz else "w") as tar:
+        for name, data in members.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            info.mtime = 0
+            tar.addfile(info, io.BytesIO(data))
+    return buf.getvalue()
+
+
+def files_under(root: Path) -> set[Path]:
+    return {p for p in root.rglob("*") if p.is_file()}

@@ -5,14 +5,10 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval import challenges
 from wosac_eval.arrays.trajectories import ObjectTrajectories
 from wosac_eval.parse.wire import record_runs
 from wosac_eval.protos import map_pb2, scenario_pb2
-
-CURRENT_TIME_INDEX = 10   # the 11th step is "now"; the simulation starts after it
-NUM_SIMULATION_STEPS = 80
-NUM_ROLLOUTS = 32
-STEP_SECONDS = 0.1
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,8 +35,9 @@ class ScenarioArrays:
       scenario_id: the scenario's id.
       log: logged trajectories of every track, `(num_objects, 91)`, in track order.
       sim_agent_ids: ids of tracks valid at the current step (must be simulated),
-        in track order, `(num_sim_agents,)`.
-      evaluated_ids: sorted ids of the SDC and `tracks_to_predict`, `(num_evaluated,)`.
+        in track order, int64 `(num_sim_agents,)`.
+      predicted_ids: sorted ids of the SDC and `tracks_to_predict`, int64
+        `(num_predicted,)`: the objects the sim agents challenge evaluates.
       road_edges: road-edge polylines, each float32 `(num_points, 3)`.
       lane_ids: int64 `(num_lanes,)`, surface-street lanes only.
       lanes: the matching lane centre polylines, each float32 `(num_points, 3)`.
@@ -51,11 +48,15 @@ class ScenarioArrays:
     scenario_id: str
     log: ObjectTrajectories
     sim_agent_ids: np.ndarray
-    evaluated_ids: np.ndarray
+    predicted_ids: np.ndarray
     road_edges: tuple
     lane_ids: np.ndarray
     lanes: tuple
     signals: TrafficSignals | None
+
+    def evaluated_ids(self, challenge="sim_agents") -> np.ndarray:
+        """The objects a challenge evaluates, in the official order, int64 `(num_evaluated,)`."""
+        return challenges.evaluated_ids(self.sim_agent_ids, self.predicted_ids, challenge)
 
 
 def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
@@ -134,20 +135,6 @@ def _traffic_signals(scenario: scenario_pb2.Scenario) -> TrafficSignals | None:
                           stop_point=stop.astype(np.float32))
 
 
-def evaluated_object_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
-    """Sorted ids of the SDC and of every `tracks_to_predict` entry."""
-    ids = {scenario.tracks[scenario.sdc_track_index].id}
-    ids.update(scenario.tracks[r.track_index].id for r in scenario.tracks_to_predict)
-    return np.array(sorted(ids), dtype=np.int64)
-
-
-def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
-    """Ids of the tracks valid at the current step, in track order."""
-    return np.array([t.id for t in scenario.tracks
-                     if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
-                    dtype=np.int64)
-
-
 def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
     """Converts a parsed `Scenario` into `ScenarioArrays`."""
     surface = map_pb2.LaneCenter.TYPE_SURFACE_STREET
@@ -163,8 +150,8 @@ def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
     return ScenarioArrays(
         scenario_id=scenario.scenario_id,
         log=_track_arrays(scenario),
-        sim_agent_ids=sim_agent_ids(scenario),
-        evaluated_ids=evaluated_object_ids(scenario),
+        sim_agent_ids=challenges.sim_agent_ids(scenario),
+        predicted_ids=challenges.predicted_ids(scenario),
         road_edges=tuple(road_edges),
         lane_ids=np.array(lane_ids, dtype=np.int64),
         lanes=tuple(lanes),

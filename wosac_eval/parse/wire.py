@@ -33,35 +33,86 @@ def varint(value: int) -> bytes:
             return bytes(out)
 
 
-def packed_headers(num_steps: int) -> np.ndarray:
-    """Wire headers (tag, byte length) of fields 2..5 with `num_steps` floats each, uint8 `(4, header)`."""
+def packed_headers(num_steps: int, field_numbers=(2, 3, 4, 5)) -> np.ndarray:
+    """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8 `(fields, header)`."""
     length = varint(4 * num_steps)
-    return np.array([[(number << 3) | 2, *length] for number in (2, 3, 4, 5)], dtype=np.uint8)
+    return np.array([[(number << 3) | 2, *length] for number in field_numbers], dtype=np.uint8)
+
+
+def _packed_blocks(data: list[bytes], starts: np.ndarray, field_numbers, num_steps: int):
+    """Consecutive packed float fields at `starts[i]` of `data[i]`: (regular, float32 `(num_regular, fields, num_steps)`)."""
+    n = len(data)
+    headers = packed_headers(num_steps, field_numbers)
+    block = headers.shape[1] + 4 * num_steps
+    size = len(field_numbers) * block
+    heads = [d[s:s + size] for d, s in zip(data, starts.tolist())]
+    long_enough = (np.fromiter(map(len, heads), dtype=np.int64, count=n) == size) & (starts >= 0)
+    if not long_enough.all():
+        heads = [h.ljust(size, b"\0")[:size] for h in heads]
+    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(n, len(field_numbers), block)
+    regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
+    values = np.ascontiguousarray(stacked[regular, :, headers.shape[1]:]).view("<f4").astype(np.float32)
+    return regular, values
 
 
 def packed_coordinates(trajectories: Sequence, num_steps: int) -> tuple[np.ndarray, np.ndarray]:
     """Coordinates of the regularly laid out trajectories.
 
     Args:
-      trajectories: `SimulatedTrajectory` messages.
+      trajectories: `SimulatedTrajectory` messages (or their wire bytes).
       num_steps: the expected number of values per field.
     Returns:
       (regular, values): bool `(num_trajectories,)`, True where the four fields
       hold exactly `num_steps` values in canonical layout; float32
       `(num_regular, 4, num_steps)` for those, fields in `COORDINATE_FIELDS` order.
     """
+    prefix = 4 * (packed_headers(num_steps).shape[1] + 4 * num_steps)
+    heads = [d[:prefix] for d in serialized(trajectories)]
+    return _packed_blocks(heads, np.zeros(len(heads), np.int64), (2, 3, 4, 5), num_steps)
+
+
+def serialized(messages: Sequence) -> list[bytes]:
+    """The wire bytes of each message (bytes are taken as they are)."""
+    return [m if isinstance(m, bytes) else m.SerializeToString() for m in messages]
+
+
+BOX_FIELDS = ("length", "width", "height")
+_BOX_FIELD_NUMBERS = (7, 8, 9)  # width, length, height on the wire
+_OBJECT_ID_TAG, _OBJECT_TYPE_TAG = (6 << 3), (10 << 3)
+
+
+def packed_boxes(trajectories: Sequence, num_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-step box sizes and the object type of regularly laid out trajectories (scenario gen).
+
+    A canonical trajectory with every field set serialises as the four
+    coordinate blocks, the `object_id` varint, the width / length / height
+    blocks and the `object_type` varint; the position of the size blocks
+    depends only on the length of the id's varint, so trajectories are read
+    with one gather per distinct length.
+
+    Args:
+      trajectories: `SimulatedTrajectory` messages (or their wire bytes).
+    Returns:
+      (regular, sizes, object_type): bool `(num_trajectories,)`; float32
+      `(num_regular, 3, num_steps)` in `BOX_FIELDS` order; int32 `(num_regular,)`.
+    """
     n = len(trajectories)
-    headers = packed_headers(num_steps)
-    block = headers.shape[1] + 4 * num_steps
-    prefix = 4 * block
-    heads = [t.SerializeToString()[:prefix] for t in trajectories]
-    long_enough = np.fromiter(map(len, heads), dtype=np.int64, count=n) == prefix
-    if not long_enough.all():
-        heads = [h.ljust(prefix, b"\0") for h in heads]
-    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(n, 4, block)
-    regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
-    values = np.ascontiguousarray(stacked[regular, :, headers.shape[1]:]).view("<f4").astype(np.float32)
-    return regular, values
+    data = serialized(trajectories)
+    prefix = 4 * (packed_headers(num_steps).shape[1] + 4 * num_steps)
+    # The id's varint: at most 10 bytes after its tag.
+    window = np.frombuffer(b"".join(d[prefix:prefix + 11].ljust(11, b"\0") for d in data), np.uint8).reshape(n, 11)
+    ends = np.argmax(window[:, 1:] < 0x80, axis=1)  # index of the varint's last byte
+    has_id = (window[:, 0] == _OBJECT_ID_TAG) & (window[:, 1:] < 0x80).any(axis=1)
+    starts = np.where(has_id, prefix + 2 + ends, -1)
+    block = packed_headers(num_steps).shape[1] + 4 * num_steps
+    type_at = np.where(starts >= 0, starts + 3 * block, 0)
+    type_bytes = np.frombuffer(b"".join(d[s:s + 2].ljust(2, b"\0") for d, s in zip(data, type_at.tolist())),
+                               np.uint8).reshape(n, 2)
+    has_type = (type_bytes[:, 0] == _OBJECT_TYPE_TAG) & (type_bytes[:, 1] < 0x80)
+    regular, sizes = _packed_blocks(data, np.where(has_type, starts, -1), _BOX_FIELD_NUMBERS, num_steps)
+    # width, length on the wire; length, width here.
+    sizes = sizes[:, [1, 0, 2]]
+    return regular, sizes, type_bytes[regular, 1].astype(np.int32)
 
 
 _SIZE = {"d": 8, "f": 4, "b": 1}

@@ -10,7 +10,7 @@ import numpy as np
 from support.paths import TEST_DATA
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import scenario_arrays
-from wosac_eval.features.metric_features import simulated_trajectories
+from wosac_eval.arrays.samples import rollout_samples
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import sim_agents_submission_pb2
 
@@ -26,11 +26,17 @@ def _case():
     return scenario_arrays(scenario), rollouts
 
 
+def simulated_trajectories(scenario, rollouts):
+    return rollout_samples(scenario, rollouts)[0]
+
+
 def _take(rollouts, rows, order=None):
-    pick = lambda a: a[rows] if order is None else np.take_along_axis(a[rows], order[..., None], axis=1)
-    ids = rollouts.object_id[rows] if order is None else np.take_along_axis(rollouts.object_id[rows], order, 1)
-    return dataclasses.replace(rollouts, object_id=ids, x=pick(rollouts.x), y=pick(rollouts.y),
-                               z=pick(rollouts.z), heading=pick(rollouts.heading))
+    def pick(a):
+        if a is None or order is None:
+            return a if a is None else a[rows]
+        return np.take_along_axis(a[rows], order.reshape(order.shape + (1,) * (a.ndim - 2)), axis=1)
+    fields = ("object_id", "x", "y", "z", "heading", "length", "width", "height", "object_type")
+    return dataclasses.replace(rollouts, **{f: pick(getattr(rollouts, f)) for f in fields})
 
 
 def test_each_rollout_is_laid_out_by_its_own_agent_order():

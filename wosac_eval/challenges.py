@@ -1,0 +1,126 @@
+"""The two challenges the official metrics serve, and what each asks of a submission.
+
+- Sim Agents (`sim_agents`): 32 rollouts of the 80 future steps (8 s after the
+  current step, index 10) of every object valid at the current step; only the
+  SDC and the `tracks_to_predict` are evaluated; history, box sizes and object
+  types come from the log.
+- Scenario Generation (`scenario_gen`): 32 rollouts of all 91 steps (history,
+  current, future) of the same objects, with per-step box sizes and the object
+  type; every such object is evaluated.
+
+These are facts of the official submission specs (waymo-open-dataset 1.6.7,
+`utils/sim_agents/submission_specs.py`); everything below the fronts asks this
+module instead of restating them.
+"""
+from __future__ import annotations
+
+import dataclasses
+import enum
+
+import numpy as np
+
+CURRENT_TIME_INDEX = 10   # the 11th step is "now"
+NUM_LOGGED_STEPS = 91
+NUM_ROLLOUTS = 32
+STEP_SECONDS = 0.1
+
+
+class Challenge(str, enum.Enum):
+    """A challenge; its value is the name used on the command line, in results and in the service."""
+
+    SIM_AGENTS = "sim_agents"
+    SCENARIO_GEN = "scenario_gen"
+
+    def __str__(self) -> str:
+        return self.value
+
+
+@dataclasses.dataclass(frozen=True)
+class ChallengeSpec:
+    """What a submission of one challenge holds and how it is evaluated.
+
+    Attributes:
+      challenge: the challenge.
+      num_simulation_steps: values per simulated field (80 or 91).
+      first_simulated_step: the logged step index of the first submitted value
+        (11 or 0); features are reported for these steps only.
+      num_rollouts: joint scenes per scenario (32).
+      submits_boxes: the submission carries per-step `length`, `width`,
+        `height` and the `object_type` (scenario gen), else they come from the log.
+      evaluates_all_agents: every sim agent is evaluated (scenario gen), else
+        the SDC and the `tracks_to_predict`.
+      default_config: the preset of the challenge's current leaderboard.
+    """
+
+    challenge: Challenge
+    num_simulation_steps: int
+    first_simulated_step: int
+    submits_boxes: bool
+    evaluates_all_agents: bool
+    default_config: str
+    num_rollouts: int = NUM_ROLLOUTS
+    current_time_index: int = CURRENT_TIME_INDEX
+    step_seconds: float = STEP_SECONDS
+
+    @property
+    def simulated_steps(self) -> slice:
+        """The logged steps a submission simulates, and the steps its features are reported for."""
+        return slice(self.first_simulated_step, self.first_simulated_step + self.num_simulation_steps)
+
+
+SPECS = {
+    Challenge.SIM_AGENTS: ChallengeSpec(Challenge.SIM_AGENTS, num_simulation_steps=80,
+                                        first_simulated_step=CURRENT_TIME_INDEX + 1, submits_boxes=False,
+                                        evaluates_all_agents=False, default_config="2025"),
+    Challenge.SCENARIO_GEN: ChallengeSpec(Challenge.SCENARIO_GEN, num_simulation_steps=91,
+                                          first_simulated_step=0, submits_boxes=True,
+                                          evaluates_all_agents=True, default_config="scenario_gen_2025"),
+}
+CHALLENGE_NAMES = tuple(c.value for c in Challenge)
+
+
+def as_challenge(value: "Challenge | str | ChallengeSpec") -> Challenge:
+    """A `Challenge` from itself, its spec, its name (`sim_agents`), or the official enum's name or value."""
+    if isinstance(value, ChallengeSpec):
+        return value.challenge
+    if isinstance(value, Challenge):
+        return value
+    name = getattr(value, "value", value)  # the official ChallengeType enum carries the same values
+    if isinstance(name, str):
+        key = name.strip().lower().replace("-", "_")
+        for challenge in Challenge:
+            if key in (challenge.value, challenge.name.lower()):
+                return challenge
+    raise ValueError(f"unknown challenge {value!r}: choose one of {', '.join(CHALLENGE_NAMES)}")
+
+
+def spec(challenge: "Challenge | str | ChallengeSpec" = Challenge.SIM_AGENTS) -> ChallengeSpec:
+    """The spec of a challenge (given as in `as_challenge`)."""
+    return SPECS[as_challenge(challenge)]
+
+
+def sim_agent_ids(scenario) -> np.ndarray:
+    """Ids of the tracks valid at the current step, in track order, int64 `(num_sim_agents,)`.
+
+    Both challenges simulate exactly these objects. A track too short to have
+    a current step has no valid state there.
+    """
+    return np.array([t.id for t in scenario.tracks
+                     if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
+                    dtype=np.int64)
+
+
+def predicted_ids(scenario) -> np.ndarray:
+    """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_predicted,)`."""
+    ids = {scenario.tracks[scenario.sdc_track_index].id}
+    ids.update(scenario.tracks[r.track_index].id for r in scenario.tracks_to_predict)
+    return np.array(sorted(ids), dtype=np.int64)
+
+
+def evaluated_ids(sim_agents: np.ndarray, predicted: np.ndarray, challenge) -> np.ndarray:
+    """The evaluated objects, in the official order, int64 `(num_evaluated,)`.
+
+    Sim agents: the sorted SDC and `tracks_to_predict`. Scenario gen: every sim
+    agent, in track order (the official code lists them so, unsorted).
+    """
+    return np.asarray(sim_agents if spec(challenge).evaluates_all_agents else predicted, dtype=np.int64)

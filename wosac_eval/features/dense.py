@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from wosac_eval.features import box_geometry, interaction, kinematics, road_edge, traffic_lights
+from wosac_eval.features import interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 
 _F = np.float32
@@ -150,56 +150,84 @@ def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
     return _chunked(nearest, xy, _rows_per_chunk(lane_start.shape[0]))
 
 
-def sample_features(t, m, num_evaluated: int, seconds_per_step: float, future: slice, lights_from: int):
-    """Per-step features of the evaluated objects for samples of one scenario.
+# Red-light crossings whose lane is looked up at once; more are handled in further rounds.
+LANE_SEARCH_CHUNK = 64
+
+
+def red_light_violation(xy, valid, m):
+    """Dense `traffic_lights.red_light_violation` for one scene, without leaving the device.
+
+    The lane search runs only on the points that crossed a stopped signal's
+    line (rare): they are compacted to the front and looked up
+    `LANE_SEARCH_CHUNK` at a time in a `while_loop`, so the work follows the
+    number of crossings, not the number of points.
 
     Args:
-      t: dict of padded trajectories, float32 / bool `(num_samples, num_objects, num_steps)`:
-        x, y, z, heading, length, width, height, valid; and the official
-        trailing-packet masks heading_tail `(num_samples, num_objects, future steps)`,
-        ego_tail `(num_samples, future steps, num_evaluated, 1)`,
-        pair_tail `(num_samples, future steps, num_evaluated, num_objects)`.
-      m: dict of padded map arrays: road-edge segments (see
-        `signed_distance_to_road_edge`) and the red-light stop lines
-        stop_start, stop_delta, stop_point float32 `(steps from lights_from, signals, 2)`,
-        stopping bool `(steps from lights_from, signals)`.
+      xy: float32 `(..., num_objects, num_steps, 2)`.
+      valid: bool `(..., num_objects, num_steps)`.
+      m: padded map arrays: stop_start, stop_delta, stop_point float32
+        `(num_steps, num_signals, 2)`, stopping bool `(num_steps, num_signals)`,
+        signal_lane_id int `(num_signals,)`; lane_start, lane_delta float32
+        `(num_lane_segments, 2)`, lane_valid bool and lane_id int `(num_lane_segments,)`.
     Returns:
-      dict of `(num_samples, num_evaluated, future steps)` arrays, and
-      red_light_suspect bool `(num_samples, num_evaluated, steps from lights_from, signals)`.
+      bool `(..., num_objects, num_steps)`.
     """
-    e = slice(0, num_evaluated)
-    speed, accel, ang_speed, ang_accel = kinematics.kinematic_features(
-        t["x"][:, e], t["y"][:, e], t["z"][:, e], t["heading"][:, e], seconds_per_step)
-    f = lambda a: a[..., future]
-    h = f(t["heading"])
-    sin_h, cos_h = sincos32(h, t["heading_tail"])
+    suspect = traffic_lights.stop_line_crossings(xy, valid, m["stop_start"], m["stop_delta"],
+                                                 m["stop_point"], m["stopping"])
+    flat_suspect = suspect.reshape(-1, suspect.shape[-1])
+    points = xy.reshape(-1, 2)
+    needed = flat_suspect.any(axis=-1)
+    count = needed.sum()
+    order = jnp.nonzero(needed, size=needed.shape[0], fill_value=0)[0]
+    chunk = min(LANE_SEARCH_CHUNK, max(1, needed.shape[0]))
+    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
 
-    def per_sample(args):
-        x, y, length, width, c, s, valid = args
-        return nearest_object_distance(x, y, length, width, c, s, valid, num_evaluated)
+    def round_(carry):
+        done, lane_of_point = carry
+        rows = lax.dynamic_slice(order, (done,), (chunk,))
+        best = nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])
+        real = jnp.arange(chunk) < count - done
+        lane_of_point = lane_of_point.at[jnp.where(real, rows, needed.shape[0])].set(
+            m["lane_id"][best], mode="drop")
+        return done + chunk, lane_of_point
 
-    nearest = lax.map(per_sample, (f(t["x"]), f(t["y"]), f(t["length"]), f(t["width"]), cos_h, sin_h,
-                                   f(t["valid"])))
+    lane_of_point = jnp.full(needed.shape, -1, m["lane_id"].dtype)
+    _, lane_of_point = lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype),
+                                                                                lane_of_point))
+    on_lane = lane_of_point[:, None] == m["signal_lane_id"][None, :]
+    return (flat_suspect & on_lane).any(axis=-1).reshape(suspect.shape[:-1])
 
-    all_speed = kinematics.linear_speed(t["x"], t["y"], jnp.zeros_like(t["x"]), seconds_per_step)
-    step_major = lambda a: jnp.swapaxes(f(a), -1, -2)
-    ttc = jax.vmap(functools.partial(time_to_collision, num_evaluated=num_evaluated))(
-        *map(step_major, (t["x"], t["y"], t["length"], t["width"], t["heading"], all_speed, t["valid"])),
-        t["ego_tail"], t["pair_tail"])
 
-    pick = lambda a: f(a[:, e])
-    cx, cy = box_geometry.box_corners_xy(pick(t["x"]), pick(t["y"]), pick(t["length"]), pick(t["width"]),
-                                         cos_h[:, e], sin_h[:, e])
-    cz = jnp.broadcast_to((pick(t["z"]) + (-pick(t["height"]) * _F(0.5)))[..., None], cx.shape)
-    corners = jnp.stack([cx, cy, cz], axis=-1)
-    edge = signed_distance_to_road_edge(corners.reshape(-1, 3), m).reshape(cx.shape).max(axis=-1)
-    edge = jnp.where(pick(t["valid"]), edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
+class DenseSearch:
+    """The dense (JAX) search strategy of `metric_features.per_step_features`.
 
-    lights = slice(lights_from, None)
-    xy = jnp.stack([t["x"][:, e, lights], t["y"][:, e, lights]], axis=-1)
-    suspect = traffic_lights.stop_line_crossings(xy, t["valid"][:, e, lights], m["stop_start"],
-                                                 m["stop_delta"], m["stop_point"], m["stopping"])
-    return {"linear_speed": f(speed), "linear_acceleration": f(accel), "angular_speed": f(ang_speed),
-            "angular_acceleration": f(ang_accel), "distance_to_nearest_object": nearest,
-            "time_to_collision": jnp.swapaxes(ttc, -1, -2), "distance_to_road_edge": edge,
-            "red_light_suspect": suspect}
+    Every candidate pair of padded, masked arrays is evaluated and minima are
+    picked with `argmin` (lowest index wins ties, as in `PrunedSearch`); the
+    features are bit-identical to the pruned search's. `m` holds the padded
+    map arrays of one scene (see `signed_distance_to_road_edge` and
+    `red_light_violation`).
+    """
+
+    def __init__(self, m: dict):
+        self.m = m
+
+    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+        def per_sample(args):
+            return nearest_object_distance(*args, num_evaluated)
+
+        return lax.map(per_sample, (x, y, length, width, cos_h, sin_h, valid))
+
+    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
+                          ego_tail, pair_tail):
+        step_major = lambda a: jnp.swapaxes(a[..., steps], -1, -2)
+        per_sample = functools.partial(time_to_collision, ego_tail=ego_tail, pair_tail=pair_tail,
+                                       num_evaluated=num_evaluated)
+        ttc = jax.vmap(per_sample)(*map(step_major, (x, y, length, width, heading, speed, valid)))
+        return jnp.swapaxes(ttc, -1, -2)
+
+    def road_edge_distance(self, corners, valid):
+        edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m).reshape(corners.shape[:-1]).max(axis=-1)
+        return jnp.where(valid, edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
+
+    def red_light_violation(self, x, y, valid):
+        return red_light_violation(jnp.stack([x, y], axis=-1), valid, self.m)

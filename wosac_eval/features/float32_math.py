@@ -148,3 +148,37 @@ def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     require_float64(xp)
     return (xp.asarray(a, np.float64) * xp.asarray(b, np.float64)
             + xp.asarray(c, np.float64)).astype(_F)
+
+
+def packet_sum32(values):
+    """Float32 sum along the last axis in the order of the official `tf.reduce_sum`.
+
+    Eigen's inner-most reduction adds packets of 8 into four accumulators
+    (blocks of 32), folds them, adds the remaining whole packets, sums the
+    trailing elements one by one, and adds that to the horizontal sum of the
+    accumulator ((a0+a4)+(a2+a6)) + ((a1+a5)+(a3+a7)). Reproducing the order
+    makes sums bit-identical to the official ones (checked on every golden
+    displacement error).
+
+    Args:
+      values: float32 `(..., n)` (numpy or JAX).
+    Returns:
+      float32 `(...)`.
+    """
+    xp = array_namespace(values)
+    n = values.shape[-1]
+    packet = lambda start: values[..., start:start + _PACKET]
+    block = 4 * _PACKET
+    blocked = (n // block) * block
+    lanes = [xp.zeros(values.shape[:-1] + (_PACKET,), _F) for _ in range(4)]
+    for start in range(0, blocked, block):
+        lanes = [lane + packet(start + k * _PACKET) for k, lane in enumerate(lanes)]
+    acc = ((lanes[0] + lanes[1]) + lanes[2]) + lanes[3]
+    whole = (n // _PACKET) * _PACKET
+    for start in range(blocked, whole, _PACKET):
+        acc = acc + packet(start)
+    tail = xp.zeros(values.shape[:-1], _F)
+    for j in range(whole, n):
+        tail = tail + values[..., j]
+    halves = acc[..., :4] + acc[..., 4:]
+    return tail + ((halves[..., 0] + halves[..., 2]) + (halves[..., 1] + halves[..., 3]))

@@ -12,8 +12,8 @@ import numpy as np
 
 from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import packet_tail, sincos32
-from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.kinematics import linear_speed
+from wosac_eval.features.spatial import first_minimum
 from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy
 
 _F = np.float32
@@ -41,7 +41,10 @@ def rounded_box_distance(a, b):
     """
     ax, ay = box_geometry.box_corners_xy(*a[:6])
     bx, by = box_geometry.box_corners_xy(*b[:6])
-    core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
+    # A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge
+    # direction: its distances are NaN, as officially.
+    with errstate(array_namespace(ax), invalid="ignore", divide="ignore"):
+        core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
     return (core - a[6]) - b[6]
 
 
@@ -213,8 +216,8 @@ def capped_time_to_collision(gap, closing):
                         MAXIMUM_TIME_TO_COLLISION)
 
 
-def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
-                      seconds_per_step: float, steps: slice = slice(None)):
+def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, seconds_per_step: float,
+                      steps: slice = slice(None), *, speed=None, ego_tail=None, pair_tail=None):
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned
@@ -227,24 +230,35 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int,
         the whole trajectories (speeds need neighbouring steps).
       valid: bool `(..., num_objects, num_steps)`.
       steps: the steps to evaluate.
+      speed: float32 `(..., num_objects, num_steps)`, the planar speed, if
+        already computed.
+      ego_tail, pair_tail: the official ops' trailing packets, bool
+        `(len(steps), num_evaluated, 1)` and `(len(steps), num_evaluated,
+        num_objects)`; computed from the shapes when not given (they are given
+        for padded arrays).
     Returns:
       float32 `(..., num_evaluated, len(steps))`.
     """
-    return _by_samples(_time_to_collision_chunk, (x, y, length, width, heading, valid), num_evaluated,
-                       seconds_per_step=seconds_per_step, steps=steps)
+    num_objects, num_steps = x.shape[-2:]
+    if speed is None:
+        speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
+    if ego_tail is None:
+        ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
+    if pair_tail is None:
+        pair_tail = packet_tail((num_steps, num_evaluated, num_objects))[steps]
+    return _by_samples(_time_to_collision_chunk, (x, y, length, width, heading, speed, valid), num_evaluated,
+                       steps=steps, ego_tail=ego_tail, pair_tail=pair_tail)
 
 
-def _time_to_collision_chunk(x, y, length, width, heading, valid, num_evaluated: int,
-                             seconds_per_step: float, steps: slice):
-    lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
-    speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
+def _time_to_collision_chunk(x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
+                             ego_tail: np.ndarray, pair_tail: np.ndarray):
+    lead, num_objects = x.shape[:-2], x.shape[-2]
     # Work step-major like the official code: (batch, steps, objects).
     t = lambda a: np.ascontiguousarray(np.swapaxes(a[..., steps], -1, -2)).reshape(
         (-1,) + a[..., steps].shape[-1:] + (num_objects,))
     x, y, length, width, heading, speed, valid = map(t, (x, y, length, width, heading, speed, valid))
     e = slice(0, num_evaluated)
     # Ego frame for every pair: (batch, steps, num_evaluated, num_objects).
-    ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     minus_yaw = -heading[..., e, None]
     ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     ahead_of_front, beside_path, yaw_diff = ego_frame_offsets(x, y, length, width, heading,
@@ -259,7 +273,7 @@ def _time_to_collision_chunk(x, y, length, width, heading, valid, num_evaluated:
     maybe &= yaw_diff <= MAX_HEADING_DIFF
     maybe &= valid[..., None, :]
     b, st, ev, ob = np.nonzero(maybe)
-    pair_tail = np.broadcast_to(packet_tail((num_steps, num_evaluated, num_objects))[steps], maybe.shape)
+    pair_tail = np.broadcast_to(pair_tail, maybe.shape)
     yd = yaw_diff[b, st, ev, ob]
     yaw_sin, yaw_cos = sincos32(yd, pair_tail[b, st, ev, ob])
     long_distance, following = following_gap(ahead_of_front[b, st, ev, ob], beside_path[b, st, ev, ob], yd,

@@ -1,0 +1,51 @@
+"""The pruned (numpy) search strategy of the feature orchestration.
+
+`metric_features.per_step_features` computes every feature once, for numpy
+and JAX alike; the four searches that look for a nearest thing (nearest
+object, followed object, nearest road edge, lane of a red-light crossing) are
+delegated to a strategy with the methods below. This one prunes candidates
+with k-d trees and evaluates the exact float32 kernels on the survivors; its
+dense twin is `dense.DenseSearch` (JAX, fixed shapes). Both return the
+all-pairs minimum with the same tie rule, so their features are bit-identical.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from wosac_eval.arrays.scenario import TrafficSignals
+from wosac_eval.features import interaction, road_edge, traffic_lights
+
+
+@dataclasses.dataclass(frozen=True)
+class PrunedSearch:
+    """Searches over one scenario's map with k-d trees (numpy arrays).
+
+    Attributes:
+      road_edges: the road-edge segment table.
+      lanes: the surface-street lane table, or None.
+      signals: per-step signal states from the first red-light step on, or None.
+    """
+
+    road_edges: road_edge.SegmentTable
+    lanes: traffic_lights.LaneTable | None
+    signals: TrafficSignals | None
+
+    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+        """`interaction.distance_to_nearest_object`: float32 `(samples, num_evaluated, steps)`."""
+        return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
+
+    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
+                          ego_tail, pair_tail):
+        """`interaction.time_to_collision`: float32 `(samples, num_evaluated, len(steps))`."""
+        return interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated, 0.0, steps,
+                                             speed=speed, ego_tail=ego_tail, pair_tail=pair_tail)
+
+    def road_edge_distance(self, corners, valid):
+        """`road_edge.distance_to_road_edge` of boxes `(..., 4, 3)`: float32 `(...)`, -1e10 where invalid."""
+        return road_edge.distance_to_road_edge(corners, valid, self.road_edges)
+
+    def red_light_violation(self, x, y, valid):
+        """`traffic_lights.red_light_violation`: bool `(samples, objects, steps)`."""
+        return traffic_lights.red_light_violation(x, y, valid, self.lanes, self.signals)

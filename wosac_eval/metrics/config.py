@@ -1,7 +1,10 @@
 """Metric configurations: the challenge presets, or any `SimAgentMetricsConfig` textproto.
 
 Each metric `X` in the config is scored into the output field
-`X_likelihood`, so adding a metric is one config entry plus one feature.
+`X_likelihood` (the metrics are listed in `metrics.registry`).
+Presets: "2025", "2024", "2023" (sim agents) and "scenario_gen_2025"
+(scenario generation: the 2025 weights, every metric but the traffic-light
+one pooled over all objects of the scene, `aggregate_objects`).
 """
 from __future__ import annotations
 
@@ -9,17 +12,11 @@ from pathlib import Path
 
 from google.protobuf import text_format
 
+from wosac_eval import challenges
+from wosac_eval.metrics.registry import METRIC_BUCKETS, METRIC_NAMES  # noqa: F401  (re-exported)
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 SimAgentMetricsConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig
-
-# Bucket membership of every metric, in the order the meta-metric sums them.
-METRIC_BUCKETS = {
-    "kinematic": ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration"),
-    "interactive": ("distance_to_nearest_object", "collision_indication", "time_to_collision"),
-    "map_based": ("distance_to_road_edge", "offroad_indication", "traffic_light_violation"),
-}
-METRIC_NAMES = tuple(name for names in METRIC_BUCKETS.values() for name in names)
 
 # (min, max, bins) of the histogram metrics, and every metric's weight, per challenge.
 # Histograms use a 0.1 pseudo-count and independent timesteps; the three
@@ -30,12 +27,14 @@ _2024_HISTOGRAMS = {
     "distance_to_nearest_object": (-5.0, 40.0, 10), "distance_to_road_edge": (-20.0, 40.0, 10),
     "time_to_collision": (0.0, 5.0, 10),
 }
+_2025_WEIGHTS = {
+    "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05,
+    "angular_acceleration": 0.05, "distance_to_nearest_object": 0.1,
+    "collision_indication": 0.25, "time_to_collision": 0.1, "distance_to_road_edge": 0.05,
+    "offroad_indication": 0.25, "traffic_light_violation": 0.05}
+# Preset -> (histograms, weights, metrics pooled over the objects of a scene).
 _PRESETS = {
-    "2025": (_2024_HISTOGRAMS, {
-        "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05,
-        "angular_acceleration": 0.05, "distance_to_nearest_object": 0.1,
-        "collision_indication": 0.25, "time_to_collision": 0.1, "distance_to_road_edge": 0.05,
-        "offroad_indication": 0.25, "traffic_light_violation": 0.05}),
+    "2025": (_2024_HISTOGRAMS, _2025_WEIGHTS),
     "2024": (_2024_HISTOGRAMS, {
         "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05,
         "angular_acceleration": 0.05, "distance_to_nearest_object": 0.1,
@@ -50,17 +49,28 @@ _PRESETS = {
         "angular_acceleration": 0.09, "distance_to_nearest_object": 0.09,
         "collision_indication": 0.18, "time_to_collision": 0.09, "distance_to_road_edge": 0.09,
         "offroad_indication": 0.18, "traffic_light_violation": 0.0}),
+    "scenario_gen_2025": (_2024_HISTOGRAMS, _2025_WEIGHTS,
+                          tuple(m for m in METRIC_NAMES if m != "traffic_light_violation")),
 }
 PRESET_NAMES = tuple(_PRESETS)
 DEFAULT_PRESET = "2025"
+# The challenge each preset was made for.
+PRESET_CHALLENGE = {name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen")
+                           else challenges.Challenge.SIM_AGENTS) for name in PRESET_NAMES}
+
+
+def default_config(challenge=challenges.Challenge.SIM_AGENTS) -> str:
+    """The preset of a challenge's current leaderboard ("2025" or "scenario_gen_2025")."""
+    return challenges.spec(challenge).default_config
 
 
 def preset(name: str) -> SimAgentMetricsConfig:
-    """The metrics config of a challenge year ("2025", "2024" or "2023")."""
+    """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025")."""
     if name not in _PRESETS:
         raise ValueError(f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} "
                          f"or a .textproto file")
-    histograms, weights = _PRESETS[name]
+    histograms, weights, *pooled = _PRESETS[name]
+    pooled = pooled[0] if pooled else ()
     config = SimAgentMetricsConfig()
     for metric in METRIC_NAMES:
         feature = getattr(config, metric)
@@ -73,6 +83,8 @@ def preset(name: str) -> SimAgentMetricsConfig:
         else:
             feature.bernoulli.SetInParent()
         feature.metametric_weight = weights[metric]
+        if metric in pooled:
+            feature.aggregate_objects = True
     return config
 
 

@@ -1,7 +1,10 @@
-"""Per-scenario metrics: likelihoods of each feature, rates, meta-metric.
+"""Per-scenario metrics: likelihoods of each feature, rates, meta-metric; aggregation and buckets.
 
-Outputs use the official `SimAgentMetrics` field names. Every likelihood is
-exp(mean log-likelihood) over the valid logged samples.
+Outputs use the official `SimAgentMetrics` field names; the metrics and their
+validity masks come from `metrics.registry`. Every likelihood is
+exp(mean log-likelihood) over the valid logged samples. `metric_values`
+works on numpy or JAX arrays (under `jax.jit`, with x64 enabled);
+`scenario_metrics` returns plain floats.
 """
 from __future__ import annotations
 
@@ -10,85 +13,79 @@ import numpy as np
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.metrics.config import METRIC_BUCKETS, METRIC_NAMES, SimAgentMetricsConfig
+from wosac_eval.features.xp import array_namespace
+from wosac_eval.metrics.config import SimAgentMetricsConfig
+from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
+                                         METRIC_NAMES, METRICS, RATE_FIELDS, RATES)
 
 _F = np.float32
 TYPE_VEHICLE = 1
 
-SCENARIO_FIELDS = (
-    "metametric", "average_displacement_error", "min_average_displacement_error",
-    *(f"{m}_likelihood" for m in METRIC_NAMES),
-    "simulated_collision_rate", "simulated_offroad_rate", "simulated_traffic_light_violation_rate",
-)
-BUCKET_FIELDS = (
-    "realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics",
-    "min_ade", "simulated_collision_rate", "simulated_offroad_rate",
-    "simulated_traffic_light_violation_rate",
-)
+# The per-scenario fields of a result, in result order.
+SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE_FIELDS)
 
 
-def _masked_mean(values: np.ndarray, valid: np.ndarray) -> float:
-    total = np.where(valid, values, _F(0)).sum(dtype=_F)
-    return float(total / _F(valid.sum()))
+def _masked_mean(values, valid):
+    xp = array_namespace(values, valid)
+    total = xp.where(valid, values, _F(0)).sum(dtype=_F)
+    return total / valid.sum().astype(_F)
 
 
-def _any_over_time(per_step: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    return np.any(per_step & valid, axis=-1)
+def _any_over_time(per_step, valid):
+    return (per_step & valid).any(axis=-1)
 
 
-def _to_float32(value: float) -> float:
-    # The official results are stored in float32 proto fields.
-    return float(_F(value))
-
-
-def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures,
-                     sim: MetricFeatures) -> dict[str, float]:
-    """The official per-scenario metrics from log and simulated features."""
+def validity_masks(log: MetricFeatures) -> dict:
+    """The masks of `Metric.mask` over the logged steps, bool `(num_evaluated, num_steps)` each."""
     valid = log.valid[0]
     speed_valid, accel_valid = kinematic_validity(valid)
     is_vehicle = log.object_type[0] == TYPE_VEHICLE
-    vehicle_valid = valid & is_vehicle[:, None]
+    return {"valid": valid, "speed": speed_valid, "acceleration": accel_valid,
+            "vehicle": valid & is_vehicle[:, None]}
 
-    def timeseries(metric: str, feature: str, mask: np.ndarray) -> float:
-        ll = likelihoods.timeseries_log_likelihood(
-            getattr(config, metric), getattr(log, feature)[0], getattr(sim, feature))
-        return float(np.exp(_F(_masked_mean(ll, mask))))
 
-    def indicator(metric: str, log_flags: np.ndarray, sim_flags: np.ndarray) -> float:
-        ll = likelihoods.scenario_level_log_likelihood(getattr(config, metric), log_flags, sim_flags)
-        return float(np.exp(ll.mean(dtype=_F)))
-
-    sim_collision = _any_over_time(sim.collision_per_step, log.valid)
-    sim_offroad = _any_over_time(sim.offroad_per_step, log.valid)
-    sim_red_light = _any_over_time(sim.traffic_light_violation_per_step, vehicle_valid)
-    out = {
-        "linear_speed_likelihood": timeseries("linear_speed", "linear_speed", speed_valid),
-        "linear_acceleration_likelihood": timeseries("linear_acceleration", "linear_acceleration", accel_valid),
-        "angular_speed_likelihood": timeseries("angular_speed", "angular_speed", speed_valid),
-        "angular_acceleration_likelihood": timeseries("angular_acceleration", "angular_acceleration", accel_valid),
-        "distance_to_nearest_object_likelihood": timeseries(
-            "distance_to_nearest_object", "distance_to_nearest_object", valid),
-        "collision_indication_likelihood": indicator(
-            "collision_indication", _any_over_time(log.collision_per_step, log.valid)[0], sim_collision),
-        "time_to_collision_likelihood": timeseries("time_to_collision", "time_to_collision", vehicle_valid),
-        "distance_to_road_edge_likelihood": timeseries("distance_to_road_edge", "distance_to_road_edge", valid),
-        "offroad_indication_likelihood": indicator(
-            "offroad_indication", _any_over_time(log.offroad_per_step, log.valid)[0], sim_offroad),
-        "traffic_light_violation_likelihood": indicator(
-            "traffic_light_violation",
-            _any_over_time(log.traffic_light_violation_per_step, vehicle_valid)[0], sim_red_light),
-    }
-    out = {k: _to_float32(v) for k, v in out.items()}
+def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict:
+    """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX."""
+    xp = array_namespace(log.valid, sim.linear_speed)
+    masks = validity_masks(log)
+    out = {}
+    for metric in METRICS:
+        feature_config = getattr(config, metric.name)
+        mask = masks[metric.mask]
+        if metric.per_object:
+            log_flags = _any_over_time(getattr(log, metric.feature), mask)[0]
+            sim_flags = _any_over_time(getattr(sim, metric.feature), mask)
+            ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags)
+            out[metric.output] = xp.exp(ll.mean(dtype=_F))
+        else:
+            ll = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric.feature)[0],
+                                                       getattr(sim, metric.feature))
+            out[metric.output] = xp.exp(_masked_mean(ll, mask))
     ade = sim.average_displacement_error
-    out["average_displacement_error"] = _to_float32(ade.mean(dtype=_F))
-    out["min_average_displacement_error"] = _to_float32(ade.mean(axis=1, dtype=_F).min())
-    out["simulated_collision_rate"] = _to_float32(sim_collision.mean())
-    out["simulated_offroad_rate"] = _to_float32(sim_offroad.mean())
-    # The official rate counts red lights of every valid object, vehicle or not.
-    out["simulated_traffic_light_violation_rate"] = _to_float32(
-        _any_over_time(sim.traffic_light_violation_per_step, log.valid).mean())
-    out["metametric"] = _to_float32(metametric(config, out))
-    return {field: out[field] for field in SCENARIO_FIELDS}
+    out["average_displacement_error"] = ade.mean(dtype=_F)
+    out["min_average_displacement_error"] = ade.mean(axis=1, dtype=_F).min()
+    for rate in RATES:
+        # int32 counts divided as float64, as officially, then stored as float32.
+        out[rate.name] = _any_over_time(getattr(sim, rate.feature), masks["valid"]).mean(dtype=np.float64)
+    out = {k: xp.asarray(v, _F) for k, v in out.items()}
+    # The official meta-metric sums float32 likelihoods with Python floats.
+    out["metametric"] = sum(getattr(config, m).metametric_weight * out[f"{m}_likelihood"].astype(np.float64)
+                            for m in METRIC_NAMES)
+    return out
+
+
+def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict[str, float]:
+    """The official per-scenario metrics from log and simulated features, as floats."""
+    values = metric_values(config, log, sim)
+    # The official results are stored in float32 proto fields.
+    return {field: float(_F(values[field])) for field in SCENARIO_FIELDS}
+
+
+def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
+    """Mean of every field over scenarios (the official aggregation)."""
+    if not per_scenario:
+        raise ValueError("no scenario metrics to aggregate")
+    return {f: float(_F(np.mean([m[f] for m in per_scenario]))) for f in SCENARIO_FIELDS}
 
 
 def metametric(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> float:
@@ -96,15 +93,8 @@ def metametric(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> floa
     return sum(getattr(config, m).metametric_weight * metrics[f"{m}_likelihood"] for m in METRIC_NAMES)
 
 
-def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
-    """Mean of every field over scenarios (the official aggregation)."""
-    if not per_scenario:
-        raise ValueError("no scenario metrics to aggregate")
-    return {f: _to_float32(np.mean([m[f] for m in per_scenario])) for f in SCENARIO_FIELDS}
-
-
 def bucket_metrics(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> dict[str, float]:
-    """Kinematic / interactive / map-based weighted means, plus headline figures."""
+    """Kinematic / interactive / map-based weighted means, plus headline figures (the official buckets)."""
     out = {"realism_meta_metric": metrics["metametric"]}
     for bucket, names in METRIC_BUCKETS.items():
         weights = [getattr(config, m).metametric_weight for m in names]
@@ -113,7 +103,6 @@ def bucket_metrics(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> 
         out[f"{bucket}_metrics"] = sum(w * metrics[f"{m}_likelihood"]
                                        for w, m in zip(weights, names)) / sum(weights)
     out["min_ade"] = metrics["min_average_displacement_error"]
-    for rate in ("simulated_collision_rate", "simulated_offroad_rate",
-                 "simulated_traffic_light_violation_rate"):
-        out[rate] = metrics[rate]
+    for rate in RATES:
+        out[rate.bucket_name] = metrics[rate.name]
     return {field: float(_F(out[field])) for field in BUCKET_FIELDS}

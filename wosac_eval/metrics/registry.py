@@ -1,0 +1,105 @@
+"""The metric registry: every metric, bucket and output field, in one place.
+
+Like the official metrics package, a metric is a config field `X` (its
+estimator and meta-metric weight) scored into the output `X_likelihood` from
+one feature of `MetricFeatures`: adding a metric is one entry here, one config
+entry and one feature function. Everything that lists metrics (the scorer,
+the presets, result files, compare / report, the service) reads this module.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+BUCKETS = ("kinematic", "interactive", "map_based")
+
+
+@dataclasses.dataclass(frozen=True)
+class Metric:
+    """One likelihood metric.
+
+    Attributes:
+      name: the config field; the output is `<name>_likelihood`.
+      bucket: the leaderboard bucket it is weighted into.
+      feature: the `MetricFeatures` field it scores.
+      per_object: True for an indicator (did the event happen at any valid
+        step: one Bernoulli sample per object), False for a per-step time series.
+      mask: which logged steps count: "valid", "speed" (both neighbours
+        valid), "acceleration" (two steps each side), "vehicle" (valid
+        vehicles only).
+    """
+
+    name: str
+    bucket: str
+    feature: str
+    per_object: bool
+    mask: str
+
+    @property
+    def output(self) -> str:
+        return f"{self.name}_likelihood"
+
+
+@dataclasses.dataclass(frozen=True)
+class Rate:
+    """A simulated event rate: the share of (rollout, evaluated object) pairs with the event at a valid step."""
+
+    name: str
+    feature: str
+    bucket_name: str  # its name among the leaderboard buckets (the same)
+
+
+METRICS = (
+    Metric("linear_speed", "kinematic", "linear_speed", False, "speed"),
+    Metric("linear_acceleration", "kinematic", "linear_acceleration", False, "acceleration"),
+    Metric("angular_speed", "kinematic", "angular_speed", False, "speed"),
+    Metric("angular_acceleration", "kinematic", "angular_acceleration", False, "acceleration"),
+    Metric("distance_to_nearest_object", "interactive", "distance_to_nearest_object", False, "valid"),
+    Metric("collision_indication", "interactive", "collision_per_step", True, "valid"),
+    Metric("time_to_collision", "interactive", "time_to_collision", False, "vehicle"),
+    Metric("distance_to_road_edge", "map_based", "distance_to_road_edge", False, "valid"),
+    Metric("offroad_indication", "map_based", "offroad_per_step", True, "valid"),
+    Metric("traffic_light_violation", "map_based", "traffic_light_violation_per_step", True, "vehicle"),
+)
+RATES = (
+    Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate"),
+    Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate"),
+    # The official rate counts red lights of every valid object, vehicle or not.
+    Rate("simulated_traffic_light_violation_rate", "traffic_light_violation_per_step",
+         "simulated_traffic_light_violation_rate"),
+)
+
+METRIC_NAMES = tuple(m.name for m in METRICS)
+METRIC_BUCKETS = {bucket: tuple(m.name for m in METRICS if m.bucket == bucket) for bucket in BUCKETS}
+LIKELIHOOD_FIELDS = tuple(m.output for m in METRICS)
+RATE_FIELDS = tuple(r.name for r in RATES)
+DISPLACEMENT_FIELDS = ("average_displacement_error", "min_average_displacement_error")
+
+# The per-scenario fields of a result (the official `SimAgentMetrics`), and whether higher is better.
+SCENARIO_FIELDS: dict[str, bool] = {
+    "metametric": True,
+    **{f: True for f in LIKELIHOOD_FIELDS},
+    **{f: False for f in DISPLACEMENT_FIELDS},
+    **{f: False for f in RATE_FIELDS},
+}
+# The leaderboard buckets (the official `SimAgentsBucketedMetrics`), and whether higher is better.
+BUCKET_FIELDS: dict[str, bool] = {
+    "realism_meta_metric": True,
+    **{f"{b}_metrics": True for b in BUCKETS},
+    "min_ade": False,
+    **{r.bucket_name: False for r in RATES},
+}
+# Buckets that are the mean of one per-scenario field.
+BUCKET_ALIASES: dict[str, str] = {
+    "realism_meta_metric": "metametric",
+    "min_ade": "min_average_displacement_error",
+    **{r.bucket_name: r.name for r in RATES},
+}
+# The weighted buckets: the config fields whose likelihoods they average.
+BUCKET_MEMBERS: dict[str, tuple[str, ...]] = {f"{b}_metrics": METRIC_BUCKETS[b] for b in BUCKETS}
+
+
+def higher_is_better(field: str) -> bool:
+    """Direction of a per-scenario field or leaderboard bucket; KeyError for an unknown name."""
+    if field in SCENARIO_FIELDS:
+        return SCENARIO_FIELDS[field]
+    return BUCKET_FIELDS[field]

@@ -17,7 +17,7 @@ from wosac_eval.fronts.gate import stats
 from wosac_eval.fronts.gate.compare import compare_results
 from wosac_eval.fronts.gate.report import render_report
 from wosac_eval.fronts.gate.results import load_result
-from wosac_eval.fronts.gate.synthetic import LIKELIHOODS, synthetic_result
+from wosac_eval.sim.synthetic_results import LIKELIHOODS, synthetic_result
 
 
 def _timed(label, fn):

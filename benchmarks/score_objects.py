@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from wosac_eval.allocator import keep_freed_memory
-from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX
-from wosac_eval.metrics.submission import score_scenario
+from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 

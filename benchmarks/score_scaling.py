@@ -26,7 +26,7 @@ CASE = "637f20cafde22ff8__official_test_submission"
 
 _RUNNER = """
 import json, resource, sys, time
-from wosac_eval.metrics.submission import score_submission
+from wosac_eval.scoring.submission import score_submission
 t = time.perf_counter()
 result = score_submission([sys.argv[1]], sys.argv[2], "2025", workers=int(sys.argv[3]))
 elapsed = time.perf_counter() - t

@@ -16,7 +16,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
 
 from support import browser  # noqa: E402
-from wosac_eval.fronts.gate import demo  # noqa: E402
+from wosac_eval.fronts.commands.demo import run_gate_demo  # noqa: E402
 
 
 def main() -> int:
@@ -25,7 +25,7 @@ def main() -> int:
     parser.add_argument("--png", type=Path, default=REPO / "docs" / "report.png")
     args = parser.parse_args()
     out = args.out_dir or Path(tempfile.mkdtemp(prefix="wosac-report-"))
-    code = demo.main([str(out)])
+    code = run_gate_demo(out)
     if code == 0:
         browser.screenshot(out / "report.html", args.png, width=1280, height=2000, palette_colors=96)
         print(f"wrote {args.png}")

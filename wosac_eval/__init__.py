@@ -12,9 +12,10 @@ import importlib
 
 __version__ = "0.1.0"
 _API = {
-    "InvalidSubmissionError": "wosac_eval.metrics.submission",
-    "score_scenario": "wosac_eval.metrics.submission",
-    "score_submission": "wosac_eval.metrics.submission",
+    "InvalidSubmissionError": "wosac_eval.scoring.submission",
+    "score_scenario": "wosac_eval.scoring.scenario",
+    "score_submission": "wosac_eval.scoring.submission",
+    "Challenge": "wosac_eval.challenges",
     "load_config": "wosac_eval.metrics.config",
     "validate_submission": "wosac_eval.validate",
 }

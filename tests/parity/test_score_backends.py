@@ -35,7 +35,7 @@ def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
 
 def test_score_submission_jax_batches_several_scenarios(tmp_path):
     shared = require_shared()
-    from wosac_eval.metrics.submission import score_submission
+    from wosac_eval.scoring.submission import score_submission
     from wosac_eval.protos import sim_agents_submission_pb2
     # One submission with both real scenarios, scored in one batched jax pass.
     cases = [CASE, "ee519cf571686d19__constvel_noise"]

@@ -51,7 +51,7 @@ def test_score_usage_error_on_unknown_config(tmp_path):
 def test_unscorable_scenario_is_named(tmp_path):
     """A scenario the official code cannot score either (no road edges) gives a clear error."""
     shared = require_shared()
-    from wosac_eval.metrics.submission import score_scenario
+    from wosac_eval.scoring.scenario import score_scenario
     from wosac_eval.parse.scenarios import iter_scenarios
     from wosac_eval.protos import sim_agents_submission_pb2
 

@@ -17,7 +17,7 @@ from support.server_harness import scoring_data as harness_scoring_data
 
 def scorer_available() -> bool:
     try:
-        from wosac_eval.metrics.submission import score_submission  # noqa: F401
+        from wosac_eval.scoring.submission import score_submission  # noqa: F401
     except ImportError:
         return False
     return True
@@ -25,7 +25,7 @@ def scorer_available() -> bool:
 
 def need_scorer():
     if not scorer_available():
-        pytest.skip("wosac_eval.metrics.submission.score_submission is not available yet")
+        pytest.skip("wosac_eval.scoring.submission.score_submission is not available yet")
 
 
 @pytest.fixture(scope="session")
@@ -38,7 +38,7 @@ def scoring_data(tmp_path_factory) -> ScoringData:
 @pytest.fixture(scope="session")
 def direct_single_result(scoring_data) -> dict:
     """`score_submission` called directly on the one-scenario submission (partial)."""
-    from wosac_eval.metrics.submission import score_submission
+    from wosac_eval.scoring.submission import score_submission
 
     return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.single, "2025",
                                                  allow_partial=True)))
@@ -47,7 +47,7 @@ def direct_single_result(scoring_data) -> dict:
 @pytest.fixture(scope="session")
 def direct_full_result(scoring_data) -> dict:
     """`score_submission` called directly on the submission covering every scenario."""
-    from wosac_eval.metrics.submission import score_submission
+    from wosac_eval.scoring.submission import score_submission
 
     return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.full, "2025")))
 

@@ -34,7 +34,7 @@ def test_report_keeps_counts_and_first_n_per_code():
 def test_warnings_alone_keep_a_submission_valid():
     report = ValidationReport()
     report.add(make_finding("container.not_gzipped", "plain tar", severity=WARNING))
-    assert report.ok and "VALID submission — 0 error(s), 1 warning(s)" in report.format_text()
+    assert report.ok and "VALID sim_agents submission — 0 error(s), 1 warning(s)" in report.format_text()
 
 
 def test_max_listed_zero_counts_only():

@@ -100,7 +100,7 @@ def test_valid_tar_gz_exits_0(tmp_path, capsys, scenario_file, good_shards):
     path = write(tmp_path / "submission.tar.gz", tar_bytes(good_shards))
     code, out = validate(capsys, [scenario_file], path)
     assert code == 0, out
-    assert "VALID submission — 0 error(s), 0 warning(s)" in out
+    assert "VALID sim_agents submission — 0 error(s), 0 warning(s)" in out
     assert "2 shard(s), 2 scenario(s) submitted, 2 valid, 0 missing of 2 expected" in out
 
 
@@ -504,7 +504,8 @@ def test_json_report_is_machine_readable(tmp_path, capsys, scenario_file, templa
     path = _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, lambda r: r.joint_scenes.pop())
     code, report = validate_json(capsys, [scenario_file], path)
     assert code == 1
-    assert set(report) == {"submission", "valid", "errors", "warnings", "stats", "groups", "max_listed"}
+    assert set(report) == {"submission", "challenge", "valid", "errors", "warnings", "stats", "groups", "max_listed"}
+    assert report["challenge"] == "sim_agents"
     assert report["valid"] is False and report["errors"] == 1
     assert report["stats"]["scenarios_submitted"] == 2 and report["stats"]["shards"] == 2
     g = group(report, "rollouts.wrong_count")

@@ -74,7 +74,7 @@ def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_S
              policies: tuple[str, ...] = DEMO_POLICIES, config: str = "2025", workers: int = 1,
              log=print) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows."""
-    from wosac_eval.metrics.submission import InvalidSubmissionError, score_submission
+    from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
     from wosac_eval.sim.baselines import make_submission
 
     workdir = Path(workdir)

@@ -25,13 +25,14 @@ import zlib
 
 import numpy as np
 
-from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX, NUM_ROLLOUTS, NUM_SIMULATION_STEPS, STEP_SECONDS
+from wosac_eval import challenges
+from wosac_eval.challenges import CURRENT_TIME_INDEX, NUM_ROLLOUTS, STEP_SECONDS
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
 
 # The challenge's timing, from the one place that defines it.
 CURRENT = CURRENT_TIME_INDEX
-NUM_FUTURE = NUM_SIMULATION_STEPS
+NUM_FUTURE = challenges.spec("sim_agents").num_simulation_steps
 DT = STEP_SECONDS
 MPH = 0.44704
 

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX, NUM_SIMULATION_STEPS, STEP_SECONDS
+from wosac_eval.challenges import CURRENT_TIME_INDEX, NUM_LOGGED_STEPS, STEP_SECONDS
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import roads, signals
@@ -35,7 +35,7 @@ from wosac_eval.sim import roads, signals
 # Bump when the generated scenes change, so that cached demo scenes are regenerated.
 GENERATOR_VERSION = 5
 
-NUM_STEPS = CURRENT_TIME_INDEX + 1 + NUM_SIMULATION_STEPS  # 91
+NUM_STEPS = NUM_LOGGED_STEPS  # 91
 DT = STEP_SECONDS
 TIMES = np.arange(NUM_STEPS) * DT
 

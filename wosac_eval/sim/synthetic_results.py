@@ -13,15 +13,13 @@ from typing import Any
 
 import numpy as np
 
-from wosac_eval.fronts.gate.results import BUCKET_MEMBERS, RATE_FIELDS
+from wosac_eval.metrics.config import preset
+from wosac_eval.metrics.registry import BUCKET_MEMBERS, LIKELIHOOD_FIELDS, METRIC_NAMES, RATE_FIELDS
 
 # 2025 challenge metametric weights, by config field.
-WEIGHTS_2025: dict[str, float] = {
-    "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05, "angular_acceleration": 0.05,
-    "distance_to_nearest_object": 0.1, "collision_indication": 0.25, "time_to_collision": 0.1,
-    "distance_to_road_edge": 0.05, "offroad_indication": 0.25, "traffic_light_violation": 0.05,
-}
-LIKELIHOODS = tuple(f"{f}_likelihood" for f in WEIGHTS_2025)
+# (float32 in the config message; the decimal weights here)
+WEIGHTS_2025: dict[str, float] = {m: float(f"{getattr(preset('2025'), m).metametric_weight:.7g}") for m in METRIC_NAMES}
+LIKELIHOODS = LIKELIHOOD_FIELDS
 
 
 def synthetic_scenarios(
@@ -90,10 +88,38 @@ def result_json(scenarios: list[dict[str, Any]], config: str = "2025",
     buckets["min_ade"] = aggregate.get("min_average_displacement_error", 0.0)
     for rate in RATE_FIELDS:
         buckets[rate] = aggregate.get(rate, 0.0)
-    return {"config": config, "scenarios": scenarios, "aggregate": aggregate, "buckets": buckets,
-            "skipped": list(skipped or [])}
+    return {"challenge": "sim_agents", "config": config, "scenarios": scenarios, "aggregate": aggregate,
+            "buckets": buckets, "skipped": list(skipped or [])}
 
 
 def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwargs) -> dict[str, Any]:
     """`result_json(synthetic_scenarios(...))`: a whole synthetic result."""
     return result_json(synthetic_scenarios(num_scenarios, seed, **kwargs), config=config)
+
+
+GATE_DEMO_TITLE = "WOSAC realism: my-sim (PR) vs baseline (main)"
+
+
+def write_gate_demo_results(folder, num_scenarios: int = 2000):
+    """Writes `folder`/baseline.json and `folder`/new.json and returns their paths.
+
+    Synthetic results of `num_scenarios` scenarios: in the new run the
+    collision likelihood and rate improve, the offroad likelihood gets worse,
+    and 10 scenarios were skipped (for trying `compare` / `report`).
+    """
+    import json
+    from pathlib import Path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    base = synthetic_scenarios(num_scenarios, seed=0)
+    new = synthetic_scenarios(num_scenarios, seed=0, jitter=0.02, jitter_seed=7, shift={
+        "collision_indication_likelihood": 0.012, "offroad_indication_likelihood": -0.006,
+        "simulated_collision_rate": -0.004})
+    kept = num_scenarios - 10
+    skipped = [{"scenario_id": s["scenario_id"], "reason": "no rollouts in the submission (scored with --partial)"}
+               for s in new[kept:]]
+    base_path, new_path = folder / "baseline.json", folder / "new.json"
+    base_path.write_text(json.dumps(result_json(base)))
+    new_path.write_text(json.dumps(result_json(new[:kept], skipped=skipped)))
+    return base_path, new_path

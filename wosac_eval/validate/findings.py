@@ -49,6 +49,9 @@ CODES: dict[str, str] = {
     "rollouts.missing_object_id": "Simulated trajectory without an object_id",
     "rollouts.wrong_length": "Trajectory field with the wrong number of values",
     "rollouts.non_finite": "Trajectory field with NaN or infinite values",
+    "rollouts.non_positive_size": "Box size that is zero or negative (scenario gen)",
+    "rollouts.missing_object_type": "Simulated trajectory without an object_type (scenario gen)",
+    "rollouts.ignored_field": "Submitted field the challenge's evaluator ignores",
 }
 
 
@@ -180,10 +183,11 @@ class ValidationReport:
     reason, so a partial scorer can list what it skipped.
     """
 
-    def __init__(self, submission: str = "", max_listed: int = 20) -> None:
+    def __init__(self, submission: str = "", max_listed: int = 20, challenge: str = "sim_agents") -> None:
         if max_listed < 0:
             raise ValueError("max_listed must be >= 0")
         self.submission = submission
+        self.challenge = challenge
         self.max_listed = max_listed
         self.groups: dict[str, FindingGroup] = {}
         self.stats = ValidationStats()
@@ -259,6 +263,7 @@ class ValidationReport:
         s = self.stats
         data = {
             "submission": self.submission,
+            "challenge": self.challenge,
             "valid": self.ok,
             "errors": self.error_count,
             "warnings": self.warning_count,
@@ -283,7 +288,7 @@ class ValidationReport:
         s = self.stats
         verdict = "VALID" if self.ok else "INVALID"
         lines = [
-            f"{self.submission}: {verdict} submission — {self.error_count} error(s), "
+            f"{self.submission}: {verdict} {self.challenge} submission — {self.error_count} error(s), "
             f"{self.warning_count} warning(s)",
             f"  {s.shards} shard(s), {s.scenarios_submitted} scenario(s) submitted, "
             f"{s.scenarios_valid} valid, {len(self.missing_scenarios)} missing of "

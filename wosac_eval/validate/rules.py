@@ -6,7 +6,10 @@ Three families:
 - coverage rules: the submitted scenario ids against the scenario set;
 - rollout rules on one `ScenarioRollouts`: 32 joint scenes, each with exactly
   the sim agents (objects valid at the current step, index 10), each simulated
-  trajectory with 80 finite values in center_x, center_y, center_z, heading.
+  trajectory with 80 (sim agents) or 91 (scenario gen) finite values in
+  center_x, center_y, center_z, heading; for scenario gen also in length,
+  width and height (positive), and an object_type. Fields the challenge's
+  evaluator ignores are reported as warnings.
 
 The per-value checks are vectorised over a whole scenario: its trajectories
 are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
@@ -25,15 +28,16 @@ from typing import Any
 
 import numpy as np
 
-from wosac_eval.arrays.scenario import CURRENT_TIME_INDEX, NUM_ROLLOUTS, NUM_SIMULATION_STEPS
-from wosac_eval.arrays.scenario import sim_agent_ids as scenario_sim_agent_ids
-from wosac_eval.parse.wire import packed_coordinates
+from wosac_eval import challenges
+from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.parse.wire import BOX_FIELDS, packed_boxes, packed_coordinates, serialized
 
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
-N_ROLLOUTS = NUM_ROLLOUTS  # joint scenes required per scenario
-N_SIMULATION_STEPS = NUM_SIMULATION_STEPS  # 8 s at 10 Hz after the current step
+N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario
+N_SIMULATION_STEPS = challenges.spec("sim_agents").num_simulation_steps  # 8 s at 10 Hz after the current step
 TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
+OBJECT_TYPES = {1: "TYPE_VEHICLE", 2: "TYPE_PEDESTRIAN", 3: "TYPE_CYCLIST", 4: "TYPE_OTHER"}
 SIM_AGENTS_SUBMISSION = 1  # SimAgentsChallengeSubmission.SubmissionType
 
 # "200K", "1.5B", "7000000": a number, optionally with a multiplier suffix.
@@ -63,7 +67,7 @@ def sim_agent_ids(scenario: Any) -> np.ndarray:
 
     A track too short to have a current step has no valid state there.
     """
-    return np.unique(scenario_sim_agent_ids(scenario))
+    return np.unique(challenges.sim_agent_ids(scenario))
 
 
 # --------------------------------------------------------------------------
@@ -235,7 +239,8 @@ def missing_scenario_id(shard: str, index: int) -> Finding:
 # --------------------------------------------------------------------------
 # Rollouts
 # --------------------------------------------------------------------------
-def _counts_and_non_finite(trajectories: Sequence[Any], n_steps: int) -> tuple[np.ndarray, np.ndarray]:
+def _counts_and_non_finite(data: list[bytes], trajectories: Sequence[Any], n_steps: int
+                           ) -> tuple[np.ndarray, np.ndarray]:
     """Value counts and non-finite mask of center_x, center_y, center_z, heading, both shape (num_trajectories, 4).
 
     Fast path: protobuf serializes a parsed message canonically (known fields
@@ -255,13 +260,72 @@ def _counts_and_non_finite(trajectories: Sequence[Any], n_steps: int) -> tuple[n
     non_finite = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
     if n == 0:
         return counts, non_finite
-    regular, values = packed_coordinates(trajectories, n_steps)
+    regular, values = packed_coordinates(data, n_steps)
     non_finite[regular] = ~np.isfinite(values).all(axis=2)
     for k in np.flatnonzero(~regular).tolist():
         fields = [getattr(trajectories[k], name) for name in TRAJECTORY_FIELDS]
         counts[k] = [len(f) for f in fields]
         non_finite[k] = ~np.isfinite(np.array([sum(f) for f in fields], dtype=np.float64))
     return counts, non_finite
+
+
+def _box_checks(trajectories: Sequence[Any], data: list[bytes], n_steps: int):
+    """The scenario-gen fields of every trajectory: value counts, non-finite and non-positive masks of
+    length, width, height (each shape (num_trajectories, 3)), and whether an object_type is set (not
+    TYPE_UNSET), shape (num_trajectories,). Read from the wire where the layout is canonical."""
+    n = len(trajectories)
+    counts = np.full((n, len(BOX_FIELDS)), n_steps, dtype=np.int64)
+    non_finite = np.zeros((n, len(BOX_FIELDS)), dtype=bool)
+    non_positive = np.zeros((n, len(BOX_FIELDS)), dtype=bool)
+    has_type = np.ones(n, dtype=bool)
+    if n == 0:
+        return counts, non_finite, non_positive, has_type
+    regular, sizes, types = packed_boxes(data, n_steps)
+    finite = np.isfinite(sizes)
+    non_finite[regular] = ~finite.all(axis=2)
+    non_positive[regular] = (finite & (sizes <= 0)).any(axis=2)
+    has_type[regular] = types != 0
+    for k in np.flatnonzero(~regular).tolist():
+        t = trajectories[k]
+        fields = [np.asarray(getattr(t, name), dtype=np.float64) for name in BOX_FIELDS]
+        counts[k] = [len(f) for f in fields]
+        non_finite[k] = [not np.isfinite(f).all() for f in fields]
+        non_positive[k] = [bool((f[np.isfinite(f)] <= 0).any()) for f in fields]
+        has_type[k] = t.HasField("object_type") and t.object_type != 0
+    return counts, non_finite, non_positive, has_type
+
+
+def _ignored_fields(trajectories: Sequence[Any], spec: challenges.ChallengeSpec) -> list[str]:
+    """Fields set in some trajectory that the challenge's evaluator does not read."""
+    if spec.submits_boxes:
+        # Scenario gen: validity is the log's at the current step, whatever is submitted.
+        return ["valid"] if any(not all(t.valid) for t in trajectories if len(t.valid)) else []
+    names = []
+    for name in ("length", "width", "height", "valid"):
+        if any(len(getattr(t, name)) for t in trajectories):
+            names.append(name)
+    if any(t.HasField("object_type") for t in trajectories):
+        names.append("object_type")
+    return names
+
+
+_IGNORED_WHY = {
+    True: "the scenario gen evaluator takes every sim agent as valid at every step (the log's validity "
+          "at step 10), whatever the submitted valid says",
+    False: "the sim agents evaluator takes box sizes and object types from the log (sizes at step 10) and "
+           "every simulated step as valid; these fields count for --challenge scenario_gen only",
+}
+
+
+def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -> str:
+    """Why a length may be wrong: the other challenge's length, or missing box sizes."""
+    other = next(s for s in challenges.SPECS.values() if s is not spec)
+    if count == other.num_simulation_steps and field_index < len(TRAJECTORY_FIELDS):
+        return (f" ({count} values is a {other.challenge} submission: validate and score it with "
+                f"--challenge {other.challenge})")
+    if count == 0 and field_index >= len(TRAJECTORY_FIELDS):
+        return " (the scenario gen challenge needs the box size at every step)"
+    return ""
 
 
 def _non_finite_detail(field: str, values: Any) -> str:
@@ -328,11 +392,14 @@ def check_scenario_rollouts(
     sim_agent_ids: Sequence[int] | np.ndarray | None,
     *,
     shard: str | None = None,
-    n_rollouts: int = N_ROLLOUTS,
-    n_steps: int = N_SIMULATION_STEPS,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    n_rollouts: int | None = None,
+    n_steps: int | None = None,
 ) -> list[Finding]:
     """Rules on one ScenarioRollouts: n_rollouts joint scenes, each with exactly the sim agents, each
-    trajectory with n_steps finite values in center_x, center_y, center_z and heading.
+    trajectory with n_steps finite values in center_x, center_y, center_z and heading; for a challenge
+    whose submissions carry boxes (scenario gen), also n_steps finite positive values in length, width
+    and height and an object_type. Fields the challenge ignores are reported once, as a warning.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
     (num_sim_agents,); None when the scenario is not in the scenario set.
@@ -340,6 +407,9 @@ def check_scenario_rollouts(
     are flattened to shape (num_trajectories,), `rollout_of` maps each to its
     joint scene, and the checks run on whole arrays.
     """
+    spec = challenges.spec(challenge)
+    n_rollouts = spec.num_rollouts if n_rollouts is None else n_rollouts
+    n_steps = spec.num_simulation_steps if n_steps is None else n_steps
     scenario_id = rollouts.scenario_id or None
     out: list[Finding] = []
     scenes = list(rollouts.joint_scenes)
@@ -373,7 +443,16 @@ def check_scenario_rollouts(
             check_scene_object_ids(ids[span], has_id[span], expected, shard=shard, scenario_id=scenario_id, rollout=r)
         )
 
-    counts, non_finite = _counts_and_non_finite(trajectories, n_steps)
+    data = serialized(trajectories)
+    counts, non_finite = _counts_and_non_finite(data, trajectories, n_steps)
+    fields = TRAJECTORY_FIELDS
+    non_positive = np.zeros_like(non_finite)
+    if spec.submits_boxes:
+        box_counts, box_non_finite, box_non_positive, has_type = _box_checks(trajectories, data, n_steps)
+        fields = TRAJECTORY_FIELDS + BOX_FIELDS
+        counts = np.concatenate([counts, box_counts], axis=1)
+        non_finite = np.concatenate([non_finite, box_non_finite], axis=1)
+        non_positive = np.concatenate([non_positive, box_non_positive], axis=1)
 
     def where_(k: int) -> dict[str, Any]:
         return {
@@ -384,17 +463,36 @@ def check_scenario_rollouts(
         }
 
     for k, f in np.argwhere(counts != n_steps).tolist():
-        field = TRAJECTORY_FIELDS[f]
+        field = fields[f]
         out.append(
             make_finding(
                 "rollouts.wrong_length",
-                f"field {field} has {counts[k, f]} values, expected {n_steps}",
+                f"field {field} has {counts[k, f]} values, expected {n_steps}" + _length_hint(counts[k, f], f, spec),
                 field=field,
                 **where_(k),
             )
         )
     for k, f in np.argwhere(non_finite).tolist():
-        field = TRAJECTORY_FIELDS[f]
+        field = fields[f]
         detail = _non_finite_detail(field, getattr(trajectories[k], field))
         out.append(make_finding("rollouts.non_finite", detail, field=field, **where_(k)))
+    for k, f in np.argwhere(non_positive).tolist():
+        field = fields[f]
+        values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)
+        bad = np.flatnonzero(np.isfinite(values) & (values <= 0))
+        detail = f"{field}[{bad[0]}] is {values[bad[0]]:g}; box sizes must be positive"
+        if len(bad) > 1:
+            detail += f" ({len(bad)} such values, at indices {format_ids(bad.tolist(), 10)})"
+        out.append(make_finding("rollouts.non_positive_size", detail, field=field, **where_(k)))
+    if spec.submits_boxes:
+        for k in np.flatnonzero(~has_type).tolist():
+            out.append(make_finding("rollouts.missing_object_type",
+                                    "object_type is not set (or TYPE_UNSET); the scenario gen challenge needs "
+                                    "the type of every object (TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST, "
+                                    "TYPE_OTHER)", field="object_type", **where_(k)))
+    ignored = _ignored_fields(trajectories, spec)
+    if ignored:
+        out.append(make_finding("rollouts.ignored_field", f"fields {', '.join(ignored)} are set but ignored: "
+                                f"{_IGNORED_WHY[spec.submits_boxes]}", shard=shard, scenario_id=scenario_id,
+                                field=ignored[0], severity=WARNING))
     return out

@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from wosac_eval import challenges
 from wosac_eval.parse.archive import (
     DEFAULT_MAX_MEMBER_BYTES,
     DEFAULT_MAX_TOTAL_BYTES,
@@ -195,14 +196,15 @@ def iter_checked_shards(
     return _iter_file(path, limits, report)
 
 
-def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None) -> list[Finding]:
-    """The per-scenario rules (32 joint scenes, sim agents, 80 finite values per field) on one ScenarioRollouts.
+def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None,
+                               challenge: Any = challenges.Challenge.SIM_AGENTS) -> list[Finding]:
+    """The per-scenario rules (32 joint scenes, sim agents, 80 or 91 finite values per field, boxes and
+    types for scenario gen) on one ScenarioRollouts.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
-    (num_sim_agents,), or None for a scenario outside the scenario set. For the
-    scorer, which reuses these rules on the scenarios it scores.
+    (num_sim_agents,), or None for a scenario outside the scenario set.
     """
-    return rules.check_scenario_rollouts(rollouts_msg, sim_agent_ids, shard=shard)
+    return rules.check_scenario_rollouts(rollouts_msg, sim_agent_ids, shard=shard, challenge=challenge)
 
 
 @dataclass
@@ -223,7 +225,8 @@ class ShardResult:
     rollouts: ValidationReport | None = None
 
 
-def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_listed: int) -> ShardResult:
+def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_listed: int,
+                challenge: Any = challenges.Challenge.SIM_AGENTS) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts."""
     result = ShardResult(name, len(data))
     try:
@@ -240,20 +243,19 @@ def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_liste
         scenario_id = rollouts.scenario_id or None  # unset or empty
         result.entries.append((index, scenario_id))
         if scenario_id is not None:
-            result.rollouts.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name))
+            result.rollouts.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name, challenge))
     return result
 
 
-_WORKER_AGENTS: dict[str, np.ndarray] = {}
+_WORKER: dict[str, Any] = {}
 
 
-def _init_worker(agents: dict[str, np.ndarray]) -> None:
-    global _WORKER_AGENTS
-    _WORKER_AGENTS = agents
+def _init_worker(agents: dict[str, np.ndarray], challenge: str) -> None:
+    _WORKER.update(agents=agents, challenge=challenge)
 
 
 def _check_shard_in_worker(name: str, data: bytes, max_listed: int) -> ShardResult:
-    return check_shard(name, data, _WORKER_AGENTS, max_listed)
+    return check_shard(name, data, _WORKER["agents"], max_listed, _WORKER["challenge"])
 
 
 class _Validation:
@@ -319,7 +321,8 @@ class _Validation:
 
 
 def _shard_results(
-    shards: Iterable[tuple[str, bytes]], agents: dict[str, np.ndarray], max_listed: int, workers: int
+    shards: Iterable[tuple[str, bytes]], agents: dict[str, np.ndarray], max_listed: int, workers: int,
+    challenge: challenges.Challenge = challenges.Challenge.SIM_AGENTS,
 ) -> Iterator[ShardResult]:
     """Check every shard, in worker processes when workers > 1; results come back in shard order.
 
@@ -327,10 +330,10 @@ def _shard_results(
     """
     if workers <= 1:
         for name, data in shards:
-            yield check_shard(name, data, agents, max_listed)
+            yield check_shard(name, data, agents, max_listed, challenge)
             del data  # hold no shard while the next one is read
         return
-    with worker_pool(workers, initializer=_init_worker, initargs=(agents,)) as pool:
+    with worker_pool(workers, initializer=_init_worker, initargs=(agents, challenge.value)) as pool:
         pending: collections.deque = collections.deque()
         for name, data in shards:
             pending.append(pool.submit(_check_shard_in_worker, name, data, max_listed))
@@ -350,6 +353,7 @@ def validate_submission(
     progress: Callable[[int], Any] | None = None,
     sim_agents: dict[str, np.ndarray] | None = None,
     workers: int = 1,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
 ) -> ValidationReport:
     """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
 
@@ -357,7 +361,9 @@ def validate_submission(
     the first `max_listed` of each code in full): container safety, each shard
     a SimAgentsChallengeSubmission, metadata, scenario coverage, and per
     scenario 32 joint scenes of exactly the sim agents with 80 finite values in
-    center_x, center_y, center_z and heading.
+    center_x, center_y, center_z and heading (sim agents), or 91 finite values
+    in those and in positive length, width and height, and an object type
+    (`challenge="scenario_gen"`).
 
     scenarios: scenario files / folders / globs, or a ScenarioIndex.
     limits: decompressed size limits (per shard and in total).
@@ -369,13 +375,14 @@ def validate_submission(
     """
     start = time.perf_counter()
     agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios)
-    report = ValidationReport(str(submission_path), max_listed=max_listed)
+    challenge = challenges.as_challenge(challenge)
+    report = ValidationReport(str(submission_path), max_listed=max_listed, challenge=challenge.value)
     report.stats.scenarios_expected = len(agents)
     run = _Validation(agents, report, progress)
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
     shards = iter_checked_shards(submission_path, limits or Limits(), report)
-    for result in _shard_results(shards, agents, max_listed, workers):
+    for result in _shard_results(shards, agents, max_listed, workers, challenge):
         run.merge(result)
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)

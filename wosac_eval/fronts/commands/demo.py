@@ -4,6 +4,10 @@ Generates (or loads from DIR) ten deterministic synthetic scenes, runs each
 baseline policy, validates and scores every submission, writes one result JSON
 per policy under DIR/results and prints a leaderboard.
 
+`wosac-eval demo --gate DIR` instead writes two synthetic results of 2000
+scenarios (DIR/baseline.json, DIR/new.json) and their comparison report
+(DIR/report.html), to try `compare` and `report` without a simulator.
+
 Exit codes: 0 done, 1 a baseline produced an invalid submission (a bug), 2 usage error.
 """
 from __future__ import annotations
@@ -31,9 +35,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", default="2025", help="metrics config: 2025, 2024, 2023 or a textproto path")
     parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 4), metavar="N",
                         help="processes for simulation and scoring (default: CPU count, at most 4)")
+    parser.add_argument("--gate", type=Path, metavar="DIR",
+                        help="only write two synthetic results and their comparison report into DIR "
+                             "(baseline.json, new.json, report.html), to try compare and report")
+
+
+def run_gate_demo(folder: Path) -> int:
+    """Synthetic baseline / new results and the report comparing them, in `folder`."""
+    import argparse as _argparse
+
+    from wosac_eval.fronts.commands import report
+    from wosac_eval.sim.synthetic_results import GATE_DEMO_TITLE, write_gate_demo_results
+
+    write_gate_demo_results(folder)
+    here = os.getcwd()
+    os.chdir(folder)  # so that the report shows short file names
+    try:
+        return report.run(_argparse.Namespace(result="new.json", html="report.html", compare="baseline.json",
+                                              top=10, title=GATE_DEMO_TITLE, seed=0, n_boot=5000, n_perm=5000))
+    finally:
+        os.chdir(here)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.gate is not None:
+        return run_gate_demo(args.gate)
     if args.scenes < 1 or args.workers < 1:
         print("wosac-eval demo: error: --scenes and --workers must be >= 1", file=sys.stderr)
         return 2

@@ -11,8 +11,10 @@ import sys
 from pathlib import Path
 
 from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
+from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.metrics.submission import InvalidSubmissionError, score_submission
+from wosac_eval.scoring.engines import ENGINES, check_engine
+from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.validate import ScenarioSetError
 
@@ -25,13 +27,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scenario TFRecord files, folders or globs")
     parser.add_argument("--submission", required=True, metavar="PATH",
                         help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
-    parser.add_argument("--config", default="2025", metavar="2025|2024|2023|FILE.textproto",
+    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
+                        help="sim_agents (80 future steps; default) or scenario_gen (91 steps of every object "
+                             "with box sizes and types)")
+    parser.add_argument("--config", default=None, metavar="PRESET|FILE.textproto",
                         help=f"metrics config: a preset ({', '.join(PRESET_NAMES)}) or a "
-                             "SimAgentMetricsConfig textproto (default 2025)")
+                             "SimAgentMetricsConfig textproto (default: the challenge's current one, "
+                             "2025 or scenario_gen_2025)")
     parser.add_argument("--output", "-o", metavar="result.json",
                         help="where to write the result JSON (default: stdout)")
     parser.add_argument("--workers", type=int, default=1, metavar="N",
-                        help="score scenarios in N processes (identical results)")
+                        help="score scenarios in N processes of this machine (identical results)")
+    parser.add_argument("--engine", choices=ENGINES, default="local",
+                        help="local (this machine, --workers processes; default) or ray (a Ray cluster, "
+                             "needs `pip install 'wosac-eval[ray]'`); identical results")
+    parser.add_argument("--ray-address", metavar="ADDR",
+                        help="the Ray cluster to join (host:port or ray://host:10001; default $RAY_ADDRESS, "
+                             "else a local Ray is started)")
     parser.add_argument("--partial", action="store_true",
                         help="score the valid scenarios of an invalid submission; skipped ones are listed")
     parser.add_argument("--backend", choices=BACKENDS, default="numpy",
@@ -53,7 +65,7 @@ def _progress():
 
 def _headline(result: dict) -> str:
     b = result["buckets"]
-    return (f"scored {result['num_scenarios']} scenario(s) with config {result['config']}: "
+    return (f"scored {result['num_scenarios']} {result['challenge']} scenario(s) with config {result['config']}: "
             f"realism meta-metric {b['realism_meta_metric']:.4f} (kinematic {b['kinematic_metrics']:.4f}, "
             f"interactive {b['interactive_metrics']:.4f}, map-based {b['map_based_metrics']:.4f}), "
             f"minADE {b['min_ade']:.3f} m")
@@ -65,13 +77,15 @@ def run(args: argparse.Namespace) -> int:
         return 2
     try:
         check_backend(args.backend)
+        check_engine(args.engine)
     except BackendUnavailableError as error:
         print(f"wosac-eval score: error: {error}", file=sys.stderr)
         return 2
     update, bar = _progress()
     try:
-        result = score_submission(args.scenarios, args.submission, args.config, workers=args.workers,
-                                  allow_partial=args.partial, progress=update, backend=args.backend)
+        result = score_submission(args.scenarios, args.submission, args.config, challenge=args.challenge,
+                                  workers=args.workers, allow_partial=args.partial, progress=update,
+                                  backend=args.backend, engine=args.engine, ray_address=args.ray_address)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "

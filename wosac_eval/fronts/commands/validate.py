@@ -11,6 +11,7 @@ import json
 import re
 import sys
 
+from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.validate.validator import Limits, ScenarioSetError, load_sim_agents, validate_submission
 
 NAME = "validate"
@@ -37,6 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="scenario TFRecord files, folders or globs: the scenario set the submission must cover")
     parser.add_argument("--submission", required=True, metavar="PATH",
                         help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
+    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
+                        help="the challenge's rules: sim_agents (80 future steps; default) or scenario_gen "
+                             "(91 steps with box sizes and object types)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     parser.add_argument("--max-listed", type=int, default=20, metavar="N",
                         help="findings shown in full per kind of problem; the rest are counted (default 20)")
@@ -72,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         report = validate_submission(
             args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
             progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,
+            challenge=args.challenge,
         )
     except (ScenarioSetError, OSError) as error:  # missing / unreadable paths, I/O errors
         print(f"wosac-eval validate: error: {error}", file=sys.stderr)

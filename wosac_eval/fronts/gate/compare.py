@@ -144,6 +144,7 @@ class Comparison:
     new_path: str
     base_config: str
     new_config: str
+    challenge: str
     num_shared: int
     num_base_only: int
     num_new_only: int
@@ -170,6 +171,7 @@ class Comparison:
 
     def to_json(self) -> dict[str, Any]:
         return {
+            "challenge": self.challenge,
             "base": {"path": self.base_path, "config": self.base_config},
             "new": {"path": self.new_path, "config": self.new_config},
             "scenarios": {"shared": self.num_shared, "base_only": self.num_base_only, "new_only": self.num_new_only},
@@ -244,6 +246,9 @@ def compare_results(
     wanted += [g.metric for g in gates if g.metric not in wanted]
     wanted = [m for m in METRICS if m in wanted]  # display order, no duplicates
 
+    if base.challenge != new.challenge:
+        raise CompareError(f"{base.path} is a {base.challenge} result and {new.path} a {new.challenge} result: "
+                           f"results of different challenges measure different things and cannot be compared")
     warnings: list[str] = []
     if not _same_config(base.config, new.config):
         warnings.append(f"the results were scored with different configs: base {base.config!r}, "
@@ -314,6 +319,7 @@ def compare_results(
     outcomes = [_apply_gate(g, results.get(g.metric), only_significant) for g in gates]
     return Comparison(
         base_path=base.path, new_path=new.path, base_config=base.config, new_config=new.config,
+        challenge=new.challenge,
         num_shared=n, num_base_only=int(base_only.size), num_new_only=int(new_only.size),
         alpha=alpha, adjust=adjust, seed=seed, n_boot=n_boot, n_perm=n_perm, exact_permutation=exact,
         metrics=ordered, gates=outcomes, warnings=warnings)

@@ -15,66 +15,14 @@ from typing import Any
 
 import numpy as np
 
-# Per-scenario fields of a result, in display order, and whether a higher value is better.
-SCENARIO_FIELDS: dict[str, bool] = {
-    "metametric": True,
-    "linear_speed_likelihood": True,
-    "linear_acceleration_likelihood": True,
-    "angular_speed_likelihood": True,
-    "angular_acceleration_likelihood": True,
-    "distance_to_nearest_object_likelihood": True,
-    "collision_indication_likelihood": True,
-    "time_to_collision_likelihood": True,
-    "distance_to_road_edge_likelihood": True,
-    "offroad_indication_likelihood": True,
-    "traffic_light_violation_likelihood": True,
-    "average_displacement_error": False,
-    "min_average_displacement_error": False,
-    "simulated_collision_rate": False,
-    "simulated_offroad_rate": False,
-    "simulated_traffic_light_violation_rate": False,
-}
-
-# The three weighted buckets: likelihood fields they average, keyed by the config field
-# whose `metametric_weight` weighs them.
-BUCKET_MEMBERS: dict[str, tuple[str, ...]] = {
-    "kinematic_metrics": ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration"),
-    "interactive_metrics": ("distance_to_nearest_object", "collision_indication", "time_to_collision"),
-    "map_based_metrics": ("distance_to_road_edge", "offroad_indication", "traffic_light_violation"),
-}
-
-# Leaderboard bucket names, in display order; higher is better except the last four.
-BUCKET_FIELDS: dict[str, bool] = {
-    "realism_meta_metric": True,
-    "kinematic_metrics": True,
-    "interactive_metrics": True,
-    "map_based_metrics": True,
-    "min_ade": False,
-    "simulated_collision_rate": False,
-    "simulated_offroad_rate": False,
-    "simulated_traffic_light_violation_rate": False,
-}
-
-# Buckets that are plain means of one per-scenario field.
-BUCKET_ALIASES: dict[str, str] = {
-    "realism_meta_metric": "metametric",
-    "min_ade": "min_average_displacement_error",
-    "simulated_collision_rate": "simulated_collision_rate",
-    "simulated_offroad_rate": "simulated_offroad_rate",
-    "simulated_traffic_light_violation_rate": "simulated_traffic_light_violation_rate",
-}
-
-RATE_FIELDS = ("simulated_collision_rate", "simulated_offroad_rate", "simulated_traffic_light_violation_rate")
+from wosac_eval.challenges import CHALLENGE_NAMES as CHALLENGES
+# The metric schema comes from the one registry: fields, buckets, directions.
+from wosac_eval.metrics.registry import (  # noqa: F401  (re-exported to compare and report)
+    BUCKET_ALIASES, BUCKET_FIELDS, BUCKET_MEMBERS, RATE_FIELDS, SCENARIO_FIELDS, higher_is_better)
 
 
 class ResultError(ValueError):
     """A result file that cannot be read, with the file (and scenario, field) at fault."""
-
-
-def higher_is_better(metric: str) -> bool:
-    if metric in SCENARIO_FIELDS:
-        return SCENARIO_FIELDS[metric]
-    return BUCKET_FIELDS[metric]
 
 
 @dataclasses.dataclass
@@ -84,6 +32,8 @@ class ScoringResult:
     Attributes:
       path: the file it was read from (for messages).
       config: the config name or textproto path it was scored with.
+      challenge: "sim_agents" or "scenario_gen" (results written before the
+        challenge was recorded are sim agents results).
       scenario_ids: `(num_scenarios,)` ids, unique, in file order.
       values: metric name -> `(num_scenarios,)` per-scenario values. Holds every
         field of SCENARIO_FIELDS, plus the weighted buckets when the file carries
@@ -95,6 +45,7 @@ class ScoringResult:
 
     path: str
     config: str
+    challenge: str
     scenario_ids: np.ndarray
     values: dict[str, np.ndarray]
     aggregate: dict[str, float]
@@ -234,6 +185,10 @@ def parse_result(
     if not isinstance(config, str):
         raise ResultError(f"{path}: missing 'config' (expected the config name or textproto path as a string)")
 
+    challenge = data.get("challenge", "sim_agents")
+    if challenge not in CHALLENGES:
+        raise ResultError(f"{path}: unknown challenge {challenge!r} (expected one of {', '.join(CHALLENGES)})")
+
     ids = _scenario_ids(scenarios, path)
     values = {f: _column(scenarios, f, ids, path) for f in SCENARIO_FIELDS}
     carried = {b: _column(scenarios, b, ids, path) for b in BUCKET_MEMBERS
@@ -250,6 +205,7 @@ def parse_result(
     return ScoringResult(
         path=path,
         config=config,
+        challenge=challenge,
         scenario_ids=np.asarray(ids, dtype=object).reshape(len(ids)),
         values=values,
         aggregate=_numbers(data.get("aggregate"), f"{path}: aggregate"),

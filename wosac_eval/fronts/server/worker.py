@@ -39,7 +39,7 @@ EXIT_LOST_LEASE = 4   # the reaper gave our job to someone else (we stalled)
 def score(scenario_paths: list[Path], submission_path: Path, config: str, *, workers: int,
           allow_partial: bool, progress: Callable[[int, int], None]) -> dict:
     """The one place the service calls the scorer: the same function `wosac-eval score` uses."""
-    from wosac_eval.metrics.submission import score_submission
+    from wosac_eval.scoring.submission import score_submission
 
     return score_submission(scenario_paths, submission_path, config, workers=workers,
                             allow_partial=allow_partial, progress=progress)
@@ -47,7 +47,7 @@ def score(scenario_paths: list[Path], submission_path: Path, config: str, *, wor
 
 def _invalid_submission_error() -> type[BaseException]:
     try:
-        from wosac_eval.metrics.submission import InvalidSubmissionError
+        from wosac_eval.scoring.submission import InvalidSubmissionError
     except ImportError:  # scorer not installed: nothing can be judged invalid
         return type("NeverRaised", (Exception,), {})
     return InvalidSubmissionError

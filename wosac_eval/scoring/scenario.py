@@ -1,0 +1,95 @@
+"""Scoring one scenario: messages (or arrays) in, the official `SimAgentMetrics` fields out.
+
+parse -> arrays (`arrays.samples`) -> features (`features.metric_features`,
+numpy or JAX) -> metrics (`metrics.scenario_metrics`), for either challenge.
+"""
+from __future__ import annotations
+
+import os
+
+from wosac_eval import challenges
+from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
+from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
+from wosac_eval.backends import check_backend
+from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
+from wosac_eval.metrics.scenario_metrics import scenario_metrics
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+
+PathLike = str | os.PathLike
+ConfigLike = str | PathLike | SimAgentMetricsConfig | None
+
+
+def resolve_config(config: ConfigLike, challenge) -> SimAgentMetricsConfig:
+    """A config message from a preset name, a textproto path or a message; None: the challenge's default."""
+    if isinstance(config, SimAgentMetricsConfig):
+        return config
+    return load_config(default_config(challenge) if config is None else config)
+
+
+def scenario_inputs(scenario: scenario_pb2.Scenario | ScenarioArrays,
+                    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+                    challenge) -> tuple[ScenarioArrays, RolloutArrays]:
+    """The arrays of a (scenario, rollouts) pair, checked to belong together."""
+    arrays = scenario if isinstance(scenario, ScenarioArrays) else scenario_arrays(scenario)
+    if rollouts.scenario_id != arrays.scenario_id:
+        raise ValueError(f"rollouts are for scenario {rollouts.scenario_id!r}, not {arrays.scenario_id!r}")
+    if not isinstance(rollouts, RolloutArrays):
+        rollouts = rollout_arrays(rollouts, challenge)
+    return arrays, rollouts
+
+
+def unscorable(scenario_id: str, error: Exception) -> ValueError:
+    # e.g. a scenario without road edges, or rollouts missing an evaluated object
+    return ValueError(f"scenario {scenario_id}: cannot be scored: {error}")
+
+
+def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
+                   rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+                   config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
+                   backend: str = "numpy") -> dict:
+    """Official `SimAgentMetrics` fields of one scenario, plus its `scenario_id`.
+
+    Args:
+      scenario: the logged `Scenario` (or its `ScenarioArrays`).
+      rollouts: the 32 simulated joint scenes for it (a `ScenarioRollouts`, or `RolloutArrays`).
+      config: a preset name, a textproto path or a `SimAgentMetricsConfig`;
+        None: the challenge's current leaderboard config.
+      challenge: "sim_agents" (80 future steps, SDC + tracks_to_predict
+        evaluated) or "scenario_gen" (91 steps with boxes, every sim agent evaluated).
+      backend: "numpy" or "jax" (needs the `jax` extra); same results.
+    """
+    check_backend(backend)
+    challenge = challenges.as_challenge(challenge)
+    config = resolve_config(config, challenge)
+    arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
+    try:
+        if backend == "jax":
+            from wosac_eval.backends import jax_backend
+            log, sim = jax_backend.scenario_features(arrays, rollout, challenge=challenge)
+        else:
+            log, sim = scenario_features(arrays, rollout, challenge=challenge)
+    except (ValueError, KeyError) as error:
+        raise unscorable(arrays.scenario_id, error) from error
+    return {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim)}
+
+
+def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
+                        challenge=challenges.Challenge.SIM_AGENTS) -> list[dict]:
+    """`score_scenario` with the jax backend for many (scenario, rollouts) pairs at once.
+
+    Scenarios of the same size bucket share one `vmap`ped call.
+    """
+    from wosac_eval.backends import jax_backend
+    challenge = challenges.as_challenge(challenge)
+    config = resolve_config(config, challenge)
+    prepared = []
+    for scenario, rollouts in pairs:
+        arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
+        try:
+            prepared.append(jax_backend.prepare(arrays, rollout, challenge=challenge))
+        except (ValueError, KeyError) as error:
+            raise unscorable(arrays.scenario_id, error) from error
+    features = jax_backend.prepared_features(prepared, max_batch=max_batch)
+    return [{"scenario_id": p.scenario_id, **scenario_metrics(config, log, sim)}
+            for p, (log, sim) in zip(prepared, features)]

@@ -1,6 +1,6 @@
 """Bounded load test of the scoring service on loopback.
 
-Starts `wosac-eval serve` (real uvicorn, real SQLite file, real worker processes)
+Starts `wosac-server serve` (real uvicorn, real SQLite file, real worker processes)
 in a temp dir, uploads N submissions concurrently (default 20), waits until every
 one is scored and prints the figures: upload wall time, uploads/s, MB/s, time until
 all were scored, scenarios/s, and whether every result equals the first one (the

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from wosac_eval.fronts.server.db import Store
+from wosac_server.db import Store
 from support.server_harness import (  # noqa: F401  (re-exported to the test modules)
     GOLDEN_PAIR, SCENARIO_FILES, SHARED, ScoringData, Server, canonical, files_under, free_port, tar_bytes)
 from support.server_harness import scoring_data as harness_scoring_data

@@ -8,13 +8,14 @@ import time
 
 import pytest
 
-from wosac_eval.fronts.server import auth, jobs
+from wosac_server import auth, jobs
 
 
-def add_job(store, key_id="k", method="m", config="2025", published=False, created=None) -> str:
+def add_job(store, key_id="k", method="m", config="2025", published=False, created=None,
+            challenge="sim_agents") -> str:
     sid = jobs.new_id()
-    jobs.insert_submission(store, submission_id=sid, key_id=key_id, method=method, config=config,
-                           allow_partial=False, published=published, file_name=sid + ".binproto",
+    jobs.insert_submission(store, submission_id=sid, key_id=key_id, method=method, challenge=challenge,
+                           config=config, allow_partial=False, published=published, file_name=sid + ".binproto",
                            upload_bytes=10)
     if created is not None:
         store.execute("UPDATE submissions SET created_at = ? WHERE id = ?", (created, sid))
@@ -94,11 +95,12 @@ def test_release_on_shutdown_does_not_count_an_attempt(store):
 
 
 def test_leaderboard_keeps_the_best_published_result_per_method(store):
-    def scored(method, meta, published=True, config="2025"):
-        sid = add_job(store, method=method, published=published, config=config)
+    def scored(method, meta, published=True, config="2025", challenge="sim_agents", coverage=1.0):
+        sid = add_job(store, method=method, published=published, config=config, challenge=challenge)
         job = jobs.claim_next(store, "w", 60)
         assert job["id"] == sid
-        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta}})
+        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta},
+                                           "coverage": {"fraction": coverage}})
         return sid
 
     scored("alpha", 0.50)
@@ -111,6 +113,34 @@ def test_leaderboard_keeps_the_best_published_result_per_method(store):
     assert [(e["rank"], e["method"], e["submission_id"], e["realism_meta_metric"]) for e in board] == [
         (1, "alpha", best_alpha, 0.60), (2, "beta", best_beta, 0.58)]
     assert [e["method"] for e in jobs.leaderboard(store, "2024")] == ["delta"]
+    # One leaderboard per challenge; a partial result carries its coverage.
+    generated = scored("epsilon", 0.3, config="scenario_gen_2025", challenge="scenario_gen", coverage=0.5)
+    assert jobs.leaderboard(store, "scenario_gen_2025", "sim_agents") == []
+    board = jobs.leaderboard(store, "scenario_gen_2025", "scenario_gen")
+    assert [(e["method"], e["submission_id"], e["coverage"]) for e in board] == [("epsilon", generated, 0.5)]
+    assert all(e["coverage"] == 1.0 for e in jobs.leaderboard(store, "2025"))
+
+
+def test_a_version_1_database_is_migrated(tmp_path):
+    """A data dir written before challenges existed keeps its jobs, as sim agents jobs."""
+    import sqlite3
+
+    from wosac_server.db import SCHEMA, Store
+    path = tmp_path / "old.sqlite3"
+    with sqlite3.connect(path) as conn:
+        for stmt in SCHEMA:
+            conn.execute(stmt)
+        conn.execute("INSERT INTO schema_version (version) VALUES (1)")
+        conn.execute("INSERT INTO submissions (id, key_id, method, config, allow_partial, published, state, file_name,"
+                     " upload_bytes, created_at, updated_at, scenarios_done, attempts) VALUES"
+                     " ('a', 'k', 'm', '2025', 0, 0, 'queued', 'a.binproto', 1, 0, 0, 0, 0)")
+    store = Store(f"sqlite:///{path}")
+    store.migrate()
+    store.migrate()  # idempotent
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == 2
+    row = jobs.get_submission(store, "a")
+    assert (row["challenge"], row["coverage"], row["state"]) == ("sim_agents", None, "queued")
+    store.close()
 
 
 def test_keys_are_hashed_and_verified(store):
@@ -150,7 +180,7 @@ def test_quotas_count_unfinished_jobs_and_the_last_day(store):
 def test_store_reconnects_after_postgresql_drops_the_connection(postgres_server):
     import psycopg
 
-    from wosac_eval.fronts.server.db import Store
+    from wosac_server.db import Store
 
     url = postgres_server()
     store = Store(url)

@@ -283,7 +283,7 @@ def test_resumable_upload_without_declared_length_and_delete(api_server):
 
 def test_keys_command_creates_lists_and_revokes(api_server):
     def keys(*args):
-        return subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "keys", *args],
+        return subprocess.run([sys.executable, "-m", "wosac_server", "keys", *args],
                               env=api_server.env, capture_output=True, text=True, timeout=60)
 
     created = keys("create", "--name", "carol", "--max-concurrent", "3")

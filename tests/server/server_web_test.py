@@ -121,7 +121,7 @@ def field(dom: str, element_id: str) -> str:
 
 
 def test_leaderboard_cells_are_escaped():
-    from wosac_eval.fronts.server.web import leaderboard_table
+    from wosac_server.web import leaderboard_table
 
     table = leaderboard_table([{"rank": 1, "method": "<script>x</script>", "realism_meta_metric": 0.5,
                                 "buckets": {"min_ade": 1.25}}])

@@ -1,4 +1,4 @@
-"""Run the real service for tests and benchmarks: `wosac-eval serve` as a child
+"""Run the real service for tests and benchmarks: `wosac-server serve` as a child
 process on 127.0.0.1 with its own data dir (a real SQLite file) and a free port."""
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import httpx
 
-from wosac_eval.fronts.server import auth
-from wosac_eval.fronts.server.db import Store
+from wosac_server import auth
+from wosac_server.db import Store
 
 from support.paths import REPO, SHARED
 GOLDEN = SHARED / "golden"
@@ -85,7 +85,7 @@ def canonical(result: dict) -> str:
 
 
 class Server:
-    """`wosac-eval serve` as a child process, with its own data dir and port."""
+    """`wosac-server serve` as a child process, with its own data dir and port."""
 
     def __init__(self, data_dir: Path, scenarios: list[Path], **env: object):
         self.data_dir = data_dir
@@ -110,7 +110,7 @@ class Server:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         log = open(self.log, "ab")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "wosac_eval.fronts.cli", "serve", "--host", "127.0.0.1",
+            [sys.executable, "-m", "wosac_server", "serve", "--host", "127.0.0.1",
              "--port", str(self.port), "--log-level", "warning"],
             env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent)
         deadline = time.monotonic() + timeout

@@ -14,6 +14,7 @@ import os
 import sys
 import time
 
+from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -21,10 +22,16 @@ HELP = "Write a baseline submission (constant velocity, noisy log replay or IDM 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+
+
+    """The scenario set, the policy, where to write, and the submission metadata."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs (synthetic or real WOMD)")
     parser.add_argument("--policy", required=True, choices=sorted(POLICIES),
                         help="constant_velocity | log_replay_noise (needs the logged future) | idm")
+    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
+                        help="sim_agents (80 future steps; default) or scenario_gen (all 91 steps with box sizes "
+                             "and object types: the policy's future after the logged or straight-line history)")
     parser.add_argument("--output", required=True, metavar="PATH",
                         help="submission to write: NAME.tar.gz, NAME.tar, or a folder of shards")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the rollouts (default 0)")
@@ -41,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+
+
+    """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
     from wosac_eval.sim.submission_writer import SubmissionMetadata
@@ -66,22 +76,24 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def progress(n: int) -> None:
+
+        """Counts simulated scenarios (and moves the bar)."""
         count[0] += n
         if bar is not None:
             bar.update(n)
 
     try:
         out = make_submission(args.scenarios, args.policy, args.output, seed=args.seed, num_shards=args.shards,
-                              workers=args.workers, metadata=metadata, progress=progress)
+                              workers=args.workers, metadata=metadata, progress=progress, challenge=args.challenge)
     except (ParseError, FileNotFoundError, ValueError) as error:
         print(f"wosac-eval baseline: error: {error}", file=sys.stderr)
         return 2
     finally:
         if bar is not None:
             bar.close()
-    report = validate_submission(args.scenarios, out)
+    report = validate_submission(args.scenarios, out, challenge=args.challenge)
     elapsed = time.perf_counter() - start
-    print(f"wrote {out} ({args.policy}, {count[0]} scenarios, {elapsed:.1f} s)")
+    print(f"wrote {out} ({args.policy}, {args.challenge}, {count[0]} scenarios, {elapsed:.1f} s)")
     if not report.ok:
         print(report.format_text(), file=sys.stderr)
         return 1

@@ -25,6 +25,9 @@ HELP = "Run every baseline on built-in synthetic scenes, validate, score and pri
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+
+
+    """Where the demo works, how many scenes, which policies; or --gate for the compare/report demo."""
     parser.add_argument("--workdir", type=Path, default=None,
                         help=f"where scenes, submissions and results go (default {default_workdir()})")
     parser.add_argument("--scenes", type=int, default=DEMO_SCENES, metavar="N", help="number of scenes (default 10)")
@@ -58,6 +61,9 @@ def run_gate_demo(folder: Path) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+
+
+    """Generate scenes, run the baselines, score them and print the leaderboard (or the gate demo)."""
     if args.gate is not None:
         return run_gate_demo(args.gate)
     if args.scenes < 1 or args.workers < 1:

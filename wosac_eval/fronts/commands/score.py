@@ -23,6 +23,9 @@ HELP = "Score a submission with the official WOSAC realism metrics and write res
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+
+
+    """Inputs, challenge and config, output, and where and how to compute (workers, engine, backend)."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs")
     parser.add_argument("--submission", required=True, metavar="PATH",
@@ -52,18 +55,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _progress():
+
+
+    """A tqdm bar on stderr when it is a terminal: (update callback, bar), or (None, None)."""
     if not sys.stderr.isatty():
         return None, None
     from tqdm import tqdm
     bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def update(done: int, total: int) -> None:
+
+        """Moves the bar to `done` of `total` scenarios."""
         bar.total = total
         bar.update(done - bar.n)
     return update, bar
 
 
 def _headline(result: dict) -> str:
+
+
+    """One line of the leaderboard figures of a result, for stderr."""
     b = result["buckets"]
     return (f"scored {result['num_scenarios']} {result['challenge']} scenario(s) with config {result['config']}: "
             f"realism meta-metric {b['realism_meta_metric']:.4f} (kinematic {b['kinematic_metrics']:.4f}, "
@@ -72,6 +83,9 @@ def _headline(result: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+
+
+    """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     if args.workers < 1:
         print("wosac-eval score: error: --workers must be >= 1", file=sys.stderr)
         return 2

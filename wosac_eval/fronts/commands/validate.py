@@ -34,6 +34,9 @@ def parse_size(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+
+
+    """The scenario set, the submission, the challenge, report format and limits."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs: the scenario set the submission must cover")
     parser.add_argument("--submission", required=True, metavar="PATH",
@@ -62,6 +65,9 @@ def _progress_bar(total: int | None, what: str):
 
 
 def run(args: argparse.Namespace) -> int:
+
+
+    """Validate and print the report; 0 valid, 1 invalid, 2 usage error."""
     if args.max_listed < 0 or args.workers < 1:
         print("wosac-eval validate: error: --max-listed must be >= 0 and --workers >= 1", file=sys.stderr)
         return 2

@@ -61,14 +61,14 @@ def write_json_atomically(path: Path, payload: dict) -> None:
 
 
 # -- submissions ----------------------------------------------------------------------
-def insert_submission(store: Store, *, submission_id: str, key_id: str, method: str, config: str,
+def insert_submission(store: Store, *, submission_id: str, key_id: str, method: str, challenge: str, config: str,
                       allow_partial: bool, published: bool, file_name: str, upload_bytes: int) -> None:
     now = time.time()
     store.execute(
-        "INSERT INTO submissions (id, key_id, method, config, allow_partial, published, state, file_name,"
-        " upload_bytes, created_at, updated_at, scenarios_done, attempts)"
-        " VALUES (?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?, ?, 0, 0)",
-        (submission_id, key_id, method, config, int(allow_partial), int(published), file_name,
+        "INSERT INTO submissions (id, key_id, method, challenge, config, allow_partial, published, state,"
+        " file_name, upload_bytes, created_at, updated_at, scenarios_done, attempts)"
+        " VALUES (?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?, ?, 0, 0)",
+        (submission_id, key_id, method, challenge, config, int(allow_partial), int(published), file_name,
          upload_bytes, now, now))
 
 
@@ -119,13 +119,14 @@ def finish_done(store: Store, submission_id: str, owner: str, result: dict) -> b
     buckets = result.get("buckets") or {}
     meta = buckets.get("realism_meta_metric")
     n = len(result.get("scenarios") or [])
+    coverage = (result.get("coverage") or {}).get("fraction")
     now = time.time()
     return store.execute(
         "UPDATE submissions SET state = 'done', finished_at = ?, updated_at = ?, lease_owner = NULL,"
         " lease_expires = NULL, scenarios_done = ?, scenarios_total = ?, realism_meta_metric = ?,"
-        " buckets = ?, error = NULL WHERE id = ? AND lease_owner = ?",
-        (now, now, n, n, None if meta is None else float(meta), json.dumps(buckets), submission_id,
-         owner)) == 1
+        " buckets = ?, coverage = ?, error = NULL WHERE id = ? AND lease_owner = ?",
+        (now, now, n, n, None if meta is None else float(meta), json.dumps(buckets),
+         None if coverage is None else float(coverage), submission_id, owner)) == 1
 
 
 def finish_failed(store: Store, submission_id: str, owner: str | None, error: str,
@@ -170,12 +171,12 @@ def reap_expired(store: Store, max_attempts: int, now: float | None = None) -> t
     return requeued, failed
 
 
-def leaderboard(store: Store, config: str) -> list[dict]:
-    """Best published, finished submission per method for `config`, best first."""
+def leaderboard(store: Store, config: str, challenge: str = "sim_agents") -> list[dict]:
+    """Best published, finished submission per method of one challenge and config, best first."""
     rows = store.fetchall(
-        "SELECT id, method, realism_meta_metric, buckets, finished_at FROM submissions"
-        " WHERE state = 'done' AND published = 1 AND config = ? AND realism_meta_metric IS NOT NULL",
-        (config,))
+        "SELECT id, method, realism_meta_metric, buckets, coverage, finished_at FROM submissions"
+        " WHERE state = 'done' AND published = 1 AND challenge = ? AND config = ?"
+        " AND realism_meta_metric IS NOT NULL", (challenge, config))
     best: dict[str, dict] = {}
     for r in rows:
         cur = best.get(r["method"])
@@ -186,19 +187,20 @@ def leaderboard(store: Store, config: str) -> list[dict]:
     return [
         {"rank": i + 1, "method": r["method"], "submission_id": r["id"],
          "realism_meta_metric": r["realism_meta_metric"], "buckets": json.loads(r["buckets"] or "{}"),
-         "finished_at": r["finished_at"]}
+         "coverage": r["coverage"], "finished_at": r["finished_at"]}
         for i, r in enumerate(ranked)
     ]
 
 
 # -- resumable uploads ------------------------------------------------------------------
-def insert_upload(store: Store, *, upload_id: str, key_id: str, method: str, config: str,
+def insert_upload(store: Store, *, upload_id: str, key_id: str, method: str, challenge: str, config: str,
                   allow_partial: bool, published: bool, declared_length: int | None) -> None:
     now = time.time()
     store.execute(
-        "INSERT INTO uploads (id, key_id, method, config, allow_partial, published, declared_length,"
-        " received_bytes, created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, 0, ?, ?)",
-        (upload_id, key_id, method, config, int(allow_partial), int(published), declared_length, now, now))
+        "INSERT INTO uploads (id, key_id, method, challenge, config, allow_partial, published, declared_length,"
+        " received_bytes, created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, 0, ?, ?)",
+        (upload_id, key_id, method, challenge, config, int(allow_partial), int(published), declared_length,
+         now, now))
 
 
 def get_upload(store: Store, upload_id: str) -> dict | None:

@@ -1,4 +1,4 @@
-"""`wosac-eval keys`: create, list and revoke API keys of the scoring service.
+"""`wosac-server keys`: create, list and revoke API keys of the scoring service.
 
 Keys are stored salted and hashed in the service database (`WOSAC_DB_URL`, default
 the SQLite file in `WOSAC_DATA_DIR`); `create` prints the new key once, on stdout.
@@ -32,9 +32,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.data_dir:
         os.environ["WOSAC_DATA_DIR"] = args.data_dir
-    from wosac_eval.fronts.server import auth
-    from wosac_eval.fronts.server.db import Store
-    from wosac_eval.fronts.server.settings import load_settings
+    from . import auth
+    from .db import Store
+    from .settings import load_settings
 
     settings = load_settings()
     settings.ensure_dirs()
@@ -43,10 +43,10 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "create":
         import re
 
-        from wosac_eval.fronts.server.auth import METHOD_PATTERN
+        from .auth import METHOD_PATTERN
 
         if not re.match(METHOD_PATTERN, args.name):
-            print(f"wosac-eval keys: the name {args.name!r} must match {METHOD_PATTERN} "
+            print(f"wosac-server keys: the name {args.name!r} must match {METHOD_PATTERN} "
                   "(it is the default method name on the leaderboard)", file=sys.stderr)
             return 2
         limits = {
@@ -55,12 +55,12 @@ def run(args: argparse.Namespace) -> int:
             "max_daily_bytes": args.max_daily_bytes or settings.default_max_daily_bytes,
         }
         if min(limits.values()) < 1:
-            print("wosac-eval keys: limits must be positive", file=sys.stderr)
+            print("wosac-server keys: limits must be positive", file=sys.stderr)
             return 2
         try:
             key = auth.create_key(store, args.name, **limits)
         except ValueError as exc:
-            print(f"wosac-eval keys: {exc}", file=sys.stderr)
+            print(f"wosac-server keys: {exc}", file=sys.stderr)
             return 1
         print(key)
         return 0
@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
                   f"\tdaily {row['max_daily']}\tbytes/day {row['max_daily_bytes']}")
         return 0
     if not auth.revoke_key(store, args.name):
-        print(f"wosac-eval keys: no active key named {args.name!r}", file=sys.stderr)
+        print(f"wosac-server keys: no active key named {args.name!r}", file=sys.stderr)
         return 1
     print(f"revoked {args.name}")
     return 0

@@ -8,8 +8,10 @@ process can), and the pool starts a fresh worker. A worker killed outright
 (kill -9, OOM) simply stops renewing; its lease expires and the reaper puts the
 job back in the queue for another worker.
 
-Run one with `python -m wosac_eval.fronts.server.worker` (configured by the same
-`WOSAC_*` environment as the API); `WorkerPool` starts and supervises N of them.
+Run one with `wosac-server worker` (configured by the same `WOSAC_*`
+environment as the API); `WorkerPool` starts and supervises N of them. With
+`WOSAC_RAY_ADDRESS` set, each job is fanned out to that Ray cluster, so one
+big submission uses every node.
 """
 from __future__ import annotations
 
@@ -26,31 +28,25 @@ import traceback
 from pathlib import Path
 from typing import Callable
 
+from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
+
 from . import jobs
 from .db import Store
 from .settings import Settings, load_settings
 
-log = logging.getLogger("wosac_eval.server.worker")
+log = logging.getLogger("wosac_server.worker")
 
 EXIT_BUDGET = 3       # the job ran past its time budget and was failed
 EXIT_LOST_LEASE = 4   # the reaper gave our job to someone else (we stalled)
 
 
-def score(scenario_paths: list[Path], submission_path: Path, config: str, *, workers: int,
-          allow_partial: bool, progress: Callable[[int, int], None]) -> dict:
+def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings: Settings,
+          progress: Callable[[int, int], None]) -> dict:
     """The one place the service calls the scorer: the same function `wosac-eval score` uses."""
-    from wosac_eval.scoring.submission import score_submission
-
-    return score_submission(scenario_paths, submission_path, config, workers=workers,
-                            allow_partial=allow_partial, progress=progress)
-
-
-def _invalid_submission_error() -> type[BaseException]:
-    try:
-        from wosac_eval.scoring.submission import InvalidSubmissionError
-    except ImportError:  # scorer not installed: nothing can be judged invalid
-        return type("NeverRaised", (Exception,), {})
-    return InvalidSubmissionError
+    engine = "ray" if settings.ray_address else "local"
+    return score_submission(scenario_paths, submission_path, job["config"], challenge=job["challenge"],
+                            workers=settings.score_threads, allow_partial=bool(job["allow_partial"]),
+                            progress=progress, engine=engine, ray_address=settings.ray_address or None)
 
 
 def _exit_process(code: int) -> None:
@@ -138,7 +134,6 @@ class Worker:
         log.info("worker %s: scoring %s (attempt %d)", os.getpid(), job_id, job["attempts"])
         heartbeat = _Heartbeat(self, job)
         heartbeat.start()
-        invalid_error = _invalid_submission_error()
         last_write = [0.0]
 
         def progress(done: int, total: int) -> None:
@@ -154,12 +149,11 @@ class Worker:
                                    "the server has no scenario shards configured (WOSAC_SCENARIOS)")
                 return
             submission_path = settings.submissions_dir / job["file_name"]
-            result = score(scenarios, submission_path, job["config"], workers=settings.score_threads,
-                           allow_partial=bool(job["allow_partial"]), progress=progress)
+            result = score(scenarios, submission_path, job, settings, progress)
             jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
             jobs.finish_done(self.store, job_id, self.owner, result)
             log.info("worker %s: %s done", os.getpid(), job_id)
-        except invalid_error as exc:
+        except InvalidSubmissionError as exc:
             report = getattr(exc, "report", None)
             payload = None
             if report is not None:
@@ -199,7 +193,7 @@ class WorkerPool:
         self._monitor = threading.Thread(target=self._watch, name="worker-pool", daemon=True)
 
     def _spawn(self) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "wosac_eval.fronts.server.worker"], env=self.env)
+        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker"], env=self.env)
 
     def start(self) -> None:
         with self._lock:

@@ -14,7 +14,7 @@ import threading
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 SCHEMA = [
     """CREATE TABLE IF NOT EXISTS api_keys (
@@ -69,6 +69,14 @@ SCHEMA = [
     )""",
     "CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)",
 ]
+# Schema changes after version 1, each applied once, in order: version -> statements.
+MIGRATIONS = {
+    2: [  # the challenge of every submission and upload; the share of the scenario set a result covers
+        "ALTER TABLE submissions ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
+        "ALTER TABLE uploads ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
+        "ALTER TABLE submissions ADD COLUMN coverage DOUBLE PRECISION",
+    ],
+}
 
 
 class Store:
@@ -172,11 +180,18 @@ class Store:
                 self._local.in_tx = False
 
     def migrate(self) -> None:
+        """Create the tables (version 1), then apply every later migration once."""
         with self.transaction():
             for stmt in SCHEMA:
                 self.execute(stmt)
-            if self.fetchone("SELECT version FROM schema_version") is None:
-                self.execute("INSERT INTO schema_version (version) VALUES (?)", (SCHEMA_VERSION,))
+            row = self.fetchone("SELECT version FROM schema_version")
+            if row is None:
+                self.execute("INSERT INTO schema_version (version) VALUES (1)")
+            version = 1 if row is None else int(row["version"])
+            for target in sorted(v for v in MIGRATIONS if v > version):
+                for stmt in MIGRATIONS[target]:
+                    self.execute(stmt)
+                self.execute("UPDATE schema_version SET version = ?", (target,))
 
     def ping(self) -> bool:
         return self.fetchone("SELECT 1 AS ok") is not None

@@ -1,6 +1,6 @@
 """Service configuration, read once from `WOSAC_*` environment variables.
 
-Every knob has a safe default so `wosac-eval serve` runs with only
+Every knob has a safe default so `wosac-server serve` runs with only
 `WOSAC_SCENARIOS` set. Values are validated by pydantic at start-up, so a typo
 in a number fails loudly before the first request instead of mid-job.
 """
@@ -40,8 +40,10 @@ class Settings(BaseModel):
     default_max_daily_bytes: int = Field(64 * GiB, ge=1, description="Per-key upload bytes per 24 h (new keys).")
     shutdown_grace_s: float = Field(10.0, gt=0, description="On SIGTERM: wait this long for requests in flight.")
     configs: list[str] = Field(
-        default_factory=lambda: ["2025", "2024", "2023"],
+        default_factory=lambda: ["2025", "2024", "2023", "scenario_gen_2025"],
         description="Metric configs a submission may ask for (WOSAC_CONFIGS, comma-separated).")
+    ray_address: str = Field("", description="A Ray cluster (host:port or ray://host:10001) each job is fanned "
+                             "out to (WOSAC_RAY_ADDRESS); empty: score in this host's processes.")
     upload_ttl_s: float = Field(7 * 24 * 3600.0, gt=0, description="Unfinished resumable uploads expire after this.")
 
     @field_validator("configs", mode="before")

@@ -1,6 +1,6 @@
-"""`wosac-eval serve`: run the HTTP scoring service (API + scoring worker processes).
+"""`wosac-server serve`: run the HTTP scoring service (API + scoring worker processes).
 
-Configured by `WOSAC_*` environment variables (see `wosac_eval.fronts.server.settings`);
+Configured by `WOSAC_*` environment variables (see `wosac_server.settings`);
 the flags below override the most common ones. Exit codes: 0 stopped cleanly,
 2 the configuration is unusable (no scenario shard found, bad value).
 """
@@ -36,31 +36,31 @@ def run(args: argparse.Namespace) -> int:
 
     from pydantic import ValidationError
 
-    from wosac_eval.fronts.server.settings import load_settings
+    from .settings import load_settings
 
     try:
         settings = load_settings()
     except ValidationError as exc:
-        print(f"wosac-eval serve: bad configuration:\n{exc}", file=sys.stderr)
+        print(f"wosac-server serve: bad configuration:\n{exc}", file=sys.stderr)
         return 2
     scenarios = settings.scenario_paths()
     if not scenarios:
-        print("wosac-eval serve: no scenario shard found; set WOSAC_SCENARIOS (or --scenarios) to the "
+        print("wosac-server serve: no scenario shard found; set WOSAC_SCENARIOS (or --scenarios) to the "
               f"TFRecord files to score against (got {settings.scenarios or 'nothing'})", file=sys.stderr)
         return 2
     os.environ["WOSAC_DATA_DIR"] = str(settings.data_dir)
 
     import uvicorn
 
-    from wosac_eval.fronts.server import jobs
-    from wosac_eval.fronts.server.app import create_app
-    from wosac_eval.fronts.server.worker import WorkerPool
+    from . import jobs
+    from .app import create_app
+    from .worker import WorkerPool
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
     app = create_app(settings)
     # Jobs left running by a previous server that died go back to the queue at once.
     jobs.reap_expired(app.state.store, settings.max_attempts)
-    print(f"wosac-eval serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
+    print(f"wosac-server serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
           f"{settings.workers} worker(s), http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
     pool = WorkerPool(settings.workers)
     pool.start()

@@ -1,0 +1,94 @@
+"""The API's response models (they make the OpenAPI schema) and how a job row becomes one."""
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+Challenge = Literal["sim_agents", "scenario_gen"]
+
+
+class Progress(BaseModel):
+    scenarios_done: int
+    scenarios_total: int | None = Field(None, description="Known once validation has read the submission.")
+
+
+class SubmissionStatus(BaseModel):
+    id: str
+    state: Literal["queued", "validating", "scoring", "done", "failed"]
+    method: str
+    challenge: Challenge
+    config: str
+    published: bool
+    allow_partial: bool
+    upload_bytes: int
+    progress: Progress
+    attempts: int = Field(description="Scoring attempts started (a worker that died counts one).")
+    created_at: str
+    updated_at: str
+    started_at: str | None = None
+    finished_at: str | None = None
+    error: str | None = Field(None, description="Why the submission failed.")
+    validation_report: dict[str, Any] | None = Field(
+        None, description="The validator's report when the submission was judged invalid.")
+    realism_meta_metric: float | None = None
+    coverage: float | None = Field(None, description="Share of the scenario set the result covers (1.0 unless "
+                                   "scored with allow_partial).")
+    results_url: str | None = None
+
+
+class SubmissionList(BaseModel):
+    submissions: list[SubmissionStatus]
+
+
+class LeaderboardEntry(BaseModel):
+    rank: int
+    method: str
+    submission_id: str
+    realism_meta_metric: float
+    buckets: dict[str, Any]
+    coverage: float | None = Field(None, description="Share of the scenario set scored (below 1: a partial result).")
+    finished_at: str
+
+
+class Leaderboard(BaseModel):
+    challenge: Challenge
+    config: str
+    entries: list[LeaderboardEntry]
+
+
+class UploadStatus(BaseModel):
+    upload_id: str
+    offset: int = Field(description="Bytes received and stored so far; the next PATCH starts here.")
+    length: int | None = Field(None, description="Total size declared with Upload-Length, if any.")
+    submission_id: str | None = Field(None, description="Set once the upload was completed.")
+
+
+class Health(BaseModel):
+    status: str
+    database: str
+    scenarios: int
+
+
+def iso(t: float | None) -> str | None:
+    if t is None:
+        return None
+    return datetime.fromtimestamp(t, tz=timezone.utc).isoformat(timespec="milliseconds")
+
+
+def status_of(row: dict) -> SubmissionStatus:
+    report = json.loads(row["report"]) if row.get("report") else None
+    return SubmissionStatus(
+        id=row["id"], state=row["state"], method=row["method"], challenge=row["challenge"], config=row["config"],
+        published=bool(row["published"]), allow_partial=bool(row["allow_partial"]),
+        upload_bytes=row["upload_bytes"],
+        progress=Progress(scenarios_done=row["scenarios_done"], scenarios_total=row["scenarios_total"]),
+        attempts=row["attempts"], created_at=iso(row["created_at"]), updated_at=iso(row["updated_at"]),
+        started_at=iso(row["started_at"]), finished_at=iso(row["finished_at"]), error=row["error"],
+        validation_report=report, realism_meta_metric=row["realism_meta_metric"], coverage=row.get("coverage"),
+        results_url=f"/v1/submissions/{row['id']}/results" if row["state"] == "done" else None,
+    )
+
+

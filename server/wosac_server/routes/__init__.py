@@ -1,0 +1,1 @@
+"""The `/v1` API and the health check, one router per resource."""

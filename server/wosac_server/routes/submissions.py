@@ -1,0 +1,103 @@
+"""`/v1/submissions`: upload a whole submission, follow it, fetch its results."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, Header, HTTPException, Query, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import FileResponse, PlainTextResponse
+
+from .. import jobs
+from ..models import SubmissionList, SubmissionStatus, status_of
+from ..service import Key, ServiceDep
+from ..uploads import BodyTooLarge, stream_body_to
+from .params import (MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, ChallengeQ, ConfigQ, MethodQ, PartialQ,
+                     PublishQ, SubmissionId)
+
+router = APIRouter(prefix="/v1/submissions", tags=["submissions"])
+
+
+@router.post("", status_code=202, response_model=SubmissionStatus, openapi_extra=OCTET_BODY,
+             operation_id="createSubmission",
+             responses={202: SUBMISSION_LINKS, 413: {"description": "Body too large"},
+                        429: {"description": "Quota exceeded"},
+                        422: {"description": "Not a readable submission container"}})
+async def create_submission(request: Request, svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents",
+                            config: ConfigQ = None, method: MethodQ = None, publish: PublishQ = False,
+                            allow_partial: PartialQ = False,
+                            content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None):
+    """Upload a whole submission (`.tar.gz`, `.tar` or one `.binproto`) as the raw request body."""
+    config = svc.config_for(challenge, config)
+    await run_in_threadpool(svc.refuse_early, key, content_length)
+    limit = await run_in_threadpool(svc.upload_limit, key)
+    temp = svc.settings.uploads_dir / f"{jobs.new_id()}.body"
+    try:
+        size, disconnected = await stream_body_to(request, temp, limit)
+    except BodyTooLarge:
+        temp.unlink(missing_ok=True)
+        raise svc.too_large(key)
+    except BaseException:
+        temp.unlink(missing_ok=True)
+        raise
+    if disconnected or (content_length is not None and size != content_length):
+        temp.unlink(missing_ok=True)
+        raise HTTPException(400, f"the body ended after {size} bytes (client disconnected or sent "
+                            "less than Content-Length); use /v1/uploads to resume large uploads")
+    try:
+        row = await run_in_threadpool(svc.accept, key, temp, size, method=method, challenge=challenge,
+                                      config=config, allow_partial=allow_partial, publish=publish)
+    finally:
+        temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
+    return svc.accepted(row)
+
+
+@router.get("", response_model=SubmissionList, operation_id="listSubmissions")
+def list_submissions(svc: ServiceDep, key: Key, limit: Annotated[int, Query(ge=1, le=1000)] = 100):
+    """Your submissions, newest first."""
+    return SubmissionList(submissions=[status_of(r) for r in jobs.list_submissions(svc.store, key.id, limit)])
+
+
+@router.get("/{submission_id}", response_model=SubmissionStatus, operation_id="getSubmission")
+def get_submission(svc: ServiceDep, key: Key, submission_id: SubmissionId):
+    return status_of(svc.own_submission(key, submission_id))
+
+
+@router.get("/{submission_id}/results", operation_id="getResults",
+            responses={200: {"content": {"application/json": {}, "text/csv": {}}},
+                       409: {"description": "Not scored (yet)"}})
+def get_results(svc: ServiceDep, key: Key, submission_id: SubmissionId,
+                format: Annotated[Literal["json", "csv"], Query()] = "json"):
+    """The result JSON, exactly as `wosac-eval score` writes it (or per-scenario CSV)."""
+    row = svc.own_submission(key, submission_id)
+    if row["state"] != "done":
+        detail = f"submission {submission_id} is {row['state']}; results exist once it is done"
+        if row["state"] == "failed":
+            detail = f"submission {submission_id} failed: {row['error']}"
+        raise HTTPException(409, detail)
+    path = svc.settings.results_dir / f"{submission_id}.json"
+    if format == "json":
+        return FileResponse(path, media_type="application/json")
+    with open(path) as f:
+        return PlainTextResponse(result_csv(json.load(f)), media_type="text/csv")
+
+
+def result_csv(result: dict) -> str:
+    """Per-scenario rows of a result JSON: `scenario_id`, then every metric field."""
+    scenarios = result.get("scenarios") or []
+    fields: list[str] = []
+    for s in scenarios:
+        for k in s:
+            if k not in fields and not isinstance(s[k], (dict, list)):
+                fields.append(k)
+    if "scenario_id" in fields:
+        fields.remove("scenario_id")
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    writer.writerow(["scenario_id", *fields])
+    for s in scenarios:
+        writer.writerow([s.get("scenario_id"), *(repr(s[k]) if isinstance(s.get(k), float) else s.get(k, "")
+                                                 for k in fields)])
+    return out.getvalue()

@@ -1,1 +1,0 @@
-"""The HTTP scoring service (`wosac-eval serve`): API, job store, workers, web page."""

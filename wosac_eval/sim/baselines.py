@@ -6,6 +6,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from wosac_eval import challenges
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.processes import worker_pool
 from wosac_eval.sim import policies
@@ -20,11 +21,14 @@ DESCRIPTIONS = {
 }
 
 
-def _simulate(args: tuple[bytes, str, int]) -> bytes:
+def _simulate(args: tuple[bytes, str, int, str]) -> bytes:
     from wosac_eval.protos import scenario_pb2
 
-    data, policy, seed = args
+    data, policy, seed, challenge = args
     scenario = scenario_pb2.Scenario.FromString(data)
+    if challenges.spec(challenge).submits_boxes:
+        ids, traj, boxes, types = policies.generate_scenario(scenario, policy, seed)
+        return scenario_rollouts(scenario.scenario_id, ids, traj, boxes, types).SerializeToString()
     ids, traj = policies.simulate_scenario(scenario, policy, seed)
     return scenario_rollouts(scenario.scenario_id, ids, traj).SerializeToString()
 
@@ -56,17 +60,21 @@ def make_submission(
     workers: int = 1,
     metadata: SubmissionMetadata | None = None,
     progress: Callable[[int], None] | None = None,
+    challenge: str = "sim_agents",
 ) -> Path:
     """Simulates `policy` on every scenario and writes an official-layout submission to `output`.
 
-    Streams: scenarios are read, simulated and appended to the shards one at a time.
+    `challenge="scenario_gen"` writes all 91 steps with box sizes and object
+    types (`policies.generate_scenario`). Streams: scenarios are read,
+    simulated and appended to the shards one at a time.
     """
+    challenge = challenges.as_challenge(challenge).value
     if policy not in policies.POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(policies.POLICIES)}")
     metadata = metadata or SubmissionMetadata(
         unique_method_name=policy.replace("_", "-"), description=DESCRIPTIONS[policy]
     )
-    tasks = ((s.scenario.SerializeToString(), policy, seed) for s in iter_scenarios(scenario_paths))
+    tasks = ((s.scenario.SerializeToString(), policy, seed, challenge) for s in iter_scenarios(scenario_paths))
     try:
         with ShardWriter(metadata, output, num_shards) as writer:
             for data in _map_bounded(tasks, workers):

@@ -49,7 +49,7 @@ class Lane:
 class SimContext:
     """What a policy sees of one scenario. Arrays over sim agents (N) and history steps (11).
 
-    x, y, z, heading, valid: (N, 11); length, width: (N,); velocity: (N, 2) at the current step.
+    x, y, z, heading, valid: (N, 11); length, width, height: (N,); velocity: (N, 2) at the current step.
     log_future: (N, 80, 4) x, y, z, heading (nan where the log is invalid or absent).
     signals: (91, G) states of the G signal-controlled lanes `signal_lanes`; steps the
       scenario does not cover hold the last known state.
@@ -65,6 +65,7 @@ class SimContext:
     valid: np.ndarray
     length: np.ndarray
     width: np.ndarray
+    height: np.ndarray
     velocity: np.ndarray
     log_future: np.ndarray
     lanes: dict[int, Lane]
@@ -122,6 +123,7 @@ def context_from_scenario(scenario) -> SimContext:
         valid=valid,
         length=np.array([s.length for s in cur], float),
         width=np.array([s.width for s in cur], float),
+        height=np.array([s.height for s in cur], float),
         velocity=np.array([(s.velocity_x, s.velocity_y) for s in cur], float).reshape(n, 2),
         log_future=future,
         lanes=lanes,
@@ -354,9 +356,87 @@ POLICIES: dict[str, Callable[..., np.ndarray]] = {
 
 
 def simulate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS):
-    """(object ids (N,), trajectories (R, N, 80, 4)) of one scenario under `policy`."""
+    """(object ids (N,), trajectories (R, N, 80, 4)) of one scenario under `policy` (sim agents)."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(POLICIES)}")
     ctx = context_from_scenario(scenario)
-    rng = np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), sorted(POLICIES).index(policy)])
-    return ctx.object_ids, POLICIES[policy](ctx, rng, num_rollouts)
+    return ctx.object_ids, POLICIES[policy](ctx, _rng(scenario, policy, seed), num_rollouts)
+
+
+def _rng(scenario, policy: str, seed: int) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), sorted(POLICIES).index(policy)])
+
+
+# ---------------------------------------------------------------------------------------------
+# Scenario generation: all 91 steps of every sim agent, with box sizes and types.
+
+def _filled_history(ctx: SimContext) -> np.ndarray:
+    """(N, 11, 4) logged history with gaps interpolated; before an object's first logged step,
+    the straight line through its first state at its current velocity."""
+    steps = np.arange(CURRENT + 1)
+    hist = np.stack([ctx.x, ctx.y, ctx.z, ctx.heading], -1)
+    out = hist.copy()
+    for i in range(ctx.num_agents):
+        known = steps[ctx.valid[i]]  # the current step is always valid for a sim agent
+        for c in range(4):
+            values = hist[i, known, c] if c != 3 else np.unwrap(hist[i, known, 3])
+            out[i, :, c] = np.interp(steps, known, values)
+        before = steps < known[0]
+        out[i, before, :2] = hist[i, known[0], :2] + ((steps[before] - known[0]) * DT)[:, None] * ctx.velocity[i]
+    out[..., 3] = geo.wrap_angle(out[..., 3])
+    return out
+
+
+def _straight_history(ctx: SimContext) -> np.ndarray:
+    """(N, 11, 4): the straight line through the current state at the current velocity, heading held."""
+    back = (np.arange(CURRENT + 1) - CURRENT) * DT
+    x = ctx.x[:, CURRENT, None] + ctx.velocity[:, 0, None] * back
+    y = ctx.y[:, CURRENT, None] + ctx.velocity[:, 1, None] * back
+    z = np.broadcast_to(ctx.z[:, CURRENT, None], x.shape)
+    h = np.broadcast_to(ctx.heading[:, CURRENT, None], x.shape)
+    return np.stack([x, y, z, h], -1)
+
+
+def _history_noise(rng: np.random.Generator, num_rollouts: int, n: int, noise_m: float) -> np.ndarray:
+    """(R, N, 11, 4) smooth noise of the history, growing away from the current step (0 there)."""
+    back = (CURRENT - np.arange(CURRENT + 1)) * DT
+    growth = back / (NUM_FUTURE * DT)
+    amp = rng.normal(0.0, noise_m, (num_rollouts, n, 2, 1))
+    freq = rng.uniform(0.05, 0.25, (num_rollouts, n, 2, 1))
+    phase = rng.uniform(0, 2 * np.pi, (num_rollouts, n, 2, 1))
+    wave = amp * np.sin(2 * np.pi * freq * back + phase) * growth  # (R, N, 2, 11)
+    out = np.zeros((num_rollouts, n, CURRENT + 1, 4))
+    out[..., 0], out[..., 1] = wave[:, :, 0], wave[:, :, 1]
+    out[..., 3] = rng.normal(0.0, 0.02, (num_rollouts, n, 1)) * growth
+    return out
+
+
+# History of each scenario-gen baseline: the logged one (filled), or the straight line.
+SCENARIO_GEN_HISTORY = {"constant_velocity": "straight", "log_replay_noise": "logged_noise", "idm": "logged"}
+
+
+def generate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS):
+    """A scenario-gen baseline: (object ids (N,), trajectories (R, N, 91, 4), box sizes (N, 91, 3)
+    length / width / height, object types (N,)).
+
+    The future (steps 11-90) is the sim agents policy's; the history (steps
+    0-10) is the straight line through the current state for
+    `constant_velocity`, the logged history (gaps filled) for `idm`, and the
+    logged history with smooth per-rollout noise for `log_replay_noise`.
+    Boxes keep their current size, objects their logged type.
+    """
+    if policy not in POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(POLICIES)}")
+    ctx = context_from_scenario(scenario)
+    future = POLICIES[policy](ctx, _rng(scenario, policy, seed), num_rollouts)
+    kind = SCENARIO_GEN_HISTORY[policy]
+    history = _straight_history(ctx) if kind == "straight" else _filled_history(ctx)
+    history = np.broadcast_to(history[None], (num_rollouts,) + history.shape).copy()
+    if kind == "logged_noise":
+        history += _history_noise(np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), 7]),
+                                  num_rollouts, ctx.num_agents, noise_m=0.5)
+        history[..., 3] = geo.wrap_angle(history[..., 3])
+    trajectories = np.concatenate([history, future], axis=2)
+    sizes = np.stack([ctx.length, ctx.width, ctx.height], -1)[:, None, :]
+    boxes = np.broadcast_to(sizes, (ctx.num_agents, trajectories.shape[2], 3))
+    return ctx.object_ids, trajectories, boxes, ctx.object_type

@@ -52,9 +52,15 @@ class SubmissionMetadata:
         message.acknowledge_complies_with_closed_loop_requirement = self.acknowledge_complies_with_closed_loop_requirement
 
 
-def scenario_rollouts(scenario_id: str, object_ids: np.ndarray, trajectories: np.ndarray):
-    """`ScenarioRollouts` from trajectories of shape (num_rollouts, num_objects, 80, 4)
-    holding center_x, center_y, center_z, heading; written as float32 like the proto."""
+def scenario_rollouts(scenario_id: str, object_ids: np.ndarray, trajectories: np.ndarray,
+                      boxes: np.ndarray | None = None, object_types: np.ndarray | None = None):
+    """`ScenarioRollouts` from trajectories of shape (num_rollouts, num_objects, num_steps, 4)
+    holding center_x, center_y, center_z, heading; written as float32 like the proto.
+
+    Scenario gen submissions also carry `boxes`, (num_objects, num_steps, 3) or
+    (num_rollouts, num_objects, num_steps, 3) length, width, height, and
+    `object_types` (num_objects,) (`Track.ObjectType`); every step is marked valid.
+    """
     if trajectories.ndim != 4 or trajectories.shape[1] != len(object_ids) or trajectories.shape[-1] != 4:
         raise ValueError(f"scenario {scenario_id}: trajectories of shape {trajectories.shape} do not match "
                          f"{len(object_ids)} objects x (x, y, z, heading)")
@@ -63,16 +69,26 @@ def scenario_rollouts(scenario_id: str, object_ids: np.ndarray, trajectories: np
         raise ValueError(f"scenario {scenario_id}: non-finite value at rollout {bad[0]}, "
                          f"object {object_ids[bad[1]]}, step {bad[2]}")
     values = trajectories.astype(np.float32)
+    if boxes is not None:
+        boxes = np.broadcast_to(np.asarray(boxes, np.float32), values.shape[:3] + (3,))
+        types = np.asarray(object_types).tolist()
+        valid = [True] * values.shape[2]
     msg = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=scenario_id)
-    for rollout in values:
+    for r, rollout in enumerate(values):
         scene = msg.joint_scenes.add()
-        for oid, traj in zip(object_ids.tolist(), rollout):
+        for i, (oid, traj) in enumerate(zip(object_ids.tolist(), rollout)):
             t = scene.simulated_trajectories.add()
             t.object_id = int(oid)
             t.center_x.extend(traj[:, 0].tolist())
             t.center_y.extend(traj[:, 1].tolist())
             t.center_z.extend(traj[:, 2].tolist())
             t.heading.extend(traj[:, 3].tolist())
+            if boxes is not None:
+                t.length.extend(boxes[r, i, :, 0].tolist())
+                t.width.extend(boxes[r, i, :, 1].tolist())
+                t.height.extend(boxes[r, i, :, 2].tolist())
+                t.object_type = int(types[i])
+                t.valid.extend(valid)
     return msg
 
 

@@ -142,3 +142,39 @@ def _alive(pid: int) -> bool:
             return "zombie" not in f.read()
     except FileNotFoundError:
         return False
+
+
+def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
+    """A scenario-gen submission is validated and scored as such, lands on the scenario-gen
+    leaderboard (not the sim agents one), and a partial result shows its coverage."""
+    from wosac_eval.scoring.submission import score_submission
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import make_submission
+
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=6), tmp_path / "scenarios", num_shards=2)
+    full = make_submission(shards, "constant_velocity", tmp_path / "sg.tar.gz", challenge="scenario_gen")
+    half = make_submission(shards[:1], "log_replay_noise", tmp_path / "sg-half.tar.gz", challenge="scenario_gen")
+    direct = score_submission(shards, full, challenge="scenario_gen")
+    server = make_server(workers=1, scenarios=shards)
+    with server.client(server.key("generator")) as c:
+        refused = c.post("/v1/submissions", content=full.read_bytes(),
+                         params={"challenge": "scenario_gen", "config": "2025"})
+        assert refused.status_code == 422 and "scenario_gen_2025" in refused.json()["detail"]
+        as_sim_agents = c.post("/v1/submissions", content=full.read_bytes()).json()
+        ids = [c.post("/v1/submissions", content=path.read_bytes(),
+                      params={"challenge": "scenario_gen", "publish": "true", "method": method,
+                              "allow_partial": str(method == "half").lower()}).json()["id"]
+               for path, method in ((full, "whole"), (half, "half"))]
+        statuses = [server.wait_state(c, i) for i in ids]
+        assert [s["state"] for s in statuses] == ["done", "done"], statuses
+        assert statuses[0]["challenge"] == "scenario_gen" and statuses[0]["config"] == "scenario_gen_2025"
+        assert statuses[0]["coverage"] == 1.0 and statuses[1]["coverage"] == 0.5
+        assert canonical(c.get(f"/v1/submissions/{ids[0]}/results").json()) == canonical(direct)
+        wrong = server.wait_state(c, as_sim_agents["id"])
+        assert wrong["state"] == "failed" and "--challenge scenario_gen" in wrong["validation_report"]["text"]
+        board = c.get("/v1/leaderboard", params={"challenge": "scenario_gen"}).json()
+        assert board["challenge"] == "scenario_gen" and board["config"] == "scenario_gen_2025"
+        assert {e["method"]: e["coverage"] for e in board["entries"]} == {"whole": 1.0, "half": 0.5}
+        assert c.get("/v1/leaderboard").json()["entries"] == []  # the sim agents board
+        page = c.get("/").text
+        assert 'id="leaderboard-scenario_gen"' in page and "whole" in page and 'class="partial"' in page

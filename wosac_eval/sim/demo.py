@@ -1,8 +1,9 @@
-"""The demo: synthetic scenes, every baseline, validated and scored, as a leaderboard.
+"""The demo: synthetic scenes, every baseline, validated and scored, as a leaderboard per challenge.
 
 Needs nothing but this package: the scenes are generated deterministically on
 first use and cached in the work directory (regenerated when the generator,
-seed or count changes).
+seed or count changes). Sim agents results go to `results/<policy>.json`,
+scenario gen results to `results/scenario_gen/<policy>.json` (submissions alike).
 """
 from __future__ import annotations
 
@@ -22,7 +23,7 @@ BUCKETS = (
     ("kinematic_metrics", "kinematic"),
     ("interactive_metrics", "interactive"),
     ("map_based_metrics", "map"),
-    ("min_ade", "minADE"),
+    ("min_ade", "minADE"),  # not for scenario gen: a generated object has no logged counterpart
     ("simulated_collision_rate", "collision"),
     ("simulated_offroad_rate", "offroad"),
     ("simulated_traffic_light_violation_rate", "red-light"),
@@ -70,10 +71,20 @@ class PolicyResult:
     seconds: float
 
 
+def challenge_folder(workdir: Path, kind: str, challenge: str) -> Path:
+    """`workdir/kind` for sim agents, `workdir/kind/scenario_gen` for scenario gen."""
+    folder = Path(workdir) / kind
+    return folder if challenge == "sim_agents" else folder / challenge
+
+
 def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_SEED,
-             policies: tuple[str, ...] = DEMO_POLICIES, config: str = "2025", workers: int = 1,
-             log=print) -> list[PolicyResult]:
-    """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows."""
+             policies: tuple[str, ...] = DEMO_POLICIES, config: str | None = None, workers: int = 1,
+             challenge: str = "sim_agents", log=print) -> list[PolicyResult]:
+    """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
+
+    `challenge`: "sim_agents" or "scenario_gen" (all 91 steps of every object);
+    `config`: None for the challenge's current one.
+    """
     from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
     from wosac_eval.sim.baselines import make_submission
 
@@ -85,32 +96,35 @@ def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_S
     rows = []
     for policy in policies:
         t0 = time.perf_counter()
-        submission = make_submission(scenario_paths, policy, workdir / "submissions" / f"{policy}.tar.gz",
-                                     seed=seed, workers=workers)
+        submission = make_submission(scenario_paths, policy,
+                                     challenge_folder(workdir, "submissions", challenge) / f"{policy}.tar.gz",
+                                     seed=seed, workers=workers, challenge=challenge)
         t1 = time.perf_counter()
         try:  # scoring validates the submission first
-            result = score_submission(scenario_paths, submission, config, workers=workers)
+            result = score_submission(scenario_paths, submission, config, challenge=challenge, workers=workers)
         except InvalidSubmissionError as error:
             log(error.report.format_text())
             rows.append(PolicyResult(policy, submission, Path(), {}, False, time.perf_counter() - t0))
             continue
-        result_json = workdir / "results" / f"{policy}.json"
+        result_json = challenge_folder(workdir, "results", challenge) / f"{policy}.json"
         result_json.parent.mkdir(parents=True, exist_ok=True)
         result_json.write_text(json.dumps(result, indent=2, sort_keys=True))
         rows.append(PolicyResult(policy, submission, result_json, result["buckets"], True, time.perf_counter() - t0))
-        log(f"  {policy}: simulated in {t1 - t0:.1f} s, validated and scored in {time.perf_counter() - t1:.1f} s")
+        log(f"  {challenge} {policy}: simulated in {t1 - t0:.1f} s, validated and scored in "
+            f"{time.perf_counter() - t1:.1f} s")
     return rows
 
 
-def leaderboard(rows: list[PolicyResult]) -> str:
+def leaderboard(rows: list[PolicyResult], challenge: str = "sim_agents") -> str:
     """A plain-text table of the policies, best meta-metric first."""
-    header = ["policy"] + [label for _, label in BUCKETS]
+    columns = [(key, label) for key, label in BUCKETS if not (challenge == "scenario_gen" and key == "min_ade")]
+    header = ["policy"] + [label for _, label in columns]
     table = [header]
     for row in sorted(rows, key=lambda r: -r.buckets.get("realism_meta_metric", -1.0)):
         if not row.valid:
-            table.append([row.policy] + ["invalid"] + [""] * (len(BUCKETS) - 1))
+            table.append([row.policy] + ["invalid"] + [""] * (len(columns) - 1))
             continue
-        table.append([row.policy] + [f"{row.buckets[key]:.4f}" for key, _ in BUCKETS])
+        table.append([row.policy] + [f"{row.buckets[key]:.4f}" for key, _ in columns])
     widths = [max(len(r[i]) for r in table) for i in range(len(header))]
     lines = ["  ".join(cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(r, widths)))
              for r in table]

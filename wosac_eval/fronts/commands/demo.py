@@ -1,8 +1,10 @@
 """`wosac-eval demo [--workdir DIR]`: the whole pipeline on embedded synthetic data, in under a minute.
 
 Generates (or loads from DIR) ten deterministic synthetic scenes, runs each
-baseline policy, validates and scores every submission, writes one result JSON
-per policy under DIR/results and prints a leaderboard.
+baseline policy for both challenges (sim agents, then scenario generation),
+validates and scores every submission, writes one result JSON per policy under
+DIR/results (DIR/results/scenario_gen for scenario gen) and prints a
+leaderboard per challenge.
 
 `wosac-eval demo --gate DIR` instead writes two synthetic results of 2000
 scenarios (DIR/baseline.json, DIR/new.json) and their comparison report
@@ -18,7 +20,11 @@ import sys
 import time
 from pathlib import Path
 
+from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.sim.demo import DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard, run_demo
+
+TITLES = {"sim_agents": "Sim agents (80 future steps; 2025 config)",
+          "scenario_gen": "Scenario generation (all 91 steps of every object; scenario_gen_2025 config)"}
 
 NAME = "demo"
 HELP = "Run every baseline on built-in synthetic scenes, validate, score and print a leaderboard."
@@ -35,7 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--policies", nargs="+", default=list(DEMO_POLICIES),
                         choices=list(DEMO_POLICIES), metavar="POLICY",
                         help=f"policies to run (default: {' '.join(DEMO_POLICIES)})")
-    parser.add_argument("--config", default="2025", help="metrics config: 2025, 2024, 2023 or a textproto path")
+    parser.add_argument("--challenge", choices=("both",) + CHALLENGE_NAMES, default="both",
+                        help="which challenge's leaderboard to make (default both)")
+    parser.add_argument("--config", default=None,
+                        help="metrics config (a preset or a textproto path; default: each challenge's current one)")
     parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 4), metavar="N",
                         help="processes for simulation and scoring (default: CPU count, at most 4)")
     parser.add_argument("--gate", type=Path, metavar="DIR",
@@ -71,17 +80,24 @@ def run(args: argparse.Namespace) -> int:
         return 2
     workdir = args.workdir or default_workdir()
     start = time.perf_counter()
+    chosen = CHALLENGE_NAMES if args.challenge == "both" else (args.challenge,)
+    tables = []
     try:
-        rows = run_demo(workdir, num_scenes=args.scenes, seed=args.seed, policies=tuple(args.policies),
-                        config=args.config, workers=args.workers)
+        for challenge in chosen:
+            rows = run_demo(workdir, num_scenes=args.scenes, seed=args.seed, policies=tuple(args.policies),
+                            config=args.config, workers=args.workers, challenge=challenge)
+            tables.append((challenge, rows))
     except (OSError, ValueError) as error:
         print(f"wosac-eval demo: error: {error}", file=sys.stderr)
         return 2
+    for challenge, rows in tables:
+        print()
+        print(TITLES[challenge] if args.config is None else f"{challenge} (config {args.config})")
+        print(leaderboard(rows, challenge))
     print()
-    print(leaderboard(rows))
-    print()
-    for row in rows:
-        if row.valid:
-            print(f"{row.policy}: results {row.result_json}  submission {row.submission}")
+    for challenge, rows in tables:
+        for row in rows:
+            if row.valid:
+                print(f"{challenge} {row.policy}: results {row.result_json}  submission {row.submission}")
     print(f"total {time.perf_counter() - start:.1f} s")
-    return 0 if all(r.valid for r in rows) else 1
+    return 0 if all(r.valid for _, rows in tables for r in rows) else 1

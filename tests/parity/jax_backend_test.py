@@ -1,0 +1,155 @@
+"""The jax backend: features bit-identical to numpy (and to the official outputs) on CPU.
+
+Covers every golden case of both challenges (`support.golden`), batched calls
+against per-scenario calls, padding to larger buckets, and the estimators
+under jit. Compiled functions are shared across the module: each bucket
+compiles once.
+"""
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+
+import numpy as np
+import pytest
+
+# Imported first: it restricts XLA's CPU code generation (no fused multiply-add)
+# before JAX starts its CPU backend.
+from wosac_eval.backends import jax_backend
+
+from support import golden
+from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.metrics.config import load_config
+from wosac_eval.metrics.scenario_metrics import bucket_metrics, scenario_metrics
+
+CASES = golden.all_cases()
+
+
+@lru_cache(maxsize=None)
+def _set_features(case_set) -> dict:
+    """Every case of a set in one batched call: case -> (log, sim)."""
+    names = case_set.cases
+    pairs = [golden.inputs(case_set, case) for case in names]
+    return dict(zip(names, jax_backend.scenarios_features(pairs, challenge=case_set.challenge)))
+
+
+def _numpy(case_set, case):
+    return scenario_features(*golden.inputs(case_set, case), challenge=case_set.challenge)
+
+
+def test_no_fused_multiply_add_on_cpu():
+    # Without this, float32 features differ from numpy in the last bit.
+    assert not jax_backend.fma_contraction()
+
+
+@pytest.mark.parametrize("n, minimum, expected", [(0, 8, 8), (1, 8, 8), (8, 8, 8), (9, 8, 16),
+                                                  (5251, 64, 8192), (3, 1, 4), (0, 1, 1)])
+def test_buckets_are_powers_of_two(n, minimum, expected):
+    assert jax_backend.bucket(n, minimum) == expected
+
+
+@pytest.mark.parametrize("n, expected", [(0, 64), (64, 64), (65, 128), (300, 384), (5251, 6144),
+                                         (8192, 8192), (8193, 12288)])
+def test_fine_buckets_pad_at_most_a_third(n, expected):
+    assert jax_backend.fine_bucket(n) == expected
+
+
+@pytest.mark.parametrize("case_set, case", CASES)
+def test_features_bit_identical_to_official_and_numpy(case_set, case):
+    golden.skip_if_absent(case_set, case)
+    ours = _set_features(case_set)[case]
+    golden.assert_features_equal(ours, golden.expected_features(case_set, case), case)
+    golden.assert_features_equal(ours, golden.as_feature_dict(_numpy(case_set, case)), f"{case} vs numpy")
+
+
+@pytest.mark.parametrize("case_set, case", CASES)
+def test_metrics_match_official(case_set, case):
+    golden.skip_if_absent(case_set, case)
+    log, sim = _set_features(case_set)[case]
+    for config_name in case_set.configs:
+        config = golden.config(case_set, config_name)
+        expected = golden.expected_metrics(case_set, case, config_name)
+        ours = scenario_metrics(config, log, sim)
+        for field, value in expected.items():
+            if field != "buckets":
+                assert ours[field] == pytest.approx(value, abs=1e-5), f"{config_name}: {field}"
+        for field, value in expected["buckets"].items():
+            assert bucket_metrics(config, ours)[field] == pytest.approx(value, abs=1e-5), f"buckets.{field}"
+
+
+ORACLE = golden.SETS[2]
+
+
+def test_batched_call_equals_per_scenario_calls():
+    batched = _set_features(ORACLE)
+    # Two scenes that share a bucket with others in the batched call, scored alone.
+    for case in ORACLE.cases[:2]:
+        alone = jax_backend.scenario_features(*golden.inputs(ORACLE, case))
+        golden.assert_features_equal(alone, golden.as_feature_dict(batched[case]), f"{case} alone vs batched")
+
+
+def test_padding_to_larger_buckets_changes_nothing():
+    case = next(c for c in ORACLE.cases if "red-light" in c)
+    key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
+    larger = tuple(2 * k for k in key[3:])  # objects, evaluated, road-edge segments, signals, lane segments
+    padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
+    golden.assert_features_equal(padded, golden.as_feature_dict(_set_features(ORACLE)[case]),
+                                 f"{case} padded to {larger}")
+
+
+TIMESERIES = ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration",
+              "distance_to_nearest_object", "time_to_collision", "distance_to_road_edge")
+INDICATORS = {"collision_indication": "collision_per_step", "offroad_indication": "offroad_per_step",
+              "traffic_light_violation": "traffic_light_violation_per_step"}
+
+
+@pytest.mark.parametrize("config_name", ["2025", "2023", "scenario_gen_2025"])
+def test_estimators_under_jit_equal_numpy(config_name):
+    import jax
+
+    from wosac_eval.estimators import likelihoods
+    config = load_config(config_name)
+    case = next(c for c in ORACLE.cases if "collision" in c)
+    log, sim = _set_features(ORACLE)[case]
+    for metric in TIMESERIES:
+        feature_config = getattr(config, metric)
+        expected = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric)[0],
+                                                         getattr(sim, metric))
+        fn = jax.jit(lambda lv, sv: likelihoods.timeseries_log_likelihood(feature_config, lv, sv))
+        with jax.enable_x64(True):
+            actual = np.asarray(fn(getattr(log, metric)[0], getattr(sim, metric)))
+        assert actual.dtype == expected.dtype
+        np.testing.assert_array_equal(actual, expected, err_msg=f"{config_name}: {metric}")
+    for metric, feature in INDICATORS.items():
+        feature_config = getattr(config, metric)
+        log_flags, sim_flags = getattr(log, feature)[0].any(axis=-1), getattr(sim, feature).any(axis=-1)
+        expected = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags)
+        fn = jax.jit(lambda lv, sv: likelihoods.scenario_level_log_likelihood(feature_config, lv, sv))
+        with jax.enable_x64(True):
+            actual = np.asarray(fn(log_flags, sim_flags))
+        np.testing.assert_array_equal(actual, expected, err_msg=f"{config_name}: {metric}")
+
+
+def test_kernel_density_under_jit_matches_numpy():
+    import jax
+
+    from wosac_eval.estimators import likelihoods
+    rng = np.random.default_rng(3)
+    log, sim = rng.normal(size=(4, 6)).astype(np.float32), rng.normal(size=(4, 32)).astype(np.float32)
+    expected = likelihoods.kernel_density_log_likelihood(0.5, log, sim)
+    with jax.enable_x64(True):
+        actual = np.asarray(jax.jit(lambda a, b: likelihoods.kernel_density_log_likelihood(0.5, a, b))(log, sim))
+    # Equal here too, but not guaranteed: XLA's float64 exp/log and the order of the float64 mean
+    # differ from numpy's, which can move a float32 rounding by one unit.
+    np.testing.assert_allclose(actual, expected, rtol=1e-6)
+
+
+def test_scenario_without_signals_or_lanes_matches_numpy():
+    case = next(c for c in ORACLE.cases if "red-light" in c)
+    scenario, rollouts = golden.inputs(ORACLE, case)
+    for variant in (dataclasses.replace(scenario, signals=None),
+                    dataclasses.replace(scenario, lanes=(), lane_ids=scenario.lane_ids[:0])):
+        expected = golden.as_feature_dict(scenario_features(variant, rollouts))
+        assert not expected["sim_traffic_light_violation_per_step"].any()
+        golden.assert_features_equal(jax_backend.scenario_features(variant, rollouts), expected,
+                                     f"{case} without signals or lanes")

@@ -13,7 +13,7 @@ glibc_only = pytest.mark.skipif(not sys.platform.startswith("linux") or os.confs
 PROBE = textwrap.dedent("""
     import resource, sys
     import numpy as np
-    from wosac_eval.allocator import keep_freed_memory
+    from wosac_eval.runtime.allocator import keep_freed_memory
     applied = keep_freed_memory() if sys.argv[1] == "on" else False
     a = np.ones(1 << 19, np.float32)
     start = resource.getrusage(resource.RUSAGE_SELF).ru_minflt

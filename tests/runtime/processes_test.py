@@ -10,7 +10,7 @@ PROBE = textwrap.dedent("""
     if sys.argv[1] == "jax":
         import jax
         jax.numpy.zeros(3).block_until_ready()  # start JAX's threads
-    from wosac_eval.processes import worker_pool
+    from wosac_eval.runtime.processes import worker_pool
     with worker_pool(2) as pool:
         pids = {f.result() for f in [pool.submit(os.getpid) for _ in range(4)]}
         print(pool._mp_context.get_start_method(), os.getpid() not in pids)

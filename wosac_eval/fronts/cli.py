@@ -12,7 +12,7 @@ import importlib
 import pkgutil
 import sys
 
-from wosac_eval.allocator import keep_freed_memory
+from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.fronts import commands
 
 

@@ -33,6 +33,7 @@ skipped members included) by `max_total_bytes`. Every failure is a
 from __future__ import annotations
 
 import bz2
+import dataclasses
 import gzip
 import lzma
 import os
@@ -77,6 +78,43 @@ _OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
 _ZIP_MAGIC = b"PK\x03\x04"
 
 SubmissionShard = tuple[str, bytes]
+
+
+@dataclasses.dataclass(frozen=True)
+class ShardRef:
+    """Where one shard's bytes are: a byte range of a plain file, or the bytes themselves.
+
+    Shards of a folder or a single uncompressed file are byte ranges: whoever
+    scores them (a worker process, a Ray node with the same shared filesystem)
+    reads only the bytes it needs. Shards of an archive were decompressed from
+    a stream and carry their bytes.
+
+    Attributes:
+      name: the shard's name (archive member or path relative to the folder).
+      size: its size in bytes.
+      path, offset: the file and the offset of the shard's first byte in it.
+      data: the shard's bytes, when it is not a byte range of a file.
+    """
+
+    name: str
+    size: int
+    path: str | None = None
+    offset: int = 0
+    data: bytes | None = None
+
+    def read(self, start: int = 0, end: int | None = None) -> bytes:
+        """Bytes `[start, end)` of the shard (all of it by default)."""
+        end = self.size if end is None else end
+        if self.data is not None:
+            return self.data[start:end]
+        with open(self.path, "rb") as f:
+            f.seek(self.offset + start)
+            data = f.read(end - start)
+        if len(data) != end - start:
+            raise ArchiveError(f"{self.path}: shard {self.name!r} is shorter than when it was listed "
+                               f"({self.offset + start + len(data)} of {self.offset + end} bytes); "
+                               "was it modified?")
+        return data
 
 
 class ArchiveNameWarning(UserWarning):
@@ -407,7 +445,7 @@ def _iter_archive_file(
 
 def _read_single_shard(
     path: Path, compression: str | None, max_member_bytes: int
-) -> SubmissionShard:
+) -> ShardRef:
     """One shard file, decompressed when needed, within the size limit."""
     name = path.name
     if compression is None:
@@ -417,7 +455,7 @@ def _read_single_shard(
                 f"{path}: shard is {size} bytes, over the per-member limit of "
                 f"{max_member_bytes} bytes"
             )
-        return name, path.read_bytes()
+        return ShardRef(name, size, path=str(path.resolve()))
     try:
         with _open_decompressed(path, compression) as stream:
             data = stream.read(max_member_bytes + 1)
@@ -428,12 +466,12 @@ def _read_single_shard(
             f"{path}: shard decompresses to more than the per-member limit of "
             f"{max_member_bytes} bytes"
         )
-    return re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), data
+    return ShardRef(re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), len(data), data=data)
 
 
 def _iter_folder(
     folder: Path, max_member_bytes: int, max_total_bytes: int
-) -> Iterator[SubmissionShard]:
+) -> Iterator[ShardRef]:
     """Shards below a folder, sorted by relative path (symlinked files are followed)."""
     found: list[tuple[str, Path]] = []
     for root, dirs, files in os.walk(folder):
@@ -465,10 +503,38 @@ def _iter_folder(
                 f"{folder}: shards exceed the total limit of {max_total_bytes} bytes "
                 f"at {relative!r}"
             )
-        yield relative, path.read_bytes()
+        yield ShardRef(relative, size, path=str(path.resolve()))
 
 
 # --------------------------------------------------------------------------- public API
+
+
+def iter_shard_refs(
+    path: PathLike,
+    *,
+    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES,
+    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES,
+) -> Iterator[ShardRef]:
+    """Every submission shard found at path, as a `ShardRef`, in order.
+
+    Shards of a folder or an uncompressed shard file are byte ranges (nothing
+    is read yet); archive members are decompressed one at a time and carry
+    their bytes. Errors as `iter_submission_shards`.
+    """
+    path = Path(path)
+    if path.is_dir():
+        yield from _iter_folder(path, max_member_bytes, max_total_bytes)
+        return
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such submission file or folder")
+    compression, head = _sniff(path)
+    is_tar = _is_tar_header(head)
+    _check_name_against_content(path, compression, is_tar)
+    if is_tar:
+        for name, data in _iter_archive_file(path, compression, max_member_bytes, max_total_bytes):
+            yield ShardRef(name, len(data), data=data)
+    else:
+        yield _read_single_shard(path, compression, min(max_member_bytes, max_total_bytes))
 
 
 def iter_submission_shards(
@@ -485,19 +551,8 @@ def iter_submission_shards(
     (ArchiveError, UnsafeArchiveMemberError, SizeLimitError) naming the archive
     and member at fault; FileNotFoundError when path does not exist.
     """
-    path = Path(path)
-    if path.is_dir():
-        yield from _iter_folder(path, max_member_bytes, max_total_bytes)
-        return
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such submission file or folder")
-    compression, head = _sniff(path)
-    is_tar = _is_tar_header(head)
-    _check_name_against_content(path, compression, is_tar)
-    if is_tar:
-        yield from _iter_archive_file(path, compression, max_member_bytes, max_total_bytes)
-    else:
-        yield _read_single_shard(path, compression, min(max_member_bytes, max_total_bytes))
+    for ref in iter_shard_refs(path, max_member_bytes=max_member_bytes, max_total_bytes=max_total_bytes):
+        yield ref.name, ref.read()
 
 
 def _string_fields_are_text(
@@ -547,10 +602,12 @@ def parse_submission_shard(
 
 __all__ = [
     "ArchiveNameWarning",
+    "ShardRef",
     "DEFAULT_MAX_MEMBER_BYTES",
     "DEFAULT_MAX_TOTAL_BYTES",
     "is_ignored_name",
     "is_shard_name",
+    "iter_shard_refs",
     "iter_submission_shards",
     "parse_submission_shard",
     "safe_member_name",

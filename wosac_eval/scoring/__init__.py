@@ -1,2 +1,2 @@
-"""The scoring pipeline: one scenario (`scenario`), a whole submission (`submission`), where it runs
-(`engines`: local processes or Ray) and the result document (`result`)."""
+"""The scoring pipeline: one scenario (`scenario`), a whole submission (`submission`: index, validate,
+score, assemble, on any executor of `runtime.executors`) and the result document (`result`)."""

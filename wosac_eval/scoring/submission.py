@@ -1,32 +1,42 @@
 """Score a whole submission against a scenario set: the pipeline every front calls.
 
-stream -> validate -> schedule -> assemble. The submission is validated first
-(the same rules as `wosac-eval validate`); an invalid one is refused unless
-partial scoring is asked for, in which case every skipped scenario is listed
-with its reason. The valid scenarios are then scored by an engine
-(`scoring.engines`: this process, worker processes, or a Ray cluster) and
-the per-scenario results are assembled, in submission order, into the result
-document (`scoring.result`). The CLI, the service and the Python API all
-call `score_submission`.
+stream -> validate -> schedule -> assemble, on an executor (`runtime.executors`:
+this process, worker processes of this host, or a Ray cluster):
+
+1. index the scenario set (scenario_id -> file and offset);
+2. validate the submission (the same rules and report as `wosac-eval validate`),
+   one task per shard; an invalid submission is refused before any scoring,
+   unless partial scoring is asked for (then every skipped scenario is listed);
+3. score the valid scenarios, a few per task (`ScoringChunk`): workers read
+   their scenarios and rollouts themselves (byte ranges of the shard files, for
+   a folder or an uncompressed shard file) or receive the rollouts' bytes (for an
+   archive, which this process streams once more);
+4. assemble the per-scenario results, in submission order, into the result
+   document (`scoring.result`): identical whatever the engine, the number of
+   workers or nodes, and the order in which the work finishes.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Iterable, Iterator
 
 from wosac_eval import challenges
 from wosac_eval.backends import check_backend
-from wosac_eval.metrics.config import default_config, load_config
-from wosac_eval.parse.archive import iter_submission_shards, parse_submission_shard
+from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
+from wosac_eval.parse.archive import ShardRef, iter_shard_refs, parse_submission_shard
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.wire import field_spans
-from wosac_eval.scoring.engines import ScoringSettings, check_engine, score_locally
+from wosac_eval.protos import sim_agents_submission_pb2
+from wosac_eval.runtime.allocator import keep_freed_memory
+from wosac_eval.runtime.executors import check_engine, make_executor
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
 PathLike = str | os.PathLike
 Progress = Callable[[int, int], None]
+SCENARIOS_PER_TASK = 8  # scenarios scored by one task (one jax-backend batch)
 
 
 class InvalidSubmissionError(ValueError):
@@ -36,6 +46,51 @@ class InvalidSubmissionError(ValueError):
         self.report = report
         super().__init__(f"invalid submission: {report.error_count} error(s); "
                          f"run `wosac-eval validate` for the full report")
+
+
+@dataclasses.dataclass(frozen=True)
+class ScoringContext:
+    """What every worker needs (sent once per worker process).
+
+    Attributes:
+      config: the serialized `SimAgentMetricsConfig`.
+      challenge: the challenge's name.
+      backend: "numpy" or "jax".
+      index: where each scenario of the set is.
+    """
+
+    config: bytes
+    challenge: str
+    backend: str
+    index: ScenarioIndex
+
+
+@dataclasses.dataclass(frozen=True)
+class ScoringChunk:
+    """A few scenarios to score: (scenario_id, rollouts) pairs, where the rollouts are the serialized
+    `ScenarioRollouts`, or (path, offset, size) of those bytes in a file every worker can read."""
+
+    items: tuple
+
+
+def _rollouts_bytes(locator) -> bytes:
+    if isinstance(locator, bytes):
+        return locator
+    path, offset, size = locator
+    return ShardRef("", size, path=path, offset=offset).read()
+
+
+def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
+    """Scores the scenarios of a chunk (a worker task); results in chunk order."""
+    from wosac_eval.scoring.scenario import score_scenario, score_scenarios_jax
+
+    config = SimAgentMetricsConfig.FromString(context.config)
+    pairs = [(context.index.load(sid),
+              sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
+             for sid, locator in chunk.items]
+    if context.backend == "jax":
+        return score_scenarios_jax(pairs, config, challenge=context.challenge)
+    return [score_scenario(scenario, rollouts, config, challenge=context.challenge) for scenario, rollouts in pairs]
 
 
 def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
@@ -61,19 +116,51 @@ def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
         return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
 
 
-def rollouts_to_score(submission_path: PathLike, index: ScenarioIndex, report) -> Iterator[tuple[str, bytes]]:
-    """(scenario_id, serialized ScenarioRollouts) of every valid scenario, once each, in submission order."""
-    seen: set[str] = set()
-    # Shards validation could not parse hold no valid scenario (only reached in partial mode).
-    unparseable = {finding.shard for finding in report.findings("shard.unparseable")}
-    for shard_name, raw in iter_submission_shards(submission_path):
-        if shard_name in unparseable:
-            continue
-        for sid, data in split_shard(shard_name, raw):
-            if sid in seen or sid not in index or not report.is_scenario_valid(sid):
-                continue
+class _Plan:
+    """What validation learnt of every shard, kept for the scoring pass: the shard (a byte range of a
+    file, or a member whose bytes are streamed again) and (scenario_id, span) of its entries."""
+
+    def __init__(self):
+        self.shards: list[tuple[ShardRef, list[tuple[str | None, tuple[int, int]]]]] = []
+
+    def add(self, shard: ShardRef, result) -> None:
+        if result.parse_error is None:
+            self.shards.append((shard, [(sid, span) for (_, sid), span in zip(result.entries, result.spans)]))
+
+    def rollouts(self, submission_path: PathLike, index: ScenarioIndex, report) -> Iterator[tuple[str, object]]:
+        """(scenario_id, rollouts locator) of every valid scenario, once each, in submission order."""
+        seen: set[str] = set()
+
+        def wanted(sid: str | None) -> bool:
+            if not sid or sid in seen or sid not in index or not report.is_scenario_valid(sid):
+                return False
             seen.add(sid)
-            yield sid, data
+            return True
+
+        if all(shard.path is not None for shard, _ in self.shards):
+            for shard, entries in self.shards:
+                for sid, (start, end) in entries:
+                    if wanted(sid):
+                        yield sid, (shard.path, shard.offset + start, end - start)
+            return
+        # An archive: stream it again; its members carry their bytes.
+        readable = {shard.name for shard, _ in self.shards}
+        for shard in iter_shard_refs(submission_path):
+            if shard.name in readable:
+                for sid, data in split_shard(shard.name, shard.read()):
+                    if wanted(sid):
+                        yield sid, data
+
+
+def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
+    batch: list = []
+    for item in items:
+        batch.append(item)
+        if len(batch) == size:
+            yield ScoringChunk(tuple(batch))
+            batch = []
+    if batch:
+        yield ScoringChunk(tuple(batch))
 
 
 def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_path: PathLike,
@@ -94,7 +181,9 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
       progress: called as `progress(done, total)` after each scored scenario.
       backend: "numpy" or "jax" (needs the `jax` extra); results are identical.
       engine: "local" (this host) or "ray" (needs the `ray` extra; joins the
-        cluster at `ray_address`, or `RAY_ADDRESS`, or starts a local one).
+        cluster at `ray_address`, or `RAY_ADDRESS`, or starts a local Ray).
+        Workers then read the submission and the scenarios from the same paths:
+        give paths every node can see (a shared filesystem).
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
     """
@@ -103,23 +192,23 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     challenge = challenges.as_challenge(challenge)
     config_name = default_config(challenge) if config is None else str(config)
     metrics_config = load_config(config_name)
+    # The engine first: an unreachable cluster is reported before any long work.
+    executor = make_executor(engine, workers=workers, ray_address=ray_address, force_spawn=backend == "jax",
+                             initializer=keep_freed_memory)
     index = ScenarioIndex(scenario_paths)
-    report = validate_submission(index, submission_path, workers=workers, challenge=challenge)
+    plan = _Plan()
+    report = validate_submission(index, submission_path, challenge=challenge, executor=executor, on_shard=plan.add)
     if not report.ok and not allow_partial:
         raise InvalidSubmissionError(report)
     total = sum(1 for sid in index if report.is_scenario_valid(sid))
-    settings = ScoringSettings(config=metrics_config.SerializeToString(), challenge=challenge.value,
-                               backend=backend)
-    if engine == "ray":
-        from wosac_eval.scoring import ray_engine
-        results = ray_engine.score_on_ray(submission_path, index, report, settings, address=ray_address)
-    else:
-        results = score_locally(rollouts_to_score(submission_path, index, report), settings, index, workers)
-    per_scenario = []
+    context = ScoringContext(config=metrics_config.SerializeToString(), challenge=challenge.value,
+                             backend=backend, index=index)
+    chunks = _chunks(plan.rollouts(submission_path, index, report), SCENARIOS_PER_TASK)
+    per_scenario: list[dict] = []
     if progress is not None:
         progress(0, total)
-    for result in results:
-        per_scenario.append(result)
+    for results in executor.imap(score_chunk, chunks, context):
+        per_scenario.extend(results)
         if progress is not None:
             progress(len(per_scenario), total)
     if not per_scenario:

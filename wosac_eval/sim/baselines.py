@@ -8,7 +8,7 @@ from pathlib import Path
 
 from wosac_eval import challenges
 from wosac_eval.parse.scenarios import iter_scenarios
-from wosac_eval.processes import worker_pool
+from wosac_eval.runtime.processes import worker_pool
 from wosac_eval.sim import policies
 from wosac_eval.sim.submission_writer import ShardWriter, SubmissionMetadata, scenario_rollouts
 

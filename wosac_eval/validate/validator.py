@@ -9,6 +9,7 @@ counts and the first findings of each kind.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import os
 import time
 import warnings
@@ -24,14 +25,15 @@ from wosac_eval.parse.archive import (
     DEFAULT_MAX_MEMBER_BYTES,
     DEFAULT_MAX_TOTAL_BYTES,
     ArchiveNameWarning,
+    ShardRef,
     is_ignored_name,
     is_shard_name,
-    iter_submission_shards,
+    iter_shard_refs,
     parse_submission_shard,
 )
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
-from wosac_eval.processes import worker_pool
+from wosac_eval.parse.wire import field_spans
 from wosac_eval.validate import rules
 from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
 
@@ -50,23 +52,39 @@ class ScenarioSetError(ValueError):
     """The scenario set itself cannot be read: the submission cannot be judged (a usage error)."""
 
 
+def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
+    """Sorted sim agent ids of the scenarios at these offsets of one scenario file (a worker task)."""
+    from wosac_eval.parse.scenarios import ScenarioSource, parse_scenario
+    from wosac_eval.parse.tfrecord import read_record_at
+
+    path, offsets = item
+    return [rules.sim_agent_ids(parse_scenario(read_record_at(path, offset), ScenarioSource(Path(path), offset)))
+            for offset in offsets]
+
+
 def load_sim_agents(
-    scenarios: ScenarioIndex | PathLike | Iterable[PathLike], progress: Callable[[int], Any] | None = None
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike], progress: Callable[[int], Any] | None = None,
+    executor=None,
 ) -> dict[str, np.ndarray]:
     """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
 
-    Streams the scenarios (or loads them one by one from a ScenarioIndex) and
-    keeps only the ids of objects valid at step 10. Raises ScenarioSetError when
-    a scenario file is missing or corrupt, or a scenario_id occurs twice.
-    progress: called with 1 after each scenario read.
+    Streams the scenarios (or, from a ScenarioIndex, loads them by batches in
+    the executor's workers) and keeps only the ids of objects valid at step
+    10. Raises ScenarioSetError when a scenario file is missing or corrupt, or
+    a scenario_id occurs twice. progress: called with the number of scenarios
+    read after each batch.
     """
     agents: dict[str, np.ndarray] = {}
     try:
         if isinstance(scenarios, ScenarioIndex):
-            for scenario_id in scenarios:
-                agents[scenario_id] = rules.sim_agent_ids(scenarios.load(scenario_id))
+            from wosac_eval.runtime.executors import LocalExecutor
+
+            batches = _index_batches(scenarios)
+            for (ids, _), found in zip(batches, (executor or LocalExecutor()).imap(
+                    _sim_agents_of, ((path, offsets) for _, (path, offsets) in batches))):
+                agents.update(zip(ids, found))
                 if progress is not None:
-                    progress(1)
+                    progress(len(ids))
         else:
             first_source: dict[str, Any] = {}
             for scenario, source in iter_scenarios(scenarios):
@@ -82,6 +100,22 @@ def load_sim_agents(
     return agents
 
 
+_SCENARIOS_PER_BATCH = 64
+
+
+def _index_batches(index: ScenarioIndex) -> list[tuple[list[str], tuple[str, list[int]]]]:
+    """The index's scenarios in batches of one file: (ids, (path, offsets)), in index order."""
+    batches: list = []
+    for sid in index:
+        source = index.source(sid)
+        path = str(source.path)
+        if not batches or batches[-1][1][0] != path or len(batches[-1][0]) == _SCENARIOS_PER_BATCH:
+            batches.append(([], (path, [])))
+        batches[-1][0].append(sid)
+        batches[-1][1][1].append(source.offset)
+    return batches
+
+
 def _container_finding(error: ParseError) -> Finding:
     """A finding for an archive-level problem raised by the submission reader (its message names archive and member)."""
     if isinstance(error, UnsafeArchiveMemberError):
@@ -93,7 +127,7 @@ def _container_finding(error: ParseError) -> Finding:
     return Finding(code, str(error))
 
 
-def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iterator[tuple[str, bytes]]:
+def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iterator[ShardRef]:
     """Shards below a folder (as the reader takes them), reporting stray files and going on past them."""
     found: list[tuple[str, Path]] = []
 
@@ -145,12 +179,12 @@ def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iter
             )
             return
         else:
-            yield relative, path.read_bytes()
+            yield ShardRef(relative, size, path=str(path.resolve()))
 
 
-def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator[tuple[str, bytes]]:
+def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator[ShardRef]:
     """Shards of a single shard or tar archive; reader errors and name warnings become findings."""
-    shards = iter_submission_shards(
+    shards = iter_shard_refs(
         path, max_member_bytes=limits.max_member_bytes, max_total_bytes=limits.max_total_bytes
     )
     # The reader checks the name against the content before its first shard:
@@ -188,8 +222,9 @@ def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator
 
 def iter_checked_shards(
     submission_path: PathLike, limits: Limits, report: ValidationReport
-) -> Iterator[tuple[str, bytes]]:
-    """(shard name, bytes) of every readable shard; every container problem is added to report."""
+) -> Iterator[ShardRef]:
+    """Every readable shard (a `ShardRef`: a byte range of a file, or the bytes of an archive member);
+    every container problem is added to report."""
     path = Path(submission_path)
     if path.is_dir():
         return _iter_folder(path, limits, report)
@@ -213,6 +248,8 @@ class ShardResult:
 
     rollouts: a report holding only the per-scenario rollout findings of this shard.
     entries: (index in scenario_rollouts, scenario_id or None) of every ScenarioRollouts, in order.
+    spans: (start, end) of each ScenarioRollouts' bytes in the shard, in order (for the scorer,
+      which then reads only those bytes).
     """
 
     name: str
@@ -223,11 +260,13 @@ class ShardResult:
     empty_detail: str | None = None
     entries: list[tuple[int, str | None]] = field(default_factory=list)
     rollouts: ValidationReport | None = None
+    spans: list[tuple[int, int]] = field(default_factory=list)
 
 
-def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_listed: int,
+def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
                 challenge: Any = challenges.Challenge.SIM_AGENTS) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts."""
+    name, data = shard.name, shard.read()
     result = ShardResult(name, len(data))
     try:
         submission = parse_submission_shard(name, data)
@@ -239,6 +278,7 @@ def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_liste
     if not submission.scenario_rollouts:
         result.empty_detail = "holds no scenario_rollouts" + (" (the shard is 0 bytes)" if not data else "")
     result.rollouts = ValidationReport(name, max_listed=max_listed)
+    result.spans = field_spans(data, 1)  # scenario_rollouts is field 1: its elements, in order
     for index, rollouts in enumerate(submission.scenario_rollouts):
         scenario_id = rollouts.scenario_id or None  # unset or empty
         result.entries.append((index, scenario_id))
@@ -247,15 +287,10 @@ def check_shard(name: str, data: bytes, agents: dict[str, np.ndarray], max_liste
     return result
 
 
-_WORKER: dict[str, Any] = {}
-
-
-def _init_worker(agents: dict[str, np.ndarray], challenge: str) -> None:
-    _WORKER.update(agents=agents, challenge=challenge)
-
-
-def _check_shard_in_worker(name: str, data: bytes, max_listed: int) -> ShardResult:
-    return check_shard(name, data, _WORKER["agents"], max_listed, _WORKER["challenge"])
+def _check_shard_task(shared: tuple, shard: ShardRef) -> ShardResult:
+    """`check_shard` in a worker; `shared` is (agents, max_listed, challenge name)."""
+    agents, max_listed, challenge = shared
+    return check_shard(shard, agents, max_listed, challenge)
 
 
 class _Validation:
@@ -321,27 +356,15 @@ class _Validation:
 
 
 def _shard_results(
-    shards: Iterable[tuple[str, bytes]], agents: dict[str, np.ndarray], max_listed: int, workers: int,
+    shards: Iterable[ShardRef], agents: dict[str, np.ndarray], max_listed: int, executor,
     challenge: challenges.Challenge = challenges.Challenge.SIM_AGENTS,
 ) -> Iterator[ShardResult]:
-    """Check every shard, in worker processes when workers > 1; results come back in shard order.
+    """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
-    At most workers + 1 shards are in flight, so memory stays bounded by a few shards.
+    A bounded number of shards is in flight, so memory stays bounded by a few
+    shards (shards of folders are byte ranges: the workers read them).
     """
-    if workers <= 1:
-        for name, data in shards:
-            yield check_shard(name, data, agents, max_listed, challenge)
-            del data  # hold no shard while the next one is read
-        return
-    with worker_pool(workers, initializer=_init_worker, initargs=(agents, challenge.value)) as pool:
-        pending: collections.deque = collections.deque()
-        for name, data in shards:
-            pending.append(pool.submit(_check_shard_in_worker, name, data, max_listed))
-            del data
-            while len(pending) > workers:
-                yield pending.popleft().result()
-        while pending:
-            yield pending.popleft().result()
+    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value))
 
 
 def validate_submission(
@@ -354,6 +377,8 @@ def validate_submission(
     sim_agents: dict[str, np.ndarray] | None = None,
     workers: int = 1,
     challenge: Any = challenges.Challenge.SIM_AGENTS,
+    executor=None,
+    on_shard: Callable[[ShardRef, ShardResult], Any] | None = None,
 ) -> ValidationReport:
     """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
 
@@ -370,11 +395,17 @@ def validate_submission(
     progress: called with 1 after each submitted scenario is checked.
     sim_agents: precomputed `load_sim_agents(scenarios)`, to skip reading the scenarios again.
     workers: processes checking shards in parallel (the report is the same for any count).
+    executor: where to check the shards (`runtime.executors`; default: `workers` local processes).
+    on_shard: called with (shard, its ShardResult) for every shard checked, in order; the shard
+      without its bytes when it was an archive member (the scorer plans its work with it).
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
     when the submission path does not exist (both usage errors, not findings).
     """
+    from wosac_eval.runtime.executors import LocalExecutor
+
     start = time.perf_counter()
-    agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios)
+    executor = executor or LocalExecutor(workers)
+    agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios, executor=executor)
     challenge = challenges.as_challenge(challenge)
     report = ValidationReport(str(submission_path), max_listed=max_listed, challenge=challenge.value)
     report.stats.scenarios_expected = len(agents)
@@ -382,8 +413,18 @@ def validate_submission(
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
     shards = iter_checked_shards(submission_path, limits or Limits(), report)
-    for result in _shard_results(shards, agents, max_listed, workers, challenge):
+    listed: collections.deque = collections.deque()  # the shards in flight, without their bytes
+
+    def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:
+        for ref in refs:
+            listed.append(dataclasses.replace(ref, data=None) if ref.data is not None else ref)
+            yield ref
+
+    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge):
         run.merge(result)
+        shard = listed.popleft()  # results come back in shard order
+        if on_shard is not None:
+            on_shard(shard, result)
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]

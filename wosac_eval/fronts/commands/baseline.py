@@ -22,8 +22,6 @@ HELP = "Write a baseline submission (constant velocity, noisy log replay or IDM 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """The scenario set, the policy, where to write, and the submission metadata."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs (synthetic or real WOMD)")
@@ -48,8 +46,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
@@ -76,7 +72,6 @@ def run(args: argparse.Namespace) -> int:
         bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def progress(n: int) -> None:
-
         """Counts simulated scenarios (and moves the bar)."""
         count[0] += n
         if bar is not None:

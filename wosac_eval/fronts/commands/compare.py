@@ -25,8 +25,6 @@ HELP = "Compare two `score` results scenario by scenario (paired bootstrap CI, p
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """The two results, the metrics to report, the gates, and the statistics settings."""
     parser.add_argument("base", metavar="BASE.json", help="result of the reference run (`wosac-eval score --output`)")
     parser.add_argument("new", metavar="NEW.json", help="result of the run under test")
@@ -55,8 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Compare, print (table, JSON, Markdown) and apply the gates; 0 passed, 1 a gate failed, 2 not comparable."""
     try:
         gates = [Gate.parse(g) for g in args.fail_if_worse]

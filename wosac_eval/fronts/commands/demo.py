@@ -31,8 +31,6 @@ HELP = "Run every baseline on built-in synthetic scenes, validate, score and pri
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """Where the demo works, how many scenes, which policies; or --gate for the compare/report demo."""
     parser.add_argument("--workdir", type=Path, default=None,
                         help=f"where scenes, submissions and results go (default {default_workdir()})")
@@ -70,8 +68,6 @@ def run_gate_demo(folder: Path) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Generate scenes, run the baselines, score them and print the leaderboard (or the gate demo)."""
     if args.gate is not None:
         return run_gate_demo(args.gate)

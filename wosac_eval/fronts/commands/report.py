@@ -18,8 +18,6 @@ HELP = "Write a self-contained HTML report (scores, buckets, rates, distribution
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """The result, the HTML output, an optional baseline to compare with, and report settings."""
     parser.add_argument("result", metavar="RESULT.json", help="result of `wosac-eval score --output`")
     parser.add_argument("--html", required=True, metavar="PATH", help="where to write the report")
@@ -32,8 +30,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Render the report; checks the output folder before any work."""
     if args.top < 1:
         print("wosac-eval report: error: --top must be at least 1", file=sys.stderr)

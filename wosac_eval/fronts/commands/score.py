@@ -13,7 +13,7 @@ from pathlib import Path
 from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
 from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.scoring.engines import ENGINES, check_engine
+from wosac_eval.runtime.executors import ENGINES, EngineUnavailableError, check_engine
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.validate import ScenarioSetError
@@ -23,8 +23,6 @@ HELP = "Score a submission with the official WOSAC realism metrics and write res
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """Inputs, challenge and config, output, and where and how to compute (workers, engine, backend)."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs")
@@ -55,8 +53,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _progress():
-
-
     """A tqdm bar on stderr when it is a terminal: (update callback, bar), or (None, None)."""
     if not sys.stderr.isatty():
         return None, None
@@ -64,7 +60,6 @@ def _progress():
     bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def update(done: int, total: int) -> None:
-
         """Moves the bar to `done` of `total` scenarios."""
         bar.total = total
         bar.update(done - bar.n)
@@ -72,8 +67,6 @@ def _progress():
 
 
 def _headline(result: dict) -> str:
-
-
     """One line of the leaderboard figures of a result, for stderr."""
     b = result["buckets"]
     return (f"scored {result['num_scenarios']} {result['challenge']} scenario(s) with config {result['config']}: "
@@ -83,8 +76,6 @@ def _headline(result: dict) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     if args.workers < 1:
         print("wosac-eval score: error: --workers must be >= 1", file=sys.stderr)
@@ -92,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         check_backend(args.backend)
         check_engine(args.engine)
-    except BackendUnavailableError as error:
+    except (BackendUnavailableError, EngineUnavailableError) as error:
         print(f"wosac-eval score: error: {error}", file=sys.stderr)
         return 2
     update, bar = _progress()
@@ -105,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
               "its valid scenarios", file=sys.stderr)
         return 1
-    except (ScenarioSetError, FileNotFoundError, ValueError, ParseError) as error:
+    except (ScenarioSetError, FileNotFoundError, ValueError, ParseError, EngineUnavailableError) as error:
         print(f"wosac-eval score: error: {error}", file=sys.stderr)
         return 2
     finally:

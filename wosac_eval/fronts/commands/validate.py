@@ -12,6 +12,7 @@ import re
 import sys
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.runtime.executors import ENGINES, EngineUnavailableError, make_executor
 from wosac_eval.validate.validator import Limits, ScenarioSetError, load_sim_agents, validate_submission
 
 NAME = "validate"
@@ -34,8 +35,6 @@ def parse_size(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-
-
     """The scenario set, the submission, the challenge, report format and limits."""
     parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
                         help="scenario TFRecord files, folders or globs: the scenario set the submission must cover")
@@ -49,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="findings shown in full per kind of problem; the rest are counted (default 20)")
     parser.add_argument("--workers", type=int, default=1, metavar="N",
                         help="processes checking shards in parallel (default 1); the report is the same for any N")
+    parser.add_argument("--engine", choices=ENGINES, default="local",
+                        help="local (this machine, --workers processes; default) or ray (a Ray cluster: one task "
+                             "per shard; the same report)")
+    parser.add_argument("--ray-address", metavar="ADDR",
+                        help="the Ray cluster to join (default $RAY_ADDRESS, else a local Ray is started)")
     parser.add_argument("--max-bytes", type=parse_size, default=Limits.max_total_bytes, metavar="SIZE",
                         help="refuse a submission that decompresses past SIZE in total (default 64G)")
     parser.add_argument("--max-shard-bytes", type=parse_size, default=Limits.max_member_bytes, metavar="SIZE",
@@ -65,8 +69,6 @@ def _progress_bar(total: int | None, what: str):
 
 
 def run(args: argparse.Namespace) -> int:
-
-
     """Validate and print the report; 0 valid, 1 invalid, 2 usage error."""
     if args.max_listed < 0 or args.workers < 1:
         print("wosac-eval validate: error: --max-listed must be >= 0 and --workers >= 1", file=sys.stderr)
@@ -74,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
     limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
     try:
+        executor = make_executor(args.engine, workers=args.workers, ray_address=args.ray_address)
         bar = _progress_bar(None, "reading scenarios")
         agents = load_sim_agents(args.scenarios, progress=bar.update if bar is not None else None)
         if bar is not None:
@@ -82,9 +85,9 @@ def run(args: argparse.Namespace) -> int:
         report = validate_submission(
             args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
             progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,
-            challenge=args.challenge,
+            challenge=args.challenge, executor=executor,
         )
-    except (ScenarioSetError, OSError) as error:  # missing / unreadable paths, I/O errors
+    except (ScenarioSetError, OSError, EngineUnavailableError) as error:  # missing / unreadable paths, I/O errors
         print(f"wosac-eval validate: error: {error}", file=sys.stderr)
         return 2
     except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed

@@ -1,0 +1,190 @@
+"""The Ray engine on a real multi-node cluster (`ray.cluster_utils.Cluster`: a head and two nodes).
+
+Run by `ray_engine_test.py` inside a network namespace with only loopback
+(`unshare -n`), so no traffic leaves 127.0.0.1; not collected on its own (its
+name matches no test pattern). Every check compares with the local engine:
+the result document must be identical, value for value.
+"""
+from __future__ import annotations
+
+import json
+import os
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+# Ray's worker processes import `ray_helpers` from here; they inherit the environment.
+os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(HERE), os.environ.get("PYTHONPATH")]))
+sys.path.insert(0, str(HERE))
+
+import ray  # noqa: E402
+from ray.cluster_utils import Cluster  # noqa: E402
+
+import ray_helpers  # noqa: E402
+from support.runs import run_cli  # noqa: E402
+from wosac_eval.runtime.executors import EngineUnavailableError, make_executor  # noqa: E402
+from wosac_eval.scoring import submission as scoring  # noqa: E402
+from wosac_eval.scoring.submission import score_submission  # noqa: E402
+from wosac_eval.sim import scenes  # noqa: E402
+from wosac_eval.sim.baselines import make_submission  # noqa: E402
+from wosac_eval.validate import validate_submission  # noqa: E402
+
+
+def canonical(result) -> str:
+    return json.dumps(result, sort_keys=True)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    """Six synthetic scenes in two shards; submissions as a folder of shards (byte ranges) and as .tar.gz."""
+    root = tmp_path_factory.mktemp("ray-data")
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(6, seed=2), root / "scenarios", num_shards=2)
+    out = {"scenarios": [str(p) for p in shards]}
+    out["sim_agents_folder"] = make_submission(shards, "constant_velocity", root / "cv", num_shards=3)
+    out["scenario_gen_tar"] = make_submission(shards, "log_replay_noise", root / "sg.tar.gz", num_shards=2,
+                                              challenge="scenario_gen")
+    return out
+
+
+def test_cli_errors_at_once_when_the_cluster_is_unreachable(data):
+    started = time.monotonic()
+    done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
+                   "--engine", "ray", "--ray-address", "127.0.0.1:1", "-o", "/dev/null")
+    assert done.returncode == 2, done.stderr
+    assert "cannot reach the Ray cluster at 127.0.0.1:1" in done.stderr
+    assert time.monotonic() - started < 60
+    with pytest.raises(EngineUnavailableError, match="not a Ray cluster address"):
+        make_executor("ray", ray_address="127.0.0.1:port")
+
+
+def test_cli_without_address_starts_a_local_ray(data, tmp_path):
+    local = score_submission(data["scenarios"], data["sim_agents_folder"])
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
+                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env)
+    assert done.returncode == 0, done.stderr
+    assert canonical(json.loads((tmp_path / "r.json").read_text())) == canonical(local)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    nodes = [c.add_node(num_cpus=1) for _ in range(2)]
+    c.wait_for_nodes()
+    ray.init(address=c.address, log_to_driver=False)
+    yield c, nodes
+    ray.shutdown()
+    c.shutdown()
+
+
+@pytest.mark.parametrize("kind, challenge", [("sim_agents_folder", "sim_agents"),
+                                             ("scenario_gen_tar", "scenario_gen")])
+def test_cluster_scores_exactly_as_local(cluster, data, kind, challenge):
+    c, _ = cluster
+    local = score_submission(data["scenarios"], data[kind], challenge=challenge)
+    remote = score_submission(data["scenarios"], data[kind], challenge=challenge, engine="ray",
+                              ray_address=c.address)
+    assert canonical(remote) == canonical(local)
+    assert remote["num_scenarios"] == 6
+
+
+def test_cluster_validation_report_equals_local(cluster, data, tmp_path):
+    c, _ = cluster
+    broken = tmp_path / "broken"
+    broken.mkdir()
+    for shard in sorted(Path(data["sim_agents_folder"]).iterdir()):
+        (broken / shard.name).write_bytes(shard.read_bytes())
+    (broken / "notes.bin").write_bytes(b"not a shard")
+    last = sorted(broken.glob("*binproto*"))[-1]
+    last.write_bytes(last.read_bytes()[:-100])  # a truncated shard
+    local = validate_submission(data["scenarios"], broken)
+    remote = validate_submission(data["scenarios"], broken, executor=make_executor("ray", ray_address=c.address))
+    strip = lambda r: {k: v for k, v in r.to_dict(include_skipped=True).items() if k != "stats"}  # noqa: E731
+    assert not local.ok and strip(remote) == strip(local)
+
+
+def test_a_killed_node_loses_no_work(cluster, data, monkeypatch):
+    """A node removed without warning while its tasks run: they are retried elsewhere, same result."""
+    c, nodes = cluster
+    monkeypatch.setattr(scoring, "SCENARIOS_PER_TASK", 1)  # many small tasks: some run on the doomed node
+    local = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen")
+    first_result = threading.Event()
+    out = {}
+
+    def run():
+        out["result"] = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen",
+                                         engine="ray", ray_address=c.address,
+                                         progress=lambda done, total: done and first_result.set())
+
+    worker = threading.Thread(target=run)
+    worker.start()
+    assert first_result.wait(300), "scoring did not start"
+    c.remove_node(nodes[1], allow_graceful=False)
+    worker.join(600)
+    assert not worker.is_alive()
+    assert canonical(out["result"]) == canonical(local)
+    nodes[1] = c.add_node(num_cpus=1)  # for the next checks
+    c.wait_for_nodes()
+
+
+def test_tasks_of_a_dead_node_are_retried_elsewhere(cluster, tmp_path):
+    """The mechanism itself: every item of a node that dies mid-task is started again and completed."""
+    c, nodes = cluster
+    log = tmp_path / "starts.log"
+    executor = make_executor("ray", ray_address=c.address)
+    results = []
+    thread = threading.Thread(target=lambda: results.extend(
+        executor.imap(ray_helpers.slow_square, range(9), str(log))))
+    thread.start()
+    by_id = {node.node_id: k for k, node in enumerate(nodes)}
+    deadline, victim = time.monotonic() + 120, None
+    while victim is None and time.monotonic() < deadline:  # the first worker node seen running an item
+        starts = [line.split() for line in log.read_text().splitlines()] if log.exists() else []
+        victim = next((by_id[node] for _, node in starts if node in by_id), None)
+        time.sleep(0.05)
+    assert victim is not None, f"no item ran on a worker node: {log.read_text() if log.exists() else ''}"
+    c.remove_node(nodes[victim], allow_graceful=False)
+    thread.join(300)
+    assert results == [i * i for i in range(9)]
+    starts = [int(line.split()[0]) for line in log.read_text().splitlines()]
+    assert len(starts) > len(set(starts)), f"no item was started twice:\n{log.read_text()}"
+    nodes[victim] = c.add_node(num_cpus=1)
+    c.wait_for_nodes()
+
+
+def test_a_deterministic_failure_is_reported_not_retried(cluster, data, tmp_path):
+    """A scenario that cannot be scored (no road edges) fails the run with its reason, at once."""
+    c, _ = cluster
+    scenario = scenes.generate_scenes(1, seed=9)[0]
+    for feature in list(scenario.map_features):
+        if feature.HasField("road_edge"):
+            scenario.map_features.remove(feature)
+    shards = scenes.write_scenario_shards([scenario], tmp_path / "scenarios", num_shards=1)
+    submission = make_submission(shards, "constant_velocity", tmp_path / "cv.tar.gz")
+    started = time.monotonic()
+    with pytest.raises(ValueError, match=f"scenario {scenario.scenario_id}: cannot be scored.*road edges"):
+        score_submission(shards, submission, engine="ray", ray_address=c.address)
+    assert time.monotonic() - started < 120
+
+
+def test_service_fans_jobs_out_to_the_cluster(cluster, data, tmp_path):
+    from support.server_harness import Server
+
+    c, _ = cluster
+    local = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen")
+    server = Server(tmp_path / "service", [Path(p) for p in data["scenarios"]], WOSAC_WORKERS=1,
+                    WOSAC_RAY_ADDRESS=c.address)
+    server.start()
+    try:
+        with server.client(server.key("team")) as client:
+            sid = client.post("/v1/submissions", content=Path(data["scenario_gen_tar"]).read_bytes(),
+                              params={"challenge": "scenario_gen"}).json()["id"]
+            status = server.wait_state(client, sid, timeout=600)
+            assert status["state"] == "done", status
+            assert canonical(client.get(f"/v1/submissions/{sid}/results").json()) == canonical(local)
+    finally:
+        server.stop()

@@ -1,0 +1,110 @@
+"""Where work runs: this process, worker processes of this host, or a Ray cluster.
+
+Every stage that fans out (indexing scenario files, checking shards, scoring
+chunks) is written once as a module-level function `fn(shared, item)` and run
+through an executor's `imap`, which yields the results in the order of the
+items, whatever the order in which they finish, with a bounded number in
+flight (memory stays bounded however large the submission). `shared` is the
+read-only context of every item (the scenario index, the config): sent once
+per worker process, not once per item.
+
+- `LocalExecutor(workers)`: in this process (`workers <= 1`), or a pool of
+  processes (forked, or spawned once JAX is loaded: `processes.worker_pool`).
+- `RayExecutor(address)`: Ray tasks on a cluster (`ray_executor`, the `ray`
+  extra); a task lost with its worker or node is retried.
+"""
+from __future__ import annotations
+
+import collections
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol
+
+from wosac_eval.runtime.processes import worker_pool
+
+ENGINES = ("local", "ray")
+RAY_INSTALL_HINT = "pip install 'wosac-eval[ray]'"
+
+
+class EngineUnavailableError(RuntimeError):
+    """The requested engine cannot run here (Ray not installed, cluster unreachable)."""
+
+
+class Executor(Protocol):
+    parallelism: int
+
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None) -> Iterator:
+        """`fn(shared, item)` for every item, results in item order."""
+
+
+# Worker-process state of the local pool: the shared context, set once per process.
+_SHARED: dict[str, Any] = {}
+
+
+def _init_local_worker(shared: Any, initializer: Callable[[], None] | None) -> None:
+    _SHARED["value"] = shared
+    if initializer is not None:
+        initializer()
+
+
+def _call_local(fn: Callable, item: Any) -> Any:
+    return fn(_SHARED["value"], item)
+
+
+class LocalExecutor:
+    """This process (`workers <= 1`) or `workers` processes of this host.
+
+    Args:
+      workers: processes; 1 runs everything in the calling process.
+      force_spawn: start fresh interpreters instead of forking (JAX work).
+      initializer: called once in every worker process (e.g. the allocator settings).
+    """
+
+    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], None] | None = None):
+        self.workers = max(1, int(workers))
+        self.parallelism = self.workers
+        self.force_spawn = force_spawn
+        self.initializer = initializer
+
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None) -> Iterator:
+        if self.workers <= 1:
+            if self.initializer is not None:
+                self.initializer()
+            for item in items:
+                result = fn(shared, item)
+                del item  # hold no item (a shard's bytes) while the next one is read
+                yield result
+            return
+        with worker_pool(self.workers, force_spawn=self.force_spawn, initializer=_init_local_worker,
+                         initargs=(shared, self.initializer)) as pool:
+            pending: collections.deque = collections.deque()
+            for item in items:
+                pending.append(pool.submit(_call_local, fn, item))
+                while len(pending) > 2 * self.workers:
+                    yield pending.popleft().result()
+            while pending:
+                yield pending.popleft().result()
+
+
+def make_executor(engine: str = "local", *, workers: int = 1, ray_address: str | None = None,
+                  force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
+    """The executor of an engine ("local" or "ray"); raises EngineUnavailableError when it cannot run."""
+    if engine == "local":
+        return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
+    if engine == "ray":
+        check_engine("ray")
+        from wosac_eval.runtime.ray_executor import RayExecutor
+        return RayExecutor(ray_address, initializer=initializer)
+    raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
+
+
+def check_engine(name: str) -> str:
+    """Validates an engine name and that its dependencies import; returns the name."""
+    if name not in ENGINES:
+        raise ValueError(f"unknown engine {name!r}: choose one of {', '.join(ENGINES)}")
+    if name == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError as error:
+            raise EngineUnavailableError(f"the ray engine needs Ray, which is not installed ({error}); "
+                                         f"install it with: {RAY_INSTALL_HINT}") from error
+    return name

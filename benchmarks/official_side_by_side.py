@@ -50,7 +50,7 @@ print(json.dumps({"times": times, "metametric": float(m.metametric)}))
 
 _OURS = """
 import json, sys, time
-from wosac_eval.allocator import keep_freed_memory
+from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import sim_agents_submission_pb2

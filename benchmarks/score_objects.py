@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wosac_eval.allocator import keep_freed_memory
+from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.challenges import CURRENT_TIME_INDEX
 from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios

@@ -7,7 +7,7 @@ Defaults to the real scenario 637f20cafde22ff8 and its official 32-rollout
 test submission from ../shared. Prints the median (and the fastest) over
 `--repeat` runs of each stage (parse, arrays, each feature family,
 estimators) on one core, scenarios per second, and peak RSS. Like the CLI,
-it keeps freed memory for reuse (`wosac_eval.allocator`); `--system-malloc`
+it keeps freed memory for reuse (`wosac_eval.runtime.allocator`); `--system-malloc`
 measures with glibc's default thresholds instead.
 """
 from __future__ import annotations
@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 
 
-from wosac_eval.allocator import keep_freed_memory
+from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.features import box_geometry, interaction, kinematics, metric_features as mf, road_edge, traffic_lights

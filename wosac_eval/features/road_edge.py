@@ -261,13 +261,28 @@ def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
     return np.repeat(np.arange(len(centres)), sizes), points
 
 
+def _argsort(key: np.ndarray, num_keys: int) -> tuple[np.ndarray, np.ndarray]:
+    """(order, sorted keys) of non-negative int64 keys below `num_keys`.
+
+    Sorts (key, position) packed in one integer: numpy's vectorised `sort` is
+    several times faster than `argsort` (any order of equal keys will do here).
+    """
+    bits = max(1, len(key).bit_length())
+    if num_keys >= 1 << (62 - bits):
+        order = np.argsort(key)
+        return order, key[order]
+    packed = np.sort((key << bits) | np.arange(len(key), dtype=np.int64))
+    return packed & ((1 << bits) - 1), packed >> bits
+
+
 def _cells_of(points_t: np.ndarray):
-    """(number of occupied cells, cell of each point) for cubic cells of side `_CELL`.
+    """The cubic cells of side `_CELL` holding the points.
 
     Args:
       points_t: float64 `(3, num_points)`.
     Returns:
-      int, and int64 `(num_points,)` numbering the occupied cells in key order.
+      (number of occupied cells, int64 `(num_points,)` cell of each point
+      numbered in key order, int64 `(num_points,)` the points sorted by cell).
     """
     cell = np.floor(points_t / _CELL).astype(np.int64)
     low = cell.min(axis=1)
@@ -276,9 +291,16 @@ def _cells_of(points_t: np.ndarray):
     num_keys = int(np.prod(span, dtype=np.float64))
     if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
         occupied = np.bincount(key, minlength=num_keys) > 0
-        return int(occupied.sum()), (np.cumsum(occupied) - 1)[key]
-    keys, inverse = np.unique(key, return_inverse=True)
-    return len(keys), inverse.reshape(-1)
+        num_cells = int(occupied.sum())
+        inverse = (np.cumsum(occupied) - 1)[key]
+        # Few cells: a stable sort of small integers is a radix sort.
+        small = np.uint16 if num_cells <= 1 << 16 else np.uint32
+        return num_cells, inverse, np.argsort(inverse.astype(small), kind="stable")
+    order, sorted_key = _argsort(key, num_keys)
+    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
+    inverse = np.empty(len(key), np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return int(first.sum()), inverse, order
 
 
 def _candidates(table: SegmentTable, queries: np.ndarray):
@@ -304,7 +326,7 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     """
     q = _stretch(queries)
     qt = np.ascontiguousarray(q.T)
-    num_cells, inverse = _cells_of(qt)
+    num_cells, inverse, by_cell = _cells_of(qt)
     # Each cell is represented by the centroid of its queries and the largest
     # distance from it to one of them (at most the cell's half-diagonal).
     count = np.bincount(inverse, minlength=num_cells).astype(np.float64)
@@ -343,7 +365,9 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     bound = _segment_distance64(table, qt, seg[first][inverse])
     limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)
     lo = first[inverse]
-    hi = np.searchsorted(key, inverse * stride + limit, side="right")
+    # The cut, searched with the queries in cell order (the searches then move forward in `key`).
+    hi = np.empty(len(q), np.int64)
+    hi[by_cell] = np.searchsorted(key, (inverse * stride + limit)[by_cell], side="right")
     count = hi - lo
     if count.min(initial=1) < 1:  # impossible by the bounds above; a bug if it happens
         raise RuntimeError("road-edge candidate search left a query without candidates")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval.features.float32_math import fma32, packet_tail, sincos32
-from wosac_eval.features.xp import array_namespace, divide
+from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
 # Counter-clockwise corner signs (front-left, rear-left, rear-right, front-right).
@@ -75,7 +75,10 @@ def _downmost_edge(px, py):
     ex = xp.take(px, second) - xp.take(px, first)
     ey = xp.take(py, second) - xp.take(py, first)
     length = _norm2(ex, ey)
-    return start, divide(ex, length), divide(ey, length)
+    # A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge:
+    # NaN directions, as officially.
+    with errstate(xp, invalid="ignore", divide="ignore"):
+        return start, divide(ex, length), divide(ey, length)
 
 
 _ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3])
@@ -86,18 +89,29 @@ _MERGE_A = np.stack([(_ORDER_A + k) % 4 for k in range(4)] + [(_ORDER_B + k) % 4
 _MERGE_B = np.stack([(_ORDER_B + k) % 4 for k in range(4)] + [(_ORDER_A + k) % 4 for k in range(4)]).reshape(2, 4, 8)
 
 
-def minkowski_difference(ax, ay, bx, by):
-    """Vertices of A + (-B) for boxes given by ccw corners, counter-clockwise.
+def outline(px, py):
+    """What the Minkowski difference needs of one box, computed once per box.
 
     Args:
-      ax, ay, bx, by: float32 `(..., 4)`.
+      px, py: float32 `(..., 4)` ccw corners, contiguous.
+    Returns:
+      (px, py, lowest vertex, its edge's unit direction x, y: the box as A),
+      then (lowest vertex, edge direction x, y of the box negated: the box as B);
+      the last six are `(...)`.
+    """
+    return (px, py, *_downmost_edge(px, py), *_downmost_edge(-px, -py))
+
+
+def minkowski_difference_of(a, b):
+    """Vertices of A + (-B), counter-clockwise, from `outline`s of A and B (broadcast together).
+
     Returns:
       (mx, my), float32 `(..., 8)`.
     """
+    ax, ay, a_start, a_dx, a_dy = a[:5]
+    bx, by, b_start, b_dx, b_dy = b[0], b[1], *b[5:]
     xp = array_namespace(ax, ay, bx, by)
     nbx, nby = -bx, -by
-    a_start, a_dx, a_dy = _downmost_edge(ax, ay)
-    b_start, b_dx, b_dy = _downmost_edge(nbx, nby)
     # Merge the two edge sequences by angle, starting from the lowest vertices;
     # whose edge comes first depends on the turn between the lowest edges.
     b_turns_left = ((a_dx * b_dy - a_dy * b_dx) >= 0).astype(np.intp)
@@ -107,6 +121,17 @@ def minkowski_difference(ax, ay, bx, by):
     mx = xp.take(ax, a_index) + xp.take(nbx, b_index)
     my = xp.take(ay, a_index) + xp.take(nby, b_index)
     return mx, my
+
+
+def minkowski_difference(ax, ay, bx, by):
+    """Vertices of A + (-B) for boxes given by ccw corners, counter-clockwise.
+
+    Args:
+      ax, ay, bx, by: float32 `(..., 4)`.
+    Returns:
+      (mx, my), float32 `(..., 8)`.
+    """
+    return minkowski_difference_of(outline(ax, ay), outline(bx, by))
 
 
 def _fold(values, pairwise):

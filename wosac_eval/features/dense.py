@@ -62,11 +62,13 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     """
     num_objects = x.shape[0]
     radius = interaction.corner_radius(length, width)
-    boxes = (x, y, length - _F(2) * radius, width - _F(2) * radius, cos_h, sin_h, radius)
+    # Every box's outline once, then broadcast over the (evaluated, other) pairs.
+    outlines = interaction.box_outlines(x, y, length - _F(2) * radius, width - _F(2) * radius, cos_h, sin_h)
     shape = (num_evaluated, num_objects) + x.shape[1:]
-    a = tuple(jnp.broadcast_to(b[:num_evaluated, None], shape) for b in boxes)
-    b = tuple(jnp.broadcast_to(b[None], shape) for b in boxes)
-    d = interaction.rounded_box_distance(a, b)
+    pair_shape = lambda v: shape + v.shape[len(x.shape):]  # noqa: E731  (corners keep their last axis)
+    a = tuple(jnp.broadcast_to(v[:num_evaluated, None], pair_shape(v)) for v in outlines)
+    b = tuple(jnp.broadcast_to(v[None], pair_shape(v)) for v in outlines)
+    d = interaction.outline_distance(a, b, radius[:num_evaluated, None], radius[None])
     possible = valid[:num_evaluated, None] & valid[None]
     possible &= ~jnp.eye(num_evaluated, num_objects, dtype=bool)[..., None]
     d = jnp.where(possible, d, interaction.EXTREMELY_LARGE_DISTANCE)

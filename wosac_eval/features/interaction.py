@@ -13,7 +13,7 @@ import numpy as np
 from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import packet_tail, sincos32
 from wosac_eval.features.kinematics import linear_speed
-from wosac_eval.features.spatial import first_minimum
+from wosac_eval.features.spatial import first_minimum, nonzero
 from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy
 
 _F = np.float32
@@ -31,6 +31,22 @@ def corner_radius(length, width):
     return array_namespace(length, width).minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
 
 
+def box_outlines(x, y, core_length, core_width, cos_h, sin_h):
+    """`box_geometry.outline` of rounded boxes' cores, float32 arrays `(...)` in, computed once per box."""
+    return box_geometry.outline(*box_geometry.box_corners_xy(x, y, core_length, core_width, cos_h, sin_h))
+
+
+def outline_distance(a, b, radius_a, radius_b):
+    """Signed distance between rounded boxes from their cores' outlines and corner radii (broadcast).
+
+    A box of zero size (a logged placeholder state, scored as is in scenario
+    gen) has no edges: its distances are NaN, as officially.
+    """
+    with errstate(array_namespace(a[0]), invalid="ignore", divide="ignore"):
+        core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference_of(a, b))
+    return (core - radius_a) - radius_b
+
+
 def rounded_box_distance(a, b):
     """Signed distance between rounded boxes given as (x, y, core_length, core_width, cos, sin, radius).
 
@@ -39,24 +55,19 @@ def rounded_box_distance(a, b):
     Returns:
       float32 `(...)`.
     """
-    ax, ay = box_geometry.box_corners_xy(*a[:6])
-    bx, by = box_geometry.box_corners_xy(*b[:6])
-    # A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge
-    # direction: its distances are NaN, as officially.
-    with errstate(array_namespace(ax), invalid="ignore", divide="ignore"):
-        core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(ax, ay, bx, by))
-    return (core - a[6]) - b[6]
+    return outline_distance(box_outlines(*a[:6]), box_outlines(*b[:6]), a[6], b[6])
 
 
-def _rounded_box_distance(boxes, eval_idx, other_idx):
+def _pair_distance(outlines, radius, eval_idx, other_idx):
     """Exact float32 signed distance between rounded boxes for the given pairs.
 
     Args:
-      boxes: flat float32 arrays (x, y, core_length, core_width, cos, sin, radius),
-        each `(num_boxes,)`.
+      outlines: `box_outlines` of every box, flat (`(num_boxes, 4)` corners, `(num_boxes,)` the rest).
+      radius: float32 `(num_boxes,)` corner radii.
       eval_idx, other_idx: int `(num_pairs,)` indices into the boxes.
     """
-    return rounded_box_distance(tuple(a[eval_idx] for a in boxes), tuple(a[other_idx] for a in boxes))
+    pick = lambda idx: tuple(np.take(v, idx, axis=0) for v in outlines)  # noqa: E731
+    return outline_distance(pick(eval_idx), pick(other_idx), radius[eval_idx], radius[other_idx])
 
 
 # Pairs (samples x evaluated x steps x objects) processed at once: bounds the
@@ -111,8 +122,10 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     e = num_evaluated
     radius = corner_radius(length, width)
     flat = lambda a: np.ascontiguousarray(a).reshape(-1)
-    boxes = (flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
-             flat(cos_h), flat(sin_h), flat(radius))
+    # Every box's outline once; pairs then only gather.
+    outlines = box_outlines(flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
+                            flat(cos_h), flat(sin_h))
+    radii = flat(radius)
     # Step-major copies (batch, step, object) so that objects are the last axis.
     step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))
     xt, yt = step_major(x), step_major(y)
@@ -136,18 +149,18 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
     # First guess: the object with the lowest bound, evaluated exactly.
     guess = np.argmin(lower, axis=-1)
-    gb, ge, gs = np.nonzero(np.isfinite(np.take_along_axis(lower, guess[..., None], axis=-1)[..., 0]))
+    gb, ge, gs = nonzero(np.isfinite(np.take_along_axis(lower, guess[..., None], axis=-1)[..., 0]))
     go = guess[gb, ge, gs]
     distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
     if gb.size == 0:
         return distance.reshape(*lead, e, num_steps)
-    guess_d = _rounded_box_distance(boxes, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
+    guess_d = _pair_distance(outlines, radii, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
     distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
     # Then every other pair whose bound does not exclude it.
     lower[gb, ge, gs, go] = np.inf
-    cb, ce, cs, co = np.nonzero(lower <= distance[..., None] + _F(1e-3))
+    cb, ce, cs, co = nonzero(lower <= distance[..., None] + _F(1e-3))
     if cb.size:
-        d = _rounded_box_distance(boxes, box_of(cb, ce, cs), box_of(cb, co, cs))
+        d = _pair_distance(outlines, radii, box_of(cb, ce, cs), box_of(cb, co, cs))
         np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
     return distance.reshape(*lead, e, num_steps)
 
@@ -272,7 +285,7 @@ def _time_to_collision_chunk(x, y, length, width, heading, speed, valid, num_eva
     maybe &= beside_path < reach[..., None, :]
     maybe &= yaw_diff <= MAX_HEADING_DIFF
     maybe &= valid[..., None, :]
-    b, st, ev, ob = np.nonzero(maybe)
+    b, st, ev, ob = nonzero(maybe)
     pair_tail = np.broadcast_to(pair_tail, maybe.shape)
     yd = yaw_diff[b, st, ev, ob]
     yaw_sin, yaw_cos = sincos32(yd, pair_tail[b, st, ev, ob])

@@ -82,3 +82,12 @@ def pad_polylines(polylines, num_points: int):
     padded[rows, cols] = flat
     valid[rows, cols] = True
     return padded, valid
+
+
+def nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
+    """`np.nonzero` of a large many-dimensional mask, about twice as fast.
+
+    The flat positions of the True elements, then split into one index array
+    per axis (same values, same order as `np.nonzero`).
+    """
+    return np.unravel_index(np.flatnonzero(mask), mask.shape)

@@ -155,14 +155,15 @@ def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
       bool `(..., num_objects, num_steps, num_signals)`.
     """
     xp = array_namespace(xy, valid, seg_start)
-    squared = seg_delta[..., 0] * seg_delta[..., 0] + seg_delta[..., 1] * seg_delta[..., 1]
+    sx, sy, dx, dy = seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0], seg_delta[..., 1]  # (T, S)
+    squared = dx * dx + dy * dy
     to_stop = stop_point - seg_start
     with errstate(xp, divide="ignore", invalid="ignore"):
-        stop_t = xp.where(squared == 0, _F(0),
-                          divide(to_stop[..., 0] * seg_delta[..., 0] + to_stop[..., 1] * seg_delta[..., 1], squared))
-        rel = xy[..., :, :, None, :] - seg_start                          # (..., O, T, S, 2)
-        obj_t = xp.where(squared == 0, _F(0),
-                         divide(rel[..., 0] * seg_delta[..., 0] + rel[..., 1] * seg_delta[..., 1], squared))
+        stop_t = xp.where(squared == 0, _F(0), divide(to_stop[..., 0] * dx + to_stop[..., 1] * dy, squared))
+        # Coordinates one at a time: (..., O, T, S) arrays, no trailing axis of two.
+        along = (xy[..., 0, None] - sx) * dx
+        along = along + (xy[..., 1, None] - sy) * dy
+        obj_t = xp.where(squared == 0, _F(0), divide(along, squared))
     behind = obj_t < stop_t
     ahead = obj_t > stop_t
     no_step = xp.zeros(behind.shape[:-2] + (1,) + behind.shape[-1:], dtype=bool)

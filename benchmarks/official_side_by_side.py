@@ -102,13 +102,13 @@ def scenario_gen_inputs(folder: Path) -> tuple:
     from wosac_eval.sim.submission_writer import scenario_rollouts
 
     scene = scenes.generate_scenes(10, seed=5)[6]
-    scenes.write_scenario_shards([scene], folder, num_shards=1)
+    shard = scenes.write_scenario_shards([scene], folder, num_shards=1)[0]
     ids, traj, boxes, types = policies.generate_scenario(scene, "log_replay_noise")
     submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission(
         scenario_rollouts=[scenario_rollouts(scene.scenario_id, ids, traj, boxes, types)])
     path = folder / "scenario_gen.binproto"
     path.write_bytes(submission.SerializeToString())
-    return folder, path, len(ids)
+    return shard, path, len(ids)
 
 
 def main() -> int:

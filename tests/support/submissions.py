@@ -88,12 +88,14 @@ def tar_bytes(members: dict[str, bytes], *, gzip: bool = True) -> bytes:
 
 
 def replicated_submission(folder: Path, n_scenarios: int, per_shard: int = 10,
-                          case: str = "637f20cafde22ff8__official_test_submission") -> tuple[Path, Path]:
+                          case: str = "637f20cafde22ff8__official_test_submission",
+                          layout: str = "tar.gz") -> tuple[Path, Path]:
     """A benchmark workload: `n_scenarios` renamed copies of a golden case's scenario and rollouts.
 
-    Writes `scenarios-N.tfrecord` and `submission-N.tar.gz` (shards of
-    `per_shard` scenarios in the official `<method>.binproto-0000k-of-0000n`
-    layout, the golden shard's metadata) into `folder`; returns both paths.
+    Writes `scenarios-N.tfrecord` and the submission (shards of `per_shard`
+    scenarios in the official `<method>.binproto-0000k-of-0000n` layout, the
+    golden shard's metadata) into `folder`, as `submission-N.tar.gz` or, with
+    `layout="folder"`, as the folder `submission-N/`; returns both paths.
     """
     import io
     import tarfile
@@ -104,16 +106,26 @@ def replicated_submission(folder: Path, n_scenarios: int, per_shard: int = 10,
     ids = [f"{rollouts.scenario_id}-{i:05d}" for i in range(n_scenarios)]
     scenarios = folder / f"scenarios-{n_scenarios}.tfrecord"
     write_records(scenarios, (renamed_scenario_bytes(scenario, sid) for sid in ids))
-    submission = folder / f"submission-{n_scenarios}.tar.gz"
     shards = -(-n_scenarios // per_shard)
+
+    def shard_bytes(s: int) -> bytes:
+        shard = with_rollouts(template, [])
+        for sid in ids[s * per_shard:(s + 1) * per_shard]:
+            r = shard.scenario_rollouts.add()
+            r.CopyFrom(rollouts)
+            r.scenario_id = sid
+        return shard.SerializeToString()
+
+    if layout == "folder":
+        submission = folder / f"submission-{n_scenarios}"
+        submission.mkdir(parents=True, exist_ok=True)
+        for s in range(shards):
+            (submission / f"bench.binproto-{s:05d}-of-{shards:05d}").write_bytes(shard_bytes(s))
+        return scenarios, submission
+    submission = folder / f"submission-{n_scenarios}.tar.gz"
     with tarfile.open(submission, "w:gz") as tar:
         for s in range(shards):
-            shard = with_rollouts(template, [])
-            for sid in ids[s * per_shard:(s + 1) * per_shard]:
-                r = shard.scenario_rollouts.add()
-                r.CopyFrom(rollouts)
-                r.scenario_id = sid
-            data = shard.SerializeToString()
+            data = shard_bytes(s)
             info = tarfile.TarInfo(f"submission/bench.binproto-{s:05d}-of-{shards:05d}")
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))

@@ -58,16 +58,40 @@ def rounded_box_distance(a, b):
     return outline_distance(box_outlines(*a[:6]), box_outlines(*b[:6]), a[6], b[6])
 
 
-def _pair_distance(outlines, radius, eval_idx, other_idx):
+class _Outlines:
+    """`box_outlines` of flat boxes, each computed once, on first use.
+
+    With few evaluated objects (sim agents) only a small share of the boxes
+    ever takes part in a pair; with every object evaluated (scenario gen)
+    nearly all do, and each box is still outlined once.
+    """
+
+    def __init__(self, x, y, core_length, core_width, cos_h, sin_h, eager: bool = False):
+        self.boxes = (x, y, core_length, core_width, cos_h, sin_h)
+        self.done = np.full(len(x), eager)
+        self.values: tuple | None = box_outlines(*self.boxes) if eager else None
+
+    def take(self, idx: np.ndarray) -> tuple:
+        todo = np.flatnonzero(np.bincount(idx[~self.done[idx]], minlength=len(self.done)))
+        if todo.size:
+            fresh = box_outlines(*(np.take(b, todo) for b in self.boxes))
+            if self.values is None:
+                self.values = tuple(np.empty((len(self.done),) + v.shape[1:], v.dtype) for v in fresh)
+            for store, v in zip(self.values, fresh):
+                store[todo] = v
+            self.done[todo] = True
+        return tuple(np.take(v, idx, axis=0) for v in self.values)
+
+
+def _pair_distance(outlines: _Outlines, radius, eval_idx, other_idx):
     """Exact float32 signed distance between rounded boxes for the given pairs.
 
     Args:
-      outlines: `box_outlines` of every box, flat (`(num_boxes, 4)` corners, `(num_boxes,)` the rest).
+      outlines: the boxes' outlines (`_Outlines`, flat).
       radius: float32 `(num_boxes,)` corner radii.
       eval_idx, other_idx: int `(num_pairs,)` indices into the boxes.
     """
-    pick = lambda idx: tuple(np.take(v, idx, axis=0) for v in outlines)  # noqa: E731
-    return outline_distance(pick(eval_idx), pick(other_idx), radius[eval_idx], radius[other_idx])
+    return outline_distance(outlines.take(eval_idx), outlines.take(other_idx), radius[eval_idx], radius[other_idx])
 
 
 # Pairs (samples x evaluated x steps x objects) processed at once: bounds the
@@ -122,9 +146,10 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     e = num_evaluated
     radius = corner_radius(length, width)
     flat = lambda a: np.ascontiguousarray(a).reshape(-1)
-    # Every box's outline once; pairs then only gather.
-    outlines = box_outlines(flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
-                            flat(cos_h), flat(sin_h))
+    # Each box's outline once, when a pair first needs it (all at once when most objects are
+    # evaluated: most boxes will be); pairs then only gather.
+    outlines = _Outlines(flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
+                         flat(cos_h), flat(sin_h), eager=2 * e >= num_objects)
     radii = flat(radius)
     # Step-major copies (batch, step, object) so that objects are the last axis.
     step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))

@@ -1,10 +1,12 @@
 """Tests of the histogram, Bernoulli and kernel-density log-likelihoods against hand counts."""
 import math
+import re
 
 import numpy as np
 import pytest
 
 from wosac_eval.estimators import likelihoods
+from wosac_eval.protos import sim_agents_metrics_pb2
 
 F = np.float32
 nan = float("nan")
@@ -152,7 +154,7 @@ def test_aggregate_objects_dependent_timesteps_pools_objects_per_step():
 
 
 def test_timeseries_shape_mismatch():
-    with pytest.raises(ValueError, match="log values must have shape"):
+    with pytest.raises(ValueError, match="log values .* must have shape"):
         likelihoods.timeseries_log_likelihood(histogram_config(True), LOG[:, :2], SIM)
 
 
@@ -204,3 +206,26 @@ def test_kernel_density_via_config():
     sim = np.array([[[2.0]], [[-2.0]]])  # two rollouts, one object, one step
     out = likelihoods.timeseries_log_likelihood(config, log, sim)
     np.testing.assert_allclose(out, [[-0.5]], rtol=1e-6)
+
+
+@pytest.mark.parametrize("log_shape, sim_shape", [((3, 5), (4, 32)), ((3,), (3, 32)), ((3, 5), (3, 32, 2))])
+def test_mismatched_batches_are_refused_naming_both_shapes(log_shape, sim_shape):
+    rng = np.random.default_rng(0)
+    log, sim = rng.normal(size=log_shape).astype(np.float32), rng.normal(size=sim_shape).astype(np.float32)
+    for estimate in (lambda: likelihoods.histogram_log_likelihood(-1, 1, 4, 0.1, log, sim),
+                     lambda: likelihoods.kernel_density_log_likelihood(0.5, log, sim),
+                     lambda: likelihoods.bernoulli_log_likelihood(0.001, log > 0, sim > 0)):
+        with pytest.raises(ValueError, match=rf"log samples {re.escape(str(log_shape))} and simulated samples "
+                                             rf"{re.escape(str(sim_shape))}"):
+            estimate()
+
+
+def test_timeseries_and_scenario_level_shapes_are_checked():
+    config = sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig()
+    config.histogram.min_val, config.histogram.max_val, config.histogram.num_bins = 0, 1, 4
+    with pytest.raises(ValueError, match=r"log values \(4, 80\) must have shape \(3, 80\).*\(32, 3, 80\)"):
+        likelihoods.timeseries_log_likelihood(config, np.zeros((4, 80), np.float32), np.zeros((32, 3, 80), np.float32))
+    with pytest.raises(ValueError, match=r"simulated values must be \(num_rollouts, num_objects, num_steps\)"):
+        likelihoods.timeseries_log_likelihood(config, np.zeros((3, 80), np.float32), np.zeros((3, 80), np.float32))
+    with pytest.raises(ValueError, match=r"log values \(4,\) must be \(num_objects,\)"):
+        likelihoods.scenario_level_log_likelihood(config, np.zeros(4, bool), np.zeros((32, 3), bool))

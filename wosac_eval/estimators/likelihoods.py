@@ -45,6 +45,18 @@ def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return xp.clip(index, 0, len(edges) - 2)
 
 
+def check_batches(log_samples, sim_samples) -> None:
+    """Raises ValueError naming both shapes unless both are `(batch, samples)` with the same batch.
+
+    The official estimators refuse such inputs; broadcasting would silently
+    score the wrong populations.
+    """
+    log_shape, sim_shape = tuple(np.shape(log_samples)), tuple(np.shape(sim_samples))
+    if len(log_shape) != 2 or len(sim_shape) != 2 or log_shape[0] != sim_shape[0]:
+        raise ValueError(f"log samples {log_shape} and simulated samples {sim_shape} must both be "
+                         f"(batch, samples) with the same batch size")
+
+
 def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
                              log_samples: np.ndarray, sim_samples: np.ndarray) -> np.ndarray:
     """Per-population histogram log-likelihoods.
@@ -54,7 +66,10 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
       sim_samples: `(batch, num_sim_samples)`.
     Returns:
       float32 `(batch, num_log_samples)`.
+    Raises:
+      ValueError: the batch sizes differ (naming both shapes).
     """
+    check_batches(log_samples, sim_samples)
     xp = array_namespace(log_samples, sim_samples)
     require_float64(xp)
     edges = histogram_edges(min_val, max_val, num_bins)
@@ -80,6 +95,7 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples) -> np.nda
     """Gaussian KDE log-density, shifted so that a Dirac sample scores 0."""
     if bandwidth <= 0:
         raise ValueError("kernel density bandwidth must be positive")
+    check_batches(log_samples, sim_samples)
     xp = array_namespace(log_samples, sim_samples)
     require_float64(xp)
     diff = (log_samples[:, :, None].astype(np.float64) - sim_samples[:, None, :]) / bandwidth
@@ -114,9 +130,13 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
       float32 `(num_objects, num_steps)`.
     """
     xp = array_namespace(log_values, sim_values)
+    if np.ndim(sim_values) != 3:
+        raise ValueError(f"simulated values must be (num_rollouts, num_objects, num_steps), got "
+                         f"{tuple(np.shape(sim_values))}")
     n_rollouts, n_objects, n_steps = sim_values.shape
     if log_values.shape != (n_objects, n_steps):
-        raise ValueError(f"log values must have shape {(n_objects, n_steps)}, got {log_values.shape}")
+        raise ValueError(f"log values {tuple(log_values.shape)} must have shape {(n_objects, n_steps)} to match "
+                         f"the simulated values {tuple(sim_values.shape)}")
     if config.aggregate_objects:
         # One distribution for the whole scene (per step, or pooled over steps).
         if config.independent_timesteps:
@@ -138,4 +158,7 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
 def scenario_level_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
                                   sim_values: np.ndarray) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
+    if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
+        raise ValueError(f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
+                         f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)")
     return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None])[:, 0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 import glob
 import os
 from pathlib import Path
+from typing import Literal
 
 from pydantic import BaseModel, Field, field_validator
 
@@ -44,6 +45,9 @@ class Settings(BaseModel):
         description="Metric configs a submission may ask for (WOSAC_CONFIGS, comma-separated).")
     ray_address: str = Field("", description="A Ray cluster (host:port or ray://host:10001) each job is fanned "
                              "out to (WOSAC_RAY_ADDRESS); empty: score in this host's processes.")
+    metadata_checks: Literal["error", "warn"] = Field(
+        "error", description="How a submission's metadata gaps (account, method name, flags) count (WOSAC_METADATA_CHECKS): "
+        "error, as the challenge server (the job fails validation), or warn (listed, the job is scored).")
     upload_ttl_s: float = Field(7 * 24 * 3600.0, gt=0, description="Unfinished resumable uploads expire after this.")
 
     @field_validator("configs", mode="before")

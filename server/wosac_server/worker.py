@@ -46,7 +46,8 @@ def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings
     engine = "ray" if settings.ray_address else "local"
     return score_submission(scenario_paths, submission_path, job["config"], challenge=job["challenge"],
                             workers=settings.score_threads, allow_partial=bool(job["allow_partial"]),
-                            progress=progress, engine=engine, ray_address=settings.ray_address or None)
+                            progress=progress, engine=engine, ray_address=settings.ray_address or None,
+                            metadata_checks=settings.metadata_checks)
 
 
 def _exit_process(code: int) -> None:

@@ -178,3 +178,27 @@ def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
         assert c.get("/v1/leaderboard").json()["entries"] == []  # the sim agents board
         page = c.get("/").text
         assert 'id="leaderboard-scenario_gen"' in page and "whole" in page and 'class="partial"' in page
+
+
+def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server, tmp_path):
+    """The service keeps the challenge server's metadata rules by default; WOSAC_METADATA_CHECKS=warn
+    scores such a submission and its result lists the gaps as warnings."""
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import make_submission
+    from wosac_eval.sim.submission_writer import SubmissionMetadata
+
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(1, seed=8), tmp_path / "scenarios", num_shards=1)
+    anonymous = SubmissionMetadata(unique_method_name="anon", account_name="", authors=[])
+    upload = make_submission(shards, "constant_velocity", tmp_path / "anon.tar.gz", num_shards=1,
+                             metadata=anonymous).read_bytes()
+    for checks, state in (("error", "failed"), ("warn", "done")):
+        server = make_server(workers=1, scenarios=shards, data_dir=tmp_path / f"data-{checks}", metadata_checks=checks)
+        with server.client(server.key(checks)) as c:
+            status = server.wait_state(c, c.post("/v1/submissions", content=upload).json()["id"])
+            assert status["state"] == state, status
+            if state == "failed":
+                assert "account_name is empty" in status["validation_report"]["text"]
+            else:
+                findings = c.get(f"/v1/submissions/{status['id']}/results").json()["validation"]["findings"]
+                assert {(f["code"], f["severity"]) for f in findings} >= {("metadata.missing", "warning")}
+        server.stop()

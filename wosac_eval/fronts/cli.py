@@ -3,17 +3,26 @@
 Each sub-command lives in its own module under `wosac_eval.fronts.commands`
 and exposes `NAME`, `HELP`, `add_arguments(parser)` and `run(args) -> int`.
 The exit-code contract shared by every command: 0 success, 1 the input was
-judged bad (invalid submission, failed gate), 2 usage error.
+judged bad (invalid submission, failed gate), 2 usage error (or an internal
+error, reported in one line; `WOSAC_EVAL_DEBUG=1` shows its traceback),
+130 interrupted. Output piped into a reader that stops early (`| head`) ends
+the command quietly, as any Unix tool (141).
 """
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 
-from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.fronts import commands
+from wosac_eval.fronts.usage import UsageError
+from wosac_eval.runtime.allocator import keep_freed_memory
+
+EXIT_USAGE = 2
+EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a C tool's shell status would be
 
 
 def _command_modules():
@@ -22,11 +31,24 @@ def _command_modules():
             yield importlib.import_module(f"{commands.__name__}.{info.name}")
 
 
+def version() -> str:
+    """The installed distribution's version (the source tree's when run uninstalled)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("wosac-eval")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="wosac-eval",
         description="Exact WOSAC realism metrics, without TensorFlow.",
     )
+    parser.add_argument("--version", action="version",
+                        version=f"wosac-eval {version()} (metrics of waymo-open-dataset 1.6.7)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
@@ -35,14 +57,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's last flush cannot raise again."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # stdout replaced by an object without a descriptor (tests)
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if not hasattr(args, "_run"):
         parser.print_help(sys.stderr)
-        return 2
+        return EXIT_USAGE
     keep_freed_memory()
-    return int(args._run(args) or 0)
+    name = f"wosac-eval {args.command}"
+    try:
+        code = int(args._run(args) or 0)
+        sys.stdout.flush()  # inside the guard: a closed pipe shows up here
+        return code
+    except UsageError as error:
+        print(f"{name}: error: {error}", file=sys.stderr)
+        return EXIT_USAGE
+    except BrokenPipeError:
+        _quiet_stdout()
+        return EXIT_BROKEN_PIPE
+    except KeyboardInterrupt:
+        print(f"\n{name}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed
+        if os.environ.get("WOSAC_EVAL_DEBUG"):
+            raise
+        print(f"{name}: internal error: {type(error).__name__}: {error}\n"
+              f"  (this is a bug in wosac-eval, not in your input; please report it with the command line. "
+              f"WOSAC_EVAL_DEBUG=1 shows the traceback)", file=sys.stderr)
+        return EXIT_USAGE
 
 
 if __name__ == "__main__":

@@ -583,6 +583,24 @@ def _string_fields_are_text(
     return None
 
 
+def _why_unparseable(raw: bytes) -> str:
+    """A hint at why bytes do not parse: a cut-short file, or another kind of file."""
+    from wosac_eval.parse.tfrecord import looks_like_tfrecord
+    from wosac_eval.parse.wire import field_spans
+
+    if raw[:2] == b"\x1f\x8b" or _is_tar_header(raw[:_SNIFF_BYTES]):
+        return " (these are archive bytes: give the archive itself as the submission)"
+    if looks_like_tfrecord(raw):
+        return " (this is a TFRecord file, as scenarios come: are --scenarios and --submission swapped?)"
+    try:
+        field_spans(raw, 1)
+    except ValueError as error:
+        if "past the end" in str(error) or "truncated" in str(error):
+            return (" (the shard is truncated: its last field runs past the end of the data; was the file "
+                    "cut short by an interrupted copy or upload?)")
+    return ""
+
+
 def parse_submission_shard(
     name: str, raw: bytes
 ) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
@@ -592,7 +610,7 @@ def parse_submission_shard(
     except DecodeError as error:
         raise InvalidShardError(
             f"shard {name}: not a valid SimAgentsChallengeSubmission message "
-            f"({len(raw)} bytes): {error}"
+            f"({len(raw)} bytes): {error}{_why_unparseable(raw)}"
         ) from error
     bad_field = _string_fields_are_text(submission)
     if bad_field is not None:

@@ -54,6 +54,13 @@ def masked_crc32c(data: bytes) -> int:
     return (((crc >> 15) | (crc << 17)) + _MASK_DELTA) & 0xFFFFFFFF
 
 
+def looks_like_tfrecord(head: bytes) -> bool:
+    """True when head (a file's first bytes) starts with a TFRecord header: a length and its masked CRC."""
+    if len(head) < HEADER_BYTES:
+        return False
+    return _CRC.unpack_from(head, _LENGTH.size)[0] == masked_crc32c(head[:_LENGTH.size])
+
+
 def is_gzip_path(path: str | os.PathLike[str]) -> bool:
     """True when the file is to be read and written gzip-compressed."""
     return str(path).endswith(".gz")

@@ -4,7 +4,9 @@
      "scenarios": [{"scenario_id": ..., <SimAgentMetrics fields>}, ...],
      "aggregate": {<every field, mean over scenarios>},
      "buckets": {<SimAgentsBucketedMetrics fields>},
-     "skipped": [{"scenario_id": ..., "reason": ...}], "validation": {"errors": E, "warnings": W},
+     "skipped": [{"scenario_id": ..., "reason": ...}],
+     "validation": {"errors": E, "warnings": W,
+                    "findings": [{"code": ..., "severity": ..., "count": ..., "title": ..., "first": ...}]},
      "coverage": {"scored": N, "expected": M, "fraction": N / M}}
 """
 from __future__ import annotations
@@ -20,6 +22,14 @@ def summarize(config: SimAgentMetricsConfig, per_scenario: list[dict]) -> dict:
     return {"aggregate": aggregate, "buckets": bucket_metrics(config, aggregate)}
 
 
+def validation_summary(report) -> dict:
+    """Counts and, per finding code, its severity, count and first message: what was ignored or skipped."""
+    groups = report.to_dict()["groups"]
+    return {"errors": report.error_count, "warnings": report.warning_count,
+            "findings": [{"code": g["code"], "severity": g["severity"], "count": g["count"], "title": g["title"],
+                          "first": g["listed"][0]["message"] if g["listed"] else ""} for g in groups]}
+
+
 def result_document(challenge, config_name: str, config: SimAgentMetricsConfig, per_scenario: list[dict],
                     report) -> dict:
     """The result document of scored scenarios and the submission's validation report."""
@@ -28,6 +38,6 @@ def result_document(challenge, config_name: str, config: SimAgentMetricsConfig, 
     return {"challenge": challenges.as_challenge(challenge).value, "config": config_name,
             "num_scenarios": len(per_scenario), "scenarios": per_scenario, **summarize(config, per_scenario),
             "skipped": skipped,
-            "validation": {"errors": report.error_count, "warnings": report.warning_count},
+            "validation": validation_summary(report),
             "coverage": {"scored": len(per_scenario), "expected": expected,
                          "fraction": len(per_scenario) / expected if expected else 0.0}}

@@ -166,7 +166,8 @@ def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
 def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_path: PathLike,
                      config: str | PathLike | None = None, *, challenge="sim_agents", workers: int = 1,
                      allow_partial: bool = False, progress: Progress | None = None, backend: str = "numpy",
-                     engine: str = "local", ray_address: str | None = None) -> dict:
+                     engine: str = "local", ray_address: str | None = None,
+                     metadata_checks: str = "warn") -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -184,6 +185,9 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
         cluster at `ray_address`, or `RAY_ADDRESS`, or starts a local Ray).
         Workers then read the submission and the scenarios from the same paths:
         give paths every node can see (a shared filesystem).
+      metadata_checks: "warn" (default: local scoring needs no account, method name or flags; their
+        findings are listed under `validation.findings` as warnings) or "error" (the challenge
+        server's rules, as `wosac-eval validate` and the service apply them).
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
     """
@@ -197,7 +201,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                              initializer=keep_freed_memory)
     index = ScenarioIndex(scenario_paths)
     plan = _Plan()
-    report = validate_submission(index, submission_path, challenge=challenge, executor=executor, on_shard=plan.add)
+    report = validate_submission(index, submission_path, challenge=challenge, executor=executor, on_shard=plan.add,
+                                 metadata_checks=metadata_checks)
     if not report.ok and not allow_partial:
         raise InvalidSubmissionError(report)
     total = sum(1 for sid in index if report.is_scenario_valid(sid))

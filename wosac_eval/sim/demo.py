@@ -30,6 +30,11 @@ BUCKETS = (
 )
 
 
+def _say(line: str) -> None:
+    """Progress on stdout, flushed at once: the demo must never look stuck, even in a pipe."""
+    print(line, flush=True)
+
+
 def default_workdir() -> Path:
     cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
     return Path(cache) / "wosac-eval" / "demo"
@@ -79,7 +84,7 @@ def challenge_folder(workdir: Path, kind: str, challenge: str) -> Path:
 
 def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_SEED,
              policies: tuple[str, ...] = DEMO_POLICIES, config: str | None = None, workers: int = 1,
-             challenge: str = "sim_agents", log=print) -> list[PolicyResult]:
+             challenge: str = "sim_agents", log=None) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
 
     `challenge`: "sim_agents" or "scenario_gen" (all 91 steps of every object);
@@ -88,14 +93,17 @@ def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_S
     from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
     from wosac_eval.sim.baselines import make_submission
 
+    log = log or _say
     workdir = Path(workdir)
     start = time.perf_counter()
+    log(f"{challenge}: {len(policies)} policies on {num_scenes} synthetic scenes ({workdir})")
     scenario_paths, fresh = ensure_scenes(workdir, num_scenes, seed)
     log(f"{'generated' if fresh else 'loaded'} {num_scenes} synthetic scenes in {workdir / 'scenarios'} "
         f"({time.perf_counter() - start:.1f} s)")
     rows = []
     for policy in policies:
         t0 = time.perf_counter()
+        log(f"  {challenge} {policy}: simulating, validating and scoring ...")
         submission = make_submission(scenario_paths, policy,
                                      challenge_folder(workdir, "submissions", challenge) / f"{policy}.tar.gz",
                                      seed=seed, workers=workers, challenge=challenge)

@@ -40,6 +40,9 @@ from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, mak
 PathLike = str | os.PathLike
 
 
+METADATA_CHECKS = ("error", "warn")  # how metadata findings count: as the challenge server, or as warnings
+
+
 @dataclass(frozen=True)
 class Limits:
     """Decompressed size limits: per shard, and for the whole submission."""
@@ -301,8 +304,10 @@ class _Validation:
     merging in shard order makes the report identical for any worker count.
     """
 
-    def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None):
+    def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None,
+                 metadata_checks: str = "error"):
         self.agents = agents
+        self.metadata_checks = metadata_checks
         self.report = report
         self.progress = progress
         self.first_seen: dict[str, tuple[str, int]] = {}
@@ -333,13 +338,19 @@ class _Validation:
         # set's faults once, so a fault common to 150 shards is one finding, not 150.
         if key not in self.checked_metadata:
             self.checked_metadata.add(key)
-            self.report.extend(findings)
+            self.report.extend(self.graded(findings))
         if self.reference_metadata is None:
             self.reference_metadata, self.reference_shard = metadata, name
         else:
-            self.report.extend(
+            self.report.extend(self.graded(
                 rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
-            )
+            ))
+
+    def graded(self, findings: list[Finding]) -> list[Finding]:
+        """Metadata findings at the severity asked for: local scoring needs no account or flags."""
+        if self.metadata_checks == "error":
+            return findings
+        return [dataclasses.replace(f, severity=WARNING) for f in findings]
 
     def coverage(self, name: str, index: int, scenario_id: str | None) -> None:
         report = self.report
@@ -379,6 +390,7 @@ def validate_submission(
     challenge: Any = challenges.Challenge.SIM_AGENTS,
     executor=None,
     on_shard: Callable[[ShardRef, ShardResult], Any] | None = None,
+    metadata_checks: str = "error",
 ) -> ValidationReport:
     """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
 
@@ -398,6 +410,8 @@ def validate_submission(
     executor: where to check the shards (`runtime.executors`; default: `workers` local processes).
     on_shard: called with (shard, its ShardResult) for every shard checked, in order; the shard
       without its bytes when it was an archive member (the scorer plans its work with it).
+    metadata_checks: "error" (the challenge server's rules: a metadata gap makes the submission
+      invalid) or "warn" (the same findings as warnings, for local scoring).
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
     when the submission path does not exist (both usage errors, not findings).
     """
@@ -409,7 +423,9 @@ def validate_submission(
     challenge = challenges.as_challenge(challenge)
     report = ValidationReport(str(submission_path), max_listed=max_listed, challenge=challenge.value)
     report.stats.scenarios_expected = len(agents)
-    run = _Validation(agents, report, progress)
+    if metadata_checks not in METADATA_CHECKS:
+        raise ValueError(f"metadata_checks must be one of {', '.join(METADATA_CHECKS)}, not {metadata_checks!r}")
+    run = _Validation(agents, report, progress, metadata_checks)
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
     shards = iter_checked_shards(submission_path, limits or Limits(), report)

@@ -13,8 +13,10 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.fronts.usage import UsageError, check_output_folder
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -53,8 +55,10 @@ def run(args: argparse.Namespace) -> int:
     from wosac_eval.validate import validate_submission
 
     if args.shards < 1 or args.workers < 1:
-        print("wosac-eval baseline: error: --shards and --workers must be >= 1", file=sys.stderr)
-        return 2
+        raise UsageError("--shards and --workers must be >= 1")
+    # An archive's folder, or the shard folder, is created when missing: it must be creatable.
+    archive = str(args.output).endswith((".tar.gz", ".tgz", ".tar"))
+    check_output_folder(Path(args.output).parent if archive else args.output, "--output")
     metadata = SubmissionMetadata(
         unique_method_name=args.method_name or args.policy.replace("_", "-"),
         account_name=args.account_name,
@@ -81,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
         out = make_submission(args.scenarios, args.policy, args.output, seed=args.seed, num_shards=args.shards,
                               workers=args.workers, metadata=metadata, progress=progress, challenge=args.challenge)
     except (ParseError, FileNotFoundError, ValueError) as error:
-        print(f"wosac-eval baseline: error: {error}", file=sys.stderr)
-        return 2
+        raise UsageError(str(error)) from None
     finally:
         if bar is not None:
             bar.close()

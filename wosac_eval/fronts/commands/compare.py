@@ -9,6 +9,7 @@ import argparse
 import json
 import sys
 
+from wosac_eval.fronts.usage import UsageError, check_output_file
 from wosac_eval.fronts.gate.compare import (
     ALIASES,
     METRICS,
@@ -54,6 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compare, print (table, JSON, Markdown) and apply the gates; 0 passed, 1 a gate failed, 2 not comparable."""
+    check_output_file(args.json_output, "--json-output")
+    check_output_file(args.markdown_output, "--markdown-output")
     try:
         gates = [Gate.parse(g) for g in args.fail_if_worse]
         base = load_result(args.base)
@@ -63,8 +66,7 @@ def run(args: argparse.Namespace) -> int:
             n_boot=args.n_boot, n_perm=args.n_perm, min_shared=args.min_shared,
             only_significant=args.only_significant)
     except (ResultError, CompareError) as e:
-        print(f"wosac-eval compare: error: {e}", file=sys.stderr)
-        return 2
+        raise UsageError(str(e)) from None
     outputs = [(args.json_output, lambda: json.dumps(comparison.to_json(), indent=2) + "\n"),
                (args.markdown_output, lambda: format_markdown(comparison))]
     for path, render in outputs:
@@ -73,8 +75,7 @@ def run(args: argparse.Namespace) -> int:
                 with open(path, "w", encoding="utf-8") as f:
                     f.write(render())
             except OSError as e:
-                print(f"wosac-eval compare: error: cannot write {path}: {e.strerror}", file=sys.stderr)
-                return 2
+                raise UsageError(f"cannot write {path}: {e.strerror}") from None
     if args.json:
         for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
             print(f"wosac-eval compare: warning: {w}", file=sys.stderr)

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.fronts.usage import UsageError, check_output_folder
 from wosac_eval.sim.demo import DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard, run_demo
 
 TITLES = {"sim_agents": "Sim agents (80 future steps; 2025 config)",
@@ -70,11 +70,12 @@ def run_gate_demo(folder: Path) -> int:
 def run(args: argparse.Namespace) -> int:
     """Generate scenes, run the baselines, score them and print the leaderboard (or the gate demo)."""
     if args.gate is not None:
+        check_output_folder(args.gate, "--gate")
         return run_gate_demo(args.gate)
     if args.scenes < 1 or args.workers < 1:
-        print("wosac-eval demo: error: --scenes and --workers must be >= 1", file=sys.stderr)
-        return 2
+        raise UsageError("--scenes and --workers must be >= 1")
     workdir = args.workdir or default_workdir()
+    check_output_folder(workdir, "--workdir")
     start = time.perf_counter()
     chosen = CHALLENGE_NAMES if args.challenge == "both" else (args.challenge,)
     tables = []
@@ -84,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
                             config=args.config, workers=args.workers, challenge=challenge)
             tables.append((challenge, rows))
     except (OSError, ValueError) as error:
-        print(f"wosac-eval demo: error: {error}", file=sys.stderr)
-        return 2
+        raise UsageError(str(error)) from None
     for challenge, rows in tables:
         print()
         print(TITLES[challenge] if args.config is None else f"{challenge} (config {args.config})")

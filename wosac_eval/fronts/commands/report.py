@@ -6,9 +6,9 @@ output could not be written.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
+from wosac_eval.fronts.usage import UsageError, check_output_file
 from wosac_eval.fronts.gate.compare import CompareError, compare_results
 from wosac_eval.fronts.gate.report import render_report
 from wosac_eval.fronts.gate.results import ResultError, load_result
@@ -32,12 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Render the report; checks the output folder before any work."""
     if args.top < 1:
-        print("wosac-eval report: error: --top must be at least 1", file=sys.stderr)
-        return 2
-    folder = Path(args.html).resolve().parent
-    if not folder.is_dir():  # checked first: rendering takes seconds on a large result
-        print(f"wosac-eval report: error: cannot write {args.html}: folder {folder} does not exist", file=sys.stderr)
-        return 2
+        raise UsageError("--top must be at least 1")
+    check_output_file(args.html, "--html")  # checked first: rendering takes seconds on a large result
     try:
         result = load_result(args.result)
         base = comparison = None
@@ -45,13 +41,11 @@ def run(args: argparse.Namespace) -> int:
             base = load_result(args.compare)
             comparison = compare_results(base, result, seed=args.seed, n_boot=args.n_boot, n_perm=args.n_perm)
     except (ResultError, CompareError) as e:
-        print(f"wosac-eval report: error: {e}", file=sys.stderr)
-        return 2
+        raise UsageError(str(e)) from None
     page = render_report(result, base=base, comparison=comparison, top_k=args.top, title=args.title)
     try:
         Path(args.html).write_text(page, encoding="utf-8")
     except OSError as e:
-        print(f"wosac-eval report: error: cannot write {args.html}: {e.strerror}", file=sys.stderr)
-        return 2
+        raise UsageError(f"cannot write {args.html}: {e.strerror}") from None
     print(f"wrote {args.html} ({len(page) // 1024} KiB)")
     return 0

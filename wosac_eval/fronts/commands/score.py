@@ -12,6 +12,7 @@ from pathlib import Path
 
 from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
 from wosac_eval.runtime.executors import ENGINES, EngineUnavailableError, check_engine
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
@@ -47,6 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "else a local Ray is started)")
     parser.add_argument("--partial", action="store_true",
                         help="score the valid scenarios of an invalid submission; skipped ones are listed")
+    parser.add_argument("--strict-metadata", action="store_true",
+                        help="treat metadata gaps (account, method name, flags) as errors, as the challenge "
+                             "server does (default: warnings, listed on stderr)")
     parser.add_argument("--backend", choices=BACKENDS, default="numpy",
                         help="compute features with numpy (default) or with JAX (jit, batched "
                              "over scenarios; needs `pip install 'wosac-eval[jax]'`); same results")
@@ -75,33 +79,55 @@ def _headline(result: dict) -> str:
             f"minADE {b['min_ade']:.3f} m")
 
 
+def _stderr_findings(result: dict) -> None:
+    """What validation found but scoring went past (metadata gaps, ignored fields), one line per kind."""
+    warnings = [g for g in result["validation"]["findings"] if g["severity"] != "error"]
+    for group in warnings:
+        print(f"warning: {group['code']} ({group['count']}x): {group['first']}", file=sys.stderr)
+    if any(g["code"].startswith("metadata.") for g in warnings):
+        print("warning: metadata gaps do not stop local scoring, but the challenge server refuses them "
+              "(`wosac-eval validate` or --strict-metadata apply its rules)", file=sys.stderr)
+
+
+def _stderr_coverage(result: dict) -> None:
+    """Scored of expected scenarios, and why the others were skipped (partial scoring)."""
+    coverage = result["coverage"]
+    if result["skipped"]:
+        print(f"partial result: scored {coverage['scored']} of {coverage['expected']} scenario(s) "
+              f"({coverage['fraction']:.1%}); {len(result['skipped'])} skipped (listed under \"skipped\"), "
+              f"e.g. {result['skipped'][0]['scenario_id']}: {result['skipped'][0]['reason']}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     if args.workers < 1:
-        print("wosac-eval score: error: --workers must be >= 1", file=sys.stderr)
-        return 2
+        raise UsageError("--workers must be >= 1")
+    check_output_file(args.output, "--output")
+    check_input(args.submission, "--submission", "submission")
     try:
         check_backend(args.backend)
         check_engine(args.engine)
     except (BackendUnavailableError, EngineUnavailableError) as error:
-        print(f"wosac-eval score: error: {error}", file=sys.stderr)
-        return 2
+        raise UsageError(str(error)) from None
     update, bar = _progress()
     try:
         result = score_submission(args.scenarios, args.submission, args.config, challenge=args.challenge,
                                   workers=args.workers, allow_partial=args.partial, progress=update,
-                                  backend=args.backend, engine=args.engine, ray_address=args.ray_address)
+                                  backend=args.backend, engine=args.engine, ray_address=args.ray_address,
+                                  metadata_checks="error" if args.strict_metadata else "warn")
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
               "its valid scenarios", file=sys.stderr)
         return 1
-    except (ScenarioSetError, FileNotFoundError, ValueError, ParseError, EngineUnavailableError) as error:
-        print(f"wosac-eval score: error: {error}", file=sys.stderr)
-        return 2
+    except (ScenarioSetError, ParseError) as error:
+        raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None
+    except (FileNotFoundError, ValueError, EngineUnavailableError) as error:
+        raise UsageError(str(error)) from None
     finally:
         if bar is not None:
             bar.close()
+    _stderr_findings(result)
     text = json.dumps(result, indent=1)
     if args.output:
         Path(args.output).write_text(text + "\n")
@@ -109,6 +135,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"results written to {args.output}", file=sys.stderr)
     else:
         print(text)
-    if result["skipped"]:
-        print(f"skipped {len(result['skipped'])} scenario(s) (listed under \"skipped\")", file=sys.stderr)
+    _stderr_coverage(result)
     return 0

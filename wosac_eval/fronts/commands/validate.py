@@ -12,6 +12,7 @@ import re
 import sys
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.fronts.usage import UsageError, check_input, scenario_set_hint
 from wosac_eval.runtime.executors import ENGINES, EngineUnavailableError, make_executor
 from wosac_eval.validate.validator import Limits, ScenarioSetError, load_sim_agents, validate_submission
 
@@ -71,8 +72,8 @@ def _progress_bar(total: int | None, what: str):
 def run(args: argparse.Namespace) -> int:
     """Validate and print the report; 0 valid, 1 invalid, 2 usage error."""
     if args.max_listed < 0 or args.workers < 1:
-        print("wosac-eval validate: error: --max-listed must be >= 0 and --workers >= 1", file=sys.stderr)
-        return 2
+        raise UsageError("--max-listed must be >= 0 and --workers >= 1")
+    check_input(args.submission, "--submission", "submission")
     limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
     try:
@@ -87,13 +88,10 @@ def run(args: argparse.Namespace) -> int:
             progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,
             challenge=args.challenge, executor=executor,
         )
-    except (ScenarioSetError, OSError, EngineUnavailableError) as error:  # missing / unreadable paths, I/O errors
-        print(f"wosac-eval validate: error: {error}", file=sys.stderr)
-        return 2
-    except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed
-        print(f"wosac-eval validate: internal error while validating {args.submission}: "
-              f"{type(error).__name__}: {error} (please report this)", file=sys.stderr)
-        return 2
+    except ScenarioSetError as error:
+        raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None
+    except (OSError, EngineUnavailableError) as error:  # missing / unreadable paths, I/O errors
+        raise UsageError(str(error)) from None
     finally:
         if bar is not None:
             bar.close()

@@ -120,11 +120,22 @@ def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
 # Plots
 
 
+def _legend_above(ax) -> None:
+    """The legend above the axes, outside them: inside it would cover a bar whatever corner it took."""
+    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8, frameon=False, borderaxespad=0.2)
+
+
 def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
+    fig = bucket_figure(result, base)
+    return _png(fig) if fig is not None else ""
+
+
+def bucket_figure(result: ScoringResult, base: ScoringResult | None):
+    """Horizontal bars of the bucket scores (this run, and the baseline's beside them); None without buckets."""
     names = [b for b in ("realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics")
              if result.headline(b) is not None]
     if not names:
-        return ""
+        return None
     fig = _figure(5.6, 2.6)
     ax = fig.add_subplot()
     y = np.arange(len(names))
@@ -134,7 +145,7 @@ def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     if base is not None:
         base_vals = [base.headline(n) or 0.0 for n in names]
         ax.barh(y + height, base_vals, height=height, color=_BASE_COLOR, label="baseline")
-        ax.legend(loc="lower right", fontsize=8)
+        _legend_above(ax)
     for yi, v in zip(y, new_vals):
         ax.text(v + 0.01, yi, f"{v:.4f}", va="center", fontsize=8)
     ax.set_yticks(y + (height / 2 if base is not None else 0), [_label(n) for n in names])
@@ -142,7 +153,7 @@ def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     ax.set_xlim(0, 1.08)
     ax.set_xlabel("score (higher is better)")
     ax.grid(axis="x", alpha=0.3)
-    return _png(fig)
+    return fig
 
 
 def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
@@ -155,7 +166,7 @@ def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     if base is not None:
         ax.barh(y + height, [100 * (base.headline(r) or 0.0) for r in RATE_FIELDS], height=height,
                 color=_BASE_COLOR, label="baseline")
-        ax.legend(loc="lower right", fontsize=8)
+        _legend_above(ax)
     for yi, v in zip(y, vals):
         ax.text(v, yi, f" {v:.2f}%", va="center", fontsize=8)
     ax.set_yticks(y + (height / 2 if base is not None else 0), [RATE_LABELS[r] for r in RATE_FIELDS])

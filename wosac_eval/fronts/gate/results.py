@@ -223,7 +223,12 @@ def load_result(path: str | Path, **kwargs) -> ScoringResult:
     except FileNotFoundError:
         raise ResultError(f"{path}: no such file") from None
     except json.JSONDecodeError as e:
-        raise ResultError(f"{path}: not valid JSON ({e})") from None
+        raise ResultError(f"{path}: not valid JSON ({e}); give a result of `wosac-eval score --output`") from None
+    except UnicodeDecodeError:
+        raise ResultError(f"{path}: a binary file, not a result JSON; give a result of `wosac-eval score "
+                          f"--output` (not a submission or a scenario file)") from None
+    except IsADirectoryError:
+        raise ResultError(f"{path}: is a folder; give a result JSON file") from None
     except OSError as e:
         raise ResultError(f"{path}: cannot read ({e.strerror})") from None
     return parse_result(data, path, **kwargs)

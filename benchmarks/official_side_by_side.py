@@ -98,17 +98,17 @@ def _run(python: str, code: str, inputs: tuple, repeat: int, env: dict | None = 
 def scenario_gen_inputs(folder: Path) -> tuple:
     """The 34-object synthetic scene and a log-replay scenario-gen submission for it, written to `folder`."""
     from wosac_eval.protos import sim_agents_submission_pb2
-    from wosac_eval.sim import policies, scenes
-    from wosac_eval.sim.submission_writer import scenario_rollouts
+    from wosac_eval.arrays.messages import rollouts_message
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import policy_rollouts
 
     scene = scenes.generate_scenes(10, seed=5)[6]
     shard = scenes.write_scenario_shards([scene], folder, num_shards=1)[0]
-    ids, traj, boxes, types = policies.generate_scenario(scene, "log_replay_noise")
-    submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission(
-        scenario_rollouts=[scenario_rollouts(scene.scenario_id, ids, traj, boxes, types)])
+    rollouts = policy_rollouts(scene, "log_replay_noise", challenge="scenario_gen")
+    submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission(scenario_rollouts=[rollouts_message(rollouts)])
     path = folder / "scenario_gen.binproto"
     path.write_bytes(submission.SerializeToString())
-    return shard, path, len(ids)
+    return shard, path, rollouts.object_id.shape[1]
 
 
 def main() -> int:

@@ -38,17 +38,18 @@ from wosac_eval.metrics.scenario_metrics import scenario_metrics
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 from wosac_eval.scoring.scenario import score_scenario
-from wosac_eval.sim import policies, scenes
-from wosac_eval.sim.submission_writer import scenario_rollouts
+from wosac_eval.arrays.messages import rollouts_bytes
+from wosac_eval.sim import scenes
+from wosac_eval.sim.baselines import policy_rollouts
 
 which, repeat = sys.argv[1], int(sys.argv[2])
 if which == "real":
     scenario = next(s for s, _ in iter_scenarios(sys.argv[3]))
 else:
     scenario = scenes.generate_scenes(10, seed=5)[6]
-ids, traj, boxes, types = policies.generate_scenario(scenario, "log_replay_noise")
+rollouts = policy_rollouts(scenario, "log_replay_noise", challenge="scenario_gen")
 raw_scenario = scenario.SerializeToString()
-raw_rollouts = scenario_rollouts(scenario.scenario_id, ids, traj, boxes, types).SerializeToString()
+raw_rollouts = rollouts_bytes(rollouts)
 config = load_config("scenario_gen_2025")
 
 def end_to_end():
@@ -80,7 +81,7 @@ search = PrunedSearch(ctx.road_edges, ctx.lanes, mf.signals_from(sa.signals, 0))
 stages["features"], per_step = timed(lambda: mf.per_step_features(t, layout, search, tails))
 log, sim = mf.metric_features(batch, per_step)
 stages["estimators and metrics"], _ = timed(lambda: scenario_metrics(config, log, sim))
-print(json.dumps({"scenario": scenario.scenario_id, "objects": len(ids), "segments": int(ctx.road_edges.valid.sum()),
+print(json.dumps({"scenario": scenario.scenario_id, "objects": int(rollouts.object_id.shape[1]), "segments": int(ctx.road_edges.valid.sum()),
                   "seconds": total, "stages": stages, "metametric": metrics["metametric"],
                   "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
 """

@@ -48,6 +48,8 @@ class Settings(BaseModel):
     metadata_checks: Literal["error", "warn"] = Field(
         "error", description="How a submission's metadata gaps (account, method name, flags) count (WOSAC_METADATA_CHECKS): "
         "error, as the challenge server (the job fails validation), or warn (listed, the job is scored).")
+    scene_pictures: int = Field(3, ge=0, le=20, description="Pictures of the lowest meta-metric scenes drawn "
+                                "after scoring, shown on the submission page (WOSAC_SCENE_PICTURES; 0: none).")
     upload_ttl_s: float = Field(7 * 24 * 3600.0, gt=0, description="Unfinished resumable uploads expire after this.")
 
     @field_validator("configs", mode="before")
@@ -89,6 +91,10 @@ class Settings(BaseModel):
     @property
     def results_dir(self) -> Path:
         return self.data_dir / "results"
+
+    def scenes_dir(self, submission_id: str) -> Path:
+        """Pictures of a scored submission's worst scenes, and their index `scenes.json`."""
+        return self.results_dir / f"{submission_id}.scenes"
 
     def ensure_dirs(self) -> None:
         for d in (self.data_dir, self.uploads_dir, self.submissions_dir, self.results_dir):

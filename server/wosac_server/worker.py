@@ -50,6 +50,28 @@ def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings
                             metadata_checks=settings.metadata_checks)
 
 
+def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result: dict, folder: Path,
+                      count: int) -> list[dict]:
+    """Pictures of the `count` lowest meta-metric scenes of a result, with their index (scenes.json).
+
+    Files are named by rank, never by scenario id: ids come from the submission.
+    """
+    from wosac_eval.fronts.gate.report import worst_scenarios
+    from wosac_eval.fronts.gate.results import parse_result
+    from wosac_eval.fronts.scene_plot import scene_pictures
+
+    ids = worst_scenarios(parse_result(result, str(submission_path)), count)
+    pictures = scene_pictures(scenario_paths, submission_path, ids, result["challenge"])
+    metametric = {s["scenario_id"]: s["metametric"] for s in result["scenarios"]}
+    folder.mkdir(parents=True, exist_ok=True)
+    index = []
+    for rank, (scenario_id, png) in enumerate(pictures):
+        (folder / f"{rank}.png").write_bytes(png)
+        index.append({"rank": rank, "scenario_id": scenario_id, "metametric": metametric[scenario_id]})
+    jobs.write_json_atomically(folder / "scenes.json", {"scenes": index})
+    return index
+
+
 def _exit_process(code: int) -> None:
     """End this worker now, taking down the scorer's own worker processes first
     (WOSAC_SCORE_THREADS > 1), which would otherwise outlive it."""
@@ -152,6 +174,12 @@ class Worker:
             submission_path = settings.submissions_dir / job["file_name"]
             result = score(scenarios, submission_path, job, settings, progress)
             jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
+            if settings.scene_pictures:
+                try:  # pictures help, but a drawing problem must not fail a scored job
+                    draw_worst_scenes(scenarios, submission_path, result, settings.scenes_dir(job_id),
+                                      settings.scene_pictures)
+                except Exception:  # noqa: BLE001
+                    log.error("worker %s: pictures of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
             jobs.finish_done(self.store, job_id, self.owner, result)
             log.info("worker %s: %s done", os.getpid(), job_id)
         except InvalidSubmissionError as exc:

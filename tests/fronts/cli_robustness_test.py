@@ -40,11 +40,11 @@ def assert_one_clean_error(proc: subprocess.CompletedProcess, *expected: str) ->
 
 
 def test_version():
-    from importlib.metadata import version
+    import wosac_eval
 
     proc = run_cli("--version")
     assert proc.returncode == 0
-    assert proc.stdout.strip().startswith(f"wosac-eval {version('wosac-eval')}")
+    assert proc.stdout.strip().startswith(f"wosac-eval {wosac_eval.__version__} ")
 
 
 def test_unwritable_output_is_refused_before_any_work(tmp_path, scene_and_submission):

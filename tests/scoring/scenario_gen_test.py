@@ -16,8 +16,9 @@ from wosac_eval.challenges import Challenge, spec
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import sim_agents_submission_pb2 as pb
 from wosac_eval.scoring.scenario import score_scenario
-from wosac_eval.sim import policies, scenes
-from wosac_eval.sim.submission_writer import scenario_rollouts
+from wosac_eval.sim import scenes
+from wosac_eval.arrays.messages import rollouts_message
+from wosac_eval.sim.baselines import policy_rollouts
 from wosac_eval.validate import rules
 
 
@@ -35,8 +36,7 @@ def scene_dir(tmp_path_factory):
 def _generated(folder: str, policy: str):
     out = {}
     for scenario, _ in iter_scenarios(folder):
-        ids, traj, boxes, types = policies.generate_scenario(scenario, policy)
-        out[scenario.scenario_id] = (scenario, scenario_rollouts(scenario.scenario_id, ids, traj, boxes, types))
+        out[scenario.scenario_id] = (scenario, rollouts_message(policy_rollouts(scenario, policy, 0, "scenario_gen")))
     return out
 
 
@@ -93,6 +93,7 @@ def test_submitted_valid_flags_are_ignored_with_a_warning(scene_dir):
     scenario, original = next(iter(generated(scene_dir).values()))
     rollouts = pb.ScenarioRollouts.FromString(original.SerializeToString())
     t = rollouts.joint_scenes[0].simulated_trajectories[0]
+    t.valid.extend([True] * 91)
     t.valid[40] = False
     found = _findings(rollouts, rules.sim_agent_ids(scenario))
     assert set(found) == {("rollouts.ignored_field", "valid")}

@@ -156,6 +156,11 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
         shown = browser.js("""(() => Object.fromEntries(['progress', 'method', 'meta'].map(
             id => [id, document.getElementById(id).textContent])))()""")
         links_visible = browser.js("!document.getElementById('links').hidden")
+        # The worst scenes' pictures, fetched with the key and shown once the job is done.
+        pictures = min(3, len(scoring_data.scenarios))
+        browser.wait_for(f"[...document.querySelectorAll('#scene-list img')].filter("
+                         f"i => i.complete && i.naturalWidth > 600).length === {pictures}")
+        shown_scenes = browser.js("[...document.querySelectorAll('#scene-list figure')].map(f => f.dataset.scenario)")
     finally:
         browser.close()
     sid = path.rsplit("/", 1)[1]
@@ -167,6 +172,16 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
     assert shown == {"progress": f"{n} / {n} scenarios", "method": "log-replay 1.0",
                      "meta": str(status["realism_meta_metric"])}
     assert links_visible
+    with server.client(key) as c:
+        result = c.get(f"/v1/submissions/{sid}/results").json()
+        listed = c.get(f"/v1/submissions/{sid}/scenes").json()["scenes"]
+        assert c.get(f"/v1/submissions/{sid}/scenes/{len(listed)}.png").status_code == 404
+        picture = c.get(listed[0]["url"])
+    worst_first = [s["scenario_id"] for s in sorted(result["scenarios"], key=lambda s: s["metametric"])]
+    assert shown_scenes == [e["scenario_id"] for e in listed] == worst_first[:pictures]
+    assert picture.headers["content-type"] == "image/png" and picture.content[:8] == b"\x89PNG\r\n\x1a\n"
+    with server.client(server.key("stranger")) as c:
+        assert c.get(f"/v1/submissions/{sid}/scenes").status_code == 404
 
     board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
     row = re.search(r'<td class="method">([^<]*)</td><td class="num meta">([^<]*)</td>', board)

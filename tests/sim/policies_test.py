@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import functools
 import tarfile
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -153,33 +152,26 @@ def test_baseline_submission_for_real_womd_validates(tmp_path):
     assert validate_submission([REAL], out).ok
 
 
-def test_writer_names_the_scenario_object_and_step_of_a_bad_value():
-    from wosac_eval.sim.submission_writer import scenario_rollouts
-
-    traj = np.zeros((32, 2, 80, 4))
-    traj[3, 1, 7, 2] = np.nan
-    with pytest.raises(ValueError, match=r"scenario s1: non-finite value at rollout 3, object 20, step 7"):
-        scenario_rollouts("s1", np.array([10, 20]), traj)
-
-
 def test_streamed_shards_are_the_canonical_serialisation(tmp_path):
-    from wosac_eval.sim.submission_writer import ShardWriter, SubmissionMetadata, build_shards, scenario_rollouts
+    from wosac_eval.arrays.messages import rollouts_from_arrays, rollouts_message
+    from wosac_eval.parse.submission_writer import SubmissionMetadata, SubmissionWriter, build_shards
 
-    msgs = []
+    arrays = []
     for kind in ("intersection", "collision", "cyclists"):
         sc = scene(kind)
         ids, traj = policies.simulate_scenario(sc, "constant_velocity", num_rollouts=32)
-        msgs.append(scenario_rollouts(sc.scenario_id, ids, traj))
+        arrays.append(rollouts_from_arrays(sc.scenario_id, ids, *np.moveaxis(traj, -1, 0)))
+    msgs = [rollouts_message(a) for a in arrays]
     meta = SubmissionMetadata(unique_method_name="cv")
-    with ShardWriter(meta, tmp_path / "folder", num_shards=2) as writer:
-        for m in msgs:
-            writer.add(m.SerializeToString())
+    with SubmissionWriter(meta, tmp_path / "folder", num_shards=2) as writer:
+        for a in arrays:
+            writer.add(a)
     expected = dict(build_shards(msgs, meta, 2))
     written = {p.name: p.read_bytes() for p in (tmp_path / "folder").iterdir()}
     assert written == expected
     # Fewer scenarios than shards: only as many shards, named accordingly; no temporary files left.
-    with ShardWriter(meta, tmp_path / "one.tar.gz", num_shards=4) as writer:
-        writer.add(msgs[0].SerializeToString())
+    with SubmissionWriter(meta, tmp_path / "one.tar.gz", num_shards=4) as writer:
+        writer.add(msgs[0])
     with tarfile.open(tmp_path / "one.tar.gz") as tar:
         assert tar.getnames() == ["cv.binproto-00000-of-00001"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["folder", "one.tar.gz"]

@@ -16,6 +16,7 @@ import os
 import pkgutil
 import sys
 
+from wosac_eval import __version__
 from wosac_eval.fronts import commands
 from wosac_eval.fronts.usage import UsageError
 from wosac_eval.runtime.allocator import keep_freed_memory
@@ -31,24 +32,13 @@ def _command_modules():
             yield importlib.import_module(f"{commands.__name__}.{info.name}")
 
 
-def version() -> str:
-    """The installed distribution's version (the source tree's when run uninstalled)."""
-    from importlib.metadata import PackageNotFoundError
-    from importlib.metadata import version as dist_version
-
-    try:
-        return dist_version("wosac-eval")
-    except PackageNotFoundError:
-        return "unknown (not installed)"
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="wosac-eval",
         description="Exact WOSAC realism metrics, without TensorFlow.",
     )
     parser.add_argument("--version", action="version",
-                        version=f"wosac-eval {version()} (metrics of waymo-open-dataset 1.6.7)")
+                        version=f"wosac-eval {__version__} (metrics of waymo-open-dataset 1.6.7)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)

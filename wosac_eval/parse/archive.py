@@ -50,6 +50,7 @@ from google.protobuf.message import DecodeError
 from wosac_eval.parse.errors import (
     ArchiveError,
     InvalidShardError,
+    ParseError,
     SizeLimitError,
     UnsafeArchiveMemberError,
 )
@@ -630,3 +631,44 @@ __all__ = [
     "parse_submission_shard",
     "safe_member_name",
 ]
+
+
+def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
+    """(scenario_id, serialized ScenarioRollouts) of every scenario of a shard.
+
+    The shard is split at the wire level (`field_spans`: scenario_rollouts is
+    field 1 of the submission, scenario_id field 1 of each element), so the
+    parent process hands the workers bytes without parsing and re-serialising
+    them; anything unexpected falls back to a full parse.
+    """
+    from wosac_eval.parse.wire import field_spans
+
+    try:
+        items = []
+        for start, end in field_spans(raw, 1):
+            data = raw[start:end]
+            ids = field_spans(data, 1)  # a repeated singular field: the last one counts, as in a parse
+            items.append((data[ids[-1][0]:ids[-1][1]].decode("utf-8") if ids else "", data))
+        return items
+    except (ValueError, UnicodeDecodeError):
+        try:
+            submission = parse_submission_shard(name, raw)
+        except ParseError:
+            return []
+        return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
+
+
+def find_scenario_rollouts(submission: PathLike, scenario_ids) -> dict:
+    """The `ScenarioRollouts` of the given scenarios in a submission (file, folder or archive), by id.
+
+    Shards are split on the wire and only the wanted entries are parsed; an id
+    the submission lacks is absent from the result.
+    """
+    wanted, found = set(scenario_ids), {}
+    for shard in iter_shard_refs(submission):
+        for scenario_id, data in split_shard(shard.name, shard.read()):
+            if scenario_id in wanted and scenario_id not in found:
+                found[scenario_id] = sim_agents_submission_pb2.ScenarioRollouts.FromString(data)
+        if len(found) == len(wanted):
+            break
+    return found

@@ -139,6 +139,12 @@ def iter_scenarios(paths: PathLike | Iterable[PathLike]) -> Iterator[SourcedScen
             yield SourcedScenario(parse_scenario(record.data, source), source)
 
 
+def read_scenarios(paths: PathLike | Iterable[PathLike]) -> Iterator[scenario_pb2.Scenario]:
+    """Every `Scenario` of the TFRecord files, folders or globs, streamed (see `iter_scenarios`)."""
+    for scenario, _ in iter_scenarios(paths):
+        yield scenario
+
+
 def scenario_id_of(data: bytes, source: ScenarioSource) -> str:
     """The scenario_id of a serialized Scenario, found by skimming its top-level fields.
 

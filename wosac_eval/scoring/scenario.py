@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
@@ -36,7 +38,40 @@ def scenario_inputs(scenario: scenario_pb2.Scenario | ScenarioArrays,
         raise ValueError(f"rollouts are for scenario {rollouts.scenario_id!r}, not {arrays.scenario_id!r}")
     if not isinstance(rollouts, RolloutArrays):
         rollouts = rollout_arrays(rollouts, challenge)
+    check_rollouts_fit(arrays, rollouts, challenge)
     return arrays, rollouts
+
+
+def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge) -> None:
+    """The rollouts have the challenge's steps (and boxes) and exactly the scenario's sim agents in every rollout.
+
+    Raises:
+      ValueError naming the scenario, rollout and objects at fault (validation reports the same
+      for files; this guards arrays and messages given to `score_scenario` directly).
+    """
+    spec = challenges.spec(challenge)
+    sid = scenario.scenario_id
+    rollouts.validate()
+    if rollouts.num_steps != spec.num_simulation_steps:
+        raise ValueError(f"scenario {sid}: rollouts have {rollouts.num_steps} steps, the {spec.challenge} challenge "
+                         f"needs {spec.num_simulation_steps}")
+    if rollouts.num_rollouts < 1:  # any count is scored, as the official code does; submissions need 32
+        raise ValueError(f"scenario {sid}: no rollouts")
+    if spec.submits_boxes and not rollouts.has_boxes:
+        raise ValueError(f"scenario {sid}: the {spec.challenge} challenge needs box sizes and object types "
+                         "(length, width, height, object_type)")
+    expected = np.sort(scenario.sim_agent_ids)
+    ids = np.sort(rollouts.object_id, axis=1)
+    if ids.shape[1] != expected.size:
+        bad = np.arange(rollouts.num_rollouts)
+    else:
+        bad = np.flatnonzero(~(ids == expected).all(axis=1))
+    if bad.size:
+        r = int(bad[0])
+        missing = np.setdiff1d(expected, rollouts.object_id[r])
+        extra = np.setdiff1d(rollouts.object_id[r], expected)
+        raise ValueError(f"scenario {sid} rollout {r}: the rollouts must hold exactly the {expected.size} sim agents "
+                         f"(objects valid at step 10): missing {missing.tolist()}, not sim agents {extra.tolist()}")
 
 
 def unscorable(scenario_id: str, error: Exception) -> ValueError:

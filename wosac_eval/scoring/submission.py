@@ -24,10 +24,8 @@ from collections.abc import Callable, Iterable, Iterator
 from wosac_eval import challenges
 from wosac_eval.backends import check_backend
 from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
-from wosac_eval.parse.archive import ShardRef, iter_shard_refs, parse_submission_shard
-from wosac_eval.parse.errors import ParseError
+from wosac_eval.parse.archive import ShardRef, iter_shard_refs, split_shard
 from wosac_eval.parse.scenarios import ScenarioIndex
-from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import check_engine, make_executor
@@ -91,29 +89,6 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     if context.backend == "jax":
         return score_scenarios_jax(pairs, config, challenge=context.challenge)
     return [score_scenario(scenario, rollouts, config, challenge=context.challenge) for scenario, rollouts in pairs]
-
-
-def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
-    """(scenario_id, serialized ScenarioRollouts) of every scenario of a shard.
-
-    The shard is split at the wire level (`field_spans`: scenario_rollouts is
-    field 1 of the submission, scenario_id field 1 of each element), so the
-    parent process hands the workers bytes without parsing and re-serialising
-    them; anything unexpected falls back to a full parse.
-    """
-    try:
-        items = []
-        for start, end in field_spans(raw, 1):
-            data = raw[start:end]
-            ids = field_spans(data, 1)  # a repeated singular field: the last one counts, as in a parse
-            items.append((data[ids[-1][0]:ids[-1][1]].decode("utf-8") if ids else "", data))
-        return items
-    except (ValueError, UnicodeDecodeError):
-        try:
-            submission = parse_submission_shard(name, raw)
-        except ParseError:
-            return []
-        return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
 
 
 class _Plan:

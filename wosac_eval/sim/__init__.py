@@ -4,6 +4,7 @@
   `write_scenario_shards`), built from `roads` (lanes, lines, edges, crosswalks, stop bars),
   `signals` (fixed-time programs) and `engine` (closed-loop IDM traffic).
 - `policies`: constant velocity, noisy log replay and IDM lane following for any scenario.
-- `submission_writer` / `baselines`: official-layout sharded submissions with full metadata.
+- `baselines`: a policy's rollouts of every scenario, written as an official-layout submission
+  (`parse.submission_writer`).
 - `demo`: scenes + every baseline + validation + scoring -> leaderboard (`wosac-eval demo`).
 """

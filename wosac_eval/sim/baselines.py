@@ -6,11 +6,15 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+import numpy as np
+
 from wosac_eval import challenges
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.runtime.processes import worker_pool
 from wosac_eval.sim import policies
-from wosac_eval.sim.submission_writer import ShardWriter, SubmissionMetadata, scenario_rollouts
+from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
+from wosac_eval.arrays.rollouts import RolloutArrays
+from wosac_eval.parse.submission_writer import SubmissionMetadata, SubmissionWriter
 
 PathLike = str | os.PathLike
 
@@ -21,16 +25,23 @@ DESCRIPTIONS = {
 }
 
 
+def policy_rollouts(scenario, policy: str, seed: int = 0, challenge: str = "sim_agents") -> RolloutArrays:
+    """A policy's 32 rollouts of a scenario (all 91 steps with boxes and types for scenario gen)."""
+    if challenges.spec(challenge).submits_boxes:
+        ids, traj, boxes, types = policies.generate_scenario(scenario, policy, seed)
+        sizes = dict(length=boxes[..., 0], width=boxes[..., 1], height=boxes[..., 2], object_type=types)
+    else:
+        ids, traj = policies.simulate_scenario(scenario, policy, seed)
+        sizes = {}
+    # trajectories: (num_rollouts, num_objects, num_steps, [x, y, z, heading])
+    return rollouts_from_arrays(scenario.scenario_id, ids, *np.moveaxis(traj, -1, 0), **sizes)
+
+
 def _simulate(args: tuple[bytes, str, int, str]) -> bytes:
     from wosac_eval.protos import scenario_pb2
 
     data, policy, seed, challenge = args
-    scenario = scenario_pb2.Scenario.FromString(data)
-    if challenges.spec(challenge).submits_boxes:
-        ids, traj, boxes, types = policies.generate_scenario(scenario, policy, seed)
-        return scenario_rollouts(scenario.scenario_id, ids, traj, boxes, types).SerializeToString()
-    ids, traj = policies.simulate_scenario(scenario, policy, seed)
-    return scenario_rollouts(scenario.scenario_id, ids, traj).SerializeToString()
+    return rollouts_bytes(policy_rollouts(scenario_pb2.Scenario.FromString(data), policy, seed, challenge))
 
 
 def _map_bounded(tasks: Iterator, workers: int) -> Iterator[bytes]:
@@ -76,7 +87,7 @@ def make_submission(
     )
     tasks = ((s.scenario.SerializeToString(), policy, seed, challenge) for s in iter_scenarios(scenario_paths))
     try:
-        with ShardWriter(metadata, output, num_shards) as writer:
+        with SubmissionWriter(metadata, output, num_shards) as writer:
             for data in _map_bounded(tasks, workers):
                 writer.add(data)
                 if progress:

@@ -6,7 +6,7 @@ import io
 import json
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Header, HTTPException, Query, Request
+from fastapi import APIRouter, Header, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, PlainTextResponse
 
@@ -82,6 +82,40 @@ def get_results(svc: ServiceDep, key: Key, submission_id: SubmissionId,
         return FileResponse(path, media_type="application/json")
     with open(path) as f:
         return PlainTextResponse(result_csv(json.load(f)), media_type="text/csv")
+
+
+def _done(svc, key, submission_id: str) -> dict:
+    row = svc.own_submission(key, submission_id)
+    if row["state"] != "done":
+        raise HTTPException(409, f"submission {submission_id} is {row['state']}; pictures exist once it is done")
+    return row
+
+
+def _scene_index(svc, submission_id: str) -> list[dict]:
+    path = svc.settings.scenes_dir(submission_id) / "scenes.json"
+    if not path.is_file():
+        return []
+    with open(path) as f:
+        return json.load(f)["scenes"]
+
+
+@router.get("/{submission_id}/scenes", operation_id="listScenes")
+def list_scenes(svc: ServiceDep, key: Key, submission_id: SubmissionId):
+    """The pictures of the lowest meta-metric scenes (map, log, rollouts, events), worst first."""
+    _done(svc, key, submission_id)
+    return {"scenes": [{**entry, "url": f"/v1/submissions/{submission_id}/scenes/{entry['rank']}.png"}
+                       for entry in _scene_index(svc, submission_id)]}
+
+
+@router.get("/{submission_id}/scenes/{rank}.png", operation_id="getScenePicture",
+            responses={200: {"content": {"image/png": {}}}, 404: {"description": "No such picture"}})
+def get_scene_picture(svc: ServiceDep, key: Key, submission_id: SubmissionId,
+                      rank: Annotated[int, Path(ge=0, le=100)]):
+    """One picture of `listScenes`, by its rank."""
+    _done(svc, key, submission_id)
+    if not any(entry["rank"] == rank for entry in _scene_index(svc, submission_id)):
+        raise HTTPException(404, f"submission {submission_id} has no scene picture {rank}")
+    return FileResponse(svc.settings.scenes_dir(submission_id) / f"{rank}.png", media_type="image/png")
 
 
 def result_csv(result: dict) -> str:

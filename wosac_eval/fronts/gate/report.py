@@ -65,6 +65,7 @@ td.n,th.n{text-align:right;font-variant-numeric:tabular-nums}
 .pass{color:#1a7f37;font-weight:600}.fail{color:#cf222e;font-weight:600}
 details{margin:4px 0}summary{cursor:pointer;font-weight:600}
 .row{display:flex;flex-wrap:wrap;gap:8px 32px;align-items:center}
+figure.scene{margin:0 0 18px}figure.scene img{max-width:100%;border:1px solid #d0d7de}
 .worst-grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(360px,1fr));gap:4px 24px}
 img{max-width:100%;height:auto}
 code{font-size:.85rem}
@@ -337,6 +338,31 @@ def _worst_section(result: ScoringResult, top_k: int) -> str:
                     [f'<div class="worst-grid">{"".join(blocks)}</div>'])
 
 
+def worst_scenarios(result: ScoringResult, count: int, metric: str = "metametric") -> list[str]:
+    """Ids of the `count` scenarios with the lowest meta-metric (the scenes worth looking at first)."""
+    values = _values(result, metric)
+    if values is None:
+        return []
+    return [str(result.scenario_ids[i]) for i in np.argsort(values, kind="stable")[:count]]
+
+
+def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> str:
+    """The pictures of the worst scenes (`wosac-eval plot` at the step of the last event)."""
+    values = _values(result, "metametric")
+    where = {sid: i for i, sid in enumerate(result.scenario_ids.tolist())}
+    cards = []
+    for scenario_id, png in scenes:
+        score = f"meta-metric {values[where[scenario_id]]:.4f}" if values is not None and scenario_id in where else ""
+        data = base64.b64encode(png).decode("ascii")
+        cards.append(f'<figure class="scene" data-scenario="{_esc(scenario_id)}"><img alt="scenario '
+                     f'{_esc(scenario_id)}" src="data:image/png;base64,{data}"><figcaption><code>{_esc(scenario_id)}'
+                     f'</code> {score}</figcaption></figure>')
+    note = ('<p class="meta">The lowest meta-metric scenes: map, log (dashed), rollouts 0 to 2, boxes of rollout 0 '
+            'at the last event; crosses collisions, triangles off-road, squares red-light runs '
+            '(`wosac-eval plot` draws any scene, as .png, .gif or .html).</p>')
+    return _section("scenes", f"Worst scenes ({len(scenes)})", [note, "".join(cards)])
+
+
 def _shared_rows(result: ScoringResult, base: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
     """Row indices `(base_rows, result_rows)`, each `(num_shared,)`, of the scenarios both results hold."""
     in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
@@ -415,6 +441,7 @@ def render_report(
     comparison: Comparison | None = None,
     top_k: int = 10,
     title: str | None = None,
+    scenes: list[tuple[str, bytes]] | None = None,
 ) -> str:
     """The report as one HTML document (a string with no external references).
 
@@ -423,6 +450,7 @@ def render_report(
       base: a baseline run; with `comparison` (from `compare_results(base, result)`)
         adds the comparison section and baseline overlays.
       top_k: how many worst scenarios to list per metric.
+      scenes: (scenario_id, PNG) pictures of scenes to show (e.g. of `worst_scenarios`).
     """
     if (base is None) != (comparison is None):
         raise ValueError("pass both the baseline result and its comparison, or neither")
@@ -435,7 +463,10 @@ def render_report(
     ]
     if comparison is not None:
         parts.append(_comparison_section(result, base, comparison, top_k))
-    parts += [_distribution_section(result, base), _worst_section(result, top_k), _skipped_section(result)]
+    parts += [_distribution_section(result, base), _worst_section(result, top_k)]
+    if scenes:
+        parts.append(_scenes_section(result, scenes))
+    parts.append(_skipped_section(result))
     return (
         "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
         f"<meta name=viewport content='width=device-width,initial-scale=1'><title>{_esc(title)}</title>"

@@ -3,6 +3,10 @@
 A submission is a set of shards `<method>.binproto-0000k-of-0000n`, each a
 `SimAgentsChallengeSubmission` carrying the full metadata and some of the
 `ScenarioRollouts`, packed in a `.tar.gz` (or left in a folder).
+
+    with SubmissionWriter(SubmissionMetadata("my-method", account_name="me@lab.org"), "my.tar.gz") as out:
+        for scenario in scenarios:
+            out.add(rollouts_from_arrays(scenario.scenario_id, ids, x, y, z, heading))
 """
 from __future__ import annotations
 
@@ -12,8 +16,6 @@ import tarfile
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from wosac_eval.parse.wire import varint
 from wosac_eval.protos import sim_agents_submission_pb2
@@ -52,46 +54,6 @@ class SubmissionMetadata:
         message.acknowledge_complies_with_closed_loop_requirement = self.acknowledge_complies_with_closed_loop_requirement
 
 
-def scenario_rollouts(scenario_id: str, object_ids: np.ndarray, trajectories: np.ndarray,
-                      boxes: np.ndarray | None = None, object_types: np.ndarray | None = None):
-    """`ScenarioRollouts` from trajectories of shape (num_rollouts, num_objects, num_steps, 4)
-    holding center_x, center_y, center_z, heading; written as float32 like the proto.
-
-    Scenario gen submissions also carry `boxes`, (num_objects, num_steps, 3) or
-    (num_rollouts, num_objects, num_steps, 3) length, width, height, and
-    `object_types` (num_objects,) (`Track.ObjectType`); every step is marked valid.
-    """
-    if trajectories.ndim != 4 or trajectories.shape[1] != len(object_ids) or trajectories.shape[-1] != 4:
-        raise ValueError(f"scenario {scenario_id}: trajectories of shape {trajectories.shape} do not match "
-                         f"{len(object_ids)} objects x (x, y, z, heading)")
-    if not np.isfinite(trajectories).all():
-        bad = np.argwhere(~np.isfinite(trajectories))[0]
-        raise ValueError(f"scenario {scenario_id}: non-finite value at rollout {bad[0]}, "
-                         f"object {object_ids[bad[1]]}, step {bad[2]}")
-    values = trajectories.astype(np.float32)
-    if boxes is not None:
-        boxes = np.broadcast_to(np.asarray(boxes, np.float32), values.shape[:3] + (3,))
-        types = np.asarray(object_types).tolist()
-        valid = [True] * values.shape[2]
-    msg = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=scenario_id)
-    for r, rollout in enumerate(values):
-        scene = msg.joint_scenes.add()
-        for i, (oid, traj) in enumerate(zip(object_ids.tolist(), rollout)):
-            t = scene.simulated_trajectories.add()
-            t.object_id = int(oid)
-            t.center_x.extend(traj[:, 0].tolist())
-            t.center_y.extend(traj[:, 1].tolist())
-            t.center_z.extend(traj[:, 2].tolist())
-            t.heading.extend(traj[:, 3].tolist())
-            if boxes is not None:
-                t.length.extend(boxes[r, i, :, 0].tolist())
-                t.width.extend(boxes[r, i, :, 1].tolist())
-                t.height.extend(boxes[r, i, :, 2].tolist())
-                t.object_type = int(types[i])
-                t.valid.extend(valid)
-    return msg
-
-
 def shard_name(method: str, k: int, n: int) -> str:
     return f"{method}.binproto-{k:05d}-of-{n:05d}"
 
@@ -110,16 +72,27 @@ def build_shards(rollouts: list, metadata: SubmissionMetadata, num_shards: int) 
 
 def write_submission(rollouts: list, metadata: SubmissionMetadata, output: str | Path, num_shards: int = 4) -> Path:
     """Writes `ScenarioRollouts` messages as shards into `output` (see `ShardWriter`)."""
-    with ShardWriter(metadata, output, num_shards) as writer:
+    with SubmissionWriter(metadata, output, num_shards) as writer:
         for msg in rollouts:
             writer.add(msg.SerializeToString())
     return writer.path
 
 
+def _rollouts_bytes(rollouts) -> bytes:
+    from wosac_eval.arrays.messages import rollouts_bytes
+    from wosac_eval.arrays.rollouts import RolloutArrays
+
+    if isinstance(rollouts, bytes):
+        return rollouts
+    if isinstance(rollouts, RolloutArrays):
+        return rollouts_bytes(rollouts)
+    return rollouts.SerializeToString()
+
+
 _ROLLOUTS_TAG = bytes([(1 << 3) | 2])  # field 1 (scenario_rollouts), length-delimited
 
 
-class ShardWriter:
+class SubmissionWriter:
     """Streams `ScenarioRollouts` into shards on disk, so memory holds one scenario at a time.
 
     A protobuf message is the concatenation of its fields, so each shard file is
@@ -142,13 +115,14 @@ class ShardWriter:
         self._tmp = tempfile.TemporaryDirectory(prefix=".shards-", dir=self.path.parent)
         self._files = [open(Path(self._tmp.name) / f"part-{k}", "wb") for k in range(num_shards)]
 
-    def add(self, rollouts_bytes: bytes) -> None:
-        """Appends one serialised `ScenarioRollouts`."""
+    def add(self, rollouts) -> None:
+        """Appends one scenario's rollouts: `RolloutArrays`, a `ScenarioRollouts` message or its bytes."""
+        rollouts_bytes = _rollouts_bytes(rollouts)
         shard = self._files[self.count % self.num_shards]
         shard.write(_ROLLOUTS_TAG + varint(len(rollouts_bytes)) + rollouts_bytes)
         self.count += 1
 
-    def __enter__(self) -> "ShardWriter":
+    def __enter__(self) -> "SubmissionWriter":
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

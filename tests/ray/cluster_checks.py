@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -62,10 +64,15 @@ def test_cli_errors_at_once_when_the_cluster_is_unreachable(data):
 
 
 def test_cli_without_address_starts_a_local_ray(data, tmp_path):
+    """Even where a dead cluster is still named in ray_current_cluster (Ray's own default would join it)."""
     local = score_submission(data["scenarios"], data["sim_agents_folder"])
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    ray_tmp = Path(tempfile.mkdtemp(prefix="wr", dir="/tmp"))  # short: Ray's socket paths live under it
+    (ray_tmp / "ray").mkdir()
+    (ray_tmp / "ray" / "ray_current_cluster").write_text("127.0.0.1:1")
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_TMPDIR": str(ray_tmp)}
     done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
-                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env)
+                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env, timeout=240)
+    shutil.rmtree(ray_tmp, ignore_errors=True)
     assert done.returncode == 0, done.stderr
     assert canonical(json.loads((tmp_path / "r.json").read_text())) == canonical(local)
 

@@ -73,7 +73,9 @@ def connect(address: str | None = None) -> None:
     if address:
         _check_reachable(address)
     try:
-        ray.init(address=address, ignore_reinit_error=True, include_dashboard=False,
+        # "local", not None: None would join whatever /tmp/ray/ray_current_cluster names, even a
+        # cluster that died long ago (Ray then retries for minutes).
+        ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
                  logging_level=logging.ERROR, log_to_driver=False)
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as error:
         where = f"the Ray cluster at {address}" if address else "a local Ray"

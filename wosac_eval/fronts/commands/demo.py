@@ -61,8 +61,10 @@ def run_gate_demo(folder: Path) -> int:
     here = os.getcwd()
     os.chdir(folder)  # so that the report shows short file names
     try:
-        return report.run(_argparse.Namespace(result="new.json", html="report.html", compare="baseline.json",
-                                              top=10, title=GATE_DEMO_TITLE, seed=0, n_boot=5000, n_perm=5000))
+        parser = _argparse.ArgumentParser()
+        report.add_arguments(parser)  # the report command itself, with its defaults
+        return report.run(parser.parse_args(["new.json", "--html", "report.html", "--compare", "baseline.json",
+                                             "--title", GATE_DEMO_TITLE]))
     finally:
         os.chdir(here)
 

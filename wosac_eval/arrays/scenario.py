@@ -43,6 +43,7 @@ class ScenarioArrays:
       lanes: the matching lane centre polylines, each float32 `(num_points, 3)`.
       signals: per-step traffic-signal states, or None when the scenario has
         no dynamic map states.
+      sdc_id: the id of the self-driving car's track (-1 when unknown).
     """
 
     scenario_id: str
@@ -53,6 +54,7 @@ class ScenarioArrays:
     lane_ids: np.ndarray
     lanes: tuple
     signals: TrafficSignals | None
+    sdc_id: int = -1
 
     def evaluated_ids(self, challenge="sim_agents") -> np.ndarray:
         """The objects a challenge evaluates, in the official order, int64 `(num_evaluated,)`."""
@@ -156,4 +158,5 @@ def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
         lane_ids=np.array(lane_ids, dtype=np.int64),
         lanes=tuple(lanes),
         signals=_traffic_signals(scenario),
+        sdc_id=int(scenario.tracks[scenario.sdc_track_index].id) if scenario.tracks else -1,
     )

@@ -44,9 +44,13 @@ def validity_masks(log: MetricFeatures) -> dict:
             "vehicle": valid & is_vehicle[:, None]}
 
 
-def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict:
-    """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX."""
-    xp = array_namespace(log.valid, sim.linear_speed)
+def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict:
+    """Each metric's log-likelihoods and the mask they count under, numpy or JAX.
+
+    Returns:
+      metric name -> (log-likelihood, mask): float32 and bool `(num_evaluated,)` for an
+      indicator metric (one value per object), `(num_evaluated, num_steps)` for a time series.
+    """
     masks = validity_masks(log)
     out = {}
     for metric in METRICS:
@@ -56,11 +60,28 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
             log_flags = _any_over_time(getattr(log, metric.feature), mask)[0]
             sim_flags = _any_over_time(getattr(sim, metric.feature), mask)
             ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags)
-            out[metric.output] = xp.exp(ll.mean(dtype=_F))
+            out[metric.name] = (ll, None)
         else:
             ll = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric.feature)[0],
                                                        getattr(sim, metric.feature))
-            out[metric.output] = xp.exp(_masked_mean(ll, mask))
+            out[metric.name] = (ll, mask)
+    return out
+
+
+def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
+                  log_likelihoods: dict | None = None) -> dict:
+    """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX.
+
+    log_likelihoods: `metric_log_likelihoods(config, log, sim)` when already computed.
+    """
+    xp = array_namespace(log.valid, sim.linear_speed)
+    masks = validity_masks(log)
+    lls = metric_log_likelihoods(config, log, sim) if log_likelihoods is None else log_likelihoods
+    out = {}
+    for metric in METRICS:
+        ll, mask = lls[metric.name]
+        # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
+        out[metric.output] = xp.exp(ll.mean(dtype=_F) if mask is None else _masked_mean(ll, mask))
     ade = sim.average_displacement_error
     out["average_displacement_error"] = ade.mean(dtype=_F)
     out["min_average_displacement_error"] = ade.mean(axis=1, dtype=_F).min()
@@ -74,9 +95,10 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     return out
 
 
-def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict[str, float]:
+def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
+                     log_likelihoods: dict | None = None) -> dict[str, float]:
     """The official per-scenario metrics from log and simulated features, as floats."""
-    values = metric_values(config, log, sim)
+    values = metric_values(config, log, sim, log_likelihoods)
     # The official results are stored in float32 proto fields.
     return {field: float(_F(values[field])) for field in SCENARIO_FIELDS}
 

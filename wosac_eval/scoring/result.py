@@ -7,11 +7,22 @@
      "skipped": [{"scenario_id": ..., "reason": ...}],
      "validation": {"errors": E, "warnings": W,
                     "findings": [{"code": ..., "severity": ..., "count": ..., "title": ..., "first": ...}]},
-     "coverage": {"scored": N, "expected": M, "fraction": N / M}}
+     "coverage": {"scored": N, "expected": M, "fraction": N / M},
+     "analysis": {"criticality": {...}, "driving": {...}, "by_object_type": {...}}}
+
+Each scenario row also carries `criticality` ({score, components, raw,
+peak_step}), `driving` ({score, components}, or null) and `by_object_type`
+({vehicle|pedestrian|cyclist: metrics}); `analysis` summarises them over the
+scored scenarios. They are wosac-eval's diagnostics, beside the official
+metrics (which they do not change).
 """
 from __future__ import annotations
 
+import numpy as np
+
 from wosac_eval import challenges
+from wosac_eval.metrics.by_object_type import OBJECT_TYPES
+from wosac_eval.metrics.criticality import set_histogram, with_rarity
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
 
@@ -20,6 +31,43 @@ def summarize(config: SimAgentMetricsConfig, per_scenario: list[dict]) -> dict:
     """Aggregate (mean over scenarios) and bucketed metrics of scored scenarios."""
     aggregate = aggregate_metrics(per_scenario)
     return {"aggregate": aggregate, "buckets": bucket_metrics(config, aggregate)}
+
+
+def _mean(values) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
+
+
+def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
+    """Completes every row's criticality with its rarity, and summarises the analyses.
+
+    Rarity is rated against `histogram` (a `BehaviourHistogram`; default: that of the scored set).
+    Rows scored without analysis are left as they are (and the summary is empty).
+    """
+    rows = [r for r in per_scenario if "criticality" in r]
+    if not rows:
+        return {}
+    histogram = histogram or set_histogram([r["criticality"] for r in rows])
+    for row in rows:
+        row["criticality"] = with_rarity(row["criticality"], histogram)
+    scores = np.array([r["criticality"]["score"] for r in rows])
+    driving = [r["driving"] for r in rows if r.get("driving")]
+    summary = {
+        "criticality": {"mean": float(scores.mean()), "long_tail_threshold": float(np.quantile(scores, 0.9)),
+                        "behaviour_samples": int(histogram.counts.sum())},
+        "driving": None if not driving else {
+            "num_scenarios": len(driving), "score": _mean(d["score"] for d in driving),
+            "components": {k: _mean(d["components"][k] for d in driving) for k in driving[0]["components"]}},
+        "by_object_type": {},
+    }
+    for kind in OBJECT_TYPES.values():
+        present = [r["by_object_type"][kind] for r in rows if kind in r.get("by_object_type", {})]
+        if present:
+            fields = [k for k in present[0] if k != "num_objects"]
+            summary["by_object_type"][kind] = {"num_scenarios": len(present),
+                                               "num_objects": sum(p["num_objects"] for p in present),
+                                               **{k: _mean(p[k] for p in present) for k in fields}}
+    return summary
 
 
 def validation_summary(report) -> dict:
@@ -31,13 +79,24 @@ def validation_summary(report) -> dict:
 
 
 def result_document(challenge, config_name: str, config: SimAgentMetricsConfig, per_scenario: list[dict],
-                    report) -> dict:
-    """The result document of scored scenarios and the submission's validation report."""
+                    report, *, selection: dict | None = None, selected: set | None = None,
+                    histogram=None) -> dict:
+    """The result document of scored scenarios and the submission's validation report.
+
+    With a `selection` ({"rule", "scenarios", "of", "min_criticality"}, from `score --select`) of the
+    `selected` scenario ids, the coverage and the skipped scenarios count those only.
+    """
     skipped = [{"scenario_id": sid, "reason": reason} for sid, reason in sorted(report.skipped_scenarios.items())]
     expected = report.stats.scenarios_expected
+    if selection is not None:
+        skipped = [s for s in skipped if s["scenario_id"] in selected]
+        expected = selection["scenarios"]
+    analysis = finish_analysis(per_scenario, histogram)
     return {"challenge": challenges.as_challenge(challenge).value, "config": config_name,
             "num_scenarios": len(per_scenario), "scenarios": per_scenario, **summarize(config, per_scenario),
             "skipped": skipped,
             "validation": validation_summary(report),
             "coverage": {"scored": len(per_scenario), "expected": expected,
-                         "fraction": len(per_scenario) / expected if expected else 0.0}}
+                         "fraction": len(per_scenario) / expected if expected else 0.0},
+            **({"analysis": analysis} if analysis else {}),
+            **({"selection": selection} if selection is not None else {})}

@@ -13,9 +13,9 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.backends import check_backend
-from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.features.metric_features import map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
-from wosac_eval.metrics.scenario_metrics import scenario_metrics
+from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 PathLike = str | os.PathLike
@@ -79,10 +79,38 @@ def unscorable(scenario_id: str, error: Exception) -> ValueError:
     return ValueError(f"scenario {scenario_id}: cannot be scored: {error}")
 
 
+def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, rollouts: RolloutArrays,
+                      log, sim, log_likelihoods: dict, context) -> dict:
+    """What a result row carries beside the official metrics, from the same features.
+
+    Returns:
+      {"criticality": the scene's heuristic criticality (`metrics.criticality.scene_criticality`; the
+      result's assembly adds the rarity), "driving": the SDC's driving scores (or None),
+      "by_object_type": the metrics per object type}.
+    """
+    from wosac_eval.features.criticality import criticality_features
+    from wosac_eval.metrics.by_object_type import by_object_type
+    from wosac_eval.metrics.criticality import scene_criticality
+    from wosac_eval.metrics.driving import driving_scores
+
+    return {"criticality": scene_criticality(criticality_features(scenario, context)),
+            "driving": driving_scores(scenario, rollouts, sim),
+            "by_object_type": by_object_type(config, log, sim, log_likelihoods)}
+
+
+def _row(config: SimAgentMetricsConfig, arrays: ScenarioArrays, rollout: RolloutArrays, log, sim, context,
+         analysis: bool) -> dict:
+    lls = metric_log_likelihoods(config, log, sim)
+    row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
+    if analysis:
+        row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context))
+    return row
+
+
 def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
                    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
                    config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
-                   backend: str = "numpy") -> dict:
+                   backend: str = "numpy", analysis: bool = False) -> dict:
     """Official `SimAgentMetrics` fields of one scenario, plus its `scenario_id`.
 
     Args:
@@ -93,24 +121,27 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
       challenge: "sim_agents" (80 future steps, SDC + tracks_to_predict
         evaluated) or "scenario_gen" (91 steps with boxes, every sim agent evaluated).
       backend: "numpy" or "jax" (needs the `jax` extra); same results.
+      analysis: add the scene's criticality (without rarity), the SDC's driving scores and the
+        metrics per object type (`scenario_analysis`), as `score_submission` does.
     """
     check_backend(backend)
     challenge = challenges.as_challenge(challenge)
     config = resolve_config(config, challenge)
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
     try:
+        context = map_context(arrays)
         if backend == "jax":
             from wosac_eval.backends import jax_backend
-            log, sim = jax_backend.scenario_features(arrays, rollout, challenge=challenge)
+            log, sim = jax_backend.scenario_features(arrays, rollout, context, challenge=challenge)
         else:
-            log, sim = scenario_features(arrays, rollout, challenge=challenge)
+            log, sim = scenario_features(arrays, rollout, context, challenge=challenge)
     except (ValueError, KeyError) as error:
         raise unscorable(arrays.scenario_id, error) from error
-    return {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim)}
+    return _row(config, arrays, rollout, log, sim, context, analysis)
 
 
 def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
-                        challenge=challenges.Challenge.SIM_AGENTS) -> list[dict]:
+                        challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False) -> list[dict]:
     """`score_scenario` with the jax backend for many (scenario, rollouts) pairs at once.
 
     Scenarios of the same size bucket share one `vmap`ped call.
@@ -118,13 +149,15 @@ def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
     from wosac_eval.backends import jax_backend
     challenge = challenges.as_challenge(challenge)
     config = resolve_config(config, challenge)
-    prepared = []
+    prepared, inputs = [], []
     for scenario, rollouts in pairs:
         arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
         try:
-            prepared.append(jax_backend.prepare(arrays, rollout, challenge=challenge))
+            context = map_context(arrays)
+            prepared.append(jax_backend.prepare(arrays, rollout, context, challenge=challenge))
         except (ValueError, KeyError) as error:
             raise unscorable(arrays.scenario_id, error) from error
+        inputs.append((arrays, rollout, context))
     features = jax_backend.prepared_features(prepared, max_batch=max_batch)
-    return [{"scenario_id": p.scenario_id, **scenario_metrics(config, log, sim)}
-            for p, (log, sim) in zip(prepared, features)]
+    return [_row(config, arrays, rollout, log, sim, context, analysis)
+            for (arrays, rollout, context), (log, sim) in zip(inputs, features)]

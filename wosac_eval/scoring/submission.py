@@ -29,6 +29,7 @@ from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import check_engine, make_executor
+from wosac_eval.scoring.criticality import parse_selection, scenario_set_criticality, select_scenarios
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
@@ -87,8 +88,9 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
               sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
              for sid, locator in chunk.items]
     if context.backend == "jax":
-        return score_scenarios_jax(pairs, config, challenge=context.challenge)
-    return [score_scenario(scenario, rollouts, config, challenge=context.challenge) for scenario, rollouts in pairs]
+        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=True)
+    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=True)
+            for scenario, rollouts in pairs]
 
 
 class _Plan:
@@ -142,7 +144,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                      config: str | PathLike | None = None, *, challenge="sim_agents", workers: int = 1,
                      allow_partial: bool = False, progress: Progress | None = None, backend: str = "numpy",
                      engine: str = "local", ray_address: str | None = None,
-                     metadata_checks: str = "warn") -> dict:
+                     metadata_checks: str = "warn", select: str | None = None) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -163,11 +165,16 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
       metadata_checks: "warn" (default: local scoring needs no account, method name or flags; their
         findings are listed under `validation.findings` as warnings) or "error" (the challenge
         server's rules, as `wosac-eval validate` and the service apply them).
+      select: score only the most critical scenarios of the set: "top:0.1" (a fraction) or "top:100"
+        (a count), ranked by `scoring.criticality` before scoring. The whole submission is still
+        validated; rarity is rated against the whole set; the result says what was selected.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
     """
     check_backend(backend)
     check_engine(engine)
+    if select is not None:
+        parse_selection(select)  # a bad rule is refused before any work
     challenge = challenges.as_challenge(challenge)
     config_name = default_config(challenge) if config is None else str(config)
     metrics_config = load_config(config_name)
@@ -180,10 +187,20 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                                  metadata_checks=metadata_checks)
     if not report.ok and not allow_partial:
         raise InvalidSubmissionError(report)
-    total = sum(1 for sid in index if report.is_scenario_valid(sid))
+    selection, histogram, selected = None, None, None
+    if select is not None:
+        ranked = scenario_set_criticality(index, executor=executor)
+        selected = set(select_scenarios(ranked["scenarios"], select))
+        histogram = ranked["histogram"]
+        selection = {"rule": select, "scenarios": len(selected), "of": ranked["num_scenarios"],
+                     "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
+    total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=metrics_config.SerializeToString(), challenge=challenge.value,
                              backend=backend, index=index)
-    chunks = _chunks(plan.rollouts(submission_path, index, report), SCENARIOS_PER_TASK)
+    rollouts = plan.rollouts(submission_path, index, report)
+    if selected is not None:
+        rollouts = ((sid, locator) for sid, locator in rollouts if sid in selected)
+    chunks = _chunks(rollouts, SCENARIOS_PER_TASK)
     per_scenario: list[dict] = []
     if progress is not None:
         progress(0, total)
@@ -194,4 +211,5 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     if not per_scenario:
         raise InvalidSubmissionError(report) if not report.ok else ValueError(
             "the submission has no scenario in common with the scenario set")
-    return result_document(challenge, config_name, metrics_config, per_scenario, report)
+    return result_document(challenge, config_name, metrics_config, per_scenario, report,
+                           selection=selection, selected=selected, histogram=histogram)

@@ -15,11 +15,13 @@ from wosac_eval.fronts.gate.compare import (
     METRICS,
     CompareError,
     Gate,
+    canonical_metric,
     compare_results,
     format_markdown,
     format_table,
 )
 from wosac_eval.fronts.gate.results import ResultError, load_result
+from wosac_eval.fronts.gate.stratify import STRATIFY, StratifyError, format_strata, stratified_comparison
 
 NAME = "compare"
 HELP = "Compare two `score` results scenario by scenario (paired bootstrap CI, permutation p-value); gate on regressions."
@@ -46,6 +48,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n-perm", type=int, default=5000, help="random sign flips of the permutation test (default 5000)")
     parser.add_argument("--min-shared", type=int, default=1, metavar="N",
                         help="error (exit 2) when the results share fewer than N scenarios (default 1)")
+    parser.add_argument("--stratify", choices=STRATIFY,
+                        help="also compare per stratum: criticality terciles and the long tail (top decile) vs "
+                             "the rest, or per object type (vehicle, pedestrian, cyclist); paired CI, p-value, "
+                             "Holm-adjusted p and Cohen's d per stratum, for the --metric metrics (default "
+                             "metametric)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
     parser.add_argument("--json-output", metavar="PATH",
                         help="also write the comparison as JSON to PATH (the table still goes to stdout)")
@@ -65,9 +72,19 @@ def run(args: argparse.Namespace) -> int:
             base, new, metrics=args.metric, gates=gates, alpha=args.alpha, adjust=args.adjust, seed=args.seed,
             n_boot=args.n_boot, n_perm=args.n_perm, min_shared=args.min_shared,
             only_significant=args.only_significant)
-    except (ResultError, CompareError) as e:
+        strata = None
+        if args.stratify:
+            wanted = [canonical_metric(m.strip()) for spec in (args.metric or ["metametric"])
+                      for m in spec.split(",") if m.strip()]
+            strata = stratified_comparison(base, new, args.stratify, wanted, seed=args.seed, n_boot=args.n_boot,
+                                           n_perm=args.n_perm, alpha=args.alpha, adjust=args.adjust)
+    except (ResultError, CompareError, StratifyError) as e:
         raise UsageError(str(e)) from None
-    outputs = [(args.json_output, lambda: json.dumps(comparison.to_json(), indent=2) + "\n"),
+
+    def as_json() -> dict:
+        return {**comparison.to_json(), **({"stratified": strata.to_json()} if strata else {})}
+
+    outputs = [(args.json_output, lambda: json.dumps(as_json(), indent=2) + "\n"),
                (args.markdown_output, lambda: format_markdown(comparison))]
     for path, render in outputs:
         if path:
@@ -79,8 +96,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
             print(f"wosac-eval compare: warning: {w}", file=sys.stderr)
-        json.dump(comparison.to_json(), sys.stdout, indent=2)
+        json.dump(as_json(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
         print(format_table(comparison))
+        if strata:
+            print()
+            print(format_strata(strata))
     return 0 if comparison.passed else 1

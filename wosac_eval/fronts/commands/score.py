@@ -54,6 +54,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--backend", choices=BACKENDS, default="numpy",
                         help="compute features with numpy (default) or with JAX (jit, batched "
                              "over scenarios; needs `pip install 'wosac-eval[jax]'`); same results")
+    parser.add_argument("--select", metavar="top:FRACTION|top:N",
+                        help="score only the most critical scenarios of the set (the long tail): top:0.1 "
+                             "the most critical tenth, top:100 the 100 most critical (`wosac-eval criticality` "
+                             "ranks them); the whole submission is still validated")
 
 
 def _progress():
@@ -92,6 +96,10 @@ def _stderr_findings(result: dict) -> None:
 def _stderr_coverage(result: dict) -> None:
     """Scored of expected scenarios, and why the others were skipped (partial scoring)."""
     coverage = result["coverage"]
+    if "selection" in result:
+        chosen = result["selection"]
+        print(f"selection {chosen['rule']}: the {chosen['scenarios']} most critical of {chosen['of']} scenario(s) "
+              f"(criticality >= {chosen['min_criticality']:.3f})", file=sys.stderr)
     if result["skipped"]:
         print(f"partial result: scored {coverage['scored']} of {coverage['expected']} scenario(s) "
               f"({coverage['fraction']:.1%}); {len(result['skipped'])} skipped (listed under \"skipped\"), "
@@ -109,12 +117,19 @@ def run(args: argparse.Namespace) -> int:
         check_engine(args.engine)
     except (BackendUnavailableError, EngineUnavailableError) as error:
         raise UsageError(str(error)) from None
+    if args.select is not None:
+        from wosac_eval.scoring.criticality import parse_selection
+        try:
+            parse_selection(args.select)
+        except ValueError as error:
+            raise UsageError(str(error)) from None
     update, bar = _progress()
     try:
         result = score_submission(args.scenarios, args.submission, args.config, challenge=args.challenge,
                                   workers=args.workers, allow_partial=args.partial, progress=update,
                                   backend=args.backend, engine=args.engine, ray_address=args.ray_address,
-                                  metadata_checks="error" if args.strict_metadata else "warn")
+                                  metadata_checks="error" if args.strict_metadata else "warn",
+                                  select=args.select)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "

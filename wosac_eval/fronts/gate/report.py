@@ -245,6 +245,26 @@ def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
     return _png(fig)
 
 
+def _criticality_plot(result: ScoringResult, tail: float) -> str:
+    c, m = result.criticality, result.values["metametric"]
+    fig = _figure(5.0, 3.6)
+    ax = fig.add_subplot()
+    in_tail = c >= tail
+    ax.scatter(c[~in_tail], m[~in_tail], s=5, alpha=0.5 if c.size > 500 else 0.8, color=_NEW_COLOR,
+               edgecolors="none", label="rest")
+    ax.scatter(c[in_tail], m[in_tail], s=9, color="#cf222e", edgecolors="none", label="long tail (top decile)")
+    ax.axvline(tail, color="#1b1f24", linewidth=0.6, linestyle=":")
+    if c.size > 2 and np.ptp(c) > 0:
+        slope, intercept = np.polyfit(c, m, 1)
+        xs = np.array([c.min(), c.max()])
+        ax.plot(xs, slope * xs + intercept, color="#1b1f24", linewidth=0.8, label=f"trend (slope {slope:+.3f})")
+    ax.set_xlabel("criticality of the logged scene", fontsize=9)
+    ax.set_ylabel("meta-metric", fontsize=9)
+    ax.tick_params(labelsize=7)
+    _legend_above(ax)
+    return _png(fig)
+
+
 # ------------------------------------------------------------------------------------------------
 # Sections
 
@@ -363,6 +383,26 @@ def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> s
     return _section("scenes", f"Worst scenes ({len(scenes)})", [note, "".join(cards)])
 
 
+def _criticality_section(result: ScoringResult, top_k: int) -> str:
+    """Realism against the scenes' criticality, and the worst long-tail scenes (rows carry `criticality`)."""
+    c, m = result.criticality, result.values["metametric"]
+    tail = float(np.quantile(c, 0.9))
+    in_tail = np.flatnonzero(c >= tail)
+    worst = in_tail[np.argsort(m[in_tail], kind="stable")][:top_k]
+    rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
+                   f"<td class=n>{c[i]:.3f}</td><td class=n>{m[i]:.4f}</td></tr>" for r, i in enumerate(worst))
+    rest = np.flatnonzero(c < tail)
+    summary = (f"<p class=meta>Long tail: the {in_tail.size} scenario(s) with criticality &ge; {tail:.3f} "
+               f"(top decile): mean meta-metric {m[in_tail].mean():.4f}"
+               + (f" against {m[rest].mean():.4f} for the other {rest.size}" if rest.size else "")
+               + ". Criticality rates the logged scene alone (braking, jerk, time to collision, near misses, "
+               "off-road, red lights, rarity); `wosac-eval compare --stratify criticality` tests the "
+               "difference between two runs per stratum.</p>")
+    table = (f"<table data-table=long-tail><tr><th class=n>#</th><th>worst long-tail scenario</th>"
+             f"<th class=n>criticality</th><th class=n>meta-metric</th></tr>{rows}</table>")
+    return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, tail), table])
+
+
 def _shared_rows(result: ScoringResult, base: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
     """Row indices `(base_rows, result_rows)`, each `(num_shared,)`, of the scenarios both results hold."""
     in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
@@ -464,6 +504,8 @@ def render_report(
     if comparison is not None:
         parts.append(_comparison_section(result, base, comparison, top_k))
     parts += [_distribution_section(result, base), _worst_section(result, top_k)]
+    if result.criticality is not None and result.num_scenarios > 0:
+        parts.append(_criticality_section(result, top_k))
     if scenes:
         parts.append(_scenes_section(result, scenes))
     parts.append(_skipped_section(result))

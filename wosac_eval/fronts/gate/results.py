@@ -41,6 +41,10 @@ class ScoringResult:
       aggregate: metric name -> the file's own aggregate (mean over its scenarios).
       buckets: bucket name -> the file's leaderboard bucket value.
       skipped: `{"scenario_id", "reason"}` entries the scorer left out.
+      criticality: `(num_scenarios,)` criticality scores, or None when the rows carry none (results
+        written before the analysis was added).
+      by_type: object type -> metric -> `(num_scenarios,)` values, NaN where the scenario has no
+        evaluated object of the type (or the metric is undefined for it).
     """
 
     path: str
@@ -51,6 +55,8 @@ class ScoringResult:
     aggregate: dict[str, float]
     buckets: dict[str, float]
     skipped: list[dict[str, Any]]
+    criticality: np.ndarray | None = None
+    by_type: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
 
     @property
     def num_scenarios(self) -> int:
@@ -128,6 +134,28 @@ def _column(scenarios: list[dict], field: str, ids: list[str], path: str) -> np.
     raise AssertionError("unreachable: the fast check failed but no value is at fault")
 
 
+def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
+    """The rows' criticality scores (None unless every row has one) and per-type values (NaN where absent)."""
+    criticality = None
+    if ids and all(isinstance(e.get("criticality"), dict) for e in scenarios):
+        criticality = np.array([_number(e["criticality"].get("score"), f"{path}: scenario {sid!r} field "
+                                        "'criticality.score'") for e, sid in zip(scenarios, ids)])
+    by_type: dict[str, dict[str, np.ndarray]] = {}
+    for i, entry in enumerate(scenarios):
+        types = entry.get("by_object_type")
+        if not isinstance(types, dict):
+            continue
+        for kind, fields in types.items():
+            if not isinstance(fields, dict):
+                raise ResultError(f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}' is not an object")
+            for field, value in fields.items():
+                if value is None or field == "num_objects":
+                    continue
+                column = by_type.setdefault(kind, {}).setdefault(field, np.full(len(ids), np.nan))
+                column[i] = _number(value, f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}.{field}'")
+    return criticality, by_type
+
+
 def default_bucket_weights(config: str) -> dict[str, float] | None:
     """Metametric weights of the config, by config field name, or None if unavailable.
 
@@ -199,6 +227,7 @@ def parse_result(
             carried = {**weighted_buckets(values, weights), **carried}
     values.update(carried)
 
+    criticality, by_type = _analysis_columns(scenarios, ids, path)
     skipped = data.get("skipped") or []
     if not isinstance(skipped, list):
         raise ResultError(f"{path}: 'skipped' must be a list")
@@ -211,6 +240,8 @@ def parse_result(
         aggregate=_numbers(data.get("aggregate"), f"{path}: aggregate"),
         buckets=_numbers(data.get("buckets"), f"{path}: buckets"),
         skipped=[s if isinstance(s, dict) else {"scenario_id": str(s), "reason": ""} for s in skipped],
+        criticality=criticality,
+        by_type=by_type,
     )
 
 

@@ -1,0 +1,114 @@
+"""Criticality of a scenario set, without any submission: for curating sets and for `score --select`.
+
+Two passes over the set: each scenario's heuristic criticality (a task per few
+scenarios, on the same executors as scoring), then the set's behaviour
+histogram and every scenario's rarity against it (`metrics.criticality`).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import re
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from wosac_eval.metrics.criticality import scene_criticality, set_histogram, with_rarity
+from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.runtime.executors import make_executor
+
+PathLike = str | os.PathLike
+SCENARIOS_PER_TASK = 16
+LONG_TAIL_QUANTILE = 0.9  # the long tail: the top decile of the set
+
+
+@dataclasses.dataclass(frozen=True)
+class CriticalityTask:
+    """A few scenarios to rate (and whether to keep their per-step criticality)."""
+
+    scenario_ids: tuple
+    per_step: bool = False
+
+
+def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
+    """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked)."""
+    from wosac_eval.arrays.scenario import scenario_arrays
+    from wosac_eval.features.criticality import criticality_features
+    from wosac_eval.metrics.criticality import step_criticality
+
+    out = []
+    for sid in task.scenario_ids:
+        features = criticality_features(scenario_arrays(index.load(sid)))
+        row = {"scenario_id": sid, **scene_criticality(features)}
+        if task.per_step:
+            row["steps"] = [round(float(v), 6) for v in step_criticality(features)]
+        out.append(row)
+    return out
+
+
+def _tasks(ids: list[str], per_step: bool) -> Iterable[CriticalityTask]:
+    for start in range(0, len(ids), SCENARIOS_PER_TASK):
+        yield CriticalityTask(tuple(ids[start:start + SCENARIOS_PER_TASK]), per_step)
+
+
+def scenario_set_criticality(scenarios: PathLike | Iterable[PathLike] | ScenarioIndex, *, workers: int = 1,
+                             engine: str = "local", ray_address: str | None = None, per_step: bool = False,
+                             progress: Callable[[int, int], None] | None = None, executor=None) -> dict:
+    """Every scenario's criticality against the set, most critical first.
+
+    Args:
+      scenarios: TFRecord files, folders or globs of `Scenario`s (or their `ScenarioIndex`).
+      workers, engine, ray_address: as for `score_submission`.
+      per_step: keep each scenario's per-step criticality (`steps`, 91 values).
+      executor: an executor to reuse (`runtime.executors`) instead of making one from the above.
+    Returns:
+      {"num_scenarios": N, "long_tail_threshold": the top decile's lowest score,
+      "histogram": the set's `BehaviourHistogram`, "scenarios": [{"scenario_id", "rank" (1 = most
+      critical), "long_tail": bool, "score", "components", "raw", "peak_step"[, "steps"]}, ...]}.
+    """
+    index = scenarios if isinstance(scenarios, ScenarioIndex) else ScenarioIndex(scenarios)
+    executor = executor or make_executor(engine, workers=workers, ray_address=ray_address)
+    rows: list[dict] = []
+    for done in executor.imap(rate_scenarios, _tasks(index.ids(), per_step), index):
+        rows.extend(done)
+        if progress is not None:
+            progress(len(rows), len(index))
+    histogram = set_histogram(rows)
+    rated = []
+    for row in rows:
+        steps = row.pop("steps", None)
+        rated.append({"scenario_id": row["scenario_id"], **with_rarity(row, histogram),
+                      **({"steps": steps} if steps is not None else {})})
+    rated.sort(key=lambda r: (-r["score"], r["scenario_id"]))
+    threshold = float(np.quantile([r["score"] for r in rated], LONG_TAIL_QUANTILE)) if rated else math.nan
+    for rank, row in enumerate(rated, start=1):
+        row["rank"] = rank
+        row["long_tail"] = row["score"] >= threshold
+    return {"num_scenarios": len(rated), "long_tail_threshold": threshold, "histogram": histogram,
+            "scenarios": rated}
+
+
+_SELECT = re.compile(r"^top:(?:(?P<fraction>0?\.\d+|1\.0*)|(?P<count>[1-9]\d*))$")
+
+
+def parse_selection(rule: str) -> tuple[str, float]:
+    """`top:0.1` (the most critical tenth) or `top:N` (the N most critical) -> ("fraction"|"count", value)."""
+    match = _SELECT.match(rule.strip())
+    if not match:
+        raise ValueError(f"--select {rule!r}: expected top:FRACTION (0 < FRACTION <= 1, e.g. top:0.1) "
+                         "or top:N (e.g. top:100)")
+    if match["fraction"] is not None:
+        return "fraction", float(match["fraction"])
+    return "count", int(match["count"])
+
+
+def select_scenarios(ranked: list[dict], rule: str) -> list[str]:
+    """The scenario ids a `top:` rule keeps from a ranking (most critical first); at least one."""
+    kind, value = parse_selection(rule)
+    keep = max(1, math.ceil(value * len(ranked))) if kind == "fraction" else int(value)
+    return [row["scenario_id"] for row in ranked[:keep]]
+
+
+__all__ = ["scenario_set_criticality", "select_scenarios", "parse_selection", "rate_scenarios",
+           "CriticalityTask", "LONG_TAIL_QUANTILE"]

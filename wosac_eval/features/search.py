@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import interaction, road_edge, traffic_lights

@@ -11,6 +11,11 @@ Scenes: the 10 demo scenes (constant-velocity rollouts, sim agents) and, with
 ../shared, the real scene 637f20cafde22ff8; `--challenge scenario_gen` scores
 the scenario-gen baseline instead.
 
+Then end to end, as `wosac-eval score` runs (index, validation, parsing,
+scoring, assembly; one worker): `score_submission(..., analysis=False)` and
+`analysis=True` on the demo scenes with the IDM baseline, alternated, the same
+repetitions each.
+
 Usage: python benchmarks/analysis_cost.py [--repeat 5] [--challenge sim_agents|scenario_gen]
 """
 from __future__ import annotations
@@ -84,6 +89,32 @@ def main() -> None:
               f"{f / p:6.3f} {crit * 1e3:15.1f}")
     print(f"\nall scenes ({args.challenge}): metrics {total_plain:.3f} s, with the analysis {total_full:.3f} s: "
           f"+{(total_full / total_plain - 1) * 100:.1f}% (goal <= 10%)")
+    end_to_end(args.repeat, args.challenge)
+
+
+def end_to_end(repeat: int, challenge: str) -> None:
+    import tempfile
+    from pathlib import Path
+
+    from wosac_eval.scoring.submission import score_submission
+    from wosac_eval.sim.baselines import make_submission
+
+    with tempfile.TemporaryDirectory() as tmp:
+        shards = scenes.write_scenario_shards(scenes.generate_scenes(10, seed=0), Path(tmp) / "scenarios")
+        policy = "idm"
+        submission = make_submission(shards, policy, Path(tmp) / "idm.tar.gz", challenge=challenge)
+        run = {flag: (lambda flag=flag: score_submission(shards, submission, challenge=challenge, analysis=flag))
+               for flag in (False, True)}
+        for fn in run.values():
+            fn()
+        times = {False: [], True: []}
+        for _ in range(repeat):
+            for flag, fn in run.items():
+                times[flag].append(_median_seconds(fn, 1))
+        off, on = (statistics.median(times[f]) for f in (False, True))
+        print(f"end to end, score_submission of 10 demo scenes ({challenge}, {policy}, 1 worker): "
+              f"{off / 10 * 1e3:.1f} ms/scenario without the analysis, {on / 10 * 1e3:.1f} with it: "
+              f"+{(on / off - 1) * 100:.1f}%")
 
 
 if __name__ == "__main__":

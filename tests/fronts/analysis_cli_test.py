@@ -137,3 +137,17 @@ def test_report_shows_realism_against_criticality(runs, tmp_path):
     assert done.returncode == 0, done.stderr
     html = (tmp_path / "r.html").read_text()
     assert 'id="criticality"' in html and "worst long-tail scenario" in html
+
+
+def test_no_analysis_leaves_the_official_fields_alone(runs, tmp_path):
+    done = run_cli("score", "--scenarios", *runs["scenarios"], "--submission", str(runs["idm"]), "--no-analysis",
+                   "-o", str(tmp_path / "plain.json"))
+    assert done.returncode == 0, done.stderr
+    plain = json.loads((tmp_path / "plain.json").read_text())
+    full = json.loads(runs["idm.json"].read_text())
+    assert "analysis" not in plain and "analysis" in full
+    analysis_fields = {"criticality", "driving", "by_object_type"}
+    for row, full_row in zip(plain["scenarios"], full["scenarios"]):
+        assert not analysis_fields & set(row)
+        assert row == {k: v for k, v in full_row.items() if k not in analysis_fields}
+    assert plain["buckets"] == full["buckets"] and plain["aggregate"] == full["aggregate"]

@@ -56,12 +56,14 @@ class ScoringContext:
       challenge: the challenge's name.
       backend: "numpy" or "jax".
       index: where each scenario of the set is.
+      analysis: add each scenario's criticality, driving scores and per-type metrics to its row.
     """
 
     config: bytes
     challenge: str
     backend: str
     index: ScenarioIndex
+    analysis: bool = True
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,8 +90,8 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
               sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
              for sid, locator in chunk.items]
     if context.backend == "jax":
-        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=True)
-    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=True)
+        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis)
+    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis)
             for scenario, rollouts in pairs]
 
 
@@ -144,7 +146,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                      config: str | PathLike | None = None, *, challenge="sim_agents", workers: int = 1,
                      allow_partial: bool = False, progress: Progress | None = None, backend: str = "numpy",
                      engine: str = "local", ray_address: str | None = None,
-                     metadata_checks: str = "warn", select: str | None = None) -> dict:
+                     metadata_checks: str = "warn", select: str | None = None, analysis: bool = True) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -168,6 +170,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
       select: score only the most critical scenarios of the set: "top:0.1" (a fraction) or "top:100"
         (a count), ranked by `scoring.criticality` before scoring. The whole submission is still
         validated; rarity is rated against the whole set; the result says what was selected.
+      analysis: with False, rows carry the official metrics only (no criticality, driving scores or
+        per-type metrics, and no `analysis` summary): a little faster.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
     """
@@ -196,7 +200,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                      "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=metrics_config.SerializeToString(), challenge=challenge.value,
-                             backend=backend, index=index)
+                             backend=backend, index=index, analysis=analysis)
     rollouts = plan.rollouts(submission_path, index, report)
     if selected is not None:
         rollouts = ((sid, locator) for sid, locator in rollouts if sid in selected)

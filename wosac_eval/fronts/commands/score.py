@@ -58,6 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="score only the most critical scenarios of the set (the long tail): top:0.1 "
                              "the most critical tenth, top:100 the 100 most critical (`wosac-eval criticality` "
                              "ranks them); the whole submission is still validated")
+    parser.add_argument("--no-analysis", action="store_true",
+                        help="official metrics only: no criticality, driving scores or per-type metrics in the rows")
 
 
 def _progress():
@@ -129,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
                                   workers=args.workers, allow_partial=args.partial, progress=update,
                                   backend=args.backend, engine=args.engine, ray_address=args.ray_address,
                                   metadata_checks="error" if args.strict_metadata else "warn",
-                                  select=args.select)
+                                  select=args.select, analysis=not args.no_analysis)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "

@@ -58,12 +58,13 @@ def check_batches(log_samples, sim_samples) -> None:
 
 
 def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
-                             log_samples: np.ndarray, sim_samples: np.ndarray) -> np.ndarray:
+                             log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None) -> np.ndarray:
     """Per-population histogram log-likelihoods.
 
     Args:
       log_samples: `(batch, num_log_samples)`.
       sim_samples: `(batch, num_sim_samples)`.
+      sim_weights: optional 0/1 `(batch, num_sim_samples)`: which simulated samples count (padding does not).
     Returns:
       float32 `(batch, num_log_samples)`.
     Raises:
@@ -78,21 +79,22 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
     flat = (xp.arange(batch)[:, None] * num_bins + sim_bins).reshape(-1)
     # Whole counts: exact in any order. JAX needs the output length to be static.
     size = {"minlength": batch * num_bins} if is_numpy(xp) else {"length": batch * num_bins}
-    counts = xp.bincount(flat, **size).reshape(batch, num_bins)
+    weights = {} if sim_weights is None else {"weights": sim_weights.reshape(-1).astype(np.float64)}
+    counts = xp.bincount(flat, **weights, **size).reshape(batch, num_bins)
     counts = (counts.astype(_F) + _F(pseudocount)).astype(np.float64)
     log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
     log_bins = histogram_bins(log_samples, edges)
     return xp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
 
 
-def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples) -> np.ndarray:
+def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
     """Two-bin histogram over booleans: bins [-0.5, 0.5) and [0.5, 1.5]."""
     return histogram_log_likelihood(-0.5, 1.5, 2, pseudocount,
-                                    log_samples.astype(_F), sim_samples.astype(_F))
+                                    log_samples.astype(_F), sim_samples.astype(_F), sim_weights)
 
 
-def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples) -> np.ndarray:
-    """Gaussian KDE log-density, shifted so that a Dirac sample scores 0."""
+def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
+    """Gaussian KDE log-density, shifted so that a Dirac sample scores 0 (`sim_weights` as for histograms)."""
     if bandwidth <= 0:
         raise ValueError("kernel density bandwidth must be positive")
     check_batches(log_samples, sim_samples)
@@ -101,31 +103,40 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples) -> np.nda
     diff = (log_samples[:, :, None].astype(np.float64) - sim_samples[:, None, :]) / bandwidth
     log_kernel = -0.5 * diff * diff
     peak = log_kernel.max(axis=-1, keepdims=True)
-    log_mean = xp.log(xp.mean(xp.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
+    if sim_weights is None:
+        log_mean = xp.log(xp.mean(xp.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
+    else:
+        w = sim_weights[:, None, :].astype(np.float64)
+        log_kernel = xp.where(w > 0, log_kernel, -np.inf)
+        peak = log_kernel.max(axis=-1, keepdims=True)
+        log_mean = xp.log((xp.exp(log_kernel - peak) * w).sum(axis=-1) / w.sum(axis=-1)) + peak[..., 0]
     return log_mean.astype(_F)
 
 
-def _estimate(config: FeatureConfig, log_samples, sim_samples):
+def _estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
     kind = config.WhichOneof("estimator")
     if kind == "histogram":
         h = config.histogram
         return histogram_log_likelihood(h.min_val, h.max_val, h.num_bins,
-                                        h.additive_smoothing_pseudocount, log_samples, sim_samples)
+                                        h.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights)
     if kind == "bernoulli":
         return bernoulli_log_likelihood(config.bernoulli.additive_smoothing_pseudocount,
-                                        log_samples, sim_samples)
+                                        log_samples, sim_samples, sim_weights)
     if kind == "kernel_density":
-        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples)
+        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples,
+                                             sim_weights)
     raise ValueError(f"feature config has no estimator (got {kind!r})")
 
 
 def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
-                              sim_values: np.ndarray) -> np.ndarray:
+                              sim_values: np.ndarray, object_mask=None) -> np.ndarray:
     """Log-likelihood of each logged value.
 
     Args:
       log_values: `(num_objects, num_steps)`.
       sim_values: `(num_rollouts, num_objects, num_steps)`.
+      object_mask: optional bool `(num_objects,)`, the real objects: the simulated values of the others
+        (padding) take no part in a distribution shared by objects (`aggregate_objects`).
     Returns:
       float32 `(num_objects, num_steps)`.
     """
@@ -139,13 +150,18 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
                          f"the simulated values {tuple(sim_values.shape)}")
     if config.aggregate_objects:
         # One distribution for the whole scene (per step, or pooled over steps).
+        weights = None
+        if object_mask is not None:
+            weights = xp.broadcast_to(object_mask[None, :, None], sim_values.shape)
         if config.independent_timesteps:
             sim = xp.transpose(sim_values, (1, 0, 2)).reshape(1, -1)
             log = log_values.T.reshape(1, -1)
+            weights = None if weights is None else xp.transpose(weights, (1, 0, 2)).reshape(1, -1)
         else:
             sim = xp.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
             log = log_values.T
-        return _estimate(config, log, sim).reshape(n_steps, n_objects).T
+            weights = None if weights is None else xp.transpose(weights, (2, 1, 0)).reshape(n_steps, -1)
+        return _estimate(config, log, sim, weights).reshape(n_steps, n_objects).T
     if config.independent_timesteps:
         sim = xp.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
         log = log_values
@@ -156,9 +172,9 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
 
 
 def scenario_level_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
-                                  sim_values: np.ndarray) -> np.ndarray:
+                                  sim_values: np.ndarray, object_mask=None) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
     if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
         raise ValueError(f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
                          f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)")
-    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None])[:, 0]
+    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask)[:, 0]

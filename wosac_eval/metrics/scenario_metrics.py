@@ -44,9 +44,12 @@ def validity_masks(log: MetricFeatures) -> dict:
             "vehicle": valid & is_vehicle[:, None]}
 
 
-def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures) -> dict:
+def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
+                           object_mask=None) -> dict:
     """Each metric's log-likelihoods and the mask they count under, numpy or JAX.
 
+    object_mask: optional bool `(num_evaluated,)`, the real rows when the features are padded (padded rows
+      must be invalid in `log.valid`); None: every row is real.
     Returns:
       metric name -> (log-likelihood, mask): float32 and bool `(num_evaluated,)` for an
       indicator metric (one value per object), `(num_evaluated, num_steps)` for a time series.
@@ -59,35 +62,48 @@ def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
         if metric.per_object:
             log_flags = _any_over_time(getattr(log, metric.feature), mask)[0]
             sim_flags = _any_over_time(getattr(sim, metric.feature), mask)
-            ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags)
+            ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask)
             out[metric.name] = (ll, None)
         else:
             ll = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric.feature)[0],
-                                                       getattr(sim, metric.feature))
+                                                       getattr(sim, metric.feature), object_mask)
             out[metric.name] = (ll, mask)
     return out
 
 
+def _object_mean(values, object_mask, dtype):
+    """Mean over the last axis (objects), over the real ones only when `object_mask` is given."""
+    if object_mask is None:
+        return values.mean(axis=-1, dtype=dtype)
+    xp = array_namespace(values, object_mask)
+    return xp.where(object_mask, values, 0).sum(axis=-1, dtype=dtype) / object_mask.sum().astype(dtype)
+
+
 def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                  log_likelihoods: dict | None = None) -> dict:
+                  log_likelihoods: dict | None = None, object_mask=None) -> dict:
     """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX.
 
     log_likelihoods: `metric_log_likelihoods(config, log, sim)` when already computed.
+    object_mask: as for `metric_log_likelihoods`: means over objects count the real rows only.
     """
     xp = array_namespace(log.valid, sim.linear_speed)
     masks = validity_masks(log)
-    lls = metric_log_likelihoods(config, log, sim) if log_likelihoods is None else log_likelihoods
+    lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
     out = {}
     for metric in METRICS:
         ll, mask = lls[metric.name]
         # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
-        out[metric.output] = xp.exp(ll.mean(dtype=_F) if mask is None else _masked_mean(ll, mask))
+        out[metric.output] = xp.exp(_object_mean(ll, object_mask, _F) if mask is None else _masked_mean(ll, mask))
     ade = sim.average_displacement_error
-    out["average_displacement_error"] = ade.mean(dtype=_F)
-    out["min_average_displacement_error"] = ade.mean(axis=1, dtype=_F).min()
+    per_rollout = _object_mean(ade, object_mask, _F)
+    out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
+                                         else per_rollout.mean(dtype=_F))
+    out["min_average_displacement_error"] = per_rollout.min()
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
-        out[rate.name] = _any_over_time(getattr(sim, rate.feature), masks["valid"]).mean(dtype=np.float64)
+        flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])
+        out[rate.name] = (flags.mean(dtype=np.float64) if object_mask is None
+                          else _object_mean(flags, object_mask, np.float64).mean())
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
     out["metametric"] = sum(getattr(config, m).metametric_weight * out[f"{m}_likelihood"].astype(np.float64)

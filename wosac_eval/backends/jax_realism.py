@@ -1,0 +1,325 @@
+"""Realism as a JAX function on device arrays: prepare scenes once, score new rollouts every training step.
+
+`prepare(scenarios)` does the host work once per scene set: the log in the
+official object order, the map (road-edge segments, stop lines, lane
+segments), the trailing-packet masks of the official float32 ops, all padded
+to common sizes and stacked into a device pytree (`PreparedScenes`).
+`realism(prepared, x, y, z, heading)` then runs the whole metric on the
+device: rollouts gathered into the official order, joined to the logged
+history, per-step features (`metric_features.per_step_features` with the dense
+search), log-likelihoods and every `SimAgentMetrics` field
+(`metrics.scenario_metrics.metric_values`), per scene, under one `jax.jit`,
+with no host callback. It is the same orchestration as the file path; padding
+(objects, evaluated objects, map entries) is masked everywhere, so it never
+changes a result.
+
+Shapes: rollouts are `(num_scenes, num_rollouts, max_agents, num_steps)`
+with the agents in the order of `prepared.sim_agent_ids` (`-1` columns are
+padding; their values are ignored), 80 steps after the current one (sim
+agents) or all 91 (scenario gen, with per-step box sizes).
+"""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+from wosac_eval.backends import jax_backend  # first: it sets XLA's CPU flags before JAX starts
+
+import jax  # noqa: E402  (after jax_backend, see above)
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wosac_eval import challenges  # noqa: E402
+from wosac_eval.arrays.samples import log_sample, official_object_order  # noqa: E402
+from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays  # noqa: E402
+from wosac_eval.features import dense  # noqa: E402
+from wosac_eval.features import metric_features as mf  # noqa: E402
+from wosac_eval.metrics.config import load_config  # noqa: E402
+from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values  # noqa: E402
+from wosac_eval.arrays.trajectories import index_of_ids  # noqa: E402
+
+_F = np.float32
+_POSITIONS = ("x", "y", "z", "heading")
+_SIZES = ("length", "width", "height")
+
+
+@jax.tree_util.register_pytree_node_class
+@dataclasses.dataclass(frozen=True)
+class PreparedScenes:
+    """Scenes ready for `realism`: a pytree whose leaves are device arrays with a leading `num_scenes` axis.
+
+    Attributes:
+      arrays: the device arrays (log, map, masks, column order); opaque.
+      scenario_ids: the scenes' ids, in order.
+      agent_ids: per scene, the sim agents' ids in the column order `realism` expects.
+      challenge: "sim_agents" or "scenario_gen".
+      config: the metrics config preset or textproto path.
+      layout: the padded feature layout (static).
+    """
+
+    arrays: dict
+    scenario_ids: tuple
+    agent_ids: tuple
+    challenge: str
+    config: str
+    layout: mf.FeatureLayout
+
+    def tree_flatten(self):
+        return (self.arrays,), (self.scenario_ids, self.agent_ids, self.challenge, self.config, self.layout)
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(children[0], *aux)
+
+    @property
+    def num_scenes(self) -> int:
+        return len(self.scenario_ids)
+
+    @property
+    def max_agents(self) -> int:
+        return max((len(ids) for ids in self.agent_ids), default=0)
+
+    @property
+    def num_steps(self) -> int:
+        return challenges.spec(self.challenge).num_simulation_steps
+
+    @property
+    def sim_agent_ids(self) -> np.ndarray:
+        """int64 `(num_scenes, max_agents)`: the object of each column of the rollout arrays, -1 for padding."""
+        out = np.full((self.num_scenes, self.max_agents), -1, dtype=np.int64)
+        for row, ids in zip(out, self.agent_ids):
+            row[: len(ids)] = ids
+        return out
+
+    @property
+    def rollout_shape(self) -> tuple:
+        """`(num_scenes, num_rollouts, max_agents, num_steps)` of the arrays `realism` takes."""
+        spec = challenges.spec(self.challenge)
+        return (self.num_scenes, spec.num_rollouts, self.max_agents, spec.num_simulation_steps)
+
+
+def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> dict:
+    """The unpadded host arrays of one scene (see `prepare`)."""
+    evaluated = scenario.evaluated_ids(spec)
+    order = official_object_order(scenario.sim_agent_ids, evaluated)
+    log, feature_valid = log_sample(scenario, spec)
+    layout = mf.feature_layout(spec, len(evaluated))
+    context = mf.map_context(scenario)
+    signals = mf.signals_from(scenario.signals, layout.first_red_light_step)
+    steps = log.num_steps
+    maps = {**jax_backend._segment_arrays(context.road_edges),
+            **jax_backend._red_light_arrays(signals, context.lanes, steps - layout.first_red_light_step)}
+    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps,
+            "tails": mf.official_tails(len(order), len(evaluated), steps, layout.first_step),
+            "feature_valid": feature_valid[0], "object_type": np.asarray(log.object_type[0], np.int32),
+            "columns": index_of_ids(scenario.sim_agent_ids, order), "num_evaluated": len(evaluated),
+            "num_objects": len(order)}
+
+
+def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
+            min_sizes: tuple | None = None) -> PreparedScenes:
+    """Scenes (Scenario messages or `ScenarioArrays`) as a device-resident `PreparedScenes`, once.
+
+    Args:
+      challenge: "sim_agents" (80 future steps; SDC and tracks_to_predict evaluated) or "scenario_gen".
+      config: the metrics config (default: the challenge's leaderboard config, "2025" or
+        "scenario_gen_2025").
+      min_sizes: optional lower bounds of the padded sizes (objects, evaluated objects, road-edge
+        segments, signals, lane segments): to share compiled functions between scene sets.
+    """
+    spec = challenges.spec(challenge)
+    config = config or spec.default_config
+    load_config(config)  # refused now if unknown
+    scenes = [s if isinstance(s, ScenarioArrays) else scenario_arrays(s) for s in scenarios]
+    if not scenes:
+        raise ValueError("prepare needs at least one scenario")
+    inputs = [_scene_inputs(s, spec) for s in scenes]
+    # Exact maxima: a training loop compiles once per scene set, and every padded row costs.
+    sizes = [max(i["num_objects"] for i in inputs), max(i["num_evaluated"] for i in inputs),
+             max(len(i["maps"]["start"]) for i in inputs), max(len(i["maps"]["signal_lane_id"]) for i in inputs),
+             max(len(i["maps"]["lane_start"]) for i in inputs)]
+    sizes = [max(n, 1) for n in sizes]
+    if min_sizes is not None:
+        sizes = list(map(max, sizes, min_sizes))
+    sizes[1] = min(sizes[1], sizes[0])  # evaluated rows are the first object rows
+    n_obj, n_eval = sizes[:2]
+    key = (1, challenges.NUM_LOGGED_STEPS, spec.first_simulated_step, *sizes)
+    layout = mf.feature_layout(spec, n_eval)
+    max_agents = max(len(s.sim_agent_ids) for s in scenes)
+    per_scene = []
+    for scene_input in inputs:
+        fake = jax_backend.PreparedScenario(scenario_id="", batch=None, traj=scene_input["traj"],
+                                            tails=scene_input["tails"], maps=scene_input["maps"], layout=layout)
+        traj, tails, maps = jax_backend._padded_inputs(fake, key)
+        n, e = scene_input["num_objects"], scene_input["num_evaluated"]
+        columns = np.full(n_obj, max_agents, dtype=np.int32)  # padding reads the appended zero column
+        columns[:n] = scene_input["columns"]
+        feature_valid = np.zeros((n_eval, challenges.NUM_LOGGED_STEPS), bool)
+        feature_valid[:e] = scene_input["feature_valid"]
+        object_type = np.zeros(n_eval, np.int32)
+        object_type[: min(n, n_eval)] = scene_input["object_type"][:n_eval]
+        per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
+                          "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
+                          "feature_valid": feature_valid, "object_type": object_type})
+    with jax.enable_x64(True):
+        arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
+    return PreparedScenes(arrays=arrays, scenario_ids=tuple(s.scenario_id for s in scenes),
+                          agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
+                          challenge=spec.challenge.value, config=str(config), layout=layout)
+
+
+def _gather_agents(values, columns):
+    """`(num_rollouts, max_agents, steps)` user columns -> `(num_rollouts, num_objects, steps)` official rows."""
+    padded = jnp.concatenate([values, jnp.zeros_like(values[:, :1])], axis=1)
+    return jnp.take(padded, columns, axis=1)
+
+
+def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict,
+                    rollouts: dict) -> mf.MetricFeatures:
+    """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
+    log, real = a["log"], a["real"]
+    num_rollouts = rollouts["x"].shape[0]
+    n_obj, steps = log["x"].shape
+    tile = lambda v: jnp.broadcast_to(v[None], (num_rollouts,) + v.shape)  # noqa: E731
+    gathered = {f: _gather_agents(v.astype(_F), a["columns"]) for f, v in rollouts.items()}
+    if spec.submits_boxes:
+        sim = {**gathered, "valid": tile(log["valid"])}
+    else:
+        now = spec.first_simulated_step
+        sim = {f: jnp.concatenate([tile(log[f][:, :now]), gathered[f]], axis=-1) for f in _POSITIONS}
+        sim.update({f: tile(log[f]) for f in _SIZES})
+        future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
+        sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
+    traj = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
+    per_step = mf.per_step_features(traj, layout, dense.DenseSearch(a["maps"]), a["tails"])
+    reported = layout.reported
+    e = layout.num_evaluated
+    valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
+    return mf.MetricFeatures(object_id=jnp.zeros(e, jnp.int32),
+                             object_type=jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
+                             valid=valid[..., reported], **per_step)
+
+
+def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict):
+    """Every SCENARIO_FIELDS value of one prepared scene (leading scene axis removed) and its rollouts."""
+    both = _scene_features(spec, layout, a, rollouts)
+    values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)),
+                           object_mask=a["evaluated"])
+    return {f: values[f] for f in SCENARIO_FIELDS}
+
+
+@functools.lru_cache(maxsize=None)
+def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout):
+    config = load_config(config_name)
+    spec = challenges.spec(challenge)
+    one = functools.partial(_scene_realism, config, spec, layout)
+    return jax.jit(jax.vmap(one))
+
+
+@functools.lru_cache(maxsize=None)
+def _features_fn(challenge: str, layout: mf.FeatureLayout):
+    def one(a, rollouts):
+        both = _scene_features(challenges.spec(challenge), layout, a, rollouts)
+        return {f.name: getattr(both, f.name) for f in dataclasses.fields(both) if f.name != "object_id"}
+
+    return jax.jit(jax.vmap(one))
+
+
+def _check_rollouts(prepared: PreparedScenes, fields: dict) -> None:
+    want = prepared.rollout_shape
+    for name, value in fields.items():
+        shape = tuple(np.shape(value))
+        if shape[:1] + shape[2:] != want[:1] + want[2:] or len(shape) != 4:
+            raise ValueError(f"{name} must be (num_scenes, num_rollouts, max_agents, num_steps) = "
+                             f"({want[0]}, num_rollouts, {want[2]}, {want[3]}) for these {prepared.challenge} "
+                             f"scenes, got {shape}")
+    rollouts = {tuple(np.shape(v))[1] for v in fields.values()}
+    if len(rollouts) != 1:
+        raise ValueError(f"every field must have the same number of rollouts, got {sorted(rollouts)}")
+
+
+def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None) -> dict:
+    """Every `SimAgentMetrics` field of every scene, from rollouts on the device.
+
+    Args:
+      prepared: from `prepare`.
+      x, y, z, heading: float `(num_scenes, num_rollouts, max_agents, num_steps)` (see the module):
+        columns in the order of `prepared.sim_agent_ids`; 80 steps (sim agents) or 91 (scenario gen).
+      length, width, height: the submitted box sizes, same shape (scenario gen only, required there).
+    Returns:
+      field name -> `(num_scenes,)` device array: the likelihoods, rates and ADEs float32, the
+      meta-metric float64 (as `score_scenario` returns them, before rounding to float).
+    Works under `jax.jit` and `jax.vmap` (e.g. over several rollout sets of the same scenes).
+    """
+    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    with jax.enable_x64(True):
+        return _realism_fn(prepared.config, prepared.challenge, prepared.layout)(prepared.arrays, fields)
+
+
+def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
+    """The rollout arrays by field, checked (shapes; box sizes exactly for scenario gen)."""
+    spec = challenges.spec(prepared.challenge)
+    fields = dict(zip(_POSITIONS, (x, y, z, heading)))
+    if spec.submits_boxes:
+        missing = [k for k in _SIZES if sizes.get(k) is None]
+        if missing:
+            raise ValueError(f"scenario gen rollouts need their box sizes: {', '.join(missing)} missing")
+        fields.update({k: sizes[k] for k in _SIZES})
+    elif any(v is not None for v in sizes.values()):
+        raise ValueError("sim agents rollouts take their box sizes from the log: give no length, width, height")
+    _check_rollouts(prepared, fields)
+    return fields
+
+
+def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None,
+             height=None) -> mf.MetricFeatures:
+    """The per-step features behind `realism` (same arguments), a `MetricFeatures` of device arrays.
+
+    Every field has the leading axes `(num_scenes, 1 + num_rollouts, num_evaluated_rows)`: sample 0 is
+    the log; the first `len(scenario.evaluated_ids())` rows of a scene are its evaluated objects in the
+    official order, the others padding. On CPU they are bit-identical to the official features.
+    """
+    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    with jax.enable_x64(True):
+        out = _features_fn(prepared.challenge, prepared.layout)(prepared.arrays, fields)
+    return mf.MetricFeatures(object_id=np.zeros(prepared.layout.num_evaluated, np.int64), **out)
+
+
+def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:
+    """Where each sim agent sits on a Waymax-style object axis, int32 `(num_scenes, max_agents)`.
+
+    Args:
+      object_ids: int `(num_scenes, num_objects)`, Waymax's `object_metadata.ids` (padding: any id
+        that is not a sim agent's).
+    Raises:
+      ValueError naming the scene and the sim agents missing from its objects.
+    """
+    object_ids = np.asarray(object_ids)
+    if object_ids.ndim != 2 or object_ids.shape[0] != prepared.num_scenes:
+        raise ValueError(f"object_ids must be (num_scenes={prepared.num_scenes}, num_objects), "
+                         f"got {object_ids.shape}")
+    out = np.zeros((prepared.num_scenes, prepared.max_agents), np.int32)
+    for s, ids in enumerate(prepared.agent_ids):
+        where = {int(v): k for k, v in enumerate(object_ids[s])}
+        missing = [i for i in ids if i not in where]
+        if missing:
+            raise ValueError(f"scenario {prepared.scenario_ids[s]}: sim agents {missing[:5]} are not among "
+                             f"the Waymax objects")
+        out[s, : len(ids)] = [where[i] for i in ids]
+    return out
+
+
+def from_waymax(prepared: PreparedScenes, columns, x, y, z, yaw, **sizes) -> dict:
+    """Waymax-style trajectories `(num_scenes, num_rollouts, num_objects, 91)` -> `realism`'s arguments.
+
+    Picks the sim agents' columns (`waymax_columns`) and, for sim agents, the 80 steps after the
+    current one (Waymax trajectories include the history). jit-able. Returns a dict to splat into
+    `realism(prepared, **...)`.
+    """
+    spec = challenges.spec(prepared.challenge)
+    steps = spec.simulated_steps
+    pick = lambda a: jnp.take_along_axis(jnp.asarray(a), jnp.asarray(columns)[:, None, :, None], axis=2)[..., steps]  # noqa: E731
+    out = {"x": pick(x), "y": pick(y), "z": pick(z), "heading": pick(yaw)}
+    if spec.submits_boxes:
+        out.update({k: pick(v) for k, v in sizes.items()})
+    return out

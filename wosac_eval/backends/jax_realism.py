@@ -46,30 +46,38 @@ _SIZES = ("length", "width", "height")
 @jax.tree_util.register_pytree_node_class
 @dataclasses.dataclass(frozen=True)
 class PreparedScenes:
-    """Scenes ready for `realism`: a pytree whose leaves are device arrays with a leading `num_scenes` axis.
+    """Scenes ready for `realism`: a pytree whose leaves are device arrays.
+
+    Scenes of similar sizes form a group (`groups`): the scenes of a group are padded to the group's
+    largest and run as one `vmap`ped computation, so a small scene does not pay for the largest one.
 
     Attributes:
-      arrays: the device arrays (log, map, masks, column order); opaque.
+      arrays: per group, the device arrays (log, map, masks, column order) with a leading scene axis.
+      groups: per group, (indices of its scenes in `scenario_ids`, its padded `FeatureLayout`).
       scenario_ids: the scenes' ids, in order.
       agent_ids: per scene, the sim agents' ids in the column order `realism` expects.
       challenge: "sim_agents" or "scenario_gen".
       config: the metrics config preset or textproto path.
-      layout: the padded feature layout (static).
     """
 
-    arrays: dict
+    arrays: tuple
+    groups: tuple
     scenario_ids: tuple
     agent_ids: tuple
     challenge: str
     config: str
-    layout: mf.FeatureLayout
 
     def tree_flatten(self):
-        return (self.arrays,), (self.scenario_ids, self.agent_ids, self.challenge, self.config, self.layout)
+        return (self.arrays,), (self.groups, self.scenario_ids, self.agent_ids, self.challenge, self.config)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
         return cls(children[0], *aux)
+
+    @property
+    def layout(self) -> mf.FeatureLayout:
+        """The layout of the group with the most evaluated rows."""
+        return max((layout for _, layout in self.groups), key=lambda g: g.num_evaluated)
 
     @property
     def num_scenes(self) -> int:
@@ -134,18 +142,44 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
     if not scenes:
         raise ValueError("prepare needs at least one scenario")
     inputs = [_scene_inputs(s, spec) for s in scenes]
+    max_agents = max(len(s.sim_agent_ids) for s in scenes)
+    floor = tuple(min_sizes) if min_sizes is not None else (1, 1, 1, 1, 1)
+    members: dict[tuple, list[int]] = {}
+    for k, scene_input in enumerate(inputs):
+        members.setdefault(_group_key(_sizes(scene_input), floor), []).append(k)
+    groups, arrays = [], []
+    for indices in members.values():
+        group_arrays, layout = _prepare_group([inputs[k] for k in indices], spec, floor, max_agents)
+        groups.append((tuple(indices), layout))
+        arrays.append(group_arrays)
+    return PreparedScenes(arrays=tuple(arrays), groups=tuple(groups), scenario_ids=tuple(s.scenario_id for s in scenes),
+                          agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
+                          challenge=spec.challenge.value, config=str(config))
+
+
+def _sizes(scene_input: dict) -> tuple:
+    """(objects, evaluated objects, road-edge segments, signals, lane segments) of a scene."""
+    maps = scene_input["maps"]
+    return (scene_input["num_objects"], scene_input["num_evaluated"], len(maps["start"]),
+            len(maps["signal_lane_id"]), len(maps["lane_start"]))
+
+
+def _group_key(sizes: tuple, floor: tuple) -> tuple:
+    """Scenes whose sizes round to the same powers of two (finer for map segments) share a group."""
+    n_obj, n_eval, n_seg, n_sig, n_lane = map(max, sizes, floor)
+    return (jax_backend.bucket(n_obj, 1), jax_backend.bucket(n_eval, 1), jax_backend.fine_bucket(n_seg, 1),
+            jax_backend.bucket(n_sig, 1), jax_backend.fine_bucket(n_lane, 1))
+
+
+def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int):
+    """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
     # Exact maxima: a training loop compiles once per scene set, and every padded row costs.
-    sizes = [max(i["num_objects"] for i in inputs), max(i["num_evaluated"] for i in inputs),
-             max(len(i["maps"]["start"]) for i in inputs), max(len(i["maps"]["signal_lane_id"]) for i in inputs),
-             max(len(i["maps"]["lane_start"]) for i in inputs)]
-    sizes = [max(n, 1) for n in sizes]
-    if min_sizes is not None:
-        sizes = list(map(max, sizes, min_sizes))
+    sizes = [max(max(column), 1) for column in zip(*map(_sizes, inputs))]
+    sizes = list(map(max, sizes, floor))
     sizes[1] = min(sizes[1], sizes[0])  # evaluated rows are the first object rows
     n_obj, n_eval = sizes[:2]
     key = (1, challenges.NUM_LOGGED_STEPS, spec.first_simulated_step, *sizes)
     layout = mf.feature_layout(spec, n_eval)
-    max_agents = max(len(s.sim_agent_ids) for s in scenes)
     per_scene = []
     for scene_input in inputs:
         fake = jax_backend.PreparedScenario(scenario_id="", batch=None, traj=scene_input["traj"],
@@ -163,9 +197,7 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
                           "feature_valid": feature_valid, "object_type": object_type})
     with jax.enable_x64(True):
         arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
-    return PreparedScenes(arrays=arrays, scenario_ids=tuple(s.scenario_id for s in scenes),
-                          agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
-                          challenge=spec.challenge.value, config=str(config), layout=layout)
+    return arrays, layout
 
 
 def _gather_agents(values, columns):
@@ -253,7 +285,22 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
     """
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     with jax.enable_x64(True):
-        return _realism_fn(prepared.config, prepared.challenge, prepared.layout)(prepared.arrays, fields)
+        parts = [_realism_fn(prepared.config, prepared.challenge, layout)(arrays, _take_scenes(fields, indices))
+                 for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
+        return _in_scene_order(prepared, parts)
+
+
+def _take_scenes(fields: dict, indices: tuple) -> dict:
+    rows = jnp.asarray(indices, jnp.int32)
+    return {k: jnp.take(jnp.asarray(v), rows, axis=0) for k, v in fields.items()}
+
+
+def _in_scene_order(prepared: PreparedScenes, parts: list):
+    """Group results (pytrees with a leading scene axis) put back in the order of `prepared.scenario_ids`."""
+    if len(parts) == 1:
+        return parts[0]
+    order = np.argsort(np.concatenate([np.asarray(indices) for indices, _ in prepared.groups]), kind="stable")
+    return jax.tree_util.tree_map(lambda *leaves: jnp.concatenate(leaves)[order], *parts)
 
 
 def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
@@ -280,9 +327,16 @@ def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=N
     official order, the others padding. On CPU they are bit-identical to the official features.
     """
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    rows = prepared.layout.num_evaluated
     with jax.enable_x64(True):
-        out = _features_fn(prepared.challenge, prepared.layout)(prepared.arrays, fields)
-    return mf.MetricFeatures(object_id=np.zeros(prepared.layout.num_evaluated, np.int64), **out)
+        parts = []
+        for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
+            out = _features_fn(prepared.challenge, layout)(arrays, _take_scenes(fields, indices))
+            # Groups have different row counts: pad rows (axis 2) to the largest group's.
+            parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
+                          for k, v in out.items()})
+        out = _in_scene_order(prepared, parts)
+    return mf.MetricFeatures(object_id=np.zeros(rows, np.int64), **out)
 
 
 def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:

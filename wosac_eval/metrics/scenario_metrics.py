@@ -25,10 +25,10 @@ TYPE_VEHICLE = 1
 SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE_FIELDS)
 
 
-def _masked_mean(values, valid):
+def _masked_mean(values, valid, dtype=_F):
     xp = array_namespace(values, valid)
-    total = xp.where(valid, values, _F(0)).sum(dtype=_F)
-    return total / valid.sum().astype(_F)
+    total = xp.where(valid, values, _F(0)).sum(dtype=dtype)
+    return (total / valid.sum().astype(dtype)).astype(_F)
 
 
 def _any_over_time(per_step, valid):
@@ -72,11 +72,16 @@ def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
 
 
 def _object_mean(values, object_mask, dtype):
-    """Mean over the last axis (objects), over the real ones only when `object_mask` is given."""
+    """Mean over the last axis (objects), over the real ones only when `object_mask` is given.
+
+    With a mask (padded features) the sum runs in float64 whatever `dtype`: a float32 sum's rounding
+    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32.
+    """
     if object_mask is None:
         return values.mean(axis=-1, dtype=dtype)
     xp = array_namespace(values, object_mask)
-    return xp.where(object_mask, values, 0).sum(axis=-1, dtype=dtype) / object_mask.sum().astype(dtype)
+    total = xp.where(object_mask, values, 0).sum(axis=-1, dtype=np.float64)
+    return (total / object_mask.sum().astype(np.float64)).astype(dtype)
 
 
 def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
@@ -93,11 +98,13 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     for metric in METRICS:
         ll, mask = lls[metric.name]
         # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
-        out[metric.output] = xp.exp(_object_mean(ll, object_mask, _F) if mask is None else _masked_mean(ll, mask))
+        padded_sum = _F if object_mask is None else np.float64  # see `_object_mean`
+        out[metric.output] = xp.exp(_object_mean(ll, object_mask, _F) if mask is None
+                                    else _masked_mean(ll, mask, padded_sum))
     ade = sim.average_displacement_error
     per_rollout = _object_mean(ade, object_mask, _F)
     out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
-                                         else per_rollout.mean(dtype=_F))
+                                         else per_rollout.mean(dtype=np.float64).astype(_F))
     out["min_average_displacement_error"] = per_rollout.min()
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.

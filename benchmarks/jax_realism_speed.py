@@ -7,7 +7,8 @@ one warm-up (compilation for JAX) and the same `--repeat` timed runs:
   rollouts every call (the rollouts are moved a little each time, as a training step would);
 - the file path with the jax backend: `score_submission(..., backend="jax")` of the same
   rollouts as a submission (parsing, validation, host preparation, device, metrics);
-- the file path with numpy, one worker and all cores (`--workers`).
+- the file path with numpy, one worker and `--workers` workers, in a fresh process without JAX (a
+  process that has started JAX must spawn its workers, which would be counted).
 
 Prints scenes per second for each, and the device in use (`jax.devices()`). On a machine with a
 GPU, JAX uses it; this project's development machine has none.
@@ -54,6 +55,28 @@ def _arrays(prepared, scenarios) -> dict:
     return out
 
 
+_NUMPY_CHILD = """
+import statistics, sys, time
+from wosac_eval.scoring.submission import score_submission
+shards, submission, workers, repeat = sys.argv[1].split(","), sys.argv[2], int(sys.argv[3]), int(sys.argv[4])
+run = lambda: score_submission(shards, submission, analysis=False, workers=workers)
+run()
+times = []
+for _ in range(repeat):
+    start = time.perf_counter(); run(); times.append(time.perf_counter() - start)
+print(statistics.median(times))
+"""
+
+
+def _numpy_file_path(shards, submission, workers: int, repeat: int) -> float:
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", _NUMPY_CHILD, ",".join(map(str, shards)), str(submission),
+                           str(workers), str(repeat)], capture_output=True, text=True, check=True)
+    return float(done.stdout.split()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=16)
@@ -79,9 +102,7 @@ def main() -> None:
         shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
         submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
         jax_file_s = _seconds(lambda: score_submission(shards, submission, backend="jax", analysis=False), args.repeat)
-        numpy_1_s = _seconds(lambda: score_submission(shards, submission, analysis=False), args.repeat)
-        numpy_n_s = _seconds(lambda: score_submission(shards, submission, analysis=False, workers=args.workers),
-                             args.repeat)
+        numpy_1_s, numpy_n_s = (_numpy_file_path(shards, submission, w, args.repeat) for w in (1, args.workers))
     n = args.scenes
     print(f"prepare (once per scene set): {prepare_s:.2f} s ({prepare_s / n * 1e3:.0f} ms/scene)")
     for label, seconds in (("in the loop: realism(prepared, rollouts)", loop_s),

@@ -74,3 +74,17 @@ def test_unknown_backend_is_rejected():
     from wosac_eval.backends import check_backend
     with pytest.raises(ValueError, match="unknown backend 'torch'"):
         check_backend("torch")
+
+
+def test_pipelined_jax_file_path_equals_numpy_on_demo_scenes(tmp_path):
+    """Workers prepare on the host, this process feeds the device: the whole document equals numpy's."""
+    from wosac_eval.scoring.submission import score_submission
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import make_submission
+
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(10, seed=0)[:5], tmp_path / "scenarios",
+                                          num_shards=2)
+    submission = make_submission(shards, "idm", tmp_path / "idm.tar.gz", num_shards=2)
+    numpy_result = score_submission(shards, submission)
+    for workers in (1, 2):
+        assert score_submission(shards, submission, backend="jax", workers=workers) == numpy_result

@@ -217,44 +217,84 @@ def _features_fn(layout: mf.FeatureLayout):
     return jax.jit(jax.vmap(one_scene))
 
 
+def _per_call(key: tuple, max_batch: int) -> int:
+    """Scenarios of one bucket per call: at most `max_batch`, fewer for big scenes; a power of two."""
+    samples, steps, _, n_obj, n_eval = key[:5]
+    fit = max(1, PAIRS_PER_BATCH // (samples * steps * n_obj * n_eval))
+    return 1 << (min(max(max_batch, 1), fit).bit_length() - 1)
+
+
+class FeaturePipeline:
+    """Features of a stream of prepared scenarios, the device kept busy while the host works.
+
+    Scenarios are grouped by bucket; a group's batch is dispatched to the device as soon as it is
+    full (JAX returns at once: the computation runs asynchronously), and results are collected one
+    batch behind, so that the host prepares the next scenarios and finishes the previous ones while
+    the device computes. Each scenario's features are the same however it was batched.
+
+    Usage: `for tag, p, (log, sim) in pipeline.add(tag, p)` ... then `pipeline.finish()` likewise.
+    """
+
+    def __init__(self, max_batch: int = 8, min_bucket: tuple | None = None, in_flight: int = 1):
+        self.max_batch, self.min_bucket, self.in_flight = max_batch, min_bucket, in_flight
+        self.groups: dict[tuple, list] = {}
+        self.dispatched: list = []
+
+    def _key(self, p: PreparedScenario) -> tuple:
+        key = p.bucket_key
+        return key if self.min_bucket is None else key[:3] + tuple(map(max, key[3:], self.min_bucket))
+
+    def add(self, tag, p: PreparedScenario) -> list:
+        """Queues a scenario; returns the (tag, prepared, (log, sim)) of the batches now collected."""
+        _warn_if_inexact()
+        key = self._key(p)
+        group = self.groups.setdefault(key, [])
+        group.append((tag, p))
+        if len(group) == _per_call(key, self.max_batch):
+            self._dispatch(key, self.groups.pop(key))
+        return self._collect(self.in_flight)
+
+    def finish(self) -> list:
+        """Dispatches the partial batches and collects everything."""
+        for key in list(self.groups):
+            self._dispatch(key, self.groups.pop(key))
+        return self._collect(0)
+
+    def _dispatch(self, key: tuple, items: list) -> None:
+        layout = dataclasses.replace(items[0][1].layout, num_evaluated=key[4])
+        padded = [_padded_inputs(p, key) for _, p in items]
+        size = min(bucket(len(items), 1), _per_call(key, self.max_batch))
+        padded += [padded[0]] * (size - len(padded))  # a partial batch repeats its first scenario
+        stacked = [{k: np.stack([part[j][k] for part in padded]) for k in padded[0][j]} for j in range(3)]
+        with jax.enable_x64(True):
+            self.dispatched.append((items, _features_fn(layout)(*stacked)))
+
+    def _collect(self, keep: int) -> list:
+        done = []
+        while len(self.dispatched) > keep:
+            items, out = self.dispatched.pop(0)
+            out = jax.device_get(out)
+            for j, (tag, p) in enumerate(items):
+                e = slice(0, p.layout.num_evaluated)
+                done.append((tag, p, mf.metric_features(p.batch, {k: np.asarray(v[j])[:, e] for k, v in out.items()})))
+        return done
+
+
 def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
                       min_bucket: tuple | None = None) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
-    """(log features, simulated features) of each prepared scenario, in order.
-
-    Scenarios are grouped by bucket; each group is run up to `max_batch` at a
-    time (fewer for big scenes, see `PAIRS_PER_BATCH`; always a power of two,
-    a partial batch being padded by repeating its first scenario, so a stream
-    of scenarios reuses a few compiled functions).
+    """(log features, simulated features) of each prepared scenario, in order (`FeaturePipeline`).
 
     Args:
       min_bucket: optional lower bound of the bucket sizes (objects,
         evaluated objects, road-edge segments, signals, lane segments), to pad more than needed.
     """
-    _warn_if_inexact()
+    pipeline = FeaturePipeline(max_batch=max_batch, min_bucket=min_bucket)
     results: list = [None] * len(prepared)
-    groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(prepared):
-        key = p.bucket_key
-        if min_bucket is not None:
-            key = key[:3] + tuple(map(max, key[3:], min_bucket))
-        groups.setdefault(key, []).append(i)
-    for key, members in groups.items():
-        samples, steps, first_step, n_obj, n_eval = key[:5]
-        layout = dataclasses.replace(prepared[members[0]].layout, num_evaluated=n_eval)
-        fit = max(1, PAIRS_PER_BATCH // (samples * steps * n_obj * n_eval))
-        per_call = 1 << (min(max(max_batch, 1), fit).bit_length() - 1)  # a power of two
-        for lo in range(0, len(members), per_call):
-            chunk = members[lo: lo + per_call]
-            padded = [_padded_inputs(prepared[i], key) for i in chunk]
-            size = min(bucket(len(chunk), 1), per_call)
-            padded += [padded[0]] * (size - len(padded))
-            stacked = [{k: np.stack([part[j][k] for part in padded]) for k in padded[0][j]} for j in range(3)]
-            with jax.enable_x64(True):
-                out = jax.device_get(_features_fn(layout)(*stacked))
-            for j, i in enumerate(chunk):
-                p = prepared[i]
-                e = slice(0, p.layout.num_evaluated)
-                results[i] = mf.metric_features(p.batch, {k: np.asarray(v[j])[:, e] for k, v in out.items()})
+        for tag, _, features in pipeline.add(i, p):
+            results[tag] = features
+    for tag, _, features in pipeline.finish():
+        results[tag] = features
     return results
 
 

@@ -5,6 +5,7 @@ numpy or JAX) -> metrics (`metrics.scenario_metrics`), for either challenge.
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 
 import numpy as np
@@ -80,30 +81,32 @@ def unscorable(scenario_id: str, error: Exception) -> ValueError:
 
 
 def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, rollouts: RolloutArrays,
-                      log, sim, log_likelihoods: dict, context) -> dict:
+                      log, sim, log_likelihoods: dict, context, criticality: dict | None = None) -> dict:
     """What a result row carries beside the official metrics, from the same features.
 
     Returns:
       {"criticality": the scene's heuristic criticality (`metrics.criticality.scene_criticality`; the
       result's assembly adds the rarity), "driving": the SDC's driving scores (or None),
-      "by_object_type": the metrics per object type}.
+      "by_object_type": the metrics per object type}. `criticality`: the scene's, when computed already.
     """
     from wosac_eval.features.criticality import criticality_features
     from wosac_eval.metrics.by_object_type import by_object_type
     from wosac_eval.metrics.criticality import scene_criticality
     from wosac_eval.metrics.driving import driving_scores
 
-    return {"criticality": scene_criticality(criticality_features(scenario, context)),
+    if criticality is None:
+        criticality = scene_criticality(criticality_features(scenario, context))
+    return {"criticality": criticality,
             "driving": driving_scores(scenario, rollouts, sim),
             "by_object_type": by_object_type(config, log, sim, log_likelihoods)}
 
 
 def _row(config: SimAgentMetricsConfig, arrays: ScenarioArrays, rollout: RolloutArrays, log, sim, context,
-         analysis: bool) -> dict:
+         analysis: bool, criticality: dict | None = None) -> dict:
     lls = metric_log_likelihoods(config, log, sim)
     row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
     if analysis:
-        row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context))
+        row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context, criticality))
     return row
 
 
@@ -140,24 +143,75 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
     return _row(config, arrays, rollout, log, sim, context, analysis)
 
 
+@dataclasses.dataclass(frozen=True)
+class JaxItem:
+    """A scenario prepared on the host for the jax backend (a worker's output in the pipelined file path).
+
+    Attributes:
+      arrays, rollout, context: the scenario's arrays, rollouts and map context.
+      prepared: `jax_backend.PreparedScenario`.
+      criticality: the scene's criticality (`scene_criticality`) when the analysis is asked for, else None.
+    """
+
+    arrays: ScenarioArrays
+    rollout: RolloutArrays
+    context: object
+    prepared: object
+    criticality: dict | None = None
+
+
+def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> JaxItem:
+    """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs."""
+    from wosac_eval.backends import jax_backend
+
+    arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
+    try:
+        context = map_context(arrays)
+        prepared = jax_backend.prepare(arrays, rollout, context, challenge=challenge)
+    except (ValueError, KeyError) as error:
+        raise unscorable(arrays.scenario_id, error) from error
+    criticality = None
+    if analysis:
+        from wosac_eval.features.criticality import criticality_features
+        from wosac_eval.metrics.criticality import scene_criticality
+        criticality = scene_criticality(criticality_features(arrays, context))
+    return JaxItem(arrays, rollout, context, prepared, criticality)
+
+
+def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
+                    challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False):
+    """Rows of a stream of `JaxItem`s, in stream order, the device computing while the host finishes rows.
+
+    Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
+    """
+    from wosac_eval.backends import jax_backend
+    config = resolve_config(config, challenges.as_challenge(challenge))
+    pipeline = jax_backend.FeaturePipeline(max_batch=max_batch)
+    rows: dict[int, dict] = {}
+    next_out = 0
+
+    def finish(done):
+        for index, item, (log, sim) in done:
+            rows[index] = _row(config, item.arrays, item.rollout, log, sim, item.context, analysis,
+                               item.criticality)
+
+    for index, item in enumerate(items):
+        finish((i, it, features) for (i, it), _, features in pipeline.add((index, item), item.prepared))
+        while next_out in rows:
+            yield rows.pop(next_out)
+            next_out += 1
+    finish((i, it, features) for (i, it), _, features in pipeline.finish())
+    while next_out in rows:
+        yield rows.pop(next_out)
+        next_out += 1
+
+
 def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
                         challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False) -> list[dict]:
     """`score_scenario` with the jax backend for many (scenario, rollouts) pairs at once.
 
     Scenarios of the same size bucket share one `vmap`ped call.
     """
-    from wosac_eval.backends import jax_backend
     challenge = challenges.as_challenge(challenge)
-    config = resolve_config(config, challenge)
-    prepared, inputs = [], []
-    for scenario, rollouts in pairs:
-        arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
-        try:
-            context = map_context(arrays)
-            prepared.append(jax_backend.prepare(arrays, rollout, context, challenge=challenge))
-        except (ValueError, KeyError) as error:
-            raise unscorable(arrays.scenario_id, error) from error
-        inputs.append((arrays, rollout, context))
-    features = jax_backend.prepared_features(prepared, max_batch=max_batch)
-    return [_row(config, arrays, rollout, log, sim, context, analysis)
-            for (arrays, rollout, context), (log, sim) in zip(inputs, features)]
+    items = (prepare_jax_item(scenario, rollouts, challenge, analysis) for scenario, rollouts in pairs)
+    return list(score_jax_items(items, config, max_batch, challenge=challenge, analysis=analysis))

@@ -95,6 +95,38 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
             for scenario, rollouts in pairs]
 
 
+def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
+    """The host part of jax-backend scoring of a chunk (a worker task): `scoring.scenario.JaxItem`s."""
+    from wosac_eval.scoring.scenario import prepare_jax_item
+
+    return [prepare_jax_item(context.index.load(sid),
+                             sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)),
+                             context.challenge, context.analysis)
+            for sid, locator in chunk.items]
+
+
+def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
+    """Rows of the chunks, a chunk at a time: workers parse and prepare, this process feeds the device."""
+    from wosac_eval.scoring.scenario import score_jax_items
+
+    sizes: list[int] = []
+
+    def items():
+        for prepared in executor.imap(prepare_chunk, chunks, context):
+            sizes.append(len(prepared))
+            yield from prepared
+
+    batch: list[dict] = []
+    for row in score_jax_items(items(), config, challenge=context.challenge, analysis=context.analysis):
+        batch.append(row)
+        if len(batch) == sizes[0]:
+            yield batch
+            batch = []
+            sizes.pop(0)
+    if batch:
+        yield batch
+
+
 class _Plan:
     """What validation learnt of every shard, kept for the scoring pass: the shard (a byte range of a
     file, or a member whose bytes are streamed again) and (scenario_id, span) of its entries."""
@@ -208,7 +240,12 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     per_scenario: list[dict] = []
     if progress is not None:
         progress(0, total)
-    for results in executor.imap(score_chunk, chunks, context):
+    if backend == "jax" and engine == "local":
+        # Pipelined: workers parse and prepare on the host, this process keeps the device busy.
+        scored = _jax_pipeline(executor, chunks, context, metrics_config)
+    else:
+        scored = executor.imap(score_chunk, chunks, context)
+    for results in scored:
         per_scenario.extend(results)
         if progress is not None:
             progress(len(per_scenario), total)

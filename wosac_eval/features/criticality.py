@@ -164,7 +164,16 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     if n < 2:
         return ttc, closing, near
     i, j = np.triu_indices(n, k=1)
-    keep = ~(pedestrian[i] & pedestrian[j])
+    # Pairs whose whole paths stay PAIR_RANGE apart (their bounding boxes do) never interact: drop them
+    # before any per-step work (most pairs of a large scene).
+    valid_xy = v_valid.any(axis=1)
+    with np.errstate(invalid="ignore"):
+        low_x, high_x = (np.where(v_valid, x, np.inf).min(axis=1), np.where(v_valid, x, -np.inf).max(axis=1))
+        low_y, high_y = (np.where(v_valid, y, np.inf).min(axis=1), np.where(v_valid, y, -np.inf).max(axis=1))
+    gap_x = np.maximum(low_x[j] - high_x[i], low_x[i] - high_x[j])
+    gap_y = np.maximum(low_y[j] - high_y[i], low_y[i] - high_y[j])
+    close_paths = valid_xy[i] & valid_xy[j] & (np.hypot(np.maximum(gap_x, 0.0), np.maximum(gap_y, 0.0)) < PAIR_RANGE)
+    keep = close_paths & ~(pedestrian[i] & pedestrian[j])
     i, j = i[keep], j[keep]
     # Two objects that both stand still neither close in nor miss each other: most pairs of a car park.
     moving = v_valid & (np.hypot(vx, vy) >= MIN_CLOSING / 2)
@@ -173,9 +182,10 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     dxc, dyc = x[b, t] - x[a, t], y[b, t] - y[a, t]
     ux, uy = vx[b, t] - vx[a, t], vy[b, t] - vy[a, t]
     relative_speed = np.hypot(ux, uy)
+    centre_distance = np.hypot(dxc, dyc)
     # Only entries that can matter: boxes within reach of a collision in TTC_HORIZON, or within a few metres.
-    reach = (np.hypot(dxc, dyc) - (length[a, t] + length[b, t]) / 2
-             < np.maximum(3.0, TTC_HORIZON * relative_speed)) & (np.hypot(dxc, dyc) < PAIR_RANGE)
+    reach = (centre_distance - (length[a, t] + length[b, t]) / 2
+             < np.maximum(3.0, TTC_HORIZON * relative_speed)) & (centre_distance < PAIR_RANGE)
     a, b, t = a[reach], b[reach], t[reach]
     dxc, dyc, ux, uy, relative_speed = dxc[reach], dyc[reach], ux[reach], uy[reach], relative_speed[reach]
     if t.size == 0:

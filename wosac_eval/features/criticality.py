@@ -44,7 +44,7 @@ TTC_HORIZON = 5.0           # s
 MIN_CLOSING = 1.0           # m/s of relative speed for a collision course
 NEAR_MISS_GAP = 0.5         # m: the gap scale of the near miss
 NEAR_MISS_SPEED = 2.0       # m/s: the relative speed at which the near miss counts half
-OFFROAD_STRIDE = 3          # steps between off-road tests: an excursion lasts longer than 0.3 s
+OFFROAD_STRIDE = 5          # steps between off-road tests: an excursion worth noting lasts longer than 0.5 s
 # (acceleration m/s^2, yaw rate rad/s) bins of the behaviour histogram; values beyond clip to the end bins.
 BEHAVIOUR_BINS = (np.linspace(-8.0, 8.0, 33), np.linspace(-1.0, 1.0, 41))
 

@@ -28,6 +28,7 @@ import numpy as np
 
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.challenges import CURRENT_TIME_INDEX, STEP_SECONDS
 from wosac_eval.features.criticality import disc_gap, disc_pairs
 from wosac_eval.features.metric_features import MetricFeatures
@@ -42,52 +43,49 @@ WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}
 COMPONENTS = ("at_fault_collision", "collision", "offroad", "red_light", "progress", "ttc_below", "comfortable")
 
 
-def route_progress(route_x: np.ndarray, route_y: np.ndarray, x: float, y: float) -> float:
-    """Arc length along a polyline `(points,)` of the point nearest to (x, y)."""
+def route_progress(route_x: np.ndarray, route_y: np.ndarray, x, y) -> np.ndarray:
+    """Arc length along a polyline `(points,)` of the point nearest to each (x, y), float64 like `x`."""
+    x, y = np.asarray(x, np.float64)[..., None], np.asarray(y, np.float64)[..., None]
     sx, sy = route_x[:-1], route_y[:-1]
     dx, dy = np.diff(route_x), np.diff(route_y)
     length2 = dx * dx + dy * dy
     with np.errstate(invalid="ignore", divide="ignore"):
         along = np.clip(np.where(length2 > 0, ((x - sx) * dx + (y - sy) * dy) / length2, 0.0), 0.0, 1.0)
     distance = np.hypot(sx + along * dx - x, sy + along * dy - y)
-    k = int(np.argmin(distance))
+    k = np.argmin(distance, axis=-1)
     cumulative = np.concatenate([[0.0], np.cumsum(np.sqrt(length2))])
-    return float(cumulative[k] + along[k] * np.sqrt(length2[k]))
+    return cumulative[k] + np.take_along_axis(along, k[..., None], axis=-1)[..., 0] * np.sqrt(length2[k])
 
 
-def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays, r: int) -> tuple[np.ndarray, np.ndarray]:
-    """length, width float64 `(num_objects, num_steps)` of rollout r's objects (logged sizes for sim agents)."""
+def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays) -> tuple[np.ndarray, np.ndarray]:
+    """length, width `(num_rollouts, num_objects, 1 or num_steps)` of the rollouts' objects (sim agents: the
+    logged size at the current step, as the evaluator takes it)."""
     if rollouts.has_boxes:
-        return (np.asarray(rollouts.length[r], np.float64), np.asarray(rollouts.width[r], np.float64))
-    # Sim agents: the logged size at the current step, as the evaluator takes it.
-    log = scenario.log.take_ids(rollouts.object_id[r])
-    shape = np.shape(rollouts.x[r])
-    return tuple(np.broadcast_to(np.asarray(a[:, CURRENT_TIME_INDEX], np.float64)[:, None], shape)
-                 for a in (log.length, log.width))
+        return np.asarray(rollouts.length), np.asarray(rollouts.width)
+    ids = np.asarray(rollouts.object_id)
+    rows = index_of_ids(scenario.log.object_id, ids.reshape(-1)).reshape(ids.shape)
+    return tuple(np.asarray(a, np.float32)[rows, CURRENT_TIME_INDEX][..., None]
+                 for a in (scenario.log.length, scenario.log.width))
 
 
-def at_fault(rollouts: RolloutArrays, sizes, r: int, steps: np.ndarray, sdc: int, speed: np.ndarray) -> bool:
-    """Whether the SDC (row `sdc` of rollout r) is at fault in a collision at any of `steps` (simulated).
+def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
+    """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(entries,)`.
 
-    At a step where the SDC moves, its partner is the nearest other object (three discs each); a partner
-    whose centre is behind the SDC's rear bumper rear-ended it.
+    Its partner is the nearest other object (three discs each, the lowest row among ties); a partner whose
+    centre is behind the SDC's rear bumper rear-ended it. `sdc` is the SDC's row in each entry's rollout.
     """
-    steps = np.asarray(steps)[np.asarray(speed) > MOVING_SPEED]
-    num_objects = rollouts.x.shape[1]
-    if steps.size == 0 or num_objects < 2:
-        return False
-    others = np.flatnonzero(np.arange(num_objects) != sdc)
-    x, y, heading = (np.asarray(a[r][:, steps], np.float64) for a in (rollouts.x, rollouts.y, rollouts.heading))
-    length, width = (a[:, steps] for a in sizes)
-    pairs = np.ix_(others, np.arange(steps.size))
-    me = lambda a: np.broadcast_to(a[sdc], (others.size, steps.size)).ravel()  # noqa: E731
-    dx, dy, radius = disc_pairs((x[pairs] - x[sdc]).ravel(), (y[pairs] - y[sdc]).ravel(), me(heading), me(length),
-                                me(width), heading[pairs].ravel(), length[pairs].ravel(), width[pairs].ravel())
-    partner = others[np.argmin(disc_gap(dx, dy, radius).reshape(others.size, steps.size), axis=0)]
-    columns = np.arange(steps.size)
-    along = ((x[partner, columns] - x[sdc]) * np.cos(heading[sdc])
-             + (y[partner, columns] - y[sdc]) * np.sin(heading[sdc]))
-    return bool((along > -length[sdc] / 2).any())
+    pick = lambda a: np.asarray(np.broadcast_to(a, rollouts.x.shape)[rollout, :, step], np.float64)  # noqa: E731
+    x, y, heading, length, width = map(pick, (rollouts.x, rollouts.y, rollouts.heading, *sizes))  # (entries, objects)
+    entries = np.arange(rollout.size)
+    me = lambda a: np.broadcast_to(a[entries, sdc][:, None], a.shape).ravel()  # noqa: E731
+    dx, dy, radius = disc_pairs((x - x[entries, sdc][:, None]).ravel(), (y - y[entries, sdc][:, None]).ravel(),
+                                me(heading), me(length), me(width), heading.ravel(), length.ravel(), width.ravel())
+    gap = disc_gap(dx, dy, radius).reshape(x.shape)
+    gap[entries, sdc] = np.inf
+    partner = np.argmin(gap, axis=1)
+    along = ((x[entries, partner] - x[entries, sdc]) * np.cos(heading[entries, sdc])
+             + (y[entries, partner] - y[entries, sdc]) * np.sin(heading[entries, sdc]))
+    return along > -length[entries, sdc] / 2
 
 
 def _within(values: np.ndarray, valid: np.ndarray, low: float, high: float) -> np.ndarray:
@@ -114,8 +112,7 @@ def route_progress_share(route_x: np.ndarray, route_y: np.ndarray, x: np.ndarray
     length = float(np.hypot(np.diff(route_x), np.diff(route_y)).sum()) if route_x.size > 1 else 0.0
     if length < MIN_ROUTE:
         return np.ones(np.shape(x))
-    return np.array([np.clip(route_progress(route_x, route_y, float(a), float(b)) / length, 0.0, 1.0)
-                     for a, b in zip(x, y)])
+    return np.clip(route_progress(route_x, route_y, x, y) / length, 0.0, 1.0)
 
 
 def driving_scores(scenario: ScenarioArrays, rollouts: RolloutArrays, sim: MetricFeatures) -> dict | None:
@@ -132,15 +129,12 @@ def driving_scores(scenario: ScenarioArrays, rollouts: RolloutArrays, sim: Metri
     collision = np.asarray(sim.collision_per_step[:, e], dtype=bool) & valid
     # Feature steps are the rollout's last steps (sim agents: after the history).
     offset = rollouts.num_steps - valid.shape[-1]
-    speed = np.asarray(sim.linear_speed[:, e])
-    sizes = None
+    # At-fault tests, all rollouts at once: the collision steps where the SDC moves.
+    rollout, step = np.nonzero(collision & (np.asarray(sim.linear_speed[:, e]) > MOVING_SPEED))
     fault = np.zeros(rollouts.num_rollouts, dtype=bool)
-    for r in np.flatnonzero(collision.any(axis=-1)):
-        if sizes is None or not np.array_equal(rollouts.object_id[r], rollouts.object_id[0]):
-            sizes = _box_sizes(scenario, rollouts, r)
-        steps = np.flatnonzero(collision[r])
-        fault[r] = at_fault(rollouts, sizes if not rollouts.has_boxes else _box_sizes(scenario, rollouts, r), r,
-                            offset + steps, rows[r], speed[r, steps])
+    if rollout.size and rollouts.x.shape[1] > 1:
+        np.logical_or.at(fault, rollout, at_fault(rollouts, _box_sizes(scenario, rollouts), rollout,
+                                                  offset + step, rows[rollout]))
     events = {"at_fault_collision": fault, "collision": collision.any(axis=-1),
               "offroad": (np.asarray(sim.offroad_per_step[:, e], dtype=bool) & valid).any(axis=-1),
               "red_light": (np.asarray(sim.traffic_light_violation_per_step[:, e], dtype=bool) & valid).any(axis=-1)}

@@ -23,11 +23,10 @@ from __future__ import annotations
 import argparse
 import os
 import statistics
-import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from bench_env import SHARED  # noqa: E402
+from bench_env import SHARED, median_seconds  # noqa: E402
 
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
 from wosac_eval.features.criticality import criticality_features  # noqa: E402
@@ -46,15 +45,6 @@ def _scenes() -> list:
     if real.exists():
         out += [s for s in read_scenarios(real) if s.scenario_id == "637f20cafde22ff8"]
     return out
-
-
-def _median_seconds(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def main() -> None:
@@ -79,9 +69,9 @@ def main() -> None:
             fn()
         plain, full = [], []
         for _ in range(args.repeat):  # alternated, so that drift affects both alike
-            plain.append(_median_seconds(calls["plain"], 1))
-            full.append(_median_seconds(calls["full"], 1))
-        crit = _median_seconds(calls["criticality"], args.repeat)
+            plain.append(median_seconds(calls["plain"], 1))
+            full.append(median_seconds(calls["full"], 1))
+        crit = median_seconds(calls["criticality"], args.repeat)
         p, f = statistics.median(plain), statistics.median(full)
         total_plain += p
         total_full += f
@@ -110,7 +100,7 @@ def end_to_end(repeat: int, challenge: str) -> None:
         times = {False: [], True: []}
         for _ in range(repeat):
             for flag, fn in run.items():
-                times[flag].append(_median_seconds(fn, 1))
+                times[flag].append(median_seconds(fn, 1))
         off, on = (statistics.median(times[f]) for f in (False, True))
         print(f"end to end, score_submission of 10 demo scenes ({challenge}, {policy}, 1 worker): "
               f"{off / 10 * 1e3:.1f} ms/scenario without the analysis, {on / 10 * 1e3:.1f} with it: "

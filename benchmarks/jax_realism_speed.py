@@ -18,10 +18,11 @@ Usage: python benchmarks/jax_realism_speed.py [--scenes 16] [--repeat 3] [--work
 from __future__ import annotations
 
 import argparse
-import statistics
 import tempfile
 import time
 from pathlib import Path
+
+from bench_env import median_seconds
 
 from wosac_eval import jax_realism  # first: XLA flags before JAX starts
 
@@ -31,16 +32,6 @@ import numpy as np  # noqa: E402
 from wosac_eval.scoring.submission import score_submission  # noqa: E402
 from wosac_eval.sim import scenes  # noqa: E402
 from wosac_eval.sim.baselines import make_submission, policy_rollouts  # noqa: E402
-
-
-def _seconds(fn, repeat: int) -> float:
-    fn()  # warm-up (compiles)
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def _arrays(prepared, scenarios) -> dict:
@@ -97,11 +88,12 @@ def main() -> None:
         moved = dict(arrays, x=arrays["x"] + np.float32(0.01 * shift["k"]))
         jax.block_until_ready(jax_realism.realism(prepared, **moved))
 
-    loop_s = _seconds(in_loop, args.repeat)
+    loop_s = median_seconds(in_loop, args.repeat, warmup=1)
     with tempfile.TemporaryDirectory() as tmp:
         shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
         submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
-        jax_file_s = _seconds(lambda: score_submission(shards, submission, backend="jax", analysis=False), args.repeat)
+        jax_file_s = median_seconds(lambda: score_submission(shards, submission, backend="jax", analysis=False),
+                                    args.repeat, warmup=1)
         numpy_1_s, numpy_n_s = (_numpy_file_path(shards, submission, w, args.repeat) for w in (1, args.workers))
     n = args.scenes
     print(f"prepare (once per scene set): {prepare_s:.2f} s ({prepare_s / n * 1e3:.0f} ms/scene)")

@@ -17,11 +17,10 @@ import argparse
 import gzip
 import os
 import resource
-import statistics
 import time
 from pathlib import Path
 
-from bench_env import REPO, SHARED
+from bench_env import REPO, SHARED, median_seconds
 ORACLE = REPO / "tests" / "data" / "oracle"
 
 # Before JAX starts: exact float32 on CPU (see wosac_eval.backends.jax_backend).
@@ -70,15 +69,6 @@ def score_jax(pairs, max_batch: int):
     return [scenario_metrics(CONFIG, log, sim) for log, sim in features]
 
 
-def _median_seconds(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
-
-
 def _rss_mib() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
@@ -105,13 +95,13 @@ def main() -> None:
     for name, pairs in workloads:
         n = len(pairs)
         print(f"{name}: {n} scenario(s)")
-        numpy_s = _median_seconds(lambda: score_numpy(pairs), args.repeat)
+        numpy_s = median_seconds(lambda: score_numpy(pairs), args.repeat)
         rss_numpy = _rss_mib()
         _row("numpy", n, numpy_s)
         start = time.perf_counter()
         first = score_jax(pairs, args.max_batch)
         first_s = time.perf_counter() - start
-        jax_s = _median_seconds(lambda: score_jax(pairs, args.max_batch), args.repeat)
+        jax_s = median_seconds(lambda: score_jax(pairs, args.max_batch), args.repeat)
         _row("jax", n, jax_s, first_s)
         same = first == score_numpy(pairs)
         print(f"  jax/numpy time {jax_s / numpy_s:5.2f}x; metrics identical: {same}")

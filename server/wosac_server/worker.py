@@ -152,6 +152,25 @@ class Worker:
         self.score_job(job)
         return True
 
+    def _public(self, value, submission_path: Path):
+        """`value` (a message, or a report's dict) without the server's absolute paths: the upload is
+        called `submission`, scenario shards by their file names, other data-dir files relatively."""
+        if isinstance(value, dict):
+            return {k: self._public(v, submission_path) for k, v in value.items()}
+        if isinstance(value, list):
+            return [self._public(v, submission_path) for v in value]
+        if not isinstance(value, str):
+            return value
+        data_dir = self.settings.data_dir
+        swaps = [(str(submission_path.resolve()), "submission"), (str(submission_path), "submission")]
+        for shard in self.settings.scenario_paths():
+            swaps += [(str(shard.resolve().parent) + os.sep, ""), (str(shard.parent) + os.sep, "")]
+        swaps += [(str(data_dir.resolve()) + os.sep, ""), (str(data_dir) + os.sep, "")]
+        for old, new in sorted(swaps, key=lambda pair: -len(pair[0])):
+            if old and old not in (os.sep, "." + os.sep):
+                value = value.replace(old, new)
+        return value
+
     def score_job(self, job: dict) -> None:
         settings, job_id = self.settings, job["id"]
         log.info("worker %s: scoring %s (attempt %d)", os.getpid(), job_id, job["attempts"])
@@ -165,13 +184,13 @@ class Worker:
                 last_write[0] = now
                 jobs.record_progress(self.store, job_id, self.owner, done, total)
 
+        submission_path = settings.submissions_dir / job["file_name"]
         try:
             scenarios = settings.scenario_paths()
             if not scenarios:
                 jobs.finish_failed(self.store, job_id, self.owner,
                                    "the server has no scenario shards configured (WOSAC_SCENARIOS)")
                 return
-            submission_path = settings.submissions_dir / job["file_name"]
             result = score(scenarios, submission_path, job, settings, progress)
             jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
             if settings.scene_pictures:
@@ -186,14 +205,17 @@ class Worker:
             report = getattr(exc, "report", None)
             payload = None
             if report is not None:
-                payload = {"text": report.format_text(), "details": report.to_dict()}
-            jobs.finish_failed(self.store, job_id, self.owner, f"the submission is invalid: {exc}", payload)
+                payload = self._public({"text": report.format_text(), "details": report.to_dict()},
+                                       submission_path)
+            jobs.finish_failed(self.store, job_id, self.owner,
+                               self._public(f"the submission is invalid: {exc}", submission_path), payload)
         except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
-            jobs.finish_failed(self.store, job_id, self.owner, f"the submission could not be scored: {exc}")
+            jobs.finish_failed(self.store, job_id, self.owner,
+                               self._public(f"the submission could not be scored: {exc}", submission_path))
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
-            jobs.finish_failed(self.store, job_id, self.owner,
-                               f"internal error while scoring ({type(exc).__name__}: {exc})")
+            jobs.finish_failed(self.store, job_id, self.owner, self._public(
+                f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path))
         finally:
             heartbeat.done.set()
             heartbeat.join()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import os
 import signal
 import time
@@ -62,6 +63,11 @@ def test_invalid_submission_fails_with_its_report(make_server, scoring_data):
     assert status["error"].startswith("the submission is invalid")
     assert "shard.binproto" in status["validation_report"]["text"]
     assert status["validation_report"]["details"]["valid"] is False
+    # No absolute server path in what a client sees: the upload is called `submission`.
+    shown = json.dumps(status)
+    for secret in {str(server.data_dir), str(server.data_dir.resolve()), *map(str, scoring_data.scenarios)}:
+        assert secret not in shown, secret
+    assert "submission" in status["validation_report"]["text"]
 
 
 def _running_worker_pid(server, submission_id: str, timeout: float = 60.0) -> int:

@@ -138,6 +138,27 @@ def test_page_uses_no_external_resources(api_server):
     assert httpx.get(server.url + "/docs").status_code == 404  # the CDN-backed docs page is off
 
 
+def test_pages_send_a_strict_content_security_policy(api_server):
+    """Only the page's own inline scripts run (by hash; no 'unsafe-inline'), nothing frames it, no sniffing.
+
+    The Chromium test below runs the pages' scripts under this policy."""
+    import base64
+    import hashlib
+
+    for path in ("/", "/submissions/" + "0" * 32):
+        response = httpx.get(api_server.url + path)
+        policy = response.headers["content-security-policy"]
+        scripts = re.findall(r"<script>(.*?)</script>", response.text, re.S)
+        assert scripts, path
+        for body in scripts:
+            digest = base64.b64encode(hashlib.sha256(body.encode()).digest()).decode()
+            assert f"'sha256-{digest}'" in policy, path
+        assert "unsafe-inline" not in policy and "default-src 'none'" in policy and "frame-ancestors 'none'" in policy
+        assert response.headers["x-frame-options"] == "DENY"
+        assert response.headers["x-content-type-options"] == "nosniff"
+    assert httpx.get(api_server.url + "/static/style.css").headers["x-content-type-options"] == "nosniff"
+
+
 def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scoring_data, tmp_path):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("browser")

@@ -34,18 +34,6 @@ from wosac_eval.sim import scenes  # noqa: E402
 from wosac_eval.sim.baselines import make_submission, policy_rollouts  # noqa: E402
 
 
-def _arrays(prepared, scenarios) -> dict:
-    out = {f: np.zeros(prepared.rollout_shape, np.float32) for f in ("x", "y", "z", "heading")}
-    for s, (ids, sc) in enumerate(zip(prepared.sim_agent_ids, scenarios)):
-        ro = policy_rollouts(sc, "idm")
-        where = {int(i): k for k, i in enumerate(ro.object_id[0])}
-        for a, oid in enumerate(ids):
-            if oid >= 0:
-                for f in out:
-                    out[f][s, :, a] = getattr(ro, f)[:, where[int(oid)]]
-    return out
-
-
 _NUMPY_CHILD = """
 import statistics, sys, time
 from wosac_eval.scoring.submission import score_submission
@@ -80,7 +68,7 @@ def main() -> None:
     start = time.perf_counter()
     prepared = jax_realism.prepare(scenarios)
     prepare_s = time.perf_counter() - start
-    arrays = _arrays(prepared, scenarios)
+    arrays = jax_realism.stack_rollouts(prepared, [policy_rollouts(sc, "idm") for sc in scenarios])
     shift = {"k": 0}
 
     def in_loop():

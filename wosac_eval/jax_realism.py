@@ -12,7 +12,9 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
     from_waymax,
     prepare,
     realism,
+    stack_rollouts,
     waymax_columns,
 )
 
-__all__ = ["PreparedScenes", "prepare", "realism", "features", "waymax_columns", "from_waymax"]
+__all__ = ["PreparedScenes", "prepare", "realism", "features", "stack_rollouts", "waymax_columns",
+           "from_waymax"]

@@ -35,25 +35,11 @@ def scene_set(challenge: str):
     return scs, rollouts
 
 
-def stacked(prepared, rollouts) -> dict:
-    """The rollouts as `realism`'s arrays: columns in `prepared.sim_agent_ids` order, padding zero."""
-    fields = ("x", "y", "z", "heading") + (("length", "width", "height") if rollouts[0].has_boxes else ())
-    shape = prepared.rollout_shape
-    out = {f: np.zeros(shape, np.float32) for f in fields}
-    for s, (ids, ro) in enumerate(zip(prepared.sim_agent_ids, rollouts)):
-        where = {int(i): k for k, i in enumerate(ro.object_id[0])}
-        for a, oid in enumerate(ids):
-            if oid >= 0:
-                for f in fields:
-                    out[f][s, :, a] = getattr(ro, f)[:, where[int(oid)]]
-    return out
-
-
 @lru_cache(maxsize=None)
 def prepared_set(challenge: str, padded: bool = False):
     scs, rollouts = scene_set(challenge)
     prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None)
-    return prepared, stacked(prepared, rollouts)
+    return prepared, jax_realism.stack_rollouts(prepared, rollouts)
 
 
 def as_numpy(tree):
@@ -177,7 +163,7 @@ def test_every_golden_case_matches_the_official_metrics(case_set):
     config = golden.SHARED_CONFIGS.get(config_name, config_name) if case_set.name == "shared" else config_name
     config = str(golden.SHARED / config) if config.endswith(".textproto") else config
     prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config)
-    got = as_numpy(jax_realism.realism(prepared, **stacked(prepared, [ro for _, ro in pairs])))
+    got = as_numpy(jax_realism.realism(prepared, **jax_realism.stack_rollouts(prepared, [ro for _, ro in pairs])))
     for s, case in enumerate(cases):
         expected = golden.expected_metrics(case_set, case, config_name)
         for field in SCENARIO_FIELDS:

@@ -159,18 +159,22 @@ def _red_light_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps
             "lane_id": lanes.lane_ids[seg // lanes.num_segments].astype(np.int64)}
 
 
+def map_arrays(scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int) -> dict:
+    """The dense search's unpadded map arrays of a scenario: road-edge segments, stop lines, lane segments."""
+    signals = mf.signals_from(scenario.signals, layout.first_red_light_step)
+    return {**_segment_arrays(context.road_edges),
+            **_red_light_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)}
+
+
 def prepare(scenario: ScenarioArrays, rollouts: RolloutArrays, context: mf.MapContext | None = None,
             challenge=challenges.Challenge.SIM_AGENTS) -> PreparedScenario:
     """Host-side inputs of one scenario: the log as sample 0, then one sample per rollout."""
     context = context or mf.map_context(scenario)
     batch = sample_batch(scenario, rollouts, challenge)
     layout = mf.feature_layout(batch.spec, batch.num_evaluated)
-    traj = mf.trajectory_arrays(batch)
     num_objects, num_steps = batch.trajectories.num_objects, batch.trajectories.num_steps
-    signals = mf.signals_from(scenario.signals, layout.first_red_light_step)
-    maps = {**_segment_arrays(context.road_edges),
-            **_red_light_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)}
-    return PreparedScenario(scenario_id=scenario.scenario_id, batch=batch, traj=traj, maps=maps, layout=layout,
+    return PreparedScenario(scenario_id=scenario.scenario_id, batch=batch, traj=mf.trajectory_arrays(batch),
+                            maps=map_arrays(scenario, context, layout, num_steps), layout=layout,
                             tails=mf.official_tails(num_objects, batch.num_evaluated, num_steps, layout.first_step))
 
 
@@ -186,24 +190,23 @@ def _pad_axis(a: np.ndarray, size: int, axis: int, value=0) -> np.ndarray:
 _NO_LANE = np.iinfo(np.int64).min  # the lane id of padded signals: never a lane's
 
 
-def _padded_inputs(p: PreparedScenario, key: tuple) -> tuple[dict, dict, dict]:
-    """`traj`, `tails` and `maps` padded to the bucket `key`; padding is invalid everywhere."""
+def padded_inputs(traj: dict, tails: dict, maps: dict, key: tuple) -> tuple[dict, dict, dict]:
+    """A scenario's `traj`, `tails` and `maps` (as in `PreparedScenario`) padded to the bucket `key`
+    (see `PreparedScenario.bucket_key`); padding is invalid everywhere."""
     _, _, _, n_obj, n_eval, n_seg, n_sig, n_lane = key
-    traj = {name: _pad_axis(a, n_obj, 1) for name, a in p.traj.items()}
-    tails = {"heading_tail": _pad_axis(p.tails["heading_tail"], n_obj, 0),
-             "ego_tail": _pad_axis(p.tails["ego_tail"], n_eval, 1),
-             "pair_tail": _pad_axis(_pad_axis(p.tails["pair_tail"], n_eval, 1), n_obj, 2)}
-    maps = {}
-    for name, a in p.maps.items():
+
+    def pad_map(name: str, a: np.ndarray) -> np.ndarray:
         if name.startswith("stop"):
-            maps[name] = _pad_axis(a, n_sig, 1)
-        elif name == "signal_lane_id":
-            maps[name] = _pad_axis(a, n_sig, 0, _NO_LANE)
-        elif name.startswith("lane"):
-            maps[name] = _pad_axis(a, n_lane, 0)
-        else:
-            maps[name] = _pad_axis(a, n_seg, 0)
-    return traj, tails, maps
+            return _pad_axis(a, n_sig, 1)
+        if name == "signal_lane_id":
+            return _pad_axis(a, n_sig, 0, _NO_LANE)
+        return _pad_axis(a, n_lane if name.startswith("lane") else n_seg, 0)
+
+    return ({name: _pad_axis(a, n_obj, 1) for name, a in traj.items()},
+            {"heading_tail": _pad_axis(tails["heading_tail"], n_obj, 0),
+             "ego_tail": _pad_axis(tails["ego_tail"], n_eval, 1),
+             "pair_tail": _pad_axis(_pad_axis(tails["pair_tail"], n_eval, 1), n_obj, 2)},
+            {name: pad_map(name, a) for name, a in maps.items()})
 
 
 # --- Compiled functions ----------------------------------------------------------------------------
@@ -232,7 +235,7 @@ class FeaturePipeline:
     batch behind, so that the host prepares the next scenarios and finishes the previous ones while
     the device computes. Each scenario's features are the same however it was batched.
 
-    Usage: `for tag, p, (log, sim) in pipeline.add(tag, p)` ... then `pipeline.finish()` likewise.
+    Usage: `for tag, (log, sim) in pipeline.add(tag, p)` ... then `pipeline.finish()` likewise.
     """
 
     def __init__(self, max_batch: int = 8, min_bucket: tuple | None = None, in_flight: int = 1):
@@ -245,7 +248,7 @@ class FeaturePipeline:
         return key if self.min_bucket is None else key[:3] + tuple(map(max, key[3:], self.min_bucket))
 
     def add(self, tag, p: PreparedScenario) -> list:
-        """Queues a scenario; returns the (tag, prepared, (log, sim)) of the batches now collected."""
+        """Queues a scenario; returns the (tag, (log, sim)) of the batches now collected."""
         _warn_if_inexact()
         key = self._key(p)
         group = self.groups.setdefault(key, [])
@@ -262,7 +265,7 @@ class FeaturePipeline:
 
     def _dispatch(self, key: tuple, items: list) -> None:
         layout = dataclasses.replace(items[0][1].layout, num_evaluated=key[4])
-        padded = [_padded_inputs(p, key) for _, p in items]
+        padded = [padded_inputs(p.traj, p.tails, p.maps, key) for _, p in items]
         size = min(bucket(len(items), 1), _per_call(key, self.max_batch))
         padded += [padded[0]] * (size - len(padded))  # a partial batch repeats its first scenario
         stacked = [{k: np.stack([part[j][k] for part in padded]) for k in padded[0][j]} for j in range(3)]
@@ -276,7 +279,7 @@ class FeaturePipeline:
             out = jax.device_get(out)
             for j, (tag, p) in enumerate(items):
                 e = slice(0, p.layout.num_evaluated)
-                done.append((tag, p, mf.metric_features(p.batch, {k: np.asarray(v[j])[:, e] for k, v in out.items()})))
+                done.append((tag, mf.metric_features(p.batch, {k: np.asarray(v[j])[:, e] for k, v in out.items()})))
         return done
 
 
@@ -291,9 +294,9 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
     pipeline = FeaturePipeline(max_batch=max_batch, min_bucket=min_bucket)
     results: list = [None] * len(prepared)
     for i, p in enumerate(prepared):
-        for tag, _, features in pipeline.add(i, p):
+        for tag, features in pipeline.add(i, p):
             results[tag] = features
-    for tag, _, features in pipeline.finish():
+    for tag, features in pipeline.finish():
         results[tag] = features
     return results
 

@@ -102,8 +102,7 @@ class PreparedScenes:
     @property
     def rollout_shape(self) -> tuple:
         """`(num_scenes, num_rollouts, max_agents, num_steps)` of the arrays `realism` takes."""
-        spec = challenges.spec(self.challenge)
-        return (self.num_scenes, spec.num_rollouts, self.max_agents, spec.num_simulation_steps)
+        return (self.num_scenes, challenges.spec(self.challenge).num_rollouts, self.max_agents, self.num_steps)
 
 
 def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> dict:
@@ -112,11 +111,8 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> d
     order = official_object_order(scenario.sim_agent_ids, evaluated)
     log, feature_valid = log_sample(scenario, spec)
     layout = mf.feature_layout(spec, len(evaluated))
-    context = mf.map_context(scenario)
-    signals = mf.signals_from(scenario.signals, layout.first_red_light_step)
     steps = log.num_steps
-    maps = {**jax_backend._segment_arrays(context.road_edges),
-            **jax_backend._red_light_arrays(signals, context.lanes, steps - layout.first_red_light_step)}
+    maps = jax_backend.map_arrays(scenario, mf.map_context(scenario), layout, steps)
     return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps,
             "tails": mf.official_tails(len(order), len(evaluated), steps, layout.first_step),
             "feature_valid": feature_valid[0], "object_type": np.asarray(log.object_type[0], np.int32),
@@ -182,9 +178,8 @@ def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tu
     layout = mf.feature_layout(spec, n_eval)
     per_scene = []
     for scene_input in inputs:
-        fake = jax_backend.PreparedScenario(scenario_id="", batch=None, traj=scene_input["traj"],
-                                            tails=scene_input["tails"], maps=scene_input["maps"], layout=layout)
-        traj, tails, maps = jax_backend._padded_inputs(fake, key)
+        traj, tails, maps = jax_backend.padded_inputs(scene_input["traj"], scene_input["tails"],
+                                                      scene_input["maps"], key)
         n, e = scene_input["num_objects"], scene_input["num_evaluated"]
         columns = np.full(n_obj, max_agents, dtype=np.int32)  # padding reads the appended zero column
         columns[:n] = scene_input["columns"]
@@ -337,6 +332,22 @@ def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=N
                           for k, v in out.items()})
         out = _in_scene_order(prepared, parts)
     return mf.MetricFeatures(object_id=np.zeros(rows, np.int64), **out)
+
+
+def stack_rollouts(prepared: PreparedScenes, rollouts: list) -> dict:
+    """`RolloutArrays`, one per scene in order, as `realism`'s keyword arguments (numpy, host).
+
+    Columns follow `prepared.sim_agent_ids` (padding zero); box sizes come along for scenario gen.
+    """
+    fields = _POSITIONS + (_SIZES if challenges.spec(prepared.challenge).submits_boxes else ())
+    out = {f: np.zeros(prepared.rollout_shape, np.float32) for f in fields}
+    for s, (ids, scene) in enumerate(zip(prepared.sim_agent_ids, rollouts)):
+        real = ids[ids >= 0]
+        # Each rollout may list the agents in its own order.
+        columns = np.stack([index_of_ids(order, real) for order in np.asarray(scene.object_id)])
+        for f in fields:
+            out[f][s, :, : real.size] = np.take_along_axis(np.asarray(getattr(scene, f)), columns[..., None], axis=1)
+    return out
 
 
 def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:

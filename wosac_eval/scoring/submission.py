@@ -81,14 +81,18 @@ def _rollouts_bytes(locator) -> bytes:
     return ShardRef("", size, path=path, offset=offset).read()
 
 
+def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
+    """The chunk's (Scenario, ScenarioRollouts) messages, read by the worker."""
+    return [(context.index.load(sid), sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
+            for sid, locator in chunk.items]
+
+
 def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     """Scores the scenarios of a chunk (a worker task); results in chunk order."""
     from wosac_eval.scoring.scenario import score_scenario, score_scenarios_jax
 
     config = SimAgentMetricsConfig.FromString(context.config)
-    pairs = [(context.index.load(sid),
-              sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
-             for sid, locator in chunk.items]
+    pairs = _pairs(context, chunk)
     if context.backend == "jax":
         return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis)
     return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis)
@@ -99,32 +103,17 @@ def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
     """The host part of jax-backend scoring of a chunk (a worker task): `scoring.scenario.JaxItem`s."""
     from wosac_eval.scoring.scenario import prepare_jax_item
 
-    return [prepare_jax_item(context.index.load(sid),
-                             sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)),
-                             context.challenge, context.analysis)
-            for sid, locator in chunk.items]
+    return [prepare_jax_item(scenario, rollouts, context.challenge, context.analysis)
+            for scenario, rollouts in _pairs(context, chunk)]
 
 
 def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
-    """Rows of the chunks, a chunk at a time: workers parse and prepare, this process feeds the device."""
+    """Rows, one at a time, in order: workers parse and prepare, this process feeds the device."""
     from wosac_eval.scoring.scenario import score_jax_items
 
-    sizes: list[int] = []
-
-    def items():
-        for prepared in executor.imap(prepare_chunk, chunks, context):
-            sizes.append(len(prepared))
-            yield from prepared
-
-    batch: list[dict] = []
-    for row in score_jax_items(items(), config, challenge=context.challenge, analysis=context.analysis):
-        batch.append(row)
-        if len(batch) == sizes[0]:
-            yield batch
-            batch = []
-            sizes.pop(0)
-    if batch:
-        yield batch
+    items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
+    for row in score_jax_items(items, config, challenge=context.challenge, analysis=context.analysis):
+        yield [row]
 
 
 class _Plan:

@@ -29,9 +29,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 from bench_env import SHARED, median_seconds  # noqa: E402
 
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
-from wosac_eval.features.criticality import criticality_features  # noqa: E402
 from wosac_eval.features.metric_features import map_context  # noqa: E402
-from wosac_eval.metrics.criticality import scene_criticality  # noqa: E402
+from wosac_eval.metrics.criticality import scenario_criticality  # noqa: E402
 from wosac_eval.parse.scenarios import read_scenarios  # noqa: E402
 from wosac_eval.runtime.allocator import keep_freed_memory  # noqa: E402
 from wosac_eval.scoring.scenario import score_scenario  # noqa: E402
@@ -63,7 +62,7 @@ def main() -> None:
         calls = {
             "plain": lambda: score_scenario(arrays, rollouts, challenge=args.challenge),
             "full": lambda: score_scenario(arrays, rollouts, challenge=args.challenge, analysis=True),
-            "criticality": lambda: scene_criticality(criticality_features(arrays, map_context(arrays))),
+            "criticality": lambda: scenario_criticality(arrays, map_context(arrays)),
         }
         for fn in calls.values():  # the same warm-up for each
             fn()

@@ -9,7 +9,8 @@ import pytest
 from wosac_eval.arrays.messages import rollouts_from_arrays
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.features.criticality import criticality_features
-from wosac_eval.metrics.criticality import BehaviourHistogram, scene_criticality, step_criticality, with_rarity
+from wosac_eval.metrics.criticality import (BehaviourHistogram, scenario_criticality, scene_criticality,
+                                            set_histogram, step_criticality, with_rarity)
 from wosac_eval.protos import scenario_pb2
 from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.sim import scenes
@@ -102,12 +103,10 @@ def test_step_criticality_peaks_where_the_event_is():
 
 
 def test_rarity_depends_on_the_set():
-    calm = [scene_criticality(criticality_features(scenario_arrays(
-        straight_road_scene([cruise(-100, -3, 10.0 + k), cruise(-60, 3, 11.0)])))) for k in range(5)]
-    brake = scene_criticality(criticality_features(scenario_arrays(
-        straight_road_scene([hard_brake(-100, -3, 14.0, 40, 7.0), cruise(-60, 3, 12.0)]))))
-    from wosac_eval.metrics.criticality import set_histogram
-
+    calm = [scenario_criticality(scenario_arrays(straight_road_scene([cruise(-100, -3, 10.0 + k),
+                                                                      cruise(-60, 3, 11.0)]))) for k in range(5)]
+    brake = scenario_criticality(scenario_arrays(
+        straight_road_scene([hard_brake(-100, -3, 14.0, 40, 7.0), cruise(-60, 3, 12.0)])))
     among_calm = with_rarity(brake, set_histogram(calm + [brake]))
     among_brakes = with_rarity(brake, set_histogram([brake] * 6))
     assert among_calm["components"]["rarity"] > among_brakes["components"]["rarity"]
@@ -121,9 +120,7 @@ def demo_scenes():
 
 def test_demo_event_scenes_rank_above_dense_following(demo_scenes):
     kinds = {sc.scenario_id: sc.scenario_id.split("-", 3)[-1] for sc in demo_scenes}
-    heuristic = {sc.scenario_id: scene_criticality(criticality_features(scenario_arrays(sc))) for sc in demo_scenes}
-    from wosac_eval.metrics.criticality import set_histogram
-
+    heuristic = {sc.scenario_id: scenario_criticality(scenario_arrays(sc)) for sc in demo_scenes}
     histogram = set_histogram(list(heuristic.values()))
     score = {sid: with_rarity(h, histogram)["score"] for sid, h in heuristic.items()}
     by_kind = {}

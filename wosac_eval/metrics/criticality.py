@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.criticality import CriticalityFeatures
+from wosac_eval.features.criticality import BEHAVIOUR_BINS, CriticalityFeatures, criticality_features
 
 # component -> (threshold, width, lower_is_worse)
 THRESHOLDS = {
@@ -56,6 +56,7 @@ RAW_UNITS = {"braking": "m/s^2", "jerk": "m/s^3", "yaw_acceleration": "rad/s^2",
              "closing_speed": "m/s", "near_miss": "", "offroad": "m", "red_light": "", "rarity": "nats"}
 KINEMATIC_PERCENTILE = 90
 SUSTAINED_STEPS = 3
+LONG_TAIL_QUANTILE = 0.9  # the long tail of a set: its most critical decile
 
 
 def logistic(values, component: str):
@@ -109,12 +110,9 @@ def step_criticality(features: CriticalityFeatures) -> np.ndarray:
 class BehaviourHistogram:
     """The (acceleration, yaw rate) counts of a scenario set, and the rarity of a scene against them."""
 
-    def __init__(self, counts: np.ndarray | None = None, shape: tuple[int, int] | None = None):
+    def __init__(self, counts: np.ndarray | None = None):
         if counts is None:
-            from wosac_eval.features.criticality import BEHAVIOUR_BINS
-
-            shape = shape or (len(BEHAVIOUR_BINS[0]) - 1, len(BEHAVIOUR_BINS[1]) - 1)
-            counts = np.zeros(shape, dtype=np.int64)
+            counts = np.zeros((len(BEHAVIOUR_BINS[0]) - 1, len(BEHAVIOUR_BINS[1]) - 1), dtype=np.int64)
         self.counts = np.asarray(counts, dtype=np.int64)
 
     def add(self, counts: np.ndarray) -> None:
@@ -167,6 +165,11 @@ def scene_criticality(features: CriticalityFeatures) -> dict:
             "peak_step": int(np.argmax(step_criticality(features))), "behaviour": behaviour_entries(features.behaviour)}
 
 
+def scenario_criticality(scenario, context=None) -> dict:
+    """`scene_criticality` of a scenario's log (`ScenarioArrays`; `context` its `MapContext` if built already)."""
+    return scene_criticality(criticality_features(scenario, context))
+
+
 def with_rarity(scene: dict, histogram: BehaviourHistogram) -> dict:
     """The scene's criticality {"score", "components", "raw", "peak_step"}, rarity rated against `histogram`."""
     counts = behaviour_counts(scene["behaviour"], histogram.counts.shape)
@@ -185,8 +188,3 @@ def set_histogram(scenes: list[dict]) -> BehaviourHistogram:
     for scene in scenes:
         histogram.add(behaviour_counts(scene["behaviour"], histogram.counts.shape))
     return histogram
-
-
-def criticality(features: CriticalityFeatures, histogram: BehaviourHistogram) -> dict:
-    """The criticality of one scene against a set's behaviour histogram (see `with_rarity`)."""
-    return with_rarity(scene_criticality(features), histogram)

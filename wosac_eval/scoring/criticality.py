@@ -14,13 +14,12 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from wosac_eval.metrics.criticality import scene_criticality, set_histogram, with_rarity
+from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.runtime.executors import make_executor
 
 PathLike = str | os.PathLike
 SCENARIOS_PER_TASK = 16
-LONG_TAIL_QUANTILE = 0.9  # the long tail: the top decile of the set
 
 
 @dataclasses.dataclass(frozen=True)
@@ -35,7 +34,7 @@ def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
     """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked)."""
     from wosac_eval.arrays.scenario import scenario_arrays
     from wosac_eval.features.criticality import criticality_features
-    from wosac_eval.metrics.criticality import step_criticality
+    from wosac_eval.metrics.criticality import scene_criticality, step_criticality
 
     out = []
     for sid in task.scenario_ids:
@@ -111,4 +110,4 @@ def select_scenarios(ranked: list[dict], rule: str) -> list[str]:
 
 
 __all__ = ["scenario_set_criticality", "select_scenarios", "parse_selection", "rate_scenarios",
-           "CriticalityTask", "LONG_TAIL_QUANTILE"]
+           "CriticalityTask"]

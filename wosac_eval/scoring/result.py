@@ -22,7 +22,7 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.metrics.by_object_type import OBJECT_TYPES
-from wosac_eval.metrics.criticality import set_histogram, with_rarity
+from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
 
@@ -53,7 +53,7 @@ def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
     scores = np.array([r["criticality"]["score"] for r in rows])
     driving = [r["driving"] for r in rows if r.get("driving")]
     summary = {
-        "criticality": {"mean": float(scores.mean()), "long_tail_threshold": float(np.quantile(scores, 0.9)),
+        "criticality": {"mean": float(scores.mean()), "long_tail_threshold": float(np.quantile(scores, LONG_TAIL_QUANTILE)),
                         "behaviour_samples": int(histogram.counts.sum())},
         "driving": None if not driving else {
             "num_scenarios": len(driving), "score": _mean(d["score"] for d in driving),

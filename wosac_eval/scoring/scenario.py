@@ -89,13 +89,12 @@ def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, r
       result's assembly adds the rarity), "driving": the SDC's driving scores (or None),
       "by_object_type": the metrics per object type}. `criticality`: the scene's, when computed already.
     """
-    from wosac_eval.features.criticality import criticality_features
     from wosac_eval.metrics.by_object_type import by_object_type
-    from wosac_eval.metrics.criticality import scene_criticality
+    from wosac_eval.metrics.criticality import scenario_criticality
     from wosac_eval.metrics.driving import driving_scores
 
     if criticality is None:
-        criticality = scene_criticality(criticality_features(scenario, context))
+        criticality = scenario_criticality(scenario, context)
     return {"criticality": criticality,
             "driving": driving_scores(scenario, rollouts, sim),
             "by_object_type": by_object_type(config, log, sim, log_likelihoods)}
@@ -172,9 +171,8 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> J
         raise unscorable(arrays.scenario_id, error) from error
     criticality = None
     if analysis:
-        from wosac_eval.features.criticality import criticality_features
-        from wosac_eval.metrics.criticality import scene_criticality
-        criticality = scene_criticality(criticality_features(arrays, context))
+        from wosac_eval.metrics.criticality import scenario_criticality
+        criticality = scenario_criticality(arrays, context)
     return JaxItem(arrays, rollout, context, prepared, criticality)
 
 
@@ -191,19 +189,21 @@ def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
     next_out = 0
 
     def finish(done):
-        for index, item, (log, sim) in done:
+        for (index, item), (log, sim) in done:
             rows[index] = _row(config, item.arrays, item.rollout, log, sim, item.context, analysis,
                                item.criticality)
 
-    for index, item in enumerate(items):
-        finish((i, it, features) for (i, it), _, features in pipeline.add((index, item), item.prepared))
+    def ready():
+        nonlocal next_out
         while next_out in rows:
             yield rows.pop(next_out)
             next_out += 1
-    finish((i, it, features) for (i, it), _, features in pipeline.finish())
-    while next_out in rows:
-        yield rows.pop(next_out)
-        next_out += 1
+
+    for index, item in enumerate(items):
+        finish(pipeline.add((index, item), item.prepared))
+        yield from ready()
+    finish(pipeline.finish())
+    yield from ready()
 
 
 def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,

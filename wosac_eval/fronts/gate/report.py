@@ -26,7 +26,9 @@ from wosac_eval.fronts.gate.results import (
     SCENARIO_FIELDS,
     ScoringResult,
     higher_is_better,
+    shared_rows,
 )
+from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE
 
 SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
 
@@ -229,7 +231,7 @@ def _forest_plot(comparison: Comparison) -> str | None:
 
 
 def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
-    bi, ni = _shared_rows(result, base)
+    bi, ni = shared_rows(base, result)
     if bi.size == 0:
         return None
     b, n = base.values["metametric"][bi], result.values["metametric"][ni]
@@ -386,7 +388,7 @@ def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> s
 def _criticality_section(result: ScoringResult, top_k: int) -> str:
     """Realism against the scenes' criticality, and the worst long-tail scenes (rows carry `criticality`)."""
     c, m = result.criticality, result.values["metametric"]
-    tail = float(np.quantile(c, 0.9))
+    tail = float(np.quantile(c, LONG_TAIL_QUANTILE))
     in_tail = np.flatnonzero(c >= tail)
     worst = in_tail[np.argsort(m[in_tail], kind="stable")][:top_k]
     rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
@@ -403,19 +405,9 @@ def _criticality_section(result: ScoringResult, top_k: int) -> str:
     return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, tail), table])
 
 
-def _shared_rows(result: ScoringResult, base: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
-    """Row indices `(base_rows, result_rows)`, each `(num_shared,)`, of the scenarios both results hold."""
-    in_new = {sid: i for i, sid in enumerate(result.scenario_ids)}
-    pairs = [(i, in_new[s]) for i, s in enumerate(base.scenario_ids) if s in in_new]
-    if not pairs:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    bi, ni = np.array(pairs).T
-    return bi, ni
-
-
 def _changed_scenarios(result: ScoringResult, base: ScoringResult, top_k: int) -> str:
     """Tables of the scenarios whose meta-metric dropped / rose the most: where to look first."""
-    bi, ni = _shared_rows(result, base)
+    bi, ni = shared_rows(base, result)
     if bi.size == 0:
         return ""
     b, n = base.values["metametric"][bi], result.values["metametric"][ni]

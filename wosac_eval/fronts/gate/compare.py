@@ -21,6 +21,7 @@ from wosac_eval.fronts.gate.results import (
     SCENARIO_FIELDS,
     ScoringResult,
     higher_is_better,
+    shared_rows,
 )
 
 # Metrics in display order: the headline, the weighted buckets, the likelihoods,
@@ -254,9 +255,7 @@ def compare_results(
         warnings.append(f"the results were scored with different configs: base {base.config!r}, "
                         f"new {new.config!r}; differences mix the simulator change with the config change")
 
-    in_new = {sid: i for i, sid in enumerate(new.scenario_ids)}
-    base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in in_new], dtype=np.int64)
-    new_rows = np.array([in_new[base.scenario_ids[i]] for i in base_rows], dtype=np.int64)
+    base_rows, new_rows = shared_rows(base, new)
     n = int(base_rows.size)
     base_only = np.setdiff1d(np.arange(base.num_scenarios), base_rows)
     new_only = np.setdiff1d(np.arange(new.num_scenarios), new_rows)

@@ -80,6 +80,15 @@ class ScoringResult:
         return None
 
 
+def shared_rows(base: ScoringResult, new: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
+    """Row indices `(base_rows, new_rows)`, int64 `(num_shared,)` each, of the scenarios both results hold,
+    in base order: `base.values[m][base_rows]` pairs with `new.values[m][new_rows]`."""
+    in_new = {sid: i for i, sid in enumerate(new.scenario_ids)}
+    base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in in_new], dtype=np.int64)
+    new_rows = np.array([in_new[base.scenario_ids[i]] for i in base_rows], dtype=np.int64)
+    return base_rows, new_rows
+
+
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ResultError(f"{where}: expected a number, got {value!r}")

@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from wosac_eval.fronts.gate import stats
-from wosac_eval.fronts.gate.results import ScoringResult, higher_is_better
+from wosac_eval.fronts.gate.results import ScoringResult, higher_is_better, shared_rows
+from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE
 
 STRATIFY = ("criticality", "object_type")
-LONG_TAIL_QUANTILE = 0.9
 
 
 class StratifyError(ValueError):
@@ -85,14 +85,6 @@ def criticality_strata(scores: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
             ("rest", f"criticality < {tail:.3f}", scores < tail)]
 
 
-def _paired_rows(base: ScoringResult, new: ScoringResult) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(shared ids, their rows in base, their rows in new)."""
-    where = {sid: i for i, sid in enumerate(new.scenario_ids)}
-    base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in where], dtype=np.int64)
-    new_rows = np.array([where[base.scenario_ids[i]] for i in base_rows], dtype=np.int64)
-    return base.scenario_ids[base_rows], base_rows, new_rows
-
-
 def _compare(stratum: str, description: str, metric: str, base: np.ndarray, new: np.ndarray, seed: int,
              n_boot: int, n_perm: int, alpha: float) -> StratumComparison:
     if base.size == 0:
@@ -127,8 +119,8 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
     """
     if by not in STRATIFY:
         raise StratifyError(f"--stratify {by!r}: choose {' or '.join(STRATIFY)}")
-    ids, base_rows, new_rows = _paired_rows(base, new)
-    if ids.size == 0:
+    base_rows, new_rows = shared_rows(base, new)
+    if base_rows.size == 0:
         raise StratifyError("the results share no scenario")
     rows: list[StratumComparison] = []
     if by == "criticality":

@@ -1,8 +1,9 @@
 """Compute backends for the feature kernels: "numpy" (default) and "jax" (optional extra)."""
 from __future__ import annotations
 
+from wosac_eval.extras import check_choice, require_extra
+
 BACKENDS = ("numpy", "jax")
-JAX_INSTALL_HINT = "pip install 'wosac-eval[jax]'"
 
 
 class BackendUnavailableError(RuntimeError):
@@ -11,13 +12,6 @@ class BackendUnavailableError(RuntimeError):
 
 def check_backend(name: str) -> str:
     """Validates a backend name and that its dependencies import; returns the name."""
-    if name not in BACKENDS:
-        raise ValueError(f"unknown backend {name!r}: choose one of {', '.join(BACKENDS)}")
-    if name == "jax":
-        try:
-            import jax  # noqa: F401
-        except ImportError as error:
-            raise BackendUnavailableError(
-                f"the jax backend needs JAX, which is not installed ({error}); "
-                f"install it with: {JAX_INSTALL_HINT}") from error
+    if check_choice("backend", name, BACKENDS) == "jax":
+        require_extra("jax backend", "jax", "JAX", "jax", BackendUnavailableError)
     return name

@@ -19,10 +19,10 @@ import collections
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
+from wosac_eval.extras import check_choice, require_extra
 from wosac_eval.runtime.processes import worker_pool
 
 ENGINES = ("local", "ray")
-RAY_INSTALL_HINT = "pip install 'wosac-eval[ray]'"
 
 
 class EngineUnavailableError(RuntimeError):
@@ -88,23 +88,14 @@ class LocalExecutor:
 def make_executor(engine: str = "local", *, workers: int = 1, ray_address: str | None = None,
                   force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
     """The executor of an engine ("local" or "ray"); raises EngineUnavailableError when it cannot run."""
-    if engine == "local":
+    if check_engine(engine) == "local":
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
-    if engine == "ray":
-        check_engine("ray")
-        from wosac_eval.runtime.ray_executor import RayExecutor
-        return RayExecutor(ray_address, initializer=initializer)
-    raise ValueError(f"unknown engine {engine!r}: choose one of {', '.join(ENGINES)}")
+    from wosac_eval.runtime.ray_executor import RayExecutor
+    return RayExecutor(ray_address, initializer=initializer)
 
 
 def check_engine(name: str) -> str:
     """Validates an engine name and that its dependencies import; returns the name."""
-    if name not in ENGINES:
-        raise ValueError(f"unknown engine {name!r}: choose one of {', '.join(ENGINES)}")
-    if name == "ray":
-        try:
-            import ray  # noqa: F401
-        except ImportError as error:
-            raise EngineUnavailableError(f"the ray engine needs Ray, which is not installed ({error}); "
-                                         f"install it with: {RAY_INSTALL_HINT}") from error
+    if check_choice("engine", name, ENGINES) == "ray":
+        require_extra("ray engine", "ray", "Ray", "ray", EngineUnavailableError)
     return name

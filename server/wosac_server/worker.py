@@ -155,21 +155,25 @@ class Worker:
     def _public(self, value, submission_path: Path):
         """`value` (a message, or a report's dict) without the server's absolute paths: the upload is
         called `submission`, scenario shards by their file names, other data-dir files relatively."""
-        if isinstance(value, dict):
-            return {k: self._public(v, submission_path) for k, v in value.items()}
-        if isinstance(value, list):
-            return [self._public(v, submission_path) for v in value]
-        if not isinstance(value, str):
-            return value
         data_dir = self.settings.data_dir
         swaps = [(str(submission_path.resolve()), "submission"), (str(submission_path), "submission")]
         for shard in self.settings.scenario_paths():
             swaps += [(str(shard.resolve().parent) + os.sep, ""), (str(shard.parent) + os.sep, "")]
         swaps += [(str(data_dir.resolve()) + os.sep, ""), (str(data_dir) + os.sep, "")]
-        for old, new in sorted(swaps, key=lambda pair: -len(pair[0])):
-            if old and old not in (os.sep, "." + os.sep):
-                value = value.replace(old, new)
-        return value
+        # Longest first, so that a path is replaced whole before any folder of it.
+        swaps = sorted((pair for pair in swaps if pair[0] not in (os.sep, "." + os.sep)), key=lambda p: -len(p[0]))
+
+        def redact(v):
+            if isinstance(v, dict):
+                return {k: redact(x) for k, x in v.items()}
+            if isinstance(v, list):
+                return [redact(x) for x in v]
+            if isinstance(v, str):
+                for old, new in swaps:
+                    v = v.replace(old, new)
+            return v
+
+        return redact(value)
 
     def score_job(self, job: dict) -> None:
         settings, job_id = self.settings, job["id"]

@@ -91,24 +91,32 @@ def verify_key(store: Store, presented: str) -> ApiKey | None:
     return ApiKey(row["id"], row["name"], row["max_concurrent"], row["max_daily"], row["max_daily_bytes"])
 
 
-def remaining_daily_bytes(store: Store, key: ApiKey, now: float | None = None) -> int:
+def remaining_daily_bytes(store: Store, key: ApiKey, now: float | None = None, exclude_upload: str | None = None) -> int:
+    """The key's daily byte quota less its submissions of the last 24 h and its unfinished resumable
+    uploads (each at its declared length, or what it holds), but for `exclude_upload` (being completed)."""
     now = time.time() if now is None else now
     row = store.fetchone(
         "SELECT COALESCE(SUM(upload_bytes), 0) AS used FROM submissions WHERE key_id = ? AND created_at > ?",
         (key.id, now - DAY_S))
-    return max(0, key.max_daily_bytes - int(row["used"]))
+    held = store.fetchone(
+        "SELECT COALESCE(SUM(CASE WHEN declared_length IS NOT NULL AND declared_length > received_bytes"
+        " THEN declared_length ELSE received_bytes END), 0) AS held FROM uploads"
+        " WHERE key_id = ? AND submission_id IS NULL AND id != ?", (key.id, exclude_upload or ""))
+    return max(0, key.max_daily_bytes - int(row["used"]) - int(held["held"]))
 
 
-def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now: float | None = None) -> None:
+def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now: float | None = None, *,
+                           pending: int = 0, exclude_upload: str | None = None) -> None:
     """Raise QuotaExceeded when `key` may not start one more job of `upload_bytes` now.
 
     Call it inside the transaction that inserts the job so two racing uploads
-    cannot both take the last slot.
+    cannot both take the last slot. `pending`: uploads of this key being received or checked
+    right now (they take a slot before any expensive work).
     """
     now = time.time() if now is None else now
     active = store.fetchone(
         "SELECT COUNT(*) AS n FROM submissions WHERE key_id = ? AND state IN (?, ?, ?)",
-        (key.id, *ACTIVE_STATES))["n"]
+        (key.id, *ACTIVE_STATES))["n"] + pending
     if active >= key.max_concurrent:
         raise QuotaExceeded(429, f"key {key.name!r} already has {active} unfinished submission(s); "
                             f"its limit is {key.max_concurrent} at a time. Retry when one finishes.", 30)
@@ -119,6 +127,6 @@ def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now
         retry = int(recent[0]["created_at"] + DAY_S - now) + 1
         raise QuotaExceeded(429, f"key {key.name!r} made {len(recent)} submissions in the last 24 h; "
                             f"its limit is {key.max_daily} per day.", retry)
-    if upload_bytes > remaining_daily_bytes(store, key, now):
+    if upload_bytes > remaining_daily_bytes(store, key, now, exclude_upload):
         raise QuotaExceeded(413, f"this upload ({upload_bytes} bytes) exceeds what remains of key "
                             f"{key.name!r}'s daily byte quota ({key.max_daily_bytes} bytes per 24 h).")

@@ -14,7 +14,7 @@ import threading
 from pathlib import Path
 from typing import Any, Iterator, Sequence
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 
 SCHEMA = [
     """CREATE TABLE IF NOT EXISTS api_keys (
@@ -75,6 +75,18 @@ MIGRATIONS = {
         "ALTER TABLE submissions ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
         "ALTER TABLE uploads ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
         "ALTER TABLE submissions ADD COLUMN coverage DOUBLE PRECISION",
+    ],
+    3: [  # who owns a leaderboard name; an upload's state (race-free PATCH/complete/DELETE); what a job used
+        """CREATE TABLE IF NOT EXISTS method_names (
+            challenge TEXT NOT NULL,
+            method TEXT NOT NULL,
+            key_id TEXT NOT NULL,
+            claimed_at DOUBLE PRECISION NOT NULL,
+            PRIMARY KEY (challenge, method)
+        )""",
+        "ALTER TABLE uploads ADD COLUMN state TEXT NOT NULL DEFAULT 'open'",
+        "ALTER TABLE submissions ADD COLUMN peak_rss_bytes BIGINT",
+        "ALTER TABLE submissions ADD COLUMN cpu_s DOUBLE PRECISION",
     ],
 }
 

@@ -21,24 +21,9 @@ from .db import Store
 STATES = ("queued", "validating", "scoring", "done", "failed")
 RUNNING = ("validating", "scoring")
 
-# Magic numbers of the accepted containers; anything else is treated as one binproto shard.
-GZIP_MAGIC = b"\x1f\x8b"
-
-
 def new_id() -> str:
     """A server-generated id; also the stem of every file stored for it."""
     return uuid.uuid4().hex
-
-
-def sniff_suffix(path: Path) -> str:
-    """The file suffix that matches the bytes of an uploaded submission."""
-    with open(path, "rb") as f:
-        head = f.read(512)
-    if head.startswith(GZIP_MAGIC):
-        return ".tar.gz"
-    if len(head) >= 262 and head[257:262] == b"ustar":
-        return ".tar"
-    return ".binproto"
 
 
 def fsync_dir(path: Path) -> None:
@@ -212,6 +197,54 @@ def set_upload_offset(store: Store, upload_id: str, received: int) -> None:
                   (received, time.time(), upload_id))
 
 
+def move_upload(store: Store, upload_id: str, from_state: str, to_state: str) -> bool:
+    """Compare-and-set of an upload's state (open -> writing -> open, open -> completing -> complete):
+    atomic in the database, so at most one PATCH, complete or DELETE works on an upload at a time,
+    whichever API process or request gets there first."""
+    return store.execute("UPDATE uploads SET state = ?, updated_at = ? WHERE id = ? AND state = ?",
+                         (to_state, time.time(), upload_id, from_state)) == 1
+
+
+def reopen_interrupted_uploads(store: Store) -> int:
+    """Uploads left writing or completing by an API process that died: open again (its requests are gone)."""
+    return store.execute("UPDATE uploads SET state = 'open' WHERE state IN ('writing', 'completing')"
+                         " AND submission_id IS NULL")
+
+
+def open_uploads(store: Store, key_id: str) -> int:
+    return store.fetchone("SELECT COUNT(*) AS n FROM uploads WHERE key_id = ? AND submission_id IS NULL",
+                          (key_id,))["n"]
+
+
 def expired_uploads(store: Store, older_than: float) -> list[dict]:
     return store.fetchall(
         "SELECT id FROM uploads WHERE submission_id IS NULL AND updated_at < ?", (older_than,))
+
+
+# -- leaderboard names -------------------------------------------------------------------
+def method_owner(store: Store, challenge: str, method: str) -> str | None:
+    """The key id owning a leaderboard name of a challenge, or None while nobody used it."""
+    row = store.fetchone("SELECT key_id FROM method_names WHERE challenge = ? AND method = ?", (challenge, method))
+    return None if row is None else row["key_id"]
+
+
+def claim_method(store: Store, challenge: str, method: str, key_id: str) -> bool:
+    """Take a free name for `key_id` (no-op when it has it); False when another key owns it.
+    Call inside the transaction that inserts the submission."""
+    store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)"
+                  " ON CONFLICT (challenge, method) DO NOTHING", (challenge, method, key_id, time.time()))
+    return method_owner(store, challenge, method) == key_id
+
+
+def assign_method(store: Store, challenge: str, method: str, key_id: str | None) -> None:
+    """The operator's override: give a name to another key, or free it (key_id None)."""
+    with store.transaction():
+        store.execute("DELETE FROM method_names WHERE challenge = ? AND method = ?", (challenge, method))
+        if key_id is not None:
+            store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)",
+                          (challenge, method, key_id, time.time()))
+
+
+def list_methods(store: Store) -> list[dict]:
+    return store.fetchall("SELECT m.challenge, m.method, k.name AS key_name, m.claimed_at FROM method_names m"
+                          " LEFT JOIN api_keys k ON k.id = m.key_id ORDER BY m.challenge, m.method")

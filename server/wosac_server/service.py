@@ -7,8 +7,12 @@ the `service` dependency and authenticate with `current_key`.
 from __future__ import annotations
 
 import asyncio
+import collections
+import contextlib
 import os
 import re
+import threading
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -17,12 +21,13 @@ from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from wosac_eval.metrics.config import PRESET_CHALLENGE, default_config
+from wosac_eval.parse.archive import NotASubmissionError, check_container
+from wosac_eval.parse.errors import ParseError
 
 from . import auth, jobs
 from .db import Store
 from .models import status_of
 from .settings import Settings
-from .uploads import check_archive
 
 ID_PATTERN = r"^[0-9a-f]{32}$"
 
@@ -40,7 +45,14 @@ class Service:
         # Bodies of direct uploads cut short by a crash of a previous run: nobody will finish them.
         for orphan in settings.uploads_dir.glob("*.body"):
             orphan.unlink(missing_ok=True)
-        self.upload_locks: dict[str, asyncio.Lock] = {}
+        jobs.reopen_interrupted_uploads(self.store)
+        self.limits = settings.input_limits()
+        # Uploads of each key being received or checked now: they hold a job slot before any work.
+        self.pending: collections.Counter[str] = collections.Counter()
+        # Container checks decompress whole uploads: a few at a time, the rest wait without a thread.
+        self.check_slots = asyncio.Semaphore(settings.upload_checks)
+        self._auth_failures: dict[str, collections.deque] = {}
+        self._auth_lock = threading.Lock()
 
     # -- what may be asked for ---------------------------------------------------------------
     def config_for(self, challenge: str, config: str | None) -> str:
@@ -55,15 +67,42 @@ class Service:
         return config
 
     # -- keys, quotas, ownership ---------------------------------------------------------------
-    def key_for(self, creds: HTTPAuthorizationCredentials | None) -> auth.ApiKey:
+    def key_for(self, creds: HTTPAuthorizationCredentials | None, client: str = "") -> auth.ApiKey:
         if creds is None or creds.scheme.lower() != "bearer":
             raise HTTPException(401, "missing API key: send 'Authorization: Bearer <key>'",
                                 headers={"WWW-Authenticate": "Bearer"})
+        self._refuse_guessing(client)
         key = auth.verify_key(self.store, creds.credentials)
         if key is None:
+            self._record_auth_failure(client)
             raise HTTPException(401, "unknown or revoked API key",
                                 headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
         return key
+
+    def _recent_failures(self, client: str, now: float) -> collections.deque:
+        failures = self._auth_failures.setdefault(client, collections.deque())
+        while failures and failures[0] < now - 60.0:
+            failures.popleft()
+        return failures
+
+    def _refuse_guessing(self, client: str) -> None:
+        """429 for an address past its failed authentications of the last minute (keys are not guessed)."""
+        now = time.monotonic()
+        with self._auth_lock:
+            failures = self._recent_failures(client, now)
+            if len(failures) < self.settings.auth_failures_per_minute:
+                return
+            retry = int(failures[0] + 60.0 - now) + 1
+        raise HTTPException(429, f"too many failed authentications from this address in the last minute; "
+                            f"retry in {retry} s", headers={"Retry-After": str(retry)})
+
+    def _record_auth_failure(self, client: str) -> None:
+        now = time.monotonic()
+        with self._auth_lock:
+            if len(self._auth_failures) > 10_000:  # bounded: forget addresses quiet for a minute
+                for address in [a for a, f in self._auth_failures.items() if not f or f[-1] < now - 60.0]:
+                    del self._auth_failures[address]
+            self._recent_failures(client, now).append(now)
 
     @staticmethod
     def quota_error(exc: auth.QuotaExceeded) -> HTTPException:
@@ -83,13 +122,41 @@ class Service:
             raise HTTPException(404, f"no upload {upload_id!r} for this API key")
         return row
 
-    def upload_limit(self, key: auth.ApiKey) -> int:
-        return min(self.settings.max_upload_bytes, auth.remaining_daily_bytes(self.store, key))
+    def check_method(self, key: auth.ApiKey, challenge: str, method: str) -> None:
+        """403 when another key owns the leaderboard name (or it is another key's name, not yet used)."""
+        owner = jobs.method_owner(self.store, challenge, method)
+        if owner is None and method != key.name:
+            other = self.store.fetchone("SELECT id FROM api_keys WHERE name = ?", (method,))
+            owner = None if other is None else other["id"]
+        if owner is not None and owner != key.id:
+            raise HTTPException(403, f"the method name {method!r} belongs to another key on the {challenge} "
+                                "leaderboard; choose another name (an operator can reassign names: "
+                                "wosac-server methods)")
+
+    @contextlib.asynccontextmanager
+    async def upload_slot(self, key: auth.ApiKey):
+        """Hold one of the key's job slots while its upload is received and checked (429 when none is
+        free): 40 uploads at once from a key allowed 2 jobs cost 2 checks, not 40."""
+        self.pending[key.id] += 1  # before any await: concurrent requests see each other
+        try:
+            yield
+        finally:
+            self.pending[key.id] -= 1
+            if not self.pending[key.id]:
+                del self.pending[key.id]
+
+    def others_pending(self, key: auth.ApiKey) -> int:
+        """Uploads of the key in flight, besides the caller's own."""
+        return max(0, self.pending.get(key.id, 0) - 1)
+
+    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None) -> int:
+        return min(self.settings.max_upload_bytes, auth.remaining_daily_bytes(self.store, key,
+                                                                             exclude_upload=upload_id))
 
     def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
         """Quota and size checks before a single body byte is read."""
         try:
-            auth.check_submission_quota(self.store, key, 0)
+            auth.check_submission_quota(self.store, key, 0, pending=self.others_pending(key))
         except auth.QuotaExceeded as exc:
             raise self.quota_error(exc)
         limit = self.settings.max_upload_bytes
@@ -114,15 +181,18 @@ class Service:
         """
         if size == 0:
             raise HTTPException(422, "the upload is empty")
-        suffix = jobs.sniff_suffix(temp)
-        problem = check_archive(temp, suffix)
-        if problem is not None:
-            raise HTTPException(422, problem)
         store, settings = self.store, self.settings
+        quota = {"pending": self.others_pending(key), "exclude_upload": upload_id}
         try:
-            auth.check_submission_quota(store, key, size)
+            auth.check_submission_quota(store, key, size, **quota)
         except auth.QuotaExceeded as exc:
             raise self.quota_error(exc)
+        try:
+            suffix = check_container(temp, self.limits).suffix
+        except NotASubmissionError as exc:
+            raise HTTPException(415, public_message(exc, temp))
+        except ParseError as exc:
+            raise HTTPException(422, public_message(exc, temp))
         submission_id = jobs.new_id()
         file_name = submission_id + suffix
         final = settings.submissions_dir / file_name
@@ -131,7 +201,10 @@ class Service:
         jobs.fsync_dir(settings.submissions_dir)
         try:
             with store.transaction():
-                auth.check_submission_quota(store, key, size)  # again, under the write lock
+                auth.check_submission_quota(store, key, size, **quota)  # again, under the write lock
+                if not jobs.claim_method(store, challenge, method or key.name, key.id):
+                    raise HTTPException(403, f"the method name {method or key.name!r} was just taken by "
+                                        "another key; choose another name")
                 jobs.insert_submission(store, submission_id=submission_id, key_id=key.id,
                                        method=method or key.name, challenge=challenge, config=config,
                                        allow_partial=allow_partial, published=publish,
@@ -152,6 +225,11 @@ class Service:
         return JSONResponse(body, status_code=202, headers={"Location": f"/v1/submissions/{row['id']}"})
 
 
+def public_message(exc: Exception, path: Path) -> str:
+    """An error about an upload as its sender sees it: the file is `submission`, not a server path."""
+    return str(exc).replace(str(path.resolve()), "submission").replace(str(path), "submission")
+
+
 def service(request: Request) -> Service:
     """The dependency every route takes."""
     return request.app.state.service
@@ -160,7 +238,7 @@ def service(request: Request) -> Service:
 def current_key(request: Request,
                 creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> auth.ApiKey:
     """The dependency of authenticated routes: the caller's key (401 when missing or revoked)."""
-    return service(request).key_for(creds)
+    return service(request).key_for(creds, request.client.host if request.client else "")
 
 
 ServiceDep = Annotated[Service, Depends(service)]

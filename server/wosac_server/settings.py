@@ -16,6 +16,7 @@ from pydantic import BaseModel, Field, field_validator
 ENV_PREFIX = "WOSAC_"
 
 GiB = 1024**3
+MiB = 1024**2
 
 
 class Settings(BaseModel):
@@ -51,6 +52,31 @@ class Settings(BaseModel):
     scene_pictures: int = Field(3, ge=0, le=20, description="Pictures of the lowest meta-metric scenes drawn "
                                 "after scoring, shown on the submission page (WOSAC_SCENE_PICTURES; 0: none).")
     upload_ttl_s: float = Field(7 * 24 * 3600.0, gt=0, description="Unfinished resumable uploads expire after this.")
+    max_open_uploads: int = Field(4, ge=1, description="Unfinished resumable uploads one key may hold at a time.")
+
+    # How far an upload may expand (checked at upload, again by the worker before parsing).
+    max_shard_bytes: int = Field(4 * GiB, gt=0, description="One shard of a submission, decompressed.")
+    max_decompressed_bytes: int = Field(64 * GiB, gt=0, description="A whole submission, decompressed.")
+    max_compression_ratio: float = Field(100.0, gt=1, description="A compressed upload may expand at most this many "
+                                         "times its size...")
+    compression_ratio_floor_bytes: int = Field(64 * MiB, gt=0, description="...once past this many bytes.")
+    max_archive_members: int = Field(10_000, ge=1, description="Entries of an uploaded tar archive.")
+    max_scenarios: int = Field(100_000, ge=1, description="scenario_rollouts entries of one submission.")
+    upload_checks: int = Field(2, ge=1, le=64, description="Uploads checked at the same time (the rest wait); each "
+                               "check decompresses the upload once.")
+
+    # What one scoring job may use; past it the job fails with the reason, never the host.
+    job_memory_bytes: int = Field(8 * GiB, ge=0, description="Address space of a job's scoring process "
+                                  "(RLIMIT_AS; 0: no limit).")
+    job_cpu_budget_s: float = Field(6 * 3600.0, ge=0, description="CPU seconds a job's scoring process may use "
+                                    "(RLIMIT_CPU; 0: no limit).")
+
+    # Connections and authentication.
+    header_timeout_s: float = Field(10.0, gt=0, description="A client must send its request headers within this.")
+    body_timeout_s: float = Field(60.0, gt=0, description="A request body may pause at most this long between chunks.")
+    max_connections_per_client: int = Field(32, ge=1, description="Open connections from one client address.")
+    auth_failures_per_minute: int = Field(20, ge=1, description="Failed authentications per client address "
+                                          "per minute before further attempts get 429.")
 
     @field_validator("configs", mode="before")
     @classmethod
@@ -66,6 +92,14 @@ class Settings(BaseModel):
             parts = [p.strip() for chunk in value.split(",") for p in chunk.split(os.pathsep)]
             return [p for p in parts if p]
         return value
+
+    def input_limits(self):
+        """The `InputLimits` every upload check and scoring job applies."""
+        from wosac_eval.parse.limits import InputLimits
+
+        return InputLimits(max_member_bytes=self.max_shard_bytes, max_total_bytes=self.max_decompressed_bytes,
+                           max_members=self.max_archive_members, max_compression_ratio=self.max_compression_ratio,
+                           ratio_floor_bytes=self.compression_ratio_floor_bytes, max_scenarios=self.max_scenarios)
 
     @property
     def resolved_db_url(self) -> str:

@@ -12,15 +12,17 @@ import time
 
 import pytest
 
-from support.server_harness import GOLDEN_PAIR, files_under, tar_bytes
+from wosac_eval.parse.wire import varint
+
+from support.server_harness import GOLDEN_PAIR, as_submission, files_under, tar_bytes
 
 
 def submission_bytes() -> bytes:
-    """A real submission when ../shared is there; otherwise bytes the API treats alike
-    (no validation happens before a worker claims the job, and no worker runs here)."""
+    """A real submission when ../shared is there; otherwise a stand-in the API treats alike
+    (it passes the upload check; nothing is scored here: no worker runs)."""
     if GOLDEN_PAIR[0].exists():
         return GOLDEN_PAIR[0].read_bytes()
-    return hashlib.sha256(b"wosac").digest() * 4096
+    return as_submission(hashlib.sha256(b"wosac").digest() * 4096)
 
 
 def outside_data_dir(server) -> set:
@@ -124,9 +126,9 @@ def test_oversized_bodies_are_413_and_leave_no_file(api_server):
 
 
 @pytest.mark.parametrize("members, reason", [
-    ({"../../evil.binproto": b"x"}, "unsafe path"),
-    ({"/tmp/evil.binproto": b"x"}, "unsafe path"),
-    ({"ok/../../evil.binproto": b"x"}, "unsafe path"),
+    ({"../../evil.binproto": b"x"}, "'..' component"),
+    ({"/tmp/evil.binproto": b"x"}, "absolute path"),
+    ({"ok/../../evil.binproto": b"x"}, "'..' component"),
 ])
 def test_archives_with_traversal_names_are_422(api_server, members, reason):
     key = api_server.key(f"traversal-{abs(hash(tuple(members)))}")
@@ -157,10 +159,10 @@ def test_links_in_archives_are_422(api_server):
 
 
 @pytest.mark.parametrize("body, reason", [
-    (b"\x1f\x8b\x08\x00garbage that is not deflate data" * 20, "not a readable .tar.gz archive"),
-    (tar_bytes({"a.binproto": b"y" * 5000}, gz=False)[:1000], "not a readable .tar archive"),
-    (tar_bytes({"a.binproto": b"y" * 5000})[:-40], "not a readable .tar.gz archive"),
-    (tar_bytes({}, gz=True), "holds no files"),
+    (b"\x1f\x8b\x08\x00garbage that is not deflate data" * 20, "broken gzip stream"),
+    (tar_bytes({"a.binproto": b"y" * 5000}, gz=False)[:1000], "truncated or corrupt data in member 'a.binproto'"),
+    (tar_bytes({"a.binproto": b"y" * 5000})[:-40], "broken gzip stream"),
+    (tar_bytes({}, gz=True), "holds no submission shard"),
     (b"", "empty"),
 ])
 def test_malformed_uploads_are_422(api_server, body, reason):
@@ -184,8 +186,8 @@ def test_bad_parameters_are_422(api_server):
 def test_quota_on_concurrent_jobs_is_429(api_server):
     key = api_server.key("one-at-a-time", max_concurrent=1)
     with api_server.client(key) as c:
-        assert c.post("/v1/submissions", content=b"first").status_code == 202
-        r = c.post("/v1/submissions", content=b"second")
+        assert c.post("/v1/submissions", content=as_submission(b"first")).status_code == 202
+        r = c.post("/v1/submissions", content=as_submission(b"second"))
         assert r.status_code == 429 and "limit is 1 at a time" in r.json()["detail"]
         assert int(r.headers["retry-after"]) > 0
         assert c.post("/v1/uploads").status_code == 429
@@ -194,9 +196,9 @@ def test_quota_on_concurrent_jobs_is_429(api_server):
 def test_quota_on_daily_submissions_is_429(api_server):
     key = api_server.key("twice-a-day", max_daily=2)
     with api_server.client(key) as c:
-        assert c.post("/v1/submissions", content=b"1").status_code == 202
-        assert c.post("/v1/submissions", content=b"2").status_code == 202
-        r = c.post("/v1/submissions", content=b"3")
+        assert c.post("/v1/submissions", content=as_submission(b"one")).status_code == 202
+        assert c.post("/v1/submissions", content=as_submission(b"two")).status_code == 202
+        r = c.post("/v1/submissions", content=as_submission(b"three"))
         assert r.status_code == 429 and "limit is 2 per day" in r.json()["detail"]
         assert 0 < int(r.headers["retry-after"]) <= 24 * 3600 + 1
 
@@ -204,7 +206,7 @@ def test_quota_on_daily_submissions_is_429(api_server):
 def test_quota_on_daily_bytes_is_413(api_server):
     key = api_server.key("small-budget", max_daily_bytes=1000)
     with api_server.client(key) as c:
-        assert c.post("/v1/submissions", content=b"a" * 600).status_code == 202
+        assert c.post("/v1/submissions", content=as_submission(b"a" * 600)).status_code == 202
         r = c.post("/v1/submissions", content=b"b" * 600)
         assert r.status_code == 413 and "400 bytes left" in r.json()["detail"]
         r = c.post("/v1/submissions", content=iter([b"c" * 300, b"c" * 300]))  # streamed, no length
@@ -227,7 +229,7 @@ def _drop_mid_chunk(server, key, upload_id, offset, chunk, sent):
 
 def test_resumable_upload_survives_a_dropped_connection(api_server):
     key = api_server.key("resumer")
-    body = os.urandom(1_000_000)
+    body = as_submission(os.urandom(1_000_000))
     with api_server.client(key) as c:
         r = c.post("/v1/uploads", params={"method": "resumed"}, headers={"Upload-Length": str(len(body))})
         assert r.status_code == 201 and r.headers["upload-offset"] == "0"
@@ -266,7 +268,7 @@ def test_resumable_upload_survives_a_dropped_connection(api_server):
 
 def test_resumable_upload_without_declared_length_and_delete(api_server):
     key = api_server.key("chunker")
-    body = tar_bytes({"shard.binproto": os.urandom(200_000)})
+    body = tar_bytes({"shard.binproto": as_submission(os.urandom(200_000))})
     with api_server.client(key) as c:
         upload_id = c.post("/v1/uploads").json()["upload_id"]
         for start in range(0, len(body), 50_000):
@@ -305,7 +307,7 @@ def test_keys_command_creates_lists_and_revokes(api_server):
 def test_restart_keeps_accepted_submissions(make_server, tmp_path):
     server = make_server(workers=0)
     key = server.key("restarter")
-    bodies = [submission_bytes(), tar_bytes({"s.binproto": b"z" * 1000})]
+    bodies = [submission_bytes(), tar_bytes({"s.binproto": as_submission(b"z" * 1000)})]
     with server.client(key) as c:
         ids = [c.post("/v1/submissions", content=b).json()["id"] for b in bodies]
         upload_id = c.post("/v1/uploads").json()["upload_id"]
@@ -325,11 +327,11 @@ def test_restart_keeps_accepted_submissions(make_server, tmp_path):
 
 def test_complete_refused_by_a_quota_keeps_the_uploaded_bytes(api_server):
     key = api_server.key("patient", max_concurrent=1)
-    body = os.urandom(50_000)
+    body = as_submission(os.urandom(50_000))
     with api_server.client(key) as c:
         upload_id = c.post("/v1/uploads").json()["upload_id"]
         assert _patch(c, upload_id, 0, body).status_code == 204
-        blocker = c.post("/v1/submissions", content=b"takes the only slot").json()["id"]
+        blocker = c.post("/v1/submissions", content=as_submission(b"takes the only slot")).json()["id"]
         r = c.post(f"/v1/uploads/{upload_id}/complete")
         assert r.status_code == 429
         assert c.head(f"/v1/uploads/{upload_id}").headers["upload-offset"] == str(len(body))
@@ -356,7 +358,10 @@ def test_a_large_upload_is_streamed_not_held_in_memory(make_server):
     with server.client(key) as c:
         c.get("/v1/submissions")  # warm up every code path before the baseline
         baseline = _peak_rss_mb(server.proc.pid)
-        r = c.post("/v1/submissions", content=(chunk for _ in range(256)))  # 256 MiB, chunked
+        header = b"\x3a" + varint(256 * 2**20 - 5)  # the body is one description field of a submission
+        assert len(header) == 5
+        first = header + chunk[5:]
+        r = c.post("/v1/submissions", content=(first if i == 0 else chunk for i in range(256)))  # 256 MiB, chunked
         assert r.status_code == 202, r.text
         assert r.json()["upload_bytes"] == 256 * 2**20
     growth = _peak_rss_mb(server.proc.pid) - baseline

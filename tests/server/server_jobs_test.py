@@ -12,7 +12,7 @@ import os
 import signal
 import time
 
-from support.server_harness import canonical, tar_bytes
+from support.server_harness import as_submission, canonical, tar_bytes
 
 RUNNING = ("validating", "scoring")
 
@@ -56,7 +56,7 @@ def test_invalid_submission_fails_with_its_report(make_server, scoring_data):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     with server.client(server.key("invalid")) as c:
         # A well-formed archive whose shard is not a submission proto.
-        sid = c.post("/v1/submissions", content=tar_bytes({"shard.binproto": b"\xff" * 64})).json()["id"]
+        sid = c.post("/v1/submissions", content=tar_bytes({"shard.binproto": as_submission(b"\xff" * 64)})).json()["id"]
         status = server.wait_state(c, sid)
         assert c.get(f"/v1/submissions/{sid}/results").status_code == 409
     assert status["state"] == "failed"

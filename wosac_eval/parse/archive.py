@@ -24,10 +24,15 @@ bytes that are neither tar nor compressed is an error.
 Safety: archives are never extracted to disk and never held whole in memory;
 one member at a time is read from a decompressing stream. Members with `..`
 components or absolute names, symbolic and hard links, devices, FIFOs and other
-special types are refused. Each shard's decompressed size is limited by
-`max_member_bytes` and the archive's total decompressed size (headers and
-skipped members included) by `max_total_bytes`. Every failure is a
-`ParseError` subclass naming the archive and member.
+special types are refused. Expansion is bounded by `InputLimits`
+(`parse.limits`): each shard's decompressed size, the archive's total (headers
+and skipped members included, and for a compressed file at most
+`max_compression_ratio` times its size), the number of members, and the number
+of messages of a shard, counted on the wire before it is parsed. Every failure
+is a `ParseError` subclass naming the archive and member.
+
+`check_container(path, limits)` applies the same rules without keeping any
+member: the service calls it on an upload before accepting it.
 """
 
 from __future__ import annotations
@@ -54,12 +59,13 @@ from wosac_eval.parse.errors import (
     SizeLimitError,
     UnsafeArchiveMemberError,
 )
+from wosac_eval.parse.limits import InputLimits, check_message_counts
 from wosac_eval.protos import sim_agents_submission_pb2
 
 PathLike = Union[str, "os.PathLike[str]"]
 
-DEFAULT_MAX_MEMBER_BYTES = 4 << 30  # one shard, decompressed
-DEFAULT_MAX_TOTAL_BYTES = 64 << 30  # the whole archive, decompressed
+DEFAULT_MAX_MEMBER_BYTES = InputLimits.max_member_bytes  # one shard, decompressed
+DEFAULT_MAX_TOTAL_BYTES = InputLimits.max_total_bytes  # the whole archive, decompressed
 
 SHARD_NAME_MARKER = ".binproto"
 _DOC_PREFIXES = ("README", "LICENSE", "LICENCE", "NOTICE", "CHANGELOG")
@@ -246,8 +252,8 @@ class _LimitedStream:
     member being read at the time (kept up to date by the tar reader).
     """
 
-    def __init__(self, archive: Path, source: BinaryIO, limit: int) -> None:
-        self.archive, self._source, self.limit = archive, source, limit
+    def __init__(self, archive: Path, source: BinaryIO, limit: int, limit_name: str = "max_total_bytes") -> None:
+        self.archive, self._source, self.limit, self.limit_name = archive, source, limit, limit_name
         self.bytes_read = 0
         self.member = "(archive header)"
 
@@ -259,7 +265,7 @@ class _LimitedStream:
         if self.bytes_read > self.limit:
             raise SizeLimitError(
                 f"{self.archive}: decompresses to more than the total limit of {self.limit} bytes "
-                f"(while reading member {self.member!r}); raise max_total_bytes if this is genuine"
+                f"(while reading member {self.member!r}; limit {self.limit_name}); raise it if this is genuine"
             )
         return data
 
@@ -379,10 +385,12 @@ def _next_member(
     return info
 
 
-def _iter_tar(
-    archive: Path, stream: _LimitedStream, max_member_bytes: int
-) -> Iterator[SubmissionShard]:
-    """Yield (name, bytes) for every shard member of a tar stream, in order."""
+def _iter_members(
+    archive: Path, stream: _LimitedStream, limits: InputLimits
+) -> Iterator[tuple[tarfile.TarFile, str, tarfile.TarInfo]]:
+    """(tar, name, header) of every shard member of a tar stream, in order, after every check
+    that needs no member data: safe names and types, stray files, duplicates, the member count and
+    the declared sizes against the limits. Skipping a member's data is left to tarfile."""
     info_class = _recording_tarinfo_class()
     try:
         tar = tarfile.open(fileobj=stream, mode="r|", tarinfo=info_class)  # type: ignore[arg-type]
@@ -390,8 +398,12 @@ def _iter_tar(
         raise ArchiveError(f"{archive}: not a readable tar archive: {error}") from error
     seen: set[str] = set()
     last_member: str | None = None
+    members = 0
     with tar:
         while (info := _next_member(tar, archive, last_member)) is not None:
+            members += 1
+            if members > limits.max_members:
+                raise SizeLimitError(f"{archive}: more than max_members={limits.max_members} archive members")
             name = safe_member_name(archive, info.name)
             _check_member_type(archive, name, info)
             last_member = stream.member = name
@@ -402,12 +414,17 @@ def _iter_tar(
             if name in seen:
                 raise ArchiveError(f"{archive}: member {name!r} appears twice")
             seen.add(name)
-            if info.size > max_member_bytes:
+            if info.size > limits.max_member_bytes:
                 raise SizeLimitError(
                     f"{archive}: member {name!r} is {info.size} bytes, over the per-member "
-                    f"limit of {max_member_bytes} bytes"
+                    f"limit of {limits.max_member_bytes} bytes"
                 )
-            yield name, _read_member(tar, archive, name, info)
+            if stream.bytes_read + info.size > stream.limit:  # refused on its header, before any byte
+                raise SizeLimitError(
+                    f"{archive}: member {name!r} is {info.size} bytes: the archive would decompress to more "
+                    f"than the total limit of {stream.limit} bytes (limit {stream.limit_name})"
+                )
+            yield tar, name, info
     _check_clean_end(archive, info_class, last_member)
     if not seen:
         raise ArchiveError(
@@ -430,13 +447,19 @@ def _drain(stream: _LimitedStream, archive: Path) -> None:
         ) from error
 
 
-def _iter_archive_file(
-    path: Path, compression: str | None, max_member_bytes: int, max_total_bytes: int
-) -> Iterator[SubmissionShard]:
+def _open_limited(path: Path, compression: str | None, limits: InputLimits) -> tuple[BinaryIO, _LimitedStream]:
+    """The file's decompressed bytes as a stream bounded by the total limit (the ratio one for compressed files)."""
+    source = _open_decompressed(path, compression)
+    budget, name = limits.total_bytes_for(None if compression is None else path.stat().st_size)
+    return source, _LimitedStream(path, source, budget, name)
+
+
+def _iter_archive_file(path: Path, compression: str | None, limits: InputLimits) -> Iterator[SubmissionShard]:
     """Shards of a (possibly compressed) tar file, streamed member by member."""
-    with _open_decompressed(path, compression) as source:
-        stream = _LimitedStream(path, source, max_total_bytes)
-        yield from _iter_tar(path, stream, max_member_bytes)
+    source, stream = _open_limited(path, compression, limits)
+    with source:
+        for tar, name, info in _iter_members(path, stream, limits):
+            yield name, _read_member(tar, path, name, info)
         if compression is not None:
             _drain(stream, path)
 
@@ -444,29 +467,31 @@ def _iter_archive_file(
 # --------------------------------------------------------------------------- single files
 
 
-def _read_single_shard(
-    path: Path, compression: str | None, max_member_bytes: int
-) -> ShardRef:
-    """One shard file, decompressed when needed, within the size limit."""
+def _read_single_shard(path: Path, compression: str | None, limits: InputLimits) -> ShardRef:
+    """One shard file, decompressed when needed, within the size limits."""
     name = path.name
     if compression is None:
         size = path.stat().st_size
-        if size > max_member_bytes:
+        if size > limits.max_member_bytes:
             raise SizeLimitError(
                 f"{path}: shard is {size} bytes, over the per-member limit of "
-                f"{max_member_bytes} bytes"
+                f"{limits.max_member_bytes} bytes"
             )
         return ShardRef(name, size, path=str(path.resolve()))
+    source, stream = _open_limited(path, compression, limits)
+    stream.member = name
+    if limits.max_member_bytes < stream.limit:
+        stream.limit, stream.limit_name = limits.max_member_bytes, "max_member_bytes"
     try:
-        with _open_decompressed(path, compression) as stream:
-            data = stream.read(max_member_bytes + 1)
+        with source:
+            data = stream.read()
+    except SizeLimitError:
+        if stream.limit_name == "max_member_bytes":
+            raise SizeLimitError(f"{path}: shard decompresses to more than the per-member limit of "
+                                 f"{stream.limit} bytes") from None
+        raise
     except _STREAM_ERRORS as error:
         raise ArchiveError(f"{path}: truncated or corrupt {compression} stream: {error}") from error
-    if len(data) > max_member_bytes:
-        raise SizeLimitError(
-            f"{path}: shard decompresses to more than the per-member limit of "
-            f"{max_member_bytes} bytes"
-        )
     return ShardRef(re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), len(data), data=data)
 
 
@@ -510,11 +535,20 @@ def _iter_folder(
 # --------------------------------------------------------------------------- public API
 
 
+def _limits_of(limits: InputLimits | None, max_member_bytes: int | None, max_total_bytes: int | None) -> InputLimits:
+    """`limits` (default `InputLimits()`), with the two size limits replaced when given on their own."""
+    limits = InputLimits() if limits is None else limits
+    sizes = {k: v for k, v in (("max_member_bytes", max_member_bytes), ("max_total_bytes", max_total_bytes))
+             if v is not None}
+    return dataclasses.replace(limits, **sizes) if sizes else limits
+
+
 def iter_shard_refs(
     path: PathLike,
     *,
-    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES,
-    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES,
+    limits: InputLimits | None = None,
+    max_member_bytes: int | None = None,
+    max_total_bytes: int | None = None,
 ) -> Iterator[ShardRef]:
     """Every submission shard found at path, as a `ShardRef`, in order.
 
@@ -522,9 +556,10 @@ def iter_shard_refs(
     is read yet); archive members are decompressed one at a time and carry
     their bytes. Errors as `iter_submission_shards`.
     """
+    limits = _limits_of(limits, max_member_bytes, max_total_bytes)
     path = Path(path)
     if path.is_dir():
-        yield from _iter_folder(path, max_member_bytes, max_total_bytes)
+        yield from _iter_folder(path, limits.max_member_bytes, limits.max_total_bytes)
         return
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such submission file or folder")
@@ -532,17 +567,18 @@ def iter_shard_refs(
     is_tar = _is_tar_header(head)
     _check_name_against_content(path, compression, is_tar)
     if is_tar:
-        for name, data in _iter_archive_file(path, compression, max_member_bytes, max_total_bytes):
+        for name, data in _iter_archive_file(path, compression, limits):
             yield ShardRef(name, len(data), data=data)
     else:
-        yield _read_single_shard(path, compression, min(max_member_bytes, max_total_bytes))
+        yield _read_single_shard(path, compression, limits)
 
 
 def iter_submission_shards(
     path: PathLike,
     *,
-    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES,
-    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES,
+    limits: InputLimits | None = None,
+    max_member_bytes: int | None = None,
+    max_total_bytes: int | None = None,
 ) -> Iterator[SubmissionShard]:
     """Yield (shard_name, raw_bytes) for every submission shard found at path.
 
@@ -552,8 +588,98 @@ def iter_submission_shards(
     (ArchiveError, UnsafeArchiveMemberError, SizeLimitError) naming the archive
     and member at fault; FileNotFoundError when path does not exist.
     """
-    for ref in iter_shard_refs(path, max_member_bytes=max_member_bytes, max_total_bytes=max_total_bytes):
+    for ref in iter_shard_refs(path, limits=_limits_of(limits, max_member_bytes, max_total_bytes)):
         yield ref.name, ref.read()
+
+
+# --------------------------------------------------------------------------- upload check
+
+# What a shard's first field may be: (field number, wire type) of SimAgentsChallengeSubmission.
+_SUBMISSION_FIELDS = {1: 2, 2: 0, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2, 8: 2, 9: 0, 10: 0, 11: 0, 12: 2, 13: 2, 14: 0}
+_HEAD_BYTES = 16
+_FOREIGN_FORMATS = (
+    (b"{", "JSON"), (b"[", "JSON"), (b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF8", "a GIF image"), (b"%PDF", "a PDF document"), (b"<", "HTML or XML"), (b"PK\x03\x04", "a zip archive"),
+)
+
+
+class NotASubmissionError(ArchiveError):
+    """Bytes of another kind of file (JSON, an image, text...) given as a submission."""
+
+
+def looks_like_submission(where: str, head: bytes) -> None:
+    """Raise NotASubmissionError unless `head` can start a serialized SimAgentsChallengeSubmission
+    (its first field is one of the message's, with the right wire type); empty bytes pass."""
+    if not head:
+        return
+    try:
+        from wosac_eval.parse.wire import read_varint
+
+        key, _ = read_varint(head, 0)
+        ok = _SUBMISSION_FIELDS.get(key >> 3) == key & 7
+    except ValueError:
+        ok = False
+    if ok:
+        return
+    kind = next((name for magic, name in _FOREIGN_FORMATS if head.lstrip()[:len(magic)] == magic), None)
+    detail = f"it looks like {kind}" if kind else f"its first bytes are {head[:8]!r}"
+    raise NotASubmissionError(
+        f"{where}: not a SimAgentsChallengeSubmission shard ({detail}); submit a .tar.gz of .binproto "
+        "shards or one .binproto"
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class ContainerSummary:
+    """What `check_container` found: the file's kind and its suffix, its shards and decompressed size."""
+
+    compression: str | None
+    is_tar: bool
+    shards: int
+    decompressed_bytes: int
+
+    @property
+    def suffix(self) -> str:
+        """The file suffix matching the bytes (".tar.gz", ".tar", ".binproto.xz"...)."""
+        ext = {"gzip": ".gz", "bzip2": ".bz2", "xz": ".xz", None: ""}[self.compression]
+        return (".tar" if self.is_tar else ".binproto") + ext
+
+
+def check_container(path: PathLike, limits: InputLimits | None = None) -> ContainerSummary:
+    """Check a submission file as the reader will take it, without keeping any member.
+
+    Streams the file once (the cost of decompressing it): sniffing, every member rule (names, types,
+    stray files, duplicates, counts, sizes, the compression ratio) and the first bytes of every shard.
+    Raises the reader's ParseError subclasses; NotASubmissionError for another kind of file.
+    """
+    limits = InputLimits() if limits is None else limits
+    path = Path(path)
+    compression, head = _sniff(path)
+    is_tar = _is_tar_header(head)
+    source, stream = _open_limited(path, compression, limits)
+    shards = 0
+    with source:
+        if is_tar:
+            for tar, name, info in _iter_members(path, stream, limits):
+                member = tar.extractfile(info)
+                assert member is not None
+                try:
+                    looks_like_submission(f"{path}: member {name!r}", member.read(_HEAD_BYTES))
+                except _STREAM_ERRORS as error:
+                    raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
+                shards += 1
+        else:
+            stream.member = path.name
+            if compression is None and path.stat().st_size > limits.max_member_bytes:
+                raise SizeLimitError(f"{path}: shard is {path.stat().st_size} bytes, over the per-member limit "
+                                     f"of {limits.max_member_bytes} bytes")
+            looks_like_submission(str(path), head)
+            shards = 1
+        if compression is not None:
+            if not is_tar and limits.max_member_bytes < stream.limit:
+                stream.limit, stream.limit_name = limits.max_member_bytes, "max_member_bytes"
+            _drain(stream, path)
+    return ContainerSummary(compression, is_tar, shards, stream.bytes_read)
 
 
 def _string_fields_are_text(
@@ -603,9 +729,11 @@ def _why_unparseable(raw: bytes) -> str:
 
 
 def parse_submission_shard(
-    name: str, raw: bytes
+    name: str, raw: bytes, limits: InputLimits | None = None
 ) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
-    """Parse one shard's bytes, raising InvalidShardError naming the shard if invalid."""
+    """Parse one shard's bytes, raising InvalidShardError naming the shard if invalid, SizeLimitError
+    when it holds more messages than `limits` allow (counted on the wire first)."""
+    check_message_counts(name, raw, InputLimits() if limits is None else limits)
     try:
         submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
     except DecodeError as error:
@@ -621,6 +749,11 @@ def parse_submission_shard(
 
 __all__ = [
     "ArchiveNameWarning",
+    "ContainerSummary",
+    "InputLimits",
+    "NotASubmissionError",
+    "check_container",
+    "looks_like_submission",
     "ShardRef",
     "DEFAULT_MAX_MEMBER_BYTES",
     "DEFAULT_MAX_TOTAL_BYTES",
@@ -633,7 +766,7 @@ __all__ = [
 ]
 
 
-def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
+def split_shard(name: str, raw: bytes, limits: InputLimits | None = None) -> list[tuple[str, bytes]]:
     """(scenario_id, serialized ScenarioRollouts) of every scenario of a shard.
 
     The shard is split at the wire level (`field_spans`: scenario_rollouts is
@@ -643,6 +776,7 @@ def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
     """
     from wosac_eval.parse.wire import field_spans
 
+    check_message_counts(name, raw, InputLimits() if limits is None else limits)
     try:
         items = []
         for start, end in field_spans(raw, 1):
@@ -652,7 +786,7 @@ def split_shard(name: str, raw: bytes) -> list[tuple[str, bytes]]:
         return items
     except (ValueError, UnicodeDecodeError):
         try:
-            submission = parse_submission_shard(name, raw)
+            submission = parse_submission_shard(name, raw, limits)
         except ParseError:
             return []
         return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]

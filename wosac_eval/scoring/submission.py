@@ -25,6 +25,7 @@ from wosac_eval import challenges
 from wosac_eval.backends import check_backend
 from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
 from wosac_eval.parse.archive import ShardRef, iter_shard_refs, split_shard
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
@@ -127,7 +128,8 @@ class _Plan:
         if result.parse_error is None:
             self.shards.append((shard, [(sid, span) for (_, sid), span in zip(result.entries, result.spans)]))
 
-    def rollouts(self, submission_path: PathLike, index: ScenarioIndex, report) -> Iterator[tuple[str, object]]:
+    def rollouts(self, submission_path: PathLike, index: ScenarioIndex, report,
+                 limits: InputLimits) -> Iterator[tuple[str, object]]:
         """(scenario_id, rollouts locator) of every valid scenario, once each, in submission order."""
         seen: set[str] = set()
 
@@ -145,9 +147,9 @@ class _Plan:
             return
         # An archive: stream it again; its members carry their bytes.
         readable = {shard.name for shard, _ in self.shards}
-        for shard in iter_shard_refs(submission_path):
+        for shard in iter_shard_refs(submission_path, limits=limits):
             if shard.name in readable:
-                for sid, data in split_shard(shard.name, shard.read()):
+                for sid, data in split_shard(shard.name, shard.read(), limits):
                     if wanted(sid):
                         yield sid, data
 
@@ -167,7 +169,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                      config: str | PathLike | None = None, *, challenge="sim_agents", workers: int = 1,
                      allow_partial: bool = False, progress: Progress | None = None, backend: str = "numpy",
                      engine: str = "local", ray_address: str | None = None,
-                     metadata_checks: str = "warn", select: str | None = None, analysis: bool = True) -> dict:
+                     metadata_checks: str = "warn", select: str | None = None, analysis: bool = True,
+                     limits: InputLimits | None = None) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -193,6 +196,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
         validated; rarity is rated against the whole set; the result says what was selected.
       analysis: with False, rows carry the official metrics only (no criticality, driving scores or
         per-type metrics, and no `analysis` summary): a little faster.
+      limits: how far the submission may expand when read (`parse.limits.InputLimits`: decompressed
+        sizes, compression ratio, archive members, messages per shard); default `InputLimits()`.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
     """
@@ -208,8 +213,9 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
                              initializer=keep_freed_memory)
     index = ScenarioIndex(scenario_paths)
     plan = _Plan()
+    limits = InputLimits() if limits is None else limits
     report = validate_submission(index, submission_path, challenge=challenge, executor=executor, on_shard=plan.add,
-                                 metadata_checks=metadata_checks)
+                                 metadata_checks=metadata_checks, limits=limits)
     if not report.ok and not allow_partial:
         raise InvalidSubmissionError(report)
     selection, histogram, selected = None, None, None
@@ -222,7 +228,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=metrics_config.SerializeToString(), challenge=challenge.value,
                              backend=backend, index=index, analysis=analysis)
-    rollouts = plan.rollouts(submission_path, index, report)
+    rollouts = plan.rollouts(submission_path, index, report, limits)
     if selected is not None:
         rollouts = ((sid, locator) for sid, locator in rollouts if sid in selected)
     chunks = _chunks(rollouts, SCENARIOS_PER_TASK)

@@ -22,8 +22,6 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.parse.archive import (
-    DEFAULT_MAX_MEMBER_BYTES,
-    DEFAULT_MAX_TOTAL_BYTES,
     ArchiveNameWarning,
     ShardRef,
     is_ignored_name,
@@ -32,6 +30,7 @@ from wosac_eval.parse.archive import (
     parse_submission_shard,
 )
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.wire import field_spans
 from wosac_eval.validate import rules
@@ -43,12 +42,7 @@ PathLike = str | os.PathLike
 METADATA_CHECKS = ("error", "warn")  # how metadata findings count: as the challenge server, or as warnings
 
 
-@dataclass(frozen=True)
-class Limits:
-    """Decompressed size limits: per shard, and for the whole submission."""
-
-    max_member_bytes: int = DEFAULT_MAX_MEMBER_BYTES
-    max_total_bytes: int = DEFAULT_MAX_TOTAL_BYTES
+Limits = InputLimits  # the name validation has always used
 
 
 class ScenarioSetError(ValueError):
@@ -187,9 +181,7 @@ def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iter
 
 def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator[ShardRef]:
     """Shards of a single shard or tar archive; reader errors and name warnings become findings."""
-    shards = iter_shard_refs(
-        path, max_member_bytes=limits.max_member_bytes, max_total_bytes=limits.max_total_bytes
-    )
+    shards = iter_shard_refs(path, limits=limits)
     # The reader checks the name against the content before its first shard:
     # record the warning there, without leaving a filter installed while we yield.
     with warnings.catch_warnings(record=True) as caught:
@@ -258,6 +250,7 @@ class ShardResult:
     name: str
     size: int
     parse_error: str | None = None
+    parse_code: str = "shard.unparseable"
     metadata: dict[str, Any] | None = None
     metadata_findings: list[Finding] = field(default_factory=list)
     empty_detail: str | None = None
@@ -267,14 +260,16 @@ class ShardResult:
 
 
 def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
-                challenge: Any = challenges.Challenge.SIM_AGENTS) -> ShardResult:
+                challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts."""
     name, data = shard.name, shard.read()
     result = ShardResult(name, len(data))
     try:
-        submission = parse_submission_shard(name, data)
+        submission = parse_submission_shard(name, data, limits)
     except ParseError as error:
         result.parse_error = str(error)
+        if isinstance(error, SizeLimitError):
+            result.parse_code = "container.size_limit"
         return result
     result.metadata = rules.metadata_of(submission)
     result.metadata_findings = rules.check_metadata(submission, name)
@@ -291,9 +286,9 @@ def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
 
 
 def _check_shard_task(shared: tuple, shard: ShardRef) -> ShardResult:
-    """`check_shard` in a worker; `shared` is (agents, max_listed, challenge name)."""
-    agents, max_listed, challenge = shared
-    return check_shard(shard, agents, max_listed, challenge)
+    """`check_shard` in a worker; `shared` is (agents, max_listed, challenge name, limits)."""
+    agents, max_listed, challenge, limits = shared
+    return check_shard(shard, agents, max_listed, challenge, limits)
 
 
 class _Validation:
@@ -305,8 +300,9 @@ class _Validation:
     """
 
     def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None,
-                 metadata_checks: str = "error"):
+                 metadata_checks: str = "error", max_scenarios: int = InputLimits.max_scenarios):
         self.agents = agents
+        self.max_scenarios = max_scenarios
         self.metadata_checks = metadata_checks
         self.report = report
         self.progress = progress
@@ -320,7 +316,14 @@ class _Validation:
         report.stats.shards += 1
         report.stats.bytes_read += result.size
         if result.parse_error is not None:
-            report.add(Finding("shard.unparseable", result.parse_error, shard=name))
+            report.add(Finding(result.parse_code, result.parse_error, shard=name))
+            return
+        if report.stats.scenarios_submitted + len(result.entries) > self.max_scenarios:
+            # Bounded memory: the scenarios past the limit are not recorded (nor scored).
+            report.add(Finding("container.size_limit", f"shard {name}: the submission holds more than "
+                               f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
+                               shard=name))
+            result.parse_error = "over max_scenarios"
             return
         self.metadata(name, result.metadata, result.metadata_findings)
         if result.empty_detail is not None:
@@ -368,14 +371,14 @@ class _Validation:
 
 def _shard_results(
     shards: Iterable[ShardRef], agents: dict[str, np.ndarray], max_listed: int, executor,
-    challenge: challenges.Challenge = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.Challenge = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None,
 ) -> Iterator[ShardResult]:
     """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
     A bounded number of shards is in flight, so memory stays bounded by a few
     shards (shards of folders are byte ranges: the workers read them).
     """
-    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value))
+    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value, limits or InputLimits()))
 
 
 def validate_submission(
@@ -403,7 +406,7 @@ def validate_submission(
     (`challenge="scenario_gen"`).
 
     scenarios: scenario files / folders / globs, or a ScenarioIndex.
-    limits: decompressed size limits (per shard and in total).
+    limits: how far the submission may expand (`parse.limits.InputLimits`: sizes, members, messages).
     progress: called with 1 after each submitted scenario is checked.
     sim_agents: precomputed `load_sim_agents(scenarios)`, to skip reading the scenarios again.
     workers: processes checking shards in parallel (the report is the same for any count).
@@ -425,10 +428,11 @@ def validate_submission(
     report.stats.scenarios_expected = len(agents)
     if metadata_checks not in METADATA_CHECKS:
         raise ValueError(f"metadata_checks must be one of {', '.join(METADATA_CHECKS)}, not {metadata_checks!r}")
-    run = _Validation(agents, report, progress, metadata_checks)
+    limits = limits or Limits()
+    run = _Validation(agents, report, progress, metadata_checks, limits.max_scenarios)
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
-    shards = iter_checked_shards(submission_path, limits or Limits(), report)
+    shards = iter_checked_shards(submission_path, limits, report)
     listed: collections.deque = collections.deque()  # the shards in flight, without their bytes
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:
@@ -436,7 +440,7 @@ def validate_submission(
             listed.append(dataclasses.replace(ref, data=None) if ref.data is not None else ref)
             yield ref
 
-    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge):
+    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, limits):
         run.merge(result)
         shard = listed.popleft()  # results come back in shard order
         if on_shard is not None:

@@ -13,7 +13,8 @@ router = APIRouter()
 
 
 @router.get("/healthz", response_model=Health, tags=["service"], operation_id="health")
-def healthz(svc: ServiceDep):
+async def healthz(svc: ServiceDep):
+    # On the event loop, not in the thread pool that uploads and pages share: it answers while they queue.
     scenarios = len(svc.settings.scenario_paths())
     try:
         svc.store.ping()

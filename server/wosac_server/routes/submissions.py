@@ -23,34 +23,39 @@ router = APIRouter(prefix="/v1/submissions", tags=["submissions"])
 @router.post("", status_code=202, response_model=SubmissionStatus, openapi_extra=OCTET_BODY,
              operation_id="createSubmission",
              responses={202: SUBMISSION_LINKS, 413: {"description": "Body too large"},
-                        429: {"description": "Quota exceeded"},
-                        422: {"description": "Not a readable submission container"}})
+                        429: {"description": "Quota exceeded"}, 403: {"description": "Method name owned by another key"},
+                        415: {"description": "Not a submission (JSON, an image, a zip...)"},
+                        422: {"description": "Not a readable submission container, or over an input limit"}})
 async def create_submission(request: Request, svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents",
                             config: ConfigQ = None, method: MethodQ = None, publish: PublishQ = False,
                             allow_partial: PartialQ = False,
                             content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None):
-    """Upload a whole submission (`.tar.gz`, `.tar` or one `.binproto`) as the raw request body."""
+    """Upload a whole submission (`.tar.gz`, `.tar.bz2`, `.tar.xz`, `.tar` or one `.binproto`, optionally
+    compressed) as the raw request body."""
     config = svc.config_for(challenge, config)
-    await run_in_threadpool(svc.refuse_early, key, content_length)
-    limit = await run_in_threadpool(svc.upload_limit, key)
-    temp = svc.settings.uploads_dir / f"{jobs.new_id()}.body"
-    try:
-        size, disconnected = await stream_body_to(request, temp, limit)
-    except BodyTooLarge:
-        temp.unlink(missing_ok=True)
-        raise svc.too_large(key)
-    except BaseException:
-        temp.unlink(missing_ok=True)
-        raise
-    if disconnected or (content_length is not None and size != content_length):
-        temp.unlink(missing_ok=True)
-        raise HTTPException(400, f"the body ended after {size} bytes (client disconnected or sent "
-                            "less than Content-Length); use /v1/uploads to resume large uploads")
-    try:
-        row = await run_in_threadpool(svc.accept, key, temp, size, method=method, challenge=challenge,
-                                      config=config, allow_partial=allow_partial, publish=publish)
-    finally:
-        temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
+    await run_in_threadpool(svc.check_method, key, challenge, method or key.name)
+    async with svc.upload_slot(key):
+        await run_in_threadpool(svc.refuse_early, key, content_length)
+        limit = await run_in_threadpool(svc.upload_limit, key)
+        temp = svc.settings.uploads_dir / f"{jobs.new_id()}.body"
+        try:
+            size, disconnected = await stream_body_to(request, temp, limit)
+        except BodyTooLarge:
+            temp.unlink(missing_ok=True)
+            raise svc.too_large(key)
+        except BaseException:
+            temp.unlink(missing_ok=True)
+            raise
+        if disconnected or (content_length is not None and size != content_length):
+            temp.unlink(missing_ok=True)
+            raise HTTPException(400, f"the body ended after {size} bytes (client disconnected or sent "
+                                "less than Content-Length); use /v1/uploads to resume large uploads")
+        try:
+            async with svc.check_slots:
+                row = await run_in_threadpool(svc.accept, key, temp, size, method=method, challenge=challenge,
+                                              config=config, allow_partial=allow_partial, publish=publish)
+        finally:
+            temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
     return svc.accepted(row)
 
 
@@ -78,6 +83,9 @@ def get_results(svc: ServiceDep, key: Key, submission_id: SubmissionId,
             detail = f"submission {submission_id} failed: {row['error']}"
         raise HTTPException(409, detail)
     path = svc.settings.results_dir / f"{submission_id}.json"
+    if not path.is_file():
+        raise HTTPException(410, f"the result file of submission {submission_id} is missing on the server; "
+                            "ask its operator to restore it (or submit again)")
     if format == "json":
         return FileResponse(path, media_type="application/json")
     with open(path) as f:
@@ -115,7 +123,10 @@ def get_scene_picture(svc: ServiceDep, key: Key, submission_id: SubmissionId,
     _done(svc, key, submission_id)
     if not any(entry["rank"] == rank for entry in _scene_index(svc, submission_id)):
         raise HTTPException(404, f"submission {submission_id} has no scene picture {rank}")
-    return FileResponse(svc.settings.scenes_dir(submission_id) / f"{rank}.png", media_type="image/png")
+    picture = svc.settings.scenes_dir(submission_id) / f"{rank}.png"
+    if not picture.is_file():
+        raise HTTPException(410, f"picture {rank} of submission {submission_id} is missing on the server")
+    return FileResponse(picture, media_type="image/png")
 
 
 def result_csv(result: dict) -> str:

@@ -2,11 +2,12 @@
 
 Create an upload, `PATCH` chunks at the offset the server holds, ask `HEAD`
 for that offset after a dropped connection, then `complete` it into a queued
-submission. Each upload's chunks are serialised by a lock of this process.
+submission. An upload's state lives in the database (open, writing, completing,
+complete): every PATCH, complete and DELETE first moves it out of `open` with a
+compare-and-set, so at most one of them works on an upload at a time.
 """
 from __future__ import annotations
 
-import asyncio
 from pathlib import Path
 from typing import Annotated
 
@@ -39,18 +40,26 @@ def _headers(row: dict) -> dict[str, str]:
 
 @router.post("", status_code=201, response_model=UploadStatus, operation_id="createUpload",
              responses={201: UPLOAD_LINKS, 413: {"description": "Declared length too large"},
-                        429: {"description": "Quota"}})
+                        429: {"description": "Quota, or too many unfinished uploads"},
+                        403: {"description": "Method name owned by another key"}})
 def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None,
                   method: MethodQ = None, publish: PublishQ = False, allow_partial: PartialQ = False,
                   upload_length: Annotated[int | None, Header(ge=1, le=MAX_HEADER_INT)] = None):
     """Start a resumable upload; send the bytes with PATCH, then POST .../complete."""
     config = svc.config_for(challenge, config)
+    svc.check_method(key, challenge, method or key.name)
     svc.refuse_early(key, upload_length)
     upload_id = jobs.new_id()
     (svc.settings.uploads_dir / f"{upload_id}.part").touch()
-    jobs.insert_upload(svc.store, upload_id=upload_id, key_id=key.id, method=method or key.name,
-                       challenge=challenge, config=config, allow_partial=allow_partial, published=publish,
-                       declared_length=upload_length)
+    with svc.store.transaction():  # the count and the insert under one write lock
+        held = jobs.open_uploads(svc.store, key.id)
+        if held >= svc.settings.max_open_uploads:
+            (svc.settings.uploads_dir / f"{upload_id}.part").unlink(missing_ok=True)
+            raise HTTPException(429, f"key {key.name!r} has {held} unfinished uploads, its limit "
+                                f"(WOSAC_MAX_OPEN_UPLOADS); complete or DELETE one first")
+        jobs.insert_upload(svc.store, upload_id=upload_id, key_id=key.id, method=method or key.name,
+                           challenge=challenge, config=config, allow_partial=allow_partial, published=publish,
+                           declared_length=upload_length)
     body = UploadStatus(upload_id=upload_id, offset=0, length=upload_length).model_dump()
     return JSONResponse(body, status_code=201, headers={"Location": f"/v1/uploads/{upload_id}", "Upload-Offset": "0"})
 
@@ -68,20 +77,28 @@ def get_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
                                      submission_id=row["submission_id"]).model_dump(), headers=_headers(row))
 
 
+def _busy(row: dict) -> HTTPException:
+    """Why an upload cannot take this request now (its state is not `open`)."""
+    if row is None:
+        return HTTPException(404, "this upload is gone (deleted, expired, or refused when completed)")
+    if row["submission_id"] is not None:
+        return HTTPException(409, "this upload is already complete", headers=_headers(row))
+    doing = {"writing": "a PATCH", "completing": "a complete"}.get(row["state"], row["state"])
+    return HTTPException(409, f"{doing} of this upload is in progress; retry when it is done", headers=_headers(row))
+
+
 @router.patch("/{upload_id}", status_code=204, openapi_extra=OCTET_BODY, operation_id="patchUpload",
-              responses={409: {"description": "Upload-Offset does not match the stored offset"},
+              responses={409: {"description": "Upload-Offset does not match, or another request is at work"},
                          413: {"description": "Chunk would exceed the size limit"}})
 async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: UploadId,
                        upload_offset: Annotated[int, Header(ge=0, le=MAX_HEADER_INT)]):
     """Append the body at `Upload-Offset`; answers the new offset in `Upload-Offset`."""
-    row = await run_in_threadpool(svc.own_upload, key, upload_id)
-    lock = svc.upload_locks.setdefault(upload_id, asyncio.Lock())
-    if lock.locked():
-        raise HTTPException(409, "another PATCH for this upload is in progress", headers=_headers(row))
-    async with lock:
+    await run_in_threadpool(svc.own_upload, key, upload_id)
+    # open -> writing, atomically: a PATCH never overlaps another PATCH, a complete or a DELETE.
+    if not await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "open", "writing"):
+        raise _busy(await run_in_threadpool(jobs.get_upload, svc.store, upload_id))
+    try:
         row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
-        if row["submission_id"] is not None:
-            raise HTTPException(409, "this upload is already complete")
         offset = row["received_bytes"]
         if upload_offset != offset:
             raise HTTPException(409, f"Upload-Offset {upload_offset} does not match the stored offset {offset}; "
@@ -91,7 +108,7 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
         # Bytes past the committed offset (a crash mid-PATCH) are not trusted: cut them.
         with open(part, "ab") as f:
             f.truncate(offset)
-        limit = await run_in_threadpool(svc.upload_limit, key)
+        limit = await run_in_threadpool(svc.upload_limit, key, upload_id)
         limit = min(limit, svc.settings.max_upload_bytes) - offset
         if row["declared_length"] is not None:
             limit = min(limit, row["declared_length"] - offset)
@@ -104,21 +121,27 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
                                 "bytes: declared Upload-Length, the server's WOSAC_MAX_UPLOAD_BYTES or the key's "
                                 "daily quota)", headers=_headers(row))
         await run_in_threadpool(jobs.set_upload_offset, svc.store, upload_id, offset + written)
-    svc.upload_locks.pop(upload_id, None)
+    finally:
+        await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "writing", "open")
     return Response(status_code=204, headers={"Upload-Offset": str(offset + written)})
 
 
 @router.post("/{upload_id}/complete", status_code=202, response_model=SubmissionStatus,
              operation_id="completeUpload",
-             responses={202: SUBMISSION_LINKS, 409: {"description": "Upload incomplete"}})
+             responses={202: SUBMISSION_LINKS, 409: {"description": "Upload incomplete, or another request at work"}})
 async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     """Turn the uploaded bytes into a queued submission (idempotent)."""
     row = await run_in_threadpool(svc.own_upload, key, upload_id)
-    lock = svc.upload_locks.setdefault(upload_id, asyncio.Lock())
-    async with lock:
+    if row["submission_id"] is not None:  # completed before: the same answer again
+        return svc.accepted(await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"]))
+    if not await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "open", "completing"):
         row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
-        if row["submission_id"] is not None:
+        if row is not None and row["submission_id"] is not None:
             return svc.accepted(await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"]))
+        raise _busy(row)
+    outcome = "open"  # what the upload becomes when this request ends
+    try:
+        row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
         if row["declared_length"] is not None and row["received_bytes"] != row["declared_length"]:
             raise HTTPException(409, f"received {row['received_bytes']} of the {row['declared_length']} declared "
                                 "bytes; PATCH the rest first", headers=_headers(row))
@@ -126,17 +149,22 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
         _check_part(part, row)
         with open(part, "ab") as f:
             f.truncate(row["received_bytes"])  # only the committed bytes count
-        try:
-            sub = await run_in_threadpool(
-                svc.accept, key, part, row["received_bytes"], method=row["method"], challenge=row["challenge"],
-                config=row["config"], allow_partial=bool(row["allow_partial"]), publish=bool(row["published"]),
-                upload_id=upload_id)
-        except HTTPException as exc:
-            if exc.status_code != 429:  # a quota may free up: keep the bytes; the rest is final
-                part.unlink(missing_ok=True)
-                await run_in_threadpool(svc.store.execute, "DELETE FROM uploads WHERE id = ?", (upload_id,))
-            raise
-    svc.upload_locks.pop(upload_id, None)
+        async with svc.upload_slot(key), svc.check_slots:
+            try:
+                sub = await run_in_threadpool(
+                    svc.accept, key, part, row["received_bytes"], method=row["method"],
+                    challenge=row["challenge"], config=row["config"], allow_partial=bool(row["allow_partial"]),
+                    publish=bool(row["published"]), upload_id=upload_id)
+            except HTTPException as exc:
+                if exc.status_code not in (429, 403):  # a quota may free up, a name be chosen: keep the bytes
+                    outcome = "refused"
+                    part.unlink(missing_ok=True)
+                    await run_in_threadpool(svc.store.execute, "DELETE FROM uploads WHERE id = ?", (upload_id,))
+                raise
+        outcome = "complete"
+    finally:
+        if outcome != "refused":
+            await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "completing", outcome)
     return svc.accepted(sub)
 
 
@@ -146,6 +174,8 @@ def delete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     row = svc.own_upload(key, upload_id)
     if row["submission_id"] is not None:
         raise HTTPException(409, "this upload was completed; it is a submission now")
+    if not jobs.move_upload(svc.store, upload_id, "open", "deleting"):
+        raise _busy(jobs.get_upload(svc.store, upload_id))
     (svc.settings.uploads_dir / f"{upload_id}.part").unlink(missing_ok=True)
     svc.store.execute("DELETE FROM uploads WHERE id = ?", (upload_id,))
     return Response(status_code=204)

@@ -37,6 +37,9 @@ class SubmissionStatus(BaseModel):
     coverage: float | None = Field(None, description="Share of the scenario set the result covers (1.0 unless "
                                    "scored with allow_partial).")
     results_url: str | None = None
+    peak_rss_bytes: int | None = Field(None, description="Peak resident memory of the last scoring attempt's "
+                                       "process.")
+    cpu_s: float | None = Field(None, description="CPU seconds the last scoring attempt's process used.")
 
 
 class SubmissionList(BaseModel):
@@ -89,6 +92,7 @@ def status_of(row: dict) -> SubmissionStatus:
         started_at=iso(row["started_at"]), finished_at=iso(row["finished_at"]), error=row["error"],
         validation_report=report, realism_meta_metric=row["realism_meta_metric"], coverage=row.get("coverage"),
         results_url=f"/v1/submissions/{row['id']}/results" if row["state"] == "done" else None,
+        peak_rss_bytes=row.get("peak_rss_bytes"), cpu_s=row.get("cpu_s"),
     )
 
 

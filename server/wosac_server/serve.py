@@ -26,6 +26,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
 
 
+def raise_open_files_limit() -> None:
+    """Use the hard limit of open files: each connection is one (the per-client cap keeps one client
+    from taking them all)."""
+    import resource
+
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard != resource.RLIM_INFINITY and soft < hard:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+
+
 def run(args: argparse.Namespace) -> int:
     # Flags become environment so the worker processes see the same configuration.
     for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"),
@@ -54,6 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
     from . import jobs
     from .app import create_app
+    from .guard import guarded_protocol, install_log_limits
     from .worker import WorkerPool
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -65,9 +76,13 @@ def run(args: argparse.Namespace) -> int:
     pool = WorkerPool(settings.workers)
     pool.start()
     app.state.worker_pool = pool
+    raise_open_files_limit()
     try:
-        server = uvicorn.Server(uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
-                                               timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1))
+        config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
+                                timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
+                                http=guarded_protocol(settings))
+        install_log_limits()  # after uvicorn.Config, which installs uvicorn's log handlers
+        server = uvicorn.Server(config)
         server.run()
     finally:
         pool.stop(grace_s=settings.shutdown_grace_s)

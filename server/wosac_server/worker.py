@@ -1,12 +1,15 @@
 """Scoring workers: OS processes that pull jobs from the database queue.
 
 Each worker loops: reap stale leases, claim the oldest queued job, score it.
-While it scores, a heartbeat thread renews the lease every `heartbeat_s` and
-enforces the per-attempt time budget: past the budget it marks the job failed
-with the reason and ends the process (a Python thread cannot be interrupted, a
-process can), and the pool starts a fresh worker. A worker killed outright
-(kill -9, OOM) simply stops renewing; its lease expires and the reaper puts the
-job back in the queue for another worker.
+A job is scored in a child process forked for it, under an address-space limit
+(`WOSAC_JOB_MEMORY_BYTES`) and a CPU-time limit (`WOSAC_JOB_CPU_BUDGET_S`), so a
+hostile or huge submission fails its own job with the reason, never the worker or
+the host. While the child scores, the worker's heartbeat thread renews the lease
+every `heartbeat_s` and enforces the wall-time budget: past it the job is marked
+failed and the child killed. The worker records the child's peak RSS and CPU time
+on the job. A worker killed outright (kill -9, OOM) takes its child with it
+(parent-death signal) and stops renewing; its lease expires and the reaper puts
+the job back in the queue for another worker.
 
 Run one with `wosac-server worker` (configured by the same `WOSAC_*`
 environment as the API); `WorkerPool` starts and supervises N of them. With
@@ -15,8 +18,10 @@ big submission uses every node.
 """
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
+import resource
 import secrets
 import signal
 import socket
@@ -36,8 +41,7 @@ from .settings import Settings, load_settings
 
 log = logging.getLogger("wosac_server.worker")
 
-EXIT_BUDGET = 3       # the job ran past its time budget and was failed
-EXIT_LOST_LEASE = 4   # the reaper gave our job to someone else (we stalled)
+PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
 
 
 def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings: Settings,
@@ -47,7 +51,7 @@ def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings
     return score_submission(scenario_paths, submission_path, job["config"], challenge=job["challenge"],
                             workers=settings.score_threads, allow_partial=bool(job["allow_partial"]),
                             progress=progress, engine=engine, ray_address=settings.ray_address or None,
-                            metadata_checks=settings.metadata_checks)
+                            metadata_checks=settings.metadata_checks, limits=settings.input_limits())
 
 
 def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result: dict, folder: Path,
@@ -72,25 +76,49 @@ def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result:
     return index
 
 
-def _exit_process(code: int) -> None:
-    """End this worker now, taking down the scorer's own worker processes first
-    (WOSAC_SCORE_THREADS > 1), which would otherwise outlive it."""
-    import multiprocessing
+def limit_this_process(settings: Settings) -> None:
+    """The limits of a job's scoring process: address space, CPU time, and death with its worker."""
+    if settings.job_memory_bytes:
+        resource.setrlimit(resource.RLIMIT_AS, (settings.job_memory_bytes, settings.job_memory_bytes))
+    if settings.job_cpu_budget_s:
+        soft = max(1, int(settings.job_cpu_budget_s))
+        resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))  # SIGXCPU at soft, SIGKILL at hard
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):  # not Linux: the heartbeat's parent check still applies
+        pass
 
-    for child in multiprocessing.active_children():
-        child.kill()
-    os._exit(code)
+
+def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
+    """A job's failure reason from how its scoring process ended without recording an outcome."""
+    used = f"peak memory {peak_rss / 2**20:.0f} MiB"
+    if os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGXCPU:
+        return (f"scoring used its CPU-time budget of {settings.job_cpu_budget_s:g} s (WOSAC_JOB_CPU_BUDGET_S) "
+                f"and was stopped ({used})")
+    limit = (f"its memory limit is {settings.job_memory_bytes} bytes (WOSAC_JOB_MEMORY_BYTES)"
+             if settings.job_memory_bytes else "it has no memory limit")
+    if os.WIFSIGNALED(status):
+        name = signal.Signals(os.WTERMSIG(status)).name
+        return f"the scoring process was ended by {name} ({used}; {limit}): most likely out of memory"
+    return f"the scoring process exited with status {os.WEXITSTATUS(status)} without a result ({used}; {limit})"
 
 
 class _Heartbeat(threading.Thread):
-    """Renews one job's lease and ends the process when the job must stop."""
+    """Renews one job's lease while its child scores; kills the child when the job must stop."""
 
-    def __init__(self, worker: "Worker", job: dict):
+    def __init__(self, worker: "Worker", job: dict, child: int):
         super().__init__(name=f"heartbeat-{job['id']}", daemon=True)
         self.worker = worker
         self.job = job
+        self.child = child
         self.deadline = time.monotonic() + worker.settings.job_time_budget_s
         self.done = threading.Event()
+
+    def stop_child(self) -> None:
+        try:
+            os.kill(self.child, signal.SIGKILL)  # its own scoring processes die with it (parent-death signal)
+        except ProcessLookupError:
+            pass
 
     def run(self) -> None:
         w, job_id = self.worker, self.job["id"]
@@ -98,7 +126,8 @@ class _Heartbeat(threading.Thread):
             if w.stopping or not w.parent_alive():
                 jobs.release(w.store, job_id, w.owner)
                 log.info("worker %s: released job %s on shutdown", os.getpid(), job_id)
-                _exit_process(0)
+                self.stop_child()
+                return
             if time.monotonic() > self.deadline:
                 budget = w.settings.job_time_budget_s
                 jobs.finish_failed(
@@ -106,7 +135,8 @@ class _Heartbeat(threading.Thread):
                     f"scoring exceeded its time budget of {budget:g} s (WOSAC_JOB_TIME_BUDGET_S) and "
                     "was stopped; a submission this large needs a larger budget")
                 log.error("worker %s: job %s exceeded its %g s budget", os.getpid(), job_id, budget)
-                _exit_process(EXIT_BUDGET)
+                self.stop_child()
+                return
             try:
                 renewed = jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s)
             except Exception as exc:  # database briefly unreachable: try again next beat
@@ -114,7 +144,8 @@ class _Heartbeat(threading.Thread):
                 continue
             if not renewed:
                 log.error("worker %s: lost the lease of job %s", os.getpid(), job_id)
-                _exit_process(EXIT_LOST_LEASE)
+                self.stop_child()
+                return
 
 
 class Worker:
@@ -176,10 +207,36 @@ class Worker:
         return redact(value)
 
     def score_job(self, job: dict) -> None:
+        """Score one claimed job in a child process under the job limits; record what it used."""
         settings, job_id = self.settings, job["id"]
         log.info("worker %s: scoring %s (attempt %d)", os.getpid(), job_id, job["attempts"])
-        heartbeat = _Heartbeat(self, job)
+        child = os.fork()
+        if child == 0:  # the child: no thread of the worker runs here, its database connection is not used
+            code = 1
+            try:
+                limit_this_process(settings)
+                self.store = Store(settings.resolved_db_url)
+                self.score_here(job)
+                code = 0
+            finally:
+                os._exit(code)
+        heartbeat = _Heartbeat(self, job, child)
         heartbeat.start()
+        try:
+            _, status, usage = os.wait4(child, 0)
+        finally:
+            heartbeat.done.set()
+            heartbeat.join()
+        peak_rss, cpu_s = usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
+        self.store.execute("UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?",
+                           (peak_rss, cpu_s, job_id))
+        # Still ours and unfinished: the child died before recording an outcome.
+        if jobs.finish_failed(self.store, job_id, self.owner, why_child_ended(status, settings, peak_rss)):
+            log.error("worker %s: job %s failed: %s", os.getpid(), job_id, why_child_ended(status, settings, peak_rss))
+
+    def score_here(self, job: dict) -> None:
+        """Score a job in this process and record its outcome (done or failed, with the reason)."""
+        settings, job_id = self.settings, job["id"]
         last_write = [0.0]
 
         def progress(done: int, total: int) -> None:
@@ -216,13 +273,14 @@ class Worker:
         except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
             jobs.finish_failed(self.store, job_id, self.owner,
                                self._public(f"the submission could not be scored: {exc}", submission_path))
+        except MemoryError:
+            jobs.finish_failed(self.store, job_id, self.owner,
+                               f"scoring ran out of its memory limit of {settings.job_memory_bytes} bytes "
+                               "(WOSAC_JOB_MEMORY_BYTES) and was stopped")
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
             jobs.finish_failed(self.store, job_id, self.owner, self._public(
                 f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path))
-        finally:
-            heartbeat.done.set()
-            heartbeat.join()
 
     def _sweep_stale_uploads(self) -> None:
         now = time.time()

@@ -125,7 +125,7 @@ def test_a_version_1_database_is_migrated(tmp_path):
     """A data dir written before challenges existed keeps its jobs, as sim agents jobs."""
     import sqlite3
 
-    from wosac_server.db import SCHEMA, Store
+    from wosac_server.db import SCHEMA, SCHEMA_VERSION, Store
     path = tmp_path / "old.sqlite3"
     with sqlite3.connect(path) as conn:
         for stmt in SCHEMA:
@@ -137,9 +137,11 @@ def test_a_version_1_database_is_migrated(tmp_path):
     store = Store(f"sqlite:///{path}")
     store.migrate()
     store.migrate()  # idempotent
-    assert store.fetchone("SELECT version FROM schema_version")["version"] == 2
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION == 3
     row = jobs.get_submission(store, "a")
     assert (row["challenge"], row["coverage"], row["state"]) == ("sim_agents", None, "queued")
+    assert (row["peak_rss_bytes"], row["cpu_s"]) == (None, None)
+    assert store.fetchall("SELECT * FROM method_names") == []
     store.close()
 
 

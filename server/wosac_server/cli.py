@@ -7,13 +7,13 @@ from __future__ import annotations
 import argparse
 import sys
 
-from . import keys, serve
+from . import keys, methods, serve
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="wosac-server", description="The WOSAC scoring service.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in (serve, keys):
+    for module in (serve, keys, methods):
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)

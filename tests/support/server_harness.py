@@ -138,9 +138,11 @@ class Server:
         defaults = dict(max_concurrent=100, max_daily=1000, max_daily_bytes=10**12)
         return auth.create_key(self.store, name, **{**defaults, **limits})
 
-    def client(self, key: str | None = None, timeout: float = 60.0) -> httpx.Client:
+    def client(self, key: str | None = None, timeout: float = 60.0, source: str | None = None) -> httpx.Client:
+        """An HTTP client; `source`: the loopback address it connects from (127.0.0.2 is another client)."""
         headers = {"Authorization": f"Bearer {key}"} if key else {}
-        return httpx.Client(base_url=self.url, headers=headers, timeout=timeout)
+        transport = httpx.HTTPTransport(local_address=source) if source else None
+        return httpx.Client(base_url=self.url, headers=headers, timeout=timeout, transport=transport)
 
     def wait_state(self, client: httpx.Client, submission_id: str, states=("done", "failed"),
                    timeout: float = 90.0) -> dict:

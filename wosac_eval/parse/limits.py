@@ -146,14 +146,14 @@ def check_message_counts(shard: str, data: bytes, limits: InputLimits) -> None:
             joint_scenes += 1
             if joint_scenes > limits.max_joint_scenes:
                 raise SizeLimitError(f"shard {shard}: {where} holds more than max_joint_scenes="
-                                     f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32)")
+                                     f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing")
             scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
             objects = 0
             for number, _, _ in census.fields(data, j_start, j_end, scene_where):
                 objects += number == _JOINT_TRAJECTORIES
                 if objects > limits.max_objects:
                     raise SizeLimitError(f"shard {shard}: {scene_where} holds more than max_objects="
-                                         f"{limits.max_objects} simulated_trajectories")
+                                         f"{limits.max_objects} simulated_trajectories; refused before parsing")
 
 
 __all__ = ["InputLimits", "check_message_counts"]

@@ -9,7 +9,10 @@ reads and writes the job store.
 """
 from __future__ import annotations
 
+import sys
 from contextlib import asynccontextmanager
+
+import anyio
 
 from fastapi import FastAPI
 
@@ -24,6 +27,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
+        # A few threads for the blocking work of requests (database, files, upload checks): with dozens
+        # runnable, the event loop waits its turn for the GIL behind all of them and /healthz stalls.
+        anyio.to_thread.current_default_thread_limiter().total_tokens = svc.settings.api_threads
+        sys.setswitchinterval(0.001)  # and it waits at most ~1 ms per thread that holds the GIL
         yield
         svc.store.close()
 

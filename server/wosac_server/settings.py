@@ -62,12 +62,16 @@ class Settings(BaseModel):
     compression_ratio_floor_bytes: int = Field(64 * MiB, gt=0, description="...once past this many bytes.")
     max_archive_members: int = Field(10_000, ge=1, description="Entries of an uploaded tar archive.")
     max_scenarios: int = Field(100_000, ge=1, description="scenario_rollouts entries of one submission.")
+    api_threads: int = Field(8, ge=1, le=256, description="Threads of the API process for blocking work "
+                             "(database, files, upload checks).")
     upload_checks: int = Field(2, ge=1, le=64, description="Uploads checked at the same time (the rest wait); each "
                                "check decompresses the upload once.")
 
     # What one scoring job may use; past it the job fails with the reason, never the host.
     job_memory_bytes: int = Field(8 * GiB, ge=0, description="Address space of a job's scoring process "
                                   "(RLIMIT_AS; 0: no limit).")
+    job_nice: int = Field(10, ge=0, le=19, description="How much lower a job's CPU priority is than the API's "
+                          "(added niceness).")
     job_cpu_budget_s: float = Field(6 * 3600.0, ge=0, description="CPU seconds a job's scoring process may use "
                                     "(RLIMIT_CPU; 0: no limit).")
 

@@ -77,7 +77,10 @@ def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result:
 
 
 def limit_this_process(settings: Settings) -> None:
-    """The limits of a job's scoring process: address space, CPU time, and death with its worker."""
+    """The limits of a job's scoring process: address space, CPU time, a lower CPU priority than the
+    API's (so scoring never starves /healthz and uploads), and death with its worker."""
+    if settings.job_nice:
+        os.nice(settings.job_nice)
     if settings.job_memory_bytes:
         resource.setrlimit(resource.RLIMIT_AS, (settings.job_memory_bytes, settings.job_memory_bytes))
     if settings.job_cpu_budget_s:
@@ -143,6 +146,9 @@ class _Heartbeat(threading.Thread):
                 log.warning("worker %s: could not renew the lease of %s: %s", os.getpid(), job_id, exc)
                 continue
             if not renewed:
+                row = jobs.get_submission(w.store, job_id)
+                if row is not None and row["state"] in ("done", "failed"):
+                    return  # the child recorded the outcome and is ending: not a lost lease
                 log.error("worker %s: lost the lease of job %s", os.getpid(), job_id)
                 self.stop_child()
                 return

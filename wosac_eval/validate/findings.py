@@ -23,7 +23,7 @@ CODES: dict[str, str] = {
     # The submission file or archive as a whole.
     "container.unreadable": "Submission file or archive cannot be read",
     "container.unsafe_member": "Archive member rejected as unsafe (escaping path, link or device)",
-    "container.size_limit": "Archive decompresses past the size limit",
+    "container.size_limit": "Submission expands past an input limit (size, ratio, members, messages)",
     "container.not_a_shard": "File in the submission folder that is not a shard",
     "container.misnamed": "File name does not match its format",
     "container.not_gzipped": "Uncompressed tar (the challenge server expects .tar.gz)",

@@ -135,8 +135,9 @@ class Service:
 
     @contextlib.asynccontextmanager
     async def upload_slot(self, key: auth.ApiKey):
-        """Hold one of the key's job slots while its upload is received and checked (429 when none is
-        free): 40 uploads at once from a key allowed 2 jobs cost 2 checks, not 40."""
+        """Hold one of the key's job slots while its upload is received and checked: `refuse_early` and
+        `accept` count it (429 when none is free), so 40 uploads at once from a key allowed 2 jobs
+        cost at most 2 checks, not 40."""
         self.pending[key.id] += 1  # before any await: concurrent requests see each other
         try:
             yield

@@ -1,14 +1,13 @@
-"""Upload mechanics: bodies streamed to disk in chunks (fsynced), archives checked before acceptance.
+"""Upload mechanics: bodies streamed to disk in chunks (fsynced), at most a given number of bytes.
 
-Nothing here holds a body in memory or extracts an archive to disk.
+Nothing here holds a body in memory. The check of what was received is the reader's own
+(`wosac_eval.parse.archive.check_container`, called by `Service.accept`).
 """
 from __future__ import annotations
 
 import errno
 import os
-import tarfile
-import zlib
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 from fastapi import HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
@@ -58,31 +57,3 @@ async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "
         f.flush()
         await run_in_threadpool(os.fsync, f.fileno())
     return written, disconnected
-
-
-def check_archive(path: Path, suffix: str) -> str | None:
-    """A reason to refuse a tar upload at once (unreadable, unsafe member names), or None.
-
-    Members are never extracted to disk; the names are still refused so that no
-    tool a user may point at the stored archive can write outside its folder.
-    """
-    if suffix == ".binproto":
-        return None
-    try:
-        with tarfile.open(path, mode="r|*") as tar:
-            count = 0
-            for member in tar:
-                count += 1
-                name = member.name
-                parts = PurePosixPath(name).parts
-                if name.startswith("/") or "\\" in name or ".." in parts or "\x00" in name:
-                    return f"archive member {name!r} has an unsafe path (absolute or with '..')"
-                if not (member.isfile() or member.isdir()):
-                    return f"archive member {name!r} is a link or device, not a regular file"
-            if count == 0:
-                return "the archive holds no files"
-    except (tarfile.TarError, zlib.error, EOFError, OSError) as exc:
-        return f"not a readable {suffix} archive: {exc}"
-    return None
-
-

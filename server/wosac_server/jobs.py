@@ -26,6 +26,24 @@ def new_id() -> str:
     return uuid.uuid4().hex
 
 
+def without_paths(value, swaps: list[tuple[str, str]]):
+    """`value` (a string, or dicts and lists of them) with every `(path, name)` of `swaps` replaced, longest
+    path first so that a path is replaced whole before any folder of it: what a client may see."""
+    swaps = sorted((pair for pair in swaps if pair[0] not in (os.sep, "." + os.sep)), key=lambda p: -len(p[0]))
+
+    def redact(v):
+        if isinstance(v, dict):
+            return {k: redact(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [redact(x) for x in v]
+        if isinstance(v, str):
+            for old, new in swaps:
+                v = v.replace(old, new)
+        return v
+
+    return redact(value)
+
+
 def fsync_dir(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:

@@ -28,18 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import os
-
-    if args.data_dir:
-        os.environ["WOSAC_DATA_DIR"] = args.data_dir
     from . import auth
-    from .db import Store
-    from .settings import load_settings
+    from .settings import operator_store
 
-    settings = load_settings()
-    settings.ensure_dirs()
-    store = Store(settings.resolved_db_url)
-    store.migrate()
+    settings, store = operator_store(args.data_dir)
     if args.action == "create":
         import re
 

@@ -228,7 +228,7 @@ class Service:
 
 def public_message(exc: Exception, path: Path) -> str:
     """An error about an upload as its sender sees it: the file is `submission`, not a server path."""
-    return str(exc).replace(str(path.resolve()), "submission").replace(str(path), "submission")
+    return jobs.without_paths(str(exc), [(str(path.resolve()), "submission"), (str(path), "submission")])
 
 
 def service(request: Request) -> Service:

@@ -139,6 +139,20 @@ class Settings(BaseModel):
             d.mkdir(parents=True, exist_ok=True)
 
 
+def operator_store(data_dir: str | None):
+    """(settings, migrated job store) for the operator's commands (`keys`, `methods`); `data_dir`
+    (their --data-dir) overrides WOSAC_DATA_DIR."""
+    from .db import Store
+
+    if data_dir:
+        os.environ["WOSAC_DATA_DIR"] = data_dir
+    settings = load_settings()
+    settings.ensure_dirs()
+    store = Store(settings.resolved_db_url)
+    store.migrate()
+    return settings, store
+
+
 def load_settings(environ: dict[str, str] | None = None) -> Settings:
     """Build `Settings` from `WOSAC_<FIELD>` variables (field name upper-cased)."""
     env = os.environ if environ is None else environ

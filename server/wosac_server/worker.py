@@ -197,20 +197,7 @@ class Worker:
         for shard in self.settings.scenario_paths():
             swaps += [(str(shard.resolve().parent) + os.sep, ""), (str(shard.parent) + os.sep, "")]
         swaps += [(str(data_dir.resolve()) + os.sep, ""), (str(data_dir) + os.sep, "")]
-        # Longest first, so that a path is replaced whole before any folder of it.
-        swaps = sorted((pair for pair in swaps if pair[0] not in (os.sep, "." + os.sep)), key=lambda p: -len(p[0]))
-
-        def redact(v):
-            if isinstance(v, dict):
-                return {k: redact(x) for k, x in v.items()}
-            if isinstance(v, list):
-                return [redact(x) for x in v]
-            if isinstance(v, str):
-                for old, new in swaps:
-                    v = v.replace(old, new)
-            return v
-
-        return redact(value)
+        return jobs.without_paths(value, swaps)
 
     def score_job(self, job: dict) -> None:
         """Score one claimed job in a child process under the job limits; record what it used."""
@@ -237,8 +224,9 @@ class Worker:
         self.store.execute("UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?",
                            (peak_rss, cpu_s, job_id))
         # Still ours and unfinished: the child died before recording an outcome.
-        if jobs.finish_failed(self.store, job_id, self.owner, why_child_ended(status, settings, peak_rss)):
-            log.error("worker %s: job %s failed: %s", os.getpid(), job_id, why_child_ended(status, settings, peak_rss))
+        reason = why_child_ended(status, settings, peak_rss)
+        if jobs.finish_failed(self.store, job_id, self.owner, reason):
+            log.error("worker %s: job %s failed: %s", os.getpid(), job_id, reason)
 
     def score_here(self, job: dict) -> None:
         """Score a job in this process and record its outcome (done or failed, with the reason)."""

@@ -269,6 +269,9 @@ class _LimitedStream:
         self._pos += len(data)
         self.bytes_read += len(data)
         if self.bytes_read > self.limit:
+            if self.limit_name == "max_member_bytes":  # a single compressed shard (`_open_single_shard`)
+                raise SizeLimitError(f"{self.archive}: shard decompresses to more than the per-member limit of "
+                                     f"{self.limit} bytes")
             raise SizeLimitError(
                 f"{self.archive}: decompresses to more than the total limit of {self.limit} bytes "
                 f"(while reading member {self.member!r}; limit {self.limit_name}); raise it if this is genuine"
@@ -473,32 +476,37 @@ def _iter_archive_file(path: Path, compression: str | None, limits: InputLimits)
 # --------------------------------------------------------------------------- single files
 
 
-def _read_single_shard(path: Path, compression: str | None, limits: InputLimits) -> ShardRef:
-    """One shard file, decompressed when needed, within the size limits."""
-    name = path.name
-    if compression is None:
-        size = path.stat().st_size
-        if size > limits.max_member_bytes:
-            raise SizeLimitError(
-                f"{path}: shard is {size} bytes, over the per-member limit of "
-                f"{limits.max_member_bytes} bytes"
-            )
-        return ShardRef(name, size, path=str(path.resolve()))
+def _plain_shard_size(path: Path, limits: InputLimits) -> int:
+    """The size of an uncompressed single shard file, refused past the per-member limit."""
+    size = path.stat().st_size
+    if size > limits.max_member_bytes:
+        raise SizeLimitError(
+            f"{path}: shard is {size} bytes, over the per-member limit of "
+            f"{limits.max_member_bytes} bytes"
+        )
+    return size
+
+
+def _open_single_shard(path: Path, compression: str, limits: InputLimits) -> tuple[BinaryIO, _LimitedStream]:
+    """A compressed single shard's decompressed bytes, bounded by the per-member limit too."""
     source, stream = _open_limited(path, compression, limits)
-    stream.member = name
+    stream.member = path.name
     if limits.max_member_bytes < stream.limit:
         stream.limit, stream.limit_name = limits.max_member_bytes, "max_member_bytes"
+    return source, stream
+
+
+def _read_single_shard(path: Path, compression: str | None, limits: InputLimits) -> ShardRef:
+    """One shard file, decompressed when needed, within the size limits."""
+    if compression is None:
+        return ShardRef(path.name, _plain_shard_size(path, limits), path=str(path.resolve()))
+    source, stream = _open_single_shard(path, compression, limits)
     try:
         with source:
             data = stream.read()
-    except SizeLimitError:
-        if stream.limit_name == "max_member_bytes":
-            raise SizeLimitError(f"{path}: shard decompresses to more than the per-member limit of "
-                                 f"{stream.limit} bytes") from None
-        raise
     except _STREAM_ERRORS as error:
         raise ArchiveError(f"{path}: truncated or corrupt {compression} stream: {error}") from error
-    return ShardRef(re.sub(r"\.(gz|bz2|xz)$", "", name, flags=re.IGNORECASE), len(data), data=data)
+    return ShardRef(re.sub(r"\.(gz|bz2|xz)$", "", path.name, flags=re.IGNORECASE), len(data), data=data)
 
 
 def _iter_folder(
@@ -662,30 +670,30 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     path = Path(path)
     compression, head = _sniff(path)
     is_tar = _is_tar_header(head)
+    if not is_tar:  # one shard: its first field, and for a compressed one its size as it decompresses
+        if compression is None:
+            size = _plain_shard_size(path, limits)
+            looks_like_submission(str(path), head)
+            return ContainerSummary(None, False, 1, size)
+        looks_like_submission(str(path), head)
+        source, stream = _open_single_shard(path, compression, limits)
+        with source:
+            _drain(stream, path)
+        return ContainerSummary(compression, False, 1, stream.bytes_read)
     source, stream = _open_limited(path, compression, limits)
     shards = 0
     with source:
-        if is_tar:
-            for tar, name, info in _iter_members(path, stream, limits):
-                member = tar.extractfile(info)
-                assert member is not None
-                try:
-                    looks_like_submission(f"{path}: member {name!r}", member.read(_HEAD_BYTES))
-                except _STREAM_ERRORS as error:
-                    raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
-                shards += 1
-        else:
-            stream.member = path.name
-            if compression is None and path.stat().st_size > limits.max_member_bytes:
-                raise SizeLimitError(f"{path}: shard is {path.stat().st_size} bytes, over the per-member limit "
-                                     f"of {limits.max_member_bytes} bytes")
-            looks_like_submission(str(path), head)
-            shards = 1
+        for tar, name, info in _iter_members(path, stream, limits):
+            member = tar.extractfile(info)
+            assert member is not None
+            try:
+                looks_like_submission(f"{path}: member {name!r}", member.read(_HEAD_BYTES))
+            except _STREAM_ERRORS as error:
+                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
+            shards += 1
         if compression is not None:
-            if not is_tar and limits.max_member_bytes < stream.limit:
-                stream.limit, stream.limit_name = limits.max_member_bytes, "max_member_bytes"
             _drain(stream, path)
-    return ContainerSummary(compression, is_tar, shards, stream.bytes_read)
+    return ContainerSummary(compression, True, shards, stream.bytes_read)
 
 
 def _string_fields_are_text(
@@ -739,7 +747,7 @@ def parse_submission_shard(
 ) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
     """Parse one shard's bytes, raising InvalidShardError naming the shard if invalid, SizeLimitError
     when it holds more messages than `limits` allow (counted on the wire first)."""
-    check_message_counts(name, raw, InputLimits() if limits is None else limits)
+    check_message_counts(name, raw, limits)
     try:
         submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
     except DecodeError as error:
@@ -782,7 +790,7 @@ def split_shard(name: str, raw: bytes, limits: InputLimits | None = None) -> lis
     """
     from wosac_eval.parse.wire import field_spans
 
-    check_message_counts(name, raw, InputLimits() if limits is None else limits)
+    check_message_counts(name, raw, limits)
     try:
         items = []
         for start, end in field_spans(raw, 1):

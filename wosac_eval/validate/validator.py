@@ -371,14 +371,14 @@ class _Validation:
 
 def _shard_results(
     shards: Iterable[ShardRef], agents: dict[str, np.ndarray], max_listed: int, executor,
-    challenge: challenges.Challenge = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None,
+    challenge: challenges.Challenge, limits: InputLimits,
 ) -> Iterator[ShardResult]:
     """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
     A bounded number of shards is in flight, so memory stays bounded by a few
     shards (shards of folders are byte ranges: the workers read them).
     """
-    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value, limits or InputLimits()))
+    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value, limits))
 
 
 def validate_submission(
@@ -428,7 +428,7 @@ def validate_submission(
     report.stats.scenarios_expected = len(agents)
     if metadata_checks not in METADATA_CHECKS:
         raise ValueError(f"metadata_checks must be one of {', '.join(METADATA_CHECKS)}, not {metadata_checks!r}")
-    limits = limits or Limits()
+    limits = InputLimits() if limits is None else limits
     run = _Validation(agents, report, progress, metadata_checks, limits.max_scenarios)
     if not Path(submission_path).exists():
         raise FileNotFoundError(f"{submission_path}: no such submission file or folder")

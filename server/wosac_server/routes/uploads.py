@@ -108,8 +108,7 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
         # Bytes past the committed offset (a crash mid-PATCH) are not trusted: cut them.
         with open(part, "ab") as f:
             f.truncate(offset)
-        limit = await run_in_threadpool(svc.upload_limit, key, upload_id)
-        limit = min(limit, svc.settings.max_upload_bytes) - offset
+        limit = await run_in_threadpool(svc.upload_limit, key, upload_id) - offset
         if row["declared_length"] is not None:
             limit = min(limit, row["declared_length"] - offset)
         try:
@@ -131,12 +130,10 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
              responses={202: SUBMISSION_LINKS, 409: {"description": "Upload incomplete, or another request at work"}})
 async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     """Turn the uploaded bytes into a queued submission (idempotent)."""
-    row = await run_in_threadpool(svc.own_upload, key, upload_id)
-    if row["submission_id"] is not None:  # completed before: the same answer again
-        return svc.accepted(await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"]))
+    await run_in_threadpool(svc.own_upload, key, upload_id)
     if not await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "open", "completing"):
         row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
-        if row is not None and row["submission_id"] is not None:
+        if row is not None and row["submission_id"] is not None:  # completed before: the same answer again
             return svc.accepted(await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"]))
         raise _busy(row)
     outcome = "open"  # what the upload becomes when this request ends

@@ -76,9 +76,17 @@ def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result:
     return index
 
 
-def limit_this_process(settings: Settings) -> None:
-    """The limits of a job's scoring process: address space, CPU time, a lower CPU priority than the
-    API's (so scoring never starves /healthz and uploads), and death with its worker."""
+def limit_this_process(settings: Settings, parent_pid: int) -> None:
+    """The limits of a job's scoring process: death with its worker, address space, CPU time and a
+    lower CPU priority than the API's (so scoring never starves /healthz and uploads)."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):  # not Linux: the check below and the lease still apply
+        pass
+    # A worker killed between its fork and the prctl above sends no signal: the job's process
+    # would score on unsupervised and race the retry of its job.
+    if os.getppid() != parent_pid:
+        os._exit(1)
     if settings.job_nice:
         os.nice(settings.job_nice)
     if settings.job_memory_bytes:
@@ -86,10 +94,6 @@ def limit_this_process(settings: Settings) -> None:
     if settings.job_cpu_budget_s:
         soft = max(1, int(settings.job_cpu_budget_s))
         resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))  # SIGXCPU at soft, SIGKILL at hard
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):  # not Linux: the heartbeat's parent check still applies
-        pass
 
 
 def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
@@ -203,11 +207,12 @@ class Worker:
         """Score one claimed job in a child process under the job limits; record what it used."""
         settings, job_id = self.settings, job["id"]
         log.info("worker %s: scoring %s (attempt %d)", os.getpid(), job_id, job["attempts"])
+        worker_pid = os.getpid()
         child = os.fork()
         if child == 0:  # the child: no thread of the worker runs here, its database connection is not used
             code = 1
             try:
-                limit_this_process(settings)
+                limit_this_process(settings, worker_pid)
                 self.store = Store(settings.resolved_db_url)
                 self.score_here(job)
                 code = 0

@@ -80,9 +80,10 @@ def test_a_scoring_process_over_its_cpu_budget_is_stopped_with_the_reason():
     from wosac_server.worker import limit_this_process, why_child_ended
 
     settings = Settings(job_cpu_budget_s=1, job_memory_bytes=0)
+    parent = os.getpid()
     child = os.fork()
     if child == 0:
-        limit_this_process(settings)
+        limit_this_process(settings, parent)
         while True:
             pass
     started = time.monotonic()
@@ -90,6 +91,29 @@ def test_a_scoring_process_over_its_cpu_budget_is_stopped_with_the_reason():
     assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGXCPU
     assert 0.9 < usage.ru_utime + usage.ru_stime < 3 and time.monotonic() - started < 10
     assert "CPU-time budget of 1 s (WOSAC_JOB_CPU_BUDGET_S)" in why_child_ended(status, settings, usage.ru_maxrss)
+
+
+def test_a_scoring_process_whose_worker_died_before_it_was_limited_ends_at_once():
+    """A worker killed between its fork and the parent-death signal's set-up sends no signal: its
+    job's process must see it has lost its worker and end, not score on beside the job's retry."""
+    from wosac_server.settings import Settings
+    from wosac_server.worker import limit_this_process
+
+    read_end, write_end = os.pipe()
+    worker = os.fork()
+    if worker == 0:  # the "worker": forks its job's process and dies at once
+        worker_pid = os.getpid()
+        if os.fork() == 0:
+            while os.getppid() == worker_pid:  # until re-parented: the worker is gone
+                time.sleep(0.001)
+            limit_this_process(Settings(job_nice=0, job_memory_bytes=0), worker_pid)
+            os.write(write_end, b"scored on without its worker")
+            os._exit(0)
+        os._exit(0)
+    os.close(write_end)
+    os.waitpid(worker, 0)
+    with os.fdopen(read_end, "rb") as pipe:
+        assert pipe.read() == b""  # every writer closed without writing: the job's process ended
 
 
 def _closed_within(sock: socket.socket, seconds: float) -> bytes:

@@ -125,7 +125,7 @@ class _Plan:
         self.shards: list[tuple[ShardRef, list[tuple[str | None, tuple[int, int]]]]] = []
 
     def add(self, shard: ShardRef, result) -> None:
-        if result.parse_error is None:
+        if result.readable:
             self.shards.append((shard, [(sid, span) for (_, sid), span in zip(result.entries, result.spans)]))
 
     def rollouts(self, submission_path: PathLike, index: ScenarioIndex, report,

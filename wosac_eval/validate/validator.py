@@ -245,6 +245,7 @@ class ShardResult:
     entries: (index in scenario_rollouts, scenario_id or None) of every ScenarioRollouts, in order.
     spans: (start, end) of each ScenarioRollouts' bytes in the shard, in order (for the scorer,
       which then reads only those bytes).
+    past_limit: set when the shard came after the submission's max_scenarios: not read further.
     """
 
     name: str
@@ -257,6 +258,12 @@ class ShardResult:
     entries: list[tuple[int, str | None]] = field(default_factory=list)
     rollouts: ValidationReport | None = None
     spans: list[tuple[int, int]] = field(default_factory=list)
+    past_limit: bool = False
+
+    @property
+    def readable(self) -> bool:
+        """Whether the scoring pass may read this shard's entries."""
+        return self.parse_error is None and not self.past_limit
 
 
 def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
@@ -323,7 +330,7 @@ class _Validation:
             report.add(Finding("container.size_limit", f"shard {name}: the submission holds more than "
                                f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
                                shard=name))
-            result.parse_error = "over max_scenarios"
+            result.past_limit = True
             return
         self.metadata(name, result.metadata, result.metadata_findings)
         if result.empty_detail is not None:

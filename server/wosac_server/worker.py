@@ -8,8 +8,10 @@ the host. While the child scores, the worker's heartbeat thread renews the lease
 every `heartbeat_s` and enforces the wall-time budget: past it the job is marked
 failed and the child killed. The worker records the child's peak RSS and CPU time
 on the job. A worker killed outright (kill -9, OOM) takes its child with it
-(parent-death signal) and stops renewing; its lease expires and the reaper puts
-the job back in the queue for another worker.
+(parent-death signal; a child that finds its worker already gone ends itself) and
+stops renewing; its lease expires and the reaper puts the job back in the queue for
+another worker. The child's own scoring processes (`WOSAC_SCORE_THREADS` > 1) end
+with it (`wosac_eval.runtime.processes`).
 
 Run one with `wosac-server worker` (configured by the same `WOSAC_*`
 environment as the API); `WorkerPool` starts and supervises N of them. With
@@ -123,7 +125,7 @@ class _Heartbeat(threading.Thread):
 
     def stop_child(self) -> None:
         try:
-            os.kill(self.child, signal.SIGKILL)  # its own scoring processes die with it (parent-death signal)
+            os.kill(self.child, signal.SIGKILL)  # its scoring pool's processes see it gone and end
         except ProcessLookupError:
             pass
 

@@ -2,6 +2,7 @@
 import subprocess
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -30,3 +31,46 @@ def test_forks_without_jax():
 def test_spawns_once_jax_is_loaded():
     pytest.importorskip("jax")
     assert _start_method("jax") == ["spawn", "True"]
+
+
+ORPHAN_PROBE = textwrap.dedent("""
+    import os, signal, sys, time
+    from wosac_eval.runtime.processes import worker_pool
+
+    def busy(seconds):
+        time.sleep(seconds)
+        return os.getpid()
+
+    if __name__ == "__main__":
+        pool = worker_pool(2, force_spawn=sys.argv[1] == "spawn")
+        pids = {f.result() for f in [pool.submit(busy, 0.1) for _ in range(4)]}
+        pool.submit(busy, 60)  # a long task in flight when the parent dies
+        print(" ".join(map(str, sorted(pids))), flush=True)
+        time.sleep(0.5)
+        os.kill(os.getpid(), signal.SIGKILL)
+""")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split(") ")[1][0] != "Z"  # a zombie has ended
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("mode", ["fork", "spawn"])
+def test_workers_end_with_a_killed_parent(tmp_path, mode):
+    """A scorer killed with SIGKILL (the OOM killer, a service stopping a job) leaves no pool worker
+    behind, idle or mid-task: a ProcessPoolExecutor's workers would otherwise wait forever."""
+    script = tmp_path / "probe.py"
+    script.write_text(ORPHAN_PROBE)
+    done = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=60)
+    assert done.returncode == -9, done.stderr
+    pids = [int(p) for p in done.stdout.split()]
+    assert pids
+    deadline = time.monotonic() + 10
+    while any(map(_alive, pids)) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(map(_alive, pids)), [p for p in pids if _alive(p)]

@@ -208,3 +208,51 @@ def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server,
                 findings = c.get(f"/v1/submissions/{status['id']}/results").json()["validation"]["findings"]
                 assert {(f["code"], f["severity"]) for f in findings} >= {("metadata.missing", "warning")}
         server.stop()
+
+
+def _processes_of(data_dir) -> dict[int, int]:
+    """{pid: parent pid} of the live processes started for a server's data dir (by their environment)."""
+    marker = f"WOSAC_DATA_DIR={data_dir}".encode()
+    found = {}
+    for entry in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{entry}/environ", "rb") as f:
+                environ = f.read().split(b"\0")
+            with open(f"/proc/{entry}/stat") as f:
+                fields = f.read().rsplit(") ", 1)[1].split()
+        except (OSError, ValueError, IndexError):  # not a process, gone, or not ours to read
+            continue
+        if marker in environ and fields[0] != "Z":  # a zombie has ended
+            found[int(entry)] = int(fields[1])
+    return found
+
+
+def test_a_killed_job_process_leaves_no_scoring_process_behind(make_server, scoring_data):
+    """A job's process scoring with a pool (WOSAC_SCORE_THREADS=2) killed as the OOM killer would: the
+    pool's processes end with it (they would otherwise wait on their queue forever, each holding its
+    memory), the job fails with the reason, and after the server stops none of its processes is left."""
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, score_threads=2)
+    idle = set(_processes_of(server.data_dir))  # the API (which supervises the workers) and its worker
+    with server.client(server.key("pool")) as c:
+        sid = c.post("/v1/submissions", content=scoring_data.full.read_bytes()).json()["id"]
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:  # until the job's process has its pool running
+            parents = list(_processes_of(server.data_dir).values())
+            job_process = next((pid for pid in set(parents) - idle if parents.count(pid) >= 2), None)
+            if job_process is not None:
+                break
+            assert c.get(f"/v1/submissions/{sid}").json()["state"] in ("queued", *RUNNING)
+            time.sleep(0.005)
+        assert job_process is not None, "the job's pool never started"
+        os.kill(job_process, signal.SIGKILL)
+        status = server.wait_state(c, sid)
+        assert status["state"] == "failed" and "ended by SIGKILL" in status["error"], status
+        deadline = time.monotonic() + 10
+        while set(_processes_of(server.data_dir)) - idle and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert set(_processes_of(server.data_dir)) == idle
+    server.stop()
+    deadline = time.monotonic() + 10
+    while _processes_of(server.data_dir) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert _processes_of(server.data_dir) == {}

@@ -6,6 +6,8 @@ import time
 
 import pytest
 
+from support.processes import alive
+
 PROBE = textwrap.dedent("""
     import os, sys
     if sys.argv[1] == "jax":
@@ -51,14 +53,6 @@ ORPHAN_PROBE = textwrap.dedent("""
 """)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            return f.read().split(") ")[1][0] != "Z"  # a zombie has ended
-    except FileNotFoundError:
-        return False
-
-
 @pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
 @pytest.mark.parametrize("mode", ["fork", "spawn"])
 def test_workers_end_with_a_killed_parent(tmp_path, mode):
@@ -71,6 +65,6 @@ def test_workers_end_with_a_killed_parent(tmp_path, mode):
     pids = [int(p) for p in done.stdout.split()]
     assert pids
     deadline = time.monotonic() + 10
-    while any(map(_alive, pids)) and time.monotonic() < deadline:
+    while any(map(alive, pids)) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not any(map(_alive, pids)), [p for p in pids if _alive(p)]
+    assert not any(map(alive, pids)), [p for p in pids if alive(p)]

@@ -12,6 +12,7 @@ import os
 import signal
 import time
 
+from support.processes import alive, processes_of
 from support.server_harness import as_submission, canonical, tar_bytes
 
 RUNNING = ("validating", "scoring")
@@ -130,24 +131,15 @@ def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_rest
     server.proc.kill()  # SIGKILL: no shutdown code runs in the server process
     server.proc.wait()
     deadline = time.monotonic() + 20
-    while _alive(worker) and time.monotonic() < deadline:
+    while alive(worker) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not _alive(worker), "the worker outlived its server"
+    assert not alive(worker), "the worker outlived its server"
     again = make_server(data_dir=server.data_dir, workers=1, scenarios=scoring_data.scenarios)
     with again.client(key) as c:
         status = again.wait_state(c, sid)
         assert status["state"] == "done", status
         assert status["attempts"] == 1  # the orphaned worker gave the job back: no attempt lost
         assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
-
-
-def _alive(pid: int) -> bool:
-    """Running (not gone, not a zombie waiting to be reaped)."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            return "zombie" not in f.read()
-    except FileNotFoundError:
-        return False
 
 
 def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
@@ -210,34 +202,17 @@ def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server,
         server.stop()
 
 
-def _processes_of(data_dir) -> dict[int, int]:
-    """{pid: parent pid} of the live processes started for a server's data dir (by their environment)."""
-    marker = f"WOSAC_DATA_DIR={data_dir}".encode()
-    found = {}
-    for entry in os.listdir("/proc"):
-        try:
-            with open(f"/proc/{entry}/environ", "rb") as f:
-                environ = f.read().split(b"\0")
-            with open(f"/proc/{entry}/stat") as f:
-                fields = f.read().rsplit(") ", 1)[1].split()
-        except (OSError, ValueError, IndexError):  # not a process, gone, or not ours to read
-            continue
-        if marker in environ and fields[0] != "Z":  # a zombie has ended
-            found[int(entry)] = int(fields[1])
-    return found
-
-
 def test_a_killed_job_process_leaves_no_scoring_process_behind(make_server, scoring_data):
     """A job's process scoring with a pool (WOSAC_SCORE_THREADS=2) killed as the OOM killer would: the
     pool's processes end with it (they would otherwise wait on their queue forever, each holding its
     memory), the job fails with the reason, and after the server stops none of its processes is left."""
     server = make_server(workers=1, scenarios=scoring_data.scenarios, score_threads=2)
-    idle = set(_processes_of(server.data_dir))  # the API (which supervises the workers) and its worker
+    idle = set(processes_of(server.data_dir))  # the API (which supervises the workers) and its worker
     with server.client(server.key("pool")) as c:
         sid = c.post("/v1/submissions", content=scoring_data.full.read_bytes()).json()["id"]
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:  # until the job's process has its pool running
-            parents = list(_processes_of(server.data_dir).values())
+            parents = list(processes_of(server.data_dir).values())
             job_process = next((pid for pid in set(parents) - idle if parents.count(pid) >= 2), None)
             if job_process is not None:
                 break
@@ -248,11 +223,11 @@ def test_a_killed_job_process_leaves_no_scoring_process_behind(make_server, scor
         status = server.wait_state(c, sid)
         assert status["state"] == "failed" and "ended by SIGKILL" in status["error"], status
         deadline = time.monotonic() + 10
-        while set(_processes_of(server.data_dir)) - idle and time.monotonic() < deadline:
+        while set(processes_of(server.data_dir)) - idle and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert set(_processes_of(server.data_dir)) == idle
+        assert set(processes_of(server.data_dir)) == idle
     server.stop()
     deadline = time.monotonic() + 10
-    while _processes_of(server.data_dir) and time.monotonic() < deadline:
+    while processes_of(server.data_dir) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert _processes_of(server.data_dir) == {}
+    assert processes_of(server.data_dir) == {}

@@ -43,7 +43,6 @@ import gzip
 import lzma
 import os
 import re
-import tarfile
 import warnings
 import zlib
 from collections.abc import Iterator
@@ -60,6 +59,19 @@ from wosac_eval.parse.errors import (
     UnsafeArchiveMemberError,
 )
 from wosac_eval.parse.limits import InputLimits, check_message_counts
+from wosac_eval.parse.tar_format import (
+    BLOCK,
+    DEVICE_TYPES,
+    FIFO_TYPE,
+    HARD_LINK_TYPE,
+    SYMLINK_TYPE,
+    TarFormatError,
+    TarMember,
+    TarStreamReader,
+    TruncatedDataError,
+    TruncatedTarError,
+    is_tar_header,
+)
 from wosac_eval.protos import sim_agents_submission_pb2
 
 PathLike = Union[str, "os.PathLike[str]"]
@@ -71,10 +83,10 @@ SHARD_NAME_MARKER = ".binproto"
 _DOC_PREFIXES = ("README", "LICENSE", "LICENCE", "NOTICE", "CHANGELOG")
 _DOC_SUFFIXES = (".md", ".txt", ".rst")
 _CHUNK_BYTES = 1 << 20
-_SNIFF_BYTES = tarfile.BLOCKSIZE  # 512: one tar header
+_SNIFF_BYTES = BLOCK  # one tar header
 
-# Errors the decompressors and tarfile raise on broken or truncated input.
-_STREAM_ERRORS = (tarfile.TarError, OSError, EOFError, zlib.error, lzma.LZMAError)
+# Errors the decompressors raise on broken or truncated input.
+_STREAM_ERRORS = (OSError, EOFError, zlib.error, lzma.LZMAError)
 
 _COMPRESSION_MAGIC = {
     b"\x1f\x8b": "gzip",
@@ -182,17 +194,6 @@ def _compression_of(head: bytes) -> str | None:
     return None
 
 
-def _is_tar_header(block: bytes) -> bool:
-    """True when block is a valid tar header, or the all-zero block of an empty tar."""
-    try:
-        tarfile.TarInfo.frombuf(block, "utf-8", "surrogateescape")
-    except tarfile.EOFHeaderError:
-        return len(block) == tarfile.BLOCKSIZE
-    except tarfile.HeaderError:
-        return False
-    return True
-
-
 def _claimed_format(name: str) -> str | None:
     """The format a file name promises: 'tar', 'tar.gz', 'compressed' or None."""
     lower = name.lower()
@@ -250,8 +251,11 @@ class _LimitedStream:
 
     Raises SizeLimitError once more than `limit` bytes were read, naming the
     member being read at the time (kept up to date by the tar reader). The
-    source is read a chunk at a time, so tarfile's small reads cost what plain
-    decompression does (one decompressor call per chunk, not per 10 kB record).
+    source is read a chunk at a time, so the tar reader's small reads cost what
+    plain decompression does (one decompressor call per chunk, not per header).
+    A chunk is what one `read1` gives: whatever decompresses from the next piece
+    of input, so the bytes before a damaged or truncated part of a compressed
+    file are all delivered before its error is raised.
     """
 
     def __init__(self, archive: Path, source: BinaryIO, limit: int, limit_name: str = "max_total_bytes") -> None:
@@ -259,12 +263,13 @@ class _LimitedStream:
         self.bytes_read = 0
         self.member = "(archive header)"
         self._chunk, self._pos = b"", 0
+        self._read_chunk = getattr(source, "read1", source.read)
 
     def read(self, size: int = -1) -> bytes:
         if size is None or size < 0:  # read to the end, a bounded chunk at a time
             return b"".join(iter(lambda: self.read(_CHUNK_BYTES), b""))
         if self._pos >= len(self._chunk):
-            self._chunk, self._pos = self._source.read(max(size, _CHUNK_BYTES)), 0
+            self._chunk, self._pos = self._read_chunk(max(size, _CHUNK_BYTES)), 0
         data = self._chunk[self._pos:self._pos + size]
         self._pos += len(data)
         self.bytes_read += len(data)
@@ -307,134 +312,92 @@ def _sniff(path: Path) -> tuple[str | None, bytes]:
 # --------------------------------------------------------------------------- tar
 
 
-def _recording_tarinfo_class() -> type[tarfile.TarInfo]:
-    """A TarInfo subclass remembering why header parsing last stopped.
-
-    tarfile ends iteration silently on a truncated or garbage header after the
-    first member; remembering the header error lets us tell a clean end (an
-    all-zero block) from a truncated or corrupt archive.
-    """
-
-    class RecordingTarInfo(tarfile.TarInfo):
-        last_header_error: Exception | None = None
-
-        @classmethod
-        def frombuf(cls, buf, encoding, errors):  # noqa: ANN001 - tarfile's signature
-            try:
-                info = super().frombuf(buf, encoding, errors)
-            except tarfile.HeaderError as error:
-                RecordingTarInfo.last_header_error = error
-                raise
-            RecordingTarInfo.last_header_error = None
-            return info
-
-    return RecordingTarInfo
-
-
-def _check_member_type(archive: Path, name: str, info: tarfile.TarInfo) -> None:
-    """Refuse links, devices, FIFOs and every type that is not a file or folder."""
-    if info.issym():
+def _check_member_type(archive: Path, name: str, member: TarMember) -> None:
+    """Refuse links, devices, FIFOs, sparse files and every type that is not a file or folder."""
+    if member.type == SYMLINK_TYPE:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a symbolic link")
-    if info.islnk():
+    if member.type == HARD_LINK_TYPE:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a hard link")
-    if info.ischr() or info.isblk():
+    if member.type in DEVICE_TYPES:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a device file")
-    if info.isfifo():
+    if member.type == FIFO_TYPE:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a FIFO")
-    if info.issparse() or not (info.isreg() or info.isdir()):
+    if member.sparse:
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a sparse file (unsupported type)")
+    if not (member.is_file or member.is_dir):
         raise UnsafeArchiveMemberError(
-            f"{archive}: member {name!r} has an unsupported type {info.type!r}"
+            f"{archive}: member {name!r} has an unsupported type {member.type!r}"
         )
 
 
-def _read_member(tar: tarfile.TarFile, archive: Path, name: str, info: tarfile.TarInfo) -> bytes:
-    """The full content of one regular member."""
-    member_file = tar.extractfile(info)
-    assert member_file is not None  # regular members always have a file object
+def _read_member_data(tar: TarStreamReader, archive: Path, name: str, size: int) -> bytes:
+    """The first `size` bytes of the current member's data (it must have them)."""
     try:
-        data = member_file.read()
+        data = tar.read_data(size)
     except _STREAM_ERRORS as error:
         raise ArchiveError(
             f"{archive}: truncated or corrupt data in member {name!r}: {error}"
         ) from error
-    if len(data) != info.size:
+    if len(data) != size:
         raise ArchiveError(
-            f"{archive}: member {name!r} is truncated ({len(data)} of {info.size} bytes)"
+            f"{archive}: member {name!r} is truncated ({len(data)} of {size} bytes)"
         )
     return data
 
 
-def _check_clean_end(archive: Path, info_class: type, last_member: str | None) -> None:
-    """Raise unless tar iteration stopped at a proper end-of-archive block."""
-    error = info_class.last_header_error
+def _next_member(tar: TarStreamReader, archive: Path, last_member: str | None) -> TarMember | None:
+    """The next member header; None at a clean end. Stream and format errors become ArchiveError."""
     after = f"after member {last_member!r}" if last_member else "before the first member"
-    if isinstance(error, tarfile.EOFHeaderError):
-        return
-    if isinstance(error, (tarfile.EmptyHeaderError, tarfile.TruncatedHeaderError)):
+    try:
+        return tar.next_member()
+    except TruncatedDataError as error:
+        raise ArchiveError(f"{archive}: member {last_member!r} is truncated ({error})") from error
+    except TruncatedTarError as error:
         raise ArchiveError(
             f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)"
-        )
-    raise ArchiveError(f"{archive}: corrupt tar header {after}: {error}")
-
-
-def _next_member(
-    tar: tarfile.TarFile, archive: Path, last_member: str | None
-) -> tarfile.TarInfo | None:
-    """The next member header, translating stream errors into ArchiveError."""
-    try:
-        info = tar.next()
-    except (SizeLimitError, UnsafeArchiveMemberError):
-        raise
+        ) from error
+    except TarFormatError as error:
+        raise ArchiveError(f"{archive}: corrupt tar header {after}: {error}") from error
     except _STREAM_ERRORS as error:
-        after = f"after member {last_member!r}" if last_member else "at its start"
-        raise ArchiveError(f"{archive}: truncated or corrupt archive {after}: {error}") from error
-    # Stream mode keeps every header in tar.members; drop them so memory stays
-    # flat however many members the archive has (we never look members up).
-    tar.members.clear()
-    return info
+        where = f"after member {last_member!r}" if last_member else "at its start"
+        raise ArchiveError(f"{archive}: truncated or corrupt archive {where}: {error}") from error
 
 
 def _iter_members(
     archive: Path, stream: _LimitedStream, limits: InputLimits
-) -> Iterator[tuple[tarfile.TarFile, str, tarfile.TarInfo]]:
-    """(tar, name, header) of every shard member of a tar stream, in order, after every check
+) -> Iterator[tuple[TarStreamReader, str, TarMember]]:
+    """(reader, name, header) of every shard member of a tar stream, in order, after every check
     that needs no member data: safe names and types, stray files, duplicates, the member count and
-    the declared sizes against the limits. Skipping a member's data is left to tarfile."""
-    info_class = _recording_tarinfo_class()
-    try:
-        tar = tarfile.open(fileobj=stream, mode="r|", tarinfo=info_class)  # type: ignore[arg-type]
-    except _STREAM_ERRORS as error:
-        raise ArchiveError(f"{archive}: not a readable tar archive: {error}") from error
+    the declared sizes against the limits. The reader skips whatever of a member's data was not read."""
+    tar = TarStreamReader(stream.read)
     seen: set[str] = set()
     last_member: str | None = None
     members = 0
-    with tar:
-        while (info := _next_member(tar, archive, last_member)) is not None:
-            members += 1
-            if members > limits.max_members:
-                raise SizeLimitError(f"{archive}: more than max_members={limits.max_members} archive members")
-            name = safe_member_name(archive, info.name)
-            _check_member_type(archive, name, info)
-            last_member = stream.member = name
-            if info.isdir() or is_ignored_name(name):
-                continue
-            if not is_shard_name(name):
-                raise _not_a_shard_error(archive, name)
-            if name in seen:
-                raise ArchiveError(f"{archive}: member {name!r} appears twice")
-            seen.add(name)
-            if info.size > limits.max_member_bytes:
-                raise SizeLimitError(
-                    f"{archive}: member {name!r} is {info.size} bytes, over the per-member "
-                    f"limit of {limits.max_member_bytes} bytes"
-                )
-            if stream.bytes_read + info.size > stream.limit:  # refused on its header, before any byte
-                raise SizeLimitError(
-                    f"{archive}: member {name!r} is {info.size} bytes: the archive would decompress to more "
-                    f"than the total limit of {stream.limit} bytes (limit {stream.limit_name})"
-                )
-            yield tar, name, info
-    _check_clean_end(archive, info_class, last_member)
+    while (member := _next_member(tar, archive, last_member)) is not None:
+        members += 1
+        if members > limits.max_members:
+            raise SizeLimitError(f"{archive}: more than max_members={limits.max_members} archive members")
+        name = safe_member_name(archive, member.name)
+        _check_member_type(archive, name, member)
+        last_member = stream.member = name
+        if member.is_dir or is_ignored_name(name):
+            continue
+        if not is_shard_name(name):
+            raise _not_a_shard_error(archive, name)
+        if name in seen:
+            raise ArchiveError(f"{archive}: member {name!r} appears twice")
+        seen.add(name)
+        if member.size > limits.max_member_bytes:
+            raise SizeLimitError(
+                f"{archive}: member {name!r} is {member.size} bytes, over the per-member "
+                f"limit of {limits.max_member_bytes} bytes"
+            )
+        if stream.bytes_read + member.size > stream.limit:  # refused on its header, before any byte
+            raise SizeLimitError(
+                f"{archive}: member {name!r} is {member.size} bytes: the archive would decompress to more "
+                f"than the total limit of {stream.limit} bytes (limit {stream.limit_name})"
+            )
+        yield tar, name, member
     if not seen:
         raise ArchiveError(
             f"{archive}: archive holds no submission shard (no member name "
@@ -467,8 +430,8 @@ def _iter_archive_file(path: Path, compression: str | None, limits: InputLimits)
     """Shards of a (possibly compressed) tar file, streamed member by member."""
     source, stream = _open_limited(path, compression, limits)
     with source:
-        for tar, name, info in _iter_members(path, stream, limits):
-            yield name, _read_member(tar, path, name, info)
+        for tar, name, member in _iter_members(path, stream, limits):
+            yield name, _read_member_data(tar, path, name, member.size)
         if compression is not None:
             _drain(stream, path)
 
@@ -578,7 +541,7 @@ def iter_shard_refs(
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such submission file or folder")
     compression, head = _sniff(path)
-    is_tar = _is_tar_header(head)
+    is_tar = is_tar_header(head)
     _check_name_against_content(path, compression, is_tar)
     if is_tar:
         for name, data in _iter_archive_file(path, compression, limits):
@@ -669,7 +632,7 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     limits = InputLimits() if limits is None else limits
     path = Path(path)
     compression, head = _sniff(path)
-    is_tar = _is_tar_header(head)
+    is_tar = is_tar_header(head)
     if not is_tar:  # one shard: its first field, and for a compressed one its size as it decompresses
         if compression is None:
             size = _plain_shard_size(path, limits)
@@ -683,13 +646,9 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     source, stream = _open_limited(path, compression, limits)
     shards = 0
     with source:
-        for tar, name, info in _iter_members(path, stream, limits):
-            member = tar.extractfile(info)
-            assert member is not None
-            try:
-                looks_like_submission(f"{path}: member {name!r}", member.read(_HEAD_BYTES))
-            except _STREAM_ERRORS as error:
-                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
+        for tar, name, member in _iter_members(path, stream, limits):
+            head = _read_member_data(tar, path, name, min(_HEAD_BYTES, member.size))
+            looks_like_submission(f"{path}: member {name!r}", head)
             shards += 1
         if compression is not None:
             _drain(stream, path)
@@ -729,7 +688,7 @@ def _why_unparseable(raw: bytes) -> str:
     from wosac_eval.parse.tfrecord import looks_like_tfrecord
     from wosac_eval.parse.wire import field_spans
 
-    if raw[:2] == b"\x1f\x8b" or _is_tar_header(raw[:_SNIFF_BYTES]):
+    if raw[:2] == b"\x1f\x8b" or is_tar_header(raw[:_SNIFF_BYTES]):
         return " (these are archive bytes: give the archive itself as the submission)"
     if looks_like_tfrecord(raw):
         return " (this is a TFRecord file, as scenarios come: are --scenarios and --submission swapped?)"

@@ -15,16 +15,18 @@ HELP = "Manage API keys of the scoring service (create prints a new key)."
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data-dir", help="service data dir (WOSAC_DATA_DIR)")
+    from .settings import add_data_dir_option
+
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     create = sub.add_parser("create", help="create a key and print it")
     create.add_argument("--name", required=True, help="owner / method name shown on the leaderboard")
     create.add_argument("--max-concurrent", type=int, help="unfinished submissions at a time")
     create.add_argument("--max-daily", type=int, help="submissions per 24 h")
     create.add_argument("--max-daily-bytes", type=int, help="uploaded bytes per 24 h")
-    sub.add_parser("list", help="list keys (never the secrets)")
+    listing = sub.add_parser("list", help="list keys (never the secrets)")
     revoke = sub.add_parser("revoke", help="revoke a key by name")
     revoke.add_argument("--name", required=True)
+    add_data_dir_option(parser, [create, listing, revoke])
 
 
 def run(args: argparse.Namespace) -> int:

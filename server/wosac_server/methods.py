@@ -16,15 +16,18 @@ HELP = "List leaderboard names and their owning keys; reassign or free one (oper
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data-dir", help="service data dir (WOSAC_DATA_DIR)")
+    from .settings import add_data_dir_option
+
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
-    sub.add_parser("list", help="every claimed name: challenge, method, owning key")
+    actions = [sub.add_parser("list", help="every claimed name: challenge, method, owning key")]
     for action, text in (("assign", "give a name to a key"), ("release", "free a name (the next key to use it owns it)")):
         p = sub.add_parser(action, help=text)
         p.add_argument("--challenge", default="sim_agents", choices=("sim_agents", "scenario_gen"))
         p.add_argument("--method", required=True)
         if action == "assign":
             p.add_argument("--key", required=True, help="the name of the key that gets it")
+        actions.append(p)
+    add_data_dir_option(parser, actions)
 
 
 def run(args: argparse.Namespace) -> int:

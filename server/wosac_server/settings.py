@@ -6,6 +6,7 @@ in a number fails loudly before the first request instead of mid-job.
 """
 from __future__ import annotations
 
+import argparse
 import glob
 import os
 from pathlib import Path
@@ -14,6 +15,7 @@ from typing import Literal
 from pydantic import BaseModel, Field, field_validator
 
 ENV_PREFIX = "WOSAC_"
+_DATA_DIR_HELP = "service data dir (WOSAC_DATA_DIR)"
 
 GiB = 1024**3
 MiB = 1024**2
@@ -164,3 +166,11 @@ def load_settings(environ: dict[str, str] | None = None) -> Settings:
     settings = Settings(**values)
     settings.data_dir = settings.data_dir.expanduser().resolve()
     return settings
+
+
+def add_data_dir_option(command: argparse.ArgumentParser, actions: list[argparse.ArgumentParser]) -> None:
+    """`--data-dir` before or after an operator command's action (`keys --data-dir D create ...` and
+    `keys create ... --data-dir D`); given after, it wins."""
+    command.add_argument("--data-dir", help=_DATA_DIR_HELP)
+    for action in actions:
+        action.add_argument("--data-dir", default=argparse.SUPPRESS, help=_DATA_DIR_HELP)

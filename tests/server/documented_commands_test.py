@@ -1,0 +1,144 @@
+"""Every `wosac-server` command line that README.md and server/README.md show runs as written.
+
+The lines are read from the documents themselves (code blocks and inline code), in document order,
+and run in one scratch folder with an empty HOME, the way a reader pastes them. The operator
+commands must exit 0, or 1 with their "nothing to do" message where the documented example names
+a key or method the scratch service does not have (never 2, a usage error). `serve` and `worker`
+run until healthy, then stop cleanly on SIGTERM. Two substitutions only: a free loopback port for
+`--port 8000` (and `WOSAC_PORT` for a bare `serve`), and the demo's scenario shards where a line names none. `docker` lines are the
+Docker check's (`.ci/docker`).
+"""
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import pytest
+
+from support.paths import REPO
+from support.processes import alive
+from support.server_harness import demo_data, free_port
+
+DOCUMENTS = (REPO / "README.md", REPO / "server" / "README.md")
+_BLOCK = re.compile(r"^```(\w*)[ \t]*\n(.*?)^```[ \t]*$", re.S | re.M)
+_COMMAND = re.compile(r"^(?:[A-Z_]+=\S+\s+)*wosac-server\s+[a-z]")
+# What an operator command answers when the documented example's key or name is not in this service.
+NOTHING_TO_DO = ("no active key named", "nobody owns", "no key named")
+
+
+def documented_commands() -> list[tuple[str, str]]:
+    """(where, command) of every wosac-server command line of the documents, in order."""
+    found = []
+    for document in DOCUMENTS:
+        text = document.read_text()
+        lines = []  # (line number, text) of every code line and inline code span
+        for block in _BLOCK.finditer(text):
+            first = text[:block.start()].count("\n") + 2
+            lines += [(first + i, re.sub(r"\s+#\s.*$", "", code).strip())
+                      for i, code in enumerate(block.group(2).splitlines())]
+        prose = _BLOCK.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), text)  # blocks blanked, offsets kept
+        lines += [(text[:m.start()].count("\n") + 1, m.group(1).strip())
+                  for m in re.finditer(r"`([^`\n]+)`", prose)]
+        found += [(f"{document.relative_to(REPO)}:{n}", c) for n, c in sorted(lines) if _COMMAND.match(c)]
+    return found
+
+
+def test_the_documents_show_the_operator_commands():
+    commands = " ".join(command for _, command in documented_commands())
+    for piece in ("keys create", "keys list", "keys revoke", "methods list", "methods assign",
+                  "methods release", "serve", "worker", "--data-dir ./wosac-data"):
+        assert piece in commands, piece
+
+
+def _wait_healthy(url: str, process: subprocess.Popen, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        assert process.poll() is None, f"exited with {process.returncode}"
+        try:
+            if httpx.get(url + "/healthz", timeout=1.0).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.2)
+    raise AssertionError(f"not healthy after {timeout} s")
+
+
+def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
+    """A serve or worker line: started, healthy (serve) or running (worker), then stopped by SIGTERM."""
+    port = free_port()
+    command = command.replace("--port 8000", f"--port {port}")
+    with open(log, "wb") as out:
+        process = subprocess.Popen(["bash", "-c", f"exec env {command}"], cwd=cwd, env={**env, "WOSAC_PORT": str(port)},
+                                   stdout=out,
+                                   stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        if " serve" in command:
+            _wait_healthy(f"http://127.0.0.1:{port}", process)
+        else:
+            time.sleep(3)  # a worker has nothing to answer: it must still be polling after its start-up
+            assert process.poll() is None, f"exited with {process.returncode}"
+        process.send_signal(signal.SIGTERM)
+        # A clean stop: exit 0, or the SIGTERM re-raised after shutdown (uvicorn does, as a shell expects).
+        assert process.wait(60) in (0, -signal.SIGTERM), f"{command}: exit {process.returncode}\n{log.read_text()[-3000:]}"
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    assert not alive(process.pid)
+
+
+def _run_document(commands: list[tuple[str, str]], scratch: Path, scenarios: list[Path], log_dir: Path) -> None:
+    """One document's lines, in order, in a scratch folder of its own (one reader's session)."""
+    validation = scratch / "validation"
+    validation.mkdir(parents=True)
+    for shard in scenarios:  # the documents' `validation/*tfrecord*`
+        (validation / f"{shard.name}.tfrecord").symlink_to(shard)
+    home = scratch / ".home"
+    home.mkdir()
+    inherited = {k: v for k, v in os.environ.items() if not k.startswith(("WOSAC_", "RAY_"))}
+    env = {**inherited, "HOME": str(home), "WOSAC_DATA_DIR": "./wosac-data",  # server/README's export
+           "WOSAC_SCENARIOS": str(validation / "*tfrecord*"), "WOSAC_WORKERS": "1",
+           "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])}
+    for index, (where, command) in enumerate(commands):
+        words = shlex.split(command)
+        if words[words.index("wosac-server") + 1] in ("serve", "worker"):
+            _run_long_lived(command, scratch, env, log_dir / f"{scratch.name}-{index}.log")
+            continue
+        done = subprocess.run(["bash", "-c", command], cwd=scratch, env=env, capture_output=True, text=True,
+                              timeout=120)
+        message = f"{where}: {command}\nexit {done.returncode}\n{done.stdout}{done.stderr}"
+        assert done.returncode != 2 and "usage:" not in done.stderr, message
+        assert done.returncode == 0 or (done.returncode == 1 and any(t in done.stderr for t in NOTHING_TO_DO)), \
+            message
+    listed = subprocess.run(["bash", "-c", "wosac-server keys list"], cwd=scratch, env=env, capture_output=True,
+                            text=True, timeout=60)
+    assert "my-team" in listed.stdout, listed.stdout + listed.stderr
+
+
+def test_every_documented_wosac_server_line_runs(tmp_path):
+    scenarios = demo_data(tmp_path / "demo").scenarios
+    commands = documented_commands()
+    assert len(commands) >= 8
+    for document in DOCUMENTS:
+        name = str(document.relative_to(REPO))
+        mine = [(where, command) for where, command in commands if where.startswith(name + ":")]
+        _run_document(mine, tmp_path / name.replace("/", "-"), scenarios, tmp_path)
+
+
+@pytest.mark.parametrize("before", [True, False])
+def test_data_dir_goes_before_or_after_the_action(tmp_path, before):
+    data_dir = tmp_path / "wosac-data"
+    head = ["--data-dir", str(data_dir)]
+    for argv in (["keys", "create", "--name", "team-a"], ["keys", "list"], ["methods", "list"]):
+        full = [argv[0], *head, *argv[1:]] if before else [*argv, *head]
+        done = subprocess.run([sys.executable, "-m", "wosac_server", *full], capture_output=True, text=True,
+                              timeout=60, env={**os.environ, "HOME": str(tmp_path)})
+        assert done.returncode == 0, done.stderr
+    assert (data_dir / "wosac.sqlite3").exists()

@@ -351,7 +351,7 @@ def _next_member(tar: TarStreamReader, archive: Path, last_member: str | None) -
     try:
         return tar.next_member()
     except TruncatedDataError as error:
-        raise ArchiveError(f"{archive}: member {last_member!r} is truncated ({error})") from error
+        raise ArchiveError(f"{archive}: truncated or corrupt data in member {last_member!r}: {error}") from error
     except TruncatedTarError as error:
         raise ArchiveError(
             f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)"
@@ -648,6 +648,12 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     with source:
         for tar, name, member in _iter_members(path, stream, limits):
             head = _read_member_data(tar, path, name, min(_HEAD_BYTES, member.size))
+            try:  # a member cut short is told as such before its first bytes are judged
+                tar.skip_data()
+            except TruncatedDataError as error:
+                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
+            except _STREAM_ERRORS as error:
+                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
             looks_like_submission(f"{path}: member {name!r}", head)
             shards += 1
         if compression is not None:

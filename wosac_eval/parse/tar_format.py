@@ -213,13 +213,14 @@ class TarStreamReader:
             self._left = self._padding = 0
         return data
 
-    def _skip_rest(self) -> None:
-        """Read past what is left of the current member's data and padding, a bounded piece at a time."""
+    def skip_data(self) -> None:
+        """Read past what is left of the current member's data and padding, a bounded piece at a time
+        (TruncatedDataError when the stream ends inside them)."""
         remaining, self._left, self._padding = self._left + self._padding, 0, 0
         while remaining > 0:
             piece = self.read_exact(min(remaining, 1 << 20))
             if not piece:
-                raise TruncatedDataError("the archive ends inside the member's data")
+                raise TruncatedDataError("the archive ends inside its data")
             remaining -= len(piece)
 
     def _meta_data(self, member: TarMember) -> bytes:
@@ -233,7 +234,7 @@ class TarStreamReader:
 
     def next_member(self) -> TarMember | None:
         """The next member (extended headers applied), None at the end-of-archive block."""
-        self._skip_rest()
+        self.skip_data()
         long_name = long_link = None
         records: dict[str, str] = {}
         while True:

@@ -1,14 +1,20 @@
 """`wosac-server serve`: run the HTTP scoring service (API + scoring worker processes).
 
 Configured by `WOSAC_*` environment variables (see `wosac_server.settings`);
-the flags below override the most common ones. Exit codes: 0 stopped cleanly,
-2 the configuration is unusable (no scenario shard found, bad value).
+the flags below override the most common ones. Exit codes: 0 stopped cleanly
+(SIGTERM or SIGINT included, at any moment), 2 the configuration is unusable
+(no scenario shard found, bad value).
+
+SIGTERM stops the service at any moment of its life: during its start-up too
+(then the workers already started are stopped, none is left behind), and after
+uvicorn's graceful shutdown the workers are stopped before the process exits.
 """
 from __future__ import annotations
 
 import argparse
 import logging
 import os
+import signal
 import sys
 
 NAME = "serve"
@@ -36,7 +42,31 @@ def raise_open_files_limit() -> None:
         resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 
 
+class Stopped(Exception):
+    """SIGTERM arrived: unwinds whatever `run` was doing (starting up, or after uvicorn's shutdown, which
+    passes the signal on) through the `finally` that stops the workers."""
+
+
+def _stop(signum, frame) -> None:
+    raise Stopped(signum)
+
+
+def _ignore(signum, frame) -> None:
+    pass
+
+
 def run(args: argparse.Namespace) -> int:
+    # Before any worker exists: from here on SIGTERM unwinds through the `finally` below (the default
+    # action would end this process at once and leave the workers to find out on their own). uvicorn
+    # replaces this handler while it serves, then puts it back and raises the signal it got again.
+    signal.signal(signal.SIGTERM, _stop)
+    try:
+        return _run(args)
+    except (Stopped, KeyboardInterrupt):
+        return 0
+
+
+def _run(args: argparse.Namespace) -> int:
     # Flags become environment so the worker processes see the same configuration.
     for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"),
                       ("workers", "WOSAC_WORKERS")):
@@ -74,10 +104,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"wosac-server serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
           f"{settings.workers} worker(s), http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
     pool = WorkerPool(settings.workers)
-    pool.start()
     app.state.worker_pool = pool
-    raise_open_files_limit()
     try:
+        pool.start()
+        raise_open_files_limit()
         config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                                 timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
                                 http=guarded_protocol(settings))
@@ -85,5 +115,9 @@ def run(args: argparse.Namespace) -> int:
         server = uvicorn.Server(config)
         server.run()
     finally:
+        # Stopping is bounded (grace, then SIGKILL): a second SIGTERM must not cut it short (a handler
+        # that does nothing, not SIG_IGN, which a worker started meanwhile would inherit). A worker
+        # started in the instant before an interruption, not yet recorded, ends with this process.
+        signal.signal(signal.SIGTERM, _ignore)
         pool.stop(grace_s=settings.shutdown_grace_s)
     return 0

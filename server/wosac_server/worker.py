@@ -17,33 +17,56 @@ Run one with `wosac-server worker` (configured by the same `WOSAC_*`
 environment as the API); `WorkerPool` starts and supervises N of them. With
 `WOSAC_RAY_ADDRESS` set, each job is fanned out to that Ray cluster, so one
 big submission uses every node.
+
+A worker of a `WorkerPool` is started as `python -m wosac_server.worker
+--parent-pid PID` and ends with that process from its first line on, before its
+slow imports: a supervisor that dies (SIGTERM during its start-up, SIGKILL, OOM)
+at any moment leaves no worker behind (`wosac_eval.runtime.processes`).
 """
 from __future__ import annotations
 
-import ctypes
-import logging
 import os
-import resource
-import secrets
 import signal
-import socket
-import subprocess
 import sys
-import threading
-import time
-import traceback
-from pathlib import Path
-from typing import Callable
 
-from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
+PARENT_PID_FLAG = "--parent-pid"
 
-from . import jobs
-from .db import Store
-from .settings import Settings, load_settings
+
+def _parent_pid_argument(argv: list[str]) -> int | None:
+    """The pid after `--parent-pid` in a worker's arguments (the supervisor that started it), if any."""
+    if len(argv) >= 2 and argv[0] == PARENT_PID_FLAG and argv[1].isdigit():
+        return int(argv[1])
+    return None
+
+
+if __name__ == "__main__":  # before anything slow: a supervisor gone since it started us is seen here
+    _PARENT_PID = _parent_pid_argument(sys.argv[1:])
+    if _PARENT_PID is not None:
+        from wosac_eval.runtime.processes import exit_with_parent
+
+        # SIGTERM: the same graceful stop as from the supervisor (release the job, end its process);
+        # before the handler is installed, it simply ends this process.
+        exit_with_parent(_PARENT_PID, death_signal=signal.SIGTERM, watch=False)
+
+import logging  # noqa: E402
+import resource  # noqa: E402
+import secrets  # noqa: E402
+import socket  # noqa: E402
+import subprocess  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+import traceback  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Callable  # noqa: E402
+
+from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
+from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
+
+from . import jobs  # noqa: E402
+from .db import Store  # noqa: E402
+from .settings import Settings, load_settings  # noqa: E402
 
 log = logging.getLogger("wosac_server.worker")
-
-PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
 
 
 def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings: Settings,
@@ -81,14 +104,11 @@ def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result:
 def limit_this_process(settings: Settings, parent_pid: int) -> None:
     """The limits of a job's scoring process: death with its worker, address space, CPU time and a
     lower CPU priority than the API's (so scoring never starves /healthz and uploads)."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    except (OSError, AttributeError):  # not Linux: the check below and the lease still apply
-        pass
-    # A worker killed between its fork and the prctl above sends no signal: the job's process
-    # would score on unsupervised and race the retry of its job.
-    if os.getppid() != parent_pid:
-        os._exit(1)
+    # A worker killed between its fork and the signal's set-up sends no signal: the job's process
+    # would score on unsupervised and race the retry of its job; `exit_with_parent` sees that case.
+    # Off Linux (no signal) a thread watches the worker instead.
+    armed = set_parent_death_signal(signal.SIGKILL)
+    exit_with_parent(parent_pid, watch=not armed)
     if settings.job_nice:
         os.nice(settings.job_nice)
     if settings.job_memory_bytes:
@@ -163,11 +183,13 @@ class _Heartbeat(threading.Thread):
 class Worker:
     """One worker process's loop."""
 
-    def __init__(self, settings: Settings):
+    def __init__(self, settings: Settings, parent_pid: int | None = None):
+        """`parent_pid`: the supervisor, as it told this process (`--parent-pid`); without one (a worker
+        run on its own), the parent at this moment."""
         self.settings = settings
+        self.parent_pid = os.getppid() if parent_pid is None else parent_pid
         self.store = Store(settings.resolved_db_url)
         self.owner = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(4)}"
-        self.parent_pid = os.getppid()
         self.stopping = False
         self._last_upload_sweep = 0.0
 
@@ -178,6 +200,7 @@ class Worker:
     def run_forever(self) -> None:
         signal.signal(signal.SIGTERM, self._on_term)
         signal.signal(signal.SIGINT, self._on_term)
+        # (A SIGTERM before the line above ended this process: nothing to release yet.)
         while not self.stopping and self.parent_alive():
             if not self.run_once():
                 time.sleep(self.settings.poll_s)
@@ -307,11 +330,19 @@ class WorkerPool:
         self._monitor = threading.Thread(target=self._watch, name="worker-pool", daemon=True)
 
     def _spawn(self) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker"], env=self.env)
+        # Our pid on its command line: the worker checks it before its slow imports (and arms its
+        # parent-death signal), so our death at any moment after this call ends it.
+        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker", PARENT_PID_FLAG, str(os.getpid())],
+                                env=self.env)
 
     def start(self) -> None:
-        with self._lock:
-            self.procs = [self._spawn() for _ in range(self.n)]
+        """Starts the workers one by one, each recorded as soon as it runs: a `stop()` after an
+        interruption here (SIGTERM while `serve` starts) stops every one already started."""
+        for _ in range(self.n):
+            with self._lock:
+                if self._stop.is_set():
+                    return
+                self.procs.append(self._spawn())
         self._monitor.start()
 
     def pids(self) -> list[int]:
@@ -319,13 +350,18 @@ class WorkerPool:
             return [p.pid for p in self.procs]
 
     def _watch(self) -> None:
+        # The workers this thread restarts get their parent-death signal when it ends: only in stop(),
+        # which stops them anyway; it must not die of a failed restart, so that is retried.
         while not self._stop.wait(self.check_s):
             with self._lock:
                 for i, proc in enumerate(self.procs):
                     code = proc.poll()
                     if code is not None and not self._stop.is_set():
                         log.warning("worker %d exited with %s; starting a new one", proc.pid, code)
-                        self.procs[i] = self._spawn()
+                        try:
+                            self.procs[i] = self._spawn()
+                        except OSError as exc:
+                            log.error("could not start a worker (%s); trying again", exc)
 
     def stop(self, grace_s: float = 10.0) -> None:
         self._stop.set()
@@ -343,11 +379,11 @@ class WorkerPool:
                 proc.wait()
 
 
-def main() -> int:
+def main(parent_pid: int | None = None) -> int:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    Worker(load_settings()).run_forever()
+    Worker(load_settings(), parent_pid).run_forever()
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(_PARENT_PID))

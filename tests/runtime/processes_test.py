@@ -1,4 +1,5 @@
 """Worker pools fork by default and spawn once JAX is loaded; both run real work."""
+import os
 import subprocess
 import sys
 import textwrap
@@ -6,7 +7,7 @@ import time
 
 import pytest
 
-from support.processes import alive
+from support.processes import alive, processes_with, wait_gone
 
 PROBE = textwrap.dedent("""
     import os, sys
@@ -68,3 +69,32 @@ def test_workers_end_with_a_killed_parent(tmp_path, mode):
     while any(map(alive, pids)) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert not any(map(alive, pids)), [p for p in pids if alive(p)]
+
+
+KILLED_AT_ONCE_PROBE = textwrap.dedent("""
+    import os, signal, sys, time
+    from wosac_eval.runtime.processes import worker_pool
+
+    if __name__ == "__main__":
+        pool = worker_pool(2, force_spawn=sys.argv[1] == "spawn")
+        pool.submit(time.sleep, 60)  # starts the workers...
+        os.kill(os.getpid(), signal.SIGKILL)  # ...and dies while they start
+""")
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+@pytest.mark.parametrize("mode", ["fork", "spawn"])
+def test_workers_of_a_parent_killed_while_they_start_end(tmp_path, mode):
+    """The parent dies before its workers are ready (a spawned one is still importing): they end too."""
+    script = tmp_path / "probe.py"
+    script.write_text(KILLED_AT_ONCE_PROBE)
+    marker = ("WOSAC_POOL_PROBE", str(tmp_path))  # found by the environment they inherit
+    done = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, marker[0]: marker[1]})
+    assert done.returncode == -9, done.stderr
+    left = wait_gone(processes_with(*marker), 15)
+    try:
+        assert not left, f"{left} outlived their parent"
+    finally:
+        for pid in left:
+            os.kill(pid, 9)

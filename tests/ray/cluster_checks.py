@@ -4,6 +4,12 @@ Run by `ray_engine_test.py` inside a network namespace with only loopback
 (`unshare -n`), so no traffic leaves 127.0.0.1; not collected on its own (its
 name matches no test pattern). Every check compares with the local engine:
 the result document must be identical, value for value.
+
+On a loaded machine everything here is slow, so the checks wait for conditions,
+never for fixed times, and give them minutes (`NODES_TIMEOUT_S`...): a node killed
+without warning stays alive in the GCS until its health checks fail (13 s on a
+lightly loaded 2-core machine), where `Cluster.add_node` and `wait_for_nodes` wait
+30 s at most, and a node's replacement registers in its own time.
 """
 from __future__ import annotations
 
@@ -27,6 +33,7 @@ import ray  # noqa: E402
 from ray.cluster_utils import Cluster  # noqa: E402
 
 import ray_helpers  # noqa: E402
+from support.processes import alive  # noqa: E402
 from support.runs import run_cli  # noqa: E402
 from wosac_eval.runtime.executors import EngineUnavailableError, make_executor  # noqa: E402
 from wosac_eval.scoring import submission as scoring  # noqa: E402
@@ -36,8 +43,31 @@ from wosac_eval.sim.baselines import make_submission  # noqa: E402
 from wosac_eval.validate import validate_submission  # noqa: E402
 
 
+NODES_TIMEOUT_S = 300  # nodes to register, and a killed node to be seen dead (Ray's default: 30 s)
+JOB_TIMEOUT_S = 600    # one scoring job or run of tasks through the cluster
+
+
 def canonical(result) -> str:
     return json.dumps(result, sort_keys=True)
+
+
+def wait_for_exactly(c: Cluster, nodes: list) -> None:
+    """Until the cluster's live nodes are exactly the head and `nodes`: every one registered (in its own
+    time), and a killed one seen dead (it stays alive in the GCS until its health checks fail)."""
+    expected = {c.head_node.node_id, *(node.node_id for node in nodes)}
+    deadline, alive = time.monotonic() + NODES_TIMEOUT_S, set()
+    while time.monotonic() < deadline:
+        alive = {node["NodeID"] for node in ray.nodes() if node["Alive"]}
+        if alive == expected:
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"after {NODES_TIMEOUT_S} s the live nodes are {sorted(alive)}, not {sorted(expected)}")
+
+
+def replace_node(c: Cluster, nodes: list, k: int) -> None:
+    """A fresh node in place of the one killed at `k`, once the cluster has exactly those."""
+    nodes[k] = c.add_node(num_cpus=1, wait=False)
+    wait_for_exactly(c, nodes)
 
 
 @pytest.fixture(scope="module")
@@ -71,7 +101,7 @@ def test_cli_without_address_starts_a_local_ray(data, tmp_path):
     (ray_tmp / "ray" / "ray_current_cluster").write_text("127.0.0.1:1")
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_TMPDIR": str(ray_tmp)}
     done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
-                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env, timeout=240)
+                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env, timeout=JOB_TIMEOUT_S)
     shutil.rmtree(ray_tmp, ignore_errors=True)
     assert done.returncode == 0, done.stderr
     assert canonical(json.loads((tmp_path / "r.json").read_text())) == canonical(local)
@@ -80,9 +110,9 @@ def test_cli_without_address_starts_a_local_ray(data, tmp_path):
 @pytest.fixture(scope="module")
 def cluster():
     c = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
-    nodes = [c.add_node(num_cpus=1) for _ in range(2)]
-    c.wait_for_nodes()
+    nodes = [c.add_node(num_cpus=1, wait=False) for _ in range(2)]
     ray.init(address=c.address, log_to_driver=False)
+    wait_for_exactly(c, nodes)
     yield c, nodes
     ray.shutdown()
     c.shutdown()
@@ -129,38 +159,51 @@ def test_a_killed_node_loses_no_work(cluster, data, monkeypatch):
 
     worker = threading.Thread(target=run)
     worker.start()
-    assert first_result.wait(300), "scoring did not start"
+    assert first_result.wait(JOB_TIMEOUT_S), "scoring did not start"
     c.remove_node(nodes[1], allow_graceful=False)
-    worker.join(600)
-    assert not worker.is_alive()
+    worker.join(JOB_TIMEOUT_S)
+    assert not worker.is_alive(), f"scoring did not end in {JOB_TIMEOUT_S} s after the node was killed"
     assert canonical(out["result"]) == canonical(local)
-    nodes[1] = c.add_node(num_cpus=1)  # for the next checks
-    c.wait_for_nodes()
+    replace_node(c, nodes, 1)  # for the next checks
 
 
 def test_tasks_of_a_dead_node_are_retried_elsewhere(cluster, tmp_path):
-    """The mechanism itself: every item of a node that dies mid-task is started again and completed."""
+    """The mechanism itself: every item of a node that dies mid-task is started again and completed.
+
+    Items hold until released (`ray_helpers.held_square`), and are released only once the worker
+    process running the victim's item is gone: `remove_node` kills the node's raylet, its worker
+    processes end when they notice (a second or so, longer under load), and one released before
+    would finish its item there, so nothing would be retried (the old two-second item raced this)."""
     c, nodes = cluster
     log = tmp_path / "starts.log"
+    release = Path(ray_helpers.release_path(str(log)))
     executor = make_executor("ray", ray_address=c.address)
     results = []
     thread = threading.Thread(target=lambda: results.extend(
-        executor.imap(ray_helpers.slow_square, range(9), str(log))))
+        executor.imap(ray_helpers.held_square, range(9), str(log))))
     thread.start()
     by_id = {node.node_id: k for k, node in enumerate(nodes)}
-    deadline, victim = time.monotonic() + 120, None
-    while victim is None and time.monotonic() < deadline:  # the first worker node seen running an item
-        starts = [line.split() for line in log.read_text().splitlines()] if log.exists() else []
-        victim = next((by_id[node] for _, node in starts if node in by_id), None)
-        time.sleep(0.05)
-    assert victim is not None, f"no item ran on a worker node: {log.read_text() if log.exists() else ''}"
-    c.remove_node(nodes[victim], allow_graceful=False)
-    thread.join(300)
+    deadline, victim, worker = time.monotonic() + JOB_TIMEOUT_S, None, None
+    try:
+        while victim is None and time.monotonic() < deadline:  # the first worker node seen running an item
+            starts = [line.split() for line in log.read_text().splitlines()] if log.exists() else []
+            victim, worker = next(((by_id[node], int(pid)) for _, node, pid in starts if node in by_id),
+                                  (None, None))
+            time.sleep(0.05)
+        assert victim is not None, f"no item ran on a worker node: {log.read_text() if log.exists() else ''}"
+        c.remove_node(nodes[victim], allow_graceful=False)
+        deadline = time.monotonic() + NODES_TIMEOUT_S
+        while alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not alive(worker), f"the killed node's worker process {worker} still runs after {NODES_TIMEOUT_S} s"
+    finally:
+        release.touch()  # whatever happened: no item waits on
+    thread.join(JOB_TIMEOUT_S)
+    assert not thread.is_alive(), f"the items did not end in {JOB_TIMEOUT_S} s:\n{log.read_text()}"
     assert results == [i * i for i in range(9)]
     starts = [int(line.split()[0]) for line in log.read_text().splitlines()]
     assert len(starts) > len(set(starts)), f"no item was started twice:\n{log.read_text()}"
-    nodes[victim] = c.add_node(num_cpus=1)
-    c.wait_for_nodes()
+    replace_node(c, nodes, victim)
 
 
 def test_a_deterministic_failure_is_reported_not_retried(cluster, data, tmp_path):
@@ -185,12 +228,12 @@ def test_service_fans_jobs_out_to_the_cluster(cluster, data, tmp_path):
     local = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen")
     server = Server(tmp_path / "service", [Path(p) for p in data["scenarios"]], WOSAC_WORKERS=1,
                     WOSAC_RAY_ADDRESS=c.address)
-    server.start()
+    server.start(timeout=120)  # under load the service's start alone can pass the harness's default 30 s
     try:
         with server.client(server.key("team")) as client:
             sid = client.post("/v1/submissions", content=Path(data["scenario_gen_tar"]).read_bytes(),
                               params={"challenge": "scenario_gen"}).json()["id"]
-            status = server.wait_state(client, sid, timeout=600)
+            status = server.wait_state(client, sid, timeout=JOB_TIMEOUT_S)
             assert status["state"] == "done", status
             assert canonical(client.get(f"/v1/submissions/{sid}/results").json()) == canonical(local)
     finally:

@@ -8,14 +8,29 @@ dies is retried (`MAX_RETRIES` times) by Ray, so losing a node loses no work;
 an exception raised by the work itself is not retried: it is raised here as
 the original exception (a deterministic failure, e.g. a scenario that cannot
 be scored, is reported, not retried forever).
+
+A cluster with token authentication (since Ray 2.60 `ray start --head` turns it on
+when a token exists, e.g. the `~/.ray/auth_token` that any earlier local
+`ray.init()` writes) is joined with Ray's documented variables: RAY_AUTH_MODE=token
+and the cluster's token in RAY_AUTH_TOKEN, in the file RAY_AUTH_TOKEN_PATH names,
+or in ~/.ray/auth_token. Without them Ray sends no token to an explicit address and
+retries for 20 s, logging a line per try (a Ray Client, ray://, just times out
+after 30 s); `connect` keeps those lines and says in one sentence what to set
+instead (`_auth_advice`, `_client_advice`).
 """
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import os
+import re
 import socket
+import sys
+import tempfile
+import warnings
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 from typing import Any
 
 import ray
@@ -65,6 +80,70 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
                                      "cluster)?") from None
 
 
+AUTH_MODE, AUTH_TOKEN, AUTH_TOKEN_PATH = "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"
+_RAY_LOG_LINE = re.compile(r"^\[\d{4}-\d\d-\d\d [\d:,.]+ [A-Z] \d+ \d+\] ")  # Ray's C++ log format
+
+
+def _token_source() -> str:
+    """Where Ray reads this process's token from, in Ray's order (its token-auth documentation)."""
+    if os.environ.get(AUTH_TOKEN):
+        return AUTH_TOKEN
+    if os.environ.get(AUTH_TOKEN_PATH):
+        return f"the file {os.environ[AUTH_TOKEN_PATH]} ({AUTH_TOKEN_PATH})"
+    return str(Path.home() / ".ray" / "auth_token")
+
+
+def _give_token() -> str:
+    return (f"give the cluster's token (`ray get-auth-token` on its head) in {AUTH_TOKEN}, in a file named by "
+            f"{AUTH_TOKEN_PATH}, or in {Path.home() / '.ray' / 'auth_token'}")
+
+
+def _mode_unset() -> bool:
+    return os.environ.get(AUTH_MODE, "").lower() != "token"
+
+
+def _set_mode() -> str:
+    ignored = (f" ({AUTH_TOKEN}/{AUTH_TOKEN_PATH} are ignored without it)"
+               if os.environ.get(AUTH_TOKEN) or os.environ.get(AUTH_TOKEN_PATH) else "")
+    return f"set {AUTH_MODE}=token{ignored} and {_give_token()}"
+
+
+def _auth_advice(where: str, token_found: bool) -> str:
+    """One sentence: the cluster wants a token, and how to give it the right one."""
+    if _mode_unset():
+        return f"{where} requires token authentication and this process sent no token: {_set_mode()}"
+    if not token_found:
+        return f"{where} requires token authentication but {AUTH_MODE}=token found no token: {_give_token()}"
+    return f"{where} rejected the authentication token from {_token_source()}: {_give_token()}"
+
+
+def _client_advice(where: str, error: Exception) -> str:
+    """A Ray Client (ray://) turned away for want of the token only times out: one sentence saying so."""
+    if _mode_unset():
+        fix = f"if it requires token authentication (Ray turns it on when the head has a token), {_set_mode()}"
+    else:
+        fix = (f"if it requires token authentication, is the token from {_token_source()} the cluster's "
+               "(`ray get-auth-token` on its head)?")
+    return f"cannot connect to {where} ({error}) although its port answers: {fix}"
+
+
+@contextlib.contextmanager
+def _stderr_kept(keep: list):
+    """Collects what this process writes to file descriptor 2 (Ray's C++ logging included) into `keep`."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            keep.append(sink.read().decode(errors="replace"))
+
+
 def connect(address: str | None = None) -> None:
     """Joins the cluster (or starts a local Ray) unless this process is connected already."""
     if ray.is_initialized():
@@ -72,15 +151,41 @@ def connect(address: str | None = None) -> None:
     address = address or os.environ.get("RAY_ADDRESS") or None
     if address:
         _check_reachable(address)
+    where = f"the Ray cluster at {address}" if address else "a local Ray"
+    logged: list[str] = []
+    # Only when joining a running cluster: a local Ray's processes, started here, inherit descriptor 2.
+    kept = _stderr_kept(logged) if address else contextlib.nullcontext()
     try:
-        # "local", not None: None would join whatever /tmp/ray/ray_current_cluster names, even a
-        # cluster that died long ago (Ray then retries for minutes).
-        ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
-                 logging_level=logging.ERROR, log_to_driver=False)
+        with kept, warnings.catch_warnings():
+            # Said better below, in the error, when it applies.
+            warnings.filterwarnings("ignore", "Ray Client connection timed out", UserWarning)
+            # "local", not None: None would join whatever /tmp/ray/ray_current_cluster names, even a
+            # cluster that died long ago (Ray then retries for minutes).
+            ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
+                     logging_level=logging.ERROR, log_to_driver=False)
+    except ray.exceptions.AuthenticationError as error:  # RAY_AUTH_MODE=token: no token, or a rejected one
+        _replay(logged, drop_ray_log=True)
+        raise EngineUnavailableError(_auth_advice(where, "no authentication token" not in str(error))) from None
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as error:
-        where = f"the Ray cluster at {address}" if address else "a local Ray"
+        if "InvalidAuthToken" in "".join(logged):  # the head turned the token away on every try
+            _replay(logged, drop_ray_log=True)
+            raise EngineUnavailableError(_auth_advice(where, True)) from None
+        _replay(logged)
+        if address and address.startswith("ray://") and "timeout" in str(error):
+            raise EngineUnavailableError(_client_advice(where, error)) from None
         raise EngineUnavailableError(f"cannot connect to {where}: {error}. Is the cluster up (`ray status`), "
                                      "and the address host:port of its head (or ray://host:10001)?") from error
+    _replay(logged)
+
+
+def _replay(logged: list[str], drop_ray_log: bool = False) -> None:
+    """Writes the collected stderr back; `drop_ray_log`: without Ray's own log lines (a failed connection's)."""
+    text = "".join(logged)
+    if drop_ray_log:
+        text = "".join(line for line in text.splitlines(keepends=True) if not _RAY_LOG_LINE.match(line))
+    if text:
+        sys.stderr.write(text)
+        sys.stderr.flush()
 
 
 class RayExecutor:

@@ -59,6 +59,7 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable  # noqa: E402
 
+from wosac_eval.runtime.executors import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 
@@ -301,6 +302,10 @@ class Worker:
             jobs.finish_failed(self.store, job_id, self.owner,
                                f"scoring ran out of its memory limit of {settings.job_memory_bytes} bytes "
                                "(WOSAC_JOB_MEMORY_BYTES) and was stopped")
+        except EngineUnavailableError as exc:  # the Ray cluster is down or refuses us: its own one sentence
+            log.error("worker %s: job %s: %s", os.getpid(), job_id, exc)
+            jobs.finish_failed(self.store, job_id, self.owner, self._public(
+                f"the scoring engine is unavailable: {exc}", submission_path))
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
             jobs.finish_failed(self.store, job_id, self.owner, self._public(

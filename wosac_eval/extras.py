@@ -1,7 +1,7 @@
 """The optional extras (`jax`, `ray`): a choice checked by name, and its package checked importable.
 
 One check for the jax backend (`backends.check_backend`) and the ray engine
-(`runtime.executors.check_engine`), so both refuse alike: a ValueError for an
+(`runtime.engines.check_engine`), so both refuse alike: a ValueError for an
 unknown name, the caller's error type with the install command for a missing
 package.
 """

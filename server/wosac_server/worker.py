@@ -59,7 +59,7 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable  # noqa: E402
 
-from wosac_eval.runtime.executors import EngineUnavailableError  # noqa: E402
+from wosac_eval.runtime.engines import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 

@@ -19,14 +19,8 @@ import collections
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
-from wosac_eval.extras import check_choice, require_extra
+from wosac_eval.runtime.engines import check_engine
 from wosac_eval.runtime.processes import worker_pool
-
-ENGINES = ("local", "ray")
-
-
-class EngineUnavailableError(RuntimeError):
-    """The requested engine cannot run here (Ray not installed, cluster unreachable)."""
 
 
 class Executor(Protocol):
@@ -87,15 +81,8 @@ class LocalExecutor:
 
 def make_executor(engine: str = "local", *, workers: int = 1, ray_address: str | None = None,
                   force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
-    """The executor of an engine ("local" or "ray"); raises EngineUnavailableError when it cannot run."""
+    """The executor of an engine (`engines.ENGINES`); raises `engines.EngineUnavailableError` when it cannot run."""
     if check_engine(engine) == "local":
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
     from wosac_eval.runtime.ray_executor import RayExecutor
     return RayExecutor(ray_address, initializer=initializer)
-
-
-def check_engine(name: str) -> str:
-    """Validates an engine name and that its dependencies import; returns the name."""
-    if check_choice("engine", name, ENGINES) == "ray":
-        require_extra("ray engine", "ray", "Ray", "ray", EngineUnavailableError)
-    return name

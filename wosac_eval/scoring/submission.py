@@ -29,7 +29,8 @@ from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
-from wosac_eval.runtime.executors import check_engine, make_executor
+from wosac_eval.runtime.engines import check_engine
+from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.criticality import parse_selection, scenario_set_criticality, select_scenarios
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission

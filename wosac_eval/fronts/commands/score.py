@@ -14,7 +14,7 @@ from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
 from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.runtime.executors import ENGINES, EngineUnavailableError, check_engine
+from wosac_eval.runtime.engines import ENGINES, EngineUnavailableError, check_engine
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.validate import ScenarioSetError

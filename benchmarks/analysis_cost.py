@@ -28,9 +28,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from bench_env import SHARED, median_seconds  # noqa: E402
 
+from wosac_eval.analysis.criticality_scores import scenario_criticality  # noqa: E402
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
 from wosac_eval.features.metric_features import map_context  # noqa: E402
-from wosac_eval.metrics.criticality import scenario_criticality  # noqa: E402
 from wosac_eval.parse.scenarios import read_scenarios  # noqa: E402
 from wosac_eval.runtime.allocator import keep_freed_memory  # noqa: E402
 from wosac_eval.scoring.scenario import score_scenario  # noqa: E402

@@ -7,7 +7,7 @@ import json
 import pytest
 
 from support.runs import run_cli
-from wosac_eval.scoring.criticality import parse_selection, scenario_set_criticality, select_scenarios
+from wosac_eval.analysis.scenario_set_criticality import parse_selection, scenario_set_criticality, select_scenarios
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.metrics.by_object_type import OBJECT_TYPES
-from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE, set_histogram, with_rarity
+from wosac_eval.analysis.by_object_type import OBJECT_TYPES
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
 

@@ -85,13 +85,13 @@ def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, r
     """What a result row carries beside the official metrics, from the same features.
 
     Returns:
-      {"criticality": the scene's heuristic criticality (`metrics.criticality.scene_criticality`; the
+      {"criticality": the scene's heuristic criticality (`analysis.criticality_scores.scene_criticality`; the
       result's assembly adds the rarity), "driving": the SDC's driving scores (or None),
       "by_object_type": the metrics per object type}. `criticality`: the scene's, when computed already.
     """
-    from wosac_eval.metrics.by_object_type import by_object_type
-    from wosac_eval.metrics.criticality import scenario_criticality
-    from wosac_eval.metrics.driving import driving_scores
+    from wosac_eval.analysis.by_object_type import by_object_type
+    from wosac_eval.analysis.criticality_scores import scenario_criticality
+    from wosac_eval.analysis.driving_scores import driving_scores
 
     if criticality is None:
         criticality = scenario_criticality(scenario, context)
@@ -171,7 +171,7 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> J
         raise unscorable(arrays.scenario_id, error) from error
     criticality = None
     if analysis:
-        from wosac_eval.metrics.criticality import scenario_criticality
+        from wosac_eval.analysis.criticality_scores import scenario_criticality
         criticality = scenario_criticality(arrays, context)
     return JaxItem(arrays, rollout, context, prepared, criticality)
 

@@ -22,6 +22,7 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 
 from wosac_eval import challenges
+from wosac_eval.analysis.scenario_set_criticality import parse_selection, scenario_set_criticality, select_scenarios
 from wosac_eval.backends import check_backend
 from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
 from wosac_eval.parse.archive import ShardRef, iter_shard_refs, split_shard
@@ -31,7 +32,6 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.engines import check_engine
 from wosac_eval.runtime.executors import make_executor
-from wosac_eval.scoring.criticality import parse_selection, scenario_set_criticality, select_scenarios
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
@@ -193,7 +193,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
         findings are listed under `validation.findings` as warnings) or "error" (the challenge
         server's rules, as `wosac-eval validate` and the service apply them).
       select: score only the most critical scenarios of the set: "top:0.1" (a fraction) or "top:100"
-        (a count), ranked by `scoring.criticality` before scoring. The whole submission is still
+        (a count), ranked by `analysis.scenario_set_criticality` before scoring. The whole submission is still
         validated; rarity is rated against the whole set; the result says what was selected.
       analysis: with False, rows carry the official metrics only (no criticality, driving scores or
         per-type metrics, and no `analysis` summary): a little faster.

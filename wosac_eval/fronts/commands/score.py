@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
     except (BackendUnavailableError, EngineUnavailableError) as error:
         raise UsageError(str(error)) from None
     if args.select is not None:
-        from wosac_eval.scoring.criticality import parse_selection
+        from wosac_eval.analysis.scenario_set_criticality import parse_selection
         try:
             parse_selection(args.select)
         except ValueError as error:

@@ -28,7 +28,7 @@ from wosac_eval.fronts.gate.results import (
     higher_is_better,
     shared_rows,
 )
-from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
 
 SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from wosac_eval.fronts.gate import stats
 from wosac_eval.fronts.gate.results import ScoringResult, higher_is_better, shared_rows
-from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
 
 STRATIFY = ("criticality", "object_type")
 

@@ -22,7 +22,7 @@ step) alone, over all 91 steps:
   line at a red light (the official red-light test);
 - behaviour: every valid (acceleration, yaw rate) sample of vehicles and
   cyclists, binned by `BEHAVIOUR_BINS`, to rate how unusual a scene's behaviour
-  is against a scenario set (`metrics.criticality`).
+  is against a scenario set (`analysis.criticality_scores`).
 
 Each per-step series is the worst value over objects (or pairs) at that step:
 NaN where no object qualifies, inf (time to collision) or 0 where no pair does.

@@ -1,6 +1,6 @@
 """Criticality of a scenario in [0, 1]: how demanding its logged scene is, with its components kept.
 
-From `features.criticality` (the logged scene alone): each component is
+From `analysis.criticality_features` (the logged scene alone): each component is
 mapped to [0, 1] by a logistic around a threshold of "demanding" behaviour, so
 everyday driving scores near 0 and clear events near 1:
 
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.criticality import BEHAVIOUR_BINS, CriticalityFeatures, criticality_features
+from wosac_eval.analysis.criticality_features import BEHAVIOUR_BINS, CriticalityFeatures, criticality_features
 
 # component -> (threshold, width, lower_is_worse)
 THRESHOLDS = {

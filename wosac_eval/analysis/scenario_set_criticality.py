@@ -2,7 +2,7 @@
 
 Two passes over the set: each scenario's heuristic criticality (a task per few
 scenarios, on the same executors as scoring), then the set's behaviour
-histogram and every scenario's rarity against it (`metrics.criticality`).
+histogram and every scenario's rarity against it (`analysis.criticality_scores`).
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from wosac_eval.metrics.criticality import LONG_TAIL_QUANTILE, set_histogram, with_rarity
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.runtime.executors import make_executor
 
@@ -33,8 +33,8 @@ class CriticalityTask:
 def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
     """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked)."""
     from wosac_eval.arrays.scenario import scenario_arrays
-    from wosac_eval.features.criticality import criticality_features
-    from wosac_eval.metrics.criticality import scene_criticality, step_criticality
+    from wosac_eval.analysis.criticality_features import criticality_features
+    from wosac_eval.analysis.criticality_scores import scene_criticality, step_criticality
 
     out = []
     for sid in task.scenario_ids:

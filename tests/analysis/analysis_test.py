@@ -6,11 +6,11 @@ import math
 import numpy as np
 import pytest
 
+from wosac_eval.analysis.criticality_features import criticality_features
+from wosac_eval.analysis.criticality_scores import (BehaviourHistogram, scenario_criticality, scene_criticality,
+                                                   set_histogram, step_criticality, with_rarity)
 from wosac_eval.arrays.messages import rollouts_from_arrays
 from wosac_eval.arrays.scenario import scenario_arrays
-from wosac_eval.features.criticality import criticality_features
-from wosac_eval.metrics.criticality import (BehaviourHistogram, scenario_criticality, scene_criticality,
-                                            set_histogram, step_criticality, with_rarity)
 from wosac_eval.protos import scenario_pb2
 from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.sim import scenes

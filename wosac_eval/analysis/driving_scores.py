@@ -26,11 +26,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.analysis.criticality_features import disc_gap, disc_pairs
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.challenges import CURRENT_TIME_INDEX, STEP_SECONDS
-from wosac_eval.features.criticality import disc_gap, disc_pairs
 from wosac_eval.features.metric_features import MetricFeatures
 
 MOVING_SPEED = 0.5          # m/s: a standing SDC is not at fault

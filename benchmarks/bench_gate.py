@@ -13,10 +13,10 @@ import os
 import tempfile
 import time
 
-from wosac_eval.fronts.gate import stats
-from wosac_eval.fronts.gate.compare import compare_results
-from wosac_eval.fronts.gate.report import render_report
-from wosac_eval.fronts.gate.results import load_result
+from wosac_eval.results import stats
+from wosac_eval.results.compare import compare_results
+from wosac_eval.results.report import render_report
+from wosac_eval.scoring.result_reader import load_result
 from wosac_eval.sim.synthetic_results import LIKELIHOODS, synthetic_result
 
 

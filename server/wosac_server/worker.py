@@ -86,9 +86,9 @@ def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result:
 
     Files are named by rank, never by scenario id: ids come from the submission.
     """
-    from wosac_eval.fronts.gate.report import worst_scenarios
-    from wosac_eval.fronts.gate.results import parse_result
-    from wosac_eval.fronts.scene_plot import scene_pictures
+    from wosac_eval.results.report import worst_scenarios
+    from wosac_eval.results.scene_plot import scene_pictures
+    from wosac_eval.scoring.result_reader import parse_result
 
     ids = worst_scenarios(parse_result(result, str(submission_path)), count)
     pictures = scene_pictures(scenario_paths, submission_path, ids, result["challenge"])

@@ -10,7 +10,7 @@ import json
 import sys
 
 from wosac_eval.fronts.usage import UsageError, check_output_file
-from wosac_eval.fronts.gate.compare import (
+from wosac_eval.results.compare import (
     ALIASES,
     METRICS,
     CompareError,
@@ -20,8 +20,8 @@ from wosac_eval.fronts.gate.compare import (
     format_markdown,
     format_table,
 )
-from wosac_eval.fronts.gate.results import ResultError, load_result
-from wosac_eval.fronts.gate.stratify import STRATIFY, StratifyError, format_strata, stratified_comparison
+from wosac_eval.results.stratify import STRATIFY, StratifyError, format_strata, stratified_comparison
+from wosac_eval.scoring.result_reader import ResultError, load_result
 
 NAME = "compare"
 HELP = "Compare two `score` results scenario by scenario (paired bootstrap CI, permutation p-value); gate on regressions."

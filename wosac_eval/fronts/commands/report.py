@@ -9,9 +9,9 @@ import argparse
 from pathlib import Path
 
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file
-from wosac_eval.fronts.gate.compare import CompareError, compare_results
-from wosac_eval.fronts.gate.report import render_report, worst_scenarios
-from wosac_eval.fronts.gate.results import ResultError, load_result
+from wosac_eval.results.compare import CompareError, compare_results
+from wosac_eval.results.report import render_report, worst_scenarios
+from wosac_eval.scoring.result_reader import ResultError, load_result
 
 NAME = "report"
 HELP = "Write a self-contained HTML report (scores, buckets, rates, distributions, worst scenarios) of a `score` result."
@@ -56,8 +56,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     scenes = []
     if args.submission is not None and args.scenes:
-        from wosac_eval.fronts.scene_plot import scene_pictures
         from wosac_eval.parse.errors import ParseError
+        from wosac_eval.results.scene_plot import scene_pictures
 
         try:
             scenes = scene_pictures(args.scenarios, args.submission, worst_scenarios(result, args.scenes),

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 import scipy.stats
 
-from wosac_eval.fronts.gate import stats
+from wosac_eval.results import stats
 
 
 def test_identical_values_give_zero_difference_and_p_one():

@@ -8,9 +8,9 @@ import pytest
 from PIL import Image
 
 from support import browser
-from wosac_eval.fronts.gate.compare import compare_results
-from wosac_eval.fronts.gate.report import SECTIONS, render_report
-from wosac_eval.fronts.gate.results import load_result
+from wosac_eval.results.compare import compare_results
+from wosac_eval.results.report import SECTIONS, render_report
+from wosac_eval.scoring.result_reader import load_result
 from wosac_eval.sim.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
 
 FAST = {"n_boot": 300, "n_perm": 300}
@@ -167,7 +167,7 @@ def test_report_screenshot_shows_content(with_baseline, tmp_path):
 
 def test_report_of_a_result_where_every_scenario_was_skipped():
     # What `score --partial` writes when nothing could be scored: no scenarios, NaN aggregates.
-    from wosac_eval.fronts.gate.results import parse_result
+    from wosac_eval.scoring.result_reader import parse_result
 
     result = parse_result({"config": "2025", "scenarios": [], "aggregate": {"metametric": float("nan")},
                            "buckets": {"realism_meta_metric": float("nan")},

@@ -3,6 +3,9 @@
 A result holds per-scenario metrics (`scenarios`), their mean (`aggregate`)
 and the leaderboard buckets (`buckets`). The gate compares per-scenario values,
 so it turns the scenario list into one `(num_scenarios,)` array per metric.
+
+It lives beside its writer (`result`): scoring writes the document, and `results/`
+(compare, report, scene pictures), which stands above scoring, reads it from here.
 """
 from __future__ import annotations
 

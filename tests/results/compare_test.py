@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from wosac_eval.fronts.gate.compare import (
+from wosac_eval.results.compare import (
     BETTER,
     METRICS,
     NO_DIFFERENCE,
@@ -15,7 +15,7 @@ from wosac_eval.fronts.gate.compare import (
     compare_results,
     format_table,
 )
-from wosac_eval.fronts.gate.results import load_result
+from wosac_eval.scoring.result_reader import load_result
 from wosac_eval.sim.synthetic_results import LIKELIHOODS, WEIGHTS_2025, result_json, synthetic_scenarios
 
 FAST = {"n_boot": 400, "n_perm": 400}

@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from wosac_eval.fronts.gate import stats
-from wosac_eval.fronts.gate.results import ScoringResult, higher_is_better, shared_rows
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
+from wosac_eval.results import stats
+from wosac_eval.scoring.result_reader import ScoringResult, higher_is_better, shared_rows
 
 STRATIFY = ("criticality", "object_type")
 

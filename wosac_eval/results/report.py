@@ -18,8 +18,9 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from wosac_eval.fronts.gate.compare import BETTER, WORSE, Comparison
-from wosac_eval.fronts.gate.results import (
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
+from wosac_eval.results.compare import BETTER, WORSE, Comparison
+from wosac_eval.scoring.result_reader import (
     BUCKET_ALIASES,
     BUCKET_FIELDS,
     RATE_FIELDS,
@@ -28,7 +29,6 @@ from wosac_eval.fronts.gate.results import (
     higher_is_better,
     shared_rows,
 )
-from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
 
 SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
 

@@ -11,7 +11,7 @@ from PIL import Image
 from support.browser import dump_dom, find_chromium
 from support.runs import run_cli
 from wosac_eval.arrays.messages import rollouts_from_arrays
-from wosac_eval.fronts.scene_plot import animation_steps, scene_png, scene_view
+from wosac_eval.results.scene_plot import animation_steps, scene_png, scene_view
 from wosac_eval.sim import scenes
 
 

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wosac_eval.fronts.gate.results import (
+from wosac_eval.scoring.result_reader import (
     BUCKET_MEMBERS,
     SCENARIO_FIELDS,
     ResultError,

@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from wosac_eval.fronts.gate import stats
-from wosac_eval.fronts.gate.results import (
+from wosac_eval.results import stats
+from wosac_eval.scoring.result_reader import (
     BUCKET_MEMBERS,
     SCENARIO_FIELDS,
     ScoringResult,

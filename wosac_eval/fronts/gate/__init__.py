@@ -1,1 +1,0 @@
-"""Regression gate and reports: compare two scoring runs, render an HTML report."""

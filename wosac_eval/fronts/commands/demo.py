@@ -20,8 +20,9 @@ import time
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.fronts.demo_pipeline import (DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard,
+                                             run_demo)
 from wosac_eval.fronts.usage import UsageError, check_output_folder
-from wosac_eval.sim.demo import DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard, run_demo
 
 TITLES = {"sim_agents": "Sim agents (80 future steps; 2025 config)",
           "scenario_gen": "Scenario generation (all 91 steps of every object; scenario_gen_2025 config)"}

@@ -4,6 +4,9 @@ Needs nothing but this package: the scenes are generated deterministically on
 first use and cached in the work directory (regenerated when the generator,
 seed or count changes). Sim agents results go to `results/<policy>.json`,
 scenario gen results to `results/scenario_gen/<policy>.json` (submissions alike).
+
+It drives `sim` (scenes, baselines) and `scoring` as the `demo` command does, so it stands
+with the fronts, beside `commands/demo.py` (every module of `commands` is a command).
 """
 from __future__ import annotations
 

@@ -330,14 +330,17 @@ def _check_member_type(archive: Path, name: str, member: TarMember) -> None:
         )
 
 
+def _data_error(archive: Path, name: str | None, error: Exception) -> ArchiveError:
+    """The error of a member whose data end early or do not decompress."""
+    return ArchiveError(f"{archive}: truncated or corrupt data in member {name!r}: {error}")
+
+
 def _read_member_data(tar: TarStreamReader, archive: Path, name: str, size: int) -> bytes:
     """The first `size` bytes of the current member's data (it must have them)."""
     try:
         data = tar.read_data(size)
     except _STREAM_ERRORS as error:
-        raise ArchiveError(
-            f"{archive}: truncated or corrupt data in member {name!r}: {error}"
-        ) from error
+        raise _data_error(archive, name, error) from error
     if len(data) != size:
         raise ArchiveError(
             f"{archive}: member {name!r} is truncated ({len(data)} of {size} bytes)"
@@ -351,7 +354,7 @@ def _next_member(tar: TarStreamReader, archive: Path, last_member: str | None) -
     try:
         return tar.next_member()
     except TruncatedDataError as error:
-        raise ArchiveError(f"{archive}: truncated or corrupt data in member {last_member!r}: {error}") from error
+        raise _data_error(archive, last_member, error) from error
     except TruncatedTarError as error:
         raise ArchiveError(
             f"{archive}: truncated tar archive (ends {after} without an end-of-archive block)"
@@ -650,10 +653,8 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
             head = _read_member_data(tar, path, name, min(_HEAD_BYTES, member.size))
             try:  # a member cut short is told as such before its first bytes are judged
                 tar.skip_data()
-            except TruncatedDataError as error:
-                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
-            except _STREAM_ERRORS as error:
-                raise ArchiveError(f"{path}: truncated or corrupt data in member {name!r}: {error}") from error
+            except (TruncatedDataError, *_STREAM_ERRORS) as error:
+                raise _data_error(path, name, error) from error
             looks_like_submission(f"{path}: member {name!r}", head)
             shards += 1
         if compression is not None:

@@ -218,7 +218,7 @@ class TarStreamReader:
         (TruncatedDataError when the stream ends inside them)."""
         remaining, self._left, self._padding = self._left + self._padding, 0, 0
         while remaining > 0:
-            piece = self.read_exact(min(remaining, 1 << 20))
+            piece = self._read(min(remaining, 1 << 20))  # whatever comes: nothing is kept, nothing joined
             if not piece:
                 raise TruncatedDataError("the archive ends inside its data")
             remaining -= len(piece)

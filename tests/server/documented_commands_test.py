@@ -19,15 +19,14 @@ import sys
 import time
 from pathlib import Path
 
-import httpx
 import pytest
 
 from support.paths import REPO
 from support.processes import alive
-from support.server_harness import demo_data, free_port
+from support.readme_blocks import FENCED_BLOCK
+from support.server_harness import demo_data, free_port, wait_healthy
 
 DOCUMENTS = (REPO / "README.md", REPO / "server" / "README.md")
-_BLOCK = re.compile(r"^```(\w*)[ \t]*\n(.*?)^```[ \t]*$", re.S | re.M)
 _COMMAND = re.compile(r"^(?:[A-Z_]+=\S+\s+)*wosac-server\s+[a-z]")
 # What an operator command answers when the documented example's key or name is not in this service.
 NOTHING_TO_DO = ("no active key named", "nobody owns", "no key named")
@@ -39,11 +38,11 @@ def documented_commands() -> list[tuple[str, str]]:
     for document in DOCUMENTS:
         text = document.read_text()
         lines = []  # (line number, text) of every code line and inline code span
-        for block in _BLOCK.finditer(text):
+        for block in FENCED_BLOCK.finditer(text):
             first = text[:block.start()].count("\n") + 2
             lines += [(first + i, re.sub(r"\s+#\s.*$", "", code).strip())
                       for i, code in enumerate(block.group(2).splitlines())]
-        prose = _BLOCK.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), text)  # blocks blanked, offsets kept
+        prose = FENCED_BLOCK.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), text)  # blocks blanked, offsets kept
         lines += [(text[:m.start()].count("\n") + 1, m.group(1).strip())
                   for m in re.finditer(r"`([^`\n]+)`", prose)]
         found += [(f"{document.relative_to(REPO)}:{n}", c) for n, c in sorted(lines) if _COMMAND.match(c)]
@@ -57,19 +56,6 @@ def test_the_documents_show_the_operator_commands():
         assert piece in commands, piece
 
 
-def _wait_healthy(url: str, process: subprocess.Popen, timeout: float = 60.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        assert process.poll() is None, f"exited with {process.returncode}"
-        try:
-            if httpx.get(url + "/healthz", timeout=1.0).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.2)
-    raise AssertionError(f"not healthy after {timeout} s")
-
-
 def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
     """A serve or worker line: started, healthy (serve) or running (worker), then stopped by SIGTERM."""
     port = free_port()
@@ -80,7 +66,7 @@ def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
                                    stderr=subprocess.STDOUT, start_new_session=True)
     try:
         if " serve" in command:
-            _wait_healthy(f"http://127.0.0.1:{port}", process)
+            wait_healthy(f"http://127.0.0.1:{port}", process, timeout=60)
         else:
             time.sleep(3)  # a worker has nothing to answer: it must still be polling after its start-up
             assert process.poll() is None, f"exited with {process.returncode}"

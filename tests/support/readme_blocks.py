@@ -22,14 +22,14 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 RUNNABLE = ("bash", "python")
-_BLOCK = re.compile(r"^```(\w*)[ \t]*\n(.*?)^```[ \t]*$", re.S | re.M)
+FENCED_BLOCK = re.compile(r"^```(\w*)[ \t]*\n(.*?)^```[ \t]*$", re.S | re.M)
 
 
 def readme_blocks(text: str) -> list[tuple[int, str, str]]:
     """(line, language, code) of every fenced block to run, set-up section excluded."""
     setup = re.search(r"^## Set up\n(.*?)(?=^## )", text, re.S | re.M)
     out = []
-    for match in _BLOCK.finditer(text):
+    for match in FENCED_BLOCK.finditer(text):
         if match.group(1) not in RUNNABLE:
             continue
         if setup and setup.start() <= match.start() < setup.end():

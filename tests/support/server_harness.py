@@ -79,6 +79,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def wait_healthy(url: str, process: subprocess.Popen, timeout: float) -> None:
+    """Returns once `url`/healthz answers 200; RuntimeError when `process` exits first or time runs out."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"exited with {process.returncode}")
+        try:
+            if httpx.get(url + "/healthz", timeout=1.0).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.1)
+    raise RuntimeError(f"did not come up in {timeout} s")
+
+
 def canonical(result: dict) -> str:
     """JSON text with sorted keys: NaN-safe equality of two results."""
     return json.dumps(result, sort_keys=True, allow_nan=True)
@@ -113,17 +128,11 @@ class Server:
             [sys.executable, "-m", "wosac_server", "serve", "--host", "127.0.0.1",
              "--port", str(self.port), "--log-level", "warning"],
             env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log.read_text()}")
-            try:
-                if httpx.get(self.url + "/healthz", timeout=1.0).status_code == 200:
-                    return self
-            except httpx.HTTPError:
-                pass
-            time.sleep(0.1)
-        raise RuntimeError(f"server did not come up in {timeout} s:\n{self.log.read_text()}")
+        try:
+            wait_healthy(self.url, self.proc, timeout)
+        except RuntimeError as error:
+            raise RuntimeError(f"server {error}:\n{self.log.read_text()}") from None
+        return self
 
     def stop(self) -> None:
         if self.proc and self.proc.poll() is None:

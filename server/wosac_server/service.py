@@ -20,8 +20,9 @@ from fastapi import Depends, HTTPException, Request
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from wosac_eval.metrics.config import PRESET_CHALLENGE, default_config
-from wosac_eval.parse.archive import NotASubmissionError, check_container
+from wosac_eval.metrics.config import config_name_for
+from wosac_eval.parse.archive import check_container
+from wosac_eval.parse.shards import NotASubmissionError
 from wosac_eval.parse.errors import ParseError
 
 from . import auth, jobs
@@ -57,14 +58,18 @@ class Service:
     # -- what may be asked for ---------------------------------------------------------------
     def config_for(self, challenge: str, config: str | None) -> str:
         """The config a job is scored with: the asked one, or the challenge's current one; 422 when not served."""
-        config = default_config(challenge) if config is None else config
-        if config not in self.settings.configs:
-            raise HTTPException(422, f"unknown config {config!r}; this server scores {self.settings.configs}")
-        made_for = PRESET_CHALLENGE.get(config)
-        if made_for is not None and made_for.value != challenge:
-            raise HTTPException(422, f"config {config!r} is the {made_for.value} challenge's; the {challenge} "
-                                f"challenge's is {default_config(challenge)!r}")
-        return config
+        def refuse_unserved(name: str) -> None:
+            if name not in self.settings.configs:
+                raise HTTPException(422, f"unknown config {name!r}; this server scores {self.settings.configs}")
+
+        if config is not None:
+            refuse_unserved(config)
+        try:
+            name = config_name_for(challenge, config)
+        except ValueError as error:  # a preset of the other challenge: the library's rule
+            raise HTTPException(422, str(error)) from None
+        refuse_unserved(name)
+        return name
 
     # -- keys, quotas, ownership ---------------------------------------------------------------
     def key_for(self, creds: HTTPAuthorizationCredentials | None, client: str = "") -> auth.ApiKey:

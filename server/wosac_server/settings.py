@@ -132,6 +132,10 @@ class Settings(BaseModel):
     def results_dir(self) -> Path:
         return self.data_dir / "results"
 
+    def spool_dir(self, submission_id: str) -> Path:
+        """The decompressed members of a job's archive while it is scored (removed when it ends)."""
+        return self.data_dir / "spool" / submission_id
+
     def scenes_dir(self, submission_id: str) -> Path:
         """Pictures of a scored submission's worst scenes, and their index `scenes.json`."""
         return self.results_dir / f"{submission_id}.scenes"

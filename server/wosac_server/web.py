@@ -17,7 +17,7 @@ from fastapi import FastAPI, HTTPException
 from fastapi.responses import HTMLResponse, Response
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.metrics.config import PRESET_CHALLENGE, default_config
+from wosac_eval.metrics.config import default_config, preset_fits
 
 from . import jobs
 
@@ -87,7 +87,7 @@ def leaderboard_table(entries: list[dict], table_id: str = "leaderboard-table") 
 
 def configs_of(challenge: str, configs: list[str]) -> list[str]:
     """The served configs a challenge may be scored with (its presets and any textproto)."""
-    return [c for c in configs if c not in PRESET_CHALLENGE or PRESET_CHALLENGE[c].value == challenge]
+    return [c for c in configs if preset_fits(c, challenge)]
 
 
 def _board_config(challenge: str, asked: str | None, configs: list[str]) -> str | None:

@@ -51,6 +51,7 @@ if __name__ == "__main__":  # before anything slow: a supervisor gone since it s
 import logging  # noqa: E402
 import resource  # noqa: E402
 import secrets  # noqa: E402
+import shutil  # noqa: E402
 import socket  # noqa: E402
 import subprocess  # noqa: E402
 import threading  # noqa: E402
@@ -61,6 +62,9 @@ from typing import Callable  # noqa: E402
 
 from wosac_eval.runtime.engines import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
+from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
+from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
+from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 
 from . import jobs  # noqa: E402
@@ -70,36 +74,41 @@ from .settings import Settings, load_settings  # noqa: E402
 log = logging.getLogger("wosac_server.worker")
 
 
-def score(scenario_paths: list[Path], submission_path: Path, job: dict, settings: Settings,
+def evaluation_of(job: dict, settings: Settings) -> Evaluation:
+    """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits)."""
+    return resolve_evaluation(job["challenge"], job["config"], limits=settings.input_limits(),
+                              engine="ray" if settings.ray_address else "local",
+                              ray_address=settings.ray_address or None, workers=settings.score_threads,
+                              allow_partial=bool(job["allow_partial"]), metadata_checks=settings.metadata_checks)
+
+
+def score(index: ScenarioIndex, source: SubmissionSource, job: dict, settings: Settings,
           progress: Callable[[int, int], None]) -> dict:
     """The one place the service calls the scorer: the same function `wosac-eval score` uses."""
-    engine = "ray" if settings.ray_address else "local"
-    return score_submission(scenario_paths, submission_path, job["config"], challenge=job["challenge"],
-                            workers=settings.score_threads, allow_partial=bool(job["allow_partial"]),
-                            progress=progress, engine=engine, ray_address=settings.ray_address or None,
-                            metadata_checks=settings.metadata_checks, limits=settings.input_limits())
+    return score_submission(index, source, progress=progress, evaluation=evaluation_of(job, settings))
 
 
-def draw_worst_scenes(scenario_paths: list[Path], submission_path: Path, result: dict, folder: Path,
+def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: dict, folder: Path,
                       count: int) -> list[dict]:
     """Pictures of the `count` lowest meta-metric scenes of a result, with their index (scenes.json).
 
+    The rollouts come from what the scoring's validation recorded of the submission (no new walk).
     Files are named by rank, never by scenario id: ids come from the submission.
     """
     from wosac_eval.results.report import worst_scenarios
     from wosac_eval.results.scene_plot import scene_pictures
     from wosac_eval.scoring.result_reader import parse_result
 
-    ids = worst_scenarios(parse_result(result, str(submission_path)), count)
-    pictures = scene_pictures(scenario_paths, submission_path, ids, result["challenge"])
+    ids = worst_scenarios(parse_result(result, str(source)), count)
+    pictures = scene_pictures(index, source, ids, result["challenge"])
     metametric = {s["scenario_id"]: s["metametric"] for s in result["scenarios"]}
     folder.mkdir(parents=True, exist_ok=True)
-    index = []
+    index_of_scenes = []
     for rank, (scenario_id, png) in enumerate(pictures):
         (folder / f"{rank}.png").write_bytes(png)
-        index.append({"rank": rank, "scenario_id": scenario_id, "metametric": metametric[scenario_id]})
-    jobs.write_json_atomically(folder / "scenes.json", {"scenes": index})
-    return index
+        index_of_scenes.append({"rank": rank, "scenario_id": scenario_id, "metametric": metametric[scenario_id]})
+    jobs.write_json_atomically(folder / "scenes.json", {"scenes": index_of_scenes})
+    return index_of_scenes
 
 
 def limit_this_process(settings: Settings, parent_pid: int) -> None:
@@ -259,6 +268,13 @@ class Worker:
         if jobs.finish_failed(self.store, job_id, self.owner, reason):
             log.error("worker %s: job %s failed: %s", os.getpid(), job_id, reason)
 
+    def draw_pictures(self, index: ScenarioIndex, source: SubmissionSource, result: dict, job_id: str) -> None:
+        """The job's worst scenes; pictures help, but a drawing problem must not fail a scored job."""
+        try:
+            draw_worst_scenes(index, source, result, self.settings.scenes_dir(job_id), self.settings.scene_pictures)
+        except Exception:  # noqa: BLE001
+            log.error("worker %s: pictures of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
+
     def score_here(self, job: dict) -> None:
         """Score a job in this process and record its outcome (done or failed, with the reason)."""
         settings, job_id = self.settings, job["id"]
@@ -277,14 +293,20 @@ class Worker:
                 jobs.finish_failed(self.store, job_id, self.owner,
                                    "the server has no scenario shards configured (WOSAC_SCENARIOS)")
                 return
-            result = score(scenarios, submission_path, job, settings, progress)
-            jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
-            if settings.scene_pictures:
-                try:  # pictures help, but a drawing problem must not fail a scored job
-                    draw_worst_scenes(scenarios, submission_path, result, settings.scenes_dir(job_id),
-                                      settings.scene_pictures)
-                except Exception:  # noqa: BLE001
-                    log.error("worker %s: pictures of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
+            index = ScenarioIndex(scenarios)
+            spool = settings.spool_dir(job_id)
+            shutil.rmtree(spool, ignore_errors=True)  # what an earlier, killed attempt left
+            spool.mkdir(parents=True)
+            # One walk of the upload, under the service's limits: validation spools the archive's members,
+            # scoring and the pictures read them from there.
+            try:
+                with SubmissionSource(submission_path, settings.input_limits(), spool_dir=spool) as source:
+                    result = score(index, source, job, settings, progress)
+                    jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
+                    if settings.scene_pictures:
+                        self.draw_pictures(index, source, result, job_id)
+            finally:
+                shutil.rmtree(spool, ignore_errors=True)
             jobs.finish_done(self.store, job_id, self.owner, result)
             log.info("worker %s: %s done", os.getpid(), job_id)
         except InvalidSubmissionError as exc:

@@ -15,7 +15,7 @@ from pathlib import Path, PurePosixPath
 
 import pytest
 
-from wosac_eval.parse.archive import iter_submission_shards
+from wosac_eval.parse.submission_source import iter_submission_shards
 
 from support.paths import REPO, require_shared
 from support.runs import run_cli

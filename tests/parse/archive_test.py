@@ -12,12 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from wosac_eval.parse.archive import (
-    ArchiveNameWarning,
-    iter_submission_shards,
-    parse_submission_shard,
-    safe_member_name,
-)
+from wosac_eval.parse.archive import ArchiveNameWarning, safe_member_name
+from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.shards import parse_submission_shard
+from wosac_eval.parse.submission_source import iter_submission_shards
 from wosac_eval.parse.errors import (
     ArchiveError,
     InvalidShardError,
@@ -78,7 +76,7 @@ def make_tar(path: Path, members: dict[str, bytes], mode: str = "w", extra=None)
 
 def read_all(path: Path, **limits) -> list[tuple[str, bytes]]:
     """Every (name, bytes) shard at path."""
-    return list(iter_submission_shards(path, **limits))
+    return list(iter_submission_shards(path, limits=InputLimits(**limits)))
 
 
 def test_single_shard_file(tmp_path, shards):

@@ -9,7 +9,8 @@ import random
 
 import pytest
 
-from wosac_eval.parse.archive import check_container, iter_submission_shards
+from wosac_eval.parse.archive import check_container
+from wosac_eval.parse.submission_source import iter_submission_shards
 from wosac_eval.parse.errors import SizeLimitError
 from wosac_eval.parse.limits import InputLimits, check_message_counts
 from wosac_eval.protos import sim_agents_submission_pb2

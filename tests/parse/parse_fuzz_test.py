@@ -13,7 +13,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from wosac_eval.parse.archive import iter_submission_shards, parse_submission_shard
+from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.shards import parse_submission_shard
+from wosac_eval.parse.submission_source import iter_submission_shards
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioSource, parse_scenario, scenario_id_of
 from wosac_eval.parse.tfrecord import frame_record, iter_records
@@ -113,7 +115,7 @@ def test_archive_reader_raises_only_parse_errors(tmp_path, name, raw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # misnamed content is allowed to warn
         try:
-            for shard_name, data in iter_submission_shards(path, max_member_bytes=1 << 16):
+            for shard_name, data in iter_submission_shards(path, limits=InputLimits(max_member_bytes=1 << 16)):
                 try:
                     parse_submission_shard(shard_name, data)
                 except ParseError:

@@ -1,5 +1,5 @@
 """Splitting shards for the workers: the same scenarios and bytes a full parse gives."""
-from wosac_eval.parse.archive import split_shard as _split_shard
+from wosac_eval.parse.shards import split_shard as _split_shard
 from wosac_eval.protos import sim_agents_submission_pb2 as pb
 
 

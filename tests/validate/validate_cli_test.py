@@ -212,7 +212,7 @@ def test_folder_stray_file_reported_and_scan_goes_on(tmp_path, capsys, scenario_
     (folder / "b.binproto").write_bytes(with_rollouts(template, [bad]).SerializeToString())
     code, report = validate_json(capsys, [scenario_file], folder)
     assert code == 1
-    assert "'results.json' is neither a shard" in group(report, "container.not_a_shard")["listed"][0]["message"]
+    assert "'results.json' is neither a submission shard" in group(report, "container.not_a_shard")["listed"][0]["message"]
     # the shard after the stray file is still checked
     assert group(report, "rollouts.wrong_count")["listed"][0]["message"] == (
         f"b.binproto: scenario {B}: found 31 joint scenes, expected 32"

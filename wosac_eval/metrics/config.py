@@ -64,6 +64,28 @@ def default_config(challenge=challenges.Challenge.SIM_AGENTS) -> str:
     return challenges.spec(challenge).default_config
 
 
+def preset_fits(name: str, challenge) -> bool:
+    """False only for a preset made for the other challenge (a textproto may serve either)."""
+    made_for = PRESET_CHALLENGE.get(str(name))
+    return made_for is None or made_for == challenges.as_challenge(challenge)
+
+
+def config_name_for(challenge, config: str | Path | None = None) -> str:
+    """The config a challenge is scored with: the one asked for, or the challenge's current preset.
+
+    A preset of the other challenge is refused (its metrics would be pooled, or not, against the
+    challenge's rules and its figures would look plausible): one rule for every front.
+    """
+    if config is None:
+        return default_config(challenge)
+    name = str(config)
+    if not preset_fits(name, challenge):
+        challenge = challenges.as_challenge(challenge)
+        raise ValueError(f"config {name!r} is the {PRESET_CHALLENGE[name].value} challenge's; the {challenge.value} "
+                         f"challenge's is {default_config(challenge)!r}")
+    return name
+
+
 def preset(name: str) -> SimAgentMetricsConfig:
     """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025")."""
     if name not in _PRESETS:

@@ -1,20 +1,15 @@
-"""Read submission shards from a file, a folder or a tar archive, safely and streaming.
+"""Submission files: what their bytes are, and their shards read from them safely and streaming.
 
-A submission is one or more serialized `SimAgentsChallengeSubmission` shards.
-`iter_submission_shards(path)` accepts:
+A submission file is a single shard (any name; `.binproto` by convention),
+optionally gzip/bzip2/xz-compressed as a whole (`submission.binproto.gz`), or
+a tar archive, plain or compressed (`.tar`, `.tar.gz`, `.tgz`, ...) whose
+regular members whose name contains ".binproto" are the shards, in archive
+order. (A folder of shards is walked by `parse.submission_source`.)
 
-* a single shard file (any name; `.binproto` by convention), optionally
-  gzip/bzip2/xz-compressed as a whole (`submission.binproto.gz`);
-* a folder: every file below it (recursively, sorted by relative path) whose
-  name contains ".binproto" is a shard;
-* a tar archive, plain or gzip/bzip2/xz-compressed (`.tar`, `.tar.gz`,
-  `.tgz`, ...): every regular member whose name contains ".binproto" is a
-  shard, in archive order.
-
-In folders and archives, hidden entries (name starting with "."), `__MACOSX/`
-and documentation (README*, LICENSE*, NOTICE*, *.md, *.txt, *.rst) are
-skipped; any other file is an error, so a mis-named shard is never silently
-dropped.
+In archives (and folders), hidden entries (name starting with "."),
+`__MACOSX/` and documentation (README*, LICENSE*, NOTICE*, *.md, *.txt, *.rst)
+are skipped; any other member is an error, so a mis-named shard is never
+silently dropped.
 
 The content decides the format, not the name: magic bytes are sniffed, and a
 name that lies (a plain tar named .tar.gz, an archive named .binproto) gives an
@@ -43,22 +38,13 @@ import gzip
 import lzma
 import os
 import re
-import warnings
 import zlib
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
 from typing import BinaryIO, Union
 
-from google.protobuf.message import DecodeError
-
-from wosac_eval.parse.errors import (
-    ArchiveError,
-    InvalidShardError,
-    ParseError,
-    SizeLimitError,
-    UnsafeArchiveMemberError,
-)
-from wosac_eval.parse.limits import InputLimits, check_message_counts
+from wosac_eval.parse.errors import ArchiveError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.tar_format import (
     BLOCK,
     DEVICE_TYPES,
@@ -72,12 +58,9 @@ from wosac_eval.parse.tar_format import (
     TruncatedTarError,
     is_tar_header,
 )
-from wosac_eval.protos import sim_agents_submission_pb2
+from wosac_eval.parse.shards import HEAD_BYTES, looks_like_submission
 
 PathLike = Union[str, "os.PathLike[str]"]
-
-DEFAULT_MAX_MEMBER_BYTES = InputLimits.max_member_bytes  # one shard, decompressed
-DEFAULT_MAX_TOTAL_BYTES = InputLimits.max_total_bytes  # the whole archive, decompressed
 
 SHARD_NAME_MARKER = ".binproto"
 _DOC_PREFIXES = ("README", "LICENSE", "LICENCE", "NOTICE", "CHANGELOG")
@@ -96,48 +79,13 @@ _COMPRESSION_MAGIC = {
 _OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
 _ZIP_MAGIC = b"PK\x03\x04"
 
-SubmissionShard = tuple[str, bytes]
-
-
-@dataclasses.dataclass(frozen=True)
-class ShardRef:
-    """Where one shard's bytes are: a byte range of a plain file, or the bytes themselves.
-
-    Shards of a folder or a single uncompressed file are byte ranges: whoever
-    scores them (a worker process, a Ray node with the same shared filesystem)
-    reads only the bytes it needs. Shards of an archive were decompressed from
-    a stream and carry their bytes.
-
-    Attributes:
-      name: the shard's name (archive member or path relative to the folder).
-      size: its size in bytes.
-      path, offset: the file and the offset of the shard's first byte in it.
-      data: the shard's bytes, when it is not a byte range of a file.
-    """
-
-    name: str
-    size: int
-    path: str | None = None
-    offset: int = 0
-    data: bytes | None = None
-
-    def read(self, start: int = 0, end: int | None = None) -> bytes:
-        """Bytes `[start, end)` of the shard (all of it by default)."""
-        end = self.size if end is None else end
-        if self.data is not None:
-            return self.data[start:end]
-        with open(self.path, "rb") as f:
-            f.seek(self.offset + start)
-            data = f.read(end - start)
-        if len(data) != end - start:
-            raise ArchiveError(f"{self.path}: shard {self.name!r} is shorter than when it was listed "
-                               f"({self.offset + start + len(data)} of {self.offset + end} bytes); "
-                               "was it modified?")
-        return data
-
 
 class ArchiveNameWarning(UserWarning):
     """A submission file whose name claims another format than its bytes show."""
+
+
+class UncompressedTarWarning(UserWarning):
+    """A plain tar where the challenge server expects a gzip-compressed one (told only to a report)."""
 
 
 # --------------------------------------------------------------------------- names
@@ -157,12 +105,10 @@ def is_ignored_name(name: str) -> bool:
     return base.upper().startswith(_DOC_PREFIXES) or base.lower().endswith(_DOC_SUFFIXES)
 
 
-def _not_a_shard_error(container: object, name: str) -> ArchiveError:
-    return ArchiveError(
-        f"{container}: {name!r} is neither a submission shard (a name containing "
-        f"{SHARD_NAME_MARKER!r}) nor documentation (README*, *.md, *.txt); "
-        "rename or remove it"
-    )
+def not_a_shard_message(container: object, name: str) -> str:
+    """Why a file of a folder or a member of an archive is refused: it is neither a shard nor documentation."""
+    return (f"{container}: {name!r} is neither a submission shard (a name containing {SHARD_NAME_MARKER!r}) "
+            "nor documentation (README*, *.md, *.txt); rename or remove it")
 
 
 def safe_member_name(archive: object, name: str) -> str:
@@ -213,18 +159,15 @@ def _describe(compression: str | None, is_tar: bool) -> str:
     return f"{compression}-compressed single shard" if compression else "single shard"
 
 
-def _check_name_against_content(path: Path, compression: str | None, is_tar: bool) -> None:
-    """Warn when the name lies about the content; refuse a promised archive that is not one."""
+def name_notice(path: Path, compression: str | None, is_tar: bool) -> ArchiveNameWarning | None:
+    """The warning for a name that lies about the content (None when it tells the truth); a promised
+    archive that is not one is refused."""
     claimed = _claimed_format(path.name)
     actual = _describe(compression, is_tar)
     if claimed is None:
         if is_tar:
-            warnings.warn(
-                f"{path}: the name does not say so, but this is a {actual}; reading it as one",
-                ArchiveNameWarning,
-                stacklevel=4,
-            )
-        return
+            return ArchiveNameWarning(f"{path}: the name does not say so, but this is a {actual}; reading it as one")
+        return None
     if compression is None and not is_tar:
         raise ArchiveError(
             f"{path}: named like a {claimed} archive but is neither tar nor gzip/bzip2/xz "
@@ -236,11 +179,16 @@ def _check_name_against_content(path: Path, compression: str | None, is_tar: boo
         "compressed": compression is not None,
     }[claimed]
     if not matches:
-        warnings.warn(
-            f"{path}: the name says {claimed}, but this is a {actual}; reading it as a {actual}",
-            ArchiveNameWarning,
-            stacklevel=4,
-        )
+        return ArchiveNameWarning(f"{path}: the name says {claimed}, but this is a {actual}; reading it as a {actual}")
+    return None
+
+
+def uncompressed_tar_notice(path: Path) -> UncompressedTarWarning | None:
+    """The challenge server expects a gzip-compressed tar: a notice for a plain `.tar`."""
+    if not path.name.lower().endswith(".tar"):
+        return None
+    return UncompressedTarWarning(f"{path}: an uncompressed tar; the challenge server expects a gzip-compressed "
+                                  "tar (tar czf submission.tar.gz ...)")
 
 
 # --------------------------------------------------------------------------- streams
@@ -386,7 +334,7 @@ def _iter_members(
         if member.is_dir or is_ignored_name(name):
             continue
         if not is_shard_name(name):
-            raise _not_a_shard_error(archive, name)
+            raise ArchiveError(not_a_shard_message(archive, name))
         if name in seen:
             raise ArchiveError(f"{archive}: member {name!r} appears twice")
         seen.add(name)
@@ -429,8 +377,8 @@ def _open_limited(path: Path, compression: str | None, limits: InputLimits) -> t
     return source, _LimitedStream(path, source, budget, name)
 
 
-def _iter_archive_file(path: Path, compression: str | None, limits: InputLimits) -> Iterator[SubmissionShard]:
-    """Shards of a (possibly compressed) tar file, streamed member by member."""
+def iter_archive_shards(path: Path, compression: str | None, limits: InputLimits) -> Iterator[tuple[str, bytes]]:
+    """(name, bytes) of every shard of a (possibly compressed) tar file, streamed member by member."""
     source, stream = _open_limited(path, compression, limits)
     with source:
         for tar, name, member in _iter_members(path, stream, limits):
@@ -442,7 +390,7 @@ def _iter_archive_file(path: Path, compression: str | None, limits: InputLimits)
 # --------------------------------------------------------------------------- single files
 
 
-def _plain_shard_size(path: Path, limits: InputLimits) -> int:
+def plain_shard_size(path: Path, limits: InputLimits) -> int:
     """The size of an uncompressed single shard file, refused past the per-member limit."""
     size = path.stat().st_size
     if size > limits.max_member_bytes:
@@ -462,151 +410,22 @@ def _open_single_shard(path: Path, compression: str, limits: InputLimits) -> tup
     return source, stream
 
 
-def _read_single_shard(path: Path, compression: str | None, limits: InputLimits) -> ShardRef:
-    """One shard file, decompressed when needed, within the size limits."""
-    if compression is None:
-        return ShardRef(path.name, _plain_shard_size(path, limits), path=str(path.resolve()))
+def read_compressed_shard(path: Path, compression: str, limits: InputLimits) -> tuple[str, bytes]:
+    """(name without the compression suffix, bytes) of a single shard compressed as a whole."""
     source, stream = _open_single_shard(path, compression, limits)
     try:
         with source:
             data = stream.read()
     except _STREAM_ERRORS as error:
         raise ArchiveError(f"{path}: truncated or corrupt {compression} stream: {error}") from error
-    return ShardRef(re.sub(r"\.(gz|bz2|xz)$", "", path.name, flags=re.IGNORECASE), len(data), data=data)
+    return re.sub(r"\.(gz|bz2|xz)$", "", path.name, flags=re.IGNORECASE), data
 
 
-def _iter_folder(
-    folder: Path, max_member_bytes: int, max_total_bytes: int
-) -> Iterator[ShardRef]:
-    """Shards below a folder, sorted by relative path (symlinked files are followed)."""
-    found: list[tuple[str, Path]] = []
-    for root, dirs, files in os.walk(folder):
-        dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
-        for file_name in files:
-            path = Path(root) / file_name
-            relative = path.relative_to(folder).as_posix()
-            if is_ignored_name(relative):
-                continue
-            if not is_shard_name(relative):
-                raise _not_a_shard_error(folder, relative)
-            found.append((relative, path))
-    if not found:
-        raise ArchiveError(
-            f"{folder}: folder holds no submission shard (no file name containing "
-            f"{SHARD_NAME_MARKER!r})"
-        )
-    total = 0
-    for relative, path in sorted(found):
-        size = path.stat().st_size
-        if size > max_member_bytes:
-            raise SizeLimitError(
-                f"{folder}: shard {relative!r} is {size} bytes, over the per-member limit of "
-                f"{max_member_bytes} bytes"
-            )
-        total += size
-        if total > max_total_bytes:
-            raise SizeLimitError(
-                f"{folder}: shards exceed the total limit of {max_total_bytes} bytes "
-                f"at {relative!r}"
-            )
-        yield ShardRef(relative, size, path=str(path.resolve()))
-
-
-# --------------------------------------------------------------------------- public API
-
-
-def _limits_of(limits: InputLimits | None, max_member_bytes: int | None, max_total_bytes: int | None) -> InputLimits:
-    """`limits` (default `InputLimits()`), with the two size limits replaced when given on their own."""
-    limits = InputLimits() if limits is None else limits
-    sizes = {k: v for k, v in (("max_member_bytes", max_member_bytes), ("max_total_bytes", max_total_bytes))
-             if v is not None}
-    return dataclasses.replace(limits, **sizes) if sizes else limits
-
-
-def iter_shard_refs(
-    path: PathLike,
-    *,
-    limits: InputLimits | None = None,
-    max_member_bytes: int | None = None,
-    max_total_bytes: int | None = None,
-) -> Iterator[ShardRef]:
-    """Every submission shard found at path, as a `ShardRef`, in order.
-
-    Shards of a folder or an uncompressed shard file are byte ranges (nothing
-    is read yet); archive members are decompressed one at a time and carry
-    their bytes. Errors as `iter_submission_shards`.
-    """
-    limits = _limits_of(limits, max_member_bytes, max_total_bytes)
-    path = Path(path)
-    if path.is_dir():
-        yield from _iter_folder(path, limits.max_member_bytes, limits.max_total_bytes)
-        return
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such submission file or folder")
+def sniff_file(path: Path) -> tuple[str | None, bool, ArchiveNameWarning | None]:
+    """(compression, is a tar, the warning its name deserves) of a submission file, from its bytes."""
     compression, head = _sniff(path)
     is_tar = is_tar_header(head)
-    _check_name_against_content(path, compression, is_tar)
-    if is_tar:
-        for name, data in _iter_archive_file(path, compression, limits):
-            yield ShardRef(name, len(data), data=data)
-    else:
-        yield _read_single_shard(path, compression, limits)
-
-
-def iter_submission_shards(
-    path: PathLike,
-    *,
-    limits: InputLimits | None = None,
-    max_member_bytes: int | None = None,
-    max_total_bytes: int | None = None,
-) -> Iterator[SubmissionShard]:
-    """Yield (shard_name, raw_bytes) for every submission shard found at path.
-
-    path is a shard file, a folder of shards or a (compressed) tar archive; see
-    the module docstring for the rules. Shards are yielded one at a time, so at
-    most one shard's bytes are held. Raises ParseError subclasses
-    (ArchiveError, UnsafeArchiveMemberError, SizeLimitError) naming the archive
-    and member at fault; FileNotFoundError when path does not exist.
-    """
-    for ref in iter_shard_refs(path, limits=_limits_of(limits, max_member_bytes, max_total_bytes)):
-        yield ref.name, ref.read()
-
-
-# --------------------------------------------------------------------------- upload check
-
-# What a shard's first field may be: (field number, wire type) of SimAgentsChallengeSubmission.
-_SUBMISSION_FIELDS = {1: 2, 2: 0, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2, 8: 2, 9: 0, 10: 0, 11: 0, 12: 2, 13: 2, 14: 0}
-_HEAD_BYTES = 16
-_FOREIGN_FORMATS = (
-    (b"{", "JSON"), (b"[", "JSON"), (b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"),
-    (b"GIF8", "a GIF image"), (b"%PDF", "a PDF document"), (b"<", "HTML or XML"), (b"PK\x03\x04", "a zip archive"),
-)
-
-
-class NotASubmissionError(ArchiveError):
-    """Bytes of another kind of file (JSON, an image, text...) given as a submission."""
-
-
-def looks_like_submission(where: str, head: bytes) -> None:
-    """Raise NotASubmissionError unless `head` can start a serialized SimAgentsChallengeSubmission
-    (its first field is one of the message's, with the right wire type); empty bytes pass."""
-    if not head:
-        return
-    try:
-        from wosac_eval.parse.wire import read_varint
-
-        key, _ = read_varint(head, 0)
-        ok = _SUBMISSION_FIELDS.get(key >> 3) == key & 7
-    except ValueError:
-        ok = False
-    if ok:
-        return
-    kind = next((name for magic, name in _FOREIGN_FORMATS if head.lstrip()[:len(magic)] == magic), None)
-    detail = f"it looks like {kind}" if kind else f"its first bytes are {head[:8]!r}"
-    raise NotASubmissionError(
-        f"{where}: not a SimAgentsChallengeSubmission shard ({detail}); submit a .tar.gz of .binproto "
-        "shards or one .binproto"
-    )
+    return compression, is_tar, name_notice(path, compression, is_tar)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -638,7 +457,7 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     is_tar = is_tar_header(head)
     if not is_tar:  # one shard: its first field, and for a compressed one its size as it decompresses
         if compression is None:
-            size = _plain_shard_size(path, limits)
+            size = plain_shard_size(path, limits)
             looks_like_submission(str(path), head)
             return ContainerSummary(None, False, 1, size)
         looks_like_submission(str(path), head)
@@ -650,7 +469,7 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
     shards = 0
     with source:
         for tar, name, member in _iter_members(path, stream, limits):
-            head = _read_member_data(tar, path, name, min(_HEAD_BYTES, member.size))
+            head = _read_member_data(tar, path, name, min(HEAD_BYTES, member.size))
             try:  # a member cut short is told as such before its first bytes are judged
                 tar.skip_data()
             except (TruncatedDataError, *_STREAM_ERRORS) as error:
@@ -661,128 +480,3 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
             _drain(stream, path)
     return ContainerSummary(compression, True, shards, stream.bytes_read)
 
-
-def _string_fields_are_text(
-    submission: sim_agents_submission_pb2.SimAgentsChallengeSubmission,
-) -> str | None:
-    """The first string field holding invalid UTF-8, as 'field (index)', else None.
-
-    proto2 strings are not UTF-8-checked when parsing; the Python runtime
-    then hands back bytes instead of str, which must not reach later stages.
-    """
-    for field in (
-        "account_name",
-        "unique_method_name",
-        "affiliation",
-        "description",
-        "method_link",
-        "num_model_parameters",
-    ):
-        if not isinstance(getattr(submission, field), str):
-            return field
-    for field in ("authors", "public_model_names"):
-        for index, value in enumerate(getattr(submission, field)):
-            if not isinstance(value, str):
-                return f"{field}[{index}]"
-    for index, rollouts in enumerate(submission.scenario_rollouts):
-        if not isinstance(rollouts.scenario_id, str):
-            return f"scenario_rollouts[{index}].scenario_id"
-    return None
-
-
-def _why_unparseable(raw: bytes) -> str:
-    """A hint at why bytes do not parse: a cut-short file, or another kind of file."""
-    from wosac_eval.parse.tfrecord import looks_like_tfrecord
-    from wosac_eval.parse.wire import field_spans
-
-    if raw[:2] == b"\x1f\x8b" or is_tar_header(raw[:_SNIFF_BYTES]):
-        return " (these are archive bytes: give the archive itself as the submission)"
-    if looks_like_tfrecord(raw):
-        return " (this is a TFRecord file, as scenarios come: are --scenarios and --submission swapped?)"
-    try:
-        field_spans(raw, 1)
-    except ValueError as error:
-        if "past the end" in str(error) or "truncated" in str(error):
-            return (" (the shard is truncated: its last field runs past the end of the data; was the file "
-                    "cut short by an interrupted copy or upload?)")
-    return ""
-
-
-def parse_submission_shard(
-    name: str, raw: bytes, limits: InputLimits | None = None
-) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
-    """Parse one shard's bytes, raising InvalidShardError naming the shard if invalid, SizeLimitError
-    when it holds more messages than `limits` allow (counted on the wire first)."""
-    check_message_counts(name, raw, limits)
-    try:
-        submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
-    except DecodeError as error:
-        raise InvalidShardError(
-            f"shard {name}: not a valid SimAgentsChallengeSubmission message "
-            f"({len(raw)} bytes): {error}{_why_unparseable(raw)}"
-        ) from error
-    bad_field = _string_fields_are_text(submission)
-    if bad_field is not None:
-        raise InvalidShardError(f"shard {name}: field {bad_field} is not valid UTF-8 text")
-    return submission
-
-
-__all__ = [
-    "ArchiveNameWarning",
-    "ContainerSummary",
-    "InputLimits",
-    "NotASubmissionError",
-    "check_container",
-    "looks_like_submission",
-    "ShardRef",
-    "DEFAULT_MAX_MEMBER_BYTES",
-    "DEFAULT_MAX_TOTAL_BYTES",
-    "is_ignored_name",
-    "is_shard_name",
-    "iter_shard_refs",
-    "iter_submission_shards",
-    "parse_submission_shard",
-    "safe_member_name",
-]
-
-
-def split_shard(name: str, raw: bytes, limits: InputLimits | None = None) -> list[tuple[str, bytes]]:
-    """(scenario_id, serialized ScenarioRollouts) of every scenario of a shard.
-
-    The shard is split at the wire level (`field_spans`: scenario_rollouts is
-    field 1 of the submission, scenario_id field 1 of each element), so the
-    parent process hands the workers bytes without parsing and re-serialising
-    them; anything unexpected falls back to a full parse.
-    """
-    from wosac_eval.parse.wire import field_spans
-
-    check_message_counts(name, raw, limits)
-    try:
-        items = []
-        for start, end in field_spans(raw, 1):
-            data = raw[start:end]
-            ids = field_spans(data, 1)  # a repeated singular field: the last one counts, as in a parse
-            items.append((data[ids[-1][0]:ids[-1][1]].decode("utf-8") if ids else "", data))
-        return items
-    except (ValueError, UnicodeDecodeError):
-        try:
-            submission = parse_submission_shard(name, raw, limits)
-        except ParseError:
-            return []
-        return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
-
-
-def find_scenario_rollouts(submission: PathLike, scenario_ids) -> dict:
-    """The `ScenarioRollouts` of the given scenarios in a submission (file, folder or archive), by id.
-
-    Shards are split on the wire and only the wanted entries are parsed; an id
-    the submission lacks is absent from the result.
-    """
-    wanted, found = set(scenario_ids), {}
-    for shard in iter_shard_refs(submission):
-        for scenario_id, data in split_shard(shard.name, shard.read()):
-            if scenario_id in wanted and scenario_id not in found:
-                found[scenario_id] = sim_agents_submission_pb2.ScenarioRollouts.FromString(data)
-        if len(found) == len(wanted):
-            break
-    return found

@@ -39,7 +39,14 @@ class UnknownScenarioError(ParseError, KeyError):
 
 
 class ArchiveError(ParseError):
-    """A submission archive that is truncated, malformed or not an archive."""
+    """A submission archive that is truncated, malformed or not an archive.
+
+    shard: the shard (file of a folder) it is about, when the message names one.
+    """
+
+    def __init__(self, message: str, *, shard: str | None = None):
+        super().__init__(message)
+        self.shard = shard
 
 
 class UnsafeArchiveMemberError(ArchiveError):

@@ -445,16 +445,19 @@ def write_scene(view: SceneView, path: str | Path, *, step: int | None = None, r
     return path
 
 
-def scene_pictures(scenario_paths, submission, scenario_ids: Sequence[str], challenge="sim_agents",
+def scene_pictures(scenarios, submission, scenario_ids: Sequence[str], challenge="sim_agents",
                    dpi: int = 80) -> list[tuple[str, bytes]]:
     """(scenario_id, PNG) of each scenario the submission holds, in the given order (for reports).
 
+    scenarios: a `ScenarioIndex`, or scenario paths to index.
+    submission: an open `SubmissionSource` (read from what its validation recorded, under its
+      limits), or a path (read under the default limits).
     Scenarios missing from the scenario set or the submission are left out.
     """
-    from wosac_eval.parse.archive import find_scenario_rollouts
     from wosac_eval.parse.scenarios import ScenarioIndex
+    from wosac_eval.parse.submission_source import find_scenario_rollouts
 
-    index = ScenarioIndex(scenario_paths)
+    index = scenarios if isinstance(scenarios, ScenarioIndex) else ScenarioIndex(scenarios)
     wanted = [sid for sid in scenario_ids if sid in index]
     rollouts = find_scenario_rollouts(submission, wanted)
     return [(sid, scene_png(scene_view(index.load(sid), rollouts[sid], challenge), dpi=dpi))

@@ -15,7 +15,7 @@ from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.backends import check_backend
 from wosac_eval.features.metric_features import map_context, scenario_features
-from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
+from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
@@ -27,7 +27,7 @@ def resolve_config(config: ConfigLike, challenge) -> SimAgentMetricsConfig:
     """A config message from a preset name, a textproto path or a message; None: the challenge's default."""
     if isinstance(config, SimAgentMetricsConfig):
         return config
-    return load_config(default_config(challenge) if config is None else config)
+    return load_config(config_name_for(challenge, config))
 
 
 def scenario_inputs(scenario: scenario_pb2.Scenario | ScenarioArrays,

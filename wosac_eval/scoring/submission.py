@@ -21,17 +21,15 @@ import dataclasses
 import os
 from collections.abc import Callable, Iterable, Iterator
 
-from wosac_eval import challenges
-from wosac_eval.analysis.scenario_set_criticality import parse_selection, scenario_set_criticality, select_scenarios
-from wosac_eval.backends import check_backend
-from wosac_eval.metrics.config import SimAgentMetricsConfig, default_config, load_config
-from wosac_eval.parse.archive import ShardRef, iter_shard_refs, split_shard
+from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
+from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
-from wosac_eval.runtime.engines import check_engine
 from wosac_eval.runtime.executors import make_executor
+from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
@@ -76,16 +74,9 @@ class ScoringChunk:
     items: tuple
 
 
-def _rollouts_bytes(locator) -> bytes:
-    if isinstance(locator, bytes):
-        return locator
-    path, offset, size = locator
-    return ShardRef("", size, path=path, offset=offset).read()
-
-
 def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
     """The chunk's (Scenario, ScenarioRollouts) messages, read by the worker."""
-    return [(context.index.load(sid), sim_agents_submission_pb2.ScenarioRollouts.FromString(_rollouts_bytes(locator)))
+    return [(context.index.load(sid), sim_agents_submission_pb2.ScenarioRollouts.FromString(read_locator(locator)))
             for sid, locator in chunk.items]
 
 
@@ -118,41 +109,16 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
         yield [row]
 
 
-class _Plan:
-    """What validation learnt of every shard, kept for the scoring pass: the shard (a byte range of a
-    file, or a member whose bytes are streamed again) and (scenario_id, span) of its entries."""
-
-    def __init__(self):
-        self.shards: list[tuple[ShardRef, list[tuple[str | None, tuple[int, int]]]]] = []
-
-    def add(self, shard: ShardRef, result) -> None:
-        if result.readable:
-            self.shards.append((shard, [(sid, span) for (_, sid), span in zip(result.entries, result.spans)]))
-
-    def rollouts(self, submission_path: PathLike, index: ScenarioIndex, report,
-                 limits: InputLimits) -> Iterator[tuple[str, object]]:
-        """(scenario_id, rollouts locator) of every valid scenario, once each, in submission order."""
-        seen: set[str] = set()
-
-        def wanted(sid: str | None) -> bool:
-            if not sid or sid in seen or sid not in index or not report.is_scenario_valid(sid):
-                return False
-            seen.add(sid)
-            return True
-
-        if all(shard.path is not None for shard, _ in self.shards):
-            for shard, entries in self.shards:
-                for sid, (start, end) in entries:
-                    if wanted(sid):
-                        yield sid, (shard.path, shard.offset + start, end - start)
-            return
-        # An archive: stream it again; its members carry their bytes.
-        readable = {shard.name for shard, _ in self.shards}
-        for shard in iter_shard_refs(submission_path, limits=limits):
-            if shard.name in readable:
-                for sid, data in split_shard(shard.name, shard.read(), limits):
-                    if wanted(sid):
-                        yield sid, data
+def _scored_rollouts(source: SubmissionSource, index: ScenarioIndex, report,
+                     selected: set[str] | None) -> Iterator[tuple[str, RolloutsLocator]]:
+    """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order."""
+    seen: set[str] = set()
+    for sid, locator in source.rollouts_locators():
+        if sid in seen or sid not in index or not report.is_scenario_valid(sid):
+            continue
+        seen.add(sid)
+        if selected is None or sid in selected:
+            yield sid, locator
 
 
 def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
@@ -166,19 +132,22 @@ def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
         yield ScoringChunk(tuple(batch))
 
 
-def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_path: PathLike,
-                     config: str | PathLike | None = None, *, challenge="sim_agents", workers: int = 1,
-                     allow_partial: bool = False, progress: Progress | None = None, backend: str = "numpy",
-                     engine: str = "local", ray_address: str | None = None,
-                     metadata_checks: str = "warn", select: str | None = None, analysis: bool = True,
-                     limits: InputLimits | None = None) -> dict:
+def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioIndex,
+                     submission: PathLike | SubmissionSource, config: str | PathLike | None = None, *,
+                     challenge="sim_agents", workers: int = 1, allow_partial: bool = False,
+                     progress: Progress | None = None, backend: str = "numpy", engine: str = "local",
+                     ray_address: str | None = None, metadata_checks: str = "warn", select: str | None = None,
+                     analysis: bool = True, limits: InputLimits | None = None,
+                     evaluation: Evaluation | None = None) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
-      scenario_paths: TFRecord files, folders or globs of `Scenario`s.
-      submission_path: a `.binproto`, a folder of shards, or a `.tar`/`.tar.gz`.
+      scenario_paths: TFRecord files, folders or globs of `Scenario`s, or a `ScenarioIndex` of them.
+      submission: a `.binproto`, a folder of shards, a `.tar`/`.tar.gz`, or an open `SubmissionSource`
+        (then the stages after validation read what it recorded: see `parse.submission_source`).
       config: preset name ("2025", "2024", "2023", "scenario_gen_2025") or a
-        textproto path; None: the challenge's current leaderboard config.
+        textproto path; None: the challenge's current leaderboard config. A preset of the other
+        challenge is refused.
       challenge: "sim_agents" or "scenario_gen".
       workers: worker processes with the local engine (results are identical for any count).
       allow_partial: score the valid scenarios of an invalid submission
@@ -199,46 +168,55 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
         per-type metrics, and no `analysis` summary): a little faster.
       limits: how far the submission may expand when read (`parse.limits.InputLimits`: decompressed
         sizes, compression ratio, archive members, messages per shard); default `InputLimits()`.
+      evaluation: all of the above but the inputs and `progress`, already resolved
+        (`scoring.evaluation.resolve_evaluation`); the other arguments are then ignored.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
+      ValueError: an argument cannot be resolved (unknown config, a preset of the other challenge...).
     """
-    check_backend(backend)
-    check_engine(engine)
-    if select is not None:
-        parse_selection(select)  # a bad rule is refused before any work
-    challenge = challenges.as_challenge(challenge)
-    config_name = default_config(challenge) if config is None else str(config)
-    metrics_config = load_config(config_name)
+    if evaluation is None:
+        evaluation = resolve_evaluation(challenge, config, limits=limits, backend=backend, engine=engine,
+                                        ray_address=ray_address, workers=workers, allow_partial=allow_partial,
+                                        metadata_checks=metadata_checks, select=select, analysis=analysis)
     # The engine first: an unreachable cluster is reported before any long work.
-    executor = make_executor(engine, workers=workers, ray_address=ray_address, force_spawn=backend == "jax",
-                             initializer=keep_freed_memory)
-    index = ScenarioIndex(scenario_paths)
-    plan = _Plan()
-    limits = InputLimits() if limits is None else limits
-    report = validate_submission(index, submission_path, challenge=challenge, executor=executor, on_shard=plan.add,
-                                 metadata_checks=metadata_checks, limits=limits)
-    if not report.ok and not allow_partial:
+    executor = make_executor(evaluation.engine, workers=evaluation.workers, ray_address=evaluation.ray_address,
+                             force_spawn=evaluation.backend == "jax", initializer=keep_freed_memory)
+    index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
+    if isinstance(submission, SubmissionSource):
+        return _score(index, submission, evaluation, executor, progress)
+    with SubmissionSource(submission, evaluation.limits) as source:
+        return _score(index, source, evaluation, executor, progress)
+
+
+def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
+    """(what the result says of the selection, the criticality histogram, the selected ids), or Nones."""
+    if evaluation.select is None:
+        return None, None, None
+    ranked = scenario_set_criticality(index, executor=executor)
+    selected = set(select_scenarios(ranked["scenarios"], evaluation.select))
+    selection = {"rule": evaluation.select, "scenarios": len(selected), "of": ranked["num_scenarios"],
+                 "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
+    return selection, ranked["histogram"], selected
+
+
+def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
+           progress: Progress | None) -> dict:
+    """Validate (recording where each scenario is), select, score on the executor, assemble."""
+    report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
+                                 metadata_checks=evaluation.metadata_checks)
+    if not report.ok and not evaluation.allow_partial:
         raise InvalidSubmissionError(report)
-    selection, histogram, selected = None, None, None
-    if select is not None:
-        ranked = scenario_set_criticality(index, executor=executor)
-        selected = set(select_scenarios(ranked["scenarios"], select))
-        histogram = ranked["histogram"]
-        selection = {"rule": select, "scenarios": len(selected), "of": ranked["num_scenarios"],
-                     "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
+    selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
-    context = ScoringContext(config=metrics_config.SerializeToString(), challenge=challenge.value,
-                             backend=backend, index=index, analysis=analysis)
-    rollouts = plan.rollouts(submission_path, index, report, limits)
-    if selected is not None:
-        rollouts = ((sid, locator) for sid, locator in rollouts if sid in selected)
-    chunks = _chunks(rollouts, SCENARIOS_PER_TASK)
+    context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,
+                             backend=evaluation.backend, index=index, analysis=evaluation.analysis)
+    chunks = _chunks(_scored_rollouts(source, index, report, selected), SCENARIOS_PER_TASK)
     per_scenario: list[dict] = []
     if progress is not None:
         progress(0, total)
-    if backend == "jax" and engine == "local":
+    if evaluation.backend == "jax" and evaluation.engine == "local":
         # Pipelined: workers parse and prepare on the host, this process keeps the device busy.
-        scored = _jax_pipeline(executor, chunks, context, metrics_config)
+        scored = _jax_pipeline(executor, chunks, context, evaluation.config)
     else:
         scored = executor.imap(score_chunk, chunks, context)
     for results in scored:
@@ -248,5 +226,5 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike], submission_p
     if not per_scenario:
         raise InvalidSubmissionError(report) if not report.ok else ValueError(
             "the submission has no scenario in common with the scenario set")
-    return result_document(challenge, config_name, metrics_config, per_scenario, report,
+    return result_document(evaluation.challenge, evaluation.config_name, evaluation.config, per_scenario, report,
                            selection=selection, selected=selected, histogram=histogram)

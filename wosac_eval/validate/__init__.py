@@ -2,7 +2,6 @@
 
 from wosac_eval.validate.findings import CODES, Finding, ValidationReport
 from wosac_eval.validate.validator import (
-    Limits,
     ScenarioSetError,
     load_sim_agents,
     validate_scenario_rollouts,
@@ -12,7 +11,6 @@ from wosac_eval.validate.validator import (
 __all__ = [
     "CODES",
     "Finding",
-    "Limits",
     "ScenarioSetError",
     "ValidationReport",
     "load_sim_agents",

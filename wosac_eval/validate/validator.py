@@ -12,7 +12,6 @@ import collections
 import dataclasses
 import os
 import time
-import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,15 +20,10 @@ from typing import Any
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.parse.archive import (
-    ArchiveNameWarning,
-    ShardRef,
-    is_ignored_name,
-    is_shard_name,
-    iter_shard_refs,
-    parse_submission_shard,
-)
+from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.shards import parse_submission_shard
+from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.wire import field_spans
@@ -40,9 +34,6 @@ PathLike = str | os.PathLike
 
 
 METADATA_CHECKS = ("error", "warn")  # how metadata findings count: as the challenge server, or as warnings
-
-
-Limits = InputLimits  # the name validation has always used
 
 
 class ScenarioSetError(ValueError):
@@ -113,117 +104,20 @@ def _index_batches(index: ScenarioIndex) -> list[tuple[list[str], tuple[str, lis
     return batches
 
 
-def _container_finding(error: ParseError) -> Finding:
-    """A finding for an archive-level problem raised by the submission reader (its message names archive and member)."""
-    if isinstance(error, UnsafeArchiveMemberError):
-        code = "container.unsafe_member"
-    elif isinstance(error, SizeLimitError):
-        code = "container.size_limit"
-    else:
-        code = "container.unreadable"
-    return Finding(code, str(error))
-
-
-def _iter_folder(folder: Path, limits: Limits, report: ValidationReport) -> Iterator[ShardRef]:
-    """Shards below a folder (as the reader takes them), reporting stray files and going on past them."""
-    found: list[tuple[str, Path]] = []
-
-    def unlistable(error: OSError) -> None:  # os.walk would skip such a folder silently
-        report.add(Finding("container.unreadable", f"{folder}: cannot list {error.filename}: {error.strerror}"))
-
-    for root, dirs, files in os.walk(folder, onerror=unlistable):
-        dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
-        for file_name in sorted(files):
-            path = Path(root) / file_name
-            relative = path.relative_to(folder).as_posix()
-            if is_ignored_name(relative):
-                continue
-            if is_shard_name(relative):
-                found.append((relative, path))
-            else:
-                report.add(
-                    Finding(
-                        "container.not_a_shard",
-                        f"{folder}: {relative!r} is neither a shard (a name containing '.binproto') nor "
-                        "documentation (README*, *.md, *.txt); rename or remove it",
-                        shard=relative,
-                    )
-                )
-    if not found:
-        report.add(Finding("container.unreadable", f"{folder}: folder holds no submission shard (no file name "
-                                                   "containing '.binproto')"))
-    total = 0
-    for relative, path in sorted(found):
-        size = path.stat().st_size
-        total += size
-        if size > limits.max_member_bytes:
-            report.add(
-                Finding(
-                    "container.size_limit",
-                    f"{folder}: shard {relative!r} is {size} bytes, over the per-shard limit of "
-                    f"{limits.max_member_bytes} bytes",
-                    shard=relative,
-                )
-            )
-        elif total > limits.max_total_bytes:
-            report.add(
-                Finding(
-                    "container.size_limit",
-                    f"{folder}: shards exceed the total limit of {limits.max_total_bytes} bytes at {relative!r}; "
-                    "the remaining shards are not read",
-                    shard=relative,
-                )
-            )
-            return
-        else:
-            yield ShardRef(relative, size, path=str(path.resolve()))
-
-
-def _iter_file(path: Path, limits: Limits, report: ValidationReport) -> Iterator[ShardRef]:
-    """Shards of a single shard or tar archive; reader errors and name warnings become findings."""
-    shards = iter_shard_refs(path, limits=limits)
-    # The reader checks the name against the content before its first shard:
-    # record the warning there, without leaving a filter installed while we yield.
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", ArchiveNameWarning)
-        try:
-            first = next(shards, None)
-        except ParseError as error:
-            report.add(_container_finding(error))
-            return
-    misnamed = [w for w in caught if issubclass(w.category, ArchiveNameWarning)]
-    for w in misnamed:
-        report.add(Finding("container.misnamed", str(w.message), severity=WARNING))
-    if not misnamed and path.name.lower().endswith(".tar"):
-        report.add(
-            Finding(
-                "container.not_gzipped",
-                f"{path}: an uncompressed tar; the challenge server expects a gzip-compressed tar "
-                "(tar czf submission.tar.gz ...)",
-                severity=WARNING,
-            )
-        )
-    if first is None:
-        return
-    yield first
-    del first  # hold no shard while the next one is read
-    try:
-        yield from shards
-    except ParseError as error:
-        # The reader cannot go on past this point (e.g. truncated gzip): what
-        # follows is unread, and its scenarios are reported missing.
-        report.add(_container_finding(error))
-
-
-def iter_checked_shards(
-    submission_path: PathLike, limits: Limits, report: ValidationReport
-) -> Iterator[ShardRef]:
-    """Every readable shard (a `ShardRef`: a byte range of a file, or the bytes of an archive member);
-    every container problem is added to report."""
-    path = Path(submission_path)
-    if path.is_dir():
-        return _iter_folder(path, limits, report)
-    return _iter_file(path, limits, report)
+def _container_finding(problem: Exception) -> Finding:
+    """A finding for a problem of the submission's container, as the walk reports it (its message names
+    the file and member)."""
+    if isinstance(problem, ArchiveNameWarning):
+        return Finding("container.misnamed", str(problem), severity=WARNING)
+    if isinstance(problem, UncompressedTarWarning):
+        return Finding("container.not_gzipped", str(problem), severity=WARNING)
+    if isinstance(problem, NotAShardError):
+        return Finding("container.not_a_shard", str(problem), shard=problem.shard)
+    if isinstance(problem, UnsafeArchiveMemberError):
+        return Finding("container.unsafe_member", str(problem))
+    if isinstance(problem, SizeLimitError):
+        return Finding("container.size_limit", str(problem), shard=problem.shard)
+    return Finding("container.unreadable", str(problem))
 
 
 def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None,
@@ -390,16 +284,15 @@ def _shard_results(
 
 def validate_submission(
     scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
-    submission_path: PathLike,
+    submission: PathLike | SubmissionSource,
     *,
     max_listed: int = 20,
-    limits: Limits | None = None,
+    limits: InputLimits | None = None,
     progress: Callable[[int], Any] | None = None,
     sim_agents: dict[str, np.ndarray] | None = None,
     workers: int = 1,
     challenge: Any = challenges.Challenge.SIM_AGENTS,
     executor=None,
-    on_shard: Callable[[ShardRef, ShardResult], Any] | None = None,
     metadata_checks: str = "error",
 ) -> ValidationReport:
     """Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set.
@@ -413,13 +306,14 @@ def validate_submission(
     (`challenge="scenario_gen"`).
 
     scenarios: scenario files / folders / globs, or a ScenarioIndex.
-    limits: how far the submission may expand (`parse.limits.InputLimits`: sizes, members, messages).
+    submission: its path, or an open `parse.submission_source.SubmissionSource`: validation walks it
+      and records where each scenario of a readable shard is, for the stages after it.
+    limits: how far the submission may expand (`parse.limits.InputLimits`: sizes, members, messages);
+      a `SubmissionSource` brings its own.
     progress: called with 1 after each submitted scenario is checked.
     sim_agents: precomputed `load_sim_agents(scenarios)`, to skip reading the scenarios again.
     workers: processes checking shards in parallel (the report is the same for any count).
     executor: where to check the shards (`runtime.executors`; default: `workers` local processes).
-    on_shard: called with (shard, its ShardResult) for every shard checked, in order; the shard
-      without its bytes when it was an archive member (the scorer plans its work with it).
     metadata_checks: "error" (the challenge server's rules: a metadata gap makes the submission
       invalid) or "warn" (the same findings as warnings, for local scoring).
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
@@ -431,27 +325,27 @@ def validate_submission(
     executor = executor or LocalExecutor(workers)
     agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios, executor=executor)
     challenge = challenges.as_challenge(challenge)
-    report = ValidationReport(str(submission_path), max_listed=max_listed, challenge=challenge.value)
+    source = submission if isinstance(submission, SubmissionSource) else SubmissionSource(submission, limits)
+    report = ValidationReport(str(source), max_listed=max_listed, challenge=challenge.value)
     report.stats.scenarios_expected = len(agents)
     if metadata_checks not in METADATA_CHECKS:
         raise ValueError(f"metadata_checks must be one of {', '.join(METADATA_CHECKS)}, not {metadata_checks!r}")
-    limits = InputLimits() if limits is None else limits
-    run = _Validation(agents, report, progress, metadata_checks, limits.max_scenarios)
-    if not Path(submission_path).exists():
-        raise FileNotFoundError(f"{submission_path}: no such submission file or folder")
-    shards = iter_checked_shards(submission_path, limits, report)
-    listed: collections.deque = collections.deque()  # the shards in flight, without their bytes
+    run = _Validation(agents, report, progress, metadata_checks, source.limits.max_scenarios)
+    if not source.path.exists():
+        raise FileNotFoundError(f"{source}: no such submission file or folder")
+    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)))
+    listed: collections.deque = collections.deque()  # the names of the shards in flight
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:
         for ref in refs:
-            listed.append(dataclasses.replace(ref, data=None) if ref.data is not None else ref)
+            listed.append(ref.name)
             yield ref
 
-    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, limits):
+    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, source.limits):
         run.merge(result)
-        shard = listed.popleft()  # results come back in shard order
-        if on_shard is not None:
-            on_shard(shard, result)
+        name = listed.popleft()  # results come back in shard order
+        if result.readable:
+            source.record(name, ((sid, span) for (_, sid), span in zip(result.entries, result.spans)))
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]

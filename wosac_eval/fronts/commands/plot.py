@@ -65,9 +65,9 @@ def _pick_scenario(index, wanted: str | None) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Find the scenario and its rollouts, check them, draw; 0 written, 1 invalid rollouts, 2 usage error."""
-    from wosac_eval.parse.archive import find_scenario_rollouts
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.parse.scenarios import ScenarioIndex
+    from wosac_eval.parse.submission_source import find_scenario_rollouts
     from wosac_eval.results.scene_plot import FORMATS, scene_view, write_scene
     from wosac_eval.validate import rules
 

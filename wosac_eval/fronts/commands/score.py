@@ -10,13 +10,14 @@ import json
 import sys
 from pathlib import Path
 
-from wosac_eval.backends import BACKENDS, BackendUnavailableError, check_backend
+from wosac_eval.backends import BACKENDS, BackendUnavailableError
 from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.runtime.engines import ENGINES, EngineUnavailableError, check_engine
-from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.parse.errors import ParseError
+from wosac_eval.runtime.engines import ENGINES, EngineUnavailableError
+from wosac_eval.scoring.evaluation import resolve_evaluation
+from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.validate import ScenarioSetError
 
 NAME = "score"
@@ -114,24 +115,17 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError("--workers must be >= 1")
     check_output_file(args.output, "--output")
     check_input(args.submission, "--submission", "submission")
-    try:
-        check_backend(args.backend)
-        check_engine(args.engine)
-    except (BackendUnavailableError, EngineUnavailableError) as error:
+    try:  # everything asked is checked here, once, before any long work
+        evaluation = resolve_evaluation(args.challenge, args.config, backend=args.backend, engine=args.engine,
+                                        ray_address=args.ray_address, workers=args.workers,
+                                        allow_partial=args.partial,
+                                        metadata_checks="error" if args.strict_metadata else "warn",
+                                        select=args.select, analysis=not args.no_analysis)
+    except (BackendUnavailableError, EngineUnavailableError, ValueError) as error:
         raise UsageError(str(error)) from None
-    if args.select is not None:
-        from wosac_eval.analysis.scenario_set_criticality import parse_selection
-        try:
-            parse_selection(args.select)
-        except ValueError as error:
-            raise UsageError(str(error)) from None
     update, bar = _progress()
     try:
-        result = score_submission(args.scenarios, args.submission, args.config, challenge=args.challenge,
-                                  workers=args.workers, allow_partial=args.partial, progress=update,
-                                  backend=args.backend, engine=args.engine, ray_address=args.ray_address,
-                                  metadata_checks="error" if args.strict_metadata else "warn",
-                                  select=args.select, analysis=not args.no_analysis)
+        result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "

@@ -13,9 +13,10 @@ import sys
 
 from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.fronts.usage import UsageError, check_input, scenario_set_hint
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.runtime.engines import ENGINES, EngineUnavailableError
 from wosac_eval.runtime.executors import make_executor
-from wosac_eval.validate.validator import Limits, ScenarioSetError, load_sim_agents, validate_submission
+from wosac_eval.validate.validator import ScenarioSetError, load_sim_agents, validate_submission
 
 NAME = "validate"
 HELP = "Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set and report every problem."
@@ -55,9 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "per shard; the same report)")
     parser.add_argument("--ray-address", metavar="ADDR",
                         help="the Ray cluster to join (default $RAY_ADDRESS, else a local Ray is started)")
-    parser.add_argument("--max-bytes", type=parse_size, default=Limits.max_total_bytes, metavar="SIZE",
+    parser.add_argument("--max-bytes", type=parse_size, default=InputLimits.max_total_bytes, metavar="SIZE",
                         help="refuse a submission that decompresses past SIZE in total (default 64G)")
-    parser.add_argument("--max-shard-bytes", type=parse_size, default=Limits.max_member_bytes, metavar="SIZE",
+    parser.add_argument("--max-shard-bytes", type=parse_size, default=InputLimits.max_member_bytes, metavar="SIZE",
                         help="refuse a shard that decompresses past SIZE (default 4G)")
 
 
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     if args.max_listed < 0 or args.workers < 1:
         raise UsageError("--max-listed must be >= 0 and --workers >= 1")
     check_input(args.submission, "--submission", "submission")
-    limits = Limits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
+    limits = InputLimits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
     try:
         executor = make_executor(args.engine, workers=args.workers, ray_address=args.ray_address)

@@ -1,0 +1,362 @@
+"""One submission, walked once: its shards, and where each scenario's rollouts are.
+
+A submission is one or more serialized `SimAgentsChallengeSubmission` shards:
+a single shard file, a folder of shards (every file below it whose name
+contains ".binproto", sorted by relative path; stray files are refused,
+hidden entries and documentation skipped), or a tar archive (`parse.archive`).
+
+`iter_shard_refs(path, limits, problems=...)` is the one walk every reader
+uses. Its error policy is a parameter: without `problems` the first problem is
+raised (a `ParseError` naming file and member); with it, each problem is handed
+to `problems` and the walk goes on wherever the format allows (a folder's other
+files; nothing after a broken archive member), as validation reports them.
+
+`SubmissionSource` is the handle the stages share: validation walks it and
+records where each scenario's rollouts are; scoring and the scene pictures then
+read those byte ranges instead of walking again. An archive's members are
+decompressed once, while validation reads them, when the handle has a spool
+folder (their bytes are kept there for the later stages); without one a later
+stage streams the archive once more. Every read goes through the limits the
+handle was opened with.
+"""
+from __future__ import annotations
+
+import dataclasses
+import os
+import shutil
+import tempfile
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+
+from wosac_eval.parse.archive import (
+    SHARD_NAME_MARKER,
+    is_ignored_name,
+    is_shard_name,
+    iter_archive_shards,
+    not_a_shard_message,
+    plain_shard_size,
+    read_compressed_shard,
+    sniff_file,
+    uncompressed_tar_notice,
+)
+from wosac_eval.parse.errors import ArchiveError, ParseError, SizeLimitError
+from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.shards import split_shard
+from wosac_eval.protos import sim_agents_submission_pb2
+
+PathLike = str | os.PathLike
+# Called with each problem of a reporting walk: a ParseError, or a warning about names.
+Problems = Callable[[Exception], None]
+SubmissionShard = tuple[str, bytes]
+# Where one scenario's serialized ScenarioRollouts are: (path, offset, size) of a file every
+# worker can read, or the bytes themselves.
+RolloutsLocator = tuple[str, int, int] | bytes
+
+
+class NotAShardError(ArchiveError):
+    """A file of a submission folder that is neither a shard nor documentation."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ShardRef:
+    """Where one shard's bytes are: a byte range of a plain file, or the bytes themselves.
+
+    Shards of a folder or a single uncompressed file are byte ranges: whoever
+    scores them (a worker process, a Ray node with the same shared filesystem)
+    reads only the bytes it needs. Shards of an archive were decompressed from
+    a stream and carry their bytes.
+
+    Attributes:
+      name: the shard's name (archive member or path relative to the folder).
+      size: its size in bytes.
+      path, offset: the file and the offset of the shard's first byte in it.
+      data: the shard's bytes, when it is not a byte range of a file.
+    """
+
+    name: str
+    size: int
+    path: str | None = None
+    offset: int = 0
+    data: bytes | None = None
+
+    def read(self, start: int = 0, end: int | None = None) -> bytes:
+        """Bytes `[start, end)` of the shard (all of it by default)."""
+        end = self.size if end is None else end
+        if self.data is not None:
+            return self.data[start:end]
+        with open(self.path, "rb") as f:
+            f.seek(self.offset + start)
+            data = f.read(end - start)
+        if len(data) != end - start:
+            raise ArchiveError(f"{self.path}: shard {self.name!r} is shorter than when it was listed "
+                               f"({self.offset + start + len(data)} of {self.offset + end} bytes); "
+                               "was it modified?")
+        return data
+
+    def without_data(self) -> ShardRef:
+        """The same shard without the bytes it carries (what to keep while others are read)."""
+        return dataclasses.replace(self, data=None) if self.data is not None else self
+
+
+def _raise(problem: Exception) -> None:
+    raise problem
+
+
+def _notify(problems: Problems | None, notice: Warning | None) -> None:
+    """A warning goes to the report when there is one, else to `warnings`."""
+    if notice is None:
+        return
+    if problems is None:
+        warnings.warn(notice, stacklevel=4)
+    else:
+        problems(notice)
+
+
+# --------------------------------------------------------------------------- folders
+
+
+def _folder_files(folder: Path, problems: Problems) -> list[tuple[str, Path]]:
+    """(relative name, path) of every shard below a folder, sorted; stray files are problems."""
+    found: list[tuple[str, Path]] = []
+
+    def unlistable(error: OSError) -> None:  # os.walk would skip such a folder silently
+        problems(ArchiveError(f"{folder}: cannot list {error.filename}: {error.strerror}"))
+
+    for root, dirs, files in os.walk(folder, onerror=unlistable):
+        dirs[:] = sorted(d for d in dirs if not is_ignored_name(d))
+        for file_name in sorted(files):
+            path = Path(root) / file_name
+            relative = path.relative_to(folder).as_posix()
+            if is_ignored_name(relative):
+                continue
+            if is_shard_name(relative):
+                found.append((relative, path))
+            else:
+                problems(NotAShardError(not_a_shard_message(folder, relative), shard=relative))
+    if not found:
+        problems(ArchiveError(f"{folder}: folder holds no submission shard (no file name containing "
+                              f"{SHARD_NAME_MARKER!r})"))
+    return sorted(found)
+
+
+def _iter_folder(folder: Path, limits: InputLimits, problems: Problems) -> Iterator[ShardRef]:
+    """Shards below a folder, as byte ranges (symlinked files are followed). A shard over the per-member
+    limit is a problem and skipped; past the total limit, the rest is not read."""
+    total = 0
+    for relative, path in _folder_files(folder, problems):
+        size = path.stat().st_size
+        if size > limits.max_member_bytes:
+            problems(SizeLimitError(f"{folder}: shard {relative!r} is {size} bytes, over the per-member limit of "
+                                    f"{limits.max_member_bytes} bytes", shard=relative))
+            continue
+        total += size
+        if total > limits.max_total_bytes:
+            problems(SizeLimitError(f"{folder}: shards exceed the total limit of {limits.max_total_bytes} bytes "
+                                    f"at {relative!r}; the remaining shards are not read", shard=relative))
+            return
+        yield ShardRef(relative, size, path=str(path.resolve()))
+
+
+# --------------------------------------------------------------------------- files
+
+
+def _file_shards(path: Path, limits: InputLimits, problems: Problems | None) -> Iterator[ShardRef]:
+    """Shards of a single shard file or a tar archive (archive members carry their bytes).
+
+    What the name deserves is told once the first shard was read (a file that cannot be read at all
+    gets its error alone)."""
+    compression, is_tar, misnamed = sniff_file(path)
+    if is_tar:
+        shards = (ShardRef(name, len(data), data=data) for name, data in iter_archive_shards(path, compression, limits))
+    elif compression is None:
+        shards = iter([ShardRef(path.name, plain_shard_size(path, limits), path=str(path.resolve()))])
+    else:
+        name, data = read_compressed_shard(path, compression, limits)
+        shards = iter([ShardRef(name, len(data), data=data)])
+    first = next(shards, None)
+    _notify(problems, misnamed)
+    if misnamed is None and problems is not None:
+        _notify(problems, uncompressed_tar_notice(path))
+    if first is None:
+        return
+    yield first
+    del first  # hold no shard while the next one is read
+    yield from shards
+
+
+def _reported(shards: Iterator[ShardRef], problems: Problems) -> Iterator[ShardRef]:
+    """The shards of a file until its first problem, which goes to the report (nothing after it is read)."""
+    try:
+        yield from shards
+    except ParseError as error:
+        problems(error)
+
+
+def iter_shard_refs(path: PathLike, *, limits: InputLimits | None = None,
+                    problems: Problems | None = None) -> Iterator[ShardRef]:
+    """Every submission shard found at path, as a `ShardRef`, in order: the one walk.
+
+    Shards of a folder or an uncompressed shard file are byte ranges (nothing
+    is read yet); archive members are decompressed one at a time and carry
+    their bytes.
+
+    problems: None: the first problem raises (`ParseError` subclasses naming the file and member; a
+      misleading name is a `warnings` warning). Else each problem (or warning, including
+      `UncompressedTarWarning`) is passed to it and the walk goes on where it can.
+    Raises FileNotFoundError when path does not exist, in both policies.
+    """
+    limits = InputLimits() if limits is None else limits
+    path = Path(path)
+    if path.is_dir():
+        return _iter_folder(path, limits, problems or _raise)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such submission file or folder")
+    shards = _file_shards(path, limits, problems)
+    return shards if problems is None else _reported(shards, problems)
+
+
+def iter_submission_shards(path: PathLike, *, limits: InputLimits | None = None) -> Iterator[SubmissionShard]:
+    """Yield (shard_name, raw_bytes) for every submission shard found at path.
+
+    At most one shard's bytes are held at a time. Raises ParseError subclasses
+    (ArchiveError, UnsafeArchiveMemberError, SizeLimitError) naming the archive
+    and member at fault; FileNotFoundError when path does not exist.
+    """
+    for ref in iter_shard_refs(path, limits=limits):
+        yield ref.name, ref.read()
+
+
+# --------------------------------------------------------------------------- the handle
+
+
+class SubmissionSource:
+    """A submission on disk as every stage reads it: one walk, one set of limits.
+
+    `shards()` walks it (validation does, once); `record(name, entries)` keeps
+    where each scenario of a shard is; `rollouts_locators()` and `rollouts()`
+    then serve scoring and the pictures from those records. With `spool_dir`,
+    the bytes of archive members are written there as they are walked, so the
+    archive is decompressed once; the spool is removed by `close()` (or the
+    `with` block).
+
+    Args:
+      path: a shard file, a folder of shards or a (compressed) tar archive.
+      limits: how far it may expand (`InputLimits`); default `InputLimits()`.
+      spool_dir: a folder for the spool of decompressed archive members; None: no spool.
+    """
+
+    def __init__(self, path: PathLike, limits: InputLimits | None = None, *, spool_dir: PathLike | None = None):
+        self.path = Path(path)
+        self._given = os.fspath(path)  # as the user wrote it, for reports
+        self.limits = InputLimits() if limits is None else limits
+        self._spool_dir = None if spool_dir is None else Path(spool_dir)
+        self._spool_folder: str | None = None
+        self._spool = None
+        self._spooled: dict[str, ShardRef] = {}  # archive member -> its bytes' range in the spool
+        self._records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] = []
+        self._walked: dict[str, ShardRef] = {}
+
+    def __enter__(self) -> SubmissionSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __str__(self) -> str:
+        return self._given
+
+    def close(self) -> None:
+        """Remove the spool (the records of byte ranges in it are then unreadable)."""
+        if self._spool is not None:
+            self._spool.close()
+            self._spool = None
+        if self._spool_folder is not None:
+            shutil.rmtree(self._spool_folder, ignore_errors=True)
+            self._spool_folder = None
+
+    def _keep(self, shard: ShardRef) -> None:
+        """Remember a walked shard, its bytes in the spool when it carried them."""
+        if shard.data is not None and self._spool_dir is not None:
+            if self._spool is None:
+                self._spool_folder = tempfile.mkdtemp(prefix="wosac-spool-", dir=self._spool_dir)
+                self._spool = open(os.path.join(self._spool_folder, "members"), "w+b")  # noqa: SIM115
+            offset = self._spool.seek(0, os.SEEK_END)
+            self._spool.write(shard.data)
+            self._spool.flush()
+            self._spooled[shard.name] = ShardRef(shard.name, shard.size, path=self._spool.name, offset=offset)
+        self._walked[shard.name] = shard.without_data()
+
+    def shards(self, problems: Problems | None = None) -> Iterator[ShardRef]:
+        """The walk (`iter_shard_refs` under the handle's limits), remembering each shard."""
+        for shard in iter_shard_refs(self.path, limits=self.limits, problems=problems):
+            self._keep(shard)
+            yield shard
+
+    def record(self, shard_name: str, entries: Iterable[tuple[str | None, tuple[int, int]]]) -> None:
+        """Where the scenarios of a walked shard are: (scenario_id, (start, end) in the shard), in order."""
+        shard = self._spooled.get(shard_name) or self._walked[shard_name]
+        self._records.append((shard, [(sid, span) for sid, span in entries if sid]))
+
+    def _recorded_bytes(self) -> Iterator[tuple[ShardRef, list, bytes | None]]:
+        """Each recorded shard with its entries, and its bytes when they are not a byte range of a file."""
+        if all(shard.path is not None for shard, _ in self._records):
+            for shard, entries in self._records:
+                yield shard, entries, None
+            return
+        # Archive members without a spool: stream the archive once more, under the same limits.
+        entries_of = {shard.name: entries for shard, entries in self._records}
+        for shard in iter_shard_refs(self.path, limits=self.limits):
+            if shard.name in entries_of:
+                yield shard, entries_of[shard.name], shard.data
+
+    def rollouts_locators(self) -> Iterator[tuple[str, RolloutsLocator]]:
+        """(scenario_id, where its rollouts are) of every recorded scenario, in submission order.
+
+        A range of a submission file is given as (path, offset, size) for the worker to read; a
+        scenario of an archive as its bytes (the spool is this process's).
+        """
+        for shard, entries, data in self._recorded_bytes():
+            for sid, (start, end) in entries:
+                if data is not None:
+                    yield sid, data[start:end]
+                elif shard.name in self._spooled:
+                    yield sid, shard.read(start, end)
+                else:
+                    yield sid, (shard.path, shard.offset + start, end - start)
+
+    def rollouts(self, scenario_ids: Iterable[str]) -> dict[str, sim_agents_submission_pb2.ScenarioRollouts]:
+        """The `ScenarioRollouts` of the given scenarios, by id (the first entry of each); an id the
+        submission lacks is absent. Served from the records when validation made them."""
+        wanted, found = set(scenario_ids), {}
+        for sid, data in self._scenario_bytes():
+            if sid in wanted and sid not in found:
+                found[sid] = sim_agents_submission_pb2.ScenarioRollouts.FromString(data)
+                if len(found) == len(wanted):
+                    break
+        return found
+
+    def _scenario_bytes(self) -> Iterator[tuple[str, bytes]]:
+        if self._records:
+            for sid, locator in self.rollouts_locators():
+                yield sid, locator if isinstance(locator, bytes) else read_locator(locator)
+            return
+        for shard in iter_shard_refs(self.path, limits=self.limits):
+            yield from split_shard(shard.name, shard.read(), self.limits)
+
+
+def read_locator(locator: RolloutsLocator) -> bytes:
+    """The bytes a `RolloutsLocator` points at."""
+    if isinstance(locator, bytes):
+        return locator
+    path, offset, size = locator
+    return ShardRef("", size, path=path, offset=offset).read()
+
+
+def find_scenario_rollouts(submission: PathLike | SubmissionSource, scenario_ids,
+                           limits: InputLimits | None = None) -> dict:
+    """The `ScenarioRollouts` of the given scenarios in a submission (file, folder, archive or an open
+    `SubmissionSource`), by id; shards are split on the wire and only the wanted entries are parsed."""
+    if isinstance(submission, SubmissionSource):
+        return submission.rollouts(scenario_ids)
+    return SubmissionSource(submission, limits).rollouts(scenario_ids)

@@ -12,6 +12,8 @@ from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import map_pb2, sim_agents_submission_pb2
 from wosac_eval.sim import baselines, policies, scenes
 from wosac_eval.sim import geometry as geo
+from wosac_eval.sim.logged_scenes import colliding_pairs
+from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
 
 from support.paths import SHARED
@@ -20,7 +22,7 @@ REAL = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
 
 @functools.lru_cache(maxsize=None)
 def scene(kind: str):
-    return scenes.generate_scene(0, scenes.SCENE_KINDS.index(kind))
+    return scenes.generate_scene(0, SCENE_KINDS.index(kind))
 
 
 def sim_agent_ids(sc) -> list[int]:
@@ -100,7 +102,7 @@ def test_idm_follows_lanes_without_collisions_in_dense_traffic():
     pairs = 0
     for r in range(0, 32, 8):
         x, y, h = traj[r, :, :, 0], traj[r, :, :, 1], traj[r, :, :, 3]
-        pairs += len(scenes.colliding_pairs(x, y, h, ctx.length, ctx.width))
+        pairs += len(colliding_pairs(x, y, h, ctx.length, ctx.width))
     assert pairs == 0
     speed = np.linalg.norm(np.diff(traj[..., :2], axis=2), axis=-1) / 0.1
     assert speed.max() < 25.0

@@ -11,6 +11,8 @@ from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import map_pb2, scenario_pb2
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import scenes
+from wosac_eval.sim.logged_scenes import colliding_pairs
+from wosac_eval.sim.scene_recipes import SCENE_KINDS
 
 STOP = (map_pb2.TrafficSignalLaneState.LANE_STATE_STOP, map_pb2.TrafficSignalLaneState.LANE_STATE_ARROW_STOP)
 
@@ -18,7 +20,7 @@ STOP = (map_pb2.TrafficSignalLaneState.LANE_STATE_STOP, map_pb2.TrafficSignalLan
 @functools.lru_cache(maxsize=1)
 def demo_set() -> tuple[scenario_pb2.Scenario, ...]:
     """One scene of every kind (the demo set)."""
-    return tuple(scenes.generate_scenes(len(scenes.SCENE_KINDS), seed=0))
+    return tuple(scenes.generate_scenes(len(SCENE_KINDS), seed=0))
 
 
 def by_kind(kind: str) -> scenario_pb2.Scenario:
@@ -61,7 +63,7 @@ def test_shards_parse_with_our_reader(tmp_path):
         assert read[original.scenario_id].SerializeToString() == original.SerializeToString()
 
 
-@pytest.mark.parametrize("kind", scenes.SCENE_KINDS)
+@pytest.mark.parametrize("kind", SCENE_KINDS)
 def test_scene_has_the_structure_the_official_metrics_need(kind):
     sc = by_kind(kind)
     assert len(sc.timestamps_seconds) == 91 and sc.current_time_index == 10
@@ -106,7 +108,7 @@ def _sizes_ok(object_type: int, length: float, width: float) -> bool:
     return 1.2 <= length <= 2.2 and 0.4 <= width <= 1.0
 
 
-@pytest.mark.parametrize("kind", scenes.SCENE_KINDS)
+@pytest.mark.parametrize("kind", SCENE_KINDS)
 def test_logged_motion_is_physically_plausible(kind):
     sc = by_kind(kind)
     scripted_crash = set(sc.objects_of_interest) if kind == "collision" else set()
@@ -142,10 +144,10 @@ def _logged_collisions(sc: scenario_pb2.Scenario) -> set[tuple[int, int]]:
     valid = np.stack([a[5] for a in arrays])
     length = np.array([a[6] for a in arrays])
     width = np.array([a[7] for a in arrays])
-    return set(scenes.colliding_pairs(x, y, h, length, width, valid))
+    return set(colliding_pairs(x, y, h, length, width, valid))
 
 
-@pytest.mark.parametrize("kind", [k for k in scenes.SCENE_KINDS if k != "collision"])
+@pytest.mark.parametrize("kind", [k for k in SCENE_KINDS if k != "collision"])
 def test_no_logged_collisions_unless_scripted(kind):
     assert _logged_collisions(by_kind(kind)) == set()
 
@@ -241,9 +243,9 @@ def test_objects_are_mixed_types_with_plausible_sizes():
     assert types.count(1) > types.count(3)
 
 
-@pytest.mark.parametrize("kind", scenes.SCENE_KINDS)
+@pytest.mark.parametrize("kind", SCENE_KINDS)
 def test_other_seeds_are_plausible_and_collision_free_too(kind, monkeypatch):
-    sc = scenes.generate_scene(1, scenes.SCENE_KINDS.index(kind))
+    sc = scenes.generate_scene(1, SCENE_KINDS.index(kind))
     monkeypatch.setattr(sys.modules[__name__], "by_kind", lambda _kind: sc)
     test_scene_has_the_structure_the_official_metrics_need(kind)
     test_logged_motion_is_physically_plausible(kind)

@@ -35,8 +35,8 @@ _API = {
     "rollouts_from_arrays": "wosac_eval.arrays.messages",
     "rollouts_message": "wosac_eval.arrays.messages",
     "joint_scene": "wosac_eval.arrays.messages",
-    "SubmissionMetadata": "wosac_eval.parse.submission_writer",
-    "SubmissionWriter": "wosac_eval.parse.submission_writer",
+    "SubmissionMetadata": "wosac_eval.arrays.submission_writer",
+    "SubmissionWriter": "wosac_eval.arrays.submission_writer",
 }
 __all__ = sorted(_API)
 

@@ -183,7 +183,7 @@ def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server,
     scores such a submission and its result lists the gaps as warnings."""
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import make_submission
-    from wosac_eval.parse.submission_writer import SubmissionMetadata
+    from wosac_eval.arrays.submission_writer import SubmissionMetadata
 
     shards = scenes.write_scenario_shards(scenes.generate_scenes(1, seed=8), tmp_path / "scenarios", num_shards=1)
     anonymous = SubmissionMetadata(unique_method_name="anon", account_name="", authors=[])

@@ -156,7 +156,7 @@ def test_baseline_submission_for_real_womd_validates(tmp_path):
 
 def test_streamed_shards_are_the_canonical_serialisation(tmp_path):
     from wosac_eval.arrays.messages import rollouts_from_arrays, rollouts_message
-    from wosac_eval.parse.submission_writer import SubmissionMetadata, SubmissionWriter, build_shards
+    from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter, build_shards
 
     arrays = []
     for kind in ("intersection", "collision", "cyclists"):

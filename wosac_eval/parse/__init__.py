@@ -5,8 +5,7 @@ index WOMD Scenario shards), `tar_format` (the tar format, streamed),
 `archive` (what a submission file is, its shards read safely, and the upload
 check), `submission_source` (the one walk over a submission: file, folder or
 archive, and the handle every stage reads it through), `shards` (a shard's
-bytes parsed or split into scenarios), `submission_writer` (write a
-submission: shards, folder or archive), `wire` (fields read from and written
-to the wire directly), `limits` (how far inputs may expand), `errors` (the
+bytes parsed or split into scenarios), `wire` (fields read from and written to
+the wire directly), `limits` (how far inputs may expand), `errors` (the
 ParseError hierarchy).
 """

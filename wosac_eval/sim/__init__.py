@@ -6,5 +6,5 @@
   `scene_specs`, and `logged_scenes` simulates them with `engine` (closed-loop IDM traffic).
 - `policies`: constant velocity, noisy log replay and IDM lane following for any scenario.
 - `baselines`: a policy's rollouts of every scenario, written as an official-layout submission
-  (`parse.submission_writer`).
+  (`arrays.submission_writer`).
 """

@@ -14,7 +14,7 @@ from wosac_eval.runtime.processes import worker_pool
 from wosac_eval.sim import policies
 from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
 from wosac_eval.arrays.rollouts import RolloutArrays
-from wosac_eval.parse.submission_writer import SubmissionMetadata, SubmissionWriter
+from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter
 
 PathLike = str | os.PathLike
 

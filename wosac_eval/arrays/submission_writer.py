@@ -1,4 +1,4 @@
-"""Writes simulated rollouts as an official-layout WOSAC submission.
+"""Writes simulated rollouts (arrays, messages or their bytes) as an official-layout WOSAC submission.
 
 A submission is a set of shards `<method>.binproto-0000k-of-0000n`, each a
 `SimAgentsChallengeSubmission` carrying the full metadata and some of the
@@ -17,6 +17,8 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from wosac_eval.arrays.messages import rollouts_bytes
+from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.parse.wire import varint
 from wosac_eval.protos import sim_agents_submission_pb2
 
@@ -79,9 +81,6 @@ def write_submission(rollouts: list, metadata: SubmissionMetadata, output: str |
 
 
 def _rollouts_bytes(rollouts) -> bytes:
-    from wosac_eval.arrays.messages import rollouts_bytes
-    from wosac_eval.arrays.rollouts import RolloutArrays
-
     if isinstance(rollouts, bytes):
         return rollouts
     if isinstance(rollouts, RolloutArrays):
@@ -117,9 +116,9 @@ class SubmissionWriter:
 
     def add(self, rollouts) -> None:
         """Appends one scenario's rollouts: `RolloutArrays`, a `ScenarioRollouts` message or its bytes."""
-        rollouts_bytes = _rollouts_bytes(rollouts)
+        data = _rollouts_bytes(rollouts)
         shard = self._files[self.count % self.num_shards]
-        shard.write(_ROLLOUTS_TAG + varint(len(rollouts_bytes)) + rollouts_bytes)
+        shard.write(_ROLLOUTS_TAG + varint(len(data)) + data)
         self.count += 1
 
     def __enter__(self) -> "SubmissionWriter":

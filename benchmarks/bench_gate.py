@@ -17,7 +17,7 @@ from wosac_eval.results import stats
 from wosac_eval.results.compare import compare_results
 from wosac_eval.results.report import render_report
 from wosac_eval.scoring.result_reader import load_result
-from wosac_eval.sim.synthetic_results import LIKELIHOODS, synthetic_result
+from wosac_eval.results.synthetic_results import LIKELIHOODS, synthetic_result
 
 
 def _timed(label, fn):

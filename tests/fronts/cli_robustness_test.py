@@ -198,7 +198,7 @@ def test_report_legend_covers_no_bar(tmp_path):
 
     from wosac_eval.results.report import bucket_figure
     from wosac_eval.scoring.result_reader import load_result
-    from wosac_eval.sim.synthetic_results import write_gate_demo_results
+    from wosac_eval.results.synthetic_results import write_gate_demo_results
 
     base_path, new_path = write_gate_demo_results(tmp_path, num_scenarios=50)
     fig = bucket_figure(load_result(new_path), load_result(base_path))

@@ -6,7 +6,7 @@ import sys
 import pytest
 
 from wosac_eval.fronts.cli import main
-from wosac_eval.sim.synthetic_results import result_json, synthetic_scenarios
+from wosac_eval.results.synthetic_results import result_json, synthetic_scenarios
 
 FAST = ["--n-boot", "300", "--n-perm", "300"]
 

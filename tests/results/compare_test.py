@@ -16,7 +16,7 @@ from wosac_eval.results.compare import (
     format_table,
 )
 from wosac_eval.scoring.result_reader import load_result
-from wosac_eval.sim.synthetic_results import LIKELIHOODS, WEIGHTS_2025, result_json, synthetic_scenarios
+from wosac_eval.results.synthetic_results import LIKELIHOODS, WEIGHTS_2025, result_json, synthetic_scenarios
 
 FAST = {"n_boot": 400, "n_perm": 400}
 

@@ -11,7 +11,7 @@ from support import browser
 from wosac_eval.results.compare import compare_results
 from wosac_eval.results.report import SECTIONS, render_report
 from wosac_eval.scoring.result_reader import load_result
-from wosac_eval.sim.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
+from wosac_eval.results.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
 
 FAST = {"n_boot": 300, "n_perm": 300}
 

@@ -13,7 +13,7 @@ from wosac_eval.scoring.result_reader import (
     parse_result,
     weighted_buckets,
 )
-from wosac_eval.sim.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
+from wosac_eval.results.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
 
 from support.paths import SHARED
 

@@ -1,3 +1,4 @@
 """Libraries over scored results, for the command line and the service alike: compare two runs and gate
 on regressions (`compare`, `stats`, `stratify`), render an HTML report (`report`), draw a scene and its
-rollouts (`scene_plot`). The result document is written and read in `scoring` (`result`, `result_reader`)."""
+rollouts (`scene_plot`), synthetic results with known differences for tests, benchmarks and the gate demo
+(`synthetic_results`). The result document is written and read in `scoring` (`result`, `result_reader`)."""

@@ -56,7 +56,7 @@ def run_gate_demo(folder: Path) -> int:
     import argparse as _argparse
 
     from wosac_eval.fronts.commands import report
-    from wosac_eval.sim.synthetic_results import GATE_DEMO_TITLE, write_gate_demo_results
+    from wosac_eval.results.synthetic_results import GATE_DEMO_TITLE, write_gate_demo_results
 
     write_gate_demo_results(folder)
     here = os.getcwd()

@@ -13,11 +13,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.arrays.object_types import SHORT_NAMES
 from wosac_eval.features.metric_features import MetricFeatures
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import METRIC_NAMES, METRICS, RATES
-
-OBJECT_TYPES = {1: "vehicle", 2: "pedestrian", 3: "cyclist"}  # Track.ObjectType values
 
 
 def _likelihood(ll: np.ndarray, mask: np.ndarray | None, rows: np.ndarray) -> float | None:
@@ -39,7 +38,7 @@ def by_object_type(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metr
     types = np.asarray(log.object_type)[0]
     valid = np.asarray(log.valid)[0]
     out = {}
-    for code, name in OBJECT_TYPES.items():
+    for code, name in SHORT_NAMES.items():
         rows = np.flatnonzero(types == code)
         if rows.size == 0:
             continue

@@ -33,10 +33,10 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.challenges import STEP_SECONDS
 
-TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST = 1, 2, 3
 RATE_HALF_WINDOW = 2        # steps each side of a central difference
 MOVING_SPEED = 2.0          # m/s: the yaw of slower objects is mostly heading noise
 PAIR_RANGE = 25.0           # m between centres: farther pairs do not interact within a step

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
@@ -19,7 +20,6 @@ from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIK
                                          METRIC_NAMES, METRICS, RATE_FIELDS, RATES)
 
 _F = np.float32
-TYPE_VEHICLE = 1
 
 # The per-scenario fields of a result, in result order.
 SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE_FIELDS)

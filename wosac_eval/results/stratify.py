@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
+from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.results import stats
 from wosac_eval.scoring.result_reader import ScoringResult, higher_is_better, shared_rows
 
@@ -136,7 +137,7 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
             for name, description, mask in criticality_strata(scores):
                 rows.append(_compare(name, description, metric, b[mask], n[mask], seed, n_boot, n_perm, alpha))
     else:
-        kinds = [k for k in ("vehicle", "pedestrian", "cyclist") if k in base.by_type and k in new.by_type]
+        kinds = [k for k in ANALYSED_TYPES if k in base.by_type and k in new.by_type]
         if not kinds:
             raise StratifyError(f"{base.path} and {new.path} share no per-object-type values (`by_object_type`): "
                                 "score them again with this version")

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.analysis.by_object_type import OBJECT_TYPES
+from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
@@ -60,7 +60,7 @@ def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
             "components": {k: _mean(d["components"][k] for d in driving) for k in driving[0]["components"]}},
         "by_object_type": {},
     }
-    for kind in OBJECT_TYPES.values():
+    for kind in ANALYSED_TYPES:
         present = [r["by_object_type"][kind] for r in rows if kind in r.get("by_object_type", {})]
         if present:
             fields = [k for k in present[0] if k != "num_objects"]

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
 from wosac_eval.challenges import CURRENT_TIME_INDEX
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
@@ -18,9 +19,6 @@ from wosac_eval.sim.scene_specs import (
     DT,
     NUM_STEPS,
     PATH_SPACING_M,
-    TYPE_CYCLIST,
-    TYPE_PEDESTRIAN,
-    TYPE_VEHICLE,
     AgentSpec,
     SceneSpec,
 )

@@ -26,6 +26,7 @@ import zlib
 import numpy as np
 
 from wosac_eval import challenges
+from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN
 from wosac_eval.challenges import CURRENT_TIME_INDEX, NUM_ROLLOUTS, STEP_SECONDS
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
@@ -303,7 +304,7 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
             poly, agent_stops, lanes_taken = _route(ctx, lane_id, seg, start, rng, min_length)
             polylines[k][i], stops[k][i] = variants.setdefault(lanes_taken, (poly, agent_stops))
         limit = lane.speed_limit if lane.speed_limit > 0 else 11.0
-        if ctx.object_type[i] == 3:
+        if ctx.object_type[i] == TYPE_CYCLIST:
             limit = min(limit, 6.0)
         queued = speed[i] > 0.5 or abs(lat) < 1.0  # stopped in the middle of a lane: waiting, not parked
         v0[:, i] = np.maximum(speed[i], limit * rng.uniform(0.75, 1.05, r)) if queued else 0.0
@@ -315,7 +316,7 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
         for i in range(n):
             for j, (s, c) in enumerate(stops[k][i]):
                 stop_s[k, i, j], stop_signal[k, i, j] = s, c
-    is_ped = ctx.object_type == 2
+    is_ped = ctx.object_type == TYPE_PEDESTRIAN
     drivers = engine.Drivers(
         length=np.broadcast_to(ctx.length, (r, n)).copy(),
         width=np.broadcast_to(ctx.width, (r, n)).copy(),

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim import roads, signals
@@ -30,9 +31,6 @@ from wosac_eval.sim.scene_specs import (
     NUM_STEPS,
     PATH_SPACING_M,
     TIMES,
-    TYPE_CYCLIST,
-    TYPE_PEDESTRIAN,
-    TYPE_VEHICLE,
     AgentSpec,
 )
 

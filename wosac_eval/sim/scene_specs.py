@@ -1,7 +1,6 @@
 """What a synthetic scene is before simulation: its logged objects (`AgentSpec`) and the scene (`SceneSpec`).
 
-Also the scene clock (`NUM_STEPS` steps of `DT` seconds, `TIMES`), the object types the
-generator writes, and the spacing at which object paths are resampled.
+Also the scene clock (`NUM_STEPS` steps of `DT` seconds, `TIMES`) and the spacing at which object paths are resampled.
 """
 from __future__ import annotations
 
@@ -16,8 +15,6 @@ from wosac_eval.sim import roads
 NUM_STEPS = NUM_LOGGED_STEPS  # 91
 DT = STEP_SECONDS
 TIMES = np.arange(NUM_STEPS) * DT
-
-TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST = 1, 2, 3
 
 PATH_SPACING_M = 0.5
 

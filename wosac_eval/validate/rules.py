@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from wosac_eval import challenges
+from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
 from wosac_eval.parse.wire import BOX_FIELDS, packed_boxes, packed_coordinates, serialized
 
@@ -37,7 +38,6 @@ from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_find
 N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario
 N_SIMULATION_STEPS = challenges.spec("sim_agents").num_simulation_steps  # 8 s at 10 Hz after the current step
 TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
-OBJECT_TYPES = {1: "TYPE_VEHICLE", 2: "TYPE_PEDESTRIAN", 3: "TYPE_CYCLIST", 4: "TYPE_OTHER"}
 SIM_AGENTS_SUBMISSION = 1  # SimAgentsChallengeSubmission.SubmissionType
 
 # "200K", "1.5B", "7000000": a number, optionally with a multiplier suffix.
@@ -284,14 +284,14 @@ def _box_checks(trajectories: Sequence[Any], data: list[bytes], n_steps: int):
     finite = np.isfinite(sizes)
     non_finite[regular] = ~finite.all(axis=2)
     non_positive[regular] = (finite & (sizes <= 0)).any(axis=2)
-    has_type[regular] = types != 0
+    has_type[regular] = types != TYPE_UNSET
     for k in np.flatnonzero(~regular).tolist():
         t = trajectories[k]
         fields = [np.asarray(getattr(t, name), dtype=np.float64) for name in BOX_FIELDS]
         counts[k] = [len(f) for f in fields]
         non_finite[k] = [not np.isfinite(f).all() for f in fields]
         non_positive[k] = [bool((f[np.isfinite(f)] <= 0).any()) for f in fields]
-        has_type[k] = t.HasField("object_type") and t.object_type != 0
+        has_type[k] = t.HasField("object_type") and t.object_type != TYPE_UNSET
     return counts, non_finite, non_positive, has_type
 
 
@@ -488,8 +488,8 @@ def check_scenario_rollouts(
         for k in np.flatnonzero(~has_type).tolist():
             out.append(make_finding("rollouts.missing_object_type",
                                     "object_type is not set (or TYPE_UNSET); the scenario gen challenge needs "
-                                    "the type of every object (TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST, "
-                                    "TYPE_OTHER)", field="object_type", **where_(k)))
+                                    f"the type of every object ({', '.join(PROTO_NAMES.values())})",
+                                    field="object_type", **where_(k)))
     ignored = _ignored_fields(trajectories, spec)
     if ignored:
         out.append(make_finding("rollouts.ignored_field", f"fields {', '.join(ignored)} are set but ignored: "

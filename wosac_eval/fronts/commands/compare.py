@@ -9,6 +9,7 @@ import argparse
 import json
 import sys
 
+from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.fronts.usage import UsageError, check_output_file
 from wosac_eval.results.compare import (
     ALIASES,
@@ -50,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="error (exit 2) when the results share fewer than N scenarios (default 1)")
     parser.add_argument("--stratify", choices=STRATIFY,
                         help="also compare per stratum: criticality terciles and the long tail (top decile) vs "
-                             "the rest, or per object type (vehicle, pedestrian, cyclist); paired CI, p-value, "
+                             f"the rest, or per object type ({', '.join(ANALYSED_TYPES)}); paired CI, p-value, "
                              "Holm-adjusted p and Cohen's d per stratum, for the --metric metrics (default "
                              "metametric)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")

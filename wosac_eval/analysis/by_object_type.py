@@ -15,6 +15,7 @@ import numpy as np
 
 from wosac_eval.arrays.object_types import SHORT_NAMES
 from wosac_eval.features.metric_features import MetricFeatures
+from wosac_eval.metrics.buckets import metametric_weights
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import METRIC_NAMES, METRICS, RATES
 
@@ -37,6 +38,7 @@ def by_object_type(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metr
     """
     types = np.asarray(log.object_type)[0]
     valid = np.asarray(log.valid)[0]
+    weights = metametric_weights(config)
     out = {}
     for code, name in SHORT_NAMES.items():
         rows = np.flatnonzero(types == code)
@@ -46,8 +48,7 @@ def by_object_type(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metr
         for metric in METRICS:
             ll, mask = log_likelihoods[metric.name]
             row[metric.output] = _likelihood(np.asarray(ll), None if mask is None else np.asarray(mask), rows)
-        weighted = [(getattr(config, m).metametric_weight, row[f"{m}_likelihood"]) for m in METRIC_NAMES
-                    if row[f"{m}_likelihood"] is not None]
+        weighted = [(weights[m], row[f"{m}_likelihood"]) for m in METRIC_NAMES if row[f"{m}_likelihood"] is not None]
         total = sum(w for w, _ in weighted)
         row["metametric"] = float(sum(w * v for w, v in weighted) / total) if total > 0 else None
         ade = np.asarray(sim.average_displacement_error)[:, rows]

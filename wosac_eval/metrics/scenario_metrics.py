@@ -15,6 +15,7 @@ from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
 from wosac_eval.features.xp import array_namespace
+from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
                                          METRIC_NAMES, METRICS, RATE_FIELDS, RATES)
@@ -113,8 +114,8 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
                           else _object_mean(flags, object_mask, np.float64).mean())
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
-    out["metametric"] = sum(getattr(config, m).metametric_weight * out[f"{m}_likelihood"].astype(np.float64)
-                            for m in METRIC_NAMES)
+    weights = metametric_weights(config)
+    out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(np.float64) for m in METRIC_NAMES)
     return out
 
 
@@ -135,18 +136,19 @@ def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
 
 def metametric(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> float:
     """Weighted sum of the likelihoods with the config's meta-metric weights."""
-    return sum(getattr(config, m).metametric_weight * metrics[f"{m}_likelihood"] for m in METRIC_NAMES)
+    weights = metametric_weights(config)
+    return sum(weights[m] * metrics[f"{m}_likelihood"] for m in METRIC_NAMES)
 
 
 def bucket_metrics(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> dict[str, float]:
     """Kinematic / interactive / map-based weighted means, plus headline figures (the official buckets)."""
     out = {"realism_meta_metric": metrics["metametric"]}
+    weights = metametric_weights(config)
     for bucket, names in METRIC_BUCKETS.items():
-        weights = [getattr(config, m).metametric_weight for m in names]
-        if sum(weights) == 0:
+        mean = weighted_bucket(names, metrics, weights)
+        if mean is None:  # the official scorer rejects the config
             raise ValueError(f"the {bucket} bucket has zero total weight in this config")
-        out[f"{bucket}_metrics"] = sum(w * metrics[f"{m}_likelihood"]
-                                       for w, m in zip(weights, names)) / sum(weights)
+        out[f"{bucket}_metrics"] = mean
     out["min_ade"] = metrics["min_average_displacement_error"]
     for rate in RATES:
         out[rate.bucket_name] = metrics[rate.name]

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from wosac_eval.challenges import CHALLENGE_NAMES as CHALLENGES
+from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
 # The metric schema comes from the one registry: fields, buckets, directions.
 from wosac_eval.metrics.registry import (  # noqa: F401  (re-exported to compare and report)
     BUCKET_ALIASES, BUCKET_FIELDS, BUCKET_MEMBERS, RATE_FIELDS, SCENARIO_FIELDS, higher_is_better)
@@ -183,27 +184,17 @@ def default_bucket_weights(config: str) -> dict[str, float] | None:
         proto = load_config(config)
     except (ValueError, OSError):  # an unknown name, or a textproto path that is not on this machine
         return None
-    weights = {}
-    for members in BUCKET_MEMBERS.values():
-        for field in members:
-            weights[field] = float(getattr(proto, field).metametric_weight) if proto.HasField(field) else 0.0
-    return weights
+    return metametric_weights(proto)
 
 
 def weighted_buckets(values: dict[str, np.ndarray], weights: dict[str, float]) -> dict[str, np.ndarray]:
     """Per-scenario kinematic / interactive / map-based buckets, each `(num_scenarios,)`.
 
-    A bucket is the mean of its likelihoods weighted by their metametric weights
-    (normalised within the bucket). A bucket whose weights are all zero is left out.
+    A bucket is the mean of its likelihoods weighted by their metametric weights, as the
+    scorer's (`buckets.weighted_bucket`). A bucket whose weights sum to zero is left out.
     """
-    out = {}
-    for bucket, members in BUCKET_MEMBERS.items():
-        w = np.array([weights.get(f, 0.0) for f in members])
-        if w.sum() <= 0:
-            continue
-        stacked = np.stack([values[f"{f}_likelihood"] for f in members], axis=-1)  # (num_scenarios, members)
-        out[bucket] = stacked @ (w / w.sum())
-    return out
+    means = {bucket: weighted_bucket(members, values, weights) for bucket, members in BUCKET_MEMBERS.items()}
+    return {bucket: mean for bucket, mean in means.items() if mean is not None}
 
 
 def parse_result(

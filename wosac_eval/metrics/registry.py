@@ -96,6 +96,13 @@ BUCKET_ALIASES: dict[str, str] = {
 }
 # The weighted buckets: the config fields whose likelihoods they average.
 BUCKET_MEMBERS: dict[str, tuple[str, ...]] = {f"{b}_metrics": METRIC_BUCKETS[b] for b in BUCKETS}
+# The score buckets (higher is better): the headline, then the weighted buckets.
+SCORE_BUCKETS = ("realism_meta_metric", *BUCKET_MEMBERS)
+
+# Per-scenario fields and weighted buckets in display order (compare tables, report distributions): the
+# headline, the weighted buckets, the likelihoods, then the displacement errors and the rates (lower is better).
+DISPLAY_ORDER = ("metametric", *BUCKET_MEMBERS, *LIKELIHOOD_FIELDS, "min_average_displacement_error",
+                 "average_displacement_error", *RATE_FIELDS)
 
 
 def higher_is_better(field: str) -> bool:

@@ -15,27 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from wosac_eval.metrics.registry import DISPLAY_ORDER
 from wosac_eval.results import stats
-from wosac_eval.scoring.result_reader import (
-    BUCKET_MEMBERS,
-    SCENARIO_FIELDS,
-    ScoringResult,
-    higher_is_better,
-    shared_rows,
-)
+from wosac_eval.scoring.result_reader import ScoringResult, higher_is_better, shared_rows
 
-# Metrics in display order: the headline, the weighted buckets, the likelihoods,
-# then displacement errors and the rates (lower is better for those).
-METRICS: tuple[str, ...] = (
-    "metametric",
-    *BUCKET_MEMBERS,
-    *[f for f, higher in SCENARIO_FIELDS.items() if higher and f != "metametric"],
-    "min_average_displacement_error",
-    "average_displacement_error",
-    "simulated_collision_rate",
-    "simulated_offroad_rate",
-    "simulated_traffic_light_violation_rate",
-)
+# Metrics in display order (the registry's).
+METRICS: tuple[str, ...] = DISPLAY_ORDER
 
 # Other names accepted on the command line (the leaderboard's bucket names).
 ALIASES: dict[str, str] = {

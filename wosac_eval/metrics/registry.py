@@ -46,6 +46,7 @@ class Rate:
     name: str
     feature: str
     bucket_name: str  # its name among the leaderboard buckets (the same)
+    title: str  # as the HTML report labels it
 
 
 METRICS = (
@@ -61,11 +62,11 @@ METRICS = (
     Metric("traffic_light_violation", "map_based", "traffic_light_violation_per_step", True, "vehicle"),
 )
 RATES = (
-    Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate"),
-    Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate"),
+    Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate", "Collision rate"),
+    Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate", "Offroad rate"),
     # The official rate counts red lights of every valid object, vehicle or not.
     Rate("simulated_traffic_light_violation_rate", "traffic_light_violation_per_step",
-         "simulated_traffic_light_violation_rate"),
+         "simulated_traffic_light_violation_rate", "Red-light violation rate"),
 )
 
 METRIC_NAMES = tuple(m.name for m in METRICS)

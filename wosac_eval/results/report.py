@@ -19,12 +19,12 @@ from collections.abc import Iterable
 import numpy as np
 
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
+from wosac_eval.metrics.registry import DISPLAY_ORDER, RATES, SCORE_BUCKETS
 from wosac_eval.results.compare import BETTER, WORSE, Comparison
 from wosac_eval.scoring.result_reader import (
     BUCKET_ALIASES,
     BUCKET_FIELDS,
     RATE_FIELDS,
-    SCENARIO_FIELDS,
     ScoringResult,
     higher_is_better,
     shared_rows,
@@ -32,20 +32,11 @@ from wosac_eval.scoring.result_reader import (
 
 SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
 
-RATE_LABELS = {
-    "simulated_collision_rate": "Collision rate",
-    "simulated_offroad_rate": "Offroad rate",
-    "simulated_traffic_light_violation_rate": "Red-light violation rate",
-}
+RATE_LABELS = {rate.name: rate.title for rate in RATES}
 
-# Metrics whose per-scenario distribution and worst scenarios the report shows.
-DISTRIBUTION_METRICS = (
-    "metametric",
-    "kinematic_metrics", "interactive_metrics", "map_based_metrics",
-    *[f for f, higher in SCENARIO_FIELDS.items() if higher and f != "metametric"],
-    "min_average_displacement_error",
-    *RATE_FIELDS,
-)
+# Metrics whose per-scenario distribution and worst scenarios the report shows: all but the mean ADE
+# (the leaderboard's displacement figure is the min ADE).
+DISTRIBUTION_METRICS = tuple(f for f in DISPLAY_ORDER if f != "average_displacement_error")
 
 _BASE_COLOR, _NEW_COLOR = "#9aa5b1", "#1f6feb"
 
@@ -135,8 +126,7 @@ def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
 
 def bucket_figure(result: ScoringResult, base: ScoringResult | None):
     """Horizontal bars of the bucket scores (this run, and the baseline's beside them); None without buckets."""
-    names = [b for b in ("realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics")
-             if result.headline(b) is not None]
+    names = [b for b in SCORE_BUCKETS if result.headline(b) is not None]
     if not names:
         return None
     fig = _figure(5.6, 2.6)

@@ -1,9 +1,10 @@
-"""The optional extras (`jax`, `ray`): a choice checked by name, and its package checked importable.
+"""What can run here: the compute backends and the engines, and the optional extras behind them.
 
-One check for the jax backend (`backends.check_backend`) and the ray engine
-(`runtime.engines.check_engine`), so both refuse alike: a ValueError for an
-unknown name, the caller's error type with the install command for a missing
-package.
+The backends ("numpy", "jax": the `jax` extra) compute the feature kernels;
+the engines ("local", "ray": the `ray` extra) run the work. Both are checked
+alike, by every front through `scoring.evaluation`: a ValueError for an unknown
+name, `BackendUnavailableError` or `EngineUnavailableError` with the install
+command for a missing package.
 """
 from __future__ import annotations
 
@@ -29,3 +30,29 @@ def require_extra(what: str, module: str, package: str, extra: str, error: type[
     except ImportError as exc:
         raise error(f"the {what} needs {package}, which is not installed ({exc}); "
                     f"install it with: {install_hint(extra)}") from exc
+
+
+BACKENDS = ("numpy", "jax")
+ENGINES = ("local", "ray")
+
+
+class BackendUnavailableError(RuntimeError):
+    """The requested backend cannot run here (e.g. JAX is not installed)."""
+
+
+class EngineUnavailableError(RuntimeError):
+    """The requested engine cannot run here (Ray not installed, cluster unreachable)."""
+
+
+def check_backend(name: str) -> str:
+    """Validates a backend name and that its dependencies import; returns the name."""
+    if check_choice("backend", name, BACKENDS) == "jax":
+        require_extra("jax backend", "jax", "JAX", "jax", BackendUnavailableError)
+    return name
+
+
+def check_engine(name: str) -> str:
+    """Validates an engine name and that its dependencies import; returns the name."""
+    if check_choice("engine", name, ENGINES) == "ray":
+        require_extra("ray engine", "ray", "Ray", "ray", EngineUnavailableError)
+    return name

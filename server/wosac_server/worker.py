@@ -60,7 +60,7 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Callable  # noqa: E402
 
-from wosac_eval.runtime.engines import EngineUnavailableError  # noqa: E402
+from wosac_eval.extras import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
 from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
 from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402

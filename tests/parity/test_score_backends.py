@@ -71,7 +71,7 @@ def test_missing_jax_is_a_usage_error_with_the_install_hint(tmp_path):
 
 
 def test_unknown_backend_is_rejected():
-    from wosac_eval.backends import check_backend
+    from wosac_eval.extras import check_backend
     with pytest.raises(ValueError, match="unknown backend 'torch'"):
         check_backend("torch")
 

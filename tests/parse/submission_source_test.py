@@ -20,12 +20,13 @@ from wosac_eval.parse.submission_source import (
 from wosac_eval.results.scene_plot import scene_pictures
 from wosac_eval.scoring.submission import score_submission
 from wosac_eval.sim import baselines, scenes
+from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
 
 
 @functools.lru_cache(maxsize=None)
 def _scene(kind: str):
-    return scenes.generate_scene(0, scenes.SCENE_KINDS.index(kind))
+    return scenes.generate_scene(0, SCENE_KINDS.index(kind))
 
 
 @pytest.fixture(scope="module")

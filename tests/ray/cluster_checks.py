@@ -35,7 +35,7 @@ from ray.cluster_utils import Cluster  # noqa: E402
 import ray_helpers  # noqa: E402
 from support.processes import alive  # noqa: E402
 from support.runs import run_cli  # noqa: E402
-from wosac_eval.runtime.engines import EngineUnavailableError  # noqa: E402
+from wosac_eval.extras import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.executors import make_executor  # noqa: E402
 from wosac_eval.scoring import submission as scoring  # noqa: E402
 from wosac_eval.scoring.submission import score_submission  # noqa: E402

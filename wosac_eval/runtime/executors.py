@@ -19,7 +19,7 @@ import collections
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
-from wosac_eval.runtime.engines import check_engine
+from wosac_eval.extras import check_engine
 from wosac_eval.runtime.processes import worker_pool
 
 
@@ -81,7 +81,7 @@ class LocalExecutor:
 
 def make_executor(engine: str = "local", *, workers: int = 1, ray_address: str | None = None,
                   force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
-    """The executor of an engine (`engines.ENGINES`); raises `engines.EngineUnavailableError` when it cannot run."""
+    """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run."""
     if check_engine(engine) == "local":
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
     from wosac_eval.runtime.ray_executor import RayExecutor

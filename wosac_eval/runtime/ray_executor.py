@@ -35,7 +35,7 @@ from typing import Any
 
 import ray
 
-from wosac_eval.runtime.engines import EngineUnavailableError
+from wosac_eval.extras import EngineUnavailableError
 
 MAX_RETRIES = 3  # system failures (a dead worker process or node) per task
 IN_FLIGHT_PER_CPU = 2

@@ -14,10 +14,9 @@ import os
 
 from wosac_eval import challenges
 from wosac_eval.analysis.scenario_set_criticality import parse_selection
-from wosac_eval.backends import check_backend
+from wosac_eval.extras import check_backend, check_engine
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
 from wosac_eval.parse.limits import InputLimits
-from wosac_eval.runtime.engines import check_engine
 from wosac_eval.validate.validator import METADATA_CHECKS
 
 
@@ -67,14 +66,14 @@ def resolve_evaluation(challenge="sim_agents", config: str | os.PathLike | None 
 
     Args are those of `score_submission`; `config` None is the challenge's current preset.
     """
+    if select is not None:
+        parse_selection(select)
+    config_name = config_name_for(challenge, config)
     spec = challenges.spec(challenge)
     check_backend(backend)
     check_engine(engine)
-    if select is not None:
-        parse_selection(select)
     if metadata_checks not in METADATA_CHECKS:
         raise ValueError(f"metadata_checks must be one of {', '.join(METADATA_CHECKS)}, not {metadata_checks!r}")
-    config_name = config_name_for(spec.challenge, config)
     return Evaluation(spec=spec, config_name=config_name, config=load_config(config_name),
                       limits=InputLimits() if limits is None else limits, backend=backend, engine=engine,
                       ray_address=ray_address, workers=workers, allow_partial=allow_partial,

@@ -17,6 +17,7 @@ this process, worker processes of this host, or a Ray cluster):
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 from collections.abc import Callable, Iterable, Iterator
@@ -181,10 +182,9 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     # The engine first: an unreachable cluster is reported before any long work.
     executor = make_executor(evaluation.engine, workers=evaluation.workers, ray_address=evaluation.ray_address,
                              force_spawn=evaluation.backend == "jax", initializer=keep_freed_memory)
-    index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
-    if isinstance(submission, SubmissionSource):
-        return _score(index, submission, evaluation, executor, progress)
-    with SubmissionSource(submission, evaluation.limits) as source:
+    owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
+    with SubmissionSource(submission, evaluation.limits) if owned else contextlib.nullcontext(submission) as source:
+        index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         return _score(index, source, evaluation, executor, progress)
 
 

@@ -10,12 +10,11 @@ import json
 import sys
 from pathlib import Path
 
-from wosac_eval.backends import BACKENDS, BackendUnavailableError
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.extras import BACKENDS, ENGINES, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
 from wosac_eval.parse.errors import ParseError
-from wosac_eval.runtime.engines import ENGINES, EngineUnavailableError
 from wosac_eval.scoring.evaluation import resolve_evaluation
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.validate import ScenarioSetError

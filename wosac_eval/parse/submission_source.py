@@ -304,11 +304,14 @@ class SubmissionSource:
             for shard, entries in self._records:
                 yield shard, entries, None
             return
-        # Archive members without a spool: stream the archive once more, under the same limits.
+        # Archive members without a spool: stream the archive once more, under the same limits, up to the
+        # last recorded member (what follows it, a truncated end say, was reported by the walk that recorded).
         entries_of = {shard.name: entries for shard, entries in self._records}
         for shard in iter_shard_refs(self.path, limits=self.limits):
             if shard.name in entries_of:
-                yield shard, entries_of[shard.name], shard.data
+                yield shard, entries_of.pop(shard.name), shard.data
+                if not entries_of:
+                    return
 
     def rollouts_locators(self) -> Iterator[tuple[str, RolloutsLocator]]:
         """(scenario_id, where its rollouts are) of every recorded scenario, in submission order.

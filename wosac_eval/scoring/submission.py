@@ -40,12 +40,20 @@ SCENARIOS_PER_TASK = 8  # scenarios scored by one task (one jax-backend batch)
 
 
 class InvalidSubmissionError(ValueError):
-    """The submission failed validation; `.report` says every reason."""
+    """The submission failed validation; `.report` says every reason. `.metadata` is True when it is
+    refused for its metadata, which partial scoring never goes past."""
 
     def __init__(self, report):
         self.report = report
+        self.metadata = report.metadata_error_count > 0
         super().__init__(f"invalid submission: {report.error_count} error(s); "
                          f"run `wosac-eval validate` for the full report")
+
+
+def refuses(report, allow_partial: bool) -> bool:
+    """Whether an invalid submission is refused: always without partial scoring; with it, for metadata
+    errors (partial scoring scores the valid scenarios and lists the others, never ignores the metadata)."""
+    return not report.ok and (not allow_partial or report.metadata_error_count > 0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -204,7 +212,7 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     """Validate (recording where each scenario is), select, score on the executor, assemble."""
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
                                  metadata_checks=evaluation.metadata_checks)
-    if not report.ok and not evaluation.allow_partial:
+    if refuses(report, evaluation.allow_partial):
         raise InvalidSubmissionError(report)
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))

@@ -231,6 +231,11 @@ class ValidationReport:
         return sum(g.count for g in self.groups.values() if g.severity == ERROR)
 
     @property
+    def metadata_error_count(self) -> int:
+        """Errors of the submission's metadata (account, method, flags): no partial scoring goes past them."""
+        return sum(g.count for code, g in self.groups.items() if g.severity == ERROR and code.startswith("metadata."))
+
+    @property
     def warning_count(self) -> int:
         return sum(g.count for g in self.groups.values() if g.severity != ERROR)
 

@@ -127,8 +127,12 @@ def run(args: argparse.Namespace) -> int:
         result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
-        print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
-              "its valid scenarios", file=sys.stderr)
+        if error.metadata:
+            print("wosac-eval score: the submission's metadata has errors (listed above); fix them: partial "
+                  "scoring skips invalid scenarios, never the metadata", file=sys.stderr)
+        else:
+            print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
+                  "its valid scenarios", file=sys.stderr)
         return 1
     except (ScenarioSetError, ParseError) as error:
         raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None

@@ -17,6 +17,7 @@ import uuid
 from pathlib import Path
 
 from .db import Store
+from .models import is_partial
 
 STATES = ("queued", "validating", "scoring", "done", "failed")
 RUNNING = ("validating", "scoring")
@@ -190,7 +191,8 @@ def leaderboard(store: Store, config: str, challenge: str = "sim_agents") -> lis
     return [
         {"rank": i + 1, "method": r["method"], "submission_id": r["id"],
          "realism_meta_metric": r["realism_meta_metric"], "buckets": json.loads(r["buckets"] or "{}"),
-         "coverage": r["coverage"], "finished_at": r["finished_at"]}
+         "coverage": r["coverage"], "partial": is_partial(r["coverage"]),
+         "finished_at": r["finished_at"]}
         for i, r in enumerate(ranked)
     ]
 

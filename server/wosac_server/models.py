@@ -36,6 +36,8 @@ class SubmissionStatus(BaseModel):
     realism_meta_metric: float | None = None
     coverage: float | None = Field(None, description="Share of the scenario set the result covers (1.0 unless "
                                    "scored with allow_partial).")
+    partial: bool = Field(False, description="A partial result: scored with allow_partial on part of the "
+                          "scenario set (coverage below 1).")
     results_url: str | None = None
     peak_rss_bytes: int | None = Field(None, description="Peak resident memory of the last scoring attempt's "
                                        "process.")
@@ -53,6 +55,7 @@ class LeaderboardEntry(BaseModel):
     realism_meta_metric: float
     buckets: dict[str, Any]
     coverage: float | None = Field(None, description="Share of the scenario set scored (below 1: a partial result).")
+    partial: bool = Field(False, description="A partial result (coverage below 1): ranked, and marked so.")
     finished_at: str
 
 
@@ -69,10 +72,15 @@ class UploadStatus(BaseModel):
     submission_id: str | None = Field(None, description="Set once the upload was completed.")
 
 
+def is_partial(coverage: float | None) -> bool:
+    """A result that covers only part of the scenario set (scored with allow_partial)."""
+    return coverage is not None and coverage < 1
+
+
 class Health(BaseModel):
     status: str
     database: str
-    scenarios: int
+    scenario_shards: int  # the TFRecord files of the scenario set (each holds many scenarios)
 
 
 def iso(t: float | None) -> str | None:
@@ -91,6 +99,7 @@ def status_of(row: dict) -> SubmissionStatus:
         attempts=row["attempts"], created_at=iso(row["created_at"]), updated_at=iso(row["updated_at"]),
         started_at=iso(row["started_at"]), finished_at=iso(row["finished_at"]), error=row["error"],
         validation_report=report, realism_meta_metric=row["realism_meta_metric"], coverage=row.get("coverage"),
+        partial=is_partial(row.get("coverage")),
         results_url=f"/v1/submissions/{row['id']}/results" if row["state"] == "done" else None,
         peak_rss_bytes=row.get("peak_rss_bytes"), cpu_s=row.get("cpu_s"),
     )

@@ -42,6 +42,13 @@ def raise_open_files_limit() -> None:
         resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 
 
+def proxy_options(settings) -> dict:  # noqa: ANN001 - a Settings
+    """uvicorn's proxy options: forwarded headers are believed only from the configured proxies (uvicorn
+    alone would believe them from 127.0.0.1, so any local process could pose as any address)."""
+    trusted = ",".join(p.strip() for p in settings.trusted_proxies.split(",") if p.strip())
+    return {"proxy_headers": bool(trusted), "forwarded_allow_ips": trusted or None}
+
+
 class Stopped(Exception):
     """SIGTERM arrived: unwinds whatever `run` was doing (starting up, or after uvicorn's shutdown, which
     passes the signal on) through the `finally` that stops the workers."""
@@ -110,7 +117,7 @@ def _run(args: argparse.Namespace) -> int:
         raise_open_files_limit()
         config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                                 timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
-                                http=guarded_protocol(settings))
+                                http=guarded_protocol(settings), **proxy_options(settings))
         install_log_limits()  # after uvicorn.Config, which installs uvicorn's log handlers
         server = uvicorn.Server(config)
         server.run()

@@ -83,6 +83,10 @@ class Settings(BaseModel):
     max_connections_per_client: int = Field(32, ge=1, description="Open connections from one client address.")
     auth_failures_per_minute: int = Field(20, ge=1, description="Failed authentications per client address "
                                           "per minute before further attempts get 429.")
+    trusted_proxies: str = Field("", description="Addresses or networks (comma-separated, e.g. 10.0.0.5,"
+                                 "172.16.0.0/12) of the reverse proxies whose X-Forwarded-For and "
+                                 "X-Forwarded-Proto headers are believed; default none: the peer address "
+                                 "counts, whatever the headers say (per-address caps and the guessing throttle).")
 
     @field_validator("configs", mode="before")
     @classmethod

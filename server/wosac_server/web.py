@@ -20,6 +20,7 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.metrics.config import default_config, preset_fits
 
 from . import jobs
+from .models import is_partial
 
 TEMPLATES = Path(__file__).with_name("templates")
 BUCKET_COLUMNS = [
@@ -67,7 +68,9 @@ def _coverage(value) -> str:
     if value is None:
         return "–"
     text = f"{100 * value:.1f}%"
-    return text if value >= 1 else f'<span class="partial" title="scored with allow_partial">{text}</span>'
+    if not is_partial(value):
+        return text
+    return f'<span class="partial" title="scored with allow_partial on part of the scenario set">{text} partial</span>'
 
 
 def leaderboard_table(entries: list[dict], table_id: str = "leaderboard-table") -> str:

@@ -316,7 +316,8 @@ class Worker:
                 payload = self._public({"text": report.format_text(), "details": report.to_dict()},
                                        submission_path)
             jobs.finish_failed(self.store, job_id, self.owner,
-                               self._public(f"the submission is invalid: {exc}", submission_path), payload)
+                               self._public(f"the submission is invalid: {exc.reason}; the report lists each",
+                                            submission_path), payload)
         except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
             jobs.finish_failed(self.store, job_id, self.owner,
                                self._public(f"the submission could not be scored: {exc}", submission_path))

@@ -322,6 +322,9 @@ def test_every_compression_is_checked_and_foreign_bodies_are_415(api_server):
         r = c.post("/v1/submissions", content=tar_bytes({"s.binproto": b'{"json": true}'}))
         assert r.status_code == 415 and "member 's.binproto'" in r.json()["detail"]
         assert str(api_server.data_dir) not in r.json()["detail"]
+        # A form upload (curl -F) is told to send the raw body, before the body is read.
+        r = c.post("/v1/submissions", files={"file": ("sub.tar.gz", tar_bytes({"s.binproto": shard}))})
+        assert r.status_code == 415 and "--data-binary" in r.json()["detail"], r.text
 
 
 @pytest.mark.parametrize("limit", [3])
@@ -339,3 +342,21 @@ def test_failed_authentication_is_throttled_per_address(make_server, limit):
         assert c.get("/v1/leaderboard").status_code == 200  # public pages stay open
     with server.client(key, source="127.0.0.2") as c:  # other clients are not
         assert c.get("/v1/submissions").status_code == 200
+
+
+@pytest.mark.parametrize("limit", [3])
+def test_forwarded_for_is_believed_only_from_trusted_proxies(make_server, limit):
+    """uvicorn alone believes X-Forwarded-For from 127.0.0.1: rotating it would dodge the per-address
+    throttle. Without WOSAC_TRUSTED_PROXIES the peer address counts."""
+    server = make_server(workers=0, auth_failures_per_minute=limit)
+    guess = server.key("honest")[:-6] + "guess0"
+    with server.client(guess) as c:
+        for n in range(limit):
+            assert c.get("/v1/submissions", headers={"X-Forwarded-For": f"203.0.113.{n}"}).status_code == 401
+        r = c.get("/v1/submissions", headers={"X-Forwarded-For": "203.0.113.200"})
+        assert r.status_code == 429, r.text
+    trusting = make_server(workers=0, auth_failures_per_minute=limit, trusted_proxies="127.0.0.1")
+    guess = trusting.key("behind-proxy")[:-6] + "guess0"
+    with trusting.client(guess) as c:  # behind a trusted proxy, each forwarded address is its own client
+        for n in range(limit + 2):
+            assert c.get("/v1/submissions", headers={"X-Forwarded-For": f"203.0.113.{n}"}).status_code == 401

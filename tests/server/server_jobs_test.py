@@ -61,7 +61,8 @@ def test_invalid_submission_fails_with_its_report(make_server, scoring_data):
         status = server.wait_state(c, sid)
         assert c.get(f"/v1/submissions/{sid}/results").status_code == 409
     assert status["state"] == "failed"
-    assert status["error"].startswith("the submission is invalid")
+    assert status["error"].startswith("the submission is invalid: ") and "error(s)" in status["error"]
+    assert "invalid submission" not in status["error"]  # said once, not twice
     assert "shard.binproto" in status["validation_report"]["text"]
     assert status["validation_report"]["details"]["valid"] is False
     # No absolute server path in what a client sees: the upload is called `submission`.

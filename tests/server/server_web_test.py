@@ -213,3 +213,33 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
     other = server.key("someone-else")
     page = rendered_dom(f"{server.url}/submissions/{sid}#key={other}", tmp_path / "profile-b")
     assert field(page, "state").startswith("error 404")
+
+
+def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server, scoring_data, tmp_path):
+    """The form's partial box sends allow_partial; the published partial row says "partial" on the page
+    and `partial: true` in the API."""
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, metadata_checks="warn")
+    key = server.key("partial-browser")
+    browser = Browser(tmp_path / "profile")
+    try:
+        browser.open(server.url + "/")
+        browser.choose_file("#upload-form input[type=file]", scoring_data.single)
+        browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
+            f.key.value = {json.dumps(key)}; f.method.value = "half"; f.publish.checked = true;
+            f.partial.checked = true; f.requestSubmit(); }})()""")
+        path = browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
+    finally:
+        browser.close()
+    sid = path.rsplit("/", 1)[1]
+    with server.client(key) as c:
+        for _ in range(900):
+            status = c.get(f"/v1/submissions/{sid}").json()
+            if status["state"] in ("done", "failed"):
+                break
+            time.sleep(0.1)
+        assert status["state"] == "done" and status["allow_partial"] and status["partial"], status
+        entry = next(e for e in c.get("/v1/leaderboard", params={"config": "2025"}).json()["entries"]
+                     if e["submission_id"] == sid)
+    assert entry["partial"] and entry["coverage"] < 1
+    board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
+    assert re.search(r'<span class="partial"[^>]*>[0-9.]+% partial</span>', board), board[-3000:]

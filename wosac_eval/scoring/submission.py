@@ -46,8 +46,11 @@ class InvalidSubmissionError(ValueError):
     def __init__(self, report):
         self.report = report
         self.metadata = report.metadata_error_count > 0
-        super().__init__(f"invalid submission: {report.error_count} error(s); "
-                         f"run `wosac-eval validate` for the full report")
+        # What is wrong, in a few words (the service's job says "the submission is invalid: <reason>").
+        self.reason = f"{report.error_count} error(s)" + (
+            f", {report.metadata_error_count} of them in its metadata (partial scoring never goes past those)"
+            if self.metadata else "")
+        super().__init__(f"invalid submission: {self.reason}; run `wosac-eval validate` for the full report")
 
 
 def refuses(report, allow_partial: bool) -> bool:

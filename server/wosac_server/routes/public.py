@@ -15,13 +15,13 @@ router = APIRouter()
 @router.get("/healthz", response_model=Health, tags=["service"], operation_id="health")
 async def healthz(svc: ServiceDep):
     # On the event loop, not in the thread pool that uploads and pages share: it answers while they queue.
-    scenarios = len(svc.settings.scenario_paths())
+    shards = len(svc.settings.scenario_paths())
     try:
         svc.store.ping()
     except Exception as exc:  # the answer must say the DB is down, not crash
-        return JSONResponse({"status": "error", "database": f"unreachable: {exc}", "scenarios": scenarios},
+        return JSONResponse({"status": "error", "database": f"unreachable: {exc}", "scenario_shards": shards},
                             status_code=503)
-    return Health(status="ok", database="ok", scenarios=scenarios)
+    return Health(status="ok", database="ok", scenario_shards=shards)
 
 
 @router.get("/v1/leaderboard", response_model=Leaderboard, tags=["leaderboard"], operation_id="leaderboard")

@@ -20,6 +20,15 @@ from .params import (MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, ChallengeQ, C
 router = APIRouter(prefix="/v1/submissions", tags=["submissions"])
 
 
+def refuse_forms(request: Request) -> None:
+    """A form upload (curl -F, a browser's multipart form) is refused before its body is read, saying how
+    to send the file: as the raw body."""
+    kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
+    if kind in ("multipart/form-data", "application/x-www-form-urlencoded"):
+        raise HTTPException(415, f"the submission is sent as a {kind} form; send the file itself as the raw body "
+                            "(curl --data-binary @submission.tar.gz -H 'Content-Type: application/octet-stream')")
+
+
 @router.post("", status_code=202, response_model=SubmissionStatus, openapi_extra=OCTET_BODY,
              operation_id="createSubmission",
              responses={202: SUBMISSION_LINKS, 413: {"description": "Body too large"},
@@ -32,6 +41,7 @@ async def create_submission(request: Request, svc: ServiceDep, key: Key, challen
                             content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None):
     """Upload a whole submission (`.tar.gz`, `.tar.bz2`, `.tar.xz`, `.tar` or one `.binproto`, optionally
     compressed) as the raw request body."""
+    refuse_forms(request)
     config = svc.config_for(challenge, config)
     await run_in_threadpool(svc.check_method, key, challenge, method or key.name)
     async with svc.upload_slot(key):

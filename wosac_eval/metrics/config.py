@@ -4,10 +4,15 @@ Each metric `X` in the config is scored into the output field
 `X_likelihood` (the metrics are listed in `metrics.registry`).
 Presets: "2025", "2024", "2023" (sim agents) and "scenario_gen_2025"
 (scenario generation: the 2025 weights, every metric but the traffic-light
-one pooled over all objects of the scene, `aggregate_objects`).
+one pooled over all objects of the scene, `aggregate_objects`). They are data:
+the textproto files beside this module, named as the official package names
+its own (`challenge_2025_sim_agents_config.textproto`...); the same files lie
+beside `wosac_eval.compat.metrics`, where programs written for the official
+package look for them.
 """
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 from google.protobuf import text_format
@@ -18,41 +23,14 @@ from wosac_eval.protos import sim_agents_metrics_pb2
 
 SimAgentMetricsConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig
 
-# (min, max, bins) of the histogram metrics, and every metric's weight, per challenge.
-# Histograms use a 0.1 pseudo-count and independent timesteps; the three
-# indicators are Bernoulli with the default pseudo-count.
-_2024_HISTOGRAMS = {
-    "linear_speed": (0.0, 25.0, 10), "linear_acceleration": (-12.0, 12.0, 11),
-    "angular_speed": (-0.628, 0.628, 11), "angular_acceleration": (-3.14, 3.14, 11),
-    "distance_to_nearest_object": (-5.0, 40.0, 10), "distance_to_road_edge": (-20.0, 40.0, 10),
-    "time_to_collision": (0.0, 5.0, 10),
+# Preset -> its file beside this module (the official package's names).
+PRESET_FILES = {
+    "2025": "challenge_2025_sim_agents_config.textproto",
+    "2024": "challenge_2024_config.textproto",
+    "2023": "challenge_2023_config.textproto",
+    "scenario_gen_2025": "challenge_2025_scenario_gen_config.textproto",
 }
-_2025_WEIGHTS = {
-    "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05,
-    "angular_acceleration": 0.05, "distance_to_nearest_object": 0.1,
-    "collision_indication": 0.25, "time_to_collision": 0.1, "distance_to_road_edge": 0.05,
-    "offroad_indication": 0.25, "traffic_light_violation": 0.05}
-# Preset -> (histograms, weights, metrics pooled over the objects of a scene).
-_PRESETS = {
-    "2025": (_2024_HISTOGRAMS, _2025_WEIGHTS),
-    "2024": (_2024_HISTOGRAMS, {
-        "linear_speed": 0.05, "linear_acceleration": 0.05, "angular_speed": 0.05,
-        "angular_acceleration": 0.05, "distance_to_nearest_object": 0.1,
-        "collision_indication": 0.25, "time_to_collision": 0.1, "distance_to_road_edge": 0.1,
-        "offroad_indication": 0.25, "traffic_light_violation": 0.0}),
-    "2023": ({
-        "linear_speed": (0.0, 35.0, 10), "linear_acceleration": (-15.0, 15.0, 10),
-        "angular_speed": (-31.5, 31.5, 10), "angular_acceleration": (-31.5, 31.5, 10),
-        "distance_to_nearest_object": (-5.0, 40.0, 10), "distance_to_road_edge": (-20.0, 40.0, 10),
-        "time_to_collision": (0.0, 5.0, 10)}, {
-        "linear_speed": 0.09, "linear_acceleration": 0.09, "angular_speed": 0.09,
-        "angular_acceleration": 0.09, "distance_to_nearest_object": 0.09,
-        "collision_indication": 0.18, "time_to_collision": 0.09, "distance_to_road_edge": 0.09,
-        "offroad_indication": 0.18, "traffic_light_violation": 0.0}),
-    "scenario_gen_2025": (_2024_HISTOGRAMS, _2025_WEIGHTS,
-                          tuple(m for m in METRIC_NAMES if m != "traffic_light_violation")),
-}
-PRESET_NAMES = tuple(_PRESETS)
+PRESET_NAMES = tuple(PRESET_FILES)
 DEFAULT_PRESET = "2025"
 # The challenge each preset was made for.
 PRESET_CHALLENGE = {name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen")
@@ -87,27 +65,27 @@ def config_name_for(challenge, config: str | Path | None = None) -> str:
 
 
 def preset(name: str) -> SimAgentMetricsConfig:
-    """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025")."""
-    if name not in _PRESETS:
+    """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025"), read from its file."""
+    if name not in PRESET_FILES:
         raise ValueError(f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} "
                          f"or a .textproto file")
-    histograms, weights, *pooled = _PRESETS[name]
-    pooled = pooled[0] if pooled else ()
     config = SimAgentMetricsConfig()
-    for metric in METRIC_NAMES:
-        feature = getattr(config, metric)
-        if metric in histograms:
-            lo, hi, bins = histograms[metric]
-            feature.histogram.min_val, feature.histogram.max_val = lo, hi
-            feature.histogram.num_bins = bins
-            feature.histogram.additive_smoothing_pseudocount = 0.1
-            feature.independent_timesteps = True
-        else:
-            feature.bernoulli.SetInParent()
-        feature.metametric_weight = weights[metric]
-        if metric in pooled:
-            feature.aggregate_objects = True
+    config.CopyFrom(_preset_file(name))  # a copy: callers may change theirs
     return config
+
+
+@functools.lru_cache(maxsize=None)
+def _preset_file(name: str) -> SimAgentMetricsConfig:
+    return _read_textproto(Path(__file__).with_name(PRESET_FILES[name]))
+
+
+def _read_textproto(path: Path) -> SimAgentMetricsConfig:
+    """A `SimAgentMetricsConfig` textproto file, completed by `with_defaults`; ValueError naming the file."""
+    try:
+        config = text_format.Parse(path.read_text(encoding="utf-8"), SimAgentMetricsConfig())
+    except (text_format.ParseError, UnicodeDecodeError) as err:
+        raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: {err}") from err
+    return with_defaults(config)
 
 
 def with_defaults(config: SimAgentMetricsConfig) -> SimAgentMetricsConfig:
@@ -132,14 +110,10 @@ def load_config(name_or_path: str | Path | SimAgentMetricsConfig = DEFAULT_PRESE
     if isinstance(name_or_path, SimAgentMetricsConfig):
         return with_defaults(name_or_path)
     text = str(name_or_path)
-    if text in _PRESETS:
+    if text in PRESET_FILES:
         return preset(text)
     path = Path(text)
     if not path.is_file():
         raise ValueError(f"config {text!r} is neither a preset ({', '.join(PRESET_NAMES)}) "
                          f"nor a readable textproto file")
-    try:
-        config = text_format.Parse(path.read_text(), SimAgentMetricsConfig())
-    except text_format.ParseError as err:
-        raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: {err}") from err
-    return with_defaults(config)
+    return _read_textproto(path)

@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 
 from .db import Store
+from .names import display_name, name_key
 
 KEY_PREFIX = "wosac_"
 # Method names (and key names, the default method) as shown on the leaderboard.
@@ -47,17 +48,22 @@ def _hash(salt: str, secret: str) -> str:
 
 def create_key(store: Store, name: str, *, max_concurrent: int, max_daily: int,
                max_daily_bytes: int) -> str:
-    """Insert a new key and return it in clear (the only time it is ever visible)."""
+    """Insert a new key and return it in clear (the only time it is ever visible). The name is stored
+    trimmed; a name that is another key's under its normal form (case, spacing, look-alike characters:
+    names.name_key) is refused like the same name."""
     key_id = secrets.token_hex(6)
     secret = secrets.token_urlsafe(32)
     salt = secrets.token_hex(16)
+    name = display_name(name)
     with store.transaction():
-        if store.fetchone("SELECT id FROM api_keys WHERE name = ?", (name,)) is not None:
-            raise ValueError(f"an API key named {name!r} already exists")
+        same = store.fetchone("SELECT name FROM api_keys WHERE name = ? OR name_key = ?", (name, name_key(name)))
+        if same is not None:
+            raise ValueError(f"an API key named {same['name']!r} already exists"
+                             + ("" if same["name"] == name else f" (the same name as {name!r})"))
         store.execute(
-            "INSERT INTO api_keys (id, name, salt, key_hash, created_at, revoked_at, max_concurrent,"
-            " max_daily, max_daily_bytes) VALUES (?, ?, ?, ?, ?, NULL, ?, ?, ?)",
-            (key_id, name, salt, _hash(salt, secret), time.time(), max_concurrent, max_daily,
+            "INSERT INTO api_keys (id, name, name_key, salt, key_hash, created_at, revoked_at, max_concurrent,"
+            " max_daily, max_daily_bytes) VALUES (?, ?, ?, ?, ?, ?, NULL, ?, ?, ?)",
+            (key_id, name, name_key(name), salt, _hash(salt, secret), time.time(), max_concurrent, max_daily,
              max_daily_bytes),
         )
     return f"{KEY_PREFIX}{key_id}_{secret}"

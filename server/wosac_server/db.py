@@ -9,12 +9,15 @@ the API's thread pool and a worker's heartbeat thread never share one.
 from __future__ import annotations
 
 import contextlib
+import logging
 import sqlite3
 import threading
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
-SCHEMA_VERSION = 3
+from .names import name_key
+
+SCHEMA_VERSION = 4
 
 SCHEMA = [
     """CREATE TABLE IF NOT EXISTS api_keys (
@@ -69,8 +72,9 @@ SCHEMA = [
     )""",
     "CREATE TABLE IF NOT EXISTS schema_version (version INTEGER NOT NULL)",
 ]
-# Schema changes after version 1, each applied once, in order: version -> statements.
-MIGRATIONS = {
+# Schema changes after version 1, each applied once, in order: version -> statements (SQL text, or a
+# function of the store for what SQL cannot compute).
+MIGRATIONS: dict[int, list[str | Callable[["Store"], None]]] = {
     2: [  # the challenge of every submission and upload; the share of the scenario set a result covers
         "ALTER TABLE submissions ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
         "ALTER TABLE uploads ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
@@ -88,7 +92,37 @@ MIGRATIONS = {
         "ALTER TABLE submissions ADD COLUMN peak_rss_bytes BIGINT",
         "ALTER TABLE submissions ADD COLUMN cpu_s DOUBLE PRECISION",
     ],
+    4: [  # names are owned by their normal form (names.name_key): `Team  Rocket` is `Team Rocket`'s
+        "ALTER TABLE method_names ADD COLUMN name_key TEXT",
+        "ALTER TABLE api_keys ADD COLUMN name_key TEXT",
+        lambda store: _fill_name_keys(store),
+        "CREATE UNIQUE INDEX IF NOT EXISTS method_names_name_key ON method_names (challenge, name_key)",
+        "CREATE INDEX IF NOT EXISTS api_keys_name_key ON api_keys (name_key)",
+    ],
 }
+
+
+def _fill_name_keys(store: "Store") -> None:
+    """The normal form of every key name and claimed method name (computed here: SQL has no NFKC).
+    Look-alike claims made before version 4 (`Team Rocket` by one key, `Team  Rocket` by another):
+    the first claim keeps the name, the later ones are dropped (logged); their submissions stay, and
+    the leaderboard shows a name's results of its owner only (jobs.leaderboard)."""
+    for row in store.fetchall("SELECT id, name FROM api_keys"):
+        store.execute("UPDATE api_keys SET name_key = ? WHERE id = ?", (name_key(row["name"]), row["id"]))
+    kept: set[tuple[str, str]] = set()
+    for row in store.fetchall("SELECT challenge, method, key_id FROM method_names ORDER BY claimed_at, method"):
+        form = (row["challenge"], name_key(row["method"]))
+        if form in kept:
+            logging.getLogger(__name__).warning(
+                "leaderboard name %r (%s) of key %s looks like an earlier claim: dropped, the name stays "
+                "with its first owner (wosac-server methods assign to change that)",
+                row["method"], row["challenge"], row["key_id"])
+            store.execute("DELETE FROM method_names WHERE challenge = ? AND method = ?",
+                          (row["challenge"], row["method"]))
+            continue
+        kept.add(form)
+        store.execute("UPDATE method_names SET name_key = ? WHERE challenge = ? AND method = ?",
+                      (form[1], row["challenge"], row["method"]))
 
 
 class Store:
@@ -202,7 +236,10 @@ class Store:
             version = 1 if row is None else int(row["version"])
             for target in sorted(v for v in MIGRATIONS if v > version):
                 for stmt in MIGRATIONS[target]:
-                    self.execute(stmt)
+                    if callable(stmt):
+                        stmt(self)
+                    else:
+                        self.execute(stmt)
                 self.execute("UPDATE schema_version SET version = ?", (target,))
 
     def ping(self) -> bool:

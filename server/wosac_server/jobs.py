@@ -18,6 +18,7 @@ from pathlib import Path
 
 from .db import Store
 from .models import is_partial
+from .names import display_name, name_key
 
 STATES = ("queued", "validating", "scoring", "done", "failed")
 RUNNING = ("validating", "scoring")
@@ -178,18 +179,25 @@ def reap_expired(store: Store, max_attempts: int, now: float | None = None) -> t
 def leaderboard(store: Store, config: str, challenge: str = "sim_agents") -> list[dict]:
     """Best published, finished submission per method of one challenge and config, best first."""
     rows = store.fetchall(
-        "SELECT id, method, realism_meta_metric, buckets, coverage, finished_at FROM submissions"
+        "SELECT id, key_id, method, realism_meta_metric, buckets, coverage, finished_at FROM submissions"
         " WHERE state = 'done' AND published = 1 AND challenge = ? AND config = ?"
         " AND realism_meta_metric IS NOT NULL", (challenge, config))
+    # One row per name (look-alike spellings are one name), and only the owner's results under an owned
+    # name: look-alikes published by another key before names were compared by their normal form stay off.
+    owners = {r["name_key"]: r["key_id"] for r in store.fetchall(
+        "SELECT name_key, key_id FROM method_names WHERE challenge = ?", (challenge,))}
     best: dict[str, dict] = {}
     for r in rows:
-        cur = best.get(r["method"])
+        form = name_key(r["method"])
+        if owners.get(form, r["key_id"]) != r["key_id"]:
+            continue
+        cur = best.get(form)
         if cur is None or (r["realism_meta_metric"], -r["finished_at"]) > (
                 cur["realism_meta_metric"], -cur["finished_at"]):
-            best[r["method"]] = r
+            best[form] = r
     ranked = sorted(best.values(), key=lambda r: (-r["realism_meta_metric"], r["finished_at"]))
     return [
-        {"rank": i + 1, "method": r["method"], "submission_id": r["id"],
+        {"rank": i + 1, "method": display_name(r["method"]), "submission_id": r["id"],
          "realism_meta_metric": r["realism_meta_metric"], "buckets": json.loads(r["buckets"] or "{}"),
          "coverage": r["coverage"], "partial": is_partial(r["coverage"]),
          "finished_at": r["finished_at"]}
@@ -242,27 +250,30 @@ def expired_uploads(store: Store, older_than: float) -> list[dict]:
 
 
 # -- leaderboard names -------------------------------------------------------------------
+# Owned by their normal form (names.name_key): `Team  Rocket` and `team rocket` are `Team Rocket`.
 def method_owner(store: Store, challenge: str, method: str) -> str | None:
-    """The key id owning a leaderboard name of a challenge, or None while nobody used it."""
-    row = store.fetchone("SELECT key_id FROM method_names WHERE challenge = ? AND method = ?", (challenge, method))
+    """The key id owning a leaderboard name (or a look-alike of it) of a challenge, or None while nobody used it."""
+    row = store.fetchone("SELECT key_id FROM method_names WHERE challenge = ? AND name_key = ?",
+                         (challenge, name_key(method)))
     return None if row is None else row["key_id"]
 
 
 def claim_method(store: Store, challenge: str, method: str, key_id: str) -> bool:
-    """Take a free name for `key_id` (no-op when it has it); False when another key owns it.
-    Call inside the transaction that inserts the submission."""
-    store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)"
-                  " ON CONFLICT (challenge, method) DO NOTHING", (challenge, method, key_id, time.time()))
+    """Take a free name for `key_id` (no-op when it has it, under any look-alike spelling); False when another
+    key owns it. Call inside the transaction that inserts the submission."""
+    store.execute("INSERT INTO method_names (challenge, method, name_key, key_id, claimed_at) VALUES (?, ?, ?, ?, ?)"
+                  " ON CONFLICT DO NOTHING", (challenge, display_name(method), name_key(method), key_id, time.time()))
     return method_owner(store, challenge, method) == key_id
 
 
 def assign_method(store: Store, challenge: str, method: str, key_id: str | None) -> None:
-    """The operator's override: give a name to another key, or free it (key_id None)."""
+    """The operator's override: give a name (and its look-alikes) to another key, or free it (key_id None)."""
     with store.transaction():
-        store.execute("DELETE FROM method_names WHERE challenge = ? AND method = ?", (challenge, method))
+        store.execute("DELETE FROM method_names WHERE challenge = ? AND name_key = ?", (challenge, name_key(method)))
         if key_id is not None:
-            store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)",
-                          (challenge, method, key_id, time.time()))
+            store.execute("INSERT INTO method_names (challenge, method, name_key, key_id, claimed_at)"
+                          " VALUES (?, ?, ?, ?, ?)",
+                          (challenge, display_name(method), name_key(method), key_id, time.time()))
 
 
 def list_methods(store: Store) -> list[dict]:

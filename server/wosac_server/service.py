@@ -28,6 +28,7 @@ from wosac_eval.parse.errors import ParseError
 from . import auth, jobs
 from .db import Store
 from .models import status_of
+from .names import display_name, name_key
 from .settings import Settings
 
 ID_PATTERN = r"^[0-9a-f]{32}$"
@@ -127,16 +128,21 @@ class Service:
             raise HTTPException(404, f"no upload {upload_id!r} for this API key")
         return row
 
-    def check_method(self, key: auth.ApiKey, challenge: str, method: str) -> None:
-        """403 when another key owns the leaderboard name (or it is another key's name, not yet used)."""
-        owner = jobs.method_owner(self.store, challenge, method)
-        if owner is None and method != key.name:
-            other = self.store.fetchone("SELECT id FROM api_keys WHERE name = ?", (method,))
-            owner = None if other is None else other["id"]
+    def check_method(self, key: auth.ApiKey, challenge: str, method: str) -> str:
+        """The leaderboard name as stored (names.display_name); 403 when another key owns it or a look-alike
+        of it (same normal form, names.name_key), or it is another key's name, not yet used."""
+        shown = display_name(method)
+        owner = jobs.method_owner(self.store, challenge, shown)
+        if owner is None:
+            reserved = {r["id"] for r in self.store.fetchall("SELECT id FROM api_keys WHERE name_key = ?",
+                                                              (name_key(shown),))}
+            owner = None if not reserved or key.id in reserved else reserved.pop()
         if owner is not None and owner != key.id:
-            raise HTTPException(403, f"the method name {method!r} belongs to another key on the {challenge} "
+            raise HTTPException(403, f"the method name {shown!r} (or a name differing from it only in case, "
+                                f"spacing or look-alike characters) belongs to another key on the {challenge} "
                                 "leaderboard; choose another name (an operator can reassign names: "
                                 "wosac-server methods)")
+        return shown
 
     @contextlib.asynccontextmanager
     async def upload_slot(self, key: auth.ApiKey):
@@ -188,6 +194,7 @@ class Service:
         if size == 0:
             raise HTTPException(422, "the upload is empty")
         store, settings = self.store, self.settings
+        method = display_name(method or key.name)
         quota = {"pending": self.others_pending(key), "exclude_upload": upload_id}
         try:
             auth.check_submission_quota(store, key, size, **quota)
@@ -208,11 +215,11 @@ class Service:
         try:
             with store.transaction():
                 auth.check_submission_quota(store, key, size, **quota)  # again, under the write lock
-                if not jobs.claim_method(store, challenge, method or key.name, key.id):
-                    raise HTTPException(403, f"the method name {method or key.name!r} was just taken by "
+                if not jobs.claim_method(store, challenge, method, key.id):
+                    raise HTTPException(403, f"the method name {method!r} was just taken by "
                                         "another key; choose another name")
                 jobs.insert_submission(store, submission_id=submission_id, key_id=key.id,
-                                       method=method or key.name, challenge=challenge, config=config,
+                                       method=method, challenge=challenge, config=config,
                                        allow_partial=allow_partial, published=publish,
                                        file_name=file_name, upload_bytes=size)
                 if upload_id is not None:  # same transaction: the upload and its submission agree

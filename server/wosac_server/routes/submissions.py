@@ -43,7 +43,7 @@ async def create_submission(request: Request, svc: ServiceDep, key: Key, challen
     compressed) as the raw request body."""
     refuse_forms(request)
     config = svc.config_for(challenge, config)
-    await run_in_threadpool(svc.check_method, key, challenge, method or key.name)
+    method = await run_in_threadpool(svc.check_method, key, challenge, method or key.name)
     async with svc.upload_slot(key):
         await run_in_threadpool(svc.refuse_early, key, content_length)
         limit = await run_in_threadpool(svc.upload_limit, key)

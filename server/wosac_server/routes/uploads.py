@@ -47,7 +47,7 @@ def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents
                   upload_length: Annotated[int | None, Header(ge=1, le=MAX_HEADER_INT)] = None):
     """Start a resumable upload; send the bytes with PATCH, then POST .../complete."""
     config = svc.config_for(challenge, config)
-    svc.check_method(key, challenge, method or key.name)
+    method = svc.check_method(key, challenge, method or key.name)
     svc.refuse_early(key, upload_length)
     upload_id = jobs.new_id()
     (svc.settings.uploads_dir / f"{upload_id}.part").touch()

@@ -112,12 +112,13 @@ def remaining_daily_bytes(store: Store, key: ApiKey, now: float | None = None, e
 
 
 def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now: float | None = None, *,
-                           pending: int = 0, exclude_upload: str | None = None) -> None:
+                           pending: int = 0, held_bytes: int = 0, exclude_upload: str | None = None) -> None:
     """Raise QuotaExceeded when `key` may not start one more job of `upload_bytes` now.
 
     Call it inside the transaction that inserts the job so two racing uploads
-    cannot both take the last slot. `pending`: uploads of this key being received or checked
-    right now (they take a slot before any expensive work).
+    cannot both take the last slot. `pending`, `held_bytes`: the job slots and daily bytes held by the
+    key's other uploads in flight (granted reservations, `service.Holds`): each may become a job, so
+    they count against the unfinished jobs, the day's submissions and the day's bytes.
     """
     now = time.time() if now is None else now
     active = store.fetchone(
@@ -129,10 +130,11 @@ def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now
     recent = store.fetchall(
         "SELECT created_at FROM submissions WHERE key_id = ? AND created_at > ? ORDER BY created_at",
         (key.id, now - DAY_S))
-    if len(recent) >= key.max_daily:
-        retry = int(recent[0]["created_at"] + DAY_S - now) + 1
-        raise QuotaExceeded(429, f"key {key.name!r} made {len(recent)} submissions in the last 24 h; "
-                            f"its limit is {key.max_daily} per day.", retry)
-    if upload_bytes > remaining_daily_bytes(store, key, now, exclude_upload):
+    if len(recent) + pending >= key.max_daily:
+        retry = int(recent[0]["created_at"] + DAY_S - now) + 1 if len(recent) >= key.max_daily else 30
+        raise QuotaExceeded(429, f"key {key.name!r} made {len(recent)} submissions in the last 24 h"
+                            + (f" and has {pending} more on their way" if pending else "")
+                            + f"; its limit is {key.max_daily} per day.", retry)
+    if upload_bytes > remaining_daily_bytes(store, key, now, exclude_upload) - held_bytes:
         raise QuotaExceeded(413, f"this upload ({upload_bytes} bytes) exceeds what remains of key "
                             f"{key.name!r}'s daily byte quota ({key.max_daily_bytes} bytes per 24 h).")

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
+from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
@@ -49,8 +50,8 @@ class Service:
             orphan.unlink(missing_ok=True)
         jobs.reopen_interrupted_uploads(self.store)
         self.limits = settings.input_limits()
-        # Uploads of each key being received or checked now: they hold a job slot before any work.
-        self.pending: collections.Counter[str] = collections.Counter()
+        # Job slots and daily bytes held by uploads being received or checked now, granted before any work.
+        self.holds = Holds()
         # Container checks decompress whole uploads: a few at a time, the rest wait without a thread.
         self.check_slots = asyncio.Semaphore(settings.upload_checks)
         self._auth_failures: dict[str, collections.deque] = {}
@@ -145,36 +146,54 @@ class Service:
         return shown
 
     @contextlib.asynccontextmanager
-    async def upload_slot(self, key: auth.ApiKey):
-        """Hold one of the key's job slots while its upload is received and checked: `refuse_early` and
-        `accept` count it (429 when none is free), so 40 uploads at once from a key allowed 2 jobs
-        cost at most 2 checks, not 40."""
-        self.pending[key.id] += 1  # before any await: concurrent requests see each other
+    async def upload_slot(self, key: auth.ApiKey, declared: int | None = None):
+        """Hold one of the key's job slots (and `declared` bytes of its daily quota) while its upload is
+        received and checked; 429 (413) when none is free. Only granted holds count, so of any number of
+        uploads at once on a key with N free slots exactly N go on, and 40 uploads at once from a key
+        allowed 2 jobs cost at most 2 checks. Yields the hold; `accept` turns it into the job."""
+        hold = await run_in_threadpool(self.reserve, key, declared)
         try:
-            yield
+            yield hold
         finally:
-            self.pending[key.id] -= 1
-            if not self.pending[key.id]:
-                del self.pending[key.id]
+            self.holds.release(hold)  # a no-op once accepted: the job counts itself
 
-    def others_pending(self, key: auth.ApiKey) -> int:
-        """Uploads of the key in flight, besides the caller's own."""
-        return max(0, self.pending.get(key.id, 0) - 1)
+    def reserve(self, key: auth.ApiKey, declared: int | None) -> "Hold":
+        """Grant a hold, or raise 429/413 (runs in a thread). The check and the grant are one step under the
+        holds' gate, which `accept` also takes to commit a job and drop its hold: every check sees each
+        slot once, as a hold or as a job row."""
+        self.refuse_too_large(declared)
+        with self.holds.gate:
+            self._check_quota(key, 0, None)
+            if declared is not None and declared > self.upload_limit(key):
+                raise HTTPException(413, f"the body is {declared} bytes; key {key.name!r} has "
+                                    f"{self.upload_limit(key)} bytes left of its daily quota")
+            return self.holds.grant(key.id, declared or 0)
 
-    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None) -> int:
-        return min(self.settings.max_upload_bytes, auth.remaining_daily_bytes(self.store, key,
-                                                                             exclude_upload=upload_id))
-
-    def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
-        """Quota and size checks before a single body byte is read."""
+    def _check_quota(self, key: auth.ApiKey, size: int, hold: "Hold | None", upload_id: str | None = None) -> None:
+        """auth.check_submission_quota with the holds of the key's other uploads in flight."""
+        slots, held_bytes = self.holds.held(key.id, but=hold)
         try:
-            auth.check_submission_quota(self.store, key, 0, pending=self.others_pending(key))
+            auth.check_submission_quota(self.store, key, size, pending=slots, held_bytes=held_bytes,
+                                        exclude_upload=upload_id)
         except auth.QuotaExceeded as exc:
             raise self.quota_error(exc)
+
+    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: "Hold | None" = None) -> int:
+        """Bytes the key may still send: the server's limit, its day's quota less what other uploads hold."""
+        held = self.holds.held(key.id, but=hold)[1]
+        return min(self.settings.max_upload_bytes, auth.remaining_daily_bytes(self.store, key,
+                                                                             exclude_upload=upload_id) - held)
+
+    def refuse_too_large(self, declared: int | None) -> None:
         limit = self.settings.max_upload_bytes
         if declared is not None and declared > limit:
             raise HTTPException(413, f"the body is {declared} bytes; this server accepts at most {limit} bytes "
                                 "(WOSAC_MAX_UPLOAD_BYTES)")
+
+    def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
+        """Quota and size checks of a new resumable upload (it takes no job slot before `complete`)."""
+        self.refuse_too_large(declared)
+        self._check_quota(key, 0, None)
         if declared is not None and declared > self.upload_limit(key):
             raise HTTPException(413, f"the body is {declared} bytes; key {key.name!r} has "
                                 f"{self.upload_limit(key)} bytes left of its daily quota")
@@ -184,9 +203,10 @@ class Service:
                              f"(server limit {self.settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)")
 
     # -- acceptance ------------------------------------------------------------------------------
-    def accept(self, key: auth.ApiKey, temp: Path, size: int, *, method: str | None, challenge: str, config: str,
-               allow_partial: bool, publish: bool, upload_id: str | None = None) -> dict:
-        """Turn a complete, fsynced file into a queued submission (runs in a thread).
+    def accept(self, key: auth.ApiKey, temp: Path, size: int, *, hold: "Hold", method: str | None, challenge: str,
+               config: str, allow_partial: bool, publish: bool, upload_id: str | None = None) -> dict:
+        """Turn a complete, fsynced file into a queued submission (runs in a thread); `hold`, from
+        `upload_slot`, is dropped in the same step as the job row is committed.
 
         On refusal (HTTPException) `temp` is left where it was: the caller decides
         whether the bytes are kept (a resumable upload refused by a quota) or dropped.
@@ -195,11 +215,7 @@ class Service:
             raise HTTPException(422, "the upload is empty")
         store, settings = self.store, self.settings
         method = display_name(method or key.name)
-        quota = {"pending": self.others_pending(key), "exclude_upload": upload_id}
-        try:
-            auth.check_submission_quota(store, key, size, **quota)
-        except auth.QuotaExceeded as exc:
-            raise self.quota_error(exc)
+        self._check_quota(key, size, hold, upload_id)
         try:
             suffix = check_container(temp, self.limits).suffix
         except NotASubmissionError as exc:
@@ -213,8 +229,8 @@ class Service:
         os.replace(temp, final)
         jobs.fsync_dir(settings.submissions_dir)
         try:
-            with store.transaction():
-                auth.check_submission_quota(store, key, size, **quota)  # again, under the write lock
+            with self.holds.gate, store.transaction():
+                self._check_quota(key, size, hold, upload_id)  # again, under the write lock
                 if not jobs.claim_method(store, challenge, method, key.id):
                     raise HTTPException(403, f"the method name {method!r} was just taken by "
                                         "another key; choose another name")
@@ -224,9 +240,7 @@ class Service:
                                        file_name=file_name, upload_bytes=size)
                 if upload_id is not None:  # same transaction: the upload and its submission agree
                     store.execute("UPDATE uploads SET submission_id = ? WHERE id = ?", (submission_id, upload_id))
-        except auth.QuotaExceeded as exc:
-            os.replace(final, temp)
-            raise self.quota_error(exc)
+                self.holds.release(hold)  # still under the gate, committed on leaving: the job counts itself
         except BaseException:
             os.replace(final, temp)
             raise
@@ -236,6 +250,57 @@ class Service:
     def accepted(row: dict) -> JSONResponse:
         body = status_of(row).model_dump()
         return JSONResponse(body, status_code=202, headers={"Location": f"/v1/submissions/{row['id']}"})
+
+
+class Hold:
+    """One upload's reservation: a job slot and `bytes` of its key's daily quota, until released."""
+
+    __slots__ = ("key_id", "bytes", "active")
+
+    def __init__(self, key_id: str, nbytes: int):
+        self.key_id, self.bytes, self.active = key_id, nbytes, True
+
+
+class Holds:
+    """The job slots and daily bytes that uploads in flight hold, per key, in this API process.
+
+    `gate` orders the steps that must not interleave: a quota check and the grant of a hold
+    (`Service.reserve`), and the commit of a job with the release of its hold (`Service.accept`). A
+    check inside the gate therefore counts every slot exactly once: as a hold, or as the job row that
+    replaced it. Refused uploads never got a hold, and every hold is released when its upload ends
+    (accepted, refused, or cut off), so nothing is held for an upload that is gone. The counters have
+    their own small lock: releasing (on the event loop) never waits for a database commit.
+    """
+
+    def __init__(self):
+        self.gate = threading.Lock()
+        self._lock = threading.Lock()
+        self._slots: collections.Counter[str] = collections.Counter()
+        self._bytes: collections.Counter[str] = collections.Counter()
+
+    def grant(self, key_id: str, nbytes: int) -> Hold:
+        with self._lock:
+            self._slots[key_id] += 1
+            self._bytes[key_id] += nbytes
+        return Hold(key_id, nbytes)
+
+    def release(self, hold: Hold | None) -> None:
+        with self._lock:
+            if hold is None or not hold.active:
+                return
+            hold.active = False
+            self._slots[hold.key_id] -= 1
+            self._bytes[hold.key_id] -= hold.bytes
+            if not self._slots[hold.key_id]:
+                del self._slots[hold.key_id], self._bytes[hold.key_id]
+
+    def held(self, key_id: str, but: Hold | None = None) -> tuple[int, int]:
+        """(slots, bytes) the key's holds take, but `but`'s own."""
+        with self._lock:
+            slots, nbytes = self._slots.get(key_id, 0), self._bytes.get(key_id, 0)
+            if but is not None and but.active:
+                slots, nbytes = slots - 1, nbytes - but.bytes
+        return slots, nbytes
 
 
 def public_message(exc: Exception, path: Path) -> str:

@@ -137,7 +137,7 @@ def test_a_version_1_database_is_migrated(tmp_path):
     store = Store(f"sqlite:///{path}")
     store.migrate()
     store.migrate()  # idempotent
-    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION == 3
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION == 4
     row = jobs.get_submission(store, "a")
     assert (row["challenge"], row["coverage"], row["state"]) == ("sim_agents", None, "queued")
     assert (row["peak_rss_bytes"], row["cpu_s"]) == (None, None)

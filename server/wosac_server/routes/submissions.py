@@ -44,9 +44,8 @@ async def create_submission(request: Request, svc: ServiceDep, key: Key, challen
     refuse_forms(request)
     config = svc.config_for(challenge, config)
     method = await run_in_threadpool(svc.check_method, key, challenge, method or key.name)
-    async with svc.upload_slot(key):
-        await run_in_threadpool(svc.refuse_early, key, content_length)
-        limit = await run_in_threadpool(svc.upload_limit, key)
+    async with svc.upload_slot(key, content_length) as hold:  # 429/413 here, before a byte is read
+        limit = await run_in_threadpool(svc.upload_limit, key, None, hold)
         temp = svc.settings.uploads_dir / f"{jobs.new_id()}.body"
         try:
             size, disconnected = await stream_body_to(request, temp, limit)
@@ -63,7 +62,8 @@ async def create_submission(request: Request, svc: ServiceDep, key: Key, challen
         try:
             async with svc.check_slots:
                 row = await run_in_threadpool(svc.accept, key, temp, size, method=method, challenge=challenge,
-                                              config=config, allow_partial=allow_partial, publish=publish)
+                                              config=config, allow_partial=allow_partial, publish=publish,
+                                              hold=hold)
         finally:
             temp.unlink(missing_ok=True)  # gone already when accepted (renamed)
     return svc.accepted(row)

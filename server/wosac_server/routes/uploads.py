@@ -146,10 +146,10 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
         _check_part(part, row)
         with open(part, "ab") as f:
             f.truncate(row["received_bytes"])  # only the committed bytes count
-        async with svc.upload_slot(key), svc.check_slots:
+        async with svc.upload_slot(key) as hold, svc.check_slots:
             try:
                 sub = await run_in_threadpool(
-                    svc.accept, key, part, row["received_bytes"], method=row["method"],
+                    svc.accept, key, part, row["received_bytes"], hold=hold, method=row["method"],
                     challenge=row["challenge"], config=row["config"], allow_partial=bool(row["allow_partial"]),
                     publish=bool(row["published"]), upload_id=upload_id)
             except HTTPException as exc:

@@ -145,6 +145,88 @@ def test_a_version_1_database_is_migrated(tmp_path):
     store.close()
 
 
+def test_names_compare_by_their_normal_form():
+    from wosac_server.names import display_name, name_key
+
+    same = ["Team Rocket", "Team  Rocket", "Team Rocket ", " team ROCKET", "Team\tRocket", "Ｔｅａｍ Ｒｏｃｋｅｔ",
+            "Team\u00a0Rocket", "Team \u200bRocket", "Team\u200b Rocket", "Team Rocket\u200d\ufeff", "Team\u3000Rocket"]
+    assert {name_key(n) for n in same} == {"team rocket"}
+    assert name_key("Team\u200bRocket") == name_key("TeamRocket") == "teamrocket"  # zero-width is nothing
+    assert name_key("Team Rocket2") != name_key("Team Rocket") != name_key("Team-Rocket")
+    assert [display_name(n) for n in ("Team  Rocket ", "Team\u00a0 Rocket", "x")] == ["Team Rocket", "Team Rocket", "x"]
+
+
+def test_look_alike_claims_are_one_name_and_the_board_shows_the_owner_only(store):
+    assert jobs.claim_method(store, "sim_agents", "Team Rocket", "owner")
+    assert not jobs.claim_method(store, "sim_agents", "team  ROCKET ", "imitator")
+    assert jobs.claim_method(store, "sim_agents", "TEAM ROCKET", "owner")  # the owner, any spelling
+    assert jobs.claim_method(store, "scenario_gen", "team rocket", "imitator")  # per challenge
+    assert jobs.method_owner(store, "sim_agents", "Team\u00a0Rocket") == "owner"
+    assert [(m["challenge"], m["method"]) for m in jobs.list_methods(store)] == [
+        ("scenario_gen", "team rocket"), ("sim_agents", "Team Rocket")]
+
+    def scored(key_id, method, meta):
+        sid = add_job(store, key_id=key_id, method=method, published=True)
+        assert jobs.claim_next(store, "w", 60)["id"] == sid
+        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta},
+                                           "coverage": {"fraction": 1.0}})
+        return sid
+
+    # Rows as an older server stored them: an imitator's look-alike, the owner's own spellings.
+    scored("imitator", "Team  Rocket", 0.9)
+    best = scored("owner", "Team Rocket ", 0.7)
+    scored("owner", "Team Rocket", 0.6)
+    free = scored("anyone", "Unclaimed  Name", 0.5)
+    board = jobs.leaderboard(store, "2025")
+    assert [(e["method"], e["submission_id"]) for e in board] == [("Team Rocket", best), ("Unclaimed Name", free)]
+    jobs.assign_method(store, "sim_agents", "team rocket", "imitator")  # the operator's override
+    assert jobs.method_owner(store, "sim_agents", "Team Rocket") == "imitator"
+    assert [e["realism_meta_metric"] for e in jobs.leaderboard(store, "2025")] == [0.9, 0.5]
+
+
+def test_key_names_are_unique_by_their_normal_form(store):
+    auth.create_key(store, "Team  Rocket ", max_concurrent=1, max_daily=1, max_daily_bytes=1)
+    assert [k["name"] for k in auth.list_keys(store)] == ["Team Rocket"]
+    for look_alike in ("team rocket", "TEAM  ROCKET"):
+        with pytest.raises(ValueError, match="'Team Rocket' already exists"):
+            auth.create_key(store, look_alike, max_concurrent=1, max_daily=1, max_daily_bytes=1)
+
+
+@pytest.mark.parametrize("engine", ["sqlite", "postgresql"])
+def test_a_version_3_database_gets_normal_forms_and_look_alike_claims_resolved(engine, tmp_path, request):
+    """Claims and keys of a version 3 database get their normal form; of look-alike claims made before,
+    the first keeps the name."""
+    from wosac_server.db import MIGRATIONS, SCHEMA, Store
+
+    url = (f"sqlite:///{tmp_path / 'v3.sqlite3'}" if engine == "sqlite"
+           else request.getfixturevalue("postgres_server")())
+    store = Store(url)
+    with store.transaction():
+        for stmt in [*SCHEMA, *MIGRATIONS[2], *MIGRATIONS[3]]:
+            store.execute(stmt)
+        store.execute("INSERT INTO schema_version (version) VALUES (3)")
+        for i, (challenge, method, key_id) in enumerate([
+                ("sim_agents", "Team Rocket", "first"), ("sim_agents", "Team  Rocket", "second"),
+                ("sim_agents", "team rocket ", "third"), ("scenario_gen", "TEAM ROCKET", "second"),
+                ("sim_agents", "Other", "second")]):
+            store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)",
+                          (challenge, method, key_id, 100.0 + i))
+        store.execute("INSERT INTO api_keys (id, name, salt, key_hash, created_at, max_concurrent, max_daily,"
+                      " max_daily_bytes) VALUES ('kid', 'Old  Key', '00', 'x', 0, 1, 1, 1)")
+    store.migrate()
+    store.migrate()  # idempotent
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == 4
+    claims = store.fetchall("SELECT challenge, method, name_key, key_id FROM method_names ORDER BY challenge, method")
+    assert [tuple(c.values()) for c in claims] == [
+        ("scenario_gen", "TEAM ROCKET", "team rocket", "second"), ("sim_agents", "Other", "other", "second"),
+        ("sim_agents", "Team Rocket", "team rocket", "first")]
+    assert not jobs.claim_method(store, "sim_agents", "Team  Rocket", "second")
+    assert store.fetchone("SELECT name_key FROM api_keys WHERE id = 'kid'")["name_key"] == "old key"
+    with pytest.raises(ValueError, match="'Old  Key' already exists"):
+        auth.create_key(store, "old key", max_concurrent=1, max_daily=1, max_daily_bytes=1)
+    store.close()
+
+
 def test_keys_are_hashed_and_verified(store):
     key = auth.create_key(store, "team", max_concurrent=1, max_daily=2, max_daily_bytes=3)
     found = auth.verify_key(store, key)

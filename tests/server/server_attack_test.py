@@ -220,6 +220,37 @@ def test_leaderboard_names_belong_to_the_first_key_per_challenge(api_server):
     assert "sim_agents\trocket\tbob-team" in listing and "scenario_gen\trocket\tbob-team" in listing
 
 
+def test_look_alike_names_are_the_same_name(api_server):
+    """A name is owned by its normal form (case, spacing, compatibility and zero-width characters):
+    another key's look-alike is 403 without naming the owner; the owner may use any spelling, stored
+    trimmed; non-ASCII forms never pass the name pattern at all (422, for everyone)."""
+    owner, other = api_server.key("rocket-owner"), api_server.key("imitator")
+    body = as_submission(b"l" * 64)
+    with api_server.client(owner) as a, api_server.client(other) as b:
+        r = a.post("/v1/submissions", content=body, params={"method": "Team Rocket", "publish": "true"})
+        assert r.status_code == 202 and r.json()["method"] == "Team Rocket"
+        for look_alike in ("Team  Rocket", "Team Rocket ", "team rocket", "TEAM ROCKET", "Team   rocket  "):
+            r = b.post("/v1/submissions", content=body, params={"method": look_alike, "publish": "true"})
+            assert r.status_code == 403 and "belongs to another key" in r.json()["detail"], (look_alike, r.text)
+            assert "rocket-owner" not in r.text and owner.split("_")[1] not in r.text  # the owner stays unnamed
+            assert b.post("/v1/uploads", params={"method": look_alike}).status_code == 403
+        for foreign in ("Ｔｅａｍ Rocket", "Team\u00a0Rocket", "Team\u200bRocket", "Team Rocket\u200b"):
+            for c in (a, b):
+                r = c.post("/v1/submissions", content=body, params={"method": foreign})
+                assert r.status_code == 422, (foreign, r.text)
+        assert b.post("/v1/submissions", content=body, params={"method": "ROCKET-OWNER"}).status_code == 403
+        r = a.post("/v1/submissions", content=body, params={"method": "team  ROCKET "})  # the owner's own
+        assert r.status_code == 202 and r.json()["method"] == "team ROCKET", r.text
+        r = b.post("/v1/submissions", content=body, params={"method": "Team Rocketeer "})  # another name
+        assert r.status_code == 202 and r.json()["method"] == "Team Rocketeer", r.text
+        methods = {s["method"] for s in _listed(b)}
+        assert methods == {"Team Rocketeer"}, methods
+    with pytest.raises(ValueError, match="already exists"):
+        api_server.key("Rocket-Owner ")
+    claims = api_server.store.fetchall("SELECT method, key_id FROM method_names WHERE name_key = 'team rocket'")
+    assert claims == [{"method": "Team Rocket", "key_id": owner.split("_")[1]}]
+
+
 def _race(calls) -> list:
     """Run the calls at the same moment on threads; their results in order."""
     barrier, results = threading.Barrier(len(calls)), [None] * len(calls)
@@ -290,6 +321,65 @@ def test_upload_requests_racing_each_other_never_corrupt_or_fail(api_server):
             for k in clients:
                 k.close()
         assert codes.count(422) == 1 and set(codes) <= {404, 409, 422}, codes
+
+
+def _simultaneous_uploads(server, key: str, count: int, **kwargs) -> list[int]:
+    """`count` POST /v1/submissions from one key released together, each on its own connection; the codes."""
+    clients = [server.client(key) for _ in range(count)]
+    try:
+        return [r.status_code for r in _race([lambda c=c: c.post("/v1/submissions", **kwargs) for c in clients])]
+    finally:
+        for c in clients:
+            c.close()
+
+
+def _finish(server, key: str, keep: int) -> None:
+    """What a worker does when jobs end: all but `keep` of the key's unfinished jobs fail (no worker runs)."""
+    with server.client(key) as c:
+        queued = [s["id"] for s in _listed(c) if s["state"] == "queued"]
+    for sid in queued[keep:]:
+        server.store.execute("UPDATE submissions SET state = 'failed', error = 'test' WHERE id = ?", (sid,))
+
+
+def test_simultaneous_uploads_from_one_key_take_exactly_the_free_slots(api_server):
+    """K uploads at once on a key with N free job slots: exactly N accepted, every round; the refused
+    ones hold nothing (the slots freed afterwards take exactly that many uploads again)."""
+    key = api_server.key("stampede", max_concurrent=3)
+    body = as_submission(b"s" * 2000)
+    with api_server.client(key) as c:
+        for round_, free in enumerate([3, 2, 1, 3, 1, 2, 3, 2]):
+            _finish(api_server, key, keep=3 - free)
+            codes = _simultaneous_uploads(api_server, key, 12, content=body)
+            assert sorted(codes) == [202] * free + [429] * (12 - free), (round_, free, codes)
+            assert sum(s["state"] == "queued" for s in _listed(c)) == 3
+        _finish(api_server, key, keep=2)
+        assert c.post("/v1/submissions", content=body).status_code == 202  # the one free slot
+        assert c.post("/v1/submissions", content=body).status_code == 429
+
+    # The day's submissions and bytes likewise: exactly what is left of them, never less.
+    codes = _simultaneous_uploads(api_server, api_server.key("daily-stampede", max_daily=2), 12, content=body)
+    assert sorted(codes) == [202] * 2 + [429] * 10, codes
+    bytes_key = api_server.key("bytes-stampede", max_daily_bytes=3 * len(body) + 100)
+    codes = _simultaneous_uploads(api_server, bytes_key, 12, content=body)
+    assert sorted(codes) == [202] * 3 + [413] * 9, codes
+
+    # Completes of resumable uploads at once: as many as there are free slots; the others keep their bytes.
+    key = api_server.key("complete-stampede", max_concurrent=2)
+    with api_server.client(key) as c:
+        uploads = [c.post("/v1/uploads").json()["upload_id"] for _ in range(4)]
+        for upload in uploads:
+            assert c.patch(f"/v1/uploads/{upload}", content=body, headers={"Upload-Offset": "0"}).status_code == 204
+        clients = [api_server.client(key) for _ in uploads]
+        try:
+            rs = _race([lambda k=k, u=u: k.post(f"/v1/uploads/{u}/complete") for k, u in zip(clients, uploads)])
+        finally:
+            for k in clients:
+                k.close()
+        assert sorted(r.status_code for r in rs) == [202, 202, 429, 429], [r.text for r in rs]
+        _finish(api_server, key, keep=0)
+        for upload, r in zip(uploads, rs):
+            if r.status_code == 429:  # still open with its bytes: completes once a slot is free
+                assert c.post(f"/v1/uploads/{upload}/complete").status_code == 202
 
 
 def test_a_result_file_missing_on_disk_is_410_not_a_server_error(api_server):

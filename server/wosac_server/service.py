@@ -151,23 +151,20 @@ class Service:
         received and checked; 429 (413) when none is free. Only granted holds count, so of any number of
         uploads at once on a key with N free slots exactly N go on, and 40 uploads at once from a key
         allowed 2 jobs cost at most 2 checks. Yields the hold; `accept` turns it into the job."""
-        hold = await run_in_threadpool(self.reserve, key, declared)
+        hold = Hold(key.id, declared or 0)  # made here, so that it is released however the request ends
         try:
+            await run_in_threadpool(self.reserve, key, hold)
             yield hold
         finally:
-            self.holds.release(hold)  # a no-op once accepted: the job counts itself
+            self.holds.release(hold)  # a no-op once accepted (the job counts itself) or never granted
 
-    def reserve(self, key: auth.ApiKey, declared: int | None) -> "Hold":
-        """Grant a hold, or raise 429/413 (runs in a thread). The check and the grant are one step under the
+    def reserve(self, key: auth.ApiKey, hold: "Hold") -> None:
+        """Grant `hold`, or raise 429/413 (runs in a thread). The check and the grant are one step under the
         holds' gate, which `accept` also takes to commit a job and drop its hold: every check sees each
         slot once, as a hold or as a job row."""
-        self.refuse_too_large(declared)
         with self.holds.gate:
-            self._check_quota(key, 0, None)
-            if declared is not None and declared > self.upload_limit(key):
-                raise HTTPException(413, f"the body is {declared} bytes; key {key.name!r} has "
-                                    f"{self.upload_limit(key)} bytes left of its daily quota")
-            return self.holds.grant(key.id, declared or 0)
+            self.refuse_early(key, hold.bytes or None)
+            self.holds.grant(hold)
 
     def _check_quota(self, key: auth.ApiKey, size: int, hold: "Hold | None", upload_id: str | None = None) -> None:
         """auth.check_submission_quota with the holds of the key's other uploads in flight."""
@@ -181,18 +178,16 @@ class Service:
     def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: "Hold | None" = None) -> int:
         """Bytes the key may still send: the server's limit, its day's quota less what other uploads hold."""
         held = self.holds.held(key.id, but=hold)[1]
-        return min(self.settings.max_upload_bytes, auth.remaining_daily_bytes(self.store, key,
-                                                                             exclude_upload=upload_id) - held)
+        left = auth.remaining_daily_bytes(self.store, key, exclude_upload=upload_id) - held
+        return max(0, min(self.settings.max_upload_bytes, left))
 
-    def refuse_too_large(self, declared: int | None) -> None:
+    def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
+        """Quota and size checks before a single body byte is read: of a direct upload (under the gate, by
+        `reserve`), or of a new resumable upload (which takes no job slot before `complete`)."""
         limit = self.settings.max_upload_bytes
         if declared is not None and declared > limit:
             raise HTTPException(413, f"the body is {declared} bytes; this server accepts at most {limit} bytes "
                                 "(WOSAC_MAX_UPLOAD_BYTES)")
-
-    def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
-        """Quota and size checks of a new resumable upload (it takes no job slot before `complete`)."""
-        self.refuse_too_large(declared)
         self._check_quota(key, 0, None)
         if declared is not None and declared > self.upload_limit(key):
             raise HTTPException(413, f"the body is {declared} bytes; key {key.name!r} has "
@@ -258,7 +253,7 @@ class Hold:
     __slots__ = ("key_id", "bytes", "active")
 
     def __init__(self, key_id: str, nbytes: int):
-        self.key_id, self.bytes, self.active = key_id, nbytes, True
+        self.key_id, self.bytes, self.active = key_id, nbytes, False  # active once granted
 
 
 class Holds:
@@ -278,11 +273,11 @@ class Holds:
         self._slots: collections.Counter[str] = collections.Counter()
         self._bytes: collections.Counter[str] = collections.Counter()
 
-    def grant(self, key_id: str, nbytes: int) -> Hold:
+    def grant(self, hold: Hold) -> None:
         with self._lock:
-            self._slots[key_id] += 1
-            self._bytes[key_id] += nbytes
-        return Hold(key_id, nbytes)
+            hold.active = True
+            self._slots[hold.key_id] += 1
+            self._bytes[hold.key_id] += hold.bytes
 
     def release(self, hold: Hold | None) -> None:
         with self._lock:

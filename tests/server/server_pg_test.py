@@ -24,3 +24,32 @@ def test_service_on_postgresql_scores_and_survives_restart(make_server, postgres
     with again.client(key) as c:
         assert c.get(f"/v1/submissions/{sid}").json()["state"] == "done"
         assert c.get("/v1/leaderboard").json()["entries"][0]["submission_id"] == sid
+
+
+def test_names_and_simultaneous_uploads_on_postgresql(make_server, postgres_server):
+    """Look-alike names and the job slots of uploads at once, with the store in PostgreSQL."""
+    import threading
+
+    from support.server_harness import as_submission
+
+    server = make_server(workers=0, db_url=postgres_server())
+    owner, other = server.key("pg-owner", max_concurrent=2), server.key("pg-other")
+    body = as_submission(b"p" * 500)
+    with server.client(owner) as a, server.client(other) as b:
+        assert a.post("/v1/submissions", content=body, params={"method": "Team Rocket"}).status_code == 202
+        assert b.post("/v1/submissions", content=body, params={"method": "team  rocket "}).status_code == 403
+        clients = [server.client(owner) for _ in range(10)]
+        barrier, codes = threading.Barrier(len(clients)), []
+
+        def upload(c):
+            barrier.wait()
+            codes.append(c.post("/v1/submissions", content=body).status_code)
+
+        threads = [threading.Thread(target=upload, args=(c,)) for c in clients]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        for c in clients:
+            c.close()
+        assert sorted(codes) == [202] + [429] * 9, codes  # one slot was free of 2

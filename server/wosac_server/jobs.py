@@ -194,10 +194,10 @@ def leaderboard(store: Store, config: str, challenge: str = "sim_agents") -> lis
         cur = best.get(form)
         if cur is None or (r["realism_meta_metric"], -r["finished_at"]) > (
                 cur["realism_meta_metric"], -cur["finished_at"]):
-            best[form] = r
+            best[form] = {**r, "method": display_name(r["method"])}
     ranked = sorted(best.values(), key=lambda r: (-r["realism_meta_metric"], r["finished_at"]))
     return [
-        {"rank": i + 1, "method": display_name(r["method"]), "submission_id": r["id"],
+        {"rank": i + 1, "method": r["method"], "submission_id": r["id"],
          "realism_meta_metric": r["realism_meta_metric"], "buckets": json.loads(r["buckets"] or "{}"),
          "coverage": r["coverage"], "partial": is_partial(r["coverage"]),
          "finished_at": r["finished_at"]}

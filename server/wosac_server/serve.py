@@ -101,7 +101,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from . import jobs
     from .app import create_app
-    from .guard import guarded_protocol, install_log_limits
+    from .guard import accept_backlog, guarded_protocol, install_log_limits
     from .worker import WorkerPool
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -117,7 +117,8 @@ def _run(args: argparse.Namespace) -> int:
         raise_open_files_limit()
         config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                                 timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
-                                http=guarded_protocol(settings), **proxy_options(settings))
+                                http=guarded_protocol(settings), **proxy_options(settings),
+                                backlog=accept_backlog())  # accepted at once: fits the cap's spare descriptors
         install_log_limits()  # after uvicorn.Config, which installs uvicorn's log handlers
         server = uvicorn.Server(config)
         server.run()

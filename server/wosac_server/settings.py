@@ -87,6 +87,14 @@ class Settings(BaseModel):
                                  "172.16.0.0/12) of the reverse proxies whose X-Forwarded-For and "
                                  "X-Forwarded-Proto headers are believed; default none: the peer address "
                                  "counts, whatever the headers say (per-address caps and the guessing throttle).")
+    body_grace_s: float = Field(20.0, gt=0, description="A request body may take this long before its rate "
+                                "counts (WOSAC_BODY_GRACE_S)...")
+    body_min_rate: float = Field(500.0, ge=0, description="...then it must average at least this many bytes/s, "
+                                 "else it is closed (WOSAC_BODY_MIN_RATE; 0: no rate rule).")
+    request_deadline_s: float = Field(3600.0, gt=0, description="A request's headers and body must be in within "
+                                      "this of its first byte (WOSAC_REQUEST_DEADLINE_S).")
+    max_connections: int = Field(0, ge=0, description="Open connections in all (WOSAC_MAX_CONNECTIONS); 0: sized "
+                                 "from the open-file limit.")
 
     @field_validator("configs", mode="before")
     @classmethod

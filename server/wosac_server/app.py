@@ -16,6 +16,7 @@ import anyio
 
 from fastapi import FastAPI
 
+from .guard import CloseUnreadBodies
 from .routes import public, submissions, uploads
 from .service import Service
 from .settings import Settings, load_settings
@@ -50,4 +51,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (public, submissions, uploads):
         app.include_router(module.router)
     install_pages(app, svc)
+    app.add_middleware(CloseUnreadBodies)  # an early answer closes its connection: no unread body is waited for
     return app

@@ -13,10 +13,6 @@ from fastapi import HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
-# After refusing an oversized body, read (and drop) this much more so the client,
-# still sending, gets to read our 413 instead of a reset connection.
-DRAIN_AFTER_REFUSAL = 8 * 1024 * 1024
-
 
 class BodyTooLarge(Exception):
     pass
@@ -31,7 +27,7 @@ async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "
     """Append the request body to `path` chunk by chunk, at most `limit` bytes.
 
     Returns (bytes written, client disconnected). Raises BodyTooLarge past the
-    limit (after draining a little so the client can read the answer). The file
+    limit, without reading the rest of the body. The file
     is fsynced before returning, so the bytes counted are on disk.
     """
     written, disconnected = 0, False
@@ -40,11 +36,7 @@ async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "
             stream = request.stream()
             async for chunk in stream:
                 if written + len(chunk) > limit:
-                    drained = 0
-                    async for extra in stream:
-                        drained += len(extra)
-                        if drained > DRAIN_AFTER_REFUSAL:
-                            break
+                    # The rest is not read: the answer carries `Connection: close` (guard.CloseUnreadBodies).
                     raise BodyTooLarge()
                 f.write(chunk)
                 written += len(chunk)

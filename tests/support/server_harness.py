@@ -102,8 +102,9 @@ def canonical(result: dict) -> str:
 class Server:
     """`wosac-server serve` as a child process, with its own data dir and port."""
 
-    def __init__(self, data_dir: Path, scenarios: list[Path], **env: object):
+    def __init__(self, data_dir: Path, scenarios: list[Path], nofile: int | None = None, **env: object):
         self.data_dir = data_dir
+        self.nofile = nofile  # the server's open-file limit (soft and hard), when given
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         inherited = {k: v for k, v in os.environ.items() if not k.startswith("WOSAC_")}
@@ -127,12 +128,22 @@ class Server:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "wosac_server", "serve", "--host", "127.0.0.1",
              "--port", str(self.port), "--log-level", "warning"],
-            env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent)
+            env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent,
+            preexec_fn=self._limit_open_files if self.nofile else None)
         try:
             wait_healthy(self.url, self.proc, timeout)
         except RuntimeError as error:
             raise RuntimeError(f"server {error}:\n{self.log.read_text()}") from None
         return self
+
+    def _limit_open_files(self) -> None:
+        import resource
+
+        resource.setrlimit(resource.RLIMIT_NOFILE, (self.nofile, self.nofile))
+
+    def open_files(self) -> int:
+        """File descriptors the server process holds now."""
+        return len(os.listdir(f"/proc/{self.proc.pid}/fd"))
 
     def stop(self) -> None:
         if self.proc and self.proc.poll() is None:

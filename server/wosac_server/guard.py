@@ -48,7 +48,7 @@ from uvicorn.protocols.http.h11_impl import H11Protocol
 
 log = logging.getLogger("wosac_server.guard")
 
-# File descriptors kept out of the connection cap's reach besides the accept burst (`accept_backlog`):
+# File descriptors kept out of the connection cap's reach besides the accept bursts (`accept_backlog`):
 # the listening socket, the database, log files, worker pipes.
 FD_RESERVE = 64
 MAX_AUTO_CONNECTIONS = 8192
@@ -70,11 +70,11 @@ def accept_backlog(open_files: int | None = None) -> int:
 
 def connection_limit(max_connections: int, open_files: int | None = None) -> int:
     """The global cap on open connections: `max_connections` when set (> 0), else sized from the
-    open-file limit: half of what is left after `FD_RESERVE` and the accept burst (every connection may
-    also hold an upload's file), at most `MAX_AUTO_CONNECTIONS`. An explicit value is lowered to what
-    the limit allows."""
+    open-file limit: half of what is left after `FD_RESERVE` and two accept bursts (asyncio may accept a
+    second before the first is refused; every connection may also hold an upload's file), at most
+    `MAX_AUTO_CONNECTIONS`. An explicit value is lowered to what the limit allows."""
     open_files = _open_files_limit() if open_files is None else open_files
-    room = max(8, (open_files - FD_RESERVE - accept_backlog(open_files)) // 2)
+    room = max(8, (open_files - FD_RESERVE - 2 * accept_backlog(open_files)) // 2)
     if max_connections > 0:
         return min(max_connections, room)
     return min(room, MAX_AUTO_CONNECTIONS)

@@ -114,7 +114,7 @@ def test_a_request_past_its_deadline_is_closed_however_fast_its_body_comes(make_
 
 
 def test_past_the_connection_cap_the_oldest_waiting_connection_makes_room(make_server):
-    # An open-file limit of 256: 64 kept aside, 64 for the accept burst, the cap is (256 - 128) / 2 = 64
+    # An open-file limit of 256: 64 kept aside, 2 x 64 for accept bursts, the cap is (256 - 192) / 2 = 32
     # connections; 400 half-open ones come.
     server = make_server(workers=0, nofile=256, max_connections_per_client=10_000, header_timeout_s=30)
     held = []

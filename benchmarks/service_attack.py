@@ -10,10 +10,13 @@ and prints:
 2. /healthz latency (p50/p99/max of a probe every 20 ms from 127.0.0.1, in a process of its own)
    while 40 bomb uploads run
    at once (10 waves; one key allowed 2 jobs, from four other loopback addresses), and while 1,100
-   connections that never finish their headers are held open (from 40 addresses, then from one);
+   connections that never finish their headers are held open (from 40 addresses, then from one),
+   while 100 slow bodies dribble one byte every 0.5 s of a declared megabyte (half without a key,
+   half with keys), and while 1,100 connections from 40 addresses are held against the service's
+   open-file limit (`--server-nofile`, default 1024, the limit the red team used);
 3. the upload check's cost against plain decompression of the same .tar.gz (same repetitions).
 
-    python benchmarks/service_attack.py [--connections 1100] [--uploads 40]
+    python benchmarks/service_attack.py [--connections 1100] [--uploads 40] [--sections bombs,uploads,...]
 """
 from __future__ import annotations
 
@@ -182,9 +185,102 @@ def half_open(server: Server, connections: int, sources: int, hold_s: float) -> 
             s.close()
         return closed, time.perf_counter() - opened
 
-    (closed, held), probe = probed(server, attack)
+    ((closed, held), peak), probe = probed(server, lambda: fd_watch(server, attack))
+    exhausted = sum("Too many open files" in line or "out of system resource" in line
+                    for line in server.log.read_text().splitlines())
     print(f"2b. {connections} half-open connections from {sources} address(es), held {held:.0f} s: "
-          f"{closed} answered and closed by the server; {probe.summary()}")
+          f"{closed} answered and closed by the server; server descriptors at most {peak[0]} (limit "
+          f"{server.nofile or resource.getrlimit(resource.RLIMIT_NOFILE)[1]}), {exhausted} log line(s) of "
+          f"descriptor exhaustion; {probe.summary()}")
+
+
+def slow_bodies(server: Server, count: int, period_s: float, hold_s: float) -> None:
+    """`count` POSTs declaring 1,000,000 bytes, then one byte every `period_s`: half without a key, half
+    with one of 25 keys (each allowed 2 jobs): how soon the server closes them and what it answered."""
+    keys = [server.key(f"slow-{i}", max_concurrent=2) for i in range(25)]
+    uploads = server.data_dir / "uploads"
+
+    def attack():
+        socks = []
+        for i in range(count):
+            s = socket.socket()
+            s.bind((f"127.0.3.{1 + i % 4}", 0))
+            s.connect(("127.0.0.1", server.port))
+            auth = f"Authorization: Bearer {keys[i % len(keys)]}\r\n" if i % 2 else ""
+            s.sendall(f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: 1000000\r\n\r\n"
+                      .encode())
+            s.setblocking(False)
+            socks.append([s, time.perf_counter(), None, b""])
+        most_files = peak_fds = 0
+        started = time.perf_counter()
+        last_sent = 0.0
+        while time.perf_counter() - started < hold_s and any(entry[2] is None for entry in socks):
+            send = time.perf_counter() - last_sent >= period_s
+            last_sent = time.perf_counter() if send else last_sent
+            for entry in socks:
+                s = entry[0]
+                if entry[2] is not None:
+                    continue
+                if send:
+                    try:
+                        s.send(b"x")
+                    except OSError:
+                        pass
+                try:
+                    data = s.recv(65536)
+                    entry[3] += data
+                    if not data:
+                        entry[2] = time.perf_counter() - entry[1]
+                except BlockingIOError:
+                    pass
+                except OSError:
+                    entry[2] = time.perf_counter() - entry[1]
+            most_files = max(most_files, len(list(uploads.glob("*.body"))))
+            peak_fds = max(peak_fds, len(os.listdir(f"/proc/{server.proc.pid}/fd")))
+            time.sleep(0.05)  # a close is seen within 50 ms
+        for entry in socks:
+            entry[0].close()
+        return socks, most_files, peak_fds
+
+    (socks, most_files, peak_fds), probe = probed(server, attack)
+    time.sleep(0.5)
+    left = len(list(uploads.glob("*.body")))
+    for with_key, label in ((False, "without a key"), (True, "with a key")):
+        group = [e for i, e in enumerate(socks) if bool(i % 2) == with_key]
+        closed = sorted(e[2] for e in group if e[2] is not None)
+        answers: dict[str, int] = {}
+        for e in group:
+            status = e[3][9:12].decode() if e[3].startswith(b"HTTP/1.1 ") else "none"
+            answers[status] = answers.get(status, 0) + 1
+        when = (f"closed after p50 {statistics.median(closed):.1f} s, max {closed[-1]:.1f} s" if closed
+                else "none closed")
+        print(f"    {len(group)} slow bodies {label}: {len(closed)} closed by the server ({when}); answers {answers}")
+    print(f"2c. {count} slow bodies (1 byte per {period_s:g} s of a declared 1,000,000): at most {most_files} "
+          f"temporary body file(s) at once, {left} left after; server descriptors at most {peak_fds}; "
+          f"{probe.summary()}")
+
+
+def fd_watch(server: Server, work):
+    """Runs `work`; (its result, the most descriptors the server held meanwhile)."""
+    import threading
+
+    peak, stop = [0], threading.Event()
+
+    def watch():
+        while not stop.is_set():
+            try:
+                peak[0] = max(peak[0], len(os.listdir(f"/proc/{server.proc.pid}/fd")))
+            except OSError:
+                pass
+            stop.wait(0.05)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    try:
+        return work(), peak
+    finally:
+        stop.set()
+        watcher.join()
 
 
 def check_cost(tmp: Path, shard: bytes) -> None:
@@ -213,6 +309,11 @@ def main() -> int:
     parser.add_argument("--uploads", type=int, default=40)
     parser.add_argument("--waves", type=int, default=10, help="rounds of --uploads concurrent uploads")
     parser.add_argument("--hold", type=float, default=12.0, help="seconds the half-open connections are held")
+    parser.add_argument("--slow-bodies", type=int, default=100)
+    parser.add_argument("--server-nofile", type=int, default=1024,
+                        help="the service's open-file limit (soft and hard; 0: this process's)")
+    parser.add_argument("--sections", default="bombs,uploads,half-open,slow-bodies,check",
+                        help="which of: bombs, uploads, half-open, slow-bodies, check")
     parser.add_argument("--attacker-nice", type=int, default=10,
                         help="niceness of the uploading threads (default 10: on a small machine the attack "
                              "would otherwise take the server's cores, as a remote attacker cannot; 0 to compare)")
@@ -224,15 +325,22 @@ def main() -> int:
     with tempfile.TemporaryDirectory(prefix="wosac-attack-") as tmp:
         tmp = Path(tmp)
         data = scoring_data(tmp / "data")
-        server = Server(tmp / "service", data.scenarios, workers=1).start()
+        sections = set(args.sections.split(","))
+        server = Server(tmp / "service", data.scenarios, nofile=args.server_nofile or None, workers=1).start()
         try:
-            print(f"service on 127.0.0.1:{server.port}, scenarios: {data.source}")
-            bombs_one_by_one(server, server.key("bomber"))
-            concurrent_bomb_uploads(server, args.uploads, args.waves)
-            half_open(server, args.connections, 40, args.hold)
-            half_open(server, args.connections, 1, args.hold)
+            print(f"service on 127.0.0.1:{server.port}, scenarios: {data.source}, open-file limit "
+                  f"{args.server_nofile or hard}")
+            if "bombs" in sections:
+                bombs_one_by_one(server, server.key("bomber"))
+            if "uploads" in sections:
+                concurrent_bomb_uploads(server, args.uploads, args.waves)
+            if "half-open" in sections:
+                half_open(server, args.connections, 40, args.hold)
+                half_open(server, args.connections, 1, args.hold)
+            if "slow-bodies" in sections:
+                slow_bodies(server, args.slow_bodies, 0.5, hold_s=40)
             shard = data.single.read_bytes() if data.single.suffix == ".binproto" else None
-            if shard is not None:
+            if shard is not None and "check" in sections:
                 check_cost(tmp, shard)
         finally:
             server.stop()

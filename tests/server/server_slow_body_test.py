@@ -81,22 +81,25 @@ def test_a_refused_request_closes_its_connection_without_reading_the_body(make_s
 
 
 def test_a_body_slower_than_the_minimum_rate_is_closed_and_frees_its_slot_and_file(make_server):
-    server = make_server(workers=0, body_grace_s=1, body_min_rate=1000, body_timeout_s=60)
+    server = make_server(workers=0, body_grace_s=3, body_min_rate=1000, body_timeout_s=60)
     key = server.key("dribbler", max_concurrent=1)
+    uploads = server.data_dir / "uploads"
     with socket.create_connection(("127.0.0.1", server.port)) as s:
         s.sendall(_post_head(key, 1_000_000).encode() + b"x")
-        time.sleep(0.5)
-        with server.client(key) as c:  # the dribble holds the key's only slot, and a file...
+        deadline = time.monotonic() + 2
+        while not list(uploads.glob("*.body")) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(uploads.glob("*.body"))) == 1  # the dribble holds a file...
+        with server.client(key) as c:  # ...and the key's only slot
             r = c.post("/v1/submissions", content=as_submission(b"a" * 64))
             assert r.status_code == 429, r.text
-        assert len(list((server.data_dir / "uploads").glob("*.body"))) == 1
         # 4 bytes/s against a minimum of 1000: closed about when the grace ends
-        received, _ = _dribble_on(s, 0.25, limit_s=8)
+        received, _ = _dribble_on(s, 0.25, limit_s=10)
     assert b"408 Request Timeout" in received and b"slower than 1000 bytes/s" in received, received
     deadline = time.monotonic() + 5
-    while list((server.data_dir / "uploads").glob("*.body")) and time.monotonic() < deadline:
+    while list(uploads.glob("*.body")) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert list((server.data_dir / "uploads").glob("*.body")) == []  # ...until it is closed
+    assert list(uploads.glob("*.body")) == []  # ...until it is closed
     with server.client(key) as c:
         assert c.post("/v1/submissions", content=as_submission(b"b" * 64)).status_code == 202
     assert "its body came slower than 1000 bytes/s" in server.log.read_text()

@@ -15,12 +15,15 @@ protocol with these rules added per connection:
   buffer full) is not counted against the client;
 - at most `max_per_client` open connections per client address; past it a new
   connection gets `503` and is closed at once;
-- at most `max_connections` open connections in all: past it a new connection
-  closes the connection that has waited longest for its request headers (a
-  half-open or idle keep-alive one, answered `503`) and takes its place, or,
-  when every connection is busy with a request, gets `503` and is closed at once.
-  So a flood of half-open connections never exhausts the file descriptors and a
-  client that sends its request at once (`/healthz`) is served.
+- at most `max_connections` open connections in all: near it (the last 1/32, at
+  least 2, are a reserve) a new connection closes the connection that has waited
+  longest for its request headers (a half-open or idle keep-alive one, answered
+  `503`) and takes its place; when every connection is busy with a request it
+  takes a reserve place, where a request whose body is still to come gets `503`
+  (bodiless ones, `/healthz`, or one whose body came whole with its headers are
+  served); past the cap it gets `503` and is closed at once.
+  So a flood of half-open connections never exhausts the file descriptors, and
+  neither it nor a flood of slow bodies keeps `/healthz` from being answered.
 
 `CloseUnreadBodies`, an ASGI middleware, makes a response sent before its
 request's body was read whole (a `401`, `403`, `413`, `429`, any early error)
@@ -109,16 +112,21 @@ class GuardedH11Protocol(H11Protocol):
             log.warning("refused a connection from %s: over %d open connections", self._host, self.max_per_client)
             self._refuse(f"too many open connections from this address (limit {self.max_per_client})\n")
             return
-        if len(self.open_connections) >= self.max_connections:
+        self._reserve = False
+        reserve = max(2, self.max_connections // 32)  # kept for bodiless requests (/healthz) when all are busy
+        if len(self.open_connections) >= self.max_connections - reserve:
             oldest = next(iter(self.waiting), None)
-            if oldest is None:
+            if oldest is not None:
+                log.warning("closed the connection from %s that waited longest for a request: the server holds "
+                            "%d connections", oldest._host, len(self.open_connections))
+                oldest._refuse("the server is at its connection limit and closed this idle connection\n")
+            elif len(self.open_connections) < self.max_connections:
+                self._reserve = True  # may ask only for what has no body
+            else:
                 log.warning("refused a connection from %s: the server holds %d connections, none idle",
                             self._host, self.max_connections)
                 self._refuse("the server is at its connection limit; retry shortly\n")
                 return
-            log.warning("closed the connection from %s that waited longest for a request: the server holds %d "
-                        "connections", oldest._host, self.max_connections)
-            oldest._refuse("the server is at its connection limit and closed this idle connection\n")
         self._counted = True
         self.open_per_client[self._host] += 1
         self.open_connections.add(self)
@@ -136,6 +144,10 @@ class GuardedH11Protocol(H11Protocol):
             self._request_start = now  # a request's first byte: its deadline runs from here
         if state is h11.SEND_BODY:
             self.waiting.pop(self, None)
+            if self._reserve and before is not h11.SEND_BODY:
+                log.warning("refused a request with a body from %s: every connection is busy", self._host)
+                self._refuse("the server is at its connection limit; retry shortly\n")
+                return
             if before is not h11.SEND_BODY:  # the headers are in: the body's clock starts
                 self._body_start, self._body_bytes, self._last_data, self._last_check = now, 0, now, now
                 self._check()
@@ -236,6 +248,7 @@ class GuardedH11Protocol(H11Protocol):
             self.transport.close()
 
     _last_check = 0.0
+    _reserve = False
     _request_start = None
     _headers_due = 0.0
 

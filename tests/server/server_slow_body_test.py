@@ -149,3 +149,34 @@ def test_past_the_connection_cap_the_oldest_waiting_connection_makes_room(make_s
     log = server.log.read_text()
     assert "Too many open files" not in log and "out of system resource" not in log, log[-2000:]
     assert "waited longest for a request" in log
+
+
+def test_when_every_connection_is_busy_a_reserve_still_answers_bodiless_requests(make_server):
+    # A cap of 8 with a reserve of 2: six uploads in progress fill the rest, none of them idle.
+    server = make_server(workers=0, max_connections=8, body_grace_s=60)
+    key = server.key("busy", max_concurrent=100)
+    uploads = server.data_dir / "uploads"
+    busy = [socket.create_connection(("127.0.0.1", server.port)) for _ in range(6)]
+    try:
+        for s in busy:
+            s.sendall(_post_head(key, 1_000_000).encode() + b"x")
+        deadline = time.monotonic() + 10
+        while len(list(uploads.glob("*.body"))) < 6 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert len(list(uploads.glob("*.body"))) == 6
+        for _ in range(3):
+            assert httpx.get(server.url + "/healthz", timeout=10).status_code == 200
+        # A body still to come would hold a reserve place: refused (one that came whole with its
+        # headers holds nothing and is served like a bodiless request).
+        received, took = _dribble(server.port, _post_head(key, 1_000_000), 0.2, limit_s=5)
+        assert received.startswith(b"HTTP/1.1 503") and b"connection limit" in received, received
+        for s in busy:  # the uploads go on
+            s.setblocking(False)
+            try:
+                s.recv(1)
+                raise AssertionError("a busy upload was closed")
+            except BlockingIOError:
+                pass
+    finally:
+        for s in busy:
+            s.close()

@@ -39,6 +39,43 @@ def _as_float32(name: str, value, shape: tuple[int, ...], scenario_id: str) -> n
                          f"(num_rollouts, num_objects, num_steps) = {shape}") from None
 
 
+def _broadcasts(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
+    try:
+        return np.broadcast_shapes(shape, target) == target
+    except ValueError:
+        return False
+
+
+def _coordinates_shape(scenario_id: str, coordinates: dict) -> tuple[int, ...]:
+    """`(num_rollouts, num_objects, num_steps)`: the shape the four coordinates broadcast to.
+
+    Raises:
+      ValueError naming the coordinate(s) whose shape disagrees with the others' (the shape most of
+      them share), not merely the first one that does not match x.
+    """
+    shapes = {name: np.shape(value) for name, value in coordinates.items()}
+    try:
+        shape = np.broadcast_shapes(*shapes.values())
+    except ValueError:
+        counts: dict[tuple[int, ...], int] = {}
+        for one in shapes.values():
+            counts[one] = counts.get(one, 0) + 1
+        common = max(counts, key=lambda one: (counts[one], len(one) == 3))  # ties: a 3-d shape
+        odd = [name for name, one in shapes.items() if not _broadcasts(one, common)]
+        if not odd or len(odd) == len(shapes):  # no shape that most share: list them all
+            listed = ", ".join(f"{name} {one}" for name, one in shapes.items())
+            raise ValueError(f"scenario {scenario_id}: x, y, z and heading do not broadcast to one "
+                             f"(num_rollouts, num_objects, num_steps) shape: {listed}") from None
+        others = [name for name in shapes if name not in odd]
+        raise ValueError(f"scenario {scenario_id}: {', '.join(f'{name} has shape {shapes[name]}' for name in odd)}, "
+                         f"which {'do' if len(odd) > 1 else 'does'} not broadcast to the shape of {', '.join(others)}: {common} "
+                         "(num_rollouts, num_objects, num_steps)") from None
+    if len(shape) != 3:
+        raise ValueError(f"scenario {scenario_id}: x must be (num_rollouts, num_objects, num_steps), "
+                         f"got shape {shapes['x']}")
+    return tuple(shape)
+
+
 def _first_bad(scenario_id: str, name: str, bad: np.ndarray, object_id: np.ndarray, what: str) -> ValueError:
     r, i, t = (int(k) for k in np.argwhere(bad)[0])
     return ValueError(f"scenario {scenario_id} rollout {r} object {int(object_id[r, i])}: {name}[{t}] is {what} "
@@ -61,12 +98,11 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
       `RolloutArrays` (float32), for `score_scenario` or `rollouts_message`.
     Raises:
       ValueError naming the scenario, rollout, object and field of the first shape or value at fault
-      (non-finite coordinates, non-positive sizes, repeated ids, a box size without the others).
+      (non-finite coordinates or sizes, repeated ids, a box size without the others; zero or negative
+      sizes are accepted and scored as given, as the official evaluator does).
     """
     scenario_id = str(scenario_id)
-    shape = np.shape(x)
-    if len(shape) != 3:
-        raise ValueError(f"scenario {scenario_id}: x must be (num_rollouts, num_objects, num_steps), got shape {shape}")
+    shape = _coordinates_shape(scenario_id, {"x": x, "y": y, "z": z, "heading": heading})
     coordinates = {name: _as_float32(name, value, shape, scenario_id)
                    for name, value in (("x", x), ("y", y), ("z", z), ("heading", heading))}
     ids = np.asarray(object_id)
@@ -97,9 +133,10 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
     if given:
         for name, value in sizes.items():
             boxes[name] = _as_float32(name, value, shape, scenario_id)
-            if not (np.isfinite(boxes[name]) & (boxes[name] > 0)).all():
-                raise _first_bad(scenario_id, name, ~(np.isfinite(boxes[name]) & (boxes[name] > 0)), ids,
-                                 "not a positive finite size")
+            # Zero or negative sizes are scored as given, as the official evaluator does (logged boxes
+            # are 0 on a track's invalid steps); only non-finite ones are refused, as for coordinates.
+            if not np.isfinite(boxes[name]).all():
+                raise _first_bad(scenario_id, name, ~np.isfinite(boxes[name]), ids, "not finite")
         try:
             boxes["object_type"] = np.ascontiguousarray(
                 np.broadcast_to(np.asarray(object_type).astype(np.int32), shape[:2]))

@@ -57,3 +57,22 @@ def test_control_characters_in_names_cannot_forge_report_lines():
     f = make_finding("coverage.unknown_scenario", "not in the scenario set", shard="a\nb", scenario_id="x\nERROR fake")
     assert "\n" not in f.message
     assert f.message == "'a\\nb': scenario 'x\\nERROR fake': not in the scenario set"
+
+
+def test_hints_are_counted_per_group_and_merged_not_repeated():
+    def finding(hint):
+        return make_finding("rollouts.wrong_length", "field heading has 91 values, expected 80", scenario_id="s",
+                            field="heading", hint=hint)
+
+    first = ValidationReport("sub", max_listed=2)
+    first.extend([finding("cause A"), finding("cause A"), finding(None)])
+    second = ValidationReport("sub", max_listed=2)
+    second.extend([finding("cause A"), finding("cause B")])
+    first.merge(second)
+    group = first.groups["rollouts.wrong_length"]
+    assert group.count == 5 and group.hints == {"cause A": 3, "cause B": 1}
+    text = first.format_text()
+    assert text.count("cause A") == 1 and "  hint (3 of 5): cause A" in text and "  hint (1 of 5): cause B" in text
+    assert first.to_dict()["groups"][0]["hints"] == [{"hint": "cause A", "count": 3}, {"hint": "cause B", "count": 1}]
+    assert "hint" not in first.to_dict()["groups"][0]["listed"][0]
+    assert "hints" not in ValidationReport("x").to_dict()  # no hint: no key

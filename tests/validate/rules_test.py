@@ -189,7 +189,7 @@ def test_wrong_rollout_count_gives_count_found(rollouts, agents):
     del rollouts.joint_scenes[31]
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert f.code == "rollouts.wrong_count"
-    assert f.message == f"s: scenario {SID}: found 31 joint scenes, expected 32"
+    assert f.message == f"s: scenario {SID}: found 31 joint scenes, expected 32; the official validator refuses it"
     rollouts.joint_scenes.add().CopyFrom(rollouts.joint_scenes[0])
     rollouts.joint_scenes.add().CopyFrom(rollouts.joint_scenes[0])
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
@@ -246,7 +246,7 @@ def test_wrong_length_names_object_field_and_count(rollouts, agents, field, size
     getattr(trajectory, field).extend((values + values)[:size])
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.object_id, f.field) == ("rollouts.wrong_length", 4, trajectory.object_id, field)
-    assert f.message == f"s: scenario {SID} rollout 4 object {trajectory.object_id}: field {field} has {size} values, expected 80"
+    assert f.message == f"s: scenario {SID} rollout 4 object {trajectory.object_id}: field {field} has {size} values, expected 80; the official validator refuses it"
 
 
 @pytest.mark.parametrize("field", rules.TRAJECTORY_FIELDS)
@@ -256,7 +256,8 @@ def test_non_finite_value_names_its_index(rollouts, agents, field, value, kind):
     getattr(trajectory, field)[17] = value
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.object_id, f.field) == ("rollouts.non_finite", 5, trajectory.object_id, field)
-    assert f.message == f"s: scenario {SID} rollout 5 object {trajectory.object_id}: {field}[17] is {kind}"
+    assert f.message == (f"s: scenario {SID} rollout 5 object {trajectory.object_id}: {field}[17] is {kind}; "
+                         "the official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot")
 
 
 def test_several_non_finite_values_counted_and_indexed(rollouts, agents):
@@ -264,7 +265,7 @@ def test_several_non_finite_values_counted_and_indexed(rollouts, agents):
     for i in (3, 40, 79):
         trajectory.heading[i] = math.nan
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
-    assert f.message.endswith("heading[3] is NaN (3 non-finite values, at indices [3, 40, 79])")
+    assert f.message.endswith("heading[3] is NaN (3 non-finite values, at indices [3, 40, 79])" + rules._NON_FINITE_OFFICIAL)
 
 
 def test_non_finite_found_in_a_trajectory_of_wrong_length(rollouts, agents):
@@ -273,7 +274,7 @@ def test_non_finite_found_in_a_trajectory_of_wrong_length(rollouts, agents):
     trajectory.center_x.append(math.inf)
     findings = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert codes(findings) == ["rollouts.non_finite", "rollouts.wrong_length"]
-    assert only(findings, "rollouts.non_finite")[0].message.endswith("center_x[80] is +inf")
+    assert only(findings, "rollouts.non_finite")[0].message.endswith("center_x[80] is +inf" + rules._NON_FINITE_OFFICIAL)
 
 
 def test_unknown_layout_falls_back_and_still_finds_nan(rollouts, agents):
@@ -285,7 +286,7 @@ def test_unknown_layout_falls_back_and_still_finds_nan(rollouts, agents):
     trajectory.Clear()
     trajectory.MergeFromString(raw)
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
-    assert f.message.endswith("center_z[0] is NaN")
+    assert f.message.endswith("center_z[0] is NaN" + rules._NON_FINITE_OFFICIAL)
 
 
 def test_unknown_scenario_still_gets_structural_checks(rollouts):

@@ -215,7 +215,7 @@ def test_folder_stray_file_reported_and_scan_goes_on(tmp_path, capsys, scenario_
     assert "'results.json' is neither a submission shard" in group(report, "container.not_a_shard")["listed"][0]["message"]
     # the shard after the stray file is still checked
     assert group(report, "rollouts.wrong_count")["listed"][0]["message"] == (
-        f"b.binproto: scenario {B}: found 31 joint scenes, expected 32"
+        f"b.binproto: scenario {B}: found 31 joint scenes, expected 32; the official validator refuses it"
     )
 
 
@@ -422,10 +422,11 @@ def test_wrong_length_and_nan_through_cli(tmp_path, capsys, scenario_file, templ
     code, report = validate_json(capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, corrupt))
     assert code == 1
     length = group(report, "rollouts.wrong_length")["listed"][0]
-    assert length["message"] == f"sub/a.binproto: scenario {A} rollout 5 object {target}: field center_x has 79 values, expected 80"
+    assert length["message"] == f"sub/a.binproto: scenario {A} rollout 5 object {target}: field center_x has 79 values, expected 80; the official validator refuses it"
     assert (length["object_id"], length["field"], length["rollout"]) == (target, "center_x", 5)
     nan = group(report, "rollouts.non_finite")["listed"][0]
-    assert nan["message"] == f"sub/a.binproto: scenario {A} rollout 5 object {target}: center_y[17] is NaN"
+    assert nan["message"] == (f"sub/a.binproto: scenario {A} rollout 5 object {target}: center_y[17] is NaN; the "
+                              "official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot")
 
 
 def test_all_errors_reported_with_counts_not_just_first(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
@@ -453,7 +454,7 @@ def test_report_lists_scenarios_a_partial_scorer_skips(tmp_path, scenario_file, 
     report = validate_submission([scenario_file], path)
     assert not report.ok
     assert report.skipped_scenarios == {
-        A: f"s.binproto: scenario {A}: found 31 joint scenes, expected 32",
+        A: f"s.binproto: scenario {A}: found 31 joint scenes, expected 32; the official validator refuses it",
         B: f"scenario {B}: missing from the submission (1 scenario(s) of the set are missing)",
     }
     assert not report.is_scenario_valid(A) and not report.is_scenario_valid(B)

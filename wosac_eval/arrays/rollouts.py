@@ -70,8 +70,10 @@ def _fields_slow(rollouts, r: int, trajectories, fields, num_steps: int, dtype=n
     for k, field in enumerate(fields):
         columns = [getattr(t, field) for t in trajectories]
         if any(len(v) != num_steps for v in columns):
+            official = ("; the official scorer fails on such a scenario too" if field in BOX_FIELDS
+                        else "; the official validator refuses it")
             raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} "
-                             f"lengths differ from {num_steps}")
+                             f"lengths differ from {num_steps}{official}")
         values[:, k] = np.array(columns, dtype=dtype).reshape(len(trajectories), num_steps)
     return values
 

@@ -132,7 +132,10 @@ def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge
         valid = np.repeat(scenario.log.valid[rows, challenges.CURRENT_TIME_INDEX][..., None],
                           rollouts.num_steps, axis=-1)
         traj = ObjectTrajectories(**positions, **{f: take(getattr(rollouts, f)) for f in _SIZES}, valid=valid,
-                                  object_id=orders, object_type=take(rollouts.object_type))
+                                  object_id=orders,
+                                  # No submitted types: TYPE_UNSET, as the official scores an unset object_type.
+                                  object_type=take(rollouts.object_type) if rollouts.object_type is not None
+                                  else np.zeros(orders.shape, dtype=np.int32))
     else:
         traj = _sim_agents_composite(scenario, orders, positions, np.ones(positions["x"].shape, dtype=bool))
     return traj, traj.valid[:, : len(evaluated)]

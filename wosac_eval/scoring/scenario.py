@@ -59,8 +59,8 @@ def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challe
     if rollouts.num_rollouts < 1:  # any count is scored, as the official code does; submissions need 32
         raise ValueError(f"scenario {sid}: no rollouts")
     if spec.submits_boxes and not rollouts.has_boxes:
-        raise ValueError(f"scenario {sid}: the {spec.challenge} challenge needs box sizes and object types "
-                         "(length, width, height, object_type)")
+        raise ValueError(f"scenario {sid}: the {spec.challenge} challenge needs box sizes (length, width, height, "
+                         f"one per step); without them the official scorer fails on the scenario too")
     expected = np.sort(scenario.sim_agent_ids)
     ids = np.sort(rollouts.object_id, axis=1)
     if ids.shape[1] != expected.size:

@@ -49,8 +49,8 @@ CODES: dict[str, str] = {
     "rollouts.missing_object_id": "Simulated trajectory without an object_id",
     "rollouts.wrong_length": "Trajectory field with the wrong number of values",
     "rollouts.non_finite": "Trajectory field with NaN or infinite values",
-    "rollouts.non_positive_size": "Box size that is zero or negative (scenario gen)",
-    "rollouts.missing_object_type": "Simulated trajectory without an object_type (scenario gen)",
+    "rollouts.non_positive_size": "Box size that is zero or negative (scenario gen; scored as given)",
+    "rollouts.missing_object_type": "Simulated trajectory without an object_type (scenario gen; scored as TYPE_UNSET)",
     "rollouts.ignored_field": "Submitted field the challenge's evaluator ignores",
 }
 
@@ -62,6 +62,9 @@ class Finding:
     `message` is a complete sentence that names its own location (shard,
     scenario, rollout, object, field) so it can be printed alone; the location
     fields repeat it in machine-readable form (None where it does not apply).
+    `hint` is the likely cause and its fix, shared by many findings (e.g. "80
+    values is a sim_agents submission: ..."): the report prints it once per
+    group with a count, not on every line, so it is not part of `message`.
     """
 
     code: str
@@ -72,9 +75,11 @@ class Finding:
     object_id: int | None = None
     field: str | None = None
     severity: str = ERROR
+    hint: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
-        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None}
+        """The finding as JSON-ready data; the hint is left to its group (`FindingGroup.hints`)."""
+        return {k: v for k, v in dataclasses.asdict(self).items() if v is not None and k != "hint"}
 
 
 def where(
@@ -120,13 +125,14 @@ def make_finding(
     object_id: int | None = None,
     field: str | None = None,
     severity: str = ERROR,
+    hint: str | None = None,
 ) -> Finding:
     """A Finding whose message is '<location>: <detail>'."""
     if code not in CODES:
         raise KeyError(f"unknown finding code {code!r}")
     loc = where(shard, scenario_id, rollout, object_id)
     message = f"{loc}: {detail}" if loc else detail
-    return Finding(code, message, shard, scenario_id, rollout, object_id, field, severity)
+    return Finding(code, message, shard, scenario_id, rollout, object_id, field, severity, hint)
 
 
 def format_ids(ids, limit: int = 20) -> str:
@@ -139,25 +145,33 @@ def format_ids(ids, limit: int = 20) -> str:
 
 @dataclass
 class FindingGroup:
-    """All findings of one code: how many, and the first few in full."""
+    """All findings of one code: how many, the first few in full, and each distinct hint with its count.
+
+    Hints come from a small fixed set of causes, so `hints` stays small however
+    many findings share one.
+    """
 
     code: str
     severity: str
     count: int = 0
     listed: list[Finding] = field(default_factory=list)
+    hints: dict[str, int] = field(default_factory=dict)
 
     @property
     def title(self) -> str:
         return CODES[self.code]
 
     def to_dict(self) -> dict[str, Any]:
-        return {
+        data = {
             "code": self.code,
             "title": self.title,
             "severity": self.severity,
             "count": self.count,
             "listed": [f.to_dict() for f in self.listed],
         }
+        if self.hints:
+            data["hints"] = [{"hint": hint, "count": count} for hint, count in self.hints.items()]
+        return data
 
 
 @dataclass
@@ -202,6 +216,8 @@ class ValidationReport:
         group.count += 1
         if len(group.listed) < self.max_listed:
             group.listed.append(finding)
+        if finding.hint is not None:
+            group.hints[finding.hint] = group.hints.get(finding.hint, 0) + 1
         if finding.severity == ERROR and finding.scenario_id is not None:
             self.invalid_scenarios.setdefault(finding.scenario_id, finding.message)
 
@@ -218,6 +234,8 @@ class ValidationReport:
             group.count += theirs.count
             room = self.max_listed - len(group.listed)
             group.listed.extend(theirs.listed[: max(room, 0)])
+            for hint, count in theirs.hints.items():
+                group.hints[hint] = group.hints.get(hint, 0) + count
         for scenario_id, reason in other.invalid_scenarios.items():
             self.invalid_scenarios.setdefault(scenario_id, reason)
 
@@ -307,4 +325,6 @@ class ValidationReport:
                 lines.append(f"  - {f.message}")
             if g.count > len(g.listed):
                 lines.append(f"  ... and {g.count - len(g.listed)} more (raise --max-listed to see them)")
+            for hint, count in g.hints.items():
+                lines.append(f"  hint ({count} of {g.count}): {hint}")
         return "\n".join(lines)

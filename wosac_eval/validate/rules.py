@@ -8,8 +8,9 @@ Three families:
   the sim agents (objects valid at the current step, index 10), each simulated
   trajectory with 80 (sim agents) or 91 (scenario gen) finite values in
   center_x, center_y, center_z, heading; for scenario gen also in length,
-  width and height (positive), and an object_type. Fields the challenge's
-  evaluator ignores are reported as warnings.
+  width and height, and (warnings: the official scores them) positive sizes
+  and an object_type. Fields the challenge's evaluator ignores are reported as
+  warnings.
 
 The per-value checks are vectorised over a whole scenario: its trajectories
 are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
@@ -317,15 +318,39 @@ _IGNORED_WHY = {
 }
 
 
-def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -> str:
-    """Why a length may be wrong: the other challenge's length, or missing box sizes."""
+def _length_detail(count: int, field_index: int, n_steps: int) -> str:
+    """What a field of the wrong length is, and what the official evaluator does with it."""
+    field = (TRAJECTORY_FIELDS + BOX_FIELDS)[field_index]
+    detail = f"field {field} has {count} values, expected {n_steps}"
+    if field_index < len(TRAJECTORY_FIELDS):
+        return detail + "; the official validator refuses it"
+    # Box sizes: the official validator does not look at them, but its scorer stacks them with the
+    # positions per step and fails on the scenario when their length differs.
+    return detail + "; the official validator accepts it but its scorer fails on the scenario"
+
+
+def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -> str | None:
+    """The likely cause of a wrong length (printed once per cause, not on every finding): the other
+    challenge's length, or missing box sizes."""
     other = next(s for s in challenges.SPECS.values() if s is not spec)
     if count == other.num_simulation_steps and field_index < len(TRAJECTORY_FIELDS):
-        return (f" ({count} values is a {other.challenge} submission: validate and score it with "
-                f"--challenge {other.challenge})")
-    if count == 0 and field_index >= len(TRAJECTORY_FIELDS):
-        return " (the scenario gen challenge needs the box size at every step)"
-    return ""
+        return (f"{count} values is a {other.challenge} submission: validate and score it with "
+                f"--challenge {other.challenge}")
+    if field_index >= len(TRAJECTORY_FIELDS):
+        return (f"the scenario gen challenge needs length, width and height with one value per step "
+                f"({spec.num_simulation_steps}); with another count the official scorer cannot score the scenario")
+    return None
+
+
+# The official validator does not look at values; its scorer lets NaN and inf spread through the
+# features and still gives finite likelihoods, which wosac-eval does not reproduce: an error here.
+_NON_FINITE_OFFICIAL = "; the official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot"
+_NON_FINITE_HINT = ("a NaN or inf position, heading or box size is almost always a simulator bug; the scenario "
+                    "is not scored (the official evaluator would score it, NaN spreading into its features)")
+_NON_POSITIVE_HINT = ("the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
+                      "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant")
+_MISSING_TYPE_HINT = ("the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
+                      "types from the log, and the submitted type is only carried along")
 
 
 def _non_finite_detail(field: str, values: Any) -> str:
@@ -362,7 +387,8 @@ def check_scene_object_ids(
     repeated = multiplicity > 1
     if repeated.any():
         dup = ", ".join(f"{i} ({m} times)" for i, m in zip(present[repeated].tolist(), multiplicity[repeated].tolist()))
-        out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}", **loc))
+        out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}; the official "
+                                "validator accepts it but its scorer fails on the scenario (repeated ids)", **loc))
     if sim_agent_ids is not None:
         missing = np.setdiff1d(sim_agent_ids, present, assume_unique=True)
         if missing.size:
@@ -370,7 +396,8 @@ def check_scene_object_ids(
                 make_finding(
                     "rollouts.missing_sim_agents",
                     f"missing sim agents {format_ids(missing.tolist())} "
-                    f"({missing.size} of {sim_agent_ids.size} objects valid at step {CURRENT_TIME_INDEX})",
+                    f"({missing.size} of {sim_agent_ids.size} objects valid at step {CURRENT_TIME_INDEX}); "
+                    "the official validator refuses it",
                     **loc,
                 )
             )
@@ -380,7 +407,8 @@ def check_scene_object_ids(
                 make_finding(
                     "rollouts.extra_objects",
                     f"objects {format_ids(extra.tolist())} are not sim agents "
-                    f"(not in the scenario, or not valid at step {CURRENT_TIME_INDEX})",
+                    f"(not in the scenario, or not valid at step {CURRENT_TIME_INDEX}); the official validator "
+                    "refuses it",
                     **loc,
                 )
             )
@@ -417,7 +445,7 @@ def check_scenario_rollouts(
         out.append(
             make_finding(
                 "rollouts.wrong_count",
-                f"found {len(scenes)} joint scenes, expected {n_rollouts}",
+                f"found {len(scenes)} joint scenes, expected {n_rollouts}; the official validator refuses it",
                 shard=shard,
                 scenario_id=scenario_id,
             )
@@ -467,29 +495,34 @@ def check_scenario_rollouts(
         out.append(
             make_finding(
                 "rollouts.wrong_length",
-                f"field {field} has {counts[k, f]} values, expected {n_steps}" + _length_hint(counts[k, f], f, spec),
+                _length_detail(int(counts[k, f]), f, n_steps),
                 field=field,
+                hint=_length_hint(int(counts[k, f]), f, spec),
                 **where_(k),
             )
         )
     for k, f in np.argwhere(non_finite).tolist():
         field = fields[f]
         detail = _non_finite_detail(field, getattr(trajectories[k], field))
-        out.append(make_finding("rollouts.non_finite", detail, field=field, **where_(k)))
+        out.append(make_finding("rollouts.non_finite", detail + _NON_FINITE_OFFICIAL, field=field,
+                                hint=_NON_FINITE_HINT, **where_(k)))
     for k, f in np.argwhere(non_positive).tolist():
         field = fields[f]
         values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)
         bad = np.flatnonzero(np.isfinite(values) & (values <= 0))
-        detail = f"{field}[{bad[0]}] is {values[bad[0]]:g}; box sizes must be positive"
+        detail = f"{field}[{bad[0]}] is {values[bad[0]]:g}"
         if len(bad) > 1:
             detail += f" ({len(bad)} such values, at indices {format_ids(bad.tolist(), 10)})"
-        out.append(make_finding("rollouts.non_positive_size", detail, field=field, **where_(k)))
+        detail += "; a box size is expected to be positive, the official evaluator scores it as given"
+        out.append(make_finding("rollouts.non_positive_size", detail, field=field, severity=WARNING,
+                                hint=_NON_POSITIVE_HINT, **where_(k)))
     if spec.submits_boxes:
         for k in np.flatnonzero(~has_type).tolist():
             out.append(make_finding("rollouts.missing_object_type",
-                                    "object_type is not set (or TYPE_UNSET); the scenario gen challenge needs "
-                                    f"the type of every object ({', '.join(PROTO_NAMES.values())})",
-                                    field="object_type", **where_(k)))
+                                    "object_type is not set (or TYPE_UNSET); expected the type of the object "
+                                    f"({', '.join(PROTO_NAMES.values())}), the official evaluator scores it as "
+                                    "TYPE_UNSET", field="object_type", severity=WARNING, hint=_MISSING_TYPE_HINT,
+                                    **where_(k)))
     ignored = _ignored_fields(trajectories, spec)
     if ignored:
         out.append(make_finding("rollouts.ignored_field", f"fields {', '.join(ignored)} are set but ignored: "

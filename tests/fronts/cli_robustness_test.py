@@ -211,3 +211,29 @@ def test_report_legend_covers_no_bar(tmp_path):
     labels = [text.get_window_extent(renderer) for text in ax.texts]
     assert bars and labels
     assert not any(legend.overlaps(box) for box in bars + labels)
+
+
+def test_criticality_output_that_cannot_be_created_is_refused_up_front(scene_and_submission):
+    # /proc passes every permission check a root user makes, yet takes no new file: refused before the work.
+    scenarios, _ = scene_and_submission
+    proc = run_cli("criticality", "--scenarios", str(scenarios), "-o", "/proc/r.json")
+    assert_one_clean_error(proc, "--output /proc/r.json: cannot write: cannot create a file in /proc")
+    assert "internal error" not in proc.stderr and "scenario(s)" not in proc.stdout
+    assert not Path("/proc/r.json").exists()
+
+
+def test_criticality_with_a_ray_cluster_that_is_not_there(scene_and_submission):
+    pytest.importorskip("ray", reason="the ray extra is not installed: --engine ray stops at the install hint")
+    scenarios, _ = scene_and_submission
+    proc = run_cli("criticality", "--scenarios", str(scenarios), "--engine", "ray", "--ray-address", "127.0.0.1:9")
+    assert_one_clean_error(proc, "cannot reach the Ray cluster at 127.0.0.1:9")
+    assert "internal error" not in proc.stderr
+
+
+def test_score_with_a_binary_config_names_the_file(tmp_path, scene_and_submission):
+    scenarios, submission = scene_and_submission
+    config = tmp_path / "config.textproto"
+    config.write_bytes(b"metric \xff\xfe\x00\x01 binary")
+    proc = run_cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--config", str(config))
+    assert_one_clean_error(proc, f"{config}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte 7 is 0xff)")
+    assert "codec" not in proc.stderr

@@ -36,6 +36,25 @@ def check_output_file(path: str | os.PathLike | None, option: str) -> None:
         raise UsageError(f"{option} {path}: cannot write: the file exists and is not writable")
     if not target.exists() and not os.access(parent, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {path}: cannot write: the folder {parent} is not writable")
+    if not target.exists():
+        _probe_create(target, path, option)
+
+
+def _probe_create(target: Path, path, option: str) -> None:
+    """Create and remove the file, for folders whose permissions tell nothing (e.g. /proc, a read-only mount)."""
+    try:
+        fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:  # made in the meantime: writing it is the caller's business
+        return
+    except OSError as error:
+        folder = target.parent if str(target.parent) else Path(".")
+        raise UsageError(f"{option} {path}: cannot write: cannot create a file in {folder} "
+                         f"({error.strerror or error})") from None
+    os.close(fd)
+    try:
+        os.unlink(target)
+    except OSError:
+        pass
 
 
 def check_output_folder(path: str | os.PathLike | None, option: str) -> None:

@@ -83,7 +83,10 @@ def _read_textproto(path: Path) -> SimAgentMetricsConfig:
     """A `SimAgentMetricsConfig` textproto file, completed by `with_defaults`; ValueError naming the file."""
     try:
         config = text_format.Parse(path.read_text(encoding="utf-8"), SimAgentMetricsConfig())
-    except (text_format.ParseError, UnicodeDecodeError) as err:
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte {err.start} is "
+                         f"0x{err.object[err.start]:02x}); is it a binary file?") from None
+    except text_format.ParseError as err:
         raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: {err}") from err
     return with_defaults(config)
 

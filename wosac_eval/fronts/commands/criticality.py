@@ -1,7 +1,7 @@
 """`wosac-eval criticality`: how demanding each scenario of a set is, from its log alone (no submission).
 
 Exit codes: 0 written, 2 usage error (missing scenarios, unwritable output, an
-unknown format, pyarrow missing for .parquet).
+unknown format, pyarrow missing for .parquet, a Ray engine that cannot start or connect).
 """
 from __future__ import annotations
 
@@ -65,6 +65,7 @@ def write_table(rows: list[dict], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from wosac_eval.extras import EngineUnavailableError
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality
 
@@ -83,11 +84,14 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = scenario_set_criticality(args.scenarios, workers=args.workers, engine=args.engine,
                                           ray_address=args.ray_address, per_step=args.per_step)
-    except (ParseError, FileNotFoundError) as error:
+    except (ParseError, FileNotFoundError, EngineUnavailableError) as error:
         raise UsageError(str(error)) from None
     rows = table_rows(result)
     if args.output is not None:
-        write_table(rows, Path(args.output))
+        try:
+            write_table(rows, Path(args.output))
+        except OSError as error:
+            raise UsageError(f"--output {args.output}: cannot write: {error.strerror or error}") from None
     print(f"{result['num_scenarios']} scenario(s); long tail (top decile): score >= "
           f"{result['long_tail_threshold']:.3f}")
     for row in rows[:SHOWN if args.output is None else 3]:

@@ -65,8 +65,8 @@ def test_exact_p_value_matches_scipy_permutation_test():
 
 def test_monte_carlo_p_value_agrees_with_exact_enumeration():
     rng = np.random.default_rng(8)
-    d = rng.normal(0.4, 1.0, size=12)  # 4096 patterns
-    exact, is_exact = stats.permutation_p_value(d, rng, n_perm=5000)
+    d = rng.normal(0.4, 1.0, size=14)  # 16384 patterns
+    exact, is_exact = stats.permutation_p_value(d, rng, n_perm=16384)
     assert is_exact
     approx, is_exact = stats.permutation_p_value(d, np.random.default_rng(9), n_perm=4000)
     assert not is_exact
@@ -169,3 +169,17 @@ def test_exact_enumeration_covers_every_sign_pattern_once():
     d = np.array([1.0, 10.0, 100.0, 1000.0])
     p, exact = stats.permutation_p_value(d, np.random.default_rng(0))
     assert exact and p[0] == pytest.approx(2 / 16)
+
+
+@pytest.mark.parametrize("n_perm", [1, 1000, 4095])
+def test_up_to_12_scenarios_are_enumerated_whatever_n_perm(n_perm):
+    # compare --n-perm 1000 on 10 scenarios: 1024 patterns, enumerated as the README says, not sampled.
+    d = np.random.default_rng(4).normal(0.3, 1.0, size=(10, 2))
+    p, exact = stats.permutation_p_value(d, np.random.default_rng(0), n_perm=n_perm)
+    reference, reference_exact = stats.permutation_p_value(d, np.random.default_rng(1), n_perm=5000)
+    assert exact and reference_exact
+    np.testing.assert_array_equal(p, reference)
+    p12, exact12 = stats.permutation_p_value(np.ones(12), np.random.default_rng(0), n_perm=n_perm)
+    assert exact12 and p12[0] == pytest.approx(2 / 4096)
+    _, exact13 = stats.permutation_p_value(np.ones(13), np.random.default_rng(0), n_perm=n_perm)
+    assert not exact13

@@ -29,6 +29,9 @@ _CHUNK_ELEMENTS = 4_000_000
 # Up to this many scenarios, all 2**n sign patterns fit in memory ((65536, 16) at most) and the
 # permutation test is exact when n_perm asks for at least that many draws.
 _MAX_EXACT_SCENARIOS = 16
+# Up to this many scenarios (4096 patterns) the test is exact whatever n_perm asks for: enumerating
+# is then cheaper than the default 5000 draws, and a smaller n_perm must not turn it into sampling.
+_ALWAYS_EXACT_SCENARIOS = 12
 # Differences this close to the observed statistic count as ties: means of the
 # same numbers summed in different orders differ by rounding only.
 _TIE_RELATIVE_TOLERANCE = 1e-9
@@ -103,8 +106,8 @@ def permutation_p_value(
 ) -> tuple[np.ndarray, bool]:
     """Two-sided paired sign-flip permutation p-value of "mean difference is 0".
 
-    When `2**num_scenarios <= n_perm` (and num_scenarios <= 16) every sign
-    pattern is enumerated and the p-value is exact; otherwise `n_perm` random patterns are drawn and the
+    With up to 12 scenarios, or up to 16 when `2**num_scenarios <= n_perm`, every
+    sign pattern is enumerated and the p-value is exact; otherwise `n_perm` random patterns are drawn and the
     p-value is `(1 + #{|perm mean| >= |observed|}) / (1 + n_perm)`, which never
     reports 0 and keeps the test valid (p-values are not anti-conservative).
 
@@ -120,7 +123,7 @@ def permutation_p_value(
     n, m = d.shape
     observed = np.abs(d.mean(axis=0))
     threshold = observed - _TIE_RELATIVE_TOLERANCE * np.maximum(np.abs(d).mean(axis=0), 1e-300)
-    if n <= _MAX_EXACT_SCENARIOS and 2 ** n <= n_perm:
+    if n <= _ALWAYS_EXACT_SCENARIOS or (n <= _MAX_EXACT_SCENARIOS and 2 ** n <= n_perm):
         patterns = np.arange(2 ** n)[:, None] >> np.arange(n)[None, :] & 1  # (2**n, n) bits
         signs = 1.0 - 2.0 * patterns
         extreme = (np.abs(signs @ d / n) >= threshold).sum(axis=0)

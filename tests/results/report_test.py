@@ -176,3 +176,37 @@ def test_report_of_a_result_where_every_scenario_was_skipped():
     page = _Page(text)
     assert sorted(page.sections) == sorted(s for s in SECTIONS if s != "comparison")
     assert "No scenarios." in text and "invalid rollouts" in text and "Skipped scenarios (1)" in text
+
+
+@pytest.mark.parametrize("num_scenarios", [1, 2])
+def test_histogram_axis_of_one_scenario_reads_plain_numbers(tmp_path, monkeypatch, num_scenarios):
+    # One scenario (or all values equal) used to give bins of width 1e-6 and an axis reading
+    # '1e-6+2.5824e-1'; the span is now readable and the axis never uses an offset.
+    from wosac_eval.results import report
+
+    scenarios = synthetic_scenarios(num_scenarios, seed=0)
+    for s in scenarios:
+        s["metametric"] = 0.25824
+    path = tmp_path / "one.json"
+    path.write_text(json.dumps(result_json(scenarios)))
+    result = load_result(path)
+    figures = []
+
+    def keep(fig, tight=True):
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+        FigureCanvasAgg(fig).draw()  # as _png draws it: tick labels and offset text set
+        figures.append(fig)
+        return ""
+
+    monkeypatch.setattr(report, "_png", keep)
+    report._distribution_plot(result, None, ["metametric", "linear_speed_likelihood"])
+    (fig,) = figures
+    for ax in fig.axes:
+        assert ax.xaxis.get_offset_text().get_text() == ""
+        labels = [t.get_text().replace("\u2212", "-") for t in ax.get_xticklabels() if t.get_text()]
+        assert labels and all("e" not in label for label in labels), labels
+        low, high = ax.get_xlim()
+        assert high - low > 1e-3
+    bins = report._histogram_bins(np.array([0.25824]))
+    assert bins[0] < 0.25824 < bins[-1] and bins[-1] - bins[0] == pytest.approx(0.025824)

@@ -170,6 +170,17 @@ def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     return _png(fig)
 
 
+def _histogram_bins(data: np.ndarray, count: int = 30) -> np.ndarray:
+    """`count + 1` bin edges over the values; a single value (one scenario, or all equal) or a spread
+    far below the values' scale gets a readable span around it instead of a sliver of 1e-6."""
+    lo, hi = float(data.min()), float(data.max())
+    scale = max(abs(lo), abs(hi), 0.2)
+    if hi - lo < 1e-3 * scale:
+        middle, pad = (lo + hi) / 2, 0.05 * scale
+        lo, hi = middle - pad, middle + pad
+    return np.linspace(lo, hi, count + 1)
+
+
 def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metrics: list[str]) -> str:
     from matplotlib.ticker import MaxNLocator
 
@@ -181,8 +192,7 @@ def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metric
         v = _values(result, metric)
         b = _values(base, metric) if base is not None else None
         data = np.concatenate([v, b]) if b is not None else v
-        lo, hi = float(data.min()), float(data.max())
-        bins = np.linspace(lo, hi if hi > lo else lo + 1e-6, 31)
+        bins = _histogram_bins(data)
         # One artist per histogram (ax.hist draws a patch per bin, several times slower over 19 panels).
         ax.stairs(np.histogram(v, bins)[0], bins, fill=True, color=_NEW_COLOR, alpha=0.75, label="this run")
         if b is not None:
@@ -191,6 +201,7 @@ def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metric
         ax.set_title(f"{_label(metric)}  (mean {v.mean():.3f})", fontsize=9)
         ax.tick_params(labelsize=7)
         ax.xaxis.set_major_locator(MaxNLocator(5))
+        ax.xaxis.get_major_formatter().set_useOffset(False)  # never '1e-6+2.5824e-1' under the axis
         ax.yaxis.set_major_locator(MaxNLocator(4))
         if k == 0 and b is not None:
             ax.legend(fontsize=7)

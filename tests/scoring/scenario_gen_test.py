@@ -77,15 +77,19 @@ def test_box_and_type_faults_are_named_precisely(scene_dir):
     found = _findings(rollouts, agents)
     msg = found[("rollouts.wrong_length", "length")].message
     assert f"rollout 3 object {first.object_id}" in msg and "field length has 0 values, expected 91" in msg
-    assert "box size at every step" in msg
-    assert "width[5] is -0.5; box sizes must be positive" in found[("rollouts.non_positive_size", "width")].message
+    assert "the official validator accepts it but its scorer fails on the scenario" in msg
+    assert "length, width and height with one value per step (91)" in found[("rollouts.wrong_length", "length")].hint
+    # Sizes the official scores as given, and a missing type (TYPE_UNSET): warnings, named as precisely.
+    width = found[("rollouts.non_positive_size", "width")]
+    assert "width[5] is -0.5; a box size is expected to be positive" in width.message and width.severity == "warning"
     assert "height[7] is 0" in found[("rollouts.non_positive_size", "height")].message
     assert "height[2] is NaN" in found[("rollouts.non_finite", "height")].message
     assert f"object {fourth.object_id}" in found[("rollouts.missing_object_type", "object_type")].message
+    assert found[("rollouts.missing_object_type", "object_type")].severity == "warning"
     assert "field width has 90 values" in found[("rollouts.wrong_length", "width")].message
     # The sim agents rules on the same rollouts point at the challenge.
     sim_agents = _findings(original, agents, challenge="sim_agents")
-    assert "--challenge scenario_gen" in sim_agents[("rollouts.wrong_length", "center_x")].message
+    assert "--challenge scenario_gen" in sim_agents[("rollouts.wrong_length", "center_x")].hint
     assert sim_agents[("rollouts.ignored_field", "length")].severity == "warning"
 
 

@@ -99,6 +99,12 @@ def run(args: argparse.Namespace) -> int:
         if errors:
             for finding in errors[:5]:
                 print(f"  - {finding.message}", file=sys.stderr)
+            hints: dict[str, int] = {}
+            for finding in errors:
+                if finding.hint is not None:
+                    hints[finding.hint] = hints.get(finding.hint, 0) + 1
+            for hint, count in hints.items():  # once per cause, not on every line
+                print(f"  hint ({count} of {len(errors)}): {hint}", file=sys.stderr)
             print(f"wosac-eval plot: scenario {scenario_id}: {len(errors)} problem(s) in the rollouts "
                   f"(`wosac-eval validate` reports them all)", file=sys.stderr)
             return 1

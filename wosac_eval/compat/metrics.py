@@ -54,3 +54,22 @@ def aggregate_metrics_to_buckets(config: sim_agents_metrics_pb2.SimAgentMetricsC
     values = {field.name: getattr(metrics, field.name) for field in metrics.DESCRIPTOR.fields
               if field.name != "scenario_id"}
     return sim_agents_metrics_pb2.SimAgentsBucketedMetrics(**bucket_metrics(config, values))
+
+
+def compute_scenario_metrics_for_features_bundle(config: sim_agents_metrics_pb2.SimAgentMetricsConfig,
+                                                 scenario_id: str, log_features, sim_features
+                                                 ) -> sim_agents_metrics_pb2.SimAgentMetrics:
+    """The scenario's `SimAgentMetrics` from its features (`metric_features.compute_scenario_rollouts_features`).
+
+    Args:
+      config: the metrics config.
+      scenario_id: stored in the message.
+      log_features: `metric_features.MetricFeatures` of the log (n_samples=1).
+      sim_features: `metric_features.MetricFeatures` of the rollouts (n_samples=number of rollouts); any
+        object with those fields works (numpy arrays, or anything `np.asarray` reads).
+    """
+    from wosac_eval.compat.metric_features import as_internal
+    from wosac_eval.metrics.scenario_metrics import scenario_metrics
+
+    values = scenario_metrics(config, as_internal(log_features), as_internal(sim_features))
+    return sim_agents_metrics_pb2.SimAgentMetrics(scenario_id=scenario_id, **values)

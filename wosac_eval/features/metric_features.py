@@ -228,7 +228,13 @@ def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays, context
     The log is computed as one more sample beside the rollouts: every kernel
     treats samples independently, and one call shares the map searches.
     """
-    batch = sample_batch(scenario, rollouts, challenge)
+    return batch_features(scenario, sample_batch(scenario, rollouts, challenge), context)
+
+
+def batch_features(scenario: ScenarioArrays, batch: SampleBatch,
+                   context: MapContext | None = None) -> tuple[MetricFeatures, MetricFeatures]:
+    """(log features, simulated features) of a batch of samples of the scenario (`arrays.samples`),
+    with the numpy (pruned) search; the first `batch.num_log_samples` samples are the log's."""
     layout = feature_layout(batch.spec, batch.num_evaluated)
     context = context or map_context(scenario)
     search = PrunedSearch(context.road_edges, context.lanes,

@@ -464,3 +464,27 @@ def test_submission_specs_public_names_are_the_official_ones():
                 "get_evaluation_sim_agent_ids", "validate_joint_scene", "validate_scenario_rollouts"}
     assert official <= set(dir(submission_specs))
     assert submission_specs.get_submission_config(submission_specs.ChallengeType.SCENARIO_GEN).n_simulation_steps == 91
+
+
+def test_arrays_answer_numpy_as_the_official_tensors_do():
+    """Client code ends with `.numpy()` (e.g. a parity script converting every feature): it runs unchanged."""
+    _, scenario, rollouts = _case("oracle", "synthetic-7-000-collision__logreplay_noise05")
+    log, sim = metric_features.compute_scenario_rollouts_features(scenario, rollouts,
+                                                                  submission_specs.ChallengeType.SIM_AGENTS)
+    for features in (log, sim, metric_features.compute_metric_features(scenario, rollouts.joint_scenes[0])):
+        for field in dataclasses.fields(metric_features.MetricFeatures):
+            value = getattr(features, field.name)
+            plain = value.numpy()
+            assert type(plain) is np.ndarray and plain.dtype == value.dtype
+            np.testing.assert_array_equal(plain, value)
+    t = trajectory_utils.ObjectTrajectories.from_scenario(scenario)
+    assert t.object_id.numpy().tolist() == [track.id for track in scenario.tracks]
+    picked = t.gather_objects_by_id(t.object_id[:2]).slice_time(0, 11)
+    for value in (picked.x, picked.valid, picked.object_id, t.gather_objects([0]).object_type):
+        assert type(value.numpy()) is np.ndarray
+    converted = converters.joint_scene_to_trajectories(rollouts.joint_scenes[0], scenario)
+    assert all(type(getattr(converted, f.name).numpy()) is np.ndarray
+               for f in dataclasses.fields(trajectory_utils.ObjectTrajectories))
+    plain = t.x.numpy()
+    plain[0, 0] = -1.0  # a copy, as a tensor's
+    assert t.x[0, 0] != -1.0

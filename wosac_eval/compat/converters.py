@@ -14,6 +14,7 @@ from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 from wosac_eval.compat import submission_specs, trajectory_utils
+from wosac_eval.compat._arrays import compat_array
 from wosac_eval.compat.submission_specs import ChallengeType
 
 
@@ -57,7 +58,7 @@ def _stacked(trajectories, field: str, dtype) -> np.ndarray:
         if len(lengths) > 1:
             raise ValueError(f"the joint scene's trajectories have {field} of different lengths "
                              f"({sorted(lengths)})")
-    return np.array(values, dtype=dtype)
+    return compat_array(values, dtype)
 
 
 def joint_scene_to_trajectories(joint_scene: sim_agents_submission_pb2.JointScene,
@@ -86,7 +87,7 @@ def joint_scene_to_trajectories(joint_scene: sim_agents_submission_pb2.JointScen
     else:
         future_valid = np.ones((len(ids), n_future), dtype=bool)
     frozen = lambda a: np.repeat(a[:, -1:], n_future, axis=-1)
-    joined = lambda past, rest: np.concatenate([past, rest.reshape(len(ids), n_future)], axis=-1)
+    joined = lambda past, rest: compat_array(np.concatenate([past, rest.reshape(len(ids), n_future)], axis=-1))
     return trajectory_utils.ObjectTrajectories(
         **{f: joined(getattr(history, f), future[f]) for f in ("x", "y", "z", "heading")},
         **{f: joined(getattr(history, f), frozen(getattr(history, f))) for f in ("length", "width", "height")},
@@ -112,6 +113,6 @@ def simulated_scenariogen_to_trajectories(joint_scene: sim_agents_submission_pb2
     log = trajectory_utils.ObjectTrajectories.from_scenario(scenario).gather_objects_by_id(ids)
     now = submission_specs.get_submission_config(challenge_type).current_time_index
     n_steps = fields["x"].shape[-1] if fields["x"].ndim == 2 else 0
-    valid = np.repeat(log.valid[:, now, None], n_steps, axis=-1)
+    valid = compat_array(np.repeat(log.valid[:, now, None], n_steps, axis=-1))
     return trajectory_utils.ObjectTrajectories(**fields, valid=valid, object_id=ids,
                                                object_type=_stacked(trajectories, "object_type", np.int32))

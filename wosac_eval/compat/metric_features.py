@@ -7,7 +7,8 @@
 
 The features are wosac-eval's (`wosac_eval.features.metric_features`),
 bit-identical to the official ones, as numpy arrays with the official shapes
-and dtypes where the official ones are TensorFlow tensors.
+and dtypes where the official ones are TensorFlow tensors (answering
+`.numpy()` as those do: `compat._arrays.CompatArray`).
 """
 from __future__ import annotations
 
@@ -21,9 +22,14 @@ from wosac_eval.arrays.samples import sample_batch
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.features import metric_features as _features
-from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2
 
+from wosac_eval.compat._arrays import compat_array
 from wosac_eval.compat.submission_specs import ChallengeType
+
+# The official module's private aliases, which some client programs read.
+_ChallengeType = ChallengeType
+_LaneType = map_pb2.LaneCenter.LaneType
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,7 +73,7 @@ class MetricFeatures:
 
 
 def _official(features: _features.MetricFeatures) -> MetricFeatures:
-    values = {f.name: np.asarray(getattr(features, f.name)) for f in dataclasses.fields(MetricFeatures)}
+    values = {f.name: compat_array(getattr(features, f.name)) for f in dataclasses.fields(MetricFeatures)}
     ids = values["object_id"]
     if ids.size and (ids.min() < np.iinfo(np.int32).min or ids.max() > np.iinfo(np.int32).max):
         raise ValueError(f"object ids {ids.tolist()} do not fit the official int32 ids")

@@ -6,10 +6,11 @@
 
 The fields are numpy arrays with the official shapes and dtypes (float32
 positions, headings and sizes, bool validity, int32 ids and types) where the
-official ones are TensorFlow tensors; the methods return new objects and
-never change the one they are called on. TensorFlow code that used the
-tensors can take the arrays as they are (`tf.convert_to_tensor`), or use
-numpy (e.g. `np.all(x)` for `tf.reduce_all(x).numpy()`).
+official ones are TensorFlow tensors; like those they answer `.numpy()`
+(`compat._arrays.CompatArray`). The methods return new objects and never
+change the one they are called on. TensorFlow code that used the tensors can
+take the arrays as they are (`tf.convert_to_tensor`), or use numpy (e.g.
+`np.all(x)` for `tf.reduce_all(x).numpy()`).
 """
 from __future__ import annotations
 
@@ -17,6 +18,7 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval.compat._arrays import compat_array
 from wosac_eval.protos import scenario_pb2
 
 _TIME_SERIES = ("x", "y", "z", "heading", "length", "width", "height", "valid")
@@ -55,7 +57,7 @@ class ObjectTrajectories:
         `object_id` and `object_type` are kept as they are.
         """
         steps = slice(start_index, end_index)
-        return ObjectTrajectories(**{f: np.asarray(getattr(self, f))[..., steps] for f in _TIME_SERIES},
+        return ObjectTrajectories(**{f: compat_array(getattr(self, f))[..., steps] for f in _TIME_SERIES},
                                   **{f: getattr(self, f) for f in _PER_OBJECT})
 
     def gather_objects(self, object_indices) -> ObjectTrajectories:
@@ -80,8 +82,8 @@ class ObjectTrajectories:
         if bad.any():
             raise IndexError(f"object indices {indices[bad].tolist()} are outside [0, {n_objects})")
         return ObjectTrajectories(
-            **{f: np.take(np.asarray(getattr(self, f)), indices, axis=-2) for f in _TIME_SERIES},
-            **{f: np.take(np.asarray(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT})
+            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-2) for f in _TIME_SERIES},
+            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT})
 
     def gather_objects_by_id(self, object_ids) -> ObjectTrajectories:
         """The objects with the given ids, in the order of `object_ids`.
@@ -111,8 +113,8 @@ class ObjectTrajectories:
             fields["valid"].append([s.valid for s in states])
         arrays = {f: _rectangular(values, np.bool_ if f == "valid" else np.float32, f)
                   for f, values in fields.items()}
-        return cls(**arrays, object_id=np.array([t.id for t in scenario.tracks], dtype=np.int32),
-                   object_type=np.array([t.object_type for t in scenario.tracks], dtype=np.int32))
+        return cls(**arrays, object_id=compat_array([t.id for t in scenario.tracks], np.int32),
+                   object_type=compat_array([t.object_type for t in scenario.tracks], np.int32))
 
 
 def _rectangular(rows: list, dtype, name: str) -> np.ndarray:
@@ -120,7 +122,7 @@ def _rectangular(rows: list, dtype, name: str) -> np.ndarray:
     if len(lengths) > 1:
         raise ValueError(f"the tracks have different numbers of states ({sorted(lengths)}): {name} cannot be "
                          "one (n_objects, n_steps) array")
-    return np.array(rows, dtype=dtype).reshape(len(rows), lengths.pop() if lengths else 0)
+    return compat_array(np.array(rows, dtype=dtype).reshape(len(rows), lengths.pop() if lengths else 0))
 
 
 def _positions_of_ids(ids, wanted) -> np.ndarray:

@@ -1,14 +1,17 @@
 """`waymo_open_dataset.utils.sim_agents.submission_specs`, without TensorFlow.
 
 `ChallengeType` is `wosac_eval.Challenge` (the same values, "sim_agents" and
-"scenario_gen"); the validators raise `ValueError`, as the official ones do,
-with wosac-eval's precise messages (scenario, rollout, object, field) and its
-stricter checks (non-finite values, repeated objects, scenario-gen box sizes).
+"scenario_gen"); the validators raise `ValueError` for exactly what the
+official ones refuse (a missing scenario_id, a wrong number of joint scenes, a
+position or heading of the wrong length, an object that is not a sim agent, a
+sim agent missing), with wosac-eval's precise messages. What the official
+accepts they accept too, even where `wosac-eval validate` warns or refuses
+(non-finite values, repeated objects, scenario-gen box sizes and types): a
+program written for the official package behaves the same.
 """
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
 
 from wosac_eval import challenges
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
@@ -58,35 +61,50 @@ def get_evaluation_sim_agent_ids(scenario: scenario_pb2.Scenario,
                                     challenge_type).tolist()
 
 
-def _raise_first_error(findings: Sequence, what: str) -> None:
-    errors = [f for f in findings if f.severity == "error"]
-    if errors:
-        more = f" (and {len(errors) - 1} more problem(s))" if len(errors) > 1 else ""
-        raise ValueError(f"invalid {what}: {errors[0].message}{more}")
+# Findings of `validate.rules` that the official validators refuse as well; the others are wosac-eval's
+# stricter checks, which the official validators let through.
+_OFFICIAL_REFUSALS = ("rollouts.wrong_count", "rollouts.missing_sim_agents", "rollouts.extra_objects")
+_CHECKED_FIELDS = ("center_x", "center_y", "center_z", "heading")  # the official checks only these lengths
+
+
+def _refused_by_official(finding, sim_agent_ids) -> bool:
+    if finding.severity != "error":
+        return False
+    if finding.code == "rollouts.wrong_length":
+        return finding.field in _CHECKED_FIELDS
+    if finding.code == "rollouts.missing_object_id":  # an unset id reads as 0: refused unless 0 is a sim agent
+        return 0 not in sim_agent_ids
+    return finding.code in _OFFICIAL_REFUSALS
+
+
+def _raise_official_refusal(rollouts: sim_agents_submission_pb2.ScenarioRollouts, scenario: scenario_pb2.Scenario,
+                            challenge_type, what: str, n_rollouts: int | None = None) -> None:
+    """ValueError naming the first of the problems the official validator refuses, if any."""
+    from wosac_eval.validate import rules
+
+    sim_agent_ids = challenges.sim_agent_ids(scenario)
+    options = {} if n_rollouts is None else {"n_rollouts": n_rollouts}
+    findings = rules.check_scenario_rollouts(rollouts, sim_agent_ids, challenge=challenge_type, **options)
+    refused = [f for f in findings if _refused_by_official(f, set(sim_agent_ids.tolist()))]
+    if refused:
+        more = f" (and {len(refused) - 1} more problem(s))" if len(refused) > 1 else ""
+        raise ValueError(f"invalid {what}: {refused[0].message}{more}")
 
 
 def validate_joint_scene(joint_scene: sim_agents_submission_pb2.JointScene, original_scenario: scenario_pb2.Scenario,
                          challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> None:
-    """Raises ValueError unless the joint scene holds exactly the sim agents, each with the challenge's
-    number of finite values per field (and box sizes and a type for scenario gen)."""
-    from wosac_eval.validate import rules
-
+    """Raises ValueError unless the joint scene holds every sim agent and no other object, each with the
+    challenge's number of center_x, center_y, center_z and heading values (what the official checks)."""
     rollouts = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=original_scenario.scenario_id,
                                                           joint_scenes=[joint_scene])
-    findings = rules.check_scenario_rollouts(rollouts, challenges.sim_agent_ids(original_scenario),
-                                             challenge=challenge_type, n_rollouts=1)
-    _raise_first_error(findings, "JointScene")
+    _raise_official_refusal(rollouts, original_scenario, challenge_type, "JointScene", n_rollouts=1)
 
 
 def validate_scenario_rollouts(scenario_rollouts: sim_agents_submission_pb2.ScenarioRollouts,
                                original_scenario: scenario_pb2.Scenario,
                                challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> None:
-    """Raises ValueError unless the rollouts are valid for the scenario: a scenario_id, 32 joint scenes,
-    each valid as in `validate_joint_scene`."""
-    from wosac_eval.validate import rules
-
+    """Raises ValueError unless the rollouts have a scenario_id and 32 joint scenes, each valid as in
+    `validate_joint_scene`."""
     if not scenario_rollouts.HasField("scenario_id"):
         raise ValueError("invalid ScenarioRollouts: the scenario_id field is missing")
-    findings = rules.check_scenario_rollouts(scenario_rollouts, challenges.sim_agent_ids(original_scenario),
-                                             challenge=challenge_type)
-    _raise_first_error(findings, "ScenarioRollouts")
+    _raise_official_refusal(scenario_rollouts, original_scenario, challenge_type, "ScenarioRollouts")

@@ -415,6 +415,10 @@ def test_every_compression_is_checked_and_foreign_bodies_are_415(api_server):
         # A form upload (curl -F) is told to send the raw body, before the body is read.
         r = c.post("/v1/submissions", files={"file": ("sub.tar.gz", tar_bytes({"s.binproto": shard}))})
         assert r.status_code == 415 and "--data-binary" in r.json()["detail"], r.text
+        # curl --data-binary without -H labels the raw file application/x-www-form-urlencoded: accepted.
+        r = c.post("/v1/submissions", content=tar_bytes({"s.binproto": shard}),
+                   headers={"Content-Type": "application/x-www-form-urlencoded"})
+        assert r.status_code == 202, r.text
 
 
 @pytest.mark.parametrize("limit", [3])

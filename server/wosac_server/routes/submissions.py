@@ -21,11 +21,12 @@ router = APIRouter(prefix="/v1/submissions", tags=["submissions"])
 
 
 def refuse_forms(request: Request) -> None:
-    """A form upload (curl -F, a browser's multipart form) is refused before its body is read, saying how
-    to send the file: as the raw body."""
+    """A multipart form upload (curl -F, a browser's file form) is refused before its body is read, saying
+    how to send the file: as the raw body. (curl --data-binary labels a raw body
+    application/x-www-form-urlencoded unless told otherwise: that one is the file itself, and accepted.)"""
     kind = request.headers.get("content-type", "").split(";")[0].strip().lower()
-    if kind in ("multipart/form-data", "application/x-www-form-urlencoded"):
-        raise HTTPException(415, f"the submission is sent as a {kind} form; send the file itself as the raw body "
+    if kind == "multipart/form-data":
+        raise HTTPException(415, "the submission is sent as a multipart form; send the file itself as the raw body "
                             "(curl --data-binary @submission.tar.gz -H 'Content-Type: application/octet-stream')")
 
 

@@ -61,7 +61,9 @@ class ScenarioArrays:
         return challenges.evaluated_ids(self.sim_agent_ids, self.predicted_ids, challenge)
 
 
-def _track_arrays(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
+def track_trajectories(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
+    """Every track of the scenario, in track order, over all its steps (float32, as the official converter
+    rounds); ValueError when the tracks have different numbers of states."""
     tracks = scenario.tracks
     num_steps = max((len(t.states) for t in tracks), default=0)
     if any(len(t.states) != num_steps for t in tracks):
@@ -151,7 +153,7 @@ def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
     road_edges, lanes = _polylines(edges, 2), _polylines(lanes, 8)
     return ScenarioArrays(
         scenario_id=scenario.scenario_id,
-        log=_track_arrays(scenario),
+        log=track_trajectories(scenario),
         sim_agent_ids=challenges.sim_agent_ids(scenario),
         predicted_ids=challenges.predicted_ids(scenario),
         road_edges=tuple(road_edges),

@@ -10,7 +10,7 @@ import dataclasses
 
 import numpy as np
 
-_TIME_SERIES = ("x", "y", "z", "heading", "length", "width", "height", "valid")
+TIME_SERIES = ("x", "y", "z", "heading", "length", "width", "height", "valid")  # the per-step fields
 
 
 @dataclasses.dataclass(frozen=True)
@@ -43,7 +43,7 @@ class ObjectTrajectories:
         shape = np.shape(self.x)
         if len(shape) < 2:
             raise ValueError(f"ObjectTrajectories.x must be (..., num_objects, num_steps), got shape {shape}")
-        for name in _TIME_SERIES:
+        for name in TIME_SERIES:
             value = getattr(self, name)
             if np.shape(value) != shape:
                 raise ValueError(f"ObjectTrajectories.{name} has shape {np.shape(value)}, x has {shape}")
@@ -68,7 +68,7 @@ class ObjectTrajectories:
     def take_objects(self, indices: np.ndarray) -> "ObjectTrajectories":
         """Selects objects by position (`(num_selected,)`), in the given order."""
         indices = np.asarray(indices, dtype=np.int64)
-        fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in _TIME_SERIES}
+        fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in TIME_SERIES}
         return ObjectTrajectories(**fields, object_id=np.take(self.object_id, indices, axis=-1),
                                   object_type=np.take(self.object_type, indices, axis=-1))
 
@@ -78,7 +78,7 @@ class ObjectTrajectories:
 
     def take_steps(self, steps: slice) -> "ObjectTrajectories":
         """The given steps of every object."""
-        return dataclasses.replace(self, **{f: getattr(self, f)[..., steps] for f in _TIME_SERIES})
+        return dataclasses.replace(self, **{f: getattr(self, f)[..., steps] for f in TIME_SERIES})
 
 
 def stack_samples(parts) -> ObjectTrajectories:

@@ -18,10 +18,11 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval.arrays.scenario import track_trajectories
+from wosac_eval.arrays.trajectories import TIME_SERIES
 from wosac_eval.compat._arrays import compat_array
 from wosac_eval.protos import scenario_pb2
 
-_TIME_SERIES = ("x", "y", "z", "heading", "length", "width", "height", "valid")
 _PER_OBJECT = ("object_id", "object_type")
 
 
@@ -57,7 +58,7 @@ class ObjectTrajectories:
         `object_id` and `object_type` are kept as they are.
         """
         steps = slice(start_index, end_index)
-        return ObjectTrajectories(**{f: compat_array(getattr(self, f))[..., steps] for f in _TIME_SERIES},
+        return ObjectTrajectories(**{f: compat_array(getattr(self, f))[..., steps] for f in TIME_SERIES},
                                   **{f: getattr(self, f) for f in _PER_OBJECT})
 
     def gather_objects(self, object_indices) -> ObjectTrajectories:
@@ -82,7 +83,7 @@ class ObjectTrajectories:
         if bad.any():
             raise IndexError(f"object indices {indices[bad].tolist()} are outside [0, {n_objects})")
         return ObjectTrajectories(
-            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-2) for f in _TIME_SERIES},
+            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-2) for f in TIME_SERIES},
             **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT})
 
     def gather_objects_by_id(self, object_ids) -> ObjectTrajectories:
@@ -100,29 +101,10 @@ class ObjectTrajectories:
     def from_scenario(cls, scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
         """Every track of the scenario, in track order, over all its steps (91 in training and validation
         data, 11 in the test set); every track must have the same number of steps."""
-        fields: dict[str, list] = {f: [] for f in _TIME_SERIES}
-        for track in scenario.tracks:
-            states = track.states
-            fields["x"].append([s.center_x for s in states])
-            fields["y"].append([s.center_y for s in states])
-            fields["z"].append([s.center_z for s in states])
-            fields["heading"].append([s.heading for s in states])
-            fields["length"].append([s.length for s in states])
-            fields["width"].append([s.width for s in states])
-            fields["height"].append([s.height for s in states])
-            fields["valid"].append([s.valid for s in states])
-        arrays = {f: _rectangular(values, np.bool_ if f == "valid" else np.float32, f)
-                  for f, values in fields.items()}
-        return cls(**arrays, object_id=compat_array([t.id for t in scenario.tracks], np.int32),
-                   object_type=compat_array([t.object_type for t in scenario.tracks], np.int32))
-
-
-def _rectangular(rows: list, dtype, name: str) -> np.ndarray:
-    lengths = {len(r) for r in rows}
-    if len(lengths) > 1:
-        raise ValueError(f"the tracks have different numbers of states ({sorted(lengths)}): {name} cannot be "
-                         "one (n_objects, n_steps) array")
-    return compat_array(np.array(rows, dtype=dtype).reshape(len(rows), lengths.pop() if lengths else 0))
+        log = track_trajectories(scenario)  # the library's reading of the tracks (float32, as officially)
+        return cls(**{f: compat_array(getattr(log, f)) for f in TIME_SERIES},
+                   object_id=compat_array(log.object_id, np.int32),  # Track.id is an int32 field
+                   object_type=compat_array(log.object_type, np.int32))
 
 
 def _positions_of_ids(ids, wanted) -> np.ndarray:

@@ -159,18 +159,23 @@ def test_pages_send_a_strict_content_security_policy(api_server):
     assert httpx.get(api_server.url + "/static/style.css").headers["x-content-type-options"] == "nosniff"
 
 
+def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, partial: bool = False) -> str:
+    """Fill the page's upload form (published, partial when asked) and send it; the status page's path."""
+    browser.open(url + "/")
+    browser.choose_file("#upload-form input[type=file]", file)
+    browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
+        f.key.value = {json.dumps(key)}; f.method.value = {json.dumps(method)}; f.publish.checked = true;
+        f.partial.checked = {json.dumps(partial)}; f.requestSubmit(); }})()""")
+    return browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
+
+
 def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scoring_data, tmp_path):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("browser")
     browser = Browser(tmp_path / "profile")
     try:
-        browser.open(server.url + "/")
-        browser.choose_file("#upload-form input[type=file]", scoring_data.full)
-        browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
-            f.key.value = {json.dumps(key)}; f.method.value = "log-replay 1.0"; f.publish.checked = true;
-            f.requestSubmit(); }})()""")
         # The form's script uploads, then goes to the status page, which polls until done.
-        path = browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
+        path = submit_upload_form(browser, server.url, scoring_data.full, key, "log-replay 1.0")
         browser.wait_for("document.readyState === 'complete'")
         state = browser.wait_for("['done', 'failed'].includes(document.getElementById('state').textContent)"
                                  " && document.getElementById('state').textContent", timeout=90)
@@ -222,21 +227,12 @@ def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server
     key = server.key("partial-browser")
     browser = Browser(tmp_path / "profile")
     try:
-        browser.open(server.url + "/")
-        browser.choose_file("#upload-form input[type=file]", scoring_data.single)
-        browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
-            f.key.value = {json.dumps(key)}; f.method.value = "half"; f.publish.checked = true;
-            f.partial.checked = true; f.requestSubmit(); }})()""")
-        path = browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
+        path = submit_upload_form(browser, server.url, scoring_data.single, key, "half", partial=True)
     finally:
         browser.close()
     sid = path.rsplit("/", 1)[1]
     with server.client(key) as c:
-        for _ in range(900):
-            status = c.get(f"/v1/submissions/{sid}").json()
-            if status["state"] in ("done", "failed"):
-                break
-            time.sleep(0.1)
+        status = server.wait_state(c, sid)
         assert status["state"] == "done" and status["allow_partial"] and status["partial"], status
         entry = next(e for e in c.get("/v1/leaderboard", params={"config": "2025"}).json()["entries"]
                      if e["submission_id"] == sid)

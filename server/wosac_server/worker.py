@@ -58,7 +58,6 @@ import threading  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Callable  # noqa: E402
 
 from wosac_eval.extras import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
@@ -80,12 +79,6 @@ def evaluation_of(job: dict, settings: Settings) -> Evaluation:
                               engine="ray" if settings.ray_address else "local",
                               ray_address=settings.ray_address or None, workers=settings.score_threads,
                               allow_partial=bool(job["allow_partial"]), metadata_checks=settings.metadata_checks)
-
-
-def score(index: ScenarioIndex, source: SubmissionSource, job: dict, settings: Settings,
-          progress: Callable[[int, int], None]) -> dict:
-    """The one place the service calls the scorer: the same function `wosac-eval score` uses."""
-    return score_submission(index, source, progress=progress, evaluation=evaluation_of(job, settings))
 
 
 def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: dict, folder: Path,
@@ -293,6 +286,7 @@ class Worker:
                 jobs.finish_failed(self.store, job_id, self.owner,
                                    "the server has no scenario shards configured (WOSAC_SCENARIOS)")
                 return
+            evaluation = evaluation_of(job, settings)
             index = ScenarioIndex(scenarios)
             spool = settings.spool_dir(job_id)
             shutil.rmtree(spool, ignore_errors=True)  # what an earlier, killed attempt left
@@ -300,8 +294,9 @@ class Worker:
             # One walk of the upload, under the service's limits: validation spools the archive's members,
             # scoring and the pictures read them from there.
             try:
-                with SubmissionSource(submission_path, settings.input_limits(), spool_dir=spool) as source:
-                    result = score(index, source, job, settings, progress)
+                with SubmissionSource(submission_path, evaluation.limits, spool_dir=spool) as source:
+                    # The same function `wosac-eval score` calls.
+                    result = score_submission(index, source, progress=progress, evaluation=evaluation)
                     jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
                     if settings.scene_pictures:
                         self.draw_pictures(index, source, result, job_id)

@@ -253,9 +253,9 @@ class SubmissionSource:
         self._spool_dir = None if spool_dir is None else Path(spool_dir)
         self._spool_folder: str | None = None
         self._spool = None
-        self._spooled: dict[str, ShardRef] = {}  # archive member -> its bytes' range in the spool
+        # Each walked shard without its bytes: a range of the submission's file, or of the spool.
+        self._kept: dict[str, ShardRef] = {}
         self._records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] = []
-        self._walked: dict[str, ShardRef] = {}
 
     def __enter__(self) -> SubmissionSource:
         return self
@@ -284,8 +284,9 @@ class SubmissionSource:
             offset = self._spool.seek(0, os.SEEK_END)
             self._spool.write(shard.data)
             self._spool.flush()
-            self._spooled[shard.name] = ShardRef(shard.name, shard.size, path=self._spool.name, offset=offset)
-        self._walked[shard.name] = shard.without_data()
+            self._kept[shard.name] = ShardRef(shard.name, shard.size, path=self._spool.name, offset=offset)
+        else:
+            self._kept[shard.name] = shard.without_data()
 
     def shards(self, problems: Problems | None = None) -> Iterator[ShardRef]:
         """The walk (`iter_shard_refs` under the handle's limits), remembering each shard."""
@@ -295,8 +296,7 @@ class SubmissionSource:
 
     def record(self, shard_name: str, entries: Iterable[tuple[str | None, tuple[int, int]]]) -> None:
         """Where the scenarios of a walked shard are: (scenario_id, (start, end) in the shard), in order."""
-        shard = self._spooled.get(shard_name) or self._walked[shard_name]
-        self._records.append((shard, [(sid, span) for sid, span in entries if sid]))
+        self._records.append((self._kept[shard_name], [(sid, span) for sid, span in entries if sid]))
 
     def _recorded_bytes(self) -> Iterator[tuple[ShardRef, list, bytes | None]]:
         """Each recorded shard with its entries, and its bytes when they are not a byte range of a file."""
@@ -323,7 +323,7 @@ class SubmissionSource:
             for sid, (start, end) in entries:
                 if data is not None:
                     yield sid, data[start:end]
-                elif shard.name in self._spooled:
+                elif self._spool is not None and shard.path == self._spool.name:
                     yield sid, shard.read(start, end)
                 else:
                     yield sid, (shard.path, shard.offset + start, end - start)
@@ -342,7 +342,7 @@ class SubmissionSource:
     def _scenario_bytes(self) -> Iterator[tuple[str, bytes]]:
         if self._records:
             for sid, locator in self.rollouts_locators():
-                yield sid, locator if isinstance(locator, bytes) else read_locator(locator)
+                yield sid, read_locator(locator)
             return
         for shard in iter_shard_refs(self.path, limits=self.limits):
             yield from split_shard(shard.name, shard.read(), self.limits)

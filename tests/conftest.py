@@ -24,6 +24,10 @@ from support.processes import alive, command_line, left_behind
 # Not a WOSAC_* name: the service harness passes no WOSAC_* variable of the test run on to a server.
 SESSION_MARK = "PYTEST_WOSAC_EVAL_SESSION"
 os.environ[SESSION_MARK] = uuid.uuid4().hex  # before any test starts a process: each inherits it
+# The test process opts in to exact float32 on XLA's CPU (no fused multiply-adds), as a program does
+# with `jax_backend.exact_cpu()`: here before anything can start JAX, and inherited by every child.
+if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
+    os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_max_isa=AVX".strip()
 LEAK_GRACE_S = 5.0
 _LEAKS_KEY = pytest.StashKey[list]()
 

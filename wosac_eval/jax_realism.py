@@ -7,7 +7,9 @@
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
 from wosac_eval.backends.jax_realism import (  # noqa: F401
+    MODES,
     PreparedScenes,
+    Realism,
     features,
     from_waymax,
     prepare,
@@ -16,5 +18,7 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
     waymax_columns,
 )
 
-__all__ = ["PreparedScenes", "prepare", "realism", "features", "stack_rollouts", "waymax_columns",
-           "from_waymax"]
+from wosac_eval.backends.jax_backend import exact_cpu  # noqa: F401
+
+__all__ = ["PreparedScenes", "Realism", "MODES", "prepare", "realism", "features", "stack_rollouts",
+           "waymax_columns", "from_waymax", "exact_cpu"]

@@ -6,15 +6,13 @@ libm tail, degenerate segments, points past segment ends, ties.
 import numpy as np
 import pytest
 
-# First: restricts XLA's CPU code (no fused multiply-add) before JAX starts.
-from wosac_eval.backends import jax_backend  # noqa: F401
+import jax
+import jax.numpy as jnp
 
-import jax  # noqa: E402
-import jax.numpy as jnp  # noqa: E402
-
-from wosac_eval.features import box_geometry, dense, interaction, road_edge, traffic_lights  # noqa: E402
-from wosac_eval.features.float32_math import fma32, sincos32  # noqa: E402
-from wosac_eval.features.xp import array_namespace, divide  # noqa: E402
+from wosac_eval.backends import jax_backend
+from wosac_eval.features import box_geometry, dense, interaction, road_edge, traffic_lights
+from wosac_eval.features.float32_math import fma32, sincos32
+from wosac_eval.features.xp import array_namespace, divide
 
 F = np.float32
 
@@ -104,13 +102,61 @@ def test_road_edge_dense_equals_numpy():
     got = jitted(dense.signed_distance_to_road_edge, queries, segments)
     np.testing.assert_array_equal(got, expected)
     # Padded segments and a small chunk (several lax.map steps) change nothing.
-    padded = {k: jax_backend._pad_axis(v, 64, 0) for k, v in segments.items()}
+    padded = {k: v if k in dense.CELL_KEYS else jax_backend._pad_axis(v, 64, 0) for k, v in segments.items()}
     old = dense.PAIRS_PER_CHUNK
     dense.PAIRS_PER_CHUNK = 64 * 100
     try:
         np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
     finally:
         dense.PAIRS_PER_CHUNK = old
+
+
+def random_road_edges(rng, count):
+    """Random-walk polylines (some closed, some climbing) over a 300 m square: thousands of segments."""
+    lines = []
+    for k in range(count):
+        n = int(rng.integers(20, 80))
+        steps = rng.normal(0, 1.0, (n, 3)) * [3.0, 3.0, 0.15] + [rng.uniform(-1, 1), rng.uniform(-1, 1), 0]
+        line = (rng.uniform(-150, 150, 3) * [1, 1, 0.02] + np.cumsum(steps, axis=0)).astype(F)
+        if k % 7 == 0:
+            line = np.concatenate([line, line[:1]])  # closed
+        lines.append(line)
+    return lines
+
+
+@pytest.mark.parametrize("candidates", [2, 8, road_edge.CELL_CANDIDATES])
+def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates):
+    """The cell tables never leave out the nearest segment (nor a tie at a lower index): every settled
+    query equals the brute-force all-pairs search; the queries they do not settle (off the grid, far
+    from every edge, on another level) fall back to every segment. Both paths run here."""
+    rng = np.random.default_rng(5)
+    table = road_edge.build_segment_table(random_road_edges(rng, 60))
+    segments = jax_backend._segment_arrays(table)
+    cells = road_edge.cell_candidate_table(segments["start"], segments["delta"], k=candidates)
+    segments.update({f"cell_{k}": v for k, v in cells.items()})
+    on_map = rng.uniform([-170, -170, -3], [170, 170, 3], (4000, 3))
+    on_segments = segments["start"][rng.integers(0, len(segments["start"]), 300)]  # exact ties
+    elevated = on_map[:200] + [0, 0, 40]  # near an edge in the plane, far in height
+    far = rng.uniform([-5e3, -5e3, -50], [5e3, 5e3, 50], (200, 3))
+    queries = np.concatenate([on_map, on_segments, elevated, far]).astype(F)
+    expected = road_edge.signed_distance_to_polylines(table, queries)
+    monkeypatch.setattr(dense, "FALLBACK_CHUNK", 64)  # several fallback rounds
+    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, segments), expected)
+    seg = {k: v for k, v in segments.items() if k not in dense.CELL_KEYS}
+    cell = {k: segments[k] for k in dense.CELL_KEYS}
+    best, settled = jitted(dense._nearest_listed_segment, queries, seg, cell)
+    brute = jitted(dense._nearest_segment_all, queries, seg)
+    np.testing.assert_array_equal(best[settled], brute[settled])
+    assert 0 < settled.sum() < len(queries)  # both the tables and the fallback ran
+    print(f"{candidates} candidates per cell: {settled.mean():.1%} of the queries settled by the table")
+    assert not settled[-len(far):].any()
+    # Padded segments and grid rows change nothing; unneeded queries are never searched exhaustively.
+    padded = {k: v if k in ("cell_origin", "cell_shape") else jax_backend._pad_axis(v, len(v) + 50, 0)
+              for k, v in segments.items()}
+    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
+    needed = rng.random(len(queries)) < 0.5
+    got = jitted(lambda q, n: dense.signed_distance_to_road_edge(q, segments, n), queries, needed)
+    np.testing.assert_array_equal(got[needed], expected[needed])
 
 
 def test_lane_search_dense_equals_numpy():

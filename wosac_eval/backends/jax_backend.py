@@ -15,9 +15,11 @@ search included, so features are bit-identical on CPU.
 Exactness on CPU: XLA's CPU compiler fuses a multiply followed by an add into
 one fused multiply-add (one rounding instead of two) whenever the processor
 has FMA instructions. The official float32 arithmetic rounds each operation,
-so importing this module (before JAX starts its CPU backend) restricts XLA's
-CPU code to AVX, which has no FMA (`XLA_FLAGS=--xla_cpu_max_isa=AVX`, unless
-`XLA_FLAGS` already sets `xla_cpu_max_isa`). `fma_contraction()` checks it.
+so bit-identical features need XLA's CPU code restricted to AVX, which has no
+FMA (`XLA_FLAGS=--xla_cpu_max_isa=AVX`). That is the process's setting, not a
+library's: importing wosac-eval leaves it alone, `exact_cpu()` opts in (the
+CLI's `--backend jax` does), and without it features may differ in the last
+bit (a RuntimeWarning says so once per process).
 """
 from __future__ import annotations
 
@@ -26,26 +28,17 @@ import functools
 import os
 import warnings
 
-_MAX_ISA_FLAG = "--xla_cpu_max_isa=AVX"
+import jax
+import numpy as np
 
+from wosac_eval import challenges
+from wosac_eval.arrays.rollouts import RolloutArrays
+from wosac_eval.arrays.samples import SampleBatch, sample_batch
+from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.features import dense, road_edge, traffic_lights
+from wosac_eval.features import metric_features as mf
 
-def _restrict_cpu_isa() -> None:
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_max_isa" not in flags:
-        os.environ["XLA_FLAGS"] = f"{flags} {_MAX_ISA_FLAG}".strip()
-
-
-_restrict_cpu_isa()
-
-import jax  # noqa: E402
-import numpy as np  # noqa: E402
-
-from wosac_eval import challenges  # noqa: E402
-from wosac_eval.arrays.rollouts import RolloutArrays  # noqa: E402
-from wosac_eval.arrays.samples import SampleBatch, sample_batch  # noqa: E402
-from wosac_eval.arrays.scenario import ScenarioArrays  # noqa: E402
-from wosac_eval.features import dense, road_edge, traffic_lights  # noqa: E402
-from wosac_eval.features import metric_features as mf  # noqa: E402
+EXACT_CPU_FLAG = "--xla_cpu_max_isa=AVX"  # XLA's CPU code without FMA: every float32 op rounded alone
 
 _F = np.float32
 MIN_BUCKET = 8
@@ -70,27 +63,53 @@ def fine_bucket(n: int, minimum: int = 64) -> int:
     return max(minimum, -(-int(n) // step) * step)
 
 
-@functools.lru_cache(maxsize=None)
-def fma_contraction() -> bool:
-    """True when XLA fuses `a * b + c` into one rounding on the default device.
+def exact_cpu() -> None:
+    """Opts this process in to bit-identical features on XLA's CPU (no fused multiply-adds).
+
+    Adds `EXACT_CPU_FLAG` to `XLA_FLAGS` unless it already names a CPU instruction set, then checks
+    that XLA's CPU compiler honours it. It applies to every JAX computation of the process on CPU
+    (the caller's own model too: no FMA, no AVX-512), so it is the program's choice, made before its
+    first JAX computation; the CLI makes it for `--backend jax`.
+
+    Raises:
+      RuntimeError: XLA's CPU backend had already started with fused multiply-adds.
+    """
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_cpu_max_isa" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {EXACT_CPU_FLAG}".strip()
+    if fma_contraction(jax.devices("cpu")[0]):
+        raise RuntimeError("XLA's CPU backend already started with fused multiply-adds: set "
+                           f"XLA_FLAGS={EXACT_CPU_FLAG} in the environment (or call exact_cpu()) before "
+                           "the program's first JAX computation")
+
+
+def fma_contraction(device=None) -> bool:
+    """True when XLA fuses `a * b + c` into one rounding on `device` (default: JAX's default device).
 
     With fusion, float32 results differ from numpy (and the official code) in
     the last bit; the features are then close, not bit-identical.
     """
-    a = np.float32(1 + 2.0 ** -12)
-    c = np.float32(-(1 + 2.0 ** -11))
-    # a * a = 1 + 2**-11 + 2**-24 rounds (ties to even) to 1 + 2**-11, so
-    # separate roundings give exactly 0 and a fused one gives 2**-24.
-    out = jax.jit(lambda a, b, c: a * b + c)(np.array([a]), np.array([a]), np.array([c]))
-    return bool(np.asarray(out)[0] != 0)
+    device = device or jax.devices()[0]
+    if device not in _FMA_PROBED:
+        a = np.float32(1 + 2.0 ** -12)
+        c = np.float32(-(1 + 2.0 ** -11))
+        # a * a = 1 + 2**-11 + 2**-24 rounds (ties to even) to 1 + 2**-11, so
+        # separate roundings give exactly 0 and a fused one gives 2**-24.
+        put = lambda v: jax.device_put(np.array([v]), device)  # noqa: E731
+        out = jax.jit(lambda a, b, c: a * b + c)(put(a), put(a), put(c))
+        _FMA_PROBED[device] = bool(np.asarray(out)[0] != 0)
+    return _FMA_PROBED[device]
+
+
+_FMA_PROBED: dict = {}
 
 
 def _warn_if_inexact() -> None:
     if fma_contraction():
-        warnings.warn("XLA fuses multiply-adds on this device (JAX was started before "
-                      "wosac_eval.backends.jax_backend was imported, or XLA_FLAGS sets another "
-                      "xla_cpu_max_isa, or the device is a GPU): jax-backend features may differ "
-                      "from numpy in the last bit", RuntimeWarning, stacklevel=3)
+        warnings.warn("XLA fuses multiply-adds on this device (a GPU, or the CPU without "
+                      "wosac_eval.backends.jax_backend.exact_cpu() or XLA_FLAGS=--xla_cpu_max_isa=AVX set "
+                      "before JAX started): jax-backend features may differ from numpy in the last bit",
+                      RuntimeWarning, stacklevel=3)
 
 
 # --- Host preparation ----------------------------------------------------------------------------
@@ -117,20 +136,22 @@ class PreparedScenario:
 
     @property
     def bucket_key(self) -> tuple:
-        """(samples, steps, first step, objects, evaluated objects, road-edge segments, signals, lane segments)
-        after padding: scenarios with one key share a compiled function."""
+        """(samples, steps, first step, objects, evaluated objects, road-edge segments, signals, lane segments,
+        road-edge grid cells) after padding: scenarios with one key share a compiled function."""
         samples, objects, steps = self.traj["x"].shape
         # Evaluated objects: every padded row is computed against everything, so no minimum.
         return (samples, steps, self.layout.first_step, bucket(objects), bucket(self.layout.num_evaluated, 1),
                 fine_bucket(len(self.maps["start"])), bucket(len(self.maps["signal_lane_id"]), 1),
-                fine_bucket(len(self.maps["lane_start"])))
+                fine_bucket(len(self.maps["lane_start"])), fine_bucket(len(self.maps["cell_clearance"])))
 
 
 def _segment_arrays(table: road_edge.SegmentTable) -> dict:
     """The valid road-edge segments, in official order, with their neighbours' geometry."""
     idx = np.flatnonzero(table.valid)
     prior, nxt = table.prior[idx], table.next[idx]
-    return {"start": table.start[idx], "delta": table.delta[idx],
+    cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
+    return {**{f"cell_{k}": v for k, v in cells.items()},
+            "start": table.start[idx], "delta": table.delta[idx],
             "prior_start": table.start[prior], "prior_delta": table.delta[prior],
             "next_start": table.start[nxt], "next_delta": table.delta[nxt],
             "valid": np.ones(len(idx), bool), "prior_valid": table.prior_valid[idx],
@@ -142,8 +163,8 @@ def _red_light_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps
     """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, and the lane segments."""
     none = {"stop_start": np.zeros((num_steps, 0, 2), _F), "stop_delta": np.zeros((num_steps, 0, 2), _F),
             "stop_point": np.zeros((num_steps, 0, 2), _F), "stopping": np.zeros((num_steps, 0), bool),
-            "signal_lane_id": np.zeros(0, np.int64), "lane_start": np.zeros((0, 2), _F),
-            "lane_delta": np.zeros((0, 2), _F), "lane_valid": np.zeros(0, bool), "lane_id": np.zeros(0, np.int64)}
+            "signal_lane_id": np.zeros(0, np.int32), "lane_start": np.zeros((0, 2), _F),
+            "lane_delta": np.zeros((0, 2), _F), "lane_valid": np.zeros(0, bool), "lane_id": np.zeros(0, np.int32)}
     if lanes is None or signals is None:
         return none
     if signals.state.shape[0] != num_steps:
@@ -151,12 +172,16 @@ def _red_light_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps
                          f"expected one per step ({num_steps})")
     start, delta, lane_known = traffic_lights._stop_point_segments(lanes, signals)
     seg = np.flatnonzero(lanes.valid)
+    # The device only compares lane ids: their ranks among the scene's ids fit int32 (x64 off).
+    signal_lane, segment_lane = np.split(
+        np.unique(np.concatenate([signals.lane_id, lanes.lane_ids[seg // lanes.num_segments]]),
+                  return_inverse=True)[1].astype(np.int32), [len(signals.lane_id)])
     return {"stop_start": start.astype(_F), "stop_delta": delta.astype(_F),
             "stop_point": signals.stop_point.astype(_F),
             "stopping": np.isin(signals.state, traffic_lights.LANE_STATE_STOP_VALUES) & lane_known,
-            "signal_lane_id": signals.lane_id.astype(np.int64),
+            "signal_lane_id": signal_lane,
             "lane_start": lanes.start[seg], "lane_delta": lanes.delta[seg], "lane_valid": np.ones(len(seg), bool),
-            "lane_id": lanes.lane_ids[seg // lanes.num_segments].astype(np.int64)}
+            "lane_id": segment_lane}
 
 
 def map_arrays(scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int) -> dict:
@@ -187,15 +212,19 @@ def _pad_axis(a: np.ndarray, size: int, axis: int, value=0) -> np.ndarray:
     return np.pad(a, widths, constant_values=value)
 
 
-_NO_LANE = np.iinfo(np.int64).min  # the lane id of padded signals: never a lane's
+_NO_LANE = -2  # the lane rank of padded signals: neither a lane's nor a point's without lane (-1)
 
 
 def padded_inputs(traj: dict, tails: dict, maps: dict, key: tuple) -> tuple[dict, dict, dict]:
     """A scenario's `traj`, `tails` and `maps` (as in `PreparedScenario`) padded to the bucket `key`
     (see `PreparedScenario.bucket_key`); padding is invalid everywhere."""
-    _, _, _, n_obj, n_eval, n_seg, n_sig, n_lane = key
+    _, _, _, n_obj, n_eval, n_seg, n_sig, n_lane, n_cell = key
 
     def pad_map(name: str, a: np.ndarray) -> np.ndarray:
+        if name in ("cell_origin", "cell_shape"):
+            return a
+        if name.startswith("cell"):  # rows past the grid are never looked up
+            return _pad_axis(a, n_cell, 0)
         if name.startswith("stop"):
             return _pad_axis(a, n_sig, 1)
         if name == "signal_lane_id":
@@ -245,7 +274,8 @@ class FeaturePipeline:
 
     def _key(self, p: PreparedScenario) -> tuple:
         key = p.bucket_key
-        return key if self.min_bucket is None else key[:3] + tuple(map(max, key[3:], self.min_bucket))
+        # A shorter lower bound (no grid cells, say) leaves the other sizes as they are.
+        return key if self.min_bucket is None else key[:3] + tuple(map(max, key[3:], (*self.min_bucket, 0, 0, 0, 0, 0, 0)))
 
     def add(self, tag, p: PreparedScenario) -> list:
         """Queues a scenario; returns the (tag, (log, sim)) of the batches now collected."""
@@ -289,7 +319,8 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
 
     Args:
       min_bucket: optional lower bound of the bucket sizes (objects,
-        evaluated objects, road-edge segments, signals, lane segments), to pad more than needed.
+        evaluated objects, road-edge segments, signals, lane segments, road-edge grid cells), to pad
+        more than needed.
     """
     pipeline = FeaturePipeline(max_batch=max_batch, min_bucket=min_bucket)
     results: list = [None] * len(prepared)

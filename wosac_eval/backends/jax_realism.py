@@ -16,31 +16,100 @@ changes a result.
 Shapes: rollouts are `(num_scenes, num_rollouts, max_agents, num_steps)`
 with the agents in the order of `prepared.sim_agent_ids` (`-1` columns are
 padding; their values are ignored), 80 steps after the current one (sim
-agents) or all 91 (scenario gen, with per-step box sizes).
+agents) or all 91 (scenario gen, with per-step box sizes). Any array with
+`__dlpack__` on JAX's device (a torch tensor, a CuPy or numpy array) is taken
+without a copy.
+
+Precision (`mode`): "float32" keeps every step in float32, so it runs in the
+caller's `jit` with x64 off (JAX's default): metrics within 1e-5 of the
+official outputs, per-step features possibly a last bit off. "exact" rounds a
+few steps through float64 as the official arithmetic does: per-step features
+bit-identical on CPU (with `jax_backend.exact_cpu()`), and needs x64 on while
+tracing. The default follows the trace: "exact" under x64, else "float32". The
+mode is recorded in what `realism` returns.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import functools
+from collections.abc import Mapping
 
-from wosac_eval.backends import jax_backend  # first: it sets XLA's CPU flags before JAX starts
+import jax
+import jax.numpy as jnp
+import numpy as np
 
-import jax  # noqa: E402  (after jax_backend, see above)
-import jax.numpy as jnp  # noqa: E402
-import numpy as np  # noqa: E402
-
-from wosac_eval import challenges  # noqa: E402
-from wosac_eval.arrays.samples import log_sample, official_object_order  # noqa: E402
-from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays  # noqa: E402
-from wosac_eval.features import dense  # noqa: E402
-from wosac_eval.features import metric_features as mf  # noqa: E402
-from wosac_eval.metrics.config import load_config  # noqa: E402
-from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values  # noqa: E402
-from wosac_eval.arrays.trajectories import index_of_ids  # noqa: E402
+from wosac_eval import challenges
+from wosac_eval.arrays.samples import log_sample, official_object_order
+from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
+from wosac_eval.arrays.trajectories import index_of_ids
+from wosac_eval.backends import jax_backend
+from wosac_eval.features import dense
+from wosac_eval.features import metric_features as mf
+from wosac_eval.features.xp import float32_precision
+from wosac_eval.metrics.config import load_config
+from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values
 
 _F = np.float32
 _POSITIONS = ("x", "y", "z", "heading")
 _SIZES = ("length", "width", "height")
+MODES = ("exact", "float32")
+
+
+def resolve_mode(mode: str | None = None) -> str:
+    """The precision of a `realism` call: `mode` checked, or the trace's ("exact" under x64, else "float32").
+
+    Raises:
+      ValueError: an unknown mode, or "exact" while x64 is off (the sentence names both fixes).
+    """
+    x64 = bool(jax.config.jax_enable_x64)
+    if mode is None:
+        return "exact" if x64 else "float32"
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {', '.join(MODES)} (or None: the trace's), got {mode!r}")
+    if mode == "exact" and not x64:
+        raise ValueError("mode='exact' rounds through float64, so x64 must be on while it traces: wrap the call "
+                         "(or your jit's first call) in `with jax.enable_x64(True):`, or pass mode='float32' "
+                         "(metrics within 1e-5)")
+    return mode
+
+
+def _precision(mode: str):
+    """The context the kernels are traced in for `mode` (see `xp.wide_float`)."""
+    return float32_precision() if mode == "float32" else contextlib.nullcontext()
+
+
+@jax.tree_util.register_pytree_node_class
+@dataclasses.dataclass(frozen=True)
+class Realism(Mapping):
+    """What `realism` returns: field name -> `(num_scenes,)` array, and the precision it ran in.
+
+    A read-only mapping (`out["metametric"]`, `dict(out)`) and a pytree (it leaves `jit`, `vmap`,
+    `tree_map` with its mode), so a training step returns it or any of its values.
+
+    Attributes:
+      metrics: every `SimAgentMetrics` field (`metrics.scenario_metrics.SCENARIO_FIELDS`) -> array.
+      mode: "exact" or "float32" (see the module).
+    """
+
+    metrics: dict
+    mode: str
+
+    def __getitem__(self, name):
+        return self.metrics[name]
+
+    def __iter__(self):
+        return iter(self.metrics)
+
+    def __len__(self) -> int:
+        return len(self.metrics)
+
+    def tree_flatten(self):
+        return (self.metrics,), (self.mode,)
+
+    @classmethod
+    def tree_unflatten(cls, aux, children):
+        return cls(children[0], *aux)
 
 
 @jax.tree_util.register_pytree_node_class
@@ -129,7 +198,8 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
       config: the metrics config (default: the challenge's leaderboard config, "2025" or
         "scenario_gen_2025").
       min_sizes: optional lower bounds of the padded sizes (objects, evaluated objects, road-edge
-        segments, signals, lane segments): to share compiled functions between scene sets.
+        segments, signals, lane segments, road-edge grid cells; a shorter tuple bounds the first
+        ones): to share compiled functions between scene sets.
     """
     spec = challenges.spec(challenge)
     config = config or spec.default_config
@@ -139,7 +209,7 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         raise ValueError("prepare needs at least one scenario")
     inputs = [_scene_inputs(s, spec) for s in scenes]
     max_agents = max(len(s.sim_agent_ids) for s in scenes)
-    floor = tuple(min_sizes) if min_sizes is not None else (1, 1, 1, 1, 1)
+    floor = (tuple(min_sizes) if min_sizes is not None else ()) + (1,) * (6 - len(min_sizes or ()))
     members: dict[tuple, list[int]] = {}
     for k, scene_input in enumerate(inputs):
         members.setdefault(_group_key(_sizes(scene_input), floor), []).append(k)
@@ -154,17 +224,17 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
 
 
 def _sizes(scene_input: dict) -> tuple:
-    """(objects, evaluated objects, road-edge segments, signals, lane segments) of a scene."""
+    """(objects, evaluated objects, road-edge segments, signals, lane segments, road-edge grid cells) of a scene."""
     maps = scene_input["maps"]
     return (scene_input["num_objects"], scene_input["num_evaluated"], len(maps["start"]),
-            len(maps["signal_lane_id"]), len(maps["lane_start"]))
+            len(maps["signal_lane_id"]), len(maps["lane_start"]), len(maps["cell_clearance"]))
 
 
 def _group_key(sizes: tuple, floor: tuple) -> tuple:
     """Scenes whose sizes round to the same powers of two (finer for map segments) share a group."""
-    n_obj, n_eval, n_seg, n_sig, n_lane = map(max, sizes, floor)
+    n_obj, n_eval, n_seg, n_sig, n_lane, n_cell = map(max, sizes, floor)
     return (jax_backend.bucket(n_obj, 1), jax_backend.bucket(n_eval, 1), jax_backend.fine_bucket(n_seg, 1),
-            jax_backend.bucket(n_sig, 1), jax_backend.fine_bucket(n_lane, 1))
+            jax_backend.bucket(n_sig, 1), jax_backend.fine_bucket(n_lane, 1), jax_backend.fine_bucket(n_cell, 1))
 
 
 def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int):
@@ -190,8 +260,8 @@ def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tu
         per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
                           "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
                           "feature_valid": feature_valid, "object_type": object_type})
-    with jax.enable_x64(True):
-        arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
+    # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
+    arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
     return arrays, layout
 
 
@@ -236,17 +306,22 @@ def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLay
 
 
 @functools.lru_cache(maxsize=None)
-def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout):
+def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
-    one = functools.partial(_scene_realism, config, spec, layout)
+
+    def one(a, rollouts):
+        with _precision(mode):  # read while tracing; the mode is part of this function's cache key
+            return _scene_realism(config, spec, layout, a, rollouts)
+
     return jax.jit(jax.vmap(one))
 
 
 @functools.lru_cache(maxsize=None)
-def _features_fn(challenge: str, layout: mf.FeatureLayout):
+def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str):
     def one(a, rollouts):
-        both = _scene_features(challenges.spec(challenge), layout, a, rollouts)
+        with _precision(mode):
+            both = _scene_features(challenges.spec(challenge), layout, a, rollouts)
         return {f.name: getattr(both, f.name) for f in dataclasses.fields(both) if f.name != "object_id"}
 
     return jax.jit(jax.vmap(one))
@@ -265,24 +340,27 @@ def _check_rollouts(prepared: PreparedScenes, fields: dict) -> None:
         raise ValueError(f"every field must have the same number of rollouts, got {sorted(rollouts)}")
 
 
-def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None) -> dict:
+def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None,
+            mode: str | None = None) -> Realism:
     """Every `SimAgentMetrics` field of every scene, from rollouts on the device.
 
     Args:
       prepared: from `prepare`.
       x, y, z, heading: float `(num_scenes, num_rollouts, max_agents, num_steps)` (see the module):
         columns in the order of `prepared.sim_agent_ids`; 80 steps (sim agents) or 91 (scenario gen).
+        JAX arrays, numpy arrays or any `__dlpack__` array on JAX's device.
       length, width, height: the submitted box sizes, same shape (scenario gen only, required there).
+      mode: "float32", "exact" or None (the trace's: "exact" under x64, else "float32"); see the module.
     Returns:
-      field name -> `(num_scenes,)` device array: the likelihoods, rates and ADEs float32, the
-      meta-metric float64 (as `score_scenario` returns them, before rounding to float).
-    Works under `jax.jit` and `jax.vmap` (e.g. over several rollout sets of the same scenes).
+      a `Realism`: field name -> `(num_scenes,)` device array, float32 (the meta-metric float64 in
+      exact mode, as `score_scenario` returns it before rounding to float), and the mode.
+    Works under `jax.jit`, `jax.vmap` and `lax.scan` (e.g. over several rollout sets of the same scenes).
     """
+    mode = resolve_mode(mode)
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
-    with jax.enable_x64(True):
-        parts = [_realism_fn(prepared.config, prepared.challenge, layout)(arrays, _take_scenes(fields, indices))
-                 for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
-        return _in_scene_order(prepared, parts)
+    parts = [_realism_fn(prepared.config, prepared.challenge, layout, mode)(arrays, _take_scenes(fields, indices))
+             for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
+    return Realism(_in_scene_order(prepared, parts), mode)
 
 
 def _take_scenes(fields: dict, indices: tuple) -> dict:
@@ -298,10 +376,18 @@ def _in_scene_order(prepared: PreparedScenes, parts: list):
     return jax.tree_util.tree_map(lambda *leaves: jnp.concatenate(leaves)[order], *parts)
 
 
+def _device_array(value):
+    """A JAX array or tracer as it is; another `__dlpack__` producer (torch, CuPy) without a copy."""
+    if isinstance(value, jax.Array) or not hasattr(value, "__dlpack__") or isinstance(value, np.ndarray):
+        return value
+    return jnp.from_dlpack(value)
+
+
 def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
     """The rollout arrays by field, checked (shapes; box sizes exactly for scenario gen)."""
     spec = challenges.spec(prepared.challenge)
-    fields = dict(zip(_POSITIONS, (x, y, z, heading)))
+    fields = {k: _device_array(v) for k, v in zip(_POSITIONS, (x, y, z, heading))}
+    sizes = {k: None if v is None else _device_array(v) for k, v in sizes.items()}
     if spec.submits_boxes:
         missing = [k for k in _SIZES if sizes.get(k) is None]
         if missing:
@@ -314,24 +400,25 @@ def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> 
 
 
 def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None,
-             height=None) -> mf.MetricFeatures:
+             height=None, mode: str | None = None) -> mf.MetricFeatures:
     """The per-step features behind `realism` (same arguments), a `MetricFeatures` of device arrays.
 
     Every field has the leading axes `(num_scenes, 1 + num_rollouts, num_evaluated_rows)`: sample 0 is
     the log; the first `len(scenario.evaluated_ids())` rows of a scene are its evaluated objects in the
-    official order, the others padding. On CPU they are bit-identical to the official features.
+    official order, the others padding. In exact mode on CPU (with `jax_backend.exact_cpu()`) they are
+    bit-identical to the official features; in float32 mode a last bit may differ.
     """
+    mode = resolve_mode(mode)
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     rows = prepared.layout.num_evaluated
-    with jax.enable_x64(True):
-        parts = []
-        for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
-            out = _features_fn(prepared.challenge, layout)(arrays, _take_scenes(fields, indices))
-            # Groups have different row counts: pad rows (axis 2) to the largest group's.
-            parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
-                          for k, v in out.items()})
-        out = _in_scene_order(prepared, parts)
-    return mf.MetricFeatures(object_id=np.zeros(rows, np.int64), **out)
+    parts = []
+    for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
+        out = _features_fn(prepared.challenge, layout, mode)(arrays, _take_scenes(fields, indices))
+        # Groups have different row counts: pad rows (axis 2) to the largest group's.
+        parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
+                      for k, v in out.items()})
+    out = _in_scene_order(prepared, parts)
+    return mf.MetricFeatures(object_id=np.zeros(rows, np.int32), **out)
 
 
 def stack_rollouts(prepared: PreparedScenes, rollouts: list) -> dict:

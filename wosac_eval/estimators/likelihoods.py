@@ -5,14 +5,15 @@ additive pseudo-count) and score each logged value by the log-probability of
 its bin. Bernoulli estimates are two-bin histograms over booleans. With
 independent timesteps, one distribution per object pools all rollouts and
 steps; otherwise each (object, step) has its own distribution over rollouts.
-The estimators take numpy or JAX arrays (JAX needs x64 enabled: the
-log-probabilities are computed in float64).
+The estimators take numpy or JAX arrays; the log-probabilities are computed in
+float64 (`xp.wide_float`: under JAX, x64 on while tracing, or float32 inside
+`xp.float32_precision()`).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, is_numpy, require_float64
+from wosac_eval.features.xp import array_namespace, is_numpy, wide_float
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 _F = np.float32
@@ -72,16 +73,16 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
     """
     check_batches(log_samples, sim_samples)
     xp = array_namespace(log_samples, sim_samples)
-    require_float64(xp)
+    wide = wide_float(xp)
     edges = histogram_edges(min_val, max_val, num_bins)
     sim_bins = histogram_bins(sim_samples, edges)
     batch = sim_bins.shape[0]
     flat = (xp.arange(batch)[:, None] * num_bins + sim_bins).reshape(-1)
     # Whole counts: exact in any order. JAX needs the output length to be static.
     size = {"minlength": batch * num_bins} if is_numpy(xp) else {"length": batch * num_bins}
-    weights = {} if sim_weights is None else {"weights": sim_weights.reshape(-1).astype(np.float64)}
+    weights = {} if sim_weights is None else {"weights": sim_weights.reshape(-1).astype(wide)}
     counts = xp.bincount(flat, **weights, **size).reshape(batch, num_bins)
-    counts = (counts.astype(_F) + _F(pseudocount)).astype(np.float64)
+    counts = (counts.astype(_F) + _F(pseudocount)).astype(wide)
     log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
     log_bins = histogram_bins(log_samples, edges)
     return xp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
@@ -99,14 +100,14 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weigh
         raise ValueError("kernel density bandwidth must be positive")
     check_batches(log_samples, sim_samples)
     xp = array_namespace(log_samples, sim_samples)
-    require_float64(xp)
-    diff = (log_samples[:, :, None].astype(np.float64) - sim_samples[:, None, :]) / bandwidth
+    wide = wide_float(xp)
+    diff = (log_samples[:, :, None].astype(wide) - sim_samples[:, None, :]) / bandwidth
     log_kernel = -0.5 * diff * diff
     peak = log_kernel.max(axis=-1, keepdims=True)
     if sim_weights is None:
         log_mean = xp.log(xp.mean(xp.exp(log_kernel - peak), axis=-1)) + peak[..., 0]
     else:
-        w = sim_weights[:, None, :].astype(np.float64)
+        w = sim_weights[:, None, :].astype(wide)
         log_kernel = xp.where(w > 0, log_kernel, -np.inf)
         peak = log_kernel.max(axis=-1, keepdims=True)
         log_mean = xp.log((xp.exp(log_kernel - peak) * w).sum(axis=-1) / w.sum(axis=-1)) + peak[..., 0]

@@ -59,7 +59,7 @@ def _norm2(a, b):
     return array_namespace(a, b).sqrt(a * a + b * b)
 
 
-_NEXT_VERTEX = np.array([1, 2, 3, 0])
+_NEXT_VERTEX = np.array([1, 2, 3, 0], np.int32)  # int32 index tables: also with JAX x64 off
 
 
 def _downmost_edge(px, py):
@@ -81,8 +81,8 @@ def _downmost_edge(px, py):
         return start, divide(ex, length), divide(ey, length)
 
 
-_ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3])
-_ORDER_B = np.array([0, 1, 1, 2, 2, 3, 3, 0])
+_ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3], np.int32)
+_ORDER_B = np.array([0, 1, 1, 2, 2, 3, 3, 0], np.int32)
 # Vertex orders by (whether B's lowest edge turns left of A's, lowest vertex):
 # _MERGE_A[t, k] is the order of A's vertices, _MERGE_B[t, k] of B's.
 _MERGE_A = np.stack([(_ORDER_A + k) % 4 for k in range(4)] + [(_ORDER_B + k) % 4 for k in range(4)]).reshape(2, 4, 8)
@@ -114,7 +114,7 @@ def minkowski_difference_of(a, b):
     nbx, nby = -bx, -by
     # Merge the two edge sequences by angle, starting from the lowest vertices;
     # whose edge comes first depends on the turn between the lowest edges.
-    b_turns_left = ((a_dx * b_dy - a_dy * b_dx) >= 0).astype(np.intp)
+    b_turns_left = ((a_dx * b_dy - a_dy * b_dx) >= 0).astype(np.int32)  # int32: also with JAX x64 off
     rows = (xp.arange(b_turns_left.size).reshape(b_turns_left.shape) * 4)[..., None]
     a_index = xp.asarray(_MERGE_A)[b_turns_left, a_start] + rows
     b_index = xp.asarray(_MERGE_B)[b_turns_left, b_start] + rows

@@ -1,16 +1,23 @@
-"""Dense JAX drivers of the feature kernels: fixed shapes, no candidate pruning.
+"""JAX drivers of the feature kernels: fixed shapes; the road-edge search pruned by tables, exact by a fallback.
 
 The numpy path prunes candidate pairs with k-d trees and `np.nonzero`, whose
 output sizes depend on the data. Under `jax.jit` shapes must be static, so
 these drivers evaluate the SAME per-pair kernels (box_geometry, road_edge,
-traffic_lights, interaction) over every pair of padded, masked arrays and
-pick minima with `argmin`, which returns the first index among ties: the
-lowest index wins, as in the numpy path. The pruned numpy search is proven
-to return the all-pairs minimum, so both agree bit for bit.
+traffic_lights, interaction) over fixed-size candidate sets. For the road
+edge, each corner gathers the segments listed for its grid cell
+(`road_edge.cell_candidate_table`, built once per scene on the host), then
+checks a proven bound that nothing left out can be nearer (or tie at a
+lower index). The rare queries the bound does not settle are compacted and
+computed against everything in a `while_loop`, so results equal an all-pairs
+search (`argmin`: the first index among ties, as in the numpy path) bit for
+bit. Nearest object and time to collision stay all-pairs (evaluated objects
+x all objects: on CPU, gathering candidates by a bound cost more than it
+saved, measured up to 128 x 128), and so does the red-light lane search
+(over crossing points only).
 
 Everything here expects float32 inputs that are already padded (invalid
-padding masked by the `valid` arrays) and must be traced under
-`jax.enable_x64(True)` (the float32 math rounds through float64).
+padding masked by the `valid` arrays). The float32 math rounds a few steps
+through `xp.wide_float` (float64 under x64; float32 in `xp.float32_precision()`).
 """
 from __future__ import annotations
 
@@ -104,26 +111,88 @@ def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair
     return jnp.where(following.any(axis=-1), ttc, interaction.MAXIMUM_TIME_TO_COLLISION)
 
 
-def signed_distance_to_road_edge(queries, segments):
-    """Dense `road_edge.signed_distance_to_polylines`.
+# Queries the cell tables do not settle are searched against every segment, this many at a time.
+FALLBACK_CHUNK = 256
+CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance")  # road_edge.cell_candidate_table
+
+
+def _nearest_segment_all(q, s):
+    """Index of the nearest valid segment (stretched selection distance, lowest index on ties)."""
+    d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][None]),
+                                     *_columns(s["delta"][None]))[1]
+    return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
+
+
+def _nearest_listed_segment(q, s, cells):
+    """(nearest segment among the query cell's listed ones, whether it is the nearest of all).
+
+    Settled when the query is on the grid and nearer to it than the cell's clearance
+    (`road_edge.cell_candidate_table`): no segment left out can be nearer, or tie at a lower index.
+    """
+    side = _F(road_edge.CELL_SIDE)
+    cell = jnp.floor((q[:, :2] - cells["cell_origin"]) / side)  # a power of two: exact
+    inside = ((cell >= 0) & (cell < cells["cell_shape"].astype(_F))).all(axis=1)
+    cell = jnp.where(inside[:, None], cell, _F(0)).astype(jnp.int32)
+    row = cell[:, 0] * cells["cell_shape"][1] + cell[:, 1]
+    index = cells["cell_candidates"][row]
+    d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][index]),
+                                     *_columns(s["delta"][index]))[1]
+    d3 = jnp.where(s["valid"][index], d3, jnp.inf)
+    best_d = d3.min(axis=1)
+    big = jnp.iinfo(index.dtype).max
+    best = jnp.where(d3 == best_d[:, None], index, big).min(axis=1)
+    settled = inside & (best_d < cells["cell_clearance"][row])
+    return jnp.where(best == big, 0, best), settled
+
+
+def _nearest_segment(queries, s, cells, needed):
+    """Index of the nearest valid road-edge segment of each needed query, as the all-pairs search picks it.
+
+    Queries the cell tables settle (nearly all) cost `road_edge.CELL_CANDIDATES` exact distances;
+    the others (off the grid, far from every road edge, on another level, NaN) are compacted and
+    searched against every segment in a `while_loop`, FALLBACK_CHUNK at a time. Unneeded queries
+    get some segment.
+    """
+    best, settled = _chunked(lambda q: _nearest_listed_segment(q, s, cells), queries,
+                             _rows_per_chunk(cells["cell_candidates"].shape[-1]))
+    unsettled = needed & ~settled
+    count = unsettled.sum()
+    n = queries.shape[0]
+    chunk = min(FALLBACK_CHUNK, max(1, n))
+    order = jnp.nonzero(unsettled, size=n, fill_value=0)[0]
+    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
+
+    def round_(carry):
+        done, best = carry
+        rows = lax.dynamic_slice(order, (done,), (chunk,))
+        found = _nearest_segment_all(queries[rows], s).astype(best.dtype)
+        real = jnp.arange(chunk) < count - done
+        return done + chunk, best.at[jnp.where(real, rows, n)].set(found, mode="drop")
+
+    _, best = lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype), best))
+    return best
+
+
+def signed_distance_to_road_edge(queries, segments, needed=None):
+    """`road_edge.signed_distance_to_polylines` with fixed shapes (bit-identical on CPU).
 
     Args:
       queries: float32 `(num_points, 3)`.
       segments: dict of the valid road-edge segments in official order, padded:
         start, delta, prior_start, prior_delta, next_start, next_delta float32
         `(num_segments, 3)`; valid, prior_valid, next_valid, convex_before,
-        convex_after bool `(num_segments,)`.
+        convex_after bool `(num_segments,)`; and their cell table (`CELL_KEYS`, from
+        `road_edge.cell_candidate_table`).
+      needed: optional bool `(num_points,)`: the queries whose result is used (default all); the
+        others are not searched exhaustively when the table does not settle them (their value is
+        some segment's signed distance).
     Returns:
       float32 `(num_points,)`, negative on the road side.
     """
-    s = segments
-
-    def nearest(q):
-        d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][None]),
-                                         *_columns(s["delta"][None]))[1]
-        return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
-
-    best = _chunked(nearest, queries, _rows_per_chunk(s["start"].shape[0]))
+    cells = {k: jnp.asarray(segments[k]) for k in CELL_KEYS}
+    s = {k: jnp.asarray(v) for k, v in segments.items() if k not in CELL_KEYS}
+    needed = jnp.ones(queries.shape[:1], bool) if needed is None else needed
+    best = _nearest_segment(queries, s, cells, needed)
     pick = {k: v[best] for k, v in s.items()}
     rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]),
                                                *_columns(pick["delta"]))
@@ -228,7 +297,9 @@ class DenseSearch:
         return jnp.swapaxes(ttc, -1, -2)
 
     def road_edge_distance(self, corners, valid):
-        edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m).reshape(corners.shape[:-1]).max(axis=-1)
+        needed = jnp.broadcast_to(valid[..., None], corners.shape[:-1]).reshape(-1)
+        edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m, needed)
+        edge = edge.reshape(corners.shape[:-1]).max(axis=-1)
         return jnp.where(valid, edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
 
     def red_light_violation(self, x, y, valid):

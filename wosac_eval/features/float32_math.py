@@ -9,8 +9,9 @@ collision threshold, so we reproduce the same arithmetic step by step:
 Cody-Waite reduction by pi/2 in four float32 pieces, then the minimax
 polynomials, each multiply and add rounded separately.
 
-The functions take numpy or JAX arrays (under JAX, x64 must be enabled while
-tracing: the libm and fma paths round through float64).
+The functions take numpy or JAX arrays. Under JAX the libm and fma paths round
+through float64 when x64 is on while tracing (exact); inside
+`xp.float32_precision()` they stay in float32 (last-bit differences).
 
 Tensors whose length is not a multiple of the packet size have their last
 `n % 8` elements evaluated by the scalar libm routine instead; `packet_tail`
@@ -20,8 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import (array_namespace, bitcast, errstate, is_numpy, opaque,
-                                    require_float64)
+from wosac_eval.features.xp import array_namespace, bitcast, errstate, is_numpy, opaque, wide_float
 
 _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
@@ -80,8 +80,7 @@ def _packet_sincos(x):
 
 def _libm(x, sine: bool):
     xp = array_namespace(x)
-    require_float64(xp)
-    return (xp.sin if sine else xp.cos)(xp.asarray(x, np.float64)).astype(_F)
+    return (xp.sin if sine else xp.cos)(xp.asarray(x, wide_float(xp))).astype(_F)
 
 
 def packet_tail(shape) -> np.ndarray:
@@ -145,9 +144,8 @@ def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     all but double-rounding corner cases (~2**-29 of inputs).
     """
     xp = array_namespace(a, b, c)
-    require_float64(xp)
-    return (xp.asarray(a, np.float64) * xp.asarray(b, np.float64)
-            + xp.asarray(c, np.float64)).astype(_F)
+    wide = wide_float(xp)  # float32 in JAX's float32 precision: then two roundings, not one
+    return (xp.asarray(a, wide) * xp.asarray(b, wide) + xp.asarray(c, wide)).astype(_F)
 
 
 def packet_sum32(values):

@@ -461,3 +461,81 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
     distance = signed_distance_to_polylines(table, boxes[keep].reshape(-1, 3)).reshape(-1, 4)
     out[keep] = distance.max(axis=-1)
     return out.reshape(corners_xyz.shape[:-2])
+
+
+# --- Cell tables for fixed-shape searches (the JAX driver, features/dense.py) ----------------------
+
+CELL_SIDE = 4.0  # metres: the planar grid of the candidate tables
+CELL_CANDIDATES = 32  # segments listed per cell
+_CELL_BORDER = 10.0  # metres of grid around the segments' box
+_TABLE_SAMPLES = 4  # k-d tree samples looked at per listed segment
+
+
+def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CELL_SIDE,
+                         k: int = CELL_CANDIDATES) -> dict:
+    """A planar grid over the segments: per cell, the `k` segments nearest its centre, and a clearance.
+
+    The clearance is a lower bound of the planar distance from any point of the cell to every
+    segment not listed. The selection distance of `segment_distances` is at least the planar
+    distance, so a query whose nearest listed segment is nearer than the clearance has found the
+    nearest of all, ties included (a tie outside would be nearer than the clearance). Queries
+    outside the grid or beyond the clearance are for an exhaustive search.
+
+    Bounds: a segment is cut in planar pieces of at most `_SAMPLE_SPACING` metres, whose midpoints
+    form a k-d tree, so every point of it is within half the spacing of a sample. A segment with no
+    sample among a centre's nearest ones is at least (farthest of those) - spacing / 2 from it; one
+    found but not listed at least the (k+1)-th listed distance. The cell's half-diagonal, and a
+    slack far above float32 rounding, are subtracted.
+
+    Args:
+      start, delta: float32 `(num_segments, 3)`, the segments the indices refer to (all valid).
+    Returns:
+      origin float32 `(2,)`, shape int32 `(2,)` (cells along x, y), candidates int32
+      `(num_cells, k)` (cell `ix * shape[1] + iy`; rows with fewer segments repeat their first),
+      clearance float32 `(num_cells,)`.
+    """
+    start64, delta64 = np.asarray(start, np.float64)[:, :2], np.asarray(delta, np.float64)[:, :2]
+    ends = np.concatenate([start64, start64 + delta64])
+    origin = np.floor(ends.min(axis=0) - _CELL_BORDER)
+    shape = np.ceil((ends.max(axis=0) + _CELL_BORDER - origin) / side).astype(np.int64)
+    ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    centre = origin + (np.stack([ix.ravel(), iy.ravel()], axis=1) + 0.5) * side
+    length = np.hypot(delta64[:, 0], delta64[:, 1])
+    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
+    seg_of = np.repeat(np.arange(len(start64)), count)
+    first = np.repeat(np.cumsum(count) - count, count)
+    frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
+    samples = start64[seg_of] + delta64[seg_of] * frac[:, None]
+    kk = min(_TABLE_SAMPLES * k, len(samples))
+    reach, nearest = cKDTree(samples).query(centre, k=kk)
+    reach, nearest = reach.reshape(len(centre), kk), nearest.reshape(len(centre), kk)
+    seg = seg_of[nearest]
+    # Planar distance from each centre to each found segment (float64), repeats set apart.
+    sx, sy = start64[seg, 0], start64[seg, 1]
+    dx, dy = delta64[seg, 0], delta64[seg, 1]
+    tx, ty = centre[:, None, 0] - sx, centre[:, None, 1] - sy
+    squared = dx * dx + dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(squared > 0, (tx * dx + ty * dy) / squared, 0.0), 0.0, 1.0)
+    dist = np.hypot(tx - dx * t, ty - dy * t)
+    by_seg = np.argsort(seg, axis=1, kind="stable")
+    sorted_seg = np.take_along_axis(seg, by_seg, axis=1)
+    repeat = np.zeros_like(sorted_seg, bool)
+    repeat[:, 1:] = sorted_seg[:, 1:] == sorted_seg[:, :-1]
+    dist_sorted = np.where(repeat, np.inf, np.take_along_axis(dist, by_seg, axis=1))
+    order = np.argsort(dist_sorted, axis=1, kind="stable")
+    listed = np.take_along_axis(sorted_seg, order, axis=1)
+    listed_dist = np.take_along_axis(dist_sorted, order, axis=1)
+    take = min(k, kk)
+    candidates = listed[:, :take]
+    found = np.isfinite(listed_dist[:, :take])
+    candidates = np.where(found, candidates, candidates[:, :1])
+    if take < k:
+        candidates = np.concatenate([candidates, np.repeat(candidates[:, :1], k - take, axis=1)], axis=1)
+    next_listed = listed_dist[:, take] if kk > take else np.full(len(centre), np.inf)
+    unseen = reach[:, -1] - 0.5 * _SAMPLE_SPACING if kk < len(samples) else np.full(len(centre), np.inf)
+    half_diagonal = side * np.sqrt(0.5)
+    slack = _MARGIN + 1e-5 * np.abs(centre).max(axis=1)
+    clearance = np.minimum(next_listed, unseen) - half_diagonal - slack
+    return {"origin": origin.astype(_F), "shape": shape.astype(np.int32),
+            "candidates": candidates.astype(np.int32), "clearance": clearance.astype(_F)}

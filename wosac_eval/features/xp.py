@@ -7,6 +7,7 @@ already been imported by someone, so the numpy path never imports it.
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import sys
 
 import numpy as np
@@ -39,13 +40,44 @@ def errstate(xp, **kwargs):
     return np.errstate(**kwargs) if is_numpy(xp) else contextlib.nullcontext()
 
 
-def require_float64(xp) -> None:
-    """Raises unless float64 is available (JAX needs x64 enabled while tracing)."""
-    if not is_numpy(xp):
-        import jax
-        if not jax.config.jax_enable_x64:
-            raise RuntimeError("this kernel rounds through float64: trace it under "
-                               "`with jax.enable_x64(True):`")
+# Set by `float32_precision()`: JAX kernels traced inside it round through float32, not float64.
+_FLOAT32_PRECISION = contextvars.ContextVar("wosac_eval_float32_precision", default=False)
+
+
+@contextlib.contextmanager
+def float32_precision():
+    """JAX kernels traced inside this block use float32 where the exact arithmetic needs float64.
+
+    The exact mode rounds a few steps through float64 (libm `sin`/`cos`, a fused multiply-add, the
+    estimators' log-probabilities, padded means); that needs JAX's x64 switch on while tracing,
+    which a training loop does not turn on. In float32 precision those steps stay in float32:
+    per-step features may differ from the official ones in the last bit, metrics stay within 1e-5.
+    numpy code is not affected.
+    """
+    token = _FLOAT32_PRECISION.set(True)
+    try:
+        yield
+    finally:
+        _FLOAT32_PRECISION.reset(token)
+
+
+def wide_float(xp):
+    """The dtype of the steps the official arithmetic rounds through float64, for `xp`.
+
+    numpy: float64. JAX: float64 when x64 is on while tracing, float32 inside
+    `float32_precision()`; otherwise a RuntimeError naming both ways out (never a silent switch).
+    """
+    if is_numpy(xp) or not _FLOAT32_PRECISION.get() and _jax_x64():
+        return np.float64
+    if _FLOAT32_PRECISION.get():
+        return np.float32
+    raise RuntimeError("this kernel rounds through float64: trace it under `with jax.enable_x64(True):` "
+                       "(exact), or inside `wosac_eval.features.xp.float32_precision()` (metrics within 1e-5)")
+
+
+def _jax_x64() -> bool:
+    import jax
+    return bool(jax.config.jax_enable_x64)
 
 
 def divide(a, b):

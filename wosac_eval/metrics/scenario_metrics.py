@@ -14,7 +14,7 @@ from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.features.xp import array_namespace
+from wosac_eval.features.xp import array_namespace, wide_float
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
@@ -76,13 +76,15 @@ def _object_mean(values, object_mask, dtype):
     """Mean over the last axis (objects), over the real ones only when `object_mask` is given.
 
     With a mask (padded features) the sum runs in float64 whatever `dtype`: a float32 sum's rounding
-    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32.
+    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32
+    (in JAX's float32 precision, `xp.wide_float`, it is float32: last-bit differences).
     """
     if object_mask is None:
         return values.mean(axis=-1, dtype=dtype)
     xp = array_namespace(values, object_mask)
-    total = xp.where(object_mask, values, 0).sum(axis=-1, dtype=np.float64)
-    return (total / object_mask.sum().astype(np.float64)).astype(dtype)
+    wide = wide_float(xp)
+    total = xp.where(object_mask, values, 0).sum(axis=-1, dtype=wide)
+    return (total / object_mask.sum().astype(wide)).astype(dtype)
 
 
 def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
@@ -93,29 +95,30 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     object_mask: as for `metric_log_likelihoods`: means over objects count the real rows only.
     """
     xp = array_namespace(log.valid, sim.linear_speed)
+    wide = wide_float(xp)  # float64, except in JAX's float32 precision
     masks = validity_masks(log)
     lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
     out = {}
     for metric in METRICS:
         ll, mask = lls[metric.name]
         # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
-        padded_sum = _F if object_mask is None else np.float64  # see `_object_mean`
+        padded_sum = _F if object_mask is None else wide  # see `_object_mean`
         out[metric.output] = xp.exp(_object_mean(ll, object_mask, _F) if mask is None
                                     else _masked_mean(ll, mask, padded_sum))
     ade = sim.average_displacement_error
     per_rollout = _object_mean(ade, object_mask, _F)
     out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
-                                         else per_rollout.mean(dtype=np.float64).astype(_F))
+                                         else per_rollout.mean(dtype=wide).astype(_F))
     out["min_average_displacement_error"] = per_rollout.min()
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
         flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])
-        out[rate.name] = (flags.mean(dtype=np.float64) if object_mask is None
-                          else _object_mean(flags, object_mask, np.float64).mean())
+        out[rate.name] = (flags.mean(dtype=wide) if object_mask is None
+                          else _object_mean(flags, object_mask, wide).mean())
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
     weights = metametric_weights(config)
-    out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(np.float64) for m in METRIC_NAMES)
+    out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(wide) for m in METRIC_NAMES)
     return out
 
 

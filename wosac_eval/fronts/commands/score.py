@@ -122,6 +122,10 @@ def run(args: argparse.Namespace) -> int:
                                         select=args.select, analysis=not args.no_analysis)
     except (BackendUnavailableError, EngineUnavailableError, ValueError) as error:
         raise UsageError(str(error)) from None
+    if evaluation.backend == "jax":
+        # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
+        from wosac_eval.backends.jax_backend import exact_cpu
+        exact_cpu()
     update, bar = _progress()
     try:
         result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation)

@@ -23,10 +23,11 @@ from pathlib import Path
 from bench_env import REPO, SHARED, median_seconds
 ORACLE = REPO / "tests" / "data" / "oracle"
 
-# Before JAX starts: exact float32 on CPU (see wosac_eval.backends.jax_backend).
+import jax  # noqa: E402
+
 from wosac_eval.backends import jax_backend  # noqa: E402
 
-import jax  # noqa: E402
+jax_backend.exact_cpu()  # this program opts in to exact float32 on XLA's CPU, as the CLI does
 
 from wosac_eval.arrays.rollouts import rollout_arrays  # noqa: E402
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402

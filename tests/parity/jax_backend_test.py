@@ -13,8 +13,6 @@ from functools import lru_cache
 import numpy as np
 import pytest
 
-# Imported first: it restricts XLA's CPU code generation (no fused multiply-add)
-# before JAX starts its CPU backend.
 from wosac_eval.backends import jax_backend
 
 from support import golden
@@ -38,7 +36,9 @@ def _numpy(case_set, case):
 
 
 def test_no_fused_multiply_add_on_cpu():
-    # Without this, float32 features differ from numpy in the last bit.
+    # The test process opted in (tests/conftest.py); without it float32 features differ from numpy
+    # in the last bit. exact_cpu() confirms it, as a program calls it.
+    jax_backend.exact_cpu()
     assert not jax_backend.fma_contraction()
 
 
@@ -91,7 +91,7 @@ def test_batched_call_equals_per_scenario_calls():
 def test_padding_to_larger_buckets_changes_nothing():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
-    larger = tuple(2 * k for k in key[3:])  # objects, evaluated, road-edge segments, signals, lane segments
+    larger = tuple(2 * k for k in key[3:])  # objects, evaluated, road-edge segments, signals, lanes, grid cells
     padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
     golden.assert_features_equal(padded, golden.as_feature_dict(_set_features(ORACLE)[case]),
                                  f"{case} padded to {larger}")

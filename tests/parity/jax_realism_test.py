@@ -197,6 +197,20 @@ def test_importing_leaves_the_jax_configuration_alone():
     assert out.stdout.split()[:2] == ["None", "False"]
 
 
+def test_exact_cpu_is_an_opt_in_made_before_the_first_computation():
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    opt_in = ("from wosac_eval import jax_realism; from wosac_eval.backends import jax_backend; "
+              "jax_realism.exact_cpu(); print(jax_backend.fma_contraction())")
+    out = subprocess.run([sys.executable, "-c", opt_in], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False"]
+    too_late = ("import jax, jax.numpy as jnp; from wosac_eval.backends import jax_backend; "
+                "jax.block_until_ready(jnp.ones(3) * 2 + 1); "
+                "fused = jax_backend.fma_contraction(jax.devices('cpu')[0]); print(fused); jax_backend.exact_cpu()")
+    out = subprocess.run([sys.executable, "-c", too_late], env=env, capture_output=True, text=True)
+    if out.stdout.split()[:1] == ["True"]:  # a CPU with FMA: XLA had started fusing, exact_cpu says so
+        assert out.returncode != 0 and "already started with fused multiply-adds" in out.stderr
+
+
 def test_waymax_style_arrays_in():
     """Objects x timesteps including the history, in Waymax's object order (reversed here), with padding."""
     prepared, arrays = prepared_set("sim_agents")

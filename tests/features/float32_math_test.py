@@ -131,3 +131,18 @@ def test_fma32_double_rounding_corner_case():
     a = F(1 + 2.0 ** -12)
     c = F(2.0 ** -60)
     assert fma32(a, a, c) == np.nextafter(F(1 + 2.0 ** -11), F(2))
+
+
+def test_split_sum32_rounds_as_the_exact_sum_whatever_the_padding():
+    """The float32 precision's padded sums: equal to the float64 sum rounded to float32 (all but
+    near-ties), and unchanged by trailing zeros (padding) or the order of the values."""
+    from wosac_eval.features.float32_math import split_sum32
+    rng = np.random.default_rng(3)
+    values = (rng.lognormal(2, 2, (2000, 128)) * rng.choice([1, -1, 0], (2000, 128), p=[.8, .1, .1])).astype(np.float32)
+    want = values.astype(np.float64).sum(axis=1).astype(np.float32)
+    got = split_sum32(values)
+    assert np.mean(got == want) > 0.999
+    np.testing.assert_allclose(got, want, rtol=2 ** -23, atol=0)
+    padded = np.concatenate([values, np.zeros((2000, 72), np.float32)], axis=1)
+    np.testing.assert_array_equal(split_sum32(padded), got)
+    np.testing.assert_array_equal(split_sum32(values[:, ::-1]), got)

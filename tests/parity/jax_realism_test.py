@@ -98,16 +98,16 @@ def test_features_are_bit_identical_to_numpy(challenge):
         np.testing.assert_array_equal(np.asarray(feats.valid)[s][1:, :e], sim.valid)
 
 
+@pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
-def test_padding_never_changes_a_result(challenge):
-    """Exact mode sums padded means in float64, so padding cannot reach float32. (In float32 mode a
-    float32 sum's last bits follow the padded length; its contract, the official outputs within 1e-5,
-    is checked on every golden case below.)"""
+def test_padding_never_changes_a_result(challenge, mode):
+    """Padded means are summed in float64 (exact mode) or by `split_sum32` (float32 mode), so the
+    padding zeros the reduction meets cannot reach a float32 result."""
     tight, arrays = prepared_set(challenge)
     wide, wide_arrays = prepared_set(challenge, padded=True)
     assert wide.layout.num_evaluated > tight.layout.num_evaluated
-    a = in_jit("exact", tight, arrays)
-    b = in_jit("exact", wide, wide_arrays)
+    a = in_jit(mode, tight, arrays)
+    b = in_jit(mode, wide, wide_arrays)
     for field in SCENARIO_FIELDS:
         np.testing.assert_allclose(a[field], b[field], rtol=0, atol=1e-6, err_msg=field)
 

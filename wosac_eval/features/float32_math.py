@@ -180,3 +180,28 @@ def packet_sum32(values):
         tail = tail + values[..., j]
     halves = acc[..., :4] + acc[..., 4:]
     return tail + ((halves[..., 0] + halves[..., 2]) + (halves[..., 1] + halves[..., 3]))
+
+
+def split_sum32(values, axis=-1):
+    """Float32 sum along `axis`, as if summed exactly and rounded (nearly always), in any order.
+
+    Each value is split at a power-of-two scale above the row's total magnitude: the high parts
+    are multiples of the scale's last place and sum exactly in float32, the low parts are tiny
+    and sum with negligible error (Rump's error-free extraction). Used where a float32 sum's
+    rounding would otherwise follow the reduction tree (padding, XLA's order): JAX's float32
+    precision, instead of a float64 sum.
+
+    Args:
+      values: float32 `(..., n, ...)` (numpy or JAX), finite values for an accurate result.
+    Returns:
+      float32, `values` without `axis`.
+    """
+    xp = array_namespace(values)
+    v = xp.asarray(values, _F)
+    bound = xp.max(xp.abs(v), axis=axis, keepdims=True) * _F(max(1, v.shape[axis]))
+    _, exponent = xp.frexp(bound)  # bound < 2 ** exponent
+    scale = opaque(xp.ldexp(xp.ones_like(bound), exponent + 1), xp)  # XLA would fold (v + s) - s
+    with errstate(xp, invalid="ignore", over="ignore"):
+        high = (v + scale) - scale
+        low = v - high
+    return high.sum(axis=axis) + low.sum(axis=axis)

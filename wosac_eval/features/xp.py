@@ -61,6 +61,11 @@ def float32_precision():
         _FLOAT32_PRECISION.reset(token)
 
 
+def in_float32_precision(xp) -> bool:
+    """True for JAX code traced inside `float32_precision()`."""
+    return not is_numpy(xp) and _FLOAT32_PRECISION.get()
+
+
 def wide_float(xp):
     """The dtype of the steps the official arithmetic rounds through float64, for `xp`.
 

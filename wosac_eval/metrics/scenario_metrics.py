@@ -14,7 +14,8 @@ from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.features.xp import array_namespace, wide_float
+from wosac_eval.features.float32_math import split_sum32
+from wosac_eval.features.xp import array_namespace, in_float32_precision, wide_float
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
@@ -26,9 +27,21 @@ _F = np.float32
 SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE_FIELDS)
 
 
+def _padded_sum(values, axis, dtype):
+    """The sum of padded values (see `_object_mean`): in `dtype` (float64), or in JAX's float32
+    precision `split_sum32`, which rounds as that float64 sum nearly always does."""
+    if dtype == np.float32 and in_float32_precision(array_namespace(values)):
+        return split_sum32(values, axis)
+    return values.sum(axis=axis, dtype=dtype)
+
+
 def _masked_mean(values, valid, dtype=_F):
     xp = array_namespace(values, valid)
-    total = xp.where(valid, values, _F(0)).sum(dtype=dtype)
+    masked = xp.where(valid, values, _F(0))
+    if in_float32_precision(xp):
+        total = _padded_sum(masked.reshape(-1), -1, dtype)
+    else:
+        total = masked.sum(dtype=dtype)
     return (total / valid.sum().astype(dtype)).astype(_F)
 
 
@@ -76,14 +89,14 @@ def _object_mean(values, object_mask, dtype):
     """Mean over the last axis (objects), over the real ones only when `object_mask` is given.
 
     With a mask (padded features) the sum runs in float64 whatever `dtype`: a float32 sum's rounding
-    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32
-    (in JAX's float32 precision, `xp.wide_float`, it is float32: last-bit differences).
+    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32.
+    In JAX's float32 precision (`xp.wide_float`) it is `split_sum32`: as exact, in float32.
     """
     if object_mask is None:
         return values.mean(axis=-1, dtype=dtype)
     xp = array_namespace(values, object_mask)
     wide = wide_float(xp)
-    total = xp.where(object_mask, values, 0).sum(axis=-1, dtype=wide)
+    total = _padded_sum(xp.where(object_mask, values, 0).astype(wide), -1, wide)
     return (total / object_mask.sum().astype(wide)).astype(dtype)
 
 
@@ -108,13 +121,14 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     ade = sim.average_displacement_error
     per_rollout = _object_mean(ade, object_mask, _F)
     out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
-                                         else per_rollout.mean(dtype=wide).astype(_F))
+                                         else (_padded_sum(per_rollout.astype(wide), -1, wide)
+                                               / wide(per_rollout.shape[-1])).astype(_F))
     out["min_average_displacement_error"] = per_rollout.min()
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
         flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])
         out[rate.name] = (flags.mean(dtype=wide) if object_mask is None
-                          else _object_mean(flags, object_mask, wide).mean())
+                          else _padded_sum(_object_mean(flags, object_mask, wide), -1, wide) / wide(flags.shape[0]))
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
     weights = metametric_weights(config)

@@ -145,6 +145,30 @@ def _nearest_listed_segment(q, s, cells):
     return jnp.where(best == big, 0, best), settled
 
 
+def _fill_rows(out, which, chunk: int, compute):
+    """`out` with the rows where `which` is True replaced by `compute(rows)`, `chunk` rows per round.
+
+    The rows are compacted to the front and computed in a `while_loop`, so the work follows their
+    number (small: the rest was settled by cheaper means), not the array's length.
+
+    Args:
+      out: `(n,)` array; which: bool `(n,)`; compute: int32 `(chunk,)` row indices -> `(chunk,)` values.
+    """
+    n = which.shape[0]
+    count = which.sum()
+    chunk = min(chunk, max(1, n))
+    order = jnp.nonzero(which, size=n, fill_value=0)[0]
+    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
+
+    def round_(carry):
+        done, out = carry
+        rows = lax.dynamic_slice(order, (done,), (chunk,))
+        real = jnp.arange(chunk) < count - done
+        return done + chunk, out.at[jnp.where(real, rows, n)].set(compute(rows).astype(out.dtype), mode="drop")
+
+    return lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype), out))[1]
+
+
 def _nearest_segment(queries, s, cells, needed):
     """Index of the nearest valid road-edge segment of each needed query, as the all-pairs search picks it.
 
@@ -155,22 +179,7 @@ def _nearest_segment(queries, s, cells, needed):
     """
     best, settled = _chunked(lambda q: _nearest_listed_segment(q, s, cells), queries,
                              _rows_per_chunk(cells["cell_candidates"].shape[-1]))
-    unsettled = needed & ~settled
-    count = unsettled.sum()
-    n = queries.shape[0]
-    chunk = min(FALLBACK_CHUNK, max(1, n))
-    order = jnp.nonzero(unsettled, size=n, fill_value=0)[0]
-    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
-
-    def round_(carry):
-        done, best = carry
-        rows = lax.dynamic_slice(order, (done,), (chunk,))
-        found = _nearest_segment_all(queries[rows], s).astype(best.dtype)
-        real = jnp.arange(chunk) < count - done
-        return done + chunk, best.at[jnp.where(real, rows, n)].set(found, mode="drop")
-
-    _, best = lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype), best))
-    return best
+    return _fill_rows(best, needed & ~settled, FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
 
 
 def signed_distance_to_road_edge(queries, segments, needed=None):
@@ -248,23 +257,11 @@ def red_light_violation(xy, valid, m):
     flat_suspect = suspect.reshape(-1, suspect.shape[-1])
     points = xy.reshape(-1, 2)
     needed = flat_suspect.any(axis=-1)
-    count = needed.sum()
-    order = jnp.nonzero(needed, size=needed.shape[0], fill_value=0)[0]
-    chunk = min(LANE_SEARCH_CHUNK, max(1, needed.shape[0]))
-    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
 
-    def round_(carry):
-        done, lane_of_point = carry
-        rows = lax.dynamic_slice(order, (done,), (chunk,))
-        best = nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])
-        real = jnp.arange(chunk) < count - done
-        lane_of_point = lane_of_point.at[jnp.where(real, rows, needed.shape[0])].set(
-            m["lane_id"][best], mode="drop")
-        return done + chunk, lane_of_point
+    def lane_of(rows):
+        return m["lane_id"][nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
 
-    lane_of_point = jnp.full(needed.shape, -1, m["lane_id"].dtype)
-    _, lane_of_point = lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype),
-                                                                                lane_of_point))
+    lane_of_point = _fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, LANE_SEARCH_CHUNK, lane_of)
     on_lane = lane_of_point[:, None] == m["signal_lane_id"][None, :]
     return (flat_suspect & on_lane).any(axis=-1).reshape(suspect.shape[:-1])
 

@@ -146,15 +146,19 @@ def _sample_tree(start, delta, valid):
     idx = np.flatnonzero(valid)
     if idx.size == 0:
         return None, np.zeros(0, np.int64)
-    s = _stretch(start[idx])
-    d = _stretch(delta[idx])
-    length = np.linalg.norm(d, axis=-1)
+    points, seg_of = _piece_midpoints(_stretch(start[idx]), _stretch(delta[idx]))
+    return cKDTree(points), idx[seg_of]
+
+
+def _piece_midpoints(start, delta):
+    """Segments cut in pieces of at most `_SAMPLE_SPACING` metres (in their own coordinates):
+    (the pieces' midpoints `(num_pieces, d)`, the segment of each), numbered along the segments."""
+    length = np.linalg.norm(delta, axis=-1)
     count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
-    seg_of = np.repeat(np.arange(idx.size), count)
+    seg_of = np.repeat(np.arange(len(start)), count)
     first = np.repeat(np.cumsum(count) - count, count)
     frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
-    points = s[seg_of] + d[seg_of] * frac[:, None]
-    return cKDTree(points), idx[seg_of]
+    return start[seg_of] + delta[seg_of] * frac[:, None], seg_of
 
 
 def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
@@ -500,12 +504,7 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     shape = np.ceil((ends.max(axis=0) + _CELL_BORDER - origin) / side).astype(np.int64)
     ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
     centre = origin + (np.stack([ix.ravel(), iy.ravel()], axis=1) + 0.5) * side
-    length = np.hypot(delta64[:, 0], delta64[:, 1])
-    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
-    seg_of = np.repeat(np.arange(len(start64)), count)
-    first = np.repeat(np.cumsum(count) - count, count)
-    frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
-    samples = start64[seg_of] + delta64[seg_of] * frac[:, None]
+    samples, seg_of = _piece_midpoints(start64, delta64)
     kk = min(_TABLE_SAMPLES * k, len(samples))
     reach, nearest = cKDTree(samples).query(centre, k=kk)
     reach, nearest = reach.reshape(len(centre), kk), nearest.reshape(len(centre), kk)

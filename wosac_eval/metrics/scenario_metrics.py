@@ -28,20 +28,16 @@ SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE
 
 
 def _padded_sum(values, axis, dtype):
-    """The sum of padded values (see `_object_mean`): in `dtype` (float64), or in JAX's float32
-    precision `split_sum32`, which rounds as that float64 sum nearly always does."""
+    """The sum of padded values (see `_object_mean`) along `axis` (None: all): in `dtype` (float64),
+    or in JAX's float32 precision `split_sum32`, which rounds as that float64 sum nearly always does."""
     if dtype == np.float32 and in_float32_precision(array_namespace(values)):
-        return split_sum32(values, axis)
+        return split_sum32(values.reshape(-1), -1) if axis is None else split_sum32(values, axis)
     return values.sum(axis=axis, dtype=dtype)
 
 
 def _masked_mean(values, valid, dtype=_F):
     xp = array_namespace(values, valid)
-    masked = xp.where(valid, values, _F(0))
-    if in_float32_precision(xp):
-        total = _padded_sum(masked.reshape(-1), -1, dtype)
-    else:
-        total = masked.sum(dtype=dtype)
+    total = _padded_sum(xp.where(valid, values, _F(0)), None, dtype)
     return (total / valid.sum().astype(dtype)).astype(_F)
 
 

@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from wosac_eval import score_scenario
-from wosac_eval.arrays.messages import joint_scene, rollouts_bytes, rollouts_from_arrays, rollouts_message
+from wosac_eval.arrays.messages import (NonFiniteValueWarning, joint_scene, rollouts_bytes, rollouts_from_arrays,
+                                        rollouts_message)
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.protos import sim_agents_submission_pb2 as pb
 from wosac_eval.sim import scenes
@@ -71,14 +72,10 @@ def test_broadcasting_of_ids_and_sizes():
      r"x has shape \(3, 4, 79\), which does not broadcast to the shape of y, z, heading: \(3, 4, 80\)"),
     (lambda a: a.update(heading=a["heading"][:, :, :-1]),
      r"heading has shape \(3, 4, 79\), which does not broadcast to the shape of x, y, z: \(3, 4, 80\)"),
-    (lambda a: a.update(y=np.where(np.arange(80) == 7, np.nan, a["y"])),
-     r"scenario s rollout 0 object 7: y\[7\] is not finite \(12 such value\(s\) in y\)"),
     (lambda a: a.update(object_id=np.array([7, 7, 1, 2])), r"scenario s rollout 0: object 7 appears 2 times"),
     (lambda a: a.update(object_id=np.array([1.0, 2.0, 3.0, 4.0])), r"object_id must be integers"),
     (lambda a: a.update(object_id=np.array([1, 2, 3])), r"object_id has shape \(3,\), expected \(4,\)"),
     (lambda a: a.update(length=np.ones(80)), r"length given without width, height, object_type"),
-    (lambda a: a.update(length=np.ones(80), width=1, height=1, object_type=[1, 1, 1, 1]) or
-     a["length"].__setitem__(3, np.inf), r"rollout 0 object 7: length\[3\] is not finite"),
 ])
 def test_bad_arrays_are_named(change, message):
     ids, (x, y, z, h) = random_arrays()
@@ -86,6 +83,23 @@ def test_bad_arrays_are_named(change, message):
     change(args)
     with pytest.raises(ValueError, match=message):
         rollouts_from_arrays("s", **args)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda a: a.update(y=np.where(np.arange(80) == 7, np.nan, a["y"])),
+     r"scenario s rollout 0 object 7: y\[7\] is not finite \(12 such value\(s\) in y\): scored as given"),
+    (lambda a: a.update(length=np.ones(80), width=1, height=1, object_type=[1, 1, 1, 1]) or
+     a["length"].__setitem__(3, np.inf), r"rollout 0 object 7: length\[3\] is not finite"),
+])
+def test_non_finite_values_are_scored_as_given_with_a_warning(change, message):
+    # The official evaluator scores NaN and inf (they spread into the features): a warning, not a refusal.
+    ids, (x, y, z, h) = random_arrays()
+    args = {"object_id": ids, "x": x, "y": y, "z": z, "heading": h}
+    change(args)
+    with pytest.warns(NonFiniteValueWarning, match=message):
+        rollouts = rollouts_from_arrays("s", **args)
+    kept = [rollouts.y] if rollouts.length is None else [rollouts.length]
+    assert not np.isfinite(kept[0]).all()
 
 
 def test_zero_and_negative_sizes_are_kept_as_the_official_scores_them():

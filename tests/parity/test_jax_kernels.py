@@ -3,6 +3,8 @@
 Random inputs reach corners the scenario data may miss: huge angles, the
 libm tail, degenerate segments, points past segment ends, ties.
 """
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -102,7 +104,8 @@ def test_road_edge_dense_equals_numpy():
     got = jitted(dense.signed_distance_to_road_edge, queries, segments)
     np.testing.assert_array_equal(got, expected)
     # Padded segments and a small chunk (several lax.map steps) change nothing.
-    padded = {k: v if k in dense.CELL_KEYS else jax_backend._pad_axis(v, 64, 0) for k, v in segments.items()}
+    padded = {k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_backend._pad_axis(v, 64, 0)
+              for k, v in segments.items()}
     old = dense.PAIRS_PER_CHUNK
     dense.PAIRS_PER_CHUNK = 64 * 100
     try:
@@ -151,7 +154,8 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     print(f"{candidates} candidates per cell: {settled.mean():.1%} of the queries settled by the table")
     assert not settled[-len(far):].any()
     # Padded segments and grid rows change nothing; unneeded queries are never searched exhaustively.
-    padded = {k: v if k in ("cell_origin", "cell_shape") else jax_backend._pad_axis(v, len(v) + 50, 0)
+    padded = {k: v if k in ("cell_origin", "cell_shape") or k.startswith(dense.NON_FINITE_PREFIX)
+              else jax_backend._pad_axis(v, len(v) + 50, 0)
               for k, v in segments.items()}
     np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
     needed = rng.random(len(queries)) < 0.5
@@ -186,3 +190,108 @@ def test_box_geometry_under_jit(shape):
         return box_geometry.origin_signed_distance(*box_geometry.minkowski_difference(*corners[0], *corners[1]))
 
     np.testing.assert_array_equal(jitted(distance, a, b), distance(a, b))
+
+
+# --- NaN and inf, as the official code scores them ------------------------------------------------
+
+def sequential_argmin(row):
+    """TensorFlow's CPU argmin, one value at a time: strictly below the best so far, from float32's max."""
+    best, index = F(np.finfo(F).max), 0
+    for i, value in enumerate(row):
+        if value < best:
+            best, index = value, i
+    return index
+
+
+def test_strict_argmin_is_tensorflows():
+    from wosac_eval.features.spatial import strict_argmin
+    rng = np.random.default_rng(7)
+    rows = rng.normal(size=(400, 9)).astype(F)
+    draw = rng.random(rows.shape)
+    rows[draw < 0.2] = np.nan
+    rows[(draw > 0.2) & (draw < 0.3)] = np.inf
+    rows[(draw > 0.3) & (draw < 0.33)] = -np.inf
+    rows[0], rows[1], rows[2] = np.nan, np.inf, np.finfo(F).max
+    rows[3, ::2] = 2.0  # ties
+    want = [sequential_argmin(r) for r in rows]
+    np.testing.assert_array_equal(strict_argmin(rows), want)
+    np.testing.assert_array_equal(jitted(strict_argmin, rows), want)
+
+
+def test_nearest_object_spreads_nan_as_the_all_pairs_minimum():
+    rng = np.random.default_rng(8)
+    objects, steps, evaluated = 14, 6, 5
+    x, y, length, width, heading = (a.reshape(objects, steps) for a in random_boxes(rng, objects * steps))
+    x[3, 1], y[9, 2], heading[0, 3], length[12, 4], x[1, 5] = np.nan, np.inf, np.nan, np.inf, -np.inf
+    valid = rng.random((objects, steps)) < 0.85
+    valid[[3, 9, 0, 12, 1], [1, 2, 3, 4, 5]] = True
+    valid[5, 0] = False
+    x[5, 0] = np.nan  # invalid: masked, spreads nothing
+    with np.errstate(invalid="ignore", over="ignore"):
+        sin_h, cos_h = sincos32(heading)
+        got = interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, evaluated)
+        # The official definition: every pair, the self pair offset by 1e10, invalid pairs 1e10, min with NaN.
+        radius = interaction.corner_radius(length, width)
+        box = lambda i: (x[i], y[i], length[i] - 2 * radius[i], width[i] - 2 * radius[i], cos_h[i], sin_h[i], radius[i])
+        want = np.empty((evaluated, steps), F)
+        for e in range(evaluated):
+            pairs = np.stack([interaction.rounded_box_distance(box(e), box(o)) for o in range(objects)])
+            pairs[e] += interaction.EXTREMELY_LARGE_DISTANCE
+            pairs = np.where(valid[e] & valid, pairs, interaction.EXTREMELY_LARGE_DISTANCE)
+            want[e] = np.minimum(pairs.min(axis=0), interaction.EXTREMELY_LARGE_DISTANCE)
+    assert np.isnan(want).any() and np.isfinite(want).any()
+    np.testing.assert_array_equal(got, want)
+    dense_got = jitted(lambda *a: dense.nearest_object_distance(*a, evaluated), x, y, length, width, cos_h, sin_h, valid)
+    np.testing.assert_array_equal(dense_got, want)
+
+
+def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
+    loop = np.array([[0, 0, 0], [40, 0, 0], [40, 30, 0], [0, 30, 0], [0, 0, 0]], F)
+    short = np.array([[-10, -10, 0], [0, -15, 0], [10, -12, 0]], F)  # shorter: padding segments follow it
+    table = road_edge.build_segment_table([loop, short])
+    queries = np.array([[np.nan, 1, 0], [5, np.inf, 0], [-np.inf, 4, 0], [5, 5, np.nan], [5, 5, np.inf],
+                        [3, 4, 0]], F)
+    got = road_edge.signed_distance_to_polylines(table, queries)
+    # Officially every valid segment is then at NaN or inf, never picked: the first padding segment is
+    # (at 1e10), and its signed distance is sign * 1e10, NaN where the sign is.
+    pick = road_edge.non_finite_segment(table)
+    assert not table.valid[pick] and table.valid[:pick].all()
+    with np.errstate(invalid="ignore"):
+        rel_t, _, _ = road_edge.segment_distances(*queries.T, *table.start[pick], *table.delta[pick])
+        side = lambda seg: road_edge.side_of_segment(queries[:, 0], queries[:, 1], *table.start[seg, :2],
+                                                      *table.delta[seg, :2])
+        sign = road_edge.corner_sign(rel_t, side(pick), side(table.prior[pick]), side(table.next[pick]),
+                                     table.convex_before[pick], table.convex_after[pick],
+                                     table.prior_valid[pick], table.next_valid[pick])
+    want = (sign * road_edge.EXTREMELY_LARGE_DISTANCE).astype(F)
+    np.testing.assert_array_equal(got[:5], want[:5])
+    assert np.isfinite(got[5]) and abs(got[5]) < 100
+    segments = jax_backend._segment_arrays(table)
+    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, segments), got)
+
+
+@pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
+def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
+    from wosac_eval.features.metric_features import scenario_features
+    from wosac_eval.sim import scenes
+    from wosac_eval.sim.baselines import policy_rollouts
+    from wosac_eval.arrays.scenario import scenario_arrays
+    proto = scenes.generate_scenes(1, seed=5)[0]
+    scenario = scenario_arrays(proto)
+    rollouts = policy_rollouts(proto, "constant_velocity", seed=1, challenge=challenge)
+    fields = {name: getattr(rollouts, name).copy() for name in ("x", "y", "z", "heading", "length", "height")
+              if getattr(rollouts, name) is not None}
+    fields["x"][0, 0, 20] = np.nan
+    fields["y"][1, 2, 30] = -np.inf
+    fields["heading"][2, 1, 40] = np.inf
+    fields["z"][2, 0, 5] = np.nan
+    if "height" in fields:
+        fields["height"][1, 1, 50] = np.inf
+        fields["length"][0, 3, 60] = np.nan
+    rollouts = dataclasses.replace(rollouts, **fields)
+    numpy_log, numpy_sim = scenario_features(scenario, rollouts, challenge=challenge)
+    jax_log, jax_sim = jax_backend.scenario_features(scenario, rollouts, challenge=challenge)
+    assert np.isnan(numpy_sim.distance_to_nearest_object).any() and np.isnan(numpy_sim.distance_to_road_edge).any()
+    for name in ("linear_speed", "angular_speed", "distance_to_nearest_object", "collision_per_step",
+                 "time_to_collision", "distance_to_road_edge", "offroad_per_step", "average_displacement_error"):
+        np.testing.assert_array_equal(np.asarray(getattr(jax_sim, name)), getattr(numpy_sim, name), err_msg=name)

@@ -256,8 +256,9 @@ def test_non_finite_value_names_its_index(rollouts, agents, field, value, kind):
     getattr(trajectory, field)[17] = value
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.object_id, f.field) == ("rollouts.non_finite", 5, trajectory.object_id, field)
+    assert f.severity == "warning"  # the official scores it; so does wosac-eval
     assert f.message == (f"s: scenario {SID} rollout 5 object {trajectory.object_id}: {field}[17] is {kind}; "
-                         "the official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot")
+                         "the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)")
 
 
 def test_several_non_finite_values_counted_and_indexed(rollouts, agents):

@@ -426,7 +426,7 @@ def test_wrong_length_and_nan_through_cli(tmp_path, capsys, scenario_file, templ
     assert (length["object_id"], length["field"], length["rollout"]) == (target, "center_x", 5)
     nan = group(report, "rollouts.non_finite")["listed"][0]
     assert nan["message"] == (f"sub/a.binproto: scenario {A} rollout 5 object {target}: center_y[17] is NaN; the "
-                              "official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot")
+                              "official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)")
 
 
 def test_all_errors_reported_with_counts_not_just_first(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
@@ -440,8 +440,9 @@ def test_all_errors_reported_with_counts_not_just_first(tmp_path, capsys, scenar
     )
     n_objects = len(rollouts_a.joint_scenes[0].simulated_trajectories)
     g = group(report, "rollouts.non_finite")
-    assert code == 1 and g["count"] == 32 * n_objects and len(g["listed"]) == 5
-    assert report["errors"] == 32 * n_objects
+    # Warnings (the official scores non-finite values): valid, every finding counted, 5 listed.
+    assert code == 0 and g["count"] == 32 * n_objects and len(g["listed"]) == 5
+    assert report["warnings"] == 32 * n_objects and report["errors"] == 0
 
 
 # -- report and usage -------------------------------------------------------------------

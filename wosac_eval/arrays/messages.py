@@ -11,6 +11,8 @@ faster than filling a message value by value.
 """
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from wosac_eval.arrays.rollouts import RolloutArrays
@@ -82,6 +84,18 @@ def _first_bad(scenario_id: str, name: str, bad: np.ndarray, object_id: np.ndarr
                       f"({int(bad.sum())} such value(s) in {name})")
 
 
+class NonFiniteValueWarning(UserWarning):
+    """A NaN or inf position, heading or size: scored as given (NaN spreads into the features, officially too)."""
+
+
+def _warn_if_not_finite(scenario_id: str, name: str, value: np.ndarray, object_id: np.ndarray) -> None:
+    bad = ~np.isfinite(value)
+    if bad.any():
+        warnings.warn(f"{_first_bad(scenario_id, name, bad, object_id, 'not finite')}: scored as given, as the "
+                      "official evaluator does (NaN spreads into that object's features)",
+                      NonFiniteValueWarning, stacklevel=3)
+
+
 def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, length=None, width=None,
                          height=None, object_type=None) -> RolloutArrays:
     """Rollouts of one scenario from a simulator's arrays, checked.
@@ -98,8 +112,8 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
       `RolloutArrays` (float32), for `score_scenario` or `rollouts_message`.
     Raises:
       ValueError naming the scenario, rollout, object and field of the first shape or value at fault
-      (non-finite coordinates or sizes, repeated ids, a box size without the others; zero or negative
-      sizes are accepted and scored as given, as the official evaluator does).
+      (repeated ids, a box size without the others). Zero or negative sizes are scored as given, as
+      the official evaluator does; so are NaN and inf values, with a `NonFiniteValueWarning`.
     """
     scenario_id = str(scenario_id)
     shape = _coordinates_shape(scenario_id, {"x": x, "y": y, "z": z, "heading": heading})
@@ -119,8 +133,7 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
             raise ValueError(f"scenario {scenario_id} rollout {r}: object {int(unique[counts > 1][0])} appears "
                              f"{int(counts.max())} times in object_id")
     for name, value in coordinates.items():
-        if not np.isfinite(value).all():
-            raise _first_bad(scenario_id, name, ~np.isfinite(value), ids, "not finite")
+        _warn_if_not_finite(scenario_id, name, value, ids)
     sizes = {"length": length, "width": width, "height": height}
     given = [name for name, value in sizes.items() if value is not None]
     if given and (len(given) < 3 or object_type is None):
@@ -133,10 +146,9 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
     if given:
         for name, value in sizes.items():
             boxes[name] = _as_float32(name, value, shape, scenario_id)
-            # Zero or negative sizes are scored as given, as the official evaluator does (logged boxes
-            # are 0 on a track's invalid steps); only non-finite ones are refused, as for coordinates.
-            if not np.isfinite(boxes[name]).all():
-                raise _first_bad(scenario_id, name, ~np.isfinite(boxes[name]), ids, "not finite")
+            # Zero, negative and non-finite sizes are scored as given, as the official evaluator does
+            # (logged boxes are 0 on a track's invalid steps).
+            _warn_if_not_finite(scenario_id, name, boxes[name], ids)
         try:
             boxes["object_type"] = np.ascontiguousarray(
                 np.broadcast_to(np.asarray(object_type).astype(np.int32), shape[:2]))

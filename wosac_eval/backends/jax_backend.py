@@ -148,13 +148,20 @@ class PreparedScenario:
 def _segment_arrays(table: road_edge.SegmentTable) -> dict:
     """The valid road-edge segments, in official order, with their neighbours' geometry."""
     idx = np.flatnonzero(table.valid)
-    prior, nxt = table.prior[idx], table.next[idx]
     cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
-    return {**{f"cell_{k}": v for k, v in cells.items()},
-            "start": table.start[idx], "delta": table.delta[idx],
+    # And the official pick for points with a NaN or infinite coordinate, which may be a padding segment.
+    fallback = _segments_at(table, np.array([road_edge.non_finite_segment(table)]))
+    return {**{f"cell_{k}": v for k, v in cells.items()}, **_segments_at(table, idx),
+            **{dense.NON_FINITE_PREFIX + k: v for k, v in fallback.items()}}
+
+
+def _segments_at(table: road_edge.SegmentTable, idx: np.ndarray) -> dict:
+    """Segments `idx` of the table with their neighbours' geometry, `(len(idx), ...)`."""
+    prior, nxt = table.prior[idx], table.next[idx]
+    return {"start": table.start[idx], "delta": table.delta[idx],
             "prior_start": table.start[prior], "prior_delta": table.delta[prior],
             "next_start": table.start[nxt], "next_delta": table.delta[nxt],
-            "valid": np.ones(len(idx), bool), "prior_valid": table.prior_valid[idx],
+            "valid": table.valid[idx], "prior_valid": table.prior_valid[idx],
             "next_valid": table.next_valid[idx], "convex_before": table.convex_before[idx],
             "convex_after": table.convex_after[idx]}
 
@@ -221,7 +228,7 @@ def padded_inputs(traj: dict, tails: dict, maps: dict, key: tuple) -> tuple[dict
     _, _, _, n_obj, n_eval, n_seg, n_sig, n_lane, n_cell = key
 
     def pad_map(name: str, a: np.ndarray) -> np.ndarray:
-        if name in ("cell_origin", "cell_shape"):
+        if name in ("cell_origin", "cell_shape") or name.startswith(dense.NON_FINITE_PREFIX):
             return a
         if name.startswith("cell"):  # rows past the grid are never looked up
             return _pad_axis(a, n_cell, 0)

@@ -30,6 +30,8 @@ from jax import lax
 
 from wosac_eval.features import interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.spatial import strict_argmin
+from wosac_eval.features.xp import nan_spreading_max, nan_spreading_min
 
 _F = np.float32
 # Pairs evaluated at once in the chunked searches (bounds the working memory).
@@ -76,10 +78,12 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     a = tuple(jnp.broadcast_to(v[:num_evaluated, None], pair_shape(v)) for v in outlines)
     b = tuple(jnp.broadcast_to(v[None], pair_shape(v)) for v in outlines)
     d = interaction.outline_distance(a, b, radius[:num_evaluated, None], radius[None])
-    possible = valid[:num_evaluated, None] & valid[None]
-    possible &= ~jnp.eye(num_evaluated, num_objects, dtype=bool)[..., None]
-    d = jnp.where(possible, d, interaction.EXTREMELY_LARGE_DISTANCE)
-    return jnp.minimum(d.min(axis=1), interaction.EXTREMELY_LARGE_DISTANCE)
+    # As officially: the self pair is offset by 1e10 (a NaN box stays NaN), invalid pairs are 1e10,
+    # and the minimum passes NaN on.
+    d = jnp.where(jnp.eye(num_evaluated, num_objects, dtype=bool)[..., None],
+                  d + interaction.EXTREMELY_LARGE_DISTANCE, d)
+    d = jnp.where(valid[:num_evaluated, None] & valid[None], d, interaction.EXTREMELY_LARGE_DISTANCE)
+    return jnp.minimum(nan_spreading_min(d, axis=1), interaction.EXTREMELY_LARGE_DISTANCE)
 
 
 def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair_tail, num_evaluated: int):
@@ -102,18 +106,20 @@ def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair
     yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
     gap, following = interaction.following_gap(ahead, beside, yaw_diff, yaw_cos, yaw_sin,
                                                length[:, None, :], width[:, None, :])
-    following &= (ahead > 0) & (yaw_diff <= interaction.MAX_HEADING_DIFF) & valid[:, None, :]
-    # The nearest followed object, ties to the lowest object index.
-    best = jnp.argmin(jnp.where(following, gap, jnp.inf), axis=-1)
+    following &= (yaw_diff <= interaction.MAX_HEADING_DIFF) & valid[:, None, :]
+    # As officially: objects not followed are pushed 1e10 away (-inf and NaN gaps stay), and the
+    # nearest is the first strict minimum (ties to the lowest object index, NaN never).
+    gap = gap + jnp.where(following, _F(0), interaction.EXTREMELY_LARGE_DISTANCE)
+    best = strict_argmin(gap)
     best_gap = jnp.take_along_axis(gap, best[..., None], -1)[..., 0]
     closing = speed[:, e] - jnp.take_along_axis(speed, best, -1)
-    ttc = interaction.capped_time_to_collision(best_gap, closing)
-    return jnp.where(following.any(axis=-1), ttc, interaction.MAXIMUM_TIME_TO_COLLISION)
+    return interaction.capped_time_to_collision(best_gap, closing)
 
 
 # Queries the cell tables do not settle are searched against every segment, this many at a time.
 FALLBACK_CHUNK = 256
 CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance")  # road_edge.cell_candidate_table
+NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `road_edge.non_finite_segment`, shape (1, ...)
 
 
 def _nearest_segment_all(q, s):
@@ -199,10 +205,14 @@ def signed_distance_to_road_edge(queries, segments, needed=None):
       float32 `(num_points,)`, negative on the road side.
     """
     cells = {k: jnp.asarray(segments[k]) for k in CELL_KEYS}
-    s = {k: jnp.asarray(v) for k, v in segments.items() if k not in CELL_KEYS}
-    needed = jnp.ones(queries.shape[:1], bool) if needed is None else needed
+    fallback = {k[len(NON_FINITE_PREFIX):]: jnp.asarray(v) for k, v in segments.items()
+                if k.startswith(NON_FINITE_PREFIX)}
+    s = {k: jnp.asarray(v) for k, v in segments.items() if k not in CELL_KEYS and not k.startswith(NON_FINITE_PREFIX)}
+    finite = jnp.isfinite(queries).all(axis=1)
+    needed = finite if needed is None else needed & finite
     best = _nearest_segment(queries, s, cells, needed)
-    pick = {k: v[best] for k, v in s.items()}
+    # A point with a NaN or infinite coordinate gets the official pick (`road_edge.non_finite_segment`).
+    pick = {k: jnp.where(finite.reshape((-1,) + (1,) * (v.ndim - 1)), s[k][best], v) for k, v in fallback.items()}
     rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]),
                                                *_columns(pick["delta"]))
     xy = queries[:, :2]
@@ -211,7 +221,7 @@ def signed_distance_to_road_edge(queries, segments, needed=None):
         road_edge.segment_side(xy, pick["prior_start"], pick["prior_delta"]),
         road_edge.segment_side(xy, pick["next_start"], pick["next_delta"]),
         pick["convex_before"], pick["convex_after"], pick["prior_valid"], pick["next_valid"])
-    return (sign * d2).astype(_F)
+    return (sign * jnp.where(pick["valid"], d2, road_edge.EXTREMELY_LARGE_DISTANCE)).astype(_F)
 
 
 def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
@@ -296,7 +306,7 @@ class DenseSearch:
     def road_edge_distance(self, corners, valid):
         needed = jnp.broadcast_to(valid[..., None], corners.shape[:-1]).reshape(-1)
         edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m, needed)
-        edge = edge.reshape(corners.shape[:-1]).max(axis=-1)
+        edge = nan_spreading_max(edge.reshape(corners.shape[:-1]), axis=-1)
         return jnp.where(valid, edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
 
     def red_light_violation(self, x, y, valid):

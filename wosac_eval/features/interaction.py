@@ -13,7 +13,7 @@ import numpy as np
 from wosac_eval.features import box_geometry
 from wosac_eval.features.float32_math import packet_tail, sincos32
 from wosac_eval.features.kinematics import linear_speed
-from wosac_eval.features.spatial import first_minimum, nonzero
+from wosac_eval.features.spatial import first_minimum, nonzero, strict_argmin
 from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy
 
 _F = np.float32
@@ -177,17 +177,44 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     gb, ge, gs = nonzero(np.isfinite(np.take_along_axis(lower, guess[..., None], axis=-1)[..., 0]))
     go = guess[gb, ge, gs]
     distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
-    if gb.size == 0:
-        return distance.reshape(*lead, e, num_steps)
-    guess_d = _pair_distance(outlines, radii, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
-    distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
-    # Then every other pair whose bound does not exclude it.
-    lower[gb, ge, gs, go] = np.inf
-    cb, ce, cs, co = nonzero(lower <= distance[..., None] + _F(1e-3))
-    if cb.size:
-        d = _pair_distance(outlines, radii, box_of(cb, ce, cs), box_of(cb, co, cs))
-        np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
+    if gb.size:
+        guess_d = _pair_distance(outlines, radii, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
+        distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
+        # Then every other pair whose bound does not exclude it.
+        lower[gb, ge, gs, go] = np.inf
+        cb, ce, cs, co = nonzero(lower <= distance[..., None] + _F(1e-3))
+        if cb.size:
+            d = _pair_distance(outlines, radii, box_of(cb, ce, cs), box_of(cb, co, cs))
+            np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
+    # A box with a NaN, an infinity or a huge value has no usable bound, and its distances may be NaN,
+    # which the official all-pairs minimum passes on: its valid pairs are all evaluated exactly, the
+    # self pair too (officially offset by 1e10, not left out: it counts for NaN, and for boxes over
+    # 512 m wide, whose self distance + 1e10 rounds below 1e10).
+    exhaustive = unbounded_boxes(x, y, length, width, cos_h, sin_h) | (np.minimum(length, width) > _F(256))
+    if exhaustive.any():
+        pair = (exhaustive[:, :e, None] | exhaustive[:, None]) & valid[:, :e, None] & valid[:, None]
+        ub, ue, uo, us = nonzero(pair)
+        d = _pair_distance(outlines, radii, box_of(ub, ue, us), box_of(ub, uo, us)).astype(_F)
+        d = np.where(ue == uo, d + EXTREMELY_LARGE_DISTANCE, d)
+        np.minimum.at(distance, (ub, ue, us), d)
     return distance.reshape(*lead, e, num_steps)
+
+
+# Beyond this magnitude (metres) the float32 margins of the distance bounds no longer hold.
+BOUNDED_MAGNITUDE = _F(1e6)
+
+
+def unbounded_boxes(*values):
+    """Boxes with a value that is NaN, infinite or beyond `BOUNDED_MAGNITUDE`: bool, the values' shape `(...)`.
+
+    The pruned searches skip pairs by bounds that only hold for finite,
+    moderate values; these boxes are searched exhaustively instead.
+    """
+    out = np.zeros(np.shape(values[0]), dtype=bool)
+    for value in values:
+        with np.errstate(invalid="ignore"):
+            out |= ~(np.abs(value) <= BOUNDED_MAGNITUDE)
+    return out
 
 
 def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evaluated: int):
@@ -326,4 +353,38 @@ def _time_to_collision_chunk(x, y, length, width, heading, speed, valid, num_eva
         ttc[b, st, ev] = capped_time_to_collision(gap, speed[b, st, ev] - speed[b, st, ob])
     # Nothing followed: the official code divides a gap of about 1e10 by the
     # closing speed and caps it, which is always the cap.
+    # Steps where a box is NaN, infinite or huge (valid or not) or a speed is not finite: the official
+    # all-objects search, whose gaps of -inf and NaN the pruning above would skip.
+    with np.errstate(invalid="ignore"):
+        irregular = unbounded_boxes(x, y, heading, length, width).any(axis=-1) | ~np.isfinite(speed).all(axis=-1)
+    rb, rst = np.nonzero(irregular)
+    if rb.size:
+        ttc[rb, rst] = _dense_time_to_collision(
+            ahead_of_front[rb, rst], beside_path[rb, rst], yaw_diff[rb, rst], pair_tail[rb, rst],
+            length[rb, rst, None], width[rb, rst, None], valid[rb, rst, None], speed[rb, rst], num_evaluated)
     return np.swapaxes(ttc, -1, -2).reshape(*lead, num_evaluated, -1)
+
+
+def _dense_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed,
+                             num_evaluated: int):
+    """The official computation over every object, for steps with non-finite or huge values.
+
+    Args:
+      ahead_of_front, beside_path, yaw_diff: float32 `(..., num_evaluated, num_objects)` (`ego_frame_offsets`).
+      pair_tail: bool `(..., num_evaluated, num_objects)`, the official ops' trailing packets.
+      length, width: float32 `(..., 1, num_objects)`; valid: bool `(..., 1, num_objects)`.
+      speed: float32 `(..., num_objects)`.
+    Returns:
+      float32 `(..., num_evaluated)`.
+    """
+    with np.errstate(invalid="ignore", over="ignore"):
+        yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
+        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin,
+                                                  length, width)
+        # Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps stay what they are.
+        followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)
+        masked = long_distance + np.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
+        ahead = strict_argmin(masked)
+        gap = np.take_along_axis(masked, ahead[..., None], axis=-1)[..., 0]
+        closing = speed[..., :num_evaluated] - np.take_along_axis(speed, ahead, axis=-1)
+    return capped_time_to_collision(gap, closing)

@@ -153,13 +153,18 @@ def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> di
         x[:, e], t["y"][:, e], t["z"][:, e], t["heading"][:, e], dt)
 
     sin_h, cos_h = sincos32(at(t["heading"]), tails["heading_tail"])
-    nearest = search.nearest_object(at(x), at(y), at(length), at(width), cos_h, sin_h, at(valid), n_eval)
+    # The official box corners come from a 3D rotation, where a NaN or inf height turns every corner
+    # NaN (0 * inf): for the distances, such boxes are NaN boxes.
+    flat = xp.isfinite(t["height"])
+    corner_x, corner_y = xp.where(flat, x, _F(np.nan)), xp.where(flat, y, _F(np.nan))
+    nearest = search.nearest_object(at(corner_x), at(corner_y), at(length), at(width), cos_h, sin_h, at(valid), n_eval)
     planar_speed = kinematics.linear_speed(x, y, xp.zeros_like(x), dt)
     ttc = search.time_to_collision(x, y, length, width, t["heading"], planar_speed, valid, n_eval, reported,
                                    tails["ego_tail"], tails["pair_tail"])
 
     pick = lambda a: at(a[:, e])
-    cx, cy = box_geometry.box_corners_xy(pick(x), pick(y), pick(length), pick(width), cos_h[:, e], sin_h[:, e])
+    cx, cy = box_geometry.box_corners_xy(pick(corner_x), pick(corner_y), pick(length), pick(width), cos_h[:, e],
+                                         sin_h[:, e])
     cz = xp.broadcast_to((pick(t["z"]) + (-pick(t["height"]) * _F(0.5)))[..., None], cx.shape)
     edge = search.road_edge_distance(xp.stack([cx, cy, cz], axis=-1), pick(valid))
 
@@ -241,4 +246,6 @@ def batch_features(scenario: ScenarioArrays, batch: SampleBatch,
                           signals_from(scenario.signals, layout.first_red_light_step))
     traj = batch.trajectories
     tails = official_tails(traj.num_objects, batch.num_evaluated, traj.num_steps, layout.first_step)
-    return metric_features(batch, per_step_features(trajectory_arrays(batch), layout, search, tails))
+    # NaN and inf in a submission are scored as given, as officially: they spread without warnings.
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        return metric_features(batch, per_step_features(trajectory_arrays(batch), layout, search, tails))

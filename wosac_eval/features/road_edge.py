@@ -431,21 +431,38 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     queries = np.asarray(queries, _F)
     if len(queries) == 0:
         return np.zeros(0, _F)
-    qi, si, starts = _candidates(table, queries)
+    finite = np.isfinite(queries).all(axis=1)
+    bs = np.full(len(queries), non_finite_segment(table), np.int64)
+    if finite.any():
+        searched = queries if finite.all() else queries[finite]
+        qi, si, starts = _candidates(table, searched)
+        d3 = _selection_distances(table, np.ascontiguousarray(searched.T), qi, si)
+        # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
+        # non-negative float32 values order like their bit patterns.
+        key = (d3.view(np.int32).astype(np.int64) << 32) | si
+        bs[finite] = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
     columns = np.ascontiguousarray(queries.T)
-    d3 = _selection_distances(table, columns, qi, si)
-    # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
-    # non-negative float32 values order like their bit patterns.
-    key = (d3.view(np.int32).astype(np.int64) << 32) | si
-    bs = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
-    bt, _, d2 = _pair_distances(table, columns, None, bs)
-    qx, qy = columns[0], columns[1]
-    n = _side(table, qx, qy, bs)
-    n_prior = _side(table, qx, qy, table.prior[bs])
-    n_next = _side(table, qx, qy, table.next[bs])
+    with np.errstate(invalid="ignore", over="ignore"):
+        bt, _, d2 = _pair_distances(table, columns, None, bs)
+        qx, qy = columns[0], columns[1]
+        n = _side(table, qx, qy, bs)
+        n_prior = _side(table, qx, qy, table.prior[bs])
+        n_next = _side(table, qx, qy, table.next[bs])
     sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
                        table.prior_valid[bs], table.next_valid[bs])
-    return (sign * d2).astype(_F)
+    # A padding segment's distance is 1e10, as officially (only non-finite points get one).
+    return (sign * np.where(table.valid[bs], d2, EXTREMELY_LARGE_DISTANCE)).astype(_F)
+
+
+def non_finite_segment(table: SegmentTable) -> int:
+    """The segment the official search picks for a point with a NaN or infinite coordinate.
+
+    Every valid segment is then at a NaN or infinite distance, which the official
+    argmin never picks (`spatial.strict_argmin`): it takes the first padding
+    segment, at 1e10, or segment 0 when no polyline is shorter than the longest.
+    """
+    padding = np.flatnonzero(~table.valid)
+    return int(padding[0]) if padding.size else 0
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:

@@ -4,6 +4,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wosac_eval.features.xp import array_namespace
+
 
 def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bound: int = 4):
     """(query, tree point) pairs within a search radius of each query.
@@ -91,3 +93,17 @@ def nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
     per axis (same values, same order as `np.nonzero`).
     """
     return np.unravel_index(np.flatnonzero(mask), mask.shape)
+
+
+def strict_argmin(values):
+    """Index of the first value below every earlier one, starting from float32's largest finite value.
+
+    TensorFlow's argmin on the CPU: NaN is never chosen, and a row with no
+    value below 3.4e38 (all NaN or +inf) gives 0. int `(...)` from float32
+    `(..., n)`, numpy or JAX (whose own argmin picks the first NaN).
+    """
+    xp = array_namespace(values)
+    candidates = xp.where(xp.isnan(values), xp.inf, values)
+    index = xp.argmin(candidates, axis=-1)
+    lowest = xp.take_along_axis(candidates, index[..., None], axis=-1)[..., 0]
+    return xp.where(lowest < np.finfo(np.float32).max, index, 0)

@@ -99,6 +99,15 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
       int64 `(num_points,)`.
     """
     q = np.asarray(xy, np.float64)
+    finite = np.isfinite(q).all(axis=1)
+    if not finite.all():
+        # A NaN or inf point is at NaN or inf from every segment, which the official argmin never picks
+        # (`spatial.strict_argmin`): the first padding segment, or 0 (as for road edges).
+        padding = np.flatnonzero(~table.valid.reshape(-1))
+        out = np.full(len(q), padding[0] if padding.size else 0, np.int64)
+        if finite.any():
+            out[finite] = nearest_lane_segment(table, np.asarray(xy)[finite])
+        return out
     xy32 = np.asarray(xy, _F)
 
     def measure(rows, points):

@@ -121,3 +121,15 @@ def opaque(value, xp):
         return value
     from jax import lax
     return lax.optimization_barrier(xp.asarray(value))
+
+
+def nan_spreading_min(a, axis=None):
+    """`a.min(axis)` passing NaN on, as numpy and TensorFlow do (XLA's vectorised CPU reductions drop it)."""
+    xp = array_namespace(a)
+    return a.min(axis=axis) if is_numpy(xp) else xp.where(xp.isnan(a).any(axis=axis), xp.nan, a.min(axis=axis))
+
+
+def nan_spreading_max(a, axis=None):
+    """`a.max(axis)` passing NaN on (see `nan_spreading_min`)."""
+    xp = array_namespace(a)
+    return a.max(axis=axis) if is_numpy(xp) else xp.where(xp.isnan(a).any(axis=axis), xp.nan, a.max(axis=axis))

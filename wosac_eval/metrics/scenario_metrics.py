@@ -15,7 +15,7 @@ from wosac_eval.estimators import likelihoods
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
 from wosac_eval.features.float32_math import split_sum32
-from wosac_eval.features.xp import array_namespace, in_float32_precision, wide_float
+from wosac_eval.features.xp import array_namespace, in_float32_precision, nan_spreading_min, wide_float
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
@@ -119,7 +119,7 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
                                          else (_padded_sum(per_rollout.astype(wide), -1, wide)
                                                / wide(per_rollout.shape[-1])).astype(_F))
-    out["min_average_displacement_error"] = per_rollout.min()
+    out["min_average_displacement_error"] = nan_spreading_min(per_rollout)
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
         flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])

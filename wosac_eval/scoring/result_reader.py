@@ -93,11 +93,11 @@ def shared_rows(base: ScoringResult, new: ScoringResult) -> tuple[np.ndarray, np
     return base_rows, new_rows
 
 
-def _number(value: Any, where: str) -> float:
+def _number(value: Any, where: str, finite: bool = True) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ResultError(f"{where}: expected a number, got {value!r}")
     value = float(value)
-    if not math.isfinite(value):
+    if finite and not math.isfinite(value):
         raise ResultError(f"{where}: value is {value}, expected a finite number")
     return value
 
@@ -108,7 +108,7 @@ def _numbers(obj: Any, where: str) -> dict[str, float]:
         return {}
     if not isinstance(obj, dict):
         raise ResultError(f"{where}: expected an object, got {type(obj).__name__}")
-    return {k: _number(v, f"{where}.{k}") for k, v in obj.items()
+    return {k: _number(v, f"{where}.{k}", finite=k not in MAY_BE_NON_FINITE) for k, v in obj.items()
             if k != "scenario_id" and not (isinstance(v, float) and math.isnan(v))}
 
 
@@ -131,14 +131,19 @@ def _scenario_ids(scenarios: list, path: str) -> list[str]:
     raise AssertionError("unreachable: the fast check failed but no entry is at fault")
 
 
+# Fields the official evaluator itself reports as NaN or inf for a submission with NaN or inf positions.
+MAY_BE_NON_FINITE = frozenset({"average_displacement_error", "min_average_displacement_error"})
+
+
 def _column(scenarios: list[dict], field: str, ids: list[str], path: str) -> np.ndarray:
-    """`(num_scenarios,)` values of one per-scenario field, checked to be finite numbers."""
+    """`(num_scenarios,)` values of one per-scenario field, checked to be finite numbers (or NaN and
+    inf where the official evaluator reports them: `MAY_BE_NON_FINITE`)."""
     raw = [e.get(field) for e in scenarios]
     # Fast path, checked without a Python call per value: only ints and floats (bools and numeric
     # strings would convert silently), all finite.
     if set(map(type, raw)) <= {float, int}:
         column = np.asarray(raw, dtype=np.float64).reshape(len(raw))
-        if np.isfinite(column).all():
+        if field in MAY_BE_NON_FINITE or np.isfinite(column).all():
             return column
     for i, value in enumerate(raw):  # find the first scenario at fault
         if field not in scenarios[i]:
@@ -165,7 +170,8 @@ def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
                 if value is None or field == "num_objects":
                     continue
                 column = by_type.setdefault(kind, {}).setdefault(field, np.full(len(ids), np.nan))
-                column[i] = _number(value, f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}.{field}'")
+                column[i] = _number(value, f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}.{field}'",
+                                    finite=field not in MAY_BE_NON_FINITE)
     return criticality, by_type
 
 

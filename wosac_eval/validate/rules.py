@@ -342,11 +342,11 @@ def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -
     return None
 
 
-# The official validator does not look at values; its scorer lets NaN and inf spread through the
-# features and still gives finite likelihoods, which wosac-eval does not reproduce: an error here.
-_NON_FINITE_OFFICIAL = "; the official evaluator accepts it and scores it with NaN in its features, wosac-eval cannot"
-_NON_FINITE_HINT = ("a NaN or inf position, heading or box size is almost always a simulator bug; the scenario "
-                    "is not scored (the official evaluator would score it, NaN spreading into its features)")
+# The official validator does not look at values, and its scorer lets NaN and inf spread through the
+# features to finite likelihoods (NaN or inf displacement errors); wosac-eval scores them the same way.
+_NON_FINITE_OFFICIAL = "; the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
+_NON_FINITE_HINT = ("a NaN or inf position, heading or box size is almost always a simulator bug: the object's "
+                    "distances and speeds at those steps become NaN, and its displacement error NaN or inf")
 _NON_POSITIVE_HINT = ("the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
                       "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant")
 _MISSING_TYPE_HINT = ("the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
@@ -505,7 +505,7 @@ def check_scenario_rollouts(
         field = fields[f]
         detail = _non_finite_detail(field, getattr(trajectories[k], field))
         out.append(make_finding("rollouts.non_finite", detail + _NON_FINITE_OFFICIAL, field=field,
-                                hint=_NON_FINITE_HINT, **where_(k)))
+                                severity=WARNING, hint=_NON_FINITE_HINT, **where_(k)))
     for k, f in np.argwhere(non_positive).tolist():
         field = fields[f]
         values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)

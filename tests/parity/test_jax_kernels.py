@@ -254,7 +254,8 @@ def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
     got = road_edge.signed_distance_to_polylines(table, queries)
     # Officially every valid segment is then at NaN or inf, never picked: the first padding segment is
     # (at 1e10), and its signed distance is sign * 1e10, NaN where the sign is.
-    pick = road_edge.non_finite_segment(table)
+    from wosac_eval.features.spatial import non_finite_pick
+    pick = non_finite_pick(table.valid)
     assert not table.valid[pick] and table.valid[:pick].all()
     with np.errstate(invalid="ignore"):
         rel_t, _, _ = road_edge.segment_distances(*queries.T, *table.start[pick], *table.delta[pick])
@@ -293,5 +294,6 @@ def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
     jax_log, jax_sim = jax_backend.scenario_features(scenario, rollouts, challenge=challenge)
     assert np.isnan(numpy_sim.distance_to_nearest_object).any() and np.isnan(numpy_sim.distance_to_road_edge).any()
     for name in ("linear_speed", "angular_speed", "distance_to_nearest_object", "collision_per_step",
-                 "time_to_collision", "distance_to_road_edge", "offroad_per_step", "average_displacement_error"):
+                 "time_to_collision", "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step",
+                 "average_displacement_error"):
         np.testing.assert_array_equal(np.asarray(getattr(jax_sim, name)), getattr(numpy_sim, name), err_msg=name)

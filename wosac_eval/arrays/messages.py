@@ -78,22 +78,18 @@ def _coordinates_shape(scenario_id: str, coordinates: dict) -> tuple[int, ...]:
     return tuple(shape)
 
 
-def _first_bad(scenario_id: str, name: str, bad: np.ndarray, object_id: np.ndarray, what: str) -> ValueError:
-    r, i, t = (int(k) for k in np.argwhere(bad)[0])
-    return ValueError(f"scenario {scenario_id} rollout {r} object {int(object_id[r, i])}: {name}[{t}] is {what} "
-                      f"({int(bad.sum())} such value(s) in {name})")
-
-
 class NonFiniteValueWarning(UserWarning):
     """A NaN or inf position, heading or size: scored as given (NaN spreads into the features, officially too)."""
 
 
 def _warn_if_not_finite(scenario_id: str, name: str, value: np.ndarray, object_id: np.ndarray) -> None:
+    """A `NonFiniteValueWarning` naming the rollout, object and index of the first NaN or inf in `value`."""
     bad = ~np.isfinite(value)
     if bad.any():
-        warnings.warn(f"{_first_bad(scenario_id, name, bad, object_id, 'not finite')}: scored as given, as the "
-                      "official evaluator does (NaN spreads into that object's features)",
-                      NonFiniteValueWarning, stacklevel=3)
+        r, i, t = (int(k) for k in np.argwhere(bad)[0])
+        warnings.warn(f"scenario {scenario_id} rollout {r} object {int(object_id[r, i])}: {name}[{t}] is not finite "
+                      f"({int(bad.sum())} such value(s) in {name}): scored as given, as the official evaluator "
+                      "does (NaN spreads into that object's features)", NonFiniteValueWarning, stacklevel=3)
 
 
 def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, length=None, width=None,

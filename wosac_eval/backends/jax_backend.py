@@ -37,6 +37,7 @@ from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.features import dense, road_edge, traffic_lights
 from wosac_eval.features import metric_features as mf
+from wosac_eval.features.spatial import non_finite_pick
 
 EXACT_CPU_FLAG = "--xla_cpu_max_isa=AVX"  # XLA's CPU code without FMA: every float32 op rounded alone
 
@@ -150,7 +151,7 @@ def _segment_arrays(table: road_edge.SegmentTable) -> dict:
     idx = np.flatnonzero(table.valid)
     cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
     # And the official pick for points with a NaN or infinite coordinate, which may be a padding segment.
-    fallback = _segments_at(table, np.array([road_edge.non_finite_segment(table)]))
+    fallback = _segments_at(table, np.array([non_finite_pick(table.valid)]))
     return {**{f"cell_{k}": v for k, v in cells.items()}, **_segments_at(table, idx),
             **{dense.NON_FINITE_PREFIX + k: v for k, v in fallback.items()}}
 

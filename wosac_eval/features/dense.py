@@ -30,7 +30,6 @@ from jax import lax
 
 from wosac_eval.features import interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
-from wosac_eval.features.spatial import strict_argmin
 from wosac_eval.features.xp import nan_spreading_max, nan_spreading_min
 
 _F = np.float32
@@ -103,23 +102,14 @@ def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair
     ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
     ahead, beside, yaw_diff = interaction.ego_frame_offsets(x, y, length, width, heading,
                                                             ego_cos, ego_sin, num_evaluated)
-    yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
-    gap, following = interaction.following_gap(ahead, beside, yaw_diff, yaw_cos, yaw_sin,
-                                               length[:, None, :], width[:, None, :])
-    following &= (yaw_diff <= interaction.MAX_HEADING_DIFF) & valid[:, None, :]
-    # As officially: objects not followed are pushed 1e10 away (-inf and NaN gaps stay), and the
-    # nearest is the first strict minimum (ties to the lowest object index, NaN never).
-    gap = gap + jnp.where(following, _F(0), interaction.EXTREMELY_LARGE_DISTANCE)
-    best = strict_argmin(gap)
-    best_gap = jnp.take_along_axis(gap, best[..., None], -1)[..., 0]
-    closing = speed[:, e] - jnp.take_along_axis(speed, best, -1)
-    return interaction.capped_time_to_collision(best_gap, closing)
+    return interaction.all_objects_time_to_collision(ahead, beside, yaw_diff, pair_tail, length[:, None, :],
+                                                     width[:, None, :], valid[:, None, :], speed, num_evaluated)
 
 
 # Queries the cell tables do not settle are searched against every segment, this many at a time.
 FALLBACK_CHUNK = 256
 CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance")  # road_edge.cell_candidate_table
-NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `road_edge.non_finite_segment`, shape (1, ...)
+NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 
 
 def _nearest_segment_all(q, s):
@@ -211,7 +201,7 @@ def signed_distance_to_road_edge(queries, segments, needed=None):
     finite = jnp.isfinite(queries).all(axis=1)
     needed = finite if needed is None else needed & finite
     best = _nearest_segment(queries, s, cells, needed)
-    # A point with a NaN or infinite coordinate gets the official pick (`road_edge.non_finite_segment`).
+    # A point with a NaN or infinite coordinate gets the official pick (`spatial.non_finite_pick`).
     pick = {k: jnp.where(finite.reshape((-1,) + (1,) * (v.ndim - 1)), s[k][best], v) for k, v in fallback.items()}
     rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]),
                                                *_columns(pick["delta"]))

@@ -355,19 +355,19 @@ def _time_to_collision_chunk(x, y, length, width, heading, speed, valid, num_eva
     # closing speed and caps it, which is always the cap.
     # Steps where a box is NaN, infinite or huge (valid or not) or a speed is not finite: the official
     # all-objects search, whose gaps of -inf and NaN the pruning above would skip.
-    with np.errstate(invalid="ignore"):
-        irregular = unbounded_boxes(x, y, heading, length, width).any(axis=-1) | ~np.isfinite(speed).all(axis=-1)
+    irregular = unbounded_boxes(x, y, heading, length, width).any(axis=-1) | ~np.isfinite(speed).all(axis=-1)
     rb, rst = np.nonzero(irregular)
     if rb.size:
-        ttc[rb, rst] = _dense_time_to_collision(
+        ttc[rb, rst] = all_objects_time_to_collision(
             ahead_of_front[rb, rst], beside_path[rb, rst], yaw_diff[rb, rst], pair_tail[rb, rst],
             length[rb, rst, None], width[rb, rst, None], valid[rb, rst, None], speed[rb, rst], num_evaluated)
     return np.swapaxes(ttc, -1, -2).reshape(*lead, num_evaluated, -1)
 
 
-def _dense_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed,
-                             num_evaluated: int):
-    """The official computation over every object, for steps with non-finite or huge values.
+def all_objects_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed,
+                                  num_evaluated: int):
+    """The official computation over every object (numpy or JAX): the JAX kernel, and numpy's
+    steps with non-finite or huge values, where the pruned search would skip -inf and NaN gaps.
 
     Args:
       ahead_of_front, beside_path, yaw_diff: float32 `(..., num_evaluated, num_objects)` (`ego_frame_offsets`).
@@ -377,14 +377,16 @@ def _dense_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, l
     Returns:
       float32 `(..., num_evaluated)`.
     """
-    with np.errstate(invalid="ignore", over="ignore"):
+    xp = array_namespace(ahead_of_front, speed)
+    with errstate(xp, invalid="ignore", over="ignore"):
         yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
         long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin,
                                                   length, width)
-        # Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps stay what they are.
+        # Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps stay what they are,
+        # and the nearest is the first strict minimum (ties to the lowest object index, NaN never).
         followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)
-        masked = long_distance + np.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
+        masked = long_distance + xp.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
         ahead = strict_argmin(masked)
-        gap = np.take_along_axis(masked, ahead[..., None], axis=-1)[..., 0]
-        closing = speed[..., :num_evaluated] - np.take_along_axis(speed, ahead, axis=-1)
+        gap = xp.take_along_axis(masked, ahead[..., None], axis=-1)[..., 0]
+        closing = speed[..., :num_evaluated] - xp.take_along_axis(speed, ahead, axis=-1)
     return capped_time_to_collision(gap, closing)

@@ -155,8 +155,8 @@ def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> di
     sin_h, cos_h = sincos32(at(t["heading"]), tails["heading_tail"])
     # The official box corners come from a 3D rotation, where a NaN or inf height turns every corner
     # NaN (0 * inf): for the distances, such boxes are NaN boxes.
-    flat = xp.isfinite(t["height"])
-    corner_x, corner_y = xp.where(flat, x, _F(np.nan)), xp.where(flat, y, _F(np.nan))
+    finite_height = xp.isfinite(t["height"])
+    corner_x, corner_y = xp.where(finite_height, x, _F(np.nan)), xp.where(finite_height, y, _F(np.nan))
     nearest = search.nearest_object(at(corner_x), at(corner_y), at(length), at(width), cos_h, sin_h, at(valid), n_eval)
     planar_speed = kinematics.linear_speed(x, y, xp.zeros_like(x), dt)
     ttc = search.time_to_collision(x, y, length, width, t["heading"], planar_speed, valid, n_eval, reported,

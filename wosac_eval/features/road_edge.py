@@ -22,7 +22,7 @@ import itertools
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wosac_eval.features.spatial import pad_polylines
+from wosac_eval.features.spatial import non_finite_pick, pad_polylines
 from wosac_eval.features.xp import array_namespace, divide, errstate
 
 
@@ -432,7 +432,7 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     if len(queries) == 0:
         return np.zeros(0, _F)
     finite = np.isfinite(queries).all(axis=1)
-    bs = np.full(len(queries), non_finite_segment(table), np.int64)
+    bs = np.full(len(queries), non_finite_pick(table.valid), np.int64)
     if finite.any():
         searched = queries if finite.all() else queries[finite]
         qi, si, starts = _candidates(table, searched)
@@ -452,17 +452,6 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
                        table.prior_valid[bs], table.next_valid[bs])
     # A padding segment's distance is 1e10, as officially (only non-finite points get one).
     return (sign * np.where(table.valid[bs], d2, EXTREMELY_LARGE_DISTANCE)).astype(_F)
-
-
-def non_finite_segment(table: SegmentTable) -> int:
-    """The segment the official search picks for a point with a NaN or infinite coordinate.
-
-    Every valid segment is then at a NaN or infinite distance, which the official
-    argmin never picks (`spatial.strict_argmin`): it takes the first padding
-    segment, at 1e10, or segment 0 when no polyline is shorter than the longest.
-    """
-    padding = np.flatnonzero(~table.valid)
-    return int(padding[0]) if padding.size else 0
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:

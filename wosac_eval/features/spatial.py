@@ -95,6 +95,20 @@ def nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
     return np.unravel_index(np.flatnonzero(mask), mask.shape)
 
 
+def non_finite_pick(valid: np.ndarray) -> int:
+    """The segment the official search picks for a point with a NaN or infinite coordinate.
+
+    Every valid segment is then at a NaN or infinite distance, which the official
+    argmin never picks (`strict_argmin`): it takes the first invalid (padding)
+    segment, at 1e10, or segment 0 when there is none.
+
+    Args:
+      valid: bool, the segments in the official flat (polyline, segment) order.
+    """
+    padding = np.flatnonzero(~np.asarray(valid).reshape(-1))
+    return int(padding[0]) if padding.size else 0
+
+
 def strict_argmin(values):
     """Index of the first value below every earlier one, starting from float32's largest finite value.
 

@@ -21,7 +21,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
-from wosac_eval.features.spatial import first_minimum, pad_polylines, tree_candidates
+from wosac_eval.features.spatial import first_minimum, non_finite_pick, pad_polylines, tree_candidates
 from wosac_eval.features.xp import array_namespace, divide, errstate
 
 _F = np.float32
@@ -101,10 +101,7 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
     q = np.asarray(xy, np.float64)
     finite = np.isfinite(q).all(axis=1)
     if not finite.all():
-        # A NaN or inf point is at NaN or inf from every segment, which the official argmin never picks
-        # (`spatial.strict_argmin`): the first padding segment, or 0 (as for road edges).
-        padding = np.flatnonzero(~table.valid.reshape(-1))
-        out = np.full(len(q), padding[0] if padding.size else 0, np.int64)
+        out = np.full(len(q), non_finite_pick(table.valid), np.int64)
         if finite.any():
             out[finite] = nearest_lane_segment(table, np.asarray(xy)[finite])
         return out

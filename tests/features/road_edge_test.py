@@ -265,3 +265,39 @@ def test_steep_ramps_equal_brute_force():
     mismatch = np.flatnonzero(ours != reference)
     assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
                                f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+
+
+def test_far_placeholder_queries_equal_brute_force():
+    """A map kilometres from the origin, with boxes at placeholder states (the origin, and 50 m up).
+
+    The few far queries are grouped apart from those near the map (`_cells_of`'s core box);
+    results still equal the all-pairs search.
+    """
+    rng = np.random.default_rng(11)
+    offset = np.array([-7800.0, -6700.0, -180.0])
+    polylines = [(p + offset).astype(F) for p in random_map(rng)]
+    table = road_edge.build_segment_table(polylines)
+    near = np.stack([rng.uniform(-200, 200, 4000), rng.uniform(-200, 200, 4000), rng.uniform(-3, 15, 4000)], 1)
+    far = np.concatenate([np.zeros((40, 3)), np.tile([[0.0, 0.0, 50.0], [-7800.0, -6700.0, 400.0]], (5, 1))])
+    queries = np.concatenate([near + offset, far, near[:50] + offset + [0, 0, 500]]).astype(F)
+    ours = road_edge.signed_distance_to_polylines(table, queries)
+    reference = brute_force(table, queries)
+    mismatch = np.flatnonzero(ours != reference)
+    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
+                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+
+
+def test_cells_with_a_core_box_group_as_without():
+    """The same points share a cell with or without the core box; `order` sorts points by cell."""
+    rng = np.random.default_rng(3)
+    points = np.concatenate([rng.uniform(-20, 20, (2000, 3)), rng.uniform(5000, 5010, (30, 3)),
+                             np.zeros((10, 3)) - 900]).T.copy()
+    core = (np.full(3, -20.0), np.full(3, 20.0))
+    plain, with_core = road_edge._cells_of(points), road_edge._cells_of(points, core)
+    assert plain[0] == with_core[0]
+    for _, inverse, order in (plain, with_core):
+        assert np.all(np.diff(inverse[order]) >= 0)
+        assert sorted(np.unique(inverse)) == list(range(plain[0]))
+    # One-to-one between the two numberings: same cell in one, same cell in the other.
+    pairs = set(zip(plain[1].tolist(), with_core[1].tolist()))
+    assert len(pairs) == plain[0]

@@ -279,18 +279,49 @@ def _argsort(key: np.ndarray, num_keys: int) -> tuple[np.ndarray, np.ndarray]:
     return packed & ((1 << bits) - 1), packed >> bits
 
 
-def _cells_of(points_t: np.ndarray):
+# Cells of margin kept around the map's box when numbering cells densely (`_cells_of`).
+_CORE_MARGIN_CELLS = 32
+
+
+def _cells_of(points_t: np.ndarray, core: tuple[np.ndarray, np.ndarray] | None = None):
     """The cubic cells of side `_CELL` holding the points.
 
     Args:
       points_t: float64 `(3, num_points)`.
+      core: optional (low, high) float64 `(3,)` corners of the box where most points lie (the
+        map's, with a margin). Points outside it (placeholder states far from the map) are grouped
+        apart: they would otherwise stretch the key space from a dense count to a sort of every key.
     Returns:
       (number of occupied cells, int64 `(num_points,)` cell of each point
       numbered in key order, int64 `(num_points,)` the points sorted by cell).
     """
     cell = np.floor(points_t / _CELL).astype(np.int64)
-    low = cell.min(axis=1)
-    span = cell.max(axis=1) - low + 1
+    if core is None:
+        return _group_cells(cell)
+    low = np.floor(core[0] / _CELL).astype(np.int64)[:, None] - _CORE_MARGIN_CELLS
+    high = np.floor(core[1] / _CELL).astype(np.int64)[:, None] + _CORE_MARGIN_CELLS
+    inside = np.ones(cell.shape[1], bool)
+    for axis in range(3):  # row by row: a reduction over the short axis is slow
+        inside &= cell[axis] >= low[axis]
+        inside &= cell[axis] <= high[axis]
+    if inside.all() or not inside.any():
+        return _group_cells(cell)
+    # Two groups of cells, numbered one after the other: the points inside, then the others.
+    parts = [np.flatnonzero(inside), np.flatnonzero(~inside)]
+    inverse = np.empty(cell.shape[1], np.int64)
+    orders, num_cells = [], 0
+    for idx in parts:
+        count, part_inverse, part_order = _group_cells(cell[:, idx])
+        inverse[idx] = part_inverse + num_cells
+        orders.append(idx[part_order])
+        num_cells += count
+    return num_cells, inverse, np.concatenate(orders)
+
+
+def _group_cells(cell: np.ndarray):
+    """`_cells_of` for integer cells `(3, num_points)`."""
+    low = np.array([row.min() for row in cell])
+    span = np.array([row.max() for row in cell]) - low + 1
     key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
     num_keys = int(np.prod(span, dtype=np.float64))
     if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
@@ -330,13 +361,18 @@ def _candidates(table: SegmentTable, queries: np.ndarray):
     """
     q = _stretch(queries)
     qt = np.ascontiguousarray(q.T)
-    num_cells, inverse, by_cell = _cells_of(qt)
+    num_cells, inverse, by_cell = _cells_of(qt, (table.tree.mins, table.tree.maxes))
     # Each cell is represented by the centroid of its queries and the largest
     # distance from it to one of them (at most the cell's half-diagonal).
     count = np.bincount(inverse, minlength=num_cells).astype(np.float64)
     centre = np.stack([np.bincount(inverse, weights=qt[k], minlength=num_cells) for k in range(3)], axis=1)
     centre /= count[:, None]
-    r = np.sqrt(np.sum((qt - centre.T[:, inverse]) ** 2, axis=0))
+    r = np.zeros(len(q))
+    for axis in range(3):  # row by row: a reduction over the short axis is slow
+        offset = qt[axis] - np.take(centre[:, axis], inverse)
+        offset *= offset
+        r += offset
+    np.sqrt(r, out=r)
     h_cell = np.zeros(num_cells)
     np.maximum.at(h_cell, inverse, r)
     h_cell += 1e-9
@@ -431,7 +467,8 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     queries = np.asarray(queries, _F)
     if len(queries) == 0:
         return np.zeros(0, _F)
-    finite = np.isfinite(queries).all(axis=1)
+    finite = np.isfinite(queries)
+    finite = finite[:, 0] & finite[:, 1] & finite[:, 2]  # faster than a reduction over the short axis
     bs = np.full(len(queries), non_finite_pick(table.valid), np.int64)
     if finite.any():
         searched = queries if finite.all() else queries[finite]

@@ -186,6 +186,15 @@ def brute_force(table, queries):
     return (sign * dist).astype(F)
 
 
+def assert_equals_brute_force(table, queries):
+    """The search's signed distances equal `brute_force`'s bit for bit, naming the first query that differs."""
+    ours = road_edge.signed_distance_to_polylines(table, queries)
+    reference = brute_force(table, queries)
+    mismatch = np.flatnonzero(ours != reference)
+    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
+                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+
+
 def random_map(rng):
     polylines = []
     for k in range(40):
@@ -223,11 +232,7 @@ def test_candidate_search_equals_brute_force():
     # The ring centre really has more than 16 candidate samples.
     ring_centre_samples, _ = table.tree.query([400, 400, 0], k=17)
     assert ring_centre_samples[-1] - ring_centre_samples[0] < table.spacing / 2
-    ours = road_edge.signed_distance_to_polylines(table, queries)
-    reference = brute_force(table, queries)
-    mismatch = np.flatnonzero(ours != reference)
-    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
-                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+    assert_equals_brute_force(table, queries)
 
 
 def test_hand_cases_equal_brute_force(square):
@@ -260,11 +265,7 @@ def test_steep_ramps_equal_brute_force():
     assert table.max_lipschitz > 6  # 3x stretched slope of 2 -> sqrt(37)
     n = 20000
     queries = np.stack([rng.uniform(-2, 22, n), rng.uniform(-2, 11, n), rng.uniform(-2, 42, n)], 1).astype(F)
-    ours = road_edge.signed_distance_to_polylines(table, queries)
-    reference = brute_force(table, queries)
-    mismatch = np.flatnonzero(ours != reference)
-    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
-                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+    assert_equals_brute_force(table, queries)
 
 
 def test_far_placeholder_queries_equal_brute_force():
@@ -280,11 +281,7 @@ def test_far_placeholder_queries_equal_brute_force():
     near = np.stack([rng.uniform(-200, 200, 4000), rng.uniform(-200, 200, 4000), rng.uniform(-3, 15, 4000)], 1)
     far = np.concatenate([np.zeros((40, 3)), np.tile([[0.0, 0.0, 50.0], [-7800.0, -6700.0, 400.0]], (5, 1))])
     queries = np.concatenate([near + offset, far, near[:50] + offset + [0, 0, 500]]).astype(F)
-    ours = road_edge.signed_distance_to_polylines(table, queries)
-    reference = brute_force(table, queries)
-    mismatch = np.flatnonzero(ours != reference)
-    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
-                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+    assert_equals_brute_force(table, queries)
 
 
 def test_cells_with_a_core_box_group_as_without():

@@ -5,9 +5,10 @@ the flags below override the most common ones. Exit codes: 0 stopped cleanly
 (SIGTERM or SIGINT included, at any moment), 2 the configuration is unusable
 (no scenario shard found, bad value).
 
-SIGTERM stops the service at any moment of its life: during its start-up too
-(then the workers already started are stopped, none is left behind), and after
-uvicorn's graceful shutdown the workers are stopped before the process exits.
+SIGTERM (or SIGINT) stops the service at any moment of its life: during its
+start-up too (it is recorded and honoured at the next step; the workers already
+started are stopped, none is left behind), and after uvicorn's graceful shutdown
+the workers are stopped before the process exits.
 """
 from __future__ import annotations
 
@@ -49,31 +50,36 @@ def proxy_options(settings) -> dict:  # noqa: ANN001 - a Settings
     return {"proxy_headers": bool(trusted), "forwarded_allow_ips": trusted or None}
 
 
-class Stopped(Exception):
-    """SIGTERM arrived: unwinds whatever `run` was doing (starting up, or after uvicorn's shutdown, which
-    passes the signal on) through the `finally` that stops the workers."""
+class StopRequest:
+    """The SIGTERM/SIGINT handler of `serve` outside uvicorn's own: it records the request and tells the
+    uvicorn server, once there is one, to shut down; start-up looks at it between its steps.
 
+    Why not raise from the handler: an exception raised at an arbitrary instant is swallowed by any
+    broad `except` it lands in (a logging handler, an asyncio callback, uvicorn's lifespan probe), and
+    the service then ran on as if never stopped."""
 
-def _stop(signum, frame) -> None:
-    raise Stopped(signum)
+    def __init__(self) -> None:
+        self.requested = False
+        self.server = None  # the uvicorn.Server, once made
 
-
-def _ignore(signum, frame) -> None:
-    pass
+    def __call__(self, signum, frame) -> None:
+        self.requested = True
+        if self.server is not None:
+            self.server.should_exit = True  # what uvicorn's own handler does
 
 
 def run(args: argparse.Namespace) -> int:
-    # Before any worker exists: from here on SIGTERM unwinds through the `finally` below (the default
-    # action would end this process at once and leave the workers to find out on their own). uvicorn
-    # replaces this handler while it serves, then puts it back and raises the signal it got again.
-    signal.signal(signal.SIGTERM, _stop)
-    try:
-        return _run(args)
-    except (Stopped, KeyboardInterrupt):
-        return 0
+    # Before any worker exists: from here on a stop request is honoured between start-up steps and
+    # the workers are stopped in `_run`'s `finally` (the default action would end this process at
+    # once and leave them to find out on their own). uvicorn replaces these handlers while it serves,
+    # then puts them back and raises the signal it got again, which lands here.
+    stop = StopRequest()
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
+    return _run(args, stop)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     # Flags become environment so the worker processes see the same configuration.
     for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"),
                       ("workers", "WOSAC_WORKERS")):
@@ -97,6 +103,8 @@ def _run(args: argparse.Namespace) -> int:
         return 2
     os.environ["WOSAC_DATA_DIR"] = str(settings.data_dir)
 
+    if stop.requested:
+        return 0
     import uvicorn
 
     from . import jobs
@@ -108,12 +116,14 @@ def _run(args: argparse.Namespace) -> int:
     app = create_app(settings)
     # Jobs left running by a previous server that died go back to the queue at once.
     jobs.reap_expired(app.state.store, settings.max_attempts)
+    if stop.requested:
+        return 0
     print(f"wosac-server serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
           f"{settings.workers} worker(s), http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
     pool = WorkerPool(settings.workers)
     app.state.worker_pool = pool
     try:
-        pool.start()
+        pool.start(cancelled=lambda: stop.requested)
         raise_open_files_limit()
         config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
                                 timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
@@ -121,11 +131,10 @@ def _run(args: argparse.Namespace) -> int:
                                 backlog=accept_backlog())  # accepted at once: fits the cap's spare descriptors
         install_log_limits()  # after uvicorn.Config, which installs uvicorn's log handlers
         server = uvicorn.Server(config)
-        server.run()
+        stop.server = server  # a request from here on reaches uvicorn, even before it takes the signals
+        if not stop.requested:
+            server.run()
     finally:
-        # Stopping is bounded (grace, then SIGKILL): a second SIGTERM must not cut it short (a handler
-        # that does nothing, not SIG_IGN, which a worker started meanwhile would inherit). A worker
-        # started in the instant before an interruption, not yet recorded, ends with this process.
-        signal.signal(signal.SIGTERM, _ignore)
+        # Stopping is bounded (grace, then SIGKILL); a second SIGTERM meanwhile only records itself.
         pool.stop(grace_s=settings.shutdown_grace_s)
     return 0

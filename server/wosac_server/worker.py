@@ -57,6 +57,7 @@ import subprocess  # noqa: E402
 import threading  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
+from collections.abc import Callable  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from wosac_eval.extras import EngineUnavailableError  # noqa: E402
@@ -358,12 +359,12 @@ class WorkerPool:
         return subprocess.Popen([sys.executable, "-m", "wosac_server.worker", PARENT_PID_FLAG, str(os.getpid())],
                                 env=self.env)
 
-    def start(self) -> None:
-        """Starts the workers one by one, each recorded as soon as it runs: a `stop()` after an
-        interruption here (SIGTERM while `serve` starts) stops every one already started."""
+    def start(self, cancelled: Callable[[], bool] = lambda: False) -> None:
+        """Starts the workers one by one, each recorded as soon as it runs, until `cancelled()` (a stop
+        requested while `serve` starts); `stop()` then stops every one already started."""
         for _ in range(self.n):
             with self._lock:
-                if self._stop.is_set():
+                if self._stop.is_set() or cancelled():
                     return
                 self.procs.append(self._spawn())
         self._monitor.start()

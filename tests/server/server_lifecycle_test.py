@@ -135,3 +135,50 @@ def test_a_worker_whose_parent_died_before_it_finished_importing_ends_by_itself(
     finally:
         for pid in processes_of(server.data_dir):
             os.kill(pid, signal.SIGKILL)
+
+
+def test_a_stop_request_survives_code_that_swallows_every_exception():
+    """`serve`'s handler records the request instead of raising: SIGTERM landing inside a broad
+    `except` (a logging handler, an asyncio callback, uvicorn's lifespan probe) is not lost. Raising
+    from the handler lost it there, and the service served on (seen once in CI, 0.6 s into start-up)."""
+    from wosac_server.serve import StopRequest
+
+    stop = StopRequest()
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        try:
+            signal.raise_signal(signal.SIGTERM)
+        except Exception:  # noqa: BLE001 - what third-party code does at the instant the signal lands
+            pass
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert stop.requested
+
+
+STOPPED_BEFORE_UVICORN_TAKES_THE_SIGNALS = textwrap.dedent("""
+    import signal, sys
+    import uvicorn
+    from wosac_server.serve import StopRequest
+
+    async def app(scope, receive, send):
+        pass
+
+    stop = StopRequest()
+    signal.signal(signal.SIGTERM, stop)
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=int(sys.argv[1]),
+                                           lifespan="off", log_level="warning"))
+    stop.server = server
+    signal.raise_signal(signal.SIGTERM)  # after `serve` looked, before uvicorn installs its handlers
+    server.run()
+    print("returned", stop.requested)
+""")
+
+
+def test_a_stop_request_before_uvicorn_takes_the_signals_reaches_it(tmp_path):
+    """The window between `serve`'s last look at the request and uvicorn's own handlers: the request
+    tells the real uvicorn server to shut down, which then returns instead of serving on."""
+    from support.server_harness import free_port
+
+    done = subprocess.run([sys.executable, "-c", STOPPED_BEFORE_UVICORN_TAKES_THE_SIGNALS, str(free_port())],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "returned True", done.stderr

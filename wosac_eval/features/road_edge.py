@@ -306,24 +306,34 @@ def _cells_of(points_t: np.ndarray, core: tuple[np.ndarray, np.ndarray] | None =
         inside &= cell[axis] <= high[axis]
     if inside.all() or not inside.any():
         return _group_cells(cell)
-    # Two groups of cells, numbered one after the other: the points inside, then the others.
-    parts = [np.flatnonzero(inside), np.flatnonzero(~inside)]
-    inverse = np.empty(cell.shape[1], np.int64)
-    orders, num_cells = [], 0
-    for idx in parts:
-        count, part_inverse, part_order = _group_cells(cell[:, idx])
-        inverse[idx] = part_inverse + num_cells
-        orders.append(idx[part_order])
-        num_cells += count
-    return num_cells, inverse, np.concatenate(orders)
+    # One key space, without copying the points inside: theirs dense in their own box, then the
+    # cells outside, numbered among themselves.
+    big = np.iinfo(np.int64).max
+    low = np.array([row.min(where=inside, initial=big) for row in cell])
+    high = np.array([row.max(where=inside, initial=-big) for row in cell])
+    key, num_keys = _dense_keys(cell, low, high)
+    outside = np.flatnonzero(~inside)
+    far_cells, far_inverse, _ = _group_cells(cell[:, outside])
+    key[outside] = num_keys + far_inverse
+    return _group_keys(key, num_keys + far_cells)
+
+
+def _dense_keys(cell: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, int]:
+    """Keys of integer cells `(3, num_points)` in the box [low, high] numbered x-major, and their count."""
+    span = high - low + 1
+    key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
+    return key, int(np.prod(span, dtype=np.float64))
 
 
 def _group_cells(cell: np.ndarray):
     """`_cells_of` for integer cells `(3, num_points)`."""
     low = np.array([row.min() for row in cell])
-    span = np.array([row.max() for row in cell]) - low + 1
-    key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
-    num_keys = int(np.prod(span, dtype=np.float64))
+    high = np.array([row.max() for row in cell])
+    return _group_keys(*_dense_keys(cell, low, high))
+
+
+def _group_keys(key: np.ndarray, num_keys: int):
+    """`_cells_of` for non-negative int64 keys below `num_keys`, one per cell."""
     if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
         occupied = np.bincount(key, minlength=num_keys) > 0
         num_cells = int(occupied.sum())
@@ -483,10 +493,15 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
         bt, _, d2 = _pair_distances(table, columns, None, bs)
         qx, qy = columns[0], columns[1]
         n = _side(table, qx, qy, bs)
-        n_prior = _side(table, qx, qy, table.prior[bs])
-        n_next = _side(table, qx, qy, table.next[bs])
+        prior_valid, next_valid = table.prior_valid[bs], table.next_valid[bs]
+        # The neighbours' sides only where `corner_sign` reads them (past an end: ~15% of queries).
+        n_prior, n_next = n.copy(), n.copy()
+        for side, past, neighbour in ((n_prior, (bt < 0) & prior_valid, table.prior),
+                                      (n_next, (bt > 1) & next_valid, table.next)):
+            i = np.flatnonzero(past)
+            side[i] = _side(table, qx[i], qy[i], neighbour[bs[i]])
     sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
-                       table.prior_valid[bs], table.next_valid[bs])
+                       prior_valid, next_valid)
     # A padding segment's distance is 1e10, as officially (only non-finite points get one).
     return (sign * np.where(table.valid[bs], d2, EXTREMELY_LARGE_DISTANCE)).astype(_F)
 

@@ -7,6 +7,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from support.paths import REPO, SHARED  # noqa: E402,F401
 
+# Scenarios in the WOMD validation set, which both challenges score: the projections' workload.
+VALIDATION_SET = 44_097
+
 
 def median_seconds(fn, repeat: int, warmup: int = 0) -> float:
     """Median wall seconds of `repeat` calls of `fn`, after `warmup` untimed calls."""

@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bench_env import median_seconds
+from bench_env import VALIDATION_SET, median_seconds
 
 import jax
 import numpy as np
@@ -35,7 +35,6 @@ from wosac_eval import jax_realism
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission, policy_rollouts
 
-VALIDATION_SCENES = 44_097  # the WOMD validation set
 
 
 _FILE_PATH_CHILD = """
@@ -111,7 +110,7 @@ def main() -> None:
                            ("file path, --backend jax (exact)", jax_file_s),
                            ("file path, numpy, 1 worker", numpy_1_s),
                            (f"file path, numpy, {args.workers} workers", numpy_n_s)):
-        print(f"{label:44s} {seconds:8.2f} {n / seconds:9.1f} {VALIDATION_SCENES * seconds / n / 60:11.1f} min")
+        print(f"{label:44s} {seconds:8.2f} {n / seconds:9.1f} {VALIDATION_SET * seconds / n / 60:11.1f} min")
 
 
 if __name__ == "__main__":

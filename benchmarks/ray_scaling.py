@@ -29,10 +29,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bench_env import REPO  # noqa: F401  (puts tests/support on the path)
+from bench_env import REPO, VALIDATION_SET  # noqa: F401  (puts tests/support on the path)
 from support.submissions import replicated_submission
-
-VALIDATION_SET = 44_097
 
 _CHILD = r"""
 import json, os, sys, time

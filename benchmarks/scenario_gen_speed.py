@@ -11,7 +11,10 @@ agents scene. Two workloads, each in a fresh process (one core,
 
 Prints the median seconds per scenario (protobuf in, metrics out), the per-stage
 breakdown, each search's operation count and share of its arithmetic floor
-(`stage_timing.py`), and the process's peak RSS.
+(`stage_timing.py`), the process's peak RSS, and the projection for the
+44,097-scenario validation set on 16 and 32 cores from the real scene's cost
+(the synthetic one's without ../shared): scenes x seconds / cores, assuming the
+linear scaling across worker processes that `ray_scaling.py` measures for Sim Agents.
 
 Usage: python benchmarks/scenario_gen_speed.py [--repeat 7]
 """
@@ -25,7 +28,7 @@ import sys
 
 from pathlib import Path
 
-from bench_env import SHARED
+from bench_env import SHARED, VALIDATION_SET
 from stage_timing import print_breakdown
 
 HERE = Path(__file__).resolve().parent
@@ -62,6 +65,7 @@ def main() -> int:
     real = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
     rows = [("synthetic", "")] + ([("real", str(real))] if real.exists() else [])
     print(f"Scenario generation, one core, median of {args.repeat} after a warm-up")
+    seconds = {}
     for which, path in rows:
         out = subprocess.run([sys.executable, "-c", _CHILD, which, str(args.repeat), path, str(HERE)], capture_output=True,
                              text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
@@ -72,6 +76,12 @@ def main() -> int:
         print(f"  end to end: {r['seconds']:.3f} s per scenario, peak RSS {r['peak_rss_mib']:.0f} MiB, "
               f"meta-metric {r['metametric']:.4f}")
         print_breakdown(r)
+        seconds[which] = r["seconds"]
+    which = "real" if "real" in seconds else "synthetic"
+    print(f"\nprojection for the {VALIDATION_SET:,}-scenario validation set from the {which} scene "
+          f"({seconds[which]:.3f} s per scenario on one core, linear scaling assumed):")
+    for cores in (16, 32):
+        print(f"  {cores:2d} cores: {VALIDATION_SET * seconds[which] / cores / 60:6.1f} min")
     if not real.exists():
         print(f"\n(the real scene needs {real}: ../shared, or WOSAC_SHARED)")
     return 0

@@ -18,7 +18,6 @@ import gzip
 import os
 import resource
 import time
-from pathlib import Path
 
 from bench_env import REPO, SHARED, median_seconds
 ORACLE = REPO / "tests" / "data" / "oracle"

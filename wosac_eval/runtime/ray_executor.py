@@ -28,6 +28,7 @@ import re
 import socket
 import sys
 import tempfile
+import time
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
@@ -161,8 +162,7 @@ def connect(address: str | None = None) -> None:
             warnings.filterwarnings("ignore", "Ray Client connection timed out", UserWarning)
             # "local", not None: None would join whatever /tmp/ray/ray_current_cluster names, even a
             # cluster that died long ago (Ray then retries for minutes).
-            ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
-                     logging_level=logging.ERROR, log_to_driver=False)
+            _init_with_retries(address)
     except ray.exceptions.AuthenticationError as error:  # RAY_AUTH_MODE=token: no token, or a rejected one
         _replay(logged, drop_ray_log=True)
         raise EngineUnavailableError(_auth_advice(where, "no authentication token" not in str(error))) from None
@@ -176,6 +176,28 @@ def connect(address: str | None = None) -> None:
         raise EngineUnavailableError(f"cannot connect to {where}: {error}. Is the cluster up (`ray status`), "
                                      "and the address host:port of its head (or ray://host:10001)?") from error
     _replay(logged)
+
+
+# A Ray Client connection whose server-side process failed to start ("Initialization failure from
+# server": Ray's proxy can find the process it polls already exited, a race of its own) is the
+# server's passing fault, not a wrong address or token: tried again, after a pause, this many times.
+CLIENT_START_ATTEMPTS = 3
+_CLIENT_START_PAUSE_S = 1.0
+
+
+def _init_with_retries(address: str | None) -> None:
+    for attempt in range(1, CLIENT_START_ATTEMPTS + 1):
+        try:
+            ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
+                     logging_level=logging.ERROR, log_to_driver=False)
+            return
+        except ConnectionError as error:
+            passing = bool(address) and address.startswith("ray://") and \
+                "Initialization failure from server" in str(error)
+            if not passing or attempt == CLIENT_START_ATTEMPTS:
+                raise
+            ray.shutdown()
+            time.sleep(_CLIENT_START_PAUSE_S)
 
 
 def _replay(logged: list[str], drop_ray_log: bool = False) -> None:

@@ -298,12 +298,12 @@ def _cells_of(points_t: np.ndarray, core: tuple[np.ndarray, np.ndarray] | None =
     cell = np.floor(points_t / _CELL).astype(np.int64)
     if core is None:
         return _group_cells(cell)
-    low = np.floor(core[0] / _CELL).astype(np.int64)[:, None] - _CORE_MARGIN_CELLS
-    high = np.floor(core[1] / _CELL).astype(np.int64)[:, None] + _CORE_MARGIN_CELLS
+    core_low = np.floor(core[0] / _CELL).astype(np.int64) - _CORE_MARGIN_CELLS
+    core_high = np.floor(core[1] / _CELL).astype(np.int64) + _CORE_MARGIN_CELLS
     inside = np.ones(cell.shape[1], bool)
     for axis in range(3):  # row by row: a reduction over the short axis is slow
-        inside &= cell[axis] >= low[axis]
-        inside &= cell[axis] <= high[axis]
+        inside &= cell[axis] >= core_low[axis]
+        inside &= cell[axis] <= core_high[axis]
     if inside.all() or not inside.any():
         return _group_cells(cell)
     # One key space, without copying the points inside: theirs dense in their own box, then the

@@ -210,8 +210,8 @@ def random_map(rng):
         if k % 7 == 0:
             p = np.concatenate([p[:3], p[2:3], p[3:]])  # a zero-length segment
         polylines.append(p.astype(F))
-    # A dense ring: from its centre hundreds of samples are equally near, which
-    # overflows the k nearest samples and exercises the ball-query path.
+    # A dense ring: from its centre hundreds of segments are equally near (long candidate lists,
+    # ties decided by the lowest index).
     t = np.linspace(0, 2 * math.pi, 400)
     polylines.append(np.stack([400 + 5 * np.cos(t), 400 + 5 * np.sin(t), np.zeros_like(t)], 1).astype(F))
     return polylines
@@ -229,9 +229,6 @@ def test_candidate_search_equals_brute_force():
         np.concatenate(polylines)[::7],
         np.array([[400, 400, 0], [400.3, 399.8, 0.1], [400, 400, 5]]),
     ]).astype(F)
-    # The ring centre really has more than 16 candidate samples.
-    ring_centre_samples, _ = table.tree.query([400, 400, 0], k=17)
-    assert ring_centre_samples[-1] - ring_centre_samples[0] < table.spacing / 2
     assert_equals_brute_force(table, queries)
 
 
@@ -262,7 +259,6 @@ def steep_ramps():
 def test_steep_ramps_equal_brute_force():
     rng = np.random.default_rng(7)
     table = road_edge.build_segment_table(steep_ramps())
-    assert table.max_lipschitz > 6  # 3x stretched slope of 2 -> sqrt(37)
     n = 20000
     queries = np.stack([rng.uniform(-2, 22, n), rng.uniform(-2, 11, n), rng.uniform(-2, 42, n)], 1).astype(F)
     assert_equals_brute_force(table, queries)
@@ -282,19 +278,3 @@ def test_far_placeholder_queries_equal_brute_force():
     far = np.concatenate([np.zeros((40, 3)), np.tile([[0.0, 0.0, 50.0], [-7800.0, -6700.0, 400.0]], (5, 1))])
     queries = np.concatenate([near + offset, far, near[:50] + offset + [0, 0, 500]]).astype(F)
     assert_equals_brute_force(table, queries)
-
-
-def test_cells_with_a_core_box_group_as_without():
-    """The same points share a cell with or without the core box; `order` sorts points by cell."""
-    rng = np.random.default_rng(3)
-    points = np.concatenate([rng.uniform(-20, 20, (2000, 3)), rng.uniform(5000, 5010, (30, 3)),
-                             np.zeros((10, 3)) - 900]).T.copy()
-    core = (np.full(3, -20.0), np.full(3, 20.0))
-    plain, with_core = road_edge._cells_of(points), road_edge._cells_of(points, core)
-    assert plain[0] == with_core[0]
-    for _, inverse, order in (plain, with_core):
-        assert np.all(np.diff(inverse[order]) >= 0)
-        assert sorted(np.unique(inverse)) == list(range(plain[0]))
-    # One-to-one between the two numberings: same cell in one, same cell in the other.
-    pairs = set(zip(plain[1].tolist(), with_core[1].tolist()))
-    assert len(pairs) == plain[0]

@@ -3,38 +3,52 @@
 The signed distance between two convex polygons A and B is the signed distance
 from the origin to their Minkowski difference A + (-B): negative when they
 overlap. For two rectangles the difference is an octagon whose vertex order is
-known in closed form, which keeps everything vectorised. The functions take
-numpy or JAX arrays.
+known in closed form: both edge sequences start at their lowest vertex and
+merge by angle, so everything is elementwise.
+
+The kernels (`box_corners`, `corner_outline`, `box_outline`,
+`minkowski_vertices`, `octagon_signed_distance`) are `ops` kernels: the same
+source runs on numpy and JAX arrays and, compiled, in the numpy backend's
+search loops (`features.compiled`). A box's corners and outline are separate
+values (`x0..x3`, `y0..y3`, ...), so that a scalar can be one. The `..._xy`
+and array functions below them lay the corners along a last axis of 4 (or 8).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.float32_math import fma32, packet_tail, sincos32
-from wosac_eval.features.xp import array_namespace, divide, errstate
+from wosac_eval.features import ops
+from wosac_eval.features.float32_math import packet_tail, sincos32
+from wosac_eval.features.xp import array_namespace
 
 _F = np.float32
-# Counter-clockwise corner signs (front-left, rear-left, rear-right, front-right).
-_LONG_SIGN = np.array([1, -1, -1, 1], dtype=_F)
-_LAT_SIGN = np.array([1, 1, -1, -1], dtype=_F)
+_ZERO, _HALF, _ONE, _MINUS_ONE, _INF = _F(0), _F(0.5), _F(1), _F(-1), _F(np.inf)
 
 
-def box_corners_xy(x, y, length, width, cos_h, sin_h):
-    """The 4 corners of upright boxes, counter-clockwise.
+def box_corners(x, y, length, width, cos_h, sin_h):
+    """The 4 corners of upright boxes, counter-clockwise: front-left, rear-left, rear-right, front-right.
 
     Args:
       x, y, length, width, cos_h, sin_h: float32 `(...)`.
     Returns:
-      (corners_x, corners_y), float32 `(..., 4)`.
+      (x0, x1, x2, x3, y0, y1, y2, y3), float32 `(...)`.
     """
-    half_l = (length * _F(0.5))[..., None] * _LONG_SIGN
-    half_w = (width * _F(0.5))[..., None] * _LAT_SIGN
-    c, s = cos_h[..., None], sin_h[..., None]
-    # The official rotation is a small matrix product, evaluated with one
-    # fused multiply-add per coordinate.
-    cx = fma32(-s, half_w, c * half_l) + x[..., None]
-    cy = fma32(c, half_w, s * half_l) + y[..., None]
-    return cx, cy
+    # Half sizes times the corner's signs (exact), then the official rotation, a small matrix
+    # product evaluated with one fused multiply-add per coordinate.
+    ahead, behind = length * _HALF * _ONE, length * _HALF * _MINUS_ONE
+    left, right = width * _HALF * _ONE, width * _HALF * _MINUS_ONE
+    minus_sin = -sin_h
+    return (ops.fma32(minus_sin, left, cos_h * ahead) + x, ops.fma32(minus_sin, left, cos_h * behind) + x,
+            ops.fma32(minus_sin, right, cos_h * behind) + x, ops.fma32(minus_sin, right, cos_h * ahead) + x,
+            ops.fma32(cos_h, left, sin_h * ahead) + y, ops.fma32(cos_h, left, sin_h * behind) + y,
+            ops.fma32(cos_h, right, sin_h * behind) + y, ops.fma32(cos_h, right, sin_h * ahead) + y)
+
+
+def box_corners_xy(x, y, length, width, cos_h, sin_h):
+    """`box_corners` with the corners along a last axis: (corners_x, corners_y), float32 `(..., 4)`."""
+    xp = array_namespace(x, cos_h)
+    c = box_corners(x, y, length, width, cos_h, sin_h)
+    return xp.stack(c[:4], axis=-1), xp.stack(c[4:], axis=-1)
 
 
 def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
@@ -55,72 +69,121 @@ def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
     return cos, sin
 
 
-def _norm2(a, b):
-    return array_namespace(a, b).sqrt(a * a + b * b)
+def _first_lowest(v0, v1, v2, v3):
+    """Index of the lowest of 4 values, as numpy's argmin picks it: the first minimum, or the first NaN."""
+    take = (v1 < v0) | (ops.isnan(v1) & ~ops.isnan(v0))
+    at, lowest = ops.where(take, 1, 0), ops.where(take, v1, v0)
+    take = (v2 < lowest) | (ops.isnan(v2) & ~ops.isnan(lowest))
+    at, lowest = ops.where(take, 2, at), ops.where(take, v2, lowest)
+    take = (v3 < lowest) | (ops.isnan(v3) & ~ops.isnan(lowest))
+    return ops.where(take, 3, at)
 
 
-_NEXT_VERTEX = np.array([1, 2, 3, 0], np.int32)  # int32 index tables: also with JAX x64 off
+def _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3):
+    """The corners rotated to start at the lowest one, and the unit direction x, y of the edge leaving it.
 
-
-def _downmost_edge(px, py):
-    """Index of the lowest vertex `(...)` and the unit direction `(...)` of the edge leaving it.
-
-    Args:
-      px, py: float32 `(..., 4)`, contiguous.
+    A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge:
+    NaN directions, as officially.
     """
-    xp = array_namespace(px, py)
-    start = xp.argmin(py, axis=-1)
-    rows = xp.arange(start.size).reshape(start.shape) * 4
-    first, second = rows + start, rows + xp.asarray(_NEXT_VERTEX)[start]
-    ex = xp.take(px, second) - xp.take(px, first)
-    ey = xp.take(py, second) - xp.take(py, first)
-    length = _norm2(ex, ey)
-    # A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge:
-    # NaN directions, as officially.
-    with errstate(xp, invalid="ignore", divide="ignore"):
-        return start, divide(ex, length), divide(ey, length)
+    start = _first_lowest(y0, y1, y2, y3)
+    # (start + k) % 4 of these non-negative indices.
+    r0, r1, r2, r3 = start, (start + 1) & 3, (start + 2) & 3, (start + 3) & 3
+    rx0, rx1, rx2, rx3 = (ops.pick4(r0, x0, x1, x2, x3), ops.pick4(r1, x0, x1, x2, x3),
+                          ops.pick4(r2, x0, x1, x2, x3), ops.pick4(r3, x0, x1, x2, x3))
+    ry0, ry1, ry2, ry3 = (ops.pick4(r0, y0, y1, y2, y3), ops.pick4(r1, y0, y1, y2, y3),
+                          ops.pick4(r2, y0, y1, y2, y3), ops.pick4(r3, y0, y1, y2, y3))
+    ex, ey = rx1 - rx0, ry1 - ry0
+    length = ops.sqrt(ex * ex + ey * ey)
+    return rx0, rx1, rx2, rx3, ry0, ry1, ry2, ry3, ops.divide(ex, length), ops.divide(ey, length)
 
 
-_ORDER_A = np.array([0, 0, 1, 1, 2, 2, 3, 3], np.int32)
-_ORDER_B = np.array([0, 1, 1, 2, 2, 3, 3, 0], np.int32)
-# Vertex orders by (whether B's lowest edge turns left of A's, lowest vertex):
-# _MERGE_A[t, k] is the order of A's vertices, _MERGE_B[t, k] of B's.
-_MERGE_A = np.stack([(_ORDER_A + k) % 4 for k in range(4)] + [(_ORDER_B + k) % 4 for k in range(4)]).reshape(2, 4, 8)
-_MERGE_B = np.stack([(_ORDER_B + k) % 4 for k in range(4)] + [(_ORDER_A + k) % 4 for k in range(4)]).reshape(2, 4, 8)
-
-
-def outline(px, py):
-    """What the Minkowski difference needs of one box, computed once per box.
-
-    Args:
-      px, py: float32 `(..., 4)` ccw corners, contiguous.
-    Returns:
-      (px, py, lowest vertex, its edge's unit direction x, y: the box as A),
-      then (lowest vertex, edge direction x, y of the box negated: the box as B);
-      the last six are `(...)`.
-    """
-    return (px, py, *_downmost_edge(px, py), *_downmost_edge(-px, -py))
-
-
-def minkowski_difference_of(a, b):
-    """Vertices of A + (-B), counter-clockwise, from `outline`s of A and B (broadcast together).
+def corner_outline(x0, x1, x2, x3, y0, y1, y2, y3):
+    """What the Minkowski difference needs of one box, from its ccw corners, computed once per box.
 
     Returns:
-      (mx, my), float32 `(..., 8)`.
+      20 values `(...)`: the corners from the lowest one and the unit direction of the edge leaving
+      it, of the box (as A: 10 values), then of the box negated (as B: 10 values).
     """
-    ax, ay, a_start, a_dx, a_dy = a[:5]
-    bx, by, b_start, b_dx, b_dy = b[0], b[1], *b[5:]
-    xp = array_namespace(ax, ay, bx, by)
-    nbx, nby = -bx, -by
-    # Merge the two edge sequences by angle, starting from the lowest vertices;
-    # whose edge comes first depends on the turn between the lowest edges.
-    b_turns_left = ((a_dx * b_dy - a_dy * b_dx) >= 0).astype(np.int32)  # int32: also with JAX x64 off
-    rows = (xp.arange(b_turns_left.size).reshape(b_turns_left.shape) * 4)[..., None]
-    a_index = xp.asarray(_MERGE_A)[b_turns_left, a_start] + rows
-    b_index = xp.asarray(_MERGE_B)[b_turns_left, b_start] + rows
-    mx = xp.take(ax, a_index) + xp.take(nbx, b_index)
-    my = xp.take(ay, a_index) + xp.take(nby, b_index)
-    return mx, my
+    a = _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3)
+    b = _from_lowest(-x0, -x1, -x2, -x3, -y0, -y1, -y2, -y3)
+    return (a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9],
+            b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9])
+
+
+def box_outline(x, y, length, width, cos_h, sin_h):
+    """`corner_outline` of upright boxes (`box_corners`)."""
+    x0, x1, x2, x3, y0, y1, y2, y3 = box_corners(x, y, length, width, cos_h, sin_h)
+    return corner_outline(x0, x1, x2, x3, y0, y1, y2, y3)
+
+
+def _merged_vertex(j, a, b, b_turns_left):
+    """Vertex j (0..7) of A + (-B) from the outlines: both edge sequences start at their lowest vertex
+    and merge by angle; whose edge comes first depends on the turn between the lowest edges."""
+    a_order = (0, 0, 1, 1, 2, 2, 3, 3)[j]
+    b_order = (0, 1, 1, 2, 2, 3, 3, 0)[j]
+    # B's outline is of the box negated: its corners come negated already.
+    return (ops.where(b_turns_left, a[b_order], a[a_order]) + ops.where(b_turns_left, b[10 + a_order],
+                                                                       b[10 + b_order]),
+            ops.where(b_turns_left, a[4 + b_order], a[4 + a_order]) + ops.where(b_turns_left, b[14 + a_order],
+                                                                               b[14 + b_order]))
+
+
+def minkowski_vertices(a, b):
+    """Vertices of A + (-B), counter-clockwise, from `corner_outline`s of A and B (broadcast together).
+
+    Returns:
+      (x0, ..., x7, y0, ..., y7), float32 `(...)`.
+    """
+    b_turns_left = (a[8] * b[19] - a[9] * b[18]) >= _ZERO
+    x0, y0 = _merged_vertex(0, a, b, b_turns_left)
+    x1, y1 = _merged_vertex(1, a, b, b_turns_left)
+    x2, y2 = _merged_vertex(2, a, b, b_turns_left)
+    x3, y3 = _merged_vertex(3, a, b, b_turns_left)
+    x4, y4 = _merged_vertex(4, a, b, b_turns_left)
+    x5, y5 = _merged_vertex(5, a, b, b_turns_left)
+    x6, y6 = _merged_vertex(6, a, b, b_turns_left)
+    x7, y7 = _merged_vertex(7, a, b, b_turns_left)
+    return x0, x1, x2, x3, x4, x5, x6, x7, y0, y1, y2, y3, y4, y5, y6, y7
+
+
+def _edge_to_origin(x0, y0, x1, y1):
+    """For the polygon edge from vertex 0 to vertex 1: (whether the origin is on its inner side,
+    the distance from the origin to the edge where it projects onto it, else to vertex 0)."""
+    ex, ey = x1 - x0, y1 - y0
+    edge_length = ops.sqrt(ex * ex + ey * ey)
+    tx, ty = ops.divide(ex, edge_length), ops.divide(ey, edge_length)
+    # Vector from the vertex to the query point (the origin).
+    vx, vy = _ZERO - x0, _ZERO - y0
+    vertex_distance = ops.sqrt(vx * vx + vy * vy)
+    # Positive on the outward side of the edge (outward normal is (ty, -tx)).
+    signed_perpendicular = ty * vx + (-tx) * vy
+    along = ops.divide(tx * vx + ty * vy, edge_length)
+    on_edge = (along >= _ZERO) & (along <= _ONE)
+    edge_distance = ops.where(on_edge, ops.absolute(signed_perpendicular), _INF)
+    return signed_perpendicular <= _ZERO, ops.minimum(edge_distance, vertex_distance)
+
+
+def octagon_signed_distance(m):
+    """Signed distance from the origin to convex ccw octagons (negative inside), float32 `(...)`.
+
+    Args:
+      m: (x0, ..., x7, y0, ..., y7), the vertices (`minkowski_vertices`).
+    """
+    x0, x1, x2, x3, x4, x5, x6, x7 = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
+    y0, y1, y2, y3, y4, y5, y6, y7 = m[8], m[9], m[10], m[11], m[12], m[13], m[14], m[15]
+    in0, d0 = _edge_to_origin(x0, y0, x1, y1)
+    in1, d1 = _edge_to_origin(x1, y1, x2, y2)
+    in2, d2 = _edge_to_origin(x2, y2, x3, y3)
+    in3, d3 = _edge_to_origin(x3, y3, x4, y4)
+    in4, d4 = _edge_to_origin(x4, y4, x5, y5)
+    in5, d5 = _edge_to_origin(x5, y5, x6, y6)
+    in6, d6 = _edge_to_origin(x6, y6, x7, y7)
+    in7, d7 = _edge_to_origin(x7, y7, x0, y0)
+    inside = ((in0 & in1) & (in2 & in3)) & ((in4 & in5) & (in6 & in7))
+    # A minimum passing NaN on: the order of the pairs does not change it.
+    nearest = ops.minimum(ops.minimum(ops.minimum(d0, d4), ops.minimum(d2, d6)),
+                          ops.minimum(ops.minimum(d1, d5), ops.minimum(d3, d7)))
+    return ops.where(inside, -nearest, nearest)
 
 
 def minkowski_difference(ax, ay, bx, by):
@@ -131,45 +194,21 @@ def minkowski_difference(ax, ay, bx, by):
     Returns:
       (mx, my), float32 `(..., 8)`.
     """
-    return minkowski_difference_of(outline(ax, ay), outline(bx, by))
-
-
-def _fold(values, pairwise):
-    """Reduces the last axis by halving it with `pairwise` (faster than a reduction along a short last axis).
-
-    For min / and the result is the same as `np.min` / `np.all`, whatever the order.
-    """
-    xp = array_namespace(values)
-    while values.shape[-1] > 1:
-        half = values.shape[-1] // 2
-        odd = values[..., 2 * half:]
-        values = pairwise(values[..., :half], values[..., half:2 * half])
-        if odd.shape[-1]:
-            values = xp.concatenate([values, odd], axis=-1)
-    return values[..., 0]
+    xp = array_namespace(ax, bx)
+    corners = lambda px, py: tuple(px[..., k] for k in range(4)) + tuple(py[..., k] for k in range(4))  # noqa: E731
+    m = minkowski_vertices(corner_outline(*corners(ax, ay)), corner_outline(*corners(bx, by)))
+    return xp.stack(m[:8], axis=-1), xp.stack(m[8:], axis=-1)
 
 
 def origin_signed_distance(px, py):
-    """Signed distance from the origin to convex ccw polygons (negative inside).
+    """Signed distance from the origin to convex ccw octagons (negative inside), such as
+    `minkowski_difference`'s.
 
     Args:
-      px, py: float32 `(..., num_vertices)`.
+      px, py: float32 `(..., 8)`.
     Returns:
       float32 `(...)`.
     """
-    xp = array_namespace(px, py)
-    ex = xp.roll(px, -1, axis=-1) - px
-    ey = xp.roll(py, -1, axis=-1) - py
-    edge_length = _norm2(ex, ey)
-    tx, ty = divide(ex, edge_length), divide(ey, edge_length)
-    # Vector from each vertex to the query point (the origin).
-    vx, vy = _F(0) - px, _F(0) - py
-    vertex_distance = _norm2(vx, vy)
-    # Positive on the outward side of each edge (outward normal is (ty, -tx)).
-    signed_perpendicular = ty * vx + (-tx) * vy
-    inside = _fold(signed_perpendicular <= 0, xp.logical_and)
-    along = divide(tx * vx + ty * vy, edge_length)
-    on_edge = (along >= 0) & (along <= 1)
-    edge_distance = xp.where(on_edge, xp.abs(signed_perpendicular), _F(np.inf))
-    nearest = _fold(xp.minimum(edge_distance, vertex_distance), xp.minimum)
-    return xp.where(inside, -nearest, nearest)
+    if px.shape[-1] != 8:
+        raise ValueError(f"origin_signed_distance takes octagons, not polygons of {px.shape[-1]} vertices")
+    return octagon_signed_distance(tuple(px[..., k] for k in range(8)) + tuple(py[..., k] for k in range(8)))

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, bitcast, errstate, is_numpy, opaque, wide_float
+from wosac_eval.features import ops
+from wosac_eval.features.xp import array_namespace, errstate, is_numpy, opaque, wide_float
 
 _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
@@ -39,35 +40,46 @@ _SIN_COEFFS = (_F(-0.00019592341140837028984691969846210213290760293602943420410
 # Beyond these magnitudes the packet code switches to a slow exact reduction;
 # there we fall back to the correctly rounded value.
 _HUGE = {True: 25966.0, False: 18838.0}
+HUGE_SIN, HUGE_COS = _F(_HUGE[True]), _F(_HUGE[False])
+
+
+def packet_sincos(x):
+    """(sin, cos) of float32 values by Eigen's packet algorithm, one shared reduction (an `ops` kernel).
+
+    The quadrant is the integer the rounding trick leaves in y; its low two bits decide which
+    polynomial each result takes and the signs (what Eigen reads from y's bit pattern).
+    """
+    ax = ops.absolute(x)
+    magic = ops.opaque(_ROUNDING_MAGIC, x)  # XLA would fold (v + magic) - magic into v
+    y = (ax * _TWO_OVER_PI + magic) - magic
+    quadrant = ops.int32(y)
+    r = ax
+    for part in _PIO2_PARTS:
+        r = y * part + r
+    r2 = r * r
+    c = _COS_COEFFS[0]
+    for coeff in _COS_COEFFS[1:]:
+        c = c * r2 + coeff
+    s = _SIN_COEFFS[0]
+    for coeff in _SIN_COEFFS[1:]:
+        s = s * r2 + coeff
+    s = (s * r2) * r + r
+    use_sin_polynomial = (quadrant & 1) == 0
+    sin_negative = ops.signbit(x) != ((quadrant & 2) != 0)
+    cos_negative = ((quadrant + 1) & 2) != 0
+    sin_out = ops.where(use_sin_polynomial, s, c)
+    cos_out = ops.where(use_sin_polynomial, c, s)
+    return ops.where(sin_negative, -sin_out, sin_out), ops.where(cos_negative, -cos_out, cos_out)
 
 
 def _packet_sincos(x):
-    """(sin, cos) of float32 values by Eigen's packet algorithm; one shared reduction."""
+    """`packet_sincos` of an array, with the correctly rounded value where the packet code takes its
+    slow exact reduction (huge finite values)."""
     xp = array_namespace(x)
     x = xp.asarray(x, dtype=_F)
     ax = xp.abs(x)
     with errstate(xp, invalid="ignore", over="ignore"):
-        magic = opaque(_ROUNDING_MAGIC, xp)  # XLA would fold (v + magic) - magic into v
-        y_round = ax * _TWO_OVER_PI + magic
-        quadrant = bitcast(y_round, np.int32, xp)
-        y = y_round - magic
-        r = ax
-        for part in _PIO2_PARTS:
-            r = y * part + r
-        sin_sign = (bitcast(x, np.int32, xp) ^ (quadrant << 30)) & np.int32(-2**31)
-        cos_sign = ((quadrant + 1) << 30) & np.int32(-2**31)
-        use_first = (quadrant & 1) == 0
-        r2 = r * r
-        c = _COS_COEFFS[0]
-        for coeff in _COS_COEFFS[1:]:
-            c = c * r2 + coeff
-        s = _SIN_COEFFS[0]
-        for coeff in _SIN_COEFFS[1:]:
-            s = s * r2 + coeff
-        s = (s * r2) * r + r
-        flip = lambda v, sign: bitcast(bitcast(v, np.int32, xp) ^ sign, _F, xp)
-        sin_out = flip(xp.where(use_first, s, c), sin_sign)
-        cos_out = flip(xp.where(use_first, c, s), cos_sign)
+        sin_out, cos_out = packet_sincos(x)
     out = []
     for sine, values in ((True, sin_out), (False, cos_out)):
         huge = ax >= _F(_HUGE[sine])

@@ -10,11 +10,16 @@ import math
 
 import numpy as np
 
-from wosac_eval.features import box_geometry
-from wosac_eval.features.float32_math import packet_tail, sincos32
+import numba
+
+from wosac_eval.features import ops
+from wosac_eval.features.box_geometry import box_outline, minkowski_vertices, octagon_signed_distance
+from wosac_eval.features.compiled import cached_loop, compiled
+from wosac_eval.features.float32_math import HUGE_COS, HUGE_SIN, packet_sincos, packet_tail, sincos32
 from wosac_eval.features.kinematics import linear_speed
-from wosac_eval.features.spatial import first_minimum, nonzero, strict_argmin
-from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy
+from wosac_eval.features.spatial import nonzero, strict_argmin
+from wosac_eval.features.xp import array_namespace, errstate
+
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -32,70 +37,114 @@ def corner_radius(length, width):
 
 
 def box_outlines(x, y, core_length, core_width, cos_h, sin_h):
-    """`box_geometry.outline` of rounded boxes' cores, float32 arrays `(...)` in, computed once per box."""
-    return box_geometry.outline(*box_geometry.box_corners_xy(x, y, core_length, core_width, cos_h, sin_h))
+    """`box_geometry.box_outline` of rounded boxes' cores, computed once per box (an `ops` kernel)."""
+    return box_outline(x, y, core_length, core_width, cos_h, sin_h)
 
 
 def outline_distance(a, b, radius_a, radius_b):
-    """Signed distance between rounded boxes from their cores' outlines and corner radii (broadcast).
+    """Signed distance between rounded boxes from their cores' outlines and corner radii (an `ops` kernel).
 
     A box of zero size (a logged placeholder state, scored as is in scenario
-    gen) has no edges: its distances are NaN, as officially.
+    gen) has no edges: its edge directions are NaN, as officially.
     """
-    with errstate(array_namespace(a[0]), invalid="ignore", divide="ignore"):
-        core = box_geometry.origin_signed_distance(*box_geometry.minkowski_difference_of(a, b))
-    return (core - radius_a) - radius_b
+    return (octagon_signed_distance(minkowski_vertices(a, b)) - radius_a) - radius_b
 
 
 def rounded_box_distance(a, b):
     """Signed distance between rounded boxes given as (x, y, core_length, core_width, cos, sin, radius).
 
     Args:
-      a, b: tuples of float32 arrays, all broadcast to one shape `(...)` (numpy or JAX).
+      a, b: tuples of float32 values, all broadcast to one shape `(...)` (numpy, JAX or scalars).
     Returns:
       float32 `(...)`.
     """
-    return outline_distance(box_outlines(*a[:6]), box_outlines(*b[:6]), a[6], b[6])
+    return outline_distance(box_outlines(a[0], a[1], a[2], a[3], a[4], a[5]),
+                            box_outlines(b[0], b[1], b[2], b[3], b[4], b[5]), a[6], b[6])
 
 
-class _Outlines:
-    """`box_outlines` of flat boxes, each computed once, on first use.
-
-    With few evaluated objects (sim agents) only a small share of the boxes
-    ever takes part in a pair; with every object evaluated (scenario gen)
-    nearly all do, and each box is still outlined once.
-    """
-
-    def __init__(self, x, y, core_length, core_width, cos_h, sin_h, eager: bool = False):
-        self.boxes = (x, y, core_length, core_width, cos_h, sin_h)
-        self.done = np.full(len(x), eager)
-        self.values: tuple | None = box_outlines(*self.boxes) if eager else None
-
-    def take(self, idx: np.ndarray) -> tuple:
-        todo = np.flatnonzero(np.bincount(idx[~self.done[idx]], minlength=len(self.done)))
-        if todo.size:
-            fresh = box_outlines(*(np.take(b, todo) for b in self.boxes))
-            if self.values is None:
-                self.values = tuple(np.empty((len(self.done),) + v.shape[1:], v.dtype) for v in fresh)
-            for store, v in zip(self.values, fresh):
-                store[todo] = v
-            self.done[todo] = True
-        return tuple(np.take(v, idx, axis=0) for v in self.values)
+def box_pair_distance(x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a,
+                      x_b, y_b, core_length_b, core_width_b, cos_b, sin_b, radius_b):
+    """`rounded_box_distance` of boxes given value by value (an `ops` kernel over pairs)."""
+    return rounded_box_distance((x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a),
+                                (x_b, y_b, core_length_b, core_width_b, cos_b, sin_b, radius_b))
 
 
-def _pair_distance(outlines: _Outlines, radius, eval_idx, other_idx):
-    """Exact float32 signed distance between rounded boxes for the given pairs.
+_box_pair_distance = compiled(box_pair_distance)
+
+
+@numba.njit(inline="always")
+def _bounds_of_step(step_x, step_y, step_reach, e, lower):
+    """Lower bounds of the distance from box e to each box of one step (`lower`, in place): centre
+    distance less both bounding radii, with float32 margins; +inf for e itself and unsearched boxes."""
+    for o in range(step_x.shape[0]):  # branch-free: the compiler vectorises it
+        dx, dy = step_x[o] - step_x[e], step_y[o] - step_y[e]
+        lower[o] = np.sqrt(dx * dx + dy * dy) * _BOUND_SCALE - ((step_reach[e] + step_reach[o]) + _BOUND_MARGIN)
+    lower[e] = np.inf  # not against itself
+
+
+@cached_loop
+def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, reach, apart, num_evaluated):
+    """The nearest valid other box of each evaluated box, over the boxes not set `apart`.
+
+    The distance between two rounded boxes is at least the distance between
+    their centres less their bounding radii (`reach`, -inf for an invalid box),
+    with float32 margins: the most promising box (lowest bound) is evaluated
+    exactly first, then every box whose bound does not exclude it.
 
     Args:
-      outlines: the boxes' outlines (`_Outlines`, flat).
-      radius: float32 `(num_boxes,)` corner radii.
-      eval_idx, other_idx: int `(num_pairs,)` indices into the boxes.
+      x, y, core_length, core_width, cos_h, sin_h, radius, reach: float32
+        `(batch, num_objects, num_steps)`; apart: bool, the same shape.
+    Returns:
+      (float32 `(batch, num_evaluated, num_steps)`: 1e10 where nothing valid is near; the number
+      of pairs evaluated exactly).
     """
-    return outline_distance(outlines.take(eval_idx), outlines.take(other_idx), radius[eval_idx], radius[other_idx])
+    batch, num_objects, num_steps = x.shape
+    out = np.full((batch, num_evaluated, num_steps), EXTREMELY_LARGE_DISTANCE, np.float32)
+    evaluated = 0
+    lower = np.empty(num_objects, np.float32)
+    # One step's boxes, contiguous (reach -inf for boxes not searched here).
+    step = np.empty((7, num_objects), np.float32)  # x, y, core length, core width, cos, sin, radius
+    step_reach = np.empty(num_objects, np.float32)
+    for b in range(batch):
+        for t in range(num_steps):
+            for o in range(num_objects):
+                step[0, o], step[1, o], step[2, o] = x[b, o, t], y[b, o, t], core_length[b, o, t]
+                step[3, o], step[4, o], step[5, o] = core_width[b, o, t], cos_h[b, o, t], sin_h[b, o, t]
+                step[6, o] = radius[b, o, t]
+                step_reach[o] = -np.inf if apart[b, o, t] else reach[b, o, t]
+            for e in range(num_evaluated):
+                if not step_reach[e] > -np.inf:
+                    continue
+                _bounds_of_step(step[0], step[1], step_reach, e, lower)
+                best_bound, guess = np.float32(np.inf), -1
+                for o in range(num_objects):
+                    if lower[o] < best_bound:
+                        best_bound, guess = lower[o], o
+                if guess < 0:
+                    continue
+                # The guess, then every other box whose bound its distance (capped at 1e10) does not exclude.
+                d = _box_pair_distance(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e], step[5, e],
+                                       step[6, e], step[0, guess], step[1, guess], step[2, guess], step[3, guess],
+                                       step[4, guess], step[5, guess], step[6, guess])
+                d = d if (d < EXTREMELY_LARGE_DISTANCE) | (d != d) else EXTREMELY_LARGE_DISTANCE
+                threshold = d + _BOUND_MARGIN
+                evaluated += 1
+                for o in range(num_objects):
+                    if o != guess and lower[o] <= threshold:
+                        pair = _box_pair_distance(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e],
+                                                  step[5, e], step[6, e], step[0, o], step[1, o], step[2, o],
+                                                  step[3, o], step[4, o], step[5, o], step[6, o])
+                        evaluated += 1
+                        d = d if (d < pair) | (d != d) else pair  # numpy's minimum: NaN passes on
+                out[b, e, t] = d
+    return out, evaluated
 
 
-# Pairs (samples x evaluated x steps x objects) processed at once: bounds the
-# working memory of the dense bounds (a few float32 arrays of this size).
+_BOUND_SCALE, _BOUND_MARGIN = _F(1 - 1e-5), _F(1e-3)  # the centre distance's float32 rounding, with margin
+
+
+# Pairs (samples x evaluated x steps x objects) processed at once by `_by_samples`: bounds the
+# working memory of the vectorised passes (a few arrays of this size).
 PAIRS_PER_CHUNK = 1 << 21
 
 
@@ -117,87 +166,58 @@ def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
     return out.reshape(*lead, *out.shape[1:])
 
 
-def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
+                               counts: dict | None = None):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of
     `0.7 * min(length, width) / 2`: the distance between two such shapes is the
     distance between their shrunk rectangular cores minus both radii.
 
-    Only pairs that can be nearest are evaluated exactly: the distance between
-    two shapes is at least the distance between their centres minus their
-    bounding radii, so after evaluating the most promising object (lowest
-    bound), any pair whose lower bound exceeds the distance found is skipped.
-    The result equals the all-pairs minimum bit for bit.
+    Only pairs that can be nearest are evaluated exactly (`_nearest_object_search`,
+    compiled); the result equals the all-pairs minimum bit for bit.
 
     Args:
       x, y, length, width, cos_h, sin_h: float32 `(..., num_objects, num_steps)`.
       valid: bool `(..., num_objects, num_steps)`.
       num_evaluated: the first `num_evaluated` objects are scored.
+      counts: optional dict that gets the work done: "pairs evaluated" (exact box distances).
     Returns:
       float32 `(..., num_evaluated, num_steps)`; 1e10 where the object is
       invalid or no other valid object exists.
     """
-    return _by_samples(_nearest_object_chunk, (x, y, length, width, cos_h, sin_h, valid), num_evaluated)
+    work = {"pairs evaluated": 0}
+    out = _by_samples(_nearest_object_chunk, (x, y, length, width, cos_h, sin_h, valid), num_evaluated, work=work)
+    if counts is not None:
+        counts.update(work)
+    return out
 
 
-def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
-    lead, (num_objects, num_steps) = x.shape[:-2], x.shape[-2:]
+def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, work: dict):
     e = num_evaluated
     radius = corner_radius(length, width)
-    flat = lambda a: np.ascontiguousarray(a).reshape(-1)
-    # Each box's outline once, when a pair first needs it (all at once when most objects are
-    # evaluated: most boxes will be); pairs then only gather.
-    outlines = _Outlines(flat(x), flat(y), flat(length - _F(2) * radius), flat(width - _F(2) * radius),
-                         flat(cos_h), flat(sin_h), eager=2 * e >= num_objects)
-    radii = flat(radius)
-    # Step-major copies (batch, step, object) so that objects are the last axis.
-    step_major = lambda a: np.ascontiguousarray(np.swapaxes(a.reshape(-1, num_objects, num_steps), 1, 2))
-    xt, yt = step_major(x), step_major(y)
-    # Bounding radii; invalid boxes get -inf so that their bounds become +inf.
-    reach = np.where(step_major(valid), step_major(_F(0.5) * np.hypot(length, width)), -np.inf).astype(_F)
-    # Lower bounds (batch, eval, step, object), computed in place:
-    # centre distance * (1 - 1e-5) - both radii - 1e-3 (float32 rounding margin).
-    lower = xt[:, None] - np.swapaxes(xt[:, :, :e], 1, 2)[..., None]
-    lower *= lower
-    dy = yt[:, None] - np.swapaxes(yt[:, :, :e], 1, 2)[..., None]
-    dy *= dy
-    lower += dy
-    np.sqrt(lower, out=lower)
-    lower *= _F(1 - 1e-5)
-    reach_sum = np.swapaxes(reach[:, :, :e], 1, 2)[..., None] + reach[:, None]
-    reach_sum += _F(1e-3)
-    lower -= reach_sum
-    evaluated = np.arange(e)
-    lower[:, evaluated, :, evaluated] = np.inf  # not against itself
-    batch = lower.shape[0]
-    box_of = lambda bb, obj, step: (bb * num_objects + obj) * num_steps + step
-    # First guess: the object with the lowest bound, evaluated exactly.
-    guess = np.argmin(lower, axis=-1)
-    gb, ge, gs = nonzero(np.isfinite(np.take_along_axis(lower, guess[..., None], axis=-1)[..., 0]))
-    go = guess[gb, ge, gs]
-    distance = np.full((batch, e, num_steps), EXTREMELY_LARGE_DISTANCE, dtype=_F)
-    if gb.size:
-        guess_d = _pair_distance(outlines, radii, box_of(gb, ge, gs), box_of(gb, go, gs)).astype(_F)
-        distance[gb, ge, gs] = np.minimum(guess_d, EXTREMELY_LARGE_DISTANCE)
-        # Then every other pair whose bound does not exclude it.
-        lower[gb, ge, gs, go] = np.inf
-        cb, ce, cs, co = nonzero(lower <= distance[..., None] + _F(1e-3))
-        if cb.size:
-            d = _pair_distance(outlines, radii, box_of(cb, ce, cs), box_of(cb, co, cs))
-            np.minimum.at(distance, (cb, ce, cs), d.astype(_F))
+    reach = np.where(valid, _F(0.5) * np.hypot(length, width), -np.inf).astype(_F)
     # A box with a NaN, an infinity or a huge value has no usable bound, and its distances may be NaN,
-    # which the official all-pairs minimum passes on: its valid pairs are all evaluated exactly, the
-    # self pair too (officially offset by 1e10, not left out: it counts for NaN, and for boxes over
+    # which the official all-pairs minimum passes on: its valid pairs are all evaluated exactly below,
+    # the self pair too (officially offset by 1e10, not left out: it counts for NaN, and for boxes over
     # 512 m wide, whose self distance + 1e10 rounds below 1e10).
     exhaustive = unbounded_boxes(x, y, length, width, cos_h, sin_h) | (np.minimum(length, width) > _F(256))
+    c = lambda a: np.ascontiguousarray(a, _F)  # noqa: E731
+    distance, evaluated = _nearest_object_search(c(x), c(y), c(length - _F(2) * radius), c(width - _F(2) * radius),
+                                                 c(cos_h), c(sin_h), c(radius), reach, np.ascontiguousarray(exhaustive),
+                                                 e)
+    work["pairs evaluated"] += evaluated
     if exhaustive.any():
         pair = (exhaustive[:, :e, None] | exhaustive[:, None]) & valid[:, :e, None] & valid[:, None]
         ub, ue, uo, us = nonzero(pair)
-        d = _pair_distance(outlines, radii, box_of(ub, ue, us), box_of(ub, uo, us)).astype(_F)
+        box = lambda i: (x[ub, i, us], y[ub, i, us], length[ub, i, us] - _F(2) * radius[ub, i, us],  # noqa: E731
+                         width[ub, i, us] - _F(2) * radius[ub, i, us], cos_h[ub, i, us], sin_h[ub, i, us],
+                         radius[ub, i, us])
+        d = rounded_box_distance(box(ue), box(uo)).astype(_F)
         d = np.where(ue == uo, d + EXTREMELY_LARGE_DISTANCE, d)
         np.minimum.at(distance, (ub, ue, us), d)
-    return distance.reshape(*lead, e, num_steps)
+        work["pairs evaluated"] += len(d)
+    return distance
 
 
 # Beyond this magnitude (metres) the float32 margins of the distance bounds no longer hold.
@@ -217,68 +237,58 @@ def unbounded_boxes(*values):
     return out
 
 
+def frame_offsets(x, y, x_ego, y_ego, ego_cos, ego_sin, ego_length, ego_width, heading, heading_ego):
+    """Where an object lies in an evaluated object's frame (an `ops` kernel, per pair).
+
+    Args: float32 `(...)`; `ego_cos`, `ego_sin` of minus the evaluated object's heading.
+    Returns:
+      (ahead_of_front, beside_path, yaw_diff), float32 `(...)`: the other centre's distance ahead
+      of the front, its lateral distance outside the path, and the absolute heading difference.
+    """
+    dx, dy = x - x_ego, y - y_ego
+    rel_x = ego_cos * dx - ego_sin * dy
+    rel_y = ego_sin * dx + ego_cos * dy
+    return (rel_x - ego_length / _F(2), ops.absolute(rel_y) - ego_width / _F(2),
+            ops.absolute(heading - heading_ego))
+
+
 def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evaluated: int):
-    """Where every object lies in each evaluated object's frame.
+    """`frame_offsets` of every object in each evaluated object's frame.
 
     Args:
       x, y, length, width, heading: float32 `(..., num_objects)`.
       ego_cos, ego_sin: float32 `(..., num_evaluated, 1)`, cos and sin of minus
         the evaluated objects' headings.
     Returns:
-      (ahead_of_front, beside_path, yaw_diff), float32 `(..., num_evaluated, num_objects)`:
-      the other centre's distance ahead of the front, its lateral distance
-      outside the path, and the absolute heading difference.
+      (ahead_of_front, beside_path, yaw_diff), float32 `(..., num_evaluated, num_objects)`.
     """
-    xp = array_namespace(x, ego_cos)
     e = slice(0, num_evaluated)
-    dx = x[..., None, :] - x[..., e, None]
-    dy = y[..., None, :] - y[..., e, None]
-    if is_numpy(xp):
-        # rel_x = cos dx - sin dy, rel_y = sin dx + cos dy, in place (the same float32 operations).
-        rel_x = ego_cos * dx
-        rel_y = np.multiply(ego_sin, dx, out=dx)
-        rel_x -= np.multiply(ego_sin, dy)
-        rel_y += np.multiply(ego_cos, dy, out=dy)
-        ahead_of_front = rel_x
-        ahead_of_front -= length[..., e, None] / _F(2)
-        beside_path = np.abs(rel_y, out=rel_y)
-        beside_path -= width[..., e, None] / _F(2)
-        yaw_diff = heading[..., None, :] - heading[..., e, None]
-        np.abs(yaw_diff, out=yaw_diff)
-        return ahead_of_front, beside_path, yaw_diff
-    rel_x = ego_cos * dx - ego_sin * dy
-    rel_y = ego_sin * dx + ego_cos * dy
-    ahead_of_front = rel_x - length[..., e, None] / _F(2)
-    beside_path = xp.abs(rel_y) - width[..., e, None] / _F(2)
-    yaw_diff = xp.abs(heading[..., None, :] - heading[..., e, None])
-    return ahead_of_front, beside_path, yaw_diff
+    return frame_offsets(x[..., None, :], y[..., None, :], x[..., e, None], y[..., e, None], ego_cos, ego_sin,
+                         length[..., e, None], width[..., e, None], heading[..., None, :], heading[..., e, None])
 
 
 def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other_length, other_width):
-    """Longitudinal gap to the other box and whether it is being followed.
+    """Longitudinal gap to the other box and whether it is being followed (an `ops` kernel).
 
-    Args: float32 arrays `(...)` per (evaluated, other) pair; `yaw_cos`,
-      `yaw_sin` of `yaw_diff`. Pairs must already be known aligned within 75
-      degrees and the other object valid.
+    Args: float32 `(...)` per (evaluated, other) pair; `yaw_cos`, `yaw_sin` of
+      `yaw_diff`. Pairs must already be known aligned within 75 degrees and the
+      other object valid.
     Returns:
       (long_distance float32, following bool), `(...)`.
     """
-    xp = array_namespace(ahead_of_front, yaw_cos)
     half_l = other_length / _F(2)
     half_w = other_width / _F(2)
-    long_distance = ahead_of_front - (half_l * xp.abs(yaw_cos) + half_w * xp.abs(yaw_sin))
-    lat_overlap = beside_path - (half_l * xp.abs(yaw_sin) + half_w * xp.abs(yaw_cos))
-    following = ((long_distance > 0) & (lat_overlap < 0)
+    long_distance = ahead_of_front - (half_l * ops.absolute(yaw_cos) + half_w * ops.absolute(yaw_sin))
+    lat_overlap = beside_path - (half_l * ops.absolute(yaw_sin) + half_w * ops.absolute(yaw_cos))
+    following = ((long_distance > _F(0)) & (lat_overlap < _F(0))
                  & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yaw_diff <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
     return long_distance, following
 
 
 def capped_time_to_collision(gap, closing):
-    """gap / closing speed, capped at 5 s; 5 s when not closing in. float32 `(...)`."""
-    xp = array_namespace(gap, closing)
-    with errstate(xp, divide="ignore", invalid="ignore", over="ignore"):
-        return xp.where(closing > 0, xp.minimum(divide(gap, closing), MAXIMUM_TIME_TO_COLLISION),
-                        MAXIMUM_TIME_TO_COLLISION)
+    """gap / closing speed, capped at 5 s; 5 s when not closing in (an `ops` kernel). float32 `(...)`."""
+    return ops.where(closing > _F(0), ops.minimum(ops.divide(gap, closing), MAXIMUM_TIME_TO_COLLISION),
+                     MAXIMUM_TIME_TO_COLLISION)
 
 
 def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, seconds_per_step: float,
@@ -306,62 +316,112 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, s
     """
     num_objects, num_steps = x.shape[-2:]
     if speed is None:
-        speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
+        with np.errstate(invalid="ignore", over="ignore"):
+            speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
     if ego_tail is None:
         ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
     if pair_tail is None:
         pair_tail = packet_tail((num_steps, num_evaluated, num_objects))[steps]
-    return _by_samples(_time_to_collision_chunk, (x, y, length, width, heading, speed, valid), num_evaluated,
-                       steps=steps, ego_tail=ego_tail, pair_tail=pair_tail)
+    lead = x.shape[:-2]
+    flat = lambda a: np.ascontiguousarray(np.reshape(a, (-1, num_objects, num_steps)))  # noqa: E731
+    x, y, length, width, heading, speed, valid = map(flat, (x, y, length, width, heading, speed, valid))
+    reported = range(num_steps)[steps]
+    if reported.step != 1:
+        raise ValueError(f"time_to_collision takes a contiguous range of steps, not {steps}")
+    ego_tail = np.ascontiguousarray(np.broadcast_to(ego_tail, (len(reported), num_evaluated, 1))[..., 0])
+    pair_tail = np.ascontiguousarray(np.broadcast_to(pair_tail, (len(reported), num_evaluated, num_objects)))
+    with np.errstate(invalid="ignore", over="ignore"):
+        # Only pairs that can be "following" need the other box's extents: its offsets are
+        # non-negative and at most its half-diagonal, so a pair must be ahead of the front (the
+        # float32 sign of a difference is exact), beside the path within that half-diagonal, and
+        # aligned within 75 degrees.
+        reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
+        ttc = _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail,
+                               reported.start, len(reported), num_evaluated)
+        # Steps where a box is NaN, infinite or huge (valid or not) or a speed is not finite: the official
+        # all-objects search, whose gaps of -inf and NaN the pruning above would skip.
+        at = lambda a: a[..., steps]  # noqa: E731
+        irregular = (unbounded_boxes(*map(at, (x, y, heading, length, width))).any(axis=1)
+                     | ~np.isfinite(at(speed)).all(axis=1))
+        rb, rst = np.nonzero(irregular)
+        if rb.size:
+            pick = lambda a: np.swapaxes(at(a), 1, 2)[rb, rst]  # noqa: E731  (pairs, objects)
+            # The ego frames, as the official op computes them (shape: steps, evaluated, 1).
+            ego_sin, ego_cos = sincos32(-pick(heading)[:, :num_evaluated, None], ego_tail[rst][..., None])
+            ahead, beside, yaw_diff = ego_frame_offsets(pick(x), pick(y), pick(length), pick(width), pick(heading),
+                                                        ego_cos, ego_sin, num_evaluated)
+            ttc[rb, :, rst] = all_objects_time_to_collision(
+                ahead, beside, yaw_diff, pair_tail[rst], pick(length)[:, None], pick(width)[:, None],
+                pick(valid)[:, None], pick(speed), num_evaluated)
+    return ttc.reshape(*lead, num_evaluated, -1)
 
 
-def _time_to_collision_chunk(x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
-                             ego_tail: np.ndarray, pair_tail: np.ndarray):
-    lead, num_objects = x.shape[:-2], x.shape[-2]
-    # Work step-major like the official code: (batch, steps, objects).
-    t = lambda a: np.ascontiguousarray(np.swapaxes(a[..., steps], -1, -2)).reshape(
-        (-1,) + a[..., steps].shape[-1:] + (num_objects,))
-    x, y, length, width, heading, speed, valid = map(t, (x, y, length, width, heading, speed, valid))
-    e = slice(0, num_evaluated)
-    # Ego frame for every pair: (batch, steps, num_evaluated, num_objects).
-    minus_yaw = -heading[..., e, None]
-    ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
-    ahead_of_front, beside_path, yaw_diff = ego_frame_offsets(x, y, length, width, heading,
-                                                              ego_cos, ego_sin, num_evaluated)
-    # Only pairs that can be "following" need the other box's extents: its
-    # offsets are non-negative and at most its half-diagonal, so a pair must be
-    # ahead of the front (the float32 sign of a difference is exact), beside
-    # the path within that half-diagonal, and aligned within 75 degrees.
-    reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
-    maybe = ahead_of_front > 0
-    maybe &= beside_path < reach[..., None, :]
-    maybe &= yaw_diff <= MAX_HEADING_DIFF
-    maybe &= valid[..., None, :]
-    b, st, ev, ob = nonzero(maybe)
-    pair_tail = np.broadcast_to(pair_tail, maybe.shape)
-    yd = yaw_diff[b, st, ev, ob]
-    yaw_sin, yaw_cos = sincos32(yd, pair_tail[b, st, ev, ob])
-    long_distance, following = following_gap(ahead_of_front[b, st, ev, ob], beside_path[b, st, ev, ob], yd,
-                                             yaw_cos, yaw_sin, length[b, st, ob], width[b, st, ob])
-    ttc = np.full(maybe.shape[:-1], MAXIMUM_TIME_TO_COLLISION, dtype=_F)
-    if following.any():
-        b, st, ev, ob, long_distance = (a[following] for a in (b, st, ev, ob, long_distance))
-        group = (b * maybe.shape[1] + st) * num_evaluated + ev
-        # The nearest followed object, ties to the lowest object index.
-        _, best = first_minimum(group, long_distance, ob)
-        b, st, ev, ob, gap = b[best], st[best], ev[best], ob[best], long_distance[best]
-        ttc[b, st, ev] = capped_time_to_collision(gap, speed[b, st, ev] - speed[b, st, ob])
-    # Nothing followed: the official code divides a gap of about 1e10 by the
-    # closing speed and caps it, which is always the cap.
-    # Steps where a box is NaN, infinite or huge (valid or not) or a speed is not finite: the official
-    # all-objects search, whose gaps of -inf and NaN the pruning above would skip.
-    irregular = unbounded_boxes(x, y, heading, length, width).any(axis=-1) | ~np.isfinite(speed).all(axis=-1)
-    rb, rst = np.nonzero(irregular)
-    if rb.size:
-        ttc[rb, rst] = all_objects_time_to_collision(
-            ahead_of_front[rb, rst], beside_path[rb, rst], yaw_diff[rb, rst], pair_tail[rb, rst],
-            length[rb, rst, None], width[rb, rst, None], valid[rb, rst, None], speed[rb, rst], num_evaluated)
-    return np.swapaxes(ttc, -1, -2).reshape(*lead, num_evaluated, -1)
+_frame_offsets = compiled(frame_offsets, inline=True)
+_following_gap = compiled(following_gap)
+_capped_time_to_collision = compiled(capped_time_to_collision)
+_packet_sincos = compiled(packet_sincos)
+
+
+@numba.njit(inline="always")
+def _sincos32(x, libm):
+    """`float32_math.sincos32` of one value; `libm`: it is in the official op's trailing packet."""
+    sin, cos = _packet_sincos(x)
+    huge_finite = math.isfinite(x) and abs(x) >= HUGE_COS
+    if libm or (huge_finite and abs(x) >= HUGE_SIN):
+        sin = np.float32(math.sin(np.float64(x)))
+    if libm or huge_finite:
+        cos = np.float32(math.cos(np.float64(x)))
+    return sin, cos
+
+
+@cached_loop
+def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail, first, num_reported,
+                     num_evaluated):
+    """Time to collision with the nearest followed object, at `num_reported` steps from `first` (compiled).
+
+    Args:
+      x, y, length, width, heading, speed, reach: float32 `(batch, num_objects, num_steps)`;
+        valid bool, the same.
+      ego_tail: bool `(steps, num_evaluated)`, pair_tail bool `(steps, num_evaluated, num_objects)`:
+        the official ops' trailing packets.
+    Returns:
+      float32 `(batch, num_evaluated, steps)`.
+    """
+    batch, num_objects, num_steps = x.shape
+    out = np.full((batch, num_evaluated, num_reported), MAXIMUM_TIME_TO_COLLISION, np.float32)
+    # One step's objects, contiguous, and every object's offsets in one evaluated object's frame.
+    step = np.empty((5, num_objects), np.float32)  # x, y, length, width, heading
+    ahead = np.empty(num_objects, np.float32)
+    beside = np.empty(num_objects, np.float32)
+    yaw_diff = np.empty(num_objects, np.float32)
+    for b in range(batch):
+        for st in range(num_reported):
+            t = first + st
+            for o in range(num_objects):
+                step[0, o], step[1, o], step[2, o] = x[b, o, t], y[b, o, t], length[b, o, t]
+                step[3, o], step[4, o] = width[b, o, t], heading[b, o, t]
+            for e in range(num_evaluated):
+                # The ego frame, as the official op computes it (of minus the heading).
+                ego_sin, ego_cos = _sincos32(-step[4, e], ego_tail[st, e])
+                for o in range(num_objects):  # branch-free: the compiler vectorises it
+                    ahead[o], beside[o], yaw_diff[o] = _frame_offsets(
+                        step[0, o], step[1, o], step[0, e], step[1, e], ego_cos, ego_sin, step[2, e], step[3, e],
+                        step[4, o], step[4, e])
+                best, best_o = np.float32(np.inf), -1
+                for o in range(num_objects):
+                    if not (ahead[o] > 0 and beside[o] < reach[b, o, t] and yaw_diff[o] <= MAX_HEADING_DIFF
+                            and valid[b, o, t]):
+                        continue
+                    yaw_sin, yaw_cos = _sincos32(yaw_diff[o], pair_tail[st, e, o])
+                    gap, following = _following_gap(ahead[o], beside[o], yaw_diff[o], yaw_cos, yaw_sin, step[2, o],
+                                                     step[3, o])
+                    if following and gap < best:  # the nearest, ties to the lowest object index
+                        best, best_o = gap, o
+                if best_o >= 0:
+                    # Nothing followed: the official code divides a gap of about 1e10 by the closing
+                    # speed and caps it, which is always the cap.
+                    out[b, e, st] = _capped_time_to_collision(best, speed[b, e, t] - speed[b, best_o, t])
+    return out
 
 
 def all_objects_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed,

@@ -7,31 +7,40 @@ the planar distance to that segment, negative on the road side. Where the
 point projects past a segment end, the sign follows the convexity of the
 corner between the segment and its neighbour.
 
-Segment search groups the query points in 1 m cells, finds each cell's
-candidate segments with a k-d tree over points along every segment, narrows
-them per point with a distance bound (one `searchsorted` in the cell's
-candidates sorted by distance), then evaluates the exact float32 distance on
-the few survivors; the bounds are proven, so results equal an all-pairs
-search (tests compare with brute force, steep ramps included).
+The search (compiled, `_nearest_segments`) needs one bound only: the selection
+distance of a segment is at least the planar distance from the point to it,
+and that changes by at most the distance the point moves. Segments are listed
+in 16 m buckets once per scenario (`SegmentTable`); a 1 m cell where queries
+fall gets, on first use, every segment that can be nearest anywhere in it,
+sorted by distance from its centre, so a query evaluates the exact float32
+distance of its first few candidates and stops at the first that cannot beat
+it. Queries the cell does not settle (on another level than every listed
+segment, far from the map) search the buckets ring by ring around themselves.
+Results equal an all-pairs search bit for bit (tests compare with brute force).
 """
 from __future__ import annotations
 
 import dataclasses
-import itertools
+import math
 
+import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
+from wosac_eval.features import ops
+from wosac_eval.features.compiled import cached_loop, compiled
 from wosac_eval.features.spatial import non_finite_pick, pad_polylines
-from wosac_eval.features.xp import array_namespace, divide, errstate
 
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
 OFFROAD_DISTANCE_THRESHOLD = 0.0
 Z_STRETCH = 3.0
+_Z_STRETCH32 = _F(Z_STRETCH)
 CYCLIC_TOLERANCE_M2 = 1.0
-_SAMPLE_SPACING = 1.0  # metres between candidate-search samples along a segment
+_SAMPLE_SPACING = 1.0  # metres between the samples of `cell_candidate_table` along a segment
+BUCKET_SIDE = 8.0  # metres: the planar buckets listing the segments that cross them
+_GRID_BORDER = 256.0  # metres of buckets around the road edges' box: cells there get candidate lists
 
 
 @dataclasses.dataclass(frozen=True)
@@ -39,7 +48,8 @@ class SegmentTable:
     """Road-edge segments flattened in the official (polyline, segment) order.
 
     Polylines are padded to the longest one, as the official code does; padding
-    segments are invalid. Attributes are `(num_segments,)` or `(num_segments, 3)`.
+    segments are invalid. Attributes are `(num_segments,)` or `(num_segments, 3)`,
+    then the planar buckets of the compiled search (`_bucket_lists`).
     """
 
     start: np.ndarray        # float32 (S, 3)
@@ -51,14 +61,13 @@ class SegmentTable:
     next_valid: np.ndarray   # bool (S,)
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
     convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
-    columns: np.ndarray      # float32 (6, S): start x, y, z, delta x, y, z, contiguous for gathers
-    squared: np.ndarray      # float32 (S,): dx * dx + dy * dy, as `segment_distances` computes it
-    columns64: np.ndarray    # float64 (6, S): the same with heights stretched, for the search bounds
-    lipschitz: np.ndarray    # float64 (S,): how fast the selection distance can change with the point
-    max_lipschitz: float
-    tree: cKDTree | None
-    sample_segment: np.ndarray  # int64: segment of each k-d tree sample
-    spacing: float
+    length: np.ndarray       # float64 (S,): |delta_xy| + 3 |delta_z|, for the float32 rounding margins
+    bucket_origin: np.ndarray  # float64 (2,): the grid's lower corner
+    bucket_side: float       # metres
+    bucket_shape: np.ndarray   # int64 (2,): buckets along x, y; then those holding segments:
+    segment_buckets: np.ndarray  # int64 (4,): first and last bucket along x, then along y
+    bucket_start: np.ndarray   # int64 (num_buckets + 1,): where each bucket's list begins in
+    bucket_segments: np.ndarray  # int32: valid segments crossing each bucket, bucket by bucket
 
 
 def _cross(ax, ay, bx, by):
@@ -66,7 +75,7 @@ def _cross(ax, ay, bx, by):
 
 
 def build_segment_table(polylines) -> SegmentTable:
-    """Pads polylines to a common length and precomputes segment neighbours.
+    """Pads polylines to a common length, precomputes segment neighbours and buckets.
 
     Args:
       polylines: sequence of float32 `(num_points, 3)`; those with fewer than
@@ -100,54 +109,13 @@ def build_segment_table(polylines) -> SegmentTable:
     convex_before = _cross(wrap_prev[..., 0], wrap_prev[..., 1], dx, dy) > 0
     convex_after = _cross(dx, dy, wrap_next[..., 0], wrap_next[..., 1]) > 0
     valid_flat = valid.reshape(-1)
-    tree, sample_segment = _sample_tree(start.reshape(-1, 3), delta.reshape(-1, 3), valid_flat)
-    lipschitz = _lipschitz(delta.reshape(-1, 3))
+    start, delta = np.ascontiguousarray(start.reshape(-1, 3)), np.ascontiguousarray(delta.reshape(-1, 3))
     return SegmentTable(
-        start=start.reshape(-1, 3), delta=delta.reshape(-1, 3), valid=valid_flat,
+        start=start, delta=delta, valid=valid_flat,
         prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
         convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
-        columns=np.ascontiguousarray(np.concatenate([start.reshape(-1, 3), delta.reshape(-1, 3)], axis=1).T),
-        squared=delta[..., 0].reshape(-1) * delta[..., 0].reshape(-1) + delta[..., 1].reshape(-1) * delta[..., 1].reshape(-1),
-        columns64=np.ascontiguousarray(np.concatenate([_stretch(start.reshape(-1, 3)),
-                                                       _stretch(delta.reshape(-1, 3))], axis=1).T),
-        lipschitz=lipschitz, max_lipschitz=float(lipschitz[valid_flat].max(initial=1.0)),
-        tree=tree, sample_segment=sample_segment, spacing=_SAMPLE_SPACING)
-
-
-def _stretch(xyz):
-    out = np.asarray(xyz, np.float64).copy()
-    out[..., 2] *= Z_STRETCH
-    return out
-
-
-def _lipschitz(delta: np.ndarray) -> np.ndarray:
-    """Per segment, the most the selection distance changes per metre the point moves.
-
-    The projection is planar, so a point moving by v shifts the projected
-    point along the segment by v's along-track part times the segment's
-    stretched slope s = 3|dz| / |d_xy|: the offset changes by at most
-    sqrt(1 + s^2) |v| (1 for segments without planar length, whose projection
-    is pinned at the start). Used by the candidate search only, with margin.
-    """
-    d = _stretch(delta)
-    planar = np.hypot(d[:, 0], d[:, 1])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = np.where(planar > 0, np.abs(d[:, 2]) / planar, 0.0)
-    return np.sqrt(1.0 + slope * slope) * (1 + 1e-6)
-
-
-def _sample_tree(start, delta, valid):
-    """k-d tree over valid segments cut in pieces of at most `_SAMPLE_SPACING` (stretched) metres.
-
-    The tree holds each piece's midpoint, so every point of a segment is within
-    half the spacing of one of its tree points; points are numbered along the
-    segments in segment order.
-    """
-    idx = np.flatnonzero(valid)
-    if idx.size == 0:
-        return None, np.zeros(0, np.int64)
-    points, seg_of = _piece_midpoints(_stretch(start[idx]), _stretch(delta[idx]))
-    return cKDTree(points), idx[seg_of]
+        length=np.hypot(delta[:, 0].astype(np.float64), delta[:, 1]) + Z_STRETCH * np.abs(delta[:, 2].astype(np.float64)),
+        **_bucket_grid(start, delta, valid_flat))
 
 
 def _piece_midpoints(start, delta):
@@ -165,266 +133,18 @@ def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
     """Projection parameter, stretched 3D distance and planar distance, float32.
 
     Elementwise (broadcasting) over points p, segment starts s and segment
-    vectors d, in the official order of float32 operations (numpy or JAX arrays).
+    vectors d, in the official order of float32 operations (an `ops` kernel:
+    numpy, JAX, or compiled for the search loop).
     """
-    xp = array_namespace(px, sx)
     tx, ty, tz = px - sx, py - sy, pz - sz
     along = tx * dx + ty * dy
     squared = dx * dx + dy * dy
-    with errstate(xp, divide="ignore", invalid="ignore"):
-        rel_t = xp.where(squared == 0, _F(0), divide(along, squared))
-    clipped = xp.clip(rel_t, _F(0), _F(1))
+    rel_t = ops.where(squared == _F(0), _F(0), ops.divide(along, squared))
+    clipped = ops.clip(rel_t, _F(0), _F(1))
     ox, oy = tx - dx * clipped, ty - dy * clipped
-    oz = (tz - dz * clipped) * _F(Z_STRETCH)
+    oz = (tz - dz * clipped) * _Z_STRETCH32
     planar2 = ox * ox + oy * oy
-    return rel_t, xp.sqrt(planar2 + oz * oz), xp.sqrt(planar2)
-
-
-def _pair_distances(table: SegmentTable, query_columns: np.ndarray, qi, si: np.ndarray):
-    """`segment_distances` for (query, segment) pairs, gathering one column at a time.
-
-    Args:
-      query_columns: float32 `(3, num_points)`.
-      qi: the query of each pair, or None when pair i is query i.
-      si: int `(num_pairs,)`, the segment of each pair.
-    """
-    p = query_columns if qi is None else [np.take(c, qi) for c in query_columns]
-    seg = [np.take(c, si) for c in table.columns]
-    return segment_distances(*p, *seg)
-
-
-# Pairs per block of `_selection_distances`: the working arrays stay in the CPU cache.
-_PAIR_BLOCK = 1 << 15
-
-
-def _selection_distances(table: SegmentTable, query_columns: np.ndarray, qi: np.ndarray, si: np.ndarray):
-    """The stretched 3D distance of `segment_distances` for (query, segment) pairs, float32 `(num_pairs,)`.
-
-    The same float32 operations, in blocks of `_PAIR_BLOCK` pairs computed in
-    place (the squared segment length comes from the table), which keeps the
-    candidate evaluation, most of the road-edge time, in the cache.
-    """
-    n = len(qi)
-    out = np.empty(n, _F)
-    px, py, pz = query_columns
-    sx, sy, sz, dx, dy, dz = table.columns
-    buf = np.empty((8, min(n, _PAIR_BLOCK)), _F)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for lo in range(0, n, _PAIR_BLOCK):
-            q, s = qi[lo:lo + _PAIR_BLOCK], si[lo:lo + _PAIR_BLOCK]
-            m = len(q)
-            tx, ty, tz, ax, ay, az, rel, tmp = (b[:m] for b in buf)
-            np.subtract(np.take(px, q), np.take(sx, s), out=tx)
-            np.subtract(np.take(py, q), np.take(sy, s), out=ty)
-            np.subtract(np.take(pz, q), np.take(sz, s), out=tz)
-            np.take(dx, s, out=ax)
-            np.take(dy, s, out=ay)
-            np.take(dz, s, out=az)
-            np.multiply(tx, ax, out=rel)
-            np.multiply(ty, ay, out=tmp)
-            rel += tmp                                   # along = tx dx + ty dy
-            squared = np.take(table.squared, s)
-            np.divide(rel, squared, out=rel)
-            rel[squared == 0] = 0
-            np.clip(rel, _F(0), _F(1), out=rel)          # the clipped projection
-            tx -= np.multiply(ax, rel, out=tmp)          # ox
-            ty -= np.multiply(ay, rel, out=tmp)          # oy
-            tz -= np.multiply(az, rel, out=tmp)
-            tz *= _F(Z_STRETCH)                          # oz
-            tx *= tx
-            ty *= ty
-            tx += ty                                     # planar2
-            tz *= tz
-            tx += tz
-            np.sqrt(tx, out=out[lo:lo + m])
-    return out
-
-
-_CELL = 1.0  # metres: queries are grouped in cubic cells of the stretched space
-_MARGIN = 1e-3  # metres of slack in every float64 bound, far above float32 rounding
-
-
-def _segment_distance64(table: SegmentTable, points: np.ndarray, seg: np.ndarray) -> np.ndarray:
-    """Stretched 3D selection distance from stretched points `(3, n)` to segments, float64 (bounds only)."""
-    sx, sy, sz, dx, dy, dz = (np.take(c, seg) for c in table.columns64)
-    tx, ty, tz = points[0] - sx, points[1] - sy, points[2] - sz
-    squared = dx * dx + dy * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.where(squared > 0, (tx * dx + ty * dy) / squared, 0.0), 0.0, 1.0)
-    tx -= dx * t
-    ty -= dy * t
-    tz -= dz * t
-    return np.sqrt(tx * tx + ty * ty + tz * tz)
-
-
-def _ball_pairs(tree: cKDTree, centres: np.ndarray, radius: np.ndarray):
-    """(centre index, tree point) pairs within `radius` of each centre, sorted by centre."""
-    lists = tree.query_ball_point(centres, radius, return_sorted=True)
-    sizes = np.fromiter(map(len, lists), np.int64, len(lists))
-    points = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(sizes.sum()))
-    return np.repeat(np.arange(len(centres)), sizes), points
-
-
-def _argsort(key: np.ndarray, num_keys: int) -> tuple[np.ndarray, np.ndarray]:
-    """(order, sorted keys) of non-negative int64 keys below `num_keys`.
-
-    Sorts (key, position) packed in one integer: numpy's vectorised `sort` is
-    several times faster than `argsort` (any order of equal keys will do here).
-    """
-    bits = max(1, len(key).bit_length())
-    if num_keys >= 1 << (62 - bits):
-        order = np.argsort(key)
-        return order, key[order]
-    packed = np.sort((key << bits) | np.arange(len(key), dtype=np.int64))
-    return packed & ((1 << bits) - 1), packed >> bits
-
-
-# Cells of margin kept around the map's box when numbering cells densely (`_cells_of`).
-_CORE_MARGIN_CELLS = 32
-
-
-def _cells_of(points_t: np.ndarray, core: tuple[np.ndarray, np.ndarray] | None = None):
-    """The cubic cells of side `_CELL` holding the points.
-
-    Args:
-      points_t: float64 `(3, num_points)`.
-      core: optional (low, high) float64 `(3,)` corners of the box where most points lie (the
-        map's, with a margin). Points outside it (placeholder states far from the map) are grouped
-        apart: they would otherwise stretch the key space from a dense count to a sort of every key.
-    Returns:
-      (number of occupied cells, int64 `(num_points,)` cell of each point
-      numbered in key order, int64 `(num_points,)` the points sorted by cell).
-    """
-    cell = np.floor(points_t / _CELL).astype(np.int64)
-    if core is None:
-        return _group_cells(cell)
-    core_low = np.floor(core[0] / _CELL).astype(np.int64) - _CORE_MARGIN_CELLS
-    core_high = np.floor(core[1] / _CELL).astype(np.int64) + _CORE_MARGIN_CELLS
-    inside = np.ones(cell.shape[1], bool)
-    for axis in range(3):  # row by row: a reduction over the short axis is slow
-        inside &= cell[axis] >= core_low[axis]
-        inside &= cell[axis] <= core_high[axis]
-    if inside.all() or not inside.any():
-        return _group_cells(cell)
-    # One key space, without copying the points inside: theirs dense in their own box, then the
-    # cells outside, numbered among themselves.
-    big = np.iinfo(np.int64).max
-    low = np.array([row.min(where=inside, initial=big) for row in cell])
-    high = np.array([row.max(where=inside, initial=-big) for row in cell])
-    key, num_keys = _dense_keys(cell, low, high)
-    outside = np.flatnonzero(~inside)
-    far_cells, far_inverse, _ = _group_cells(cell[:, outside])
-    key[outside] = num_keys + far_inverse
-    return _group_keys(key, num_keys + far_cells)
-
-
-def _dense_keys(cell: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, int]:
-    """Keys of integer cells `(3, num_points)` in the box [low, high] numbered x-major, and their count."""
-    span = high - low + 1
-    key = ((cell[0] - low[0]) * span[1] + (cell[1] - low[1])) * span[2] + (cell[2] - low[2])
-    return key, int(np.prod(span, dtype=np.float64))
-
-
-def _group_cells(cell: np.ndarray):
-    """`_cells_of` for integer cells `(3, num_points)`."""
-    low = np.array([row.min() for row in cell])
-    high = np.array([row.max() for row in cell])
-    return _group_keys(*_dense_keys(cell, low, high))
-
-
-def _group_keys(key: np.ndarray, num_keys: int):
-    """`_cells_of` for non-negative int64 keys below `num_keys`, one per cell."""
-    if num_keys <= 16 * len(key):  # a small box: count occupied keys instead of sorting
-        occupied = np.bincount(key, minlength=num_keys) > 0
-        num_cells = int(occupied.sum())
-        inverse = (np.cumsum(occupied) - 1)[key]
-        # Few cells: a stable sort of small integers is a radix sort.
-        small = np.uint16 if num_cells <= 1 << 16 else np.uint32
-        return num_cells, inverse, np.argsort(inverse.astype(small), kind="stable")
-    order, sorted_key = _argsort(key, num_keys)
-    first = np.r_[True, sorted_key[1:] != sorted_key[:-1]]
-    inverse = np.empty(len(key), np.int64)
-    inverse[order] = np.cumsum(first) - 1
-    return int(first.sum()), inverse, order
-
-
-def _candidates(table: SegmentTable, queries: np.ndarray):
-    """(query index, segment index) pairs that include every possible nearest segment.
-
-    Returns (qi, si, starts): pairs grouped by query, every query has at least
-    one, and `starts[i]` is the first pair of query i.
-
-    The selection distance D(k, p) projects p on segment k in the plane, then
-    measures the stretched 3D offset; it moves by at most L_k |p - q| between
-    points p and q (`SegmentTable.lipschitz`). Queries are grouped in cells of
-    side `_CELL`; a cell is represented by the centroid c of its queries and
-    the largest distance h from c to one of them:
-      - any segment j bounds the cell's minimum: D(j, p) <= D(j, c) + L_j h = U_j;
-      - a segment k can only be nearest somewhere in the cell if
-        D(k, c) - L_k h <= min_j U_j, and D(k, c) is at least the distance from c
-        to k's nearest k-d tree point minus half the spacing, which bounds
-        the k-d tree search;
-      - for one query p at distance r from c, with b = D(cell's first candidate, p),
-        k can only win if D(k, c) <= b + L_max r, a cut made with one
-        `searchsorted` in the cell's candidates sorted by D(k, c).
-    Float32 results then pick the nearest among the survivors exactly.
-    """
-    q = _stretch(queries)
-    qt = np.ascontiguousarray(q.T)
-    num_cells, inverse, by_cell = _cells_of(qt, (table.tree.mins, table.tree.maxes))
-    # Each cell is represented by the centroid of its queries and the largest
-    # distance from it to one of them (at most the cell's half-diagonal).
-    count = np.bincount(inverse, minlength=num_cells).astype(np.float64)
-    centre = np.stack([np.bincount(inverse, weights=qt[k], minlength=num_cells) for k in range(3)], axis=1)
-    centre /= count[:, None]
-    r = np.zeros(len(q))
-    for axis in range(3):  # row by row: a reduction over the short axis is slow
-        offset = qt[axis] - np.take(centre[:, axis], inverse)
-        offset *= offset
-        r += offset
-    np.sqrt(r, out=r)
-    h_cell = np.zeros(num_cells)
-    np.maximum.at(h_cell, inverse, r)
-    h_cell += 1e-9
-    lipschitz = table.lipschitz
-    # An upper bound of each cell's minimum from the segment of its nearest sample.
-    _, nearest_sample = table.tree.query(centre, k=1)
-    first_guess = table.sample_segment[nearest_sample]
-    centre_t = np.ascontiguousarray(centre.T)
-    upper = _segment_distance64(table, centre_t, first_guess) + lipschitz[first_guess] * h_cell
-    radius = upper + table.max_lipschitz * h_cell + table.spacing * 0.5 + _MARGIN * (1 + upper)
-    ci, sample = _ball_pairs(table.tree, centre, radius)
-    # Pairs come sorted by cell, then sample, and samples are numbered along
-    # the segments, so repeated (cell, segment) pairs are adjacent.
-    seg = table.sample_segment[sample]
-    new = np.r_[True, (ci[1:] != ci[:-1]) | (seg[1:] != seg[:-1])]
-    ci, seg = ci[new], seg[new]
-    d = _segment_distance64(table, centre_t[:, ci], seg)
-    best_upper = np.full(num_cells, np.inf)
-    np.minimum.at(best_upper, ci, d + lipschitz[seg] * h_cell[ci])
-    keep = d - lipschitz[seg] * h_cell[ci] <= best_upper[ci] + _MARGIN * (1 + best_upper[ci])
-    ci, seg, d = ci[keep], seg[keep], d[keep]
-    # Each cell's candidates sorted by distance to its centre, under one key:
-    # the cell index times a stride above any distance or limit below.
-    stride = 2.0 * (d.max() + 2 * table.max_lipschitz * h_cell.max()) + 1.0
-    key = ci * stride + d
-    order = np.argsort(key)
-    key, seg = key[order], seg[order]
-    first = np.searchsorted(ci, np.arange(num_cells))  # ci is sorted already
-    cell_lipschitz = np.maximum.reduceat(lipschitz[seg], first)
-    bound = _segment_distance64(table, qt, seg[first][inverse])
-    limit = bound + cell_lipschitz[inverse] * r + _MARGIN * (1 + bound)
-    lo = first[inverse]
-    # The cut, searched with the queries in cell order (the searches then move forward in `key`).
-    hi = np.empty(len(q), np.int64)
-    hi[by_cell] = np.searchsorted(key, (inverse * stride + limit)[by_cell], side="right")
-    count = hi - lo
-    if count.min(initial=1) < 1:  # impossible by the bounds above; a bug if it happens
-        raise RuntimeError("road-edge candidate search left a query without candidates")
-    qi = np.repeat(np.arange(len(q)), count)
-    starts = np.cumsum(count) - count
-    pos = np.arange(qi.size) - np.repeat(starts - lo, count)
-    return qi, seg[pos], starts
+    return rel_t, ops.sqrt(planar2 + oz * oz), ops.sqrt(planar2)
 
 
 def segment_side(query_xy, start, delta):
@@ -440,8 +160,8 @@ def segment_side(query_xy, start, delta):
 
 
 def side_of_segment(px, py, sx, sy, dx, dy):
-    """`segment_side` on separate coordinates (elementwise, broadcasting)."""
-    return array_namespace(px, sx).sign(_cross(px - sx, py - sy, dx, dy))
+    """`segment_side` on separate coordinates (an elementwise `ops` kernel)."""
+    return ops.sign((px - sx) * dy - (py - sy) * dx)
 
 
 def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_valid, next_valid):
@@ -450,19 +170,508 @@ def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_va
     Past an end the sign follows the corner with the neighbour segment: on a
     convex corner the point is off-road if it is on the right of either
     segment, on a concave one only if it is on the right of both.
-    All arguments are `(...)` arrays (numpy or JAX).
+    An elementwise `ops` kernel: all arguments are `(...)` arrays or scalars.
     """
-    xp = array_namespace(rel_t, n)
-    before = xp.where(convex_before, xp.maximum(n, n_prior), xp.minimum(n, n_prior))
-    after = xp.where(convex_after, xp.maximum(n, n_next), xp.minimum(n, n_next))
-    return xp.where((rel_t < 0) & prior_valid, before,
-                    xp.where((rel_t > 1) & next_valid, after, n))
+    before = ops.where(convex_before, ops.maximum(n, n_prior), ops.minimum(n, n_prior))
+    after = ops.where(convex_after, ops.maximum(n, n_next), ops.minimum(n, n_next))
+    return ops.where((rel_t < _F(0)) & prior_valid, before, ops.where((rel_t > _F(1)) & next_valid, after, n))
 
 
-def _side(table: SegmentTable, qx, qy, seg):
-    """`segment_side` of points `(n,)` against table segments `(n,)`, gathering one column at a time."""
-    sx, sy, _, dx, dy, _ = (np.take(c, seg) for c in table.columns)
-    return side_of_segment(qx, qy, sx, sy, dx, dy)
+# --- The compiled search ---------------------------------------------------------------------------
+
+_MAX_BUCKETS = 1 << 20  # larger maps get larger buckets (the grid's memory stays bounded)
+_CELLS_PER_BUCKET = 8  # along each axis: cells of BUCKET_SIDE / 8 (1 m)
+_LIST_SLACK = 3.0  # metres listed beyond a cell's nearest planar distance: heights up to 1 m apart
+_NOT_FOUND = -1
+_NON_FINITE = -2
+
+
+def _bucket_grid(start: np.ndarray, delta: np.ndarray, valid: np.ndarray) -> dict:
+    """The planar buckets of the compiled search: the road edges' box with `_GRID_BORDER` around it,
+    in squares of `BUCKET_SIDE` (doubled until there are at most `_MAX_BUCKETS`), each listing the
+    valid segments whose box overlaps it."""
+    listed = valid & np.isfinite(start).all(axis=1) & np.isfinite(delta).all(axis=1)
+    ends = np.concatenate([start[listed, :2], start[listed, :2] + delta[listed, :2]]).astype(np.float64)
+    if not len(ends):
+        ends = np.zeros((1, 2))
+    side = BUCKET_SIDE
+    while True:
+        origin = np.floor((ends.min(axis=0) - _GRID_BORDER) / side) * side
+        shape = np.ceil((ends.max(axis=0) + _GRID_BORDER - origin) / side).astype(np.int64) + 1
+        if shape[0] * shape[1] <= _MAX_BUCKETS:
+            break
+        side *= 2
+    bucket_start, bucket_segments, occupied = _bucket_lists(start, delta, listed, origin[0], origin[1], side,
+                                                            shape[0], shape[1])
+    return {"bucket_origin": origin, "bucket_side": side, "bucket_shape": shape, "segment_buckets": occupied,
+            "bucket_start": bucket_start, "bucket_segments": bucket_segments}
+
+
+@numba.njit(cache=True)
+def _bucket_lists(start, delta, listed, origin_x, origin_y, side, num_x, num_y):
+    """(list starts `(num_buckets + 1,)`, segments bucket by bucket, the occupied range [x0, x1, y0, y1])."""
+    counts = np.zeros(num_x * num_y + 1, np.int64)
+    occupied = np.array([num_x, -1, num_y, -1], np.int64)
+    for k in range(start.shape[0]):
+        if not listed[k]:
+            continue
+        x0, x1 = _bucket_range(start[k, 0], delta[k, 0], origin_x, side, num_x)
+        y0, y1 = _bucket_range(start[k, 1], delta[k, 1], origin_y, side, num_y)
+        occupied[0], occupied[1] = min(occupied[0], x0), max(occupied[1], x1)
+        occupied[2], occupied[3] = min(occupied[2], y0), max(occupied[3], y1)
+        for i in range(x0, x1 + 1):
+            for j in range(y0, y1 + 1):
+                counts[i * num_y + j + 1] += 1
+    bucket_start = np.cumsum(counts)
+    fill = bucket_start[:-1].copy()
+    segments = np.empty(bucket_start[-1], np.int32)
+    for k in range(start.shape[0]):
+        if not listed[k]:
+            continue
+        x0, x1 = _bucket_range(start[k, 0], delta[k, 0], origin_x, side, num_x)
+        y0, y1 = _bucket_range(start[k, 1], delta[k, 1], origin_y, side, num_y)
+        for i in range(x0, x1 + 1):
+            for j in range(y0, y1 + 1):
+                segments[fill[i * num_y + j]] = k
+                fill[i * num_y + j] += 1
+    return bucket_start, segments, occupied
+
+
+@numba.njit(inline="always")
+def _ring_buffer(grid):
+    """Room for the buckets of one ring within the grid's occupied range (`_ring_buckets`)."""
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    return np.empty(2 * (max(x1 - x0, 0) + max(y1 - y0, 0)) + 4, np.int64)
+
+
+@numba.njit(inline="always")
+def _ring_buckets(bi, bj, r, grid, out):
+    """The buckets r steps (Chebyshev) from bucket (bi, bj) within the occupied range, into `out`;
+    returns their count."""
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    n = 0
+    for i in range(max(bi - r, x0), min(bi + r, x1) + 1):
+        if i == bi - r or i == bi + r:  # a whole row of the ring
+            for j in range(max(bj - r, y0), min(bj + r, y1) + 1):
+                out[n] = i * num_y + j
+                n += 1
+        else:  # the row's two ends
+            if y0 <= bj - r <= y1:
+                out[n] = i * num_y + bj - r
+                n += 1
+            if r > 0 and y0 <= bj + r <= y1:
+                out[n] = i * num_y + bj + r
+                n += 1
+    return n
+
+
+@numba.njit(inline="always")
+def _bucket_of(value, origin, side):
+    """The bucket index along one axis of a finite coordinate, clamped far beyond any grid (an integer
+    conversion of a huge float is undefined)."""
+    return int(math.floor(min(max((value - origin) / side, -1e15), 1e15)))
+
+
+@numba.njit(inline="always")
+def _bucket_range(start, delta, origin, side, num):
+    """Buckets along one axis overlapped by a segment (clamped to the grid)."""
+    low, high = min(start, start + delta), max(start, start + delta)
+    first = _bucket_of(np.float64(low), origin, side)
+    last = _bucket_of(np.float64(high), origin, side)
+    return max(0, min(first, num - 1)), max(0, min(last, num - 1))
+
+
+_segment_distances = compiled(segment_distances, inline=True)
+_side_of = compiled(side_of_segment)
+_corner_sign = compiled(corner_sign)
+
+
+@numba.njit(inline="always")
+def _planar_distance64(cx, cy, k, start, delta):
+    """Planar distance (float64) from a point to segment k: a lower bound of its selection distance."""
+    dx, dy = np.float64(delta[k, 0]), np.float64(delta[k, 1])
+    tx, ty = cx - np.float64(start[k, 0]), cy - np.float64(start[k, 1])
+    squared = dx * dx + dy * dy
+    t = 0.0
+    if squared > 0:
+        t = min(max((tx * dx + ty * dy) / squared, 0.0), 1.0)
+    ox, oy = tx - dx * t, ty - dy * t
+    return math.sqrt(ox * ox + oy * oy)
+
+
+@numba.njit(inline="always")
+def _rounding_margin(distance, length):
+    """How far below the true distance the float32 selection distance can fall (generously)."""
+    return 1e-3 + 1e-5 * (distance + 2.0 * length)
+
+
+@numba.njit(inline="always")
+def _selection(px, py, pz, k, start, delta):
+    return _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
+                                 delta[k, 0], delta[k, 1], delta[k, 2])[1]
+
+
+@cached_loop
+def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, seen, tag, ring, max_length):
+    """The nearest segment of one point by expanding rings of buckets around it (exact, any point).
+
+    Before ring r, every segment not met yet crosses only buckets r or more buckets away,
+    so it is at least (r - 1) * side away in the plane: the search stops there.
+    """
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+        return _NON_FINITE, 0
+    bi = _bucket_of(np.float64(px), origin_x, side)
+    bj = _bucket_of(np.float64(py), origin_y, side)
+    first = max(0, x0 - bi, bi - x1, y0 - bj, bj - y1)
+    last = max(x1 - bi, bi - x0, y1 - bj, bj - y0)
+    best, best_k, evaluated = np.float32(np.inf), _NOT_FOUND, 0
+    for r in range(first, last + 1):
+        if r > first and (r - 1) * side > best + _rounding_margin(best, max_length):
+            break
+        for q in range(_ring_buckets(bi, bj, r, grid, ring)):
+            for p in range(bucket_start[ring[q]], bucket_start[ring[q] + 1]):
+                k = bucket_segments[p]
+                if seen[k] == tag:
+                    continue
+                seen[k] = tag
+                d = _selection(px, py, pz, k, start, delta)
+                evaluated += 1
+                if d < best or (d == best and k < best_k):
+                    best, best_k = d, k
+    return best_k, evaluated
+
+
+@numba.njit(inline="always", error_model="numpy")
+def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, grid, bucket_start, bucket_segments,
+                     seen, tag, ring, out_segment, out_key):
+    """Every segment that can be nearest somewhere in a cell, by key; returns (count, clearance).
+
+    For a point q within r of the centre c, segment k's planar distance is at least
+    P_k(c) - r: segments with P_k(c) - h above R = min_k P_k(c) + h + slack are left out, and a
+    query settles when what it found is nearer than what they can reach. The key of a listed
+    segment is P_k(c) less its rounding margin; lists are sorted by key.
+    """
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    bi = _bucket_of(cx, origin_x, side)
+    bj = _bucket_of(cy, origin_y, side)
+    first = max(0, x0 - bi, bi - x1, y0 - bj, bj - y1)
+    last = max(x1 - bi, bi - x0, y1 - bj, bj - y0)
+    reach = np.inf  # R
+    n = 0
+    for r in range(first, last + 1):
+        if r > first and (r - 1) * side - half_diagonal > reach:
+            break
+        for q in range(_ring_buckets(bi, bj, r, grid, ring)):
+            for p in range(bucket_start[ring[q]], bucket_start[ring[q] + 1]):
+                k = bucket_segments[p]
+                if seen[k] == tag:
+                    continue
+                seen[k] = tag
+                d = _planar_distance64(cx, cy, k, start, delta)
+                reach = min(reach, max(d + half_diagonal + _LIST_SLACK, min_reach))
+                out_segment[n] = k
+                out_key[n] = d
+                n += 1
+    m = 0
+    for p in range(n):
+        if out_key[p] - half_diagonal <= reach:
+            k = out_segment[p]
+            out_segment[m] = k
+            out_key[m] = out_key[p] * (1 - 1e-5) - _rounding_margin(0.0, length[k])
+            m += 1
+    order = np.argsort(out_key[:m])
+    out_segment[:m] = out_segment[:m][order]
+    out_key[:m] = out_key[:m][order]
+    return m, reach
+
+
+@numba.njit(cache=True)
+def _query_cells(queries, grid, bucket_start):
+    """The cell of each query, numbered as first met, and each cell's centre and half-diagonal.
+
+    Cells are 1 m (a 16th of a bucket) where the 5 x 5 buckets around hold a segment; farther
+    out one list serves a whole bucket (cells of 1 m there would each list a wide ring of segments).
+
+    Returns:
+      (cell int64 `(n,)`: -1 for a point off the grid or not finite, centre float64
+      `(num_cells, 2)`, half-diagonal float64 `(num_cells,)`).
+    """
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    n = queries.shape[0]
+    bucket = np.full(n, -1, np.int64)
+    block_of_bucket = np.full(num_x * num_y, -1, np.int64)
+    num_blocks = 0
+    for i in range(n):
+        px, py = np.float64(queries[i, 0]), np.float64(queries[i, 1])
+        if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(queries[i, 2])):
+            continue
+        bi, bj = _bucket_of(px, origin_x, side), _bucket_of(py, origin_y, side)
+        if 0 <= bi < num_x and 0 <= bj < num_y:
+            b = int(bi * num_y + bj)
+            bucket[i] = b
+            if block_of_bucket[b] < 0:
+                block_of_bucket[b] = num_blocks
+                num_blocks += 1
+    division = np.empty(num_blocks, np.int64)  # cells per bucket side
+    for b in range(num_x * num_y):
+        if block_of_bucket[b] >= 0:
+            near = _segments_around(b // num_y, b % num_y, 2, grid, bucket_start)
+            division[block_of_bucket[b]] = _CELLS_PER_BUCKET if near else 1
+    cell_id = np.full((num_blocks, _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), -1, np.int64)
+    cell = np.full(n, -1, np.int64)
+    centre = np.empty((min(n, num_blocks * _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), 2), np.float64)
+    half_diagonal = np.empty(centre.shape[0], np.float64)
+    num_cells = 0
+    for i in range(n):
+        b = bucket[i]
+        if b < 0:
+            continue
+        bi, bj = b // num_y, b % num_y
+        block = block_of_bucket[b]
+        per_side = division[block]
+        size = side / per_side
+        fx = (np.float64(queries[i, 0]) - origin_x) / side - bi
+        fy = (np.float64(queries[i, 1]) - origin_y) / side - bj
+        ci = min(max(int(fx * per_side), 0), per_side - 1)
+        cj = min(max(int(fy * per_side), 0), per_side - 1)
+        local = ci * per_side + cj
+        if cell_id[block, local] < 0:
+            cell_id[block, local] = num_cells
+            centre[num_cells, 0] = origin_x + bi * side + (ci + 0.5) * size
+            centre[num_cells, 1] = origin_y + bj * side + (cj + 0.5) * size
+            half_diagonal[num_cells] = size * math.sqrt(0.5)
+            num_cells += 1
+        cell[i] = cell_id[block, local]
+    return cell, centre[:num_cells], half_diagonal[:num_cells]
+
+
+@cached_loop
+def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bucket_start, bucket_segments):
+    """The candidate list of each cell (`_cell_candidates`), one after the other.
+
+    Returns:
+      (first int64 `(num_cells + 1,)`, segment int32, key float64: the lists; geometry float32
+      `(6, list entries)`: each listed segment's start and delta, so that a query reads its
+      candidates in a row; reach float64 `(num_cells,)`: the R of each cell).
+    """
+    num_cells, num_segments = centre.shape[0], start.shape[0]
+    first = np.zeros(num_cells + 1, np.int64)
+    reach = np.empty(num_cells, np.float64)
+    segment = np.empty(max(16, 32 * num_cells), np.int32)
+    key = np.empty(segment.shape[0], np.float64)
+    seen = np.full(num_segments, -1, np.int64)
+    scratch_segment = np.empty(num_segments, np.int32)
+    scratch_key = np.empty(num_segments, np.float64)
+    ring = _ring_buffer(grid)
+    for c in range(num_cells):
+        m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], start, delta,
+                                       length, grid, bucket_start, bucket_segments, seen, c, ring, scratch_segment,
+                                       scratch_key)
+        used = first[c]
+        while used + m > segment.shape[0]:
+            segment, key = _grown(segment), _grown(key)
+        segment[used:used + m] = scratch_segment[:m]
+        key[used:used + m] = scratch_key[:m]
+        first[c + 1] = used + m
+    segment = segment[:first[-1]]
+    geometry = np.empty((6, segment.shape[0]), np.float32)
+    for p in range(segment.shape[0]):
+        for axis in range(3):
+            geometry[axis, p] = start[segment[p], axis]
+            geometry[3 + axis, p] = delta[segment[p], axis]
+    return first, segment, key, geometry, reach
+
+
+_SEARCH_BLOCK = 8  # candidates evaluated at once: more than needed is harmless, and the compiler vectorises it
+
+
+@cached_loop
+def _search_lists(queries, cell, centre, half_diagonal, first, segment, key, geometry, reach, max_length):
+    """The nearest segment of each query among its cell's list.
+
+    Candidates are evaluated by blocks, in key order, until the next one's key shows that
+    nothing further on can be nearer (evaluating one too many changes no minimum).
+
+    Returns:
+      (int64 `(n,)`: the segment, `_NOT_FOUND` where the list does not settle it (or the query
+      has no cell), `_NON_FINITE` for a NaN or infinite point; float64 `(num_cells,)`: the R a
+      cell's list needs to settle all its queries, 0 where it does; the number of distances
+      evaluated).
+    """
+    out = np.empty(queries.shape[0], np.int64)
+    needed = np.zeros(centre.shape[0], np.float64)
+    block = np.empty(_SEARCH_BLOCK, np.float32)
+    evaluated = 0
+    sx, sy, sz, dx, dy, dz = geometry[0], geometry[1], geometry[2], geometry[3], geometry[4], geometry[5]
+    margin = _rounding_margin(0.0, max_length)
+    for i in range(queries.shape[0]):
+        px, py, pz = queries[i, 0], queries[i, 1], queries[i, 2]
+        c = cell[i]
+        if c < 0:
+            finite = math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)
+            out[i] = _NOT_FOUND if finite else _NON_FINITE
+            continue
+        ox, oy = np.float64(px) - centre[c, 0], np.float64(py) - centre[c, 1]
+        off_centre = math.sqrt(ox * ox + oy * oy)
+        best, best_k = np.float32(np.inf), _NOT_FOUND
+        p, last = first[c], first[c + 1]
+        while p < last and not key[p] - off_centre > best:
+            m = min(_SEARCH_BLOCK, last - p)
+            evaluated += m
+            for j in range(m):
+                block[j] = _segment_distances(px, py, pz, sx[p + j], sy[p + j], sz[p + j], dx[p + j], dy[p + j],
+                                              dz[p + j])[1]
+            for j in range(m):
+                k, d = segment[p + j], block[j]
+                if d < best or (d == best and k < best_k):
+                    best, best_k = d, k
+            p += m
+        # A segment left out is farther in the plane than this, less its rounding.
+        unlisted = (reach[c] + half_diagonal[c] - off_centre) * (1 - 1e-5) - margin
+        if best < unlisted:
+            out[i] = best_k
+        else:
+            out[i] = _NOT_FOUND
+            if best_k >= 0:  # R that would settle it (on another level than the listed segments)
+                needed[c] = max(needed[c], (best + margin) / (1 - 1e-5) + off_centre - half_diagonal[c] + 1e-3)
+    return out, needed, evaluated
+
+
+@cached_loop
+def _ring_searches(queries, found, start, delta, grid, bucket_start, bucket_segments, max_length):
+    """`_ring_search` for every query `found` left `_NOT_FOUND` (in place); returns the distances evaluated."""
+    seen = np.full(start.shape[0], -1, np.int64)
+    ring = _ring_buffer(grid)
+    evaluated = 0
+    for i in range(queries.shape[0]):
+        if found[i] == _NOT_FOUND:
+            found[i], count = _ring_search(queries[i, 0], queries[i, 1], queries[i, 2], start, delta, grid,
+                                           bucket_start, bucket_segments, seen, i, ring, max_length)
+            evaluated += count
+    return evaluated
+
+
+_FAR_CELL_RATIO = 1024.0  # a cell off the grid is about this many times smaller than its distance to the map
+
+
+def _with_far_cells(queries, cell, centre, half_diagonal, table: SegmentTable):
+    """`_query_cells` with cells for the finite points off the grid (placeholder states, a rollout
+    gone kilometres away): squares of a power-of-two side, about 1/1024 of their distance to
+    the map and at least a bucket, so one list serves the points near one another."""
+    far = np.flatnonzero((cell < 0) & np.isfinite(queries).all(axis=1))
+    if not far.size:
+        return cell, centre, half_diagonal
+    xy = queries[far, :2].astype(np.float64)
+    side = table.bucket_side
+    low = table.bucket_origin + table.segment_buckets[[0, 2]] * side
+    high = table.bucket_origin + (table.segment_buckets[[1, 3]] + 1) * side
+    gap = np.maximum(np.maximum(low - xy, xy - high), 0.0)
+    size = 2.0 ** np.ceil(np.log2(np.maximum(np.hypot(gap[:, 0], gap[:, 1]) / _FAR_CELL_RATIO, side)))
+    key = np.stack([np.floor(xy[:, 0] / size), np.floor(xy[:, 1] / size), size], axis=1)
+    squares, which = np.unique(key, axis=0, return_inverse=True)
+    cell = cell.copy()
+    cell[far] = len(centre) + which.reshape(-1)
+    centre = np.concatenate([centre, (squares[:, :2] + 0.5) * squares[:, 2:]])
+    half_diagonal = np.concatenate([half_diagonal, squares[:, 2] * np.sqrt(0.5)])
+    return cell, centre, half_diagonal
+
+
+def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None) -> np.ndarray:
+    """The nearest valid segment of each point (stretched selection distance, lowest index on ties).
+
+    Args:
+      queries: float32 `(n, 3)`, contiguous.
+      counts: a dict that gets the work done: "cells" (candidate lists built), "pairs evaluated"
+        (selection distances computed).
+    Returns:
+      int64 `(n,)`: a segment, `_NOT_FOUND` when no segment is listed, `_NON_FINITE` for a point
+      with a NaN or infinite coordinate.
+    """
+    grid = (*(float(v) for v in table.bucket_origin), float(table.bucket_side),
+            *(int(v) for v in table.bucket_shape), *(int(v) for v in table.segment_buckets))
+    cell, centre, half_diagonal = _query_cells(queries, grid, table.bucket_start)
+    cell, centre, half_diagonal = _with_far_cells(queries, cell, centre, half_diagonal, table)
+    max_length = float(table.length[table.bucket_segments].max(initial=0.0))
+    work = {"cells": 0, "pairs evaluated": 0}
+
+    def search(rows, cells, min_reach):
+        lists = _cell_lists(centre[cells], half_diagonal[cells], min_reach, table.start, table.delta, table.length,
+                            grid, table.bucket_start, table.bucket_segments)
+        number = np.full(len(centre) + 1, -1, np.int64)  # the last for queries without a cell (-1)
+        number[cells] = np.arange(len(cells))
+        found, needed, evaluated = _search_lists(queries[rows], number[cell[rows]], centre[cells],
+                                                 half_diagonal[cells], *lists, max_length)
+        work["cells"] += len(cells)
+        work["pairs evaluated"] += evaluated
+        return found, needed
+
+    found, needed = search(slice(None), np.arange(len(centre)), np.zeros(len(centre)))
+    # Cells whose list left queries unsettled (a box on another level than the road edges near it):
+    # their lists grown to settle them, once per cell; whatever is left searches the buckets.
+    grow = np.flatnonzero(needed > 0)
+    if grow.size:
+        again = np.flatnonzero((found == _NOT_FOUND) & np.isin(cell, grow))
+        found[again] = search(again, grow, needed[grow])[0]
+    if (found == _NOT_FOUND).any():
+        work["pairs evaluated"] += _ring_searches(queries, found, table.start, table.delta, grid, table.bucket_start,
+                                                  table.bucket_segments, max_length)
+    if counts is not None:
+        counts.update(work)
+    return found
+
+
+@numba.njit(inline="always")
+def _segments_around(bi, bj, r, grid, bucket_start):
+    """Whether a bucket within `r` buckets of (bi, bj) lists a segment."""
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    for i in range(max(bi - r, 0), min(bi + r, num_x - 1) + 1):
+        for j in range(max(bj - r, 0), min(bj + r, num_y - 1) + 1):
+            if bucket_start[i * num_y + j + 1] > bucket_start[i * num_y + j]:
+                return True
+    return False
+
+
+@numba.njit(inline="always")
+def _grown(a):
+    """`a` in an array twice as long (first axis), its rows kept."""
+    out = np.empty((2 * a.shape[0],) + a.shape[1:], a.dtype)
+    out[:a.shape[0]] = a
+    return out
+
+
+@cached_loop
+def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior_valid, next_valid, convex_before,
+                      convex_after):
+    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`), float32 `(n,)`."""
+    out = np.empty(queries.shape[0], np.float32)
+    for i in range(queries.shape[0]):
+        px, py, pz, k = queries[i, 0], queries[i, 1], queries[i, 2], segment[i]
+        rel_t, _, planar = _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
+                                                 delta[k, 0], delta[k, 1], delta[k, 2])
+        a, b = prior[k], next_[k]
+        side = _side_of(px, py, start[k, 0], start[k, 1], delta[k, 0], delta[k, 1])
+        side_prior = _side_of(px, py, start[a, 0], start[a, 1], delta[a, 0], delta[a, 1])
+        side_next = _side_of(px, py, start[b, 0], start[b, 1], delta[b, 0], delta[b, 1])
+        sign = _corner_sign(rel_t, side, side_prior, side_next, convex_before[k], convex_after[k],
+                            prior_valid[k], next_valid[k])
+        # A padding segment's distance is 1e10, as officially (only non-finite points get one).
+        out[i] = sign * (planar if valid[k] else EXTREMELY_LARGE_DISTANCE)
+    return out
+
+
+def nearest_segments(table: SegmentTable, queries: np.ndarray, counts: dict | None = None) -> np.ndarray:
+    """Index of the nearest road-edge segment of each point, as the official all-pairs search picks it.
+
+    Args:
+      queries: float32 `(num_points, 3)`.
+      counts: optional dict that gets the search's work ("cells", "pairs evaluated").
+    Returns:
+      int64 `(num_points,)`; a point with a NaN or infinite coordinate gets the official pick
+      (`spatial.non_finite_pick`).
+    """
+    found = _nearest_segments(np.ascontiguousarray(queries, _F), table, counts)
+    return np.where(found < 0, non_finite_pick(table.valid), found)
 
 
 def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np.ndarray:
@@ -474,36 +683,10 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     Returns:
       float32 `(num_points,)`, negative on the road side.
     """
-    queries = np.asarray(queries, _F)
-    if len(queries) == 0:
-        return np.zeros(0, _F)
-    finite = np.isfinite(queries)
-    finite = finite[:, 0] & finite[:, 1] & finite[:, 2]  # faster than a reduction over the short axis
-    bs = np.full(len(queries), non_finite_pick(table.valid), np.int64)
-    if finite.any():
-        searched = queries if finite.all() else queries[finite]
-        qi, si, starts = _candidates(table, searched)
-        d3 = _selection_distances(table, np.ascontiguousarray(searched.T), qi, si)
-        # Nearest in 3D, ties to the lowest segment index, in one integer minimum:
-        # non-negative float32 values order like their bit patterns.
-        key = (d3.view(np.int32).astype(np.int64) << 32) | si
-        bs[finite] = np.minimum.reduceat(key, starts) & 0xFFFFFFFF  # one per query, in order
-    columns = np.ascontiguousarray(queries.T)
-    with np.errstate(invalid="ignore", over="ignore"):
-        bt, _, d2 = _pair_distances(table, columns, None, bs)
-        qx, qy = columns[0], columns[1]
-        n = _side(table, qx, qy, bs)
-        prior_valid, next_valid = table.prior_valid[bs], table.next_valid[bs]
-        # The neighbours' sides only where `corner_sign` reads them (past an end: ~15% of queries).
-        n_prior, n_next = n.copy(), n.copy()
-        for side, past, neighbour in ((n_prior, (bt < 0) & prior_valid, table.prior),
-                                      (n_next, (bt > 1) & next_valid, table.next)):
-            i = np.flatnonzero(past)
-            side[i] = _side(table, qx[i], qy[i], neighbour[bs[i]])
-    sign = corner_sign(bt, n, n_prior, n_next, table.convex_before[bs], table.convex_after[bs],
-                       prior_valid, next_valid)
-    # A padding segment's distance is 1e10, as officially (only non-finite points get one).
-    return (sign * np.where(table.valid[bs], d2, EXTREMELY_LARGE_DISTANCE)).astype(_F)
+    queries = np.ascontiguousarray(queries, _F).reshape(-1, 3)
+    return _signed_distances(queries, nearest_segments(table, queries), table.start, table.delta, table.valid,
+                             table.prior, table.next, table.prior_valid, table.next_valid, table.convex_before,
+                             table.convex_after)
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:
@@ -531,6 +714,7 @@ CELL_SIDE = 4.0  # metres: the planar grid of the candidate tables
 CELL_CANDIDATES = 32  # segments listed per cell
 _CELL_BORDER = 10.0  # metres of grid around the segments' box
 _TABLE_SAMPLES = 4  # k-d tree samples looked at per listed segment
+_MARGIN = 1e-3  # metres of slack in the clearance, far above float32 rounding
 
 
 def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CELL_SIDE,

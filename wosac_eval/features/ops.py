@@ -1,0 +1,103 @@
+"""The elementwise operations of kernels written once for numpy, JAX and numba.
+
+A per-element kernel (a segment distance, a box distance, a following gap) is
+written with Python's arithmetic operators and the functions of this module,
+called as `ops.where(...)`, `ops.sqrt(...)`. Called with numpy or JAX arrays,
+each function dispatches on its arguments (`xp.array_namespace`), so the kernel
+runs vectorised. `features.compiled.compiled(kernel)` makes the same source a
+numba function of scalars: it swaps this module for `features.compiled`'s
+scalar twin, with the same names and the same results bit for bit (NaN and the
+sign of zero included), and the compiled search loops call it per element.
+
+Rules for a kernel, so that all three work: float32 values and constants
+(`np.float32(...)`, never a bare Python float, which numba would widen to
+float64), no `with` blocks (callers silence numpy's warnings), no methods on
+values (`ops.float32(v)`, not `v.astype(...)`), other kernels called by their
+bare name, and `ops.where` for every choice.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from wosac_eval.features import xp as _xp
+from wosac_eval.features.xp import array_namespace
+
+_F = np.float32
+
+
+def where(condition, a, b):
+    """`a` where `condition` is True, else `b` (both are evaluated)."""
+    return array_namespace(condition, a, b).where(condition, a, b)
+
+
+def sqrt(v):
+    return array_namespace(v).sqrt(v)
+
+
+def absolute(v):
+    return array_namespace(v).abs(v)
+
+
+def minimum(a, b):
+    """Elementwise minimum passing NaN on (numpy's and JAX's `minimum`)."""
+    return array_namespace(a, b).minimum(a, b)
+
+
+def maximum(a, b):
+    """Elementwise maximum passing NaN on."""
+    return array_namespace(a, b).maximum(a, b)
+
+
+def clip(v, low, high):
+    return array_namespace(v, low, high).clip(v, low, high)
+
+
+def sign(v):
+    """-1, 0 or 1 (0 for both zeros), NaN for NaN: numpy's `sign`."""
+    return array_namespace(v).sign(v)
+
+
+def isnan(v):
+    return array_namespace(v).isnan(v)
+
+
+def isfinite(v):
+    return array_namespace(v).isfinite(v)
+
+
+def divide(a, b):
+    """a / b, correctly rounded (`xp.divide`: also under XLA's rewrites)."""
+    return _xp.divide(a, b)
+
+
+def fma32(a, b, c):
+    """a * b + c rounded once to float32 (through float64; `float32_math.fma32`)."""
+    from wosac_eval.features.float32_math import fma32 as array_fma32
+    return array_fma32(a, b, c)
+
+
+def float32(v):
+    """`v` as float32."""
+    return array_namespace(v).asarray(v, _F)
+
+
+def int32(v):
+    """`v` as int32 (truncating floats)."""
+    return array_namespace(v).asarray(v, np.int32)
+
+
+def signbit(v):
+    """True where the sign bit is set (negative numbers, -0.0, NaN with the bit)."""
+    return array_namespace(v).signbit(v)
+
+
+def opaque(v, like):
+    """`v`, hidden from XLA's algebraic simplifier when `like` is a JAX array (`xp.opaque`); numpy
+    and numba leave it as is. `like` gives the namespace, since `v` is often a constant."""
+    return _xp.opaque(v, array_namespace(like))
+
+
+
+def pick4(i, v0, v1, v2, v3):
+    """`(v0, v1, v2, v3)[i]` elementwise, for `i` in 0..3."""
+    return where(i == 0, v0, where(i == 1, v1, where(i == 2, v2, v3)))

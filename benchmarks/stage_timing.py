@@ -8,20 +8,23 @@ features, the rest of the features, estimators and metrics); the end-to-end figu
 
 For the two searches that look for a nearest thing, the floor is the arithmetic alone: one exact
 float32 evaluation per query (a box corner against one road-edge segment; an evaluated box
-against one other box), with no search at all. `share of floor` is that time over the stage's
-time: 100% would mean the search costs nothing beyond computing the answer once.
+against one other box), compiled as the search's own kernels are, with no search at all.
+`share of floor` is that time over the stage's time: 100% would mean the search costs nothing
+beyond computing the answer once.
 """
 from __future__ import annotations
 
 import statistics
 import time
 
+import numba
 import numpy as np
 
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.samples import sample_batch
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.features import interaction, metric_features as mf, road_edge
+from wosac_eval.features.compiled import compiled
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.metrics.scenario_metrics import scenario_metrics
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
@@ -50,6 +53,33 @@ class TimedSearch:
         return timed
 
 
+_selection_distance = compiled(road_edge.segment_distances)
+_rounded_box_distance = compiled(interaction.rounded_box_distance)
+
+
+@numba.njit(error_model="numpy")
+def _one_selection_each(queries, segment, start, delta):
+    """The road-edge floor: one selection distance per query (compiled, as the search's own)."""
+    out = np.empty(queries.shape[0], np.float32)
+    for i in range(queries.shape[0]):
+        k = segment[i]
+        out[i] = _selection_distance(queries[i, 0], queries[i, 1], queries[i, 2], start[k, 0], start[k, 1],
+                                     start[k, 2], delta[k, 0], delta[k, 1], delta[k, 2])[1]
+    return out
+
+
+@numba.njit(error_model="numpy")
+def _one_box_distance_each(boxes, mine, partner):
+    """The nearest-object floor: one exact rounded-box distance per query box (compiled)."""
+    out = np.empty(mine.shape[0], np.float32)
+    for i in range(mine.shape[0]):
+        a, b = mine[i], partner[i]
+        out[i] = _rounded_box_distance(
+            (boxes[a, 0], boxes[a, 1], boxes[a, 2], boxes[a, 3], boxes[a, 4], boxes[a, 5], boxes[a, 6]),
+            (boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3], boxes[b, 4], boxes[b, 5], boxes[b, 6]))
+    return out
+
+
 def _median_time(fn, repeat: int):
     fn()
     runs = []
@@ -64,46 +94,31 @@ def _road_edge_counts(table: road_edge.SegmentTable, corners, valid, repeat: int
     """Queries (valid box corners), pairs the search evaluates exactly, and the floor's seconds."""
     keep = np.broadcast_to(valid, corners.shape[:-2]).reshape(-1)
     queries = np.asarray(corners, np.float32).reshape(-1, 4, 3)[keep].reshape(-1, 3)
-    queries = queries[np.isfinite(queries).all(axis=1)]
-    qi, si, _ = road_edge._candidates(table, queries)
-    columns = np.ascontiguousarray(queries.T)
-    one_each = np.arange(len(queries))
-    segment = np.flatnonzero(table.valid)[one_each % int(table.valid.sum())]
-    floor, _ = _median_time(lambda: road_edge._selection_distances(table, columns, one_each, segment), repeat)
-    return {"queries": len(queries), "pairs evaluated": len(qi), "floor seconds": floor}
+    queries = np.ascontiguousarray(queries[np.isfinite(queries).all(axis=1)])
+    counts = {}
+    road_edge.nearest_segments(table, queries, counts)
+    valid_segments = np.flatnonzero(table.valid)
+    segment = valid_segments[np.arange(len(queries)) % len(valid_segments)]  # any segment costs the same
+    floor, _ = _median_time(lambda: _one_selection_each(queries, segment, table.start, table.delta), repeat)
+    return {"queries": len(queries), "pairs evaluated": counts["pairs evaluated"], "floor seconds": floor}
 
 
 def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, repeat: int) -> dict:
     """Queries (valid evaluated boxes), pairs evaluated exactly (counted), and the floor's seconds."""
-    evaluated = {"pairs": 0}
-    pair_distance = interaction._pair_distance
-
-    def counting(outlines, radius, eval_idx, other_idx):
-        evaluated["pairs"] += len(eval_idx)
-        return pair_distance(outlines, radius, eval_idx, other_idx)
-
-    interaction._pair_distance = counting
-    try:
-        interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
-    finally:
-        interaction._pair_distance = pair_distance
+    counts = {}
+    interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated, counts)
     num_objects, num_steps = x.shape[-2:]
+    radius = interaction.corner_radius(length, width)
+    boxes = np.stack([x, y, length - 2 * radius, width - 2 * radius, cos_h, sin_h, radius], axis=-1,
+                     dtype=np.float32).reshape(-1, 7)
     box = np.arange(x.size).reshape(x.shape)
     mine = box[..., :num_evaluated, :][np.asarray(valid)[..., :num_evaluated, :]]
     # One partner per query: the same box one object further on (any box costs the same arithmetic).
-    other = (mine + num_steps) % x.size
-    radius = interaction.corner_radius(length, width).reshape(-1)
-    flat = lambda a: np.ascontiguousarray(a).reshape(-1)
-
-    def floor():
-        outlines = interaction._Outlines(flat(x), flat(y), flat(length) - 2 * radius, flat(width) - 2 * radius,
-                                         flat(cos_h), flat(sin_h))  # outlines of the pairs' boxes only
-        return interaction._pair_distance(outlines, radius, mine, other)
-
-    seconds, _ = _median_time(floor, repeat)
+    partner = (mine + num_steps) % x.size
+    floor, _ = _median_time(lambda: _one_box_distance_each(boxes, mine, partner), repeat)
     all_pairs = int(np.asarray(valid)[..., :num_evaluated, :].sum()) * (num_objects - 1)
-    return {"queries": len(mine), "all pairs": all_pairs, "pairs evaluated": evaluated["pairs"],
-            "floor seconds": seconds}
+    return {"queries": len(mine), "all pairs": all_pairs, "pairs evaluated": counts["pairs evaluated"],
+            "floor seconds": floor}
 
 
 def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str, repeat: int) -> dict:

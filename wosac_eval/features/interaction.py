@@ -72,7 +72,7 @@ def box_pair_distance(x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radiu
 _box_pair_distance = compiled(box_pair_distance)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _bounds_of_step(step_x, step_y, step_reach, e, lower):
     """Lower bounds of the distance from box e to each box of one step (`lower`, in place): centre
     distance less both bounding radii, with float32 margins; +inf for e itself and unsearched boxes."""
@@ -356,13 +356,13 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, s
     return ttc.reshape(*lead, num_evaluated, -1)
 
 
-_frame_offsets = compiled(frame_offsets, inline=True)
+_frame_offsets = compiled(frame_offsets)
 _following_gap = compiled(following_gap)
 _capped_time_to_collision = compiled(capped_time_to_collision)
 _packet_sincos = compiled(packet_sincos)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _sincos32(x, libm):
     """`float32_math.sincos32` of one value; `libm`: it is in the official op's trailing packet."""
     sin, cos = _packet_sincos(x)

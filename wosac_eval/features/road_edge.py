@@ -182,7 +182,7 @@ def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_va
 _MAX_BUCKETS = 1 << 20  # larger maps get larger buckets (the grid's memory stays bounded)
 _CELLS_PER_BUCKET = 8  # along each axis: cells of BUCKET_SIDE / 8 (1 m)
 _LIST_SLACK = 3.0  # metres listed beyond a cell's nearest planar distance: heights up to 1 m apart
-_NOT_FOUND = -1
+_NOT_FOUND = _OFF_GRID = -1
 _NON_FINITE = -2
 
 
@@ -237,14 +237,14 @@ def _bucket_lists(start, delta, listed, origin_x, origin_y, side, num_x, num_y):
     return bucket_start, segments, occupied
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _ring_buffer(grid):
     """Room for the buckets of one ring within the grid's occupied range (`_ring_buckets`)."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
     return np.empty(2 * (max(x1 - x0, 0) + max(y1 - y0, 0)) + 4, np.int64)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _ring_buckets(bi, bj, r, grid, out):
     """The buckets r steps (Chebyshev) from bucket (bi, bj) within the occupied range, into `out`;
     returns their count."""
@@ -265,14 +265,14 @@ def _ring_buckets(bi, bj, r, grid, out):
     return n
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _bucket_of(value, origin, side):
     """The bucket index along one axis of a finite coordinate, clamped far beyond any grid (an integer
     conversion of a huge float is undefined)."""
     return int(math.floor(min(max((value - origin) / side, -1e15), 1e15)))
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _bucket_range(start, delta, origin, side, num):
     """Buckets along one axis overlapped by a segment (clamped to the grid)."""
     low, high = min(start, start + delta), max(start, start + delta)
@@ -281,12 +281,12 @@ def _bucket_range(start, delta, origin, side, num):
     return max(0, min(first, num - 1)), max(0, min(last, num - 1))
 
 
-_segment_distances = compiled(segment_distances, inline=True)
+_segment_distances = compiled(segment_distances)
 _side_of = compiled(side_of_segment)
 _corner_sign = compiled(corner_sign)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _planar_distance64(cx, cy, k, start, delta):
     """Planar distance (float64) from a point to segment k: a lower bound of its selection distance."""
     dx, dy = np.float64(delta[k, 0]), np.float64(delta[k, 1])
@@ -299,13 +299,13 @@ def _planar_distance64(cx, cy, k, start, delta):
     return math.sqrt(ox * ox + oy * oy)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _rounding_margin(distance, length):
     """How far below the true distance the float32 selection distance can fall (generously)."""
     return 1e-3 + 1e-5 * (distance + 2.0 * length)
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _selection(px, py, pz, k, start, delta):
     return _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
                                  delta[k, 0], delta[k, 1], delta[k, 2])[1]
@@ -342,7 +342,7 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
     return best_k, evaluated
 
 
-@numba.njit(inline="always", error_model="numpy")
+@numba.njit(error_model="numpy")
 def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, grid, bucket_start, bucket_segments,
                      seen, tag, ring, out_segment, out_key):
     """Every segment that can be nearest somewhere in a cell, by key; returns (count, clearance).
@@ -373,6 +373,13 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, gri
                 out_segment[n] = k
                 out_key[n] = d
                 n += 1
+    return _listed(n, reach, half_diagonal, length, out_segment, out_key), reach
+
+
+@numba.njit
+def _listed(n, reach, half_diagonal, length, out_segment, out_key):
+    """Keeps the gathered segments (first n of `out_segment`, their centre distances in `out_key`)
+    that can be nearest in the cell, keyed and sorted; returns their count."""
     m = 0
     for p in range(n):
         if out_key[p] - half_diagonal <= reach:
@@ -383,7 +390,22 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, gri
     order = np.argsort(out_key[:m])
     out_segment[:m] = out_segment[:m][order]
     out_key[:m] = out_key[:m][order]
-    return m, reach
+    return m
+
+
+@numba.njit
+def _cell_candidates_among(cx, cy, half_diagonal, start, delta, length, among, count, out_segment, out_key):
+    """`_cell_candidates` of a cell inside a square whose list `among[:count]` holds every segment that
+    can be nearest in it (a cell's list is a subset of that of a square around it: its bounds are
+    tighter); returns (count, clearance)."""
+    reach = np.inf
+    for p in range(count):
+        k = among[p]
+        d = _planar_distance64(cx, cy, k, start, delta)
+        reach = min(reach, d + half_diagonal + _LIST_SLACK)
+        out_segment[p] = k
+        out_key[p] = d
+    return _listed(count, reach, half_diagonal, length, out_segment, out_key), reach
 
 
 @numba.njit(cache=True)
@@ -394,17 +416,18 @@ def _query_cells(queries, grid, bucket_start):
     out one list serves a whole bucket (cells of 1 m there would each list a wide ring of segments).
 
     Returns:
-      (cell int64 `(n,)`: -1 for a point off the grid or not finite, centre float64
-      `(num_cells, 2)`, half-diagonal float64 `(num_cells,)`).
+      (cell int64 `(n,)`: `_OFF_GRID` for a point off the grid, `_NON_FINITE` for one with a NaN
+      or infinite coordinate; centre float64 `(num_cells, 2)`; half-diagonal float64 `(num_cells,)`).
     """
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
     n = queries.shape[0]
-    bucket = np.full(n, -1, np.int64)
+    bucket = np.full(n, _OFF_GRID, np.int64)
     block_of_bucket = np.full(num_x * num_y, -1, np.int64)
     num_blocks = 0
     for i in range(n):
         px, py = np.float64(queries[i, 0]), np.float64(queries[i, 1])
         if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(queries[i, 2])):
+            bucket[i] = _NON_FINITE
             continue
         bi, bj = _bucket_of(px, origin_x, side), _bucket_of(py, origin_y, side)
         if 0 <= bi < num_x and 0 <= bj < num_y:
@@ -419,7 +442,7 @@ def _query_cells(queries, grid, bucket_start):
             near = _segments_around(b // num_y, b % num_y, 2, grid, bucket_start)
             division[block_of_bucket[b]] = _CELLS_PER_BUCKET if near else 1
     cell_id = np.full((num_blocks, _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), -1, np.int64)
-    cell = np.full(n, -1, np.int64)
+    cell = bucket.copy()  # _OFF_GRID and _NON_FINITE stay
     centre = np.empty((min(n, num_blocks * _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), 2), np.float64)
     half_diagonal = np.empty(centre.shape[0], np.float64)
     num_cells = 0
@@ -451,12 +474,13 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
     """The candidate list of each cell (`_cell_candidates`), one after the other.
 
     Returns:
-      (first int64 `(num_cells + 1,)`, segment int32, key float64: the lists; geometry float32
+      (begin, end int64 `(num_cells,)`: where each cell's list lies in segment int32 and key
+      float64; geometry float32
       `(6, list entries)`: each listed segment's start and delta, so that a query reads its
       candidates in a row; reach float64 `(num_cells,)`: the R of each cell).
     """
     num_cells, num_segments = centre.shape[0], start.shape[0]
-    first = np.zeros(num_cells + 1, np.int64)
+    begin, end = np.zeros(num_cells, np.int64), np.zeros(num_cells, np.int64)
     reach = np.empty(num_cells, np.float64)
     segment = np.empty(max(16, 32 * num_cells), np.int32)
     key = np.empty(segment.shape[0], np.float64)
@@ -464,30 +488,47 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
     scratch_segment = np.empty(num_segments, np.int32)
     scratch_key = np.empty(num_segments, np.float64)
     ring = _ring_buffer(grid)
+    origin_x, origin_y, side = grid[0], grid[1], grid[2]
+    # Cells smaller than a bucket take their segments among those of their bucket, built once.
+    parent = np.empty(num_cells, np.int64)
     for c in range(num_cells):
-        m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], start, delta,
-                                       length, grid, bucket_start, bucket_segments, seen, c, ring, scratch_segment,
-                                       scratch_key)
-        used = first[c]
+        inside = half_diagonal[c] < side * math.sqrt(0.5) and min_reach[c] == 0
+        parent[c] = _bucket_of(centre[c, 0], origin_x, side) * grid[4] + _bucket_of(centre[c, 1], origin_y, side) \
+            if inside else -1
+    order = np.argsort(parent)
+    bucket_list, bucket_key = np.empty(num_segments, np.int32), np.empty(num_segments, np.float64)
+    bucket_count, current, used = 0, -2, 0
+    for c in order:
+        if parent[c] >= 0 and parent[c] != current:
+            current = parent[c]
+            bi, bj = current // grid[4], current % grid[4]
+            bucket_count, _ = _cell_candidates(origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side,
+                                               side * math.sqrt(0.5), 0.0, start, delta, length, grid, bucket_start,
+                                               bucket_segments, seen, num_cells + c, ring, bucket_list, bucket_key)
+        if parent[c] >= 0:
+            m, reach[c] = _cell_candidates_among(centre[c, 0], centre[c, 1], half_diagonal[c], start, delta, length,
+                                                 bucket_list, bucket_count, scratch_segment, scratch_key)
+        else:
+            m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], start,
+                                           delta, length, grid, bucket_start, bucket_segments, seen, c, ring,
+                                           scratch_segment, scratch_key)
         while used + m > segment.shape[0]:
             segment, key = _grown(segment), _grown(key)
         segment[used:used + m] = scratch_segment[:m]
         key[used:used + m] = scratch_key[:m]
-        first[c + 1] = used + m
-    segment = segment[:first[-1]]
+        begin[c], end[c] = used, used + m
+        used += m
+    segment = segment[:used]
     geometry = np.empty((6, segment.shape[0]), np.float32)
     for p in range(segment.shape[0]):
         for axis in range(3):
             geometry[axis, p] = start[segment[p], axis]
             geometry[3 + axis, p] = delta[segment[p], axis]
-    return first, segment, key, geometry, reach
-
-
-_SEARCH_BLOCK = 8  # candidates evaluated at once: more than needed is harmless, and the compiler vectorises it
+    return begin, end, segment, key, geometry, reach
 
 
 @cached_loop
-def _search_lists(queries, cell, centre, half_diagonal, first, segment, key, geometry, reach, max_length):
+def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, geometry, reach, max_length):
     """The nearest segment of each query among its cell's list.
 
     Candidates are evaluated by blocks, in key order, until the next one's key shows that
@@ -501,32 +542,26 @@ def _search_lists(queries, cell, centre, half_diagonal, first, segment, key, geo
     """
     out = np.empty(queries.shape[0], np.int64)
     needed = np.zeros(centre.shape[0], np.float64)
-    block = np.empty(_SEARCH_BLOCK, np.float32)
     evaluated = 0
     sx, sy, sz, dx, dy, dz = geometry[0], geometry[1], geometry[2], geometry[3], geometry[4], geometry[5]
     margin = _rounding_margin(0.0, max_length)
     for i in range(queries.shape[0]):
         px, py, pz = queries[i, 0], queries[i, 1], queries[i, 2]
         c = cell[i]
-        if c < 0:
-            finite = math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)
-            out[i] = _NOT_FOUND if finite else _NON_FINITE
+        if c < 0:  # off the grid (not found here) or not finite
+            out[i] = c
             continue
         ox, oy = np.float64(px) - centre[c, 0], np.float64(py) - centre[c, 1]
         off_centre = math.sqrt(ox * ox + oy * oy)
         best, best_k = np.float32(np.inf), _NOT_FOUND
-        p, last = first[c], first[c + 1]
-        while p < last and not key[p] - off_centre > best:
-            m = min(_SEARCH_BLOCK, last - p)
-            evaluated += m
-            for j in range(m):
-                block[j] = _segment_distances(px, py, pz, sx[p + j], sy[p + j], sz[p + j], dx[p + j], dy[p + j],
-                                              dz[p + j])[1]
-            for j in range(m):
-                k, d = segment[p + j], block[j]
-                if d < best or (d == best and k < best_k):
-                    best, best_k = d, k
-            p += m
+        for p in range(begin[c], end[c]):
+            if key[p] - off_centre > best:
+                break
+            evaluated += 1
+            d = _segment_distances(px, py, pz, sx[p], sy[p], sz[p], dx[p], dy[p], dz[p])[1]
+            k = segment[p]
+            if d < best or (d == best and k < best_k):
+                best, best_k = d, k
         # A segment left out is farther in the plane than this, less its rounding.
         unlisted = (reach[c] + half_diagonal[c] - off_centre) * (1 - 1e-5) - margin
         if best < unlisted:
@@ -559,7 +594,7 @@ def _with_far_cells(queries, cell, centre, half_diagonal, table: SegmentTable):
     """`_query_cells` with cells for the finite points off the grid (placeholder states, a rollout
     gone kilometres away): squares of a power-of-two side, about 1/1024 of their distance to
     the map and at least a bucket, so one list serves the points near one another."""
-    far = np.flatnonzero((cell < 0) & np.isfinite(queries).all(axis=1))
+    far = np.flatnonzero(cell == _OFF_GRID)
     if not far.size:
         return cell, centre, half_diagonal
     xy = queries[far, :2].astype(np.float64)
@@ -598,8 +633,9 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None) 
     def search(rows, cells, min_reach):
         lists = _cell_lists(centre[cells], half_diagonal[cells], min_reach, table.start, table.delta, table.length,
                             grid, table.bucket_start, table.bucket_segments)
-        number = np.full(len(centre) + 1, -1, np.int64)  # the last for queries without a cell (-1)
+        number = np.full(len(centre) + 2, -1, np.int64)
         number[cells] = np.arange(len(cells))
+        number[_NON_FINITE] = _NON_FINITE  # the codes of queries without a cell stay
         found, needed, evaluated = _search_lists(queries[rows], number[cell[rows]], centre[cells],
                                                  half_diagonal[cells], *lists, max_length)
         work["cells"] += len(cells)
@@ -621,7 +657,7 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None) 
     return found
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _segments_around(bi, bj, r, grid, bucket_start):
     """Whether a bucket within `r` buckets of (bi, bj) lists a segment."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
@@ -632,7 +668,7 @@ def _segments_around(bi, bj, r, grid, bucket_start):
     return False
 
 
-@numba.njit(inline="always")
+@numba.njit
 def _grown(a):
     """`a` in an array twice as long (first axis), its rows kept."""
     out = np.empty((2 * a.shape[0],) + a.shape[1:], a.dtype)
@@ -642,9 +678,10 @@ def _grown(a):
 
 @cached_loop
 def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior_valid, next_valid, convex_before,
-                      convex_after):
-    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`), float32 `(n,)`."""
-    out = np.empty(queries.shape[0], np.float32)
+                      convex_after, group):
+    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`): the largest of
+    each `group` of consecutive points (numpy's maximum: NaN passes on), float32 `(n // group,)`."""
+    out = np.empty(queries.shape[0] // group, np.float32)
     for i in range(queries.shape[0]):
         px, py, pz, k = queries[i, 0], queries[i, 1], queries[i, 2], segment[i]
         rel_t, _, planar = _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
@@ -656,7 +693,9 @@ def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior
         sign = _corner_sign(rel_t, side, side_prior, side_next, convex_before[k], convex_after[k],
                             prior_valid[k], next_valid[k])
         # A padding segment's distance is 1e10, as officially (only non-finite points get one).
-        out[i] = sign * (planar if valid[k] else EXTREMELY_LARGE_DISTANCE)
+        distance = sign * (planar if valid[k] else EXTREMELY_LARGE_DISTANCE)
+        g = i // group
+        out[g] = distance if i % group == 0 or not ((out[g] > distance) | (out[g] != out[g])) else out[g]
     return out
 
 
@@ -683,10 +722,13 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     Returns:
       float32 `(num_points,)`, negative on the road side.
     """
-    queries = np.ascontiguousarray(queries, _F).reshape(-1, 3)
+    return _signed_distance_groups(table, np.ascontiguousarray(queries, _F).reshape(-1, 3), 1)
+
+
+def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int) -> np.ndarray:
     return _signed_distances(queries, nearest_segments(table, queries), table.start, table.delta, table.valid,
                              table.prior, table.next, table.prior_valid, table.next_valid, table.convex_before,
-                             table.convex_after)
+                             table.convex_after, group)
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:
@@ -703,8 +745,7 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
     boxes = corners_xyz.reshape(-1, 4, 3)
     keep = np.flatnonzero(np.broadcast_to(valid, corners_xyz.shape[:-2]).reshape(-1))
     out = np.full(len(boxes), -EXTREMELY_LARGE_DISTANCE, _F)
-    distance = signed_distance_to_polylines(table, boxes[keep].reshape(-1, 3)).reshape(-1, 4)
-    out[keep] = distance.max(axis=-1)
+    out[keep] = _signed_distance_groups(table, np.ascontiguousarray(boxes[keep], _F).reshape(-1, 3), 4)
     return out.reshape(corners_xyz.shape[:-2])
 
 

@@ -531,8 +531,8 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
 def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, geometry, reach, max_length):
     """The nearest segment of each query among its cell's list.
 
-    Candidates are evaluated by blocks, in key order, until the next one's key shows that
-    nothing further on can be nearer (evaluating one too many changes no minimum).
+    Candidates are taken in key order until the next one's key shows that nothing further on can
+    be nearer; a candidate whose box is farther in the plane than the best so far is not evaluated.
 
     Returns:
       (int64 `(n,)`: the segment, `_NOT_FOUND` where the list does not settle it (or the query
@@ -553,15 +553,25 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
             continue
         ox, oy = np.float64(px) - centre[c, 0], np.float64(py) - centre[c, 1]
         off_centre = math.sqrt(ox * ox + oy * oy)
-        best, best_k = np.float32(np.inf), _NOT_FOUND
+        best, best_k, reject = np.float32(np.inf), _NOT_FOUND, np.inf
+        qx, qy = np.float64(px), np.float64(py)
         for p in range(begin[c], end[c]):
             if key[p] - off_centre > best:
                 break
+            # The planar distance to the segment's box is a lower bound too, and costs no division.
+            x0, y0 = np.float64(sx[p]), np.float64(sy[p])
+            x1, y1 = x0 + np.float64(dx[p]), y0 + np.float64(dy[p])
+            gx = max(min(x0, x1) - qx, qx - max(x0, x1), 0.0)
+            gy = max(min(y0, y1) - qy, qy - max(y0, y1), 0.0)
+            if gx * gx + gy * gy > reject:
+                continue
             evaluated += 1
             d = _segment_distances(px, py, pz, sx[p], sy[p], sz[p], dx[p], dy[p], dz[p])[1]
             k = segment[p]
             if d < best or (d == best and k < best_k):
                 best, best_k = d, k
+                bound = np.float64(best) + _rounding_margin(np.float64(best), max_length)
+                reject = bound * bound
         # A segment left out is farther in the plane than this, less its rounding.
         unlisted = (reach[c] + half_diagonal[c] - off_centre) * (1 - 1e-5) - margin
         if best < unlisted:

@@ -3,15 +3,18 @@
 `metric_features.per_step_features` computes every feature once, for numpy
 and JAX alike; the four searches that look for a nearest thing (nearest
 object, followed object, nearest road edge, lane of a red-light crossing) are
-delegated to a strategy with the methods below. This one prunes candidates
-with k-d trees and evaluates the exact float32 kernels on the survivors; its
-dense twin is `dense.DenseSearch` (JAX, fixed shapes). Both return the
-all-pairs minimum with the same tie rule, so their features are bit-identical.
+delegated to a strategy with the methods below. This one prunes candidates by
+proven bounds in compiled loops (numba; the lane search with a k-d tree) and
+evaluates the exact float32 kernels on the survivors; its dense twin is
+`dense.DenseSearch` (JAX, fixed shapes). Both return the all-pairs minimum
+with the same tie rule, so their features are bit-identical.
 """
 from __future__ import annotations
 
 import dataclasses
+import time
 
+import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import interaction, road_edge, traffic_lights
@@ -48,3 +51,25 @@ class PrunedSearch:
     def red_light_violation(self, x, y, valid):
         """`traffic_lights.red_light_violation`: bool `(samples, objects, steps)`."""
         return traffic_lights.red_light_violation(x, y, valid, self.lanes, self.signals)
+
+
+def compile_searches() -> float:
+    """Compiles the search loops now (or loads them from numba's cache); returns the seconds it took.
+
+    numba compiles a loop on its first call, once per installation (about half a minute for all of
+    them), and caches it on disk; a process that should not pay that in its first scenario (a
+    Docker image while it is built, a service before it takes jobs) calls this first.
+    """
+    start = time.perf_counter()
+    f = np.float32
+    table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
+    # Boxes near the edge, on another level, far off the map, and not finite.
+    centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
+    corners = (centres[:, None, :] + np.array([[1, 1, 0], [-1, 1, 0], [-1, -1, 0], [1, -1, 0]], f))[None]
+    road_edge.distance_to_road_edge(corners, np.ones(corners.shape[:2], bool), table)
+    x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (samples, objects, steps): a follower and its leader
+    zeros, ones = np.zeros_like(x), np.ones_like(x)
+    with np.errstate(invalid="ignore"):
+        interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
+        interaction.time_to_collision(x, zeros, ones * 4, ones * 2, zeros, ones > 0, 2, 0.1, slice(1, None))
+    return time.perf_counter() - start

@@ -245,6 +245,15 @@ def _ring_buffer(grid):
 
 
 @numba.njit
+def _rings_around(x, y, grid):
+    """The bucket (bi, bj) of a point and the first and last rings around it that meet the
+    occupied range (`_ring_buckets`)."""
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    bi, bj = _bucket_of(x, origin_x, side), _bucket_of(y, origin_y, side)
+    return bi, bj, max(0, x0 - bi, bi - x1, y0 - bj, bj - y1), max(x1 - bi, bi - x0, y1 - bj, bj - y0)
+
+
+@numba.njit
 def _ring_buckets(bi, bj, r, grid, out):
     """The buckets r steps (Chebyshev) from bucket (bi, bj) within the occupied range, into `out`;
     returns their count."""
@@ -318,13 +327,10 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
     Before ring r, every segment not met yet crosses only buckets r or more buckets away,
     so it is at least (r - 1) * side away in the plane: the search stops there.
     """
-    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
     if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
         return _NON_FINITE, 0
-    bi = _bucket_of(np.float64(px), origin_x, side)
-    bj = _bucket_of(np.float64(py), origin_y, side)
-    first = max(0, x0 - bi, bi - x1, y0 - bj, bj - y1)
-    last = max(x1 - bi, bi - x0, y1 - bj, bj - y0)
+    side = grid[2]
+    bi, bj, first, last = _rings_around(np.float64(px), np.float64(py), grid)
     best, best_k, evaluated = np.float32(np.inf), _NOT_FOUND, 0
     for r in range(first, last + 1):
         if r > first and (r - 1) * side > best + _rounding_margin(best, max_length):
@@ -352,11 +358,8 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, gri
     query settles when what it found is nearer than what they can reach. The key of a listed
     segment is P_k(c) less its rounding margin; lists are sorted by key.
     """
-    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
-    bi = _bucket_of(cx, origin_x, side)
-    bj = _bucket_of(cy, origin_y, side)
-    first = max(0, x0 - bi, bi - x1, y0 - bj, bj - y1)
-    last = max(x1 - bi, bi - x0, y1 - bj, bj - y0)
+    side = grid[2]
+    bi, bj, first, last = _rings_around(cx, cy, grid)
     reach = np.inf  # R
     n = 0
     for r in range(first, last + 1):

@@ -4,6 +4,9 @@ Random inputs reach corners the scenario data may miss: huge angles, the
 libm tail, degenerate segments, points past segment ends, ties.
 """
 import dataclasses
+import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -297,3 +300,34 @@ def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
                  "time_to_collision", "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step",
                  "average_displacement_error"):
         np.testing.assert_array_equal(np.asarray(getattr(jax_sim, name)), getattr(numpy_sim, name), err_msg=name)
+
+
+_SPEEDS_WITH_FUSION = """
+import numpy as np, jax, jax.numpy as jnp
+from wosac_eval.backends import jax_backend
+from wosac_eval.features import kinematics
+rng = np.random.default_rng(0)
+x, y = ((rng.normal(size=(64, 91)).cumsum(-1) * 3 + offset).astype(np.float32) for offset in (1000, -500))
+z = (rng.normal(size=(64, 91)) * 0.1).astype(np.float32)
+heading = rng.uniform(-3, 3, size=(64, 91)).astype(np.float32)
+want = kinematics.kinematic_features(x, y, z, heading, 0.1)
+got = jax.jit(lambda *a: kinematics.kinematic_features(*a, 0.1))(x, y, z, heading)
+differing = sum(int((~((np.asarray(g) == w) | np.isnan(w))).sum()) for g, w in zip(got, want))
+d = [kinematics.central_difference(v) for v in (x, y, z)]
+fused_sum = np.asarray(jax.jit(lambda a, b, c: a * a + b * b + c * c)(*d))
+control = int((fused_sum != d[0] * d[0] + d[1] * d[1] + d[2] * d[2])[:, 1:-1].sum())
+print(jax_backend.fma_contraction(), control, differing)
+"""
+
+
+def test_speeds_stay_exact_where_xla_fuses_multiply_adds():
+    """Without `exact_cpu()` XLA fuses `a * b + c` on a CPU with FMA (as on a GPU): the squares of a speed
+    are still rounded one by one, so the kinematic features equal numpy's bit for bit."""
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    out = subprocess.run([sys.executable, "-c", _SPEEDS_WITH_FUSION], env=env, capture_output=True, text=True,
+                         check=True)
+    fused, control, differing = out.stdout.split()
+    if fused != "True":
+        pytest.skip("this CPU has no fused multiply-add: XLA cannot fuse here")
+    assert int(control) > 0  # the plain sum of squares is fused here: the check is not vacuous
+    assert int(differing) == 0

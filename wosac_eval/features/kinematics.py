@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, divide
+from wosac_eval.features.xp import array_namespace, divide, rounded_square
 
 _F = np.float32
 
@@ -49,7 +49,10 @@ def wrap_angle(angle: np.ndarray) -> np.ndarray:
 def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: float) -> np.ndarray:
     """3D speed in m/s, float32 `(..., num_steps)` (NaN at both ends)."""
     dx, dy, dz = central_difference(x), central_difference(y), central_difference(z)
-    return divide(array_namespace(dx).sqrt(dx * dx + dy * dy + dz * dz), _F(seconds_per_step))
+    xp = array_namespace(dx)
+    # Each square rounded before the sum, as officially (XLA would fuse one into the addition).
+    squares = [rounded_square(d, xp) for d in (dx, dy, dz)]
+    return divide(xp.sqrt(squares[0] + squares[1] + squares[2]), _F(seconds_per_step))
 
 
 def kinematic_features(x, y, z, heading, seconds_per_step: float):

@@ -110,6 +110,25 @@ def divide(a, b):
     return a / lax.bitcast_convert_type(b_bits, b.dtype)
 
 
+def rounded_square(a, xp):
+    """`a * a` rounded to its float type on its own: never fused with the addition it feeds.
+
+    XLA on a GPU (and on a CPU with FMA, without `exact_cpu()`) contracts `a * a + c` into one fused
+    multiply-add, which rounds once instead of twice and moves the last bit; the official code rounds
+    each square. The square's bits pass through an integer AND that clears the sign bit: a square is
+    +0, positive or NaN, so this is the identity (a NaN stays NaN), but the compilers cannot see it, and
+    no multiply is left next to the addition. numpy is left as is.
+    """
+    square = a * a
+    if is_numpy(xp):
+        return square
+    from jax import lax
+    width = 8 * square.dtype.itemsize
+    bits = lax.bitcast_convert_type(square, np.dtype(f"int{width}"))
+    sign = (bits >> (width - 1)) << (width - 1)  # shifts, not a constant mask a compiler may read as abs()
+    return lax.bitcast_convert_type(bits & ~sign, square.dtype)
+
+
 def opaque(value, xp):
     """`value`, hidden from XLA's algebraic simplifier under JAX.
 

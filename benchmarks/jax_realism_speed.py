@@ -17,21 +17,28 @@ Prints scenes per second for each, the projection for the 44,097-scene validatio
 in use (`jax.devices()`, a GPU when JAX has one) and, where the device reports it, the peak device
 memory per scene of the in-loop call. Pure JAX: nothing here is specific to a CPU.
 
-Usage: python benchmarks/jax_realism_speed.py [--scenes 16] [--repeat 3] [--workers 2]
+`--batch 1,64` also times the in-loop call on the scene set repeated 64 times (prepared once, copied
+on the device): a GPU needs batches of hundreds of scenes to be busy. `--womd` takes the real WOMD
+scenes of the reference material (`../shared/womd`, or WOSAC_SHARED) instead of synthetic ones.
+
+Usage: python benchmarks/jax_realism_speed.py [--scenes 16] [--repeat 3] [--workers 2] [--batch 1] [--womd]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import tempfile
 import time
 from pathlib import Path
 
-from bench_env import VALIDATION_SET, median_seconds
+from bench_env import SHARED, VALIDATION_SET, median_seconds
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from wosac_eval import jax_realism
+from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission, policy_rollouts
 
@@ -68,21 +75,22 @@ def _peak_device_bytes() -> int | None:
     return stats.get("peak_bytes_in_use")
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=16)
-    parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=2)
-    args = parser.parse_args()
-    scenarios = scenes.generate_scenes(args.scenes, seed=7)
-    print(f"device: {jax.devices()[0]}; {args.scenes} synthetic scenes, IDM rollouts, sim agents")
+def repeated(prepared: jax_realism.PreparedScenes, copies: int) -> jax_realism.PreparedScenes:
+    """The scene set `copies` times over (copy-major), its device arrays concatenated: a bigger batch
+    without preparing the same scenes again."""
+    if copies == 1:
+        return prepared
+    n = prepared.num_scenes
+    arrays = tuple(jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * copies), group) for group in prepared.arrays)
+    groups = tuple((tuple(c * n + i for c in range(copies) for i in indices), layout)
+                   for indices, layout in prepared.groups)
+    return dataclasses.replace(prepared, arrays=arrays, groups=groups, scenario_ids=prepared.scenario_ids * copies,
+                               agent_ids=prepared.agent_ids * copies)
 
-    start = time.perf_counter()
-    prepared = jax_realism.prepare(scenarios)
-    prepare_s = time.perf_counter() - start
-    arrays = jax_realism.stack_rollouts(prepared, [policy_rollouts(sc, "idm") for sc in scenarios])
+
+def in_loop_seconds(prepared, arrays: dict, repeat: int) -> tuple[float, float]:
+    """Median seconds of the jitted realism call on new rollouts each time: (float32 mode, exact mode)."""
     shift = {"k": 0}
-
     step = jax.jit(lambda a: jax_realism.realism(prepared, **a))
 
     def in_loop():
@@ -90,27 +98,80 @@ def main() -> None:
         moved = dict(arrays, x=arrays["x"] + np.float32(0.01 * shift["k"]))
         jax.block_until_ready(step(moved))
 
-    float32_s = median_seconds(in_loop, args.repeat, warmup=1)
-    peak = _peak_device_bytes()
+    def first_then_median(label: str) -> float:
+        start = time.perf_counter()
+        in_loop()  # compiles
+        print(f"  {prepared.num_scenes} scenes, {label}: first call (compiles) {time.perf_counter() - start:.1f} s",
+              flush=True)
+        return median_seconds(in_loop, repeat)
+
+    float32_s = first_then_median("float32 mode")
     with jax.enable_x64(True):
-        exact_s = median_seconds(in_loop, args.repeat, warmup=1)
+        exact_s = first_then_median("exact mode")
+    return float32_s, exact_s
+
+
+def womd_scenarios() -> tuple[list, list]:
+    """The real WOMD scenes of the reference material, and the tfrecord files that hold them."""
+    files = sorted((SHARED / "womd").glob("*.tfrecord"))
+    if not files:
+        raise SystemExit(f"--womd needs the WOMD scenarios in {SHARED / 'womd'} (../shared, or WOSAC_SHARED)")
+    found = {}
+    for f in files:
+        for sourced in iter_scenarios(f):
+            found.setdefault(sourced.scenario.scenario_id, (sourced.scenario, f))
+    return [sc for sc, _ in found.values()], sorted({f for _, f in found.values()})
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", type=int, default=16)
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--batch", default="1", help="comma-separated copies of the scene set for the in-loop call")
+    parser.add_argument("--womd", action="store_true", help="the real WOMD scenes of ../shared/womd")
+    args = parser.parse_args()
+    copies = [int(c) for c in args.batch.split(",")]
+    if args.womd:
+        scenarios, shards = womd_scenarios()
+        what = f"{len(scenarios)} real WOMD scenes"
+    else:
+        scenarios, shards = scenes.generate_scenes(args.scenes, seed=7), None
+        what = f"{len(scenarios)} synthetic scenes"
+    print(f"device: {jax.devices()[0]}; {what}, IDM rollouts (32 each), sim agents")
+
+    start = time.perf_counter()
+    prepared = jax_realism.prepare(scenarios)
+    prepare_s = time.perf_counter() - start
+    arrays = jax_realism.stack_rollouts(prepared, [policy_rollouts(sc, "idm") for sc in scenarios])
+    n = prepared.num_scenes
+    print(f"prepare (once per scene set): {prepare_s:.2f} s ({prepare_s / n * 1e3:.0f} ms/scene)", flush=True)
+    print(f"{'path':52s} {'s/call':>8s} {'scenes/s':>9s} {'44,097 scenes':>14s}", flush=True)
+
+    def row(label: str, seconds: float, scenes_per_call: int) -> None:  # printed as measured
+        print(f"{label:52s} {seconds:8.3f} {scenes_per_call / seconds:9.1f} "
+              f"{VALIDATION_SET * seconds / scenes_per_call / 60:11.1f} min", flush=True)
+
+    for c in copies:
+        try:
+            float32_s, exact_s = in_loop_seconds(repeated(prepared, c), {k: np.concatenate([v] * c) for k, v in arrays.items()},
+                                                 args.repeat)
+        except Exception as error:  # a batch too big for the device: say so, go on with the others
+            print(f"batch of {c * n} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}")
+            continue
+        row(f"in the loop, float32 mode (x64 off), {c * n} scenes", float32_s, c * n)
+        row(f"in the loop, exact mode (x64 on), {c * n} scenes", exact_s, c * n)
+        peak = _peak_device_bytes()
+        if peak is not None:
+            print(f"  peak device memory so far: {peak / 2**20:.0f} MiB ({peak / (c * n) / 2**20:.1f} MiB per scene "
+                  f"of this batch)", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
-        shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
+        if shards is None:
+            shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
         submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
-        jax_file_s = _file_path(shards, submission, 1, args.repeat, "jax")
-        numpy_1_s, numpy_n_s = (_file_path(shards, submission, w, args.repeat, "numpy") for w in (1, args.workers))
-    n = args.scenes
-    print(f"prepare (once per scene set): {prepare_s:.2f} s ({prepare_s / n * 1e3:.0f} ms/scene)")
-    if peak is not None:
-        print(f"peak device memory of the float32 in-loop call: {peak / 2**20:.0f} MiB "
-              f"({peak / n / 2**20:.1f} MiB per scene)")
-    print(f"{'path':44s} {'s/call':>8s} {'scenes/s':>9s} {'44,097 scenes':>14s}")
-    for label, seconds in (("in the loop, float32 mode (x64 off)", float32_s),
-                           ("in the loop, exact mode (x64 on)", exact_s),
-                           ("file path, --backend jax (exact)", jax_file_s),
-                           ("file path, numpy, 1 worker", numpy_1_s),
-                           (f"file path, numpy, {args.workers} workers", numpy_n_s)):
-        print(f"{label:44s} {seconds:8.2f} {n / seconds:9.1f} {VALIDATION_SET * seconds / n / 60:11.1f} min")
+        row("file path, --backend jax (exact)", _file_path(shards, submission, 1, args.repeat, "jax"), n)
+        for w in (1, args.workers):
+            row(f"file path, numpy, {w} worker{'s' if w > 1 else ''}", _file_path(shards, submission, w, args.repeat, "numpy"), n)
 
 
 if __name__ == "__main__":

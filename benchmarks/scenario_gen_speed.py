@@ -7,7 +7,9 @@ agents scene. Two workloads, each in a fresh process (one core,
 - the real scene 637f20cafde22ff8 (50 sim agents, 5251 road-edge segments;
   ../shared), with our log-replay scenario-gen baseline;
 - the 34-object synthetic scene of `generate_scenes(10, seed=5)` (large
-  coordinates), with the same baseline.
+  coordinates), with the same baseline;
+- 128 objects: the real scene's tracks valid at step 10 nearest the SDC, and shifted copies of
+  them (4 m sideways) up to 128 (`score_objects.scene_with`), with the same baseline.
 
 Prints the median seconds per scenario (protobuf in, metrics out), the per-stage
 breakdown, each search's operation count and share of its arithmetic floor
@@ -48,6 +50,9 @@ from stage_timing import stage_breakdown
 which, repeat = sys.argv[1], int(sys.argv[2])
 if which == "real":
     scenario = next(s for s, _ in iter_scenarios(sys.argv[3]))
+elif which == "real-128":
+    from score_objects import scene_with
+    scenario = scene_with(next(s for s, _ in iter_scenarios(sys.argv[3])), 128, 128)
 else:
     scenario = scenes.generate_scenes(10, seed=5)[6]
 rollouts = policy_rollouts(scenario, "log_replay_noise", challenge="scenario_gen")
@@ -63,7 +68,7 @@ def main() -> int:
     p.add_argument("--repeat", type=int, default=7)
     args = p.parse_args()
     real = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
-    rows = [("synthetic", "")] + ([("real", str(real))] if real.exists() else [])
+    rows = [("synthetic", "")] + ([("real", str(real)), ("real-128", str(real))] if real.exists() else [])
     print(f"Scenario generation, one core, median of {args.repeat} after a warm-up")
     seconds = {}
     for which, path in rows:

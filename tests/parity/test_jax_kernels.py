@@ -331,3 +331,25 @@ def test_speeds_stay_exact_where_xla_fuses_multiply_adds():
         pytest.skip("this CPU has no fused multiply-add: XLA cannot fuse here")
     assert int(control) > 0  # the plain sum of squares is fused here: the check is not vacuous
     assert int(differing) == 0
+
+
+def test_float32_roots_and_quotients_go_through_float64_in_the_exact_mode():
+    """XLA's float32 sqrt and division are not correctly rounded on every device (a GPU); under x64 they
+    are computed in float64 and rounded once, which is exact, and equal numpy's bit for bit."""
+    from wosac_eval.features import xp as xp_module
+
+    rng = np.random.default_rng(3)
+    # Normal numbers only: XLA's CPU flushes subnormal operands to zero, in float32 and float64 alike.
+    special = [0.0, -0.0, 1.1754944e-38, 3e38, np.inf, -np.inf, np.nan, -1.0, 2.0, 0.1]
+    a = np.concatenate([rng.uniform(0, 1e3, 5000), 10.0 ** rng.uniform(-18, 18, 5000), special]).astype(F)
+    b = np.concatenate([rng.uniform(0.01, 10, 5000), 10.0 ** rng.uniform(-18, 18, 5000), special[::-1]]).astype(F)
+    with jax.enable_x64(True):
+        traced = str(jax.make_jaxpr(lambda u, v: (xp_module.sqrt(u, jnp), divide(u, v)))(a, b))
+        got_sqrt, got_div = jitted(lambda u, v: (xp_module.sqrt(u, jnp), divide(u, v)), a, b)
+        with xp_module.float32_precision():  # the float32 mode has no float64
+            assert "f64" not in str(jax.make_jaxpr(lambda u, v: (xp_module.sqrt(u, jnp), divide(u, v)))(a, b))
+    assert "f64" in traced
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        np.testing.assert_array_equal(got_sqrt, np.sqrt(a))
+        np.testing.assert_array_equal(got_div, a / b)
+    assert got_sqrt.dtype == got_div.dtype == F

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.features.xp import array_namespace, divide, rounded_square
+from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
 
 _F = np.float32
 
@@ -52,7 +52,7 @@ def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: 
     xp = array_namespace(dx)
     # Each square rounded before the sum, as officially (XLA would fuse one into the addition).
     squares = [rounded_square(d, xp) for d in (dx, dy, dz)]
-    return divide(xp.sqrt(squares[0] + squares[1] + squares[2]), _F(seconds_per_step))
+    return divide(sqrt(squares[0] + squares[1] + squares[2], xp), _F(seconds_per_step))
 
 
 def kinematic_features(x, y, z, heading, seconds_per_step: float):

@@ -23,7 +23,7 @@ from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.features import box_geometry, interaction, kinematics, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_sum32, packet_tail, sincos32
 from wosac_eval.features.search import PrunedSearch
-from wosac_eval.features.xp import array_namespace, divide
+from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
 
 _F = np.float32
 TRAJECTORY_FIELDS = ("x", "y", "z", "heading", "length", "width", "height", "valid")
@@ -127,7 +127,7 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     xp = array_namespace(x, log_valid)
     e = slice(0, num_evaluated)
     dx, dy, dz = (a[:, e] - a[:1, e] for a in (x, y, z))
-    displacement = xp.sqrt(dx * dx + dy * dy + dz * dz)
+    displacement = sqrt(rounded_square(dx, xp) + rounded_square(dy, xp) + rounded_square(dz, xp), xp)
     total = packet_sum32(xp.where(log_valid, displacement, _F(0)))
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 

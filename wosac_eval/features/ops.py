@@ -31,7 +31,8 @@ def where(condition, a, b):
 
 
 def sqrt(v):
-    return array_namespace(v).sqrt(v)
+    """Square root, correctly rounded (`xp.sqrt`: also where XLA's float32 one is not)."""
+    return _xp.sqrt(v, array_namespace(v))
 
 
 def absolute(v):

@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features.spatial import first_minimum, non_finite_pick, pad_polylines, tree_candidates
-from wosac_eval.features.xp import array_namespace, divide, errstate
+from wosac_eval.features.xp import array_namespace, divide, errstate, sqrt
 
 _F = np.float32
 LANE_STATE_STOP_VALUES = (1, 4)  # LANE_STATE_ARROW_STOP, LANE_STATE_STOP
@@ -87,7 +87,7 @@ def lane_measure(xy, start, delta):
         t = xp.clip(xp.where(squared == 0, _F(0), divide(along, squared)), _F(0), _F(1))
     mx = px + delta[..., 0] * t
     my = py + delta[..., 1] * t
-    return xp.sqrt(mx * mx + my * my)
+    return sqrt(mx * mx + my * my, xp)
 
 
 def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:

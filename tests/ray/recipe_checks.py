@@ -155,12 +155,30 @@ def service(root: Path, data: dict, env: dict, address: str, **extra: str):
         del server.env[key]
     server.env.update({k: v for k, v in env.items() if not k.startswith("WOSAC_")}, **extra)
     server.start(timeout=120)
+
+    def wait(client, submitted):
+        try:
+            return server.wait_state(client, submitted, timeout=300)
+        except AssertionError as stuck:  # say what the cluster's side was doing (a CI run once saw this)
+            raise AssertionError(f"{stuck}\n{ray_logs(env)}") from None
+
     try:
         with server.client(server.key("team")) as client:
             submitted = client.post("/v1/submissions", content=Path(data["submission"]).read_bytes()).json()["id"]
-            yield client, lambda: server.wait_state(client, submitted, timeout=300)
+            yield client, lambda: wait(client, submitted)
     finally:
         server.stop()
+
+
+def ray_logs(env: dict, lines: int = 30) -> str:
+    """The tails of the head's Ray Client server logs and of every error log of this cluster's session."""
+    logs = Path(env["RAY_TMPDIR"]) / "ray" / "session_latest" / "logs"
+    out = []
+    for path in sorted(logs.glob("ray_client_server*")) + sorted(logs.glob("*.err")):
+        text = path.read_text(errors="replace").strip().splitlines()[-lines:]
+        if text:
+            out.append(f"--- {path.name}\n" + "\n".join(text))
+    return "\n".join(out) or f"(no Ray logs under {logs})"
 
 
 def test_a_client_without_the_right_token_gets_one_line_that_names_the_fix(cluster, env, data, tmp_path):

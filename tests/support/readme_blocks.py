@@ -18,6 +18,7 @@ import os
 import re
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -59,9 +60,10 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
             print(f"README.md:{line}: skipped (uses Ray; run inside a loopback-only namespace)", flush=True)
             continue
         command = ["bash", "-euo", "pipefail", "-c", code] if language == "bash" else [sys.executable, "-c", code]
+        start = time.monotonic()
         done = subprocess.run(command, cwd=scratch, env=env, capture_output=True, text=True, timeout=900)
         status = "ok" if done.returncode == 0 else f"FAILED (exit {done.returncode})"
-        print(f"README.md:{line}: {language} block {status}", flush=True)
+        print(f"README.md:{line}: {language} block {status} in {time.monotonic() - start:.1f} s", flush=True)
         if done.returncode != 0:
             failed += 1
             print(f"--- code\n{code}--- stdout (tail)\n{done.stdout[-3000:]}\n--- stderr (tail)\n{done.stderr[-3000:]}",

@@ -64,9 +64,13 @@ def scene_set(challenge: str):
 
 
 @lru_cache(maxsize=None)
-def prepared_set(challenge: str, padded: bool = False):
+def prepared_set(challenge: str, padded: bool = False, grouped: bool = False):
+    """The scene set prepared as one group (one compiled program: most tests), in groups by size
+    (`grouped`: three here, put back in scene order), or padded wider (`padded`)."""
     scs, rollouts = scene_set(challenge)
-    prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None)
+    prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None,
+                                   grouped=grouped)
+    assert len(prepared.groups) == (3 if grouped else 1)
     return prepared, jax_realism.stack_rollouts(prepared, rollouts)
 
 
@@ -77,12 +81,15 @@ def as_numpy(tree):
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
 def test_realism_equals_the_file_path(challenge, mode):
+    """Scenes in three groups by size (the default), each scene's values back in its place."""
     scs, rollouts = scene_set(challenge)
-    prepared, arrays = prepared_set(challenge)
+    prepared, arrays = prepared_set(challenge, grouped=True)
     got = in_jit(mode, prepared, arrays)
+    one_group = in_jit(mode, *prepared_set(challenge))
     for s, (sc, ro) in enumerate(zip(scs, rollouts)):
         expected = score_scenario(sc, ro, challenge=challenge)
         for field in SCENARIO_FIELDS:
+            assert abs(float(one_group[field][s]) - float(got[field][s])) <= 1e-6, (sc.scenario_id, field)
             assert got[field].shape == (3,)
             assert abs(float(np.float32(got[field][s])) - expected[field]) <= METRIC_TOLERANCE, (sc.scenario_id, field)
 
@@ -262,7 +269,8 @@ def test_bad_arrays_are_refused_with_the_shapes():
 @pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("case_set", [s for s in golden.SETS], ids=lambda s: s.name)
 def test_every_golden_case_matches_the_official_metrics(case_set, mode):
-    """All cases of a golden set (real WOMD scenes with ../shared; synthetic oracle cases always) in one batch."""
+    """All cases of a golden set (real WOMD scenes with ../shared; synthetic oracle cases always) in one
+    batch, one group (one program to compile; padding changes no result, as tested above)."""
     cases = case_set.cases
     if not cases:
         golden.skip_if_absent(case_set, None)
@@ -270,7 +278,8 @@ def test_every_golden_case_matches_the_official_metrics(case_set, mode):
     config_name = case_set.configs[0]
     config = golden.SHARED_CONFIGS.get(config_name, config_name) if case_set.name == "shared" else config_name
     config = str(golden.SHARED / config) if config.endswith(".textproto") else config
-    prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config)
+    prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config,
+                                   grouped=False)
     got = in_jit(mode, prepared, jax_realism.stack_rollouts(prepared, [ro for _, ro in pairs]))
     for s, case in enumerate(cases):
         expected = golden.expected_metrics(case_set, case, config_name)

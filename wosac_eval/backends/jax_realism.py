@@ -190,7 +190,7 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> d
 
 
 def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
-            min_sizes: tuple | None = None) -> PreparedScenes:
+            min_sizes: tuple | None = None, grouped: bool = True) -> PreparedScenes:
     """Scenes (Scenario messages or `ScenarioArrays`) as a device-resident `PreparedScenes`, once.
 
     Args:
@@ -200,6 +200,10 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
       min_sizes: optional lower bounds of the padded sizes (objects, evaluated objects, road-edge
         segments, signals, lane segments, road-edge grid cells; a shorter tuple bounds the first
         ones): to share compiled functions between scene sets.
+      grouped: scenes of similar sizes are padded together, a program per group (the least padded
+        work per call); False pads every scene to the largest: one program, which compiles several
+        times faster and does more work per call (7 scenes of 6 to 9 evaluated objects on this
+        2-core CPU: 6 groups compile in 72 s and run a call in 2.5 s, one group in 14 s and 5.1 s).
     """
     spec = challenges.spec(challenge)
     config = config or spec.default_config
@@ -212,7 +216,7 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
     floor = (tuple(min_sizes) if min_sizes is not None else ()) + (1,) * (6 - len(min_sizes or ()))
     members: dict[tuple, list[int]] = {}
     for k, scene_input in enumerate(inputs):
-        members.setdefault(_group_key(_sizes(scene_input), floor), []).append(k)
+        members.setdefault(_group_key(_sizes(scene_input), floor) if grouped else (), []).append(k)
     groups, arrays = [], []
     for indices in members.values():
         group_arrays, layout = _prepare_group([inputs[k] for k in indices], spec, floor, max_agents)

@@ -37,8 +37,7 @@ def check_set(case_set, mode: str) -> None:
     cases = case_set.cases
     pairs = [golden.inputs(case_set, c) for c in cases]
     name = case_set.configs[0]
-    config = golden.SHARED_CONFIGS.get(name, name) if case_set.name == "shared" else name
-    config = str(golden.SHARED / config) if config.endswith(".textproto") else config
+    config = golden.config_reference(case_set, name)
     prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge, config=config)
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     with jax.enable_x64(mode == "exact"):

@@ -277,8 +277,7 @@ def test_every_golden_case_matches_the_official_metrics(case_set, mode):
         golden.skip_if_absent(case_set, None)
     pairs = [golden.inputs(case_set, case) for case in cases]
     config_name = case_set.configs[0]
-    config = golden.SHARED_CONFIGS.get(config_name, config_name) if case_set.name == "shared" else config_name
-    config = str(golden.SHARED / config) if config.endswith(".textproto") else config
+    config = golden.config_reference(case_set, config_name)
     prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config,
                                    grouped=False)
     got = in_jit(mode, prepared, jax_realism.stack_rollouts(prepared, [ro for _, ro in pairs]))

@@ -131,9 +131,15 @@ def expected_metrics(case_set: CaseSet, case: str, config_name: str) -> dict:
     return json.loads((case_set.folder / f"{case}.json").read_text())["metrics"][config_name]
 
 
-def config(case_set: CaseSet, name: str):
+def config_reference(case_set: CaseSet, name: str) -> str:
+    """What `load_config` (and `jax_realism.prepare(config=...)`) takes for a set's config `name`:
+    a preset's name, or the path of an official textproto in ../shared."""
     value = SHARED_CONFIGS.get(name, name) if case_set.name == "shared" else name
-    return load_config(SHARED / value if value.endswith(".textproto") else value)
+    return str(SHARED / value) if value.endswith(".textproto") else value
+
+
+def config(case_set: CaseSet, name: str):
+    return load_config(config_reference(case_set, name))
 
 
 def assert_features_equal(ours, expected, where: str, names=EXACT_FEATURES) -> None:

@@ -116,7 +116,11 @@ def limit_this_process(settings: Settings, parent_pid: int) -> None:
     if settings.job_nice:
         os.nice(settings.job_nice)
     if settings.job_memory_bytes:
-        resource.setrlimit(resource.RLIMIT_AS, (settings.job_memory_bytes, settings.job_memory_bytes))
+        # The soft limit (what the kernel enforces); the hard one stays, so that a protobuf parse
+        # refused for memory can be told from damaged bytes (wosac_eval.parse.decode).
+        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
+        soft = settings.job_memory_bytes if hard == resource.RLIM_INFINITY else min(settings.job_memory_bytes, hard)
+        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
     if settings.job_cpu_budget_s:
         soft = max(1, int(settings.job_cpu_budget_s))
         resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))  # SIGXCPU at soft, SIGKILL at hard

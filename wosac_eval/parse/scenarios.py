@@ -17,6 +17,7 @@ from typing import NamedTuple, Union
 
 from google.protobuf.message import DecodeError
 
+from wosac_eval.parse.decode import decode_message
 from wosac_eval.parse.errors import (
     DuplicateScenarioError,
     ParseError,
@@ -118,7 +119,7 @@ def expand_scenario_paths(paths: PathLike | Iterable[PathLike]) -> list[Path]:
 def parse_scenario(data: bytes, source: ScenarioSource) -> scenario_pb2.Scenario:
     """Parse one record as a Scenario, naming the source when it is not one."""
     try:
-        scenario = scenario_pb2.Scenario.FromString(data)
+        scenario = decode_message(scenario_pb2.Scenario, data)
     except DecodeError as error:
         raise ParseError(f"{source}: not a valid Scenario message: {error}") from error
     # proto2 strings are not UTF-8-checked on parse; the runtime returns bytes then.

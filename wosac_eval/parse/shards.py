@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from google.protobuf.message import DecodeError
 
+from wosac_eval.parse.decode import decode_message
 from wosac_eval.parse.errors import ArchiveError, InvalidShardError, ParseError
 from wosac_eval.parse.limits import InputLimits, check_message_counts
 from wosac_eval.parse.tar_format import BLOCK, is_tar_header
@@ -100,7 +101,7 @@ def parse_submission_shard(
     when it holds more messages than `limits` allow (counted on the wire first)."""
     check_message_counts(name, raw, limits)
     try:
-        submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw)
+        submission = decode_message(sim_agents_submission_pb2.SimAgentsChallengeSubmission, raw)
     except DecodeError as error:
         raise InvalidShardError(
             f"shard {name}: not a valid SimAgentsChallengeSubmission message "

@@ -40,6 +40,7 @@ from wosac_eval.parse.archive import (
     sniff_file,
     uncompressed_tar_notice,
 )
+from wosac_eval.parse.decode import decode_message
 from wosac_eval.parse.errors import ArchiveError, ParseError, SizeLimitError
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.shards import split_shard
@@ -334,7 +335,7 @@ class SubmissionSource:
         wanted, found = set(scenario_ids), {}
         for sid, data in self._scenario_bytes():
             if sid in wanted and sid not in found:
-                found[sid] = sim_agents_submission_pb2.ScenarioRollouts.FromString(data)
+                found[sid] = decode_message(sim_agents_submission_pb2.ScenarioRollouts, data)
                 if len(found) == len(wanted):
                     break
         return found

@@ -24,6 +24,7 @@ from collections.abc import Callable, Iterable, Iterator
 
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
 from wosac_eval.metrics.config import SimAgentMetricsConfig
+from wosac_eval.parse.decode import decode_message
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
@@ -88,7 +89,7 @@ class ScoringChunk:
 
 def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
     """The chunk's (Scenario, ScenarioRollouts) messages, read by the worker."""
-    return [(context.index.load(sid), sim_agents_submission_pb2.ScenarioRollouts.FromString(read_locator(locator)))
+    return [(context.index.load(sid), decode_message(sim_agents_submission_pb2.ScenarioRollouts, read_locator(locator)))
             for sid, locator in chunk.items]
 
 

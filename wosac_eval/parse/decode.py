@@ -30,9 +30,7 @@ def decode_message(message_class: type[M], data: bytes) -> M:
             raise
         resource.setrlimit(resource.RLIMIT_AS, (hard, hard))
         try:
-            message_class.FromString(data)
-        except DecodeError:
-            raise  # damaged bytes: the error of the first try's kind, from bytes that fail without the limit
+            message_class.FromString(data)  # damaged bytes raise their DecodeError here, limit or not
         finally:
             resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
         raise MemoryError(f"parsing a {message_class.DESCRIPTOR.name} message of {len(data)} bytes needed more "

@@ -96,7 +96,7 @@ def _road_edge_counts(table: road_edge.SegmentTable, corners, valid, repeat: int
     queries = np.asarray(corners, np.float32).reshape(-1, 4, 3)[keep].reshape(-1, 3)
     queries = np.ascontiguousarray(queries[np.isfinite(queries).all(axis=1)])
     counts = {}
-    road_edge.nearest_segments(table, queries, counts)
+    road_edge.distance_to_road_edge(corners, valid, table, counts)
     valid_segments = np.flatnonzero(table.valid)
     segment = valid_segments[np.arange(len(queries)) % len(valid_segments)]  # any segment costs the same
     floor, _ = _median_time(lambda: _one_selection_each(queries, segment, table.start, table.delta), repeat)

@@ -278,3 +278,46 @@ def test_far_placeholder_queries_equal_brute_force():
     far = np.concatenate([np.zeros((40, 3)), np.tile([[0.0, 0.0, 50.0], [-7800.0, -6700.0, 400.0]], (5, 1))])
     queries = np.concatenate([near + offset, far, near[:50] + offset + [0, 0, 500]]).astype(F)
     assert_equals_brute_force(table, queries)
+
+
+@pytest.mark.parametrize("hint_stride", [1, 2, 4, 7])
+def test_hints_never_change_the_answer(hint_stride):
+    """Each query first tries the answer of the query `hint_stride` before it: a hint from anywhere (a
+    far query, a tie with a higher index, a segment on another level) leaves every answer exact."""
+    rng = np.random.default_rng(5)
+    polylines = random_map(rng)
+    table = road_edge.build_segment_table(polylines)
+    ring_centre = np.array([[400, 400, 0]] * 5 + [[400.0, 400.0, 1e-3], [400.0, 400.0, -1e-3]])
+    walk = np.cumsum(rng.normal(0, 0.8, (3000, 3)) * [1, 1, 0.2], axis=0) + [0, 0, 6]
+    queries = np.concatenate([ring_centre, walk, ring_centre[::-1], rng.uniform(-250, 250, (500, 3)),
+                              np.concatenate(polylines)[::3]]).astype(F)
+    reference = brute_force(table, queries)
+    segments = road_edge.nearest_segments(table, queries, hint_stride=hint_stride)
+    assert np.array_equal(segments, road_edge.nearest_segments(table, queries, hint_stride=len(queries)))
+    ours = road_edge._signed_distances(queries, segments, table.start, table.delta, table.valid, table.prior,
+                                       table.next, table.prior_valid, table.next_valid, table.convex_before,
+                                       table.convex_after, 1)
+    mismatch = np.flatnonzero(ours != reference)
+    assert mismatch.size == 0, f"query {queries[mismatch[0]]}: {ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+
+
+def test_box_trajectories_equal_brute_force():
+    """`distance_to_road_edge` over samples x objects x steps of boxes driving through the map (the
+    order it searches in, a box's answer the hint of the next) equals the all-pairs search."""
+    rng = np.random.default_rng(9)
+    table = road_edge.build_segment_table(random_map(rng))
+    samples, objects, steps = 3, 6, 40
+    start = rng.uniform(-150, 150, (1, objects, 1, 2)) + rng.normal(0, 0.5, (samples, objects, 1, 2))
+    heading = rng.uniform(-math.pi, math.pi, (samples, objects, 1)) + np.cumsum(
+        rng.normal(0, 0.05, (samples, objects, steps)), axis=-1)
+    centre = start + np.cumsum(1.2 * np.stack([np.cos(heading), np.sin(heading)], -1), axis=2)
+    corner = np.array([[2.4, 1.0], [2.4, -1.0], [-2.4, -1.0], [-2.4, 1.0]])
+    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    xy = centre[..., None, :] + np.stack([c * corner[:, 0] - s * corner[:, 1], s * corner[:, 0] + c * corner[:, 1]], -1)
+    z = rng.choice([0.0, 6.0], (samples, objects, 1, 1)) + np.zeros(xy.shape[:-1])
+    corners = np.concatenate([xy, z[..., None]], -1).astype(F)
+    valid = rng.random((samples, objects, steps)) > 0.1
+    ours = road_edge.distance_to_road_edge(corners, valid, table)
+    reference = brute_force(table, corners.reshape(-1, 3)).reshape(corners.shape[:-1]).max(axis=-1)
+    np.testing.assert_array_equal(ours[valid], reference[valid])
+    assert (ours[~valid] == -road_edge.EXTREMELY_LARGE_DISTANCE).all()

@@ -14,7 +14,10 @@ in 16 m buckets once per scenario (`SegmentTable`); a 1 m cell where queries
 fall gets, on first use, every segment that can be nearest anywhere in it,
 sorted by distance from its centre, so a query evaluates the exact float32
 distance of its first few candidates and stops at the first that cannot beat
-it. Queries the cell does not settle (on another level than every listed
+it. Boxes are searched object by object, step by step, samples in a row, and
+each query first tries the answer of the same corner of the box before: with
+the best distance known at once, a candidate farther in the plane (a float64
+bound, no division) is not evaluated. Queries the cell does not settle (on another level than every listed
 segment, far from the map) search the buckets ring by ring around themselves.
 Results equal an all-pairs search bit for bit (tests compare with brute force).
 """
@@ -62,6 +65,7 @@ class SegmentTable:
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
     convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
     length: np.ndarray       # float64 (S,): |delta_xy| + 3 |delta_z|, for the float32 rounding margins
+    planar_frame: np.ndarray  # float64 (S, 5): start x, y, unit direction x, y, planar length
     bucket_origin: np.ndarray  # float64 (2,): the grid's lower corner
     bucket_side: float       # metres
     bucket_shape: np.ndarray   # int64 (2,): buckets along x, y; then those holding segments:
@@ -72,6 +76,17 @@ class SegmentTable:
 
 def _cross(ax, ay, bx, by):
     return ax * by - ay * bx
+
+
+def _planar_frames(start, delta):
+    """float64 `(S, 5)`: each segment's start (x, y), unit direction (x, y) and planar length; a
+    segment of no planar length gets the direction (1, 0) (`_planar_distance_bound`)."""
+    dx, dy = delta[:, 0].astype(np.float64), delta[:, 1].astype(np.float64)
+    length = np.hypot(dx, dy)
+    has = length > 0
+    ux = np.where(has, dx / np.where(has, length, 1.0), 1.0)
+    uy = np.where(has, dy / np.where(has, length, 1.0), 0.0)
+    return np.stack([start[:, 0].astype(np.float64), start[:, 1].astype(np.float64), ux, uy, length], axis=1)
 
 
 def build_segment_table(polylines) -> SegmentTable:
@@ -115,6 +130,7 @@ def build_segment_table(polylines) -> SegmentTable:
         prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
         convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
         length=np.hypot(delta[:, 0].astype(np.float64), delta[:, 1]) + Z_STRETCH * np.abs(delta[:, 2].astype(np.float64)),
+        planar_frame=_planar_frames(start, delta),
         **_bucket_grid(start, delta, valid_flat))
 
 
@@ -309,6 +325,17 @@ def _planar_distance64(cx, cy, k, start, delta):
 
 
 @numba.njit
+def _planar_distance_bound(qx, qy, k, planar_frame):
+    """The squared planar distance from a point to segment k (float64, in the segment's own frame:
+    no division). Its rounding, about 1e-16 of the coordinates, is far inside `_rounding_margin`."""
+    tx, ty = qx - planar_frame[k, 0], qy - planar_frame[k, 1]
+    along = tx * planar_frame[k, 2] + ty * planar_frame[k, 3]
+    across = tx * planar_frame[k, 3] - ty * planar_frame[k, 2]
+    beyond = max(-along, along - planar_frame[k, 4], 0.0)
+    return beyond * beyond + across * across
+
+
+@numba.njit
 def _rounding_margin(distance, length):
     """How far below the true distance the float32 selection distance can fall (generously)."""
     return 1e-3 + 1e-5 * (distance + 2.0 * length)
@@ -382,33 +409,49 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, gri
 @numba.njit
 def _listed(n, reach, half_diagonal, length, out_segment, out_key):
     """Keeps the gathered segments (first n of `out_segment`, their centre distances in `out_key`)
-    that can be nearest in the cell, keyed and sorted; returns their count."""
+    that can be nearest in the cell, keyed and sorted; returns their count.
+
+    An insertion sort: segments come gathered near to far from a point near the cell (the
+    cell's parent bucket's order), so each moves a few places at most.
+    """
     m = 0
     for p in range(n):
         if out_key[p] - half_diagonal <= reach:
             k = out_segment[p]
-            out_segment[m] = k
-            out_key[m] = out_key[p] * (1 - 1e-5) - _rounding_margin(0.0, length[k])
+            value = out_key[p] * (1 - 1e-5) - _rounding_margin(0.0, length[k])
+            q = m
+            while q > 0 and out_key[q - 1] > value:
+                out_segment[q], out_key[q] = out_segment[q - 1], out_key[q - 1]
+                q -= 1
+            out_segment[q], out_key[q] = k, value
             m += 1
-    order = np.argsort(out_key[:m])
-    out_segment[:m] = out_segment[:m][order]
-    out_key[:m] = out_key[:m][order]
     return m
 
 
 @numba.njit
-def _cell_candidates_among(cx, cy, half_diagonal, start, delta, length, among, count, out_segment, out_key):
+def _cell_candidates_among(cx, cy, half_diagonal, start, delta, length, among, among_key, count, shift, out_segment,
+                           out_key):
     """`_cell_candidates` of a cell inside a square whose list `among[:count]` holds every segment that
     can be nearest in it (a cell's list is a subset of that of a square around it: its bounds are
-    tighter); returns (count, clearance)."""
+    tighter); returns (count, clearance).
+
+    `among_key` are the square's keys (sorted, each at most the segment's distance from the square's
+    centre), `shift` the distance between the two centres: a segment's distance from the cell's centre
+    is at least its key less `shift`, so the scan stops at the first whose key shows it can be
+    neither listed nor nearer than the reach so far (nor can any after it).
+    """
     reach = np.inf
+    n = 0
     for p in range(count):
+        if among_key[p] - shift - half_diagonal > reach:
+            break
         k = among[p]
         d = _planar_distance64(cx, cy, k, start, delta)
         reach = min(reach, d + half_diagonal + _LIST_SLACK)
-        out_segment[p] = k
-        out_key[p] = d
-    return _listed(count, reach, half_diagonal, length, out_segment, out_key), reach
+        out_segment[n] = k
+        out_key[n] = d
+        n += 1
+    return _listed(n, reach, half_diagonal, length, out_segment, out_key), reach
 
 
 @numba.njit(cache=True)
@@ -478,9 +521,7 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
 
     Returns:
       (begin, end int64 `(num_cells,)`: where each cell's list lies in segment int32 and key
-      float64; geometry float32
-      `(6, list entries)`: each listed segment's start and delta, so that a query reads its
-      candidates in a row; reach float64 `(num_cells,)`: the R of each cell).
+      float64 `(list entries,)`; reach float64 `(num_cells,)`: the R of each cell).
     """
     num_cells, num_segments = centre.shape[0], start.shape[0]
     begin, end = np.zeros(num_cells, np.int64), np.zeros(num_cells, np.int64)
@@ -501,16 +542,19 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
     order = np.argsort(parent)
     bucket_list, bucket_key = np.empty(num_segments, np.int32), np.empty(num_segments, np.float64)
     bucket_count, current, used = 0, -2, 0
+    bucket_x = bucket_y = 0.0
     for c in order:
         if parent[c] >= 0 and parent[c] != current:
             current = parent[c]
             bi, bj = current // grid[4], current % grid[4]
-            bucket_count, _ = _cell_candidates(origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side,
-                                               side * math.sqrt(0.5), 0.0, start, delta, length, grid, bucket_start,
+            bucket_x, bucket_y = origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side
+            bucket_count, _ = _cell_candidates(bucket_x, bucket_y, side * math.sqrt(0.5), 0.0, start, delta, length, grid, bucket_start,
                                                bucket_segments, seen, num_cells + c, ring, bucket_list, bucket_key)
         if parent[c] >= 0:
+            shift = math.hypot(centre[c, 0] - bucket_x, centre[c, 1] - bucket_y)
             m, reach[c] = _cell_candidates_among(centre[c, 0], centre[c, 1], half_diagonal[c], start, delta, length,
-                                                 bucket_list, bucket_count, scratch_segment, scratch_key)
+                                                 bucket_list, bucket_key, bucket_count, shift, scratch_segment,
+                                                 scratch_key)
         else:
             m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], start,
                                            delta, length, grid, bucket_start, bucket_segments, seen, c, ring,
@@ -521,21 +565,20 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
         key[used:used + m] = scratch_key[:m]
         begin[c], end[c] = used, used + m
         used += m
-    segment = segment[:used]
-    geometry = np.empty((6, segment.shape[0]), np.float32)
-    for p in range(segment.shape[0]):
-        for axis in range(3):
-            geometry[axis, p] = start[segment[p], axis]
-            geometry[3 + axis, p] = delta[segment[p], axis]
-    return begin, end, segment, key, geometry, reach
+    return begin, end, segment[:used], key[:used], reach
 
 
 @cached_loop
-def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, geometry, reach, max_length):
+def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, reach, max_length, start, delta,
+                  planar_frame, hint_stride):
     """The nearest segment of each query among its cell's list.
 
-    Candidates are taken in key order until the next one's key shows that nothing further on can
-    be nearer; a candidate whose box is farther in the plane than the best so far is not evaluated.
+    The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
+    the order `distance_to_road_edge` gives) is evaluated first: usually the answer, so that
+    few others pass the bounds. Then candidates are taken in key order until the next one's key
+    shows that nothing further on can be nearer; a candidate farther in the plane than the best
+    so far (`_planar_distance_bound`) is not evaluated. (Any valid segment may be evaluated: the result is
+    the nearest of those evaluated, and the bounds cover every segment that could beat it.)
 
     Returns:
       (int64 `(n,)`: the segment, `_NOT_FOUND` where the list does not settle it (or the query
@@ -546,7 +589,6 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
     out = np.empty(queries.shape[0], np.int64)
     needed = np.zeros(centre.shape[0], np.float64)
     evaluated = 0
-    sx, sy, sz, dx, dy, dz = geometry[0], geometry[1], geometry[2], geometry[3], geometry[4], geometry[5]
     margin = _rounding_margin(0.0, max_length)
     for i in range(queries.shape[0]):
         px, py, pz = queries[i, 0], queries[i, 1], queries[i, 2]
@@ -554,23 +596,25 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
         if c < 0:  # off the grid (not found here) or not finite
             out[i] = c
             continue
-        ox, oy = np.float64(px) - centre[c, 0], np.float64(py) - centre[c, 1]
+        qx, qy = np.float64(px), np.float64(py)
+        ox, oy = qx - centre[c, 0], qy - centre[c, 1]
         off_centre = math.sqrt(ox * ox + oy * oy)
         best, best_k, reject = np.float32(np.inf), _NOT_FOUND, np.inf
-        qx, qy = np.float64(px), np.float64(py)
+        hint = out[i - hint_stride] if i >= hint_stride else _NOT_FOUND
+        if hint >= 0:
+            evaluated += 1
+            best = _selection(px, py, pz, hint, start, delta)
+            best_k = hint
+            bound = np.float64(best) + _rounding_margin(np.float64(best), max_length)
+            reject = bound * bound
         for p in range(begin[c], end[c]):
             if key[p] - off_centre > best:
                 break
-            # The planar distance to the segment's box is a lower bound too, and costs no division.
-            x0, y0 = np.float64(sx[p]), np.float64(sy[p])
-            x1, y1 = x0 + np.float64(dx[p]), y0 + np.float64(dy[p])
-            gx = max(min(x0, x1) - qx, qx - max(x0, x1), 0.0)
-            gy = max(min(y0, y1) - qy, qy - max(y0, y1), 0.0)
-            if gx * gx + gy * gy > reject:
+            k = segment[p]
+            if _planar_distance_bound(qx, qy, k, planar_frame) > reject or k == best_k:
                 continue
             evaluated += 1
-            d = _segment_distances(px, py, pz, sx[p], sy[p], sz[p], dx[p], dy[p], dz[p])[1]
-            k = segment[p]
+            d = _selection(px, py, pz, k, start, delta)
             if d < best or (d == best and k < best_k):
                 best, best_k = d, k
                 bound = np.float64(best) + _rounding_margin(np.float64(best), max_length)
@@ -625,13 +669,15 @@ def _with_far_cells(queries, cell, centre, half_diagonal, table: SegmentTable):
     return cell, centre, half_diagonal
 
 
-def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None) -> np.ndarray:
+def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, hint_stride: int = 1) -> np.ndarray:
     """The nearest valid segment of each point (stretched selection distance, lowest index on ties).
 
     Args:
       queries: float32 `(n, 3)`, contiguous.
       counts: a dict that gets the work done: "cells" (candidate lists built), "pairs evaluated"
         (selection distances computed).
+      hint_stride: each query starts from the answer of the query this many before it (a hint only:
+        the result does not depend on it; it saves work where that query is near).
     Returns:
       int64 `(n,)`: a segment, `_NOT_FOUND` when no segment is listed, `_NON_FINITE` for a point
       with a NaN or infinite coordinate.
@@ -650,7 +696,8 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None) 
         number[cells] = np.arange(len(cells))
         number[_NON_FINITE] = _NON_FINITE  # the codes of queries without a cell stay
         found, needed, evaluated = _search_lists(queries[rows], number[cell[rows]], centre[cells],
-                                                 half_diagonal[cells], *lists, max_length)
+                                                 half_diagonal[cells], *lists, max_length, table.start, table.delta,
+                                                 table.planar_frame, hint_stride)
         work["cells"] += len(cells)
         work["pairs evaluated"] += evaluated
         return found, needed
@@ -712,17 +759,19 @@ def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior
     return out
 
 
-def nearest_segments(table: SegmentTable, queries: np.ndarray, counts: dict | None = None) -> np.ndarray:
+def nearest_segments(table: SegmentTable, queries: np.ndarray, counts: dict | None = None,
+                     hint_stride: int = 1) -> np.ndarray:
     """Index of the nearest road-edge segment of each point, as the official all-pairs search picks it.
 
     Args:
       queries: float32 `(num_points, 3)`.
       counts: optional dict that gets the search's work ("cells", "pairs evaluated").
+      hint_stride: the query whose answer each query tries first, this many before it (`_nearest_segments`).
     Returns:
       int64 `(num_points,)`; a point with a NaN or infinite coordinate gets the official pick
       (`spatial.non_finite_pick`).
     """
-    found = _nearest_segments(np.ascontiguousarray(queries, _F), table, counts)
+    found = _nearest_segments(np.ascontiguousarray(queries, _F), table, counts, hint_stride)
     return np.where(found < 0, non_finite_pick(table.valid), found)
 
 
@@ -738,28 +787,37 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     return _signed_distance_groups(table, np.ascontiguousarray(queries, _F).reshape(-1, 3), 1)
 
 
-def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int) -> np.ndarray:
-    return _signed_distances(queries, nearest_segments(table, queries), table.start, table.delta, table.valid,
+def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None):
+    # The same corner of the box before is the hint (`_nearest_segments`).
+    return _signed_distances(queries, nearest_segments(table, queries, counts, hint_stride=group), table.start, table.delta, table.valid,
                              table.prior, table.next, table.prior_valid, table.next_valid, table.convex_before,
                              table.convex_after, group)
 
 
-def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable) -> np.ndarray:
+def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable,
+                          counts: dict | None = None) -> np.ndarray:
     """Signed distance of the most off-road corner of each box.
 
     Args:
       corners_xyz: float32 `(..., num_objects, num_steps, 4, 3)` bottom corners.
       valid: bool `(..., num_objects, num_steps)`.
+      counts: optional dict that gets the search's work (`nearest_segments`).
     Returns:
       float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
     """
     # Only valid boxes are searched: invalid log states sit at placeholder
     # positions (often the origin, kilometres from the map) and are masked anyway.
-    boxes = corners_xyz.reshape(-1, 4, 3)
-    keep = np.flatnonzero(np.broadcast_to(valid, corners_xyz.shape[:-2]).reshape(-1))
-    out = np.full(len(boxes), -EXTREMELY_LARGE_DISTANCE, _F)
-    out[keep] = _signed_distance_groups(table, np.ascontiguousarray(boxes[keep], _F).reshape(-1, 3), 4)
-    return out.reshape(corners_xyz.shape[:-2])
+    # They are searched object by object, step by step, the samples of each step in a row: boxes in
+    # a row are near one another, so one's answer is a good hint for the next and their candidate
+    # lists stay in the cache.
+    lead = corners_xyz.ndim - 4
+    by_box = np.moveaxis(corners_xyz, (lead, lead + 1), (0, 1))
+    valid_by_box = np.moveaxis(np.broadcast_to(valid, corners_xyz.shape[:-2]), (lead, lead + 1), (0, 1))
+    keep = np.flatnonzero(valid_by_box.reshape(-1))
+    out = np.full(valid_by_box.shape, -EXTREMELY_LARGE_DISTANCE, _F)
+    searched = np.ascontiguousarray(by_box.reshape(-1, 4, 3)[keep], _F).reshape(-1, 3)
+    out.reshape(-1)[keep] = _signed_distance_groups(table, searched, 4, counts)
+    return np.ascontiguousarray(np.moveaxis(out, (0, 1), (lead, lead + 1)))
 
 
 # --- Cell tables for fixed-shape searches (the JAX driver, features/dense.py) ----------------------

@@ -391,15 +391,18 @@ def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail
     out = np.full((batch, num_evaluated, num_reported), MAXIMUM_TIME_TO_COLLISION, np.float32)
     # One step's objects, contiguous, and every object's offsets in one evaluated object's frame.
     step = np.empty((5, num_objects), np.float32)  # x, y, length, width, heading
+    step_reach = np.empty(num_objects, np.float32)  # -inf for an invalid object: never beside the path
     ahead = np.empty(num_objects, np.float32)
     beside = np.empty(num_objects, np.float32)
     yaw_diff = np.empty(num_objects, np.float32)
+    maybe = np.empty(num_objects, np.bool_)
     for b in range(batch):
         for st in range(num_reported):
             t = first + st
             for o in range(num_objects):
                 step[0, o], step[1, o], step[2, o] = x[b, o, t], y[b, o, t], length[b, o, t]
                 step[3, o], step[4, o] = width[b, o, t], heading[b, o, t]
+                step_reach[o] = reach[b, o, t] if valid[b, o, t] else -np.inf
             for e in range(num_evaluated):
                 # The ego frame, as the official op computes it (of minus the heading).
                 ego_sin, ego_cos = _sincos32(-step[4, e], ego_tail[st, e])
@@ -407,10 +410,10 @@ def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail
                     ahead[o], beside[o], yaw_diff[o] = _frame_offsets(
                         step[0, o], step[1, o], step[0, e], step[1, e], ego_cos, ego_sin, step[2, e], step[3, e],
                         step[4, o], step[4, e])
+                    maybe[o] = (ahead[o] > 0) & (beside[o] < step_reach[o]) & (yaw_diff[o] <= MAX_HEADING_DIFF)
                 best, best_o = np.float32(np.inf), -1
                 for o in range(num_objects):
-                    if not (ahead[o] > 0 and beside[o] < reach[b, o, t] and yaw_diff[o] <= MAX_HEADING_DIFF
-                            and valid[b, o, t]):
+                    if not maybe[o]:  # most objects: a branch the processor predicts
                         continue
                     yaw_sin, yaw_cos = _sincos32(yaw_diff[o], pair_tail[st, e, o])
                     gap, following = _following_gap(ahead[o], beside[o], yaw_diff[o], yaw_cos, yaw_sin, step[2, o],

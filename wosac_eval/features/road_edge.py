@@ -16,8 +16,8 @@ sorted by distance from its centre, so a query evaluates the exact float32
 distance of its first few candidates and stops at the first that cannot beat
 it. Boxes are searched object by object, step by step, samples in a row, and
 each query first tries the answer of the same corner of the box before: with
-the best distance known at once, a candidate farther in the plane (a float64
-bound, no division) is not evaluated. Queries the cell does not settle (on another level than every listed
+the best distance known at once, a candidate whose lower bound (float64, planar
+distance and height gap, no division) is farther is not evaluated. Queries the cell does not settle (on another level than every listed
 segment, far from the map) search the buckets ring by ring around themselves.
 Results equal an all-pairs search bit for bit (tests compare with brute force).
 """
@@ -65,7 +65,8 @@ class SegmentTable:
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
     convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
     length: np.ndarray       # float64 (S,): |delta_xy| + 3 |delta_z|, for the float32 rounding margins
-    planar_frame: np.ndarray  # float64 (S, 5): start x, y, unit direction x, y, planar length
+    frame: np.ndarray        # float64 (S, 7): start x, y, unit direction x, y, planar length, lowest and
+                             # highest z (`_distance_bound`)
     bucket_origin: np.ndarray  # float64 (2,): the grid's lower corner
     bucket_side: float       # metres
     bucket_shape: np.ndarray   # int64 (2,): buckets along x, y; then those holding segments:
@@ -78,15 +79,18 @@ def _cross(ax, ay, bx, by):
     return ax * by - ay * bx
 
 
-def _planar_frames(start, delta):
-    """float64 `(S, 5)`: each segment's start (x, y), unit direction (x, y) and planar length; a
-    segment of no planar length gets the direction (1, 0) (`_planar_distance_bound`)."""
+def _frames(start, delta):
+    """float64 `(S, 7)`: each segment's start (x, y), planar unit direction (x, y), planar length, and
+    lowest and highest z; a segment of no planar length gets the direction (1, 0) (`_distance_bound`)."""
     dx, dy = delta[:, 0].astype(np.float64), delta[:, 1].astype(np.float64)
     length = np.hypot(dx, dy)
     has = length > 0
     ux = np.where(has, dx / np.where(has, length, 1.0), 1.0)
     uy = np.where(has, dy / np.where(has, length, 1.0), 0.0)
-    return np.stack([start[:, 0].astype(np.float64), start[:, 1].astype(np.float64), ux, uy, length], axis=1)
+    z0 = start[:, 2].astype(np.float64)
+    z1 = z0 + delta[:, 2]
+    return np.stack([start[:, 0].astype(np.float64), start[:, 1].astype(np.float64), ux, uy, length,
+                     np.minimum(z0, z1), np.maximum(z0, z1)], axis=1)
 
 
 def build_segment_table(polylines) -> SegmentTable:
@@ -130,7 +134,7 @@ def build_segment_table(polylines) -> SegmentTable:
         prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
         convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
         length=np.hypot(delta[:, 0].astype(np.float64), delta[:, 1]) + Z_STRETCH * np.abs(delta[:, 2].astype(np.float64)),
-        planar_frame=_planar_frames(start, delta),
+        frame=_frames(start, delta),
         **_bucket_grid(start, delta, valid_flat))
 
 
@@ -325,14 +329,17 @@ def _planar_distance64(cx, cy, k, start, delta):
 
 
 @numba.njit
-def _planar_distance_bound(qx, qy, k, planar_frame):
-    """The squared planar distance from a point to segment k (float64, in the segment's own frame:
-    no division). Its rounding, about 1e-16 of the coordinates, is far inside `_rounding_margin`."""
-    tx, ty = qx - planar_frame[k, 0], qy - planar_frame[k, 1]
-    along = tx * planar_frame[k, 2] + ty * planar_frame[k, 3]
-    across = tx * planar_frame[k, 3] - ty * planar_frame[k, 2]
-    beyond = max(-along, along - planar_frame[k, 4], 0.0)
-    return beyond * beyond + across * across
+def _distance_bound(qx, qy, qz, k, frame):
+    """A lower bound of the squared selection distance from a point to segment k (float64, no division):
+    the squared planar distance to the segment, in its own frame, plus the stretched squared
+    height gap to its z range (every point of the segment is at least that far in each). Its
+    rounding, about 1e-16 of the coordinates, is far inside `_rounding_margin`."""
+    tx, ty = qx - frame[k, 0], qy - frame[k, 1]
+    along = tx * frame[k, 2] + ty * frame[k, 3]
+    across = tx * frame[k, 3] - ty * frame[k, 2]
+    beyond = max(-along, along - frame[k, 4], 0.0)
+    below = max(frame[k, 5] - qz, qz - frame[k, 6], 0.0) * Z_STRETCH
+    return beyond * beyond + across * across + below * below
 
 
 @numba.njit
@@ -570,14 +577,14 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
 
 @cached_loop
 def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, reach, max_length, start, delta,
-                  planar_frame, hint_stride):
+                  frame, hint_stride):
     """The nearest segment of each query among its cell's list.
 
     The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
     the order `distance_to_road_edge` gives) is evaluated first: usually the answer, so that
     few others pass the bounds. Then candidates are taken in key order until the next one's key
-    shows that nothing further on can be nearer; a candidate farther in the plane than the best
-    so far (`_planar_distance_bound`) is not evaluated. (Any valid segment may be evaluated: the result is
+    shows that nothing further on can be nearer; a candidate that `_distance_bound` puts farther
+    than the best so far is not evaluated. (Any valid segment may be evaluated: the result is
     the nearest of those evaluated, and the bounds cover every segment that could beat it.)
 
     Returns:
@@ -596,7 +603,7 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
         if c < 0:  # off the grid (not found here) or not finite
             out[i] = c
             continue
-        qx, qy = np.float64(px), np.float64(py)
+        qx, qy, qz = np.float64(px), np.float64(py), np.float64(pz)
         ox, oy = qx - centre[c, 0], qy - centre[c, 1]
         off_centre = math.sqrt(ox * ox + oy * oy)
         best, best_k, reject = np.float32(np.inf), _NOT_FOUND, np.inf
@@ -611,7 +618,7 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
             if key[p] - off_centre > best:
                 break
             k = segment[p]
-            if _planar_distance_bound(qx, qy, k, planar_frame) > reject or k == best_k:
+            if _distance_bound(qx, qy, qz, k, frame) > reject or k == best_k:
                 continue
             evaluated += 1
             d = _selection(px, py, pz, k, start, delta)
@@ -697,7 +704,7 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
         number[_NON_FINITE] = _NON_FINITE  # the codes of queries without a cell stay
         found, needed, evaluated = _search_lists(queries[rows], number[cell[rows]], centre[cells],
                                                  half_diagonal[cells], *lists, max_length, table.start, table.delta,
-                                                 table.planar_frame, hint_stride)
+                                                 table.frame, hint_stride)
         work["cells"] += len(cells)
         work["pairs evaluated"] += evaluated
         return found, needed

@@ -283,3 +283,56 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
     np.testing.assert_array_equal(interaction.distance_to_nearest_object(*nearest_args), whole_nearest)
     np.testing.assert_array_equal(interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, steps),
                                   whole_ttc)
+
+
+def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, speed):
+    """The official all-objects time to collision at every step (`all_objects_time_to_collision`)."""
+    from wosac_eval.features.float32_math import packet_tail, sincos32
+    num_objects, num_steps = x.shape[-2:]
+    pair_tail = packet_tail((num_steps, num_evaluated, num_objects))
+    ego_tail = packet_tail((num_steps, num_evaluated, 1))
+    t = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731  (..., steps, objects)
+    with np.errstate(invalid="ignore", over="ignore"):
+        ego_sin, ego_cos = sincos32(-t(heading)[..., :num_evaluated, None], ego_tail)
+        ahead, beside, yaw_diff = interaction.ego_frame_offsets(t(x), t(y), t(length), t(width), t(heading),
+                                                                 ego_cos, ego_sin, num_evaluated)
+        out = interaction.all_objects_time_to_collision(ahead, beside, yaw_diff, pair_tail, t(length)[..., None, :],
+                                                        t(width)[..., None, :], t(valid)[..., None, :], t(speed),
+                                                        num_evaluated)
+    return t(out)
+
+
+def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
+    """NaN speeds (every track's first and last steps, and some more) leave the pruned search in place and
+    equal to the all-objects one; an infinite speed sends its step to the all-objects search (a closing
+    speed of +inf gives 0 s even where nothing is followed)."""
+    from wosac_eval.features.kinematics import linear_speed
+    rng = np.random.default_rng(21)
+    x, y, length, width, heading, valid = random_traffic(rng, samples=4, objects=10, steps=40)
+    with np.errstate(invalid="ignore"):
+        speed = linear_speed(x, y, np.zeros_like(x), 0.1)
+    assert np.isnan(speed[..., 0]).all() and np.isnan(speed[..., -1]).all()
+    speed[0, 3, 7] = np.nan
+    speed[1, 0, 12] = np.inf
+    speed[2, 5, 20] = -np.inf
+    got = interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, speed=speed)
+    want = all_objects_reference(x, y, length, width, heading, valid, 4, speed)
+    assert (got < interaction.MAXIMUM_TIME_TO_COLLISION).any()
+    np.testing.assert_array_equal(got, want)
+
+
+def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
+    """Officially the nearest object by masked gap is taken even where nothing is followed (its gap about
+    1e10, so in float32 an object 2 km behind is "nearer" than the object itself): a closing speed of
+    +inf then gives 0 s, not the cap. Such a step is searched over all objects."""
+    steps = 5
+    x = np.stack([np.full(steps, 10.0), np.full(steps, -1990.0)]).astype(F)
+    zeros = np.zeros_like(x)
+    speed = np.full(x.shape, 5.0, F)
+    speed[0, 2] = np.inf
+    valid = np.ones(x.shape, bool)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        got = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, 0.1, speed=speed)
+    want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got[0], [5, 5, 0, 5, 5])

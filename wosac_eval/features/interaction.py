@@ -338,11 +338,14 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, s
         reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
         ttc = _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail,
                                reported.start, len(reported), num_evaluated)
-        # Steps where a box is NaN, infinite or huge (valid or not) or a speed is not finite: the official
-        # all-objects search, whose gaps of -inf and NaN the pruning above would skip.
+        # Steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite: the official
+        # all-objects search, whose gaps of -inf and NaN the pruning above would skip, and whose closing
+        # speed of +inf gives 0 s even where nothing is followed. A NaN speed needs no such step (the
+        # first and last steps of every track have one): any closing speed with it is NaN, hence the
+        # cap, in both searches alike.
         at = lambda a: a[..., steps]  # noqa: E731
         irregular = (unbounded_boxes(*map(at, (x, y, heading, length, width))).any(axis=1)
-                     | ~np.isfinite(at(speed)).all(axis=1))
+                     | np.isinf(at(speed)).any(axis=1))
         rb, rst = np.nonzero(irregular)
         if rb.size:
             pick = lambda a: np.swapaxes(at(a), 1, 2)[rb, rst]  # noqa: E731  (pairs, objects)

@@ -336,3 +336,31 @@ def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
     want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(got[0], [5, 5, 0, 5, 5])
+
+
+def test_the_lowest_bound_is_the_first_strict_minimum():
+    """`_lowest` over `_bounds_of_step` picks what a scan keeping the first strict minimum of the raw bounds
+    picks: ties to the lowest index, NaN and unsearched boxes never, -1 if none."""
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        n = int(rng.integers(1, 40))
+        x = rng.choice([0.0, 1.0, 2.5, -3.0], n).astype(F) if trial % 2 else rng.normal(0, 20, n).astype(F)
+        y = rng.choice([0.0, 1.0, -1.0], n).astype(F) if trial % 3 else rng.normal(0, 20, n).astype(F)
+        reach = rng.choice([0.5, 1.0, 2.5, -np.inf], n).astype(F)
+        x[rng.random(n) < 0.1] = np.nan
+        if trial % 5 == 0:
+            x[:], y[:] = 0.0, 0.0  # coincident boxes: ties everywhere
+        e = int(rng.integers(0, n))
+        if not reach[e] > -np.inf:
+            continue
+        with np.errstate(invalid="ignore"):
+            raw = np.sqrt((x - x[e]) ** 2 + (y - y[e]) ** 2) * interaction._BOUND_SCALE - (
+                (reach[e] + reach) + interaction._BOUND_MARGIN)
+        raw[e] = np.inf
+        want, best = -1, F(np.inf)
+        for o, value in enumerate(raw):
+            if value < best:
+                want, best = o, value
+        lower = np.empty(n, F)
+        interaction._bounds_of_step(x, y, reach, e, lower)
+        assert interaction._lowest(lower) == want, (trial, raw, want)

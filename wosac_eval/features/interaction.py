@@ -75,11 +75,37 @@ _box_pair_distance = compiled(box_pair_distance)
 @numba.njit
 def _bounds_of_step(step_x, step_y, step_reach, e, lower):
     """Lower bounds of the distance from box e to each box of one step (`lower`, in place): centre
-    distance less both bounding radii, with float32 margins; +inf for e itself and unsearched boxes."""
+    distance less both bounding radii, with float32 margins; +inf for e itself and unsearched boxes.
+    A NaN bound is +inf and -0 is +0 (neither changes what the bounds select, see `_lowest`)."""
     for o in range(step_x.shape[0]):  # branch-free: the compiler vectorises it
         dx, dy = step_x[o] - step_x[e], step_y[o] - step_y[e]
-        lower[o] = np.sqrt(dx * dx + dy * dy) * _BOUND_SCALE - ((step_reach[e] + step_reach[o]) + _BOUND_MARGIN)
+        bound = np.sqrt(dx * dx + dy * dy) * _BOUND_SCALE - ((step_reach[e] + step_reach[o]) + _BOUND_MARGIN)
+        bound = bound + np.float32(0)
+        lower[o] = bound if bound == bound else np.float32(np.inf)
     lower[e] = np.inf  # not against itself
+
+
+_INF_BITS, _FLIP = np.int32(0x7F800000), np.int32(0x7FFFFFFF)
+
+
+@numba.njit
+def _lowest(lower):
+    """The first index of the lowest of `lower` (from `_bounds_of_step`: no NaN, no -0), -1 if none is
+    below +inf: what a scan keeping the first strict minimum picks. The lowest is found by an integer
+    minimum over the values' bits, ordered as the floats (negative ones flipped), which the compiler
+    vectorises (a float minimum it cannot), then its first index."""
+    bits = lower.view(np.int32)
+    lowest = _INF_BITS
+    for o in range(bits.shape[0]):
+        i = bits[o]
+        lowest = min(lowest, i if i >= 0 else i ^ _FLIP)
+    if lowest == _INF_BITS:
+        return -1
+    for o in range(bits.shape[0]):
+        i = bits[o]
+        if (i if i >= 0 else i ^ _FLIP) == lowest:
+            return o
+    return -1
 
 
 @cached_loop
@@ -116,10 +142,7 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
                 if not step_reach[e] > -np.inf:
                     continue
                 _bounds_of_step(step[0], step[1], step_reach, e, lower)
-                best_bound, guess = np.float32(np.inf), -1
-                for o in range(num_objects):
-                    if lower[o] < best_bound:
-                        best_bound, guess = lower[o], o
+                guess = _lowest(lower)
                 if guess < 0:
                     continue
                 # The guess, then every other box whose bound its distance (capped at 1e10) does not exclude.

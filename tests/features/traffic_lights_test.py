@@ -184,3 +184,27 @@ def test_nearest_lane_segment_equals_brute_force():
     reference = valid[np.argmin(measure, axis=1)]  # first minimum: lowest segment index
     mismatch = np.flatnonzero(ours != reference)
     assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. point {points[mismatch[0]]}"
+
+
+def test_compiled_crossings_equal_the_array_kernel():
+    """The compiled loop of numpy's red-light search and `stop_line_crossings` (the array kernel JAX runs)
+    give the same crossings bit for bit, with points exactly on a line, segments of no length and NaN."""
+    rng = np.random.default_rng(4)
+    samples, objects, steps, signals = 3, 7, 30, 5
+    x = np.cumsum(rng.normal(0.8, 1.0, (samples, objects, steps)), axis=-1).astype(np.float32)
+    y = rng.normal(0, 3, (samples, objects, steps)).astype(np.float32)
+    x[0, 1, 4], y[1, 2, 9] = np.nan, np.inf
+    valid = rng.random(x.shape) > 0.1
+    seg_start = rng.normal(10, 5, (steps, signals, 2)).astype(np.float32)
+    seg_delta = rng.normal(0, 2, (steps, signals, 2)).astype(np.float32)
+    seg_delta[:, 0] = 0  # a segment of no length: every point at 0
+    stop_point = seg_start + rng.normal(0, 1, seg_start.shape).astype(np.float32)
+    stop_point[:, 1] = seg_start[:, 1]  # the stop point at the segment's start
+    x[2, 3, :] = stop_point[:, 2, 0]  # an object exactly on a stop point at every step
+    stopping = rng.random((steps, signals)) > 0.3
+    want = traffic_lights.stop_line_crossings(np.stack([x, y], -1), valid, seg_start, seg_delta, stop_point,
+                                              stopping)
+    got, crossed_any = traffic_lights._compiled_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping)
+    assert want.any()
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(crossed_any, want.any(axis=-1))

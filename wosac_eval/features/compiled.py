@@ -254,7 +254,7 @@ def compiled(kernel: types.FunctionType, inline: bool = False):
 
 
 # The sources of the kernels that cached loops call.
-_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge")
+_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge", "traffic_lights")
 KERNELS_DIGEST = hashlib.sha256(b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes()
                                          for m in _KERNEL_MODULES)).hexdigest()
 

@@ -21,6 +21,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.arrays.scenario import TrafficSignals
+from wosac_eval.features import ops
+from wosac_eval.features.compiled import cached_loop, compiled
 from wosac_eval.features.spatial import first_minimum, non_finite_pick, pad_polylines, tree_candidates
 from wosac_eval.features.xp import array_namespace, divide, errstate, sqrt
 
@@ -145,10 +147,21 @@ def _stop_point_segments(table: LaneTable, signals: TrafficSignals):
     return seg_start, seg_delta, np.broadcast_to(lane_known, seg.shape)
 
 
+def line_parameter(px, py, sx, sy, dx, dy, squared):
+    """Where a point projects on a segment's line, in segment lengths (0 on a segment of no length).
+
+    An elementwise `ops` kernel: `squared` is dx * dx + dy * dy; all float32 `(...)`.
+    """
+    along = (px - sx) * dx
+    along = along + (py - sy) * dy
+    return ops.where(squared == _F(0), _F(0), ops.divide(along, squared))
+
+
 def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
     """Crossings of stopped signals' lines: every red-light condition but the object's lane.
 
-    The lane search runs only where this is true, which is rare.
+    The lane search runs only where this is true, which is rare. (numpy and JAX arrays; numpy's
+    `red_light_violation` runs the same kernel in a compiled loop, `_crossings`.)
 
     Args:
       xy: float32 `(..., num_objects, num_steps, 2)`.
@@ -163,18 +176,54 @@ def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
     xp = array_namespace(xy, valid, seg_start)
     sx, sy, dx, dy = seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0], seg_delta[..., 1]  # (T, S)
     squared = dx * dx + dy * dy
-    to_stop = stop_point - seg_start
     with errstate(xp, divide="ignore", invalid="ignore"):
-        stop_t = xp.where(squared == 0, _F(0), divide(to_stop[..., 0] * dx + to_stop[..., 1] * dy, squared))
+        stop_t = line_parameter(stop_point[..., 0], stop_point[..., 1], sx, sy, dx, dy, squared)
         # Coordinates one at a time: (..., O, T, S) arrays, no trailing axis of two.
-        along = (xy[..., 0, None] - sx) * dx
-        along = along + (xy[..., 1, None] - sy) * dy
-        obj_t = xp.where(squared == 0, _F(0), divide(along, squared))
+        obj_t = line_parameter(xy[..., 0, None], xy[..., 1, None], sx, sy, dx, dy, squared)
     behind = obj_t < stop_t
     ahead = obj_t > stop_t
     no_step = xp.zeros(behind.shape[:-2] + (1,) + behind.shape[-1:], dtype=bool)
     crossed = xp.concatenate([no_step, behind[..., :-1, :] & ahead[..., 1:, :]], axis=-2)
     return valid[..., None] & stopping & crossed
+
+
+_line_parameter = compiled(line_parameter, True)
+
+
+@cached_loop
+def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
+    """`stop_line_crossings` of x, y, valid `(batch, num_objects, num_steps)` and the signals' segments
+    (sx, sy, dx, dy, squared, stop_t, stopping: `(num_steps, num_signals)`), compiled, each line
+    parameter computed once; also whether each box crossed any line, `(batch, num_objects, num_steps)`."""
+    batch, num_objects, num_steps = x.shape
+    num_signals = sx.shape[1]
+    out = np.zeros((batch, num_objects, num_steps, num_signals), np.bool_)
+    crossed_any = np.zeros((batch, num_objects, num_steps), np.bool_)
+    behind = np.zeros(num_signals, np.bool_)  # at the step before
+    for b in range(batch):
+        for o in range(num_objects):
+            for t in range(num_steps):
+                for s in range(num_signals):
+                    at = _line_parameter(x[b, o, t], y[b, o, t], sx[t, s], sy[t, s], dx[t, s], dy[t, s], squared[t, s])
+                    crossed = t > 0 and behind[s] and at > stop_t[t, s] and stopping[t, s] and valid[b, o, t]
+                    out[b, o, t, s] = crossed
+                    crossed_any[b, o, t] |= crossed
+                    behind[s] = at < stop_t[t, s]
+    return out, crossed_any
+
+
+def _compiled_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping):
+    """`stop_line_crossings` by `_crossings`: x, y float32 and valid `(..., num_objects, num_steps)`; and
+    whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
+    sx, sy, dx, dy = (np.ascontiguousarray(a, _F) for a in (seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0],
+                                                             seg_delta[..., 1]))
+    squared = dx * dx + dy * dy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stop_t = line_parameter(stop_point[..., 0], stop_point[..., 1], sx, sy, dx, dy, squared)
+    flat = lambda a, dtype: np.ascontiguousarray(np.reshape(a, (-1,) + np.shape(a)[-2:]), dtype)  # noqa: E731
+    out, crossed_any = _crossings(flat(x, _F), flat(y, _F), flat(valid, bool), sx, sy, dx, dy, squared,
+                                  np.ascontiguousarray(stop_t, _F), np.ascontiguousarray(stopping, bool))
+    return out.reshape(np.shape(valid) + (sx.shape[1],)), crossed_any.reshape(np.shape(valid))
 
 
 def red_light_violation(x, y, valid, lanes: LaneTable | None,
@@ -204,9 +253,10 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
                                   stop_point=signals.stop_point[:, relevant])
     xy = np.stack([x, y], axis=-1).astype(_F)
     seg_start, seg_delta, _ = _stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
-    suspect = stop_line_crossings(xy, valid, seg_start, seg_delta, signals.stop_point, is_stop[:, relevant])
+    suspect, crossed_any = _compiled_crossings(xy[..., 0], xy[..., 1], valid, seg_start, seg_delta,
+                                               signals.stop_point, is_stop[:, relevant])
     violation = np.zeros(valid.shape, dtype=bool)
-    where = np.nonzero(suspect.any(axis=-1))
+    where = np.nonzero(crossed_any)
     if where[0].size:
         lane_row = nearest_lane_segment(lanes, xy[where]) // lanes.num_segments
         on_lane = lanes.lane_ids[lane_row][:, None] == signals.lane_id     # (points, S)

@@ -7,7 +7,7 @@ scalar operations: both zeros, NaN, infinities, ties, zero-length segments and b
 import numpy as np
 import pytest
 
-from wosac_eval.features import box_geometry, compiled, float32_math, interaction, ops, road_edge, search
+from wosac_eval.features import box_geometry, compiled, float32_math, interaction, ops, road_edge, search, traffic_lights
 
 F = np.float32
 
@@ -99,7 +99,8 @@ def test_flat_source_inlines_every_kernel_and_operation():
 
 def test_cached_loops_are_named_after_the_kernels_digest():
     digest = compiled.KERNELS_DIGEST[:16]
-    for loop in (road_edge._search_lists, interaction._nearest_object_search, interaction._followed_search):
+    for loop in (road_edge._search_lists, interaction._nearest_object_search, interaction._followed_search,
+                 traffic_lights._crossings):
         assert loop.py_func.__qualname__.endswith(f"__kernels_{digest}")
 
 
@@ -112,7 +113,8 @@ def test_compile_searches_covers_what_scoring_calls():
 
     search.compile_searches()
     loops = [road_edge._query_cells, road_edge._cell_lists, road_edge._search_lists, road_edge._signed_distances,
-             road_edge._bucket_lists, interaction._nearest_object_search, interaction._followed_search]
+             road_edge._bucket_lists, interaction._nearest_object_search, interaction._followed_search,
+             traffic_lights._crossings]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]
     for challenge, config in (("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")):

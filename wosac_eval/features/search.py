@@ -72,4 +72,7 @@ def compile_searches() -> float:
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
         interaction.time_to_collision(x, zeros, ones * 4, ones * 2, zeros, ones > 0, 2, 0.1, slice(1, None))
+        line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
+        traffic_lights._compiled_crossings(x, zeros, ones > 0, line, line + [0, 1], line + [4, 0],
+                                           np.ones((3, 1), bool))
     return time.perf_counter() - start

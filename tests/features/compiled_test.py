@@ -7,7 +7,8 @@ scalar operations: both zeros, NaN, infinities, ties, zero-length segments and b
 import numpy as np
 import pytest
 
-from wosac_eval.features import box_geometry, compiled, float32_math, interaction, ops, road_edge, search, traffic_lights
+from wosac_eval.features import (box_geometry, compiled, float32_math, interaction, ops, road_edge, search,
+                                 traffic_lights)
 
 F = np.float32
 

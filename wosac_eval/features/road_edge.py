@@ -17,8 +17,9 @@ distance of its first few candidates and stops at the first that cannot beat
 it. Boxes are searched object by object, step by step, samples in a row, and
 each query first tries the answer of the same corner of the box before: with
 the best distance known at once, a candidate whose lower bound (float64, planar
-distance and height gap, no division) is farther is not evaluated. Queries the cell does not settle (on another level than every listed
-segment, far from the map) search the buckets ring by ring around themselves.
+distance and height gap, no division) is farther is not evaluated. Queries the
+cell does not settle (on another level than every listed segment, far from the
+map) search the buckets ring by ring around themselves.
 Results equal an all-pairs search bit for bit (tests compare with brute force).
 """
 from __future__ import annotations
@@ -316,30 +317,29 @@ _corner_sign = compiled(corner_sign)
 
 
 @numba.njit
-def _planar_distance64(cx, cy, k, start, delta):
+def _planar_squared(qx, qy, k, frame):
+    """The squared planar distance (float64) from a point to segment k, in the segment's own frame (no
+    division). Its rounding, about 1e-16 of the coordinates, is far inside `_rounding_margin`."""
+    tx, ty = qx - frame[k, 0], qy - frame[k, 1]
+    along = tx * frame[k, 2] + ty * frame[k, 3]
+    across = tx * frame[k, 3] - ty * frame[k, 2]
+    beyond = max(-along, along - frame[k, 4], 0.0)
+    return beyond * beyond + across * across
+
+
+@numba.njit
+def _planar_distance64(cx, cy, k, frame):
     """Planar distance (float64) from a point to segment k: a lower bound of its selection distance."""
-    dx, dy = np.float64(delta[k, 0]), np.float64(delta[k, 1])
-    tx, ty = cx - np.float64(start[k, 0]), cy - np.float64(start[k, 1])
-    squared = dx * dx + dy * dy
-    t = 0.0
-    if squared > 0:
-        t = min(max((tx * dx + ty * dy) / squared, 0.0), 1.0)
-    ox, oy = tx - dx * t, ty - dy * t
-    return math.sqrt(ox * ox + oy * oy)
+    return math.sqrt(_planar_squared(cx, cy, k, frame))
 
 
 @numba.njit
 def _distance_bound(qx, qy, qz, k, frame):
     """A lower bound of the squared selection distance from a point to segment k (float64, no division):
-    the squared planar distance to the segment, in its own frame, plus the stretched squared
-    height gap to its z range (every point of the segment is at least that far in each). Its
-    rounding, about 1e-16 of the coordinates, is far inside `_rounding_margin`."""
-    tx, ty = qx - frame[k, 0], qy - frame[k, 1]
-    along = tx * frame[k, 2] + ty * frame[k, 3]
-    across = tx * frame[k, 3] - ty * frame[k, 2]
-    beyond = max(-along, along - frame[k, 4], 0.0)
+    the squared planar distance to the segment plus the stretched squared height gap to its z range
+    (every point of the segment is at least that far in each)."""
     below = max(frame[k, 5] - qz, qz - frame[k, 6], 0.0) * Z_STRETCH
-    return beyond * beyond + across * across + below * below
+    return _planar_squared(qx, qy, k, frame) + below * below
 
 
 @numba.njit
@@ -383,8 +383,8 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
 
 
 @numba.njit(error_model="numpy")
-def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, grid, bucket_start, bucket_segments,
-                     seen, tag, ring, out_segment, out_key):
+def _cell_candidates(cx, cy, half_diagonal, min_reach, frame, length, grid, bucket_start, bucket_segments, seen,
+                     tag, ring, out_segment, out_key):
     """Every segment that can be nearest somewhere in a cell, by key; returns (count, clearance).
 
     For a point q within r of the centre c, segment k's planar distance is at least
@@ -405,7 +405,7 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, start, delta, length, gri
                 if seen[k] == tag:
                     continue
                 seen[k] = tag
-                d = _planar_distance64(cx, cy, k, start, delta)
+                d = _planar_distance64(cx, cy, k, frame)
                 reach = min(reach, max(d + half_diagonal + _LIST_SLACK, min_reach))
                 out_segment[n] = k
                 out_key[n] = d
@@ -436,8 +436,7 @@ def _listed(n, reach, half_diagonal, length, out_segment, out_key):
 
 
 @numba.njit
-def _cell_candidates_among(cx, cy, half_diagonal, start, delta, length, among, among_key, count, shift, out_segment,
-                           out_key):
+def _cell_candidates_among(cx, cy, half_diagonal, frame, length, among, among_key, count, shift, out_segment, out_key):
     """`_cell_candidates` of a cell inside a square whose list `among[:count]` holds every segment that
     can be nearest in it (a cell's list is a subset of that of a square around it: its bounds are
     tighter); returns (count, clearance).
@@ -453,7 +452,7 @@ def _cell_candidates_among(cx, cy, half_diagonal, start, delta, length, among, a
         if among_key[p] - shift - half_diagonal > reach:
             break
         k = among[p]
-        d = _planar_distance64(cx, cy, k, start, delta)
+        d = _planar_distance64(cx, cy, k, frame)
         reach = min(reach, d + half_diagonal + _LIST_SLACK)
         out_segment[n] = k
         out_key[n] = d
@@ -523,14 +522,14 @@ def _query_cells(queries, grid, bucket_start):
 
 
 @cached_loop
-def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bucket_start, bucket_segments):
+def _cell_lists(centre, half_diagonal, min_reach, frame, length, grid, bucket_start, bucket_segments):
     """The candidate list of each cell (`_cell_candidates`), one after the other.
 
     Returns:
       (begin, end int64 `(num_cells,)`: where each cell's list lies in segment int32 and key
       float64 `(list entries,)`; reach float64 `(num_cells,)`: the R of each cell).
     """
-    num_cells, num_segments = centre.shape[0], start.shape[0]
+    num_cells, num_segments = centre.shape[0], frame.shape[0]
     begin, end = np.zeros(num_cells, np.int64), np.zeros(num_cells, np.int64)
     reach = np.empty(num_cells, np.float64)
     segment = np.empty(max(16, 32 * num_cells), np.int32)
@@ -555,17 +554,18 @@ def _cell_lists(centre, half_diagonal, min_reach, start, delta, length, grid, bu
             current = parent[c]
             bi, bj = current // grid[4], current % grid[4]
             bucket_x, bucket_y = origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side
-            bucket_count, _ = _cell_candidates(bucket_x, bucket_y, side * math.sqrt(0.5), 0.0, start, delta, length, grid, bucket_start,
-                                               bucket_segments, seen, num_cells + c, ring, bucket_list, bucket_key)
+            bucket_count, _ = _cell_candidates(bucket_x, bucket_y, side * math.sqrt(0.5), 0.0, frame, length, grid,
+                                               bucket_start, bucket_segments, seen, num_cells + c, ring, bucket_list,
+                                               bucket_key)
         if parent[c] >= 0:
             shift = math.hypot(centre[c, 0] - bucket_x, centre[c, 1] - bucket_y)
-            m, reach[c] = _cell_candidates_among(centre[c, 0], centre[c, 1], half_diagonal[c], start, delta, length,
+            m, reach[c] = _cell_candidates_among(centre[c, 0], centre[c, 1], half_diagonal[c], frame, length,
                                                  bucket_list, bucket_key, bucket_count, shift, scratch_segment,
                                                  scratch_key)
         else:
-            m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], start,
-                                           delta, length, grid, bucket_start, bucket_segments, seen, c, ring,
-                                           scratch_segment, scratch_key)
+            m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], frame, length,
+                                           grid, bucket_start, bucket_segments, seen, c, ring, scratch_segment,
+                                           scratch_key)
         while used + m > segment.shape[0]:
             segment, key = _grown(segment), _grown(key)
         segment[used:used + m] = scratch_segment[:m]
@@ -705,8 +705,8 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
     work = {"cells": 0, "pairs evaluated": 0}
 
     def search(rows, cells, min_reach):
-        lists = _cell_lists(centre[cells], half_diagonal[cells], min_reach, table.start, table.delta, table.length,
-                            grid, table.bucket_start, table.bucket_segments)
+        lists = _cell_lists(centre[cells], half_diagonal[cells], min_reach, table.frame, table.length, grid,
+                            table.bucket_start, table.bucket_segments)
         number = np.full(len(centre) + 2, -1, np.int64)
         number[cells] = np.arange(len(cells))
         number[_NON_FINITE] = _NON_FINITE  # the codes of queries without a cell stay
@@ -804,9 +804,9 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
 
 def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None):
     # The same corner of the box before is the hint (`_nearest_segments`).
-    return _signed_distances(queries, nearest_segments(table, queries, counts, hint_stride=group), table.start, table.delta, table.valid,
-                             table.prior, table.next, table.prior_valid, table.next_valid, table.convex_before,
-                             table.convex_after, group)
+    segment = nearest_segments(table, queries, counts, hint_stride=group)
+    return _signed_distances(queries, segment, table.start, table.delta, table.valid, table.prior, table.next,
+                             table.prior_valid, table.next_valid, table.convex_before, table.convex_after, group)
 
 
 def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable,

@@ -157,6 +157,16 @@ def line_parameter(px, py, sx, sy, dx, dy, squared):
     return ops.where(squared == _F(0), _F(0), ops.divide(along, squared))
 
 
+def _stop_lines(seg_start, seg_delta, stop_point, xp):
+    """The stop lines' segments and where the stop points lie on them: (sx, sy, dx, dy, squared,
+    stop_t), float32 `(num_steps, num_signals)` each (`stop_line_crossings`)."""
+    sx, sy, dx, dy = seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0], seg_delta[..., 1]
+    squared = dx * dx + dy * dy
+    with errstate(xp, divide="ignore", invalid="ignore"):
+        stop_t = line_parameter(stop_point[..., 0], stop_point[..., 1], sx, sy, dx, dy, squared)
+    return sx, sy, dx, dy, squared, stop_t
+
+
 def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
     """Crossings of stopped signals' lines: every red-light condition but the object's lane.
 
@@ -174,10 +184,8 @@ def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
       bool `(..., num_objects, num_steps, num_signals)`.
     """
     xp = array_namespace(xy, valid, seg_start)
-    sx, sy, dx, dy = seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0], seg_delta[..., 1]  # (T, S)
-    squared = dx * dx + dy * dy
+    sx, sy, dx, dy, squared, stop_t = _stop_lines(seg_start, seg_delta, stop_point, xp)
     with errstate(xp, divide="ignore", invalid="ignore"):
-        stop_t = line_parameter(stop_point[..., 0], stop_point[..., 1], sx, sy, dx, dy, squared)
         # Coordinates one at a time: (..., O, T, S) arrays, no trailing axis of two.
         obj_t = line_parameter(xy[..., 0, None], xy[..., 1, None], sx, sy, dx, dy, squared)
     behind = obj_t < stop_t
@@ -215,15 +223,11 @@ def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
 def _compiled_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping):
     """`stop_line_crossings` by `_crossings`: x, y float32 and valid `(..., num_objects, num_steps)`; and
     whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
-    sx, sy, dx, dy = (np.ascontiguousarray(a, _F) for a in (seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0],
-                                                             seg_delta[..., 1]))
-    squared = dx * dx + dy * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        stop_t = line_parameter(stop_point[..., 0], stop_point[..., 1], sx, sy, dx, dy, squared)
+    lines = [np.ascontiguousarray(a, _F) for a in _stop_lines(seg_start, seg_delta, stop_point, np)]
     flat = lambda a, dtype: np.ascontiguousarray(np.reshape(a, (-1,) + np.shape(a)[-2:]), dtype)  # noqa: E731
-    out, crossed_any = _crossings(flat(x, _F), flat(y, _F), flat(valid, bool), sx, sy, dx, dy, squared,
-                                  np.ascontiguousarray(stop_t, _F), np.ascontiguousarray(stopping, bool))
-    return out.reshape(np.shape(valid) + (sx.shape[1],)), crossed_any.reshape(np.shape(valid))
+    out, crossed_any = _crossings(flat(x, _F), flat(y, _F), flat(valid, bool), *lines,
+                                  np.ascontiguousarray(stopping, bool))
+    return out.reshape(np.shape(valid) + (lines[0].shape[1],)), crossed_any.reshape(np.shape(valid))
 
 
 def red_light_violation(x, y, valid, lanes: LaneTable | None,
@@ -251,14 +255,14 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
         return np.zeros(np.shape(valid), bool)
     signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
                                   stop_point=signals.stop_point[:, relevant])
-    xy = np.stack([x, y], axis=-1).astype(_F)
     seg_start, seg_delta, _ = _stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
-    suspect, crossed_any = _compiled_crossings(xy[..., 0], xy[..., 1], valid, seg_start, seg_delta,
-                                               signals.stop_point, is_stop[:, relevant])
+    suspect, crossed_any = _compiled_crossings(x, y, valid, seg_start, seg_delta, signals.stop_point,
+                                               is_stop[:, relevant])
     violation = np.zeros(valid.shape, dtype=bool)
     where = np.nonzero(crossed_any)
     if where[0].size:
-        lane_row = nearest_lane_segment(lanes, xy[where]) // lanes.num_segments
+        points = np.stack([x[where], y[where]], axis=-1).astype(_F)
+        lane_row = nearest_lane_segment(lanes, points) // lanes.num_segments
         on_lane = lanes.lane_ids[lane_row][:, None] == signals.lane_id     # (points, S)
         violation[where] = np.any(suspect[where] & on_lane, axis=-1)
     return violation

@@ -5,8 +5,10 @@ oracle cases of the repository), prints per case the largest metric error agains
 (and the fields over 1e-5), and per set how many per-step feature values differ from numpy's (which
 are bit-identical to the official ones) and by how much at most. On CPU with `exact_cpu()` the exact
 mode differs nowhere; on a GPU XLA's float32 square roots and divisions are not correctly rounded.
+The searches are `prepare`'s default for the device (the host's pruned search on a CPU), or the one
+named second.
 
-Usage: python benchmarks/jax_realism_exactness.py [float32|exact]
+Usage: python benchmarks/jax_realism_exactness.py [float32|exact] [auto|host|device]
 """
 from __future__ import annotations
 
@@ -33,12 +35,13 @@ def differing(ours: np.ndarray, want: np.ndarray) -> tuple[int, float]:
     return int(diff.sum()), float(gaps[np.isfinite(gaps)].max()) if np.isfinite(gaps).any() else 0.0
 
 
-def check_set(case_set, mode: str) -> None:
+def check_set(case_set, mode: str, search: str) -> None:
     cases = case_set.cases
     pairs = [golden.inputs(case_set, c) for c in cases]
     name = case_set.configs[0]
     config = golden.config_reference(case_set, name)
-    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge, config=config)
+    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge, config=config,
+                                   search=search)
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     with jax.enable_x64(mode == "exact"):
         feats = jax_realism.features(prepared, **arrays)
@@ -64,12 +67,13 @@ def check_set(case_set, mode: str) -> None:
 
 def main() -> None:
     mode = sys.argv[1] if len(sys.argv) > 1 else "float32"
-    if mode not in ("float32", "exact"):
+    search = sys.argv[2] if len(sys.argv) > 2 else "auto"
+    if mode not in ("float32", "exact") or search not in jax_realism.SEARCHES:
         raise SystemExit(__doc__.splitlines()[-1])
-    print(f"device: {jax.devices()[0]}; mode {mode}")
+    print(f"device: {jax.devices()[0]}; mode {mode}; search {search}")
     for case_set in golden.SETS:
         if case_set.cases:
-            check_set(case_set, mode)
+            check_set(case_set, mode, search)
         else:
             print(f"{case_set.name}: absent ({case_set.folder})")
 

@@ -17,11 +17,15 @@ Prints scenes per second for each, the projection for the 44,097-scene validatio
 in use (`jax.devices()`, a GPU when JAX has one) and, where the device reports it, the peak device
 memory per scene of the in-loop call. Pure JAX: nothing here is specific to a CPU.
 
+`--search host,device` times the in-loop call with each of `prepare`'s searches (default: "auto",
+the host's pruned search on a CPU, the device's fixed-shape one on an accelerator).
+
 `--batch 1,64` also times the in-loop call on the scene set repeated 64 times (prepared once, copied
 on the device): a GPU needs batches of hundreds of scenes to be busy. `--womd` takes the real WOMD
 scenes of the reference material (`../shared/womd`, or WOSAC_SHARED) instead of synthetic ones.
 
 Usage: python benchmarks/jax_realism_speed.py [--scenes 16] [--repeat 3] [--workers 2] [--batch 1] [--womd]
+                                              [--search auto|host|device|host,device]
 """
 from __future__ import annotations
 
@@ -130,6 +134,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--batch", default="1", help="comma-separated copies of the scene set for the in-loop call")
     parser.add_argument("--womd", action="store_true", help="the real WOMD scenes of ../shared/womd")
+    parser.add_argument("--search", default="auto", help="comma-separated searches of `prepare` to time in the loop")
     args = parser.parse_args()
     copies = [int(c) for c in args.batch.split(",")]
     if args.womd:
@@ -140,31 +145,33 @@ def main() -> None:
         what = f"{len(scenarios)} synthetic scenes"
     print(f"device: {jax.devices()[0]}; {what}, IDM rollouts (32 each), sim agents")
 
-    start = time.perf_counter()
-    prepared = jax_realism.prepare(scenarios)
-    prepare_s = time.perf_counter() - start
-    arrays = jax_realism.stack_rollouts(prepared, [policy_rollouts(sc, "idm") for sc in scenarios])
-    n = prepared.num_scenes
-    print(f"prepare (once per scene set): {prepare_s:.2f} s ({prepare_s / n * 1e3:.0f} ms/scene)", flush=True)
-    print(f"{'path':52s} {'s/call':>8s} {'scenes/s':>9s} {'44,097 scenes':>14s}", flush=True)
-
     def row(label: str, seconds: float, scenes_per_call: int) -> None:  # printed as measured
-        print(f"{label:52s} {seconds:8.3f} {scenes_per_call / seconds:9.1f} "
+        print(f"{label:62s} {seconds:8.3f} {scenes_per_call / seconds:9.1f} "
               f"{VALIDATION_SET * seconds / scenes_per_call / 60:11.1f} min", flush=True)
 
-    for c in copies:
-        try:
-            float32_s, exact_s = in_loop_seconds(repeated(prepared, c), {k: np.concatenate([v] * c) for k, v in arrays.items()},
-                                                 args.repeat)
-        except Exception as error:  # a batch too big for the device: say so, go on with the others
-            print(f"batch of {c * n} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}")
-            continue
-        row(f"in the loop, float32 mode (x64 off), {c * n} scenes", float32_s, c * n)
-        row(f"in the loop, exact mode (x64 on), {c * n} scenes", exact_s, c * n)
-        peak = _peak_device_bytes()
-        if peak is not None:
-            print(f"  peak device memory so far: {peak / 2**20:.0f} MiB ({peak / (c * n) / 2**20:.1f} MiB per scene "
-                  f"of this batch)", flush=True)
+    rollouts = [policy_rollouts(sc, "idm") for sc in scenarios]
+    n = len(scenarios)
+    for search in args.search.split(","):
+        start = time.perf_counter()
+        prepared = jax_realism.prepare(scenarios, search=search)
+        prepare_s = time.perf_counter() - start
+        arrays = jax_realism.stack_rollouts(prepared, rollouts)
+        print(f"prepare (once per scene set), {prepared.search} search: {prepare_s:.2f} s "
+              f"({prepare_s / n * 1e3:.0f} ms/scene)", flush=True)
+        print(f"{'path':62s} {'s/call':>8s} {'scenes/s':>9s} {'44,097 scenes':>14s}", flush=True)
+        for c in copies:
+            try:
+                batch = {k: np.concatenate([v] * c) for k, v in arrays.items()}
+                float32_s, exact_s = in_loop_seconds(repeated(prepared, c), batch, args.repeat)
+            except Exception as error:  # a batch too big for the device: say so, go on with the others
+                print(f"batch of {c * n} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}")
+                continue
+            row(f"in the loop, {prepared.search} search, float32 mode (x64 off), {c * n} scenes", float32_s, c * n)
+            row(f"in the loop, {prepared.search} search, exact mode (x64 on), {c * n} scenes", exact_s, c * n)
+            peak = _peak_device_bytes()
+            if peak is not None:
+                print(f"  peak device memory so far: {peak / 2**20:.0f} MiB ({peak / (c * n) / 2**20:.1f} MiB per "
+                      f"scene of this batch)", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         if shards is None:
             shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")

@@ -8,6 +8,7 @@ See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapte
 """
 from wosac_eval.backends.jax_realism import (  # noqa: F401
     MODES,
+    SEARCHES,
     PreparedScenes,
     Realism,
     features,
@@ -20,5 +21,5 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
 
 from wosac_eval.backends.jax_backend import exact_cpu  # noqa: F401
 
-__all__ = ["PreparedScenes", "Realism", "MODES", "prepare", "realism", "features", "stack_rollouts",
+__all__ = ["PreparedScenes", "Realism", "MODES", "SEARCHES", "prepare", "realism", "features", "stack_rollouts",
            "waymax_columns", "from_waymax", "exact_cpu"]

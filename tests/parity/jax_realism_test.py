@@ -5,6 +5,11 @@ with) and "exact" (x64 on while tracing). Every metric of both agrees with the
 official outputs within 1e-5; in exact mode on CPU the per-step features are
 bit-identical to the numpy path (hence to the official ones). The test process
 opts in to exact float32 on XLA's CPU (tests/conftest.py sets XLA_FLAGS).
+
+Both searches: most tests prepare with search="device" (the fixed-shape
+kernels an accelerator runs, which on a CPU only tests exercise); the host
+search (the default on a CPU: the numpy path's pruned search called back from
+the trace) has its own tests and golden run below.
 """
 from __future__ import annotations
 
@@ -64,13 +69,14 @@ def scene_set(challenge: str):
 
 
 @lru_cache(maxsize=None)
-def prepared_set(challenge: str, padded: bool = False, grouped: bool = False):
+def prepared_set(challenge: str, padded: bool = False, grouped: bool = False, search: str = "device"):
     """The scene set prepared as one group (one compiled program: most tests), in groups by size
-    (`grouped`: three here, put back in scene order), or padded wider (`padded`)."""
+    (`grouped`: three here, put back in scene order), or padded wider (`padded`); the searches on
+    the device (fixed shapes) unless `search` says "host"."""
     scs, rollouts = scene_set(challenge)
     prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None,
-                                   grouped=grouped)
-    assert len(prepared.groups) == (3 if grouped else 1)
+                                   grouped=grouped, search=search)
+    assert len(prepared.groups) == (3 if grouped else 1) and prepared.search == search
     return prepared, jax_realism.stack_rollouts(prepared, rollouts)
 
 
@@ -95,10 +101,11 @@ def test_realism_equals_the_file_path(challenge, mode):
             assert abs(float(np.float32(got[field][s])) - expected[field]) <= METRIC_TOLERANCE, (sc.scenario_id, field)
 
 
+@pytest.mark.parametrize("search", ["device", "host"])
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
-def test_features_are_bit_identical_to_numpy(challenge):
+def test_features_are_bit_identical_to_numpy(challenge, search):
     scs, rollouts = scene_set(challenge)
-    prepared, arrays = prepared_set(challenge)
+    prepared, arrays = prepared_set(challenge, search=search)
     with jax.enable_x64(True):
         feats = jax_realism.features(prepared, **arrays)
     for s, (sc, ro) in enumerate(zip(scs, rollouts)):
@@ -167,6 +174,44 @@ def test_a_plain_training_step_with_x64_off():
     scanned = np.asarray(scanned)  # (steps, sets, scenes)
     np.testing.assert_array_equal(scanned[:, 0], np.stack([expected["metametric"]] * 2))
     assert (scanned[:, 1] < scanned[:, 0]).all()  # the set moved 1 m is less realistic, in every step
+
+
+@pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
+def test_the_host_search_in_a_training_step_with_x64_off(challenge):
+    """The CPU's default: the pruned searches called back from the caller's jit, vmap and scan,
+    with JAX's defaults; metrics as the file path's within the official tolerance."""
+    assert not jax.config.jax_enable_x64
+    scs, rollouts = scene_set(challenge)
+    prepared, arrays = prepared_set(challenge, search="host")
+    device = in_jit("float32", *prepared_set(challenge))
+
+    def scan_of_vmap(steps):  # steps: (num_steps, num_sets, *rollout shape)
+        def step(carry, sets):
+            out = jax.vmap(lambda a: jax_realism.realism(prepared, **a))(sets)
+            return carry, out.metrics
+        return lax.scan(step, 0.0, steps)[1]
+
+    steps = {k: np.stack([np.stack([v, v + np.float32(k == "x")])] * 2) for k, v in arrays.items()}
+    scanned = as_numpy(jax.jit(scan_of_vmap)(steps))  # (steps, sets, scenes)
+    for s, (sc, ro) in enumerate(zip(scs, rollouts)):
+        expected = score_scenario(sc, ro, challenge=challenge)
+        for field in SCENARIO_FIELDS:
+            got = scanned[field][:, 0, s]
+            assert (got == got[0]).all(), (sc.scenario_id, field)
+            assert abs(float(np.float32(got[0])) - expected[field]) <= METRIC_TOLERANCE, (sc.scenario_id, field)
+            assert abs(float(got[0]) - float(device[field][s])) <= METRIC_TOLERANCE, (sc.scenario_id, field)
+    moved, still = scanned["metametric"][:, 1], scanned["metametric"][:, 0]
+    assert (moved != still).all()  # each element of the batch was scored on its own rollouts
+    if challenge == "sim_agents":
+        assert (moved < still).all()  # IDM rollouts moved 1 m are less realistic
+
+
+def test_the_search_is_chosen_by_the_backend_and_recorded():
+    scs, _ = scene_set("sim_agents")
+    default = jax_realism.prepare(scs[:1])
+    assert default.search == ("host" if jax.default_backend() == "cpu" else "device")
+    with pytest.raises(ValueError, match="search must be one of auto, host, device"):
+        jax_realism.prepare(scs[:1], search="gpu")
 
 
 def test_the_mode_is_explicit_and_recorded():
@@ -269,11 +314,12 @@ def test_bad_arrays_are_refused_with_the_shapes():
         jax_realism.realism(sg, **{k: v for k, v in sg_arrays.items() if k != "height"})
 
 
-@pytest.mark.parametrize("mode", MODES)
+@pytest.mark.parametrize("mode, search", [("exact", "device"), ("float32", "device"), ("float32", "host")])
 @pytest.mark.parametrize("case_set", [s for s in golden.SETS], ids=lambda s: s.name)
-def test_every_golden_case_matches_the_official_metrics(case_set, mode):
+def test_every_golden_case_matches_the_official_metrics(case_set, mode, search):
     """All cases of a golden set (real WOMD scenes with ../shared; synthetic oracle cases always) in one
-    batch, one group (one program to compile; padding changes no result, as tested above)."""
+    batch, one group (one program to compile; padding changes no result, as tested above). The host
+    search runs in float32 mode, a training loop's on a CPU (its exact mode: bit-identical features)."""
     cases = case_set.cases
     if not cases:
         golden.skip_if_absent(case_set, None)
@@ -281,7 +327,7 @@ def test_every_golden_case_matches_the_official_metrics(case_set, mode):
     config_name = case_set.configs[0]
     config = golden.config_reference(case_set, config_name)
     prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config,
-                                   grouped=False)
+                                   grouped=False, search=search)
     got = in_jit(mode, prepared, jax_realism.stack_rollouts(prepared, [ro for _, ro in pairs]))
     for s, case in enumerate(cases):
         expected = golden.expected_metrics(case_set, case, config_name)

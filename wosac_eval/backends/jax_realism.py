@@ -6,10 +6,13 @@ segments), the trailing-packet masks of the official float32 ops, all padded
 to common sizes and stacked into a device pytree (`PreparedScenes`).
 `realism(prepared, x, y, z, heading)` then runs the whole metric on the
 device: rollouts gathered into the official order, joined to the logged
-history, per-step features (`metric_features.per_step_features` with the dense
-search), log-likelihoods and every `SimAgentMetrics` field
-(`metrics.scenario_metrics.metric_values`), per scene, under one `jax.jit`,
-with no host callback. It is the same orchestration as the file path; padding
+history, per-step features (`metric_features.per_step_features`),
+log-likelihoods and every `SimAgentMetrics` field
+(`metrics.scenario_metrics.metric_values`), per scene, under one `jax.jit`.
+The four nearest-thing searches run where `prepare`'s `search` says: on the
+device over fixed-size candidate sets (`dense.DenseSearch`, an accelerator's
+choice), or, on a CPU, in the numpy path's compiled, pruned search called back
+from the trace (`host_search.HostSearch`). It is the same orchestration as the file path; padding
 (objects, evaluated objects, map entries) is masked everywhere, so it never
 changes a result.
 
@@ -44,8 +47,10 @@ from wosac_eval.arrays.samples import log_sample, official_object_order
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.backends import jax_backend
+from wosac_eval.backends.host_search import HostSearch, HostSearches
 from wosac_eval.features import dense
 from wosac_eval.features import metric_features as mf
+from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values
@@ -54,6 +59,7 @@ _F = np.float32
 _POSITIONS = ("x", "y", "z", "heading")
 _SIZES = ("length", "width", "height")
 MODES = ("exact", "float32")
+SEARCHES = ("auto", "host", "device")
 
 
 def resolve_mode(mode: str | None = None) -> str:
@@ -127,6 +133,8 @@ class PreparedScenes:
       agent_ids: per scene, the sim agents' ids in the column order `realism` expects.
       challenge: "sim_agents" or "scenario_gen".
       config: the metrics config preset or textproto path.
+      host_searches: the scenes' numpy searches where the searches run on the host (`prepare`'s
+        `search`), else None.
     """
 
     arrays: tuple
@@ -135,9 +143,16 @@ class PreparedScenes:
     agent_ids: tuple
     challenge: str
     config: str
+    host_searches: HostSearches | None = None
+
+    @property
+    def search(self) -> str:
+        """Where the nearest-thing searches run: "host" (compiled, pruned) or "device" (fixed shapes)."""
+        return "device" if self.host_searches is None else "host"
 
     def tree_flatten(self):
-        return (self.arrays,), (self.groups, self.scenario_ids, self.agent_ids, self.challenge, self.config)
+        return (self.arrays,), (self.groups, self.scenario_ids, self.agent_ids, self.challenge, self.config,
+                                self.host_searches)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
@@ -181,8 +196,11 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> d
     log, feature_valid = log_sample(scenario, spec)
     layout = mf.feature_layout(spec, len(evaluated))
     steps = log.num_steps
-    maps = jax_backend.map_arrays(scenario, mf.map_context(scenario), layout, steps)
-    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps,
+    context = mf.map_context(scenario)
+    maps = jax_backend.map_arrays(scenario, context, layout, steps)
+    search = PrunedSearch(context.road_edges, context.lanes,
+                          mf.signals_from(scenario.signals, layout.first_red_light_step))
+    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps, "search": search,
             "tails": mf.official_tails(len(order), len(evaluated), steps, layout.first_step),
             "feature_valid": feature_valid[0], "object_type": np.asarray(log.object_type[0], np.int32),
             "columns": index_of_ids(scenario.sim_agent_ids, order), "num_evaluated": len(evaluated),
@@ -190,7 +208,7 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec) -> d
 
 
 def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
-            min_sizes: tuple | None = None, grouped: bool = True) -> PreparedScenes:
+            min_sizes: tuple | None = None, grouped: bool = True, search: str = "auto") -> PreparedScenes:
     """Scenes (Scenario messages or `ScenarioArrays`) as a device-resident `PreparedScenes`, once.
 
     Args:
@@ -204,7 +222,15 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         work per call); False pads every scene to the largest: one program, which compiles several
         times faster and does more work per call (7 scenes of 6 to 9 evaluated objects on this
         2-core CPU: 6 groups compile in 72 s and run a call in 2.5 s, one group in 14 s and 5.1 s).
+      search: where `realism` runs the nearest-thing searches (nearest object, followed object,
+        nearest road edge, lane of a red-light crossing). "host": the numpy file path's compiled,
+        pruned search, called back from the trace (`host_search.HostSearch`), the fast choice when
+        JAX runs on the CPU; "device": fixed-size candidate sets on the device (`dense.DenseSearch`),
+        the choice for an accelerator; "auto" (default): "host" when JAX's default backend is the
+        CPU, else "device". The features are the same either way (bit-identical in exact mode).
     """
+    if search not in SEARCHES:
+        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
     spec = challenges.spec(challenge)
     config = config or spec.default_config
     load_config(config)  # refused now if unknown
@@ -219,12 +245,15 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         members.setdefault(_group_key(_sizes(scene_input), floor) if grouped else (), []).append(k)
     groups, arrays = [], []
     for indices in members.values():
-        group_arrays, layout = _prepare_group([inputs[k] for k in indices], spec, floor, max_agents)
+        group_arrays, layout = _prepare_group(indices, [inputs[k] for k in indices], spec, floor, max_agents)
         groups.append((tuple(indices), layout))
         arrays.append(group_arrays)
+    if search == "auto":
+        search = "host" if jax.default_backend() == "cpu" else "device"
+    host = HostSearches(tuple(scene_input["search"] for scene_input in inputs)) if search == "host" else None
     return PreparedScenes(arrays=tuple(arrays), groups=tuple(groups), scenario_ids=tuple(s.scenario_id for s in scenes),
                           agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
-                          challenge=spec.challenge.value, config=str(config))
+                          challenge=spec.challenge.value, config=str(config), host_searches=host)
 
 
 def _sizes(scene_input: dict) -> tuple:
@@ -241,7 +270,8 @@ def _group_key(sizes: tuple, floor: tuple) -> tuple:
             jax_backend.bucket(n_sig, 1), jax_backend.fine_bucket(n_lane, 1), jax_backend.fine_bucket(n_cell, 1))
 
 
-def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int):
+def _prepare_group(indices: list[int], inputs: list[dict], spec: challenges.ChallengeSpec, floor: tuple,
+                   max_agents: int):
     """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
     # Exact maxima: a training loop compiles once per scene set, and every padded row costs.
     sizes = [max(max(column), 1) for column in zip(*map(_sizes, inputs))]
@@ -251,7 +281,7 @@ def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tu
     key = (1, challenges.NUM_LOGGED_STEPS, spec.first_simulated_step, *sizes)
     layout = mf.feature_layout(spec, n_eval)
     per_scene = []
-    for scene_input in inputs:
+    for scene, scene_input in zip(indices, inputs):
         traj, tails, maps = jax_backend.padded_inputs(scene_input["traj"], scene_input["tails"],
                                                       scene_input["maps"], key)
         n, e = scene_input["num_objects"], scene_input["num_evaluated"]
@@ -263,7 +293,8 @@ def _prepare_group(inputs: list[dict], spec: challenges.ChallengeSpec, floor: tu
         object_type[: min(n, n_eval)] = scene_input["object_type"][:n_eval]
         per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
                           "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
-                          "feature_valid": feature_valid, "object_type": object_type})
+                          "feature_valid": feature_valid, "object_type": object_type,
+                          "scene": np.int32(scene)})  # the index of its host search
     # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
     arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
     return arrays, layout
@@ -275,8 +306,8 @@ def _gather_agents(values, columns):
     return jnp.take(padded, columns, axis=1)
 
 
-def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict,
-                    rollouts: dict) -> mf.MetricFeatures:
+def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
+                    host: HostSearches | None) -> mf.MetricFeatures:
     """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
     log, real = a["log"], a["real"]
     num_rollouts = rollouts["x"].shape[0]
@@ -292,7 +323,8 @@ def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a:
         future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
         sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
     traj = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
-    per_step = mf.per_step_features(traj, layout, dense.DenseSearch(a["maps"]), a["tails"])
+    search = dense.DenseSearch(a["maps"]) if host is None else HostSearch(host, a["scene"])
+    per_step = mf.per_step_features(traj, layout, search, a["tails"])
     reported = layout.reported
     e = layout.num_evaluated
     valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
@@ -301,31 +333,33 @@ def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a:
                              valid=valid[..., reported], **per_step)
 
 
-def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict):
+def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
+                   host: HostSearches | None):
     """Every SCENARIO_FIELDS value of one prepared scene (leading scene axis removed) and its rollouts."""
-    both = _scene_features(spec, layout, a, rollouts)
+    both = _scene_features(spec, layout, a, rollouts, host)
     values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)),
                            object_mask=a["evaluated"])
     return {f: values[f] for f in SCENARIO_FIELDS}
 
 
-@functools.lru_cache(maxsize=None)
-def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str):
+# Bounded: a function holds its scene set's host searches (maps) while it is cached.
+@functools.lru_cache(maxsize=32)
+def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
 
     def one(a, rollouts):
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
-            return _scene_realism(config, spec, layout, a, rollouts)
+            return _scene_realism(config, spec, layout, a, rollouts, host)
 
     return jax.jit(jax.vmap(one))
 
 
-@functools.lru_cache(maxsize=None)
-def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str):
+@functools.lru_cache(maxsize=32)
+def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None):
     def one(a, rollouts):
         with _precision(mode):
-            both = _scene_features(challenges.spec(challenge), layout, a, rollouts)
+            both = _scene_features(challenges.spec(challenge), layout, a, rollouts, host)
         return {f.name: getattr(both, f.name) for f in dataclasses.fields(both) if f.name != "object_id"}
 
     return jax.jit(jax.vmap(one))
@@ -362,7 +396,8 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
     """
     mode = resolve_mode(mode)
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
-    parts = [_realism_fn(prepared.config, prepared.challenge, layout, mode)(arrays, _take_scenes(fields, indices))
+    run = functools.partial(_realism_fn, prepared.config, prepared.challenge, mode=mode, host=prepared.host_searches)
+    parts = [run(layout)(arrays, _take_scenes(fields, indices))
              for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
     return Realism(_in_scene_order(prepared, parts), mode)
 
@@ -417,7 +452,8 @@ def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=N
     rows = prepared.layout.num_evaluated
     parts = []
     for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
-        out = _features_fn(prepared.challenge, layout, mode)(arrays, _take_scenes(fields, indices))
+        fn = _features_fn(prepared.challenge, layout, mode, prepared.host_searches)
+        out = fn(arrays, _take_scenes(fields, indices))
         # Groups have different row counts: pad rows (axis 2) to the largest group's.
         parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
                       for k, v in out.items()})

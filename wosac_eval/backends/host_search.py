@@ -1,0 +1,84 @@
+"""The pruned search inside a JAX trace on the CPU: `PrunedSearch` called through `jax.pure_callback`.
+
+On an accelerator the searches run on the device over fixed-size candidate
+sets (`features.dense.DenseSearch`). On XLA's CPU the device is the host, and
+fixed shapes cost 10-30x the work of the pruned search: every object pair,
+32 road-edge candidates per corner. There `HostSearch` hands the four searches
+to the numpy strategy (`features.search.PrunedSearch`: the same float32
+kernels, compiled loops over proven bounds) of the scene being traced, so a
+training step on the CPU costs what the numpy file path costs. The features
+are the pruned search's, bit-identical to the official ones whatever the
+precision mode of the rest of the trace.
+
+The callbacks are pure (no state, same inputs, same outputs): they work under
+the caller's `jit`, `vmap` (one call per batch element) and `lax.scan`. They
+have no derivative, as the features a nearest search picks have none.
+"""
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from wosac_eval.features.search import PrunedSearch
+
+_F = np.float32
+
+
+class HostSearches:
+    """The numpy searches of a scene set, by scene index. Compared by identity (static data of a jit)."""
+
+    def __init__(self, searches: tuple[PrunedSearch, ...]):
+        self.searches = tuple(searches)
+
+
+def _host(searches: HostSearches, method: str, dtype, arguments):
+    """The host side of a callback: the scene's `PrunedSearch.method` of `arguments(numpy arrays)`."""
+    def call(scene, *arrays):
+        search = searches.searches[int(scene)]
+        # NaN and inf in a submission are scored as given, as officially: they spread without warnings.
+        with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+            out = getattr(search, method)(*arguments([np.asarray(a) for a in arrays]))
+        return np.asarray(out, dtype)
+
+    return call
+
+
+class HostSearch:
+    """The search strategy of `metric_features.per_step_features` for one traced scene, on the host.
+
+    Args:
+      searches: the scene set's numpy searches.
+      scene: int32 scalar (traced): the index of this scene's search.
+    """
+
+    def __init__(self, searches: HostSearches, scene):
+        self.searches = searches
+        self.scene = scene
+
+    def _call(self, method: str, shape: tuple, dtype, arrays: tuple, arguments=tuple):
+        host = _host(self.searches, method, dtype, arguments)
+        return jax.pure_callback(host, jax.ShapeDtypeStruct(shape, dtype), self.scene, *arrays,
+                                 vmap_method="sequential")
+
+    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+        """float32 `(samples, num_evaluated, steps)` (see `PrunedSearch.nearest_object`)."""
+        shape = x.shape[:-2] + (num_evaluated,) + x.shape[-1:]
+        return self._call("nearest_object", shape, _F, (x, y, length, width, cos_h, sin_h, valid),
+                          lambda arrays: (*arrays, num_evaluated))
+
+    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
+                          ego_tail, pair_tail):
+        """float32 `(samples, num_evaluated, len(steps))` (see `PrunedSearch.time_to_collision`)."""
+        shape = x.shape[:-2] + (num_evaluated, len(range(*steps.indices(x.shape[-1]))))
+        # The evaluated count and the slice are static; the tails are arrays of the prepared scene.
+        return self._call("time_to_collision", shape, _F, (x, y, length, width, heading, speed, valid,
+                                                            ego_tail, pair_tail),
+                          lambda arrays: (*arrays[:7], num_evaluated, steps, *arrays[7:]))
+
+    def road_edge_distance(self, corners, valid):
+        """float32 `corners.shape[:-2]`, -1e10 where invalid (see `PrunedSearch.road_edge_distance`)."""
+        return self._call("road_edge_distance", corners.shape[:-2], _F, (corners, valid))
+
+    def red_light_violation(self, x, y, valid):
+        """bool `x.shape` (see `PrunedSearch.red_light_violation`)."""
+        return self._call("red_light_violation", x.shape, np.bool_, (x, y, valid))

@@ -69,6 +69,27 @@ def test_nearest_object_dense_equals_numpy():
     np.testing.assert_array_equal(got, expected)
 
 
+def test_nearest_object_pruned_on_the_device_equals_numpy_in_crowds_and_apart():
+    """Many boxes: rows the candidate bound settles (boxes apart) and rows it does not (a crowd of
+    touching boxes, a huge box), both equal to the numpy search bit for bit."""
+    rng = np.random.default_rng(11)
+    objects, steps, evaluated = 40, 9, 12
+    x, y, length, width, heading = (a.reshape(objects, steps) for a in random_boxes(rng, objects * steps))
+    x, y = x * F(8), y * F(8)  # most boxes far apart
+    x[:10], y[:10] = x[:10] / F(40), y[:10] / F(40)  # a crowd around the origin, evaluated boxes among it
+    length[20, 4], width[20, 4] = F(600), F(300)  # over 256 m wide: every pair at its step
+    valid = rng.random((objects, steps)) < 0.9
+    sin_h, cos_h = sincos32(heading)
+    expected = interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, evaluated)
+    got = jitted(lambda *a: dense.nearest_object_distance(*a, evaluated), x, y, length, width, cos_h, sin_h, valid)
+    np.testing.assert_array_equal(got, expected)
+    radius = interaction.corner_radius(length, width)
+    outlines = interaction.box_outlines(x, y, length - 2 * radius, width - 2 * radius, cos_h, sin_h)
+    _, settled = jitted(lambda *a: dense._nearest_object_candidates(*a, evaluated), x, y, length, width, cos_h,
+                        sin_h, outlines, radius, valid)
+    assert settled.mean() > 0.5 and not settled[:, 4][valid[:evaluated, 4]].any() and not settled.all()
+
+
 def test_time_to_collision_dense_equals_numpy():
     rng = np.random.default_rng(2)
     objects, steps, evaluated = 10, 9, 4

@@ -146,10 +146,16 @@ class PreparedScenario:
                 fine_bucket(len(self.maps["lane_start"])), fine_bucket(len(self.maps["cell_clearance"])))
 
 
-def _segment_arrays(table: road_edge.SegmentTable) -> dict:
-    """The valid road-edge segments, in official order, with their neighbours' geometry."""
+def _segment_arrays(table: road_edge.SegmentTable, cells: bool = True) -> dict:
+    """The valid road-edge segments, in official order, with their neighbours' geometry, and their cell
+    table (`cells`; else a one-cell table that settles nothing, for a scene the device never searches)."""
     idx = np.flatnonzero(table.valid)
-    cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
+    if cells:
+        cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
+    else:
+        cells = {"origin": np.zeros(2, _F), "shape": np.ones(2, np.int32),
+                 "candidates": np.zeros((1, road_edge.CELL_CANDIDATES), np.int32),
+                 "clearance": np.full(1, -np.inf, _F)}
     # And the official pick for points with a NaN or infinite coordinate, which may be a padding segment.
     fallback = _segments_at(table, np.array([non_finite_pick(table.valid)]))
     return {**{f"cell_{k}": v for k, v in cells.items()}, **_segments_at(table, idx),
@@ -192,10 +198,12 @@ def _red_light_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps
             "lane_id": segment_lane}
 
 
-def map_arrays(scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int) -> dict:
-    """The dense search's unpadded map arrays of a scenario: road-edge segments, stop lines, lane segments."""
+def map_arrays(scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int,
+               cells: bool = True) -> dict:
+    """The dense search's unpadded map arrays of a scenario: road-edge segments (with their cell table
+    unless `cells` is False), stop lines, lane segments."""
     signals = mf.signals_from(scenario.signals, layout.first_red_light_step)
-    return {**_segment_arrays(context.road_edges),
+    return {**_segment_arrays(context.road_edges, cells),
             **_red_light_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)}
 
 

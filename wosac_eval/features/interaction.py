@@ -79,7 +79,7 @@ def _bounds_of_step(step_x, step_y, step_reach, e, lower):
     A NaN bound is +inf and -0 is +0 (neither changes what the bounds select, see `_lowest`)."""
     for o in range(step_x.shape[0]):  # branch-free: the compiler vectorises it
         dx, dy = step_x[o] - step_x[e], step_y[o] - step_y[e]
-        bound = np.sqrt(dx * dx + dy * dy) * _BOUND_SCALE - ((step_reach[e] + step_reach[o]) + _BOUND_MARGIN)
+        bound = np.sqrt(dx * dx + dy * dy) * BOUND_SCALE - ((step_reach[e] + step_reach[o]) + BOUND_MARGIN)
         bound = bound + np.float32(0)
         lower[o] = bound if bound == bound else np.float32(np.inf)
     lower[e] = np.inf  # not against itself
@@ -150,7 +150,7 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
                                        step[6, e], step[0, guess], step[1, guess], step[2, guess], step[3, guess],
                                        step[4, guess], step[5, guess], step[6, guess])
                 d = d if (d < EXTREMELY_LARGE_DISTANCE) | (d != d) else EXTREMELY_LARGE_DISTANCE
-                threshold = d + _BOUND_MARGIN
+                threshold = d + BOUND_MARGIN
                 evaluated += 1
                 for o in range(num_objects):
                     if o != guess and lower[o] <= threshold:
@@ -163,7 +163,7 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
     return out, evaluated
 
 
-_BOUND_SCALE, _BOUND_MARGIN = _F(1 - 1e-5), _F(1e-3)  # the centre distance's float32 rounding, with margin
+BOUND_SCALE, BOUND_MARGIN = _F(1 - 1e-5), _F(1e-3)  # the centre distance's float32 rounding, with margin
 
 
 # Pairs (samples x evaluated x steps x objects) processed at once by `_by_samples`: bounds the
@@ -253,10 +253,11 @@ def unbounded_boxes(*values):
     The pruned searches skip pairs by bounds that only hold for finite,
     moderate values; these boxes are searched exhaustively instead.
     """
-    out = np.zeros(np.shape(values[0]), dtype=bool)
+    xp = array_namespace(values[0])
+    out = xp.zeros(values[0].shape, dtype=bool)
     for value in values:
-        with np.errstate(invalid="ignore"):
-            out |= ~(np.abs(value) <= BOUNDED_MAGNITUDE)
+        with errstate(xp, invalid="ignore"):
+            out = out | ~(xp.abs(value) <= BOUNDED_MAGNITUDE)
     return out
 
 

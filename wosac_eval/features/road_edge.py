@@ -837,10 +837,12 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
 
 # --- Cell tables for fixed-shape searches (the JAX driver, features/dense.py) ----------------------
 
-CELL_SIDE = 4.0  # metres: the planar grid of the candidate tables
-CELL_CANDIDATES = 32  # segments listed per cell
+# Measured on the two real WOMD scenes' box corners (IDM rollouts): 4 m cells of 32 settled 64% of the
+# queries (the rest searched every segment), 2 m cells of 64 settle 99.5-99.9%.
+CELL_SIDE = 2.0  # metres: the planar grid of the candidate tables (a power of two: exact cell indices)
+CELL_CANDIDATES = 64  # segments listed per cell
 _CELL_BORDER = 10.0  # metres of grid around the segments' box
-_TABLE_SAMPLES = 4  # k-d tree samples looked at per listed segment
+_TABLE_SAMPLES = 2  # k-d tree samples looked at per listed segment (4 listed the same, 3x slower)
 _MARGIN = 1e-3  # metres of slack in the clearance, far above float32 rounding
 
 

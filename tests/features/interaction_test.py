@@ -354,8 +354,8 @@ def test_the_lowest_bound_is_the_first_strict_minimum():
         if not reach[e] > -np.inf:
             continue
         with np.errstate(invalid="ignore"):
-            raw = np.sqrt((x - x[e]) ** 2 + (y - y[e]) ** 2) * interaction._BOUND_SCALE - (
-                (reach[e] + reach) + interaction._BOUND_MARGIN)
+            raw = np.sqrt((x - x[e]) ** 2 + (y - y[e]) ** 2) * interaction.BOUND_SCALE - (
+                (reach[e] + reach) + interaction.BOUND_MARGIN)
         raw[e] = np.inf
         want, best = -1, F(np.inf)
         for o, value in enumerate(raw):

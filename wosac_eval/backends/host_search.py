@@ -2,13 +2,14 @@
 
 On an accelerator the searches run on the device over fixed-size candidate
 sets (`features.dense.DenseSearch`). On XLA's CPU the device is the host, and
-fixed shapes cost 10-30x the work of the pruned search: every object pair,
-32 road-edge candidates per corner. There `HostSearch` hands the four searches
-to the numpy strategy (`features.search.PrunedSearch`: the same float32
-kernels, compiled loops over proven bounds) of the scene being traced, so a
-training step on the CPU costs what the numpy file path costs. The features
-are the pruned search's, bit-identical to the official ones whatever the
-precision mode of the rest of the trace.
+fixed shapes still cost several times the work of the pruned search (4 boxes
+and 64 road-edge segments per query, against 1-2 exact evaluations). There
+`HostSearch` hands the four searches to the numpy strategy
+(`features.search.PrunedSearch`: the same float32 kernels, compiled loops over
+proven bounds) of the scene being traced, so a training step on the CPU costs
+less than the numpy file path. Given the same inputs, the features are the
+numpy path's bit for bit; in float32 mode the inputs (box corners, speeds)
+may differ from it in the last bit, as the rest of the trace may.
 
 The callbacks are pure (no state, same inputs, same outputs): they work under
 the caller's `jit`, `vmap` (one call per batch element) and `lax.scan`. They

@@ -103,12 +103,12 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     As `interaction._nearest_object_search`: the bound of a pair is the centres' distance less both
     bounding radii, with float32 margins; the box of lowest bound (first index on ties) is evaluated,
     then every box whose bound does not exclude its distance. A row is settled when those boxes are
-    among the candidates (the next bound is above the threshold) and no box at its step is
-    unbounded (`interaction.unbounded_boxes`, or over 256 m wide: those pairs are all evaluated).
+    among the candidates (the next bound is above the threshold) and no valid box at its step is one
+    whose pairs are all evaluated (`interaction.exhaustive_boxes`).
     """
     k = NEAREST_OBJECT_CANDIDATES
     e = slice(0, num_evaluated)
-    reach = jnp.where(valid, _F(0.5) * jnp.hypot(length, width), -jnp.inf)
+    reach = interaction.bounding_reach(length, width, valid)
     dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (evaluated, objects, steps)
     lower = jnp.sqrt(dx * dx + dy * dy) * interaction.BOUND_SCALE - (
         (reach[e, None] + reach[None]) + interaction.BOUND_MARGIN)
@@ -134,9 +134,8 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     found = lowest[..., 0] < jnp.inf
     distance = jnp.where(found, jnp.minimum(d, interaction.EXTREMELY_LARGE_DISTANCE),
                          interaction.EXTREMELY_LARGE_DISTANCE)
-    unbounded = interaction.unbounded_boxes(x, y, length, width, cos_h, sin_h) | (jnp.minimum(length, width) > _F(256))
-    step_unbounded = (unbounded & valid).any(axis=0)
-    settled = (~(lowest[..., k] <= threshold) | jnp.isnan(threshold)) & ~step_unbounded[None]
+    exhaustive = (interaction.exhaustive_boxes(x, y, length, width, cos_h, sin_h) & valid).any(axis=0)
+    settled = (~(lowest[..., k] <= threshold) | jnp.isnan(threshold)) & ~exhaustive[None]
     return distance, settled | ~valid[e]
 
 

@@ -219,12 +219,9 @@ def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_eva
 def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, work: dict):
     e = num_evaluated
     radius = corner_radius(length, width)
-    reach = np.where(valid, _F(0.5) * np.hypot(length, width), -np.inf).astype(_F)
-    # A box with a NaN, an infinity or a huge value has no usable bound, and its distances may be NaN,
-    # which the official all-pairs minimum passes on: its valid pairs are all evaluated exactly below,
-    # the self pair too (officially offset by 1e10, not left out: it counts for NaN, and for boxes over
-    # 512 m wide, whose self distance + 1e10 rounds below 1e10).
-    exhaustive = unbounded_boxes(x, y, length, width, cos_h, sin_h) | (np.minimum(length, width) > _F(256))
+    reach = bounding_reach(length, width, valid)
+    # The valid pairs of these boxes are all evaluated exactly below, the self pair too.
+    exhaustive = exhaustive_boxes(x, y, length, width, cos_h, sin_h)
     c = lambda a: np.ascontiguousarray(a, _F)  # noqa: E731
     distance, evaluated = _nearest_object_search(c(x), c(y), c(length - _F(2) * radius), c(width - _F(2) * radius),
                                                  c(cos_h), c(sin_h), c(radius), reach, np.ascontiguousarray(exhaustive),
@@ -241,6 +238,28 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
         np.minimum.at(distance, (ub, ue, us), d)
         work["pairs evaluated"] += len(d)
     return distance
+
+
+def bounding_reach(length, width, valid):
+    """The bounding radius of each valid box (half its diagonal), -inf for an invalid one: float32 `(...)`.
+
+    The nearest-object bound of a pair is their centres' distance less both reaches
+    (`BOUND_SCALE`, `BOUND_MARGIN`); an invalid box is never within it.
+    """
+    xp = array_namespace(length)
+    return xp.where(valid, _F(0.5) * xp.hypot(length, width), _F(-np.inf)).astype(_F)
+
+
+def exhaustive_boxes(x, y, length, width, cos_h, sin_h):
+    """Boxes whose valid pairs the nearest-object search evaluates all, the self pair too: bool `(...)`.
+
+    A box with a NaN, an infinity or a huge value (`unbounded_boxes`) has no usable bound, and its
+    distances may be NaN, which the official all-pairs minimum passes on; the self pair (officially
+    offset by 1e10, not left out) counts for NaN, and for boxes over 512 m wide, whose self distance
+    + 1e10 rounds below 1e10.
+    """
+    xp = array_namespace(length)
+    return unbounded_boxes(x, y, length, width, cos_h, sin_h) | (xp.minimum(length, width) > _F(256))
 
 
 # Beyond this magnitude (metres) the float32 margins of the distance bounds no longer hold.

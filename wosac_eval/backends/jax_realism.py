@@ -199,9 +199,9 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, sear
     context = mf.map_context(scenario)
     # The host search needs no cell tables (0.1-0.5 s per real scene to build).
     maps = jax_backend.map_arrays(scenario, context, layout, steps, cells=search == "device")
-    search = PrunedSearch(context.road_edges, context.lanes,
+    pruned = PrunedSearch(context.road_edges, context.lanes,
                           mf.signals_from(scenario.signals, layout.first_red_light_step))
-    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps, "search": search,
+    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps, "search": pruned,
             "tails": mf.official_tails(len(order), len(evaluated), steps, layout.first_step),
             "feature_valid": feature_valid[0], "object_type": np.asarray(log.object_type[0], np.int32),
             "columns": index_of_ids(scenario.sim_agent_ids, order), "num_evaluated": len(evaluated),

@@ -3,8 +3,9 @@
 Shared by `score_speed.py` (Sim Agents) and `scenario_gen_speed.py` (Scenario Generation).
 
 The stages are the pipeline's (parse, arrays, samples, map index, the four searches of the
-features, the rest of the features, estimators and metrics); the end-to-end figure is
-`score_scenario` itself (protobuf bytes in, metrics out), timed apart.
+features, the rest of the features, estimators and metrics); the end-to-end figure is what a
+scoring worker does with a scenario (protobuf bytes in: parsed, their arrays read from the same
+bytes, `score_scenario`; metrics out), timed apart.
 
 For the two searches that look for a nearest thing, the floor is the arithmetic alone: one exact
 float32 evaluation per query (a box corner against one road-edge segment; an evaluated box
@@ -125,11 +126,17 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
     """Median seconds of each stage and end to end, operation counts and floors (see the module doc)."""
     parse = lambda: (scenario_pb2.Scenario.FromString(raw_scenario),
                      sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts))
-    end_to_end, metrics = _median_time(lambda: score_scenario(*parse(), config, challenge=challenge), repeat)
+
+    def end_to_end_once():  # as a scoring worker does: parse, then the arrays from the parsed bytes
+        scenario, rollouts = parse()
+        return score_scenario(scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts),
+                              config, challenge=challenge)
+
+    end_to_end, metrics = _median_time(end_to_end_once, repeat)
     stages = {}
     stages["parse protobufs"], (scenario, rollouts) = _median_time(parse, repeat)
-    stages["scenario arrays"], arrays = _median_time(lambda: scenario_arrays(scenario), repeat)
-    stages["rollout arrays"], rollout = _median_time(lambda: rollout_arrays(rollouts, challenge), repeat)
+    stages["scenario arrays"], arrays = _median_time(lambda: scenario_arrays(scenario, raw_scenario), repeat)
+    stages["rollout arrays"], rollout = _median_time(lambda: rollout_arrays(rollouts, challenge, raw_rollouts), repeat)
     stages["samples"], batch = _median_time(lambda: sample_batch(arrays, rollout, challenge), repeat)
     stages["map index"], context = _median_time(lambda: mf.map_context(arrays), repeat)
     layout = mf.feature_layout(batch.spec, batch.num_evaluated)

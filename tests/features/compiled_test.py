@@ -9,6 +9,7 @@ import pytest
 
 from wosac_eval.features import (box_geometry, compiled, float32_math, interaction, ops, road_edge, search,
                                  traffic_lights)
+from wosac_eval.parse import wire
 
 F = np.float32
 
@@ -106,19 +107,27 @@ def test_cached_loops_are_named_after_the_kernels_digest():
 
 
 def test_compile_searches_covers_what_scoring_calls():
-    """After `compile_searches`, scoring a scene compiles nothing more (the same argument types)."""
+    """After `compile_searches`, scoring and validating a scene compile nothing more (the same argument types)."""
     from wosac_eval.metrics.config import load_config
     from wosac_eval.scoring.scenario import score_scenario
     from wosac_eval.sim import scenes
+    from wosac_eval.arrays.messages import rollouts_bytes
+    from wosac_eval.arrays.rollouts import rollout_arrays
+    from wosac_eval.protos.sim_agents_submission_pb2 import ScenarioRollouts
     from wosac_eval.sim.baselines import policy_rollouts
+    from wosac_eval.validate.rules import check_scenario_rollouts
 
     search.compile_searches()
     loops = [road_edge._query_cells, road_edge._cell_lists, road_edge._search_lists, road_edge._signed_distances,
              road_edge._bucket_lists, interaction._nearest_object_search, interaction._followed_search,
-             traffic_lights._crossings]
+             traffic_lights._crossings, wire.message_spans, wire._scalar_fields, wire._float_fields]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]
     for challenge, config in (("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")):
-        score_scenario(scenario, policy_rollouts(scenario, "constant_velocity", challenge=challenge),
-                       load_config(config), challenge=challenge)
+        rollouts = policy_rollouts(scenario, "constant_velocity", challenge=challenge)
+        score_scenario(scenario, rollouts, load_config(config), challenge=challenge)
+        raw = rollouts_bytes(rollouts)
+        message = ScenarioRollouts.FromString(raw)
+        rollout_arrays(message, challenge, raw)
+        check_scenario_rollouts(message, None, challenge=challenge)
     assert {loop: len(loop.signatures) for loop in loops} == before

@@ -1,129 +1,220 @@
-"""Tests of reading repeated submessages straight from the wire, against the parsed fields."""
+"""Tests of reading messages straight from the wire (`parse.wire`), against the parsed fields.
+
+The arrays of a scenario and of its rollouts are read by compiled walks over the message's bytes;
+every test compares them with what a protobuf parse gives, field by field, including the cases
+a parse treats specially: fields in another order, unknown fields, a known field number with the
+wrong wire type, closed-enum values out of range, unpacked repeated floats, negative ids.
+"""
 import numpy as np
+import pytest
 
 from wosac_eval.arrays import scenario as scenario_module
-from wosac_eval.parse.wire import field_spans, record_run, record_runs
-from wosac_eval.protos import map_pb2, scenario_pb2
-
-POINT = ((1, "d"), (2, "d"), (3, "d"))
-
-
-def lane_with_points(points, **fields):
-    lane = map_pb2.LaneCenter(**fields)
-    for x, y, z in points:
-        lane.polyline.add(x=x, y=y, z=z)
-    return lane
+from wosac_eval.arrays.rollouts import rollout_arrays
+from wosac_eval.parse import wire
+from wosac_eval.parse.wire import field_spans
+from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2 as pb
 
 
-def test_points_after_and_before_other_fields():
-    pts = [(1.5, -2.25, 0.1), (1e6 + 0.3, -7e5, 12.0), (0.0, 0.0, 0.0)]
-    lane = lane_with_points(pts, speed_limit_mph=25.0, type=2, interpolating=True,
-                            entry_lanes=[5, 6], exit_lanes=[7])
-    lane.left_boundaries.add(lane_start_index=0, lane_end_index=2, boundary_feature_id=9, boundary_type=1)
-    run = record_run(lane.SerializeToString(), 8, POINT, len(pts))
-    np.testing.assert_array_equal(run, np.array(pts))
+def key(number, wire_type):
+    return wire.varint((number << 3) | wire_type)
 
 
-def test_road_edge_with_and_without_type():
-    pts = [(3.0, 4.0, 5.0), (6.0, 7.0, 8.0)]
-    for edge in (map_pb2.RoadEdge(type=1), map_pb2.RoadEdge()):
-        for p in pts:
-            edge.polyline.add(x=p[0], y=p[1], z=p[2])
-        np.testing.assert_array_equal(record_run(edge.SerializeToString(), 2, POINT, 2), pts)
-
-
-def test_a_missing_coordinate_reads_as_its_default():
-    lane = lane_with_points([(1.0, 2.0, 3.0), (4.0, 5.0, 6.0)])
-    lane.polyline.add(x=1.0, y=2.0)  # z unset: a shorter record
-    lane.polyline.add(y=7.5)
-    lane.polyline.add(x=8.0, y=9.0, z=10.0)
-    expected = [[p.x, p.y, p.z] for p in lane.polyline]
-    np.testing.assert_array_equal(record_run(lane.SerializeToString(), 8, POINT, 5), expected)
-    assert expected[2][2] == 0 and expected[3][0] == 0
-
-
-def test_an_unknown_extra_field_is_irregular():
-    lane = lane_with_points([(1.0, 2.0, 3.0)])
-    point = map_pb2.MapPoint(x=1.0, y=2.0, z=3.0)
-    data = point.SerializeToString() + bytes([(4 << 3) | 0, 1])  # field 4 = 1, unknown to MapPoint
-    lane.polyline.add().MergeFromString(data)
-    assert record_run(lane.SerializeToString(), 8, POINT, 2) is None
-    np.testing.assert_array_equal(scenario_module._polylines([lane], 8)[0], [[1, 2, 3], [1, 2, 3]])
-
-
-def make_track(num_steps=5, drop=None):
-    track = scenario_pb2.Track(id=42, object_type=1)
-    rng = np.random.default_rng(3)
-    for t in range(num_steps):
-        values = dict(center_x=rng.uniform(-9000, 9000), center_y=rng.uniform(-9000, 9000),
-                      center_z=rng.uniform(-50, 50), length=4.5, width=1.9, height=1.6,
-                      heading=float(rng.uniform(-3.2, 3.2)), velocity_x=1.0, velocity_y=-2.0, valid=t % 2 == 0)
-        if t == drop:
-            values.pop("center_y")
-        track.states.add(**values)
-    return track
-
-
-def parsed_states(track):
+def reference_arrays(scenario):
+    """What the parsed fields say: (track values float32 (tracks, steps, 7), valid, ids, types,
+    road-edge polylines, surface lane ids, their polylines, signal (lanes, state, stop))."""
     fields = scenario_module._STATE_FIELDS
-    values = np.array([[getattr(s, f) for f in fields] for s in track.states], np.float64).astype(np.float32)
-    return values, np.array([s.valid for s in track.states])
+    values = np.array([[[getattr(s, f) for f in fields] for s in t.states] for t in scenario.tracks],
+                      np.float64).astype(np.float32).reshape(len(scenario.tracks), -1, len(fields))
+    valid = np.array([[s.valid for s in t.states] for t in scenario.tracks], bool).reshape(values.shape[:2])
+    edges, lane_ids, lanes = [], [], []
+    for feature in scenario.map_features:
+        kind = feature.WhichOneof("feature_data")
+        points = lambda f: np.array([[p.x, p.y, p.z] for p in f.polyline], np.float64).reshape(-1, 3).astype(np.float32)
+        if kind == "road_edge":
+            edges.append(points(feature.road_edge))
+        elif kind == "lane" and feature.lane.type == map_pb2.LaneCenter.TYPE_SURFACE_STREET:
+            lane_ids.append(feature.id)
+            lanes.append(points(feature.lane))
+    signals = None
+    if scenario.dynamic_map_states:
+        ids = sorted({s.lane for step in scenario.dynamic_map_states for s in step.lane_states}) or [-1]
+        state = np.zeros((len(scenario.dynamic_map_states), len(ids)), np.int32)
+        stop = np.zeros(state.shape + (2,), np.float64)
+        for t, step in enumerate(scenario.dynamic_map_states):
+            for s in step.lane_states:
+                state[t, ids.index(s.lane)] = s.state
+                stop[t, ids.index(s.lane)] = (s.stop_point.x, s.stop_point.y)
+        signals = (np.array(ids), state, stop.astype(np.float32))
+    return (values, valid, np.array([t.id for t in scenario.tracks]), np.array([t.object_type for t in scenario.tracks]),
+            edges, np.array(lane_ids, np.int64), lanes, signals)
 
 
-def states_from_the_wire(track):
-    """The track's states read from the wire, checked against the parsed fields."""
-    run = record_run(track.SerializeToString(), 3, scenario_module._STATE_LAYOUT, len(track.states))
-    assert run is not None
-    values, valid = scenario_module._track_states(track, len(track.states), run)
-    expected_values, expected_valid = parsed_states(track)
-    np.testing.assert_array_equal(values, expected_values)
-    np.testing.assert_array_equal(valid, expected_valid)
-    return values, valid
+def assert_reads_like_a_parse(scenario):
+    """scenario_arrays of the message equal the parsed fields, bit for bit."""
+    arrays = scenario_module.scenario_arrays(scenario)
+    values, valid, ids, types, edges, lane_ids, lanes, signals = reference_arrays(scenario)
+    log = arrays.log
+    got = np.stack([getattr(log, f) for f in ("x", "y", "z", "heading", "length", "width", "height")], axis=-1)
+    np.testing.assert_array_equal(got, values)
+    np.testing.assert_array_equal(log.valid, valid)
+    np.testing.assert_array_equal(log.object_id, ids)
+    np.testing.assert_array_equal(log.object_type, types)
+    assert len(arrays.road_edges) == len(edges) and len(arrays.lanes) == len(lanes)
+    for a, b in zip(arrays.road_edges + arrays.lanes, edges + lanes):
+        assert a.dtype == np.float32
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(arrays.lane_ids, lane_ids)
+    if signals is None:
+        assert arrays.signals is None
+    else:
+        for a, b in zip((arrays.signals.lane_id, arrays.signals.state, arrays.signals.stop_point), signals):
+            np.testing.assert_array_equal(a, b)
+    return arrays
 
 
-def test_track_states_from_the_wire_equal_the_parsed_fields():
-    _, valid = states_from_the_wire(make_track())
-    assert not valid.all() and valid.any()
+def random_scenario(seed: int):
+    """A small scenario with every kind of content the reader looks at, some fields left unset."""
+    rng = np.random.default_rng(seed)
+    scenario = scenario_pb2.Scenario(scenario_id=f"s{seed}", current_time_index=1, sdc_track_index=0)
+    steps = 3
+    scenario.timestamps_seconds.extend([0.0, 0.1, 0.2])
+    for i in range(4):
+        track = scenario.tracks.add(id=int(rng.integers(-2 ** 31, 2 ** 31)) if i == 3 else i + 1,
+                                    object_type=int(rng.integers(0, 5)))
+        for t in range(steps):
+            values = dict(center_x=rng.uniform(-9e3, 9e3), center_y=rng.uniform(-9e3, 9e3), center_z=rng.normal(),
+                          length=4.5, width=float(rng.uniform(1, 3)), height=1.6, heading=float(rng.uniform(-4, 4)),
+                          velocity_x=1.0, valid=bool(rng.integers(0, 2)))
+            for name in list(values):
+                if rng.random() < 0.2:
+                    del values[name]
+            track.states.add(**values)
+    for f in range(6):
+        feature = scenario.map_features.add(id=int(rng.integers(0, 2 ** 40)))
+        points = [dict(x=rng.normal() * 1e3, y=rng.normal() * 1e3, z=rng.normal()) for _ in range(rng.integers(0, 5))]
+        if f % 3 == 0:
+            feature.road_edge.type = 1
+            feature.road_edge.polyline.extend(map_pb2.MapPoint(**p) for p in points)
+        elif f % 3 == 1:
+            feature.lane.type = int(rng.integers(0, 4))
+            feature.lane.speed_limit_mph = 25.0
+            feature.lane.entry_lanes.extend([1, 2])
+            feature.lane.polyline.extend(map_pb2.MapPoint(**p) for p in points)
+        else:
+            feature.crosswalk.polygon.extend(map_pb2.MapPoint(**p) for p in points)
+    for t in range(steps):
+        step = scenario.dynamic_map_states.add()
+        for lane in rng.integers(0, 4, size=3):
+            entry = step.lane_states.add(lane=int(lane), state=int(rng.integers(0, 9)))
+            if rng.random() < 0.7:
+                entry.stop_point.x, entry.stop_point.y = rng.normal(size=2)
+    return scenario
 
 
-def test_states_without_some_fields_read_as_defaults():
-    # WOMD writes invalid states with center_z and valid only.
-    track = make_track(drop=2)
-    invalid = track.states.add()
-    invalid.center_z = -1.0
-    invalid.valid = False
-    values, _ = states_from_the_wire(track)
-    assert values[2, 1] == 0  # the missing center_y reads as its default
+@pytest.mark.parametrize("seed", range(8))
+def test_scenario_arrays_read_like_a_parse(seed):
+    assert_reads_like_a_parse(random_scenario(seed))
 
 
-def test_irregular_track_falls_back_to_the_parsed_fields():
-    track = make_track()
-    track.states[1].MergeFromString(bytes([(12 << 3) | 0, 1]))  # a field ObjectState does not know
-    assert record_run(track.SerializeToString(), 3, scenario_module._STATE_LAYOUT, 5) is None
-    values, valid = scenario_module._track_states(track, 5)
-    expected_values, expected_valid = parsed_states(track)
-    np.testing.assert_array_equal(values, expected_values)
-    np.testing.assert_array_equal(valid, expected_valid)
+def test_unknown_fields_wrong_wire_types_and_closed_enums_read_as_a_parse_reads_them():
+    scenario = random_scenario(0)
+    extra = (key(12, 0) + b"\x01"                            # a field ObjectState does not know
+             + key(2, 0) + b"\x05"                           # center_x (a double) as a varint: unknown
+             + key(5, 1) + np.float64(3.0).tobytes())        # length (a float) as a double: unknown
+    scenario.tracks[1].states[1].MergeFromString(extra)
+    scenario.map_features[0].road_edge.polyline[0].MergeFromString(key(4, 0) + b"\x01")
+    scenario.tracks[2].MergeFromString(key(2, 0) + b"\x63")  # object_type 99: out of the enum, ignored
+    scenario.dynamic_map_states[0].lane_states[0].MergeFromString(key(2, 0) + b"\x63")  # state 99
+    scenario.map_features[1].lane.MergeFromString(key(2, 0) + b"\x09")  # lane type 9
+    parsed = scenario_pb2.Scenario.FromString(scenario.SerializeToString())
+    assert parsed.tracks[2].object_type == scenario.tracks[2].object_type < 5
+    assert_reads_like_a_parse(parsed)
 
 
-def test_count_beyond_the_data_is_irregular():
-    lane = lane_with_points([(1.0, 2.0, 3.0)])
-    assert record_run(lane.SerializeToString(), 8, POINT, 2) is None
+def test_states_of_different_counts_are_refused_by_name():
+    scenario = random_scenario(1)
+    scenario.tracks[2].states.add(center_x=1.0)
+    with pytest.raises(ValueError, match="s1: tracks have different numbers of states \\[3, 4\\]"):
+        scenario_module.scenario_arrays(scenario)
 
 
-def test_many_parents_at_once_with_one_irregular():
-    lanes = [lane_with_points([(i, i + 0.5, -i)] * (i + 1)) for i in range(4)]
-    lanes[2].polyline[0].MergeFromString(bytes([(4 << 3) | 0, 1]))  # unknown field in one point
-    lanes[3].polyline.add(x=3.0)  # a short record among full ones
-    values, regular = record_runs([lane.SerializeToString() for lane in lanes], 8, POINT,
-                                  [len(lane.polyline) for lane in lanes])
-    assert regular.tolist() == [True, True, False, True]
-    for lane, v in zip(lanes, values):
-        if v is not None:
-            np.testing.assert_array_equal(v, [[p.x, p.y, p.z] for p in lane.polyline])
-    # The scenario reader gives the same points for every lane, irregular or not.
-    for lane, xyz in zip(lanes, scenario_module._polylines(lanes, 8)):
-        np.testing.assert_array_equal(xyz, np.array([[p.x, p.y, p.z] for p in lane.polyline], np.float32))
+def test_a_scenario_without_map_or_signals():
+    scenario = scenario_pb2.Scenario(scenario_id="empty")
+    scenario.tracks.add(id=1).states.add(center_x=1.0, valid=True)
+    arrays = assert_reads_like_a_parse(scenario)
+    assert arrays.road_edges == () and arrays.lanes == () and arrays.signals is None
+
+
+def trajectory(rng, steps, **fields):
+    values = {name: rng.normal(size=steps).astype(np.float32).tolist() for name in ("center_x", "center_y", "center_z",
+                                                                                    "heading", "length", "width",
+                                                                                    "height")}
+    values.update(fields)
+    return pb.SimulatedTrajectory(**values)
+
+
+def test_float_fields_packed_and_unpacked_with_counts_and_flags():
+    rng = np.random.default_rng(4)
+    t = trajectory(rng, 3, object_id=-7, object_type=2, length=[1.0, -2.0, float("nan")])
+    raw = t.SerializeToString()
+    # center_y once more, unpacked (one fixed32 value per field): a parse appends it.
+    raw += key(3, 5) + np.float32(0.25).tobytes() + key(3, 5) + np.float32(np.inf).tobytes()
+    parsed = pb.SimulatedTrajectory.FromString(raw)
+    data = np.frombuffer(raw, np.uint8)
+    fields = ("center_x", "center_y", "length", "height")
+    numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields])
+    values, count, non_finite, non_positive = wire.float_fields(data, *wire.whole(data), numbers, 4)
+    for j, f in enumerate(fields):
+        expected = np.array(getattr(parsed, f), np.float32)
+        assert count[0, j] == len(expected)
+        np.testing.assert_array_equal(values[0, j, :len(expected)], expected[:4])
+        assert non_finite[0, j] == (not np.isfinite(expected).all())
+        assert non_positive[0, j] == bool((expected[np.isfinite(expected)] <= 0).any())
+    assert count[0].tolist() == [3, 5, 3, 3]
+
+
+def test_rollout_arrays_equal_the_parsed_fields():
+    rng = np.random.default_rng(5)
+    rollouts = pb.ScenarioRollouts(scenario_id="r")
+    for _ in range(3):
+        scene = rollouts.joint_scenes.add()
+        for object_id in (5, -3, 2 ** 31 - 1):
+            scene.simulated_trajectories.append(trajectory(rng, 4, object_id=object_id, object_type=object_id % 5))
+    rollouts.joint_scenes[1].simulated_trajectories[0].MergeFromString(key(10, 0) + b"\x63")  # type 99: ignored
+    rollouts = pb.ScenarioRollouts.FromString(rollouts.SerializeToString())
+    arrays = rollout_arrays(rollouts, "scenario_gen")
+    for r, scene in enumerate(rollouts.joint_scenes):
+        for a, t in enumerate(scene.simulated_trajectories):
+            assert arrays.object_id[r, a] == t.object_id and arrays.object_type[r, a] == t.object_type
+            for name, got in (("center_x", arrays.x), ("heading", arrays.heading), ("length", arrays.length),
+                              ("width", arrays.width), ("height", arrays.height)):
+                np.testing.assert_array_equal(got[r, a], np.array(getattr(t, name), np.float32))
+
+
+def test_rollouts_of_odd_shapes_are_refused_by_scene_and_field():
+    rng = np.random.default_rng(6)
+    rollouts = pb.ScenarioRollouts(scenario_id="odd")
+    for _ in range(3):
+        rollouts.joint_scenes.add().simulated_trajectories.extend(trajectory(rng, 4, object_id=i) for i in range(2))
+    rollouts.joint_scenes[2].simulated_trajectories[1].center_z.append(0.0)
+    with pytest.raises(ValueError, match="odd rollout 2: center_z lengths differ from 4"):
+        rollout_arrays(rollouts)
+    del rollouts.joint_scenes[2].simulated_trajectories[1].center_z[-1]
+    rollouts.joint_scenes[1].simulated_trajectories[0].height.append(1.0)
+    rollout_arrays(rollouts)  # sim agents: box sizes are not read
+    with pytest.raises(ValueError, match="odd rollout 1: height lengths differ from 4; the official scorer"):
+        rollout_arrays(rollouts, "scenario_gen")
+    del rollouts.joint_scenes[1].simulated_trajectories[1]
+    with pytest.raises(ValueError, match="odd rollout 1: 1 trajectories, rollout 0 has 2"):
+        rollout_arrays(rollouts)
+
+
+@pytest.mark.parametrize("bad", [b"\x0a\x05abc", b"\x0b\x00", b"\x08", b"\x00\x01",
+                                 b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01", b"\x15\x00\x00"])
+def test_walks_refuse_malformed_bytes(bad):
+    data = np.frombuffer(bad, np.uint8)
+    with pytest.raises(ValueError, match="protobuf wire data"):
+        wire.message_spans(data, *wire.whole(data), 1)
 
 
 def test_field_spans_split_a_submission_like_a_parse():
@@ -146,3 +237,34 @@ def test_field_spans_reject_malformed_bytes():
     for bad in (b"\x0a\x05abc", b"\x0b\x00", b"\x08", b"\x00\x01", b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01"):
         with pytest.raises(ValueError):
             field_spans(bad, 1)
+
+
+def test_scenario_arrays_from_the_parsed_bytes_equal_those_from_the_message():
+    """`scenario_arrays(scenario, wire_bytes)` reads the record's bytes; where a parse merges repeated
+    occurrences of a map feature's data or of a stop point, it reads the message's own serialisation."""
+    scenario = random_scenario(3)
+    raw = scenario.SerializeToString()
+    edge = map_pb2.MapFeature(id=77)
+    edge.road_edge.polyline.add(x=1.0, y=2.0, z=3.0)
+    more = map_pb2.RoadEdge()
+    more.polyline.add(x=4.0, y=5.0, z=6.0)
+    lane = map_pb2.LaneCenter(type=map_pb2.LaneCenter.TYPE_SURFACE_STREET)
+    lane.polyline.add(x=7.0, y=8.0, z=9.0)
+    twice = edge.SerializeToString() + key(5, 2) + wire.varint(more.ByteSize()) + more.SerializeToString()
+    switched = edge.SerializeToString() + key(3, 2) + wire.varint(lane.ByteSize()) + lane.SerializeToString()
+    stop = map_pb2.MapPoint(x=0.5)
+    entry = map_pb2.TrafficSignalLaneState(lane=3, state=4, stop_point=map_pb2.MapPoint(y=2.5))
+    merged_stop = entry.SerializeToString() + key(3, 2) + wire.varint(stop.ByteSize()) + stop.SerializeToString()
+    step = key(1, 2) + wire.varint(len(merged_stop)) + merged_stop
+    for extra in (b"", key(8, 2) + wire.varint(len(twice)) + twice, key(8, 2) + wire.varint(len(switched)) + switched,
+                  key(7, 2) + wire.varint(len(step)) + step):
+        data = raw + extra
+        parsed = scenario_pb2.Scenario.FromString(data)
+        from_bytes = scenario_module.scenario_arrays(parsed, data)
+        assert_reads_like_a_parse(parsed)
+        expected = scenario_module.scenario_arrays(parsed)
+        for a, b in zip(from_bytes.road_edges + from_bytes.lanes, expected.road_edges + expected.lanes):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(from_bytes.signals.stop_point, expected.signals.stop_point)
+        np.testing.assert_array_equal(from_bytes.log.x, expected.log.x)
+    assert parsed.dynamic_map_states[-1].lane_states[0].stop_point.x == 0.5

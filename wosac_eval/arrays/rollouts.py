@@ -6,7 +6,8 @@ import dataclasses
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.parse.wire import BOX_FIELDS, COORDINATE_FIELDS, packed_boxes, packed_coordinates, serialized
+from wosac_eval.parse import wire
+from wosac_eval.parse.wire import BOX_FIELDS, COORDINATE_FIELDS
 from wosac_eval.protos import sim_agents_submission_pb2
 
 
@@ -64,56 +65,70 @@ class RolloutArrays:
         return self
 
 
-def _fields_slow(rollouts, r: int, trajectories, fields, num_steps: int, dtype=np.float32) -> np.ndarray:
-    """`(num_trajectories, len(fields), num_steps)` read field by field, lengths checked."""
-    values = np.empty((len(trajectories), len(fields), num_steps), dtype=dtype)
-    for k, field in enumerate(fields):
-        columns = [getattr(t, field) for t in trajectories]
-        if any(len(v) != num_steps for v in columns):
-            official = ("; the official scorer fails on such a scenario too" if field in BOX_FIELDS
-                        else "; the official validator refuses it")
-            raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} "
-                             f"lengths differ from {num_steps}{official}")
-        values[:, k] = np.array(columns, dtype=dtype).reshape(len(trajectories), num_steps)
-    return values
+def _length_error(rollouts, r: int, field: str, num_steps: int) -> ValueError:
+    official = "; the official scorer fails on such a scenario too" if field in BOX_FIELDS else \
+        "; the official validator refuses it"
+    return ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} lengths differ from {num_steps}{official}")
+
+
+def _raise_for_the_first_odd_scene(rollouts, per_scene, scene, wrong_length, fields, num_steps: int):
+    """The error of the first joint scene whose number of trajectories differs from the first one's, or
+    in which a field (the first such, in `fields` order) has a length other than `num_steps`."""
+    odd = (per_scene != per_scene[0]) | (np.bincount(scene, wrong_length.any(axis=1), len(per_scene)) > 0)
+    for r in np.flatnonzero(odd)[:1].tolist():
+        if per_scene[r] != per_scene[0]:
+            raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {int(per_scene[r])} "
+                             f"trajectories, rollout 0 has {int(per_scene[0])}")
+        raise _length_error(rollouts, r, fields[int(np.argmax(wrong_length[scene == r].any(axis=0)))], num_steps)
+
+
+def trajectory_spans(data: np.ndarray):
+    """The `SimulatedTrajectory` messages of a serialised `ScenarioRollouts` (joint_scenes is field 2,
+    their simulated_trajectories field 1): (starts, ends, joint scene of each) int64 `(num_trajectories,)`,
+    and the number of joint scenes."""
+    scene_start, scene_end, _ = wire.message_spans(data, *wire.whole(data), 2)
+    start, end, scene = wire.message_spans(data, scene_start, scene_end, 1)
+    return start, end, scene, len(scene_start)
+
+
+def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
+    """object_id int64, whether it is set (bool), and object_type int32 (TYPE_UNSET where unset) of
+    each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10 (a closed enum)."""
+    _, header, present = wire.scalar_fields(data, start, end, np.array([6, 10], np.int64),
+                                            np.full(2, wire.WIRE_VARINT), np.array([0, _OBJECT_TYPES], np.int64))
+    return header[:, 0], present[:, 0], header[:, 1].astype(np.int32)
 
 
 def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
-                   challenge: challenges.Challenge | str = challenges.Challenge.SIM_AGENTS) -> RolloutArrays:
-    """Stacks the joint scenes of a `ScenarioRollouts`.
+                   challenge: challenges.Challenge | str = challenges.Challenge.SIM_AGENTS,
+                   wire_bytes: bytes | None = None) -> RolloutArrays:
+    """Stacks the joint scenes of a `ScenarioRollouts` (read from its wire bytes at once).
 
     Every joint scene must have the same number of trajectories, each with the
     same number of steps (validation reports violations in detail first). For
     a challenge whose submissions carry boxes (scenario gen) the per-step sizes
-    and the object types are read too.
+    and the object types are read too. wire_bytes: the bytes `rollouts` was parsed from, when at
+    hand: read instead of serialising the message again (the walks read them as a parse does).
     """
-    scenes = rollouts.joint_scenes
-    if not scenes:
+    data = wire.message_bytes(rollouts if wire_bytes is None else wire_bytes)
+    start, end, scene, num_scenes = trajectory_spans(data)
+    if not num_scenes:
         raise ValueError(f"scenario {rollouts.scenario_id}: no joint scenes")
     boxes = challenges.spec(challenge).submits_boxes
-    num_agents = len(scenes[0].simulated_trajectories)
-    num_steps = len(scenes[0].simulated_trajectories[0].center_x) if num_agents else 0
-    ids = np.empty((len(scenes), num_agents), dtype=np.int64)
-    out = np.empty((len(scenes), num_agents, 4 + 3 * boxes, num_steps), dtype=np.float32)
-    types = np.empty((len(scenes), num_agents), dtype=np.int32)
-    for r, scene in enumerate(scenes):
-        trajectories = scene.simulated_trajectories
-        if len(trajectories) != num_agents:
-            raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {len(trajectories)} "
-                             f"trajectories, rollout 0 has {num_agents}")
-        ids[r] = [t.object_id for t in trajectories]
-        data = serialized(trajectories)
-        # Canonical layout: read from the wire; anything else: field by field.
-        regular, values = packed_coordinates(data, num_steps)
-        out[r, :, :4] = values if regular.all() else _fields_slow(rollouts, r, trajectories, COORDINATE_FIELDS,
-                                                                  num_steps)
-        if boxes:
-            regular, sizes, kinds = packed_boxes(data, num_steps)
-            if regular.all():
-                out[r, :, 4:], types[r] = sizes, kinds
-            else:
-                out[r, :, 4:] = _fields_slow(rollouts, r, trajectories, BOX_FIELDS, num_steps)
-                types[r] = [t.object_type for t in trajectories]
-    sizes = dict(length=out[:, :, 4], width=out[:, :, 5], height=out[:, :, 6], object_type=types) if boxes else {}
+    per_scene = np.bincount(scene, minlength=num_scenes)
+    num_agents = int(per_scene[0])
+    fields = COORDINATE_FIELDS + (BOX_FIELDS if boxes else ())
+    numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
+    num_steps = int(wire.float_fields(data, start[:1], end[:1], numbers[:1], 0)[1][0, 0]) if num_agents else 0
+    values, count, _, _ = wire.float_fields(data, start, end, numbers, num_steps)
+    _raise_for_the_first_odd_scene(rollouts, per_scene, scene, count != num_steps, fields, num_steps)
+    object_id, _, object_type = trajectory_headers(data, start, end)
+    out = values.reshape(num_scenes, num_agents, len(fields), num_steps)
+    ids = object_id.reshape(num_scenes, num_agents)
+    sizes = dict(length=out[:, :, 4], width=out[:, :, 5], height=out[:, :, 6],
+                 object_type=object_type.reshape(num_scenes, num_agents)) if boxes else {}
     return RolloutArrays(scenario_id=rollouts.scenario_id, object_id=ids,
                          x=out[:, :, 0], y=out[:, :, 1], z=out[:, :, 2], heading=out[:, :, 3], **sizes)
+
+
+_OBJECT_TYPES = wire.enum_size(sim_agents_submission_pb2.SimulatedTrajectory.DESCRIPTOR.fields_by_name["object_type"].enum_type)

@@ -7,7 +7,7 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.trajectories import ObjectTrajectories
-from wosac_eval.parse.wire import record_runs
+from wosac_eval.parse import wire
 from wosac_eval.protos import map_pb2, scenario_pb2
 
 
@@ -64,101 +64,135 @@ class ScenarioArrays:
 def track_trajectories(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
     """Every track of the scenario, in track order, over all its steps (float32, as the official converter
     rounds); ValueError when the tracks have different numbers of states."""
-    tracks = scenario.tracks
-    num_steps = max((len(t.states) for t in tracks), default=0)
-    if any(len(t.states) != num_steps for t in tracks):
-        lengths = sorted({len(t.states) for t in tracks})
-        raise ValueError(f"scenario {scenario.scenario_id}: tracks have different numbers "
-                         f"of states {lengths}")
-    shape = (len(tracks), num_steps)
-    values = np.empty(shape + (len(_STATE_FIELDS),), np.float32)
-    valid = np.empty(shape, bool)
-    runs, _ = record_runs([t.SerializeToString() for t in tracks], 3, _STATE_LAYOUT, [num_steps] * len(tracks))
-    for i, (track, run) in enumerate(zip(tracks, runs)):
-        values[i], valid[i] = _track_states(track, num_steps, run)
-    return ObjectTrajectories(
-        x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
-        length=values[..., 4], width=values[..., 5], height=values[..., 6], valid=valid,
-        object_id=np.array([t.id for t in tracks], dtype=np.int64),
-        object_type=np.array([t.object_type for t in tracks], dtype=np.int32))
+    return _track_trajectories(scenario.scenario_id, *_with_whole(wire.message_bytes(scenario)))
 
 
-# ObjectState fields 2..11 and MapPoint fields 1..3 as laid out on the wire.
-_STATE_LAYOUT = ((2, "d"), (3, "d"), (4, "d"), (5, "f"), (6, "f"), (7, "f"), (8, "f"), (9, "f"), (10, "f"),
-                 (11, "b"))
+def _with_whole(data: np.ndarray):
+    return (data, *wire.whole(data))
+
+
+# Scenario fields read from the wire: tracks 2, dynamic_map_states 7, map_features 8; Track: id 1,
+# object_type 2, states 3; ObjectState fields 2..11 (`_STATE_LAYOUT`); MapFeature: id 1, lane 3 (LaneCenter:
+# type 2, polyline 8), road_edge 5 (polyline 2); MapPoint x, y, z 1..3; DynamicMapState: lane_states 1
+# (TrafficSignalLaneState: lane 1, state 2, stop_point 3).
+# A layout lists (field number, wire type[, closed enum]) per field read.
+_STATE_LAYOUT = ((2, wire.WIRE_FIXED64), (3, wire.WIRE_FIXED64), (4, wire.WIRE_FIXED64), (5, wire.WIRE_FIXED32),
+                 (6, wire.WIRE_FIXED32), (7, wire.WIRE_FIXED32), (8, wire.WIRE_FIXED32), (11, wire.WIRE_VARINT))
 _STATE_FIELDS = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
 _STATE_COLUMNS = (0, 1, 2, 6, 3, 4, 5)  # _STATE_FIELDS in _STATE_LAYOUT
-_POINT_LAYOUT = ((1, "d"), (2, "d"), (3, "d"))
+_POINT_LAYOUT = ((1, wire.WIRE_FIXED64), (2, wire.WIRE_FIXED64), (3, wire.WIRE_FIXED64))
 
 
-def _track_states(track, num_steps: int, run: np.ndarray | None = None):
-    """float32 `(num_steps, 7)` in `_STATE_FIELDS` order, bool `(num_steps,)` valid.
-
-    float64 values are rounded once to float32, as the official converter does
-    with Python floats. `run`: the states read from the wire (`record_runs`),
-    or None to read the parsed fields.
-    """
-    if run is not None:
-        return run[:, _STATE_COLUMNS].astype(np.float32), run[:, -1].astype(bool)
-    states = track.states
-    columns = [np.fromiter([getattr(st, f) for st in states], np.float64, num_steps) for f in _STATE_FIELDS]
-    valid = np.fromiter([st.valid for st in states], bool, num_steps)
-    return np.stack(columns, axis=-1).astype(np.float32), valid
+_OBJECT_TYPES = wire.enum_size(scenario_pb2.Track.ObjectType.DESCRIPTOR)
+_LANE_TYPES = wire.enum_size(map_pb2.LaneCenter.LaneType.DESCRIPTOR)
+_SIGNAL_STATES = wire.enum_size(map_pb2.TrafficSignalLaneState.State.DESCRIPTOR)
 
 
-def _polylines(parents, field_number: int) -> list:
-    """float32 `(num_points, 3)` of a `repeated MapPoint` field, for each parent message."""
-    point_lists = [parent.polyline for parent in parents]
-    runs, _ = record_runs([parent.SerializeToString() for parent in parents], field_number, _POINT_LAYOUT,
-                          [len(points) for points in point_lists])
-    out = []
-    for points, xyz in zip(point_lists, runs):
-        if xyz is None:
-            n = len(points)
-            xyz = np.fromiter([c for p in points for c in (p.x, p.y, p.z)], np.float64, 3 * n).reshape(n, 3)
-        out.append(xyz.astype(np.float32))
-    return out
+def _fields(data, starts, ends, layout):
+    """`wire.scalar_fields` of records with `layout`."""
+    numbers = np.array([field[0] for field in layout], np.int64)
+    wire_types = np.array([field[1] for field in layout], np.int64)
+    enum_sizes = np.array([field[2] if len(field) > 2 else 0 for field in layout], np.int64)
+    return wire.scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes)
 
 
-def _traffic_signals(scenario: scenario_pb2.Scenario) -> TrafficSignals | None:
-    states = scenario.dynamic_map_states
-    if not states:
+def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajectories:
+    track_start, track_end, _ = wire.message_spans(data, starts, ends, 2)
+    _, header, _ = _fields(data, track_start, track_end, ((1, wire.WIRE_VARINT), (2, wire.WIRE_VARINT, _OBJECT_TYPES)))
+    state_start, state_end, owner = wire.message_spans(data, track_start, track_end, 3)
+    per_track = np.bincount(owner, minlength=len(track_start))
+    num_steps = int(per_track.max(initial=0))
+    if (per_track != num_steps).any():
+        raise ValueError(f"scenario {scenario_id}: tracks have different numbers "
+                         f"of states {sorted(set(per_track.tolist()))}")
+    real, integer, _ = _fields(data, state_start, state_end, _STATE_LAYOUT)
+    # float64 values are rounded once to float32, as the official converter does with Python floats.
+    values = real[:, _STATE_COLUMNS].astype(np.float32).reshape(len(track_start), num_steps, len(_STATE_FIELDS))
+    return ObjectTrajectories(
+        x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
+        length=values[..., 4], width=values[..., 5], height=values[..., 6],
+        valid=(integer[:, -1] != 0).reshape(len(track_start), num_steps),
+        object_id=header[:, 0].astype(np.int64), object_type=header[:, 1].astype(np.int32))
+
+
+def _polylines(data, starts, ends, field_number: int) -> list:
+    """float32 `(num_points, 3)` of the `repeated MapPoint` field `field_number` of each parent span."""
+    point_start, point_end, owner = wire.message_spans(data, starts, ends, field_number)
+    xyz, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT)
+    counts = np.bincount(owner, minlength=len(starts))
+    return np.split(xyz.astype(np.float32), np.cumsum(counts)[:-1]) if len(starts) else []
+
+
+def _map_polylines(data, starts, ends):
+    """(road-edge polylines, surface-street lane ids, their lane polylines), in map-feature order."""
+    feature_start, feature_end, _ = wire.message_spans(data, starts, ends, 8)
+    _, feature_id, _ = _fields(data, feature_start, feature_end, ((1, wire.WIRE_VARINT),))
+    edge_start, edge_end, _ = wire.message_spans(data, feature_start, feature_end, 5)
+    lane_start, lane_end, lane_feature = wire.message_spans(data, feature_start, feature_end, 3)
+    _, lane_type, _ = _fields(data, lane_start, lane_end, ((2, wire.WIRE_VARINT, _LANE_TYPES),))
+    surface = lane_type[:, 0] == map_pb2.LaneCenter.TYPE_SURFACE_STREET
+    return (_polylines(data, edge_start, edge_end, 2), feature_id[lane_feature[surface], 0],
+            _polylines(data, lane_start[surface], lane_end[surface], 8))
+
+
+_FEATURE_DATA = tuple(f.number for f in map_pb2.MapFeature.DESCRIPTOR.oneofs_by_name["feature_data"].fields)
+
+
+def _merges_submessages(data, starts, ends) -> bool:
+    """Whether a map feature holds more than one of its (oneof) feature_data fields, or a signal's lane
+    state more than one stop_point: a parse merges (or replaces) those, the walks would not."""
+    feature_start, feature_end, _ = wire.message_spans(data, starts, ends, 8)
+    owners = [wire.message_spans(data, feature_start, feature_end, number)[2] for number in _FEATURE_DATA]
+    if np.bincount(np.concatenate(owners), minlength=1).max() > 1:
+        return True
+    step_start, step_end, _ = wire.message_spans(data, starts, ends, 7)
+    entry_start, entry_end, _ = wire.message_spans(data, step_start, step_end, 1)
+    return np.bincount(wire.message_spans(data, entry_start, entry_end, 3)[2], minlength=1).max() > 1
+
+
+def _traffic_signals(data, starts, ends) -> TrafficSignals | None:
+    step_start, step_end, _ = wire.message_spans(data, starts, ends, 7)
+    if not len(step_start):
         return None
-    lanes = sorted({s.lane for step in states for s in step.lane_states})
-    if not lanes:
+    entry_start, entry_end, step = wire.message_spans(data, step_start, step_end, 1)
+    _, entry, _ = _fields(data, entry_start, entry_end, ((1, wire.WIRE_VARINT), (2, wire.WIRE_VARINT, _SIGNAL_STATES)))
+    point_start, point_end, point_entry = wire.message_spans(data, entry_start, entry_end, 3)
+    point_xy, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT[:2])
+    stop_xy = np.zeros((len(entry_start), 2))
+    stop_xy[point_entry] = point_xy  # one stop_point per entry at most (`_merges_submessages`)
+    lanes, column = np.unique(entry[:, 0], return_inverse=True)
+    if not len(lanes):
         # A column of "unknown" states keeps shapes uniform; it never signals a stop.
-        lanes = [-1]
-    column = {lane: i for i, lane in enumerate(lanes)}
-    state = np.zeros((len(states), len(lanes)), dtype=np.int32)
-    stop = np.zeros((len(states), len(lanes), 2), dtype=np.float64)
-    for t, step in enumerate(states):
-        for s in step.lane_states:  # a later entry for the same lane wins, as officially
-            state[t, column[s.lane]] = s.state
-            stop[t, column[s.lane]] = (s.stop_point.x, s.stop_point.y)
-    return TrafficSignals(lane_id=np.array(lanes, dtype=np.int64), state=state,
-                          stop_point=stop.astype(np.float32))
+        lanes = np.array([-1])
+    state = np.zeros((len(step_start), len(lanes)), dtype=np.int32)
+    stop = np.zeros((len(step_start), len(lanes), 2), dtype=np.float64)
+    # A later entry for the same lane at one step wins, as officially: keep each (step, lane)'s last entry.
+    cell = step * len(lanes) + column
+    last = len(cell) - 1 - np.unique(cell[::-1], return_index=True)[1]
+    state.reshape(-1)[cell[last]] = entry[last, 1]
+    stop.reshape(-1, 2)[cell[last]] = stop_xy[last]
+    return TrafficSignals(lane_id=lanes.astype(np.int64), state=state, stop_point=stop.astype(np.float32))
 
 
-def scenario_arrays(scenario: scenario_pb2.Scenario) -> ScenarioArrays:
-    """Converts a parsed `Scenario` into `ScenarioArrays`."""
-    surface = map_pb2.LaneCenter.TYPE_SURFACE_STREET
-    edges, lane_ids, lanes = [], [], []
-    for feature in scenario.map_features:
-        kind = feature.WhichOneof("feature_data")
-        if kind == "road_edge":
-            edges.append(feature.road_edge)
-        elif kind == "lane" and feature.lane.type == surface:
-            lane_ids.append(feature.id)
-            lanes.append(feature.lane)
-    road_edges, lanes = _polylines(edges, 2), _polylines(lanes, 8)
+def scenario_arrays(scenario: scenario_pb2.Scenario, wire_bytes: bytes | None = None) -> ScenarioArrays:
+    """Converts a parsed `Scenario` into `ScenarioArrays` (its arrays read from its wire bytes at once).
+
+    wire_bytes: the bytes `scenario` was parsed from, when at hand: read instead of serialising the
+    message again (the walks read bytes as a parse does; bytes where a parse would merge repeated
+    occurrences of a map feature or a stop point are read from the message's own serialisation).
+    """
+    data, starts, ends = _with_whole(wire.message_bytes(scenario if wire_bytes is None else wire_bytes))
+    if wire_bytes is not None and _merges_submessages(data, starts, ends):
+        data, starts, ends = _with_whole(wire.message_bytes(scenario))
+    road_edges, lane_ids, lanes = _map_polylines(data, starts, ends)
     return ScenarioArrays(
         scenario_id=scenario.scenario_id,
-        log=track_trajectories(scenario),
+        log=_track_trajectories(scenario.scenario_id, data, starts, ends),
         sim_agent_ids=challenges.sim_agent_ids(scenario),
         predicted_ids=challenges.predicted_ids(scenario),
         road_edges=tuple(road_edges),
-        lane_ids=np.array(lane_ids, dtype=np.int64),
+        lane_ids=lane_ids.astype(np.int64),
         lanes=tuple(lanes),
-        signals=_traffic_signals(scenario),
+        signals=_traffic_signals(data, starts, ends),
         sdc_id=int(scenario.tracks[scenario.sdc_track_index].id) if scenario.tracks else -1,
     )

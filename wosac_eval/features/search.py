@@ -18,6 +18,7 @@ import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import interaction, road_edge, traffic_lights
+from wosac_eval.parse import wire
 
 
 @dataclasses.dataclass(frozen=True)
@@ -54,13 +55,15 @@ class PrunedSearch:
 
 
 def compile_searches() -> float:
-    """Compiles the search loops now (or loads them from numba's cache); returns the seconds it took.
+    """Compiles the search loops and the protobuf wire walks (`parse.wire`) now (or loads them from
+    numba's cache); returns the seconds it took.
 
     numba compiles a loop on its first call, once per installation (about half a minute for all of
     them), and caches it on disk; a process that should not pay that in its first scenario (a
     Docker image while it is built, a service before it takes jobs) calls this first.
     """
     start = time.perf_counter()
+    wire.compile_walks()
     f = np.float32
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite.

@@ -218,13 +218,19 @@ class ScenarioIndex:
 
     def load(self, scenario_id: str) -> scenario_pb2.Scenario:
         """Read and parse the one scenario with this id from its shard."""
+        return self.load_with_bytes(scenario_id)[0]
+
+    def load_with_bytes(self, scenario_id: str) -> tuple[scenario_pb2.Scenario, bytes]:
+        """`load`, and the record's bytes the scenario was parsed from (`arrays.scenario.scenario_arrays`
+        reads them instead of serialising the message again)."""
         source = self.source(scenario_id)
-        scenario = parse_scenario(read_record_at(source.path, source.offset), source)
+        data = read_record_at(source.path, source.offset)
+        scenario = parse_scenario(data, source)
         if scenario.scenario_id != scenario_id:  # the shard changed since indexing
             raise ParseError(
                 f"{source}: expected scenario {scenario_id!r}, found {scenario.scenario_id!r} "
                 "(was the file modified after indexing?)"
             )
-        return scenario
+        return scenario, data
 
     __getitem__ = load

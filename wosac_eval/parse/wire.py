@@ -1,26 +1,29 @@
-"""Reading protobuf messages straight from the wire, where a full parse would cost more.
+"""Reading protobuf messages straight from the wire, where a full parse (or attribute reads) would cost more.
 
-- `packed_coordinates`: the packed coordinates of `SimulatedTrajectory` messages;
-- `record_runs`: repeated small submessages (track states, map points) as fixed-size records;
-- `field_spans`: where each occurrence of a length-delimited field sits in a message.
+- `field_spans` (Python): where each occurrence of a length-delimited field sits in one message, to split a
+  large submission without parsing it;
+- compiled walks (numba) over the bytes of a whole message, for the arrays of a scenario and its rollouts:
+  `message_spans` (the submessages of a field in many parents at once), `scalar_fields` (the scalar
+  fields of many small records: track states, map points) and `float_fields` (repeated float fields:
+  the coordinates and box sizes of simulated trajectories).
 
-Packed coordinates:
-
-Protobuf serialises a parsed message canonically (known fields in field-number
-order, each packed field as one block), so a trajectory whose `center_x`,
-`center_y`, `center_z` and `heading` (fields 2 to 5) hold `num_steps` values
-each serialises to bytes that start with four blocks "tag, length, values".
-Stacking those prefixes gives every trajectory's coordinates as one float32
-array without a Python loop over values; trajectories laid out otherwise are
-reported as irregular, for a field-by-field fallback.
+The walks follow the protobuf encoding rules as a parse does: fields in any order, a field whose wire
+type does not match its declaration is an unknown field (skipped), the last occurrence of a scalar
+wins, a repeated float may be packed or not, an unset field reads as its default (0), a closed
+enum's value out of range is an unknown field. They read the bytes a message was parsed from, or its
+serialisation (`message_bytes`); malformed bytes raise ValueError. Compiled once per installation
+and cached on disk by numba, like the search loops (`features.search.compile_searches`).
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
-
+import numba
 import numpy as np
 
 COORDINATE_FIELDS = ("center_x", "center_y", "center_z", "heading")
+BOX_FIELDS = ("length", "width", "height")
+# SimulatedTrajectory field numbers of COORDINATE_FIELDS and BOX_FIELDS (width is 7, length 8 on the wire).
+TRAJECTORY_FIELD_NUMBERS = {"center_x": 2, "center_y": 3, "center_z": 4, "heading": 5, "length": 8, "width": 7,
+                            "height": 9}
 
 
 def varint(value: int) -> bytes:
@@ -37,211 +40,6 @@ def packed_headers(num_steps: int, field_numbers=(2, 3, 4, 5)) -> np.ndarray:
     """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8 `(fields, header)`."""
     length = varint(4 * num_steps)
     return np.array([[(number << 3) | 2, *length] for number in field_numbers], dtype=np.uint8)
-
-
-def _packed_blocks(data: list[bytes], starts: np.ndarray, field_numbers, num_steps: int):
-    """Consecutive packed float fields at `starts[i]` of `data[i]`: (regular, float32 `(num_regular, fields, num_steps)`)."""
-    n = len(data)
-    headers = packed_headers(num_steps, field_numbers)
-    block = headers.shape[1] + 4 * num_steps
-    size = len(field_numbers) * block
-    heads = [d[s:s + size] for d, s in zip(data, starts.tolist())]
-    long_enough = (np.fromiter(map(len, heads), dtype=np.int64, count=n) == size) & (starts >= 0)
-    if not long_enough.all():
-        heads = [h.ljust(size, b"\0")[:size] for h in heads]
-    stacked = np.frombuffer(b"".join(heads), dtype=np.uint8).reshape(n, len(field_numbers), block)
-    regular = long_enough & (stacked[:, :, : headers.shape[1]] == headers).all(axis=(1, 2))
-    values = np.ascontiguousarray(stacked[regular, :, headers.shape[1]:]).view("<f4").astype(np.float32)
-    return regular, values
-
-
-def packed_coordinates(trajectories: Sequence, num_steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """Coordinates of the regularly laid out trajectories.
-
-    Args:
-      trajectories: `SimulatedTrajectory` messages (or their wire bytes).
-      num_steps: the expected number of values per field.
-    Returns:
-      (regular, values): bool `(num_trajectories,)`, True where the four fields
-      hold exactly `num_steps` values in canonical layout; float32
-      `(num_regular, 4, num_steps)` for those, fields in `COORDINATE_FIELDS` order.
-    """
-    prefix = 4 * (packed_headers(num_steps).shape[1] + 4 * num_steps)
-    heads = [d[:prefix] for d in serialized(trajectories)]
-    return _packed_blocks(heads, np.zeros(len(heads), np.int64), (2, 3, 4, 5), num_steps)
-
-
-def serialized(messages: Sequence) -> list[bytes]:
-    """The wire bytes of each message (bytes are taken as they are)."""
-    return [m if isinstance(m, bytes) else m.SerializeToString() for m in messages]
-
-
-BOX_FIELDS = ("length", "width", "height")
-_BOX_FIELD_NUMBERS = (7, 8, 9)  # width, length, height on the wire
-_OBJECT_ID_TAG, _OBJECT_TYPE_TAG = (6 << 3), (10 << 3)
-
-
-def packed_boxes(trajectories: Sequence, num_steps: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-step box sizes and the object type of regularly laid out trajectories (scenario gen).
-
-    A canonical trajectory with every field set serialises as the four
-    coordinate blocks, the `object_id` varint, the width / length / height
-    blocks and the `object_type` varint; the position of the size blocks
-    depends only on the length of the id's varint, so trajectories are read
-    with one gather per distinct length.
-
-    Args:
-      trajectories: `SimulatedTrajectory` messages (or their wire bytes).
-    Returns:
-      (regular, sizes, object_type): bool `(num_trajectories,)`; float32
-      `(num_regular, 3, num_steps)` in `BOX_FIELDS` order; int32 `(num_regular,)`.
-    """
-    n = len(trajectories)
-    data = serialized(trajectories)
-    prefix = 4 * (packed_headers(num_steps).shape[1] + 4 * num_steps)
-    # The id's varint: at most 10 bytes after its tag.
-    window = np.frombuffer(b"".join(d[prefix:prefix + 11].ljust(11, b"\0") for d in data), np.uint8).reshape(n, 11)
-    ends = np.argmax(window[:, 1:] < 0x80, axis=1)  # index of the varint's last byte
-    has_id = (window[:, 0] == _OBJECT_ID_TAG) & (window[:, 1:] < 0x80).any(axis=1)
-    starts = np.where(has_id, prefix + 2 + ends, -1)
-    block = packed_headers(num_steps).shape[1] + 4 * num_steps
-    type_at = np.where(starts >= 0, starts + 3 * block, 0)
-    type_bytes = np.frombuffer(b"".join(d[s:s + 2].ljust(2, b"\0") for d, s in zip(data, type_at.tolist())),
-                               np.uint8).reshape(n, 2)
-    has_type = (type_bytes[:, 0] == _OBJECT_TYPE_TAG) & (type_bytes[:, 1] < 0x80)
-    regular, sizes = _packed_blocks(data, np.where(has_type, starts, -1), _BOX_FIELD_NUMBERS, num_steps)
-    # width, length on the wire; length, width here.
-    sizes = sizes[:, [1, 0, 2]]
-    return regular, sizes, type_bytes[regular, 1].astype(np.int32)
-
-
-_SIZE = {"d": 8, "f": 4, "b": 1}
-_WIRE_TYPE = {"d": 1, "f": 5, "b": 0}
-
-
-def record_run(data: bytes, field_number: int, layout: Sequence[tuple[int, str]], count: int) -> np.ndarray | None:
-    """`record_runs` for one parent message: float64 `(count, len(layout))`, or None."""
-    values, regular = record_runs([data], field_number, layout, [count])
-    return values[0] if regular[0] else None
-
-
-def _run_segments(data: bytes, field_number: int, count: int) -> list | None:
-    """The run's records as (offset, record size, number of records) segments of equal size.
-
-    None if the run is not laid out as expected. Records are located by
-    following their length bytes; equal-size neighbours are checked together
-    with strided byte slices, so a run costs a few operations per change of
-    record size, not per record.
-    """
-    tag = (field_number << 3) | 2
-    pos, end = 0, len(data)
-    # Skip the (few) lower-numbered fields in front of the run.
-    while pos < end and data[pos] != tag:
-        key = data[pos]
-        if key & 0x80 or (key >> 3) >= field_number:
-            return None
-        pos = skip_field(data, pos + 1, key & 7)
-    segments, remaining = [], count
-    while remaining:
-        if pos + 2 > end or data[pos] != tag or data[pos + 1] & 0x80:
-            return None
-        size = 2 + data[pos + 1]
-        stop = pos + size * remaining
-        # Record k of the segment is aligned if record k - 1 was and had this size.
-        heads, lengths = data[pos:stop:size], data[pos + 1:stop:size]
-        n = min(len(heads) - len(heads.lstrip(bytes((tag,)))),
-                len(lengths) - len(lengths.lstrip(bytes((size - 2,)))))
-        if pos + size * n > end:
-            return None
-        segments.append((pos, size, n))
-        pos += size * n
-        remaining -= n
-    return segments
-
-
-def record_runs(parents: Sequence[bytes], field_number: int, layout: Sequence[tuple[int, str]],
-                counts: Sequence[int]) -> tuple[list, np.ndarray]:
-    """The elements of a repeated field of many serialised parents, read straight from the wire.
-
-    A parsed message serialises canonically: fields in number order, the
-    elements of a repeated field back to back. When an element holds a subset
-    of the scalar fields in `layout` ((field number, "d" double | "f" float |
-    "b" bool) pairs) it is a small fixed-layout record; records are grouped by
-    size and each group is read with one numpy gather. Fields an element does
-    not hold read as 0 (their proto2 default). A parent laid out otherwise (an
-    unknown field, a multi-byte tag or length) is reported irregular, for a
-    field-by-field fallback.
-
-    Args:
-      parents: serialised parent messages.
-      field_number: the repeated field (at most 15).
-      counts: its number of elements in each parent.
-    Returns:
-      (values, regular): per parent, float64 `(count, len(layout))` (None
-      where irregular); bool `(num_parents,)`.
-    """
-    regular = np.zeros(len(parents), bool)
-    values: list = [None] * len(parents)
-    if field_number > 15 or any(number > 15 for number, _ in layout):
-        return values, regular
-    bases = np.cumsum([0] + [len(p) for p in parents])
-    segments, first_row, rows = [], np.zeros(len(parents), np.int64), 0
-    for i, (data, count) in enumerate(zip(parents, counts)):
-        found = _run_segments(data, field_number, count) if count else []
-        regular[i] = found is not None
-        first_row[i] = rows
-        if found is not None:
-            rows += count
-            segments.extend((int(bases[i]) + offset, size, n, i) for offset, size, n in found)
-    buffer = np.frombuffer(b"".join(parents), np.uint8)
-    offset, size, n, parent = np.array(segments, np.int64).reshape(-1, 4).T
-    # Expand the segments to one start (and one record size) per record.
-    within = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    sizes = np.repeat(size, n)
-    starts = np.repeat(offset, n) + sizes * within
-    owner = np.repeat(parent, n)
-    out = np.zeros((len(starts), len(layout)), np.float64)
-    for record in np.unique(sizes):
-        group = np.flatnonzero(sizes == record)
-        if not _read_group(buffer, starts[group], int(record), layout, out, group):
-            # Records of one size laid out unlike the first one: their parents are irregular.
-            regular[owner[group]] = False
-    for i in np.flatnonzero(regular):
-        values[i] = out[first_row[i]:first_row[i] + counts[i]]
-    return values, regular
-
-
-def _read_group(buffer: np.ndarray, starts: np.ndarray, record: int, layout, out: np.ndarray,
-                rows_out: np.ndarray) -> bool:
-    """Records of one size, whose fields must sit at the same offsets as in the first one."""
-    first = bytes(buffer[starts[0]:starts[0] + record])
-    fields, offset = [], 2
-    kinds = dict(layout)
-    while offset < record:
-        key = first[offset]
-        number, wire_type = key >> 3, key & 7
-        kind = kinds.get(number)
-        if key & 0x80 or kind is None or _WIRE_TYPE[kind] != wire_type or (fields and number <= fields[-1][0]):
-            return False
-        fields.append((number, offset))
-        offset += 1 + _SIZE[kind]
-    if offset != record:
-        return False
-    rows = buffer[starts[:, None] + np.arange(record)]
-    checks = [0, 1] + [o for _, o in fields]
-    if not (rows[:, checks] == rows[0, checks]).all():
-        return False
-    column = {number: j for j, (number, _) in enumerate(layout)}
-    for number, o in fields:
-        kind = kinds[number]
-        raw = np.ascontiguousarray(rows[:, o + 1:o + 1 + _SIZE[kind]])
-        if kind == "b":
-            if (raw > 1).any():
-                return False
-            out[rows_out, column[number]] = raw[:, 0]
-        else:
-            out[rows_out, column[number]] = raw.view("<f8" if kind == "d" else "<f4")[:, 0]
-    return True
 
 
 def read_varint(data: bytes, pos: int) -> tuple[int, int]:
@@ -293,3 +91,249 @@ def field_spans(data: bytes, field_number: int) -> list[tuple[int, int]]:
             spans.append((read_varint(data, pos)[1], field_end))
         pos = field_end
     return spans
+
+
+# --- Compiled walks over a serialised message -------------------------------------------------------
+
+WIRE_VARINT, WIRE_FIXED64, WIRE_BYTES, WIRE_FIXED32 = 0, 1, 2, 5
+
+
+def message_bytes(message) -> np.ndarray:
+    """The wire bytes of a message (or bytes as they are), as uint8 `(num_bytes,)` for the walks."""
+    return np.frombuffer(message if isinstance(message, bytes) else message.SerializeToString(), np.uint8)
+
+
+def enum_size(enum_descriptor) -> int:
+    """n for a closed enum whose values are 0 to n - 1 (`scalar_fields`'s `enum_sizes`)."""
+    numbers = sorted(v.number for v in enum_descriptor.values)
+    if numbers != list(range(len(numbers))):
+        raise ValueError(f"{enum_descriptor.full_name}: values are not 0 to n - 1")
+    return len(numbers)
+
+
+def whole(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The span of the top-level message: (starts, ends) int64 `(1,)`."""
+    return np.zeros(1, np.int64), np.full(1, len(data), np.int64)
+
+
+# The helpers of the walks are inlined: a call per field (to a function that may raise) costs 20 times
+# the field's work (measured).
+@numba.njit(inline="always")
+def _varint(data, pos, end):
+    """(value as int64, two's complement for negative int32/int64 fields; next offset)."""
+    if pos < end and data[pos] < 0x80:  # one byte: keys, lengths of small messages, flags, enums
+        return np.int64(data[pos]), pos + 1
+    return _long_varint(data, pos, end)
+
+
+@numba.njit(inline="always")
+def _long_varint(data, pos, end):
+    value = np.uint64(0)
+    shift = np.uint64(0)
+    while True:
+        if pos >= end or shift > 63:
+            raise ValueError("protobuf wire data: a truncated or overlong varint")
+        byte = data[pos]
+        pos += 1
+        value |= np.uint64(byte & 0x7F) << shift
+        shift += np.uint64(7)
+        if byte < 0x80:
+            return np.int64(value), pos
+
+
+@numba.njit(inline="always")
+def _value_end(data, pos, end, wire_type):
+    """The offset just past a field's value, whose key ended at `pos`."""
+    if wire_type == WIRE_VARINT:
+        return _varint(data, pos, end)[1]
+    if wire_type == WIRE_FIXED64:
+        after = pos + 8
+    elif wire_type == WIRE_FIXED32:
+        after = pos + 4
+    elif wire_type == WIRE_BYTES:
+        length, pos = _varint(data, pos, end)
+        after = pos + length
+        if length < 0:
+            after = end + 1
+    else:
+        raise ValueError("protobuf wire data: an unsupported wire type (a group or a corrupt key)")
+    if after > end:
+        raise ValueError("protobuf wire data: a field runs past the end of its message")
+    return after
+
+
+@numba.njit(inline="always")
+def _key(data, pos, end):
+    """(field number, wire type, offset after the key)."""
+    key, pos = _varint(data, pos, end)
+    if key >> 3 == 0:
+        raise ValueError("protobuf wire data: field number 0")
+    return key >> 3, key & 7, pos
+
+
+def _aligned(data: np.ndarray):
+    """The bytes as float64 and float32 arrays starting at each offset modulo 8 and 4, so that a compiled
+    walk reads the value at any offset `pos` as `f64[pos % 8][pos // 8]` (no copy)."""
+    if len(data) < 8:  # too short to hold a double at every offset (read-only, as the walks' other arrays)
+        data = np.frombuffer(data.tobytes() + bytes(8), np.uint8)
+    f64 = tuple(np.frombuffer(data, np.float64, (len(data) - s) // 8, s) for s in range(8))
+    f32 = tuple(np.frombuffer(data, np.float32, (len(data) - s) // 4, s) for s in range(4))
+    return f64, f32
+
+
+@numba.njit(inline="always")
+def _slots(numbers):
+    """Field number -> column in `numbers` (-1 for the others)."""
+    slot = np.full(numbers.max() + 1 if numbers.shape[0] else 1, -1, np.int64)
+    for j in range(numbers.shape[0]):
+        slot[numbers[j]] = j
+    return slot
+
+
+@numba.njit(cache=True)
+def _spans_of(data, starts, ends, number, out_start, out_end, out_parent, fill):
+    """Counts (and, with `fill`, records) the occurrences of length-delimited field `number`."""
+    n = 0
+    for i in range(starts.shape[0]):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            if field == number and wire_type == WIRE_BYTES:
+                if fill:
+                    out_start[n] = _varint(data, pos, end)[1]
+                    out_end[n] = after
+                    out_parent[n] = i
+                n += 1
+            pos = after
+    return n
+
+
+@numba.njit(cache=True)
+def message_spans(data, starts, ends, number):
+    """Every occurrence of length-delimited field `number` in each parent message, in wire order.
+
+    Args:
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_parents,)`, the parents' spans in it.
+    Returns:
+      (start, end, parent): int64 `(num_found,)`, the values' spans and the index of their parent.
+    """
+    empty = np.empty(0, np.int64)
+    n = _spans_of(data, starts, ends, number, empty, empty, empty, False)
+    out_start, out_end, out_parent = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    _spans_of(data, starts, ends, number, out_start, out_end, out_parent, True)
+    return out_start, out_end, out_parent
+
+
+def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
+    """The scalar fields `numbers` (declared with `wire_types`) of each record, the last occurrence winning.
+
+    `enum_sizes`: for a field of a closed (proto2) enum whose values are 0 to n - 1, n; 0 for other
+    fields. An enum value outside that range is an unknown field, as a parse keeps it (the field
+    keeps its earlier value).
+
+    Args:
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_records,)`; numbers, wire_types, enum_sizes:
+        int64 `(num_fields,)`.
+    Returns:
+      (real float64 `(num_records, num_fields)`: fixed64 as double, fixed32 as float; integer int64, the
+      varints (negative int32/int64 values as they are); present bool: where the field occurs).
+      Fields absent from a record read as 0.
+    """
+    return _scalar_fields(data, *_aligned(data), starts, ends, np.asarray(numbers, np.int64),
+                          np.asarray(wire_types, np.int64), np.asarray(enum_sizes, np.int64))
+
+
+@numba.njit(cache=True)
+def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes):
+    n, m = starts.shape[0], numbers.shape[0]
+    real = np.zeros((n, m), np.float64)
+    integer = np.zeros((n, m), np.int64)
+    present = np.zeros((n, m), np.bool_)
+    slot = _slots(numbers)
+    for i in range(n):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            j = slot[field] if field < slot.shape[0] else -1
+            if j >= 0 and wire_types[j] == wire_type:
+                if wire_type == WIRE_VARINT:
+                    value = _varint(data, pos, end)[0]
+                    if enum_sizes[j] and not 0 <= value < enum_sizes[j]:
+                        pos = after
+                        continue
+                    integer[i, j] = value
+                elif wire_type == WIRE_FIXED64:
+                    real[i, j] = f64[pos % 8][pos // 8]
+                elif wire_type == WIRE_FIXED32:
+                    real[i, j] = f32[pos % 4][pos // 4]
+                present[i, j] = True
+            pos = after
+    return real, integer, present
+
+
+@numba.njit(inline="always")
+def _any_finite_non_positive(block):
+    for v in block:
+        if np.isfinite(v) and v <= 0:
+            return True
+    return False
+
+
+def float_fields(data, starts, ends, numbers, num_values: int):
+    """The repeated float fields `numbers` of each record (packed or not), their first `num_values` values.
+
+    Returns:
+      (values float32 `(num_records, num_fields, num_values)`, 0 beyond a field's count; count int64
+      `(num_records, num_fields)`: the values each field holds; non_finite, non_positive bool
+      `(num_records, num_fields)`: whether any of them is NaN or infinite, or finite and <= 0).
+    """
+    return _float_fields(data, _aligned(data)[1], starts, ends, np.asarray(numbers, np.int64), num_values)
+
+
+@numba.njit(cache=True)
+def _float_fields(data, f32, starts, ends, numbers, num_values):
+    n, m = starts.shape[0], numbers.shape[0]
+    values = np.zeros((n, m, num_values), np.float32)
+    count = np.zeros((n, m), np.int64)
+    non_finite = np.zeros((n, m), np.bool_)
+    non_positive = np.zeros((n, m), np.bool_)
+    slot = _slots(numbers)
+    for i in range(n):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            j = slot[field] if field < slot.shape[0] else -1
+            first = pos
+            if j < 0 or wire_type not in (WIRE_BYTES, WIRE_FIXED32):
+                pos = after
+                continue
+            if wire_type == WIRE_BYTES:  # packed
+                first = _varint(data, pos, end)[1]
+                if (after - first) % 4:
+                    raise ValueError("protobuf wire data: a packed float field of a length not a multiple of 4")
+            block = f32[first % 4][first // 4:first // 4 + (after - first) // 4]
+            c = count[i, j]
+            take = min(max(num_values - c, 0), block.shape[0])
+            values[i, j, c:c + take] = block[:take]
+            count[i, j] = c + block.shape[0]
+            finite, positive = True, True
+            for v in block:
+                finite &= np.isfinite(v)
+                positive &= not v <= 0
+            non_finite[i, j] |= not finite
+            non_positive[i, j] |= not positive and _any_finite_non_positive(block)
+            pos = after
+    return values, count, non_finite, non_positive
+
+
+def compile_walks() -> None:
+    """Compiles the walks now (or loads them from numba's cache), for the argument types scoring and
+    validation pass: called by `features.search.compile_searches`."""
+    message = varint((1 << 3) | WIRE_BYTES) + varint(10) + varint((2 << 3) | WIRE_BYTES) + varint(8) + bytes(8)
+    data = message_bytes(message)
+    start, end, _ = message_spans(data, *whole(data), 1)
+    scalar_fields(data, start, end, np.array([1]), np.array([WIRE_VARINT]), np.array([0]))
+    float_fields(data, start, end, np.array([2]), 2)

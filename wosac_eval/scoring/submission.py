@@ -88,9 +88,18 @@ class ScoringChunk:
 
 
 def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
-    """The chunk's (Scenario, ScenarioRollouts) messages, read by the worker."""
-    return [(context.index.load(sid), decode_message(sim_agents_submission_pb2.ScenarioRollouts, read_locator(locator)))
-            for sid, locator in chunk.items]
+    """The chunk's (ScenarioArrays, RolloutArrays), read by the worker: each message is parsed (which
+    refuses bytes that are not one) and its arrays read from the bytes it was parsed from."""
+    from wosac_eval.arrays.rollouts import rollout_arrays
+    from wosac_eval.arrays.scenario import scenario_arrays
+
+    pairs = []
+    for sid, locator in chunk.items:
+        scenario, scenario_bytes = context.index.load_with_bytes(sid)
+        data = read_locator(locator)
+        rollouts = decode_message(sim_agents_submission_pb2.ScenarioRollouts, data)
+        pairs.append((scenario_arrays(scenario, scenario_bytes), rollout_arrays(rollouts, context.challenge, data)))
+    return pairs
 
 
 def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:

@@ -14,10 +14,10 @@ Three families:
 
 The per-value checks are vectorised over a whole scenario: its trajectories
 are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
-four fields of every trajectory are read from its serialized bytes as one
-(num_trajectories, 4, 80) float32 array (see `_counts_and_non_finite`), and
-lengths, finiteness and object ids are checked with numpy on whole arrays, not
-with Python loops over values. Only faulty trajectories and scenes are looked
+fields of every trajectory are read from the scenario's serialized bytes at once
+(`wire.float_fields`: value counts, non-finite and non-positive values; object ids
+and types with `wire.scalar_fields`), and lengths, finiteness and object ids are
+checked with numpy on whole arrays, not with Python loops over values. Only faulty trajectories and scenes are looked
 at one by one, to name the fault precisely.
 """
 
@@ -32,7 +32,9 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
-from wosac_eval.parse.wire import BOX_FIELDS, packed_boxes, packed_coordinates, serialized
+from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
+from wosac_eval.parse import wire
+from wosac_eval.parse.wire import BOX_FIELDS
 
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
@@ -240,60 +242,20 @@ def missing_scenario_id(shard: str, index: int) -> Finding:
 # --------------------------------------------------------------------------
 # Rollouts
 # --------------------------------------------------------------------------
-def _counts_and_non_finite(data: list[bytes], trajectories: Sequence[Any], n_steps: int
-                           ) -> tuple[np.ndarray, np.ndarray]:
-    """Value counts and non-finite mask of center_x, center_y, center_z, heading, both shape (num_trajectories, 4).
-
-    Fast path: protobuf serializes a parsed message canonically (known fields
-    in field-number order, each packed field once), so a trajectory whose four
-    fields hold n_steps values each serializes to bytes that start with four
-    blocks "tag, length 4 * n_steps, values". The first bytes of every
-    trajectory are stacked into one (num_trajectories, 4, block) uint8 array:
-    where the four headers match, the counts are proven to be n_steps and the
-    values are read as float32 and checked with one `isfinite`, without a
-    Python loop over values. Any other trajectory (a field of another length,
-    an unexpected layout) takes the slow path: len() per field, and a float64
-    sum per field, which is finite exactly when every value is (a float64 sum
-    of float32 values cannot overflow below ~1e270 values).
-    """
-    n = len(trajectories)
-    counts = np.full((n, len(TRAJECTORY_FIELDS)), n_steps, dtype=np.int64)
-    non_finite = np.zeros((n, len(TRAJECTORY_FIELDS)), dtype=bool)
-    if n == 0:
-        return counts, non_finite
-    regular, values = packed_coordinates(data, n_steps)
-    non_finite[regular] = ~np.isfinite(values).all(axis=2)
-    for k in np.flatnonzero(~regular).tolist():
-        fields = [getattr(trajectories[k], name) for name in TRAJECTORY_FIELDS]
-        counts[k] = [len(f) for f in fields]
-        non_finite[k] = ~np.isfinite(np.array([sum(f) for f in fields], dtype=np.float64))
-    return counts, non_finite
-
-
-def _box_checks(trajectories: Sequence[Any], data: list[bytes], n_steps: int):
-    """The scenario-gen fields of every trajectory: value counts, non-finite and non-positive masks of
-    length, width, height (each shape (num_trajectories, 3)), and whether an object_type is set (not
-    TYPE_UNSET), shape (num_trajectories,). Read from the wire where the layout is canonical."""
-    n = len(trajectories)
-    counts = np.full((n, len(BOX_FIELDS)), n_steps, dtype=np.int64)
-    non_finite = np.zeros((n, len(BOX_FIELDS)), dtype=bool)
-    non_positive = np.zeros((n, len(BOX_FIELDS)), dtype=bool)
-    has_type = np.ones(n, dtype=bool)
-    if n == 0:
-        return counts, non_finite, non_positive, has_type
-    regular, sizes, types = packed_boxes(data, n_steps)
-    finite = np.isfinite(sizes)
-    non_finite[regular] = ~finite.all(axis=2)
-    non_positive[regular] = (finite & (sizes <= 0)).any(axis=2)
-    has_type[regular] = types != TYPE_UNSET
-    for k in np.flatnonzero(~regular).tolist():
-        t = trajectories[k]
-        fields = [np.asarray(getattr(t, name), dtype=np.float64) for name in BOX_FIELDS]
-        counts[k] = [len(f) for f in fields]
-        non_finite[k] = [not np.isfinite(f).all() for f in fields]
-        non_positive[k] = [bool((f[np.isfinite(f)] <= 0).any()) for f in fields]
-        has_type[k] = t.HasField("object_type") and t.object_type != TYPE_UNSET
-    return counts, non_finite, non_positive, has_type
+def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int):
+    """Per trajectory of `rollouts` (in joint-scene order) and field: value counts, non-finite and
+    non-positive (finite, <= 0; box sizes only) masks, each shape (num_trajectories, len(fields)); and the object ids,
+    whether each is set, and whether an object_type is set (not TYPE_UNSET), shape (num_trajectories,).
+    Read from the scenario's serialized bytes at once (`wire`)."""
+    data = wire.message_bytes(rollouts)
+    start, end, _, _ = trajectory_spans(data)
+    if len(start) != n_trajectories:
+        raise AssertionError("the wire and the parsed message disagree on the number of trajectories")
+    numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
+    _, counts, non_finite, non_positive = wire.float_fields(data, start, end, numbers, 0)
+    ids, has_id, object_type = trajectory_headers(data, start, end)
+    non_positive &= np.isin(fields, BOX_FIELDS)
+    return counts, non_finite, non_positive, ids, has_id, object_type != TYPE_UNSET
 
 
 def _ignored_fields(trajectories: Sequence[Any], spec: challenges.ChallengeSpec) -> list[str]:
@@ -456,8 +418,8 @@ def check_scenario_rollouts(
     scene_sizes = np.fromiter((len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes))
     rollout_of = np.repeat(np.arange(len(scenes)), scene_sizes)
     starts = np.concatenate([[0], np.cumsum(scene_sizes)])
-    has_id = np.fromiter((t.HasField("object_id") for t in trajectories), dtype=bool, count=n)
-    ids = np.fromiter((t.object_id for t in trajectories), dtype=np.int64, count=n)
+    fields = TRAJECTORY_FIELDS + (BOX_FIELDS if spec.submits_boxes else ())
+    counts, non_finite, non_positive, ids, has_id, has_type = _field_checks(rollouts, fields, n)
 
     # Object ids. The common case (every scene holds exactly the sim agents) is
     # proven for all scenes at once; only the other scenes are looked at one by one.
@@ -470,17 +432,6 @@ def check_scenario_rollouts(
         out.extend(
             check_scene_object_ids(ids[span], has_id[span], expected, shard=shard, scenario_id=scenario_id, rollout=r)
         )
-
-    data = serialized(trajectories)
-    counts, non_finite = _counts_and_non_finite(data, trajectories, n_steps)
-    fields = TRAJECTORY_FIELDS
-    non_positive = np.zeros_like(non_finite)
-    if spec.submits_boxes:
-        box_counts, box_non_finite, box_non_positive, has_type = _box_checks(trajectories, data, n_steps)
-        fields = TRAJECTORY_FIELDS + BOX_FIELDS
-        counts = np.concatenate([counts, box_counts], axis=1)
-        non_finite = np.concatenate([non_finite, box_non_finite], axis=1)
-        non_positive = np.concatenate([non_positive, box_non_positive], axis=1)
 
     def where_(k: int) -> dict[str, Any]:
         return {

@@ -1,4 +1,4 @@
-"""Tests of reading messages straight from the wire (`parse.wire`), against the parsed fields.
+"""Tests of reading messages straight from the wire (`parse.wire`, `parse.wire_walks`), against the parsed fields.
 
 The arrays of a scenario and of its rollouts are read by compiled walks over the message's bytes;
 every test compares them with what a protobuf parse gives, field by field, including the cases
@@ -10,7 +10,7 @@ import pytest
 
 from wosac_eval.arrays import scenario as scenario_module
 from wosac_eval.arrays.rollouts import rollout_arrays
-from wosac_eval.parse import wire
+from wosac_eval.parse import wire, wire_walks as walks
 from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2 as pb
 
@@ -163,7 +163,7 @@ def test_float_fields_packed_and_unpacked_with_counts_and_flags():
     data = np.frombuffer(raw, np.uint8)
     fields = ("center_x", "center_y", "length", "height")
     numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields])
-    values, count, non_finite, non_positive = wire.float_fields(data, *wire.whole(data), numbers, 4)
+    values, count, non_finite, non_positive = walks.float_fields(data, *walks.whole(data), numbers, 4)
     for j, f in enumerate(fields):
         expected = np.array(getattr(parsed, f), np.float32)
         assert count[0, j] == len(expected)
@@ -214,7 +214,7 @@ def test_rollouts_of_odd_shapes_are_refused_by_scene_and_field():
 def test_walks_refuse_malformed_bytes(bad):
     data = np.frombuffer(bad, np.uint8)
     with pytest.raises(ValueError, match="protobuf wire data"):
-        wire.message_spans(data, *wire.whole(data), 1)
+        walks.message_spans(data, *walks.whole(data), 1)
 
 
 def test_field_spans_split_a_submission_like_a_parse():

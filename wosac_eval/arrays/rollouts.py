@@ -6,8 +6,8 @@ import dataclasses
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.parse import wire
-from wosac_eval.parse.wire import BOX_FIELDS, COORDINATE_FIELDS
+from wosac_eval.parse import wire_walks as walks
+from wosac_eval.parse.wire import BOX_FIELDS, COORDINATE_FIELDS, TRAJECTORY_FIELD_NUMBERS
 from wosac_eval.protos import sim_agents_submission_pb2
 
 
@@ -86,16 +86,16 @@ def trajectory_spans(data: np.ndarray):
     """The `SimulatedTrajectory` messages of a serialised `ScenarioRollouts` (joint_scenes is field 2,
     their simulated_trajectories field 1): (starts, ends, joint scene of each) int64 `(num_trajectories,)`,
     and the number of joint scenes."""
-    scene_start, scene_end, _ = wire.message_spans(data, *wire.whole(data), 2)
-    start, end, scene = wire.message_spans(data, scene_start, scene_end, 1)
+    scene_start, scene_end, _ = walks.message_spans(data, *walks.whole(data), 2)
+    start, end, scene = walks.message_spans(data, scene_start, scene_end, 1)
     return start, end, scene, len(scene_start)
 
 
 def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
     """object_id int64, whether it is set (bool), and object_type int32 (TYPE_UNSET where unset) of
     each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10 (a closed enum)."""
-    _, header, present = wire.scalar_fields(data, start, end, np.array([6, 10], np.int64),
-                                            np.full(2, wire.WIRE_VARINT), np.array([0, _OBJECT_TYPES], np.int64))
+    _, header, present = walks.scalar_fields(data, start, end, np.array([6, 10], np.int64),
+                                            np.full(2, walks.WIRE_VARINT), np.array([0, _OBJECT_TYPES], np.int64))
     return header[:, 0], present[:, 0], header[:, 1].astype(np.int32)
 
 
@@ -110,7 +110,7 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     and the object types are read too. wire_bytes: the bytes `rollouts` was parsed from, when at
     hand: read instead of serialising the message again (the walks read them as a parse does).
     """
-    data = wire.message_bytes(rollouts if wire_bytes is None else wire_bytes)
+    data = walks.message_bytes(rollouts if wire_bytes is None else wire_bytes)
     start, end, scene, num_scenes = trajectory_spans(data)
     if not num_scenes:
         raise ValueError(f"scenario {rollouts.scenario_id}: no joint scenes")
@@ -118,9 +118,9 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     per_scene = np.bincount(scene, minlength=num_scenes)
     num_agents = int(per_scene[0])
     fields = COORDINATE_FIELDS + (BOX_FIELDS if boxes else ())
-    numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
-    num_steps = int(wire.float_fields(data, start[:1], end[:1], numbers[:1], 0)[1][0, 0]) if num_agents else 0
-    values, count, _, _ = wire.float_fields(data, start, end, numbers, num_steps)
+    numbers = np.array([TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
+    num_steps = int(walks.float_fields(data, start[:1], end[:1], numbers[:1], 0)[1][0, 0]) if num_agents else 0
+    values, count, _, _ = walks.float_fields(data, start, end, numbers, num_steps)
     _raise_for_the_first_odd_scene(rollouts, per_scene, scene, count != num_steps, fields, num_steps)
     object_id, _, object_type = trajectory_headers(data, start, end)
     out = values.reshape(num_scenes, num_agents, len(fields), num_steps)
@@ -131,4 +131,4 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
                          x=out[:, :, 0], y=out[:, :, 1], z=out[:, :, 2], heading=out[:, :, 3], **sizes)
 
 
-_OBJECT_TYPES = wire.enum_size(sim_agents_submission_pb2.SimulatedTrajectory.DESCRIPTOR.fields_by_name["object_type"].enum_type)
+_OBJECT_TYPES = walks.enum_size(sim_agents_submission_pb2.SimulatedTrajectory.DESCRIPTOR.fields_by_name["object_type"].enum_type)

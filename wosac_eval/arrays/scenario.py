@@ -7,7 +7,7 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.trajectories import ObjectTrajectories
-from wosac_eval.parse import wire
+from wosac_eval.parse import wire_walks as walks
 from wosac_eval.protos import map_pb2, scenario_pb2
 
 
@@ -64,11 +64,11 @@ class ScenarioArrays:
 def track_trajectories(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
     """Every track of the scenario, in track order, over all its steps (float32, as the official converter
     rounds); ValueError when the tracks have different numbers of states."""
-    return _track_trajectories(scenario.scenario_id, *_with_whole(wire.message_bytes(scenario)))
+    return _track_trajectories(scenario.scenario_id, *_with_whole(walks.message_bytes(scenario)))
 
 
 def _with_whole(data: np.ndarray):
-    return (data, *wire.whole(data))
+    return (data, *walks.whole(data))
 
 
 # Scenario fields read from the wire: tracks 2, dynamic_map_states 7, map_features 8; Track: id 1,
@@ -76,30 +76,30 @@ def _with_whole(data: np.ndarray):
 # type 2, polyline 8), road_edge 5 (polyline 2); MapPoint x, y, z 1..3; DynamicMapState: lane_states 1
 # (TrafficSignalLaneState: lane 1, state 2, stop_point 3).
 # A layout lists (field number, wire type[, closed enum]) per field read.
-_STATE_LAYOUT = ((2, wire.WIRE_FIXED64), (3, wire.WIRE_FIXED64), (4, wire.WIRE_FIXED64), (5, wire.WIRE_FIXED32),
-                 (6, wire.WIRE_FIXED32), (7, wire.WIRE_FIXED32), (8, wire.WIRE_FIXED32), (11, wire.WIRE_VARINT))
+_STATE_LAYOUT = ((2, walks.WIRE_FIXED64), (3, walks.WIRE_FIXED64), (4, walks.WIRE_FIXED64), (5, walks.WIRE_FIXED32),
+                 (6, walks.WIRE_FIXED32), (7, walks.WIRE_FIXED32), (8, walks.WIRE_FIXED32), (11, walks.WIRE_VARINT))
 _STATE_FIELDS = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
 _STATE_COLUMNS = (0, 1, 2, 6, 3, 4, 5)  # _STATE_FIELDS in _STATE_LAYOUT
-_POINT_LAYOUT = ((1, wire.WIRE_FIXED64), (2, wire.WIRE_FIXED64), (3, wire.WIRE_FIXED64))
+_POINT_LAYOUT = ((1, walks.WIRE_FIXED64), (2, walks.WIRE_FIXED64), (3, walks.WIRE_FIXED64))
 
 
-_OBJECT_TYPES = wire.enum_size(scenario_pb2.Track.ObjectType.DESCRIPTOR)
-_LANE_TYPES = wire.enum_size(map_pb2.LaneCenter.LaneType.DESCRIPTOR)
-_SIGNAL_STATES = wire.enum_size(map_pb2.TrafficSignalLaneState.State.DESCRIPTOR)
+_OBJECT_TYPES = walks.enum_size(scenario_pb2.Track.ObjectType.DESCRIPTOR)
+_LANE_TYPES = walks.enum_size(map_pb2.LaneCenter.LaneType.DESCRIPTOR)
+_SIGNAL_STATES = walks.enum_size(map_pb2.TrafficSignalLaneState.State.DESCRIPTOR)
 
 
 def _fields(data, starts, ends, layout):
-    """`wire.scalar_fields` of records with `layout`."""
+    """`walks.scalar_fields` of records with `layout`."""
     numbers = np.array([field[0] for field in layout], np.int64)
     wire_types = np.array([field[1] for field in layout], np.int64)
     enum_sizes = np.array([field[2] if len(field) > 2 else 0 for field in layout], np.int64)
-    return wire.scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes)
+    return walks.scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes)
 
 
 def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajectories:
-    track_start, track_end, _ = wire.message_spans(data, starts, ends, 2)
-    _, header, _ = _fields(data, track_start, track_end, ((1, wire.WIRE_VARINT), (2, wire.WIRE_VARINT, _OBJECT_TYPES)))
-    state_start, state_end, owner = wire.message_spans(data, track_start, track_end, 3)
+    track_start, track_end, _ = walks.message_spans(data, starts, ends, 2)
+    _, header, _ = _fields(data, track_start, track_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _OBJECT_TYPES)))
+    state_start, state_end, owner = walks.message_spans(data, track_start, track_end, 3)
     per_track = np.bincount(owner, minlength=len(track_start))
     num_steps = int(per_track.max(initial=0))
     if (per_track != num_steps).any():
@@ -117,7 +117,7 @@ def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajector
 
 def _polylines(data, starts, ends, field_number: int) -> list:
     """float32 `(num_points, 3)` of the `repeated MapPoint` field `field_number` of each parent span."""
-    point_start, point_end, owner = wire.message_spans(data, starts, ends, field_number)
+    point_start, point_end, owner = walks.message_spans(data, starts, ends, field_number)
     xyz, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT)
     counts = np.bincount(owner, minlength=len(starts))
     return np.split(xyz.astype(np.float32), np.cumsum(counts)[:-1]) if len(starts) else []
@@ -125,11 +125,11 @@ def _polylines(data, starts, ends, field_number: int) -> list:
 
 def _map_polylines(data, starts, ends):
     """(road-edge polylines, surface-street lane ids, their lane polylines), in map-feature order."""
-    feature_start, feature_end, _ = wire.message_spans(data, starts, ends, 8)
-    _, feature_id, _ = _fields(data, feature_start, feature_end, ((1, wire.WIRE_VARINT),))
-    edge_start, edge_end, _ = wire.message_spans(data, feature_start, feature_end, 5)
-    lane_start, lane_end, lane_feature = wire.message_spans(data, feature_start, feature_end, 3)
-    _, lane_type, _ = _fields(data, lane_start, lane_end, ((2, wire.WIRE_VARINT, _LANE_TYPES),))
+    feature_start, feature_end, _ = walks.message_spans(data, starts, ends, 8)
+    _, feature_id, _ = _fields(data, feature_start, feature_end, ((1, walks.WIRE_VARINT),))
+    edge_start, edge_end, _ = walks.message_spans(data, feature_start, feature_end, 5)
+    lane_start, lane_end, lane_feature = walks.message_spans(data, feature_start, feature_end, 3)
+    _, lane_type, _ = _fields(data, lane_start, lane_end, ((2, walks.WIRE_VARINT, _LANE_TYPES),))
     surface = lane_type[:, 0] == map_pb2.LaneCenter.TYPE_SURFACE_STREET
     return (_polylines(data, edge_start, edge_end, 2), feature_id[lane_feature[surface], 0],
             _polylines(data, lane_start[surface], lane_end[surface], 8))
@@ -141,22 +141,22 @@ _FEATURE_DATA = tuple(f.number for f in map_pb2.MapFeature.DESCRIPTOR.oneofs_by_
 def _merges_submessages(data, starts, ends) -> bool:
     """Whether a map feature holds more than one of its (oneof) feature_data fields, or a signal's lane
     state more than one stop_point: a parse merges (or replaces) those, the walks would not."""
-    feature_start, feature_end, _ = wire.message_spans(data, starts, ends, 8)
-    owners = [wire.message_spans(data, feature_start, feature_end, number)[2] for number in _FEATURE_DATA]
+    feature_start, feature_end, _ = walks.message_spans(data, starts, ends, 8)
+    owners = [walks.message_spans(data, feature_start, feature_end, number)[2] for number in _FEATURE_DATA]
     if np.bincount(np.concatenate(owners), minlength=1).max() > 1:
         return True
-    step_start, step_end, _ = wire.message_spans(data, starts, ends, 7)
-    entry_start, entry_end, _ = wire.message_spans(data, step_start, step_end, 1)
-    return np.bincount(wire.message_spans(data, entry_start, entry_end, 3)[2], minlength=1).max() > 1
+    step_start, step_end, _ = walks.message_spans(data, starts, ends, 7)
+    entry_start, entry_end, _ = walks.message_spans(data, step_start, step_end, 1)
+    return np.bincount(walks.message_spans(data, entry_start, entry_end, 3)[2], minlength=1).max() > 1
 
 
 def _traffic_signals(data, starts, ends) -> TrafficSignals | None:
-    step_start, step_end, _ = wire.message_spans(data, starts, ends, 7)
+    step_start, step_end, _ = walks.message_spans(data, starts, ends, 7)
     if not len(step_start):
         return None
-    entry_start, entry_end, step = wire.message_spans(data, step_start, step_end, 1)
-    _, entry, _ = _fields(data, entry_start, entry_end, ((1, wire.WIRE_VARINT), (2, wire.WIRE_VARINT, _SIGNAL_STATES)))
-    point_start, point_end, point_entry = wire.message_spans(data, entry_start, entry_end, 3)
+    entry_start, entry_end, step = walks.message_spans(data, step_start, step_end, 1)
+    _, entry, _ = _fields(data, entry_start, entry_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _SIGNAL_STATES)))
+    point_start, point_end, point_entry = walks.message_spans(data, entry_start, entry_end, 3)
     point_xy, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT[:2])
     stop_xy = np.zeros((len(entry_start), 2))
     stop_xy[point_entry] = point_xy  # one stop_point per entry at most (`_merges_submessages`)
@@ -181,9 +181,9 @@ def scenario_arrays(scenario: scenario_pb2.Scenario, wire_bytes: bytes | None = 
     message again (the walks read bytes as a parse does; bytes where a parse would merge repeated
     occurrences of a map feature or a stop point are read from the message's own serialisation).
     """
-    data, starts, ends = _with_whole(wire.message_bytes(scenario if wire_bytes is None else wire_bytes))
+    data, starts, ends = _with_whole(walks.message_bytes(scenario if wire_bytes is None else wire_bytes))
     if wire_bytes is not None and _merges_submessages(data, starts, ends):
-        data, starts, ends = _with_whole(wire.message_bytes(scenario))
+        data, starts, ends = _with_whole(walks.message_bytes(scenario))
     road_edges, lane_ids, lanes = _map_polylines(data, starts, ends)
     return ScenarioArrays(
         scenario_id=scenario.scenario_id,

@@ -18,7 +18,7 @@ import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import interaction, road_edge, traffic_lights
-from wosac_eval.parse import wire
+from wosac_eval.parse import wire_walks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +55,7 @@ class PrunedSearch:
 
 
 def compile_searches() -> float:
-    """Compiles the search loops and the protobuf wire walks (`parse.wire`) now (or loads them from
+    """Compiles the search loops and the protobuf wire walks (`parse.wire_walks`) now (or loads them from
     numba's cache); returns the seconds it took.
 
     numba compiles a loop on its first call, once per installation (about half a minute for all of
@@ -63,7 +63,7 @@ def compile_searches() -> float:
     Docker image while it is built, a service before it takes jobs) calls this first.
     """
     start = time.perf_counter()
-    wire.compile_walks()
+    wire_walks.compile_walks()
     f = np.float32
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite.

@@ -15,8 +15,8 @@ Three families:
 The per-value checks are vectorised over a whole scenario: its trajectories
 are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
 fields of every trajectory are read from the scenario's serialized bytes at once
-(`wire.float_fields`: value counts, non-finite and non-positive values; object ids
-and types with `wire.scalar_fields`), and lengths, finiteness and object ids are
+(`parse.wire_walks`: value counts, non-finite and non-positive values, object ids
+and types), and lengths, finiteness and object ids are
 checked with numpy on whole arrays, not with Python loops over values. Only faulty trajectories and scenes are looked
 at one by one, to name the fault precisely.
 """
@@ -32,9 +32,7 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
-from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
-from wosac_eval.parse import wire
-from wosac_eval.parse.wire import BOX_FIELDS
+from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS
 
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
@@ -246,13 +244,17 @@ def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int):
     """Per trajectory of `rollouts` (in joint-scene order) and field: value counts, non-finite and
     non-positive (finite, <= 0; box sizes only) masks, each shape (num_trajectories, len(fields)); and the object ids,
     whether each is set, and whether an object_type is set (not TYPE_UNSET), shape (num_trajectories,).
-    Read from the scenario's serialized bytes at once (`wire`)."""
-    data = wire.message_bytes(rollouts)
+    Read from the scenario's serialized bytes at once (`parse.wire_walks`, imported here: a process that
+    refuses a file before its rules run does not load the compiled walks)."""
+    from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
+    from wosac_eval.parse import wire_walks
+
+    data = wire_walks.message_bytes(rollouts)
     start, end, _, _ = trajectory_spans(data)
     if len(start) != n_trajectories:
         raise AssertionError("the wire and the parsed message disagree on the number of trajectories")
-    numbers = np.array([wire.TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
-    _, counts, non_finite, non_positive = wire.float_fields(data, start, end, numbers, 0)
+    numbers = np.array([TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
+    _, counts, non_finite, non_positive = wire_walks.float_fields(data, start, end, numbers, 0)
     ids, has_id, object_type = trajectory_headers(data, start, end)
     non_positive &= np.isin(fields, BOX_FIELDS)
     return counts, non_finite, non_positive, ids, has_id, object_type != TYPE_UNSET

@@ -1,0 +1,262 @@
+"""Compiled walks (numba) over the bytes of a whole protobuf message, for the arrays of a scenario and its rollouts.
+
+- `message_spans`: the submessages of a field in many parents at once;
+- `scalar_fields`: the scalar fields of many small records (track states, map points);
+- `float_fields`: repeated float fields (the coordinates and box sizes of simulated trajectories).
+
+The walks follow the protobuf encoding rules as a parse does: fields in any order, a field whose wire
+type does not match its declaration is an unknown field (skipped), the last occurrence of a scalar
+wins, a repeated float may be packed or not, an unset field reads as its default (0), a closed
+enum's value out of range is an unknown field. They read the bytes a message was parsed from, or its
+serialisation (`message_bytes`); malformed bytes raise ValueError. Compiled once per installation
+and cached on disk by numba, like the search loops (`features.search.compile_searches`).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from wosac_eval.parse.wire import varint
+
+WIRE_VARINT, WIRE_FIXED64, WIRE_BYTES, WIRE_FIXED32 = 0, 1, 2, 5
+
+
+def message_bytes(message) -> np.ndarray:
+    """The wire bytes of a message (or bytes as they are), as uint8 `(num_bytes,)` for the walks."""
+    return np.frombuffer(message if isinstance(message, bytes) else message.SerializeToString(), np.uint8)
+
+
+def enum_size(enum_descriptor) -> int:
+    """n for a closed enum whose values are 0 to n - 1 (`scalar_fields`'s `enum_sizes`)."""
+    numbers = sorted(v.number for v in enum_descriptor.values)
+    if numbers != list(range(len(numbers))):
+        raise ValueError(f"{enum_descriptor.full_name}: values are not 0 to n - 1")
+    return len(numbers)
+
+
+def whole(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The span of the top-level message: (starts, ends) int64 `(1,)`."""
+    return np.zeros(1, np.int64), np.full(1, len(data), np.int64)
+
+
+# The helpers of the walks are inlined: a call per field (to a function that may raise) costs 20 times
+# the field's work (measured).
+@numba.njit(inline="always")
+def _varint(data, pos, end):
+    """(value as int64, two's complement for negative int32/int64 fields; next offset)."""
+    if pos < end and data[pos] < 0x80:  # one byte: keys, lengths of small messages, flags, enums
+        return np.int64(data[pos]), pos + 1
+    return _long_varint(data, pos, end)
+
+
+@numba.njit(inline="always")
+def _long_varint(data, pos, end):
+    value = np.uint64(0)
+    shift = np.uint64(0)
+    while True:
+        if pos >= end or shift > 63:
+            raise ValueError("protobuf wire data: a truncated or overlong varint")
+        byte = data[pos]
+        pos += 1
+        value |= np.uint64(byte & 0x7F) << shift
+        shift += np.uint64(7)
+        if byte < 0x80:
+            return np.int64(value), pos
+
+
+@numba.njit(inline="always")
+def _value_end(data, pos, end, wire_type):
+    """The offset just past a field's value, whose key ended at `pos`."""
+    if wire_type == WIRE_VARINT:
+        return _varint(data, pos, end)[1]
+    if wire_type == WIRE_FIXED64:
+        after = pos + 8
+    elif wire_type == WIRE_FIXED32:
+        after = pos + 4
+    elif wire_type == WIRE_BYTES:
+        length, pos = _varint(data, pos, end)
+        after = pos + length
+        if length < 0:
+            after = end + 1
+    else:
+        raise ValueError("protobuf wire data: an unsupported wire type (a group or a corrupt key)")
+    if after > end:
+        raise ValueError("protobuf wire data: a field runs past the end of its message")
+    return after
+
+
+@numba.njit(inline="always")
+def _key(data, pos, end):
+    """(field number, wire type, offset after the key)."""
+    key, pos = _varint(data, pos, end)
+    if key >> 3 == 0:
+        raise ValueError("protobuf wire data: field number 0")
+    return key >> 3, key & 7, pos
+
+
+def _aligned(data: np.ndarray):
+    """The bytes as float64 and float32 arrays starting at each offset modulo 8 and 4, so that a compiled
+    walk reads the value at any offset `pos` as `f64[pos % 8][pos // 8]` (no copy)."""
+    if len(data) < 8:  # too short to hold a double at every offset (read-only, as the walks' other arrays)
+        data = np.frombuffer(data.tobytes() + bytes(8), np.uint8)
+    f64 = tuple(np.frombuffer(data, np.float64, (len(data) - s) // 8, s) for s in range(8))
+    f32 = tuple(np.frombuffer(data, np.float32, (len(data) - s) // 4, s) for s in range(4))
+    return f64, f32
+
+
+@numba.njit(inline="always")
+def _slots(numbers):
+    """Field number -> column in `numbers` (-1 for the others)."""
+    slot = np.full(numbers.max() + 1 if numbers.shape[0] else 1, -1, np.int64)
+    for j in range(numbers.shape[0]):
+        slot[numbers[j]] = j
+    return slot
+
+
+@numba.njit(cache=True)
+def _spans_of(data, starts, ends, number, out_start, out_end, out_parent, fill):
+    """Counts (and, with `fill`, records) the occurrences of length-delimited field `number`."""
+    n = 0
+    for i in range(starts.shape[0]):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            if field == number and wire_type == WIRE_BYTES:
+                if fill:
+                    out_start[n] = _varint(data, pos, end)[1]
+                    out_end[n] = after
+                    out_parent[n] = i
+                n += 1
+            pos = after
+    return n
+
+
+@numba.njit(cache=True)
+def message_spans(data, starts, ends, number):
+    """Every occurrence of length-delimited field `number` in each parent message, in wire order.
+
+    Args:
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_parents,)`, the parents' spans in it.
+    Returns:
+      (start, end, parent): int64 `(num_found,)`, the values' spans and the index of their parent.
+    """
+    empty = np.empty(0, np.int64)
+    n = _spans_of(data, starts, ends, number, empty, empty, empty, False)
+    out_start, out_end, out_parent = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
+    _spans_of(data, starts, ends, number, out_start, out_end, out_parent, True)
+    return out_start, out_end, out_parent
+
+
+def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
+    """The scalar fields `numbers` (declared with `wire_types`) of each record, the last occurrence winning.
+
+    `enum_sizes`: for a field of a closed (proto2) enum whose values are 0 to n - 1, n; 0 for other
+    fields. An enum value outside that range is an unknown field, as a parse keeps it (the field
+    keeps its earlier value).
+
+    Args:
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_records,)`; numbers, wire_types, enum_sizes:
+        int64 `(num_fields,)`.
+    Returns:
+      (real float64 `(num_records, num_fields)`: fixed64 as double, fixed32 as float; integer int64, the
+      varints (negative int32/int64 values as they are); present bool: where the field occurs).
+      Fields absent from a record read as 0.
+    """
+    return _scalar_fields(data, *_aligned(data), starts, ends, np.asarray(numbers, np.int64),
+                          np.asarray(wire_types, np.int64), np.asarray(enum_sizes, np.int64))
+
+
+@numba.njit(cache=True)
+def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes):
+    n, m = starts.shape[0], numbers.shape[0]
+    real = np.zeros((n, m), np.float64)
+    integer = np.zeros((n, m), np.int64)
+    present = np.zeros((n, m), np.bool_)
+    slot = _slots(numbers)
+    for i in range(n):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            j = slot[field] if field < slot.shape[0] else -1
+            if j >= 0 and wire_types[j] == wire_type:
+                if wire_type == WIRE_VARINT:
+                    value = _varint(data, pos, end)[0]
+                    if enum_sizes[j] and not 0 <= value < enum_sizes[j]:
+                        pos = after
+                        continue
+                    integer[i, j] = value
+                elif wire_type == WIRE_FIXED64:
+                    real[i, j] = f64[pos % 8][pos // 8]
+                elif wire_type == WIRE_FIXED32:
+                    real[i, j] = f32[pos % 4][pos // 4]
+                present[i, j] = True
+            pos = after
+    return real, integer, present
+
+
+@numba.njit(inline="always")
+def _any_finite_non_positive(block):
+    for v in block:
+        if np.isfinite(v) and v <= 0:
+            return True
+    return False
+
+
+def float_fields(data, starts, ends, numbers, num_values: int):
+    """The repeated float fields `numbers` of each record (packed or not), their first `num_values` values.
+
+    Returns:
+      (values float32 `(num_records, num_fields, num_values)`, 0 beyond a field's count; count int64
+      `(num_records, num_fields)`: the values each field holds; non_finite, non_positive bool
+      `(num_records, num_fields)`: whether any of them is NaN or infinite, or finite and <= 0).
+    """
+    return _float_fields(data, _aligned(data)[1], starts, ends, np.asarray(numbers, np.int64), num_values)
+
+
+@numba.njit(cache=True)
+def _float_fields(data, f32, starts, ends, numbers, num_values):
+    n, m = starts.shape[0], numbers.shape[0]
+    values = np.zeros((n, m, num_values), np.float32)
+    count = np.zeros((n, m), np.int64)
+    non_finite = np.zeros((n, m), np.bool_)
+    non_positive = np.zeros((n, m), np.bool_)
+    slot = _slots(numbers)
+    for i in range(n):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)
+            after = _value_end(data, pos, end, wire_type)
+            j = slot[field] if field < slot.shape[0] else -1
+            first = pos
+            if j < 0 or wire_type not in (WIRE_BYTES, WIRE_FIXED32):
+                pos = after
+                continue
+            if wire_type == WIRE_BYTES:  # packed
+                first = _varint(data, pos, end)[1]
+                if (after - first) % 4:
+                    raise ValueError("protobuf wire data: a packed float field of a length not a multiple of 4")
+            block = f32[first % 4][first // 4:first // 4 + (after - first) // 4]
+            c = count[i, j]
+            take = min(max(num_values - c, 0), block.shape[0])
+            values[i, j, c:c + take] = block[:take]
+            count[i, j] = c + block.shape[0]
+            finite, positive = True, True
+            for v in block:
+                finite &= np.isfinite(v)
+                positive &= not v <= 0
+            non_finite[i, j] |= not finite
+            non_positive[i, j] |= not positive and _any_finite_non_positive(block)
+            pos = after
+    return values, count, non_finite, non_positive
+
+
+def compile_walks() -> None:
+    """Compiles the walks now (or loads them from numba's cache), for the argument types scoring and
+    validation pass: called by `features.search.compile_searches`."""
+    message = varint((1 << 3) | WIRE_BYTES) + varint(10) + varint((2 << 3) | WIRE_BYTES) + varint(8) + bytes(8)
+    data = message_bytes(message)
+    start, end, _ = message_spans(data, *whole(data), 1)
+    scalar_fields(data, start, end, np.array([1]), np.array([WIRE_VARINT]), np.array([0]))
+    float_fields(data, start, end, np.array([2]), 2)

@@ -66,10 +66,22 @@ def official_object_order(scene_ids, evaluated_ids) -> np.ndarray:
     return np.array([int(i) for i in evaluated_ids] + list(others), dtype=np.int64)
 
 
+def _official_orders(object_ids: np.ndarray, evaluated_ids) -> np.ndarray:
+    """`official_object_order` of each rollout's ids `(num_rollouts, num_agents)`; rollouts that list
+    their agents as the first one does (the usual case) share its order."""
+    first = official_object_order(object_ids[0], evaluated_ids)
+    if (object_ids == object_ids[0]).all():
+        return np.tile(first, (len(object_ids), 1))
+    return np.stack([first] + [official_object_order(ids, evaluated_ids) for ids in object_ids[1:]])
+
+
 def _rollout_columns(rollouts: RolloutArrays, orders: np.ndarray):
     """A gather `(num_rollouts, num_agents, ...) -> (num_rollouts, len(order), ...)` per rollout's order."""
-    cols = np.stack([index_of_ids(ids, order) for ids, order in zip(rollouts.object_id, orders)])
-    if (cols == cols[0]).all():  # usually every rollout lists the agents in the same order
+    if (rollouts.object_id == rollouts.object_id[0]).all() and (orders == orders[0]).all():
+        cols = index_of_ids(rollouts.object_id[0], orders[0])[None]  # usually every rollout lists the same
+    else:
+        cols = np.stack([index_of_ids(ids, order) for ids, order in zip(rollouts.object_id, orders)])
+    if (cols == cols[0]).all():
         if (cols[0] == np.arange(cols.shape[1])).all():
             return lambda a: a
         return lambda a: a[:, cols[0]]
@@ -116,11 +128,13 @@ def log_sample(scenario: ScenarioArrays, challenge=challenges.Challenge.SIM_AGEN
     return traj, feature_valid
 
 
-def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS):
-    """(trajectories `(num_rollouts, num_objects, 91)`, feature validity `(num_rollouts, num_evaluated, 91)`)."""
+def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS,
+                    with_log: bool = False):
+    """(trajectories `(num_rollouts, num_objects, 91)`, feature validity `(num_rollouts, num_evaluated, 91)`);
+    with `with_log`, the log's sample first (`log_sample`; one composite for all samples, sim agents)."""
     spec = challenges.spec(challenge)
     evaluated = scenario.evaluated_ids(spec)
-    orders = np.stack([official_object_order(ids, evaluated) for ids in rollouts.object_id])
+    orders = _official_orders(rollouts.object_id, evaluated)
     take = _rollout_columns(rollouts, orders)
     positions = {f: take(getattr(rollouts, f)) for f in _POSITIONS}
     if spec.submits_boxes:
@@ -136,8 +150,18 @@ def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge
                                   # No submitted types: TYPE_UNSET, as the official scores an unset object_type.
                                   object_type=take(rollouts.object_type) if rollouts.object_type is not None
                                   else np.zeros(orders.shape, dtype=np.int32))
+        if with_log:
+            log, log_valid = log_sample(scenario, spec)
+            return stack_samples([log, traj]), np.concatenate([log_valid, traj.valid[:, : len(evaluated)]])
     else:
-        traj = _sim_agents_composite(scenario, orders, positions, np.ones(positions["x"].shape, dtype=bool))
+        valid = np.ones(positions["x"].shape, dtype=bool)
+        if with_log:  # the log's future as one more rollout in front: the same composite as `log_sample`'s
+            order = official_object_order(scenario.sim_agent_ids, evaluated)
+            log, future = scenario.log.take_ids(order), spec.simulated_steps
+            orders = np.concatenate([order[None], orders])
+            positions = {f: np.concatenate([getattr(log, f)[None, :, future], positions[f]]) for f in _POSITIONS}
+            valid = np.concatenate([log.valid[None, :, future], valid])
+        traj = _sim_agents_composite(scenario, orders, positions, valid)
     return traj, traj.valid[:, : len(evaluated)]
 
 
@@ -148,8 +172,6 @@ def sample_batch(scenario: ScenarioArrays, rollouts: RolloutArrays,
     if rollouts.num_steps != spec.num_simulation_steps:
         raise ValueError(f"scenario {rollouts.scenario_id}: rollouts have {rollouts.num_steps} steps, the "
                          f"{spec.challenge} challenge expects {spec.num_simulation_steps}")
-    log, log_valid = log_sample(scenario, spec)
-    sim, sim_valid = rollout_samples(scenario, rollouts, spec)
-    return SampleBatch(trajectories=stack_samples([log, sim]).validate(),
-                       feature_valid=np.concatenate([log_valid, sim_valid]),
+    trajectories, feature_valid = rollout_samples(scenario, rollouts, spec, with_log=True)
+    return SampleBatch(trajectories=trajectories.validate(), feature_valid=feature_valid,
                        evaluated_ids=scenario.evaluated_ids(spec), spec=spec)

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 
 from wosac_eval.features import ops
 from wosac_eval.features.compiled import cached_loop, compiled
-from wosac_eval.features.spatial import non_finite_pick, pad_polylines
+from wosac_eval.features.spatial import column_bounds, finite_rows, non_finite_pick, pad_polylines
 
 
 _F = np.float32
@@ -211,14 +211,15 @@ def _bucket_grid(start: np.ndarray, delta: np.ndarray, valid: np.ndarray) -> dic
     """The planar buckets of the compiled search: the road edges' box with `_GRID_BORDER` around it,
     in squares of `BUCKET_SIDE` (doubled until there are at most `_MAX_BUCKETS`), each listing the
     valid segments whose box overlaps it."""
-    listed = valid & np.isfinite(start).all(axis=1) & np.isfinite(delta).all(axis=1)
+    listed = valid & finite_rows(start) & finite_rows(delta)
     ends = np.concatenate([start[listed, :2], start[listed, :2] + delta[listed, :2]]).astype(np.float64)
     if not len(ends):
         ends = np.zeros((1, 2))
     side = BUCKET_SIDE
+    low, high = column_bounds(ends)
     while True:
-        origin = np.floor((ends.min(axis=0) - _GRID_BORDER) / side) * side
-        shape = np.ceil((ends.max(axis=0) + _GRID_BORDER - origin) / side).astype(np.int64) + 1
+        origin = np.floor((low - _GRID_BORDER) / side) * side
+        shape = np.ceil((high + _GRID_BORDER - origin) / side).astype(np.int64) + 1
         if shape[0] * shape[1] <= _MAX_BUCKETS:
             break
         side *= 2
@@ -871,8 +872,9 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     """
     start64, delta64 = np.asarray(start, np.float64)[:, :2], np.asarray(delta, np.float64)[:, :2]
     ends = np.concatenate([start64, start64 + delta64])
-    origin = np.floor(ends.min(axis=0) - _CELL_BORDER)
-    shape = np.ceil((ends.max(axis=0) + _CELL_BORDER - origin) / side).astype(np.int64)
+    low, high = column_bounds(ends)
+    origin = np.floor(low - _CELL_BORDER)
+    shape = np.ceil((high + _CELL_BORDER - origin) / side).astype(np.int64)
     ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
     centre = origin + (np.stack([ix.ravel(), iy.ravel()], axis=1) + 0.5) * side
     samples, seg_of = _piece_midpoints(start64, delta64)

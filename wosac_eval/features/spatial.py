@@ -73,6 +73,21 @@ def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
     return group[position[keep]], position[keep]
 
 
+def finite_rows(a: np.ndarray) -> np.ndarray:
+    """`np.isfinite(a).all(axis=1)` of `(n, k)` with a few columns, column by column: numpy reduces
+    along a short last axis row by row, about 20 times slower (measured, 20,000 x 3)."""
+    finite = np.isfinite(a[:, 0])
+    for k in range(1, a.shape[1]):
+        finite &= np.isfinite(a[:, k])
+    return finite
+
+
+def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lowest, highest) of each column of `(n, k)`, `(k,)` each; column by column (`finite_rows`)."""
+    return (np.array([a[:, k].min() for k in range(a.shape[1])]),
+            np.array([a[:, k].max() for k in range(a.shape[1])]))
+
+
 def pad_polylines(polylines, num_points: int):
     """Polylines stacked and zero padded: float `(num_polylines, num_points, dims)`, bool valid `(num_polylines, num_points)`."""
     lengths = np.array([len(p) for p in polylines], np.int64)

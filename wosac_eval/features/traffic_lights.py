@@ -23,7 +23,7 @@ from scipy.spatial import cKDTree
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import ops
 from wosac_eval.features.compiled import cached_loop, compiled
-from wosac_eval.features.spatial import first_minimum, non_finite_pick, pad_polylines, tree_candidates
+from wosac_eval.features.spatial import finite_rows, first_minimum, non_finite_pick, pad_polylines, tree_candidates
 from wosac_eval.features.xp import array_namespace, divide, errstate, sqrt
 
 _F = np.float32
@@ -101,7 +101,7 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
       int64 `(num_points,)`.
     """
     q = np.asarray(xy, np.float64)
-    finite = np.isfinite(q).all(axis=1)
+    finite = finite_rows(q)
     if not finite.all():
         out = np.full(len(q), non_finite_pick(table.valid), np.int64)
         if finite.any():

@@ -46,6 +46,31 @@ def test_bins_closed_on_the_left_last_bin_closed():
     np.testing.assert_array_equal(likelihoods.histogram_bins(values, edges), [0, 0, 1, 5, 9, 9, 9])
 
 
+def _first_edge_at_or_above(values, edges):
+    """The bins by a binary search over the edges (what `histogram_bins` computes without one)."""
+    clipped = np.clip(values.astype(F), edges[0], edges[-1])
+    index = np.searchsorted(edges, clipped, side="right") - 1
+    return np.clip(np.where(np.isnan(clipped), len(edges) - 2, index), 0, len(edges) - 2)
+
+
+@pytest.mark.parametrize("config", ["2023", "2024", "2025", "scenario_gen_2025"])
+def test_bins_equal_a_binary_search_over_the_edges_at_every_edge(config):
+    """Every histogram of the official configs: each edge, the floats next to it, random values, the
+    extremes; the bins of the guess-and-correct rule equal those of a binary search."""
+    from wosac_eval.metrics.config import load_config
+    rng = np.random.default_rng(0)
+    loaded = load_config(config)
+    histograms = [getattr(loaded, f.name).histogram for f in loaded.DESCRIPTOR.fields
+                  if getattr(getattr(loaded, f.name), "WhichOneof", lambda _: None)("estimator") == "histogram"]
+    assert histograms
+    for h in histograms:
+        edges = likelihoods.histogram_edges(h.min_val, h.max_val, h.num_bins)
+        near = [np.nextafter(edges, F(np.inf)), np.nextafter(edges, F(-np.inf))]
+        values = np.concatenate([edges, *near, rng.uniform(h.min_val - 1, h.max_val + 1, 10_000),
+                                 [np.inf, -np.inf, np.nan, 1e30, -1e30, 0.0, -0.0]]).astype(F)
+        np.testing.assert_array_equal(likelihoods.histogram_bins(values, edges), _first_edge_at_or_above(values, edges))
+
+
 def test_bins_clip_out_of_range_values():
     edges = likelihoods.histogram_edges(0, 10, 10)
     values = np.array([-5.0, -1e30, 11.0, 1e30, np.inf, -np.inf], F)

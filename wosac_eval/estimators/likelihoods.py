@@ -50,8 +50,8 @@ def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     clipped = xp.where(nan, edges[0], clipped)
     width = (edges[-1] - edges[0]) / _F(num_bins)
     guess = xp.clip(((clipped - edges[0]) / width).astype(xp.int32), 0, num_bins - 1)
-    guess = guess - (clipped < edges[guess]).astype(xp.int32)
-    guess = guess + ((clipped >= edges[guess + 1]) & (guess < num_bins - 1)).astype(xp.int32)
+    guess = guess - (clipped < xp.take(edges, guess)).astype(xp.int32)
+    guess = guess + ((clipped >= xp.take(edges, guess + 1)) & (guess < num_bins - 1)).astype(xp.int32)
     return xp.where(nan, num_bins - 1, guess)
 
 

@@ -107,6 +107,18 @@ def test_wrap_angle_range():
     np.testing.assert_allclose(wrapped[[0, 5]], [0.0, -0.5])
 
 
+def test_wrap_angle_is_the_floored_modulo_bit_for_bit():
+    """Against numpy's floored `mod` (the official floormod's rule): random angles, multiples of 2 pi
+    and their neighbours, zeros of both signs, NaN and infinities."""
+    rng = np.random.default_rng(7)
+    turns = F(2 * np.pi) * np.arange(-20, 21, dtype=F) - F(np.pi)
+    angles = np.concatenate([rng.uniform(-40, 40, 200_000), turns, np.nextafter(turns, F(np.inf)),
+                             np.nextafter(turns, F(-np.inf)), [0.0, -0.0, np.nan, np.inf, -np.inf]]).astype(F)
+    with np.errstate(invalid="ignore"):
+        expected = np.mod(angles + F(np.pi), F(2 * np.pi)) - F(np.pi)
+        np.testing.assert_array_equal(wrap_angle(angles).view(np.int32), expected.view(np.int32))
+
+
 def test_leading_axes_are_batched():
     x = np.stack([np.arange(10, dtype=F), 2 * np.arange(10, dtype=F)])[None]  # (1, 2, 10)
     speed, accel, _, _ = kinematic_features(x, np.zeros_like(x), np.zeros_like(x), np.zeros_like(x), 1.0)

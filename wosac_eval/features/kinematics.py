@@ -42,8 +42,14 @@ def central_and(valid: np.ndarray) -> np.ndarray:
 
 
 def wrap_angle(angle: np.ndarray) -> np.ndarray:
-    """Maps angles to [-pi, pi) in float32 (floored modulo, as officially)."""
-    return array_namespace(angle).mod(angle + _F(np.pi), _F(2 * np.pi)) - _F(np.pi)
+    """Maps angles to [-pi, pi) in float32 (floored modulo, as officially).
+
+    The floored modulo by a positive divisor is the truncated one (`fmod`, exact) plus the divisor
+    where negative: numpy's `mod` does the same with more work per value (2x slower)."""
+    xp = array_namespace(angle)
+    turn = _F(2 * np.pi)
+    remainder = xp.fmod(angle + _F(np.pi), turn)
+    return xp.where(remainder < 0, remainder + turn, remainder) - _F(np.pi)
 
 
 def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: float) -> np.ndarray:

@@ -22,8 +22,9 @@ WIRE_VARINT, WIRE_FIXED64, WIRE_BYTES, WIRE_FIXED32 = 0, 1, 2, 5
 
 
 def message_bytes(message) -> np.ndarray:
-    """The wire bytes of a message (or bytes as they are), as uint8 `(num_bytes,)` for the walks."""
-    return np.frombuffer(message if isinstance(message, bytes) else message.SerializeToString(), np.uint8)
+    """The wire bytes of a message (or bytes, or any buffer, as they are), as uint8 `(num_bytes,)` for the
+    walks."""
+    return np.frombuffer(message.SerializeToString() if hasattr(message, "SerializeToString") else message, np.uint8)
 
 
 def enum_size(enum_descriptor) -> int:

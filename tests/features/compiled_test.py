@@ -120,7 +120,7 @@ def test_compile_searches_covers_what_scoring_calls():
     search.compile_searches()
     loops = [road_edge._query_cells, road_edge._cell_lists, road_edge._search_lists, road_edge._signed_distances,
              road_edge._bucket_lists, interaction._nearest_object_search, interaction._followed_search,
-             traffic_lights._crossings, walks.message_spans, walks._scalar_fields, walks._float_fields]
+             traffic_lights._crossings, walks._message_spans, walks._scalar_fields, walks._float_fields]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]
     for challenge, config in (("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")):

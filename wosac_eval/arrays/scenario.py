@@ -142,8 +142,7 @@ def _merges_submessages(data, starts, ends) -> bool:
     """Whether a map feature holds more than one of its (oneof) feature_data fields, or a signal's lane
     state more than one stop_point: a parse merges (or replaces) those, the walks would not."""
     feature_start, feature_end, _ = walks.message_spans(data, starts, ends, 8)
-    owners = [walks.message_spans(data, feature_start, feature_end, number)[2] for number in _FEATURE_DATA]
-    if np.bincount(np.concatenate(owners), minlength=1).max() > 1:
+    if np.bincount(walks.message_spans(data, feature_start, feature_end, _FEATURE_DATA)[2], minlength=1).max() > 1:
         return True
     step_start, step_end, _ = walks.message_spans(data, starts, ends, 7)
     entry_start, entry_end, _ = walks.message_spans(data, step_start, step_end, 1)

@@ -321,3 +321,47 @@ def test_box_trajectories_equal_brute_force():
     reference = brute_force(table, corners.reshape(-1, 3)).reshape(corners.shape[:-1]).max(axis=-1)
     np.testing.assert_array_equal(ours[valid], reference[valid])
     assert (ours[~valid] == -road_edge.EXTREMELY_LARGE_DISTANCE).all()
+
+
+# --- Cell candidate tables (the fixed-shape search on a device) -------------------------------------
+
+def planar_distances(points, start, delta):
+    """float64 `(num_points, num_segments)` planar distance from each point to each segment."""
+    s, d = start[:, :2].astype(np.float64), delta[:, :2].astype(np.float64)
+    to_point = points[:, None, :] - s[None]
+    squared = (d * d).sum(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.clip(np.where(squared > 0, (to_point * d).sum(axis=2) / squared, 0.0), 0.0, 1.0)
+    offset = to_point - d * t[..., None]
+    return np.hypot(offset[..., 0], offset[..., 1])
+
+
+@pytest.mark.parametrize("k", [1, 8, road_edge.CELL_CANDIDATES])
+def test_cell_tables_list_the_nearest_and_bound_the_rest(k):
+    """Every cell lists the k segments nearest its centre (ties aside), and every segment it leaves
+    out is at least its clearance from every point of the cell (corners and random points)."""
+    rng = np.random.default_rng(11)
+    table = road_edge.build_segment_table(random_map(rng))
+    idx = np.flatnonzero(table.valid)
+    start, delta = table.start[idx], table.delta[idx]
+    cells = road_edge.cell_candidate_table(start, delta, k=k)
+    side, (num_x, num_y) = road_edge.CELL_SIDE, cells["shape"]
+    rows = np.concatenate([rng.choice(num_x * num_y, 1500, replace=False), [0, num_x * num_y - 1]])
+    offsets = (side / 2) * np.concatenate([rng.uniform(-1, 1, (6, 2)), [[-1, -1], [-1, 1], [1, -1], [1, 1]]])
+    for row in rows:
+        centre = cells["origin"].astype(np.float64) + (np.array(divmod(row, num_y)) + 0.5) * side
+        listed = cells["candidates"][row]
+        distance = planar_distances(centre[None], start, delta)[0]
+        assert len(set(listed)) == min(k, len(idx))
+        assert distance[listed].max() <= np.sort(distance)[min(k, len(idx)) - 1], row
+        left_out = np.setdiff1d(np.arange(len(idx)), listed)
+        nearest_left_out = planar_distances(centre + offsets, start[left_out], delta[left_out]).min()
+        assert nearest_left_out >= cells["clearance"][row], (row, nearest_left_out, cells["clearance"][row])
+        assert cells["clearance"][row] > nearest_left_out - 2 * side - 0.01, row  # and the bound is useful
+
+
+def test_cell_tables_of_few_segments_list_them_all():
+    table = road_edge.build_segment_table([polyline((0, 0), (10, 0), (10, 5))])
+    cells = road_edge.cell_candidate_table(table.start[table.valid], table.delta[table.valid])
+    assert set(np.unique(cells["candidates"])) == {0, 1}
+    assert np.isinf(cells["clearance"]).all() and cells["candidates"].shape[1] == road_edge.CELL_CANDIDATES

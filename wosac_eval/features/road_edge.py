@@ -29,7 +29,6 @@ import math
 
 import numba
 import numpy as np
-from scipy.spatial import cKDTree
 
 from wosac_eval.features import ops
 from wosac_eval.features.compiled import cached_loop, compiled
@@ -42,7 +41,6 @@ OFFROAD_DISTANCE_THRESHOLD = 0.0
 Z_STRETCH = 3.0
 _Z_STRETCH32 = _F(Z_STRETCH)
 CYCLIC_TOLERANCE_M2 = 1.0
-_SAMPLE_SPACING = 1.0  # metres between the samples of `cell_candidate_table` along a segment
 BUCKET_SIDE = 8.0  # metres: the planar buckets listing the segments that cross them
 _GRID_BORDER = 256.0  # metres of buckets around the road edges' box: cells there get candidate lists
 
@@ -137,17 +135,6 @@ def build_segment_table(polylines) -> SegmentTable:
         length=np.hypot(delta[:, 0].astype(np.float64), delta[:, 1]) + Z_STRETCH * np.abs(delta[:, 2].astype(np.float64)),
         frame=_frames(start, delta),
         **_bucket_grid(start, delta, valid_flat))
-
-
-def _piece_midpoints(start, delta):
-    """Segments cut in pieces of at most `_SAMPLE_SPACING` metres (in their own coordinates):
-    (the pieces' midpoints `(num_pieces, d)`, the segment of each), numbered along the segments."""
-    length = np.linalg.norm(delta, axis=-1)
-    count = np.maximum(1, np.ceil(length / _SAMPLE_SPACING).astype(np.int64))
-    seg_of = np.repeat(np.arange(len(start)), count)
-    first = np.repeat(np.cumsum(count) - count, count)
-    frac = (np.arange(seg_of.size) - first + 0.5) / np.repeat(count, count)
-    return start[seg_of] + delta[seg_of] * frac[:, None], seg_of
 
 
 def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
@@ -851,7 +838,7 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
 CELL_SIDE = 2.0  # metres: the planar grid of the candidate tables (a power of two: exact cell indices)
 CELL_CANDIDATES = 64  # segments listed per cell
 _CELL_BORDER = 10.0  # metres of grid around the segments' box
-_TABLE_SAMPLES = 2  # k-d tree samples looked at per listed segment (4 listed the same, 3x slower)
+_GROUP_CELLS = 4  # cells along each side of a group that gathers its segments once
 _MARGIN = 1e-3  # metres of slack in the clearance, far above float32 rounding
 
 
@@ -865,11 +852,10 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     nearest of all, ties included (a tie outside would be nearer than the clearance). Queries
     outside the grid or beyond the clearance are for an exhaustive search.
 
-    Bounds: a segment is cut in planar pieces of at most `_SAMPLE_SPACING` metres, whose midpoints
-    form a k-d tree, so every point of it is within half the spacing of a sample. A segment with no
-    sample among a centre's nearest ones is at least (farthest of those) - spacing / 2 from it; one
-    found but not listed at least the (k+1)-th listed distance. The cell's half-diagonal, and a
-    slack far above float32 rounding, are subtracted.
+    Bounds (`_cell_table`): the listed segments are the `k` nearest the centre, found exactly among
+    those its group of cells gathered, and the clearance is the next one's distance (or what the
+    group left out can reach, if nearer) less the cell's half-diagonal and a slack far above
+    float32 rounding.
 
     Args:
       start, delta: float32 `(num_segments, 3)`, the segments the indices refer to (all valid).
@@ -878,44 +864,93 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
       `(num_cells, k)` (cell `ix * shape[1] + iy`; rows with fewer segments repeat their first),
       clearance float32 `(num_cells,)`.
     """
-    start64, delta64 = np.asarray(start, np.float64)[:, :2], np.asarray(delta, np.float64)[:, :2]
-    ends = np.concatenate([start64, start64 + delta64])
-    low, high = column_bounds(ends)
+    start, delta = np.ascontiguousarray(start, _F), np.ascontiguousarray(delta, _F)
+    start64, delta64 = start[:, :2].astype(np.float64), delta[:, :2].astype(np.float64)
+    low, high = column_bounds(np.concatenate([start64, start64 + delta64]))
     origin = np.floor(low - _CELL_BORDER)
     shape = np.ceil((high + _CELL_BORDER - origin) / side).astype(np.int64)
-    ix, iy = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    centre = origin + (np.stack([ix.ravel(), iy.ravel()], axis=1) + 0.5) * side
-    samples, seg_of = _piece_midpoints(start64, delta64)
-    kk = min(_TABLE_SAMPLES * k, len(samples))
-    reach, nearest = cKDTree(samples).query(centre, k=kk)
-    reach, nearest = reach.reshape(len(centre), kk), nearest.reshape(len(centre), kk)
-    seg = seg_of[nearest]
-    # Planar distance from each centre to each found segment (float64), repeats set apart.
-    sx, sy = start64[seg, 0], start64[seg, 1]
-    dx, dy = delta64[seg, 0], delta64[seg, 1]
-    tx, ty = centre[:, None, 0] - sx, centre[:, None, 1] - sy
-    squared = dx * dx + dy * dy
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.clip(np.where(squared > 0, (tx * dx + ty * dy) / squared, 0.0), 0.0, 1.0)
-    dist = np.hypot(tx - dx * t, ty - dy * t)
-    by_seg = np.argsort(seg, axis=1, kind="stable")
-    sorted_seg = np.take_along_axis(seg, by_seg, axis=1)
-    repeat = np.zeros_like(sorted_seg, bool)
-    repeat[:, 1:] = sorted_seg[:, 1:] == sorted_seg[:, :-1]
-    dist_sorted = np.where(repeat, np.inf, np.take_along_axis(dist, by_seg, axis=1))
-    order = np.argsort(dist_sorted, axis=1, kind="stable")
-    listed = np.take_along_axis(sorted_seg, order, axis=1)
-    listed_dist = np.take_along_axis(dist_sorted, order, axis=1)
-    take = min(k, kk)
-    candidates = listed[:, :take]
-    found = np.isfinite(listed_dist[:, :take])
-    candidates = np.where(found, candidates, candidates[:, :1])
-    if take < k:
-        candidates = np.concatenate([candidates, np.repeat(candidates[:, :1], k - take, axis=1)], axis=1)
-    next_listed = listed_dist[:, take] if kk > take else np.full(len(centre), np.inf)
-    unseen = reach[:, -1] - 0.5 * _SAMPLE_SPACING if kk < len(samples) else np.full(len(centre), np.inf)
-    half_diagonal = side * np.sqrt(0.5)
-    slack = _MARGIN + 1e-5 * np.abs(centre).max(axis=1)
-    clearance = np.minimum(next_listed, unseen) - half_diagonal - slack
-    return {"origin": origin.astype(_F), "shape": shape.astype(np.int32),
-            "candidates": candidates.astype(np.int32), "clearance": clearance.astype(_F)}
+    buckets = _bucket_grid(start, delta, np.ones(len(start), bool))
+    grid = (*(float(v) for v in buckets["bucket_origin"]), float(buckets["bucket_side"]),
+            *(int(v) for v in buckets["bucket_shape"]), *(int(v) for v in buckets["segment_buckets"]))
+    candidates, clearance = _cell_table(_frames(start, delta), float(origin[0]), float(origin[1]), int(shape[0]), int(shape[1]),
+                                        float(side), int(k), grid, buckets["bucket_start"],
+                                        buckets["bucket_segments"])
+    return {"origin": origin.astype(_F), "shape": shape.astype(np.int32), "candidates": candidates,
+            "clearance": clearance.astype(_F)}
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _cell_table(frame, origin_x, origin_y, num_x, num_y, side, k, grid, bucket_start, bucket_segments):
+    """`cell_candidate_table`'s lists and clearances (float64), group of cells by group.
+
+    A group of `_GROUP_CELLS` x `_GROUP_CELLS` cells gathers, ring by ring of buckets around its
+    centre b, every segment within L = D(b) + 2h, where D(x) is the planar distance from x to
+    its (k+1)-th nearest segment and h the group's half-diagonal; unseen segments are farther
+    than L (the rings stop past it). A segment's distances from b and from a cell centre c differ
+    by at most s = |c - b| <= h, so D(c) <= D(b) + s: the k+1 nearest of c are among the gathered
+    segments within D(b) + 2s of b, and every other segment is at least D(c) from c, or beyond
+    L - s if never gathered.
+    """
+    num_segments = frame.shape[0]
+    bucket_side = grid[2]
+    candidates = np.empty((num_x * num_y, max(k, 1)), np.int32)
+    clearance = np.empty(num_x * num_y, np.float64)
+    seen = np.full(num_segments, -1, np.int64)
+    ring = _ring_buffer(grid)
+    gathered = np.empty(num_segments, np.int32)
+    gathered_distance = np.empty(num_segments, np.float64)
+    squared = np.empty(num_segments, np.float64)
+    half_diagonal = side * math.sqrt(0.5)
+    group_half = _GROUP_CELLS * half_diagonal
+    tag = 0
+    for gx in range(0, num_x, _GROUP_CELLS):
+        for gy in range(0, num_y, _GROUP_CELLS):
+            bx = origin_x + (gx + 0.5 * _GROUP_CELLS) * side
+            by = origin_y + (gy + 0.5 * _GROUP_CELLS) * side
+            # The segments around the group's centre by rings of buckets, until L is passed.
+            bi, bj, first, last = _rings_around(bx, by, grid)
+            m, nearest_beyond = 0, np.inf  # D(b)
+            for r in range(first, last + 1):
+                if r > first and (r - 1) * bucket_side > nearest_beyond + 2.0 * group_half:
+                    break  # every segment not met yet is at least (r - 1) * bucket_side away
+                for q in range(_ring_buckets(bi, bj, r, grid, ring)):
+                    for p in range(bucket_start[ring[q]], bucket_start[ring[q] + 1]):
+                        segment = bucket_segments[p]
+                        if seen[segment] != tag:
+                            seen[segment] = tag
+                            gathered[m] = segment
+                            gathered_distance[m] = _planar_distance64(bx, by, segment, frame)
+                            m += 1
+                if m > k:
+                    nearest_beyond = np.partition(gathered_distance[:m], k)[k]
+            tag += 1
+            order = np.argsort(gathered_distance[:m])
+            group, group_distance = gathered[:m][order], gathered_distance[:m][order]
+            for cx in range(gx, min(gx + _GROUP_CELLS, num_x)):
+                for cy in range(gy, min(gy + _GROUP_CELLS, num_y)):
+                    row = cx * num_y + cy
+                    px, py = origin_x + (cx + 0.5) * side, origin_y + (cy + 0.5) * side
+                    shift = math.hypot(px - bx, py - by)
+                    kept = np.searchsorted(group_distance, nearest_beyond + 2.0 * shift, side="right")
+                    for p in range(kept):
+                        squared[p] = _planar_squared(px, py, group[p], frame)
+                    beyond = np.inf  # the squared D(c)
+                    if kept > k:
+                        beyond = np.partition(squared[:kept], k)[k]
+                    listed = 0
+                    for p in range(kept):  # the k nearest: those nearer than the (k+1)-th, then ties
+                        if squared[p] < beyond:
+                            candidates[row, listed] = group[p]
+                            listed += 1
+                    for p in range(kept):
+                        if listed >= k:
+                            break
+                        if squared[p] == beyond:
+                            candidates[row, listed] = group[p]
+                            listed += 1
+                    for p in range(listed, candidates.shape[1]):
+                        candidates[row, p] = candidates[row, 0] if listed else 0
+                    never_gathered = nearest_beyond + 2.0 * group_half - shift
+                    slack = _MARGIN + 1e-5 * max(abs(px), abs(py))
+                    clearance[row] = min(math.sqrt(beyond), never_gathered) - half_diagonal - slack
+    return candidates, clearance

@@ -365,3 +365,12 @@ def test_cell_tables_of_few_segments_list_them_all():
     cells = road_edge.cell_candidate_table(table.start[table.valid], table.delta[table.valid])
     assert set(np.unique(cells["candidates"])) == {0, 1}
     assert np.isinf(cells["clearance"]).all() and cells["candidates"].shape[1] == road_edge.CELL_CANDIDATES
+
+
+def test_cell_tables_of_a_map_too_wide_settle_nothing():
+    """Two road edges 140 km apart would need billions of 2 m cells: the table has one cell that
+    settles no query, so every query searches all segments (exact, bounded memory)."""
+    table = road_edge.build_segment_table([polyline((0, 0), (10, 0)), polyline((1e5, 1e5), (1e5, 1e5 + 10))])
+    cells = road_edge.cell_candidate_table(table.start[table.valid], table.delta[table.valid])
+    assert cells["candidates"].shape == (1, road_edge.CELL_CANDIDATES)
+    assert (cells["clearance"] == -np.inf).all()

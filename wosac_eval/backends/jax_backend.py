@@ -150,12 +150,8 @@ def _segment_arrays(table: road_edge.SegmentTable, cells: bool = True) -> dict:
     """The valid road-edge segments, in official order, with their neighbours' geometry, and their cell
     table (`cells`; else a one-cell table that settles nothing, for a scene the device never searches)."""
     idx = np.flatnonzero(table.valid)
-    if cells:
-        cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx])
-    else:
-        cells = {"origin": np.zeros(2, _F), "shape": np.ones(2, np.int32),
-                 "candidates": np.zeros((1, road_edge.CELL_CANDIDATES), np.int32),
-                 "clearance": np.full(1, -np.inf, _F)}
+    cells = road_edge.cell_candidate_table(table.start[idx], table.delta[idx]) if cells \
+        else road_edge.unsettling_cell_table()
     # And the official pick for points with a NaN or infinite coordinate, which may be a padding segment.
     fallback = _segments_at(table, np.array([non_finite_pick(table.valid)]))
     return {**{f"cell_{k}": v for k, v in cells.items()}, **_segments_at(table, idx),

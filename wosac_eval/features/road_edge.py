@@ -839,6 +839,7 @@ CELL_SIDE = 2.0  # metres: the planar grid of the candidate tables (a power of t
 CELL_CANDIDATES = 64  # segments listed per cell
 _CELL_BORDER = 10.0  # metres of grid around the segments' box
 _GROUP_CELLS = 4  # cells along each side of a group that gathers its segments once
+_MAX_CELLS = 1 << 20  # a larger grid (a map over 2 km across) gets a table that settles nothing (256 MiB at most)
 _MARGIN = 1e-3  # metres of slack in the clearance, far above float32 rounding
 
 
@@ -850,7 +851,8 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     segment not listed. The selection distance of `segment_distances` is at least the planar
     distance, so a query whose nearest listed segment is nearer than the clearance has found the
     nearest of all, ties included (a tie outside would be nearer than the clearance). Queries
-    outside the grid or beyond the clearance are for an exhaustive search.
+    outside the grid or beyond the clearance are for an exhaustive search; so are all of them for a
+    map too large for a grid of at most `_MAX_CELLS` cells (`unsettling_cell_table`).
 
     Bounds (`_cell_table`): the listed segments are the `k` nearest the centre, found exactly among
     those its group of cells gathered, and the clearance is the next one's distance (or what the
@@ -869,6 +871,8 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     low, high = column_bounds(np.concatenate([start64, start64 + delta64]))
     origin = np.floor(low - _CELL_BORDER)
     shape = np.ceil((high + _CELL_BORDER - origin) / side).astype(np.int64)
+    if not np.isfinite(origin).all() or shape[0] * shape[1] > _MAX_CELLS:
+        return unsettling_cell_table(k)  # every query searches all segments: exact, slower
     buckets = _bucket_grid(start, delta, np.ones(len(start), bool))
     grid = (*(float(v) for v in buckets["bucket_origin"]), float(buckets["bucket_side"]),
             *(int(v) for v in buckets["bucket_shape"]), *(int(v) for v in buckets["segment_buckets"]))
@@ -877,6 +881,12 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
                                         buckets["bucket_segments"])
     return {"origin": origin.astype(_F), "shape": shape.astype(np.int32), "candidates": candidates,
             "clearance": clearance.astype(_F)}
+
+
+def unsettling_cell_table(k: int = CELL_CANDIDATES) -> dict:
+    """A `cell_candidate_table` of one cell that settles no query (a clearance of -inf)."""
+    return {"origin": np.zeros(2, _F), "shape": np.ones(2, np.int32), "candidates": np.zeros((1, k), np.int32),
+            "clearance": np.full(1, -np.inf, _F)}
 
 
 @numba.njit(cache=True, error_model="numpy")

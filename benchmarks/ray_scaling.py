@@ -40,7 +40,8 @@ started = time.perf_counter()
 address = None
 if kind == "ray":
     import ray
-    ray.init(num_cpus=k, include_dashboard=False, log_to_driver=False)
+    # "local": without it Ray joins whatever /tmp/ray/ray_current_cluster names, even a cluster gone.
+    ray.init(address="local", num_cpus=k, include_dashboard=False, log_to_driver=False)
 elif kind == "cluster":
     import ray
     from ray.cluster_utils import Cluster
@@ -63,6 +64,10 @@ ScenarioIndex([scenarios])
 index_seconds = time.perf_counter() - t
 print(json.dumps({"seconds": seconds, "startup": startup, "index_seconds": index_seconds,
                   "result": json.dumps(result, sort_keys=True)}))
+if kind != "local":
+    ray.shutdown()
+if kind == "cluster":
+    cluster.shutdown()  # its processes, and the /tmp/ray/ray_current_cluster it wrote
 """
 
 

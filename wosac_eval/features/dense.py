@@ -1,7 +1,7 @@
 """JAX drivers of the feature kernels: fixed shapes; the road-edge search pruned by tables, exact by a fallback.
 
-The numpy path prunes candidate pairs with k-d trees and `np.nonzero`, whose
-output sizes depend on the data. Under `jax.jit` shapes must be static, so
+The numpy path prunes candidate pairs in compiled loops over bucket grids and
+bounds (a k-d tree for the lane search), whose work depends on the data. Under `jax.jit` shapes must be static, so
 these drivers evaluate the SAME per-pair kernels (box_geometry, road_edge,
 traffic_lights, interaction) over fixed-size candidate sets. For the road
 edge, each corner gathers the segments listed for its grid cell

@@ -89,7 +89,11 @@ def test_a_scoring_process_over_its_cpu_budget_is_stopped_with_the_reason():
     started = time.monotonic()
     _, status, usage = os.wait4(child, 0)
     assert os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGXCPU
-    assert 0.9 < usage.ru_utime + usage.ru_stime < 3 and time.monotonic() - started < 10
+    # The kernel enforces RLIMIT_CPU on its tick-sampled CPU clock, while wait4 reports the scheduler's
+    # exact run time: on a busy host a niced process is charged whole ticks it shared. One was seen
+    # stopped after 0.899 s of exact run time for a 1 s budget; under a heavier load one took 14 s of
+    # wall time to use its second.
+    assert 0.5 < usage.ru_utime + usage.ru_stime < 3 and time.monotonic() - started < 60
     assert "CPU-time budget of 1 s (WOSAC_JOB_CPU_BUDGET_S)" in why_child_ended(status, settings, usage.ru_maxrss)
 
 

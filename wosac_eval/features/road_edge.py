@@ -887,8 +887,8 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     buckets = _bucket_grid(start, delta, np.ones(len(start), bool))
     grid = (*(float(v) for v in buckets["bucket_origin"]), float(buckets["bucket_side"]),
             *(int(v) for v in buckets["bucket_shape"]), *(int(v) for v in buckets["segment_buckets"]))
-    candidates, clearance = _cell_table(_frames(start, delta), float(origin[0]), float(origin[1]), int(shape[0]), int(shape[1]),
-                                        float(side), int(k), grid, buckets["bucket_start"],
+    candidates, clearance = _cell_table(_frames(start, delta), float(origin[0]), float(origin[1]), int(shape[0]),
+                                        int(shape[1]), float(side), int(k), grid, buckets["bucket_start"],
                                         buckets["bucket_segments"])
     return {"origin": origin.astype(_F), "shape": shape.astype(np.int32), "candidates": candidates,
             "clearance": clearance.astype(_F)}

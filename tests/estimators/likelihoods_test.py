@@ -47,7 +47,7 @@ def test_bins_closed_on_the_left_last_bin_closed():
 
 
 def _first_edge_at_or_above(values, edges):
-    """The bins by a binary search over the edges (what `histogram_bins` computes without one)."""
+    """The bins by a binary search over the edges (what `histogram_bins` computes by comparisons)."""
     clipped = np.clip(values.astype(F), edges[0], edges[-1])
     index = np.searchsorted(edges, clipped, side="right") - 1
     return np.clip(np.where(np.isnan(clipped), len(edges) - 2, index), 0, len(edges) - 2)
@@ -56,7 +56,8 @@ def _first_edge_at_or_above(values, edges):
 @pytest.mark.parametrize("config", ["2023", "2024", "2025", "scenario_gen_2025"])
 def test_bins_equal_a_binary_search_over_the_edges_at_every_edge(config):
     """Every histogram of the official configs: each edge, the floats next to it, random values, the
-    extremes; the bins of the guess-and-correct rule equal those of a binary search."""
+    extremes; the bins counted from the interior edges equal those of a binary search, and so do
+    `histogram_counts` of rows of them, weighted or not."""
     from wosac_eval.metrics.config import load_config
     rng = np.random.default_rng(0)
     loaded = load_config(config)
@@ -68,7 +69,17 @@ def test_bins_equal_a_binary_search_over_the_edges_at_every_edge(config):
         near = [np.nextafter(edges, F(np.inf)), np.nextafter(edges, F(-np.inf))]
         values = np.concatenate([edges, *near, rng.uniform(h.min_val - 1, h.max_val + 1, 10_000),
                                  [np.inf, -np.inf, np.nan, 1e30, -1e30, 0.0, -0.0]]).astype(F)
-        np.testing.assert_array_equal(likelihoods.histogram_bins(values, edges), _first_edge_at_or_above(values, edges))
+        expected = _first_edge_at_or_above(values, edges)
+        np.testing.assert_array_equal(likelihoods.histogram_bins(values, edges), expected)
+        bincount = lambda bins, w=None: np.bincount(bins, w, minlength=h.num_bins)  # noqa: E731
+        np.testing.assert_array_equal(likelihoods.histogram_counts(values[None], edges), [bincount(expected)])
+        # Rows of 23 (the extremes are last), weighted or not.
+        n = len(values) // 23 * 23
+        rows, row_bins = values[-n:].reshape(-1, 23), expected[-n:].reshape(-1, 23)
+        weights = rng.integers(0, 2, rows.shape).astype(float)
+        np.testing.assert_array_equal(likelihoods.histogram_counts(rows, edges), [bincount(b) for b in row_bins])
+        np.testing.assert_array_equal(likelihoods.histogram_counts(rows, edges, weights),
+                                      [bincount(b, w) for b, w in zip(row_bins, weights)])
 
 
 def test_bins_clip_out_of_range_values():

@@ -33,26 +33,59 @@ def histogram_edges(min_val: float, max_val: float, num_bins: int) -> np.ndarray
 
 
 def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin index of each value after clipping to the edges' range.
+    """Bin index of each value after clipping to the edges' range: int32, the values' shape.
 
     Bins are closed on the left; the last bin also holds the upper edge. NaN
     values land in the last bin, as in the official histogram.
 
-    The bin is guessed from the value's offset over the bin width, then set right by comparing the
-    value with the float32 edges around the guess (the edges are rounded, the guess is off by one
-    at most): the same bins as a binary search over the edges, in a few elementwise passes.
+    A value's bin is the number of interior edges it is not below (`_interior_edges`): below the
+    first edge it is in the first bin, at the upper edge or beyond in the last, and NaN, below
+    nothing, in the last too. The same bins as a binary search over the float32 edges, in one
+    comparison per interior edge.
     """
     xp = array_namespace(values)
-    num_bins = len(edges) - 1
-    edges = xp.asarray(edges, dtype=_F)
-    clipped = xp.clip(values.astype(_F), edges[0], edges[-1])
-    nan = xp.isnan(clipped)
-    clipped = xp.where(nan, edges[0], clipped)
-    width = (edges[-1] - edges[0]) / _F(num_bins)
-    guess = xp.clip(((clipped - edges[0]) / width).astype(xp.int32), 0, num_bins - 1)
-    guess = guess - (clipped < xp.take(edges, guess)).astype(xp.int32)
-    guess = guess + ((clipped >= xp.take(edges, guess + 1)) & (guess < num_bins - 1)).astype(xp.int32)
-    return xp.where(nan, num_bins - 1, guess)
+    values = xp.asarray(values, dtype=_F)
+    bins = xp.zeros(values.shape, dtype=xp.int32)
+    for edge in _interior_edges(edges):
+        bins = bins + ~(values < edge)
+    return bins
+
+
+def histogram_counts(samples, edges: np.ndarray, weights=None):
+    """How many samples of each row fall in each bin of `histogram_bins`: `(batch, num_bins)`.
+
+    Bin k and those before it hold the samples below interior edge k + 1, so the counts are the
+    differences of those numbers, one comparison per interior edge and no bin index per sample.
+
+    Args:
+      samples: `(batch, num_samples)`.
+      weights: optional 0/1 `(batch, num_samples)` in the wide float: which samples count (the
+        counts are then their sums, in that float).
+    """
+    xp = array_namespace(samples)
+    samples = xp.asarray(samples, dtype=_F)
+    batch = samples.shape[0]
+    if weights is None:
+        total = xp.full((batch,), samples.shape[1])
+    else:
+        total = xp.sum(weights, axis=1)
+    below = [_count(samples < edge, weights, xp) for edge in _interior_edges(edges)]
+    cumulative = xp.stack([xp.zeros_like(total), *(b.astype(total.dtype) for b in below), total], axis=1)
+    return cumulative[:, 1:] - cumulative[:, :-1]
+
+
+def _interior_edges(edges: np.ndarray) -> np.ndarray:
+    """The edges between bins, float32 (the first and last bound the range, and clip)."""
+    return np.asarray(edges, dtype=_F)[1:-1]
+
+
+def _count(mask, weights, xp):
+    """The true values of each row of `mask` (`(batch, n)`), or the sum of their weights."""
+    if weights is not None:
+        return xp.sum(xp.where(mask, weights, 0), axis=1)
+    if is_numpy(xp) and mask.shape[0] == 1:
+        return np.reshape(np.count_nonzero(mask), (1,))  # numpy counts a whole array 6x faster than along an axis
+    return xp.sum(mask, axis=1)
 
 
 def check_batches(log_samples, sim_samples) -> None:
@@ -84,13 +117,8 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
     xp = array_namespace(log_samples, sim_samples)
     wide = wide_float(xp)
     edges = histogram_edges(min_val, max_val, num_bins)
-    sim_bins = histogram_bins(sim_samples, edges)
-    batch = sim_bins.shape[0]
-    flat = (xp.arange(batch)[:, None] * num_bins + sim_bins).reshape(-1)
-    # Whole counts: exact in any order. JAX needs the output length to be static.
-    size = {"minlength": batch * num_bins} if is_numpy(xp) else {"length": batch * num_bins}
-    weights = {} if sim_weights is None else {"weights": sim_weights.reshape(-1).astype(wide)}
-    counts = xp.bincount(flat, **weights, **size).reshape(batch, num_bins)
+    # Whole counts: exact in any order.
+    counts = histogram_counts(sim_samples, edges, None if sim_weights is None else sim_weights.astype(wide))
     counts = (counts.astype(_F) + _F(pseudocount)).astype(wide)
     log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
     log_bins = histogram_bins(log_samples, edges)

@@ -628,7 +628,7 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
             if key[p] - off_centre > best:
                 break
             k = segment[p]
-            if _distance_bound(qx, qy, qz, k, frame) > reject or k == best_k:
+            if k == best_k or _distance_bound(qx, qy, qz, k, frame) > reject:
                 continue
             evaluated += 1
             d = _selection(px, py, pz, k, start, delta)

@@ -148,19 +148,19 @@ def minkowski_vertices(a, b):
 
 def _edge_to_origin(x0, y0, x1, y1):
     """For the polygon edge from vertex 0 to vertex 1: (whether the origin is on its inner side,
-    the distance from the origin to the edge where it projects onto it, else to vertex 0)."""
+    the distance from the origin to the edge where it projects onto it, else +inf, and the squared
+    distance from the origin to vertex 0)."""
     ex, ey = x1 - x0, y1 - y0
     edge_length = ops.sqrt(ex * ex + ey * ey)
     tx, ty = ops.divide(ex, edge_length), ops.divide(ey, edge_length)
     # Vector from the vertex to the query point (the origin).
     vx, vy = _ZERO - x0, _ZERO - y0
-    vertex_distance = ops.sqrt(vx * vx + vy * vy)
     # Positive on the outward side of the edge (outward normal is (ty, -tx)).
     signed_perpendicular = ty * vx + (-tx) * vy
     along = ops.divide(tx * vx + ty * vy, edge_length)
     on_edge = (along >= _ZERO) & (along <= _ONE)
     edge_distance = ops.where(on_edge, ops.absolute(signed_perpendicular), _INF)
-    return signed_perpendicular <= _ZERO, ops.minimum(edge_distance, vertex_distance)
+    return signed_perpendicular <= _ZERO, edge_distance, vx * vx + vy * vy
 
 
 def octagon_signed_distance(m):
@@ -171,18 +171,23 @@ def octagon_signed_distance(m):
     """
     x0, x1, x2, x3, x4, x5, x6, x7 = m[0], m[1], m[2], m[3], m[4], m[5], m[6], m[7]
     y0, y1, y2, y3, y4, y5, y6, y7 = m[8], m[9], m[10], m[11], m[12], m[13], m[14], m[15]
-    in0, d0 = _edge_to_origin(x0, y0, x1, y1)
-    in1, d1 = _edge_to_origin(x1, y1, x2, y2)
-    in2, d2 = _edge_to_origin(x2, y2, x3, y3)
-    in3, d3 = _edge_to_origin(x3, y3, x4, y4)
-    in4, d4 = _edge_to_origin(x4, y4, x5, y5)
-    in5, d5 = _edge_to_origin(x5, y5, x6, y6)
-    in6, d6 = _edge_to_origin(x6, y6, x7, y7)
-    in7, d7 = _edge_to_origin(x7, y7, x0, y0)
+    in0, e0, v0 = _edge_to_origin(x0, y0, x1, y1)
+    in1, e1, v1 = _edge_to_origin(x1, y1, x2, y2)
+    in2, e2, v2 = _edge_to_origin(x2, y2, x3, y3)
+    in3, e3, v3 = _edge_to_origin(x3, y3, x4, y4)
+    in4, e4, v4 = _edge_to_origin(x4, y4, x5, y5)
+    in5, e5, v5 = _edge_to_origin(x5, y5, x6, y6)
+    in6, e6, v6 = _edge_to_origin(x6, y6, x7, y7)
+    in7, e7, v7 = _edge_to_origin(x7, y7, x0, y0)
     inside = ((in0 & in1) & (in2 & in3)) & ((in4 & in5) & (in6 & in7))
-    # A minimum passing NaN on: the order of the pairs does not change it.
-    nearest = ops.minimum(ops.minimum(ops.minimum(d0, d4), ops.minimum(d2, d6)),
-                          ops.minimum(ops.minimum(d1, d5), ops.minimum(d3, d7)))
+    # The nearest of the edges and vertices, a minimum passing NaN on (all are +0 or more: the order
+    # does not change it). The vertices' square roots are one: the square root is correctly rounded
+    # and monotone, so the root of the least square is the least of the roots.
+    edge = ops.minimum(ops.minimum(ops.minimum(e0, e4), ops.minimum(e2, e6)),
+                       ops.minimum(ops.minimum(e1, e5), ops.minimum(e3, e7)))
+    vertex = ops.minimum(ops.minimum(ops.minimum(v0, v4), ops.minimum(v2, v6)),
+                         ops.minimum(ops.minimum(v1, v5), ops.minimum(v3, v7)))
+    nearest = ops.minimum(edge, ops.sqrt(vertex))
     return ops.where(inside, -nearest, nearest)
 
 

@@ -70,6 +70,10 @@ def box_pair_distance(x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radiu
 
 
 _box_pair_distance = compiled(box_pair_distance)
+# The nearest-object search evaluates its first guess for every box (about 1.1 evaluations per box in
+# all): that call is compiled inline, which makes it about a fifth faster and the first compilation
+# about 8 s longer (once: numba caches it); the other calls are calls.
+_box_pair_distance_inline = compiled(box_pair_distance, True)
 
 
 @numba.njit
@@ -146,9 +150,9 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
                 if guess < 0:
                     continue
                 # The guess, then every other box whose bound its distance (capped at 1e10) does not exclude.
-                d = _box_pair_distance(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e], step[5, e],
-                                       step[6, e], step[0, guess], step[1, guess], step[2, guess], step[3, guess],
-                                       step[4, guess], step[5, guess], step[6, guess])
+                d = _box_pair_distance_inline(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e],
+                                              step[5, e], step[6, e], step[0, guess], step[1, guess], step[2, guess],
+                                              step[3, guess], step[4, guess], step[5, guess], step[6, guess])
                 d = d if (d < EXTREMELY_LARGE_DISTANCE) | (d != d) else EXTREMELY_LARGE_DISTANCE
                 threshold = d + BOUND_MARGIN
                 evaluated += 1

@@ -68,6 +68,7 @@ print(json.dumps({"times": times, "metametric": float(m.metametric)}))
 _OURS = """
 import json, sys, time
 from wosac_eval.runtime.allocator import keep_freed_memory
+from wosac_eval.metrics.config import load_config
 from wosac_eval.scoring.scenario import score_scenario
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import sim_agents_submission_pb2
@@ -75,11 +76,12 @@ keep_freed_memory()
 rollouts = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(open(sys.argv[2], "rb").read()).scenario_rollouts[0]
 scenario = next(s for s, _ in iter_scenarios(sys.argv[1]) if s.scenario_id == rollouts.scenario_id)
 challenge = sys.argv[5]
-score_scenario(scenario, rollouts, sys.argv[3], challenge=challenge)  # warm-up
+config = load_config(sys.argv[3])  # parsed once, as the official side parses its config
+score_scenario(scenario, rollouts, config, challenge=challenge)  # warm-up
 times = []
 for _ in range(int(sys.argv[4])):
     t = time.perf_counter()
-    m = score_scenario(scenario, rollouts, sys.argv[3], challenge=challenge)
+    m = score_scenario(scenario, rollouts, config, challenge=challenge)
     times.append(time.perf_counter() - t)
 print(json.dumps({"times": times, "metametric": m["metametric"]}))
 """

@@ -773,8 +773,9 @@ def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior
                                                  delta[k, 0], delta[k, 1], delta[k, 2])
         a, b = prior[k], next_[k]
         side = _side_of(px, py, start[k, 0], start[k, 1], delta[k, 0], delta[k, 1])
-        side_prior = _side_of(px, py, start[a, 0], start[a, 1], delta[a, 0], delta[a, 1])
-        side_next = _side_of(px, py, start[b, 0], start[b, 1], delta[b, 0], delta[b, 1])
+        # The neighbours' sides count only past the segment's ends (`corner_sign`).
+        side_prior = _side_of(px, py, start[a, 0], start[a, 1], delta[a, 0], delta[a, 1]) if rel_t < 0 else side
+        side_next = _side_of(px, py, start[b, 0], start[b, 1], delta[b, 0], delta[b, 1]) if rel_t > 1 else side
         sign = _corner_sign(rel_t, side, side_prior, side_next, convex_before[k], convex_after[k],
                             prior_valid[k], next_valid[k])
         # A padding segment's distance is 1e10, as officially (only non-finite points get one).

@@ -323,6 +323,28 @@ def test_box_trajectories_equal_brute_force():
     assert (ours[~valid] == -road_edge.EXTREMELY_LARGE_DISTANCE).all()
 
 
+def test_boxes_by_their_values_equal_their_corners():
+    """`box_distance_to_road_edge` (corners computed in the search loop) equals `distance_to_road_edge` of
+    `box_bottom_corners`, bit for bit: boxes on and off the map, on another level, invalid, NaN, and with
+    two leading axes."""
+    from wosac_eval.features import box_geometry
+    from wosac_eval.features.float32_math import sincos32
+    rng = np.random.default_rng(12)
+    table = road_edge.build_segment_table(random_map(rng))
+    shape = (2, 3, 5, 17)
+    x, y = (rng.uniform(-200, 200, shape).astype(F) for _ in range(2))
+    x[0, 0, 0, :3] = [np.nan, np.inf, 5e6]
+    bottom = rng.choice([0.0, 6.0, np.nan], shape, p=[0.6, 0.38, 0.02]).astype(F)
+    length, width = rng.uniform(0.5, 6, shape).astype(F), rng.uniform(0.5, 3, shape).astype(F)
+    sin_h, cos_h = sincos32(rng.uniform(-4, 4, shape).astype(F))
+    valid = rng.random(shape) > 0.2
+    ours = road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table)
+    corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
+    expected = road_edge.distance_to_road_edge(corners, valid, table)
+    assert ours.shape == shape and ours.dtype == F
+    np.testing.assert_array_equal(ours.view(np.int32), expected.view(np.int32))
+
+
 # --- Cell candidate tables (the fixed-shape search on a device) -------------------------------------
 
 def planar_distances(points, start, delta):

@@ -51,6 +51,13 @@ def box_corners_xy(x, y, length, width, cos_h, sin_h):
     return xp.stack(c[:4], axis=-1), xp.stack(c[4:], axis=-1)
 
 
+def box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h):
+    """The 4 corners of upright boxes (`box_corners`) at the height `bottom`: float32 `(..., 4, 3)`."""
+    xp = array_namespace(x, cos_h)
+    cx, cy = box_corners_xy(x, y, length, width, cos_h, sin_h)
+    return xp.stack([cx, cy, xp.broadcast_to(bottom[..., None], cx.shape)], axis=-1)
+
+
 def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
     """cos and sin of headings, rounded as the official box-corner code rounds them.
 

@@ -28,7 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from wosac_eval.features import interaction, road_edge, traffic_lights
+from wosac_eval.features import box_geometry, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.xp import nan_spreading_max, nan_spreading_min
 
@@ -376,7 +376,8 @@ class DenseSearch:
         ttc = jax.vmap(per_sample)(*map(step_major, (x, y, length, width, heading, speed, valid)))
         return jnp.swapaxes(ttc, -1, -2)
 
-    def road_edge_distance(self, corners, valid):
+    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+        corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
         needed = jnp.broadcast_to(valid[..., None], corners.shape[:-1]).reshape(-1)
         edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m, needed)
         edge = nan_spreading_max(edge.reshape(corners.shape[:-1]), axis=-1)

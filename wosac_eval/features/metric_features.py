@@ -20,7 +20,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
-from wosac_eval.features import box_geometry, interaction, kinematics, road_edge, traffic_lights
+from wosac_eval.features import interaction, kinematics, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_sum32, packet_tail, sincos32
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
@@ -163,10 +163,9 @@ def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> di
                                    tails["ego_tail"], tails["pair_tail"])
 
     pick = lambda a: at(a[:, e])
-    cx, cy = box_geometry.box_corners_xy(pick(corner_x), pick(corner_y), pick(length), pick(width), cos_h[:, e],
-                                         sin_h[:, e])
-    cz = xp.broadcast_to((pick(t["z"]) + (-pick(t["height"]) * _F(0.5)))[..., None], cx.shape)
-    edge = search.road_edge_distance(xp.stack([cx, cy, cz], axis=-1), pick(valid))
+    bottom = pick(t["z"]) + (-pick(t["height"]) * _F(0.5))
+    edge = search.road_edge_distance(pick(corner_x), pick(corner_y), bottom, pick(length), pick(width), cos_h[:, e],
+                                     sin_h[:, e], pick(valid))
 
     lights = slice(layout.first_red_light_step, None)
     red = search.red_light_violation(x[:, e, lights], y[:, e, lights], valid[:, e, lights])

@@ -31,6 +31,7 @@ import numba
 import numpy as np
 
 from wosac_eval.features import ops
+from wosac_eval.features.box_geometry import box_corners
 from wosac_eval.features.compiled import cached_loop, compiled
 from wosac_eval.features.spatial import column_bounds, finite_rows, non_finite_pick, pad_polylines
 
@@ -844,6 +845,48 @@ def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: Seg
     searched = np.ascontiguousarray(by_box.reshape(-1, 4, 3)[keep], _F).reshape(-1, 3)
     out.reshape(-1)[keep] = _signed_distance_groups(table, searched, 4, counts)
     return np.ascontiguousarray(np.moveaxis(out, (0, 1), (lead, lead + 1)))
+
+
+def box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table: SegmentTable,
+                              counts: dict | None = None) -> np.ndarray:
+    """`distance_to_road_edge` of boxes given by their values: the corners (`box_geometry.box_corners` at
+    the height `bottom`) are computed in the search's order by a compiled loop, with no array of corners.
+
+    Args:
+      x, y, bottom, length, width, cos_h, sin_h: float32 `(..., num_objects, num_steps)`.
+      valid: bool, the same shape.
+    Returns:
+      float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
+    """
+    shape = np.shape(x)
+    # Box by box in the search's order (`distance_to_road_edge`): object, step, then sample.
+    by_box = lambda a: np.ascontiguousarray(np.moveaxis(np.reshape(a, (-1,) + shape[-2:]), 0, -1))  # noqa: E731
+    queries, keep = _box_corner_queries(*(by_box(np.asarray(a, _F)) for a in (x, y, bottom, length, width, cos_h,
+                                                                            sin_h)), by_box(valid))
+    out = np.full((shape[-2], shape[-1], int(np.prod(shape[:-2], dtype=np.int64))), -EXTREMELY_LARGE_DISTANCE, _F)
+    out.reshape(-1)[keep] = _signed_distance_groups(table, queries, 4, counts)
+    return np.ascontiguousarray(np.moveaxis(out, -1, 0)).reshape(shape)
+
+
+_box_corners = compiled(box_corners)
+
+
+@cached_loop
+def _box_corner_queries(x, y, bottom, length, width, cos_h, sin_h, valid):
+    """The 4 corners (x, y, bottom) of each valid box, float32 `(4 * num_valid, 3)`, and the boxes' flat
+    indices, int64 `(num_valid,)`; the arguments are `(..., )` arrays of one shape, valid boxes in order."""
+    flat = valid.reshape(-1)
+    keep = np.flatnonzero(flat)
+    queries = np.empty((4 * keep.shape[0], 3), np.float32)
+    xs, ys, bs = x.reshape(-1), y.reshape(-1), bottom.reshape(-1)
+    ls, ws, cs, ss = length.reshape(-1), width.reshape(-1), cos_h.reshape(-1), sin_h.reshape(-1)
+    for i in range(keep.shape[0]):
+        k = keep[i]
+        x0, x1, x2, x3, y0, y1, y2, y3 = _box_corners(xs[k], ys[k], ls[k], ws[k], cs[k], ss[k])
+        queries[4 * i, 0], queries[4 * i + 1, 0], queries[4 * i + 2, 0], queries[4 * i + 3, 0] = x0, x1, x2, x3
+        queries[4 * i, 1], queries[4 * i + 1, 1], queries[4 * i + 2, 1], queries[4 * i + 3, 1] = y0, y1, y2, y3
+        queries[4 * i:4 * i + 4, 2] = bs[k]
+    return queries, keep
 
 
 # --- Cell tables for fixed-shape searches (the JAX driver, features/dense.py) ----------------------

@@ -45,9 +45,9 @@ class PrunedSearch:
         return interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated, 0.0, steps,
                                              speed=speed, ego_tail=ego_tail, pair_tail=pair_tail)
 
-    def road_edge_distance(self, corners, valid):
-        """`road_edge.distance_to_road_edge` of boxes `(..., 4, 3)`: float32 `(...)`, -1e10 where invalid."""
-        return road_edge.distance_to_road_edge(corners, valid, self.road_edges)
+    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+        """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
+        return road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, self.road_edges)
 
     def red_light_violation(self, x, y, valid):
         """`traffic_lights.red_light_violation`: bool `(samples, objects, steps)`."""
@@ -70,6 +70,9 @@ def compile_searches() -> float:
     centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
     corners = (centres[:, None, :] + np.array([[1, 1, 0], [-1, 1, 0], [-1, -1, 0], [1, -1, 0]], f))[None]
     road_edge.distance_to_road_edge(corners, np.ones(corners.shape[:2], bool), table)
+    boxes = centres.T[:, None, :, None]  # x, y, z, each (samples, objects, steps)
+    road_edge.box_distance_to_road_edge(*boxes, *np.ones((2, 1, 4, 1), f) * 2, *np.ones((2, 1, 4, 1), f) * 0.6,
+                                        np.ones((1, 4, 1), bool), table)
     x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (samples, objects, steps): a follower and its leader
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):

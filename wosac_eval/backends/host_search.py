@@ -8,7 +8,7 @@ and 64 road-edge segments per query, against 1-2 exact evaluations). There
 (`features.search.PrunedSearch`: the same float32 kernels, compiled loops over
 proven bounds) of the scene being traced, so a training step on the CPU costs
 less than the numpy file path. Given the same inputs, the features are the
-numpy path's bit for bit; in float32 mode the inputs (box corners, speeds)
+numpy path's bit for bit; in float32 mode the inputs (box headings' sines, speeds)
 may differ from it in the last bit, as the rest of the trace may.
 
 The callbacks are pure (no state, same inputs, same outputs): they work under
@@ -76,9 +76,9 @@ class HostSearch:
                                                             ego_tail, pair_tail),
                           lambda arrays: (*arrays[:7], num_evaluated, steps, *arrays[7:]))
 
-    def road_edge_distance(self, corners, valid):
-        """float32 `corners.shape[:-2]`, -1e10 where invalid (see `PrunedSearch.road_edge_distance`)."""
-        return self._call("road_edge_distance", corners.shape[:-2], _F, (corners, valid))
+    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+        """float32 `x.shape`, -1e10 where invalid (see `PrunedSearch.road_edge_distance`)."""
+        return self._call("road_edge_distance", x.shape, _F, (x, y, bottom, length, width, cos_h, sin_h, valid))
 
     def red_light_violation(self, x, y, valid):
         """bool `x.shape` (see `PrunedSearch.red_light_violation`)."""

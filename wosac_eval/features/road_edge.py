@@ -873,8 +873,8 @@ _box_corners = compiled(box_corners)
 
 @cached_loop
 def _box_corner_queries(x, y, bottom, length, width, cos_h, sin_h, valid):
-    """The 4 corners (x, y, bottom) of each valid box, float32 `(4 * num_valid, 3)`, and the boxes' flat
-    indices, int64 `(num_valid,)`; the arguments are `(..., )` arrays of one shape, valid boxes in order."""
+    """The 4 corners (x, y, bottom) of each valid box, float32 `(4 * num_valid, 3)`, and the valid boxes'
+    flat indices, int64 `(num_valid,)`, in their flat order; the arguments are arrays of one shape `(...)`."""
     flat = valid.reshape(-1)
     keep = np.flatnonzero(flat)
     queries = np.empty((4 * keep.shape[0], 3), np.float32)

@@ -24,7 +24,7 @@ import numpy as np
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.samples import sample_batch
 from wosac_eval.arrays.scenario import scenario_arrays
-from wosac_eval.features import interaction, metric_features as mf, road_edge
+from wosac_eval.features import box_geometry, interaction, metric_features as mf, road_edge
 from wosac_eval.features.compiled import compiled
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.metrics.scenario_metrics import scenario_metrics
@@ -91,13 +91,14 @@ def _median_time(fn, repeat: int):
     return statistics.median(runs), out
 
 
-def _road_edge_counts(table: road_edge.SegmentTable, corners, valid, repeat: int) -> dict:
+def _road_edge_counts(table: road_edge.SegmentTable, x, y, bottom, length, width, cos_h, sin_h, valid,
+                      repeat: int) -> dict:
     """Queries (valid box corners), pairs the search evaluates exactly, and the floor's seconds."""
-    keep = np.broadcast_to(valid, corners.shape[:-2]).reshape(-1)
-    queries = np.asarray(corners, np.float32).reshape(-1, 4, 3)[keep].reshape(-1, 3)
+    corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
+    queries = np.asarray(corners, np.float32)[np.asarray(valid)].reshape(-1, 3)
     queries = np.ascontiguousarray(queries[np.isfinite(queries).all(axis=1)])
     counts = {}
-    road_edge.distance_to_road_edge(corners, valid, table, counts)
+    road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table, counts)
     valid_segments = np.flatnonzero(table.valid)
     segment = valid_segments[np.arange(len(queries)) % len(valid_segments)]  # any segment costs the same
     floor, _ = _median_time(lambda: _one_selection_each(queries, segment, table.start, table.delta), repeat)
@@ -161,9 +162,8 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
     stages["features: the rest"] = feature_seconds["features"] - sum(feature_seconds[n] for n in SEARCHES)
     log, sim = mf.metric_features(batch, per_step)
     stages["estimators and metrics"], _ = _median_time(lambda: scenario_metrics(config, log, sim), repeat)
-    corners, valid = timed.arguments["road_edge_distance"]
     counts = {
-        "road edge": {**_road_edge_counts(context.road_edges, corners, valid, repeat),
+        "road edge": {**_road_edge_counts(context.road_edges, *timed.arguments["road_edge_distance"], repeat),
                       "seconds": feature_seconds["road_edge_distance"]},
         "nearest object": {**_nearest_object_counts(*timed.arguments["nearest_object"], repeat),
                            "seconds": feature_seconds["nearest_object"]},

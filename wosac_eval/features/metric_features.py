@@ -3,9 +3,11 @@
 `per_step_features` computes every feature of a batch of samples (the log as
 sample 0, then the rollouts; `arrays.samples`) for numpy and JAX arrays alike.
 The searches for a nearest thing are delegated to a strategy: `PrunedSearch`
-(numpy, k-d trees, `features.search`) or `DenseSearch` (JAX, fixed shapes,
-`features.dense`). Kinematics, box corners, thresholds, the red-light steps
-and the displacement error are computed here once.
+(numpy, compiled loops over proven bounds, `features.search`) or `DenseSearch`
+(JAX, fixed shapes, `features.dense`); the road-edge search takes the boxes and
+places their corners itself (in its own order, with the same kernel).
+Kinematics, headings' sines and cosines, thresholds, the red-light steps and
+the displacement error are computed here once.
 
 Feature arrays have shape `(num_samples, num_evaluated, num_reported_steps)`:
 the 80 future steps for sim agents, all 91 for scenario gen.

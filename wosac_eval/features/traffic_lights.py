@@ -208,15 +208,18 @@ def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
     out = np.zeros((batch, num_objects, num_steps, num_signals), np.bool_)
     crossed_any = np.zeros((batch, num_objects, num_steps), np.bool_)
     behind = np.zeros(num_signals, np.bool_)  # at the step before
+    at = np.empty(num_signals, np.float32)
     for b in range(batch):
         for o in range(num_objects):
             for t in range(num_steps):
+                px, py = x[b, o, t], y[b, o, t]
+                for s in range(num_signals):  # branch-free: the compiler vectorises it
+                    at[s] = _line_parameter(px, py, sx[t, s], sy[t, s], dx[t, s], dy[t, s], squared[t, s])
                 for s in range(num_signals):
-                    at = _line_parameter(x[b, o, t], y[b, o, t], sx[t, s], sy[t, s], dx[t, s], dy[t, s], squared[t, s])
-                    crossed = t > 0 and behind[s] and at > stop_t[t, s] and stopping[t, s] and valid[b, o, t]
+                    crossed = t > 0 and behind[s] and at[s] > stop_t[t, s] and stopping[t, s] and valid[b, o, t]
                     out[b, o, t, s] = crossed
                     crossed_any[b, o, t] |= crossed
-                    behind[s] = at < stop_t[t, s]
+                    behind[s] = at[s] < stop_t[t, s]
     return out, crossed_any
 
 

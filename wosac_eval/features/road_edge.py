@@ -799,7 +799,9 @@ def nearest_segments(table: SegmentTable, queries: np.ndarray, counts: dict | No
       (`spatial.non_finite_pick`).
     """
     found = _nearest_segments(np.ascontiguousarray(queries, _F), table, counts, hint_stride)
-    return np.where(found < 0, non_finite_pick(table.valid), found)
+    if found.min(initial=0) < 0:  # rare: most scenes have no non-finite corner
+        found = np.where(found < 0, non_finite_pick(table.valid), found)
+    return found
 
 
 def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np.ndarray:

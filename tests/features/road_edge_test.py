@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from wosac_eval.features import road_edge
-from wosac_eval.features.box_geometry import box_corners_xy
+from wosac_eval.features.box_geometry import box_bottom_corners
 
 F = np.float32
 
@@ -123,11 +123,11 @@ def test_padding_of_shorter_polylines():
 
 def boxes_distance(table, x, y, length, width, heading, valid=None, z=0.0):
     x, y, length, width, heading = (np.atleast_2d(np.asarray(v, F)) for v in (x, y, length, width, heading))
-    cx, cy = box_corners_xy(x, y, length, width, np.cos(heading).astype(F), np.sin(heading).astype(F))
-    corners = np.stack([cx, cy, np.full(cx.shape, z, F)], axis=-1)
     if valid is None:
         valid = np.ones(x.shape, bool)
-    return road_edge.distance_to_road_edge(corners, np.asarray(valid, bool), table)
+    return road_edge.box_distance_to_road_edge(x, y, np.full(x.shape, z, F), length, width,
+                                               np.cos(heading).astype(F), np.sin(heading).astype(F),
+                                               np.asarray(valid, bool), table)
 
 
 def test_box_distance_is_the_most_off_road_corner(square):
@@ -302,32 +302,33 @@ def test_hints_never_change_the_answer(hint_stride):
 
 
 def test_box_trajectories_equal_brute_force():
-    """`distance_to_road_edge` over samples x objects x steps of boxes driving through the map (the
-    order it searches in, a box's answer the hint of the next) equals the all-pairs search."""
+    """`box_distance_to_road_edge` over samples x objects x steps of boxes driving through the map (the
+    order it searches in, a box's answer the hint of the next) equals the all-pairs search of their
+    corners."""
     rng = np.random.default_rng(9)
     table = road_edge.build_segment_table(random_map(rng))
     samples, objects, steps = 3, 6, 40
     start = rng.uniform(-150, 150, (1, objects, 1, 2)) + rng.normal(0, 0.5, (samples, objects, 1, 2))
     heading = rng.uniform(-math.pi, math.pi, (samples, objects, 1)) + np.cumsum(
         rng.normal(0, 0.05, (samples, objects, steps)), axis=-1)
-    centre = start + np.cumsum(1.2 * np.stack([np.cos(heading), np.sin(heading)], -1), axis=2)
-    corner = np.array([[2.4, 1.0], [2.4, -1.0], [-2.4, -1.0], [-2.4, 1.0]])
-    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
-    xy = centre[..., None, :] + np.stack([c * corner[:, 0] - s * corner[:, 1], s * corner[:, 0] + c * corner[:, 1]], -1)
-    z = rng.choice([0.0, 6.0], (samples, objects, 1, 1)) + np.zeros(xy.shape[:-1])
-    corners = np.concatenate([xy, z[..., None]], -1).astype(F)
+    centre = (start + np.cumsum(1.2 * np.stack([np.cos(heading), np.sin(heading)], -1), axis=2)).astype(F)
+    boxes = (centre[..., 0], centre[..., 1],
+             (rng.choice([0.0, 6.0], (samples, objects, 1)) + np.zeros(heading.shape)).astype(F),  # bottom
+             np.full(heading.shape, 4.8, F), np.full(heading.shape, 2.0, F),
+             np.cos(heading).astype(F), np.sin(heading).astype(F))
     valid = rng.random((samples, objects, steps)) > 0.1
-    ours = road_edge.distance_to_road_edge(corners, valid, table)
+    ours = road_edge.box_distance_to_road_edge(*boxes, valid, table)
+    corners = box_bottom_corners(*boxes)
     reference = brute_force(table, corners.reshape(-1, 3)).reshape(corners.shape[:-1]).max(axis=-1)
     np.testing.assert_array_equal(ours[valid], reference[valid])
     assert (ours[~valid] == -road_edge.EXTREMELY_LARGE_DISTANCE).all()
 
 
-def test_boxes_by_their_values_equal_their_corners():
-    """`box_distance_to_road_edge` (corners computed in the search loop) equals `distance_to_road_edge` of
-    `box_bottom_corners`, bit for bit: boxes on and off the map, on another level, invalid, NaN, and with
-    two leading axes."""
-    from wosac_eval.features import box_geometry
+def test_boxes_of_every_kind_equal_their_corners_one_by_one():
+    """`box_distance_to_road_edge` (corners computed in the search loop, boxes in its order) equals the
+    most off-road of `signed_distance_to_polylines` of each corner of `box_bottom_corners` searched on
+    its own, bit for bit: boxes on and off the map, on another level, invalid, NaN, and with two
+    leading axes."""
     from wosac_eval.features.float32_math import sincos32
     rng = np.random.default_rng(12)
     table = road_edge.build_segment_table(random_map(rng))
@@ -339,10 +340,13 @@ def test_boxes_by_their_values_equal_their_corners():
     sin_h, cos_h = sincos32(rng.uniform(-4, 4, shape).astype(F))
     valid = rng.random(shape) > 0.2
     ours = road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table)
-    corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
-    expected = road_edge.distance_to_road_edge(corners, valid, table)
+    corners = box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
+    with np.errstate(invalid="ignore"):
+        each = road_edge.signed_distance_to_polylines(table, corners.reshape(-1, 3))
+    reference = each.reshape(corners.shape[:-1]).max(axis=-1)
     assert ours.shape == shape and ours.dtype == F
-    np.testing.assert_array_equal(ours.view(np.int32), expected.view(np.int32))
+    np.testing.assert_array_equal(ours[valid].view(np.int32), reference[valid].view(np.int32))
+    assert (ours[~valid] == -road_edge.EXTREMELY_LARGE_DISTANCE).all()
 
 
 # --- Cell candidate tables (the fixed-shape search on a device) -------------------------------------

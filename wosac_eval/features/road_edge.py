@@ -592,7 +592,7 @@ def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key
     """The nearest segment of each query among its cell's list.
 
     The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
-    the order `distance_to_road_edge` gives) is evaluated first: usually the answer, so that
+    the order `box_distance_to_road_edge` gives) is evaluated first: usually the answer, so that
     few others pass the bounds. Then candidates are taken in key order until the next one's key
     shows that nothing further on can be nearer; a candidate that `_distance_bound` puts farther
     than the best so far is not evaluated. (Any valid segment may be evaluated: the result is
@@ -823,45 +823,25 @@ def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int
                              table.prior_valid, table.next_valid, table.convex_before, table.convex_after, group)
 
 
-def distance_to_road_edge(corners_xyz: np.ndarray, valid: np.ndarray, table: SegmentTable,
-                          counts: dict | None = None) -> np.ndarray:
-    """Signed distance of the most off-road corner of each box.
-
-    Args:
-      corners_xyz: float32 `(..., num_objects, num_steps, 4, 3)` bottom corners.
-      valid: bool `(..., num_objects, num_steps)`.
-      counts: optional dict that gets the search's work (`nearest_segments`).
-    Returns:
-      float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
-    """
-    # Only valid boxes are searched: invalid log states sit at placeholder
-    # positions (often the origin, kilometres from the map) and are masked anyway.
-    # They are searched object by object, step by step, the samples of each step in a row: boxes in
-    # a row are near one another, so one's answer is a good hint for the next and their candidate
-    # lists stay in the cache.
-    lead = corners_xyz.ndim - 4
-    by_box = np.moveaxis(corners_xyz, (lead, lead + 1), (0, 1))
-    valid_by_box = np.moveaxis(np.broadcast_to(valid, corners_xyz.shape[:-2]), (lead, lead + 1), (0, 1))
-    keep = np.flatnonzero(valid_by_box.reshape(-1))
-    out = np.full(valid_by_box.shape, -EXTREMELY_LARGE_DISTANCE, _F)
-    searched = np.ascontiguousarray(by_box.reshape(-1, 4, 3)[keep], _F).reshape(-1, 3)
-    out.reshape(-1)[keep] = _signed_distance_groups(table, searched, 4, counts)
-    return np.ascontiguousarray(np.moveaxis(out, (0, 1), (lead, lead + 1)))
-
-
 def box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table: SegmentTable,
                               counts: dict | None = None) -> np.ndarray:
-    """`distance_to_road_edge` of boxes given by their values: the corners (`box_geometry.box_corners` at
-    the height `bottom`) are computed in the search's order by a compiled loop, with no array of corners.
+    """Signed distance of the most off-road bottom corner of each box.
+
+    The corners (`box_geometry.box_corners` at the height `bottom`) are computed in the search's
+    order by a compiled loop, with no array of corners.
 
     Args:
       x, y, bottom, length, width, cos_h, sin_h: float32 `(..., num_objects, num_steps)`.
       valid: bool, the same shape.
+      counts: optional dict that gets the search's work (`nearest_segments`).
     Returns:
       float32 `(..., num_objects, num_steps)`; -1e10 where invalid.
     """
     shape = np.shape(x)
-    # Box by box in the search's order (`distance_to_road_edge`): object, step, then sample.
+    # Only valid boxes are searched: invalid log states sit at placeholder positions (often the
+    # origin, kilometres from the map) and are masked anyway. They are searched object by object,
+    # step by step, the samples of each step in a row: boxes in a row are near one another, so one's
+    # answer is a good hint for the next and their candidate lists stay in the cache.
     by_box = lambda a: np.ascontiguousarray(np.moveaxis(np.reshape(a, (-1,) + shape[-2:]), 0, -1))  # noqa: E731
     queries, keep = _box_corner_queries(*(by_box(np.asarray(a, _F)) for a in (x, y, bottom, length, width, cos_h,
                                                                             sin_h)), by_box(valid))

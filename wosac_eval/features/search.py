@@ -68,8 +68,6 @@ def compile_searches() -> float:
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite.
     centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
-    corners = (centres[:, None, :] + np.array([[1, 1, 0], [-1, 1, 0], [-1, -1, 0], [1, -1, 0]], f))[None]
-    road_edge.distance_to_road_edge(corners, np.ones(corners.shape[:2], bool), table)
     boxes = centres.T[:, None, :, None]  # x, y, z, each (samples, objects, steps)
     road_edge.box_distance_to_road_edge(*boxes, *np.ones((2, 1, 4, 1), f) * 2, *np.ones((2, 1, 4, 1), f) * 0.6,
                                         np.ones((1, 4, 1), bool), table)

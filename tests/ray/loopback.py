@@ -46,7 +46,9 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]
     done = subprocess.run(["unshare", *flags, "bash", "-c", inner], cwd=REPO, capture_output=True, text=True,
                           timeout=timeout, env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"})
-    summary = "\n".join(done.stdout.splitlines()[-40:]) + "\n" + done.stderr[-3000:]
+    # A failure's report from its start (what failed, then the logs it carries), else the output's tail.
+    failures = done.stdout.partition("= FAILURES =")[2]
+    summary = (failures[:20000] if failures else "\n".join(done.stdout.splitlines()[-40:])) + "\n" + done.stderr[-3000:]
     assert done.returncode == 0, summary
     last = done.stdout.splitlines()[-1]
     assert " passed" in done.stdout and "skipped" not in last, summary

@@ -100,11 +100,13 @@ def cluster(env):
     token = (Path(env["HOME"]) / ".ray" / "auth_token").read_text()
     assert token == generated.stdout and len(token) >= 32
     try:
-        # The head's Ray Client server starts a server process per client and waits 30 s for it by default:
-        # on a loaded machine that start-up takes longer (the service's job then failed to connect).
-        head_env = {**token_env, "RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S": "300"}
-        for command, command_env in ((HEAD, head_env), (NODE, token_env)):
-            done = run(command, command_env)
+        # As users run it: the head's Ray Client server keeps its default 30 s wait for the server process
+        # it starts per client. A longer wait (300 s, tried) turns that process's failed start into a
+        # 300 s hang: Ray's log-stream proxy waits as long for the failed process's channel, and the
+        # client's clean-up of the failed connection waits for the log stream; with 30 s the failure
+        # reaches `ray_executor.connect` in about 40 s, which starts the connection again.
+        for command in (HEAD, NODE):
+            done = run(command, token_env)
             assert done.returncode == 0, f"{' '.join(command)}:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
         yield {"before": before, "token_env": token_env, "token": token}
     finally:
@@ -171,13 +173,14 @@ def service(root: Path, data: dict, env: dict, address: str, **extra: str):
 
 
 def ray_logs(env: dict, lines: int = 30) -> str:
-    """The tails of the head's Ray Client server logs and of every error log of this cluster's session."""
+    """The tails of the head's Ray Client server logs (the per-client servers' too, named when empty: a
+    server process that died before writing a line) and of every error log of this cluster's session."""
     logs = Path(env["RAY_TMPDIR"]) / "ray" / "session_latest" / "logs"
     out = []
-    for path in sorted(logs.glob("ray_client_server*")) + sorted(logs.glob("*.err")):
+    for path in dict.fromkeys(sorted(logs.glob("ray_client_server*")) + sorted(logs.glob("*.err"))):
         text = path.read_text(errors="replace").strip().splitlines()[-lines:]
-        if text:
-            out.append(f"--- {path.name}\n" + "\n".join(text))
+        if text or path.name.startswith("ray_client_server"):
+            out.append(f"--- {path.name}\n" + ("\n".join(text) or "(empty)"))
     return "\n".join(out) or f"(no Ray logs under {logs})"
 
 

@@ -181,6 +181,8 @@ def connect(address: str | None = None) -> None:
 # A Ray Client connection whose server-side process failed to start ("Initialization failure from
 # server": Ray's proxy can find the process it polls already exited, a race of its own) is the
 # server's passing fault, not a wrong address or token: tried again, after a pause, this many times.
+# Ray reports it only after its log-stream proxy's wait for that process (the head's
+# RAY_CLIENT_SERVER_CHECK_CHANNEL_TIMEOUT_S, 30 s by default; a head with more holds us as long).
 CLIENT_START_ATTEMPTS = 3
 _CLIENT_START_PAUSE_S = 1.0
 

@@ -32,6 +32,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
+from wosac_eval.scoring.journal import ScoringJournal, run_identity
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
@@ -160,7 +161,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
                      progress: Progress | None = None, backend: str = "numpy", engine: str = "local",
                      ray_address: str | None = None, metadata_checks: str = "warn", select: str | None = None,
                      analysis: bool = True, limits: InputLimits | None = None,
-                     evaluation: Evaluation | None = None) -> dict:
+                     evaluation: Evaluation | None = None, journal: PathLike | None = None) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -192,6 +193,10 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
         sizes, compression ratio, archive members, messages per shard); default `InputLimits()`.
       evaluation: all of the above but the inputs and `progress`, already resolved
         (`scoring.evaluation.resolve_evaluation`); the other arguments are then ignored.
+      journal: a file where each finished scenario's row is recorded as it is scored
+        (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
+        those scenarios are not scored again, and the result is the one an uninterrupted run gives.
+        It is left in place: remove it once the result is stored (`ScoringJournal.remove`).
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
       ValueError: an argument cannot be resolved (unknown config, a preset of the other challenge...).
@@ -206,7 +211,10 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
     with SubmissionSource(submission, evaluation.limits) if owned else contextlib.nullcontext(submission) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
-        return _score(index, source, evaluation, executor, progress)
+        if journal is None:
+            return _score(index, source, evaluation, executor, progress, None)
+        with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths)) as record:
+            return _score(index, source, evaluation, executor, progress, record)
 
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
@@ -221,8 +229,9 @@ def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[
 
 
 def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
-           progress: Progress | None) -> dict:
-    """Validate (recording where each scenario is), select, score on the executor, assemble."""
+           progress: Progress | None, journal: ScoringJournal | None) -> dict:
+    """Validate (recording where each scenario is), select, score on the executor (but what the journal
+    holds), assemble."""
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
                                  metadata_checks=evaluation.metadata_checks)
     if refuses(report, evaluation.allow_partial):
@@ -231,19 +240,31 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,
                              backend=evaluation.backend, index=index, analysis=evaluation.analysis)
-    chunks = _chunks(_scored_rollouts(source, index, report, selected), SCENARIOS_PER_TASK)
-    per_scenario: list[dict] = []
+    done = {} if journal is None else journal.done
+    order: list[str] = []  # every scored scenario, in submission order (the rows' order)
+
+    def to_score() -> Iterator[tuple[str, RolloutsLocator]]:
+        for sid, locator in _scored_rollouts(source, index, report, selected):
+            order.append(sid)
+            if sid not in done:
+                yield sid, locator
+
+    chunks = _chunks(to_score(), SCENARIOS_PER_TASK)
+    rows = dict(done)
     if progress is not None:
-        progress(0, total)
+        progress(len(rows), total)
     if evaluation.backend == "jax" and evaluation.engine == "local":
         # Pipelined: workers parse and prepare on the host, this process keeps the device busy.
         scored = _jax_pipeline(executor, chunks, context, evaluation.config)
     else:
         scored = executor.imap(score_chunk, chunks, context)
     for results in scored:
-        per_scenario.extend(results)
+        if journal is not None:
+            journal.record(results)
+        rows.update((row["scenario_id"], row) for row in results)
         if progress is not None:
-            progress(len(per_scenario), total)
+            progress(len(rows), total)
+    per_scenario = [rows[sid] for sid in order]
     if not per_scenario:
         raise InvalidSubmissionError(report) if not report.ok else ValueError(
             "the submission has no scenario in common with the scenario set")

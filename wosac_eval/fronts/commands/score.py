@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -37,7 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "SimAgentMetricsConfig textproto (default: the challenge's current one, "
                              "2025 or scenario_gen_2025)")
     parser.add_argument("--output", "-o", metavar="result.json",
-                        help="where to write the result JSON (default: stdout)")
+                        help="where to write the result JSON (default: stdout); with it, finished scenarios are "
+                             "kept in result.json.journal while the run lasts, and the same command run again "
+                             "after an interruption resumes from there")
+    parser.add_argument("--restart", action="store_true",
+                        help="with --output: discard the journal of an interrupted run and score everything")
     parser.add_argument("--workers", type=int, default=1, metavar="N",
                         help="score scenarios in N processes of this machine (identical results)")
     parser.add_argument("--engine", choices=ENGINES, default="local",
@@ -108,6 +113,37 @@ def _stderr_coverage(result: dict) -> None:
               f"e.g. {result['skipped'][0]['scenario_id']}: {result['skipped'][0]['reason']}", file=sys.stderr)
 
 
+def _journal(args: argparse.Namespace) -> Path | None:
+    """The run's journal beside --output (None without it), said when an earlier run left one."""
+    if not args.output:
+        if args.restart:
+            raise UsageError("--restart needs --output (the journal lives beside the result)")
+        return None
+    journal = Path(args.output).with_name(Path(args.output).name + ".journal")
+    if journal.exists():
+        if args.restart:
+            journal.unlink()
+        else:
+            print(f"resuming from {journal}: scenarios an earlier run finished are not scored again "
+                  "(--restart scores everything)", file=sys.stderr)
+    return journal
+
+
+def write_result(result: dict, path: Path) -> None:
+    """The result document, streamed to a temporary file beside `path` and renamed over it: a reader
+    never sees half a document, and a 44,097-scenario result is never one string in memory."""
+    temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(temp, "w") as f:
+            json.dump(result, f, indent=1)
+            f.write("\n")
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+    finally:
+        temp.unlink(missing_ok=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     if args.workers < 1:
@@ -126,9 +162,11 @@ def run(args: argparse.Namespace) -> int:
         # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
         from wosac_eval.backends.jax_backend import exact_cpu
         exact_cpu()
+    journal = _journal(args)
     update, bar = _progress()
     try:
-        result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation)
+        result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation,
+                                  journal=journal)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         if error.metadata:
@@ -142,16 +180,21 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None
     except (FileNotFoundError, ValueError, EngineUnavailableError) as error:
         raise UsageError(str(error)) from None
+    except KeyboardInterrupt:
+        if journal is not None and journal.exists():
+            print(f"\nwosac-eval score: the scenarios finished so far are kept in {journal}; run the same "
+                  "command again to resume", file=sys.stderr)
+        raise
     finally:
         if bar is not None:
             bar.close()
     _stderr_findings(result)
-    text = json.dumps(result, indent=1)
     if args.output:
-        Path(args.output).write_text(text + "\n")
+        write_result(result, Path(args.output))
+        journal.unlink(missing_ok=True)  # the result is on disk: nothing left to resume
         print(_headline(result), file=sys.stderr)
         print(f"results written to {args.output}", file=sys.stderr)
     else:
-        print(text)
+        print(json.dumps(result, indent=1))
     _stderr_coverage(result)
     return 0

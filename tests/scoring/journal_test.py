@@ -1,0 +1,118 @@
+"""An interrupted scoring run resumes from its journal and writes the document an uninterrupted run writes."""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from support.submissions import replicated_submission
+from wosac_eval.scoring.submission import score_submission
+
+N = 24
+
+
+@pytest.fixture(scope="module")
+def workload(tmp_path_factory):
+    from support.paths import require_shared
+
+    require_shared()
+    return replicated_submission(tmp_path_factory.mktemp("journal"), N, per_shard=5)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(workload):
+    scenarios, submission = workload
+    return json.loads(json.dumps(score_submission([scenarios], submission)))
+
+
+def _journal_lines(path: Path) -> list[bytes]:
+    return path.read_bytes().splitlines(keepends=True)
+
+
+def _progress_log():
+    calls: list[tuple[int, int]] = []
+    return calls, lambda done, total: calls.append((done, total))
+
+
+def test_journal_holds_every_row_and_resuming_scores_only_the_rest(workload, uninterrupted, tmp_path):
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, journal=journal)
+    lines = _journal_lines(journal)
+    assert len(lines) == 1 + N  # the run's identity, then one row per scenario
+    # As a kill would leave it: 10 rows, then half of the 11th.
+    journal.write_bytes(b"".join(lines[:11]) + lines[11][: len(lines[11]) // 2])
+    calls, progress = _progress_log()
+    resumed = score_submission([scenarios], submission, journal=journal, progress=progress)
+    assert json.loads(json.dumps(resumed)) == uninterrupted
+    assert calls[0] == (10, N)  # the journal's rows counted as done, not scored again
+    assert [done for done, _ in calls[1:]] == [10 + 8, 10 + 14]  # the 14 others, in tasks of 8
+    assert len(_journal_lines(journal)) == 1 + N and journal.read_bytes().endswith(b"\n")
+
+
+def test_journal_of_another_run_is_set_aside(workload, uninterrupted, tmp_path, caplog):
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, "2024", journal=journal)  # another config: other rows
+    with caplog.at_level(logging.WARNING, logger="wosac_eval.scoring.journal"):
+        calls, progress = _progress_log()
+        result = score_submission([scenarios], submission, journal=journal, progress=progress)
+    assert json.loads(json.dumps(result)) == uninterrupted
+    assert calls[0] == (0, N)
+    assert "another run" in caplog.text and (tmp_path / "run.journal.old").exists()
+    journal.write_bytes(b"not a journal\n")
+    with caplog.at_level(logging.WARNING, logger="wosac_eval.scoring.journal"):
+        score_submission([scenarios], submission, journal=journal)
+    assert "not a scoring journal" in caplog.text
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args]
+
+
+def test_cli_interrupted_then_run_again_writes_the_same_document(workload, uninterrupted, tmp_path):
+    scenarios, submission = workload
+    output = tmp_path / "result.json"
+    journal = tmp_path / "result.json.journal"
+    command = _cli("--scenarios", str(scenarios), "--submission", str(submission), "-o", str(output))
+    run = subprocess.Popen(command, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and run.poll() is None:
+        if journal.exists() and len(_journal_lines(journal)) >= 1 + 8:  # the first task's rows are in
+            break
+        time.sleep(0.01)
+    assert run.poll() is None, "the run ended before it could be interrupted"
+    run.send_signal(signal.SIGINT)  # Ctrl-C
+    _, stderr = run.communicate(timeout=60)
+    assert run.returncode == 130, stderr
+    assert f"kept in {journal}" in stderr and not output.exists()
+    kept = len(_journal_lines(journal)) - 1
+    assert 8 <= kept < N
+
+    again = subprocess.run(command, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"resuming from {journal}" in again.stderr
+    assert json.loads(output.read_text()) == uninterrupted
+    assert not journal.exists()  # the result is written: nothing left to resume
+    assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
+
+
+def test_cli_restart_discards_the_journal(workload, uninterrupted, tmp_path):
+    scenarios, submission = workload
+    output = tmp_path / "result.json"
+    (tmp_path / "result.json.journal").write_bytes(b"left over\n")
+    done = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "-o", str(output),
+                               "--restart", "--no-analysis"), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "resuming" not in done.stderr and not (tmp_path / "result.json.journal").exists()
+    assert json.loads(output.read_text())["buckets"] == uninterrupted["buckets"]
+    usage = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "--restart"),
+                           capture_output=True, text=True, timeout=120)
+    assert usage.returncode == 2 and "--restart needs --output" in usage.stderr

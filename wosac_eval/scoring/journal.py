@@ -1,0 +1,156 @@
+"""The journal of a scoring run: finished scenarios' rows, so that an interrupted run resumes.
+
+A whole validation set takes tens of minutes; a Ctrl-C, an OOM kill or a lost node
+near the end must not cost the run. `score_submission(..., journal=PATH)` appends
+each finished scenario's row to PATH as one JSON line, flushed as it is scored. A
+later run with the same inputs skips those scenarios and assembles the same result
+document (rows are journaled before the set-wide analysis completes them, and JSON
+keeps every float exactly: `repr` round-trips).
+
+    {"journal": "wosac-eval scoring", "version": 1, "run": {<what the rows depend on>}}
+    {"scenario_id": "...", <the scenario's row>}
+    ...
+
+The first line names the run: the challenge, the config (its bytes' digest), the
+options that change rows, the package version, and the size and modification time
+of every input file. A journal of another run is set aside (its rows would not
+belong to this one) and the run starts afresh, saying why. A line cut short by a
+kill is dropped; so is everything after a line that does not parse.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from collections.abc import Iterable
+from pathlib import Path
+
+from wosac_eval import __version__
+
+MAGIC = "wosac-eval scoring"
+VERSION = 1
+FSYNC_EVERY_S = 2.0  # a kill loses nothing flushed; a power cut at most this much
+log = logging.getLogger(__name__)
+
+
+def _file_stats(path: Path) -> list:
+    """[relative name, size, mtime_ns] of a file, or of every file under a folder (sorted)."""
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(p for p in path.rglob("*") if p.is_file())
+        return [[str(p.relative_to(path)), *_size_mtime(p)] for p in files]
+    return [[path.name, *_size_mtime(path)]]
+
+
+def _size_mtime(path: Path) -> list[int]:
+    stat = path.stat()
+    return [stat.st_size, stat.st_mtime_ns]
+
+
+def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
+    """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
+    return {
+        "package": __version__,
+        "challenge": evaluation.challenge.value,
+        "config": evaluation.config_name,
+        "config_sha256": hashlib.sha256(evaluation.config.SerializeToString(deterministic=True)).hexdigest(),
+        "analysis": evaluation.analysis,
+        "select": evaluation.select,
+        "allow_partial": evaluation.allow_partial,
+        "metadata_checks": evaluation.metadata_checks,
+        "submission": [str(Path(submission_path).resolve()), _file_stats(Path(submission_path))],
+        "scenarios": [[str(Path(p).resolve()), *_size_mtime(Path(p))] for p in scenario_paths],
+    }
+
+
+def _read(path: Path, identity: dict) -> tuple[dict[str, dict], int, str | None]:
+    """(rows by scenario id, bytes of the file that hold them, why the journal was not used or None)."""
+    rows: dict[str, dict] = {}
+    good = 0
+    with open(path, "rb") as f:
+        header = f.readline()
+        try:
+            head = json.loads(header) if header.endswith(b"\n") else None
+        except ValueError:
+            head = None
+        if not isinstance(head, dict) or head.get("journal") != MAGIC:
+            return {}, 0, "it is not a scoring journal"
+        if head.get("version") != VERSION or head.get("run") != identity:
+            return {}, 0, "it was written by another run (other inputs, config, options or version)"
+        good = len(header)
+        for line in f:
+            if not line.endswith(b"\n"):
+                break  # cut short by a kill
+            try:
+                row = json.loads(line)
+            except ValueError:
+                break
+            rows[row["scenario_id"]] = row
+            good += len(line)
+    return rows, good, None
+
+
+class ScoringJournal:
+    """An open journal: the rows it already held (`done`), and `record` for new ones.
+
+    Args:
+      path: the journal file (created if missing).
+      identity: `run_identity(...)` of this run.
+    Attributes:
+      done: scenario_id -> row of the scenarios a previous run finished.
+      set_aside: where a journal of another run was moved (None if none was).
+      reason: why it was set aside.
+    """
+
+    def __init__(self, path: os.PathLike | str, identity: dict):
+        self.path = Path(path)
+        self.done: dict[str, dict] = {}
+        self.set_aside: Path | None = None
+        self.reason: str | None = None
+        good = 0
+        if self.path.exists():
+            self.done, good, self.reason = _read(self.path, identity)
+            if self.reason is not None:
+                self.set_aside = self.path.with_name(self.path.name + ".old")
+                os.replace(self.path, self.set_aside)
+                log.warning("%s was set aside as %s and the run starts afresh: %s", self.path, self.set_aside,
+                            self.reason)
+        self._file = open(self.path, "r+b" if good else "wb")  # noqa: SIM115 - closed by close()
+        if good:
+            self._file.truncate(good)  # drop a torn last line before appending after it
+            self._file.seek(good)
+        else:
+            header = {"journal": MAGIC, "version": VERSION, "run": identity}
+            self._file.write(json.dumps(header).encode() + b"\n")
+            self._sync()
+        self._synced_at = time.monotonic()
+
+    def record(self, rows: Iterable[dict]) -> None:
+        """Append finished scenarios' rows (each a result row with its `scenario_id`)."""
+        self._file.write(b"".join(json.dumps(row).encode() + b"\n" for row in rows))
+        self._file.flush()  # in the kernel now: a killed process loses none of it
+        if time.monotonic() - self._synced_at > FSYNC_EVERY_S:
+            self._sync()
+
+    def _sync(self) -> None:
+        self._file.flush()
+        os.fsync(self._file.fileno())
+        self._synced_at = time.monotonic()
+
+    def close(self) -> None:
+        if not self._file.closed:
+            self._sync()
+            self._file.close()
+
+    def remove(self) -> None:
+        """The run finished and its result is written: the journal is no longer needed."""
+        self.close()
+        self.path.unlink(missing_ok=True)
+
+    def __enter__(self) -> ScoringJournal:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -4,6 +4,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
 
   Scoring
     score_scenario(scenario, rollouts, config=None, challenge="sim_agents") -> dict of SimAgentMetrics fields
+    score_scenario_per_object(scenario, rollouts, ...) -> PerObjectMetrics (the fields per object, events per rollout)
     score_submission(scenario_paths, submission_path, config=None, ...) -> result.json dict
     validate_submission(scenario_paths, submission_path) -> ValidationReport
     load_config("2025" | "2024" | "2023" | "scenario_gen_2025" | path.textproto) -> SimAgentMetricsConfig
@@ -25,6 +26,7 @@ __version__ = "0.3.0"
 _API = {
     "InvalidSubmissionError": "wosac_eval.scoring.submission",
     "score_scenario": "wosac_eval.scoring.scenario",
+    "score_scenario_per_object": "wosac_eval.scoring.scenario",
     "score_submission": "wosac_eval.scoring.submission",
     "Challenge": "wosac_eval.challenges",
     "sim_agent_ids": "wosac_eval.challenges",

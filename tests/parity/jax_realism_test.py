@@ -32,8 +32,9 @@ from jax import lax  # noqa: E402
 from support import golden  # noqa: E402
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
 from wosac_eval.features.metric_features import PER_STEP_FIELDS, scenario_features  # noqa: E402
+from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS  # noqa: E402
 from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS  # noqa: E402
-from wosac_eval.scoring.scenario import score_scenario  # noqa: E402
+from wosac_eval.scoring.scenario import score_scenario, score_scenario_per_object  # noqa: E402
 from wosac_eval.sim import scenes  # noqa: E402
 from wosac_eval.sim.baselines import policy_rollouts  # noqa: E402
 
@@ -143,6 +144,59 @@ def test_values_in_padding_columns_are_ignored(challenge, mode):
     a, c = in_jit(mode, tight, arrays), in_jit(mode, tight, noisy)
     for field in SCENARIO_FIELDS:
         np.testing.assert_array_equal(a[field], c[field], err_msg=field)
+
+
+_step_per_object = jax.jit(lambda prepared, a: jax_realism.realism(prepared, **a, per_object=True))
+
+
+def numpy_per_object(prepared, challenge: str) -> dict:
+    """The numpy path's per-object values of the scene set in `realism`'s columns: field -> (float32 values
+    `(num_scenes, max_agents)`, NaN where no evaluated object; int32 counts, 0 there)."""
+    scs, rollouts = scene_set(challenge)
+    ids = prepared.sim_agent_ids
+    out = {f: (np.full(ids.shape, np.nan, np.float32), np.zeros(ids.shape, np.int32)) for f in LIKELIHOOD_FIELDS}
+    for s, (sc, ro) in enumerate(zip(scs, rollouts)):
+        per_object = score_scenario_per_object(sc, ro, challenge=challenge)
+        columns = [int(np.flatnonzero(ids[s] == object_id)[0]) for object_id in per_object.object_id]
+        for field, (values, counts) in out.items():
+            values[s, columns] = per_object.likelihood[field]
+            counts[s, columns] = per_object.count[field]
+    return out
+
+
+@pytest.mark.parametrize("challenge, mode, search, grouped", [
+    ("sim_agents", "exact", "device", False), ("scenario_gen", "float32", "device", False),
+    ("sim_agents", "float32", "device", True)])
+def test_per_object_values_equal_the_numpy_path(challenge, mode, search, grouped):
+    """`realism(..., per_object=True)` inside a plain `jax.jit`: each evaluated object's likelihood and count
+    in its rollout column, equal to the numpy path's (within the metrics' tolerance; bit-identical in exact
+    mode on CPU), NaN and 0 in the other columns; the scene fields as without it. Grouped: three programs,
+    their columns put back in scene order."""
+    prepared, arrays = prepared_set(challenge, grouped=grouped, search=search)
+    plain = in_jit(mode, prepared, arrays)
+    assert plain.per_object is None and plain.per_object_counts is None
+    with traced_as(mode):
+        got = as_numpy(_step_per_object(prepared, arrays))
+    assert got.mode == mode
+    for field in SCENARIO_FIELDS:
+        np.testing.assert_allclose(got[field], plain[field], rtol=0, atol=1e-6, err_msg=field)
+    want = numpy_per_object(prepared, challenge)
+    assert set(got.per_object) == set(got.per_object_counts) == set(LIKELIHOOD_FIELDS)
+    for field, (values, counts) in want.items():
+        ours, our_counts = got.per_object[field], got.per_object_counts[field]
+        assert ours.dtype == np.float32 and our_counts.dtype == np.int32, field
+        assert ours.shape == our_counts.shape == prepared.sim_agent_ids.shape, field
+        np.testing.assert_array_equal(our_counts, counts, err_msg=field)
+        np.testing.assert_array_equal(np.isnan(ours), np.isnan(values), err_msg=field)
+        np.testing.assert_allclose(ours, values, rtol=0, atol=METRIC_TOLERANCE, equal_nan=True, err_msg=field)
+        if mode == "exact":
+            np.testing.assert_array_equal(ours, values, err_msg=field)
+        # The identity on the device's values: each scene's field is their count-weighted geometric mean.
+        for s in range(prepared.num_scenes):
+            counted = our_counts[s] > 0
+            weights = our_counts[s][counted] / our_counts[s].sum()
+            mean = np.exp((weights * np.log(ours[s][counted].astype(np.float64))).sum())
+            assert mean == pytest.approx(float(got[field][s]), rel=1e-6), (s, field)
 
 
 def test_a_plain_training_step_with_x64_off():

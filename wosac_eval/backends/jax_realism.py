@@ -53,7 +53,9 @@ from wosac_eval.features import metric_features as mf
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
-from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values
+from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
+from wosac_eval.metrics.scenario_metrics import (SCENARIO_FIELDS, metric_log_likelihoods, metric_values,
+                                                 per_object_likelihoods)
 
 _F = np.float32
 _POSITIONS = ("x", "y", "z", "heading")
@@ -96,10 +98,19 @@ class Realism(Mapping):
     Attributes:
       metrics: every `SimAgentMetrics` field (`metrics.scenario_metrics.SCENARIO_FIELDS`) -> array.
       mode: "exact" or "float32" (see the module).
+      per_object: with `realism(..., per_object=True)`, every likelihood field -> float32
+        `(num_scenes, max_agents)` in the rollouts' column order (`prepared.sim_agent_ids`): each
+        evaluated object's likelihood (`scenario_metrics.per_object_likelihoods`), NaN in the other
+        columns; else None.
+      per_object_counts: the same fields -> int32 `(num_scenes, max_agents)`: each object's counted
+        samples, 0 in the other columns (the scene's field is the count-weighted geometric mean of
+        `per_object`); else None.
     """
 
     metrics: dict
     mode: str
+    per_object: dict | None = None
+    per_object_counts: dict | None = None
 
     def __getitem__(self, name):
         return self.metrics[name]
@@ -111,11 +122,12 @@ class Realism(Mapping):
         return len(self.metrics)
 
     def tree_flatten(self):
-        return (self.metrics,), (self.mode,)
+        return (self.metrics, self.per_object, self.per_object_counts), (self.mode,)
 
     @classmethod
     def tree_unflatten(cls, aux, children):
-        return cls(children[0], *aux)
+        metrics, per_object, counts = children
+        return cls(metrics, *aux, per_object=per_object, per_object_counts=counts)
 
 
 @jax.tree_util.register_pytree_node_class
@@ -343,15 +355,38 @@ def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLay
     return {f: values[f] for f in SCENARIO_FIELDS}
 
 
+def _scene_realism_per_object(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict,
+                              rollouts: dict, host: HostSearches | None):
+    """`_scene_realism`'s fields, and each likelihood field per object in the rollouts' columns:
+    (fields, {field: float32 `(max_agents,)`}, {field: int32 `(max_agents,)`}); one set of log-likelihoods."""
+    both = _scene_features(spec, layout, a, rollouts, host)
+    log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
+    lls = metric_log_likelihoods(config, log, sim, a["evaluated"])
+    values = metric_values(config, log, sim, lls, object_mask=a["evaluated"])
+    per_object = per_object_likelihoods(config, log, sim, lls, object_mask=a["evaluated"])
+    max_agents = rollouts["x"].shape[1]
+    # Evaluated rows to their users' columns; other rows to the dropped column `max_agents`.
+    rows = jnp.where(a["evaluated"], a["columns"][: layout.num_evaluated], max_agents)
+
+    def to_columns(v, fill):
+        return jnp.full((max_agents + 1,), fill, v.dtype).at[rows].set(v)[:max_agents]
+
+    return ({f: values[f] for f in SCENARIO_FIELDS},
+            {f: to_columns(per_object[f][0], np.nan) for f in LIKELIHOOD_FIELDS},
+            {f: to_columns(per_object[f][1], 0) for f in LIKELIHOOD_FIELDS})
+
+
 # Bounded: a function holds its scene set's host searches (maps) while it is cached.
 @functools.lru_cache(maxsize=32)
-def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None):
+def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None,
+                per_object: bool = False):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
+    scene = _scene_realism_per_object if per_object else _scene_realism
 
     def one(a, rollouts):
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
-            return _scene_realism(config, spec, layout, a, rollouts, host)
+            return scene(config, spec, layout, a, rollouts, host)
 
     return jax.jit(jax.vmap(one))
 
@@ -380,7 +415,7 @@ def _check_rollouts(prepared: PreparedScenes, fields: dict) -> None:
 
 
 def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None,
-            mode: str | None = None) -> Realism:
+            mode: str | None = None, per_object: bool = False) -> Realism:
     """Every `SimAgentMetrics` field of every scene, from rollouts on the device.
 
     Args:
@@ -390,6 +425,8 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
         JAX arrays, numpy arrays or any `__dlpack__` array on JAX's device.
       length, width, height: the submitted box sizes, same shape (scenario gen only, required there).
       mode: "float32", "exact" or None (the trace's: "exact" under x64, else "float32"); see the module.
+      per_object: also each evaluated object's likelihoods and their counts (`Realism.per_object`,
+        `Realism.per_object_counts`), from the same log-likelihoods (another compiled program).
     Returns:
       a `Realism`: field name -> `(num_scenes,)` device array, float32 (the meta-metric float64 in
       exact mode, as `score_scenario` returns it before rounding to float), and the mode.
@@ -398,8 +435,13 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
     mode = resolve_mode(mode)
     fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     run = functools.partial(_realism_fn, prepared.config, prepared.challenge, mode=mode, host=prepared.host_searches)
+    if per_object:
+        run = functools.partial(run, per_object=True)
     parts = [run(layout)(arrays, _take_scenes(fields, indices))
              for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
+    if per_object:
+        metrics, values, counts = _in_scene_order(prepared, parts)
+        return Realism(metrics, mode, per_object=values, per_object_counts=counts)
     return Realism(_in_scene_order(prepared, parts), mode)
 
 

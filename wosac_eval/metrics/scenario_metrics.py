@@ -132,6 +132,39 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     return out
 
 
+def per_object_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
+                           log_likelihoods: dict | None = None, object_mask=None) -> dict:
+    """Each likelihood field per evaluated object, and the weight it has in the scene's field; numpy or JAX.
+
+    The scene's field is exp(the mean log-likelihood over its counted samples) (`metric_values`, as the
+    official `_reduce_average_with_validity` / `reduce_mean`), so grouped by object it is exactly the
+    count-weighted geometric mean of exp(each object's mean log-likelihood over its own counted samples):
+    exp(sum_i n_i m_i / sum_i n_i) = prod_i exp(m_i) ** (n_i / sum_i n_i). A time series counts the
+    object's steps under the metric's mask (`validity_masks`); an indicator one sample per object.
+
+    log_likelihoods, object_mask: as for `metric_values`.
+    Returns:
+      likelihood field -> (likelihood float32 `(num_evaluated,)`, count int32 `(num_evaluated,)`):
+      NaN and 0 for an object with no counted sample (a padded row; time to collision and a
+      non-vehicle; an object whose log has no valid step under the mask).
+    """
+    xp = array_namespace(log.valid, sim.linear_speed)
+    wide = wide_float(xp)  # float64, except in JAX's float32 precision
+    lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
+    out = {}
+    for metric in METRICS:
+        ll, mask = lls[metric.name]
+        if mask is None:  # an indicator: the object's own log-likelihood, one sample
+            count = (xp.ones(ll.shape, xp.int32) if object_mask is None else object_mask.astype(xp.int32))
+            mean = ll.astype(wide)
+        else:
+            count = mask.sum(axis=-1).astype(xp.int32)
+            total = _padded_sum(xp.where(mask, ll, _F(0)).astype(wide), -1, wide)
+            mean = total / xp.maximum(count, 1).astype(wide)
+        out[metric.output] = (xp.where(count > 0, xp.exp(mean), wide(np.nan)).astype(_F), count)
+    return out
+
+
 def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
                      log_likelihoods: dict | None = None) -> dict[str, float]:
     """The official per-scenario metrics from log and simulated features, as floats."""

@@ -126,6 +126,12 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
       analysis: add the scene's criticality (without rarity), the SDC's driving scores and the
         metrics per object type (`scenario_analysis`), as `score_submission` does.
     """
+    config, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return _row(config, arrays, rollout, log, sim, context, analysis)
+
+
+def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
+    """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
     check_backend(backend)
     challenge = challenges.as_challenge(challenge)
     config = resolve_config(config, challenge)
@@ -139,7 +145,20 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
             log, sim = scenario_features(arrays, rollout, context, challenge=challenge)
     except (ValueError, KeyError) as error:
         raise unscorable(arrays.scenario_id, error) from error
-    return _row(config, arrays, rollout, log, sim, context, analysis)
+    return config, arrays, rollout, context, log, sim
+
+
+def score_scenario_per_object(scenario: scenario_pb2.Scenario | ScenarioArrays,
+                              rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+                              config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
+                              backend: str = "numpy"):
+    """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
+    `metrics.per_object.PerObjectMetrics` (likelihoods and their weights per object, each rollout's
+    collision, off-road and red-light flags and first steps)."""
+    from wosac_eval.metrics.per_object import per_object_metrics
+
+    config, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return per_object_metrics(config, log, sim)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,22 @@
+"""A client of the wosac-server scoring service (server/), on the standard library's HTTP alone.
+
+  submit(path, server=URL, key=KEY, method=NAME, challenge="sim_agents", config=None, publish=False,
+         allow_partial=False, wait=False, output=None, ...) -> the submission's status
+      A resumable, chunked upload that survives interruptions (run it again: it goes on from the
+      server's offset), retried with backoff; with wait=True, followed to its result.
+  follow(submission_id, server=URL, key=KEY, output=None) -> the final status with its result
+  SubmitError and its kinds: SubmissionRefused (4xx: .status, .detail), SubmissionFailed (the job
+  failed: .status), ServerUnavailable (past the retry budget), ProtocolError; ArgumentError (a
+  ValueError) for bad arguments, raised before anything is sent.
+  RetryPolicy(attempts, base_s, cap_s, max_wait_s): how long each request is retried.
+
+`wosac-eval submit` is this function on the command line.
+"""
+from __future__ import annotations
+
+from wosac_eval.client.transport import (ProtocolError, RetryPolicy, ServerUnavailable, SubmissionFailed,
+                                         SubmissionRefused, SubmitError)
+from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, follow, submit
+
+__all__ = ["DEFAULT_CHUNK_BYTES", "KEY_ENV", "ArgumentError", "ProtocolError", "RetryPolicy", "ServerUnavailable",
+           "SubmissionFailed", "SubmissionRefused", "SubmitError", "follow", "submit"]

@@ -9,18 +9,46 @@ reads and writes the job store.
 """
 from __future__ import annotations
 
+import asyncio
+import contextlib
+import logging
 import sys
 from contextlib import asynccontextmanager
 
 import anyio
 
-from fastapi import FastAPI
+from fastapi import FastAPI, Request
+from fastapi.concurrency import run_in_threadpool
+from fastapi.responses import JSONResponse
 
+from . import disk
 from .guard import CloseUnreadBodies
 from .routes import public, submissions, uploads
 from .service import Service
 from .settings import Settings, load_settings
 from .web import install_pages
+
+
+log = logging.getLogger("wosac_server.app")
+MAINTENANCE_S = 5.0  # how often upload states a full disk left unrecorded are retried, the reserve remade
+
+
+async def _maintain(svc: Service) -> None:
+    while True:
+        await asyncio.sleep(MAINTENANCE_S)
+        try:
+            await run_in_threadpool(svc.maintain)
+        except Exception as exc:  # noqa: BLE001 - the database or disk may be unwell; the next round retries
+            log.warning("maintenance round failed: %s", exc)
+
+
+async def _disk_full_answer(request: Request, exc: Exception):
+    """Any request that needed space and found none (ENOSPC, EDQUOT, SQLITE_FULL): 507, not 500."""
+    if not disk.is_disk_full(exc):
+        raise exc
+    log.warning("%s %s: the data dir's disk is full (%s)", request.method, request.url.path, exc)
+    return JSONResponse({"detail": disk.FULL_DETAIL}, status_code=507,
+                        headers={"Retry-After": str(disk.RETRY_AFTER_S)})
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -32,7 +60,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         # runnable, the event loop waits its turn for the GIL behind all of them and /healthz stalls.
         anyio.to_thread.current_default_thread_limiter().total_tokens = svc.settings.api_threads
         sys.setswitchinterval(0.001)  # and it waits at most ~1 ms per thread that holds the GIL
+        maintenance = asyncio.create_task(_maintain(svc))
         yield
+        maintenance.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await maintenance
         svc.store.close()
 
     app = FastAPI(
@@ -51,5 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (public, submissions, uploads):
         app.include_router(module.router)
     install_pages(app, svc)
+    for error_type in disk.full_error_types():
+        app.add_exception_handler(error_type, _disk_full_answer)
     app.add_middleware(CloseUnreadBodies)  # an early answer closes its connection: no unread body is waited for
     return app

@@ -216,7 +216,14 @@ class Store:
             except BaseException:
                 conn.execute("ROLLBACK")
                 raise
-            conn.execute("COMMIT")
+            try:
+                conn.execute("COMMIT")
+            except BaseException:
+                # A COMMIT that failed (SQLITE_FULL: the disk is full) leaves the transaction open; the
+                # thread's connection could then never begin another one.
+                if conn.in_transaction:
+                    conn.execute("ROLLBACK")
+                raise
         else:
             self._local.in_tx = True
             try:

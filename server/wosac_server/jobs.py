@@ -239,9 +239,18 @@ def reopen_interrupted_uploads(store: Store) -> int:
                          " AND submission_id IS NULL")
 
 
+def deleting_uploads(store: Store) -> list[str]:
+    """Uploads whose DELETE removed the file but could not drop the row (the disk was full)."""
+    return [r["id"] for r in store.fetchall("SELECT id FROM uploads WHERE state = 'deleting'")]
+
+
+def drop_upload(store: Store, upload_id: str) -> None:
+    store.execute("DELETE FROM uploads WHERE id = ?", (upload_id,))
+
+
 def open_uploads(store: Store, key_id: str) -> int:
-    return store.fetchone("SELECT COUNT(*) AS n FROM uploads WHERE key_id = ? AND submission_id IS NULL",
-                          (key_id,))["n"]
+    return store.fetchone("SELECT COUNT(*) AS n FROM uploads WHERE key_id = ? AND submission_id IS NULL"
+                          " AND state != 'deleting'", (key_id,))["n"]
 
 
 def expired_uploads(store: Store, older_than: float) -> list[dict]:

@@ -65,6 +65,29 @@ class Leaderboard(BaseModel):
     entries: list[LeaderboardEntry]
 
 
+class ResultSummary(BaseModel):
+    """A result document without its per-scenario rows (`scenarios`); its other keys as stored."""
+    model_config = {"extra": "allow"}
+
+    challenge: Challenge
+    config: str
+    num_scenarios: int = Field(description="Rows of the result (scenarios scored); page them with getResultScenarios.")
+    aggregate: dict[str, Any] = Field(description="Every metric field, mean over the scored scenarios.")
+    buckets: dict[str, Any] = Field(description="The bucketed metrics and realism_meta_metric.")
+    skipped: list[dict[str, Any]] = Field(description="Scenarios not scored, with the reason.")
+    validation: dict[str, Any]
+    coverage: dict[str, Any]
+    analysis: dict[str, Any] | None = None
+
+
+class ResultScenarios(BaseModel):
+    """One page of a result's per-scenario rows, in the result's order."""
+    total: int = Field(description="Rows in the whole result.")
+    offset: int = Field(description="Index of the first row of this page.")
+    scenarios: list[dict[str, Any]] = Field(description="Rows offset .. offset+limit-1 (fewer at the end, none "
+                                            "past it).")
+
+
 class UploadStatus(BaseModel):
     upload_id: str
     offset: int = Field(description="Bytes received and stored so far; the next PATCH starts here.")
@@ -77,10 +100,19 @@ def is_partial(coverage: float | None) -> bool:
     return coverage is not None and coverage < 1
 
 
+class DiskHealth(BaseModel):
+    free_bytes: int = Field(description="Free bytes of the data dir's disk.")
+    reserved_bytes: int = Field(description="Promised to open uploads and queued or running jobs, not written yet.")
+    floor_bytes: int = Field(description="Kept free (WOSAC_MIN_FREE_FRACTION, WOSAC_MIN_FREE_BYTES).")
+    refusing_uploads: bool = Field(description="New uploads and chunks get 507 until space is freed.")
+
+
 class Health(BaseModel):
-    status: str
+    status: str = Field(description="ok; degraded while uploads are refused for disk space; error when the "
+                        "database is unreachable (503).")
     database: str
     scenario_shards: int  # the TFRecord files of the scenario set (each holds many scenarios)
+    disk: DiskHealth | None = None
 
 
 def iso(t: float | None) -> str | None:

@@ -9,8 +9,10 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import logging
 import os
 import re
+import shutil
 import threading
 import time
 from pathlib import Path
@@ -26,13 +28,15 @@ from wosac_eval.parse.archive import check_container
 from wosac_eval.parse.shards import NotASubmissionError
 from wosac_eval.parse.errors import ParseError
 
-from . import auth, jobs
+from . import auth, disk, jobs
 from .db import Store
 from .models import status_of
 from .names import display_name, name_key
 from .settings import Settings
 
 ID_PATTERN = r"^[0-9a-f]{32}$"
+
+log = logging.getLogger("wosac_server.service")
 
 bearer = HTTPBearer(auto_error=False, description="An API key from `wosac-server keys create`.")
 
@@ -43,12 +47,26 @@ class Service:
     def __init__(self, settings: Settings):
         self.settings = settings
         settings.ensure_dirs()
+        disk.release_reserve_if_low(settings)  # a full disk: the start-up's database writes come first
         self.store = Store(settings.resolved_db_url)
         self.store.migrate()
         # Bodies of direct uploads cut short by a crash of a previous run: nobody will finish them.
         for orphan in settings.uploads_dir.glob("*.body"):
             orphan.unlink(missing_ok=True)
+        # Decompressed copies that workers of earlier versions kept while scoring; none is made now.
+        shutil.rmtree(settings.data_dir / "spool", ignore_errors=True)
         jobs.reopen_interrupted_uploads(self.store)
+        for upload_id in jobs.deleting_uploads(self.store):  # DELETEs whose database write failed: finish them
+            (settings.uploads_dir / f"{upload_id}.part").unlink(missing_ok=True)
+            jobs.drop_upload(self.store, upload_id)
+        # Upload states a request could not record (the disk was full): (from, to or None to drop the row).
+        self.unsettled: dict[str, tuple[str, str | None]] = {}
+        self._state_lock = threading.Lock()
+        # Bodies of direct uploads being received: temp file -> declared length (their promised bytes).
+        self._receiving: dict[Path, int] = {}
+        # A space check and the promise it grants are one step (two uploads cannot both take the last room).
+        self.space_gate = threading.Lock()
+        disk.restore_reserve(settings, self.disk_state())
         self.limits = settings.input_limits()
         # Job slots and daily bytes held by uploads being received or checked now, granted before any work.
         self.holds = Holds()
@@ -124,8 +142,10 @@ class Service:
         return row
 
     def own_upload(self, key: auth.ApiKey, upload_id: str) -> dict:
+        if self.unsettled:  # states left behind by a full disk are recorded before anyone looks at them
+            self.retry_unsettled()
         row = jobs.get_upload(self.store, upload_id) if re.match(ID_PATTERN, upload_id) else None
-        if row is None or row["key_id"] != key.id:
+        if row is None or row["key_id"] != key.id or row["state"] == "deleting":
             raise HTTPException(404, f"no upload {upload_id!r} for this API key")
         return row
 
@@ -163,7 +183,7 @@ class Service:
         holds' gate, which `accept` also takes to commit a job and drop its hold: every check sees each
         slot once, as a hold or as a job row."""
         with self.holds.gate:
-            self.refuse_early(key, hold.bytes or None)
+            self.refuse_early(key, hold.bytes or None, single=True)
             self.holds.grant(hold)
 
     def _check_quota(self, key: auth.ApiKey, size: int, hold: "Hold | None", upload_id: str | None = None) -> None:
@@ -175,17 +195,36 @@ class Service:
         except auth.QuotaExceeded as exc:
             raise self.quota_error(exc)
 
-    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: "Hold | None" = None) -> int:
-        """Bytes the key may still send: the server's limit, its day's quota less what other uploads hold."""
+    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: "Hold | None" = None,
+                     single: bool = False) -> int:
+        """Bytes the key may still send: the server's limit (of one request's body when `single`), its day's
+        quota less what other uploads hold."""
         held = self.holds.held(key.id, but=hold)[1]
         left = auth.remaining_daily_bytes(self.store, key, exclude_upload=upload_id) - held
-        return max(0, min(self.settings.max_upload_bytes, left))
+        return max(0, min(self._server_limit(single), left))
 
-    def refuse_early(self, key: auth.ApiKey, declared: int | None) -> None:
-        """Quota and size checks before a single body byte is read: of a direct upload (under the gate, by
-        `reserve`), or of a new resumable upload (which takes no job slot before `complete`)."""
-        limit = self.settings.max_upload_bytes
+    def _server_limit(self, single: bool) -> int:
+        if single:
+            return min(self.settings.max_single_upload_bytes, self.settings.max_upload_bytes)
+        return self.settings.max_upload_bytes
+
+    def _single_limit_binds(self, limit: int) -> bool:
+        """Whether a direct upload's `limit` is the single-request one, which a resumable upload escapes."""
+        return self.settings.max_single_upload_bytes < self.settings.max_upload_bytes and \
+            limit == self.settings.max_single_upload_bytes
+
+    def _single_refusal(self, what: str) -> HTTPException:
+        return HTTPException(413, f"{what}, more than one request may carry ({self.settings.max_single_upload_bytes} "
+                             "bytes, WOSAC_MAX_SINGLE_UPLOAD_BYTES); send it with `wosac-eval submit`, which uploads "
+                             "it in resumable chunks")
+
+    def refuse_early(self, key: auth.ApiKey, declared: int | None, single: bool = False) -> None:
+        """Quota and size checks before a single body byte is read: of a direct upload (`single`, under the
+        gate, by `reserve`), or of a new resumable upload (which takes no job slot before `complete`)."""
+        limit = self._server_limit(single)
         if declared is not None and declared > limit:
+            if self._single_limit_binds(limit):
+                raise self._single_refusal(f"the body is {declared} bytes")
             raise HTTPException(413, f"the body is {declared} bytes; this server accepts at most {limit} bytes "
                                 "(WOSAC_MAX_UPLOAD_BYTES)")
         self._check_quota(key, 0, None)
@@ -194,8 +233,89 @@ class Service:
                                 f"{self.upload_limit(key)} bytes left of its daily quota")
 
     def too_large(self, key: auth.ApiKey) -> HTTPException:
-        return HTTPException(413, f"the body exceeds the {self.upload_limit(key)} bytes this key may upload now "
+        """The 413 of a direct upload's body that went past `upload_limit(key, single=True)`."""
+        limit = self.upload_limit(key, single=True)
+        if self._single_limit_binds(limit):
+            return self._single_refusal("the body is larger")
+        return HTTPException(413, f"the body exceeds the {limit} bytes this key may upload now "
                              f"(server limit {self.settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)")
+
+    # -- disk space (see wosac_server.disk) ------------------------------------------------------
+    def disk_state(self) -> disk.DiskState:
+        """The data dir's disk now, with the bytes that open uploads, jobs and bodies in flight still need."""
+        with self._state_lock:
+            bodies = list(self._receiving.items())
+        in_flight = 0
+        for temp, declared in bodies:
+            try:
+                received = temp.stat().st_size
+            except FileNotFoundError:  # just accepted (renamed): its job row counts it now
+                continue
+            in_flight += max(0, declared - received) + disk.job_need_bytes(declared)
+        return disk.measure(self.settings, self.store, in_flight)
+
+    def need_space(self, extra: int = 0) -> None:
+        """507 (with Retry-After) when `extra` more bytes would take the disk past its floor."""
+        state = self.disk_state()
+        if state.room(extra) < 0:
+            raise state.refusal()
+
+    def admit_body(self, temp: Path, declared: int | None) -> None:
+        """Count a direct upload's declared body (and its job's files) as promised while it is received;
+        507 when there is no room. `forget_body` ends it."""
+        declared = declared or 0
+        with self.space_gate:
+            self.need_space(declared + disk.job_need_bytes(declared))
+            with self._state_lock:
+                self._receiving[temp] = declared
+
+    def forget_body(self, temp: Path) -> None:
+        with self._state_lock:
+            self._receiving.pop(temp, None)
+
+    def write_state(self, write, *args):
+        """`write(*args)`, a database write that must not be lost to a full disk: when it fails for space,
+        the reserve file is freed and it is tried once more."""
+        try:
+            return write(*args)
+        except Exception as exc:
+            if not disk.is_disk_full(exc) or not disk.release_reserve(self.settings):
+                raise
+        return write(*args)
+
+    def settle_upload(self, upload_id: str, from_state: str, to_state: str | None) -> None:
+        """End a request's hold on an upload (`to_state` None: drop its row). Never raises: when even the
+        reserve's space is not enough, the move is kept and retried (`retry_unsettled`), so no upload stays
+        `writing`, `completing` or `deleting` once the database can write again."""
+        try:
+            self.write_state(self._settle, upload_id, from_state, to_state)
+        except Exception as exc:  # noqa: BLE001 - the request's own answer must not be replaced by this
+            log.warning("could not record upload %s as %s (%s); retrying in the background",
+                        upload_id, to_state or "deleted", exc)
+            with self._state_lock:
+                self.unsettled[upload_id] = (from_state, to_state)
+
+    def _settle(self, upload_id: str, from_state: str, to_state: str | None) -> None:
+        if to_state is None:
+            jobs.drop_upload(self.store, upload_id)
+        else:
+            jobs.move_upload(self.store, upload_id, from_state, to_state)
+        with self._state_lock:
+            self.unsettled.pop(upload_id, None)
+
+    def retry_unsettled(self) -> None:
+        with self._state_lock:
+            pending = list(self.unsettled.items())
+        for upload_id, (from_state, to_state) in pending:
+            try:
+                self.write_state(self._settle, upload_id, from_state, to_state)
+            except Exception:  # noqa: BLE001 - still no room: the next request or round tries again
+                return
+
+    def maintain(self) -> None:
+        """The API process's periodic round: record what a full disk left unsettled, remake the reserve."""
+        self.retry_unsettled()
+        disk.restore_reserve(self.settings, self.disk_state())
 
     # -- acceptance ------------------------------------------------------------------------------
     def accept(self, key: auth.ApiKey, temp: Path, size: int, *, hold: "Hold", method: str | None, challenge: str,

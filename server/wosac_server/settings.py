@@ -31,7 +31,20 @@ class Settings(BaseModel):
     )
     data_dir: Path = Field(Path("wosac-data"), description="Uploads, results and the SQLite file.")
     db_url: str = Field("", description="sqlite:///path or postgresql://...; default: SQLite in data_dir.")
-    max_upload_bytes: int = Field(16 * GiB, gt=0, description="Largest accepted submission body.")
+    max_upload_bytes: int = Field(64 * GiB, gt=0, description="Largest accepted submission, however sent "
+                                  "(a resumable upload's whole length; WOSAC_MAX_UPLOAD_BYTES).")
+    max_single_upload_bytes: int = Field(16 * GiB, gt=0, description="Largest body of a single-request upload "
+                                         "(POST /v1/submissions; WOSAC_MAX_SINGLE_UPLOAD_BYTES): larger ones go "
+                                         "through /v1/uploads in chunks (`wosac-eval submit`).")
+    # Disk space of data_dir: past the floor new uploads and chunks get 507 (see wosac_server.disk).
+    min_free_fraction: float = Field(0.10, ge=0, lt=1, description="Share of the data dir's disk kept free: "
+                                     "uploads are refused once free space less what open uploads and queued "
+                                     "jobs still need would fall below it (WOSAC_MIN_FREE_FRACTION).")
+    min_free_bytes: int = Field(0, ge=0, description="The same floor in bytes; the larger of the two counts "
+                                "(WOSAC_MIN_FREE_BYTES).")
+    disk_reserve_bytes: int = Field(64 * MiB, ge=0, description="A file of this size kept in the data dir and "
+                                    "deleted when the disk fills, so that the database can still record "
+                                    "upload states (WOSAC_DISK_RESERVE_BYTES; 0: none).")
     workers: int = Field(1, ge=0, le=256, description="Scoring worker processes (0: API only).")
     score_threads: int = Field(1, ge=1, le=256, description="`workers=` passed to score_submission per job.")
     job_time_budget_s: float = Field(6 * 3600.0, gt=0, description="Wall time one scoring attempt may take.")
@@ -41,7 +54,8 @@ class Settings(BaseModel):
     max_attempts: int = Field(3, ge=1, description="Attempts before a job whose workers keep dying fails.")
     default_max_concurrent: int = Field(2, ge=1, description="Per-key running+queued jobs (new keys).")
     default_max_daily: int = Field(50, ge=1, description="Per-key submissions per 24 h (new keys).")
-    default_max_daily_bytes: int = Field(64 * GiB, ge=1, description="Per-key upload bytes per 24 h (new keys).")
+    default_max_daily_bytes: int = Field(128 * GiB, ge=1, description="Per-key upload bytes per 24 h (new keys): "
+                                         "two validation-size submissions and a retry.")
     shutdown_grace_s: float = Field(10.0, gt=0, description="On SIGTERM: wait this long for requests in flight.")
     configs: list[str] = Field(
         default_factory=lambda: ["2025", "2024", "2023", "scenario_gen_2025"],
@@ -58,7 +72,8 @@ class Settings(BaseModel):
 
     # How far an upload may expand (checked at upload, again by the worker before parsing).
     max_shard_bytes: int = Field(4 * GiB, gt=0, description="One shard of a submission, decompressed.")
-    max_decompressed_bytes: int = Field(64 * GiB, gt=0, description="A whole submission, decompressed.")
+    max_decompressed_bytes: int = Field(256 * GiB, gt=0, description="A whole submission, decompressed (read as a "
+                                        "stream, never stored: a 64 GiB upload may expand 1.1-3x).")
     max_compression_ratio: float = Field(100.0, gt=1, description="A compressed upload may expand at most this many "
                                          "times its size...")
     compression_ratio_floor_bytes: int = Field(64 * MiB, gt=0, description="...once past this many bytes.")
@@ -144,9 +159,14 @@ class Settings(BaseModel):
     def results_dir(self) -> Path:
         return self.data_dir / "results"
 
-    def spool_dir(self, submission_id: str) -> Path:
-        """The decompressed members of a job's archive while it is scored (removed when it ends)."""
-        return self.data_dir / "spool" / submission_id
+    def journal_path(self, submission_id: str) -> Path:
+        """The rows of a job's scored scenarios (`score_submission(journal=)`): a retry after its worker
+        died resumes from them; removed when the job ends."""
+        return self.results_dir / f"{submission_id}.journal"
+
+    @property
+    def disk_reserve_path(self) -> Path:
+        return self.data_dir / "disk-reserve"
 
     def scenes_dir(self, submission_id: str) -> Path:
         """Pictures of a scored submission's worst scenes, and their index `scenes.json`."""

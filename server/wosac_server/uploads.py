@@ -13,14 +13,17 @@ from fastapi import HTTPException, Request
 from fastapi.concurrency import run_in_threadpool
 from starlette.requests import ClientDisconnect
 
+from .disk import RETRY_AFTER_S
+
 
 class BodyTooLarge(Exception):
     pass
 
 
 def disk_full(exc: OSError) -> HTTPException:
-    return HTTPException(507, f"the server could not store the upload ({os.strerror(exc.errno or 0)}); "
-                         "retry later (resumable uploads keep what was stored)")
+    return HTTPException(507, f"the server's disk is full ({os.strerror(exc.errno or 0)}); retry later "
+                         "(resumable uploads keep what was stored)",
+                         headers={"Retry-After": str(RETRY_AFTER_S)})
 
 
 async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "wb") -> tuple[int, bool]:

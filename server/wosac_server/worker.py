@@ -67,7 +67,7 @@ from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 
-from . import jobs  # noqa: E402
+from . import disk, jobs, results  # noqa: E402
 from .db import Store  # noqa: E402
 from .settings import Settings, load_settings  # noqa: E402
 
@@ -126,6 +126,74 @@ def limit_this_process(settings: Settings, parent_pid: int) -> None:
         resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))  # SIGXCPU at soft, SIGKILL at hard
 
 
+def journal_rows(path: Path) -> int:
+    """Scenario rows a job's journal holds (complete lines after its header); 0 when there is none."""
+    try:
+        with open(path, "rb") as f:
+            return max(0, sum(1 for line in f if line.endswith(b"\n")) - 1)
+    except FileNotFoundError:
+        return 0
+
+
+class DiskWait:
+    """A worker's wait while the data dir's disk is full: until space is freed, or else a backoff runs out;
+    one log line when it starts and one when it ends (a crash-looping worker would log, and restart,
+    forever). The wait between tries while no space comes back doubles from `min_backoff_s` (default
+    WOSAC_POLL_S) to `max_backoff_s`."""
+
+    def __init__(self, settings: Settings, stopping: Callable[[], bool] = lambda: False,
+                 min_backoff_s: float | None = None, max_backoff_s: float = 30.0):
+        self.settings = settings
+        self.stopping = stopping
+        self.min_backoff_s = settings.poll_s if min_backoff_s is None else min_backoff_s
+        self.max_backoff_s = max_backoff_s
+        self.since: float | None = None
+        self.backoff_s = self.min_backoff_s
+
+    def wait(self, exc: BaseException) -> None:
+        """Sleep until space was freed or the backoff ran out (then the caller tries again)."""
+        if self.since is None:
+            self.since = time.monotonic()
+            self.backoff_s = self.min_backoff_s
+            log.warning("worker %s: the data dir's disk is full (%s); waiting for space", os.getpid(), exc)
+        free = self._free()
+        deadline = time.monotonic() + self.backoff_s
+        while time.monotonic() < deadline and not self.stopping():
+            time.sleep(min(self.settings.poll_s, self.backoff_s, 1.0))
+            if self._free() > free + disk.MIN_FLOOR_BYTES:  # space came back: try again at once
+                break
+        self.backoff_s = min(self.backoff_s * 2, self.max_backoff_s)
+
+    def _free(self) -> int:
+        return shutil.disk_usage(self.settings.data_dir).free
+
+    def recovered(self) -> None:
+        if self.since is not None:
+            log.warning("worker %s: space is back after %.0f s of a full disk; going on", os.getpid(),
+                        time.monotonic() - self.since)
+            self.since = None
+
+    def until_written(self, write: Callable[[], object]):
+        """`write()`, again after each wait while it fails for a full disk (until the worker stops)."""
+        while True:
+            try:
+                result = write()
+            except Exception as exc:
+                if not disk.is_disk_full(exc) or self.stopping():
+                    raise
+                self.wait(exc)
+                continue
+            self.recovered()
+            return result
+
+
+def _disk_full_now(settings: Settings) -> bool:
+    try:
+        return shutil.disk_usage(settings.data_dir).free < disk.MIN_FLOOR_BYTES
+    except OSError:
+        return False
+
+
 def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
     """A job's failure reason from how its scoring process ended without recording an outcome."""
     used = f"peak memory {peak_rss / 2**20:.0f} MiB"
@@ -159,12 +227,15 @@ class _Heartbeat(threading.Thread):
 
     def run(self) -> None:
         w, job_id = self.worker, self.job["id"]
+        failing = False
         while not self.done.wait(w.settings.heartbeat_s):
             if w.stopping or not w.parent_alive():
                 jobs.release(w.store, job_id, w.owner)
                 log.info("worker %s: released job %s on shutdown", os.getpid(), job_id)
                 self.stop_child()
                 return
+            if _disk_full_now(w.settings):
+                self.deadline += w.settings.heartbeat_s  # the job waits for space (DiskWait): not its scoring time
             if time.monotonic() > self.deadline:
                 budget = w.settings.job_time_budget_s
                 jobs.finish_failed(
@@ -176,9 +247,12 @@ class _Heartbeat(threading.Thread):
                 return
             try:
                 renewed = jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s)
-            except Exception as exc:  # database briefly unreachable: try again next beat
-                log.warning("worker %s: could not renew the lease of %s: %s", os.getpid(), job_id, exc)
+            except Exception as exc:  # database briefly unreachable, or its disk full: try again next beat
+                if not failing:  # once per streak: a full disk can last hours
+                    log.warning("worker %s: could not renew the lease of %s: %s", os.getpid(), job_id, exc)
+                failing = True
                 continue
+            failing = False
             if not renewed:
                 row = jobs.get_submission(w.store, job_id)
                 if row is not None and row["state"] in ("done", "failed"):
@@ -200,6 +274,7 @@ class Worker:
         self.owner = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(4)}"
         self.stopping = False
         self._last_upload_sweep = 0.0
+        self.disk_wait = DiskWait(settings, lambda: self.stopping or not self.parent_alive())
 
     def parent_alive(self) -> bool:
         # Re-parented means the supervisor died; stop rather than score unsupervised forever.
@@ -210,7 +285,15 @@ class Worker:
         signal.signal(signal.SIGINT, self._on_term)
         # (A SIGTERM before the line above ended this process: nothing to release yet.)
         while not self.stopping and self.parent_alive():
-            if not self.run_once():
+            try:
+                busy = self.run_once()
+            except Exception as exc:
+                if not disk.is_disk_full(exc):
+                    raise
+                self.disk_wait.wait(exc)  # reaping, claiming or sweeping could not write: wait, not crash-loop
+                continue
+            self.disk_wait.recovered()
+            if not busy:
                 time.sleep(self.settings.poll_s)
 
     def _on_term(self, signum, frame) -> None:
@@ -247,7 +330,12 @@ class Worker:
             try:
                 limit_this_process(settings, worker_pid)
                 self.store = Store(settings.resolved_db_url)
-                self.score_here(job)
+                # It ends with its worker, so it never stops waiting; each try validates the upload again, so
+                # tries come when space was freed, or else rarely.
+                self.disk_wait = DiskWait(settings, min_backoff_s=60.0, max_backoff_s=600.0)
+                # A full disk (journal, result or database writes) is waited out, then the job is scored again
+                # from its journal: what was computed is not lost, and the job is not failed for it.
+                self.disk_wait.until_written(lambda: self.score_here(job))
                 code = 0
             finally:
                 os._exit(code)
@@ -259,12 +347,21 @@ class Worker:
             heartbeat.done.set()
             heartbeat.join()
         peak_rss, cpu_s = usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
-        self.store.execute("UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?",
-                           (peak_rss, cpu_s, job_id))
+        self.disk_wait.until_written(lambda: self.store.execute(
+            "UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?", (peak_rss, cpu_s, job_id)))
         # Still ours and unfinished: the child died before recording an outcome.
         reason = why_child_ended(status, settings, peak_rss)
-        if jobs.finish_failed(self.store, job_id, self.owner, reason):
+        if self.disk_wait.until_written(lambda: jobs.finish_failed(self.store, job_id, self.owner, reason)):
             log.error("worker %s: job %s failed: %s", os.getpid(), job_id, reason)
+        self._drop_journal_if_ended(job_id)
+
+    def _drop_journal_if_ended(self, job_id: str) -> None:
+        """A job done or failed for good needs its journal no more (a re-queued one resumes from it)."""
+        row = jobs.get_submission(self.store, job_id)
+        if row is None or row["state"] in ("done", "failed"):
+            journal = self.settings.journal_path(job_id)
+            journal.unlink(missing_ok=True)
+            journal.with_name(journal.name + ".old").unlink(missing_ok=True)  # one the library set aside
 
     def draw_pictures(self, index: ScenarioIndex, source: SubmissionSource, result: dict, job_id: str) -> None:
         """The job's worst scenes; pictures help, but a drawing problem must not fail a scored job."""
@@ -282,7 +379,11 @@ class Worker:
             now = time.monotonic()
             if done in (0, total) or now - last_write[0] >= 0.5:
                 last_write[0] = now
-                jobs.record_progress(self.store, job_id, self.owner, done, total)
+                try:
+                    jobs.record_progress(self.store, job_id, self.owner, done, total)
+                except Exception as exc:
+                    if not disk.is_disk_full(exc):
+                        raise  # progress is only shown: a full disk must not stop the scoring for it
 
         submission_path = settings.submissions_dir / job["file_name"]
         try:
@@ -293,22 +394,24 @@ class Worker:
                 return
             evaluation = evaluation_of(job, settings)
             index = ScenarioIndex(scenarios)
-            spool = settings.spool_dir(job_id)
-            shutil.rmtree(spool, ignore_errors=True)  # what an earlier, killed attempt left
-            spool.mkdir(parents=True)
-            # One walk of the upload, under the service's limits: validation spools the archive's members,
-            # scoring and the pictures read them from there.
-            try:
-                with SubmissionSource(submission_path, evaluation.limits, spool_dir=spool) as source:
-                    # The same function `wosac-eval score` calls.
-                    result = score_submission(index, source, progress=progress, evaluation=evaluation)
-                    jobs.write_json_atomically(settings.results_dir / f"{job_id}.json", result)
-                    if settings.scene_pictures:
-                        self.draw_pictures(index, source, result, job_id)
-            finally:
-                shutil.rmtree(spool, ignore_errors=True)
+            journal = settings.journal_path(job_id)
+            resumed = journal_rows(journal)
+            if resumed:
+                log.info("worker %s: job %s resumes from its journal: %d scenarios already scored",
+                         os.getpid(), job_id, resumed)
+            # Validation walks the upload under the service's limits and records where each scenario is;
+            # scoring and the pictures stream the archive again rather than keep a decompressed copy on disk.
+            with SubmissionSource(submission_path, evaluation.limits) as source:
+                # The same function `wosac-eval score` calls; finished scenarios go to the journal as they are
+                # scored, so a retry after this process died (or waited out a full disk) skips them.
+                result = score_submission(index, source, progress=progress, evaluation=evaluation, journal=journal)
+                # The summary and the rows apart (results.py): served in bounded memory, however many rows.
+                results.write_result(settings.results_dir, job_id, result)
+                if settings.scene_pictures:
+                    self.draw_pictures(index, source, result, job_id)
+            scored_now = journal_rows(journal) - resumed
             jobs.finish_done(self.store, job_id, self.owner, result)
-            log.info("worker %s: %s done", os.getpid(), job_id)
+            log.info("worker %s: %s done (%d scenarios scored in this attempt)", os.getpid(), job_id, scored_now)
         except InvalidSubmissionError as exc:
             report = getattr(exc, "report", None)
             payload = None
@@ -330,6 +433,8 @@ class Worker:
             jobs.finish_failed(self.store, job_id, self.owner, self._public(
                 f"the scoring engine is unavailable: {exc}", submission_path))
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
+            if disk.is_disk_full(exc):
+                raise  # not the submission's doing: until_written (score_job) waits for space and resumes
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
             jobs.finish_failed(self.store, job_id, self.owner, self._public(
                 f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path))
@@ -339,6 +444,9 @@ class Worker:
         if now - self._last_upload_sweep < 60:
             return
         self._last_upload_sweep = now
+        # Journals of jobs that ended elsewhere (failed by the reaper, or by the time budget).
+        for journal in self.settings.results_dir.glob("*.journal"):
+            self._drop_journal_if_ended(journal.name.split(".")[0])
         for row in jobs.expired_uploads(self.store, now - self.settings.upload_ttl_s):
             part = self.settings.uploads_dir / f"{row['id']}.part"
             part.unlink(missing_ok=True)

@@ -52,6 +52,18 @@ def direct_full_result(scoring_data) -> dict:
     return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.full, "2025")))
 
 
+@pytest.fixture(scope="session")
+def replicated_job(tmp_path_factory) -> tuple[Path, Path, str]:
+    """(scenario shard, a .tar.gz submission of 16 scenarios in 4 shards, its result as `canonical` text):
+    a small multi-scenario job (copies of a golden case), scored directly once."""
+    need_scorer()
+    from support.submissions import replicated_submission
+    from wosac_eval.scoring.submission import score_submission
+
+    scenarios, submission = replicated_submission(tmp_path_factory.mktemp("replicated"), 16, per_shard=4)
+    return scenarios, submission, canonical(score_submission([scenarios], submission, "2025"))
+
+
 def default_scenarios(tmp: Path) -> list[Path]:
     """Scenario shards for servers whose tests never score (workers=0): the shared ones
     when present, else a placeholder file, since `serve` insists on at least one shard."""

@@ -112,6 +112,9 @@ class Server:
                     "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
                     "WOSAC_POLL_S": "0.1", "WOSAC_HEARTBEAT_S": "0.2", "WOSAC_LEASE_S": "1.5",
                     "WOSAC_WORKERS": "1", "WOSAC_SHUTDOWN_GRACE_S": "2", "PYTHONUNBUFFERED": "1",
+                    # Tests must not depend on how full the machine's disk is, nor leave 64 MiB reserve files:
+                    # the disk tests (server_disk_test.py) set these on a filesystem of their own.
+                    "WOSAC_MIN_FREE_FRACTION": "0", "WOSAC_DISK_RESERVE_BYTES": str(2**20),
                     "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
         self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
         self.proc: subprocess.Popen | None = None

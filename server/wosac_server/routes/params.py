@@ -25,7 +25,9 @@ UploadId = Annotated[str, PathParam(description="Upload id (32 hex digits).")]
 # OpenAPI links: which operation can follow which, with the id taken from the answer.
 SUBMISSION_LINKS = {"links": {
     "status": {"operationId": "getSubmission", "parameters": {"submission_id": "$response.body#/id"}},
-    "results": {"operationId": "getResults", "parameters": {"submission_id": "$response.body#/id"}}}}
+    "results": {"operationId": "getResults", "parameters": {"submission_id": "$response.body#/id"}},
+    "resultSummary": {"operationId": "getResultSummary", "parameters": {"submission_id": "$response.body#/id"}},
+    "resultScenarios": {"operationId": "getResultScenarios", "parameters": {"submission_id": "$response.body#/id"}}}}
 UPLOAD_LINKS = {"links": {
     op: {"operationId": op, "parameters": {"upload_id": "$response.body#/upload_id"}}
     for op in ("getUpload", "headUpload", "patchUpload", "completeUpload", "deleteUpload")}}

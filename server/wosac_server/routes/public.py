@@ -5,7 +5,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
 from .. import jobs
-from ..models import Health, Leaderboard, LeaderboardEntry, iso
+from ..models import DiskHealth, Health, Leaderboard, LeaderboardEntry, iso
 from ..service import ServiceDep
 from .params import ChallengeQ, ConfigQ
 
@@ -21,7 +21,15 @@ async def healthz(svc: ServiceDep):
     except Exception as exc:  # the answer must say the DB is down, not crash
         return JSONResponse({"status": "error", "database": f"unreachable: {exc}", "scenario_shards": shards},
                             status_code=503)
-    return Health(status="ok", database="ok", scenario_shards=shards)
+    try:
+        state = svc.disk_state()
+    except OSError:  # the data dir itself is unreadable: uploads fail, status and results may still be served
+        return Health(status="degraded", database="ok", scenario_shards=shards)
+    # Still 200 while uploads are refused: status, results and the leaderboard are served, and a restart
+    # (what a failed health check brings) would free no space.
+    disk = DiskHealth(free_bytes=state.free, reserved_bytes=state.reserved, floor_bytes=state.floor,
+                      refusing_uploads=state.refusing)
+    return Health(status="degraded" if state.refusing else "ok", database="ok", scenario_shards=shards, disk=disk)
 
 
 @router.get("/v1/leaderboard", response_model=Leaderboard, tags=["leaderboard"], operation_id="leaderboard")

@@ -3,8 +3,9 @@
 Create an upload, `PATCH` chunks at the offset the server holds, ask `HEAD`
 for that offset after a dropped connection, then `complete` it into a queued
 submission. An upload's state lives in the database (open, writing, completing,
-complete): every PATCH, complete and DELETE first moves it out of `open` with a
-compare-and-set, so at most one of them works on an upload at a time.
+deleting, complete): every PATCH, complete and DELETE first moves it out of `open` with a
+compare-and-set, so at most one of them works on an upload at a time, and moves it on when it
+ends, even on a full disk (`Service.settle_upload`).
 """
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from fastapi import APIRouter, Header, HTTPException, Request, Response
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
 
-from .. import jobs
+from .. import disk, jobs
 from ..models import SubmissionStatus, UploadStatus
 from ..service import Key, ServiceDep
 from ..uploads import BodyTooLarge, stream_body_to
@@ -23,6 +24,7 @@ from .params import (MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, UPLOAD_LINKS,
                      PartialQ, PublishQ, UploadId)
 
 router = APIRouter(prefix="/v1/uploads", tags=["uploads"])
+DISK_FULL = {"description": "The server's disk is full or past its floor; retry after Retry-After seconds"}
 
 
 def _check_part(part: Path, row: dict) -> None:
@@ -39,7 +41,7 @@ def _headers(row: dict) -> dict[str, str]:
 
 
 @router.post("", status_code=201, response_model=UploadStatus, operation_id="createUpload",
-             responses={201: UPLOAD_LINKS, 413: {"description": "Declared length too large"},
+             responses={201: UPLOAD_LINKS, 413: {"description": "Declared length too large"}, 507: DISK_FULL,
                         429: {"description": "Quota, or too many unfinished uploads"},
                         403: {"description": "Method name owned by another key"}})
 def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None,
@@ -50,16 +52,24 @@ def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents
     method = svc.check_method(key, challenge, method or key.name)
     svc.refuse_early(key, upload_length)
     upload_id = jobs.new_id()
-    (svc.settings.uploads_dir / f"{upload_id}.part").touch()
-    with svc.store.transaction():  # the count and the insert under one write lock
-        held = jobs.open_uploads(svc.store, key.id)
-        if held >= svc.settings.max_open_uploads:
-            (svc.settings.uploads_dir / f"{upload_id}.part").unlink(missing_ok=True)
-            raise HTTPException(429, f"key {key.name!r} has {held} unfinished uploads, its limit "
-                                f"(WOSAC_MAX_OPEN_UPLOADS); complete or DELETE one first")
-        jobs.insert_upload(svc.store, upload_id=upload_id, key_id=key.id, method=method or key.name,
-                           challenge=challenge, config=config, allow_partial=allow_partial, published=publish,
-                           declared_length=upload_length)
+    part = svc.settings.uploads_dir / f"{upload_id}.part"
+    declared = upload_length or 0
+    # The space check and the promise (the row, whose declared bytes count as reserved) as one step.
+    with svc.space_gate:
+        svc.need_space(declared + disk.job_need_bytes(declared))
+        part.touch()
+        try:
+            with svc.store.transaction():  # the count and the insert under one write lock
+                held = jobs.open_uploads(svc.store, key.id)
+                if held >= svc.settings.max_open_uploads:
+                    raise HTTPException(429, f"key {key.name!r} has {held} unfinished uploads, its limit "
+                                        f"(WOSAC_MAX_OPEN_UPLOADS); complete or DELETE one first")
+                jobs.insert_upload(svc.store, upload_id=upload_id, key_id=key.id, method=method or key.name,
+                                   challenge=challenge, config=config, allow_partial=allow_partial,
+                                   published=publish, declared_length=upload_length)
+        except BaseException:
+            part.unlink(missing_ok=True)
+            raise
     body = UploadStatus(upload_id=upload_id, offset=0, length=upload_length).model_dump()
     return JSONResponse(body, status_code=201, headers={"Location": f"/v1/uploads/{upload_id}", "Upload-Offset": "0"})
 
@@ -79,7 +89,7 @@ def get_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
 
 def _busy(row: dict) -> HTTPException:
     """Why an upload cannot take this request now (its state is not `open`)."""
-    if row is None:
+    if row is None or row["state"] == "deleting":
         return HTTPException(404, "this upload is gone (deleted, expired, or refused when completed)")
     if row["submission_id"] is not None:
         return HTTPException(409, "this upload is already complete", headers=_headers(row))
@@ -89,14 +99,18 @@ def _busy(row: dict) -> HTTPException:
 
 @router.patch("/{upload_id}", status_code=204, openapi_extra=OCTET_BODY, operation_id="patchUpload",
               responses={409: {"description": "Upload-Offset does not match, or another request is at work"},
-                         413: {"description": "Chunk would exceed the size limit"}})
+                         413: {"description": "Chunk would exceed the size limit"}, 507: DISK_FULL})
 async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: UploadId,
-                       upload_offset: Annotated[int, Header(ge=0, le=MAX_HEADER_INT)]):
+                       upload_offset: Annotated[int, Header(ge=0, le=MAX_HEADER_INT)],
+                       content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None):
     """Append the body at `Upload-Offset`; answers the new offset in `Upload-Offset`."""
-    await run_in_threadpool(svc.own_upload, key, upload_id)
+    known = await run_in_threadpool(svc.own_upload, key, upload_id)
+    # A declared upload's bytes are promised (reserved) already; an undeclared one's chunk is promised here.
+    await run_in_threadpool(svc.need_space, 0 if known["declared_length"] is not None else content_length or 0)
     # open -> writing, atomically: a PATCH never overlaps another PATCH, a complete or a DELETE.
     if not await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "open", "writing"):
         raise _busy(await run_in_threadpool(jobs.get_upload, svc.store, upload_id))
+    written = 0
     try:
         row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
         offset = row["received_bytes"]
@@ -113,15 +127,20 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
             limit = min(limit, row["declared_length"] - offset)
         try:
             written, _ = await stream_body_to(request, part, max(0, limit), mode="ab")
+            await run_in_threadpool(jobs.set_upload_offset, svc.store, upload_id, offset + written)
         except BodyTooLarge:
-            with open(part, "ab") as f:
-                f.truncate(offset)
+            _cut(part, offset)
             raise HTTPException(413, f"this chunk would take the upload past its limit ({offset + max(0, limit)} "
                                 "bytes: declared Upload-Length, the server's WOSAC_MAX_UPLOAD_BYTES or the key's "
                                 "daily quota)", headers=_headers(row))
-        await run_in_threadpool(jobs.set_upload_offset, svc.store, upload_id, offset + written)
+        except BaseException:
+            # Bytes past the committed offset are cut at once: on a full disk their space lets the state
+            # below be recorded.
+            _cut(part, offset)
+            raise
     finally:
-        await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "writing", "open")
+        # Never left `writing`: settle_upload frees the disk reserve, or retries later, when it cannot write.
+        await run_in_threadpool(svc.settle_upload, upload_id, "writing", "open")
     return Response(status_code=204, headers={"Upload-Offset": str(offset + written)})
 
 
@@ -156,12 +175,11 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
                 if exc.status_code not in (429, 403):  # a quota may free up, a name be chosen: keep the bytes
                     outcome = "refused"
                     part.unlink(missing_ok=True)
-                    await run_in_threadpool(svc.store.execute, "DELETE FROM uploads WHERE id = ?", (upload_id,))
                 raise
         outcome = "complete"
     finally:
-        if outcome != "refused":
-            await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "completing", outcome)
+        # "refused": the row goes too. Never left `completing` (see patch_upload).
+        await run_in_threadpool(svc.settle_upload, upload_id, "completing", None if outcome == "refused" else outcome)
     return svc.accepted(sub)
 
 
@@ -171,8 +189,19 @@ def delete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     row = svc.own_upload(key, upload_id)
     if row["submission_id"] is not None:
         raise HTTPException(409, "this upload was completed; it is a submission now")
-    if not jobs.move_upload(svc.store, upload_id, "open", "deleting"):
+    if not svc.write_state(jobs.move_upload, svc.store, upload_id, "open", "deleting"):
         raise _busy(jobs.get_upload(svc.store, upload_id))
+    # The file first: its space is free even when the database cannot drop the row yet (retried later; a
+    # `deleting` upload is gone to every request meanwhile).
     (svc.settings.uploads_dir / f"{upload_id}.part").unlink(missing_ok=True)
-    svc.store.execute("DELETE FROM uploads WHERE id = ?", (upload_id,))
+    svc.settle_upload(upload_id, "deleting", None)
     return Response(status_code=204)
+
+
+def _cut(part: Path, offset: int) -> None:
+    """Drop a part file's bytes past `offset` (the committed ones); shrinking needs no space."""
+    try:
+        with open(part, "ab") as f:
+            f.truncate(offset)
+    except FileNotFoundError:
+        pass

@@ -1,0 +1,102 @@
+"""`benchmarks/full_scale.py` at a small size: the validation-size workload's builder and the paths
+that need no Ray cluster (validate, `wosac-eval score`, the service, an interrupted and resumed
+score), each in its own processes, must agree on the result document.
+
+The workload is built from the real scenes of ../shared (skipped without it) and synthetic ones,
+with the gzip stream stitched from pre-deflated pieces: the archive is also read back here with the
+standard library (tarfile, gzip) and its shards parsed, so a fault of the stitching cannot hide
+behind a reader of this project.
+"""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import tarfile
+
+from support.paths import REPO, require_shared
+from wosac_eval.parse.tfrecord import iter_records
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
+
+SCENES, SHARDS, SYNTHETIC = 48, 3, 4  # 6 base scenes: the 2 real ones and 4 synthetic
+REQUIRED_METADATA = ("account_name", "unique_method_name", "affiliation", "description", "method_link",
+                     "num_model_parameters")
+
+
+def _bench(tmp_path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, str(REPO / "benchmarks" / "full_scale.py"), "--scenes", str(SCENES),
+                           "--shards", str(SHARDS), "--synthetic", str(SYNTHETIC), "--workdir", str(tmp_path / "work"),
+                           "--workers", "2", *args],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+
+
+def _check_workload(build) -> None:
+    """The scenario set and the submission, read with the standard library: official names, every id
+    distinct and the same on both sides, shard k covering scenario shard k, complete metadata."""
+    scenario_ids = []
+    for k in range(SHARDS):
+        path = build / "scenarios" / f"validation.tfrecord-{k:05d}-of-{SHARDS:05d}"
+        ids = [scenario_pb2.Scenario.FromString(r.data).scenario_id for r in iter_records(path)]  # CRCs checked
+        scenario_ids.append(ids)
+    flat = [sid for ids in scenario_ids for sid in ids]
+    assert len(flat) == SCENES and len(set(flat)) == SCENES
+    assert all(re.fullmatch(r"[0-9a-f]{16}", sid) for sid in flat)
+    with tarfile.open(build / "submission.tar.gz", "r:gz") as tar:  # gzip CRC and length checked at its end
+        members = tar.getmembers()
+        assert [m.name for m in members] == [f"submission.binproto-{k:05d}-of-{SHARDS:05d}" for k in range(SHARDS)]
+        for k, member in enumerate(members):
+            shard = sub_pb2.SimAgentsChallengeSubmission.FromString(tar.extractfile(member).read())
+            assert [r.scenario_id for r in shard.scenario_rollouts] == scenario_ids[k]
+            assert all(len(r.joint_scenes) == 32 for r in shard.scenario_rollouts)
+            for field in REQUIRED_METADATA:
+                assert getattr(shard, field), field
+            assert shard.authors and shard.acknowledge_complies_with_closed_loop_requirement
+            assert shard.submission_type == sub_pb2.SimAgentsChallengeSubmission.SIM_AGENTS_SUBMISSION
+            for flag in ("uses_lidar_data", "uses_camera_data", "uses_public_model_pretraining"):
+                assert shard.HasField(flag), flag
+
+
+def test_every_path_gives_the_same_result(tmp_path):
+    require_shared("womd")
+    require_shared("golden")
+    paths = ["validate", "cli", "service", "interrupt"]
+    try:
+        import wosac_server  # noqa: F401
+    except ImportError:
+        paths.remove("service")  # the service's own distribution (pip install ./server) is not installed
+    summary = tmp_path / "summary.json"
+    # Killed at half the scenarios: well before the last chunks, which two workers may finish together.
+    done = _bench(tmp_path, "--paths", ",".join(paths), "--interrupt-at", "0.5", "--json", str(summary))
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+    data = json.loads(summary.read_text())
+    build = data["build"]
+    assert build["scenes"] == SCENES and build["shards"] == SHARDS and not build["reused"]
+    _check_workload(tmp_path / "work" / "build")
+
+    rows = {row["path"]: row for row in data["rows"]}
+    assert set(rows) == set(paths)
+    assert rows["validate"]["ok"], rows["validate"]["note"]
+    assert "valid, 0 error(s), 0 warning(s)" in rows["validate"]["note"]
+    scored = [row for row in rows.values() if "digest" in row]
+    assert rows["cli"]["same"] == "reference"
+    assert {p for p, row in rows.items() if "skipped" not in row} - {"validate"} == {r["path"] for r in scored}
+    for row in scored:
+        assert row["ok"] and row["same"] in ("reference", "yes"), (row["path"], row["same"], row["note"])
+        assert row["digest"]["num_scenarios"] == SCENES and row["digest"]["copies_alike"]
+        assert row["peak_rss"] and all(role["max_mib"] > 0 for role in row["peak_rss"].values())
+    # The real base scene's copies score as the official implementation scored it (golden).
+    golden = json.loads((require_shared("golden") / "golden" /
+                         "637f20cafde22ff8__official_test_submission.json").read_text())
+    assert abs(rows["cli"]["digest"]["base_metametric"]["0"] - golden["metrics"]["2025"]["metametric"]) < 1e-5
+    if "service" in rows:
+        service = rows["service"]["service"]
+        assert service["state"] == "done" and service["published"]
+        assert service["data_dir_peak_bytes"] >= service["upload_bytes"]
+    interrupt = rows["interrupt"]
+    if "skipped" not in interrupt:  # the journal of `wosac-eval score -o` resumes the killed run
+        assert interrupt["interrupt"]["resumed"] and SCENES // 2 <= interrupt["interrupt"]["journaled"] < SCENES
+
+    again = _bench(tmp_path, "--paths", "none", "--json", str(summary))  # the cached workload is reused
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads(summary.read_text())["build"]["reused"]

@@ -40,10 +40,22 @@ rows, buckets, aggregate and the rest, timing fields aside. Copies of one base s
 alike, and the real scenes' copies are checked against the official implementation's golden
 meta-metric. A folder's disk use is its allocated blocks.
 
+`--challenge scenario_gen` does the same for the Scenario Generation challenge (in its own default workdir,
+`full-scale-scenario_gen`): each submission holds 32 rollouts of all 91 steps of every object valid at step
+10, with per-step box sizes, validity and object type, and every path runs with `--challenge scenario_gen`
+(the service's upload and leaderboard, Ray's `score_submission(challenge=...)` alike). Its base pool: the
+synthetic scenes of ../shared/golden/scenario_gen/scenes with their golden submissions (each copy checked
+against the official implementation's `scenario_gen_2025` meta-metric), the two real WOMD scenes with
+baseline rollouts (`log_replay_noise`, `constant_velocity`; there is no golden for them: the official code
+ran out of memory) and `--synthetic` scenes of `wosac_eval.sim` with `idm` rollouts, the rollouts made by
+`wosac_eval.sim.baselines.policy_rollouts(..., challenge="scenario_gen")` (with the per-step `valid` the
+baselines leave out added, all true, as in the golden submissions).
+
 Usage:
   python benchmarks/full_scale.py [--scenes 44097] [--paths validate,cli,service,ray,interrupt]
       [--workdir DIR] [--workers K] [--synthetic 10] [--shards S] [--json summary.json]
   python benchmarks/full_scale.py --scenes 2000 --paths none      # build (or reuse) only
+  python benchmarks/full_scale.py --challenge scenario_gen --scenes 4000 --paths validate,cli,service
 
 Never fills the disk: the build, and each path that writes a copy of the submission (the service),
 first check that at least --disk-margin-gb (default 20) stay free after it, and stop or skip saying so.
@@ -84,6 +96,14 @@ GiB = 1 << 30
 # The real scenes of ../shared/womd and the golden submission used as each one's rollouts.
 REAL_BASES = (("637f20cafde22ff8", "motion_data_one_scenario.tfrecord", "637f20cafde22ff8__official_test_submission"),
               ("ee519cf571686d19", "womd_scenario_input.tfrecord", "ee519cf571686d19__constvel_noise"))
+CHALLENGES = ("sim_agents", "scenario_gen")
+# Scenario Generation: the golden scenes of ../shared/golden/scenario_gen (scene file, golden case), and the
+# baseline policy that makes each real scene's rollouts (no golden case: the official code ran out of memory).
+SG_GOLDEN_BASES = (("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_logreplay_noise05"),
+                   ("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_wild_boxes"),
+                   ("synthetic-11-003-offroad", "synthetic-11-003-offroad__sg_constvel_noise"))
+SG_REAL_POLICIES = ("log_replay_noise", "constant_velocity")  # in the order of REAL_BASES
+SG_CONFIG = "scenario_gen_2025"  # the golden JSON's config name of the challenge's current leaderboard
 
 
 def scenario_id(i: int, seed: int) -> str:
@@ -138,6 +158,7 @@ class Base:
     deflated_tail: bytes = b""
     scenario_head_crc: int = 0
     tail_crc32: int = 0
+    golden: str = ""  # scenario gen: the golden case (../shared/golden/scenario_gen/<golden>.json) of its rollouts
 
     def __post_init__(self) -> None:
         import google_crc32c
@@ -176,9 +197,12 @@ class Base:
         return 5 + len(self.field_header) + len(self.rollouts_head) + 16 + len(self.deflated_tail)
 
     def summary(self) -> dict:
-        return {"name": self.name, "source": self.source, "tracks": self.tracks, "sim_agents": self.sim_agents,
-                "scenario_bytes": self.scenario_bytes, "rollouts_bytes": self.rollouts_bytes,
-                "rollouts_gz_bytes": self.gz_bytes}
+        out = {"name": self.name, "source": self.source, "tracks": self.tracks, "sim_agents": self.sim_agents,
+               "scenario_bytes": self.scenario_bytes, "rollouts_bytes": self.rollouts_bytes,
+               "rollouts_gz_bytes": self.gz_bytes}
+        if self.golden:
+            out["golden"] = self.golden
+        return out
 
 
 def _sim_agents(scenario) -> int:
@@ -186,20 +210,23 @@ def _sim_agents(scenario) -> int:
     return sum(1 for track in scenario.tracks if len(track.states) > t and track.states[t].valid)
 
 
-def _base(name: str, source: str, scenario, rollouts) -> Base:
+def _base(name: str, source: str, scenario, rollouts, golden: str = "") -> Base:
     scenario.scenario_id = PLACEHOLDER.decode()
     rollouts.scenario_id = PLACEHOLDER.decode()
     s_head, s_tail = _split_at_id(scenario.SerializeToString(), f"{name} scenario")
     r_head, r_tail = _split_at_id(rollouts.SerializeToString(), f"{name} rollouts")
-    return Base(name, source, len(scenario.tracks), _sim_agents(scenario), s_head, s_tail, r_head, r_tail)
+    return Base(name, source, len(scenario.tracks), _sim_agents(scenario), s_head, s_tail, r_head, r_tail,
+                golden=golden)
 
 
-def base_pool(synthetic: int, seed: int) -> list[Base]:
+def base_pool(synthetic: int, seed: int, challenge: str = "sim_agents") -> list[Base]:
     """The real scenes with their golden rollouts, then `synthetic` generated scenes with idm rollouts,
     interleaved so that each shard mixes them."""
     from wosac_eval.parse.tfrecord import iter_records
     from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
 
+    if challenge == "scenario_gen":
+        return scenario_gen_pool(synthetic, seed)
     real = []
     for sid, tfrecord, golden in REAL_BASES:
         record = next(iter(iter_records(SHARED / "womd" / tfrecord)))
@@ -226,6 +253,57 @@ def base_pool(synthetic: int, seed: int) -> list[Base]:
     return pool
 
 
+def scenario_gen_pool(synthetic: int, seed: int) -> list[Base]:
+    """Scenario Generation bases: the golden synthetic scenes of ../shared/golden/scenario_gen with their golden
+    submissions, the real scenes with baseline rollouts (SG_REAL_POLICIES) and `synthetic` generated scenes with
+    idm rollouts (91 steps, boxes and types: `policy_rollouts(challenge="scenario_gen")`), interleaved so that
+    each shard mixes them."""
+    from wosac_eval.arrays.messages import rollouts_bytes
+    from wosac_eval.parse.tfrecord import iter_records
+    from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
+    from wosac_eval.sim.baselines import policy_rollouts
+
+    def sg_rollouts(scenario, policy: str):
+        rollouts = sub_pb2.ScenarioRollouts.FromString(
+            rollouts_bytes(policy_rollouts(scenario, policy, seed, "scenario_gen")))
+        # The baselines leave the per-step validity out (the evaluator takes the log's, at step 10); the
+        # challenge's submissions carry it, as the golden ones do: every generated step valid.
+        for scene in rollouts.joint_scenes:
+            for trajectory in scene.simulated_trajectories:
+                if not trajectory.valid:
+                    trajectory.valid.extend([True] * len(trajectory.center_x))
+        return rollouts
+
+    folder = SHARED / "golden" / "scenario_gen"
+    golden = []
+    for scene, case in SG_GOLDEN_BASES:
+        record = next(iter(iter_records(folder / "scenes" / f"{scene}.tfrecord")))
+        scenario = scenario_pb2.Scenario.FromString(record.data)
+        shard = sub_pb2.SimAgentsChallengeSubmission.FromString((folder / f"{case}.binproto").read_bytes())
+        rollouts = next(r for r in shard.scenario_rollouts if r.scenario_id == scenario.scenario_id)
+        golden.append(_base(f"{scene} ({case.split('__')[1]})", "golden", scenario, rollouts, golden=case))
+    real = []
+    for (sid, tfrecord, _), policy in zip(REAL_BASES, SG_REAL_POLICIES):
+        record = next(iter(iter_records(SHARED / "womd" / tfrecord)))
+        scenario = scenario_pb2.Scenario.FromString(record.data)
+        real.append(_base(f"{sid} ({policy})", "womd", scenario, sg_rollouts(scenario, policy)))
+    synth = []
+    if synthetic:
+        from wosac_eval.sim import scenes
+
+        for i in range(synthetic):
+            scenario = scenes.generate_scene(seed, i)
+            name = scenario.scenario_id
+            synth.append(_base(f"{name} (idm)", "synthetic", scenario, sg_rollouts(scenario, "idm")))
+    # golden, real, synthetic, golden, real, synthetic, ...: each kind spread over the cycle
+    pool, kinds = [], [golden, real, synth]
+    cuts = [[round(len(k) * j / 3) for j in range(4)] for k in kinds]
+    for j in range(3):
+        for kind, cut in zip(kinds, cuts):
+            pool += kind[cut[j]:cut[j + 1]]
+    return pool
+
+
 # ---------------------------------------------------------------------------------------------------
 # Writing the workload
 
@@ -247,7 +325,12 @@ class Layout:
         return f"submission.binproto-{k:05d}-of-{self.shards:05d}"
 
 
-def metadata_bytes() -> bytes:
+SG_DESCRIPTION = ("Validation-size Scenario Generation workload of benchmarks/full_scale.py: copies of the golden "
+                  "synthetic scenes with their golden submissions, of real WOMD scenes and of synthetic scenes with "
+                  "baseline rollouts (91 steps, box sizes and object types).")
+
+
+def metadata_bytes(challenge: str = "sim_agents") -> bytes:
     """The submission's metadata fields (every one the challenge requires, and the recommended link)."""
     from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.protos import sim_agents_submission_pb2 as sub_pb2
@@ -256,19 +339,20 @@ def metadata_bytes() -> bytes:
     SubmissionMetadata(
         unique_method_name=METHOD, account_name="full-scale@example.com",
         authors=["wosac-eval benchmark", "A. Nother"], affiliation="wosac-eval",
-        description="Validation-size workload of benchmarks/full_scale.py: copies of real WOMD scenes with their "
-                    "golden rollouts and of synthetic scenes with idm rollouts.",
+        description=SG_DESCRIPTION if challenge == "scenario_gen" else
+        "Validation-size workload of benchmarks/full_scale.py: copies of real WOMD scenes with their "
+        "golden rollouts and of synthetic scenes with idm rollouts.",
         method_link="https://github.com/waymo-research/waymo-open-dataset",
         num_model_parameters="1.5M").fill(message)
     return message.SerializeToString()
 
 
-def predicted_sizes(pool: list[Base], layout: Layout) -> dict:
+def predicted_sizes(pool: list[Base], layout: Layout, challenge: str = "sim_agents") -> dict:
     """Bytes the build writes (exact for the scenario set, within a few kB for the archive)."""
     counts = [0] * len(pool)
     for i in range(len(pool)):
         counts[i] = len(range(i, layout.scenes, len(pool)))
-    meta = len(metadata_bytes())
+    meta = len(metadata_bytes(challenge))
     scen = sum(c * b.record_bytes for c, b in zip(counts, pool))
     raw = sum(c * b.shard_bytes for c, b in zip(counts, pool)) + layout.shards * (meta + 1024)
     gz = sum(c * b.gz_bytes for c, b in zip(counts, pool)) + layout.shards * (600 + meta + 1100) + 20
@@ -318,9 +402,10 @@ class GzipStitcher:
         self.f.write(b"\x01\x00\x00\xff\xff" + struct.pack("<II", self.crc, self.size & 0xFFFFFFFF))
 
 
-def write_submission(pool: list[Base], layout: Layout, path: Path) -> tuple[int, int]:
+def write_submission(pool: list[Base], layout: Layout, path: Path,
+                     challenge: str = "sim_agents") -> tuple[int, int]:
     """The submission .tar.gz; returns (bytes written, bytes of the tar inside)."""
-    meta = metadata_bytes()
+    meta = metadata_bytes(challenge)
     with open(path, "wb", buffering=16 * MiB) as f:
         gz = GzipStitcher(f)
         for k in range(layout.shards):
@@ -344,8 +429,11 @@ def write_submission(pool: list[Base], layout: Layout, path: Path) -> tuple[int,
 def _build_key(args) -> dict:
     from wosac_eval.sim import scenes
 
-    return {"layout_version": LAYOUT_VERSION, "generator_version": scenes.GENERATOR_VERSION,
-            "scenes": args.scenes, "shards": args.shards, "synthetic": args.synthetic, "seed": args.seed}
+    key = {"layout_version": LAYOUT_VERSION, "generator_version": scenes.GENERATOR_VERSION,
+           "scenes": args.scenes, "shards": args.shards, "synthetic": args.synthetic, "seed": args.seed}
+    if args.challenge != "sim_agents":  # a Sim Agents key (and so its cached builds) stays as it was
+        key["challenge"] = args.challenge
+    return key
 
 
 def disk_free(path: Path) -> int:
@@ -384,10 +472,10 @@ def build(args) -> dict:
             return manifest
     old = folder_bytes(out)
     started = time.perf_counter()
-    pool = base_pool(args.synthetic, args.seed)
+    pool = base_pool(args.synthetic, args.seed, args.challenge)
     pool_s = time.perf_counter() - started
     layout = Layout(args.scenes, args.shards, args.seed)
-    predicted = predicted_sizes(pool, layout)
+    predicted = predicted_sizes(pool, layout, args.challenge)
     need = predicted["scenario_bytes"] + predicted["submission_bytes"]
     free = disk_free(args.workdir) + old
     if free - need < args.disk_margin_gb * GiB:
@@ -400,7 +488,7 @@ def build(args) -> dict:
     scenario_bytes = write_scenarios(pool, layout, out / "scenarios")
     scenarios_s = time.perf_counter() - t
     t = time.perf_counter()
-    submission_bytes, tar_bytes = write_submission(pool, layout, out / "submission.tar.gz")
+    submission_bytes, tar_bytes = write_submission(pool, layout, out / "submission.tar.gz", args.challenge)
     submission_s = time.perf_counter() - t
     manifest = {"key": key, "bases": [b.summary() for b in pool], "scenes": args.scenes, "shards": args.shards,
                 "seed": args.seed, "scenario_bytes": scenario_bytes, "submission_bytes": submission_bytes,
@@ -417,7 +505,8 @@ def print_build(manifest: dict, workdir: Path) -> None:
         f"built in {manifest['pool_s'] + manifest['scenarios_s'] + manifest['submission_s']:.1f} s: base pool "
         f"{manifest['pool_s']:.1f} s, scenario set {manifest['scenarios_s']:.1f} s, "
         f"submission {manifest['submission_s']:.1f} s")
-    print(f"workload: {n} scenarios in {manifest['shards']} shards ({workdir / 'build'}), {how}")
+    what = " of Scenario Generation" if manifest["key"].get("challenge") == "scenario_gen" else ""
+    print(f"workload: {n} scenarios{what} in {manifest['shards']} shards ({workdir / 'build'}), {how}")
     print(f"  {'base scene (each a share of 1/%d of the copies)' % len(bases):58s} {'tracks':>6s} {'agents':>6s} "
           f"{'scenario kB':>11s} {'rollouts kB':>11s} {'in .tar.gz':>10s}")
     for b in bases:
@@ -677,9 +766,9 @@ def _paths(build_dir: Path) -> tuple[Path, Path]:
 def path_validate(ctx) -> dict:
     scenarios, submission = _paths(ctx.build)
     cmd = _cli("validate", "--scenarios", str(scenarios), "--submission", str(submission), "--json",
-               "--workers", str(ctx.workers))
+               "--workers", str(ctx.workers), *ctx.challenge_args)
     run = run_watched(cmd, ctx.runs, "validate", env=_env())
-    row = ctx.row("validate", f"wosac-eval validate --workers {ctx.workers}", run,
+    row = ctx.row("validate", f"wosac-eval validate --workers {ctx.workers}{ctx.challenge_flag}", run,
                   run.watch.peaks(by_depth("main", "workers")), disk=0)
     try:
         report = json.loads(run.stdout)
@@ -699,9 +788,9 @@ def path_cli(ctx) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
     cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
-               "-o", str(out))
+               "-o", str(out), *ctx.challenge_args)
     run = run_watched(cmd, ctx.runs, "cli", env=_env(), dirs={"out": out.parent})
-    row = ctx.row("cli", f"wosac-eval score --workers {ctx.workers} -o R.json", run,
+    row = ctx.row("cli", f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json", run,
                   run.watch.peaks(by_depth("main", "workers")), disk=run.watch.disk_peak["out"])
     ctx.cli_wall = run.wall_s if run.rc == 0 else None
     if out.exists():
@@ -729,7 +818,7 @@ def path_interrupt(ctx) -> dict:
     out = folder / "result.json"
     journal = folder / "result.json.journal"
     cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
-               "-o", str(out))
+               "-o", str(out), *ctx.challenge_args)
     target = max(1, min(ctx.layout.scenes - 1, math.ceil(ctx.interrupt_at * ctx.layout.scenes)))
     state = {"offset": 0, "rows": -1, "killed_at": None}  # rows: lines after the journal's header
 
@@ -774,6 +863,7 @@ def path_interrupt(ctx) -> dict:
 _UPLOAD_CHILD = r"""
 import json, sys, time
 path, url, key, method, chunk, state_dir = sys.argv[1:5] + [int(sys.argv[5]), sys.argv[6]]
+challenge = sys.argv[7] if len(sys.argv) > 7 else "sim_agents"
 started = time.perf_counter()
 try:
     from wosac_eval.client import submit
@@ -783,7 +873,7 @@ if submit is not None:
     import inspect
     known = inspect.signature(submit).parameters  # the client's own defaults otherwise (chunk size...)
     extra = {k: v for k, v in {"state_dir": state_dir, "new": True}.items() if k in known}
-    got = submit(path, server=url, key=key, method=method, challenge="sim_agents", publish=True, wait=False, **extra)
+    got = submit(path, server=url, key=key, method=method, challenge=challenge, publish=True, wait=False, **extra)
     sid = None
     for name in ("id", "submission_id"):
         sid = sid or (got.get(name) if isinstance(got, dict) else getattr(got, name, None))
@@ -793,7 +883,7 @@ import os, httpx
 size = os.path.getsize(path)
 headers = {"Authorization": f"Bearer {key}"}
 with httpx.Client(base_url=url, headers=headers, timeout=httpx.Timeout(60.0, read=3600.0)) as http:
-    made = http.post("/v1/uploads", params={"challenge": "sim_agents", "method": method, "publish": "true"},
+    made = http.post("/v1/uploads", params={"challenge": challenge, "method": method, "publish": "true"},
                      headers={"Upload-Length": str(size)})
     made.raise_for_status()
     up = made.json()["upload_id"]
@@ -842,7 +932,8 @@ def path_service(ctx) -> dict:
         child_dir.mkdir()
         t0 = time.perf_counter()
         up = run_watched([PYTHON, "-c", _UPLOAD_CHILD, str(submission), server.url, key, method,
-                          str(64 * MiB), str(child_dir / "client-state")], child_dir, "upload", env=_env())
+                          str(64 * MiB), str(child_dir / "client-state"), ctx.challenge], child_dir, "upload",
+                         env=_env())
         upload_wall = time.perf_counter() - t0
         if up.rc != 0:
             raise RuntimeError(f"upload failed (exit {up.rc}): {up.stderr[-2000:]}")
@@ -861,7 +952,7 @@ def path_service(ctx) -> dict:
                     answer.raise_for_status()
                     for part in answer.iter_bytes(MiB):
                         f.write(part)
-            board = httpx.get(server.url + "/v1/leaderboard", params={"challenge": "sim_agents"}, timeout=60).json()
+            board = httpx.get(server.url + "/v1/leaderboard", params={"challenge": ctx.challenge}, timeout=60).json()
         watch.stop()
         data_peak, data_end = watch.disk_peak["data"], folder_bytes(data_dir)
         data_parts = {p.name: folder_bytes(p) for p in sorted(data_dir.iterdir())}
@@ -871,7 +962,8 @@ def path_service(ctx) -> dict:
                   up.cpu_s + (status.get("cpu_s") or 0.0))
         roles = run.watch.peaks(by_depth("api", "worker", "job", "job pool"))
         roles["upload client"] = up.watch.peaks(by_depth("client"))["client"]
-        row = ctx.row("service", f"upload + score (1 worker, {ctx.workers} processes per job)", run, roles,
+        row = ctx.row("service", f"upload + score (1 worker, {ctx.workers} processes per job"
+                      f"{', challenge=' + ctx.challenge if ctx.challenge_args else ''})", run, roles,
                       disk=data_peak)
         row["note"] = (f"{sent['client']}: upload {upload_wall:.1f} s ({upload / MiB / upload_wall:.0f} MiB/s), "
                        f"then {scored_wall:.1f} s to {status['state']}"
@@ -908,6 +1000,7 @@ _RAY_CHILD = r"""
 import json, os, sys, threading, time
 scenarios, submission, out = sys.argv[1:4]
 nodes_n, kill_at = int(sys.argv[4]), float(sys.argv[5])
+challenge = sys.argv[6] if len(sys.argv) > 6 else "sim_agents"
 started = time.perf_counter()
 import ray
 from ray.cluster_utils import Cluster
@@ -927,7 +1020,7 @@ def progress(done, total):
 def score():
     try:
         state["result"] = score_submission([scenarios], submission, engine="ray", ray_address=c.address,
-                                           progress=progress)
+                                           progress=progress, challenge=challenge)
     except BaseException as error:
         state["error"] = repr(error)
     reached.set()
@@ -993,7 +1086,7 @@ def path_ray(ctx) -> dict:
     ray_tmp = Path(tempfile.mkdtemp(prefix="wrfs", dir="/tmp"))  # short: Ray's socket paths live under it
     nodes = ctx.workers + 1
     inner = (f"ip link set lo up && {PYTHON} {script} {scenarios} {submission} {out} {nodes} "
-             f"{ctx.ray_kill_at}; exit $?")
+             f"{ctx.ray_kill_at}{' ' + ctx.challenge if ctx.challenge_args else ''}; exit $?")
     env = {**_env(), "RAY_TMPDIR": str(ray_tmp), "RAY_DISABLE_USAGE_STATS": "1"}
     env.pop("RAY_ADDRESS", None)
     try:
@@ -1003,7 +1096,8 @@ def path_ray(ctx) -> dict:
     finally:
         shutil.rmtree(ray_tmp, ignore_errors=True)
     disk = run.watch.disk_peak["ray"] + run.watch.disk_peak["out"]
-    row = ctx.row("ray", f"Cluster: head + {nodes} nodes x 1 CPU, one killed", run, run.watch.peaks(_ray_role),
+    row = ctx.row("ray", f"Cluster: head + {nodes} nodes x 1 CPU, one killed{ctx.challenge_flag}", run,
+                  run.watch.peaks(_ray_role),
                   disk=disk)
     row["processes"] = run.watch.listing(_ray_role)
     try:
@@ -1032,6 +1126,10 @@ class Context:
         self.runs = args.workdir / "runs"
         self.runs.mkdir(parents=True, exist_ok=True)
         self.manifest = manifest
+        self.challenge = args.challenge
+        # the commands' flag: none for Sim Agents (each command's default), so its commands stay as they were
+        self.challenge_args = [] if args.challenge == "sim_agents" else ["--challenge", args.challenge]
+        self.challenge_flag = "".join(" " + a for a in self.challenge_args)
         self.layout = Layout(manifest["scenes"], manifest["shards"], manifest["seed"])
         self.pool_size = len(manifest["bases"])
         self.workers = args.workers
@@ -1099,8 +1197,15 @@ def _fmt_peaks(peaks: dict) -> str:
 
 
 def golden_metametrics(manifest: dict) -> dict[int, float]:
-    """{base index: the official implementation's 2025 meta-metric} of the real bases (../shared/golden)."""
+    """{base index: the official implementation's 2025 meta-metric} of the real bases (../shared/golden); for
+    Scenario Generation, its `scenario_gen_2025` meta-metric of the golden bases (../shared/golden/scenario_gen)."""
     out = {}
+    if manifest["key"].get("challenge") == "scenario_gen":
+        for b, base in enumerate(manifest["bases"]):
+            path = SHARED / "golden" / "scenario_gen" / f"{base.get('golden')}.json"
+            if base.get("golden") and path.exists():
+                out[b] = json.loads(path.read_text())["metrics"][SG_CONFIG]["metametric"]
+        return out
     for b, base in enumerate(manifest["bases"]):
         for sid, _, golden in REAL_BASES:
             if base["name"].startswith(sid):
@@ -1144,12 +1249,15 @@ def print_table(rows: list[dict], manifest: dict) -> None:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--challenge", choices=CHALLENGES, default="sim_agents",
+                   help="the submission's challenge, and every path's --challenge (default %(default)s)")
     p.add_argument("--scenes", type=int, default=VALIDATION_SET, help="scenarios (default %(default)s)")
     p.add_argument("--paths", default=",".join(ALL_PATHS),
                    help=f"comma-separated, run in this order (default {','.join(ALL_PATHS)}); 'none': build only")
-    p.add_argument("--workdir", type=Path,
-                   default=Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "wosac-eval" / "full-scale",
-                   help="where the workload is cached and the paths write (default %(default)s)")
+    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "wosac-eval"
+    p.add_argument("--workdir", type=Path, default=None,
+                   help=f"where the workload is cached and the paths write (default {cache / 'full-scale'}; "
+                        f"with --challenge scenario_gen, {cache / 'full-scale-scenario_gen'})")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                    help="processes per path: validate and score --workers, the service's processes per job, "
                         "the Ray cluster's nodes (plus one, the node killed) (default: the cores, %(default)s)")
@@ -1173,6 +1281,11 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if not ((SHARED / "womd").is_dir() and (SHARED / "golden").is_dir()):
         sys.exit(f"needs the reference data in {SHARED} (womd/ and golden/): the real base scenes")
+    if args.challenge == "scenario_gen" and not (SHARED / "golden" / "scenario_gen" / "scenes").is_dir():
+        sys.exit(f"needs the reference data in {SHARED / 'golden' / 'scenario_gen'} (its scenes/ and golden "
+                 f"submissions): the golden base scenes of --challenge scenario_gen")
+    if args.workdir is None:
+        args.workdir = cache / ("full-scale" if args.challenge == "sim_agents" else f"full-scale-{args.challenge}")
     if args.scenes < 1 or args.workers < 1 or args.synthetic < 0:
         sys.exit("--scenes and --workers must be >= 1, --synthetic >= 0")
     paths = [] if args.paths == "none" else [s.strip() for s in args.paths.split(",") if s.strip()]

@@ -2,6 +2,9 @@
 that need no Ray cluster (validate, `wosac-eval score`, the service, an interrupted and resumed
 score), each in its own processes, must agree on the result document.
 
+A second case builds the Scenario Generation workload (`--challenge scenario_gen`: 91 steps of every
+object valid at step 10, with box sizes, validity and types) and runs validate and score on it.
+
 The workload is built from the real scenes of ../shared (skipped without it) and synthetic ones,
 with the gzip stream stitched from pre-deflated pieces: the archive is also read back here with the
 standard library (tarfile, gzip) and its shards parsed, so a fault of the stitching cannot hide
@@ -100,3 +103,68 @@ def test_every_path_gives_the_same_result(tmp_path):
     again = _bench(tmp_path, "--paths", "none", "--json", str(summary))  # the cached workload is reused
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads(summary.read_text())["build"]["reused"]
+
+
+SG_SCENES, SG_SHARDS, SG_SYNTHETIC = 24, 2, 2  # 7 base scenes: 3 golden, 2 real, 2 synthetic
+
+
+def test_scenario_gen_workload_validates_and_scores_as_the_golden(tmp_path):
+    """`--challenge scenario_gen`: each copy a full-scene SG submission (all 91 steps of every object valid
+    at step 10, with box sizes and types), valid under the challenge's rules, scored by `wosac-eval score
+    --challenge scenario_gen`, with the golden scenes' copies scoring as the official implementation did."""
+    require_shared("womd")
+    shared = require_shared("golden/scenario_gen/scenes")
+    summary = tmp_path / "summary.json"
+    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / "full_scale.py"), "--challenge", "scenario_gen",
+                           "--scenes", str(SG_SCENES), "--shards", str(SG_SHARDS), "--synthetic", str(SG_SYNTHETIC),
+                           "--workdir", str(tmp_path / "work"), "--workers", "2", "--paths", "validate,cli",
+                           "--json", str(summary)],
+                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
+    data = json.loads(summary.read_text())
+    build = data["build"]
+    assert build["key"]["challenge"] == "scenario_gen" and build["scenes"] == SG_SCENES
+    bases = build["bases"]
+    assert [b["source"] for b in bases].count("golden") == 3 and [b["source"] for b in bases].count("womd") == 2
+    assert len(bases) == 3 + 2 + SG_SYNTHETIC
+
+    # The archive, read with the standard library: every object valid at step 10, 91 steps, boxes and types.
+    work = tmp_path / "work" / "build"
+    scenarios = {}
+    for k in range(SG_SHARDS):
+        for record in iter_records(work / "scenarios" / f"validation.tfrecord-{k:05d}-of-{SG_SHARDS:05d}"):
+            scenario = scenario_pb2.Scenario.FromString(record.data)
+            scenarios[scenario.scenario_id] = scenario
+    assert len(scenarios) == SG_SCENES and all(re.fullmatch(r"[0-9a-f]{16}", sid) for sid in scenarios)
+    seen = []
+    with tarfile.open(work / "submission.tar.gz", "r:gz") as tar:
+        for k, member in enumerate(tar.getmembers()):
+            assert member.name == f"submission.binproto-{k:05d}-of-{SG_SHARDS:05d}"
+            shard = sub_pb2.SimAgentsChallengeSubmission.FromString(tar.extractfile(member).read())
+            assert shard.unique_method_name and shard.account_name and shard.description
+            for rollouts in shard.scenario_rollouts:
+                seen.append(rollouts.scenario_id)
+                scenario = scenarios[rollouts.scenario_id]
+                valid_now = sorted(t.id for t in scenario.tracks if t.states[10].valid)
+                assert len(rollouts.joint_scenes) == 32
+                for scene in rollouts.joint_scenes[:2]:
+                    assert sorted(t.object_id for t in scene.simulated_trajectories) == valid_now
+                    for t in scene.simulated_trajectories:
+                        assert len(t.center_x) == len(t.length) == len(t.width) == len(t.height) == len(t.valid) == 91
+                        assert t.HasField("object_type") and all(t.valid)
+    assert sorted(seen) == sorted(scenarios)
+
+    rows = {row["path"]: row for row in data["rows"]}
+    assert rows["validate"]["ok"], rows["validate"]["note"]
+    assert "--challenge scenario_gen" in rows["validate"]["what"]
+    assert "valid, 0 error(s), 0 warning(s)" in rows["validate"]["note"]
+    cli = rows["cli"]
+    assert cli["ok"] and cli["same"] == "reference", cli["note"]
+    digest = cli["digest"]
+    assert digest["num_scenarios"] == SG_SCENES and digest["copies_alike"]
+    # The golden scenes' copies score as the official implementation scored them (scenario_gen_2025).
+    for b, base in enumerate(bases):
+        if base.get("golden"):
+            golden = json.loads((shared / "golden" / "scenario_gen" / f"{base['golden']}.json").read_text())
+            official = golden["metrics"]["scenario_gen_2025"]["metametric"]
+            assert abs(digest["base_metametric"][str(b)] - official) < 1e-5, (base["name"], official)

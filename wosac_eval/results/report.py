@@ -6,7 +6,9 @@ and embedded as base64 `data:` URIs. It can be attached to a CI run, mailed, or
 opened offline.
 
 Sections (each an element with this id): `headline`, `buckets`, `rates`,
-`distributions`, `worst`, `comparison` (only with a baseline), `skipped`.
+`distributions`, `worst`, `comparison` (only with a baseline), `skipped`; and, when the
+result has them, `criticality`, `scenes` and `worst-objects` (a result scored with
+`score --per-object`: the objects that cost each bucket most, `results.worst_objects`).
 """
 from __future__ import annotations
 
@@ -361,6 +363,39 @@ def _worst_section(result: ScoringResult, top_k: int) -> str:
                     [f'<div class="worst-grid">{"".join(blocks)}</div>'])
 
 
+def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
+    """Per bucket, the objects contributing most to its gap from 1, with the fields that sink them."""
+    from wosac_eval.results.worst_objects import worst_objects
+
+    try:
+        worst = worst_objects(result, top_k)
+    except FileNotFoundError:
+        return _section("worst-objects", "Worst objects", [
+            f'<p class="warn">The per-object file <code>{_esc(result.objects)}</code> the result names is missing '
+            "(keep it beside the result).</p>"])
+    blocks = []
+    for k, (bucket, objects) in enumerate(worst.items()):
+        gap = 1.0 - (result.headline(bucket) or 0.0)
+        rows = []
+        for r, o in enumerate(objects):
+            sunk = ", ".join(f"{_esc(_label(f))} {value:.3g} ({part / o.contribution:.0%})"
+                             for f, value, part in o.fields[:3])
+            share = f"{o.contribution / gap:.1%}" if gap > 0 else "-"
+            rows.append(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(o.scenario_id)}</code></td>"
+                        f"<td class=n>{o.object_id}</td><td>{_esc(o.object_type)}</td>"
+                        f"<td class=n>{o.contribution:.5f}</td><td class=n>{share}</td><td>{sunk}</td></tr>")
+        blocks.append(f'<details{" open" if k == 0 else ""} data-bucket="{_esc(bucket)}"><summary>'
+                      f'{_esc(_label(bucket.removesuffix("_metrics")))} (gap from 1: {gap:.4f})</summary><table>'
+                      "<tr><th class=n>#</th><th>scenario</th><th class=n>object</th><th>type</th>"
+                      "<th class=n>part of the gap</th><th class=n>share</th><th>sunk by (likelihood, share)</th></tr>"
+                      f'{"".join(rows)}</table></details>')
+    note = ('<p class="meta">Each bucket\'s gap from 1 split exactly over the evaluated objects: a scene\'s '
+            "field is the count-weighted geometric mean of its objects' likelihoods, so its gap is shared in "
+            "proportion to each object's weighted -log likelihood. Sunk by: the object's likelihoods that "
+            "cost most, with their share of its part.</p>")
+    return _section("worst-objects", f"Worst objects per bucket (top {top_k})", [note, *blocks])
+
+
 def worst_scenarios(result: ScoringResult, count: int, metric: str = "metametric") -> list[str]:
     """Ids of the `count` scenarios with the lowest meta-metric (the scenes worth looking at first)."""
     values = _values(result, metric)
@@ -497,6 +532,8 @@ def render_report(
     if comparison is not None:
         parts.append(_comparison_section(result, base, comparison, top_k))
     parts += [_distribution_section(result, base), _worst_section(result, top_k)]
+    if result.objects is not None and result.num_scenarios > 0:
+        parts.append(_worst_objects_section(result, top_k))
     if result.criticality is not None and result.num_scenarios > 0:
         parts.append(_criticality_section(result, top_k))
     if scenes:

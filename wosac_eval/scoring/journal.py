@@ -11,6 +11,11 @@ keeps every float exactly: `repr` round-trips).
     {"scenario_id": "...", <the scenario's row>}
     ...
 
+With per-object values (`score_submission(per_object=True)`), each row carries its scenario's
+`objects` in the journal: they are not kept in memory (a validation set has about a million), only
+where each row's line starts, and `objects_of` reads one scenario's back when the side file is written
+(`scoring.objects`), for the rows of this run and of an earlier one alike.
+
 The first line names the run: the challenge, the config (its bytes' digest), the
 options that change rows, the package version, and the size and modification time
 of every input file. A journal of another run is set aside (its rows would not
@@ -49,9 +54,11 @@ def _size_mtime(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
+def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike],
+                 per_object: bool = False) -> dict:
     """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
     return {
+        **({"per_object": True} if per_object else {}),  # rows with their objects (absent: as before)
         "package": __version__,
         "challenge": evaluation.challenge.value,
         "config": evaluation.config_name,
@@ -65,8 +72,10 @@ def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths:
     }
 
 
-def _read(path: Path, identity: dict) -> tuple[dict[str, dict], int, str | None]:
-    """(rows by scenario id, bytes of the file that hold them, why the journal was not used or None)."""
+def _read(path: Path, identity: dict, offsets: dict[str, int]) -> tuple[dict[str, dict], int, str | None]:
+    """(rows by scenario id, bytes of the file that hold them, why the journal was not used or None).
+
+    A row's `objects` are left in the file: `offsets` gets where its line starts."""
     rows: dict[str, dict] = {}
     good = 0
     with open(path, "rb") as f:
@@ -87,6 +96,8 @@ def _read(path: Path, identity: dict) -> tuple[dict[str, dict], int, str | None]
                 row = json.loads(line)
             except ValueError:
                 break
+            if row.pop("objects", None) is not None:
+                offsets[row["scenario_id"]] = good
             rows[row["scenario_id"]] = row
             good += len(line)
     return rows, good, None
@@ -100,6 +111,7 @@ class ScoringJournal:
       identity: `run_identity(...)` of this run.
     Attributes:
       done: scenario_id -> row of the scenarios a previous run finished.
+        (without their `objects`: `objects_of` reads them).
       set_aside: where a journal of another run was moved (None if none was).
       reason: why it was set aside.
     """
@@ -109,9 +121,13 @@ class ScoringJournal:
         self.done: dict[str, dict] = {}
         self.set_aside: Path | None = None
         self.reason: str | None = None
+        self._offsets: dict[str, int] = {}  # scenario id -> where its row's line starts (rows with objects)
+        self._reader = None
         good = 0
         if self.path.exists():
-            self.done, good, self.reason = _read(self.path, identity)
+            self.done, good, self.reason = _read(self.path, identity, self._offsets)
+            if self.reason is not None:
+                self._offsets.clear()
             if self.reason is not None:
                 self.set_aside = self.path.with_name(self.path.name + ".old")
                 os.replace(self.path, self.set_aside)
@@ -128,11 +144,31 @@ class ScoringJournal:
         self._synced_at = time.monotonic()
 
     def record(self, rows: Iterable[dict]) -> None:
-        """Append finished scenarios' rows (each a result row with its `scenario_id`)."""
-        self._file.write(b"".join(json.dumps(row).encode() + b"\n" for row in rows))
+        """Append finished scenarios' rows (each a result row with its `scenario_id`, and its `objects`
+        with per-object values)."""
+        at = self._file.tell()
+        lines = []
+        for row in rows:
+            line = json.dumps(row).encode() + b"\n"
+            if "objects" in row:
+                self._offsets[row["scenario_id"]] = at
+            at += len(line)
+            lines.append(line)
+        self._file.write(b"".join(lines))
         self._file.flush()  # in the kernel now: a killed process loses none of it
         if time.monotonic() - self._synced_at > FSYNC_EVERY_S:
             self._sync()
+
+    def objects_of(self, scenario_id: str) -> list[dict] | None:
+        """The `objects` of a recorded row (read back from the file), or None if it has none."""
+        at = self._offsets.get(scenario_id)
+        if at is None:
+            return None
+        if self._reader is None:
+            self._file.flush()
+            self._reader = open(self.path, "rb")  # noqa: SIM115 - closed by close()
+        self._reader.seek(at)
+        return json.loads(self._reader.readline())["objects"]
 
     def _sync(self) -> None:
         self._file.flush()
@@ -140,6 +176,9 @@ class ScoringJournal:
         self._synced_at = time.monotonic()
 
     def close(self) -> None:
+        if self._reader is not None:
+            self._reader.close()
+            self._reader = None
         if not self._file.closed:
             self._sync()
             self._file.close()

@@ -49,6 +49,8 @@ class ScoringResult:
         written before the analysis was added).
       by_type: object type -> metric -> `(num_scenarios,)` values, NaN where the scenario has no
         evaluated object of the type (or the metric is undefined for it).
+      objects: the per-object file the result names (`score --per-object`, `scoring.objects`), resolved
+        beside the result, or None.
     """
 
     path: str
@@ -61,6 +63,7 @@ class ScoringResult:
     skipped: list[dict[str, Any]]
     criticality: np.ndarray | None = None
     by_type: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
+    objects: str | None = None
 
     @property
     def num_scenarios(self) -> int:
@@ -251,7 +254,15 @@ def parse_result(
         skipped=[s if isinstance(s, dict) else {"scenario_id": str(s), "reason": ""} for s in skipped],
         criticality=criticality,
         by_type=by_type,
+        objects=_objects_file(data, path),
     )
+
+
+def _objects_file(data: dict, path: str) -> str | None:
+    entry = data.get("per_object")
+    if not isinstance(entry, dict) or not isinstance(entry.get("objects"), str):
+        return None
+    return str(Path(path).parent / entry["objects"])
 
 
 def load_result(path: str | Path, **kwargs) -> ScoringResult:

@@ -100,19 +100,54 @@ def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, r
             "by_object_type": by_object_type(config, log, sim, log_likelihoods)}
 
 
+def object_records(scenario_id: str, values) -> list[dict]:
+    """A scene's per-object values (`metrics.per_object.PerObjectMetrics`) as JSON-ready records, one per
+    evaluated object in the official order: `scenario_id`, `object_id`, `object_type` (vehicle, pedestrian,
+    cyclist or other), every likelihood field (null where the object has no counted sample) and its
+    `<metric>_count` (the object's weight in the scene's field), `num_rollouts`, and per event (collision,
+    offroad, traffic_light_violation) `<event>_rollouts` (rollouts where the object has it) and
+    `<event>_first_step` (its earliest step over the rollouts, null if none)."""
+    from wosac_eval.arrays.object_types import SHORT_NAMES
+    from wosac_eval.metrics.per_object import EVENTS
+    from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
+
+    likelihood = {f: values.likelihood[f].astype(np.float64).tolist() for f in LIKELIHOOD_FIELDS}
+    count = {f: values.count[f].tolist() for f in LIKELIHOOD_FIELDS}
+    flagged = {e: values.flags[e].sum(axis=0).tolist() for e in EVENTS}
+    first = {e: np.where(values.flags[e], values.first_step[e], np.iinfo(np.int32).max).min(axis=0).tolist()
+             for e in EVENTS}
+    num_rollouts = int(next(iter(values.flags.values())).shape[0])
+    records = []
+    for i, (object_id, kind) in enumerate(zip(values.object_id.tolist(), values.object_type.tolist())):
+        record = {"scenario_id": scenario_id, "object_id": object_id, "object_type": SHORT_NAMES.get(kind, "other")}
+        for f in LIKELIHOOD_FIELDS:
+            value = likelihood[f][i]
+            record[f] = None if value != value else value  # NaN: no counted sample
+            record[f.removesuffix("_likelihood") + "_count"] = count[f][i]
+        record["num_rollouts"] = num_rollouts
+        for e in EVENTS:
+            record[f"{e}_rollouts"] = flagged[e][i]
+            record[f"{e}_first_step"] = first[e][i] if flagged[e][i] else None
+        records.append(record)
+    return records
+
+
 def _row(config: SimAgentMetricsConfig, arrays: ScenarioArrays, rollout: RolloutArrays, log, sim, context,
-         analysis: bool, criticality: dict | None = None) -> dict:
+         analysis: bool, criticality: dict | None = None, per_object: bool = False) -> dict:
     lls = metric_log_likelihoods(config, log, sim)
     row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
     if analysis:
         row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context, criticality))
+    if per_object:
+        from wosac_eval.metrics.per_object import per_object_metrics
+        row["objects"] = object_records(arrays.scenario_id, per_object_metrics(config, log, sim, lls))
     return row
 
 
 def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
                    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
                    config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
-                   backend: str = "numpy", analysis: bool = False) -> dict:
+                   backend: str = "numpy", analysis: bool = False, per_object: bool = False) -> dict:
     """Official `SimAgentMetrics` fields of one scenario, plus its `scenario_id`.
 
     Args:
@@ -125,9 +160,11 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
       backend: "numpy" or "jax" (needs the `jax` extra); same results.
       analysis: add the scene's criticality (without rarity), the SDC's driving scores and the
         metrics per object type (`scenario_analysis`), as `score_submission` does.
+      per_object: add `objects`, the values of every evaluated object (`object_records`), as
+        `score_submission(per_object=True)` streams them.
     """
     config, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(config, arrays, rollout, log, sim, context, analysis)
+    return _row(config, arrays, rollout, log, sim, context, analysis, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
@@ -196,7 +233,7 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> J
 
 
 def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
-                    challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False):
+                    challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False, per_object: bool = False):
     """Rows of a stream of `JaxItem`s, in stream order, the device computing while the host finishes rows.
 
     Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
@@ -210,7 +247,7 @@ def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
     def finish(done):
         for (index, item), (log, sim) in done:
             rows[index] = _row(config, item.arrays, item.rollout, log, sim, item.context, analysis,
-                               item.criticality)
+                               item.criticality, per_object)
 
     def ready():
         nonlocal next_out
@@ -226,11 +263,13 @@ def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
 
 
 def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
-                        challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False) -> list[dict]:
+                        challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False,
+                        per_object: bool = False) -> list[dict]:
     """`score_scenario` with the jax backend for many (scenario, rollouts) pairs at once.
 
     Scenarios of the same size bucket share one `vmap`ped call.
     """
     challenge = challenges.as_challenge(challenge)
     items = (prepare_jax_item(scenario, rollouts, challenge, analysis) for scenario, rollouts in pairs)
-    return list(score_jax_items(items, config, max_batch, challenge=challenge, analysis=analysis))
+    return list(score_jax_items(items, config, max_batch, challenge=challenge, analysis=analysis,
+                                per_object=per_object))

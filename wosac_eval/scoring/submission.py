@@ -21,6 +21,7 @@ import contextlib
 import dataclasses
 import os
 from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
 from wosac_eval.metrics.config import SimAgentMetricsConfig
@@ -33,6 +34,7 @@ from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
 from wosac_eval.scoring.journal import ScoringJournal, run_identity
+from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
 
@@ -71,6 +73,7 @@ class ScoringContext:
       backend: "numpy" or "jax".
       index: where each scenario of the set is.
       analysis: add each scenario's criticality, driving scores and per-type metrics to its row.
+      per_object: add each scenario's per-object values (`objects`) to its row.
     """
 
     config: bytes
@@ -78,6 +81,7 @@ class ScoringContext:
     backend: str
     index: ScenarioIndex
     analysis: bool = True
+    per_object: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,8 +114,10 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
     if context.backend == "jax":
-        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis)
-    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis)
+        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis,
+                                   per_object=context.per_object)
+    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis,
+                           per_object=context.per_object)
             for scenario, rollouts in pairs]
 
 
@@ -128,7 +134,8 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
     from wosac_eval.scoring.scenario import score_jax_items
 
     items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
-    for row in score_jax_items(items, config, challenge=context.challenge, analysis=context.analysis):
+    for row in score_jax_items(items, config, challenge=context.challenge, analysis=context.analysis,
+                               per_object=context.per_object):
         yield [row]
 
 
@@ -161,7 +168,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
                      progress: Progress | None = None, backend: str = "numpy", engine: str = "local",
                      ray_address: str | None = None, metadata_checks: str = "warn", select: str | None = None,
                      analysis: bool = True, limits: InputLimits | None = None,
-                     evaluation: Evaluation | None = None, journal: PathLike | None = None) -> dict:
+                     evaluation: Evaluation | None = None, journal: PathLike | None = None,
+                     per_object: bool = False, objects: PathLike | None = None) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -197,6 +205,12 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
         It is left in place: remove it once the result is stored (`ScoringJournal.remove`).
+      per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
+        `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
+        memory, and the document's `per_object` names it (write the result beside it); without, each row
+        carries its `objects` (for small sets: they are all in the returned document).
+      objects: the per-object file (see `per_object`); its objects come from the journal (a temporary
+        one beside it when there is no `journal`), so a resumed run writes the same file.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
       ValueError: an argument cannot be resolved (unknown config, a preset of the other challenge...).
@@ -211,10 +225,21 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
     with SubmissionSource(submission, evaluation.limits) if owned else contextlib.nullcontext(submission) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
-        if journal is None:
-            return _score(index, source, evaluation, executor, progress, None)
-        with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths)) as record:
-            return _score(index, source, evaluation, executor, progress, record)
+        if objects is not None:
+            if not per_object:
+                raise ValueError("objects= names the per-object file: it needs per_object=True")
+            format_of(objects)  # a suffix that chooses no format is refused before any work
+        if journal is None and not (per_object and objects is not None):
+            return _score(index, source, evaluation, executor, progress, None, per_object, None)
+        temporary = journal is None  # the objects wait in a journal of this run only
+        if temporary:
+            journal = Path(objects).with_name(f".{Path(objects).name}.{os.getpid()}.journal")
+        try:
+            with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths, per_object)) as record:
+                return _score(index, source, evaluation, executor, progress, record, per_object, objects)
+        finally:
+            if temporary:
+                Path(journal).unlink(missing_ok=True)
 
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
@@ -229,9 +254,10 @@ def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[
 
 
 def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
-           progress: Progress | None, journal: ScoringJournal | None) -> dict:
+           progress: Progress | None, journal: ScoringJournal | None, per_object: bool = False,
+           objects: PathLike | None = None) -> dict:
     """Validate (recording where each scenario is), select, score on the executor (but what the journal
-    holds), assemble."""
+    holds), assemble; per-object values go through the journal (see `score_submission`)."""
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
                                  metadata_checks=evaluation.metadata_checks)
     if refuses(report, evaluation.allow_partial):
@@ -239,7 +265,8 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,
-                             backend=evaluation.backend, index=index, analysis=evaluation.analysis)
+                             backend=evaluation.backend, index=index, analysis=evaluation.analysis,
+                             per_object=per_object)
     done = {} if journal is None else journal.done
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
 
@@ -261,6 +288,8 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     for results in scored:
         if journal is not None:
             journal.record(results)
+            for row in results:  # in the journal: not held here (objects_of reads them back)
+                row.pop("objects", None)
         rows.update((row["scenario_id"], row) for row in results)
         if progress is not None:
             progress(len(rows), total)
@@ -268,5 +297,15 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     if not per_scenario:
         raise InvalidSubmissionError(report) if not report.ok else ValueError(
             "the submission has no scenario in common with the scenario set")
-    return result_document(evaluation.challenge, evaluation.config_name, evaluation.config, per_scenario, report,
-                           selection=selection, selected=selected, histogram=histogram)
+    if per_object and objects is None and journal is not None:  # inline: the rows carry them
+        for sid, row in zip(order, per_scenario):
+            row["objects"] = journal.objects_of(sid)
+    written = None
+    if objects is not None:
+        written = write_objects((journal.objects_of(sid) for sid in order), objects)
+    document = result_document(evaluation.challenge, evaluation.config_name, evaluation.config, per_scenario,
+                               report, selection=selection, selected=selected, histogram=histogram)
+    if written is not None:
+        document["per_object"] = {"objects": Path(objects).name, "format": format_of(objects),
+                                  "num_objects": written}
+    return document

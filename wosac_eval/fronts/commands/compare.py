@@ -54,11 +54,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"the rest, or per object type ({', '.join(ANALYSED_TYPES)}); paired CI, p-value, "
                              "Holm-adjusted p and Cohen's d per stratum, for the --metric metrics (default "
                              "metametric)")
+    parser.add_argument("--per-object", action="store_true",
+                        help="also compare object by object (both results scored with `score --per-object`): "
+                             "the objects, matched by scenario_id and object_id, and the object type x criticality "
+                             "strata whose likelihoods changed most, with paired CIs over scenes, for the --metric "
+                             "likelihoods (default: the objects' meta-metric and every likelihood)")
+    parser.add_argument("--top", type=int, default=10, metavar="K",
+                        help="with --per-object: objects listed each way and strata listed (default 10)")
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
     parser.add_argument("--json-output", metavar="PATH",
                         help="also write the comparison as JSON to PATH (the table still goes to stdout)")
     parser.add_argument("--markdown-output", metavar="PATH",
                         help="also write the comparison as a Markdown table to PATH (for a CI job summary)")
+
+
+def _objects_markdown(objects) -> str:
+    if objects is None:
+        return ""
+    from wosac_eval.results.per_object_compare import format_objects_markdown
+
+    return "\n" + format_objects_markdown(objects)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,14 +94,25 @@ def run(args: argparse.Namespace) -> int:
                       for m in spec.split(",") if m.strip()]
             strata = stratified_comparison(base, new, args.stratify, wanted, seed=args.seed, n_boot=args.n_boot,
                                            n_perm=args.n_perm, alpha=args.alpha, adjust=args.adjust)
-    except (ResultError, CompareError, StratifyError) as e:
+        objects = None
+        if args.per_object:
+            if args.top < 1:
+                raise UsageError("--top must be at least 1")
+            from wosac_eval.results.per_object_compare import compare_objects
+
+            wanted = None if not args.metric else [canonical_metric(m.strip()) for spec in args.metric
+                                                   for m in spec.split(",") if m.strip()]
+            objects = compare_objects(base, new, metrics=wanted, top=args.top, alpha=args.alpha, seed=args.seed,
+                                      n_boot=args.n_boot, n_perm=args.n_perm)
+    except (ResultError, CompareError, StratifyError, ValueError) as e:
         raise UsageError(str(e)) from None
 
     def as_json() -> dict:
-        return {**comparison.to_json(), **({"stratified": strata.to_json()} if strata else {})}
+        return {**comparison.to_json(), **({"stratified": strata.to_json()} if strata else {}),
+                **({"per_object": objects.to_json()} if objects else {})}
 
     outputs = [(args.json_output, lambda: json.dumps(as_json(), indent=2) + "\n"),
-               (args.markdown_output, lambda: format_markdown(comparison))]
+               (args.markdown_output, lambda: format_markdown(comparison) + _objects_markdown(objects))]
     for path, render in outputs:
         if path:
             try:
@@ -104,4 +130,9 @@ def run(args: argparse.Namespace) -> int:
         if strata:
             print()
             print(format_strata(strata))
+        if objects:
+            from wosac_eval.results.per_object_compare import format_objects
+
+            print()
+            print(format_objects(objects))
     return 0 if comparison.passed else 1

@@ -48,6 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="draw the positions of all rollouts as a density instead of lines")
     parser.add_argument("--every", type=int, default=2, metavar="K",
                         help="a .gif or .html frame every K steps (default 2)")
+    parser.add_argument("--object", type=int, metavar="ID",
+                        help="with --submission, a .png of one evaluated object: its rollouts against its log on "
+                             "the map, and its speed, acceleration, distance to the nearest object and to the road "
+                             "edge over the steps, each rollout and their median against the log's")
 
 
 def _pick_scenario(index, wanted: str | None) -> str:
@@ -73,6 +77,11 @@ def run(args: argparse.Namespace) -> int:
 
     if Path(args.output).suffix.lower() not in FORMATS:
         raise UsageError(f"--output {args.output}: the suffix chooses the format: {', '.join(FORMATS)}")
+    if args.object is not None:
+        if args.submission is None:
+            raise UsageError("--object needs --submission (it draws the object's rollouts)")
+        if Path(args.output).suffix.lower() != ".png":
+            raise UsageError(f"--object draws a .png, not {args.output}")
     check_output_file(args.output, "--output")
     if args.step is not None and not 0 <= args.step <= 90:
         raise UsageError(f"--step {args.step}: steps run from 0 to 90 (10 is the current one)")
@@ -108,6 +117,16 @@ def run(args: argparse.Namespace) -> int:
             print(f"wosac-eval plot: scenario {scenario_id}: {len(errors)} problem(s) in the rollouts "
                   f"(`wosac-eval validate` reports them all)", file=sys.stderr)
             return 1
+    if args.object is not None:
+        from wosac_eval.results.object_plot import object_png
+
+        try:
+            picture = object_png(scenario, rollouts, args.object, args.challenge)
+        except ValueError as error:  # e.g. an object that is not evaluated
+            raise UsageError(str(error)) from None
+        Path(args.output).write_bytes(picture)
+        print(f"wrote {args.output} (scenario {scenario_id}, object {args.object})")
+        return 0
     view = scene_view(scenario, rollouts, args.challenge)
     shown = args.rollouts
     if shown is None:  # all

@@ -65,6 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "ranks them); the whole submission is still validated")
     parser.add_argument("--no-analysis", action="store_true",
                         help="official metrics only: no criticality, driving scores or per-type metrics in the rows")
+    parser.add_argument("--per-object", nargs="?", const="jsonl", choices=("jsonl", "parquet"), metavar="jsonl|parquet",
+                        help="with --output R.json: also write every evaluated object's likelihoods, their weights "
+                             "and its collision / off-road / red-light rollouts to R.objects.jsonl (or, with "
+                             "parquet, R.objects.parquet, needs pyarrow), streamed as scenarios are scored; "
+                             "the result's \"per_object\" names the file")
 
 
 def _progress():
@@ -129,6 +134,24 @@ def _journal(args: argparse.Namespace) -> Path | None:
     return journal
 
 
+def _objects(args: argparse.Namespace) -> Path | None:
+    """The per-object file beside --output (None without --per-object), checked before any work."""
+    if args.per_object is None:
+        return None
+    if not args.output:
+        raise UsageError("--per-object needs --output (the objects are written beside the result)")
+    from wosac_eval.scoring.objects import objects_path_for
+
+    path = objects_path_for(args.output, args.per_object)
+    if args.per_object == "parquet":
+        try:
+            import pyarrow.parquet  # noqa: F401
+        except ImportError:
+            raise UsageError("--per-object parquet needs pyarrow (pip install pyarrow); jsonl needs nothing") from None
+    check_output_file(str(path), "--per-object")
+    return path
+
+
 def write_result(result: dict, path: Path) -> None:
     """The result document, streamed to a temporary file beside `path` and renamed over it: a reader
     never sees half a document, and a 44,097-scenario result is never one string in memory."""
@@ -162,11 +185,12 @@ def run(args: argparse.Namespace) -> int:
         # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
         from wosac_eval.backends.jax_backend import exact_cpu
         exact_cpu()
+    objects = _objects(args)
     journal = _journal(args)
     update, bar = _progress()
     try:
         result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation,
-                                  journal=journal)
+                                  journal=journal, per_object=objects is not None, objects=objects)
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         if error.metadata:
@@ -194,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
         journal.unlink(missing_ok=True)  # the result is on disk: nothing left to resume
         print(_headline(result), file=sys.stderr)
         print(f"results written to {args.output}", file=sys.stderr)
+        if objects is not None:
+            print(f"{result['per_object']['num_objects']} object(s) written to {objects}", file=sys.stderr)
     else:
         print(json.dumps(result, indent=1))
     _stderr_coverage(result)

@@ -1,0 +1,137 @@
+"""One object against its log (`wosac-eval plot --object ID`): where its rollouts go, and its features.
+
+Left, the map with the object's logged trajectory (black, dashed), every rollout of it (blue, thin;
+the others' logs in grey) and its events (collision, off-road, red light) where they start. Right,
+its metric features over the simulated steps, each rollout (thin) and their median against the log:
+speed, acceleration, distance to the nearest object and distance to the road edge (negative: on
+the road), the same per-step features its likelihoods come from (`features.metric_features`). Steps
+where the log is invalid are left blank in the log's line.
+"""
+from __future__ import annotations
+
+import io
+import warnings
+
+import numpy as np
+
+from wosac_eval import challenges
+from wosac_eval.arrays.object_types import SHORT_NAMES
+from wosac_eval.results.scene_plot import EVENT_KINDS
+
+# (feature, title, unit) of each panel.
+PANELS = (("linear_speed", "speed", "m/s"), ("linear_acceleration", "acceleration", "m/s²"),
+          ("distance_to_nearest_object", "distance to nearest object", "m"),
+          ("distance_to_road_edge", "distance to road edge", "m"))
+_LOG, _SIM = "#24292f", "#0969da"
+
+
+def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100) -> bytes:
+    """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
+
+    Raises:
+      ValueError: the rollouts do not fit the scenario, or the object is not evaluated (the message lists
+        those that are).
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+
+    from wosac_eval.features.metric_features import scenario_features
+    from wosac_eval.scoring.scenario import scenario_inputs
+
+    challenge = challenges.as_challenge(challenge)
+    arrays, sim_arrays = scenario_inputs(scenario, rollouts, challenge)
+    log, sim = scenario_features(arrays, sim_arrays, challenge=challenge)
+    evaluated = np.asarray(log.object_id).tolist()
+    if object_id not in evaluated:
+        raise ValueError(f"object {object_id} is not evaluated in scenario {arrays.scenario_id}: its features are not "
+                         f"scored; evaluated objects: {', '.join(map(str, evaluated))}")
+    e = evaluated.index(object_id)
+    first = challenges.spec(challenge).first_simulated_step
+    num_steps = sim_arrays.num_steps
+    steps = np.arange(first, first + num_steps)
+    kind = SHORT_NAMES.get(int(np.asarray(log.object_type)[0, e]), "other")
+
+    figure = Figure(figsize=(14.0, 7.0))
+    FigureCanvasAgg(figure)
+    grid = figure.add_gridspec(len(PANELS), 2, width_ratios=(1.15, 1.0), hspace=0.45, wspace=0.18,
+                               left=0.05, right=0.98, top=0.92, bottom=0.08)
+    ax = figure.add_subplot(grid[:, 0])
+    ax.add_collection(LineCollection([lane[:, :2] for lane in arrays.lanes if len(lane) > 1], colors="#d0d7de",
+                                     linewidths=0.6, zorder=1))
+    ax.add_collection(LineCollection([edge[:, :2] for edge in arrays.road_edges if len(edge) > 1], colors="#24292f",
+                                     linewidths=1.0, zorder=2))
+    logged = arrays.log.take_ids(arrays.sim_agent_ids)
+    for k, oid in enumerate(logged.object_id.tolist()):
+        valid = logged.valid[k]
+        xs, ys = np.where(valid, logged.x[k], np.nan), np.where(valid, logged.y[k], np.nan)
+        if oid == object_id:
+            own = (xs, ys)
+        else:
+            ax.plot(xs, ys, color="#8c959f", lw=0.7, alpha=0.6, zorder=3)
+    rollout_xy = []
+    for r in range(sim_arrays.num_rollouts):
+        i = sim_arrays.object_id[r].tolist().index(object_id)
+        rollout_xy.append((sim_arrays.x[r, i], sim_arrays.y[r, i]))
+        ax.plot(sim_arrays.x[r, i], sim_arrays.y[r, i], color=_SIM, lw=0.8, alpha=0.35, zorder=4)
+    ax.plot(*own, color=_LOG, lw=1.8, ls=(0, (4, 2)), zorder=5, label="logged")
+    counts = {}
+    for feature, label, marker, colour in EVENT_KINDS:
+        flags = np.asarray(getattr(sim, feature))[:, e] & np.asarray(log.valid)[0, e][None]
+        hit = np.flatnonzero(flags.any(axis=-1))
+        counts[label] = int(hit.size)
+        for r in hit:
+            k = int(flags[r].argmax())
+            ax.plot(rollout_xy[r][0][k], rollout_xy[r][1][k], ls="", marker=marker, color=colour, markersize=7,
+                    zorder=6)
+    xs = np.concatenate([own[0][np.isfinite(own[0])], np.percentile([p[0] for p in rollout_xy], [1, 99])])
+    ys = np.concatenate([own[1][np.isfinite(own[1])], np.percentile([p[1] for p in rollout_xy], [1, 99])])
+    pad = 20.0
+    ax.set_xlim(xs.min() - pad, xs.max() + pad)
+    ax.set_ylim(ys.min() - pad, ys.max() + pad)
+    ax.set_aspect("equal", adjustable="box")
+    ax.tick_params(labelsize=7)
+    ax.set_xlabel("x (m)", fontsize=8)
+    ax.set_ylabel("y (m)", fontsize=8)
+    from matplotlib.lines import Line2D
+
+    handles = [Line2D([], [], color=_LOG, lw=1.8, ls=(0, (4, 2)), label="logged"),
+               Line2D([], [], color=_SIM, lw=0.8, label=f"{sim_arrays.num_rollouts} rollouts"),
+               Line2D([], [], color="#8c959f", lw=0.7, label="other objects (logged)")]
+    handles += [Line2D([], [], ls="", marker=m, color=c, label=f"{label} ({counts[label]} rollouts)")
+                for _, label, m, c in EVENT_KINDS]
+    ax.legend(handles=handles, fontsize=7, loc="upper left", framealpha=0.85)
+    figure.suptitle(f"scenario {arrays.scenario_id}: object {object_id} ({kind}), its rollouts against its log",
+                    fontsize=11)
+
+    log_valid = np.asarray(log.valid)[0, e]
+    for p, (feature, title, unit) in enumerate(PANELS):
+        axis = figure.add_subplot(grid[p, 1])
+        values = np.asarray(getattr(sim, feature), dtype=np.float64)[:, e]
+        values = np.where(np.isfinite(values), values, np.nan)
+        for r in range(values.shape[0]):
+            axis.plot(steps, values[r], color=_SIM, lw=0.6, alpha=0.25)
+        with warnings.catch_warnings():  # a step where no rollout has the feature: no median there
+            warnings.simplefilter("ignore", RuntimeWarning)
+            axis.plot(steps, np.nanmedian(values, axis=0), color=_SIM, lw=1.4, label="rollouts (median)")
+        reference = np.asarray(getattr(log, feature), dtype=np.float64)[0, e]
+        axis.plot(steps, np.where(log_valid & np.isfinite(reference), reference, np.nan), color=_LOG, lw=1.6,
+                  ls=(0, (4, 2)), label="logged")
+        simulated = values[np.isfinite(values)]
+        logged_values = reference[np.isfinite(reference) & log_valid]
+        if simulated.size or logged_values.size:
+            # The log whole, the rollouts' bulk (not a far-away outlier: distances saturate far from anything).
+            bounds = [np.percentile(simulated, [1, 99])] if simulated.size else []
+            bounds += [[logged_values.min(), logged_values.max()]] if logged_values.size else []
+            low, high = min(b[0] for b in bounds), max(b[1] for b in bounds)
+            margin = 0.08 * max(high - low, 1e-3)
+            axis.set_ylim(low - margin, high + margin)
+        axis.set_title(f"{title} ({unit})", fontsize=9)
+        axis.tick_params(labelsize=7)
+        if p == 0:
+            axis.legend(fontsize=7, loc="upper right", framealpha=0.85)
+        if p == len(PANELS) - 1:
+            axis.set_xlabel("scenario step (10 Hz)", fontsize=8)
+    buffer = io.BytesIO()
+    figure.savefig(buffer, format="png", dpi=dpi, metadata={"Software": None})
+    return buffer.getvalue()

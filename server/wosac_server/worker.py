@@ -66,6 +66,7 @@ from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
 from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
+from wosac_eval.scoring.journal import remove_journal  # noqa: E402
 
 from . import disk, jobs, results  # noqa: E402
 from .db import Store  # noqa: E402
@@ -359,9 +360,7 @@ class Worker:
         """A job done or failed for good needs its journal no more (a re-queued one resumes from it)."""
         row = jobs.get_submission(self.store, job_id)
         if row is None or row["state"] in ("done", "failed"):
-            journal = self.settings.journal_path(job_id)
-            journal.unlink(missing_ok=True)
-            journal.with_name(journal.name + ".old").unlink(missing_ok=True)  # one the library set aside
+            remove_journal(self.settings.journal_path(job_id))  # with its validation and any set aside
 
     def draw_pictures(self, index: ScenarioIndex, source: SubmissionSource, result: dict, job_id: str) -> None:
         """The job's worst scenes; pictures help, but a drawing problem must not fail a scored job."""

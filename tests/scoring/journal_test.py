@@ -57,6 +57,33 @@ def test_journal_holds_every_row_and_resuming_scores_only_the_rest(workload, uni
     assert len(_journal_lines(journal)) == 1 + N and journal.read_bytes().endswith(b"\n")
 
 
+def test_a_resumed_run_takes_the_validation_it_kept(workload, uninterrupted, tmp_path, monkeypatch):
+    """Validation walks the whole submission (a quarter of a full run): the journal keeps it."""
+    from wosac_eval.scoring import submission as scoring
+    from wosac_eval.scoring.journal import remove_journal, validated_path
+
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    walks = []
+    real = scoring.validate_submission
+    monkeypatch.setattr(scoring, "validate_submission", lambda *a, **k: walks.append(1) or real(*a, **k))
+    score_submission([scenarios], submission, journal=journal)
+    assert walks == [1] and validated_path(journal).exists()
+    lines = _journal_lines(journal)
+    journal.write_bytes(b"".join(lines[:6]))  # killed after 5 rows
+    resumed = score_submission([scenarios], submission, journal=journal)
+    assert walks == [1]  # not walked again
+    assert json.loads(json.dumps(resumed)) == uninterrupted
+    validated_path(journal).write_bytes(b"cut sh")  # a kill while it was written: validated again
+    journal.write_bytes(b"".join(lines[:6]))
+    assert json.loads(json.dumps(score_submission([scenarios], submission, journal=journal))) == uninterrupted
+    assert walks == [1, 1]
+    score_submission([scenarios], submission, "2024", journal=journal)  # another run: its own validation
+    assert walks == [1, 1, 1]
+    remove_journal(journal)
+    assert not journal.exists() and not validated_path(journal).exists()
+
+
 def test_journal_of_another_run_is_set_aside(workload, uninterrupted, tmp_path, caplog):
     scenarios, submission = workload
     journal = tmp_path / "run.journal"
@@ -100,7 +127,7 @@ def test_cli_interrupted_then_run_again_writes_the_same_document(workload, unint
     assert again.returncode == 0, again.stderr
     assert f"resuming from {journal}" in again.stderr
     assert json.loads(output.read_text()) == uninterrupted
-    assert not journal.exists()  # the result is written: nothing left to resume
+    assert not journal.exists() and not (tmp_path / "result.json.journal.validated").exists()  # nothing to resume
     assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
 
 

@@ -299,6 +299,20 @@ class SubmissionSource:
         """Where the scenarios of a walked shard are: (scenario_id, (start, end) in the shard), in order."""
         self._records.append((self._kept[shard_name], [(sid, span) for sid, span in entries if sid]))
 
+    def records(self) -> list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] | None:
+        """What the walk recorded (each shard without its bytes, and where its scenarios are), for a
+        later run over the same file (`restore_records`); None when it lives in a spool, which ends
+        with this handle."""
+        if self._spool_folder is not None:
+            return None
+        return list(self._records)
+
+    def restore_records(self, records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]]) -> None:
+        """Take the records of an earlier walk of the same file (`records`) instead of walking it: an
+        interrupted run resumes without validating a whole submission again."""
+        self._records = list(records)
+        self._kept = {shard.name: shard for shard, _ in self._records}
+
     def _recorded_bytes(self) -> Iterator[tuple[ShardRef, list, bytes | None]]:
         """Each recorded shard with its entries, and its bytes when they are not a byte range of a file."""
         if all(shard.path is not None for shard, _ in self._records):

@@ -21,6 +21,12 @@ options that change rows, the package version, and the size and modification tim
 of every input file. A journal of another run is set aside (its rows would not
 belong to this one) and the run starts afresh, saying why. A line cut short by a
 kill is dropped; so is everything after a line that does not parse.
+
+Validation is kept too (PATH.validated: the report and where each scenario lies in
+the submission, written once validation has passed): a resumed run does not check
+a 20 GB submission again, which would cost a quarter of the whole run. It is our
+own pickle, next to the journal and trusted as the journal is, and used only under
+the same run identity.
 """
 from __future__ import annotations
 
@@ -28,6 +34,7 @@ import hashlib
 import json
 import logging
 import os
+import pickle
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -118,6 +125,7 @@ class ScoringJournal:
 
     def __init__(self, path: os.PathLike | str, identity: dict):
         self.path = Path(path)
+        self.identity = identity
         self.done: dict[str, dict] = {}
         self.set_aside: Path | None = None
         self.reason: str | None = None
@@ -128,11 +136,12 @@ class ScoringJournal:
             self.done, good, self.reason = _read(self.path, identity, self._offsets)
             if self.reason is not None:
                 self._offsets.clear()
-            if self.reason is not None:
                 self.set_aside = self.path.with_name(self.path.name + ".old")
                 os.replace(self.path, self.set_aside)
                 log.warning("%s was set aside as %s and the run starts afresh: %s", self.path, self.set_aside,
                             self.reason)
+        if not good:  # a validation kept beside rows that are gone (or of another run) is not this run's
+            validated_path(self.path).unlink(missing_ok=True)
         self._file = open(self.path, "r+b" if good else "wb")  # noqa: SIM115 - closed by close()
         if good:
             self._file.truncate(good)  # drop a torn last line before appending after it
@@ -170,6 +179,28 @@ class ScoringJournal:
         self._reader.seek(at)
         return json.loads(self._reader.readline())["objects"]
 
+    def validation(self) -> tuple | None:
+        """(report, submission records) an earlier run of this identity kept (`keep_validation`), or None."""
+        try:
+            with open(validated_path(self.path), "rb") as f:
+                kept = pickle.load(f)
+        except (OSError, EOFError, pickle.UnpicklingError, AttributeError, ImportError, TypeError, ValueError):
+            return None  # none, cut short, or of another version: validate again
+        if not isinstance(kept, dict) or kept.get("run") != self.identity:
+            return None
+        return kept["report"], kept["records"]
+
+    def keep_validation(self, report, records) -> None:
+        """Keep a passed validation (its report and `SubmissionSource.records()`) for a resumed run."""
+        path = validated_path(self.path)
+        temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(temp, "wb") as f:
+            pickle.dump({"run": self.identity, "report": report, "records": records}, f,
+                        protocol=pickle.HIGHEST_PROTOCOL)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(temp, path)
+
     def _sync(self) -> None:
         self._file.flush()
         os.fsync(self._file.fileno())
@@ -186,10 +217,22 @@ class ScoringJournal:
     def remove(self) -> None:
         """The run finished and its result is written: the journal is no longer needed."""
         self.close()
-        self.path.unlink(missing_ok=True)
+        remove_journal(self.path)
 
     def __enter__(self) -> ScoringJournal:
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def validated_path(journal: os.PathLike | str) -> Path:
+    """Where a journal keeps its run's validation."""
+    return Path(journal).with_name(Path(journal).name + ".validated")
+
+
+def remove_journal(journal: os.PathLike | str) -> None:
+    """Remove a journal and what it keeps beside it (its validation, a journal of another run set aside)."""
+    journal = Path(journal)
+    for path in (journal, validated_path(journal), journal.with_name(journal.name + ".old")):
+        path.unlink(missing_ok=True)

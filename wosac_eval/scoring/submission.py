@@ -33,7 +33,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
-from wosac_eval.scoring.journal import ScoringJournal, run_identity
+from wosac_eval.scoring.journal import ScoringJournal, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
@@ -204,7 +204,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
       journal: a file where each finished scenario's row is recorded as it is scored
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
-        It is left in place: remove it once the result is stored (`ScoringJournal.remove`).
+        It is left in place (with its validation, PATH.validated): remove both once the result is stored
+        (`scoring.journal.remove_journal`).
       per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
         `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
         memory, and the document's `per_object` names it (write the result beside it); without, each row
@@ -239,7 +240,7 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
                 return _score(index, source, evaluation, executor, progress, record, per_object, objects)
         finally:
             if temporary:
-                Path(journal).unlink(missing_ok=True)
+                remove_journal(journal)
 
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
@@ -253,15 +254,31 @@ def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[
     return selection, ranked["histogram"], selected
 
 
+def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
+               journal: ScoringJournal | None):
+    """The submission's validation report, refusing an invalid one; from the journal when an earlier run
+    of the same inputs passed it (a resumed run does not walk the whole submission again)."""
+    kept = None if journal is None else journal.validation()
+    if kept is not None:
+        report, records = kept
+        source.restore_records(records)
+        return report
+    report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
+                                 metadata_checks=evaluation.metadata_checks)
+    if refuses(report, evaluation.allow_partial):
+        raise InvalidSubmissionError(report)
+    records = source.records()
+    if journal is not None and records is not None:
+        journal.keep_validation(report, records)
+    return report
+
+
 def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
            progress: Progress | None, journal: ScoringJournal | None, per_object: bool = False,
            objects: PathLike | None = None) -> dict:
     """Validate (recording where each scenario is), select, score on the executor (but what the journal
     holds), assemble; per-object values go through the journal (see `score_submission`)."""
-    report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
-                                 metadata_checks=evaluation.metadata_checks)
-    if refuses(report, evaluation.allow_partial):
-        raise InvalidSubmissionError(report)
+    report = _validated(index, source, evaluation, executor, journal)
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,

@@ -17,6 +17,7 @@ from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, 
 from wosac_eval.metrics.config import PRESET_NAMES
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.scoring.evaluation import resolve_evaluation
+from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.validate import ScenarioSetError
 
@@ -127,7 +128,7 @@ def _journal(args: argparse.Namespace) -> Path | None:
     journal = Path(args.output).with_name(Path(args.output).name + ".journal")
     if journal.exists():
         if args.restart:
-            journal.unlink()
+            remove_journal(journal)
         else:
             print(f"resuming from {journal}: scenarios an earlier run finished are not scored again "
                   "(--restart scores everything)", file=sys.stderr)
@@ -215,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     _stderr_findings(result)
     if args.output:
         write_result(result, Path(args.output))
-        journal.unlink(missing_ok=True)  # the result is on disk: nothing left to resume
+        remove_journal(journal)  # the result is on disk: nothing left to resume
         print(_headline(result), file=sys.stderr)
         print(f"results written to {args.output}", file=sys.stderr)
         if objects is not None:

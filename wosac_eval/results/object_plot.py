@@ -5,7 +5,9 @@ the others' logs in grey) and its events (collision, off-road, red light) where 
 its metric features over the simulated steps, each rollout (thin) and their median against the log:
 speed, acceleration, distance to the nearest object and distance to the road edge (negative: on
 the road), the same per-step features its likelihoods come from (`features.metric_features`). Steps
-where the log is invalid are left blank in the log's line.
+where the log is invalid are left blank in the log's line. Behind them, the likelihood's histogram
+(the config's bins of that metric): each bin shaded by the share of the rollouts' values in it, so a
+logged line through pale bins is what the metric finds unlikely.
 """
 from __future__ import annotations
 
@@ -25,8 +27,25 @@ PANELS = (("linear_speed", "speed", "m/s"), ("linear_acceleration", "acceleratio
 _LOG, _SIM = "#24292f", "#0969da"
 
 
-def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100) -> bytes:
+def _shade_bins(axis, values: np.ndarray, histogram) -> None:
+    """Horizontal bands at the histogram's bins, each as dark as the share of `values` that falls in it."""
+    from wosac_eval.estimators.likelihoods import histogram_bins, histogram_edges
+
+    edges = histogram_edges(histogram.min_val, histogram.max_val, histogram.num_bins).astype(np.float64)
+    finite = values[np.isfinite(values)].astype(np.float32)
+    if not finite.size:
+        return
+    share = np.bincount(histogram_bins(finite, edges.astype(np.float32)), minlength=len(edges) - 1) / finite.size
+    for k in np.flatnonzero(share):
+        axis.axhspan(edges[k], edges[k + 1], color=_SIM, alpha=0.05 + 0.3 * share[k] / share.max(), lw=0,
+                     zorder=0)
+
+
+def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100,
+               config=None) -> bytes:
     """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
+
+    `config`: the metrics config whose histogram bins are shaded (default: the challenge's current one).
 
     Raises:
       ValueError: the rollouts do not fit the scenario, or the object is not evaluated (the message lists
@@ -37,9 +56,10 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
     from matplotlib.figure import Figure
 
     from wosac_eval.features.metric_features import scenario_features
-    from wosac_eval.scoring.scenario import scenario_inputs
+    from wosac_eval.scoring.scenario import resolve_config, scenario_inputs
 
     challenge = challenges.as_challenge(challenge)
+    config = resolve_config(config, challenge)
     arrays, sim_arrays = scenario_inputs(scenario, rollouts, challenge)
     log, sim = scenario_features(arrays, sim_arrays, challenge=challenge)
     evaluated = np.asarray(log.object_id).tolist()
@@ -109,6 +129,9 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
         axis = figure.add_subplot(grid[p, 1])
         values = np.asarray(getattr(sim, feature), dtype=np.float64)[:, e]
         values = np.where(np.isfinite(values), values, np.nan)
+        metric = getattr(config, feature)
+        if metric.HasField("histogram"):
+            _shade_bins(axis, values, metric.histogram)
         for r in range(values.shape[0]):
             axis.plot(steps, values[r], color=_SIM, lw=0.6, alpha=0.25)
         with warnings.catch_warnings():  # a step where no rollout has the feature: no median there
@@ -126,7 +149,7 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
             low, high = min(b[0] for b in bounds), max(b[1] for b in bounds)
             margin = 0.08 * max(high - low, 1e-3)
             axis.set_ylim(low - margin, high + margin)
-        axis.set_title(f"{title} ({unit})", fontsize=9)
+        axis.set_title(f"{title} ({unit}); shaded: the likelihood's bins, by the rollouts' share", fontsize=9)
         axis.tick_params(labelsize=7)
         if p == 0:
             axis.legend(fontsize=7, loc="upper right", framealpha=0.85)

@@ -45,7 +45,7 @@ def check_set(case_set, mode: str, search: str) -> None:
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     with jax.enable_x64(mode == "exact"):
         feats = jax_realism.features(prepared, **arrays)
-        got = jax.jit(lambda a: jax_realism.realism(prepared, **a))(arrays)
+        got = jax.jit(lambda p, a: jax_realism.realism(p, **a))(prepared, arrays)  # prepared: an argument
     got = {k: np.asarray(v) for k, v in got.items()}
     counts: dict[str, list] = {}
     for s, (case, (scene, rollouts)) in enumerate(zip(cases, pairs)):

@@ -1,51 +1,57 @@
-"""Realism in the training loop (`wosac_eval.jax_realism`) against the file path, scenes per second.
+"""Realism in a training loop (`wosac_eval.jax_realism`): scenes per second over a batch sweep, XLA's cost per scene.
 
-Ways to score the same scenes and rollouts, each given one warm-up
-(compilation for JAX) and the same `--repeat` timed runs:
+What a training loop does, and only that, in the main rows: `prepare` a scene set once (timed
+separately), keep the rollouts resident on the device, and call a jitted step that takes `prepared`
+as an argument, `jax.jit(step)(prepared, rollouts, shift)`, with `step` returning the meta-metric
+of `realism` on the rollouts moved by `shift` (new rollouts every call, as a training step scores
+its own). For each batch size of `--scenes` (the prepared scenes repeated on the device, scene by
+scene, up to that many) and each mode: float32 (x64 off: JAX's defaults, no XLA flag, as a training
+loop runs) and exact (traced with x64 on).
 
-- in the loop: `prepare` once (timed separately), then `realism(prepared, x, y, z, heading)` inside
-  the caller's `jax.jit` on new rollouts every call (moved a little each time, as a training step
-  would), in float32 mode (x64 off, JAX's defaults, no XLA flag: as a training loop runs) and in
-  exact mode (traced with x64 on);
-- the file path with the jax backend, `score_submission(..., backend="jax")` of the same rollouts as
-  a submission (parsing, validation, host preparation, device, metrics), in a fresh process that
-  opts in to `exact_cpu()` as the CLI does;
-- the file path with numpy, one worker and `--workers` workers, in a fresh process without JAX (a
-  process that has started JAX must spawn its workers, which would be counted).
+The closed-over pattern, `jax.jit(lambda rollouts, shift: step(prepared, rollouts, shift))`, which
+makes the prepared scenes constants of the compiled program, has its own labelled rows (float32
+mode) at the sizes of `--closed-over` (default: the smallest of `--scenes`; it is the pattern to
+avoid: at 2,048 real scenes on an H200 it captured 7.88 GB of constants and had not compiled after
+220 s).
 
-Prints scenes per second for each, the projection for the 44,097-scene validation set, the device
-in use (`jax.devices()`, a GPU when JAX has one) and, where the device reports it, the peak device
-memory per scene of the in-loop call. Pure JAX: nothing here is specific to a CPU.
+Every row prints: the compile time of its program (`jitted.lower(...).compile()`), the median
+seconds per call over `--repeat` calls after one warm-up call, scenes per second, the projection for
+the 44,097-scene validation set, and XLA's cost analysis of the compiled program per scene
+(`compiled.cost_analysis()`: "flops" and "bytes accessed"; with the host search the callbacks' work
+on the host is not in it, and a loop body counts once), and where the device reports it
+(`memory_stats()`; not on a CPU) the peak device memory per scene so far. Pure JAX: nothing here
+is specific to a CPU.
 
-`--search host,device` times the in-loop call with each of `prepare`'s searches (default: "auto",
-the host's pruned search on a CPU, the device's fixed-shape one on an accelerator).
+`--search host,device` times each of `prepare`'s searches (default "auto": the host's pruned search
+on a CPU, the device's fixed-shape one on an accelerator). `--womd` takes the real WOMD scenes of
+the reference material (`../shared/womd`, or WOSAC_SHARED) as the scene set to repeat, else
+`--distinct` synthetic scenes. `--file-path` adds the file path's rows for the distinct scenes
+(`score_submission`, jax and numpy backends, in fresh processes: parsing, validation and host
+preparation included), for comparison.
 
-`--batch 1,64` also times the in-loop call on the scene set repeated 64 times (prepared once, copied
-on the device): a GPU needs batches of hundreds of scenes to be busy. `--womd` takes the real WOMD
-scenes of the reference material (`../shared/womd`, or WOSAC_SHARED) instead of synthetic ones.
-
-Usage: python benchmarks/jax_realism_speed.py [--scenes 16] [--repeat 3] [--workers 2] [--batch 1] [--womd]
-                                              [--search auto|host|device|host,device]
+Usage: python benchmarks/jax_realism_speed.py [--scenes 16,64,256] [--repeat 3] [--distinct 8 | --womd]
+                                              [--search auto|host|device|host,device] [--modes float32,exact]
+                                              [--closed-over 16] [--file-path [--workers 2]]
 """
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 from bench_env import SHARED, VALIDATION_SET, median_seconds
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
+from support.tiling import tiled, tiled_rollouts
 from wosac_eval import jax_realism
+from wosac_eval.backends.jax_realism import CLOSED_OVER_WARNING_BYTES
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission, policy_rollouts
-
 
 
 _FILE_PATH_CHILD = """
@@ -79,40 +85,64 @@ def _peak_device_bytes() -> int | None:
     return stats.get("peak_bytes_in_use")
 
 
-def repeated(prepared: jax_realism.PreparedScenes, copies: int) -> jax_realism.PreparedScenes:
-    """The scene set `copies` times over (copy-major), its device arrays concatenated: a bigger batch
-    without preparing the same scenes again."""
-    if copies == 1:
-        return prepared
-    n = prepared.num_scenes
-    arrays = tuple(jax.tree_util.tree_map(lambda a: jnp.concatenate([a] * copies), group) for group in prepared.arrays)
-    groups = tuple((tuple(c * n + i for c in range(copies) for i in indices), layout)
-                   for indices, layout in prepared.groups)
-    return dataclasses.replace(prepared, arrays=arrays, groups=groups, scenario_ids=prepared.scenario_ids * copies,
-                               agent_ids=prepared.agent_ids * copies)
+def step(prepared, rollouts: dict, shift):
+    """A training step's realism: the meta-metric per scene of the rollouts moved by `shift` metres."""
+    moved = dict(rollouts, x=rollouts["x"] + shift)
+    return jax_realism.realism(prepared, **moved)["metametric"]
 
 
-def in_loop_seconds(prepared, arrays: dict, repeat: int) -> tuple[float, float]:
-    """Median seconds of the jitted realism call on new rollouts each time: (float32 mode, exact mode)."""
+def cost_per_scene(compiled, num_scenes: int) -> tuple[float, float]:
+    """XLA's (flops, bytes accessed) of a compiled program, per scene."""
+    cost = compiled.cost_analysis()
+    if isinstance(cost, (list, tuple)):  # older JAX: one dict per program
+        cost = cost[0]
+    return cost.get("flops", float("nan")) / num_scenes, cost.get("bytes accessed", float("nan")) / num_scenes
+
+
+HEADER = (f"{'path':62s} {'scenes':>6s} {'compile s':>9s} {'s/call':>8s} {'scenes/s':>9s} {'44,097':>8s} "
+          f"{'flops/scene':>11s} {'bytes/scene':>11s} {'peak MiB/scene':>14s}")
+
+
+def row(label: str, num_scenes: int, compile_s: float, seconds: float, cost=(float("nan"),) * 2) -> None:
+    peak = _peak_device_bytes()
+    peak_text = "-" if peak is None else f"{peak / num_scenes / 2**20:.1f}"
+    print(f"{label:62s} {num_scenes:6d} {compile_s:9.1f} {seconds:8.3f} {num_scenes / seconds:9.1f} "
+          f"{VALIDATION_SET * seconds / num_scenes / 60:6.1f} m {cost[0]:11.2e} {cost[1]:11.2e} {peak_text:>14s}",
+          flush=True)
+
+
+def timed_calls(compiled, args_of, repeat: int) -> float:
+    """Median seconds of `compiled(*args_of(k))` on new shifts, after one warm-up call."""
     shift = {"k": 0}
-    step = jax.jit(lambda a: jax_realism.realism(prepared, **a))
 
-    def in_loop():
+    def call():
         shift["k"] += 1  # new rollouts every step
-        moved = dict(arrays, x=arrays["x"] + np.float32(0.01 * shift["k"]))
-        jax.block_until_ready(step(moved))
+        jax.block_until_ready(compiled(*args_of(np.float32(0.01 * shift["k"]))))
 
-    def first_then_median(label: str) -> float:
+    return median_seconds(call, repeat, warmup=1)
+
+
+def in_the_loop(prepared, rollouts, mode: str, repeat: int) -> tuple[float, float, tuple]:
+    """(compile s, s/call, cost per scene) of `jax.jit(step)` with `prepared` and the rollouts as arguments."""
+    with jax.enable_x64(mode == "exact"):
         start = time.perf_counter()
-        in_loop()  # compiles
-        print(f"  {prepared.num_scenes} scenes, {label}: first call (compiles) {time.perf_counter() - start:.1f} s",
-              flush=True)
-        return median_seconds(in_loop, repeat)
+        compiled = jax.jit(step).lower(prepared, rollouts, np.float32(0)).compile()
+        compile_s = time.perf_counter() - start
+        seconds = timed_calls(compiled, lambda shift: (prepared, rollouts, shift), repeat)
+    return compile_s, seconds, cost_per_scene(compiled, prepared.num_scenes)
 
-    float32_s = first_then_median("float32 mode")
-    with jax.enable_x64(True):
-        exact_s = first_then_median("exact mode")
-    return float32_s, exact_s
+
+def closed_over(prepared, rollouts, repeat: int) -> tuple[float, float, tuple, bool]:
+    """The same, float32 mode, with `prepared` closed over (constants of the program); and whether
+    `realism` warned about it (it warns once per process)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        start = time.perf_counter()
+        compiled = jax.jit(lambda r, shift: step(prepared, r, shift)).lower(rollouts, np.float32(0)).compile()
+        compile_s = time.perf_counter() - start
+    warned = any("closes over" in str(w.message) for w in caught)
+    seconds = timed_calls(compiled, lambda shift: (rollouts, shift), repeat)
+    return compile_s, seconds, cost_per_scene(compiled, prepared.num_scenes), warned
 
 
 def womd_scenarios() -> tuple[list, list]:
@@ -129,26 +159,27 @@ def womd_scenarios() -> tuple[list, list]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", type=int, default=16)
+    parser.add_argument("--scenes", default="16,64,256", help="comma-separated scenes per call (the batch sweep)")
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--batch", default="1", help="comma-separated copies of the scene set for the in-loop call")
-    parser.add_argument("--womd", action="store_true", help="the real WOMD scenes of ../shared/womd")
-    parser.add_argument("--search", default="auto", help="comma-separated searches of `prepare` to time in the loop")
+    parser.add_argument("--distinct", type=int, default=8, help="distinct synthetic scenes, repeated to each batch")
+    parser.add_argument("--womd", action="store_true", help="repeat the real WOMD scenes of ../shared/womd instead")
+    parser.add_argument("--search", default="auto", help="comma-separated searches of `prepare` to time")
+    parser.add_argument("--modes", default="float32,exact", help="comma-separated modes of the main rows")
+    parser.add_argument("--closed-over", default=None,
+                        help="comma-separated batch sizes of the closed-over rows (default: the smallest; 0: none)")
+    parser.add_argument("--file-path", action="store_true", help="also the file path's rows, for the distinct scenes")
+    parser.add_argument("--workers", type=int, default=2, help="numpy workers of the file path's rows")
     args = parser.parse_args()
-    copies = [int(c) for c in args.batch.split(",")]
+    sizes = [int(n) for n in args.scenes.split(",")]
+    closed_sizes = [min(sizes)] if args.closed_over is None else [int(n) for n in args.closed_over.split(",") if int(n)]
     if args.womd:
         scenarios, shards = womd_scenarios()
         what = f"{len(scenarios)} real WOMD scenes"
     else:
-        scenarios, shards = scenes.generate_scenes(args.scenes, seed=7), None
+        scenarios, shards = scenes.generate_scenes(args.distinct, seed=7), None
         what = f"{len(scenarios)} synthetic scenes"
-    print(f"device: {jax.devices()[0]}; {what}, IDM rollouts (32 each), sim agents")
-
-    def row(label: str, seconds: float, scenes_per_call: int) -> None:  # printed as measured
-        print(f"{label:62s} {seconds:8.3f} {scenes_per_call / seconds:9.1f} "
-              f"{VALIDATION_SET * seconds / scenes_per_call / 60:11.1f} min", flush=True)
-
+    print(f"device: {jax.devices()[0]} (JAX {jax.__version__}); {what} repeated to {args.scenes} per call, "
+          f"IDM rollouts (32 each), sim agents", flush=True)
     rollouts = [policy_rollouts(sc, "idm") for sc in scenarios]
     n = len(scenarios)
     for search in args.search.split(","):
@@ -157,28 +188,42 @@ def main() -> None:
         prepare_s = time.perf_counter() - start
         arrays = jax_realism.stack_rollouts(prepared, rollouts)
         print(f"prepare (once per scene set), {prepared.search} search: {prepare_s:.2f} s "
-              f"({prepare_s / n * 1e3:.0f} ms/scene)", flush=True)
-        print(f"{'path':62s} {'s/call':>8s} {'scenes/s':>9s} {'44,097 scenes':>14s}", flush=True)
-        for c in copies:
+              f"({prepare_s / n * 1e3:.0f} ms/scene), {len(prepared.groups)} group(s)", flush=True)
+        print(HEADER, flush=True)
+        for size in sorted(set(sizes) | set(closed_sizes)):
             try:
-                batch = {k: np.concatenate([v] * c) for k, v in arrays.items()}
-                float32_s, exact_s = in_loop_seconds(repeated(prepared, c), batch, args.repeat)
+                batch = tiled(prepared, size)  # gathered on the device
+                resident = jax.device_put(tiled_rollouts(arrays, size))  # the rollouts live on the device
+                jax.block_until_ready(resident)
+                if size in sizes:
+                    for mode in args.modes.split(","):
+                        compile_s, seconds, cost = in_the_loop(batch, resident, mode, args.repeat)
+                        row(f"in the loop, {prepared.search} search, {mode} mode, prepared an argument", size,
+                            compile_s, seconds, cost)
+                if size in closed_sizes:
+                    compile_s, seconds, cost, warned = closed_over(batch, resident, args.repeat)
+                    row(f"CLOSED OVER (constants), {prepared.search} search, float32", size, compile_s, seconds, cost)
+                    constants = sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(batch))
+                    why = ("yes" if warned else "no, under its threshold" if constants <= CLOSED_OVER_WARNING_BYTES
+                           else "no, it warns once per process")
+                    print(f"  closed over: {constants / 1e6:.1f} MB of prepared arrays became constants; "
+                          f"realism warned: {why}", flush=True)
             except Exception as error:  # a batch too big for the device: say so, go on with the others
-                print(f"batch of {c * n} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}")
-                continue
-            row(f"in the loop, {prepared.search} search, float32 mode (x64 off), {c * n} scenes", float32_s, c * n)
-            row(f"in the loop, {prepared.search} search, exact mode (x64 on), {c * n} scenes", exact_s, c * n)
-            peak = _peak_device_bytes()
-            if peak is not None:
-                print(f"  peak device memory so far: {peak / 2**20:.0f} MiB ({peak / (c * n) / 2**20:.1f} MiB per "
-                      f"scene of this batch)", flush=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        if shards is None:
-            shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
-        submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
-        row("file path, --backend jax (exact)", _file_path(shards, submission, 1, args.repeat, "jax"), n)
-        for w in (1, args.workers):
-            row(f"file path, numpy, {w} worker{'s' if w > 1 else ''}", _file_path(shards, submission, w, args.repeat, "numpy"), n)
+                print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}",
+                      flush=True)
+            finally:
+                batch = resident = None
+    if args.file_path:
+        with tempfile.TemporaryDirectory() as tmp:
+            if shards is None:
+                shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
+            submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
+            print(f"file path, {n} distinct scenes per call:", flush=True)
+            paths = [("--backend jax (exact)", 1, "jax"), ("numpy, 1 worker", 1, "numpy")]
+            if args.workers > 1:
+                paths.append((f"numpy, {args.workers} workers", args.workers, "numpy"))
+            for label, workers, backend in paths:
+                row(f"file path, {label}", n, float("nan"), _file_path(shards, submission, workers, args.repeat, backend))
 
 
 if __name__ == "__main__":

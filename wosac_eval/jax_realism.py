@@ -4,6 +4,10 @@
     prepared = jax_realism.prepare(scenarios)                  # host work, once
     metrics = jax_realism.realism(prepared, x, y, z, heading)  # (num_scenes, 32, max_agents, 80) each
 
+    # In a training step, `prepared` is an argument of your jit (closed over, it becomes constants of it):
+    step = jax.jit(lambda prepared, x, y, z, heading: jax_realism.realism(prepared, x, y, z, heading))
+    metrics = step(prepared, x, y, z, heading)               # or jax_realism.jit_step(step_fn, prepared)
+
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
 from wosac_eval.backends.jax_realism import (  # noqa: F401
@@ -13,6 +17,7 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
     Realism,
     features,
     from_waymax,
+    jit_step,
     prepare,
     realism,
     stack_rollouts,
@@ -22,4 +27,4 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
 from wosac_eval.backends.jax_backend import exact_cpu  # noqa: F401
 
 __all__ = ["PreparedScenes", "Realism", "MODES", "SEARCHES", "prepare", "realism", "features", "stack_rollouts",
-           "waymax_columns", "from_waymax", "exact_cpu"]
+           "waymax_columns", "from_waymax", "jit_step", "exact_cpu"]

@@ -17,6 +17,7 @@ from functools import lru_cache
 
 import contextlib
 import os
+import re
 import subprocess
 import sys
 import warnings
@@ -29,7 +30,7 @@ from wosac_eval import jax_realism
 import jax  # noqa: E402
 from jax import lax  # noqa: E402
 
-from support import golden  # noqa: E402
+from support import golden, tiling  # noqa: E402
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
 from wosac_eval.features.metric_features import PER_STEP_FIELDS, scenario_features  # noqa: E402
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS  # noqa: E402
@@ -209,17 +210,17 @@ def test_a_plain_training_step_with_x64_off():
         moved = dict(arrays, x=arrays["x"] + shift)
         return 1.0 - jax_realism.realism(prepared, **moved)["metametric"].mean()
 
-    def scan_of_vmap(steps):  # steps: (num_steps, num_sets, *rollout shape)
+    def scan_of_vmap(prepared, steps):  # steps: (num_steps, num_sets, *rollout shape)
         def step(carry, sets):
             out = jax.vmap(lambda a: jax_realism.realism(prepared, **a))(sets)
             return carry, (out["metametric"], out.mode == "float32")
         return lax.scan(step, 0.0, steps)[1]
 
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no dtype truncation warnings in the caller's trace
+        warnings.simplefilter("error")  # no dtype truncation warnings in the caller's trace, no closed-over scenes
         base, moved = float(loss(prepared, 0.0)), float(loss(prepared, 3.0))
         steps = {k: np.stack([np.stack([v, v + np.float32(k == "x")])] * 2) for k, v in arrays.items()}
-        scanned, float32_mode = jax.jit(scan_of_vmap)(steps)
+        scanned, float32_mode = jax.jit(scan_of_vmap)(prepared, steps)
     expected = in_jit("float32", prepared, arrays)  # the step other tests compiled already
     assert expected["metametric"].dtype == np.float32
     assert base == pytest.approx(1.0 - np.mean(expected["metametric"]), abs=1e-6)
@@ -228,6 +229,69 @@ def test_a_plain_training_step_with_x64_off():
     scanned = np.asarray(scanned)  # (steps, sets, scenes)
     np.testing.assert_array_equal(scanned[:, 0], np.stack([expected["metametric"]] * 2))
     assert (scanned[:, 1] < scanned[:, 0]).all()  # the set moved 1 m is less realistic, in every step
+
+
+_CONSTANT = re.compile(r"stablehlo\.constant\s+(dense(?:_resource)?)<(.{0,3})[^\n]*?:\s*tensor<([^>]*)>")
+_ELEMENT_BITS = {"i1": 8, "i8": 8, "ui8": 8, "i16": 16, "ui16": 16, "f16": 16, "bf16": 16, "i32": 32, "ui32": 32,
+                 "f32": 32, "i64": 64, "ui64": 64, "f64": 64}
+
+
+def largest_constant_bytes(stablehlo: str) -> int:
+    """The bytes of the largest constant a lowered module embeds (a splat counts one element)."""
+    largest = 0
+    for kind, head, tensor in _CONSTANT.findall(stablehlo):
+        *dims, element = tensor.split("x")
+        splat = kind == "dense" and not head.startswith(("[", '"0x'))
+        count = 1 if splat else int(np.prod([int(d) for d in dims], dtype=np.int64))
+        largest = max(largest, count * _ELEMENT_BITS[element] // 8)
+    return largest
+
+
+@pytest.mark.parametrize("search", ["device", "host"])
+def test_prepared_as_an_argument_embeds_no_large_constant(search):
+    """256 scenes (three repeated; abstract arrays: lowered, not compiled), `prepared` an argument of the
+    caller's jit, directly or through `jit_step`: no constant over 1 MB in the program and no warning. The
+    same step closing over the three scenes embeds their arrays (device search: 9 MB), which the scan sees."""
+    prepared, arrays = prepared_set("sim_agents", search=search)
+    big = tiling.tiled(prepared, 256, abstract=True)
+    big_arrays = tiling.tiled_rollouts(arrays, 256, abstract=True)
+    assert big.num_scenes == 256 and big.host_searches is prepared.host_searches
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lowered = [_step.lower(big, big_arrays),
+                   jax_realism.jit_step(lambda p, a: jax_realism.realism(p, **a)["metametric"], big).lower(big_arrays)]
+    for low in lowered:
+        assert largest_constant_bytes(low.as_text()) <= 2**20
+    if search == "device":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the closed-over warning (once per process): its own test
+            closed = jax.jit(lambda a: jax_realism.realism(prepared, **a)).lower(arrays).as_text()
+        assert largest_constant_bytes(closed) > 2**20
+
+
+def test_a_closed_over_prepared_set_warns_once_with_the_fix(monkeypatch):
+    """Traced by a jit with `prepared` closed over (its arrays concrete: 9 MB here), `realism` warns once per
+    process in one sentence showing the fix; an eager call or vmap stages nothing and is not a jit."""
+    from wosac_eval.backends import jax_realism as backend
+
+    monkeypatch.setattr(backend, "_closed_over_warned", False)
+    prepared, arrays = prepared_set("sim_agents")
+    assert sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(prepared)) > backend.CLOSED_OVER_WARNING_BYTES
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        jax.eval_shape(lambda p, a: jax_realism.realism(p, **a), prepared, arrays)  # an argument: silent
+        assert not caught
+        for _ in range(2):
+            jax.eval_shape(lambda a: jax_realism.realism(prepared, **a), arrays)
+    assert len(caught) == 1, [str(w.message) for w in caught]
+    message = str(caught[0].message)
+    assert caught[0].filename == __file__
+    assert "constants of the compiled program" in message and "pass them as an argument" in message
+    assert "jax.jit(lambda prepared, x, y, z, heading:" in message and "jit_step" in message
+    under = []
+    jax.vmap(lambda v: under.append(backend._under_a_jit()) or v)(np.zeros(2))
+    jax.jit(lambda v: under.append(backend._under_a_jit()) or v)(np.zeros(2))
+    assert under == [False, True] and not backend._under_a_jit()
 
 
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])

@@ -24,6 +24,9 @@ process of its tree and the disk use of the folders it writes:
 
 - validate:  `wosac-eval validate --json --workers K`
 - cli:       `wosac-eval score --workers K -o result.json` (default analysis)
+- cli-objects: the same with `--per-object`: every evaluated object's values streamed through the run's
+             journal into the side file `result.objects.jsonl`; its size, its objects, and its wall and
+             CPU time against the cli path's of the same run (the goal: at most 10 % more, in bounded memory)
 - service:   `wosac-server serve` (API + 1 worker, K scoring processes per job) on 127.0.0.1 with a
              temporary data dir; the submission uploaded with `wosac_eval.client.submit` (a resumable
              httpx upload of 64 MiB chunks when that client is not installed), scored and published
@@ -88,7 +91,7 @@ OFFICIAL_SHARDS = 150  # validation.tfrecord-0000k-of-00150
 PER_SHARD = math.ceil(VALIDATION_SET / OFFICIAL_SHARDS)  # 294 scenarios per official shard
 PLACEHOLDER = b"<full-scale-id!>"  # 16 bytes, as a WOMD scenario id: copies patch these in place
 LAYOUT_VERSION = 1  # bump when the bytes a build writes change
-ALL_PATHS = ("validate", "cli", "service", "ray", "interrupt")
+ALL_PATHS = ("validate", "cli", "cli-objects", "service", "ray", "interrupt")
 METHOD = "full-scale-benchmark"
 MiB = 1 << 20
 GiB = 1 << 30
@@ -726,7 +729,8 @@ def digest_result(path: Path, layout: Layout, pool_size: int) -> dict:
         body = {k: v for k, v in row.items() if k != "scenario_id"}
         per_base.setdefault(i % pool_size, set()).add(_sha(body))
         first_of_base.setdefault(i % pool_size, row)
-    rest = {k: v for k, v in doc.items() if k not in ("scenarios", "buckets", "aggregate")}
+    # "per_object" names a side file (score --per-object): not a score, so the paths compare without it
+    rest = {k: v for k, v in doc.items() if k not in ("scenarios", "buckets", "aggregate", "per_object")}
     return {"rows": _sha(rows), "buckets": _sha(doc.get("buckets")), "aggregate": _sha(doc.get("aggregate")),
             "rest": _sha(rest), "num_scenarios": len(rows),
             "metametric": (doc.get("aggregate") or {}).get("metametric"),
@@ -793,8 +797,41 @@ def path_cli(ctx) -> dict:
     row = ctx.row("cli", f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json", run,
                   run.watch.peaks(by_depth("main", "workers")), disk=run.watch.disk_peak["out"])
     ctx.cli_wall = run.wall_s if run.rc == 0 else None
+    ctx.cli_cpu = run.cpu_s if run.rc == 0 else None
     if out.exists():
         row["note"] = f"result document {out.stat().st_size / MiB:.1f} MiB"
+    return ctx.with_result(row, out, run)
+
+
+def path_cli_objects(ctx) -> dict:
+    """The cli path with `--per-object`: what the side file costs (time, memory, disk) over the plain run."""
+    scenarios, submission = _paths(ctx.build)
+    out = ctx.runs / "cli-objects" / "result.json"
+    objects = out.with_name("result.objects.jsonl")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    for stale in (out, objects, out.with_name(out.name + ".journal")):
+        stale.unlink(missing_ok=True)
+    cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
+               "--per-object", "-o", str(out), *ctx.challenge_args)
+    run = run_watched(cmd, ctx.runs, "cli-objects", env=_env(), dirs={"out": out.parent})
+    row = ctx.row("cli-objects", f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} --per-object -o R.json",
+                  run, run.watch.peaks(by_depth("main", "workers")), disk=run.watch.disk_peak["out"])
+    if out.exists() and objects.exists():
+        size = objects.stat().st_size
+        num_objects = json.loads(out.read_text()).get("per_object", {}).get("num_objects")
+        row["objects_bytes"], row["num_objects"] = size, num_objects
+        row["note"] = (f"result document {out.stat().st_size / MiB:.1f} MiB; side file {size / MiB:.1f} MiB "
+                       f"({num_objects} objects, {size / ctx.layout.scenes / 1024:.1f} KiB per scene)")
+        if ctx.cli_wall:
+            row["vs_cli_wall"] = round(run.wall_s / ctx.cli_wall - 1, 4)
+            row["vs_cli_cpu"] = round(run.cpu_s / ctx.cli_cpu - 1, 4) if ctx.cli_cpu else None
+            row["note"] += (f"; against the cli path: wall {100 * row['vs_cli_wall']:+.1f} %"
+                            + (f", CPU {100 * row['vs_cli_cpu']:+.1f} %" if row["vs_cli_cpu"] is not None else ""))
+        else:
+            row["note"] += "; run the cli path before it (--paths cli,cli-objects) for its cost relative to it"
+        objects.unlink()  # large at full size: its size is what is reported
+    elif run.rc == 0:
+        row["ok"], row["note"] = False, "no side file written"
     return ctx.with_result(row, out, run)
 
 
@@ -1116,8 +1153,8 @@ def path_ray(ctx) -> dict:
     return ctx.with_result(row, out, run)
 
 
-PATH_RUNNERS = {"validate": path_validate, "cli": path_cli, "service": path_service, "ray": path_ray,
-                "interrupt": path_interrupt}
+PATH_RUNNERS = {"validate": path_validate, "cli": path_cli, "cli-objects": path_cli_objects, "service": path_service,
+                "ray": path_ray, "interrupt": path_interrupt}
 
 
 class Context:
@@ -1139,6 +1176,7 @@ class Context:
         self.ray_timeout = args.ray_timeout
         self.service_timeout = args.service_timeout
         self.cli_wall: float | None = None
+        self.cli_cpu: float | None = None
         self.load_before = 0.0
         # The first result on this build is the reference of every later one, in this run or a later run
         # on the same cached build (so that paths measured one at a time are compared too).
@@ -1220,19 +1258,19 @@ def print_table(rows: list[dict], manifest: dict) -> None:
     print(f"\n{n} scenarios, {os.cpu_count()} cores; peak RSS from each process's VmHWM (sampled every 0.2 s); "
           f"CPU: user + system seconds of the path's processes (service: the upload client and the job); "
           f"disk: allocated bytes the path wrote (peak); load: the 1-minute load average before-after")
-    print(f"{'path':10s} {'wall s':>8s} {'scenes/s':>8s} {'CPU s':>7s} {'disk MiB':>9s} {'same result':>11s} "
+    print(f"{'path':11s} {'wall s':>8s} {'scenes/s':>8s} {'CPU s':>7s} {'disk MiB':>9s} {'same result':>11s} "
           f"{'load':>9s}  peak RSS per process")
     for r in rows:
         if "skipped" in r or "failed" in r:
-            print(f"{r['path']:10s} {'skipped: ' + r['skipped'] if 'skipped' in r else 'FAILED: ' + r['failed'][:300]}")
+            print(f"{r['path']:11s} {'skipped: ' + r['skipped'] if 'skipped' in r else 'FAILED: ' + r['failed'][:300]}")
             continue
         load = f"{r['load_before']:.1f}-{r['load_after']:.1f}"
-        print(f"{r['path']:10s} {r['wall_s']:8.1f} {r['scenes_per_s']:8.1f} {r['cpu_s']:7.0f} "
+        print(f"{r['path']:11s} {r['wall_s']:8.1f} {r['scenes_per_s']:8.1f} {r['cpu_s']:7.0f} "
               f"{r['disk_bytes'] / MiB:9.1f} {r['same']:>11s} {load:>9s}  {_fmt_peaks(r['peak_rss'])}")
     print()
     for r in rows:
         if "skipped" not in r and "failed" not in r:
-            print(f"{r['path']:10s} {r['what']}: {r['note'].lstrip('; ')}")
+            print(f"{r['path']:11s} {r['what']}: {r['note'].lstrip('; ')}")
     digests = [r["digest"] for r in rows if "digest" in r]
     if digests:
         d = digests[0]

@@ -26,7 +26,7 @@ from .guard import CloseUnreadBodies
 from .routes import public, submissions, uploads
 from .service import Service
 from .settings import Settings, load_settings
-from .web import install_pages
+from .web import install_pages, install_scene_pages
 
 
 log = logging.getLogger("wosac_server.app")
@@ -83,6 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     for module in (public, submissions, uploads):
         app.include_router(module.router)
     install_pages(app, svc)
+    install_scene_pages(app, svc)
     for error_type in disk.full_error_types():
         app.add_exception_handler(error_type, _disk_full_answer)
     app.add_middleware(CloseUnreadBodies)  # an early answer closes its connection: no unread body is waited for

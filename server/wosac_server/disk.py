@@ -30,8 +30,11 @@ log = logging.getLogger("wosac_server.disk")
 RETRY_AFTER_S = 60
 # Every request that stores bytes leaves at least this much free, whatever the floor is set to.
 MIN_FLOOR_BYTES = 1024**2
-# A job's own files: its journal and result rows (~3.4 KB each per scenario today), its pictures.
-JOB_BYTES_PER_SCENARIO = 8 * 1024
+# A job's own files: its journal and result rows (~3.4 KB each per scenario today), its pictures, and
+# its per-object values: the objects file and, while it scores, their copy in the journal (~1.1 KB an
+# object each; a WOMD scene evaluates ~23 objects on average, up to a few hundred; 8 bytes of row index).
+JOB_OBJECT_BYTES_PER_SCENARIO = 56 * 1024
+JOB_BYTES_PER_SCENARIO = 8 * 1024 + JOB_OBJECT_BYTES_PER_SCENARIO
 JOB_BASE_BYTES = 1024**2
 # Before validation counts its scenarios: a share of the upload (a scenario's rollouts take 100 KB
 # to 1 MB uploaded, its two rows 7 KB).

@@ -205,6 +205,16 @@ def leaderboard(store: Store, config: str, challenge: str = "sim_agents") -> lis
     ]
 
 
+def is_public(store: Store, row: dict) -> bool:
+    """Whether anyone may see a submission's scene pages, as they see its leaderboard row: done, published,
+    with a meta-metric, under a method name its own key owns (the leaderboard's rules, whatever its rank)."""
+    if row["state"] != "done" or not row["published"] or row["realism_meta_metric"] is None:
+        return False
+    owner = store.fetchone("SELECT key_id FROM method_names WHERE challenge = ? AND name_key = ?",
+                           (row["challenge"], name_key(row["method"])))
+    return owner is None or owner["key_id"] == row["key_id"]
+
+
 # -- resumable uploads ------------------------------------------------------------------
 def insert_upload(store: Store, *, upload_id: str, key_id: str, method: str, challenge: str, config: str,
                   allow_partial: bool, published: bool, declared_length: int | None) -> None:

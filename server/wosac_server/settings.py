@@ -172,6 +172,15 @@ class Settings(BaseModel):
         """Pictures of a scored submission's worst scenes, and their index `scenes.json`."""
         return self.results_dir / f"{submission_id}.scenes"
 
+    def objects_path(self, submission_id: str) -> Path:
+        """A scored submission's per-object values (`score_submission(per_object=True, objects=)`): one JSON
+        record a line per evaluated object, grouped by scene in the result's order."""
+        return self.results_dir / f"{submission_id}.objects.jsonl"
+
+    def objects_index_path(self, submission_id: str) -> Path:
+        """Where each result row's objects start in `objects_path` (`scene_objects.py`)."""
+        return self.results_dir / f"{submission_id}.objects.idx"
+
     def ensure_dirs(self) -> None:
         for d in (self.data_dir, self.uploads_dir, self.submissions_dir, self.results_dir):
             d.mkdir(parents=True, exist_ok=True)

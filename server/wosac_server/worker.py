@@ -84,24 +84,49 @@ def evaluation_of(job: dict, settings: Settings) -> Evaluation:
 
 
 def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: dict, folder: Path,
-                      count: int) -> list[dict]:
+                      count: int, objects: Path | None = None, objects_index: Path | None = None) -> list[dict]:
     """Pictures of the `count` lowest meta-metric scenes of a result, with their index (scenes.json).
 
     The rollouts come from what the scoring's validation recorded of the submission (no new walk).
-    Files are named by rank, never by scenario id: ids come from the submission.
+    Files are named by rank, never by scenario id: ids come from the submission. With the job's
+    per-object files (`scene_objects`), each scene's entry lists its worst objects and the worst one is
+    drawn against its log (`<rank>.object.png`, as `wosac-eval plot --object`).
     """
+    from wosac_eval.results.object_plot import object_png
     from wosac_eval.results.report import worst_scenarios
-    from wosac_eval.results.scene_plot import scene_pictures
+    from wosac_eval.results.scene_plot import scene_png, scene_view
+    from wosac_eval.results.worst_objects import scene_worst_objects
     from wosac_eval.scoring.result_reader import parse_result
 
+    from .scene_objects import scene_records
+
     ids = worst_scenarios(parse_result(result, str(source)), count)
-    pictures = scene_pictures(index, source, ids, result["challenge"])
-    metametric = {s["scenario_id"]: s["metametric"] for s in result["scenarios"]}
+    row_of = {s["scenario_id"]: i for i, s in enumerate(result["scenarios"])}
+    wanted = [sid for sid in ids if sid in index]
+    rollouts = source.rollouts(wanted)
     folder.mkdir(parents=True, exist_ok=True)
     index_of_scenes = []
-    for rank, (scenario_id, png) in enumerate(pictures):
+    for rank, scenario_id in enumerate(sid for sid in wanted if sid in rollouts):
+        scenario = index.load(scenario_id)
+        png = scene_png(scene_view(scenario, rollouts[scenario_id], result["challenge"]), dpi=80)
         (folder / f"{rank}.png").write_bytes(png)
-        index_of_scenes.append({"rank": rank, "scenario_id": scenario_id, "metametric": metametric[scenario_id]})
+        row = row_of[scenario_id]
+        entry = {"rank": rank, "scenario_id": scenario_id, "metametric": result["scenarios"][row]["metametric"],
+                 "row": row, "worst_objects": [], "object_picture": False}
+        records = scene_records(objects, objects_index, row) if objects and objects_index else None
+        if records:
+            entry["worst_objects"] = scene_worst_objects(records, result["scenarios"][row], result["config"])
+        if entry["worst_objects"]:
+            try:
+                picture = object_png(scenario, rollouts[scenario_id], entry["worst_objects"][0]["object_id"],
+                                     result["challenge"], dpi=70, config=result["config"])
+            except Exception:  # noqa: BLE001  (a picture helps; the scene's entry stands without it)
+                log.warning("the worst object of scene %d could not be drawn:\n%s", rank, traceback.format_exc())
+                picture = None
+            if picture is not None:
+                (folder / f"{rank}.object.png").write_bytes(picture)
+                entry["object_picture"] = True
+        index_of_scenes.append(entry)
     jobs.write_json_atomically(folder / "scenes.json", {"scenes": index_of_scenes})
     return index_of_scenes
 
@@ -365,9 +390,26 @@ class Worker:
     def draw_pictures(self, index: ScenarioIndex, source: SubmissionSource, result: dict, job_id: str) -> None:
         """The job's worst scenes; pictures help, but a drawing problem must not fail a scored job."""
         try:
-            draw_worst_scenes(index, source, result, self.settings.scenes_dir(job_id), self.settings.scene_pictures)
+            draw_worst_scenes(index, source, result, self.settings.scenes_dir(job_id), self.settings.scene_pictures,
+                              self.settings.objects_path(job_id), self.settings.objects_index_path(job_id))
         except Exception:  # noqa: BLE001
             log.error("worker %s: pictures of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
+
+    def index_objects(self, result: dict, job_id: str) -> None:
+        """The row index of the job's objects file (scene pages read one scene's objects through it); a
+        problem here leaves the scene pages without worst objects, never fails a scored job."""
+        from .scene_objects import write_index
+
+        objects = self.settings.objects_path(job_id)
+        if not objects.is_file():
+            return
+        try:
+            write_index(objects, [row["scenario_id"] for row in result["scenarios"]],
+                        self.settings.objects_index_path(job_id))
+        except Exception as exc:  # noqa: BLE001
+            if disk.is_disk_full(exc):
+                raise  # waited out and done again, as every other write of the job
+            log.error("worker %s: the objects index of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
 
     def score_here(self, job: dict) -> None:
         """Score a job in this process and record its outcome (done or failed, with the reason)."""
@@ -403,9 +445,17 @@ class Worker:
             with SubmissionSource(submission_path, evaluation.limits) as source:
                 # The same function `wosac-eval score` calls; finished scenarios go to the journal as they are
                 # scored, so a retry after this process died (or waited out a full disk) skips them.
-                result = score_submission(index, source, progress=progress, evaluation=evaluation, journal=journal)
+                # Per-object values too: streamed from the journal into the objects file (never all in memory),
+                # then indexed by row so that a scene's worst objects are read without a pass over the file.
+                objects = settings.objects_path(job_id)
+                result = score_submission(index, source, progress=progress, evaluation=evaluation, journal=journal,
+                                          per_object=True, objects=objects)
+                # The objects file is the server's own (scene pages): the result served stays the document of
+                # `wosac-eval score` without --per-object, byte for byte.
+                result.pop("per_object", None)
                 # The summary and the rows apart (results.py): served in bounded memory, however many rows.
                 results.write_result(settings.results_dir, job_id, result)
+                self.index_objects(result, job_id)
                 if settings.scene_pictures:
                     self.draw_pictures(index, source, result, job_id)
             scored_now = journal_rows(journal) - resumed

@@ -1,6 +1,6 @@
 """`benchmarks/full_scale.py` at a small size: the validation-size workload's builder and the paths
-that need no Ray cluster (validate, `wosac-eval score`, the service, an interrupted and resumed
-score), each in its own processes, must agree on the result document.
+that need no Ray cluster (validate, `wosac-eval score`, with `--per-object`, the service, an interrupted
+and resumed score), each in its own processes, must agree on the result document.
 
 A second case builds the Scenario Generation workload (`--challenge scenario_gen`: 91 steps of every
 object valid at step 10, with box sizes, validity and types) and runs validate and score on it.
@@ -63,7 +63,7 @@ def _check_workload(build) -> None:
 def test_every_path_gives_the_same_result(tmp_path):
     require_shared("womd")
     require_shared("golden")
-    paths = ["validate", "cli", "service", "interrupt"]
+    paths = ["validate", "cli", "cli-objects", "service", "interrupt"]
     try:
         import wosac_server  # noqa: F401
     except ImportError:
@@ -92,6 +92,9 @@ def test_every_path_gives_the_same_result(tmp_path):
     golden = json.loads((require_shared("golden") / "golden" /
                          "637f20cafde22ff8__official_test_submission.json").read_text())
     assert abs(rows["cli"]["digest"]["base_metametric"]["0"] - golden["metrics"]["2025"]["metametric"]) < 1e-5
+    # --per-object: the same scores, a side file of every evaluated object, its cost against the cli path's.
+    objects = rows["cli-objects"]
+    assert objects["num_objects"] > 0 and objects["objects_bytes"] > 0 and "vs_cli_wall" in objects, objects["note"]
     if "service" in rows:
         service = rows["service"]["service"]
         assert service["state"] == "done" and service["published"]

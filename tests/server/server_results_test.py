@@ -139,7 +139,8 @@ def test_a_scored_job_is_stored_apart_and_served_whole(make_server, scoring_data
         status = server.wait_state(c, sid)
         assert status["state"] == "done", status
         stored = sorted(p.name for p in (server.data_dir / "results").iterdir() if p.is_file())
-        assert stored == [f"{sid}.rows.jsonl", f"{sid}.summary.json"]
+        # (and the per-object values behind its scene pages, with their row index: server_scene_pages_test.py)
+        assert stored == [f"{sid}.objects.idx", f"{sid}.objects.jsonl", f"{sid}.rows.jsonl", f"{sid}.summary.json"]
         doc = c.get(f"/v1/submissions/{sid}/results").json()
         assert len(doc["scenarios"]) == doc["num_scenarios"] == len(scoring_data.scenarios)
         _check_served(c, sid, doc)

@@ -60,20 +60,65 @@ def _scene_contributions(records: list[dict], fields: dict, weights: dict, scene
                 yield bucket, record, total, tuple(sorted(parts, key=lambda p: -p[2]))
 
 
-def worst_objects(result: ScoringResult, top_k: int = 10) -> dict[str, list[WorstObject]]:
-    """The `top_k` objects contributing most to each bucket's gap from 1 (see the module); {} when the
-    result has no per-object file or no known config weights."""
-    if result.objects is None or result.num_scenarios == 0:
-        return {}
-    config_weights = default_bucket_weights(result.config)
+def _bucket_weights(config: str) -> tuple[dict, dict] | None:
+    """(weights, fields) of each bucket: its members' meta-metric weights normalised within the bucket, and
+    the members of positive weight; None when the config's weights are unknown."""
+    config_weights = default_bucket_weights(config)
     if config_weights is None:
-        return {}
+        return None
     weights, fields = {}, {}
     for bucket, members in BUCKET_MEMBERS.items():
         total = sum(config_weights.get(m, 0.0) for m in members)
         if total > 0:
             weights[bucket] = {m: config_weights.get(m, 0.0) / total for m in members}
             fields[bucket] = [m for m in members if weights[bucket][m] > 0]
+    return weights, fields
+
+
+def scene_worst_objects(records: list[dict], row: dict, config: str, top_k: int = 5) -> list[dict]:
+    """The objects of one scene that cost its buckets most, worst first: the split above within the scene
+    alone (N = 1), so an object's part of a bucket is its part of that scene's `1 - bucket`.
+
+    records: the scene's per-object records (`scoring.objects.read_objects`, one scene's group).
+    row: the scene's row of the result (its `*_likelihood` fields).
+    Returns up to `top_k` dicts: object_id, object_type, contribution (its parts of the scene's bucket gaps,
+    summed), buckets ({bucket: part}) and fields ([field, the object's likelihood, its part], largest first);
+    [] when the config's weights are unknown or the scene has no objects.
+    """
+    bucket_weights = _bucket_weights(config)
+    if bucket_weights is None or not records:
+        return []
+    weights, fields = bucket_weights
+    scene_field = {}
+    for members in fields.values():
+        for m in members:
+            value = row.get(f"{m}_likelihood")
+            scene_field[f"{m}_likelihood"] = float(value) if isinstance(value, (int, float)) else None
+    scene_field = {f: v for f, v in scene_field.items() if v is not None and math.isfinite(v)}
+    fields = {b: [m for m in ms if f"{m}_likelihood" in scene_field] for b, ms in fields.items()}
+    per_object: dict[int, dict] = {}
+    for bucket, record, total, parts in _scene_contributions(records, fields, weights, scene_field, 1):
+        entry = per_object.setdefault(int(record["object_id"]), {
+            "object_id": int(record["object_id"]), "object_type": record["object_type"], "contribution": 0.0,
+            "buckets": {}, "fields": []})
+        entry["contribution"] += total
+        entry["buckets"][bucket] = total
+        entry["fields"].extend([f, value, part] for f, value, part in parts)
+    ranked = sorted(per_object.values(), key=lambda e: (-e["contribution"], e["object_id"]))[:top_k]
+    for entry in ranked:
+        entry["fields"].sort(key=lambda p: -p[2])
+    return ranked
+
+
+def worst_objects(result: ScoringResult, top_k: int = 10) -> dict[str, list[WorstObject]]:
+    """The `top_k` objects contributing most to each bucket's gap from 1 (see the module); {} when the
+    result has no per-object file or no known config weights."""
+    if result.objects is None or result.num_scenarios == 0:
+        return {}
+    bucket_weights = _bucket_weights(result.config)
+    if bucket_weights is None:
+        return {}
+    weights, fields = bucket_weights
     row_of = {sid: i for i, sid in enumerate(result.scenario_ids.tolist())}
     heaps: dict[str, list] = {bucket: [] for bucket in fields}
     tie = itertools.count()

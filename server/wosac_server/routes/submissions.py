@@ -8,7 +8,7 @@ from fastapi import APIRouter, Header, HTTPException, Path, Query, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import FileResponse, Response, StreamingResponse
 
-from .. import jobs, results
+from .. import jobs, results, scenes
 from ..models import ResultScenarios, ResultSummary, SubmissionList, SubmissionStatus, status_of
 from ..results import result_csv  # noqa: F401  (the in-memory CSV builder, once defined here)
 from ..service import Key, ServiceDep
@@ -186,24 +186,21 @@ def get_result_scenarios(svc: ServiceDep, key: Key, submission_id: SubmissionId,
 def _done(svc, key, submission_id: str) -> dict:
     row = svc.own_submission(key, submission_id)
     if row["state"] != "done":
-        raise HTTPException(409, f"submission {submission_id} is {row['state']}; pictures exist once it is done")
+        raise HTTPException(409, f"submission {submission_id} is {row['state']}; scenes exist once it is done")
     return row
-
-
-def _scene_index(svc, submission_id: str) -> list[dict]:
-    path = svc.settings.scenes_dir(submission_id) / "scenes.json"
-    if not path.is_file():
-        return []
-    with open(path) as f:
-        return json.load(f)["scenes"]
 
 
 @router.get("/{submission_id}/scenes", operation_id="listScenes")
 def list_scenes(svc: ServiceDep, key: Key, submission_id: SubmissionId):
-    """The pictures of the lowest meta-metric scenes (map, log, rollouts, events), worst first."""
+    """The pictures of the lowest meta-metric scenes (map, log, rollouts, events), worst first, each with
+    its row in the result, its worst objects (the objects that cost its buckets most) and, when drawn, the
+    picture of its worst object against its log."""
     _done(svc, key, submission_id)
-    return {"scenes": [{**entry, "url": f"/v1/submissions/{submission_id}/scenes/{entry['rank']}.png"}
-                       for entry in _scene_index(svc, submission_id)]}
+    base = f"/v1/submissions/{submission_id}"
+    return {"scenes": [{**entry, "url": f"{base}/scenes/{entry['rank']}.png",
+                        "object_url": (f"{base}/scenes/{entry['rank']}/object.png" if entry["object_picture"]
+                                       else None)}
+                       for entry in scenes.scene_index(svc.settings, submission_id)]}
 
 
 @router.get("/{submission_id}/scenes/{rank}.png", operation_id="getScenePicture",
@@ -212,9 +209,29 @@ def get_scene_picture(svc: ServiceDep, key: Key, submission_id: SubmissionId,
                       rank: Annotated[int, Path(ge=0, le=100)]):
     """One picture of `listScenes`, by its rank."""
     _done(svc, key, submission_id)
-    if not any(entry["rank"] == rank for entry in _scene_index(svc, submission_id)):
-        raise HTTPException(404, f"submission {submission_id} has no scene picture {rank}")
-    picture = svc.settings.scenes_dir(submission_id) / f"{rank}.png"
-    if not picture.is_file():
-        raise HTTPException(410, f"picture {rank} of submission {submission_id} is missing on the server")
-    return FileResponse(picture, media_type="image/png")
+    return FileResponse(scenes.picture_path(svc.settings, submission_id, rank), media_type="image/png")
+
+
+@router.get("/{submission_id}/scenes/{rank}/object.png", operation_id="getSceneObjectPicture",
+            responses={200: {"content": {"image/png": {}}}, 404: {"description": "No such picture"}})
+def get_scene_object_picture(svc: ServiceDep, key: Key, submission_id: SubmissionId,
+                             rank: Annotated[int, Path(ge=0, le=100)]):
+    """The worst object of a scene of `listScenes` against its log (its rollouts and features), by rank."""
+    _done(svc, key, submission_id)
+    return FileResponse(scenes.picture_path(svc.settings, submission_id, rank, of_object=True),
+                        media_type="image/png")
+
+
+@router.get("/{submission_id}/results/scenarios/{row}", operation_id="getResultScene",
+            responses={200: {"content": {"application/json": {}}}, 404: {"description": "No such row"},
+                       409: {"description": "Not scored (yet)"},
+                       410: {"description": "The result is gone from the server's disk"}})
+def get_result_scene(svc: ServiceDep, key: Key, submission_id: SubmissionId,
+                     row: Annotated[int, Path(ge=0, le=MAX_HEADER_INT)]):
+    """One scene of the result by its row (0 .. num_scenarios-1, the order of `getResultScenarios`): its row
+    (`scenario`), how many objects were evaluated in it, its worst objects (each one's part of the scene's
+    bucket gaps, `wosac_eval.results.worst_objects.scene_worst_objects`) and, for a pictured scene, its
+    rank in `listScenes`."""
+    row_ = _done(svc, key, submission_id)
+    detail = scenes.scene_detail(svc.settings, row_, row)
+    return Response(json.dumps(detail, allow_nan=True), media_type="application/json")

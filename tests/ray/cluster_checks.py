@@ -145,6 +145,23 @@ def test_cluster_validation_report_equals_local(cluster, data, tmp_path):
     assert not local.ok and strip(remote) == strip(local)
 
 
+def test_a_lost_driver_resumes_from_its_journal(cluster, data, tmp_path):
+    """The driver's state is gone (its process died after 3 of 6 scenarios were journaled): the run
+    again on the cluster scores only the other 3 and gives the uninterrupted result."""
+    c, _ = cluster
+    local = score_submission(data["scenarios"], data["sim_agents_folder"])
+    journal = tmp_path / "run.journal"
+    score_submission(data["scenarios"], data["sim_agents_folder"], engine="ray", ray_address=c.address,
+                     journal=journal)
+    lines = journal.read_bytes().splitlines(keepends=True)
+    journal.write_bytes(b"".join(lines[:1 + 3]))  # the run's identity and the first 3 rows
+    done: list[int] = []
+    again = score_submission(data["scenarios"], data["sim_agents_folder"], engine="ray", ray_address=c.address,
+                             journal=journal, progress=lambda n, total: done.append(n))
+    assert canonical(again) == canonical(local)
+    assert done[0] == 3 and done[-1] == 6
+
+
 def test_a_killed_node_loses_no_work(cluster, data, monkeypatch):
     """A node removed without warning while its tasks run: they are retried elsewhere, same result."""
     c, nodes = cluster

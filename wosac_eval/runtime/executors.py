@@ -26,8 +26,13 @@ from wosac_eval.runtime.processes import worker_pool
 class Executor(Protocol):
     parallelism: int
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None) -> Iterator:
-        """`fn(shared, item)` for every item, results in item order."""
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
+             ahead: int | None = None) -> Iterator:
+        """`fn(shared, item)` for every item, results in item order.
+
+        `ahead`: how many items may wait, submitted, beyond one per worker (default: the executor's
+        own, about one per worker); items that carry a whole shard's bytes ask for 0, so that memory
+        holds a shard per worker and not twice that."""
 
 
 # Worker-process state of the local pool: the shared context, set once per process.
@@ -59,7 +64,8 @@ class LocalExecutor:
         self.force_spawn = force_spawn
         self.initializer = initializer
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None) -> Iterator:
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
+             ahead: int | None = None) -> Iterator:
         if self.workers <= 1:
             if self.initializer is not None:
                 self.initializer()
@@ -73,7 +79,7 @@ class LocalExecutor:
             pending: collections.deque = collections.deque()
             for item in items:
                 pending.append(pool.submit(_call_local, fn, item))
-                while len(pending) > 2 * self.workers:
+                while len(pending) > self.workers + (self.workers if ahead is None else ahead):
                     yield pending.popleft().result()
             while pending:
                 yield pending.popleft().result()

@@ -220,10 +220,11 @@ class RayExecutor:
         self.initializer = initializer
         self.parallelism = max(1, int(ray.cluster_resources().get("CPU", 1)))
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None) -> Iterator:
+    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
+             ahead: int | None = None) -> Iterator:
         box = [ray.put(shared)]  # in a list: Ray passes the reference, the worker fetches it once
         pending: collections.deque = collections.deque()
-        limit = IN_FLIGHT_PER_CPU * self.parallelism
+        limit = IN_FLIGHT_PER_CPU * self.parallelism if ahead is None else self.parallelism + ahead
         try:
             for item in items:
                 pending.append(_task.remote(fn, self.initializer, box, item))

@@ -276,10 +276,10 @@ def _shard_results(
 ) -> Iterator[ShardResult]:
     """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
-    A bounded number of shards is in flight, so memory stays bounded by a few
-    shards (shards of folders are byte ranges: the workers read them).
+    A shard per worker is in flight, and none waiting (an official shard is 300-400 MB decompressed):
+    memory stays bounded by a few shards (shards of folders are byte ranges: the workers read them).
     """
-    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value, limits))
+    return executor.imap(_check_shard_task, shards, (agents, max_listed, challenge.value, limits), ahead=0)
 
 
 def validate_submission(

@@ -207,6 +207,10 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
             assert status["state"] == "done" and status["attempts"] == 1, status
             assert canonical(c.get(f"/v1/submissions/{status['id']}/results").json()) == \
                 canonical(direct_single_result)
+            # Logged once the worker's next write succeeds, which may be after the job's end is recorded.
+            deadline = time.monotonic() + 30
+            while "space is back" not in log.read_text() and time.monotonic() < deadline:
+                time.sleep(0.1)
             assert "space is back" in log.read_text()
         finally:
             worker.send_signal(signal.SIGTERM)

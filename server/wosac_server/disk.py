@@ -42,12 +42,16 @@ JOB_UPLOAD_DIVISOR = 16
 FULL_DETAIL = "the server's disk is full; retry later (resumable uploads keep what was stored)"
 
 
+SQLITE_FULL = 13  # SQLite's result code for "database or disk is full" (a stable part of its C API)
+
+
 def is_disk_full(exc: BaseException) -> bool:
     """An error that means the data dir's disk (or the database's) has no room left."""
     if isinstance(exc, OSError):
         return exc.errno in (errno.ENOSPC, errno.EDQUOT)
     if isinstance(exc, sqlite3.Error):
-        return getattr(exc, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL or "disk is full" in str(exc)
+        # sqlite_errorcode and the sqlite3.SQLITE_FULL constant are Python 3.11's; 3.10 has the message only.
+        return getattr(exc, "sqlite_errorcode", None) == SQLITE_FULL or "disk is full" in str(exc)
     return getattr(exc, "sqlstate", None) == "53100"  # psycopg's DiskFull
 
 

@@ -86,6 +86,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bench_env import REPO, SHARED, VALIDATION_SET
+from wosac_eval.parse.wire import varint  # the protobuf varint the readers use
 
 OFFICIAL_SHARDS = 150  # validation.tfrecord-0000k-of-00150
 PER_SHARD = math.ceil(VALIDATION_SET / OFFICIAL_SHARDS)  # 294 scenarios per official shard
@@ -112,15 +113,6 @@ SG_CONFIG = "scenario_gen_2025"  # the golden JSON's config name of the challeng
 def scenario_id(i: int, seed: int) -> str:
     """The id of copy `i`: 16 hex digits, distinct for distinct i (an odd multiplier is a bijection mod 2**64)."""
     return f"{(i * 0x9E3779B97F4A7C15 + seed * 0x632BE59BD9B4E019) & 0xFFFFFFFFFFFFFFFF:016x}"
-
-
-def varint(n: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte, n = n & 0x7F, n >> 7
-        out.append(byte | (0x80 if n else 0))
-        if not n:
-            return bytes(out)
 
 
 def _mask(crc: int) -> int:

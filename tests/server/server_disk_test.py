@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from support.server_harness import canonical
+from support.server_harness import canonical, resumed_and_scored, wait_gone
 
 MiB = 2**20
 DISK_MIB = 64
@@ -256,13 +256,9 @@ def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(sm
     log = server.log.read_text()
     assert "space is back" in log
     # Scoring went on from the journal: the rows written before the disk filled were not scored again.
-    resumed = int(log.split(f"job {sid} resumes from its journal: ")[1].split()[0])
-    scored = int(log.split(f"{sid} done (")[1].split()[0])
+    resumed, scored = resumed_and_scored(log, sid)
     assert resumed >= at_fill - 1 and resumed + scored == n, (resumed, scored, at_fill)
-    deadline = time.monotonic() + 10  # removed by the worker once its job's process ended
-    while journal.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not journal.exists()
+    assert wait_gone(journal)  # removed by the worker once its job's process ended
 
 
 @pytest.mark.parametrize("reserve", [MiB, 0], ids=["with-reserve", "without-reserve"])

@@ -10,7 +10,7 @@ import threading
 import time
 from pathlib import Path
 
-from support.server_harness import canonical
+from support.server_harness import canonical, resumed_and_scored, wait_gone
 
 N = 16
 
@@ -65,12 +65,8 @@ def test_a_job_whose_worker_is_killed_resumes_from_its_journal(make_server, repl
     watcher.join()
     # The second attempt started from the journal: it scored only what the first had not.
     log = server.log.read_text()
-    resumed = int(log.split(f"job {sid} resumes from its journal: ")[1].split()[0])
-    scored = int(log.split(f"{sid} done (")[1].split()[0])
+    resumed, scored = resumed_and_scored(log, sid)
     assert resumed >= at_kill - 1 and resumed + scored == N, (resumed, scored, at_kill)
-    deadline = time.monotonic() + 10  # removed by the worker once the job's process ended
-    while journal.exists() and time.monotonic() < deadline:
-        time.sleep(0.05)
-    assert not journal.exists()
+    assert wait_gone(journal)  # removed by the worker once the job's process ended
     size = submission.stat().st_size
     assert size <= peak[0] <= 1.1 * size and not spooled[0], (peak[0], size)

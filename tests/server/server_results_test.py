@@ -8,12 +8,11 @@ from __future__ import annotations
 import csv
 import io
 import json
-import time
 
 from wosac_server import jobs, results
 
 from support.results import synthetic_result
-from support.server_harness import as_submission, canonical
+from support.server_harness import as_submission, canonical, wait_gone
 
 ROWS = 5_000
 
@@ -141,10 +140,7 @@ def test_a_scored_job_is_stored_apart_and_served_whole(make_server, scoring_data
         assert status["state"] == "done", status
         # The journal goes once the job's end is recorded (state first: a crash between the two never
         # scores a finished job again), so it may outlive "done" by a moment.
-        journal = server.data_dir / "results" / f"{sid}.journal"
-        deadline = time.monotonic() + 30
-        while journal.exists() and time.monotonic() < deadline:
-            time.sleep(0.1)
+        wait_gone(server.data_dir / "results" / f"{sid}.journal", timeout=30)
         stored = sorted(p.name for p in (server.data_dir / "results").iterdir() if p.is_file())
         # (and the per-object values behind its scene pages, with their row index: server_scene_pages_test.py)
         assert stored == [f"{sid}.objects.idx", f"{sid}.objects.jsonl", f"{sid}.rows.jsonl", f"{sid}.summary.json"]

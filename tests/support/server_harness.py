@@ -205,3 +205,18 @@ def tar_bytes(members: dict[str, bytes], gz: bool = True) -> bytes:
 
 def files_under(root: Path) -> set[Path]:
     return {p for p in root.rglob("*") if p.is_file()}
+
+
+def resumed_and_scored(log: str, submission_id: str) -> tuple[int, int]:
+    """(scenarios a job's last attempt took from its journal, scenarios it scored), from the worker's log."""
+    resumed = int(log.split(f"job {submission_id} resumes from its journal: ")[1].split()[0])
+    scored = int(log.split(f"{submission_id} done (")[1].split()[0])
+    return resumed, scored
+
+
+def wait_gone(path: Path, timeout: float = 10.0) -> bool:
+    """Whether `path` is gone within `timeout` (a job's journal goes once its end is recorded)."""
+    deadline = time.monotonic() + timeout
+    while path.exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return not path.exists()

@@ -35,6 +35,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.features import dense, road_edge, traffic_lights
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.spatial import non_finite_pick
@@ -258,7 +259,10 @@ def _features_fn(layout: mf.FeatureLayout):
     def one_scene(traj, tails, maps):
         return mf.per_step_features(traj, layout, dense.DenseSearch(maps), tails)
 
-    return jax.jit(jax.vmap(one_scene))
+    # Traced under x64: every float32 product, quotient, root and transcendental rounded once from
+    # float64, so no compiler (a GPU's, or a CPU's with FMA) can fuse or approximate it; `zero` is 0,
+    # an argument so that the compiler cannot see it (`exact_rounding`).
+    return jax.jit(jax.vmap(exactly_rounded(one_scene)))
 
 
 def _per_call(key: tuple, max_batch: int) -> int:
@@ -312,7 +316,8 @@ class FeaturePipeline:
         padded += [padded[0]] * (size - len(padded))  # a partial batch repeats its first scenario
         stacked = [{k: np.stack([part[j][k] for part in padded]) for k in padded[0][j]} for j in range(3)]
         with jax.enable_x64(True):
-            self.dispatched.append((items, _features_fn(layout)(*stacked)))
+            zero = np.zeros(size, np.int32)  # the exact mode's run-time zero, one per scenario
+            self.dispatched.append((items, _features_fn(layout)(zero, *stacked)))
 
     def _collect(self, keep: int) -> list:
         done = []

@@ -54,6 +54,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.samples import log_sample, official_object_order
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
+from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends import jax_backend
 from wosac_eval.backends.host_search import HostSearch, HostSearches
 from wosac_eval.features import dense
@@ -315,7 +316,9 @@ def _prepare_group(indices: list[int], inputs: list[dict], spec: challenges.Chal
         per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
                           "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
                           "feature_valid": feature_valid, "object_type": object_type,
-                          "scene": np.int32(scene)})  # the index of its host search
+                          "scene": np.int32(scene),  # the index of its host search
+                          # 0, read at run time: the exact mode's rounding barriers (`exact_rounding`)
+                          "opaque_zero": np.int32(0)})
     # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
     arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
     return arrays, layout
@@ -396,7 +399,7 @@ def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
             return scene(config, spec, layout, a, rollouts, host)
 
-    return jax.jit(jax.vmap(one))
+    return jax.jit(jax.vmap(_in_mode(one, mode)))
 
 
 @functools.lru_cache(maxsize=32)
@@ -406,7 +409,16 @@ def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: Host
             both = _scene_features(challenges.spec(challenge), layout, a, rollouts, host)
         return {f.name: getattr(both, f.name) for f in dataclasses.fields(both) if f.name != "object_id"}
 
-    return jax.jit(jax.vmap(one))
+    return jax.jit(jax.vmap(_in_mode(one, mode)))
+
+
+def _in_mode(one, mode: str):
+    """In exact mode, every float32 multiply, division, root and transcendental of `one` rounded once
+    from float64, so that no compiler can fuse or approximate it (`exact_rounding`): exact on any device."""
+    if mode != "exact":
+        return one
+    rounded = exactly_rounded(one)
+    return lambda a, rollouts: rounded(a["opaque_zero"], a, rollouts)
 
 
 def _check_rollouts(prepared: PreparedScenes, fields: dict) -> None:

@@ -64,7 +64,7 @@ from wosac_eval.extras import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
 from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
 from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
-from wosac_eval.options import Engine  # noqa: E402
+from wosac_eval.options import Engine, MetadataChecks  # noqa: E402
 from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 from wosac_eval.scoring.journal import remove_journal  # noqa: E402
@@ -80,7 +80,8 @@ def evaluation_of(job: dict, settings: Settings) -> Evaluation:
     """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits)."""
     options = RunOptions(limits=settings.input_limits(), engine=Engine.RAY if settings.ray_address else Engine.LOCAL,
                          ray_address=settings.ray_address or None, workers=settings.score_threads,
-                         allow_partial=bool(job["allow_partial"]), metadata_checks=settings.metadata_checks)
+                         allow_partial=bool(job["allow_partial"]),
+                         metadata_checks=MetadataChecks.parse(settings.metadata_checks))
     return resolve_evaluation(job["challenge"], job["config"], options)
 
 

@@ -27,7 +27,6 @@ from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticalit
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
-from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2

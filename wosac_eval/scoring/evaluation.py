@@ -46,7 +46,7 @@ class RunOptions:
         whole submission is still validated; rarity is rated against the whole set.
       analysis: with False, rows carry the official metrics only (no criticality, driving scores or
         per-type metrics, and no `analysis` summary): a little faster.
-      limits: how far the submission may expand when read (`parse.limits.InputLimits`).
+      limits: how far the submission may expand when read (`parse.limits.InputLimits`; None: the defaults).
     """
 
     backend: Backend = Backend.NUMPY
@@ -68,6 +68,8 @@ class RunOptions:
             raise ValueError(f"workers must be a whole number >= 1, not {self.workers!r}")
         if self.select is not None:
             parse_selection(self.select)
+        if self.limits is None:
+            object.__setattr__(self, "limits", InputLimits())
         if not isinstance(self.limits, InputLimits):
             raise ValueError(f"limits must be an InputLimits, not {type(self.limits).__name__}")
 

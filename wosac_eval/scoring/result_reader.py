@@ -29,7 +29,7 @@ class ResultError(ValueError):
     """A result file that cannot be read, with the file (and scenario, field) at fault."""
 
 
-# The per-scenario fields the rows of each schema version carry (`scoring.result.SCHEMA_VERSION`), each
+# The per-scenario fields the rows of each schema version carry (the document's `schema_version`), each
 # list frozen once its version is written: a saved document stays readable whatever the registry gains
 # later. A field the registry knows beyond its version's is read when every row carries it.
 # 1: the documents written before "schema_version" was recorded; 2: the same fields, the version recorded.
@@ -49,7 +49,6 @@ class ScoringResult:
 
     Attributes:
       path: the file it was read from (for messages).
-      schema_version: the document's `schema_version` (1 for documents written before it was recorded).
       config: the config name or textproto path it was scored with.
       challenge: "sim_agents" or "scenario_gen" (results written before the
         challenge was recorded are sim agents results).
@@ -66,6 +65,7 @@ class ScoringResult:
         evaluated object of the type (or the metric is undefined for it).
       objects: the per-object file the result names (`score --per-object`, `scoring.objects`), resolved
         beside the result, or None.
+      schema_version: the document's `schema_version` (1 for documents written before it was recorded).
     """
 
     path: str

@@ -9,18 +9,12 @@ command for a missing package.
 from __future__ import annotations
 
 import importlib
-from collections.abc import Sequence
+
+from wosac_eval.options import Backend, Engine
 
 
 def install_hint(extra: str) -> str:
     return f"pip install 'wosac-eval[{extra}]'"
-
-
-def check_choice(kind: str, name: str, choices: Sequence[str]) -> str:
-    """`name` if it is one of `choices`, else a ValueError naming them (e.g. kind "backend")."""
-    if name not in choices:
-        raise ValueError(f"unknown {kind} {name!r}: choose one of {', '.join(choices)}")
-    return name
 
 
 def require_extra(what: str, module: str, package: str, extra: str, error: type[Exception]) -> None:
@@ -32,8 +26,8 @@ def require_extra(what: str, module: str, package: str, extra: str, error: type[
                     f"install it with: {install_hint(extra)}") from exc
 
 
-BACKENDS = ("numpy", "jax")
-ENGINES = ("local", "ray")
+BACKENDS = Backend.names()
+ENGINES = Engine.names()
 
 
 class BackendUnavailableError(RuntimeError):
@@ -44,15 +38,17 @@ class EngineUnavailableError(RuntimeError):
     """The requested engine cannot run here (Ray not installed, cluster unreachable)."""
 
 
-def check_backend(name: str) -> str:
-    """Validates a backend name and that its dependencies import; returns the name."""
-    if check_choice("backend", name, BACKENDS) == "jax":
+def check_backend(name: str) -> Backend:
+    """Validates a backend name (`Backend.parse`) and that its dependencies import; returns the member."""
+    backend = Backend.parse(name)
+    if backend is Backend.JAX:
         require_extra("jax backend", "jax", "JAX", "jax", BackendUnavailableError)
-    return name
+    return backend
 
 
-def check_engine(name: str) -> str:
-    """Validates an engine name and that its dependencies import; returns the name."""
-    if check_choice("engine", name, ENGINES) == "ray":
+def check_engine(name: str) -> Engine:
+    """Validates an engine name (`Engine.parse`) and that its dependencies import; returns the member."""
+    engine = Engine.parse(name)
+    if engine is Engine.RAY:
         require_extra("ray engine", "ray", "Ray", "ray", EngineUnavailableError)
-    return name
+    return engine

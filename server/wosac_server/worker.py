@@ -64,7 +64,8 @@ from wosac_eval.extras import EngineUnavailableError  # noqa: E402
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
 from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
 from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
-from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation  # noqa: E402
+from wosac_eval.options import Engine, MetadataChecks  # noqa: E402
+from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation  # noqa: E402
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
 from wosac_eval.scoring.journal import remove_journal  # noqa: E402
 
@@ -77,10 +78,11 @@ log = logging.getLogger("wosac_server.worker")
 
 def evaluation_of(job: dict, settings: Settings) -> Evaluation:
     """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits)."""
-    return resolve_evaluation(job["challenge"], job["config"], limits=settings.input_limits(),
-                              engine="ray" if settings.ray_address else "local",
-                              ray_address=settings.ray_address or None, workers=settings.score_threads,
-                              allow_partial=bool(job["allow_partial"]), metadata_checks=settings.metadata_checks)
+    options = RunOptions(limits=settings.input_limits(), engine=Engine.RAY if settings.ray_address else Engine.LOCAL,
+                         ray_address=settings.ray_address or None, workers=settings.score_threads,
+                         allow_partial=bool(job["allow_partial"]),
+                         metadata_checks=MetadataChecks.parse(settings.metadata_checks))
+    return resolve_evaluation(job["challenge"], job["config"], options)
 
 
 def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: dict, folder: Path,
@@ -442,7 +444,7 @@ class Worker:
                          os.getpid(), job_id, resumed)
             # Validation walks the upload under the service's limits and records where each scenario is;
             # scoring and the pictures stream the archive again rather than keep a decompressed copy on disk.
-            with SubmissionSource(submission_path, evaluation.limits) as source:
+            with SubmissionSource(submission_path, evaluation.options.limits) as source:
                 # The same function `wosac-eval score` calls; finished scenarios go to the journal as they are
                 # scored, so a retry after this process died (or waited out a full disk) skips them.
                 # Per-object values too: streamed from the journal into the objects file (never all in memory),

@@ -63,14 +63,15 @@ from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
+from wosac_eval.options import Mode, Search
 from wosac_eval.metrics.scenario_metrics import (SCENARIO_FIELDS, metric_log_likelihoods, metric_values,
                                                  per_object_likelihoods)
 
 _F = np.float32
 _POSITIONS = ("x", "y", "z", "heading")
 _SIZES = ("length", "width", "height")
-MODES = ("exact", "float32")
-SEARCHES = ("auto", "host", "device")
+MODES = Mode.names()
+SEARCHES = Search.names()
 
 
 def resolve_mode(mode: str | None = None) -> str:
@@ -82,8 +83,7 @@ def resolve_mode(mode: str | None = None) -> str:
     x64 = bool(jax.config.jax_enable_x64)
     if mode is None:
         return "exact" if x64 else "float32"
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {', '.join(MODES)} (or None: the trace's), got {mode!r}")
+    mode = Mode.parse(mode).value
     if mode == "exact" and not x64:
         raise ValueError("mode='exact' rounds through float64, so x64 must be on while it traces: wrap the call "
                          "(or your jit's first call) in `with jax.enable_x64(True):`, or pass mode='float32' "
@@ -251,8 +251,7 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         the choice for an accelerator; "auto" (default): "host" when JAX's default backend is the
         CPU, else "device". The features are the same either way (bit-identical in exact mode).
     """
-    if search not in SEARCHES:
-        raise ValueError(f"search must be one of {', '.join(SEARCHES)}, got {search!r}")
+    search = Search.parse(search).value
     spec = challenges.spec(challenge)
     config = config or spec.default_config
     load_config(config)  # refused now if unknown

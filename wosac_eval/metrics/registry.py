@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 
+from wosac_eval.options import Mask
+
 BUCKETS = ("kinematic", "interactive", "map_based")
 
 
@@ -32,7 +34,10 @@ class Metric:
     bucket: str
     feature: str
     per_object: bool
-    mask: str
+    mask: Mask
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mask", Mask.parse(self.mask))  # a mask no kernel computes is refused here
 
     @property
     def output(self) -> str:

@@ -15,6 +15,7 @@ import numpy as np
 
 from wosac_eval.metrics.config import preset
 from wosac_eval.metrics.registry import BUCKET_MEMBERS, LIKELIHOOD_FIELDS, METRIC_NAMES, RATE_FIELDS
+from wosac_eval.scoring.result_reader import SCHEMA_VERSION
 
 # 2025 challenge metametric weights, by config field.
 # (float32 in the config message; the decimal weights here)
@@ -88,7 +89,8 @@ def result_json(scenarios: list[dict[str, Any]], config: str = "2025",
     buckets["min_ade"] = aggregate.get("min_average_displacement_error", 0.0)
     for rate in RATE_FIELDS:
         buckets[rate] = aggregate.get(rate, 0.0)
-    return {"challenge": "sim_agents", "config": config, "scenarios": scenarios, "aggregate": aggregate,
+    return {"schema_version": SCHEMA_VERSION, "challenge": "sim_agents", "config": config, "scenarios": scenarios,
+            "aggregate": aggregate,
             "buckets": buckets, "skipped": list(skipped or [])}
 
 

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
 from wosac_eval.extras import check_engine
+from wosac_eval.options import Engine
 from wosac_eval.runtime.processes import worker_pool
 
 
@@ -85,10 +86,10 @@ class LocalExecutor:
                 yield pending.popleft().result()
 
 
-def make_executor(engine: str = "local", *, workers: int = 1, ray_address: str | None = None,
+def make_executor(engine: Engine | str = Engine.LOCAL, *, workers: int = 1, ray_address: str | None = None,
                   force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
     """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run."""
-    if check_engine(engine) == "local":
+    if check_engine(engine) is Engine.LOCAL:
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
     from wosac_eval.runtime.ray_executor import RayExecutor
     return RayExecutor(ray_address, initializer=initializer)

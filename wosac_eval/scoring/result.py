@@ -1,6 +1,6 @@
 """The result document of a scored submission (what `wosac-eval score --output` writes).
 
-    {"challenge": "sim_agents", "config": "2025", "num_scenarios": N,
+    {"schema_version": 2, "challenge": "sim_agents", "config": "2025", "num_scenarios": N,
      "scenarios": [{"scenario_id": ..., <SimAgentMetrics fields>}, ...],
      "aggregate": {<every field, mean over scenarios>},
      "buckets": {<SimAgentsBucketedMetrics fields>},
@@ -15,6 +15,12 @@ peak_step}), `driving` ({score, components}, or null) and `by_object_type`
 ({vehicle|pedestrian|cyclist: metrics}); `analysis` summarises them over the
 scored scenarios. They are wosac-eval's diagnostics, beside the official
 metrics (which they do not change).
+
+`schema_version` is the document's layout (`result_reader.SCHEMA_VERSION`): 1 is
+the documents written before the field (the same layout, without it), 2 records
+it. A change a reader of earlier documents must know of (a new per-scenario
+field, a renamed one) makes a new version (an entry of
+`result_reader.VERSION_FIELDS`), and the reader keeps reading the earlier ones.
 """
 from __future__ import annotations
 
@@ -25,6 +31,7 @@ from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
+from wosac_eval.scoring.result_reader import SCHEMA_VERSION  # the newest layout, beside every earlier one's
 
 
 def summarize(config: SimAgentMetricsConfig, per_scenario: list[dict]) -> dict:
@@ -92,7 +99,8 @@ def result_document(challenge, config_name: str, config: SimAgentMetricsConfig, 
         skipped = [s for s in skipped if s["scenario_id"] in selected]
         expected = selection["scenarios"]
     analysis = finish_analysis(per_scenario, histogram)
-    return {"challenge": challenges.as_challenge(challenge).value, "config": config_name,
+    return {"schema_version": SCHEMA_VERSION, "challenge": challenges.as_challenge(challenge).value,
+            "config": config_name,
             "num_scenarios": len(per_scenario), "scenarios": per_scenario, **summarize(config, per_scenario),
             "skipped": skipped,
             "validation": validation_summary(report),

@@ -29,6 +29,20 @@ class ResultError(ValueError):
     """A result file that cannot be read, with the file (and scenario, field) at fault."""
 
 
+# The per-scenario fields the rows of each schema version carry (the document's `schema_version`), each
+# list frozen once its version is written: a saved document stays readable whatever the registry gains
+# later. A field the registry knows beyond its version's is read when every row carries it.
+# 1: the documents written before "schema_version" was recorded; 2: the same fields, the version recorded.
+_FIELDS_1 = ("metametric", "average_displacement_error", "min_average_displacement_error",
+             "linear_speed_likelihood", "linear_acceleration_likelihood", "angular_speed_likelihood",
+             "angular_acceleration_likelihood", "distance_to_nearest_object_likelihood",
+             "collision_indication_likelihood", "time_to_collision_likelihood", "distance_to_road_edge_likelihood",
+             "offroad_indication_likelihood", "traffic_light_violation_likelihood", "simulated_collision_rate",
+             "simulated_offroad_rate", "simulated_traffic_light_violation_rate")
+VERSION_FIELDS: dict[int, tuple[str, ...]] = {1: _FIELDS_1, 2: _FIELDS_1}
+SCHEMA_VERSION = max(VERSION_FIELDS)  # the newest: what `scoring.result` writes
+
+
 @dataclasses.dataclass
 class ScoringResult:
     """One scoring run.
@@ -51,6 +65,7 @@ class ScoringResult:
         evaluated object of the type (or the metric is undefined for it).
       objects: the per-object file the result names (`score --per-object`, `scoring.objects`), resolved
         beside the result, or None.
+      schema_version: the document's `schema_version` (1 for documents written before it was recorded).
     """
 
     path: str
@@ -64,6 +79,7 @@ class ScoringResult:
     criticality: np.ndarray | None = None
     by_type: dict[str, dict[str, np.ndarray]] = dataclasses.field(default_factory=dict)
     objects: str | None = None
+    schema_version: int = SCHEMA_VERSION
 
     @property
     def num_scenarios(self) -> int:
@@ -202,7 +218,9 @@ def weighted_buckets(values: dict[str, np.ndarray], weights: dict[str, float]) -
     A bucket is the mean of its likelihoods weighted by their metametric weights, as the
     scorer's (`buckets.weighted_bucket`). A bucket whose weights sum to zero is left out.
     """
-    means = {bucket: weighted_bucket(members, values, weights) for bucket, members in BUCKET_MEMBERS.items()}
+    # A bucket one of whose weighted likelihoods the document predates cannot be recomputed: left out.
+    means = {bucket: weighted_bucket(members, values, weights) for bucket, members in BUCKET_MEMBERS.items()
+             if all(f"{m}_likelihood" in values for m in members if weights.get(m))}
     return {bucket: mean for bucket, mean in means.items() if mean is not None}
 
 
@@ -218,6 +236,7 @@ def parse_result(
     """
     if not isinstance(data, dict):
         raise ResultError(f"{path}: expected a JSON object at the top level, got {type(data).__name__}")
+    version = schema_version(data, path)
     scenarios = data.get("scenarios")
     if not isinstance(scenarios, list):
         raise ResultError(f"{path}: missing 'scenarios' list (is this a `wosac-eval score --output` file?)")
@@ -230,7 +249,10 @@ def parse_result(
         raise ResultError(f"{path}: unknown challenge {challenge!r} (expected one of {', '.join(CHALLENGES)})")
 
     ids = _scenario_ids(scenarios, path)
-    values = {f: _column(scenarios, f, ids, path) for f in SCENARIO_FIELDS}
+    required = VERSION_FIELDS[version]
+    values = {f: _column(scenarios, f, ids, path) for f in required}
+    values.update((f, _column(scenarios, f, ids, path)) for f in SCENARIO_FIELDS
+                  if f not in values and ids and all(f in e for e in scenarios))
     carried = {b: _column(scenarios, b, ids, path) for b in BUCKET_MEMBERS
                if ids and all(b in e for e in scenarios)}
     if len(carried) < len(BUCKET_MEMBERS) and ids:
@@ -255,7 +277,20 @@ def parse_result(
         criticality=criticality,
         by_type=by_type,
         objects=_objects_file(data, path),
+        schema_version=version,
     )
+
+
+def schema_version(data: dict, path: str = "<result>") -> int:
+    """The document's schema version (1 when it records none: written before the field); a ResultError
+    for a version this wosac-eval does not know (a newer one: the message says to upgrade)."""
+    version = data.get("schema_version", 1)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise ResultError(f"{path}: 'schema_version' is {version!r}, expected a whole number >= 1")
+    if version > SCHEMA_VERSION:
+        raise ResultError(f"{path}: result schema version {version} is newer than this wosac-eval reads "
+                          f"(versions 1 to {SCHEMA_VERSION}): upgrade wosac-eval to read it")
+    return version
 
 
 def _objects_file(data: dict, path: str) -> str | None:

@@ -14,6 +14,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.extras import check_backend
+from wosac_eval.options import Backend
 from wosac_eval.features.metric_features import map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
@@ -169,13 +170,13 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
     """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
-    check_backend(backend)
+    backend = check_backend(backend)
     challenge = challenges.as_challenge(challenge)
     config = resolve_config(config, challenge)
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
     try:
         context = map_context(arrays)
-        if backend == "jax":
+        if backend is Backend.JAX:
             from wosac_eval.backends import jax_backend
             log, sim = jax_backend.scenario_features(arrays, rollout, context, challenge=challenge)
         else:

@@ -25,14 +25,14 @@ from pathlib import Path
 
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
 from wosac_eval.metrics.config import SimAgentMetricsConfig
+from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
-from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
-from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
+from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
 from wosac_eval.scoring.journal import ScoringJournal, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
@@ -70,7 +70,7 @@ class ScoringContext:
     Attributes:
       config: the serialized `SimAgentMetricsConfig`.
       challenge: the challenge's name.
-      backend: "numpy" or "jax".
+      backend: `Backend` numpy or jax.
       index: where each scenario of the set is.
       analysis: add each scenario's criticality, driving scores and per-type metrics to its row.
       per_object: add each scenario's per-object values (`objects`) to its row.
@@ -78,7 +78,7 @@ class ScoringContext:
 
     config: bytes
     challenge: str
-    backend: str
+    backend: Backend
     index: ScenarioIndex
     analysis: bool = True
     per_object: bool = False
@@ -113,7 +113,7 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
 
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
-    if context.backend == "jax":
+    if context.backend is Backend.JAX:
         return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis,
                                    per_object=context.per_object)
     return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis,
@@ -164,12 +164,9 @@ def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
 
 def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioIndex,
                      submission: PathLike | SubmissionSource, config: str | PathLike | None = None, *,
-                     challenge="sim_agents", workers: int = 1, allow_partial: bool = False,
-                     progress: Progress | None = None, backend: str = "numpy", engine: str = "local",
-                     ray_address: str | None = None, metadata_checks: str = "warn", select: str | None = None,
-                     analysis: bool = True, limits: InputLimits | None = None,
-                     evaluation: Evaluation | None = None, journal: PathLike | None = None,
-                     per_object: bool = False, objects: PathLike | None = None) -> dict:
+                     challenge=None, progress: Progress | None = None, evaluation: Evaluation | None = None,
+                     journal: PathLike | None = None, per_object: bool = False, objects: PathLike | None = None,
+                     **options) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -179,28 +176,13 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
       config: preset name ("2025", "2024", "2023", "scenario_gen_2025") or a
         textproto path; None: the challenge's current leaderboard config. A preset of the other
         challenge is refused.
-      challenge: "sim_agents" or "scenario_gen".
-      workers: worker processes with the local engine (results are identical for any count).
-      allow_partial: score the valid scenarios of an invalid submission
-        instead of refusing it; skipped scenarios are listed in `skipped`.
+      challenge: "sim_agents" (default) or "scenario_gen".
       progress: called as `progress(done, total)` after each scored scenario.
-      backend: "numpy" or "jax" (needs the `jax` extra); results are identical.
-      engine: "local" (this host) or "ray" (needs the `ray` extra; joins the
-        cluster at `ray_address`, or `RAY_ADDRESS`, or starts a local Ray).
-        Workers then read the submission and the scenarios from the same paths:
-        give paths every node can see (a shared filesystem).
-      metadata_checks: "warn" (default: local scoring needs no account, method name or flags; their
-        findings are listed under `validation.findings` as warnings) or "error" (the challenge
-        server's rules, as `wosac-eval validate` and the service apply them).
-      select: score only the most critical scenarios of the set: "top:0.1" (a fraction) or "top:100"
-        (a count), ranked by `analysis.scenario_set_criticality` before scoring. The whole submission is still
-        validated; rarity is rated against the whole set; the result says what was selected.
-      analysis: with False, rows carry the official metrics only (no criticality, driving scores or
-        per-type metrics, and no `analysis` summary): a little faster.
-      limits: how far the submission may expand when read (`parse.limits.InputLimits`: decompressed
-        sizes, compression ratio, archive members, messages per shard); default `InputLimits()`.
-      evaluation: all of the above but the inputs and `progress`, already resolved
-        (`scoring.evaluation.resolve_evaluation`); the other arguments are then ignored.
+      evaluation: the challenge, config and options, already resolved (`scoring.evaluation.resolve_evaluation`);
+        a challenge, config or option also given must agree with it (else a ValueError names each).
+      **options: the run's options by name (`scoring.evaluation.RunOptions`: backend "numpy" or "jax",
+        engine "local" or "ray", ray_address, workers, allow_partial, metadata_checks "warn" or "error",
+        select "top:0.1" or "top:100", analysis, limits), checked before any work.
       journal: a file where each finished scenario's row is recorded as it is scored
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
@@ -216,15 +198,13 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
       ValueError: an argument cannot be resolved (unknown config, a preset of the other challenge...).
     """
-    if evaluation is None:
-        evaluation = resolve_evaluation(challenge, config, limits=limits, backend=backend, engine=engine,
-                                        ray_address=ray_address, workers=workers, allow_partial=allow_partial,
-                                        metadata_checks=metadata_checks, select=select, analysis=analysis)
+    evaluation = evaluation_for("score_submission", evaluation, challenge, config, options)
+    run = evaluation.options
     # The engine first: an unreachable cluster is reported before any long work.
-    executor = make_executor(evaluation.engine, workers=evaluation.workers, ray_address=evaluation.ray_address,
-                             force_spawn=evaluation.backend == "jax", initializer=keep_freed_memory)
+    executor = make_executor(run.engine, workers=run.workers, ray_address=run.ray_address,
+                             force_spawn=run.backend is Backend.JAX, initializer=keep_freed_memory)
     owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
-    with SubmissionSource(submission, evaluation.limits) if owned else contextlib.nullcontext(submission) as source:
+    with SubmissionSource(submission, run.limits) if owned else contextlib.nullcontext(submission) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
@@ -245,11 +225,12 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
     """(what the result says of the selection, the criticality histogram, the selected ids), or Nones."""
-    if evaluation.select is None:
+    rule = evaluation.options.select
+    if rule is None:
         return None, None, None
     ranked = scenario_set_criticality(index, executor=executor)
-    selected = set(select_scenarios(ranked["scenarios"], evaluation.select))
-    selection = {"rule": evaluation.select, "scenarios": len(selected), "of": ranked["num_scenarios"],
+    selected = set(select_scenarios(ranked["scenarios"], rule))
+    selection = {"rule": rule, "scenarios": len(selected), "of": ranked["num_scenarios"],
                  "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
     return selection, ranked["histogram"], selected
 
@@ -264,8 +245,8 @@ def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evalu
         source.restore_records(records)
         return report
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
-                                 metadata_checks=evaluation.metadata_checks)
-    if refuses(report, evaluation.allow_partial):
+                                 metadata_checks=evaluation.options.metadata_checks)
+    if refuses(report, evaluation.options.allow_partial):
         raise InvalidSubmissionError(report)
     records = source.records()
     if journal is not None and records is not None:
@@ -282,7 +263,7 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,
-                             backend=evaluation.backend, index=index, analysis=evaluation.analysis,
+                             backend=evaluation.options.backend, index=index, analysis=evaluation.options.analysis,
                              per_object=per_object)
     done = {} if journal is None else journal.done
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
@@ -297,7 +278,7 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     rows = dict(done)
     if progress is not None:
         progress(len(rows), total)
-    if evaluation.backend == "jax" and evaluation.engine == "local":
+    if evaluation.options.backend is Backend.JAX and evaluation.options.engine is Engine.LOCAL:
         # Pipelined: workers parse and prepare on the host, this process keeps the device busy.
         scored = _jax_pipeline(executor, chunks, context, evaluation.config)
     else:

@@ -10,6 +10,7 @@ import csv
 import json
 from pathlib import Path
 
+from wosac_eval.extras import ENGINES
 from wosac_eval.fronts.usage import UsageError, check_output_file
 from wosac_eval.analysis.criticality_scores import COMPONENTS
 
@@ -29,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-step", action="store_true",
                         help="add each scenario's per-step criticality (columns step_0 .. step_90)")
     parser.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    parser.add_argument("--engine", choices=("local", "ray"), default="local",
+    parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local processes (default) or a Ray cluster (needs the ray extra)")
     parser.add_argument("--ray-address", metavar="HOST:PORT", help="the Ray cluster to join (--engine ray)")
 

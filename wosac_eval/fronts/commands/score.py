@@ -15,8 +15,9 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import BACKENDS, ENGINES, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
+from wosac_eval.options import Backend
 from wosac_eval.parse.errors import ParseError
-from wosac_eval.scoring.evaluation import resolve_evaluation
+from wosac_eval.scoring.evaluation import RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.validate import ScenarioSetError
@@ -168,6 +169,13 @@ def write_result(result: dict, path: Path) -> None:
         temp.unlink(missing_ok=True)
 
 
+def run_options(args: argparse.Namespace) -> RunOptions:
+    """The run's options as the command line gives them (checked by `RunOptions`)."""
+    return RunOptions(backend=args.backend, engine=args.engine, ray_address=args.ray_address, workers=args.workers,
+                      allow_partial=args.partial, metadata_checks="error" if args.strict_metadata else "warn",
+                      select=args.select, analysis=not args.no_analysis)
+
+
 def run(args: argparse.Namespace) -> int:
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     if args.workers < 1:
@@ -175,14 +183,10 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, "--output")
     check_input(args.submission, "--submission", "submission")
     try:  # everything asked is checked here, once, before any long work
-        evaluation = resolve_evaluation(args.challenge, args.config, backend=args.backend, engine=args.engine,
-                                        ray_address=args.ray_address, workers=args.workers,
-                                        allow_partial=args.partial,
-                                        metadata_checks="error" if args.strict_metadata else "warn",
-                                        select=args.select, analysis=not args.no_analysis)
+        evaluation = resolve_evaluation(args.challenge, args.config, run_options(args))
     except (BackendUnavailableError, EngineUnavailableError, ValueError) as error:
         raise UsageError(str(error)) from None
-    if evaluation.backend == "jax":
+    if evaluation.options.backend is Backend.JAX:
         # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
         from wosac_eval.backends.jax_backend import exact_cpu
         exact_cpu()

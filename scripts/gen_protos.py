@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Generate wosac_eval/protos/*_pb2.py from protos/wosac_eval/protos/*.proto.
+"""Generate wosac_eval/protos/*_pb2.py (and their *_pb2.pyi type stubs) from protos/wosac_eval/protos/*.proto.
 
 Usage (from anywhere; paths are resolved from this script's location):
     python scripts/gen_protos.py          # regenerate the committed modules
@@ -32,19 +32,22 @@ def proto_files() -> list[Path]:
 
 
 def run_protoc(out_root: Path) -> None:
-    """Run the bundled protoc on every source, writing *_pb2.py under out_root."""
+    """Run the bundled protoc on every source, writing *_pb2.py and *_pb2.pyi under out_root.
+
+    The .pyi stubs give the type checker the message classes, which the .py modules build at import time.
+    """
     from grpc_tools import protoc  # test-extra dependency; imported lazily
 
     sources = [str(p.relative_to(PROTO_ROOT)) for p in proto_files()]
-    args = ["protoc", f"-I{PROTO_ROOT}", f"--python_out={out_root}", *sources]
+    args = ["protoc", f"-I{PROTO_ROOT}", f"--python_out={out_root}", f"--pyi_out={out_root}", *sources]
     status = protoc.main(args)
     if status != 0:
         raise SystemExit(f"protoc failed with status {status}: {' '.join(args)}")
 
 
 def generated_names(directory: Path) -> set[str]:
-    """Names of the *_pb2.py modules in directory."""
-    return {p.name for p in directory.glob("*_pb2.py")}
+    """Names of the generated *_pb2.py modules and *_pb2.pyi stubs in directory."""
+    return {p.name for pattern in ("*_pb2.py", "*_pb2.pyi") for p in directory.glob(pattern)}
 
 
 def stale_modules(fresh_dir: Path) -> list[str]:

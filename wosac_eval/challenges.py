@@ -79,7 +79,7 @@ SPECS = {
 CHALLENGE_NAMES = tuple(c.value for c in Challenge)
 
 
-def as_challenge(value: "Challenge | str | ChallengeSpec") -> Challenge:
+def as_challenge(value: Challenge | str | ChallengeSpec) -> Challenge:
     """A `Challenge` from itself, its spec, its name (`sim_agents`), or the official enum's name or value."""
     if isinstance(value, ChallengeSpec):
         return value.challenge
@@ -94,7 +94,7 @@ def as_challenge(value: "Challenge | str | ChallengeSpec") -> Challenge:
     raise ValueError(f"unknown challenge {value!r}: choose one of {', '.join(CHALLENGE_NAMES)}")
 
 
-def spec(challenge: "Challenge | str | ChallengeSpec" = Challenge.SIM_AGENTS) -> ChallengeSpec:
+def spec(challenge: Challenge | str | ChallengeSpec = Challenge.SIM_AGENTS) -> ChallengeSpec:
     """The spec of a challenge (given as in `as_challenge`)."""
     return SPECS[as_challenge(challenge)]
 

@@ -16,7 +16,6 @@ import sys
 from contextlib import asynccontextmanager
 
 import anyio
-
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
 from fastapi.responses import JSONResponse
@@ -27,7 +26,6 @@ from .routes import public, submissions, uploads
 from .service import Service
 from .settings import Settings, load_settings
 from .web import install_pages, install_scene_pages
-
 
 log = logging.getLogger("wosac_server.app")
 MAINTENANCE_S = 5.0  # how often upload states a full disk left unrecorded are retried, the reserve remade

@@ -101,10 +101,10 @@ def remaining_daily_bytes(store: Store, key: ApiKey, now: float | None = None, e
     """The key's daily byte quota less its submissions of the last 24 h and its unfinished resumable
     uploads (each at its declared length, or what it holds), but for `exclude_upload` (being completed)."""
     now = time.time() if now is None else now
-    row = store.fetchone(
+    row = store.fetch_aggregate(
         "SELECT COALESCE(SUM(upload_bytes), 0) AS used FROM submissions WHERE key_id = ? AND created_at > ?",
         (key.id, now - DAY_S))
-    held = store.fetchone(
+    held = store.fetch_aggregate(
         "SELECT COALESCE(SUM(CASE WHEN declared_length IS NOT NULL AND declared_length > received_bytes"
         " THEN declared_length ELSE received_bytes END), 0) AS held FROM uploads"
         " WHERE key_id = ? AND submission_id IS NULL AND id != ?", (key.id, exclude_upload or ""))
@@ -121,7 +121,7 @@ def check_submission_quota(store: Store, key: ApiKey, upload_bytes: int = 0, now
     they count against the unfinished jobs, the day's submissions and the day's bytes.
     """
     now = time.time() if now is None else now
-    active = store.fetchone(
+    active = store.fetch_aggregate(
         "SELECT COUNT(*) AS n FROM submissions WHERE key_id = ? AND state IN (?, ?, ?)",
         (key.id, *ACTIVE_STATES))["n"] + pending
     if active >= key.max_concurrent:

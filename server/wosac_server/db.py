@@ -12,8 +12,9 @@ import contextlib
 import logging
 import sqlite3
 import threading
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any, Callable, Iterator, Sequence
+from typing import Any
 
 from .names import name_key
 
@@ -74,7 +75,7 @@ SCHEMA = [
 ]
 # Schema changes after version 1, each applied once, in order: version -> statements (SQL text, or a
 # function of the store for what SQL cannot compute).
-MIGRATIONS: dict[int, list[str | Callable[["Store"], None]]] = {
+MIGRATIONS: dict[int, list[str | Callable[[Store], None]]] = {
     2: [  # the challenge of every submission and upload; the share of the scenario set a result covers
         "ALTER TABLE submissions ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
         "ALTER TABLE uploads ADD COLUMN challenge TEXT NOT NULL DEFAULT 'sim_agents'",
@@ -102,7 +103,7 @@ MIGRATIONS: dict[int, list[str | Callable[["Store"], None]]] = {
 }
 
 
-def _fill_name_keys(store: "Store") -> None:
+def _fill_name_keys(store: Store) -> None:
     """The normal form of every key name and claimed method name (computed here: SQL has no NFKC).
     Look-alike claims made before version 4 (`Team Rocket` by one key, `Team  Rocket` by another):
     the first claim keeps the name, the later ones are dropped (logged); their submissions stay, and
@@ -169,10 +170,8 @@ class Store:
     def close(self) -> None:
         conn = getattr(self._local, "conn", None)
         if conn is not None:
-            try:
+            with contextlib.suppress(Exception):  # closing a broken connection may fail; it is dropped either way
                 conn.close()
-            except Exception:  # closing a broken connection may fail; it is dropped either way
-                pass
             self._local.conn = None
 
     def _sql(self, sql: str) -> str:
@@ -204,8 +203,15 @@ class Store:
         rows = self.fetchall(sql, params)
         return rows[0] if rows else None
 
+    def fetch_aggregate(self, sql: str, params: Sequence[Any] = ()) -> dict:
+        """The row of an aggregate query (COUNT, SUM without GROUP BY), which always answers one."""
+        row = self.fetchone(sql, params)
+        if row is None:
+            raise LookupError(f"an aggregate query answered no row: {sql}")
+        return row
+
     @contextlib.contextmanager
-    def transaction(self) -> Iterator["Store"]:
+    def transaction(self) -> Iterator[Store]:
         """A write transaction; on SQLite it takes the write lock up front (BEGIN IMMEDIATE)
         so check-then-insert sequences (quotas) cannot interleave."""
         conn = self._conn()
@@ -242,11 +248,11 @@ class Store:
                 self.execute("INSERT INTO schema_version (version) VALUES (1)")
             version = 1 if row is None else int(row["version"])
             for target in sorted(v for v in MIGRATIONS if v > version):
-                for stmt in MIGRATIONS[target]:
-                    if callable(stmt):
-                        stmt(self)
+                for step in MIGRATIONS[target]:
+                    if callable(step):
+                        step(self)
                     else:
-                        self.execute(stmt)
+                        self.execute(step)
                 self.execute("UPDATE schema_version SET version = ?", (target,))
 
     def ping(self) -> bool:

@@ -55,9 +55,9 @@ def is_disk_full(exc: BaseException) -> bool:
     return getattr(exc, "sqlstate", None) == "53100"  # psycopg's DiskFull
 
 
-def full_error_types() -> list[type[BaseException]]:
+def full_error_types() -> list[type[Exception]]:
     """The exception classes `is_disk_full` may accept (for the app's exception handler)."""
-    types: list[type[BaseException]] = [OSError, sqlite3.Error]
+    types: list[type[Exception]] = [OSError, sqlite3.Error]
     try:
         import psycopg
     except ImportError:
@@ -79,11 +79,11 @@ def job_need_bytes(upload_bytes: int, scenarios: int | None = None) -> int:
 def reserved_in_store(store: Store) -> int:
     """Bytes promised by the database's rows: open uploads' declared bytes still to come and the files of
     the jobs they will become, and the files of queued and running jobs."""
-    uploads = store.fetchone(
+    uploads = store.fetch_aggregate(
         "SELECT COUNT(*) AS n, COALESCE(SUM(declared_length - received_bytes), 0) AS still,"
         " COALESCE(SUM(COALESCE(declared_length, received_bytes)), 0) AS total FROM uploads"
         " WHERE submission_id IS NULL AND state != 'deleting'")
-    running = store.fetchone(
+    running = store.fetch_aggregate(
         "SELECT COUNT(*) AS n, COALESCE(SUM(COALESCE(scenarios_total * ?, upload_bytes / ?)), 0) AS need"
         " FROM submissions WHERE state IN ('queued', 'validating', 'scoring')",
         (JOB_BYTES_PER_SCENARIO, JOB_UPLOAD_DIVISOR))

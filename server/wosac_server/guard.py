@@ -41,13 +41,19 @@ methods `connection_made`, `connection_lost`, `data_received` and
 """
 from __future__ import annotations
 
+import asyncio
 import collections
 import logging
 import resource
 import time
+from typing import TYPE_CHECKING
 
 import h11
+from starlette.types import ASGIApp, Receive, Scope, Send
 from uvicorn.protocols.http.h11_impl import H11Protocol
+
+if TYPE_CHECKING:
+    from .settings import Settings
 
 log = logging.getLogger("wosac_server.guard")
 
@@ -103,9 +109,10 @@ class GuardedH11Protocol(H11Protocol):
     open_connections: set = set()
     waiting: dict = {}  # connections waiting for request headers -> since when, oldest first
 
-    def connection_made(self, transport) -> None:  # noqa: ANN001 - asyncio's signature
+    # uvicorn's H11Protocol narrows asyncio's BaseTransport to Transport the same way (and says so likewise).
+    def connection_made(self, transport: asyncio.Transport) -> None:  # type: ignore[override]
         super().connection_made(transport)
-        self._watch = None
+        self._watch: asyncio.TimerHandle | None = None
         self._counted = False
         self._host = self.client[0] if self.client else ""
         if self.open_per_client[self._host] >= self.max_per_client:
@@ -132,7 +139,7 @@ class GuardedH11Protocol(H11Protocol):
         self.open_connections.add(self)
         self._await_request()
 
-    def connection_lost(self, exc) -> None:  # noqa: ANN001
+    def connection_lost(self, exc: Exception | None) -> None:
         self._forget()
         super().connection_lost(exc)
 
@@ -249,7 +256,7 @@ class GuardedH11Protocol(H11Protocol):
 
     _last_check = 0.0
     _reserve = False
-    _request_start = None
+    _request_start: float | None = None
     _headers_due = 0.0
 
 
@@ -258,10 +265,10 @@ class CloseUnreadBodies:
     `Connection: close`, so uvicorn closes the connection once it is sent rather than reading (and
     waiting for) the rest of a body nobody wants."""
 
-    def __init__(self, app):  # noqa: ANN001 - an ASGI app
+    def __init__(self, app: ASGIApp):
         self.app = app
 
-    async def __call__(self, scope, receive, send):  # noqa: ANN001
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         headers = dict(scope["headers"])
@@ -284,7 +291,7 @@ class CloseUnreadBodies:
         return await self.app(scope, tracked_receive, closing_send)
 
 
-def guarded_protocol(settings) -> type[GuardedH11Protocol]:  # noqa: ANN001 - a Settings
+def guarded_protocol(settings: Settings) -> type[GuardedH11Protocol]:
     """The protocol class for uvicorn's `http=`, with the service's limits (call it after the open-file
     limit is raised: the connection cap is sized from it)."""
     return type("ServiceH11Protocol", (GuardedH11Protocol,), {

@@ -230,6 +230,15 @@ def get_upload(store: Store, upload_id: str) -> dict | None:
     return store.fetchone("SELECT * FROM uploads WHERE id = ?", (upload_id,))
 
 
+def held_upload(store: Store, upload_id: str) -> dict:
+    """The row of an upload the caller moved out of `open` (to `writing` or `completing`): no other
+    request removes it until the caller settles it."""
+    row = get_upload(store, upload_id)
+    if row is None:
+        raise LookupError(f"upload {upload_id} vanished while held")
+    return row
+
+
 def set_upload_offset(store: Store, upload_id: str, received: int) -> None:
     store.execute("UPDATE uploads SET received_bytes = ?, updated_at = ? WHERE id = ?",
                   (received, time.time(), upload_id))
@@ -259,7 +268,7 @@ def drop_upload(store: Store, upload_id: str) -> None:
 
 
 def open_uploads(store: Store, key_id: str) -> int:
-    return store.fetchone("SELECT COUNT(*) AS n FROM uploads WHERE key_id = ? AND submission_id IS NULL"
+    return store.fetch_aggregate("SELECT COUNT(*) AS n FROM uploads WHERE key_id = ? AND submission_id IS NULL"
                           " AND state != 'deleting'", (key_id,))["n"]
 
 

@@ -177,12 +177,12 @@ def write_result(results_dir: Path, job_id: str, result: dict) -> None:
 _SUMMARY_KEYS = {"rows", "rows_bytes", "row_offsets", "csv_fields", "scenarios_at", "document"}
 
 
-def open_result(results_dir: Path, job_id: str) -> "StoredResult | None":
+def open_result(results_dir: Path, job_id: str) -> StoredResult | None:
     """The stored result of a job (format 2, else the single file of earlier services), opened: its
     files stay readable through the returned object whatever happens to their names. None when
     there is none; ResultDamaged when it cannot be read as written."""
     try:
-        summary_file = open(summary_path(results_dir, job_id), "rb")
+        summary_file = open(summary_path(results_dir, job_id), "rb")  # noqa: SIM115 - closed by the `with` below
     except FileNotFoundError:
         try:
             return LegacyResult(open(legacy_path(results_dir, job_id), "rb"))
@@ -195,10 +195,10 @@ def open_result(results_dir: Path, job_id: str) -> "StoredResult | None":
             raise ResultDamaged(f"unreadable summary ({exc})") from None
     if not isinstance(summary, dict) or summary.get("format") != FORMAT:
         raise ResultDamaged(f"unknown result format {summary.get('format') if isinstance(summary, dict) else None!r}")
-    if not _SUMMARY_KEYS <= set(summary):
+    if not set(summary) >= _SUMMARY_KEYS:
         raise ResultDamaged(f"its summary lacks {sorted(_SUMMARY_KEYS - set(summary))}")
     try:
-        rows_file = open(rows_path(results_dir, job_id), "rb")
+        rows_file = open(rows_path(results_dir, job_id), "rb")  # noqa: SIM115 - kept open by the returned result
     except FileNotFoundError:
         raise ResultDamaged("its rows file is missing") from None
     size = os.fstat(rows_file.fileno()).st_size
@@ -380,7 +380,9 @@ class _JsonStream:
     def peek(self) -> str:
         """The next character that is not white space ('' at the end)."""
         while True:
-            self.pos = _SPACE.match(self.text, self.pos).end()
+            space = _SPACE.match(self.text, self.pos)
+            assert space is not None  # `*`: it matches, if only the empty string
+            self.pos = space.end()
             if self.pos < len(self.text):
                 return self.text[self.pos]
             if not self._more():

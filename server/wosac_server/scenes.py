@@ -53,13 +53,13 @@ def scene_detail(settings: Settings, submission: dict, row: int) -> dict:
     try:
         stored = results.open_result(settings.results_dir, submission_id)
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})")
+        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
     if stored is None:
         raise HTTPException(410, f"the result file of submission {submission_id} is missing on the server")
     try:
         total, rows = stored.page(row, 1)
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})")
+        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
     finally:
         stored.close()
     if not rows:

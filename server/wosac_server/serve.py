@@ -17,6 +17,12 @@ import logging
 import os
 import signal
 import sys
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported where used: `--help` stays fast
+    import uvicorn
+
+    from .settings import Settings
 
 NAME = "serve"
 HELP = "Run the HTTP scoring service (upload submissions, follow scoring, leaderboard)."
@@ -43,7 +49,7 @@ def raise_open_files_limit() -> None:
         resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
 
 
-def proxy_options(settings) -> dict:  # noqa: ANN001 - a Settings
+def proxy_options(settings: Settings) -> dict:
     """uvicorn's proxy options: forwarded headers are believed only from the configured proxies (uvicorn
     alone would believe them from 127.0.0.1, so any local process could pose as any address)."""
     trusted = ",".join(p.strip() for p in settings.trusted_proxies.split(",") if p.strip())
@@ -60,7 +66,7 @@ class StopRequest:
 
     def __init__(self) -> None:
         self.requested = False
-        self.server = None  # the uvicorn.Server, once made
+        self.server: uvicorn.Server | None = None  # once made
 
     def __call__(self, signum, frame) -> None:
         self.requested = True

@@ -25,8 +25,8 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from wosac_eval.metrics.config import config_name_for
 from wosac_eval.parse.archive import check_container
-from wosac_eval.parse.shards import NotASubmissionError
 from wosac_eval.parse.errors import ParseError
+from wosac_eval.parse.shards import NotASubmissionError
 
 from . import auth, disk, jobs
 from .db import Store
@@ -178,7 +178,7 @@ class Service:
         finally:
             self.holds.release(hold)  # a no-op once accepted (the job counts itself) or never granted
 
-    def reserve(self, key: auth.ApiKey, hold: "Hold") -> None:
+    def reserve(self, key: auth.ApiKey, hold: Hold) -> None:
         """Grant `hold`, or raise 429/413 (runs in a thread). The check and the grant are one step under the
         holds' gate, which `accept` also takes to commit a job and drop its hold: every check sees each
         slot once, as a hold or as a job row."""
@@ -186,16 +186,16 @@ class Service:
             self.refuse_early(key, hold.bytes or None, single=True)
             self.holds.grant(hold)
 
-    def _check_quota(self, key: auth.ApiKey, size: int, hold: "Hold | None", upload_id: str | None = None) -> None:
+    def _check_quota(self, key: auth.ApiKey, size: int, hold: Hold | None, upload_id: str | None = None) -> None:
         """auth.check_submission_quota with the holds of the key's other uploads in flight."""
         slots, held_bytes = self.holds.held(key.id, but=hold)
         try:
             auth.check_submission_quota(self.store, key, size, pending=slots, held_bytes=held_bytes,
                                         exclude_upload=upload_id)
         except auth.QuotaExceeded as exc:
-            raise self.quota_error(exc)
+            raise self.quota_error(exc) from exc
 
-    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: "Hold | None" = None,
+    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: Hold | None = None,
                      single: bool = False) -> int:
         """Bytes the key may still send: the server's limit (of one request's body when `single`), its day's
         quota less what other uploads hold."""
@@ -318,7 +318,7 @@ class Service:
         disk.restore_reserve(self.settings, self.disk_state())
 
     # -- acceptance ------------------------------------------------------------------------------
-    def accept(self, key: auth.ApiKey, temp: Path, size: int, *, hold: "Hold", method: str | None, challenge: str,
+    def accept(self, key: auth.ApiKey, temp: Path, size: int, *, hold: Hold, method: str | None, challenge: str,
                config: str, allow_partial: bool, publish: bool, upload_id: str | None = None) -> dict:
         """Turn a complete, fsynced file into a queued submission (runs in a thread); `hold`, from
         `upload_slot`, is dropped in the same step as the job row is committed.
@@ -334,9 +334,9 @@ class Service:
         try:
             suffix = check_container(temp, self.limits).suffix
         except NotASubmissionError as exc:
-            raise HTTPException(415, public_message(exc, temp))
+            raise HTTPException(415, public_message(exc, temp)) from exc
         except ParseError as exc:
-            raise HTTPException(422, public_message(exc, temp))
+            raise HTTPException(422, public_message(exc, temp)) from exc
         submission_id = jobs.new_id()
         file_name = submission_id + suffix
         final = settings.submissions_dir / file_name
@@ -359,7 +359,10 @@ class Service:
         except BaseException:
             os.replace(final, temp)
             raise
-        return jobs.get_submission(store, submission_id)
+        row = jobs.get_submission(store, submission_id)
+        if row is None:  # its owner deleted it in the instant since its commit
+            raise HTTPException(404, f"submission {submission_id} was deleted")
+        return row
 
     @staticmethod
     def accepted(row: dict) -> JSONResponse:

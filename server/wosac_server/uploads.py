@@ -47,7 +47,7 @@ async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "
             disconnected = True
         except OSError as exc:
             if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-                raise disk_full(exc)
+                raise disk_full(exc) from exc
             raise
         f.flush()
         await run_in_threadpool(os.fsync, f.fileno())

@@ -220,11 +220,11 @@ def scenes_content(svc, row: dict, public: bool) -> str:
     for e in entries:
         worst = e["worst_objects"][0] if e["worst_objects"] else None
         about_worst = "" if worst is None else (
-            f'; worst object {int(worst["object_id"])} ({html.escape(str(worst["object_type"]))}), part of the gaps '
-            f'{_num(worst["contribution"])}')
+            f'; worst object {int(worst["object_id"])} ({html.escape(str(worst["object_type"]))}), '
+            f'part of the gaps {_num(worst["contribution"])}')
         link = (f'<a href="/submissions/{sid}/scenes/{int(e["row"])}">{html.escape(e["scenario_id"])}</a>'
                 if "row" in e else html.escape(e["scenario_id"]))
-        url = "/submissions/%s/pictures/%d.png" % (sid, int(e["rank"]))
+        url = f"/submissions/{sid}/pictures/{int(e['rank'])}.png"
         parts.append(f'<figure class="scene" data-scenario="{html.escape(e["scenario_id"])}">'
                      f'{_img(url, "scenario " + e["scenario_id"], public)}'
                      f'<figcaption>{link} — meta-metric {_num(e["metametric"])}{about_worst}</figcaption></figure>')

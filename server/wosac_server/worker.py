@@ -18,60 +18,42 @@ environment as the API); `WorkerPool` starts and supervises N of them. With
 `WOSAC_RAY_ADDRESS` set, each job is fanned out to that Ray cluster, so one
 big submission uses every node.
 
-A worker of a `WorkerPool` is started as `python -m wosac_server.worker
---parent-pid PID` and ends with that process from its first line on, before its
-slow imports: a supervisor that dies (SIGTERM during its start-up, SIGKILL, OOM)
-at any moment leaves no worker behind (`wosac_eval.runtime.processes`).
+A worker of a `WorkerPool` is started as `python -m wosac_server.worker_main
+--parent-pid PID` and ends with that process from its first lines on, before the
+slow imports of this module: a supervisor that dies (SIGTERM during its start-up,
+SIGKILL, OOM) at any moment leaves no worker behind (`wosac_eval.runtime.processes`).
 """
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
+import resource
+import secrets
+import shutil
 import signal
+import socket
+import subprocess
 import sys
+import threading
+import time
+import traceback
+from collections.abc import Callable
+from pathlib import Path
 
-PARENT_PID_FLAG = "--parent-pid"
+from wosac_eval.extras import EngineUnavailableError
+from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.parse.submission_source import SubmissionSource
+from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal
+from wosac_eval.options import Engine, MetadataChecks
+from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation
+from wosac_eval.scoring.journal import remove_journal
+from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 
-
-def _parent_pid_argument(argv: list[str]) -> int | None:
-    """The pid after `--parent-pid` in a worker's arguments (the supervisor that started it), if any."""
-    if len(argv) >= 2 and argv[0] == PARENT_PID_FLAG and argv[1].isdigit():
-        return int(argv[1])
-    return None
-
-
-if __name__ == "__main__":  # before anything slow: a supervisor gone since it started us is seen here
-    _PARENT_PID = _parent_pid_argument(sys.argv[1:])
-    if _PARENT_PID is not None:
-        from wosac_eval.runtime.processes import exit_with_parent
-
-        # SIGTERM: the same graceful stop as from the supervisor (release the job, end its process);
-        # before the handler is installed, it simply ends this process.
-        exit_with_parent(_PARENT_PID, death_signal=signal.SIGTERM, watch=False)
-
-import logging  # noqa: E402
-import resource  # noqa: E402
-import secrets  # noqa: E402
-import shutil  # noqa: E402
-import socket  # noqa: E402
-import subprocess  # noqa: E402
-import threading  # noqa: E402
-import time  # noqa: E402
-import traceback  # noqa: E402
-from collections.abc import Callable  # noqa: E402
-from pathlib import Path  # noqa: E402
-
-from wosac_eval.extras import EngineUnavailableError  # noqa: E402
-from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal  # noqa: E402
-from wosac_eval.parse.scenarios import ScenarioIndex  # noqa: E402
-from wosac_eval.parse.submission_source import SubmissionSource  # noqa: E402
-from wosac_eval.options import Engine, MetadataChecks  # noqa: E402
-from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation  # noqa: E402
-from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission  # noqa: E402
-from wosac_eval.scoring.journal import remove_journal  # noqa: E402
-
-from . import disk, jobs, results  # noqa: E402
-from .db import Store  # noqa: E402
-from .settings import Settings, load_settings  # noqa: E402
+from . import disk, jobs, results
+from .db import Store
+from .settings import Settings, load_settings
+from .worker_main import PARENT_PID_FLAG, parent_pid_argument, tie_to_supervisor
 
 log = logging.getLogger("wosac_server.worker")
 
@@ -239,7 +221,7 @@ def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
 class _Heartbeat(threading.Thread):
     """Renews one job's lease while its child scores; kills the child when the job must stop."""
 
-    def __init__(self, worker: "Worker", job: dict, child: int):
+    def __init__(self, worker: Worker, job: dict, child: int):
         super().__init__(name=f"heartbeat-{job['id']}", daemon=True)
         self.worker = worker
         self.job = job
@@ -248,10 +230,8 @@ class _Heartbeat(threading.Thread):
         self.done = threading.Event()
 
     def stop_child(self) -> None:
-        try:
+        with contextlib.suppress(ProcessLookupError):  # already ended
             os.kill(self.child, signal.SIGKILL)  # its scoring pool's processes see it gone and end
-        except ProcessLookupError:
-            pass
 
     def run(self) -> None:
         w, job_id = self.worker, self.job["id"]
@@ -275,7 +255,7 @@ class _Heartbeat(threading.Thread):
                 return
             try:
                 renewed = jobs.renew_lease(w.store, job_id, w.owner, w.settings.lease_s)
-            except Exception as exc:  # database briefly unreachable, or its disk full: try again next beat
+            except Exception as exc:  # noqa: BLE001 - database briefly unreachable, or its disk full: try again next beat
                 if not failing:  # once per streak: a full disk can last hours
                     log.warning("worker %s: could not renew the lease of %s: %s", os.getpid(), job_id, exc)
                 failing = True
@@ -408,7 +388,7 @@ class Worker:
         try:
             write_index(objects, [row["scenario_id"] for row in result["scenarios"]],
                         self.settings.objects_index_path(job_id))
-        except Exception as exc:  # noqa: BLE001
+        except Exception as exc:
             if disk.is_disk_full(exc):
                 raise  # waited out and done again, as every other write of the job
             log.error("worker %s: the objects index of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
@@ -519,7 +499,7 @@ class WorkerPool:
     def _spawn(self) -> subprocess.Popen:
         # Our pid on its command line: the worker checks it before its slow imports (and arms its
         # parent-death signal), so our death at any moment after this call ends it.
-        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker", PARENT_PID_FLAG, str(os.getpid())],
+        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker_main", PARENT_PID_FLAG, str(os.getpid())],
                                 env=self.env)
 
     def start(self, cancelled: Callable[[], bool] = lambda: False) -> None:
@@ -572,5 +552,8 @@ def main(parent_pid: int | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main(_PARENT_PID))
+if __name__ == "__main__":  # `WorkerPool` starts `wosac_server.worker_main`, which ties before the slow imports
+    _parent_pid = parent_pid_argument(sys.argv[1:])
+    if _parent_pid is not None:
+        tie_to_supervisor(_parent_pid)
+    sys.exit(main(_parent_pid))

@@ -44,11 +44,12 @@ def by_object_type(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metr
         rows = np.flatnonzero(types == code)
         if rows.size == 0:
             continue
-        row = {"num_objects": int(rows.size)}
+        row: dict[str, int | float | None] = {"num_objects": int(rows.size)}
         for metric in METRICS:
             ll, mask = log_likelihoods[metric.name]
             row[metric.output] = _likelihood(np.asarray(ll), None if mask is None else np.asarray(mask), rows)
-        weighted = [(weights[m], row[f"{m}_likelihood"]) for m in METRIC_NAMES if row[f"{m}_likelihood"] is not None]
+        likelihoods = {m: row[f"{m}_likelihood"] for m in METRIC_NAMES}
+        weighted = [(weights[m], v) for m, v in likelihoods.items() if v is not None]
         total = sum(w for w, _ in weighted)
         row["metametric"] = float(sum(w * v for w, v in weighted) / total) if total > 0 else None
         ade = np.asarray(sim.average_displacement_error)[:, rows]

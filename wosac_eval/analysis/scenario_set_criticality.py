@@ -32,9 +32,9 @@ class CriticalityTask:
 
 def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
     """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked)."""
-    from wosac_eval.arrays.scenario import scenario_arrays
     from wosac_eval.analysis.criticality_features import criticality_features
     from wosac_eval.analysis.criticality_scores import scene_criticality, step_criticality
+    from wosac_eval.arrays.scenario import scenario_arrays
 
     out = []
     for sid in task.scenario_ids:

@@ -155,7 +155,8 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
 
 
 def _packed_float_blocks(values: np.ndarray, field_numbers: tuple[int, ...]) -> np.ndarray:
-    """Wire bytes of packed float fields, uint8 `(num_trajectories, bytes)`, from float32 `(num_trajectories, fields, num_steps)`."""
+    """Wire bytes of packed float fields, uint8 `(num_trajectories, bytes)`, from float32
+    `(num_trajectories, fields, num_steps)`."""
     count, fields, steps = values.shape
     headers = packed_headers(steps, field_numbers)
     out = np.empty((count, fields, headers.shape[1] + 4 * steps), dtype=np.uint8)
@@ -180,9 +181,10 @@ def rollouts_bytes(rollouts: RolloutArrays) -> bytes:
     blocks = _packed_float_blocks(coordinates.reshape(num_rollouts * num_objects, 4, -1), _COORDINATE_NUMBERS)
     ids = rollouts.object_id.reshape(-1).tolist()
     if rollouts.has_boxes:
-        sizes = np.stack([rollouts.width, rollouts.length, rollouts.height], axis=2)
+        length, width, height, object_type = rollouts.boxes()
+        sizes = np.stack([width, length, height], axis=2)
         size_blocks = _packed_float_blocks(sizes.reshape(num_rollouts * num_objects, 3, -1), _SIZE_NUMBERS)
-        types = rollouts.object_type.reshape(-1).tolist()
+        types = object_type.reshape(-1).tolist()
         trajectories = [_length_delimited(_TRAJECTORY_KEY, b"".join((
             blocks[k].tobytes(), _OBJECT_ID_KEY, _int_varint(ids[k]), size_blocks[k].tobytes(),
             _OBJECT_TYPE_KEY, _int_varint(types[k])))) for k in range(len(ids))]

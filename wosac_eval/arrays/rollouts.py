@@ -50,7 +50,13 @@ class RolloutArrays:
     def has_boxes(self) -> bool:
         return self.length is not None
 
-    def validate(self) -> "RolloutArrays":
+    def boxes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """`(length, width, height, object_type)` of rollouts with boxes (Scenario Generation)."""
+        if self.length is None or self.width is None or self.height is None or self.object_type is None:
+            raise ValueError("these rollouts carry no boxes (length, width, height and object_type)")
+        return self.length, self.width, self.height, self.object_type
+
+    def validate(self) -> RolloutArrays:
         """Raises ValueError naming the field whose shape or dtype disagrees; returns self."""
         shape = np.shape(self.x)
         if len(shape) != 3:
@@ -125,8 +131,8 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     object_id, _, object_type = trajectory_headers(data, start, end)
     out = values.reshape(num_scenes, num_agents, len(fields), num_steps)
     ids = object_id.reshape(num_scenes, num_agents)
-    sizes = dict(length=out[:, :, 4], width=out[:, :, 5], height=out[:, :, 6],
-                 object_type=object_type.reshape(num_scenes, num_agents)) if boxes else {}
+    sizes = {"length": out[:, :, 4], "width": out[:, :, 5], "height": out[:, :, 6],
+             "object_type": object_type.reshape(num_scenes, num_agents)} if boxes else {}
     return RolloutArrays(scenario_id=rollouts.scenario_id, object_id=ids,
                          x=out[:, :, 0], y=out[:, :, 1], z=out[:, :, 2], heading=out[:, :, 3], **sizes)
 

@@ -62,7 +62,7 @@ def official_object_order(scene_ids, evaluated_ids) -> np.ndarray:
     packet of vectorised ops (and ties between equidistant objects), so it is
     reproduced with the same set operations on the same integers.
     """
-    others = set(int(i) for i in scene_ids) - set(int(i) for i in evaluated_ids)
+    others = {int(i) for i in scene_ids} - {int(i) for i in evaluated_ids}
     return np.array([int(i) for i in evaluated_ids] + list(others), dtype=np.int64)
 
 
@@ -99,9 +99,14 @@ def _sim_agents_composite(scenario: ScenarioArrays, order: np.ndarray, future: d
     """
     log, now = scenario.log, challenges.CURRENT_TIME_INDEX
     rows = index_of_ids(log.object_id, order.reshape(-1)).reshape(order.shape)
-    history = lambda a: a[rows][..., : now + 1]
     n_future = future["x"].shape[-1]
-    frozen = lambda a: np.concatenate([history(a), np.repeat(a[rows][..., now:now + 1], n_future, axis=-1)], axis=-1)
+
+    def history(a: np.ndarray) -> np.ndarray:
+        return a[rows][..., : now + 1]
+
+    def frozen(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([history(a), np.repeat(a[rows][..., now:now + 1], n_future, axis=-1)], axis=-1)
+
     return ObjectTrajectories(
         **{f: np.concatenate([history(getattr(log, f)), future[f].astype(_F)], axis=-1) for f in _POSITIONS},
         **{f: frozen(getattr(log, f)) for f in _SIZES},

@@ -11,6 +11,7 @@ A submission is a set of shards `<method>.binproto-0000k-of-0000n`, each a
 from __future__ import annotations
 
 import gzip
+import os
 import shutil
 import tarfile
 import tempfile
@@ -103,7 +104,7 @@ class SubmissionWriter:
     anything else a folder of `<method>.binproto-0000k-of-0000n` files.
     """
 
-    def __init__(self, metadata: SubmissionMetadata, output: str | Path, num_shards: int = 4):
+    def __init__(self, metadata: SubmissionMetadata, output: str | os.PathLike, num_shards: int = 4):
         if num_shards < 1:
             raise ValueError("num_shards must be >= 1")
         self.metadata = metadata
@@ -112,7 +113,8 @@ class SubmissionWriter:
         self.count = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._tmp = tempfile.TemporaryDirectory(prefix=".shards-", dir=self.path.parent)
-        self._files = [open(Path(self._tmp.name) / f"part-{k}", "wb") for k in range(num_shards)]
+        # Open while scenes are added; `__exit__` closes them.
+        self._files = [open(Path(self._tmp.name) / f"part-{k}", "wb") for k in range(num_shards)]  # noqa: SIM115
 
     def add(self, rollouts) -> None:
         """Appends one scenario's rollouts: `RolloutArrays`, a `ScenarioRollouts` message or its bytes."""
@@ -121,7 +123,7 @@ class SubmissionWriter:
         shard.write(_ROLLOUTS_TAG + varint(len(data)) + data)
         self.count += 1
 
-    def __enter__(self) -> "SubmissionWriter":
+    def __enter__(self) -> SubmissionWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

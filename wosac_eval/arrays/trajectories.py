@@ -38,7 +38,7 @@ class ObjectTrajectories:
     object_id: np.ndarray
     object_type: np.ndarray
 
-    def validate(self) -> "ObjectTrajectories":
+    def validate(self) -> ObjectTrajectories:
         """Raises ValueError naming the field whose shape or dtype disagrees; returns self."""
         shape = np.shape(self.x)
         if len(shape) < 2:
@@ -65,18 +65,18 @@ class ObjectTrajectories:
     def num_steps(self) -> int:
         return int(self.x.shape[-1])
 
-    def take_objects(self, indices: np.ndarray) -> "ObjectTrajectories":
+    def take_objects(self, indices: np.ndarray) -> ObjectTrajectories:
         """Selects objects by position (`(num_selected,)`), in the given order."""
         indices = np.asarray(indices, dtype=np.int64)
         fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in TIME_SERIES}
         return ObjectTrajectories(**fields, object_id=np.take(self.object_id, indices, axis=-1),
                                   object_type=np.take(self.object_type, indices, axis=-1))
 
-    def take_ids(self, object_ids) -> "ObjectTrajectories":
+    def take_ids(self, object_ids) -> ObjectTrajectories:
         """Selects objects by id, in the order of `object_ids`; `object_id` must be `(num_objects,)`."""
         return self.take_objects(index_of_ids(self.object_id, object_ids))
 
-    def take_steps(self, steps: slice) -> "ObjectTrajectories":
+    def take_steps(self, steps: slice) -> ObjectTrajectories:
         """The given steps of every object."""
         return dataclasses.replace(self, **{f: getattr(self, f)[..., steps] for f in TIME_SERIES})
 

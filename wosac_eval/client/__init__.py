@@ -14,8 +14,14 @@
 """
 from __future__ import annotations
 
-from wosac_eval.client.transport import (ProtocolError, RetryPolicy, ServerUnavailable, SubmissionFailed,
-                                         SubmissionRefused, SubmitError)
+from wosac_eval.client.transport import (
+                                         ProtocolError,
+                                         RetryPolicy,
+                                         ServerUnavailable,
+                                         SubmissionFailed,
+                                         SubmissionRefused,
+                                         SubmitError,
+)
 from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, follow, submit
 
 __all__ = ["DEFAULT_CHUNK_BYTES", "KEY_ENV", "ArgumentError", "ProtocolError", "RetryPolicy", "ServerUnavailable",

@@ -14,8 +14,8 @@ import socket
 import ssl
 import time
 from collections.abc import Callable, Iterable
-from typing import BinaryIO
 from dataclasses import dataclass, field
+from typing import BinaryIO
 from urllib.parse import quote, urlencode, urlsplit
 
 from wosac_eval import __version__
@@ -159,13 +159,15 @@ class Server:
 
     def __post_init__(self) -> None:
         parts = urlsplit(self.url.strip())
-        if parts.scheme not in ("http", "https") or not parts.hostname:
+        host = parts.hostname
+        if parts.scheme not in ("http", "https") or not host:
             raise ValueError(f"server URL {self.url!r}: give http://HOST[:PORT] or https://HOST[:PORT]")
         try:
             parts.port  # noqa: B018 - raises on a bad port
         except ValueError as error:
             raise ValueError(f"server URL {self.url!r}: {error}") from None
         self._parts = parts
+        self._host = host
         self.url = f"{parts.scheme}://{parts.netloc}{parts.path.rstrip('/')}"
 
     def path(self, route: str, query: dict | None = None) -> str:
@@ -176,7 +178,7 @@ class Server:
         return text
 
     def _connection(self, timeout: float | None) -> http.client.HTTPConnection:
-        host, port = self._parts.hostname, self._parts.port
+        host, port = self._host, self._parts.port
         if self._parts.scheme == "https":
             return http.client.HTTPSConnection(host, port, timeout=timeout, context=ssl.create_default_context())
         return http.client.HTTPConnection(host, port, timeout=timeout)

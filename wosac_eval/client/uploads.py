@@ -18,10 +18,21 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from wosac_eval.client.transport import (NETWORK_ERRORS, RETRYABLE_STATUS, ProtocolError, Response, Retrier,
-                                         RetryPolicy, Server, ServerUnavailable, SubmissionFailed, SubmissionRefused,
-                                         SubmitError, status_reason)
 from wosac_eval.client.state import UploadState, default_state_dir, key_digest, prune
+from wosac_eval.client.transport import (
+    NETWORK_ERRORS,
+    RETRYABLE_STATUS,
+    ProtocolError,
+    Response,
+    Retrier,
+    RetryPolicy,
+    Server,
+    ServerUnavailable,
+    SubmissionFailed,
+    SubmissionRefused,
+    SubmitError,
+    status_reason,
+)
 
 DEFAULT_CHUNK_BYTES = 64 * 2**20
 BLOCK_BYTES = 2**20  # what is read from the file, and sent, at a time
@@ -437,14 +448,14 @@ class _Run:
             self.sent += len(data)
             self.progress("upload", offset + done, self.size)
             if self.limit_rate:
-                self._pace(len(data))
+                self._pace(len(data), self.limit_rate)
 
-    def _pace(self, n: int) -> None:
+    def _pace(self, n: int, limit_rate: int) -> None:
         now = time.monotonic()
-        if self._rate_start is None or now - self._rate_start > 10 + self._rate_bytes / self.limit_rate:
+        if self._rate_start is None or now - self._rate_start > 10 + self._rate_bytes / limit_rate:
             self._rate_start, self._rate_bytes = now, 0  # (re)start after a long pause: no burst to catch up
         self._rate_bytes += n
-        ahead = self._rate_bytes / self.limit_rate - (time.monotonic() - self._rate_start)
+        ahead = self._rate_bytes / limit_rate - (time.monotonic() - self._rate_start)
         if ahead > 0:
             time.sleep(ahead)
 

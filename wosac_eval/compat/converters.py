@@ -11,11 +11,10 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.scenario import scenario_arrays
-from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
-
 from wosac_eval.compat import submission_specs, trajectory_utils
-from wosac_eval.compat._arrays import compat_array
+from wosac_eval.compat._arrays import CompatArray, compat_array
 from wosac_eval.compat.submission_specs import ChallengeType
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 
 def scenario_to_joint_scene(scenario: scenario_pb2.Scenario,
@@ -86,8 +85,13 @@ def joint_scene_to_trajectories(joint_scene: sim_agents_submission_pb2.JointScen
         future_valid = log.gather_objects_by_id(ids).slice_time(now + 1).valid
     else:
         future_valid = np.ones((len(ids), n_future), dtype=bool)
-    frozen = lambda a: np.repeat(a[:, -1:], n_future, axis=-1)
-    joined = lambda past, rest: compat_array(np.concatenate([past, rest.reshape(len(ids), n_future)], axis=-1))
+
+    def frozen(a: np.ndarray) -> np.ndarray:
+        return np.repeat(a[:, -1:], n_future, axis=-1)
+
+    def joined(past: np.ndarray, rest: np.ndarray) -> CompatArray:
+        return compat_array(np.concatenate([past, rest.reshape(len(ids), n_future)], axis=-1))
+
     return trajectory_utils.ObjectTrajectories(
         **{f: joined(getattr(history, f), future[f]) for f in ("x", "y", "z", "heading")},
         **{f: joined(getattr(history, f), frozen(getattr(history, f))) for f in ("length", "width", "height")},

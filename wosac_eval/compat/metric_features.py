@@ -21,11 +21,10 @@ from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.samples import sample_batch
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
-from wosac_eval.features import metric_features as _features
-from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2
-
 from wosac_eval.compat._arrays import compat_array
 from wosac_eval.compat.submission_specs import ChallengeType
+from wosac_eval.features import metric_features as _features
+from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2
 
 # The official module's private aliases, which some client programs read.
 _ChallengeType = ChallengeType
@@ -77,7 +76,7 @@ def _official(features: _features.MetricFeatures) -> MetricFeatures:
     ids = values["object_id"]
     if ids.size and (ids.min() < np.iinfo(np.int32).min or ids.max() > np.iinfo(np.int32).max):
         raise ValueError(f"object ids {ids.tolist()} do not fit the official int32 ids")
-    values["object_id"] = ids.astype(np.int32)
+    values["object_id"] = compat_array(ids.astype(np.int32))
     return MetricFeatures(**values)
 
 

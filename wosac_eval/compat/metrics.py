@@ -12,11 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.compat.submission_specs import ChallengeType
 from wosac_eval.metrics.config import default_config, load_config
 from wosac_eval.metrics.scenario_metrics import bucket_metrics
 from wosac_eval.protos import scenario_pb2, sim_agents_metrics_pb2, sim_agents_submission_pb2
-
-from wosac_eval.compat.submission_specs import ChallengeType
 
 
 def load_metrics_config(challenge_type: ChallengeType = ChallengeType.SIM_AGENTS

@@ -12,6 +12,7 @@ program written for the official package behaves the same.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from wosac_eval import challenges
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
@@ -83,7 +84,7 @@ def _raise_official_refusal(rollouts: sim_agents_submission_pb2.ScenarioRollouts
     from wosac_eval.validate import rules
 
     sim_agent_ids = challenges.sim_agent_ids(scenario)
-    options = {} if n_rollouts is None else {"n_rollouts": n_rollouts}
+    options: dict[str, Any] = {} if n_rollouts is None else {"n_rollouts": n_rollouts}
     findings = rules.check_scenario_rollouts(rollouts, sim_agent_ids, challenge=challenge_type, **options)
     refused = [f for f in findings if _refused_by_official(f, set(sim_agent_ids.tolist()))]
     if refused:

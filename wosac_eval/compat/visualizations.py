@@ -17,6 +17,8 @@ events instead.
 """
 from __future__ import annotations
 
+from typing import TypedDict
+
 import numpy as np
 
 from wosac_eval.protos import map_pb2, scenario_pb2
@@ -25,8 +27,13 @@ from wosac_eval.protos import map_pb2, scenario_pb2
 WAYMO_COLORS = np.array([[0, 120, 255], [0, 232, 157], [255, 205, 85], [244, 175, 145], [145, 80, 200],
                          [0, 51, 102]], dtype=np.float64) / 255.0
 
-_EDGE_STYLE = {"fmt": "k--", "alpha": 1.0}
-_LINE_STYLE = {"fmt": "k--", "alpha": 0.5}
+class _Style(TypedDict):
+    fmt: str
+    alpha: float
+
+
+_EDGE_STYLE: _Style = {"fmt": "k--", "alpha": 1.0}
+_LINE_STYLE: _Style = {"fmt": "k--", "alpha": 0.5}
 _BOX_ALPHA = 0.5
 _FRAME_MS = 100  # one 10 Hz step per frame: real time
 

@@ -280,9 +280,8 @@ def compare_results(
                 ci_low=float(test.ci_low[j]), ci_high=float(test.ci_high[j]), p_value=float(test.p_value[j]))
         holm = stats.holm_adjust(test.p_value)
         for j, m in enumerate(paired):
-            results[m].p_holm = float(holm[j])
-            results[m].verdict = _verdict(results[m], results[m].p_holm if adjust == "holm" else results[m].p_value,
-                                          alpha)
+            p_holm = results[m].p_holm = float(holm[j])
+            results[m].verdict = _verdict(results[m], p_holm if adjust == "holm" else float(test.p_value[j]), alpha)
 
     unpaired = [m for m in wanted if m not in results]
     for m in unpaired:
@@ -293,10 +292,10 @@ def compare_results(
         results[m] = MetricComparison(metric=m, higher_is_better=higher_is_better(m), paired=False,
                                       base=bv, new=nv, difference=nv - bv)
     if any(m in results for m in unpaired):
-        names = ", ".join(m for m in unpaired if m in results)
+        aggregated = ", ".join(m for m in unpaired if m in results)
         scope = "all of each file's scenarios" if not (base_only.size or new_only.size) else \
             "each file's own scenarios (the sets differ!)"
-        warnings.append(f"no per-scenario values for {names}: compared the files' aggregates over {scope}, "
+        warnings.append(f"no per-scenario values for {aggregated}: compared the files' aggregates over {scope}, "
                         f"without interval or p-value")
 
     ordered = [results[m] for m in wanted if m in results]

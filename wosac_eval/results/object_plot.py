@@ -100,7 +100,7 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
         flags = np.asarray(getattr(sim, feature))[:, e] & np.asarray(log.valid)[0, e][None]
         hit = np.flatnonzero(flags.any(axis=-1))
         counts[label] = int(hit.size)
-        for r in hit:
+        for r in hit.tolist():
             k = int(flags[r].argmax())
             ax.plot(rollout_xy[r][0][k], rollout_xy[r][1][k], ls="", marker=marker, color=colour, markersize=7,
                     zorder=6)
@@ -145,7 +145,7 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
         if simulated.size or logged_values.size:
             # The log whole, the rollouts' bulk (not a far-away outlier: distances saturate far from anything).
             bounds = [np.percentile(simulated, [1, 99])] if simulated.size else []
-            bounds += [[logged_values.min(), logged_values.max()]] if logged_values.size else []
+            bounds += [np.array([logged_values.min(), logged_values.max()])] if logged_values.size else []
             low, high = min(b[0] for b in bounds), max(b[1] for b in bounds)
             margin = 0.08 * max(high - low, 1e-3)
             axis.set_ylim(low - margin, high + margin)

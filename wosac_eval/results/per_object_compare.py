@@ -55,7 +55,7 @@ class ObjectTable:
 
 def object_metametric(values: dict[str, np.ndarray], weights: dict[str, float] | None) -> np.ndarray:
     """Each object's meta-metric: the weighted mean of the likelihoods it has (weights renormalised)."""
-    weights = weights or {m: 1.0 for m in METRIC_NAMES}
+    weights = weights or dict.fromkeys(METRIC_NAMES, 1.0)
     total = np.zeros_like(values[LIKELIHOOD_FIELDS[0]])
     norm = np.zeros_like(total)
     for name in METRIC_NAMES:
@@ -214,8 +214,8 @@ def compare_objects(base_result: ScoringResult, new_result: ScoringResult, *, me
     # Strata: object type x criticality of the scene, one paired test per (stratum, metric) over scenes.
     scene_ids, groups = np.unique(base.scenario_id[b_rows].astype(str), return_inverse=True)
     strata_of_scenes: list[tuple[str, str, np.ndarray]] = [("all", "every scene", np.ones(scene_ids.size, bool))]
-    if base_result.criticality is not None or new_result.criticality is not None:
-        source = base_result if base_result.criticality is not None else new_result
+    source = base_result if base_result.criticality is not None else new_result
+    if source.criticality is not None:
         score_of = dict(zip(source.scenario_ids.tolist(), source.criticality.tolist()))
         scores = np.array([score_of.get(s, np.nan) for s in scene_ids])
         if np.isfinite(scores).all() and scene_ids.size >= 3:

@@ -112,6 +112,14 @@ def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
     return result.values.get(key)
 
 
+def _present_values(result: ScoringResult, metric: str) -> np.ndarray:
+    """`_values` of a metric the caller knows the result has (`_available`)."""
+    values = _values(result, metric)
+    if values is None:
+        raise KeyError(f"the result has no per-scenario {metric}")
+    return values
+
+
 # ------------------------------------------------------------------------------------------------
 # Plots
 
@@ -135,7 +143,7 @@ def bucket_figure(result: ScoringResult, base: ScoringResult | None):
     ax = fig.add_subplot()
     y = np.arange(len(names))
     height = 0.38 if base is not None else 0.6
-    new_vals = [result.headline(n) for n in names]
+    new_vals = [result.headline(n) or 0.0 for n in names]  # each present (`names`)
     ax.barh(y, new_vals, height=height, color=_NEW_COLOR, label="this run")
     if base is not None:
         base_vals = [base.headline(n) or 0.0 for n in names]
@@ -191,8 +199,8 @@ def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metric
     fig = _figure(14, 2.1 * rows)
     for k, metric in enumerate(metrics):
         ax = fig.add_subplot(rows, cols, k + 1)
-        v = _values(result, metric)
-        b = _values(base, metric) if base is not None else None
+        v = _present_values(result, metric)
+        b = _present_values(base, metric) if base is not None else None
         data = np.concatenate([v, b]) if b is not None else v
         bins = _histogram_bins(data)
         # One artist per histogram (ax.hist draws a patch per bin, several times slower over 19 panels).
@@ -250,8 +258,9 @@ def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
     return _png(fig)
 
 
-def _criticality_plot(result: ScoringResult, tail: float) -> str:
-    c, m = result.criticality, result.values["metametric"]
+def _criticality_plot(result: ScoringResult, c: np.ndarray, tail: float) -> str:
+    """`c`: the scenes' criticality scores (`result.criticality`)."""
+    m = result.values["metametric"]
     fig = _figure(5.0, 3.6)
     ax = fig.add_subplot()
     in_tail = c >= tail
@@ -351,7 +360,7 @@ def _distribution_section(result: ScoringResult, base: ScoringResult | None) -> 
 def _worst_section(result: ScoringResult, top_k: int) -> str:
     blocks = []
     for k, metric in enumerate(m for m in DISTRIBUTION_METRICS if _values(result, m) is not None):
-        v = _values(result, metric)
+        v = _present_values(result, metric)
         order = np.argsort(v if higher_is_better(metric) else -v, kind="stable")[:top_k]
         rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
                        f"<td class=n>{v[i]:.4f}</td></tr>" for r, i in enumerate(order))
@@ -421,9 +430,9 @@ def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> s
     return _section("scenes", f"Worst scenes ({len(scenes)})", [note, "".join(cards)])
 
 
-def _criticality_section(result: ScoringResult, top_k: int) -> str:
-    """Realism against the scenes' criticality, and the worst long-tail scenes (rows carry `criticality`)."""
-    c, m = result.criticality, result.values["metametric"]
+def _criticality_section(result: ScoringResult, c: np.ndarray, top_k: int) -> str:
+    """Realism against the scenes' criticality `c` (`result.criticality`), and the worst long-tail scenes."""
+    m = result.values["metametric"]
     tail = float(np.quantile(c, LONG_TAIL_QUANTILE))
     in_tail = np.flatnonzero(c >= tail)
     worst = in_tail[np.argsort(m[in_tail], kind="stable")][:top_k]
@@ -438,7 +447,7 @@ def _criticality_section(result: ScoringResult, top_k: int) -> str:
                "difference between two runs per stratum.</p>")
     table = (f"<table data-table=long-tail><tr><th class=n>#</th><th>worst long-tail scenario</th>"
              f"<th class=n>criticality</th><th class=n>meta-metric</th></tr>{rows}</table>")
-    return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, tail), table])
+    return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, c, tail), table])
 
 
 def _changed_scenarios(result: ScoringResult, base: ScoringResult, top_k: int) -> str:
@@ -529,13 +538,13 @@ def render_report(
         _bucket_section(result, base),
         _rate_section(result, base),
     ]
-    if comparison is not None:
+    if base is not None and comparison is not None:  # both or neither (checked above)
         parts.append(_comparison_section(result, base, comparison, top_k))
     parts += [_distribution_section(result, base), _worst_section(result, top_k)]
     if result.objects is not None and result.num_scenarios > 0:
         parts.append(_worst_objects_section(result, top_k))
     if result.criticality is not None and result.num_scenarios > 0:
-        parts.append(_criticality_section(result, top_k))
+        parts.append(_criticality_section(result, result.criticality, top_k))
     if scenes:
         parts.append(_scenes_section(result, scenes))
     parts.append(_skipped_section(result))

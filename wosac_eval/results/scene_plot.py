@@ -19,6 +19,7 @@ import io
 import json
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -279,8 +280,10 @@ class ScenePainter:
         valid = log.valid[:, step]
         corners = _box_corners(log.x[valid, step], log.y[valid, step], log.heading[valid, step],
                                log.length[valid, step], log.width[valid, step])
-        self._dynamic.append(ax.add_collection(PolyCollection(corners, facecolors="none", edgecolors="#24292f",
-                                                              linewidths=0.8, zorder=6)))
+        outlines = PolyCollection(
+            corners,  # type: ignore[arg-type]  # (N, 4, 2) polygons: matplotlib takes them, its stubs ask a Sequence
+            facecolors="none", edgecolors="#24292f", linewidths=0.8, zorder=6)
+        self._dynamic.append(ax.add_collection(outlines))
         k = view.simulated_step(step)
         if k is not None and self.rollouts:
             self._dynamic.append(ax.add_collection(self._rollout_boxes(self.rollouts[0], k, step)))
@@ -308,8 +311,10 @@ class ScenePainter:
         from matplotlib.collections import PolyCollection
 
         sim, scenario = self.view.rollouts, self.view.scenario
+        if sim is None:
+            raise ValueError("the view has no rollouts to draw")
         ids = sim.object_id[r]
-        if sim.has_boxes:
+        if sim.length is not None and sim.width is not None:  # rollouts with boxes (Scenario Generation)
             length, width = sim.length[r, :, k], sim.width[r, :, k]
         else:  # sim agents: the log's size at the current step, as the evaluator takes it
             log = scenario.log.take_ids(ids)
@@ -317,7 +322,9 @@ class ScenePainter:
             width = log.width[:, challenges.CURRENT_TIME_INDEX]
         corners = _box_corners(sim.x[r, :, k], sim.y[r, :, k], sim.heading[r, :, k], length, width)
         colours = [self.colour.get(int(i), "#8c959f") for i in ids.tolist()]
-        return PolyCollection(corners, facecolors=colours, edgecolors="white", linewidths=0.5, alpha=0.75, zorder=6)
+        return PolyCollection(
+            corners,  # type: ignore[arg-type]  # (N, 4, 2) polygons: matplotlib takes them, its stubs ask a Sequence
+            facecolors=colours, edgecolors="white", linewidths=0.5, alpha=0.75, zorder=6)
 
     def png_bytes(self, dpi: int = 100) -> bytes:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -400,7 +407,7 @@ def scene_html(view: SceneView, *, rollouts: Sequence[int] | None = None, densit
                every: int = 2, dpi: int = 72) -> str:
     """One self-contained HTML page: the scene at every `every` steps behind a slider, and its events."""
     steps = animation_steps(every)
-    frames = []
+    frames: list[dict[str, Any]] = []
     for step, image in zip(steps, ScenePainter(view, rollouts, density).frames(steps, dpi)):
         buffer = io.BytesIO()
         # A map is mostly flat colour: a palette makes each frame several times smaller.

@@ -98,12 +98,13 @@ def _compare(stratum: str, description: str, metric: str, base: np.ndarray, new:
 
 
 def _with_verdicts(rows: list[StratumComparison], alpha: float, adjust: str) -> list[StratumComparison]:
-    tested = [i for i, r in enumerate(rows) if r.p_value is not None]
-    adjusted = stats.holm_adjust(np.array([rows[i].p_value for i in tested])) if tested else []
+    p_values = {i: r.p_value for i, r in enumerate(rows) if r.p_value is not None}
+    tested = list(p_values)
+    adjusted = stats.holm_adjust(np.array(list(p_values.values()))) if tested else np.empty(0)
     out = list(rows)
     for i, p_holm in zip(tested, adjusted):
         r = rows[i]
-        if (p_holm if adjust == "holm" else r.p_value) >= alpha or r.difference == 0:
+        if (p_holm if adjust == "holm" else p_values[i]) >= alpha or not r.difference:  # tested: a difference
             verdict = "no significant difference"
         else:
             verdict = "better" if (r.difference > 0) == higher_is_better(r.metric) else "worse"

@@ -69,7 +69,7 @@ def synthetic_scenarios(
             values[field] = np.clip(values[field] + noise.normal(0.0, jitter / 4, n), 0.0, 1.0)
     for field in LIKELIHOODS:
         values[field] = values[field] + shift.pop(field, 0.0)
-    values["metametric"] = sum(WEIGHTS_2025[f.removesuffix("_likelihood")] * values[f] for f in LIKELIHOODS)
+    values["metametric"] = np.asarray(sum(WEIGHTS_2025[f.removesuffix("_likelihood")] * values[f] for f in LIKELIHOODS))
     for field in (*RATE_FIELDS, "average_displacement_error", "min_average_displacement_error", "metametric"):
         values[field] = values[field] + shift.pop(field, 0.0)
     if shift:

@@ -194,7 +194,7 @@ def _init_with_retries(address: str | None) -> None:
                      logging_level=logging.ERROR, log_to_driver=False)
             return
         except ConnectionError as error:
-            passing = bool(address) and address.startswith("ray://") and \
+            passing = address is not None and address.startswith("ray://") and \
                 "Initialization failure from server" in str(error)
             if not passing or attempt == CLIENT_START_ATTEMPTS:
                 raise

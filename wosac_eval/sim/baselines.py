@@ -9,18 +9,20 @@ from pathlib import Path
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.parse.scenarios import iter_scenarios
-from wosac_eval.runtime.processes import worker_pool
-from wosac_eval.sim import policies
 from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter
+from wosac_eval.parse.scenarios import iter_scenarios
+from wosac_eval.runtime.processes import worker_pool
+from wosac_eval.sim import policies
 
 PathLike = str | os.PathLike
 
 DESCRIPTIONS = {
     "constant_velocity": "Constant velocity: every agent keeps its current velocity and heading.",
-    "log_replay_noise": "Logged future plus smooth noise growing to ~0.5 m (uses the future: a reference, not a method).",
+    "log_replay_noise": (
+        "Logged future plus smooth noise growing to ~0.5 m (uses the future: a reference, not a method)."
+    ),
     "idm": "Lane following with an intelligent-driver-model car-following law that stops at red lights.",
 }
 
@@ -29,7 +31,7 @@ def policy_rollouts(scenario, policy: str, seed: int = 0, challenge: str = "sim_
     """A policy's 32 rollouts of a scenario (all 91 steps with boxes and types for scenario gen)."""
     if challenges.spec(challenge).submits_boxes:
         ids, traj, boxes, types = policies.generate_scenario(scenario, policy, seed)
-        sizes = dict(length=boxes[..., 0], width=boxes[..., 1], height=boxes[..., 2], object_type=types)
+        sizes = {"length": boxes[..., 0], "width": boxes[..., 1], "height": boxes[..., 2], "object_type": types}
     else:
         ids, traj = policies.simulate_scenario(scenario, policy, seed)
         sizes = {}

@@ -44,7 +44,7 @@ class Paths:
 
     @classmethod
     def from_polylines(cls, polylines: list[list[np.ndarray]], ds: float, min_length: float,
-                       smooth_m: float = 0.0) -> "Paths":
+                       smooth_m: float = 0.0) -> Paths:
         """Resamples nested lists [batch][agent] of polylines to one array, extending each
         straight past its end so that all have the same number of samples covering `min_length`.
 

@@ -6,6 +6,7 @@ counter-clockwise from +x (East), as in WOMD.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 def wrap_angle(angle: np.ndarray | float) -> np.ndarray:
@@ -33,7 +34,7 @@ def resample(polyline: np.ndarray, spacing: float) -> np.ndarray:
     return np.stack([np.interp(targets, s, polyline[:, k]) for k in range(polyline.shape[1])], axis=1)
 
 
-def segment(start: np.ndarray, end: np.ndarray, spacing: float) -> np.ndarray:
+def segment(start: ArrayLike, end: ArrayLike, spacing: float) -> np.ndarray:
     """Straight polyline from `start` to `end` sampled every ~`spacing` metres."""
     return resample(np.stack([np.asarray(start, float), np.asarray(end, float)]), spacing)
 
@@ -52,7 +53,7 @@ def bezier(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, spaci
     return resample(dense, spacing)
 
 
-def arc(center: np.ndarray, radius: float, angle_from: float, angle_to: float, spacing: float) -> np.ndarray:
+def arc(center: ArrayLike, radius: float, angle_from: float, angle_to: float, spacing: float) -> np.ndarray:
     """Circular arc from `angle_from` to `angle_to` (either direction), shape (num_points, 2)."""
     n = max(int(np.ceil(abs(angle_to - angle_from) * radius / spacing)), 2)
     a = np.linspace(angle_from, angle_to, n + 1)

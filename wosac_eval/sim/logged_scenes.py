@@ -107,7 +107,7 @@ def _simulate_without_collisions(spec: SceneSpec) -> engine.Rollout:
     """Simulates; drops unscripted agents involved in a collision until none remains."""
     for _ in range(30):
         index = {id(a): i for i, a in enumerate(spec.agents)}
-        blind = [(index[id(f)], index[id(l)]) for f, l in spec.blind_pairs]
+        blind = [(index[id(follower)], index[id(leader)]) for follower, leader in spec.blind_pairs]
         out = simulate_agents(spec.agents, spec.signal_states, blind)
         length = np.array([a.length for a in spec.agents])
         width = np.array([a.width for a in spec.agents])

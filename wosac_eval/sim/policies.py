@@ -18,10 +18,9 @@ center_x, center_y, center_z, heading for steps 11..90.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
-
 import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -219,7 +218,7 @@ def _match_lanes(ctx: SimContext) -> list[tuple[int, int, float] | None]:
     out: list[tuple[int, int, float] | None] = [None] * ctx.num_agents
     if len(seg_ids) == 0:
         return out
-    first_index = {}
+    first_index: dict[int, int] = {}
     for k, lid in enumerate(seg_ids):
         first_index.setdefault(int(lid), k)
     p = np.stack([ctx.x[:, CURRENT], ctx.y[:, CURRENT]], -1)
@@ -280,8 +279,8 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
     heading = ctx.heading[:, CURRENT]
     matches = _match_lanes(ctx)
     min_length = float(np.max(speed)) * NUM_FUTURE * DT * 1.5 + 80.0
-    polylines: list[list[np.ndarray]] = [[None] * n for _ in range(r)]
-    stops = [[[] for _ in range(n)] for _ in range(r)]
+    polylines: list[list[np.ndarray]] = [[np.empty((0, 2))] * n for _ in range(r)]  # each set below
+    stops: list[list[list]] = [[[] for _ in range(n)] for _ in range(r)]
     lateral = np.zeros(n)
     v0 = np.zeros((r, n))
     for i in range(n):

@@ -24,9 +24,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
-from wosac_eval.sim import engine
+from wosac_eval.sim import engine, roads, signals
 from wosac_eval.sim import geometry as geo
-from wosac_eval.sim import roads, signals
 from wosac_eval.sim.scene_specs import (
     NUM_STEPS,
     PATH_SPACING_M,
@@ -72,7 +71,9 @@ def _cyclist_size(rng: np.random.Generator) -> tuple[float, float, float]:
 
 def _chain(network: roads.RoadNetwork, lane_ids: list[int]) -> tuple[np.ndarray, list[tuple[float, str]]]:
     """Concatenated centre line of consecutive lanes, and the (arc length, group) of its signals."""
-    pieces, stops, s0 = [], [], 0.0
+    pieces: list[np.ndarray] = []
+    stops: list[tuple[float, str]] = []
+    s0 = 0.0
     for lid in lane_ids:
         poly = network.lanes[lid].polyline
         if pieces:
@@ -163,7 +164,7 @@ class SceneBuilder:
         path = _weave(_offset_path(geo.resample(path, PATH_SPACING_M), lateral), self.rng, weave)
         first_stop = stops[0][0] if stops else geo.arc_lengths(path)[-1] - 10.0
         s_front = first_stop - self.rng.uniform(1.5, 6.0 if stopped_front else 30.0)
-        spawned = []
+        spawned: list[AgentSpec] = []
         for i in range(count):
             spec = self.vehicle(path, 0.0, 0.0, v_des * self.rng.uniform(0.85, 1.1), stops, cyclist=cyclist)
             if i == 0:
@@ -253,6 +254,8 @@ def _intersection_traffic(b: SceneBuilder, density: float, stopped_bias: float =
     for lane in [approaches[i] for i in sorted(busy)]:
         route = _route_from(net, lane.id, b.rng, weights)
         group = net.lanes[route[1]].signal_group
+        if group is None:
+            raise ValueError(f"lane {route[1]} after approach {lane.id} is not a signalised connector")
         red_now = signals.is_stop(b.signal_states[group][0]) or signals.is_caution(b.signal_states[group][0])
         b.lane_queue(route, int(b.rng.integers(2, 6)), v_des=b.rng.uniform(9.0, 14.0), stopped_front=bool(red_now and b.rng.random() < 0.5 + stopped_bias))
     for lane in net.lanes_of_turn("departure"):
@@ -322,7 +325,7 @@ def _recipe_dense_following(rng) -> SceneBuilder:
     b = _new_scene("dense_following", rng, net)
     _corridor_traffic(b, (4, 7), (8.0, 13.0), stopped_front_p=0.5)
     # Stop-and-go: the front vehicle of each queue modulates its desired speed.
-    firsts = {}
+    firsts: dict[int, AgentSpec] = {}
     for a in b.agents:
         key = id(a.path)
         if key not in firsts or a.s_init > firsts[key].s_init:
@@ -374,7 +377,7 @@ def _recipe_collision(rng) -> SceneBuilder:
     path = _weave(path, rng, 0.08)
     v = rng.uniform(10.0, 13.0)
     leader = b.vehicle(path, 60.0, v, v, stops)
-    leader.v0 = np.where(TIMES < rng.uniform(3.0, 4.5), v, 0.0)
+    leader.v0 = np.where(rng.uniform(3.0, 4.5) > TIMES, v, 0.0)
     leader.b_comf = 6.0
     follower = b.vehicle(path, 60.0 - leader.length / 2 - 5.0 - v * 1.2, v, v, stops)
     follower.length, follower.width = min(follower.length, 5.0), min(follower.width, 2.0)

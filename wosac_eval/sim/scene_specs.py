@@ -9,8 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wosac_eval.challenges import NUM_LOGGED_STEPS, STEP_SECONDS
-from wosac_eval.sim import engine
-from wosac_eval.sim import roads
+from wosac_eval.sim import engine, roads
 
 NUM_STEPS = NUM_LOGGED_STEPS  # 91
 DT = STEP_SECONDS

@@ -18,7 +18,7 @@ async def healthz(svc: ServiceDep):
     shards = len(svc.settings.scenario_paths())
     try:
         svc.store.ping()
-    except Exception as exc:  # the answer must say the DB is down, not crash
+    except Exception as exc:  # noqa: BLE001 - the answer must say the DB is down, not crash
         return JSONResponse({"status": "error", "database": f"unreachable: {exc}", "scenario_shards": shards},
                             status_code=503)
     try:

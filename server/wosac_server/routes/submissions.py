@@ -13,8 +13,17 @@ from ..models import ResultScenarios, ResultSummary, SubmissionList, SubmissionS
 from ..results import result_csv  # noqa: F401  (the in-memory CSV builder, once defined here)
 from ..service import Key, ServiceDep
 from ..uploads import BodyTooLarge, stream_body_to
-from .params import (MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, ChallengeQ, ConfigQ, MethodQ, PartialQ,
-                     PublishQ, SubmissionId)
+from .params import (
+    MAX_HEADER_INT,
+    OCTET_BODY,
+    SUBMISSION_LINKS,
+    ChallengeQ,
+    ConfigQ,
+    MethodQ,
+    PartialQ,
+    PublishQ,
+    SubmissionId,
+)
 
 router = APIRouter(prefix="/v1/submissions", tags=["submissions"])
 
@@ -66,7 +75,7 @@ async def _receive_and_accept(request: Request, svc, key, temp, limit: int, cont
         size, disconnected = await stream_body_to(request, temp, limit)
     except BodyTooLarge:
         temp.unlink(missing_ok=True)
-        raise svc.too_large(key)
+        raise svc.too_large(key) from None
     except BaseException:
         temp.unlink(missing_ok=True)
         raise
@@ -141,7 +150,7 @@ def get_results(svc: ServiceDep, key: Key, submission_id: SubmissionId,
         return _streamed(stored, stored.csv(), "text/csv")
     except results.ResultDamaged as exc:  # found before a byte was sent (the CSV's columns)
         stored.close()
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})")
+        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
     except BaseException:
         stored.close()
         raise
@@ -157,7 +166,7 @@ def get_result_summary(svc: ServiceDep, key: Key, submission_id: SubmissionId):
     try:
         summary = stored.summary()
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})")
+        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
     finally:
         stored.close()
     return Response(json.dumps(summary, allow_nan=True), media_type="application/json")
@@ -175,7 +184,7 @@ def get_result_scenarios(svc: ServiceDep, key: Key, submission_id: SubmissionId,
     try:
         total, rows = stored.page(offset, limit)
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})")
+        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
     finally:
         stored.close()
     # The rows' JSON text as stored (NaN included, as in the result JSON), not decoded and encoded again.

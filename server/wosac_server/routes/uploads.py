@@ -20,8 +20,18 @@ from .. import disk, jobs
 from ..models import SubmissionStatus, UploadStatus
 from ..service import Key, ServiceDep
 from ..uploads import BodyTooLarge, stream_body_to
-from .params import (MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, UPLOAD_LINKS, ChallengeQ, ConfigQ, MethodQ,
-                     PartialQ, PublishQ, UploadId)
+from .params import (
+    MAX_HEADER_INT,
+    OCTET_BODY,
+    SUBMISSION_LINKS,
+    UPLOAD_LINKS,
+    ChallengeQ,
+    ConfigQ,
+    MethodQ,
+    PartialQ,
+    PublishQ,
+    UploadId,
+)
 
 router = APIRouter(prefix="/v1/uploads", tags=["uploads"])
 DISK_FULL = {"description": "The server's disk is full or past its floor; retry after Retry-After seconds"}
@@ -87,7 +97,7 @@ def get_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
                                      submission_id=row["submission_id"]).model_dump(), headers=_headers(row))
 
 
-def _busy(row: dict) -> HTTPException:
+def _busy(row: dict | None) -> HTTPException:
     """Why an upload cannot take this request now (its state is not `open`)."""
     if row is None or row["state"] == "deleting":
         return HTTPException(404, "this upload is gone (deleted, expired, or refused when completed)")
@@ -112,7 +122,7 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
         raise _busy(await run_in_threadpool(jobs.get_upload, svc.store, upload_id))
     written = 0
     try:
-        row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
+        row = await run_in_threadpool(jobs.held_upload, svc.store, upload_id)
         offset = row["received_bytes"]
         if upload_offset != offset:
             raise HTTPException(409, f"Upload-Offset {upload_offset} does not match the stored offset {offset}; "
@@ -132,7 +142,7 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
             _cut(part, offset)
             raise HTTPException(413, f"this chunk would take the upload past its limit ({offset + max(0, limit)} "
                                 "bytes: declared Upload-Length, the server's WOSAC_MAX_UPLOAD_BYTES or the key's "
-                                "daily quota)", headers=_headers(row))
+                                "daily quota)", headers=_headers(row)) from None
         except BaseException:
             # Bytes past the committed offset are cut at once: on a full disk their space lets the state
             # below be recorded.
@@ -153,11 +163,14 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     if not await run_in_threadpool(jobs.move_upload, svc.store, upload_id, "open", "completing"):
         row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
         if row is not None and row["submission_id"] is not None:  # completed before: the same answer again
-            return svc.accepted(await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"]))
+            done = await run_in_threadpool(jobs.get_submission, svc.store, row["submission_id"])
+            if done is None:
+                raise HTTPException(404, "this upload was completed; its submission was deleted since")
+            return svc.accepted(done)
         raise _busy(row)
     outcome = "open"  # what the upload becomes when this request ends
     try:
-        row = await run_in_threadpool(jobs.get_upload, svc.store, upload_id)
+        row = await run_in_threadpool(jobs.held_upload, svc.store, upload_id)
         if row["declared_length"] is not None and row["received_bytes"] != row["declared_length"]:
             raise HTTPException(409, f"received {row['received_bytes']} of the {row['declared_length']} declared "
                                 "bytes; PATCH the rest first", headers=_headers(row))

@@ -13,14 +13,17 @@ files; nothing after a broken archive member), as validation reports them.
 
 `SubmissionSource` is the handle the stages share: validation walks it and
 records where each scenario's rollouts are; scoring and the scene pictures then
-read those byte ranges instead of walking again. An archive's members are
-decompressed once, while validation reads them, when the handle has a spool
-folder (their bytes are kept there for the later stages); without one a later
-stage streams the archive once more. Every read goes through the limits the
-handle was opened with.
+read those byte ranges instead of walking again. The walk never holds an archive
+member whole: it copies each to a file a piece at a time (the spool, when the
+handle has a spool folder: the archive is then decompressed once and the later
+stages read the spool; else a scratch file removed once the member is checked,
+`release`, and a later stage streams the archive once more, reading only the
+scenarios it asks for). Every read goes through the limits the handle was opened
+with.
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import shutil
@@ -32,7 +35,9 @@ from pathlib import Path
 from wosac_eval.parse.archive import (
     SHARD_NAME_MARKER,
     is_ignored_name,
+    MemberReader,
     is_shard_name,
+    iter_archive_members,
     iter_archive_shards,
     not_a_shard_message,
     plain_shard_size,
@@ -53,6 +58,9 @@ SubmissionShard = tuple[str, bytes]
 # Where one scenario's serialized ScenarioRollouts are: (path, offset, size) of a file every
 # worker can read, or the bytes themselves.
 RolloutsLocator = tuple[str, int, int] | bytes
+# Where a walk puts an archive member it streams: a file it writes the member to, piece by piece.
+MemberFile = Callable[[MemberReader], "ShardRef"]
+_COPY_BYTES = 8 << 20  # a member is copied to its file this much at a time
 
 
 class NotAShardError(ArchiveError):
@@ -162,13 +170,17 @@ def _iter_folder(folder: Path, limits: InputLimits, problems: Problems) -> Itera
 # --------------------------------------------------------------------------- files
 
 
-def _file_shards(path: Path, limits: InputLimits, problems: Problems | None) -> Iterator[ShardRef]:
-    """Shards of a single shard file or a tar archive (archive members carry their bytes).
+def _file_shards(path: Path, limits: InputLimits, problems: Problems | None,
+                 member_file: MemberFile | None = None) -> Iterator[ShardRef]:
+    """Shards of a single shard file or a tar archive (archive members carry their bytes, or with
+    `member_file` are copied to a file a piece at a time and given as its byte range).
 
     What the name deserves is told once the first shard was read (a file that cannot be read at all
     gets its error alone)."""
     compression, is_tar, misnamed = sniff_file(path)
-    if is_tar:
+    if is_tar and member_file is not None:
+        shards = (member_file(member) for member in iter_archive_members(path, compression, limits))
+    elif is_tar:
         shards = (ShardRef(name, len(data), data=data) for name, data in iter_archive_shards(path, compression, limits))
     elif compression is None:
         shards = iter([ShardRef(path.name, plain_shard_size(path, limits), path=str(path.resolve()))])
@@ -195,7 +207,7 @@ def _reported(shards: Iterator[ShardRef], problems: Problems) -> Iterator[ShardR
 
 
 def iter_shard_refs(path: PathLike, *, limits: InputLimits | None = None,
-                    problems: Problems | None = None) -> Iterator[ShardRef]:
+                    problems: Problems | None = None, member_file: MemberFile | None = None) -> Iterator[ShardRef]:
     """Every submission shard found at path, as a `ShardRef`, in order: the one walk.
 
     Shards of a folder or an uncompressed shard file are byte ranges (nothing
@@ -205,6 +217,8 @@ def iter_shard_refs(path: PathLike, *, limits: InputLimits | None = None,
     problems: None: the first problem raises (`ParseError` subclasses naming the file and member; a
       misleading name is a `warnings` warning). Else each problem (or warning, including
       `UncompressedTarWarning`) is passed to it and the walk goes on where it can.
+    member_file: where archive members go instead of memory: called with each member's reader (before
+      the next member is read), it copies the member to a file and returns that byte range.
     Raises FileNotFoundError when path does not exist, in both policies.
     """
     limits = InputLimits() if limits is None else limits
@@ -213,7 +227,7 @@ def iter_shard_refs(path: PathLike, *, limits: InputLimits | None = None,
         return _iter_folder(path, limits, problems or _raise)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such submission file or folder")
-    shards = _file_shards(path, limits, problems)
+    shards = _file_shards(path, limits, problems, member_file)
     return shards if problems is None else _reported(shards, problems)
 
 
@@ -254,6 +268,9 @@ class SubmissionSource:
         self._spool_dir = None if spool_dir is None else Path(spool_dir)
         self._spool_folder: str | None = None
         self._spool = None
+        self._scratch_folder: str | None = None
+        self._scratch: dict[str, str] = {}  # walked archive member -> its scratch file (no spool)
+        self._scratch_files = 0
         # Each walked shard without its bytes: a range of the submission's file, or of the spool.
         self._kept: dict[str, ShardRef] = {}
         self._records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] = []
@@ -268,7 +285,11 @@ class SubmissionSource:
         return self._given
 
     def close(self) -> None:
-        """Remove the spool (the records of byte ranges in it are then unreadable)."""
+        """Remove the spool (the records of byte ranges in it are then unreadable) and scratch files."""
+        if self._scratch_folder is not None:
+            shutil.rmtree(self._scratch_folder, ignore_errors=True)
+            self._scratch_folder = None
+            self._scratch.clear()
         if self._spool is not None:
             self._spool.close()
             self._spool = None
@@ -276,24 +297,51 @@ class SubmissionSource:
             shutil.rmtree(self._spool_folder, ignore_errors=True)
             self._spool_folder = None
 
-    def _keep(self, shard: ShardRef) -> None:
-        """Remember a walked shard, its bytes in the spool when it carried them."""
-        if shard.data is not None and self._spool_dir is not None:
+    def _member_file(self, member: MemberReader) -> ShardRef:
+        """Copy an archive member, a piece at a time, to the spool (appended) or to a scratch file of its
+        own; its byte range there."""
+        if self._spool_dir is not None:
             if self._spool is None:
                 self._spool_folder = tempfile.mkdtemp(prefix="wosac-spool-", dir=self._spool_dir)
                 self._spool = open(os.path.join(self._spool_folder, "members"), "w+b")  # noqa: SIM115
-            offset = self._spool.seek(0, os.SEEK_END)
-            self._spool.write(shard.data)
-            self._spool.flush()
-            self._kept[shard.name] = ShardRef(shard.name, shard.size, path=self._spool.name, offset=offset)
+            out, offset = self._spool, self._spool.seek(0, os.SEEK_END)
+        else:
+            if self._scratch_folder is None:
+                self._scratch_folder = tempfile.mkdtemp(prefix="wosac-shards-")
+            self._scratch_files += 1
+            out = open(os.path.join(self._scratch_folder, str(self._scratch_files)), "wb")  # noqa: SIM115
+            offset = 0
+            self._scratch[member.name] = out.name
+        try:
+            while piece := member.read(_COPY_BYTES):
+                out.write(piece)
+            out.flush()
+        finally:
+            if out is not self._spool:
+                out.close()
+        return ShardRef(member.name, member.size, path=out.name, offset=offset)
+
+    def _keep(self, shard: ShardRef) -> None:
+        """Remember a walked shard: a range of the submission's file or of the spool, or (a scratch file
+        goes once checked) a member to stream again."""
+        if shard.name in self._scratch:
+            self._kept[shard.name] = ShardRef(shard.name, shard.size)
         else:
             self._kept[shard.name] = shard.without_data()
 
     def shards(self, problems: Problems | None = None) -> Iterator[ShardRef]:
-        """The walk (`iter_shard_refs` under the handle's limits), remembering each shard."""
-        for shard in iter_shard_refs(self.path, limits=self.limits, problems=problems):
+        """The walk (`iter_shard_refs` under the handle's limits), remembering each shard. Archive members
+        are byte ranges of the spool or of scratch files (`release` removes one once it is checked)."""
+        for shard in iter_shard_refs(self.path, limits=self.limits, problems=problems, member_file=self._member_file):
             self._keep(shard)
             yield shard
+
+    def release(self, shard_name: str) -> None:
+        """A walked shard was checked: its scratch file, if it has one, is no longer needed."""
+        scratch = self._scratch.pop(shard_name, None)
+        if scratch is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(scratch)
 
     def record(self, shard_name: str, entries: Iterable[tuple[str | None, tuple[int, int]]]) -> None:
         """Where the scenarios of a walked shard are: (scenario_id, (start, end) in the shard), in order."""
@@ -313,31 +361,46 @@ class SubmissionSource:
         self._records = list(records)
         self._kept = {shard.name: shard for shard, _ in self._records}
 
-    def _recorded_bytes(self) -> Iterator[tuple[ShardRef, list, bytes | None]]:
-        """Each recorded shard with its entries, and its bytes when they are not a byte range of a file."""
-        if all(shard.path is not None for shard, _ in self._records):
-            for shard, entries in self._records:
-                yield shard, entries, None
-            return
-        # Archive members without a spool: stream the archive once more, under the same limits, up to the
-        # last recorded member (what follows it, a truncated end say, was reported by the walk that recorded).
+    def _streamed_locators(self, wanted: Callable[[str], bool]) -> Iterator[tuple[str, RolloutsLocator | None]]:
+        """Archive members without a spool: the archive streamed once more, under the same limits, up to the
+        last recorded member (what follows it, a truncated end say, was reported by the walk that recorded);
+        only the wanted scenarios' bytes are read (a member with none is skipped, not copied)."""
         entries_of = {shard.name: entries for shard, entries in self._records}
-        for shard in iter_shard_refs(self.path, limits=self.limits):
-            if shard.name in entries_of:
-                yield shard, entries_of.pop(shard.name), shard.data
-                if not entries_of:
-                    return
+        compression, is_tar, _ = sniff_file(self.path)
+        if not is_tar:  # a single shard compressed as a whole: its bytes
+            for shard in iter_shard_refs(self.path, limits=self.limits):
+                for sid, (start, end) in entries_of.get(shard.name, ()):
+                    yield sid, shard.data[start:end] if wanted(sid) else None
+            return
+        for member in iter_archive_members(self.path, compression, self.limits):
+            entries = entries_of.pop(member.name, None)
+            if entries is None:
+                continue
+            for sid, (start, end) in entries:  # in the shard's order: increasing offsets
+                if not wanted(sid):
+                    yield sid, None
+                    continue
+                member.skip(start - member.position)
+                yield sid, member.read(end - start)
+            if not entries_of:
+                return
 
-    def rollouts_locators(self) -> Iterator[tuple[str, RolloutsLocator]]:
+    def rollouts_locators(self, wanted: Callable[[str], bool] | None = None
+                          ) -> Iterator[tuple[str, RolloutsLocator | None]]:
         """(scenario_id, where its rollouts are) of every recorded scenario, in submission order.
 
         A range of a submission file is given as (path, offset, size) for the worker to read; a
-        scenario of an archive as its bytes (the spool is this process's).
+        scenario of an archive as its bytes (the spool is this process's). With `wanted`, a scenario it
+        declines has None (an archive's are then not read: a resumed run skips what it finished).
         """
-        for shard, entries, data in self._recorded_bytes():
+        wanted = wanted or (lambda sid: True)
+        if not all(shard.path is not None for shard, _ in self._records):
+            yield from self._streamed_locators(wanted)
+            return
+        for shard, entries in self._records:
             for sid, (start, end) in entries:
-                if data is not None:
-                    yield sid, data[start:end]
+                if not wanted(sid):
+                    yield sid, None
                 elif self._spool is not None and shard.path == self._spool.name:
                     yield sid, shard.read(start, end)
                 else:
@@ -347,17 +410,17 @@ class SubmissionSource:
         """The `ScenarioRollouts` of the given scenarios, by id (the first entry of each); an id the
         submission lacks is absent. Served from the records when validation made them."""
         wanted, found = set(scenario_ids), {}
-        for sid, data in self._scenario_bytes():
-            if sid in wanted and sid not in found:
+        for sid, data in self._scenario_bytes(wanted):
+            if data is not None and sid in wanted and sid not in found:
                 found[sid] = decode_message(sim_agents_submission_pb2.ScenarioRollouts, data)
                 if len(found) == len(wanted):
                     break
         return found
 
-    def _scenario_bytes(self) -> Iterator[tuple[str, bytes]]:
+    def _scenario_bytes(self, wanted: set[str]) -> Iterator[tuple[str, bytes | None]]:
         if self._records:
-            for sid, locator in self.rollouts_locators():
-                yield sid, read_locator(locator)
+            for sid, locator in self.rollouts_locators(wanted.__contains__):
+                yield sid, None if locator is None else read_locator(locator)
             return
         for shard in iter_shard_refs(self.path, limits=self.limits):
             yield from split_shard(shard.name, shard.read(), self.limits)

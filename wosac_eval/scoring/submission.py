@@ -140,10 +140,11 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
 
 
 def _scored_rollouts(source: SubmissionSource, index: ScenarioIndex, report,
-                     selected: set[str] | None) -> Iterator[tuple[str, RolloutsLocator]]:
-    """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order."""
+                     selected: set[str] | None, done=()) -> Iterator[tuple[str, RolloutsLocator | None]]:
+    """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order;
+    the locator is None for a scenario in `done` (a resumed run does not read what it finished)."""
     seen: set[str] = set()
-    for sid, locator in source.rollouts_locators():
+    for sid, locator in source.rollouts_locators(lambda sid: sid not in done):
         if sid in seen or sid not in index or not report.is_scenario_valid(sid):
             continue
         seen.add(sid)
@@ -288,7 +289,7 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
 
     def to_score() -> Iterator[tuple[str, RolloutsLocator]]:
-        for sid, locator in _scored_rollouts(source, index, report, selected):
+        for sid, locator in _scored_rollouts(source, index, report, selected, done):
             order.append(sid)
             if sid not in done:
                 yield sid, locator

@@ -60,7 +60,7 @@ SubmissionShard = tuple[str, bytes]
 RolloutsLocator = tuple[str, int, int] | bytes
 # Where a walk puts an archive member it streams: a file it writes the member to, piece by piece.
 MemberFile = Callable[[MemberReader], "ShardRef"]
-_COPY_BYTES = 8 << 20  # a member is copied to its file this much at a time
+_COPY_BYTES = 1 << 20  # a member is copied to its file this much at a time
 
 
 class NotAShardError(ArchiveError):

@@ -193,8 +193,7 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
                 try:
                     census.top_level_field(number, wire_type, field_bytes, start, end)
                 except SizeLimitError as error:  # the whole shard's census stops here too
-                    result.parse_error, result.parse_code = str(error), "container.size_limit"
-                    return result
+                    return ShardResult(name, shard.size, parse_error=str(error), parse_code="container.size_limit")
                 if number != 1 or wire_type != 2:
                     metadata_fields.append(field_bytes)
                     offset += end

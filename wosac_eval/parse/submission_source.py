@@ -255,13 +255,22 @@ class SubmissionSource:
     archive is decompressed once; the spool is removed by `close()` (or the
     `with` block).
 
+    With `tail_dir`, the last archive members walked, up to `tail_bytes` in all,
+    stay there as files after validation (the others' scratch files go once
+    checked): the stages after it read those members from their files, and so
+    does a run resumed from `records()`, which then decompresses the archive only
+    up to the members before them (a gzip stream cannot be entered midway). The
+    folder outlives the handle: its owner removes it (`scoring.journal`).
+
     Args:
       path: a shard file, a folder of shards or a (compressed) tar archive.
       limits: how far it may expand (`InputLimits`); default `InputLimits()`.
       spool_dir: a folder for the spool of decompressed archive members; None: no spool.
+      tail_dir, tail_bytes: where to keep the last members walked, and how many bytes of them.
     """
 
-    def __init__(self, path: PathLike, limits: InputLimits | None = None, *, spool_dir: PathLike | None = None):
+    def __init__(self, path: PathLike, limits: InputLimits | None = None, *, spool_dir: PathLike | None = None,
+                 tail_dir: PathLike | None = None, tail_bytes: int = 0):
         self.path = Path(path)
         self._given = os.fspath(path)  # as the user wrote it, for reports
         self.limits = InputLimits() if limits is None else limits
@@ -271,9 +280,13 @@ class SubmissionSource:
         self._scratch_folder: str | None = None
         self._scratch: dict[str, str] = {}  # walked archive member -> its scratch file (no spool)
         self._scratch_files = 0
-        # Each walked shard without its bytes: a range of the submission's file, or of the spool.
+        self._tail_dir = None if tail_dir is None or spool_dir is not None else Path(tail_dir)
+        self._tail_bytes = tail_bytes
+        self._tail: dict[str, int] = {}  # members kept in tail_dir, oldest first -> their size
+        # Each walked shard without its bytes: a range of the submission's file, of the spool or of a file
+        # in tail_dir, or (no path) a member to stream again.
         self._kept: dict[str, ShardRef] = {}
-        self._records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] = []
+        self._records: dict[str, list[tuple[str, tuple[int, int]]]] = {}  # shard name -> its entries, in order
 
     def __enter__(self) -> SubmissionSource:
         return self
@@ -287,7 +300,11 @@ class SubmissionSource:
     def close(self) -> None:
         """Remove the spool (the records of byte ranges in it are then unreadable) and scratch files."""
         if self._scratch_folder is not None:
-            shutil.rmtree(self._scratch_folder, ignore_errors=True)
+            if self._tail_dir is None:
+                shutil.rmtree(self._scratch_folder, ignore_errors=True)
+            else:  # the members kept stay for a later run; a walk cut short leaves no other
+                for name in [name for name in self._scratch if name not in self._tail]:
+                    self._remove_scratch(name)
             self._scratch_folder = None
             self._scratch.clear()
         if self._spool is not None:
@@ -307,7 +324,12 @@ class SubmissionSource:
             out, offset = self._spool, self._spool.seek(0, os.SEEK_END)
         else:
             if self._scratch_folder is None:
-                self._scratch_folder = tempfile.mkdtemp(prefix="wosac-shards-")
+                if self._tail_dir is not None:  # a new walk: what an earlier one kept is not this one's
+                    shutil.rmtree(self._tail_dir, ignore_errors=True)
+                    self._tail_dir.mkdir(parents=True)
+                    self._scratch_folder = str(self._tail_dir)
+                else:
+                    self._scratch_folder = tempfile.mkdtemp(prefix="wosac-shards-")
             self._scratch_files += 1
             out = open(os.path.join(self._scratch_folder, str(self._scratch_files)), "wb")  # noqa: SIM115
             offset = 0
@@ -337,15 +359,28 @@ class SubmissionSource:
             yield shard
 
     def release(self, shard_name: str) -> None:
-        """A walked shard was checked: its scratch file, if it has one, is no longer needed."""
-        scratch = self._scratch.pop(shard_name, None)
-        if scratch is not None:
-            with contextlib.suppress(OSError):
-                os.unlink(scratch)
+        """A walked shard was checked (and recorded, if it is to be scored): its scratch file goes, unless
+        it is among the last members kept in `tail_dir` (then the oldest kept one goes past the budget)."""
+        if shard_name not in self._scratch:
+            return
+        if self._tail_dir is not None and shard_name in self._records:
+            self._tail[shard_name] = self._kept[shard_name].size
+            self._kept[shard_name] = ShardRef(shard_name, self._kept[shard_name].size, path=self._scratch[shard_name])
+            while sum(self._tail.values()) > self._tail_bytes:
+                oldest = next(iter(self._tail))
+                del self._tail[oldest]
+                self._kept[oldest] = ShardRef(oldest, self._kept[oldest].size)
+                self._remove_scratch(oldest)
+        else:
+            self._remove_scratch(shard_name)
+
+    def _remove_scratch(self, shard_name: str) -> None:
+        with contextlib.suppress(OSError):
+            os.unlink(self._scratch.pop(shard_name))
 
     def record(self, shard_name: str, entries: Iterable[tuple[str | None, tuple[int, int]]]) -> None:
         """Where the scenarios of a walked shard are: (scenario_id, (start, end) in the shard), in order."""
-        self._records.append((self._kept[shard_name], [(sid, span) for sid, span in entries if sid]))
+        self._records[shard_name] = [(sid, span) for sid, span in entries if sid]
 
     def records(self) -> list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]] | None:
         """What the walk recorded (each shard without its bytes, and where its scenarios are), for a
@@ -353,28 +388,19 @@ class SubmissionSource:
         with this handle."""
         if self._spool_folder is not None:
             return None
-        return list(self._records)
+        return [(self._kept[name], entries) for name, entries in self._records.items()]
 
     def restore_records(self, records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]]) -> None:
         """Take the records of an earlier walk of the same file (`records`) instead of walking it: an
         interrupted run resumes without validating a whole submission again."""
-        self._records = list(records)
-        self._kept = {shard.name: shard for shard, _ in self._records}
+        self._records = {shard.name: entries for shard, entries in records}
+        self._kept = {shard.name: _still_there(shard) for shard, _ in records}
 
-    def _streamed_locators(self, wanted: Callable[[str], bool]) -> Iterator[tuple[str, RolloutsLocator | None]]:
-        """Archive members without a spool: the archive streamed once more, under the same limits, up to the
-        last recorded member (what follows it, a truncated end say, was reported by the walk that recorded);
-        only the wanted scenarios' bytes are read (a member with none is skipped, not copied)."""
-        entries_of = {shard.name: entries for shard, entries in self._records}
-        compression, is_tar, _ = sniff_file(self.path)
-        if not is_tar:  # a single shard compressed as a whole: its bytes
-            for shard in iter_shard_refs(self.path, limits=self.limits):
-                for sid, (start, end) in entries_of.get(shard.name, ()):
-                    yield sid, shard.data[start:end] if wanted(sid) else None
-            return
-        for member in iter_archive_members(self.path, compression, self.limits):
-            entries = entries_of.pop(member.name, None)
-            if entries is None:
+    def _member_entries(self, wanted: Callable[[str], bool], shard: ShardRef, entries: list, members: Iterator
+                        ) -> Iterator[tuple[str, bytes | None]]:
+        """The wanted scenarios' bytes of a member streamed from the archive (`members`, advanced to it)."""
+        for member in members:
+            if member.name != shard.name:
                 continue
             for sid, (start, end) in entries:  # in the shard's order: increasing offsets
                 if not wanted(sid):
@@ -382,29 +408,52 @@ class SubmissionSource:
                     continue
                 member.skip(start - member.position)
                 yield sid, member.read(end - start)
-            if not entries_of:
-                return
+            return
 
     def rollouts_locators(self, wanted: Callable[[str], bool] | None = None
                           ) -> Iterator[tuple[str, RolloutsLocator | None]]:
         """(scenario_id, where its rollouts are) of every recorded scenario, in submission order.
 
-        A range of a submission file is given as (path, offset, size) for the worker to read; a
-        scenario of an archive as its bytes (the spool is this process's). With `wanted`, a scenario it
-        declines has None (an archive's are then not read: a resumed run skips what it finished).
+        A range of a submission file (or of a member kept in `tail_dir`) is given as (path, offset, size)
+        for the worker to read; a scenario of an archive as its bytes (the spool is this process's): the
+        archive is streamed once more, under the same limits, up to the last recorded member it must give
+        (what follows it, a truncated end say, was reported by the walk that recorded). With `wanted`, a
+        scenario it declines has None, and an archive's are then not read (a member with none is skipped,
+        not copied; the archive is not even opened when every member to read is kept in `tail_dir`): a
+        resumed run skips what it finished.
         """
         wanted = wanted or (lambda sid: True)
-        if not all(shard.path is not None for shard, _ in self._records):
-            yield from self._streamed_locators(wanted)
+        members = None
+        try:
+            for name, entries in self._records.items():
+                shard = self._kept[name]
+                if shard.path is None and not any(wanted(sid) for sid, _ in entries):
+                    yield from ((sid, None) for sid, _ in entries)  # nothing to read: not even decompressed
+                    continue
+                if shard.path is None:
+                    if members is None:
+                        members = self._stream_members()
+                    yield from self._member_entries(wanted, shard, entries, members)
+                    continue
+                for sid, (start, end) in entries:
+                    if not wanted(sid):
+                        yield sid, None
+                    elif self._spool is not None and shard.path == self._spool.name:
+                        yield sid, shard.read(start, end)
+                    else:
+                        yield sid, (shard.path, shard.offset + start, end - start)
+        finally:
+            if members is not None:
+                members.close()
+
+    def _stream_members(self) -> Iterator:
+        """The archive's members as readers, or a single compressed shard's bytes as one."""
+        compression, is_tar, _ = sniff_file(self.path)
+        if is_tar:
+            yield from iter_archive_members(self.path, compression, self.limits)
             return
-        for shard, entries in self._records:
-            for sid, (start, end) in entries:
-                if not wanted(sid):
-                    yield sid, None
-                elif self._spool is not None and shard.path == self._spool.name:
-                    yield sid, shard.read(start, end)
-                else:
-                    yield sid, (shard.path, shard.offset + start, end - start)
+        for shard in iter_shard_refs(self.path, limits=self.limits):  # a single shard compressed as a whole
+            yield _BytesReader(shard.name, shard.data if shard.data is not None else shard.read())
 
     def rollouts(self, scenario_ids: Iterable[str]) -> dict[str, sim_agents_submission_pb2.ScenarioRollouts]:
         """The `ScenarioRollouts` of the given scenarios, by id (the first entry of each); an id the
@@ -424,6 +473,32 @@ class SubmissionSource:
             return
         for shard in iter_shard_refs(self.path, limits=self.limits):
             yield from split_shard(shard.name, shard.read(), self.limits)
+
+
+class _BytesReader:
+    """A shard's bytes, read as a `MemberReader` is."""
+
+    def __init__(self, name: str, data: bytes):
+        self.name, self.data, self.position = name, data, 0
+
+    def skip(self, size: int) -> None:
+        self.position += size
+
+    def read(self, size: int) -> bytes:
+        self.position += size
+        return self.data[self.position - size:self.position]
+
+
+def _still_there(shard: ShardRef) -> ShardRef:
+    """A recorded shard as a later run may read it: a member kept in a file that is gone (or shorter), the
+    member to stream again."""
+    if shard.path is None:
+        return shard
+    try:
+        present = os.path.getsize(shard.path) >= shard.offset + shard.size
+    except OSError:
+        present = False
+    return shard if present else ShardRef(shard.name, shard.size)
 
 
 def read_locator(locator: RolloutsLocator) -> bytes:

@@ -33,7 +33,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.evaluation import Evaluation, resolve_evaluation
-from wosac_eval.scoring.journal import ScoringJournal, remove_journal, run_identity
+from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
@@ -225,7 +225,11 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     executor = make_executor(evaluation.engine, workers=evaluation.workers, ray_address=evaluation.ray_address,
                              force_spawn=evaluation.backend == "jax", initializer=keep_freed_memory)
     owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
-    with SubmissionSource(submission, evaluation.limits) if owned else contextlib.nullcontext(submission) as source:
+    # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
+    # the archive up to them (`scoring.journal`).
+    tail = ({"tail_dir": members_path(journal), "tail_bytes": members_budget(submission, journal)}
+            if owned and journal is not None else {})
+    with SubmissionSource(submission, evaluation.limits, **tail) if owned else contextlib.nullcontext(submission) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:

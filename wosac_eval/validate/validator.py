@@ -418,9 +418,9 @@ def validate_submission(
         for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, source.limits):
             run.merge(result)
             name = listed.popleft()  # results come back in shard order
-            source.release(name)
             if result.readable:
                 source.record(name, ((sid, span) for (_, sid), span in zip(result.entries, result.spans)))
+            source.release(name)
     finally:
         if source is not submission:  # opened here: its scratch files go with it
             source.close()

@@ -11,7 +11,12 @@ import numpy as np
 import pytest
 
 from wosac_eval.parse.limits import InputLimits
-from wosac_eval.parse.submission_source import ShardRef, SubmissionSource, iter_submission_shards, read_locator
+from wosac_eval.parse.submission_source import (
+    ShardRef,
+    SubmissionSource,
+    iter_submission_shards,
+    read_locator,
+)
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.sim import baselines, scenes
 from wosac_eval.sim.scene_recipes import SCENE_KINDS
@@ -21,7 +26,7 @@ from wosac_eval.validate.validator import check_shard
 COPIES = 24  # scenarios of the large shard: ~1 MB each
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _scene(kind: str):
     return scenes.generate_scene(0, SCENE_KINDS.index(kind))
 
@@ -167,10 +172,9 @@ def test_validation_of_an_archive_leaves_no_scratch_file(demo, tmp_path, monkeyp
 
 def test_a_resumed_read_of_an_archive_reads_only_what_is_left(demo):
     """`rollouts_locators(wanted)`: what is declined comes as None, unread; the rest as its bytes."""
-    paths, archive, name, raw = demo
-    expected = dict(
-        (r.scenario_id, r.SerializeToString())
-        for r in sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts)
+    paths, archive, _, raw = demo
+    expected = {r.scenario_id: r.SerializeToString()
+                for r in sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts}
     last = list(expected)[-1]
     with SubmissionSource(archive) as source:
         assert validate_submission(paths, source).ok

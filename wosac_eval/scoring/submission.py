@@ -205,7 +205,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
       journal: a file where each finished scenario's row is recorded as it is scored
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
-        It is left in place (with its validation, PATH.validated): remove both once the result is stored
+        It is left in place (with its validation, PATH.validated, and an archive's last members,
+        PATH.members): remove them once the result is stored
         (`scoring.journal.remove_journal`).
       per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
         `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in

@@ -184,7 +184,7 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
     census = ShardCensus(name, shard.size, limits)
     report = ValidationReport(name, max_listed=max_listed)
     metadata_fields: list[bytes] = []
-    Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission  # noqa: N806
+    Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission
     with open(shard.path, "rb") as f:
         f.seek(shard.offset)
         offset = 0  # of the field in the shard

@@ -21,7 +21,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.sim import baselines, scenes
 from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
-from wosac_eval.validate.validator import check_shard
+from wosac_eval.validate.validator import check_shard, check_shard_whole
 
 COPIES = 24  # scenarios of the large shard: ~1 MB each
 
@@ -70,12 +70,14 @@ def _summary(result) -> tuple:
 
 
 def _both(raw: bytes, tmp_path, limits: InputLimits | None = None) -> tuple[tuple, tuple]:
-    """check_shard of the bytes held whole, and of the same bytes read from a file."""
+    """check_shard of the bytes parsed whole, and streamed from a file (the same from the bytes)."""
     path = tmp_path / "shard.binproto"
     path.write_bytes(b"pad" + raw)  # at an offset, as a member of a spool
     agents = {"copy-0": np.array([1, 2, 3])}
-    whole = check_shard(ShardRef("s.binproto", len(raw), data=raw), agents, 20, limits=limits)
+    in_memory = ShardRef("s.binproto", len(raw), data=raw)
+    whole = check_shard_whole(in_memory, agents, 20, limits=limits)
     streamed = check_shard(ShardRef("s.binproto", len(raw), path=str(path), offset=3), agents, 20, limits=limits)
+    assert _summary(check_shard(in_memory, agents, 20, limits=limits)) == _summary(streamed)
     return _summary(whole), _summary(streamed)
 
 
@@ -183,3 +185,12 @@ def test_a_resumed_read_of_an_archive_reads_only_what_is_left(demo):
         assert {sid: None if loc is None else read_locator(loc) for sid, loc in got} == \
             {sid: data if sid == last else None for sid, data in expected.items()}
         assert {sid: read_locator(loc) for sid, loc in source.rollouts_locators()} == expected
+
+
+def test_members_for_other_hosts_carry_their_bytes(large):
+    """Workers on other nodes cannot read this host's scratch files: the walk then gives the bytes."""
+    archive, shard, _ = large
+    with SubmissionSource(archive) as source:
+        (ref,) = list(source.shards(members_in_memory=True))
+        assert ref.data == shard
+        assert _summary(check_shard(ref, {}, 20)) == _summary(check_shard_whole(ref, {}, 20))

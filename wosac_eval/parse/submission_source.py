@@ -351,10 +351,12 @@ class SubmissionSource:
         else:
             self._kept[shard.name] = shard.without_data()
 
-    def shards(self, problems: Problems | None = None) -> Iterator[ShardRef]:
+    def shards(self, problems: Problems | None = None, *, members_in_memory: bool = False) -> Iterator[ShardRef]:
         """The walk (`iter_shard_refs` under the handle's limits), remembering each shard. Archive members
-        are byte ranges of the spool or of scratch files (`release` removes one once it is checked)."""
-        for shard in iter_shard_refs(self.path, limits=self.limits, problems=problems, member_file=self._member_file):
+        are byte ranges of the spool or of scratch files (`release` removes one once it is checked), or with
+        `members_in_memory` (for workers on other hosts) carry their bytes."""
+        member_file = None if members_in_memory and self._spool_dir is None else self._member_file
+        for shard in iter_shard_refs(self.path, limits=self.limits, problems=problems, member_file=member_file):
             self._keep(shard)
             yield shard
 

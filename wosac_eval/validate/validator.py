@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import collections
 import dataclasses
+import io
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -185,8 +186,8 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
     report = ValidationReport(name, max_listed=max_listed)
     metadata_fields: list[bytes] = []
     Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission
-    with open(shard.path, "rb") as f:
-        f.seek(shard.offset)
+    with open(shard.path, "rb") if shard.data is None else io.BytesIO(shard.data) as f:
+        f.seek(shard.offset if shard.data is None else 0)
         offset = 0  # of the field in the shard
         try:
             for number, wire_type, field_bytes, start, end in iter_top_level_fields(f, shard.size):
@@ -230,12 +231,20 @@ def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
                 challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts.
 
-    A shard in a file is read one scenario at a time (`_check_shard_streamed`); one that carries its
-    bytes, or that must be judged whole, is parsed whole."""
-    if shard.data is None and shard.path is not None:
+    It is read one scenario at a time (`_check_shard_streamed`: from its file, or the bytes it carries),
+    unless it must be judged whole."""
+    if shard.data is not None or shard.path is not None:
         streamed = _check_shard_streamed(shard, agents, max_listed, challenge, limits)
         if streamed is not None:
             return streamed
+    return check_shard_whole(shard, agents, max_listed, challenge, limits)
+
+
+def check_shard_whole(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
+                      challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None
+                      ) -> ShardResult:
+    """`check_shard` with the shard parsed whole: the reference the streamed check equals, and the judge of
+    a shard that is not well-formed (its messages are a whole parse's)."""
     name, data = shard.name, shard.read()
     result = ShardResult(name, len(data))
     try:
@@ -406,7 +415,9 @@ def validate_submission(
     run = _Validation(agents, report, progress, metadata_checks, source.limits.max_scenarios)
     if not source.path.exists():
         raise FileNotFoundError(f"{source}: no such submission file or folder")
-    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)))
+    # Workers of this host read an archive's members from scratch files; other nodes get their bytes.
+    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)),
+                           members_in_memory=not isinstance(executor, LocalExecutor))
     listed: collections.deque = collections.deque()  # the names of the shards in flight
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:

@@ -174,3 +174,15 @@ def test_cli_restart_discards_the_journal(workload, uninterrupted, tmp_path):
     usage = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "--restart"),
                            capture_output=True, text=True, timeout=120)
     assert usage.returncode == 2 and "--restart needs --output" in usage.stderr
+
+
+def test_a_refused_submission_keeps_no_member(workload, tmp_path):
+    from wosac_eval.scoring.journal import members_path
+    from wosac_eval.scoring.submission import InvalidSubmissionError
+
+    _, submission = workload
+    fewer, _ = replicated_submission(tmp_path, 6, per_shard=5)  # 18 submitted scenarios it lacks
+    journal = tmp_path / "run.journal"
+    with pytest.raises(InvalidSubmissionError):
+        score_submission([fewer], submission, journal=journal)
+    assert not members_path(journal).exists()

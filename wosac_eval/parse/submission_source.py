@@ -376,6 +376,16 @@ class SubmissionSource:
         else:
             self._remove_scratch(shard_name)
 
+    def drop_tail(self) -> None:
+        """Remove the members kept in `tail_dir` (a refused submission will not be scored from them)."""
+        if self._tail_dir is None:
+            return
+        for name in self._tail:
+            self._kept[name] = ShardRef(name, self._kept[name].size)
+            self._scratch.pop(name, None)
+        self._tail.clear()
+        shutil.rmtree(self._tail_dir, ignore_errors=True)
+
     def _remove_scratch(self, shard_name: str) -> None:
         with contextlib.suppress(OSError):
             os.unlink(self._scratch.pop(shard_name))

@@ -272,6 +272,7 @@ def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evalu
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
                                  metadata_checks=evaluation.metadata_checks)
     if refuses(report, evaluation.allow_partial):
+        source.drop_tail()  # the archive members kept for scoring: none will be
         raise InvalidSubmissionError(report)
     records = source.records()
     if journal is not None and records is not None:

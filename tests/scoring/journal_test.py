@@ -186,3 +186,17 @@ def test_a_refused_submission_keeps_no_member(workload, tmp_path):
     with pytest.raises(InvalidSubmissionError):
         score_submission([fewer], submission, journal=journal)
     assert not members_path(journal).exists()
+
+
+def test_a_resumed_run_whose_kept_members_are_gone_streams_them_again(workload, uninterrupted, tmp_path):
+    import shutil
+
+    from wosac_eval.scoring.journal import members_path
+
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, journal=journal)
+    assert any(members_path(journal).iterdir())
+    shutil.rmtree(members_path(journal))
+    journal.write_bytes(b"".join(_journal_lines(journal)[:4]))  # killed after 3 rows
+    assert json.loads(json.dumps(score_submission([scenarios], submission, journal=journal))) == uninterrupted

@@ -406,7 +406,8 @@ class SubmissionSource:
         """Take the records of an earlier walk of the same file (`records`) instead of walking it: an
         interrupted run resumes without validating a whole submission again."""
         self._records = {shard.name: entries for shard, entries in records}
-        self._kept = {shard.name: _still_there(shard) for shard, _ in records}
+        archive = self.path.is_file() and self._spool_dir is None
+        self._kept = {shard.name: _still_there(shard) if archive else shard for shard, _ in records}
 
     def _member_entries(self, wanted: Callable[[str], bool], shard: ShardRef, entries: list, members: Iterator
                         ) -> Iterator[tuple[str, bytes | None]]:
@@ -502,8 +503,8 @@ class _BytesReader:
 
 
 def _still_there(shard: ShardRef) -> ShardRef:
-    """A recorded shard as a later run may read it: a member kept in a file that is gone (or shorter), the
-    member to stream again."""
+    """A recorded shard of an archive (or a single file) as a later run may read it: a member kept in a
+    file that is gone (or shorter), the member to stream again."""
     if shard.path is None:
         return shard
     try:

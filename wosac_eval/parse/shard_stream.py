@@ -12,7 +12,7 @@ shard whole, as before, so that every message about a malformed shard is unchang
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import BinaryIO
+from typing import IO
 
 _MAX_VARINT_BYTES = 9  # 63 bits: every regular tag and length; a 10-byte varint goes to the whole parse
 _MAX_FIELD_NUMBER = (1 << 29) - 1
@@ -23,7 +23,7 @@ class IrregularShard(ValueError):
     """The shard's top level is not plainly well-formed (or its file is shorter than said): judge it whole."""
 
 
-def _varint(f: BinaryIO, left: int) -> tuple[int, bytes]:
+def _varint(f: IO[bytes], left: int) -> tuple[int, bytes]:
     """(value, its bytes) of the varint at the file's position, within `left` bytes of the shard."""
     value, raw = 0, bytearray()
     while True:
@@ -38,14 +38,14 @@ def _varint(f: BinaryIO, left: int) -> tuple[int, bytes]:
             return value, bytes(raw)
 
 
-def _exactly(f: BinaryIO, size: int) -> bytes:
+def _exactly(f: IO[bytes], size: int) -> bytes:
     data = f.read(size)
     if len(data) != size:
         raise IrregularShard("the file ends inside the shard")
     return data
 
 
-def iter_top_level_fields(f: BinaryIO, size: int) -> Iterator[tuple[int, int, bytes, int, int]]:
+def iter_top_level_fields(f: IO[bytes], size: int) -> Iterator[tuple[int, int, bytes, int, int]]:
     """(field number, wire type, the field's bytes, start, end) of every top-level field of the `size`-byte
     shard at the file's position, in order. The field's bytes are its tag, length and value (they parse as a
     message of the shard's type holding that field alone); its value is bytes[start:end].

@@ -29,8 +29,9 @@ import os
 import shutil
 import tempfile
 import warnings
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Generator, Iterable, Iterator
 from pathlib import Path
+from typing import IO
 
 from wosac_eval.parse.archive import (
     SHARD_NAME_MARKER,
@@ -178,6 +179,7 @@ def _file_shards(path: Path, limits: InputLimits, problems: Problems | None,
     What the name deserves is told once the first shard was read (a file that cannot be read at all
     gets its error alone)."""
     compression, is_tar, misnamed = sniff_file(path)
+    shards: Iterator[ShardRef]
     if is_tar and member_file is not None:
         shards = (member_file(member) for member in iter_archive_members(path, compression, limits))
     elif is_tar:
@@ -276,7 +278,7 @@ class SubmissionSource:
         self.limits = InputLimits() if limits is None else limits
         self._spool_dir = None if spool_dir is None else Path(spool_dir)
         self._spool_folder: str | None = None
-        self._spool = None
+        self._spool: IO[bytes] | None = None
         self._scratch_folder: str | None = None
         self._scratch: dict[str, str] = {}  # walked archive member -> its scratch file (no spool)
         self._scratch_files = 0
@@ -317,11 +319,13 @@ class SubmissionSource:
     def _member_file(self, member: MemberReader) -> ShardRef:
         """Copy an archive member, a piece at a time, to the spool (appended) or to a scratch file of its
         own; its byte range there."""
+        out: IO[bytes]
         if self._spool_dir is not None:
             if self._spool is None:
                 self._spool_folder = tempfile.mkdtemp(prefix="wosac-spool-", dir=self._spool_dir)
                 self._spool = open(os.path.join(self._spool_folder, "members"), "w+b")  # noqa: SIM115
-            out, offset = self._spool, self._spool.seek(0, os.SEEK_END)
+            out = self._spool
+            offset = out.seek(0, os.SEEK_END)
         else:
             if self._scratch_folder is None:
                 if self._tail_dir is not None:  # a new walk: what an earlier one kept is not this one's
@@ -436,7 +440,7 @@ class SubmissionSource:
         resumed run skips what it finished.
         """
         wanted = wanted or (lambda sid: True)
-        members = None
+        members: Generator | None = None
         try:
             for name, entries in self._records.items():
                 shard = self._kept[name]
@@ -459,7 +463,7 @@ class SubmissionSource:
             if members is not None:
                 members.close()
 
-    def _stream_members(self) -> Iterator:
+    def _stream_members(self) -> Generator:
         """The archive's members as readers, or a single compressed shard's bytes as one."""
         compression, is_tar, _ = sniff_file(self.path)
         if is_tar:

@@ -186,7 +186,7 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
     report = ValidationReport(name, max_listed=max_listed)
     metadata_fields: list[bytes] = []
     Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission
-    with open(shard.path, "rb") if shard.data is None else io.BytesIO(shard.data) as f:
+    with open(str(shard.path), "rb") if shard.data is None else io.BytesIO(shard.data) as f:
         f.seek(shard.offset if shard.data is None else 0)
         offset = 0  # of the field in the shard
         try:

@@ -23,19 +23,30 @@ def scene_map_arrays(scenario, context, layout, num_steps: int, cells: bool = Tr
     return out
 
 
+def segment_table_arrays(table: road_edge.SegmentTable, cells: bool = True) -> dict:
+    """Both road-edge parts of a segment table: `road_edge_segments` and `road_edge_cells`."""
+    return {**_segments(table), **_cells(table, cells)}
+
+
 def road_edge_segments(scenario, context, layout, num_steps: int, cells: bool) -> dict:
+    return _segments(context.road_edges)
+
+
+def _segments(table: road_edge.SegmentTable) -> dict:
     """The valid road-edge segments, in official order, with their neighbours' geometry, and the
     official pick for points with a NaN or infinite coordinate (which may be a padding segment)."""
-    table = context.road_edges
     fallback = segments_at(table, np.array([non_finite_pick(table.valid)]))
     return {**segments_at(table, np.flatnonzero(table.valid)),
             **{NON_FINITE_PREFIX + k: v for k, v in fallback.items()}}
 
 
 def road_edge_cells(scenario, context, layout, num_steps: int, cells: bool) -> dict:
+    return _cells(context.road_edges, cells)
+
+
+def _cells(table: road_edge.SegmentTable, cells: bool) -> dict:
     """The cell table of the valid road-edge segments (`cells`; else a one-cell table that settles
     nothing, for a scene the device never searches)."""
-    table = context.road_edges
     idx = np.flatnonzero(table.valid)
     out = road_edge.cell_candidate_table(table.start[idx], table.delta[idx]) if cells \
         else road_edge.unsettling_cell_table()

@@ -6,8 +6,11 @@ everything that depends on the official tensor shapes (the trailing-packet
 masks of `float32_math`) are prepared from the real shapes, then padded to a
 bucket: the next power of two of the object, evaluated-object and signal
 counts, and the next multiple of a quarter of the next power of two of the
-road-edge and lane segment counts (`bucket`, `fine_bucket`). Scenarios of one
-bucket share one compiled function and are stacked and `vmap`ped. The device
+road-edge and lane segment counts (`bucket`, `fine_bucket`). The inputs,
+sizes, bucket keys, padding and device features are `jax_driver`'s, shared
+with `jax_realism`; the map arrays and their padding are those of the
+registered features (`features.registry`). Scenarios of one bucket share one
+compiled function and are stacked and `vmap`ped. The device
 runs the same orchestration as numpy (`metric_features.per_step_features`)
 with the dense search (`features.dense.DenseSearch`), the red-light lane
 search included, so features are bit-identical on CPU.
@@ -36,8 +39,7 @@ from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.backends.jax_driver import (MIN_BUCKET, BucketKey, SceneInputs, Sizes, bucket,  # noqa: F401
-                                            fine_bucket, padded_inputs, scene_inputs)
-from wosac_eval.features import dense
+                                            device_features, fine_bucket, padded_inputs, scene_inputs, stacked)
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
 
@@ -146,7 +148,7 @@ def prepare(scenario: ScenarioArrays, rollouts: RolloutArrays, context: mf.MapCo
 def _features_fn(layout: mf.FeatureLayout, features: tuple):
     """Jitted features (`features`, registry entries) of a stack of scenarios (leading axis) of one bucket."""
     def one_scene(traj, tails, maps):
-        return mf.per_step_features(traj, layout, dense.DenseSearch(maps), tails, features)
+        return device_features(traj, tails, maps, layout, features)
 
     return jax.jit(jax.vmap(one_scene))
 
@@ -198,9 +200,8 @@ class FeaturePipeline:
         padded = [padded_inputs(p.inputs, key.sizes) for _, p in items]
         size = min(bucket(len(items), 1), _per_call(key, self.max_batch))
         padded += [padded[0]] * (size - len(padded))  # a partial batch repeats its first scenario
-        stacked = [{k: np.stack([part[j][k] for part in padded]) for k in padded[0][j]} for j in range(3)]
         with jax.enable_x64(True):
-            self.dispatched.append((items, _features_fn(layout, key.features)(*stacked)))
+            self.dispatched.append((items, _features_fn(layout, key.features)(*stacked(padded))))
 
     def _collect(self, keep: int) -> list:
         done = []

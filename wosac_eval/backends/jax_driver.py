@@ -6,7 +6,8 @@ prepare a scene as a `SceneInputs` (trajectories, the trailing-packet masks of
 the official float32 ops, the map arrays of `features.registry`'s map parts),
 measure it as `Sizes`, round sizes to a `BucketKey` or a group's maximum, and
 pad to it with `padded_inputs`: every map array as its `registry.Pad` says,
-never by its name. Scenes with one key share one compiled function.
+never by its name, stack scenes (`stacked`), and compute their features on the
+device with `device_features`. Scenes with one key share one compiled function.
 """
 from __future__ import annotations
 
@@ -14,8 +15,8 @@ import dataclasses
 
 import numpy as np
 
+from wosac_eval.features import dense, registry
 from wosac_eval.features import metric_features as mf
-from wosac_eval.features import registry
 from wosac_eval.features.map_arrays import scene_map_arrays
 
 MIN_BUCKET = 8
@@ -175,3 +176,26 @@ def padded_inputs(inputs: SceneInputs, sizes: Sizes) -> tuple[dict, dict, dict]:
              "ego_tail": pad_axis(tails["ego_tail"], n_eval, 1),
              "pair_tail": pad_axis(pad_axis(tails["pair_tail"], n_eval, 1), n_obj, 2)},
             {name: pad_map(name, a) for name, a in inputs.maps.items()})
+
+
+def stacked(scenes: list):
+    """Per-scene pytrees (dicts of numpy arrays, or tuples of them) with a leading scene axis (numpy)."""
+    import jax
+
+    return jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *scenes)
+
+
+def device_features(traj: dict, tails: dict, maps: dict, layout: mf.FeatureLayout,
+                    features: tuple[registry.Feature, ...], host=None, scene=None) -> dict:
+    """`metric_features.per_step_features` of one padded scene on the device (traced).
+
+    The searches run on the device over fixed shapes (`dense.DenseSearch` over `maps`), or, given
+    `host` (`host_search.HostSearches`) and the traced `scene` index, in the numpy search called back
+    from the trace (`host_search.HostSearch`).
+    """
+    if host is None:
+        search = dense.DenseSearch(maps)
+    else:
+        from wosac_eval.backends.host_search import HostSearch
+        search = HostSearch(host, scene)
+    return mf.per_step_features(traj, layout, search, tails, features)

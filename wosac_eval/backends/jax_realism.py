@@ -54,9 +54,9 @@ from wosac_eval import challenges
 from wosac_eval.arrays.samples import log_sample, official_object_order
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
-from wosac_eval.backends.jax_driver import SceneInputs, Sizes, padded_inputs, scene_inputs
-from wosac_eval.backends.host_search import HostSearch, HostSearches
-from wosac_eval.features import dense, registry
+from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
+from wosac_eval.backends.host_search import HostSearches
+from wosac_eval.features import registry
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
@@ -324,7 +324,7 @@ def _prepare_group(indices: list[int], scenes: list[RealismScene], spec: challen
                           "feature_valid": feature_valid, "object_type": object_type,
                           "scene": np.int32(index)})  # the index of its host search
     # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
-    arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
+    arrays = jax.tree_util.tree_map(jnp.asarray, stacked(per_scene))
     return arrays, layout
 
 
@@ -351,8 +351,7 @@ def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a:
         future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
         sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
     traj = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
-    search = dense.DenseSearch(a["maps"]) if host is None else HostSearch(host, a["scene"])
-    per_step = mf.per_step_features(traj, layout, search, a["tails"], features)
+    per_step = device_features(traj, a["tails"], a["maps"], layout, features, host, a["scene"])
     reported = layout.reported
     e = layout.num_evaluated
     valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])

@@ -161,9 +161,8 @@ class FeatureContext:
     @functools.cached_property
     def kinematics(self) -> tuple:
         """(speed, acceleration, angular speed, angular acceleration) of the evaluated objects, all steps."""
-        t = self.traj
-        return kinematics.kinematic_features(*(self.evaluated(t[f]) for f in ("x", "y", "z", "heading")),
-                                             self.layout.seconds_per_step)
+        x, y, z, heading = (self.evaluated(self.traj[f]) for f in ("x", "y", "z", "heading"))
+        return kinematics.kinematic_features(x, y, z, heading, self.layout.seconds_per_step)
 
     @functools.cached_property
     def heading_sincos(self) -> tuple:
@@ -245,8 +244,8 @@ OFFICIAL_FEATURES: tuple[Feature, ...] = (
     Feature("angular_speed", _kinematic(2)),
     Feature("angular_acceleration", _kinematic(3)),
     Feature("distance_to_nearest_object", _nearest_object),
-    Feature("collision_per_step", lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD),
-            "bool"),
+    Feature("collision_per_step",
+            lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD), "bool"),
     Feature("time_to_collision", _time_to_collision),
     Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
     Feature("offroad_per_step", lambda c: c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),

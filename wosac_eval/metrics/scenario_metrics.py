@@ -188,7 +188,7 @@ def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
     """Mean of every field over scenarios (the official aggregation)."""
     if not per_scenario:
         raise ValueError("no scenario metrics to aggregate")
-    return {f: float(_F(np.mean([m[f] for m in per_scenario]))) 
+    return {f: float(_F(np.mean([m[f] for m in per_scenario])))
             for f in scenario_fields() if f in SCENARIO_FIELDS or f in per_scenario[0]}
 
 

@@ -25,6 +25,7 @@ from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.features import interaction, kinematics, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_sum32, packet_tail, sincos32
 from wosac_eval.features.search import PrunedSearch
+from wosac_eval.features.search_strategy import SearchStrategy, TimeToCollisionInputs
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
 
 _F = np.float32
@@ -134,13 +135,13 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 
 
-def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> dict:
+def per_step_features(t: dict, layout: FeatureLayout, search: SearchStrategy, tails: dict) -> dict:
     """Every per-step feature of the evaluated objects, for every sample.
 
     Args:
       t: x, y, z, heading, length, width, height float32 and valid bool, each
         `(num_samples, num_objects, num_steps)`, evaluated objects first.
-      search: `PrunedSearch` or `DenseSearch` over the scenario's map.
+      search: the searches over the scenario's map (`PrunedSearch`, `DenseSearch` or `HostSearch`).
       tails: `official_tails` of the real shapes.
     Returns:
       dict of `PER_STEP_FIELDS` `(num_samples, num_evaluated, reported steps)`
@@ -161,8 +162,9 @@ def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> di
     corner_x, corner_y = xp.where(finite_height, x, _F(np.nan)), xp.where(finite_height, y, _F(np.nan))
     nearest = search.nearest_object(at(corner_x), at(corner_y), at(length), at(width), cos_h, sin_h, at(valid), n_eval)
     planar_speed = kinematics.linear_speed(x, y, xp.zeros_like(x), dt)
-    ttc = search.time_to_collision(x, y, length, width, t["heading"], planar_speed, valid, n_eval, reported,
-                                   tails["ego_tail"], tails["pair_tail"])
+    ttc = search.time_to_collision(TimeToCollisionInputs(
+        x=x, y=y, length=length, width=width, heading=t["heading"], speed=planar_speed, valid=valid,
+        num_evaluated=n_eval, steps=reported, ego_tail=tails["ego_tail"], pair_tail=tails["pair_tail"]))
 
     pick = lambda a: at(a[:, e])
     bottom = pick(t["z"]) + (-pick(t["height"]) * _F(0.5))

@@ -16,7 +16,8 @@ import jax.numpy as jnp
 
 from wosac_eval.backends import jax_backend, jax_driver
 from wosac_eval.features import box_geometry, dense, interaction, map_arrays, road_edge, traffic_lights
-from wosac_eval.features.float32_math import fma32, sincos32
+from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.ops import fma32
 from wosac_eval.features.xp import array_namespace, divide
 
 F = np.float32
@@ -101,7 +102,8 @@ def test_time_to_collision_dense_equals_numpy():
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
-    expected = interaction.time_to_collision(x, y, length, width, heading, valid, evaluated, 0.1, steps_eval)
+    expected = interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated=evaluated,
+                                             seconds_per_step=0.1, steps=steps_eval)
     assert (expected < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail
     from wosac_eval.features.kinematics import linear_speed
@@ -109,9 +111,16 @@ def test_time_to_collision_dense_equals_numpy():
     step_major = lambda a: np.ascontiguousarray(a[:, steps_eval].T)
     ego_tail = packet_tail((steps, evaluated, 1))[steps_eval]
     pair_tail = packet_tail((steps, evaluated, objects))[steps_eval]
-    got = jitted(lambda *a: dense.time_to_collision(*a, num_evaluated=evaluated),
+    got = jitted(lambda *a: dense.time_to_collision(*a[:7], ego_tail=a[7], pair_tail=a[8], num_evaluated=evaluated),
                  *map(step_major, (x, y, length, width, heading, speed, valid)), ego_tail, pair_tail)
     np.testing.assert_array_equal(got.T, expected)
+
+
+def test_jax_searches_are_search_strategies():
+    from support.strategies import assert_is_search_strategy
+    from wosac_eval.backends.host_search import HostSearch, HostSearches
+    assert_is_search_strategy(dense.DenseSearch({}))
+    assert_is_search_strategy(HostSearch(HostSearches(()), 0))
 
 
 def test_road_edge_dense_equals_numpy():

@@ -84,7 +84,7 @@ def stop_line_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps:
     if signals.state.shape[0] != num_steps:
         raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
                          f"expected one per step ({num_steps})")
-    start, delta, lane_known = traffic_lights._stop_point_segments(lanes, signals)
+    start, delta, lane_known = traffic_lights.stop_point_segments(lanes, signals)
     seg = np.flatnonzero(lanes.valid)
     # The device only compares lane ids: their ranks among the scene's ids fit int32 (x64 off).
     signal_lane, segment_lane = np.split(

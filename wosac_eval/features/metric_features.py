@@ -26,6 +26,7 @@ from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.features import registry, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_sum32, packet_tail
 from wosac_eval.features.search import PrunedSearch
+from wosac_eval.features.search_strategy import SearchStrategy
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
 
 _F = np.float32
@@ -154,14 +155,14 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 
 
-def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict,
+def per_step_features(t: dict, layout: FeatureLayout, search: SearchStrategy, tails: dict,
                       features: tuple[registry.Feature, ...] | None = None) -> dict:
     """Every per-step feature of the evaluated objects, for every sample.
 
     Args:
       t: x, y, z, heading, length, width, height float32 and valid bool, each
         `(num_samples, num_objects, num_steps)`, evaluated objects first.
-      search: `PrunedSearch` or `DenseSearch` over the scenario's map.
+      search: the searches over the scenario's map (`PrunedSearch`, `DenseSearch` or `HostSearch`).
       tails: `official_tails` of the real shapes.
       features: the registry's entries to compute (default `registry.features()`: the official ones
         and those registered).

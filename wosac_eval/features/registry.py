@@ -25,6 +25,7 @@ import numpy as np
 
 from wosac_eval.features import interaction, kinematics, road_edge
 from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.xp import array_namespace
 from wosac_eval.metrics import registry as metric_registry
 
@@ -215,9 +216,10 @@ def _nearest_object(c: FeatureContext):
 def _time_to_collision(c: FeatureContext):
     t = c.traj
     planar_speed = kinematics.linear_speed(t["x"], t["y"], c.xp.zeros_like(t["x"]), c.layout.seconds_per_step)
-    return c.search.time_to_collision(t["x"], t["y"], t["length"], t["width"], t["heading"], planar_speed,
-                                      t["valid"], c.layout.num_evaluated, c.layout.reported,
-                                      c.tails["ego_tail"], c.tails["pair_tail"])
+    return c.search.time_to_collision(TimeToCollisionInputs(
+        x=t["x"], y=t["y"], length=t["length"], width=t["width"], heading=t["heading"], speed=planar_speed,
+        valid=t["valid"], num_evaluated=c.layout.num_evaluated, steps=c.layout.reported,
+        ego_tail=c.tails["ego_tail"], pair_tail=c.tails["pair_tail"]))
 
 
 def _road_edge_distance(c: FeatureContext):

@@ -11,6 +11,8 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+
 from support.paths import REPO
 from support.readme_blocks import readme_blocks
 
@@ -25,6 +27,8 @@ def test_readme_has_the_two_setup_commands_and_runnable_blocks():
     assert len(readme_blocks(text)) >= 10
 
 
+@pytest.mark.slow
+@pytest.mark.ray  # its Ray blocks start a cluster (in the namespace): one at a time with tests/ray
 def test_every_readme_block_runs(tmp_path):
     namespace = os.geteuid() == 0 and shutil.which("unshare") and shutil.which("ip")
     inner = [sys.executable, str(RUNNER), str(tmp_path / "readme")]

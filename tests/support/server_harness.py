@@ -74,9 +74,16 @@ def scoring_data(workdir: Path) -> ScoringData:
 
 
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A free 127.0.0.1 port. Under pytest-xdist, one whose remainder by the number of workers is this
+    worker's number: two workers never pick the same port between this probe and their server's bind."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % workers
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port % workers == worker:
+            return port
 
 
 def wait_healthy(url: str, process: subprocess.Popen, timeout: float) -> None:

@@ -11,10 +11,11 @@ controller reports what the workers found.
 Markers (registered in pyproject.toml) come from three places: the folder a test file lives in
 (`FOLDER_MARKERS`), the fixtures a test uses (`FIXTURE_MARKERS`), and explicit marks in the test files
 (browser, docker, slow). Ray, browser and Docker tests are also `slow`; Ray tests run one at a time
-(one xdist group: a cluster each, and `ray stop` sees every Ray process of the machine).
+(`one_ray_cluster_at_a_time`).
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import sys
@@ -44,6 +45,22 @@ def shared() -> Path:
     return require_shared()
 
 
+@pytest.fixture(autouse=True)
+def one_ray_cluster_at_a_time(request, tmp_path_factory):
+    """The `ray` tests of one run take turns, whichever xdist worker runs them: two clusters at once are
+    too heavy for 2 cores, and `ray stop` in the README's blocks would stop the other's. (A lock, not an
+    xdist_group: pytest 9.2 drops the group from the node ids, pytest-xdist#1386.)"""
+    if request.node.get_closest_marker("ray") is None:
+        yield
+        return
+    run_root = tmp_path_factory.getbasetemp()
+    if hasattr(request.config, "workerinput"):  # an xdist worker's basetemp is <the run's>/popen-gwN
+        run_root = run_root.parent
+    with open(run_root / "ray-cluster.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
 # What a test needs, by the folder of tests/ its file lives in: a new file there gets the same marks.
 FOLDER_MARKERS = {
     "backends": ("jax",),  # the JAX backend: JAX in the test process
@@ -54,7 +71,6 @@ FOLDER_MARKERS = {
 # ... and by the fixtures it uses.
 FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
 SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the fast tier) leaves out
-RAY_GROUP = "ray-cluster"  # the xdist group of the Ray tests: one cluster at a time, on one worker
 
 
 def _markers(item) -> set[str]:
@@ -70,16 +86,15 @@ def _markers(item) -> set[str]:
     return names
 
 
-@pytest.hookimpl(tryfirst=True)  # before `-m` deselects, and before xdist reads the xdist_group marks
+def pytest_itemcollected(item):
+    """Marks each test by folder and fixtures (above), as it is collected: before `-m` selects."""
+    names = _markers(item)
+    for name in sorted(names - {mark.name for mark in item.iter_markers()}):
+        item.add_marker(name)
+
+
 def pytest_collection_modifyitems(config, items):
-    """Marks each test by folder and fixtures (above); tests that start JAX run last: JAX runs threads,
-    and later tests fork worker processes."""
-    for item in items:
-        names = _markers(item)
-        for name in sorted(names - {mark.name for mark in item.iter_markers()}):
-            item.add_marker(name)
-        if "ray" in names:
-            item.add_marker(pytest.mark.xdist_group(RAY_GROUP))
+    """Tests that start JAX run last: JAX runs threads, and later tests fork worker processes."""
     items.sort(key=lambda item: item.get_closest_marker("jax") is not None)
 
 

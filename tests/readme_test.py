@@ -28,7 +28,7 @@ def test_readme_has_the_two_setup_commands_and_runnable_blocks():
 
 
 @pytest.mark.slow
-@pytest.mark.ray  # its Ray blocks start a cluster (in the namespace): one at a time with tests/ray
+@pytest.mark.ray  # its Ray blocks start a cluster (in the namespace): in turn with tests/ray
 def test_every_readme_block_runs(tmp_path):
     namespace = os.geteuid() == 0 and shutil.which("unshare") and shutil.which("ip")
     inner = [sys.executable, str(RUNNER), str(tmp_path / "readme")]

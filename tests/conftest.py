@@ -64,7 +64,7 @@ def one_ray_cluster_at_a_time(request, tmp_path_factory):
 # What a test needs, by the folder of tests/ its file lives in: a new file there gets the same marks.
 FOLDER_MARKERS = {
     "backends": ("jax",),  # the JAX backend: JAX in the test process
-    "parity": ("parity", "shared"),  # golden parity: every test reads ../shared
+    "parity": ("parity", "shared"),  # golden parity, on the reference material of ../shared
     "ray": ("ray",),  # a real Ray cluster in a loopback namespace
     "server": ("service",),  # the scoring service (wosac_server) as a real server
 }
@@ -74,8 +74,8 @@ SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the 
 
 
 def _markers(item) -> set[str]:
-    folder = item.path.relative_to(Path(__file__).parent).parts[0] if item.path.is_relative_to(
-        Path(__file__).parent) else ""
+    tests = Path(__file__).parent
+    folder = item.path.relative_to(tests).parts[0] if item.path.is_relative_to(tests) else ""
     names = set(FOLDER_MARKERS.get(folder, ()))
     for fixture, marks in FIXTURE_MARKERS.items():
         if fixture in item.fixturenames:

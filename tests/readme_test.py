@@ -11,6 +11,8 @@ import shutil
 import subprocess
 import sys
 
+import pytest
+
 from support.paths import REPO
 from support.readme_blocks import document_blocks, documents, readme_blocks
 
@@ -35,6 +37,8 @@ def test_the_documents_run_in_order_the_readme_first():
     assert len(blocks) >= 25
 
 
+@pytest.mark.slow
+@pytest.mark.ray  # its Ray blocks start a cluster (in the namespace): in turn with tests/ray
 def test_every_readme_block_runs(tmp_path):
     namespace = os.geteuid() == 0 and shutil.which("unshare") and shutil.which("ip")
     inner = [sys.executable, str(RUNNER), str(tmp_path / "readme")]

@@ -111,6 +111,7 @@ def test_registration_is_checked():
     assert registry.feature_names() == registry.OFFICIAL_FEATURE_NAMES
 
 
+@pytest.mark.jax
 def test_jax_backend_and_realism_equal_numpy(toy_feature):
     import jax
 

@@ -54,6 +54,7 @@ def test_fine_buckets_pad_at_most_a_third(n, expected):
     assert jax_backend.fine_bucket(n) == expected
 
 
+@pytest.mark.slow  # an XLA compilation per bucket of sizes: minutes on 2 cores
 @pytest.mark.parametrize("case_set, case", CASES)
 def test_features_bit_identical_to_official_and_numpy(case_set, case):
     golden.skip_if_absent(case_set, case)

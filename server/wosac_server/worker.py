@@ -42,10 +42,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from wosac_eval.extras import EngineUnavailableError
+from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import SubmissionSource
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal
-from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission

@@ -39,8 +39,18 @@ from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.backends.exact_rounding import exactly_rounded
-from wosac_eval.backends.jax_driver import (MIN_BUCKET, BucketKey, SceneInputs, Sizes, bucket,  # noqa: F401
-                                            device_features, fine_bucket, padded_inputs, scene_inputs, stacked)
+from wosac_eval.backends.jax_driver import (  # noqa: F401
+    MIN_BUCKET,
+    BucketKey,
+    SceneInputs,
+    Sizes,
+    bucket,
+    device_features,
+    fine_bucket,
+    padded_inputs,
+    scene_inputs,
+    stacked,
+)
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
 
@@ -145,7 +155,7 @@ def prepare(scenario: ScenarioArrays, rollouts: RolloutArrays, context: mf.MapCo
 
 # --- Compiled functions ----------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _features_fn(layout: mf.FeatureLayout, features: tuple):
     """Jitted features (`features`, registry entries) of a stack of scenarios (leading axis) of one bucket."""
     def one_scene(traj, tails, maps):

@@ -57,14 +57,18 @@ from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends.host_search import HostSearches
 from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
-from wosac_eval.features import registry
 from wosac_eval.features import metric_features as mf
+from wosac_eval.features import registry
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import active_likelihood_fields, active_metrics
-from wosac_eval.metrics.scenario_metrics import (metric_log_likelihoods, metric_values, per_object_likelihoods,
-                                                 scenario_fields)
+from wosac_eval.metrics.scenario_metrics import (
+    metric_log_likelihoods,
+    metric_values,
+    per_object_likelihoods,
+    scenario_fields,
+)
 from wosac_eval.options import Mode, Search
 
 _F = np.float32

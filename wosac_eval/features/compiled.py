@@ -114,9 +114,7 @@ class _Flattener:
         for param, argument in zip(params, arguments):
             # A constant argument (an index) stays a constant, so that what it indexes folds; a variable
             # the kernel does not reassign is read as it is (numba's compile time grows with statements).
-            if isinstance(argument, ast.Constant):
-                local[param] = argument
-            elif _simple(argument) and not stores[param]:
+            if isinstance(argument, ast.Constant) or _simple(argument) and not stores[param]:
                 local[param] = argument
             else:
                 local[param] = self.bind(param, argument)

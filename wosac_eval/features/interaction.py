@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 import numba
+import numpy as np
 
 from wosac_eval.features import ops
 from wosac_eval.features.box_geometry import box_outline, minkowski_vertices, octagon_signed_distance
@@ -19,7 +18,6 @@ from wosac_eval.features.float32_math import HUGE_COS, HUGE_SIN, packet_sincos, 
 from wosac_eval.features.kinematics import linear_speed
 from wosac_eval.features.spatial import nonzero, strict_argmin
 from wosac_eval.features.xp import array_namespace, errstate
-
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)

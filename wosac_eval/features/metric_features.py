@@ -69,7 +69,7 @@ class MetricFeatures:
     traffic_light_violation_per_step: np.ndarray
     extra: dict = dataclasses.field(default_factory=dict)
 
-    def samples(self, rows: slice) -> "MetricFeatures":
+    def samples(self, rows: slice) -> MetricFeatures:
         """The given samples (`object_id` is shared by all samples)."""
         return MetricFeatures(**{f.name: getattr(self, f.name) if f.name == "object_id"
                                  else getattr(self, f.name)[rows] for f in dataclasses.fields(self)
@@ -85,7 +85,7 @@ class MetricFeatures:
                 **self.extra}
 
     @classmethod
-    def from_dict(cls, values: dict) -> "MetricFeatures":
+    def from_dict(cls, values: dict) -> MetricFeatures:
         """The fields of `values`; the names that are not fields go to `extra`."""
         names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
         return cls(**{k: v for k, v in values.items() if k in names},

@@ -74,7 +74,7 @@ def preset(name: str) -> SimAgentMetricsConfig:
     return config
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _preset_file(name: str) -> SimAgentMetricsConfig:
     return _read_textproto(Path(__file__).with_name(PRESET_FILES[name]))
 

@@ -97,9 +97,9 @@ DISPLACEMENT_FIELDS = ("average_displacement_error", "min_average_displacement_e
 # The per-scenario fields of a result (the official `SimAgentMetrics`), and whether higher is better.
 SCENARIO_FIELDS: dict[str, bool] = {
     "metametric": True,
-    **{f: True for f in LIKELIHOOD_FIELDS},
-    **{f: False for f in DISPLACEMENT_FIELDS},
-    **{f: False for f in RATE_FIELDS},
+    **dict.fromkeys(LIKELIHOOD_FIELDS, True),
+    **dict.fromkeys(DISPLACEMENT_FIELDS, False),
+    **dict.fromkeys(RATE_FIELDS, False),
 }
 # The leaderboard buckets (the official `SimAgentsBucketedMetrics`), and whether higher is better.
 BUCKET_FIELDS: dict[str, bool] = {
@@ -182,7 +182,7 @@ def default_feature_config(metric: Metric):
     return type(message).FromString(message.SerializeToString())
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _parsed_config(text: str):
     # Imported here: this module lists names for light readers (compare, report) that need no protobuf.
     from google.protobuf import text_format

@@ -13,14 +13,23 @@ import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
+from wosac_eval.features.float32_math import split_sum32
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.features.float32_math import split_sum32
 from wosac_eval.features.xp import array_namespace, in_float32_precision, nan_spreading_min, wide_float
 from wosac_eval.metrics.buckets import weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
-from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, RATE_FIELDS, RATES,
-                                         active_buckets, active_likelihood_fields, active_metrics, metric_config)
+from wosac_eval.metrics.registry import (
+    BUCKET_FIELDS,
+    DISPLACEMENT_FIELDS,
+    LIKELIHOOD_FIELDS,
+    RATE_FIELDS,
+    RATES,
+    active_buckets,
+    active_likelihood_fields,
+    active_metrics,
+    metric_config,
+)
 
 _F = np.float32
 

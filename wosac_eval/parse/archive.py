@@ -45,6 +45,7 @@ from typing import BinaryIO, Union
 
 from wosac_eval.parse.errors import ArchiveError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.shards import HEAD_BYTES, looks_like_submission
 from wosac_eval.parse.tar_format import (
     BLOCK,
     DEVICE_TYPES,
@@ -58,7 +59,6 @@ from wosac_eval.parse.tar_format import (
     TruncatedTarError,
     is_tar_header,
 )
-from wosac_eval.parse.shards import HEAD_BYTES, looks_like_submission
 
 PathLike = Union[str, "os.PathLike[str]"]
 

@@ -35,8 +35,8 @@ from typing import IO
 
 from wosac_eval.parse.archive import (
     SHARD_NAME_MARKER,
-    is_ignored_name,
     MemberReader,
+    is_ignored_name,
     is_shard_name,
     iter_archive_members,
     iter_archive_shards,

@@ -27,8 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
+from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
 from wosac_eval.scoring.result_reader import SCHEMA_VERSION  # the newest layout, beside every earlier one's

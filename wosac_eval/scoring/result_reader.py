@@ -20,9 +20,16 @@ import numpy as np
 
 from wosac_eval.challenges import CHALLENGE_NAMES as CHALLENGES
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
+
 # The metric schema comes from the one registry: fields, buckets, directions.
 from wosac_eval.metrics.registry import (  # noqa: F401  (re-exported to compare and report)
-    BUCKET_ALIASES, BUCKET_FIELDS, BUCKET_MEMBERS, RATE_FIELDS, SCENARIO_FIELDS, higher_is_better)
+    BUCKET_ALIASES,
+    BUCKET_FIELDS,
+    BUCKET_MEMBERS,
+    RATE_FIELDS,
+    SCENARIO_FIELDS,
+    higher_is_better,
+)
 
 
 class ResultError(ValueError):

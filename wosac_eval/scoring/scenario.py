@@ -14,10 +14,10 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.extras import check_backend
-from wosac_eval.options import Backend
 from wosac_eval.features.metric_features import map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
+from wosac_eval.options import Backend
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 PathLike = str | os.PathLike

@@ -33,7 +33,6 @@ from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
 from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS
-
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
 N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario

@@ -23,21 +23,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from google.protobuf.message import DecodeError
 
 from wosac_eval import challenges
 from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
-from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
-from google.protobuf.message import DecodeError
-
 from wosac_eval.parse.decode import decode_message
-from wosac_eval.parse.limits import ShardCensus
+from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.limits import InputLimits, ShardCensus
+from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.shard_stream import IrregularShard, iter_top_level_fields
 from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_text
-from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
-from wosac_eval.parse.limits import InputLimits
-from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.wire import field_spans
+from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.validate import rules
 from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
 

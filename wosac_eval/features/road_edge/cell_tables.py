@@ -12,8 +12,15 @@ import math
 import numpy as np
 
 from wosac_eval.features.compiled import cached_loop
-from wosac_eval.features.road_edge.segments import (bucket_grid, gather_ring, planar_squared, ring_buffer,
-                                                    rings_around, search_grid, segment_frames)
+from wosac_eval.features.road_edge.segments import (
+    bucket_grid,
+    gather_ring,
+    planar_squared,
+    ring_buffer,
+    rings_around,
+    search_grid,
+    segment_frames,
+)
 from wosac_eval.features.spatial import column_bounds
 
 _F = np.float32

@@ -27,10 +27,23 @@ import numpy as np
 
 from wosac_eval.features.box_geometry import box_corners
 from wosac_eval.features.compiled import cached_loop, compiled
-from wosac_eval.features.road_edge.segments import (EXTREMELY_LARGE_DISTANCE, Z_STRETCH, SegmentTable,
-                                                    bucket_coordinate, bucket_of, corner_sign, gather_ring,
-                                                    planar_distance, planar_squared, ring_buckets, ring_buffer,
-                                                    rings_around, search_grid, segment_distances, side_of_segment)
+from wosac_eval.features.road_edge.segments import (
+    EXTREMELY_LARGE_DISTANCE,
+    Z_STRETCH,
+    SegmentTable,
+    bucket_coordinate,
+    bucket_of,
+    corner_sign,
+    gather_ring,
+    planar_distance,
+    planar_squared,
+    ring_buckets,
+    ring_buffer,
+    rings_around,
+    search_grid,
+    segment_distances,
+    side_of_segment,
+)
 from wosac_eval.features.spatial import non_finite_pick
 
 _F = np.float32

@@ -27,7 +27,6 @@ import numpy as np
 from wosac_eval.features import ops
 from wosac_eval.features.spatial import column_bounds, finite_rows, pad_polylines
 
-
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
 OFFROAD_DISTANCE_THRESHOLD = 0.0

@@ -49,9 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
+    from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
-    from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.validate import validate_submission
 
     if args.shards < 1 or args.workers < 1:

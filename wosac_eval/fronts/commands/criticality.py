@@ -10,9 +10,9 @@ import csv
 import json
 from pathlib import Path
 
+from wosac_eval.analysis.criticality_scores import COMPONENTS
 from wosac_eval.extras import ENGINES
 from wosac_eval.fronts.usage import UsageError, check_output_file
-from wosac_eval.analysis.criticality_scores import COMPONENTS
 
 NAME = "criticality"
 HELP = ("Rate every scenario of a set for criticality (kinematic volatility, interaction, map events, "
@@ -66,9 +66,9 @@ def write_table(rows: list[dict], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality
     from wosac_eval.extras import EngineUnavailableError
     from wosac_eval.parse.errors import ParseError
-    from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality
 
     if args.output is not None:
         if Path(args.output).suffix.lower() not in FORMATS:

@@ -20,8 +20,14 @@ import time
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.demo_pipeline import (DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard,
-                                             run_demo)
+from wosac_eval.fronts.demo_pipeline import (
+    DEMO_POLICIES,
+    DEMO_SCENES,
+    DEMO_SEED,
+    default_workdir,
+    leaderboard,
+    run_demo,
+)
 from wosac_eval.fronts.usage import UsageError, check_output_folder
 
 TITLES = {"sim_agents": "Sim agents (80 future steps; 2025 config)",

@@ -14,8 +14,16 @@ import os
 import re
 import sys
 
-from wosac_eval.client import (DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, ProtocolError, ServerUnavailable,
-                               SubmissionFailed, SubmitError, submit)
+from wosac_eval.client import (
+    DEFAULT_CHUNK_BYTES,
+    KEY_ENV,
+    ArgumentError,
+    ProtocolError,
+    ServerUnavailable,
+    SubmissionFailed,
+    SubmitError,
+    submit,
+)
 from wosac_eval.fronts.usage import UsageError, check_output_file
 
 NAME = "submit"

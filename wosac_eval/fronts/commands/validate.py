@@ -12,9 +12,9 @@ import re
 import sys
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.extras import ENGINES, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, scenario_set_hint
 from wosac_eval.parse.limits import InputLimits
-from wosac_eval.extras import ENGINES, EngineUnavailableError
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.validate.validator import ScenarioSetError, load_sim_agents, validate_submission
 

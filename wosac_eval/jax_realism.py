@@ -10,6 +10,7 @@
 
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
+
 from wosac_eval.backends.jax_backend import exact_cpu
 from wosac_eval.backends.jax_realism import (
     MODES,
@@ -25,5 +26,17 @@ from wosac_eval.backends.jax_realism import (
     waymax_columns,
 )
 
-__all__ = ["PreparedScenes", "Realism", "MODES", "SEARCHES", "prepare", "realism", "features", "stack_rollouts",
-           "waymax_columns", "from_waymax", "jit_step", "exact_cpu"]
+__all__ = [
+    "PreparedScenes",
+    "Realism",
+    "MODES",
+    "SEARCHES",
+    "prepare",
+    "realism",
+    "features",
+    "stack_rollouts",
+    "waymax_columns",
+    "from_waymax",
+    "jit_step",
+    "exact_cpu",
+]

@@ -17,6 +17,7 @@ the loop's own file only, not by the kernels or numba functions it calls from
 other files, so a cached loop's name carries `KERNELS_DIGEST` (their sources), which
 names numba's cache file: changed kernels make new loops, never a stale cache.
 """
+
 from __future__ import annotations
 
 import ast
@@ -57,8 +58,14 @@ SCALAR_OPS = {
     "opaque": "{0}",
     "pick4": "({1} if {0} == 0 else ({2} if {0} == 1 else ({3} if {0} == 2 else {4})))",
 }
-_MISSING = sorted(name for name, value in vars(ops).items() if isinstance(value, types.FunctionType)
-                  and value.__module__ == ops.__name__ and not name.startswith("_") and name not in SCALAR_OPS)
+_MISSING = sorted(
+    name
+    for name, value in vars(ops).items()
+    if isinstance(value, types.FunctionType)
+    and value.__module__ == ops.__name__
+    and not name.startswith("_")
+    and name not in SCALAR_OPS
+)
 assert not _MISSING, f"features.compiled lacks the scalar form of ops.{_MISSING}"
 
 
@@ -71,8 +78,11 @@ def _clip(v, low, high):
 
 def _is_kernel(value) -> bool:
     """A plain function of the feature kernels (inlined into the kernel calling it)."""
-    return (isinstance(value, types.FunctionType) and value.__module__.startswith("wosac_eval.features.")
-            and value.__module__ != ops.__name__)
+    return (
+        isinstance(value, types.FunctionType)
+        and value.__module__.startswith("wosac_eval.features.")
+        and value.__module__ != ops.__name__
+    )
 
 
 @functools.cache
@@ -108,8 +118,9 @@ class _Flattener:
         params = [a.arg for a in function.args.args]
         if len(params) != len(arguments) or function.args.vararg or function.args.kwonlyargs:
             raise TypeError(f"kernel {kernel.__qualname__} is called with {len(arguments)} positional arguments")
-        stores = collections.Counter(n.id for n in ast.walk(function)
-                                     if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store))
+        stores = collections.Counter(
+            n.id for n in ast.walk(function) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)
+        )
         local = {}
         for param, argument in zip(params, arguments):
             # A constant argument (an index) stays a constant, so that what it indexes folds; a variable
@@ -137,8 +148,7 @@ class _Flattener:
         if isinstance(statement, ast.Assign) and len(statement.targets) == 1:
             value = self.expression(kernel, statement.value, local)
             target = statement.targets[0]
-            if isinstance(value, ast.Constant) and isinstance(target, ast.Name) and \
-                    target.id in local[_ASSIGNED_ONCE]:
+            if isinstance(value, ast.Constant) and isinstance(target, ast.Name) and target.id in local[_ASSIGNED_ONCE]:
                 local[target.id] = value  # a constant: substituted where it is read
                 return
             self.statements.append(ast.Assign(targets=[self.target(target, local)], value=value, lineno=0))
@@ -151,8 +161,10 @@ class _Flattener:
             body, self.statements = self.statements, outer
             self.statements.append(ast.For(target=target, iter=iterable, body=body, orelse=[], lineno=0))
         else:
-            raise TypeError(f"kernel {kernel.__qualname__}: only assignments and for loops can be compiled, "
-                            f"not {ast.unparse(statement)!r}")
+            raise TypeError(
+                f"kernel {kernel.__qualname__}: only assignments and for loops can be compiled, "
+                f"not {ast.unparse(statement)!r}"
+            )
 
     def target(self, node: ast.expr, local: dict) -> ast.expr:
         if isinstance(node, ast.Name):
@@ -167,8 +179,12 @@ class _Flattener:
         if isinstance(node, ast.Call) and not node.keywords and not any(isinstance(a, ast.Starred) for a in node.args):
             arguments = [self.expression(kernel, a, local) for a in node.args]
             func = node.func
-            if (isinstance(func, ast.Attribute) and isinstance(func.value, ast.Name) and func.value.id == "ops"
-                    and func.value.id not in local):
+            if (
+                isinstance(func, ast.Attribute)
+                and isinstance(func.value, ast.Name)
+                and func.value.id == "ops"
+                and func.value.id not in local
+            ):
                 bound = [a if _simple(a) else ast.Name(self.bind("arg", a), ast.Load()) for a in arguments]
                 text = SCALAR_OPS[func.attr].format(*(ast.unparse(a) for a in bound))
                 return ast.parse(text, mode="eval").body
@@ -183,8 +199,12 @@ class _Flattener:
             return ast.Name(local[node.id] if node.id in local else self.global_name(kernel, node.id), ast.Load())
         if isinstance(node, ast.Lambda):
             raise TypeError(f"kernel {kernel.__qualname__}: lambdas cannot be compiled")
-        node = type(node)(**{field: _map_field(getattr(node, field), lambda n: self.expression(kernel, n, local))
-                             for field in node._fields})
+        node = type(node)(
+            **{
+                field: _map_field(getattr(node, field), lambda n: self.expression(kernel, n, local))
+                for field in node._fields
+            }
+        )
         return _folded(node)
 
 
@@ -195,20 +215,34 @@ def _simple(node: ast.expr) -> bool:
     """A name, a constant, or an item of a named tuple at a constant index: free to evaluate twice."""
     if isinstance(node, (ast.Name, ast.Constant)):
         return True
-    return (isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and isinstance(node.slice, ast.Constant))
-_FOLDED = {ast.Add: lambda a, b: a + b, ast.Sub: lambda a, b: a - b, ast.Mult: lambda a, b: a * b,
-           ast.BitAnd: lambda a, b: a & b}
+    return isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and isinstance(node.slice, ast.Constant)
+
+
+_FOLDED = {
+    ast.Add: lambda a, b: a + b,
+    ast.Sub: lambda a, b: a - b,
+    ast.Mult: lambda a, b: a * b,
+    ast.BitAnd: lambda a, b: a & b,
+}
 
 
 def _folded(node: ast.expr) -> ast.expr:
     """Integer arithmetic on constants, and a constant tuple at a constant index, as constants: the
     indices of tuples (a box's corners) become literal, which numba reads without a memory round trip."""
     constant_int = lambda n: isinstance(n, ast.Constant) and type(n.value) is int  # noqa: E731
-    if isinstance(node, ast.BinOp) and type(node.op) in _FOLDED and constant_int(node.left) and \
-            constant_int(node.right):
+    if (
+        isinstance(node, ast.BinOp)
+        and type(node.op) in _FOLDED
+        and constant_int(node.left)
+        and constant_int(node.right)
+    ):
         return ast.Constant(_FOLDED[type(node.op)](node.left.value, node.right.value))
-    if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Tuple) and constant_int(node.slice) and \
-            all(isinstance(e, ast.Constant) for e in node.value.elts):
+    if (
+        isinstance(node, ast.Subscript)
+        and isinstance(node.value, ast.Tuple)
+        and constant_int(node.slice)
+        and all(isinstance(e, ast.Constant) for e in node.value.elts)
+    ):
         return ast.Constant(node.value.elts[node.slice.value].value)
     return node
 
@@ -222,8 +256,11 @@ def _map_field(value, transform):
 
 
 def _is_docstring(statement: ast.stmt) -> bool:
-    return isinstance(statement, ast.Expr) and isinstance(statement.value, ast.Constant) and \
-        isinstance(statement.value.value, str)
+    return (
+        isinstance(statement, ast.Expr)
+        and isinstance(statement.value, ast.Constant)
+        and isinstance(statement.value.value, str)
+    )
 
 
 def flat_source(kernel: types.FunctionType) -> tuple[str, dict]:
@@ -231,9 +268,15 @@ def flat_source(kernel: types.FunctionType) -> tuple[str, dict]:
     flattener = _Flattener()
     params = [a.arg for a in _syntax(kernel).args.args]
     result = flattener.inline(kernel, [ast.Name(p, ast.Load()) for p in params])
-    function = ast.FunctionDef(name=kernel.__name__, args=ast.arguments(
-        posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[], defaults=[]),
-        body=flattener.statements + [ast.Return(result)], decorator_list=[], lineno=0)
+    function = ast.FunctionDef(
+        name=kernel.__name__,
+        args=ast.arguments(
+            posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[], defaults=[]
+        ),
+        body=flattener.statements + [ast.Return(result)],
+        decorator_list=[],
+        lineno=0,
+    )
     module = ast.fix_missing_locations(ast.Module(body=[function], type_ignores=[]))
     return ast.unparse(module), flattener.namespace
 
@@ -252,10 +295,20 @@ def compiled(kernel: types.FunctionType, inline: bool = False):
 
 
 # The sources of the kernels and numba functions that cached loops call (from other files, too).
-_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge/segments",
-                   "road_edge/pruned_search", "road_edge/cell_tables", "traffic_lights")
-KERNELS_DIGEST = hashlib.sha256(b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes()
-                                         for m in _KERNEL_MODULES)).hexdigest()
+_KERNEL_MODULES = (
+    "ops",
+    "compiled",
+    "box_geometry",
+    "float32_math",
+    "interaction",
+    "road_edge/segments",
+    "road_edge/pruned_search",
+    "road_edge/cell_tables",
+    "traffic_lights",
+)
+KERNELS_DIGEST = hashlib.sha256(
+    b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes() for m in _KERNEL_MODULES)
+).hexdigest()
 
 
 def cached_loop(function):

@@ -7,6 +7,7 @@ order, divided once by the sum of the weights. The scorer applies it to the
 aggregate (floats), the reader to per-scenario columns (arrays); both get the
 same arithmetic, element by element.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
@@ -22,8 +23,9 @@ def metametric_weights(config) -> dict[str, float]:
     return {m: getattr(config, m).metametric_weight for m in METRIC_NAMES}
 
 
-def weighted_bucket(members: tuple[str, ...], likelihoods: Mapping[str, Value],
-                    weights: Mapping[str, float]) -> Value | None:
+def weighted_bucket(
+    members: tuple[str, ...], likelihoods: Mapping[str, Value], weights: Mapping[str, float]
+) -> Value | None:
     """One bucket's weighted mean of likelihoods.
 
     Args:

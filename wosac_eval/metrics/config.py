@@ -10,6 +10,7 @@ its own (`challenge_2025_sim_agents_config.textproto`...); the same files lie
 beside `wosac_eval.compat.metrics`, where programs written for the official
 package look for them.
 """
+
 from __future__ import annotations
 
 import functools
@@ -33,8 +34,10 @@ PRESET_FILES = {
 PRESET_NAMES = tuple(PRESET_FILES)
 DEFAULT_PRESET = "2025"
 # The challenge each preset was made for.
-PRESET_CHALLENGE = {name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen")
-                           else challenges.Challenge.SIM_AGENTS) for name in PRESET_NAMES}
+PRESET_CHALLENGE = {
+    name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen") else challenges.Challenge.SIM_AGENTS)
+    for name in PRESET_NAMES
+}
 
 
 def default_config(challenge=challenges.Challenge.SIM_AGENTS) -> str:
@@ -59,16 +62,19 @@ def config_name_for(challenge, config: str | Path | None = None) -> str:
     name = str(config)
     if not preset_fits(name, challenge):
         challenge = challenges.as_challenge(challenge)
-        raise ValueError(f"config {name!r} is the {PRESET_CHALLENGE[name].value} challenge's; the {challenge.value} "
-                         f"challenge's is {default_config(challenge)!r}")
+        raise ValueError(
+            f"config {name!r} is the {PRESET_CHALLENGE[name].value} challenge's; the {challenge.value} "
+            f"challenge's is {default_config(challenge)!r}"
+        )
     return name
 
 
 def preset(name: str) -> SimAgentMetricsConfig:
     """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025"), read from its file."""
     if name not in PRESET_FILES:
-        raise ValueError(f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} "
-                         f"or a .textproto file")
+        raise ValueError(
+            f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} or a .textproto file"
+        )
     config = SimAgentMetricsConfig()
     config.CopyFrom(_preset_file(name))  # a copy: callers may change theirs
     return config
@@ -84,8 +90,10 @@ def _read_textproto(path: Path) -> SimAgentMetricsConfig:
     try:
         config = text_format.Parse(path.read_text(encoding="utf-8"), SimAgentMetricsConfig())
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte {err.start} is "
-                         f"0x{err.object[err.start]:02x}); is it a binary file?") from None
+        raise ValueError(
+            f"{path}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte {err.start} is "
+            f"0x{err.object[err.start]:02x}); is it a binary file?"
+        ) from None
     except text_format.ParseError as err:
         raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: {err}") from err
     return with_defaults(config)
@@ -117,6 +125,7 @@ def load_config(name_or_path: str | Path | SimAgentMetricsConfig = DEFAULT_PRESE
         return preset(text)
     path = Path(text)
     if not path.is_file():
-        raise ValueError(f"config {text!r} is neither a preset ({', '.join(PRESET_NAMES)}) "
-                         f"nor a readable textproto file")
+        raise ValueError(
+            f"config {text!r} is neither a preset ({', '.join(PRESET_NAMES)}) nor a readable textproto file"
+        )
     return _read_textproto(path)

@@ -275,9 +275,9 @@ def _ignored_fields(trajectories: Sequence[Any], spec: challenges.ChallengeSpec)
 
 _IGNORED_WHY = {
     True: "the scenario gen evaluator takes every sim agent as valid at every step (the log's validity "
-          "at step 10), whatever the submitted valid says",
+    "at step 10), whatever the submitted valid says",
     False: "the sim agents evaluator takes box sizes and object types from the log (sizes at step 10) and "
-           "every simulated step as valid; these fields count for --challenge scenario_gen only",
+    "every simulated step as valid; these fields count for --challenge scenario_gen only",
 }
 
 
@@ -297,23 +297,35 @@ def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -
     challenge's length, or missing box sizes."""
     other = next(s for s in challenges.SPECS.values() if s is not spec)
     if count == other.num_simulation_steps and field_index < len(TRAJECTORY_FIELDS):
-        return (f"{count} values is a {other.challenge} submission: validate and score it with "
-                f"--challenge {other.challenge}")
+        return (
+            f"{count} values is a {other.challenge} submission: validate and score it with "
+            f"--challenge {other.challenge}"
+        )
     if field_index >= len(TRAJECTORY_FIELDS):
-        return (f"the scenario gen challenge needs length, width and height with one value per step "
-                f"({spec.num_simulation_steps}); with another count the official scorer cannot score the scenario")
+        return (
+            f"the scenario gen challenge needs length, width and height with one value per step "
+            f"({spec.num_simulation_steps}); with another count the official scorer cannot score the scenario"
+        )
     return None
 
 
 # The official validator does not look at values, and its scorer lets NaN and inf spread through the
 # features to finite likelihoods (NaN or inf displacement errors); wosac-eval scores them the same way.
-_NON_FINITE_OFFICIAL = "; the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
-_NON_FINITE_HINT = ("a NaN or inf position, heading or box size is almost always a simulator bug: the object's "
-                    "distances and speeds at those steps become NaN, and its displacement error NaN or inf")
-_NON_POSITIVE_HINT = ("the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
-                      "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant")
-_MISSING_TYPE_HINT = ("the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
-                      "types from the log, and the submitted type is only carried along")
+_NON_FINITE_OFFICIAL = (
+    "; the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
+)
+_NON_FINITE_HINT = (
+    "a NaN or inf position, heading or box size is almost always a simulator bug: the object's "
+    "distances and speeds at those steps become NaN, and its displacement error NaN or inf"
+)
+_NON_POSITIVE_HINT = (
+    "the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
+    "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant"
+)
+_MISSING_TYPE_HINT = (
+    "the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
+    "types from the log, and the submitted type is only carried along"
+)
 
 
 def _non_finite_detail(field: str, values: Any) -> str:
@@ -350,8 +362,14 @@ def check_scene_object_ids(
     repeated = multiplicity > 1
     if repeated.any():
         dup = ", ".join(f"{i} ({m} times)" for i, m in zip(present[repeated].tolist(), multiplicity[repeated].tolist()))
-        out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}; the official "
-                                "validator accepts it but its scorer fails on the scenario (repeated ids)", **loc))
+        out.append(
+            make_finding(
+                "rollouts.duplicate_objects",
+                f"object ids simulated more than once: {dup}; the official "
+                "validator accepts it but its scorer fails on the scenario (repeated ids)",
+                **loc,
+            )
+        )
     if sim_agent_ids is not None:
         missing = np.setdiff1d(sim_agent_ids, present, assume_unique=True)
         if missing.size:
@@ -416,7 +434,9 @@ def check_scenario_rollouts(
     expected = None if sim_agent_ids is None else np.unique(np.asarray(sim_agent_ids, dtype=np.int64))
     trajectories = [t for scene in scenes for t in scene.simulated_trajectories]
     n = len(trajectories)
-    scene_sizes = np.fromiter((len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes))
+    scene_sizes = np.fromiter(
+        (len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes)
+    )
     rollout_of = np.repeat(np.arange(len(scenes)), scene_sizes)
     starts = np.concatenate([[0], np.cumsum(scene_sizes)])
     fields = TRAJECTORY_FIELDS + (BOX_FIELDS if spec.submits_boxes else ())
@@ -456,8 +476,16 @@ def check_scenario_rollouts(
     for k, f in np.argwhere(non_finite).tolist():
         field = fields[f]
         detail = _non_finite_detail(field, getattr(trajectories[k], field))
-        out.append(make_finding("rollouts.non_finite", detail + _NON_FINITE_OFFICIAL, field=field,
-                                severity=WARNING, hint=_NON_FINITE_HINT, **where_(k)))
+        out.append(
+            make_finding(
+                "rollouts.non_finite",
+                detail + _NON_FINITE_OFFICIAL,
+                field=field,
+                severity=WARNING,
+                hint=_NON_FINITE_HINT,
+                **where_(k),
+            )
+        )
     for k, f in np.argwhere(non_positive).tolist():
         field = fields[f]
         values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)
@@ -466,18 +494,40 @@ def check_scenario_rollouts(
         if len(bad) > 1:
             detail += f" ({len(bad)} such values, at indices {format_ids(bad.tolist(), 10)})"
         detail += "; a box size is expected to be positive, the official evaluator scores it as given"
-        out.append(make_finding("rollouts.non_positive_size", detail, field=field, severity=WARNING,
-                                hint=_NON_POSITIVE_HINT, **where_(k)))
+        out.append(
+            make_finding(
+                "rollouts.non_positive_size",
+                detail,
+                field=field,
+                severity=WARNING,
+                hint=_NON_POSITIVE_HINT,
+                **where_(k),
+            )
+        )
     if spec.submits_boxes:
         for k in np.flatnonzero(~has_type).tolist():
-            out.append(make_finding("rollouts.missing_object_type",
-                                    "object_type is not set (or TYPE_UNSET); expected the type of the object "
-                                    f"({', '.join(PROTO_NAMES.values())}), the official evaluator scores it as "
-                                    "TYPE_UNSET", field="object_type", severity=WARNING, hint=_MISSING_TYPE_HINT,
-                                    **where_(k)))
+            out.append(
+                make_finding(
+                    "rollouts.missing_object_type",
+                    "object_type is not set (or TYPE_UNSET); expected the type of the object "
+                    f"({', '.join(PROTO_NAMES.values())}), the official evaluator scores it as "
+                    "TYPE_UNSET",
+                    field="object_type",
+                    severity=WARNING,
+                    hint=_MISSING_TYPE_HINT,
+                    **where_(k),
+                )
+            )
     ignored = _ignored_fields(trajectories, spec)
     if ignored:
-        out.append(make_finding("rollouts.ignored_field", f"fields {', '.join(ignored)} are set but ignored: "
-                                f"{_IGNORED_WHY[spec.submits_boxes]}", shard=shard, scenario_id=scenario_id,
-                                field=ignored[0], severity=WARNING))
+        out.append(
+            make_finding(
+                "rollouts.ignored_field",
+                f"fields {', '.join(ignored)} are set but ignored: {_IGNORED_WHY[spec.submits_boxes]}",
+                shard=shard,
+                scenario_id=scenario_id,
+                field=ignored[0],
+                severity=WARNING,
+            )
+        )
     return out

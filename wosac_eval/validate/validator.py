@@ -55,12 +55,15 @@ def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
     from wosac_eval.parse.tfrecord import read_record_at
 
     path, offsets = item
-    return [rules.sim_agent_ids(parse_scenario(read_record_at(path, offset), ScenarioSource(Path(path), offset)))
-            for offset in offsets]
+    return [
+        rules.sim_agent_ids(parse_scenario(read_record_at(path, offset), ScenarioSource(Path(path), offset)))
+        for offset in offsets
+    ]
 
 
 def load_sim_agents(
-    scenarios: ScenarioIndex | PathLike | Iterable[PathLike], progress: Callable[[int], Any] | None = None,
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
+    progress: Callable[[int], Any] | None = None,
     executor=None,
 ) -> dict[str, np.ndarray]:
     """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
@@ -77,8 +80,10 @@ def load_sim_agents(
             from wosac_eval.runtime.executors import LocalExecutor
 
             batches = _index_batches(scenarios)
-            for (ids, _), found in zip(batches, (executor or LocalExecutor()).imap(
-                    _sim_agents_of, ((path, offsets) for _, (path, offsets) in batches))):
+            for (ids, _), found in zip(
+                batches,
+                (executor or LocalExecutor()).imap(_sim_agents_of, ((path, offsets) for _, (path, offsets) in batches)),
+            ):
                 agents.update(zip(ids, found))
                 if progress is not None:
                     progress(len(ids))
@@ -129,8 +134,9 @@ def _container_finding(problem: Exception) -> Finding:
     return Finding("container.unreadable", str(problem))
 
 
-def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None,
-                               challenge: Any = challenges.Challenge.SIM_AGENTS) -> list[Finding]:
+def validate_scenario_rollouts(
+    rollouts_msg: Any, sim_agent_ids: Any, shard: str | None, challenge: Any = challenges.Challenge.SIM_AGENTS
+) -> list[Finding]:
     """The per-scenario rules (32 joint scenes, sim agents, 80 or 91 finite values per field, boxes and
     types for scenario gen) on one ScenarioRollouts.
 
@@ -169,8 +175,9 @@ class ShardResult:
         return self.parse_error is None and not self.past_limit
 
 
-def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int, challenge: Any,
-                          limits: InputLimits | None) -> ShardResult | None:
+def _check_shard_streamed(
+    shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int, challenge: Any, limits: InputLimits | None
+) -> ShardResult | None:
     """`check_shard` of a shard in a file, read one top-level field at a time; None when the shard must be
     judged whole (its top level is not well-formed, a part does not parse, a string is not UTF-8).
 
@@ -225,8 +232,13 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
     return result
 
 
-def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
-                challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None) -> ShardResult:
+def check_shard(
+    shard: ShardRef,
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    limits: InputLimits | None = None,
+) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts.
 
     It is read one scenario at a time (`_check_shard_streamed`: from its file, or the bytes it carries),
@@ -238,9 +250,13 @@ def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
     return check_shard_whole(shard, agents, max_listed, challenge, limits)
 
 
-def check_shard_whole(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
-                      challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None
-                      ) -> ShardResult:
+def check_shard_whole(
+    shard: ShardRef,
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    limits: InputLimits | None = None,
+) -> ShardResult:
     """`check_shard` with the shard parsed whole: the reference the streamed check equals, and the judge of
     a shard that is not well-formed (its messages are a whole parse's)."""
     name, data = shard.name, shard.read()
@@ -280,8 +296,14 @@ class _Validation:
     merging in shard order makes the report identical for any worker count.
     """
 
-    def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None,
-                 metadata_checks: str = "error", max_scenarios: int = InputLimits.max_scenarios):
+    def __init__(
+        self,
+        agents: dict[str, np.ndarray],
+        report: ValidationReport,
+        progress: Callable[[int], Any] | None,
+        metadata_checks: str = "error",
+        max_scenarios: int = InputLimits.max_scenarios,
+    ):
         self.agents = agents
         self.max_scenarios = max_scenarios
         self.metadata_checks = metadata_checks
@@ -301,9 +323,14 @@ class _Validation:
             return
         if report.stats.scenarios_submitted + len(result.entries) > self.max_scenarios:
             # Bounded memory: the scenarios past the limit are not recorded (nor scored).
-            report.add(Finding("container.size_limit", f"shard {name}: the submission holds more than "
-                               f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
-                               shard=name))
+            report.add(
+                Finding(
+                    "container.size_limit",
+                    f"shard {name}: the submission holds more than "
+                    f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
+                    shard=name,
+                )
+            )
             result.past_limit = True
             return
         self.metadata(name, result.metadata, result.metadata_findings)
@@ -326,9 +353,11 @@ class _Validation:
         if self.reference_metadata is None:
             self.reference_metadata, self.reference_shard = metadata, name
         else:
-            self.report.extend(self.graded(
-                rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
-            ))
+            self.report.extend(
+                self.graded(
+                    rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
+                )
+            )
 
     def graded(self, findings: list[Finding]) -> list[Finding]:
         """Metadata findings at the severity asked for: local scoring needs no account or flags."""
@@ -351,8 +380,12 @@ class _Validation:
 
 
 def _shard_results(
-    shards: Iterable[ShardRef], agents: dict[str, np.ndarray], max_listed: int, executor,
-    challenge: challenges.Challenge, limits: InputLimits,
+    shards: Iterable[ShardRef],
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    executor,
+    challenge: challenges.Challenge,
+    limits: InputLimits,
 ) -> Iterator[ShardResult]:
     """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
@@ -414,8 +447,10 @@ def validate_submission(
     if not source.path.exists():
         raise FileNotFoundError(f"{source}: no such submission file or folder")
     # Workers of this host read an archive's members from scratch files; other nodes get their bytes.
-    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)),
-                           members_in_memory=not isinstance(executor, LocalExecutor))
+    shards = source.shards(
+        problems=lambda problem: report.add(_container_finding(problem)),
+        members_in_memory=not isinstance(executor, LocalExecutor),
+    )
     listed: collections.deque = collections.deque()  # the names of the shards in flight
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:

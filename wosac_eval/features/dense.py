@@ -398,7 +398,10 @@ class DenseSearch:
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         i = inputs
-        step_major = lambda a: jnp.swapaxes(a[..., i.steps], -1, -2)
+
+        def step_major(a):
+            return jnp.swapaxes(a[..., i.steps], -1, -2)
+
         per_sample = functools.partial(
             time_to_collision, ego_tail=i.ego_tail, pair_tail=i.pair_tail, num_evaluated=i.num_evaluated
         )

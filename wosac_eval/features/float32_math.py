@@ -176,7 +176,10 @@ def packet_sum32(values):
     """
     xp = array_namespace(values)
     n = values.shape[-1]
-    packet = lambda start: values[..., start : start + _PACKET]
+
+    def packet(start):
+        return values[..., start : start + _PACKET]
+
     block = 4 * _PACKET
     blocked = (n // block) * block
     lanes = [xp.zeros(values.shape[:-1] + (_PACKET,), _F) for _ in range(4)]

@@ -286,15 +286,18 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     if exhaustive.any():
         pair = (exhaustive[:, :e, None] | exhaustive[:, None]) & valid[:, :e, None] & valid[:, None]
         ub, ue, uo, us = nonzero(pair)
-        box = lambda i: (
-            x[ub, i, us],
-            y[ub, i, us],
-            length[ub, i, us] - _F(2) * radius[ub, i, us],  # noqa: E731
-            width[ub, i, us] - _F(2) * radius[ub, i, us],
-            cos_h[ub, i, us],
-            sin_h[ub, i, us],
-            radius[ub, i, us],
-        )
+
+        def box(i):
+            return (
+                x[ub, i, us],
+                y[ub, i, us],
+                length[ub, i, us] - _F(2) * radius[ub, i, us],
+                width[ub, i, us] - _F(2) * radius[ub, i, us],
+                cos_h[ub, i, us],
+                sin_h[ub, i, us],
+                radius[ub, i, us],
+            )
+
         d = rounded_box_distance(box(ue), box(uo)).astype(_F)
         d = np.where(ue == uo, d + EXTREMELY_LARGE_DISTANCE, d)
         np.minimum.at(distance, (ub, ue, us), d)

@@ -89,7 +89,10 @@ def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def pad_polylines(polylines, num_points: int):
-    """Polylines stacked and zero padded: float `(num_polylines, num_points, dims)`, bool valid `(num_polylines, num_points)`."""
+    """Polylines stacked and zero padded.
+
+    Returns float `(num_polylines, num_points, dims)` and bool valid `(num_polylines, num_points)`.
+    """
     lengths = np.array([len(p) for p in polylines], np.int64)
     flat = np.concatenate(polylines)
     rows = np.repeat(np.arange(len(polylines)), lengths)

@@ -12,6 +12,7 @@ the command quietly, as any Unix tool (141).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import pkgutil
@@ -52,10 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _quiet_stdout() -> None:
     """Point stdout at /dev/null so the interpreter's last flush cannot raise again."""
     devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
+    # ValueError: stdout replaced by an object without a descriptor (tests)
+    with contextlib.suppress(OSError, ValueError):
         os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError):  # stdout replaced by an object without a descriptor (tests)
-        pass
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -7,6 +7,7 @@ before any long work, so an hour of scoring is never lost to a typo in `-o`.
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -54,10 +55,8 @@ def _probe_create(target: Path, path, option: str) -> None:
             f"{option} {path}: cannot write: cannot create a file in {folder} ({error.strerror or error})"
         ) from None
     os.close(fd)
-    try:
+    with contextlib.suppress(OSError):
         os.unlink(target)
-    except OSError:
-        pass
 
 
 def check_output_folder(path: str | os.PathLike | None, option: str) -> None:

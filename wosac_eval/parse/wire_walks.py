@@ -215,7 +215,7 @@ def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes
 
 @numba.njit(inline="always")
 def _any_finite_non_positive(block):
-    for v in block:
+    for v in block:  # noqa: SIM110 - numba compiles loops, not `any(generator)`
         if np.isfinite(v) and v <= 0:
             return True
     return False

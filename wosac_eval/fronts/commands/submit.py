@@ -145,7 +145,9 @@ class _Reporter:
                 from tqdm import tqdm
 
                 options = (
-                    dict(unit="B", unit_scale=True, unit_divisor=1024) if stage == "upload" else dict(unit="scenario")
+                    {"unit": "B", "unit_scale": True, "unit_divisor": 1024}
+                    if stage == "upload"
+                    else {"unit": "scenario"}
                 )
                 bar = self.bars[stage] = tqdm(
                     desc=stage, total=total, file=sys.stderr, leave=False, dynamic_ncols=True, **options

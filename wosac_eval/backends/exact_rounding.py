@@ -167,7 +167,7 @@ def _inner(eqn):
 
 
 def _eval(jaxpr, consts, args: list, zero) -> list:
-    env = {}
+    env: dict = {}
 
     def read(v):
         return v.val if isinstance(v, jex.Literal) else env[v]

@@ -19,6 +19,7 @@ import numpy as np
 from wosac_eval.features import dense, registry
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
+from wosac_eval.features.search_strategy import SearchStrategy
 
 MIN_BUCKET = 8
 
@@ -221,6 +222,7 @@ def device_features(
     `host` (`host_search.HostSearches`) and the traced `scene` index, in the numpy search called back
     from the trace (`host_search.HostSearch`).
     """
+    search: SearchStrategy
     if host is None:
         search = dense.DenseSearch(maps)
     else:

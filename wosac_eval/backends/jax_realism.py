@@ -85,7 +85,7 @@ def resolve_mode(mode: str | None = None) -> str:
     Raises:
       ValueError: an unknown mode, or "exact" while x64 is off (the sentence names both fixes).
     """
-    x64 = bool(jax.config.jax_enable_x64)
+    x64 = bool(jax.config.read("jax_enable_x64"))
     if mode is None:
         return "exact" if x64 else "float32"
     mode = Mode.parse(mode).value
@@ -143,7 +143,8 @@ class Realism(Mapping):
     @classmethod
     def tree_unflatten(cls, aux, children):
         metrics, per_object, counts = children
-        return cls(metrics, *aux, per_object=per_object, per_object_counts=counts)
+        (mode,) = aux
+        return cls(metrics, mode, per_object=per_object, per_object_counts=counts)
 
 
 @jax.tree_util.register_pytree_node_class
@@ -642,8 +643,9 @@ def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
     def bound(*args, **kwargs):
         return jitted(prepared, *args, **kwargs)
 
-    bound.lower = lambda *args, **kwargs: jitted.lower(prepared, *args, **kwargs)
-    bound.jitted = jitted
+    # Attributes on a function: mypy types `functools.wraps`' result without them.
+    bound.lower = lambda *args, **kwargs: jitted.lower(prepared, *args, **kwargs)  # type: ignore[attr-defined]
+    bound.jitted = jitted  # type: ignore[attr-defined]
     return bound
 
 

@@ -14,6 +14,7 @@ and dtypes where the official ones are TensorFlow tensors (answering
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -84,13 +85,12 @@ def _official(features: _features.MetricFeatures) -> MetricFeatures:
 def as_internal(features) -> _features.MetricFeatures:
     """Any object with the `MetricFeatures` fields (numpy arrays, or anything `np.asarray` reads, e.g.
     TensorFlow tensors) as wosac-eval's own `MetricFeatures`."""
-    return _features.MetricFeatures(
-        **{
-            f.name: np.asarray(getattr(features, f.name))
-            for f in dataclasses.fields(_features.MetricFeatures)
-            if f.name != "extra"
-        }
-    )
+    fields: dict[str, Any] = {
+        f.name: np.asarray(getattr(features, f.name))
+        for f in dataclasses.fields(_features.MetricFeatures)
+        if f.name != "extra"
+    }
+    return _features.MetricFeatures(**fields)
 
 
 def compute_metric_features(

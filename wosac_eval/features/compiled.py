@@ -32,6 +32,7 @@ import math
 import textwrap
 import types
 from pathlib import Path
+from typing import Any, TypeGuard
 
 import numba
 import numpy as np
@@ -89,6 +90,7 @@ def _is_kernel(value) -> bool:
 def _syntax(kernel: types.FunctionType) -> ast.FunctionDef:
     tree = ast.parse(textwrap.dedent(inspect.getsource(kernel)))
     (function,) = tree.body
+    assert isinstance(function, ast.FunctionDef)  # a kernel is a plain `def`
     return function
 
 
@@ -121,7 +123,7 @@ class _Flattener:
         stores = collections.Counter(
             n.id for n in ast.walk(function) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)
         )
-        local = {}
+        local: dict[object, Any] = {}  # name -> expression or bound name; `_ASSIGNED_ONCE` -> names
         for param, argument in zip(params, arguments):
             # A constant argument (an index) stays a constant, so that what it indexes folds; a variable
             # the kernel does not reassign is read as it is (numba's compile time grows with statements).
@@ -134,7 +136,11 @@ class _Flattener:
         for statement in body[:-1]:
             self.statement(kernel, statement, local)
         last = body[-1]
-        if not isinstance(last, ast.Return) or any(isinstance(n, ast.Return) for s in body[:-1] for n in ast.walk(s)):
+        if (
+            not isinstance(last, ast.Return)
+            or last.value is None
+            or any(isinstance(n, ast.Return) for s in body[:-1] for n in ast.walk(s))
+        ):
             raise TypeError(f"kernel {kernel.__qualname__} must end in its one return statement")
         return self.expression(kernel, last.value, local)
 
@@ -229,7 +235,10 @@ _FOLDED = {
 def _folded(node: ast.expr) -> ast.expr:
     """Integer arithmetic on constants, and a constant tuple at a constant index, as constants: the
     indices of tuples (a box's corners) become literal, which numba reads without a memory round trip."""
-    constant_int = lambda n: isinstance(n, ast.Constant) and type(n.value) is int  # noqa: E731
+
+    def constant_int(n: ast.expr) -> TypeGuard[ast.Constant]:
+        return isinstance(n, ast.Constant) and type(n.value) is int
+
     if (
         isinstance(node, ast.BinOp)
         and type(node.op) in _FOLDED
@@ -243,7 +252,11 @@ def _folded(node: ast.expr) -> ast.expr:
         and constant_int(node.slice)
         and all(isinstance(e, ast.Constant) for e in node.value.elts)
     ):
-        return ast.Constant(node.value.elts[node.slice.value].value)
+        index = node.slice.value
+        assert isinstance(index, int)  # checked by constant_int
+        element = node.value.elts[index]
+        assert isinstance(element, ast.Constant)  # every element checked above
+        return ast.Constant(element.value)
     return node
 
 

@@ -392,7 +392,8 @@ class DenseSearch:
 
     def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
         def per_sample(args):
-            return nearest_object_distance(*args, num_evaluated)
+            x, y, length, width, cos_h, sin_h, valid = args
+            return nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
         return lax.map(per_sample, (x, y, length, width, cos_h, sin_h, valid))
 

@@ -87,7 +87,7 @@ def wide_float(xp):
 def _jax_x64() -> bool:
     import jax
 
-    return bool(jax.config.jax_enable_x64)
+    return bool(jax.config.read("jax_enable_x64"))
 
 
 def through_float64(xp, dtype) -> bool:

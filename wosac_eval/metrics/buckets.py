@@ -11,7 +11,7 @@ same arithmetic, element by element.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from wosac_eval.metrics.registry import METRIC_NAMES
 
@@ -39,4 +39,5 @@ def weighted_bucket(
     total = sum(weights.get(m, 0.0) for m in members)
     if total == 0:
         return None
-    return sum(weights.get(m, 0.0) * likelihoods[f"{m}_likelihood"] for m in members) / total
+    values: Mapping[str, Any] = likelihoods  # floats or arrays: mypy types no arithmetic on a TypeVar
+    return sum(weights.get(m, 0.0) * values[f"{m}_likelihood"] for m in members) / total

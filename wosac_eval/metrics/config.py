@@ -14,6 +14,7 @@ package look for them.
 from __future__ import annotations
 
 import functools
+import os
 from pathlib import Path
 
 from google.protobuf import text_format
@@ -51,7 +52,7 @@ def preset_fits(name: str, challenge) -> bool:
     return made_for is None or made_for == challenges.as_challenge(challenge)
 
 
-def config_name_for(challenge, config: str | Path | None = None) -> str:
+def config_name_for(challenge, config: str | os.PathLike | None = None) -> str:
     """The config a challenge is scored with: the one asked for, or the challenge's current preset.
 
     A preset of the other challenge is refused (its metrics would be pooled, or not, against the
@@ -110,9 +111,9 @@ def with_defaults(config: SimAgentMetricsConfig) -> SimAgentMetricsConfig:
     missing = [m for m in METRIC_NAMES if not config.HasField(m)]
     if missing:
         raise ValueError(f"metrics config lacks {', '.join(missing)}")
-    for metric in METRIC_NAMES:
-        if getattr(config, metric).WhichOneof("estimator") is None:
-            raise ValueError(f"metrics config: {metric} has no estimator")
+    for name in METRIC_NAMES:
+        if getattr(config, name).WhichOneof("estimator") is None:
+            raise ValueError(f"metrics config: {name} has no estimator")
     return config
 
 

@@ -45,7 +45,7 @@ class Metric:
     bucket: str
     feature: str
     per_object: bool
-    mask: Mask
+    mask: Mask | str  # a name or a member; a `Mask` once constructed (`__post_init__`)
     config_default: str | None = None
     official: bool = True
 

@@ -239,7 +239,7 @@ def _open_decompressed(path: Path, compression: str | None) -> BinaryIO:
     """The file's bytes, decompressed on the fly when compression is set."""
     if compression is None:
         return open(path, "rb")
-    return _OPENERS[compression](path, "rb")  # type: ignore[return-value]
+    return _OPENERS[compression](path, "rb")
 
 
 def _sniff(path: Path) -> tuple[str | None, bytes]:

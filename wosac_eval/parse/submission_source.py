@@ -96,6 +96,7 @@ class ShardRef:
         end = self.size if end is None else end
         if self.data is not None:
             return self.data[start:end]
+        assert self.path is not None  # a shard is its bytes or a byte range of a file
         with open(self.path, "rb") as f:
             f.seek(self.offset + start)
             data = f.read(end - start)

@@ -170,7 +170,8 @@ def _apply_pax(member: TarMember, records: dict[str, str]) -> TarMember:
         changes["size"] = int(records["size"])
     if any(key.startswith("GNU.sparse.") for key in records):
         changes["sparse"] = True
-    return dataclasses.replace(member, **changes) if changes else member
+    # `changes` maps field names to values of several types: mypy checks each against every field.
+    return dataclasses.replace(member, **changes) if changes else member  # type: ignore[arg-type]
 
 
 def padded(size: int) -> int:

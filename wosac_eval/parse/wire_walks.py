@@ -171,9 +171,11 @@ def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
       varints (negative int32/int64 values as they are); present bool: where the field occurs).
       Fields absent from a record read as 0.
     """
+    f64, f32 = _aligned(data)
     return _scalar_fields(
         data,
-        *_aligned(data),
+        f64,
+        f32,
         starts,
         ends,
         np.asarray(numbers, np.int64),

@@ -42,7 +42,7 @@ class Executor(Protocol):
 _SHARED: dict[str, Any] = {}
 
 
-def _init_local_worker(shared: Any, initializer: Callable[[], None] | None) -> None:
+def _init_local_worker(shared: Any, initializer: Callable[[], object] | None) -> None:
     _SHARED["value"] = shared
     if initializer is not None:
         initializer()
@@ -61,7 +61,7 @@ class LocalExecutor:
       initializer: called once in every worker process (e.g. the allocator settings).
     """
 
-    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], None] | None = None):
+    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], object] | None = None):
         self.workers = max(1, int(workers))
         self.parallelism = self.workers
         self.force_spawn = force_spawn
@@ -99,7 +99,7 @@ def make_executor(
     workers: int = 1,
     ray_address: str | None = None,
     force_spawn: bool = False,
-    initializer: Callable[[], None] | None = None,
+    initializer: Callable[[], object] | None = None,
 ) -> Executor:
     """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run."""
     if check_engine(engine) is Engine.LOCAL:

@@ -236,7 +236,7 @@ def _replay(logged: list[str], drop_ray_log: bool = False) -> None:
 class RayExecutor:
     """Ray tasks on the cluster at `address` (see `connect`)."""
 
-    def __init__(self, address: str | None = None, *, initializer: Callable[[], None] | None = None):
+    def __init__(self, address: str | None = None, *, initializer: Callable[[], object] | None = None):
         connect(address)
         self.initializer = initializer
         self.parallelism = max(1, int(ray.cluster_resources().get("CPU", 1)))

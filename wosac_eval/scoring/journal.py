@@ -46,6 +46,7 @@ import shutil
 import time
 from collections.abc import Iterable
 from pathlib import Path
+from typing import BinaryIO
 
 from wosac_eval import __version__
 
@@ -139,7 +140,7 @@ class ScoringJournal:
         self.set_aside: Path | None = None
         self.reason: str | None = None
         self._offsets: dict[str, int] = {}  # scenario id -> where its row's line starts (rows with objects)
-        self._reader = None
+        self._reader: BinaryIO | None = None
         good = 0
         if self.path.exists():
             self.done, good, self.reason = _read(self.path, identity, self._offsets)

@@ -25,6 +25,8 @@ field, a renamed one) makes a new version (an entry of
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval import challenges
@@ -60,7 +62,7 @@ def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
         row["criticality"] = with_rarity(row["criticality"], histogram)
     scores = np.array([r["criticality"]["score"] for r in rows])
     driving = [r["driving"] for r in rows if r.get("driving")]
-    summary = {
+    summary: dict[str, Any] = {
         "criticality": {
             "mean": float(scores.mean()),
             "long_tail_threshold": float(np.quantile(scores, LONG_TAIL_QUANTILE)),
@@ -125,6 +127,7 @@ def result_document(
     skipped = [{"scenario_id": sid, "reason": reason} for sid, reason in sorted(report.skipped_scenarios.items())]
     expected = report.stats.scenarios_expected
     if selection is not None:
+        assert selected is not None  # given with `selection`
         skipped = [s for s in skipped if s["scenario_id"] in selected]
         expected = selection["scenarios"]
     analysis = finish_analysis(per_scenario, histogram)

@@ -200,15 +200,15 @@ def score_scenario(
       per_object: add `objects`, the values of every evaluated object (`object_records`), as
         `score_submission(per_object=True)` streams them.
     """
-    config, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(config, arrays, rollout, log, sim, context, analysis, per_object=per_object)
+    message, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return _row(message, arrays, rollout, log, sim, context, analysis, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
     """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
     backend = check_backend(backend)
     challenge = challenges.as_challenge(challenge)
-    config = resolve_config(config, challenge)
+    message = resolve_config(config, challenge)
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
     try:
         context = map_context(arrays)
@@ -220,7 +220,7 @@ def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend:
             log, sim = scenario_features(arrays, rollout, context, challenge=challenge)
     except (ValueError, KeyError) as error:
         raise unscorable(arrays.scenario_id, error) from error
-    return config, arrays, rollout, context, log, sim
+    return message, arrays, rollout, context, log, sim
 
 
 def score_scenario_per_object(
@@ -236,8 +236,8 @@ def score_scenario_per_object(
     collision, off-road and red-light flags and first steps)."""
     from wosac_eval.metrics.per_object import per_object_metrics
 
-    config, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return per_object_metrics(config, log, sim)
+    message, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return per_object_metrics(message, log, sim)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -234,24 +234,26 @@ def score_submission(
         force_spawn=run.backend is Backend.JAX,
         initializer=keep_freed_memory,
     )
-    owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
-    # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
-    # the archive up to them (`scoring.journal`).
-    tail = (
-        {"tail_dir": members_path(journal), "tail_bytes": members_budget(submission, journal)}
-        if owned and journal is not None
-        else {}
-    )
-    with SubmissionSource(submission, run.limits, **tail) if owned else contextlib.nullcontext(submission) as source:
+    opened: contextlib.AbstractContextManager[SubmissionSource]
+    if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open
+        opened = contextlib.nullcontext(submission)
+    elif journal is not None:
+        # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
+        # the archive up to them (`scoring.journal`).
+        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
+        opened = SubmissionSource(submission, run.limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
+    else:
+        opened = SubmissionSource(submission, run.limits)
+    with opened as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
                 raise ValueError("objects= names the per-object file: it needs per_object=True")
             format_of(objects)  # a suffix that chooses no format is refused before any work
-        if journal is None and not (per_object and objects is not None):
-            return _score(index, source, evaluation, executor, progress, None, per_object, None)
         temporary = journal is None  # the objects wait in a journal of this run only
-        if temporary:
+        if journal is None:
+            if not (per_object and objects is not None):
+                return _score(index, source, evaluation, executor, progress, None, per_object, None)
             journal = Path(objects).with_name(f".{Path(objects).name}.{os.getpid()}.journal")
         try:
             with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths, per_object)) as record:
@@ -329,7 +331,7 @@ def _score(
     done = {} if journal is None else journal.done
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
 
-    def to_score() -> Iterator[tuple[str, RolloutsLocator]]:
+    def to_score() -> Iterator[tuple[str, RolloutsLocator | None]]:
         for sid, locator in _scored_rollouts(source, index, report, selected, done):
             order.append(sid)
             if sid not in done:
@@ -364,6 +366,7 @@ def _score(
             row["objects"] = journal.objects_of(sid)
     written = None
     if objects is not None:
+        assert journal is not None  # `score_submission` records the objects in one (a temporary one at least)
         written = write_objects((journal.objects_of(sid) for sid in order), objects)
     document = result_document(
         evaluation.challenge,
@@ -375,6 +378,6 @@ def _score(
         selected=selected,
         histogram=histogram,
     )
-    if written is not None:
+    if objects is not None:  # then `written` is their count
         document["per_object"] = {"objects": Path(objects).name, "format": format_of(objects), "num_objects": written}
     return document

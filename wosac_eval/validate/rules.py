@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -339,6 +339,14 @@ def _non_finite_detail(field: str, values: Any) -> str:
     return detail
 
 
+class _SceneLocation(TypedDict):
+    """Where a scene's findings are (`make_finding`'s keywords)."""
+
+    shard: str | None
+    scenario_id: str | None
+    rollout: int
+
+
 def check_scene_object_ids(
     ids: np.ndarray,
     has_id: np.ndarray,
@@ -355,7 +363,7 @@ def check_scene_object_ids(
     the scenario is unknown (then only missing ids and duplicates are checked).
     """
     out: list[Finding] = []
-    loc = {"shard": shard, "scenario_id": scenario_id, "rollout": rollout}
+    loc = _SceneLocation(shard=shard, scenario_id=scenario_id, rollout=rollout)
     for k in np.flatnonzero(~has_id).tolist():
         out.append(make_finding("rollouts.missing_object_id", f"simulated_trajectories[{k}] has no object_id", **loc))
     present, multiplicity = np.unique(ids[has_id], return_counts=True)

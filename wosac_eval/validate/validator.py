@@ -333,6 +333,8 @@ class _Validation:
             )
             result.past_limit = True
             return
+        # A shard read without a parse error has its metadata and rollout report.
+        assert result.metadata is not None and result.rollouts is not None
         self.metadata(name, result.metadata, result.metadata_findings)
         if result.empty_detail is not None:
             report.add(make_finding("shard.empty", result.empty_detail, shard=name))
@@ -470,7 +472,8 @@ def validate_submission(
             source.close()
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
-    report.missing_scenarios = [f.scenario_id for f in missing]
+    # Every missing-scenario finding names its scenario.
+    report.missing_scenarios = [f.scenario_id for f in missing if f.scenario_id is not None]
     report.extend(missing)
     report.stats.scenarios_valid = sum(
         1 for sid in run.first_seen if sid in agents and sid not in report.invalid_scenarios

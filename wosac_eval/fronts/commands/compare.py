@@ -167,7 +167,7 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError("--top must be at least 1")
             from wosac_eval.results.per_object_compare import compare_objects
 
-            wanted = (
+            wanted_metrics = (
                 None
                 if not args.metric
                 else [canonical_metric(m.strip()) for spec in args.metric for m in spec.split(",") if m.strip()]
@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
             objects = compare_objects(
                 base,
                 new,
-                metrics=wanted,
+                metrics=wanted_metrics,
                 top=args.top,
                 alpha=args.alpha,
                 seed=args.seed,

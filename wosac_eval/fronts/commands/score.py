@@ -16,7 +16,7 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import BACKENDS, ENGINES, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.options import Backend
+from wosac_eval.options import Backend, MetadataChecks
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.scoring.evaluation import RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
@@ -248,7 +248,7 @@ def run_options(args: argparse.Namespace) -> RunOptions:
         ray_address=args.ray_address,
         workers=args.workers,
         allow_partial=args.partial,
-        metadata_checks="error" if args.strict_metadata else "warn",
+        metadata_checks=MetadataChecks.ERROR if args.strict_metadata else MetadataChecks.WARN,
         select=args.select,
         analysis=not args.no_analysis,
     )
@@ -314,7 +314,8 @@ def run(args: argparse.Namespace) -> int:
     _stderr_findings(result)
     if args.output:
         write_result(result, Path(args.output))
-        remove_journal(journal)  # the result is on disk: nothing left to resume
+        if journal is not None:  # always, with --output
+            remove_journal(journal)  # the result is on disk: nothing left to resume
         print(_headline(result), file=sys.stderr)
         print(f"results written to {args.output}", file=sys.stderr)
         if objects is not None:

@@ -14,6 +14,7 @@ import json
 import os
 import re
 import sys
+from typing import TYPE_CHECKING
 
 from wosac_eval.client import (
     DEFAULT_CHUNK_BYTES,
@@ -26,6 +27,9 @@ from wosac_eval.client import (
     submit,
 )
 from wosac_eval.fronts.usage import UsageError, check_output_file
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 NAME = "submit"
 HELP = "Upload a submission to a wosac-eval scoring service (resumable); with --wait, print its result."
@@ -127,7 +131,7 @@ class _Reporter:
 
     def __init__(self) -> None:
         self.tty = sys.stderr.isatty()
-        self.bars: dict[str, object] = {}
+        self.bars: dict[str, tqdm] = {}
         self.tenths: dict[str, int] = {}
 
     def log(self, message: str) -> None:

@@ -18,6 +18,7 @@ repetitions each.
 
 Usage: python benchmarks/analysis_cost.py [--repeat 5] [--challenge sim_agents|scenario_gen]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -54,8 +55,10 @@ def main() -> None:
     keep_freed_memory()
     policy = "constant_velocity" if args.challenge == "sim_agents" else "log_replay_noise"
     total_plain = total_full = 0.0
-    print(f"{'scenario':36s} {'objects':>7s} {'metrics ms':>11s} {'+analysis ms':>13s} {'ratio':>6s} "
-          f"{'criticality ms':>15s}")
+    print(
+        f"{'scenario':36s} {'objects':>7s} {'metrics ms':>11s} {'+analysis ms':>13s} {'ratio':>6s} "
+        f"{'criticality ms':>15s}"
+    )
     for scenario in _scenes():
         arrays = scenario_arrays(scenario)
         rollouts = policy_rollouts(scenario, policy, challenge=args.challenge)
@@ -74,10 +77,14 @@ def main() -> None:
         p, f = statistics.median(plain), statistics.median(full)
         total_plain += p
         total_full += f
-        print(f"{scenario.scenario_id[:36]:36s} {arrays.sim_agent_ids.size:7d} {p * 1e3:11.1f} {f * 1e3:13.1f} "
-              f"{f / p:6.3f} {crit * 1e3:15.1f}")
-    print(f"\nall scenes ({args.challenge}): metrics {total_plain:.3f} s, with the analysis {total_full:.3f} s: "
-          f"+{(total_full / total_plain - 1) * 100:.1f}% (goal <= 10%)")
+        print(
+            f"{scenario.scenario_id[:36]:36s} {arrays.sim_agent_ids.size:7d} {p * 1e3:11.1f} {f * 1e3:13.1f} "
+            f"{f / p:6.3f} {crit * 1e3:15.1f}"
+        )
+    print(
+        f"\nall scenes ({args.challenge}): metrics {total_plain:.3f} s, with the analysis {total_full:.3f} s: "
+        f"+{(total_full / total_plain - 1) * 100:.1f}% (goal <= 10%)"
+    )
     end_to_end(args.repeat, args.challenge)
 
 
@@ -92,8 +99,10 @@ def end_to_end(repeat: int, challenge: str) -> None:
         shards = scenes.write_scenario_shards(scenes.generate_scenes(10, seed=0), Path(tmp) / "scenarios")
         policy = "idm"
         submission = make_submission(shards, policy, Path(tmp) / "idm.tar.gz", challenge=challenge)
-        run = {flag: (lambda flag=flag: score_submission(shards, submission, challenge=challenge, analysis=flag))
-               for flag in (False, True)}
+        run = {
+            flag: (lambda flag=flag: score_submission(shards, submission, challenge=challenge, analysis=flag))
+            for flag in (False, True)
+        }
         for fn in run.values():
             fn()
         times = {False: [], True: []}
@@ -101,9 +110,11 @@ def end_to_end(repeat: int, challenge: str) -> None:
             for flag, fn in run.items():
                 times[flag].append(median_seconds(fn, 1))
         off, on = (statistics.median(times[f]) for f in (False, True))
-        print(f"end to end, score_submission of 10 demo scenes ({challenge}, {policy}, 1 worker): "
-              f"{off / 10 * 1e3:.1f} ms/scenario without the analysis, {on / 10 * 1e3:.1f} with it: "
-              f"+{(on / off - 1) * 100:.1f}%")
+        print(
+            f"end to end, score_submission of 10 demo scenes ({challenge}, {policy}, 1 worker): "
+            f"{off / 10 * 1e3:.1f} ms/scenario without the analysis, {on / 10 * 1e3:.1f} with it: "
+            f"+{(on / off - 1) * 100:.1f}%"
+        )
 
 
 if __name__ == "__main__":

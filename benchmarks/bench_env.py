@@ -1,5 +1,6 @@
 """What every benchmark script needs: the tests' helpers (`tests/support`) on the import path,
 and where the repository and the reference material (`../shared`, or WOSAC_SHARED) are."""
+
 import sys
 from pathlib import Path
 

@@ -5,6 +5,7 @@
 Prints wall times of: reading both result JSON files, the paired statistics over
 every metric, the whole comparison, and rendering the HTML report.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,8 +34,10 @@ def main() -> None:
     parser.add_argument("--n-boot", type=int, default=5000)
     parser.add_argument("--n-perm", type=int, default=5000)
     args = parser.parse_args()
-    print(f"{args.scenarios} scenarios, {args.n_boot} bootstrap resamples, {args.n_perm} sign flips, "
-          f"{os.cpu_count()} CPUs")
+    print(
+        f"{args.scenarios} scenarios, {args.n_boot} bootstrap resamples, {args.n_perm} sign flips, "
+        f"{os.cpu_count()} CPUs"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         base_path, new_path = os.path.join(tmp, "base.json"), os.path.join(tmp, "new.json")
         with open(base_path, "w") as f:
@@ -48,12 +51,17 @@ def main() -> None:
 
         b = np.stack([base.values[m] for m in metrics], axis=1)
         w = np.stack([new.values[m] for m in metrics], axis=1)
-        _timed(f"bootstrap CI ({len(metrics)} metrics)",
-               lambda: stats.bootstrap_mean_ci(w - b, np.random.default_rng(0), n_boot=args.n_boot))
-        _timed(f"permutation p-value ({len(metrics)} metrics)",
-               lambda: stats.permutation_p_value(w - b, np.random.default_rng(0), n_perm=args.n_perm))
-        comparison = _timed("compare_results (all metrics)",
-                            lambda: compare_results(base, new, n_boot=args.n_boot, n_perm=args.n_perm))
+        _timed(
+            f"bootstrap CI ({len(metrics)} metrics)",
+            lambda: stats.bootstrap_mean_ci(w - b, np.random.default_rng(0), n_boot=args.n_boot),
+        )
+        _timed(
+            f"permutation p-value ({len(metrics)} metrics)",
+            lambda: stats.permutation_p_value(w - b, np.random.default_rng(0), n_perm=args.n_perm),
+        )
+        comparison = _timed(
+            "compare_results (all metrics)", lambda: compare_results(base, new, n_boot=args.n_boot, n_perm=args.n_perm)
+        )
         page = _timed("render_report with comparison", lambda: render_report(new, base, comparison))
         print(f"report size: {len(page) / 1024:.0f} KiB")
 

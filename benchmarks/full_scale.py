@@ -63,6 +63,7 @@ Usage:
 Never fills the disk: the build, and each path that writes a copy of the submission (the service),
 first check that at least --disk-margin-gb (default 20) stay free after it, and stop or skip saying so.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -98,14 +99,18 @@ MiB = 1 << 20
 GiB = 1 << 30
 
 # The real scenes of ../shared/womd and the golden submission used as each one's rollouts.
-REAL_BASES = (("637f20cafde22ff8", "motion_data_one_scenario.tfrecord", "637f20cafde22ff8__official_test_submission"),
-              ("ee519cf571686d19", "womd_scenario_input.tfrecord", "ee519cf571686d19__constvel_noise"))
+REAL_BASES = (
+    ("637f20cafde22ff8", "motion_data_one_scenario.tfrecord", "637f20cafde22ff8__official_test_submission"),
+    ("ee519cf571686d19", "womd_scenario_input.tfrecord", "ee519cf571686d19__constvel_noise"),
+)
 CHALLENGES = ("sim_agents", "scenario_gen")
 # Scenario Generation: the golden scenes of ../shared/golden/scenario_gen (scene file, golden case), and the
 # baseline policy that makes each real scene's rollouts (no golden case: the official code ran out of memory).
-SG_GOLDEN_BASES = (("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_logreplay_noise05"),
-                   ("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_wild_boxes"),
-                   ("synthetic-11-003-offroad", "synthetic-11-003-offroad__sg_constvel_noise"))
+SG_GOLDEN_BASES = (
+    ("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_logreplay_noise05"),
+    ("synthetic-11-000-intersection", "synthetic-11-000-intersection__sg_wild_boxes"),
+    ("synthetic-11-003-offroad", "synthetic-11-003-offroad__sg_constvel_noise"),
+)
 SG_REAL_POLICIES = ("log_replay_noise", "constant_velocity")  # in the order of REAL_BASES
 SG_CONFIG = "scenario_gen_2025"  # the golden JSON's config name of the challenge's current leaderboard
 
@@ -192,9 +197,15 @@ class Base:
         return 5 + len(self.field_header) + len(self.rollouts_head) + 16 + len(self.deflated_tail)
 
     def summary(self) -> dict:
-        out = {"name": self.name, "source": self.source, "tracks": self.tracks, "sim_agents": self.sim_agents,
-               "scenario_bytes": self.scenario_bytes, "rollouts_bytes": self.rollouts_bytes,
-               "rollouts_gz_bytes": self.gz_bytes}
+        out = {
+            "name": self.name,
+            "source": self.source,
+            "tracks": self.tracks,
+            "sim_agents": self.sim_agents,
+            "scenario_bytes": self.scenario_bytes,
+            "rollouts_bytes": self.rollouts_bytes,
+            "rollouts_gz_bytes": self.gz_bytes,
+        }
         if self.golden:
             out["golden"] = self.golden
         return out
@@ -210,8 +221,9 @@ def _base(name: str, source: str, scenario, rollouts, golden: str = "") -> Base:
     rollouts.scenario_id = PLACEHOLDER.decode()
     s_head, s_tail = _split_at_id(scenario.SerializeToString(), f"{name} scenario")
     r_head, r_tail = _split_at_id(rollouts.SerializeToString(), f"{name} rollouts")
-    return Base(name, source, len(scenario.tracks), _sim_agents(scenario), s_head, s_tail, r_head, r_tail,
-                golden=golden)
+    return Base(
+        name, source, len(scenario.tracks), _sim_agents(scenario), s_head, s_tail, r_head, r_tail, golden=golden
+    )
 
 
 def base_pool(synthetic: int, seed: int, challenge: str = "sim_agents") -> list[Base]:
@@ -240,8 +252,7 @@ def base_pool(synthetic: int, seed: int, challenge: str = "sim_agents") -> list[
             name = scenario.scenario_id
             scenario.scenario_id = PLACEHOLDER.decode()
             data = rollouts_bytes(policy_rollouts(scenario, "idm", seed))
-            synth.append(_base(f"{name} (idm)", "synthetic",
-                               scenario, sub_pb2.ScenarioRollouts.FromString(data)))
+            synth.append(_base(f"{name} (idm)", "synthetic", scenario, sub_pb2.ScenarioRollouts.FromString(data)))
     # real, synthetic..., real, synthetic... : the real scenes spread over the cycle
     pool, half = [], (len(synth) + 1) // 2
     pool += real[:1] + synth[:half] + real[1:] + synth[half:]
@@ -260,7 +271,8 @@ def scenario_gen_pool(synthetic: int, seed: int) -> list[Base]:
 
     def sg_rollouts(scenario, policy: str):
         rollouts = sub_pb2.ScenarioRollouts.FromString(
-            rollouts_bytes(policy_rollouts(scenario, policy, seed, "scenario_gen")))
+            rollouts_bytes(policy_rollouts(scenario, policy, seed, "scenario_gen"))
+        )
         # The baselines leave the per-step validity out (the evaluator takes the log's, at step 10); the
         # challenge's submissions carry it, as the golden ones do: every generated step valid.
         for scene in rollouts.joint_scenes:
@@ -295,7 +307,7 @@ def scenario_gen_pool(synthetic: int, seed: int) -> list[Base]:
     cuts = [[round(len(k) * j / 3) for j in range(4)] for k in kinds]
     for j in range(3):
         for kind, cut in zip(kinds, cuts):
-            pool += kind[cut[j]:cut[j + 1]]
+            pool += kind[cut[j] : cut[j + 1]]
     return pool
 
 
@@ -320,9 +332,11 @@ class Layout:
         return f"submission.binproto-{k:05d}-of-{self.shards:05d}"
 
 
-SG_DESCRIPTION = ("Validation-size Scenario Generation workload of benchmarks/full_scale.py: copies of the golden "
-                  "synthetic scenes with their golden submissions, of real WOMD scenes and of synthetic scenes with "
-                  "baseline rollouts (91 steps, box sizes and object types).")
+SG_DESCRIPTION = (
+    "Validation-size Scenario Generation workload of benchmarks/full_scale.py: copies of the golden "
+    "synthetic scenes with their golden submissions, of real WOMD scenes and of synthetic scenes with "
+    "baseline rollouts (91 steps, box sizes and object types)."
+)
 
 
 def metadata_bytes(challenge: str = "sim_agents") -> bytes:
@@ -332,13 +346,17 @@ def metadata_bytes(challenge: str = "sim_agents") -> bytes:
 
     message = sub_pb2.SimAgentsChallengeSubmission()
     SubmissionMetadata(
-        unique_method_name=METHOD, account_name="full-scale@example.com",
-        authors=["wosac-eval benchmark", "A. Nother"], affiliation="wosac-eval",
-        description=SG_DESCRIPTION if challenge == "scenario_gen" else
-        "Validation-size workload of benchmarks/full_scale.py: copies of real WOMD scenes with their "
+        unique_method_name=METHOD,
+        account_name="full-scale@example.com",
+        authors=["wosac-eval benchmark", "A. Nother"],
+        affiliation="wosac-eval",
+        description=SG_DESCRIPTION
+        if challenge == "scenario_gen"
+        else "Validation-size workload of benchmarks/full_scale.py: copies of real WOMD scenes with their "
         "golden rollouts and of synthetic scenes with idm rollouts.",
         method_link="https://github.com/waymo-research/waymo-open-dataset",
-        num_model_parameters="1.5M").fill(message)
+        num_model_parameters="1.5M",
+    ).fill(message)
     return message.SerializeToString()
 
 
@@ -385,7 +403,7 @@ class GzipStitcher:
 
     def stored(self, data: bytes) -> None:
         for i in range(0, len(data), 0xFFFF):
-            chunk = data[i:i + 0xFFFF]
+            chunk = data[i : i + 0xFFFF]
             self.f.write(b"\x00" + struct.pack("<HH", len(chunk), len(chunk) ^ 0xFFFF) + chunk)
         self.crc, self.size = zlib.crc32(data, self.crc), self.size + len(data)
 
@@ -397,8 +415,7 @@ class GzipStitcher:
         self.f.write(b"\x01\x00\x00\xff\xff" + struct.pack("<II", self.crc, self.size & 0xFFFFFFFF))
 
 
-def write_submission(pool: list[Base], layout: Layout, path: Path,
-                     challenge: str = "sim_agents") -> tuple[int, int]:
+def write_submission(pool: list[Base], layout: Layout, path: Path, challenge: str = "sim_agents") -> tuple[int, int]:
     """The submission .tar.gz; returns (bytes written, bytes of the tar inside)."""
     meta = metadata_bytes(challenge)
     with open(path, "wb", buffering=16 * MiB) as f:
@@ -424,8 +441,14 @@ def write_submission(pool: list[Base], layout: Layout, path: Path,
 def _build_key(args) -> dict:
     from wosac_eval.sim import scenes
 
-    key = {"layout_version": LAYOUT_VERSION, "generator_version": scenes.GENERATOR_VERSION,
-           "scenes": args.scenes, "shards": args.shards, "synthetic": args.synthetic, "seed": args.seed}
+    key = {
+        "layout_version": LAYOUT_VERSION,
+        "generator_version": scenes.GENERATOR_VERSION,
+        "scenes": args.scenes,
+        "shards": args.shards,
+        "synthetic": args.synthetic,
+        "seed": args.seed,
+    }
     if args.challenge != "sim_agents":  # a Sim Agents key (and so its cached builds) stays as it was
         key["challenge"] = args.challenge
     return key
@@ -460,8 +483,9 @@ def build(args) -> dict:
     key = _build_key(args)
     if manifest_path.exists():
         manifest = json.loads(manifest_path.read_text())
-        files_ok = (out / "submission.tar.gz").is_file() and \
-            (out / "submission.tar.gz").stat().st_size == manifest["submission_bytes"]
+        files_ok = (out / "submission.tar.gz").is_file() and (out / "submission.tar.gz").stat().st_size == manifest[
+            "submission_bytes"
+        ]
         if manifest.get("key") == key and files_ok:
             manifest["reused"] = True
             return manifest
@@ -474,9 +498,11 @@ def build(args) -> dict:
     need = predicted["scenario_bytes"] + predicted["submission_bytes"]
     free = disk_free(args.workdir) + old
     if free - need < args.disk_margin_gb * GiB:
-        sys.exit(f"not building: the workload needs {need / GiB:.1f} GiB and {free / GiB:.1f} GiB are free "
-                 f"(counting the {old / GiB:.1f} GiB of the previous build it replaces); at least "
-                 f"{args.disk_margin_gb} GiB must stay free (--disk-margin-gb). Try a smaller --scenes or --synthetic.")
+        sys.exit(
+            f"not building: the workload needs {need / GiB:.1f} GiB and {free / GiB:.1f} GiB are free "
+            f"(counting the {old / GiB:.1f} GiB of the previous build it replaces); at least "
+            f"{args.disk_margin_gb} GiB must stay free (--disk-margin-gb). Try a smaller --scenes or --synthetic."
+        )
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     t = time.perf_counter()
@@ -485,39 +511,62 @@ def build(args) -> dict:
     t = time.perf_counter()
     submission_bytes, tar_bytes = write_submission(pool, layout, out / "submission.tar.gz", args.challenge)
     submission_s = time.perf_counter() - t
-    manifest = {"key": key, "bases": [b.summary() for b in pool], "scenes": args.scenes, "shards": args.shards,
-                "seed": args.seed, "scenario_bytes": scenario_bytes, "submission_bytes": submission_bytes,
-                "submission_tar_bytes": tar_bytes, "submission_raw_bytes": predicted["submission_raw_bytes"],
-                "pool_s": round(pool_s, 2), "scenarios_s": round(scenarios_s, 2),
-                "submission_s": round(submission_s, 2), "reused": False}
+    manifest = {
+        "key": key,
+        "bases": [b.summary() for b in pool],
+        "scenes": args.scenes,
+        "shards": args.shards,
+        "seed": args.seed,
+        "scenario_bytes": scenario_bytes,
+        "submission_bytes": submission_bytes,
+        "submission_tar_bytes": tar_bytes,
+        "submission_raw_bytes": predicted["submission_raw_bytes"],
+        "pool_s": round(pool_s, 2),
+        "scenarios_s": round(scenarios_s, 2),
+        "submission_s": round(submission_s, 2),
+        "reused": False,
+    }
     manifest_path.write_text(json.dumps(manifest, indent=1))  # last: a build cut short is never reused
     return manifest
 
 
 def print_build(manifest: dict, workdir: Path) -> None:
     n, bases = manifest["scenes"], manifest["bases"]
-    how = "reused from an earlier run" if manifest["reused"] else (
-        f"built in {manifest['pool_s'] + manifest['scenarios_s'] + manifest['submission_s']:.1f} s: base pool "
-        f"{manifest['pool_s']:.1f} s, scenario set {manifest['scenarios_s']:.1f} s, "
-        f"submission {manifest['submission_s']:.1f} s")
+    how = (
+        "reused from an earlier run"
+        if manifest["reused"]
+        else (
+            f"built in {manifest['pool_s'] + manifest['scenarios_s'] + manifest['submission_s']:.1f} s: base pool "
+            f"{manifest['pool_s']:.1f} s, scenario set {manifest['scenarios_s']:.1f} s, "
+            f"submission {manifest['submission_s']:.1f} s"
+        )
+    )
     what = " of Scenario Generation" if manifest["key"].get("challenge") == "scenario_gen" else ""
     print(f"workload: {n} scenarios{what} in {manifest['shards']} shards ({workdir / 'build'}), {how}")
-    print(f"  {'base scene (each a share of 1/%d of the copies)' % len(bases):58s} {'tracks':>6s} {'agents':>6s} "
-          f"{'scenario kB':>11s} {'rollouts kB':>11s} {'in .tar.gz':>10s}")
+    print(
+        f"  {'base scene (each a share of 1/%d of the copies)' % len(bases):58s} {'tracks':>6s} {'agents':>6s} "
+        f"{'scenario kB':>11s} {'rollouts kB':>11s} {'in .tar.gz':>10s}"
+    )
     for b in bases:
-        print(f"  {b['name']:58s} {b['tracks']:6d} {b['sim_agents']:6d} {b['scenario_bytes'] / 1e3:11.0f} "
-              f"{b['rollouts_bytes'] / 1e3:11.0f} {b['rollouts_gz_bytes'] / 1e3:10.0f}")
+        print(
+            f"  {b['name']:58s} {b['tracks']:6d} {b['sim_agents']:6d} {b['scenario_bytes'] / 1e3:11.0f} "
+            f"{b['rollouts_bytes'] / 1e3:11.0f} {b['rollouts_gz_bytes'] / 1e3:10.0f}"
+        )
     per = lambda key: manifest[key] / n / 1e3  # noqa: E731
-    print(f"  scenario set: {manifest['scenario_bytes'] / GiB:.2f} GiB ({per('scenario_bytes'):.0f} kB per scenario); "
-          f"submission.tar.gz: {manifest['submission_bytes'] / GiB:.2f} GiB ({per('submission_bytes'):.0f} kB per "
-          f"scenario), {manifest['submission_tar_bytes'] / GiB:.2f} GiB decompressed "
-          f"({manifest['submission_tar_bytes'] / manifest['submission_bytes']:.2f}x)")
+    print(
+        f"  scenario set: {manifest['scenario_bytes'] / GiB:.2f} GiB ({per('scenario_bytes'):.0f} kB per scenario); "
+        f"submission.tar.gz: {manifest['submission_bytes'] / GiB:.2f} GiB ({per('submission_bytes'):.0f} kB per "
+        f"scenario), {manifest['submission_tar_bytes'] / GiB:.2f} GiB decompressed "
+        f"({manifest['submission_tar_bytes'] / manifest['submission_bytes']:.2f}x)"
+    )
     scale = VALIDATION_SET / n
     if n != VALIDATION_SET:
-        print(f"  at {VALIDATION_SET} scenarios: scenario set {manifest['scenario_bytes'] * scale / GiB:.1f} GiB + "
-              f"submission {manifest['submission_bytes'] * scale / GiB:.1f} GiB "
-              f"({manifest['submission_tar_bytes'] * scale / GiB:.1f} GiB decompressed); the service path "
-              f"stores another copy of the submission")
+        print(
+            f"  at {VALIDATION_SET} scenarios: scenario set {manifest['scenario_bytes'] * scale / GiB:.1f} GiB + "
+            f"submission {manifest['submission_bytes'] * scale / GiB:.1f} GiB "
+            f"({manifest['submission_tar_bytes'] * scale / GiB:.1f} GiB decompressed); the service path "
+            f"stores another copy of the submission"
+        )
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -652,9 +701,16 @@ class Run:
     cpu_s: float = 0.0  # CPU seconds of the process and the descendants it waited for
 
 
-def run_watched(cmd: list[str], run_dir: Path, name: str, *, dirs: dict[str, Path] | None = None,
-                env: dict | None = None, timeout: float | None = None,
-                poll: Callable[[subprocess.Popen], None] | None = None) -> Run:
+def run_watched(
+    cmd: list[str],
+    run_dir: Path,
+    name: str,
+    *,
+    dirs: dict[str, Path] | None = None,
+    env: dict | None = None,
+    timeout: float | None = None,
+    poll: Callable[[subprocess.Popen], None] | None = None,
+) -> Run:
     """Runs `cmd` in its own session, watched; `poll(process)` is called every 0.05 s while it runs.
     Its CPU time is the rusage of the process and of every descendant it waited for (os.wait4)."""
     out, err = run_dir / f"{name}.stdout", run_dir / f"{name}.stderr"
@@ -723,11 +779,16 @@ def digest_result(path: Path, layout: Layout, pool_size: int) -> dict:
         first_of_base.setdefault(i % pool_size, row)
     # "per_object" names a side file (score --per-object): not a score, so the paths compare without it
     rest = {k: v for k, v in doc.items() if k not in ("scenarios", "buckets", "aggregate", "per_object")}
-    return {"rows": _sha(rows), "buckets": _sha(doc.get("buckets")), "aggregate": _sha(doc.get("aggregate")),
-            "rest": _sha(rest), "num_scenarios": len(rows),
-            "metametric": (doc.get("aggregate") or {}).get("metametric"),
-            "copies_alike": all(len(s) == 1 for s in per_base.values()) and len(per_base) == pool_size,
-            "base_metametric": {b: first_of_base[b].get("metametric") for b in sorted(first_of_base)}}
+    return {
+        "rows": _sha(rows),
+        "buckets": _sha(doc.get("buckets")),
+        "aggregate": _sha(doc.get("aggregate")),
+        "rest": _sha(rest),
+        "num_scenarios": len(rows),
+        "metametric": (doc.get("aggregate") or {}).get("metametric"),
+        "copies_alike": all(len(s) == 1 for s in per_base.values()) and len(per_base) == pool_size,
+        "base_metametric": {b: first_of_base[b].get("metametric") for b in sorted(first_of_base)},
+    }
 
 
 def same_as(reference: dict | None, digest: dict | None) -> str:
@@ -761,17 +822,33 @@ def _paths(build_dir: Path) -> tuple[Path, Path]:
 
 def path_validate(ctx) -> dict:
     scenarios, submission = _paths(ctx.build)
-    cmd = _cli("validate", "--scenarios", str(scenarios), "--submission", str(submission), "--json",
-               "--workers", str(ctx.workers), *ctx.challenge_args)
+    cmd = _cli(
+        "validate",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--json",
+        "--workers",
+        str(ctx.workers),
+        *ctx.challenge_args,
+    )
     run = run_watched(cmd, ctx.runs, "validate", env=_env())
-    row = ctx.row("validate", f"wosac-eval validate --workers {ctx.workers}{ctx.challenge_flag}", run,
-                  run.watch.peaks(by_depth("main", "workers")), disk=0)
+    row = ctx.row(
+        "validate",
+        f"wosac-eval validate --workers {ctx.workers}{ctx.challenge_flag}",
+        run,
+        run.watch.peaks(by_depth("main", "workers")),
+        disk=0,
+    )
     try:
         report = json.loads(run.stdout)
         stats = report["stats"]
-        row["note"] = (f"{'valid' if report['valid'] else 'INVALID'}, {report['errors']} error(s), "
-                       f"{report['warnings']} warning(s), {stats['scenarios_valid']}/{stats['scenarios_expected']} "
-                       f"scenarios valid")
+        row["note"] = (
+            f"{'valid' if report['valid'] else 'INVALID'}, {report['errors']} error(s), "
+            f"{report['warnings']} warning(s), {stats['scenarios_valid']}/{stats['scenarios_expected']} "
+            f"scenarios valid"
+        )
         row["ok"] = report["valid"] and stats["scenarios_valid"] == ctx.layout.scenes
     except (ValueError, KeyError):
         row["note"], row["ok"] = f"exit {run.rc}: {run.stderr.strip()[-300:]}", False
@@ -783,11 +860,26 @@ def path_cli(ctx) -> dict:
     out = ctx.runs / "cli" / "result.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
-    cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
-               "-o", str(out), *ctx.challenge_args)
+    cmd = _cli(
+        "score",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--workers",
+        str(ctx.workers),
+        "-o",
+        str(out),
+        *ctx.challenge_args,
+    )
     run = run_watched(cmd, ctx.runs, "cli", env=_env(), dirs={"out": out.parent})
-    row = ctx.row("cli", f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json", run,
-                  run.watch.peaks(by_depth("main", "workers")), disk=run.watch.disk_peak["out"])
+    row = ctx.row(
+        "cli",
+        f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json",
+        run,
+        run.watch.peaks(by_depth("main", "workers")),
+        disk=run.watch.disk_peak["out"],
+    )
     ctx.cli_wall = run.wall_s if run.rc == 0 else None
     ctx.cli_cpu = run.cpu_s if run.rc == 0 else None
     if out.exists():
@@ -803,22 +895,41 @@ def path_cli_objects(ctx) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     for stale in (out, objects, out.with_name(out.name + ".journal")):
         stale.unlink(missing_ok=True)
-    cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
-               "--per-object", "-o", str(out), *ctx.challenge_args)
+    cmd = _cli(
+        "score",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--workers",
+        str(ctx.workers),
+        "--per-object",
+        "-o",
+        str(out),
+        *ctx.challenge_args,
+    )
     run = run_watched(cmd, ctx.runs, "cli-objects", env=_env(), dirs={"out": out.parent})
-    row = ctx.row("cli-objects", f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} --per-object -o R.json",
-                  run, run.watch.peaks(by_depth("main", "workers")), disk=run.watch.disk_peak["out"])
+    row = ctx.row(
+        "cli-objects",
+        f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} --per-object -o R.json",
+        run,
+        run.watch.peaks(by_depth("main", "workers")),
+        disk=run.watch.disk_peak["out"],
+    )
     if out.exists() and objects.exists():
         size = objects.stat().st_size
         num_objects = json.loads(out.read_text()).get("per_object", {}).get("num_objects")
         row["objects_bytes"], row["num_objects"] = size, num_objects
-        row["note"] = (f"result document {out.stat().st_size / MiB:.1f} MiB; side file {size / MiB:.1f} MiB "
-                       f"({num_objects} objects, {size / ctx.layout.scenes / 1024:.1f} KiB per scene)")
+        row["note"] = (
+            f"result document {out.stat().st_size / MiB:.1f} MiB; side file {size / MiB:.1f} MiB "
+            f"({num_objects} objects, {size / ctx.layout.scenes / 1024:.1f} KiB per scene)"
+        )
         if ctx.cli_wall:
             row["vs_cli_wall"] = round(run.wall_s / ctx.cli_wall - 1, 4)
             row["vs_cli_cpu"] = round(run.cpu_s / ctx.cli_cpu - 1, 4) if ctx.cli_cpu else None
-            row["note"] += (f"; against the cli path: wall {100 * row['vs_cli_wall']:+.1f} %"
-                            + (f", CPU {100 * row['vs_cli_cpu']:+.1f} %" if row["vs_cli_cpu"] is not None else ""))
+            row["note"] += f"; against the cli path: wall {100 * row['vs_cli_wall']:+.1f} %" + (
+                f", CPU {100 * row['vs_cli_cpu']:+.1f} %" if row["vs_cli_cpu"] is not None else ""
+            )
         else:
             row["note"] += "; run the cli path before it (--paths cli,cli-objects) for its cost relative to it"
         objects.unlink()  # large at full size: its size is what is reported
@@ -831,8 +942,9 @@ def journal_available() -> str | None:
     """Why the interruption row cannot run, or None (the journal of `wosac-eval score -o`)."""
     help_text = subprocess.run(_cli("score", "--help"), capture_output=True, text=True, env=_env(), cwd=REPO).stdout
     if "journal" not in help_text:
-        return "`wosac-eval score -o R.json` keeps no journal in this checkout (R.json.journal), so a rerun " \
-               "cannot resume"
+        return (
+            "`wosac-eval score -o R.json` keeps no journal in this checkout (R.json.journal), so a rerun cannot resume"
+        )
     return None
 
 
@@ -846,8 +958,18 @@ def path_interrupt(ctx) -> dict:
     folder.mkdir(parents=True)
     out = folder / "result.json"
     journal = folder / "result.json.journal"
-    cmd = _cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
-               "-o", str(out), *ctx.challenge_args)
+    cmd = _cli(
+        "score",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--workers",
+        str(ctx.workers),
+        "-o",
+        str(out),
+        *ctx.challenge_args,
+    )
     target = max(1, min(ctx.layout.scenes - 1, math.ceil(ctx.interrupt_at * ctx.layout.scenes)))
     state = {"offset": 0, "rows": -1, "killed_at": None}  # rows: lines after the journal's header
 
@@ -866,28 +988,46 @@ def path_interrupt(ctx) -> dict:
 
     first = run_watched(cmd, ctx.runs, "interrupt-1", env=_env(), dirs={"out": folder}, poll=poll)
     if state["killed_at"] is None:
-        return ctx.skipped("interrupt", f"the run ended (exit {first.rc}) before its journal held {target} "
-                           f"scenarios; nothing to interrupt at this size")
+        return ctx.skipped(
+            "interrupt",
+            f"the run ended (exit {first.rc}) before its journal held {target} "
+            f"scenarios; nothing to interrupt at this size",
+        )
     second = run_watched(cmd, ctx.runs, "interrupt-2", env=_env(), dirs={"out": folder})
     peaks = {}
     for label, run in (("killed run", first), ("rerun", second)):
         for role, r in run.watch.peaks(by_depth("main", "workers")).items():
             peaks[f"{role} ({label})"] = r
-    merged = Run(second.rc, first.wall_s + second.wall_s, second.stdout, second.stderr, second.watch,
-                 first.cpu_s + second.cpu_s)
-    row = ctx.row("interrupt", f"score -o R.json, SIGKILL at {state['killed_at']}/{ctx.layout.scenes}, rerun",
-                  merged, peaks, disk=max(first.watch.disk_peak["out"], second.watch.disk_peak["out"]))
+    merged = Run(
+        second.rc, first.wall_s + second.wall_s, second.stdout, second.stderr, second.watch, first.cpu_s + second.cpu_s
+    )
+    row = ctx.row(
+        "interrupt",
+        f"score -o R.json, SIGKILL at {state['killed_at']}/{ctx.layout.scenes}, rerun",
+        merged,
+        peaks,
+        disk=max(first.watch.disk_peak["out"], second.watch.disk_peak["out"]),
+    )
     resumed = "resum" in second.stderr.lower()  # the command says it resumes from the journal
-    extra = (f"{first.wall_s + second.wall_s - ctx.cli_wall:+.1f} s against the uninterrupted cli run"
-             if ctx.cli_wall else "no uninterrupted cli run to compare")
+    extra = (
+        f"{first.wall_s + second.wall_s - ctx.cli_wall:+.1f} s against the uninterrupted cli run"
+        if ctx.cli_wall
+        else "no uninterrupted cli run to compare"
+    )
     share = f", {100 * second.wall_s / ctx.cli_wall:.0f}% of the uninterrupted cli run" if ctx.cli_wall else ""
-    row["note"] = (f"killed after {first.wall_s:.1f} s with {state['killed_at']} scenarios journaled; rerun "
-                   f"{second.wall_s:.1f} s{share} ({'resumed' if resumed else 'DID NOT RESUME'}, "
-                   f"{ctx.layout.scenes - state['killed_at']} left to score); extra cost {extra}")
-    row["interrupt"] = {"killed_after_s": round(first.wall_s, 2), "journaled": state["killed_at"],
-                        "rerun_s": round(second.wall_s, 2), "resumed": resumed,
-                        "rerun_share": round(second.wall_s / ctx.cli_wall, 4) if ctx.cli_wall else None,
-                        "extra_s": round(first.wall_s + second.wall_s - ctx.cli_wall, 2) if ctx.cli_wall else None}
+    row["note"] = (
+        f"killed after {first.wall_s:.1f} s with {state['killed_at']} scenarios journaled; rerun "
+        f"{second.wall_s:.1f} s{share} ({'resumed' if resumed else 'DID NOT RESUME'}, "
+        f"{ctx.layout.scenes - state['killed_at']} left to score); extra cost {extra}"
+    )
+    row["interrupt"] = {
+        "killed_after_s": round(first.wall_s, 2),
+        "journaled": state["killed_at"],
+        "rerun_s": round(second.wall_s, 2),
+        "resumed": resumed,
+        "rerun_share": round(second.wall_s / ctx.cli_wall, 4) if ctx.cli_wall else None,
+        "extra_s": round(first.wall_s + second.wall_s - ctx.cli_wall, 2) if ctx.cli_wall else None,
+    }
     return ctx.with_result(row, out, second)
 
 
@@ -943,15 +1083,25 @@ def path_service(ctx) -> dict:
     upload = submission.stat().st_size
     free = disk_free(ctx.runs)
     if free - upload < ctx.disk_margin_gb * GiB:
-        return ctx.skipped("service", f"its data dir would hold another {upload / GiB:.1f} GiB copy of the "
-                           f"submission and only {free / GiB:.1f} GiB are free (--disk-margin-gb {ctx.disk_margin_gb})")
+        return ctx.skipped(
+            "service",
+            f"its data dir would hold another {upload / GiB:.1f} GiB copy of the "
+            f"submission and only {free / GiB:.1f} GiB are free (--disk-margin-gb {ctx.disk_margin_gb})",
+        )
     folder = ctx.runs / "service"
     shutil.rmtree(folder, ignore_errors=True)
     data_dir = folder / "data"
     raw = ctx.manifest["submission_tar_bytes"]
-    server = Server(data_dir, [scenarios], workers=1, score_threads=ctx.workers, poll_s=0.5,
-                    max_upload_bytes=max(16 * GiB, 2 * upload), max_decompressed_bytes=max(64 * GiB, 2 * raw),
-                    max_scenarios=max(100_000, 2 * ctx.layout.scenes))
+    server = Server(
+        data_dir,
+        [scenarios],
+        workers=1,
+        score_threads=ctx.workers,
+        poll_s=0.5,
+        max_upload_bytes=max(16 * GiB, 2 * upload),
+        max_decompressed_bytes=max(64 * GiB, 2 * raw),
+        max_scenarios=max(100_000, 2 * ctx.layout.scenes),
+    )
     row = None
     t_start = time.perf_counter()
     server.start(timeout=120)
@@ -962,9 +1112,23 @@ def path_service(ctx) -> dict:
         child_dir = folder / "upload"
         child_dir.mkdir()
         t0 = time.perf_counter()
-        up = run_watched([PYTHON, "-c", _UPLOAD_CHILD, str(submission), server.url, key, method,
-                          str(64 * MiB), str(child_dir / "client-state"), ctx.challenge], child_dir, "upload",
-                         env=_env())
+        up = run_watched(
+            [
+                PYTHON,
+                "-c",
+                _UPLOAD_CHILD,
+                str(submission),
+                server.url,
+                key,
+                method,
+                str(64 * MiB),
+                str(child_dir / "client-state"),
+                ctx.challenge,
+            ],
+            child_dir,
+            "upload",
+            env=_env(),
+        )
         upload_wall = time.perf_counter() - t0
         if up.rc != 0:
             raise RuntimeError(f"upload failed (exit {up.rc}): {up.stderr[-2000:]}")
@@ -989,29 +1153,51 @@ def path_service(ctx) -> dict:
         data_parts = {p.name: folder_bytes(p) for p in sorted(data_dir.iterdir())}
         published = any(entry.get("submission_id") == sid for entry in board.get("entries", []))
         # CPU: the upload client's and the job's (the status's cpu_s: its process and scoring pool)
-        run = Run(0 if status["state"] == "done" else 1, upload_wall + scored_wall, "", "", watch,
-                  up.cpu_s + (status.get("cpu_s") or 0.0))
+        run = Run(
+            0 if status["state"] == "done" else 1,
+            upload_wall + scored_wall,
+            "",
+            "",
+            watch,
+            up.cpu_s + (status.get("cpu_s") or 0.0),
+        )
         roles = run.watch.peaks(by_depth("api", "worker", "job", "job pool"))
         roles["upload client"] = up.watch.peaks(by_depth("client"))["client"]
-        row = ctx.row("service", f"upload + score (1 worker, {ctx.workers} processes per job"
-                      f"{', challenge=' + ctx.challenge if ctx.challenge_args else ''})", run, roles,
-                      disk=data_peak)
-        row["note"] = (f"{sent['client']}: upload {upload_wall:.1f} s ({upload / MiB / upload_wall:.0f} MiB/s), "
-                       f"then {scored_wall:.1f} s to {status['state']}"
-                       + (f" ({status.get('error')})" if status["state"] != "done" else "")
-                       + f"; data dir peak {data_peak / GiB:.2f} GiB, {data_end / GiB:.2f} GiB after, for a "
-                         f"{upload / GiB:.2f} GiB upload ({data_peak / upload:.2f}x; at the end: "
-                         + ", ".join(f"{k} {v / MiB:.1f} MiB" for k, v in data_parts.items() if v >= MiB // 10)
-                         + "); "
-                         f"job peak_rss {(status.get('peak_rss_bytes') or 0) / MiB:.0f} MiB, "
-                         f"cpu {status.get('cpu_s') or 0:.0f} s; "
-                         f"{'published' if published else 'NOT on the leaderboard'}")
-        row["service"] = {"client": sent["client"], "upload_s": round(upload_wall, 2),
-                          "scoring_s": round(scored_wall, 2),
-                          "server_start_s": round(t0 - t_start, 2), "state": status["state"],
-                          "data_dir_peak_bytes": data_peak, "data_dir_end_bytes": data_end, "upload_bytes": upload,
-                          "job_peak_rss_bytes": status.get("peak_rss_bytes"), "job_cpu_s": status.get("cpu_s"),
-                          "published": published, "data_dir_end_parts": data_parts, "status": status}
+        row = ctx.row(
+            "service",
+            f"upload + score (1 worker, {ctx.workers} processes per job"
+            f"{', challenge=' + ctx.challenge if ctx.challenge_args else ''})",
+            run,
+            roles,
+            disk=data_peak,
+        )
+        row["note"] = (
+            f"{sent['client']}: upload {upload_wall:.1f} s ({upload / MiB / upload_wall:.0f} MiB/s), "
+            f"then {scored_wall:.1f} s to {status['state']}"
+            + (f" ({status.get('error')})" if status["state"] != "done" else "")
+            + f"; data dir peak {data_peak / GiB:.2f} GiB, {data_end / GiB:.2f} GiB after, for a "
+            f"{upload / GiB:.2f} GiB upload ({data_peak / upload:.2f}x; at the end: "
+            + ", ".join(f"{k} {v / MiB:.1f} MiB" for k, v in data_parts.items() if v >= MiB // 10)
+            + "); "
+            f"job peak_rss {(status.get('peak_rss_bytes') or 0) / MiB:.0f} MiB, "
+            f"cpu {status.get('cpu_s') or 0:.0f} s; "
+            f"{'published' if published else 'NOT on the leaderboard'}"
+        )
+        row["service"] = {
+            "client": sent["client"],
+            "upload_s": round(upload_wall, 2),
+            "scoring_s": round(scored_wall, 2),
+            "server_start_s": round(t0 - t_start, 2),
+            "state": status["state"],
+            "data_dir_peak_bytes": data_peak,
+            "data_dir_end_bytes": data_end,
+            "upload_bytes": upload,
+            "job_peak_rss_bytes": status.get("peak_rss_bytes"),
+            "job_cpu_s": status.get("cpu_s"),
+            "published": published,
+            "data_dir_end_parts": data_parts,
+            "status": status,
+        }
         if status["state"] == "done":
             row = ctx.with_result(row, result_path, run)
         else:
@@ -1021,8 +1207,9 @@ def path_service(ctx) -> dict:
             watch.stop()
         server.stop()
         if row is not None:
-            row.setdefault("service", {})["log_tail"] = server.log.read_text(errors="replace")[-2000:] \
-                if server.log.exists() else ""
+            row.setdefault("service", {})["log_tail"] = (
+                server.log.read_text(errors="replace")[-2000:] if server.log.exists() else ""
+            )
         shutil.rmtree(data_dir, ignore_errors=True)  # the upload's copy: never left behind
     return row
 
@@ -1116,39 +1303,61 @@ def path_ray(ctx) -> dict:
     out = folder / "result.json"
     ray_tmp = Path(tempfile.mkdtemp(prefix="wrfs", dir="/tmp"))  # short: Ray's socket paths live under it
     nodes = ctx.workers + 1
-    inner = (f"ip link set lo up && {PYTHON} {script} {scenarios} {submission} {out} {nodes} "
-             f"{ctx.ray_kill_at}{' ' + ctx.challenge if ctx.challenge_args else ''}; exit $?")
+    inner = (
+        f"ip link set lo up && {PYTHON} {script} {scenarios} {submission} {out} {nodes} "
+        f"{ctx.ray_kill_at}{' ' + ctx.challenge if ctx.challenge_args else ''}; exit $?"
+    )
     env = {**_env(), "RAY_TMPDIR": str(ray_tmp), "RAY_DISABLE_USAGE_STATS": "1"}
     env.pop("RAY_ADDRESS", None)
     try:
-        run = run_watched(["unshare", "-n", "-p", "--kill-child", "--mount-proc", "bash", "-c", inner],
-                          ctx.runs, "ray", env=env, dirs={"ray": ray_tmp, "out": folder},
-                          timeout=ctx.ray_timeout)
+        run = run_watched(
+            ["unshare", "-n", "-p", "--kill-child", "--mount-proc", "bash", "-c", inner],
+            ctx.runs,
+            "ray",
+            env=env,
+            dirs={"ray": ray_tmp, "out": folder},
+            timeout=ctx.ray_timeout,
+        )
     finally:
         shutil.rmtree(ray_tmp, ignore_errors=True)
     disk = run.watch.disk_peak["ray"] + run.watch.disk_peak["out"]
-    row = ctx.row("ray", f"Cluster: head + {nodes} nodes x 1 CPU, one killed{ctx.challenge_flag}", run,
-                  run.watch.peaks(_ray_role),
-                  disk=disk)
+    row = ctx.row(
+        "ray",
+        f"Cluster: head + {nodes} nodes x 1 CPU, one killed{ctx.challenge_flag}",
+        run,
+        run.watch.peaks(_ray_role),
+        disk=disk,
+    )
     row["processes"] = run.watch.listing(_ray_role)
     try:
-        info = json.loads(next(line for line in run.stdout.splitlines() if line.startswith("FULL-SCALE-RAY "))
-                          .partition(" ")[2])
+        info = json.loads(
+            next(line for line in run.stdout.splitlines() if line.startswith("FULL-SCALE-RAY ")).partition(" ")[2]
+        )
     except (ValueError, StopIteration):
         row["note"], row["ok"] = f"exit {run.rc}: {run.stderr.strip()[-500:]}", False
         return row
     row["ray"] = info
-    kill = (f"node killed at {info['killed_at']}/{ctx.layout.scenes} scenarios ({info['killed_at_s']:.1f} s in)"
-            if info["killed_at"] is not None else "NO node was killed (scoring ended first)")
-    row["note"] = (f"cluster start {info['startup_s']:.1f} s, scoring {info['scoring_s']:.1f} s "
-                   f"({ctx.layout.scenes / info['scoring_s']:.1f} scenes/s); {kill}; Ray's temp dir peak "
-                   f"{run.watch.disk_peak['ray'] / MiB:.1f} MiB"
-                   + (f"; error: {info['error']}" if info.get("error") else ""))
+    kill = (
+        f"node killed at {info['killed_at']}/{ctx.layout.scenes} scenarios ({info['killed_at_s']:.1f} s in)"
+        if info["killed_at"] is not None
+        else "NO node was killed (scoring ended first)"
+    )
+    row["note"] = (
+        f"cluster start {info['startup_s']:.1f} s, scoring {info['scoring_s']:.1f} s "
+        f"({ctx.layout.scenes / info['scoring_s']:.1f} scenes/s); {kill}; Ray's temp dir peak "
+        f"{run.watch.disk_peak['ray'] / MiB:.1f} MiB" + (f"; error: {info['error']}" if info.get("error") else "")
+    )
     return ctx.with_result(row, out, run)
 
 
-PATH_RUNNERS = {"validate": path_validate, "cli": path_cli, "cli-objects": path_cli_objects, "service": path_service,
-                "ray": path_ray, "interrupt": path_interrupt}
+PATH_RUNNERS = {
+    "validate": path_validate,
+    "cli": path_cli,
+    "cli-objects": path_cli_objects,
+    "service": path_service,
+    "ray": path_ray,
+    "interrupt": path_interrupt,
+}
 
 
 class Context:
@@ -1183,11 +1392,21 @@ class Context:
                 self.reference, self.reference_from = stored["digest"], stored["from"]
 
     def row(self, path: str, what: str, run: Run, peaks: dict, disk: int) -> dict:
-        return {"path": path, "what": what, "rc": run.rc, "wall_s": round(run.wall_s, 2),
-                "cpu_s": round(run.cpu_s, 1),
-                "load_before": self.load_before, "load_after": os.getloadavg()[0],
-                "scenes_per_s": round(self.layout.scenes / run.wall_s, 2) if run.wall_s else None,
-                "peak_rss": peaks, "disk_bytes": disk, "same": "-", "ok": run.rc == 0, "note": ""}
+        return {
+            "path": path,
+            "what": what,
+            "rc": run.rc,
+            "wall_s": round(run.wall_s, 2),
+            "cpu_s": round(run.cpu_s, 1),
+            "load_before": self.load_before,
+            "load_after": os.getloadavg()[0],
+            "scenes_per_s": round(self.layout.scenes / run.wall_s, 2) if run.wall_s else None,
+            "peak_rss": peaks,
+            "disk_bytes": disk,
+            "same": "-",
+            "ok": run.rc == 0,
+            "note": "",
+        }
 
     def skipped(self, path: str, why: str) -> dict:
         print(f"[{path}] skipped: {why}", flush=True)
@@ -1205,8 +1424,9 @@ class Context:
         if self.reference is None:
             self.reference = digest
             self.reference_from = f"the {row['path']} path's result of {time.strftime('%Y-%m-%d %H:%M')}"
-            self.reference_file.write_text(json.dumps({"build": self.manifest["key"], "from": self.reference_from,
-                                                       "digest": digest}))
+            self.reference_file.write_text(
+                json.dumps({"build": self.manifest["key"], "from": self.reference_from, "digest": digest})
+            )
             row["same"] = "reference"
         else:
             row["same"] = same_as(self.reference, digest)
@@ -1249,18 +1469,24 @@ def golden_metametrics(manifest: dict) -> dict[int, float]:
 
 def print_table(rows: list[dict], manifest: dict) -> None:
     n = manifest["scenes"]
-    print(f"\n{n} scenarios, {os.cpu_count()} cores; peak RSS from each process's VmHWM (sampled every 0.2 s); "
-          f"CPU: user + system seconds of the path's processes (service: the upload client and the job); "
-          f"disk: allocated bytes the path wrote (peak); load: the 1-minute load average before-after")
-    print(f"{'path':11s} {'wall s':>8s} {'scenes/s':>8s} {'CPU s':>7s} {'disk MiB':>9s} {'same result':>11s} "
-          f"{'load':>9s}  peak RSS per process")
+    print(
+        f"\n{n} scenarios, {os.cpu_count()} cores; peak RSS from each process's VmHWM (sampled every 0.2 s); "
+        f"CPU: user + system seconds of the path's processes (service: the upload client and the job); "
+        f"disk: allocated bytes the path wrote (peak); load: the 1-minute load average before-after"
+    )
+    print(
+        f"{'path':11s} {'wall s':>8s} {'scenes/s':>8s} {'CPU s':>7s} {'disk MiB':>9s} {'same result':>11s} "
+        f"{'load':>9s}  peak RSS per process"
+    )
     for r in rows:
         if "skipped" in r or "failed" in r:
             print(f"{r['path']:11s} {'skipped: ' + r['skipped'] if 'skipped' in r else 'FAILED: ' + r['failed'][:300]}")
             continue
         load = f"{r['load_before']:.1f}-{r['load_after']:.1f}"
-        print(f"{r['path']:11s} {r['wall_s']:8.1f} {r['scenes_per_s']:8.1f} {r['cpu_s']:7.0f} "
-              f"{r['disk_bytes'] / MiB:9.1f} {r['same']:>11s} {load:>9s}  {_fmt_peaks(r['peak_rss'])}")
+        print(
+            f"{r['path']:11s} {r['wall_s']:8.1f} {r['scenes_per_s']:8.1f} {r['cpu_s']:7.0f} "
+            f"{r['disk_bytes'] / MiB:9.1f} {r['same']:>11s} {load:>9s}  {_fmt_peaks(r['peak_rss'])}"
+        )
     print()
     for r in rows:
         if "skipped" not in r and "failed" not in r:
@@ -1268,54 +1494,95 @@ def print_table(rows: list[dict], manifest: dict) -> None:
     digests = [r["digest"] for r in rows if "digest" in r]
     if digests:
         d = digests[0]
-        print(f"\nresult: meta-metric {d['metametric']:.4f} over {d['num_scenarios']} scenarios; copies of each base "
-              f"scene scored alike: {'yes' if all(x['copies_alike'] for x in digests) else 'NO'}; per base: "
-              + ", ".join(f"{m:.4f}" for m in d["base_metametric"].values() if m is not None))
+        print(
+            f"\nresult: meta-metric {d['metametric']:.4f} over {d['num_scenarios']} scenarios; copies of each base "
+            f"scene scored alike: {'yes' if all(x['copies_alike'] for x in digests) else 'NO'}; per base: "
+            + ", ".join(f"{m:.4f}" for m in d["base_metametric"].values() if m is not None)
+        )
         for b, official in golden_metametrics(manifest).items():
             ours = d["base_metametric"].get(b)
             if ours is not None:
-                print(f"  {manifest['bases'][b]['name']}: {ours:.6f}, the official implementation's (golden): "
-                      f"{official:.6f} (diff {abs(ours - official):.1e})")
+                print(
+                    f"  {manifest['bases'][b]['name']}: {ours:.6f}, the official implementation's (golden): "
+                    f"{official:.6f} (diff {abs(ours - official):.1e})"
+                )
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--challenge", choices=CHALLENGES, default="sim_agents",
-                   help="the submission's challenge, and every path's --challenge (default %(default)s)")
+    p = argparse.ArgumentParser(
+        description=__doc__.splitlines()[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument(
+        "--challenge",
+        choices=CHALLENGES,
+        default="sim_agents",
+        help="the submission's challenge, and every path's --challenge (default %(default)s)",
+    )
     p.add_argument("--scenes", type=int, default=VALIDATION_SET, help="scenarios (default %(default)s)")
-    p.add_argument("--paths", default=",".join(ALL_PATHS),
-                   help=f"comma-separated, run in this order (default {','.join(ALL_PATHS)}); 'none': build only")
+    p.add_argument(
+        "--paths",
+        default=",".join(ALL_PATHS),
+        help=f"comma-separated, run in this order (default {','.join(ALL_PATHS)}); 'none': build only",
+    )
     cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "wosac-eval"
-    p.add_argument("--workdir", type=Path, default=None,
-                   help=f"where the workload is cached and the paths write (default {cache / 'full-scale'}; "
-                        f"with --challenge scenario_gen, {cache / 'full-scale-scenario_gen'})")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="processes per path: validate and score --workers, the service's processes per job, "
-                        "the Ray cluster's nodes (plus one, the node killed) (default: the cores, %(default)s)")
+    p.add_argument(
+        "--workdir",
+        type=Path,
+        default=None,
+        help=f"where the workload is cached and the paths write (default {cache / 'full-scale'}; "
+        f"with --challenge scenario_gen, {cache / 'full-scale-scenario_gen'})",
+    )
+    p.add_argument(
+        "--workers",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="processes per path: validate and score --workers, the service's processes per job, "
+        "the Ray cluster's nodes (plus one, the node killed) (default: the cores, %(default)s)",
+    )
     p.add_argument("--synthetic", type=int, default=10, help="synthetic base scenes, one per recipe (default 10)")
-    p.add_argument("--shards", type=int, default=None,
-                   help=f"shards of the scenario set and the submission (default: {PER_SHARD} scenarios per shard, "
-                        f"{OFFICIAL_SHARDS} at {VALIDATION_SET})")
+    p.add_argument(
+        "--shards",
+        type=int,
+        default=None,
+        help=f"shards of the scenario set and the submission (default: {PER_SHARD} scenarios per shard, "
+        f"{OFFICIAL_SHARDS} at {VALIDATION_SET})",
+    )
     p.add_argument("--seed", type=int, default=11, help="synthetic scenes and scenario ids")
-    p.add_argument("--interrupt-at", type=float, default=0.8, help="share of the scenarios journaled when the "
-                   "interrupt path kills the run (default 0.8)")
-    p.add_argument("--ray-kill-at", type=float, default=0.5, help="share of the scenarios scored when the ray path "
-                   "kills a node (default 0.5)")
+    p.add_argument(
+        "--interrupt-at",
+        type=float,
+        default=0.8,
+        help="share of the scenarios journaled when the interrupt path kills the run (default 0.8)",
+    )
+    p.add_argument(
+        "--ray-kill-at",
+        type=float,
+        default=0.5,
+        help="share of the scenarios scored when the ray path kills a node (default 0.5)",
+    )
     p.add_argument("--ray-timeout", type=float, default=7200.0)
     p.add_argument("--service-timeout", type=float, default=7 * 3600.0)
-    p.add_argument("--disk-margin-gb", type=float, default=20.0,
-                   help="free space the build and the service path must leave (default 20)")
-    p.add_argument("--new-reference", action="store_true",
-                   help="compare with this run's first result only, not with the first result an earlier run "
-                        "got on the same cached workload (kept in WORKDIR/runs/reference.json)")
+    p.add_argument(
+        "--disk-margin-gb",
+        type=float,
+        default=20.0,
+        help="free space the build and the service path must leave (default 20)",
+    )
+    p.add_argument(
+        "--new-reference",
+        action="store_true",
+        help="compare with this run's first result only, not with the first result an earlier run "
+        "got on the same cached workload (kept in WORKDIR/runs/reference.json)",
+    )
     p.add_argument("--json", type=Path, help="also write the build's sizes and every row here")
     args = p.parse_args(argv)
     if not ((SHARED / "womd").is_dir() and (SHARED / "golden").is_dir()):
         sys.exit(f"needs the reference data in {SHARED} (womd/ and golden/): the real base scenes")
     if args.challenge == "scenario_gen" and not (SHARED / "golden" / "scenario_gen" / "scenes").is_dir():
-        sys.exit(f"needs the reference data in {SHARED / 'golden' / 'scenario_gen'} (its scenes/ and golden "
-                 f"submissions): the golden base scenes of --challenge scenario_gen")
+        sys.exit(
+            f"needs the reference data in {SHARED / 'golden' / 'scenario_gen'} (its scenes/ and golden "
+            f"submissions): the golden base scenes of --challenge scenario_gen"
+        )
     if args.workdir is None:
         args.workdir = cache / ("full-scale" if args.challenge == "sim_agents" else f"full-scale-{args.challenge}")
     if args.scenes < 1 or args.workers < 1 or args.synthetic < 0:
@@ -1342,16 +1609,21 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(row)
             continue
         if "skipped" not in row:
-            print(f"[{path}] {row['wall_s']:.1f} s, {row['scenes_per_s']:.1f} scenes/s, same result: {row['same']}",
-                  flush=True)
+            print(
+                f"[{path}] {row['wall_s']:.1f} s, {row['scenes_per_s']:.1f} scenes/s, same result: {row['same']}",
+                flush=True,
+            )
         rows.append(row)
     if rows:
         print_table(rows, manifest)
         if ctx.reference_from:
             print(f"(same result: compared with {ctx.reference_from})")
     if args.json:
-        args.json.write_text(json.dumps({"build": manifest, "workers": args.workers, "rows": rows,
-                                         "reference": ctx.reference_from}, indent=1))
+        args.json.write_text(
+            json.dumps(
+                {"build": manifest, "workers": args.workers, "rows": rows, "reference": ctx.reference_from}, indent=1
+            )
+        )
     failed = [r["path"] for r in rows if "skipped" not in r and not r["ok"]]
     if failed:
         print(f"\nFAILED: {', '.join(failed)}", file=sys.stderr)

@@ -10,6 +10,7 @@ named second.
 
 Usage: python benchmarks/jax_realism_exactness.py [float32|exact] [auto|host|device]
 """
+
 from __future__ import annotations
 
 import sys
@@ -40,8 +41,7 @@ def check_set(case_set, mode: str, search: str) -> None:
     pairs = [golden.inputs(case_set, c) for c in cases]
     name = case_set.configs[0]
     config = golden.config_reference(case_set, name)
-    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge, config=config,
-                                   search=search)
+    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge, config=config, search=search)
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     with jax.enable_x64(mode == "exact"):
         feats = jax_realism.features(prepared, **arrays)
@@ -60,9 +60,15 @@ def check_set(case_set, mode: str, search: str) -> None:
         expected = golden.expected_metrics(case_set, case, name)
         errors = {f: abs(float(np.float32(got[f][s])) - expected[f]) for f in SCENARIO_FIELDS if f in expected}
         over = {f: f"{e:.2e}" for f, e in errors.items() if e > TOLERANCE}
-        print(f"  {case}: largest metric error {max(errors.values()):.2e}" + (f", over {TOLERANCE}: {over}" if over else ""))
+        print(
+            f"  {case}: largest metric error {max(errors.values()):.2e}"
+            + (f", over {TOLERANCE}: {over}" if over else "")
+        )
     diffs = ", ".join(f"{f} {n} (up to {gap:.1e})" for f, (n, gap) in counts.items() if n)
-    print(f"{case_set.name}: {len(cases)} cases; per-step feature values differing from numpy: {diffs or 'none'}", flush=True)
+    print(
+        f"{case_set.name}: {len(cases)} cases; per-step feature values differing from numpy: {diffs or 'none'}",
+        flush=True,
+    )
 
 
 def main() -> None:

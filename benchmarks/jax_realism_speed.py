@@ -33,6 +33,7 @@ Usage: python benchmarks/jax_realism_speed.py [--scenes 16,64,256] [--repeat 3] 
                                               [--search auto|host|device|host,device] [--modes float32,exact]
                                               [--closed-over 16] [--file-path [--workers 2]]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -75,8 +76,21 @@ def _file_path(shards, submission, workers: int, repeat: int, backend: str) -> f
     import subprocess
     import sys
 
-    done = subprocess.run([sys.executable, "-c", _FILE_PATH_CHILD, ",".join(map(str, shards)), str(submission),
-                           str(workers), str(repeat), backend], capture_output=True, text=True, check=True)
+    done = subprocess.run(
+        [
+            sys.executable,
+            "-c",
+            _FILE_PATH_CHILD,
+            ",".join(map(str, shards)),
+            str(submission),
+            str(workers),
+            str(repeat),
+            backend,
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return float(done.stdout.split()[-1])
 
 
@@ -99,16 +113,20 @@ def cost_per_scene(compiled, num_scenes: int) -> tuple[float, float]:
     return cost.get("flops", float("nan")) / num_scenes, cost.get("bytes accessed", float("nan")) / num_scenes
 
 
-HEADER = (f"{'path':62s} {'scenes':>6s} {'compile s':>9s} {'s/call':>8s} {'scenes/s':>9s} {'44,097':>8s} "
-          f"{'flops/scene':>11s} {'bytes/scene':>11s} {'peak MiB/scene':>14s}")
+HEADER = (
+    f"{'path':62s} {'scenes':>6s} {'compile s':>9s} {'s/call':>8s} {'scenes/s':>9s} {'44,097':>8s} "
+    f"{'flops/scene':>11s} {'bytes/scene':>11s} {'peak MiB/scene':>14s}"
+)
 
 
 def row(label: str, num_scenes: int, compile_s: float, seconds: float, cost=(float("nan"),) * 2) -> None:
     peak = _peak_device_bytes()
     peak_text = "-" if peak is None else f"{peak / num_scenes / 2**20:.1f}"
-    print(f"{label:62s} {num_scenes:6d} {compile_s:9.1f} {seconds:8.3f} {num_scenes / seconds:9.1f} "
-          f"{VALIDATION_SET * seconds / num_scenes / 60:6.1f} m {cost[0]:11.2e} {cost[1]:11.2e} {peak_text:>14s}",
-          flush=True)
+    print(
+        f"{label:62s} {num_scenes:6d} {compile_s:9.1f} {seconds:8.3f} {num_scenes / seconds:9.1f} "
+        f"{VALIDATION_SET * seconds / num_scenes / 60:6.1f} m {cost[0]:11.2e} {cost[1]:11.2e} {peak_text:>14s}",
+        flush=True,
+    )
 
 
 def timed_calls(compiled, args_of, repeat: int) -> float:
@@ -165,8 +183,11 @@ def main() -> None:
     parser.add_argument("--womd", action="store_true", help="repeat the real WOMD scenes of ../shared/womd instead")
     parser.add_argument("--search", default="auto", help="comma-separated searches of `prepare` to time")
     parser.add_argument("--modes", default="float32,exact", help="comma-separated modes of the main rows")
-    parser.add_argument("--closed-over", default=None,
-                        help="comma-separated batch sizes of the closed-over rows (default: the smallest; 0: none)")
+    parser.add_argument(
+        "--closed-over",
+        default=None,
+        help="comma-separated batch sizes of the closed-over rows (default: the smallest; 0: none)",
+    )
     parser.add_argument("--file-path", action="store_true", help="also the file path's rows, for the distinct scenes")
     parser.add_argument("--workers", type=int, default=2, help="numpy workers of the file path's rows")
     args = parser.parse_args()
@@ -178,8 +199,11 @@ def main() -> None:
     else:
         scenarios, shards = scenes.generate_scenes(args.distinct, seed=7), None
         what = f"{len(scenarios)} synthetic scenes"
-    print(f"device: {jax.devices()[0]} (JAX {jax.__version__}); {what} repeated to {args.scenes} per call, "
-          f"IDM rollouts (32 each), sim agents", flush=True)
+    print(
+        f"device: {jax.devices()[0]} (JAX {jax.__version__}); {what} repeated to {args.scenes} per call, "
+        f"IDM rollouts (32 each), sim agents",
+        flush=True,
+    )
     rollouts = [policy_rollouts(sc, "idm") for sc in scenarios]
     n = len(scenarios)
     for search in args.search.split(","):
@@ -187,8 +211,11 @@ def main() -> None:
         prepared = jax_realism.prepare(scenarios, search=search)
         prepare_s = time.perf_counter() - start
         arrays = jax_realism.stack_rollouts(prepared, rollouts)
-        print(f"prepare (once per scene set), {prepared.search} search: {prepare_s:.2f} s "
-              f"({prepare_s / n * 1e3:.0f} ms/scene), {len(prepared.groups)} group(s)", flush=True)
+        print(
+            f"prepare (once per scene set), {prepared.search} search: {prepare_s:.2f} s "
+            f"({prepare_s / n * 1e3:.0f} ms/scene), {len(prepared.groups)} group(s)",
+            flush=True,
+        )
         print(HEADER, flush=True)
         for size in sorted(set(sizes) | set(closed_sizes)):
             try:
@@ -198,19 +225,31 @@ def main() -> None:
                 if size in sizes:
                     for mode in args.modes.split(","):
                         compile_s, seconds, cost = in_the_loop(batch, resident, mode, args.repeat)
-                        row(f"in the loop, {prepared.search} search, {mode} mode, prepared an argument", size,
-                            compile_s, seconds, cost)
+                        row(
+                            f"in the loop, {prepared.search} search, {mode} mode, prepared an argument",
+                            size,
+                            compile_s,
+                            seconds,
+                            cost,
+                        )
                 if size in closed_sizes:
                     compile_s, seconds, cost, warned = closed_over(batch, resident, args.repeat)
                     row(f"CLOSED OVER (constants), {prepared.search} search, float32", size, compile_s, seconds, cost)
                     constants = sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(batch))
-                    why = ("yes" if warned else "no, under its threshold" if constants <= CLOSED_OVER_WARNING_BYTES
-                           else "no, it warns once per process")
-                    print(f"  closed over: {constants / 1e6:.1f} MB of prepared arrays became constants; "
-                          f"realism warned: {why}", flush=True)
+                    why = (
+                        "yes"
+                        if warned
+                        else "no, under its threshold"
+                        if constants <= CLOSED_OVER_WARNING_BYTES
+                        else "no, it warns once per process"
+                    )
+                    print(
+                        f"  closed over: {constants / 1e6:.1f} MB of prepared arrays became constants; "
+                        f"realism warned: {why}",
+                        flush=True,
+                    )
             except Exception as error:  # a batch too big for the device: say so, go on with the others
-                print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}",
-                      flush=True)
+                print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}", flush=True)
             finally:
                 batch = resident = None
     if args.file_path:
@@ -223,7 +262,12 @@ def main() -> None:
             if args.workers > 1:
                 paths.append((f"numpy, {args.workers} workers", args.workers, "numpy"))
             for label, workers, backend in paths:
-                row(f"file path, {label}", n, float("nan"), _file_path(shards, submission, workers, args.repeat, backend))
+                row(
+                    f"file path, {label}",
+                    n,
+                    float("nan"),
+                    _file_path(shards, submission, workers, args.repeat, backend),
+                )
 
 
 if __name__ == "__main__":

@@ -18,6 +18,7 @@ Usage:
   python benchmarks/official_side_by_side.py [--challenge sim_agents|scenario_gen] [--repeat 3]
       [--official-one-core] [--oracle-python ~/.wosac-oracle/bin/python]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -32,10 +33,13 @@ from pathlib import Path
 import tempfile
 
 from bench_env import SHARED
+
 SCENARIOS = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
 SUBMISSION = SHARED / "golden" / "637f20cafde22ff8__official_test_submission.binproto"
-CONFIGS = {"sim_agents": SHARED / "official-configs" / "challenge_2025_sim_agents_config.textproto",
-           "scenario_gen": SHARED / "official-configs" / "challenge_2025_scenario_gen_config.textproto"}
+CONFIGS = {
+    "sim_agents": SHARED / "official-configs" / "challenge_2025_sim_agents_config.textproto",
+    "scenario_gen": SHARED / "official-configs" / "challenge_2025_scenario_gen_config.textproto",
+}
 
 # Runs inside the oracle venv: only calls the official API.
 _OFFICIAL = """
@@ -87,11 +91,14 @@ print(json.dumps({"times": times, "metametric": m["metametric"]}))
 """
 
 
-def _run(python: str, code: str, inputs: tuple, repeat: int, env: dict | None = None,
-         prefix: tuple = ()) -> dict:
+def _run(python: str, code: str, inputs: tuple, repeat: int, env: dict | None = None, prefix: tuple = ()) -> dict:
     scenarios, submission, config, challenge = inputs
-    out = subprocess.run([*prefix, python, "-c", code, str(scenarios), str(submission), str(config), str(repeat),
-                          challenge], capture_output=True, text=True, env={**os.environ, **(env or {})})
+    out = subprocess.run(
+        [*prefix, python, "-c", code, str(scenarios), str(submission), str(config), str(repeat), challenge],
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+    )
     if out.returncode:
         sys.exit(f"{python} failed:\n{out.stderr[-2000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -115,12 +122,17 @@ def scenario_gen_inputs(folder: Path) -> tuple:
 
 def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--oracle-python", default=os.environ.get("WOSAC_ORACLE_PYTHON",
-                                                             str(Path.home() / ".wosac-oracle" / "bin" / "python")))
+    p.add_argument(
+        "--oracle-python",
+        default=os.environ.get("WOSAC_ORACLE_PYTHON", str(Path.home() / ".wosac-oracle" / "bin" / "python")),
+    )
     p.add_argument("--challenge", choices=("sim_agents", "scenario_gen"), default="sim_agents")
     p.add_argument("--repeat", type=int, default=3, help="timed calls of each, after one warm-up call")
-    p.add_argument("--official-one-core", action="store_true",
-                   help="run the official code on one core too (one TensorFlow thread, pinned to CPU 0)")
+    p.add_argument(
+        "--official-one-core",
+        action="store_true",
+        help="run the official code on one core too (one TensorFlow thread, pinned to CPU 0)",
+    )
     args = p.parse_args()
     if not Path(args.oracle_python).exists():
         print(f"no oracle venv at {args.oracle_python}: run `bash ../shared/oracle/setup.sh` first")
@@ -135,20 +147,31 @@ def main() -> int:
             what = "scenario 637f20cafde22ff8 (50 sim agents, 4 evaluated), 32 rollouts, 2025 config"
         inputs = (scenarios, submission, CONFIGS[args.challenge], args.challenge)
         one_core = args.official_one_core
-        official = _run(args.oracle_python, _OFFICIAL, inputs, args.repeat,
-                        env={"WOSAC_ONE_THREAD": "1"} if one_core else None,
-                        prefix=("taskset", "-c", "0") if one_core else ())
+        official = _run(
+            args.oracle_python,
+            _OFFICIAL,
+            inputs,
+            args.repeat,
+            env={"WOSAC_ONE_THREAD": "1"} if one_core else None,
+            prefix=("taskset", "-c", "0") if one_core else (),
+        )
         ours = _run(sys.executable, _OURS, inputs, args.repeat, env={"OMP_NUM_THREADS": "1"})
     o, w = statistics.median(official["times"]), statistics.median(ours["times"])
     print(f"{what} ({os.cpu_count()} cores)")
     cores = "one core" if one_core else "all cores"
-    print(f"  official (TensorFlow, {cores}): {o:8.2f} s per scenario  (runs: "
-          f"{', '.join(f'{t:.1f}' for t in official['times'])})")
-    print(f"  wosac-eval (numpy, one core):     {w:8.4f} s per scenario  (median of {len(ours['times'])}: "
-          f"{', '.join(f'{t:.3f}' for t in ours['times'])})")
+    print(
+        f"  official (TensorFlow, {cores}): {o:8.2f} s per scenario  (runs: "
+        f"{', '.join(f'{t:.1f}' for t in official['times'])})"
+    )
+    print(
+        f"  wosac-eval (numpy, one core):     {w:8.4f} s per scenario  (median of {len(ours['times'])}: "
+        f"{', '.join(f'{t:.3f}' for t in ours['times'])})"
+    )
     print(f"  speed-up: {o / w:.0f}x  (each: one warm-up call, then {args.repeat} timed calls)")
-    print(f"  meta-metric: official {official['metametric']:.7f}, ours {ours['metametric']:.7f}, "
-          f"|difference| {abs(official['metametric'] - ours['metametric']):.1e}")
+    print(
+        f"  meta-metric: official {official['metametric']:.7f}, ours {ours['metametric']:.7f}, "
+        f"|difference| {abs(official['metametric'] - ours['metametric']):.1e}"
+    )
     print(f"  ({time.perf_counter() - start:.0f} s in all)")
     return 0
 

@@ -19,6 +19,7 @@ script re-runs itself inside a network namespace with only loopback (`unshare -n
 
 Usage: python benchmarks/ray_scaling.py [--scenarios 48] [--cores 1 2]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -83,38 +84,52 @@ def main() -> int:
     args = p.parse_args()
     if not _in_loopback_namespace() and os.geteuid() == 0:
         inner = f"ip link set lo up && exec {sys.executable} {' '.join(map(str, sys.argv))}"
-        return subprocess.run(["unshare", "-n", "bash", "-c", inner],
-                              env={**os.environ, "WOSAC_BENCH_NETNS": "1", "RAY_DISABLE_USAGE_STATS": "1"}).returncode
+        return subprocess.run(
+            ["unshare", "-n", "bash", "-c", inner],
+            env={**os.environ, "WOSAC_BENCH_NETNS": "1", "RAY_DISABLE_USAGE_STATS": "1"},
+        ).returncode
     with tempfile.TemporaryDirectory() as tmp:
         scenarios, submission = replicated_submission(Path(tmp), args.scenarios, args.per_shard, layout="folder")
         rows, reference = [], None
         for kind in ("local", "ray", "cluster"):
             for k in args.cores:
-                out = subprocess.run([sys.executable, "-c", _CHILD, kind, str(k), str(scenarios), str(submission)],
-                                     capture_output=True, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+                out = subprocess.run(
+                    [sys.executable, "-c", _CHILD, kind, str(k), str(scenarios), str(submission)],
+                    capture_output=True,
+                    text=True,
+                    env={**os.environ, "OMP_NUM_THREADS": "1"},
+                )
                 if out.returncode:
                     sys.exit(f"{kind} {k} failed:\n{out.stderr[-3000:]}")
                 row = json.loads(out.stdout.strip().splitlines()[-1])
                 reference = reference or row["result"]
                 rows.append((kind, k, row, row["result"] == reference))
     n = args.scenarios
-    print(f"{n} scenarios (637f20cafde22ff8 x {n}, 32 rollouts, {args.per_shard} per shard, a folder of shards); "
-          f"{os.cpu_count()} cores on this machine")
-    print(f"{'engine':8s} {'cores':>5s} {'s/scenario':>10s} {'scenarios/s':>11s} {'vs local':>8s} "
-          f"{'start-up s':>10s} {'identical':>9s}")
+    print(
+        f"{n} scenarios (637f20cafde22ff8 x {n}, 32 rollouts, {args.per_shard} per shard, a folder of shards); "
+        f"{os.cpu_count()} cores on this machine"
+    )
+    print(
+        f"{'engine':8s} {'cores':>5s} {'s/scenario':>10s} {'scenarios/s':>11s} {'vs local':>8s} "
+        f"{'start-up s':>10s} {'identical':>9s}"
+    )
     local = {k: row["seconds"] for kind, k, row, _ in rows if kind == "local"}
     for kind, k, row, same in rows:
         ratio = row["seconds"] / local[k]
-        print(f"{kind:8s} {k:5d} {row['seconds'] / n:10.4f} {n / row['seconds']:11.1f} {ratio:8.2f} "
-              f"{row['startup']:10.1f} {'yes' if same else 'NO':>9s}")
+        print(
+            f"{kind:8s} {k:5d} {row['seconds'] / n:10.4f} {n / row['seconds']:11.1f} {ratio:8.2f} "
+            f"{row['startup']:10.1f} {'yes' if same else 'NO':>9s}"
+        )
     # Projection: the per-scenario cost on one core, Ray's overhead at the largest core count, and the
     # driver's serial share (indexing the scenario set; the rest runs in the workers).
     k = max(args.cores)
     cost = local[1] / n if 1 in local else local[k] * k / n
     overhead = next(row["seconds"] for kind, kk, row, _ in rows if kind == "ray" and kk == k) / local[k] - 1
     serial = next(row["index_seconds"] for kind, _, row, _ in rows if kind == "local") / n
-    print(f"\nprojection for {VALIDATION_SET} scenarios: {cost:.3f} s per scenario on one core, Ray overhead "
-          f"{100 * overhead:+.0f}% at {k} cores, driver's serial share {1000 * serial:.1f} ms per scenario")
+    print(
+        f"\nprojection for {VALIDATION_SET} scenarios: {cost:.3f} s per scenario on one core, Ray overhead "
+        f"{100 * overhead:+.0f}% at {k} cores, driver's serial share {1000 * serial:.1f} ms per scenario"
+    )
     for machines in (1, 2, 4, 8, 16):
         cores = 16 * machines
         minutes = VALIDATION_SET * (serial + cost * (1 + max(overhead, 0)) / cores) / 60

@@ -11,6 +11,7 @@ built in memory) in a process of its own.
 
     python benchmarks/result_streaming.py [--rows 44097]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -99,28 +100,48 @@ def main() -> None:
             single_write = time.perf_counter() - started
             del doc
             gc.collect()
-            print(f"{args.rows} rows; result JSON {legacy.stat().st_size / MiB:.1f} MiB; "
-                  f"written as summary + rows in {split_write:.2f} s (the single file: {single_write:.2f} s)")
-            print(f"API process at rest: {rss(server.proc.pid, 'VmRSS') / MiB:.0f} MiB RSS; peak per request: "
-                  + ("VmHWM, reset before each" if reset_peak(server.proc.pid) else
-                     "VmHWM since the process started (clear_refs refused: an upper bound)"))
-            print(f"{'stored as':12s} {'request':34s} {'bytes':>11s} {'seconds':>8s} {'RSS before':>11s} "
-                  f"{'peak RSS':>9s}")
+            print(
+                f"{args.rows} rows; result JSON {legacy.stat().st_size / MiB:.1f} MiB; "
+                f"written as summary + rows in {split_write:.2f} s (the single file: {single_write:.2f} s)"
+            )
+            print(
+                f"API process at rest: {rss(server.proc.pid, 'VmRSS') / MiB:.0f} MiB RSS; peak per request: "
+                + (
+                    "VmHWM, reset before each"
+                    if reset_peak(server.proc.pid)
+                    else "VmHWM since the process started (clear_refs refused: an upper bound)"
+                )
+            )
+            print(
+                f"{'stored as':12s} {'request':34s} {'bytes':>11s} {'seconds':>8s} {'RSS before':>11s} {'peak RSS':>9s}"
+            )
             for form, sid in ids.items():
                 for label, path, params in [
-                        ("results (JSON)", f"/v1/submissions/{sid}/results", None),
-                        ("results?format=csv", f"/v1/submissions/{sid}/results", {"format": "csv"}),
-                        ("results/summary", f"/v1/submissions/{sid}/results/summary", None),
-                        ("results/scenarios?offset=44000", f"/v1/submissions/{sid}/results/scenarios",
-                         {"offset": min(44_000, max(args.rows - 97, 0)), "limit": 1000})]:
+                    ("results (JSON)", f"/v1/submissions/{sid}/results", None),
+                    ("results?format=csv", f"/v1/submissions/{sid}/results", {"format": "csv"}),
+                    ("results/summary", f"/v1/submissions/{sid}/results/summary", None),
+                    (
+                        "results/scenarios?offset=44000",
+                        f"/v1/submissions/{sid}/results/scenarios",
+                        {"offset": min(44_000, max(args.rows - 97, 0)), "limit": 1000},
+                    ),
+                ]:
                     size, seconds, before, peak = fetch(server, key, path, params)
-                    print(f"{form:12s} {label:34s} {size:>11,d} {seconds:>8.2f} {before / MiB:>7.0f} MiB "
-                          f"{peak / MiB:>5.0f} MiB")
-            former = subprocess.run([sys.executable, "-c", FORMER_CSV, str(legacy), str(REPO / "server")],
-                                    capture_output=True, text=True, check=True)
+                    print(
+                        f"{form:12s} {label:34s} {size:>11,d} {seconds:>8.2f} {before / MiB:>7.0f} MiB "
+                        f"{peak / MiB:>5.0f} MiB"
+                    )
+            former = subprocess.run(
+                [sys.executable, "-c", FORMER_CSV, str(legacy), str(REPO / "server")],
+                capture_output=True,
+                text=True,
+                check=True,
+            )
             peak, length = map(int, former.stdout.split())
-            print(f"former CSV path (json.load + CSV in memory, own process): peak RSS {peak / MiB:.0f} MiB "
-                  f"for {length:,d} characters of CSV")
+            print(
+                f"former CSV path (json.load + CSV in memory, own process): peak RSS {peak / MiB:.0f} MiB "
+                f"for {length:,d} characters of CSV"
+            )
         finally:
             server.stop()
 

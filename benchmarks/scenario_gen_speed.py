@@ -20,6 +20,7 @@ linear scaling across worker processes that `ray_scaling.py` measures for Sim Ag
 
 Usage: python benchmarks/scenario_gen_speed.py [--repeat 7]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -72,19 +73,27 @@ def main() -> int:
     print(f"Scenario generation, one core, median of {args.repeat} after a warm-up")
     seconds = {}
     for which, path in rows:
-        out = subprocess.run([sys.executable, "-c", _CHILD, which, str(args.repeat), path, str(HERE)], capture_output=True,
-                             text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        out = subprocess.run(
+            [sys.executable, "-c", _CHILD, which, str(args.repeat), path, str(HERE)],
+            capture_output=True,
+            text=True,
+            env={**os.environ, "OMP_NUM_THREADS": "1"},
+        )
         if out.returncode:
             sys.exit(out.stderr[-2000:])
         r = json.loads(out.stdout.strip().splitlines()[-1])
         print(f"\n{r['scenario']}: {r['objects']} objects (all evaluated), {r['segments']} road-edge segments")
-        print(f"  end to end: {r['seconds']:.3f} s per scenario, peak RSS {r['peak_rss_mib']:.0f} MiB, "
-              f"meta-metric {r['metametric']:.4f}")
+        print(
+            f"  end to end: {r['seconds']:.3f} s per scenario, peak RSS {r['peak_rss_mib']:.0f} MiB, "
+            f"meta-metric {r['metametric']:.4f}"
+        )
         print_breakdown(r)
         seconds[which] = r["seconds"]
     which = "real" if "real" in seconds else "synthetic"
-    print(f"\nprojection for the {VALIDATION_SET:,}-scenario validation set from the {which} scene "
-          f"({seconds[which]:.3f} s per scenario on one core, linear scaling assumed):")
+    print(
+        f"\nprojection for the {VALIDATION_SET:,}-scenario validation set from the {which} scene "
+        f"({seconds[which]:.3f} s per scenario on one core, linear scaling assumed):"
+    )
     for cores in (16, 32):
         print(f"  {cores:2d} cores: {VALIDATION_SET * seconds[which] / cores / 60:6.1f} min")
     if not real.exists():

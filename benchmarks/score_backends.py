@@ -11,6 +11,7 @@ Two workloads, from parsed arrays to per-scenario metrics (parsing excluded):
 For jax, the first call (which compiles one function per bucket) is reported
 apart from the steady-state calls. Peak RSS is sampled after each backend.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,6 +21,7 @@ import resource
 import time
 
 from bench_env import REPO, SHARED, median_seconds
+
 ORACLE = REPO / "tests" / "data" / "oracle"
 
 import jax  # noqa: E402
@@ -85,8 +87,10 @@ def main() -> None:
     parser.add_argument("--max-batch", type=int, default=8, help="scenarios per jax call")
     args = parser.parse_args()
     device = jax.devices()[0]
-    print(f"jax {jax.__version__} on {device.platform} ({device.device_kind}); {os.cpu_count()} CPUs; "
-          f"fused multiply-add in XLA: {jax_backend.fma_contraction()}")
+    print(
+        f"jax {jax.__version__} on {device.platform} ({device.device_kind}); {os.cpu_count()} CPUs; "
+        f"fused multiply-add in XLA: {jax_backend.fma_contraction()}"
+    )
     workloads = [("golden", golden_pairs()), (f"batch of {7 * args.copies}", oracle_pairs(args.copies))]
     workloads = [(name, pairs) for name, pairs in workloads if pairs]
     if len(workloads) == 1:
@@ -106,8 +110,10 @@ def main() -> None:
         same = first == score_numpy(pairs)
         print(f"  jax/numpy time {jax_s / numpy_s:5.2f}x; metrics identical: {same}")
         results[name] = (rss_numpy, _rss_mib())
-    print(f"peak RSS: {max(r[0] for r in results.values()):.0f} MiB after numpy, "
-          f"{max(r[1] for r in results.values()):.0f} MiB after jax (process peak, cumulative)")
+    print(
+        f"peak RSS: {max(r[0] for r in results.values()):.0f} MiB after numpy, "
+        f"{max(r[1] for r in results.values()):.0f} MiB after jax (process peak, cumulative)"
+    )
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ one core. The map is the scene's own (5251 road-edge segments).
 
 Usage: python benchmarks/score_objects.py [--repeat 3]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -61,9 +62,12 @@ def rollouts_for(scene: scenario_pb2.Scenario, rng: np.random.Generator) -> sim_
             s = track.states[now]
             k = 1 + rng.normal(0, 0.1)
             joint.simulated_trajectories.add(
-                object_id=track.id, center_x=(s.center_x + k * s.velocity_x * t).tolist(),
-                center_y=(s.center_y + k * s.velocity_y * t).tolist(), center_z=[s.center_z] * 80,
-                heading=[s.heading] * 80)
+                object_id=track.id,
+                center_x=(s.center_x + k * s.velocity_x * t).tolist(),
+                center_y=(s.center_y + k * s.velocity_y * t).tolist(),
+                center_z=[s.center_z] * 80,
+                heading=[s.heading] * 80,
+            )
     return out
 
 
@@ -87,8 +91,11 @@ def main() -> None:
                 t = time.perf_counter()
                 score_scenario(scene, rollouts)
                 times.append(time.perf_counter() - t)
-            print(f"{num_agents:>6} {num_evaluated:>9} {statistics.median(times):>10.3f} "
-                  f"{num_agents * num_evaluated:>13}", flush=True)
+            print(
+                f"{num_agents:>6} {num_evaluated:>9} {statistics.median(times):>10.3f} "
+                f"{num_agents * num_evaluated:>13}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

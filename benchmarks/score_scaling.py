@@ -10,6 +10,7 @@ with the number of scenarios.
 Usage:
   python benchmarks/score_scaling.py [--sizes 20 100] [--workers 1 2]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -43,8 +44,12 @@ def build(n: int, folder: Path) -> tuple[Path, Path]:
 
 
 def run(scenarios: Path, submission: Path, workers: int) -> dict:
-    out = subprocess.run([sys.executable, "-c", _RUNNER, str(scenarios), str(submission), str(workers)],
-                         capture_output=True, text=True, check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _RUNNER, str(scenarios), str(submission), str(workers)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return json.loads(out.stdout)
 
 
@@ -53,8 +58,10 @@ def main() -> None:
     p.add_argument("--sizes", type=int, nargs="+", default=[20, 100])
     p.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     args = p.parse_args()
-    print(f"{'scenarios':>9} {'workers':>7} {'seconds':>8} {'s/scenario':>10} {'scen/s':>7} "
-          f"{'speed-up':>8} {'peak RSS MiB':>12} {'identical':>9}")
+    print(
+        f"{'scenarios':>9} {'workers':>7} {'seconds':>8} {'s/scenario':>10} {'scen/s':>7} "
+        f"{'speed-up':>8} {'peak RSS MiB':>12} {'identical':>9}"
+    )
     with tempfile.TemporaryDirectory() as tmp:
         for n in args.sizes:
             scenarios, submission = build(n, Path(tmp))
@@ -63,8 +70,11 @@ def main() -> None:
                 r = run(scenarios, submission, w)
                 baseline = baseline or r
                 same = r["scenarios"] == baseline["scenarios"]
-                print(f"{n:>9} {w:>7} {r['elapsed']:>8.1f} {r['elapsed'] / n:>10.3f} {n / r['elapsed']:>7.2f} "
-                      f"{baseline['elapsed'] / r['elapsed']:>8.2f} {r['rss_mib']:>12.0f} {str(same):>9}", flush=True)
+                print(
+                    f"{n:>9} {w:>7} {r['elapsed']:>8.1f} {r['elapsed'] / n:>10.3f} {n / r['elapsed']:>7.2f} "
+                    f"{baseline['elapsed'] / r['elapsed']:>8.2f} {r['rss_mib']:>12.0f} {str(same):>9}",
+                    flush=True,
+                )
 
 
 if __name__ == "__main__":

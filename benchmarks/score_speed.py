@@ -12,6 +12,7 @@ second, each search's operation count and share of its arithmetic floor
 memory for reuse (`wosac_eval.runtime.allocator`); `--system-malloc` measures
 with glibc's default thresholds instead.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -33,23 +34,34 @@ from stage_timing import print_breakdown, stage_breakdown  # noqa: E402
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenarios", default=str(SHARED / "womd" / "motion_data_one_scenario.tfrecord"))
-    p.add_argument("--submission", default=str(SHARED / "golden" / "637f20cafde22ff8__official_test_submission.binproto"))
+    p.add_argument(
+        "--submission", default=str(SHARED / "golden" / "637f20cafde22ff8__official_test_submission.binproto")
+    )
     p.add_argument("--repeat", type=int, default=7)
     p.add_argument("--config", default="2025")
     p.add_argument("--system-malloc", action="store_true", help="leave glibc's malloc thresholds as they are")
     args = p.parse_args()
-    allocator = "system malloc" if args.system_malloc else (
-        "freed memory kept for reuse" if keep_freed_memory() else "system malloc (setting unavailable)")
+    allocator = (
+        "system malloc"
+        if args.system_malloc
+        else ("freed memory kept for reuse" if keep_freed_memory() else "system malloc (setting unavailable)")
+    )
     submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(Path(args.submission).read_bytes())
     rollouts = submission.scenario_rollouts[0]
-    raw_scenario = next(r for r in read_records(args.scenarios)
-                        if scenario_pb2.Scenario.FromString(r).scenario_id == rollouts.scenario_id)
-    r = stage_breakdown(raw_scenario, rollouts.SerializeToString(), load_config(args.config), "sim_agents",
-                        args.repeat)
-    print(f"scenario {r['scenario']} ({r['objects']} objects, {r['evaluated']} evaluated, {r['segments']} road-edge "
-          f"segments), median of {args.repeat} runs after a warm-up, one core ({allocator}):")
-    print(f"  end to end (protobuf bytes in, metrics out): {r['seconds']:.4f} s, "
-          f"{1 / r['seconds']:.1f} scenarios per second, meta-metric {r['metametric']:.7f}")
+    raw_scenario = next(
+        r
+        for r in read_records(args.scenarios)
+        if scenario_pb2.Scenario.FromString(r).scenario_id == rollouts.scenario_id
+    )
+    r = stage_breakdown(raw_scenario, rollouts.SerializeToString(), load_config(args.config), "sim_agents", args.repeat)
+    print(
+        f"scenario {r['scenario']} ({r['objects']} objects, {r['evaluated']} evaluated, {r['segments']} road-edge "
+        f"segments), median of {args.repeat} runs after a warm-up, one core ({allocator}):"
+    )
+    print(
+        f"  end to end (protobuf bytes in, metrics out): {r['seconds']:.4f} s, "
+        f"{1 / r['seconds']:.1f} scenarios per second, meta-metric {r['metametric']:.7f}"
+    )
     print_breakdown(r)
     print(f"  peak RSS: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
 

@@ -12,6 +12,7 @@ Uploads the one-scenario golden submission of ../shared (scored with allow_parti
 against both shared scenarios); when ../shared is absent, demo data from
 `wosac_eval.sim` instead. --submission/--scenarios override both.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -48,11 +49,13 @@ def main() -> int:
                 print(f"missing {path}", file=sys.stderr)
                 return 2
         body = args.submission.read_bytes()
-        server = Server(Path(tmp) / "data", args.scenarios, workers=args.workers, poll_s=0.2,
-                        heartbeat_s=2, lease_s=30).start()
+        server = Server(
+            Path(tmp) / "data", args.scenarios, workers=args.workers, poll_s=0.2, heartbeat_s=2, lease_s=30
+        ).start()
         try:
             key = server.key("load", max_concurrent=10**6, max_daily=10**6)
             with server.client(key, timeout=300) as client:
+
                 def upload(_):
                     t = time.perf_counter()
                     r = client.post("/v1/submissions", content=body, params={"allow_partial": "true"})
@@ -73,8 +76,9 @@ def main() -> int:
                     time.sleep(0.2)
                 all_s = time.perf_counter() - t0
                 done = [sid for sid in ids if states.get(sid, {}).get("state") == "done"]
-                results = {sid: json.dumps(client.get(f"/v1/submissions/{sid}/results").json(), sort_keys=True)
-                           for sid in done}
+                results = {
+                    sid: json.dumps(client.get(f"/v1/submissions/{sid}/results").json(), sort_keys=True) for sid in done
+                }
         finally:
             server.stop()
 
@@ -82,10 +86,14 @@ def main() -> int:
     latencies = sorted(lat for _, lat in uploaded)
     scenarios = sum(states[sid]["progress"]["scenarios_total"] or 0 for sid in done)
     print(f"uploads: {n} concurrent x {len(body) / 1e6:.2f} MB, {args.workers} worker process(es)")
-    print(f"upload phase: {upload_s:.2f} s, {n / upload_s:.1f} uploads/s, {n * len(body) / 1e6 / upload_s:.1f} MB/s; "
-          f"latency median {statistics.median(latencies):.2f} s, max {latencies[-1]:.2f} s")
-    print(f"all scored after {all_s:.2f} s: {len(done)}/{n} done, {n - len(done) - len(pending)} failed, "
-          f"{len(pending)} unfinished; {scenarios / all_s:.2f} scenarios/s")
+    print(
+        f"upload phase: {upload_s:.2f} s, {n / upload_s:.1f} uploads/s, {n * len(body) / 1e6 / upload_s:.1f} MB/s; "
+        f"latency median {statistics.median(latencies):.2f} s, max {latencies[-1]:.2f} s"
+    )
+    print(
+        f"all scored after {all_s:.2f} s: {len(done)}/{n} done, {n - len(done) - len(pending)} failed, "
+        f"{len(pending)} unfinished; {scenarios / all_s:.2f} scenarios/s"
+    )
     same = len(set(results.values())) == 1
     print(f"every result identical: {same}")
     return 0 if len(done) == n and same else 1

@@ -18,6 +18,7 @@ and prints:
 
     python benchmarks/service_attack.py [--connections 1100] [--uploads 40] [--sections bombs,uploads,...]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -88,8 +89,10 @@ class HealthProbe:
     def summary(self) -> str:
         xs = sorted(self.latencies)
         p99 = xs[min(len(xs) - 1, int(0.99 * len(xs)))]
-        return (f"/healthz n={len(xs)} p50 {statistics.median(xs) * 1e3:.1f} ms, p99 {p99 * 1e3:.1f} ms, "
-                f"max {xs[-1] * 1e3:.1f} ms, failed {self.failures}")
+        return (
+            f"/healthz n={len(xs)} p50 {statistics.median(xs) * 1e3:.1f} ms, p99 {p99 * 1e3:.1f} ms, "
+            f"max {xs[-1] * 1e3:.1f} ms, failed {self.failures}"
+        )
 
 
 def probed(server: Server, work) -> tuple[object, HealthProbe]:
@@ -105,7 +108,9 @@ def probed(server: Server, work) -> tuple[object, HealthProbe]:
 
 def bombs_one_by_one(server: Server, key: str) -> None:
     print("\n1. bombs, one at a time (worker: one process per job; limits: the service defaults)")
-    print(f"{'bomb':40s} {'size':>9s}  {'stopped':10s} {'answer':>8s} {'job peak RSS':>13s} {'API peak RSS':>13s}  reason")
+    print(
+        f"{'bomb':40s} {'size':>9s}  {'stopped':10s} {'answer':>8s} {'job peak RSS':>13s} {'API peak RSS':>13s}  reason"
+    )
     with server.client(key, timeout=600) as c:
         for name, bomb in all_bombs().items():
             started = time.perf_counter()
@@ -120,12 +125,20 @@ def bombs_one_by_one(server: Server, key: str) -> None:
                 where = f"job {status['state']}"
                 job_rss = f"{status['peak_rss_bytes'] / MiB:.0f} MiB"
                 report = status.get("validation_report") or {}
-                reason = next((line.strip(" -") for line in report.get("text", "").splitlines()
-                               if "refused before parsing" in line), status["error"])
+                reason = next(
+                    (
+                        line.strip(" -")
+                        for line in report.get("text", "").splitlines()
+                        if "refused before parsing" in line
+                    ),
+                    status["error"],
+                )
             else:
                 where, reason = f"upload {r.status_code}", r.json()["detail"]
-            print(f"{name:40s} {len(bomb):>9d}  {where:10s} {answer:>7.2f}s {job_rss:>13s} "
-                  f"{peak_rss(server.proc.pid) / MiB:>9.0f} MiB  {reason[:110]}")
+            print(
+                f"{name:40s} {len(bomb):>9d}  {where:10s} {answer:>7.2f}s {job_rss:>13s} "
+                f"{peak_rss(server.proc.pid) / MiB:>9.0f} MiB  {reason[:110]}"
+            )
 
 
 ATTACKER_NICE = 0  # --attacker-nice: the attack's threads share this machine's cores with the server
@@ -156,8 +169,10 @@ def concurrent_bomb_uploads(server: Server, uploads: int, waves: int) -> None:
     codes, probe = probed(server, attack)
     took = time.perf_counter() - started
     counts = {code: codes.count(code) for code in sorted(set(codes))}
-    print(f"\n2a. {waves} waves of {uploads} concurrent bomb uploads (a key allowed 2 jobs; attackers at nice "
-          f"{ATTACKER_NICE}): answers {counts} in {took:.1f} s; {probe.summary()}")
+    print(
+        f"\n2a. {waves} waves of {uploads} concurrent bomb uploads (a key allowed 2 jobs; attackers at nice "
+        f"{ATTACKER_NICE}): answers {counts} in {took:.1f} s; {probe.summary()}"
+    )
 
 
 def half_open(server: Server, connections: int, sources: int, hold_s: float) -> None:
@@ -186,12 +201,16 @@ def half_open(server: Server, connections: int, sources: int, hold_s: float) -> 
         return closed, time.perf_counter() - opened
 
     ((closed, held), peak), probe = probed(server, lambda: fd_watch(server, attack))
-    exhausted = sum("Too many open files" in line or "out of system resource" in line
-                    for line in server.log.read_text().splitlines())
-    print(f"2b. {connections} half-open connections from {sources} address(es), held {held:.0f} s: "
-          f"{closed} answered and closed by the server; server descriptors at most {peak[0]} (limit "
-          f"{server.nofile or resource.getrlimit(resource.RLIMIT_NOFILE)[1]}), {exhausted} log line(s) of "
-          f"descriptor exhaustion; {probe.summary()}")
+    exhausted = sum(
+        "Too many open files" in line or "out of system resource" in line
+        for line in server.log.read_text().splitlines()
+    )
+    print(
+        f"2b. {connections} half-open connections from {sources} address(es), held {held:.0f} s: "
+        f"{closed} answered and closed by the server; server descriptors at most {peak[0]} (limit "
+        f"{server.nofile or resource.getrlimit(resource.RLIMIT_NOFILE)[1]}), {exhausted} log line(s) of "
+        f"descriptor exhaustion; {probe.summary()}"
+    )
 
 
 def slow_bodies(server: Server, count: int, period_s: float, hold_s: float) -> None:
@@ -207,8 +226,7 @@ def slow_bodies(server: Server, count: int, period_s: float, hold_s: float) -> N
             s.bind((f"127.0.3.{1 + i % 4}", 0))
             s.connect(("127.0.0.1", server.port))
             auth = f"Authorization: Bearer {keys[i % len(keys)]}\r\n" if i % 2 else ""
-            s.sendall(f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: 1000000\r\n\r\n"
-                      .encode())
+            s.sendall(f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: 1000000\r\n\r\n".encode())
             s.setblocking(False)
             socks.append([s, time.perf_counter(), None, b""])
         most_files = peak_fds = 0
@@ -252,12 +270,15 @@ def slow_bodies(server: Server, count: int, period_s: float, hold_s: float) -> N
         for e in group:
             status = e[3][9:12].decode() if e[3].startswith(b"HTTP/1.1 ") else "none"
             answers[status] = answers.get(status, 0) + 1
-        when = (f"closed after p50 {statistics.median(closed):.1f} s, max {closed[-1]:.1f} s" if closed
-                else "none closed")
+        when = (
+            f"closed after p50 {statistics.median(closed):.1f} s, max {closed[-1]:.1f} s" if closed else "none closed"
+        )
         print(f"    {len(group)} slow bodies {label}: {len(closed)} closed by the server ({when}); answers {answers}")
-    print(f"2c. {count} slow bodies (1 byte per {period_s:g} s of a declared 1,000,000): at most {most_files} "
-          f"temporary body file(s) at once, {left} left after; server descriptors at most {peak_fds}; "
-          f"{probe.summary()}")
+    print(
+        f"2c. {count} slow bodies (1 byte per {period_s:g} s of a declared 1,000,000): at most {most_files} "
+        f"temporary body file(s) at once, {left} left after; server descriptors at most {peak_fds}; "
+        f"{probe.summary()}"
+    )
 
 
 def fd_watch(server: Server, work):
@@ -298,9 +319,11 @@ def check_cost(tmp: Path, shard: bytes) -> None:
     ours = median_seconds(lambda: check_container(path), repeat=3, warmup=1)
     base = median_seconds(plain, repeat=3, warmup=1)
     size = sum(map(len, members.values()))
-    print(f"\n3. upload check of a {path.stat().st_size / MiB:.0f} MiB .tar.gz ({len(members)} shards, "
-          f"{size / MiB:.0f} MiB inside): check_container {ours:.3f} s, plain gzip decompression {base:.3f} s "
-          f"({ours / base:.2f}x)")
+    print(
+        f"\n3. upload check of a {path.stat().st_size / MiB:.0f} MiB .tar.gz ({len(members)} shards, "
+        f"{size / MiB:.0f} MiB inside): check_container {ours:.3f} s, plain gzip decompression {base:.3f} s "
+        f"({ours / base:.2f}x)"
+    )
 
 
 def main() -> int:
@@ -310,13 +333,24 @@ def main() -> int:
     parser.add_argument("--waves", type=int, default=10, help="rounds of --uploads concurrent uploads")
     parser.add_argument("--hold", type=float, default=12.0, help="seconds the half-open connections are held")
     parser.add_argument("--slow-bodies", type=int, default=100)
-    parser.add_argument("--server-nofile", type=int, default=1024,
-                        help="the service's open-file limit (soft and hard; 0: this process's)")
-    parser.add_argument("--sections", default="bombs,uploads,half-open,slow-bodies,check",
-                        help="which of: bombs, uploads, half-open, slow-bodies, check")
-    parser.add_argument("--attacker-nice", type=int, default=10,
-                        help="niceness of the uploading threads (default 10: on a small machine the attack "
-                             "would otherwise take the server's cores, as a remote attacker cannot; 0 to compare)")
+    parser.add_argument(
+        "--server-nofile",
+        type=int,
+        default=1024,
+        help="the service's open-file limit (soft and hard; 0: this process's)",
+    )
+    parser.add_argument(
+        "--sections",
+        default="bombs,uploads,half-open,slow-bodies,check",
+        help="which of: bombs, uploads, half-open, slow-bodies, check",
+    )
+    parser.add_argument(
+        "--attacker-nice",
+        type=int,
+        default=10,
+        help="niceness of the uploading threads (default 10: on a small machine the attack "
+        "would otherwise take the server's cores, as a remote attacker cannot; 0 to compare)",
+    )
     args = parser.parse_args()
     global ATTACKER_NICE
     ATTACKER_NICE = args.attacker_nice
@@ -328,8 +362,10 @@ def main() -> int:
         sections = set(args.sections.split(","))
         server = Server(tmp / "service", data.scenarios, nofile=args.server_nofile or None, workers=1).start()
         try:
-            print(f"service on 127.0.0.1:{server.port}, scenarios: {data.source}, open-file limit "
-                  f"{args.server_nofile or hard}")
+            print(
+                f"service on 127.0.0.1:{server.port}, scenarios: {data.source}, open-file limit "
+                f"{args.server_nofile or hard}"
+            )
             if "bombs" in sections:
                 bombs_one_by_one(server, server.key("bomber"))
             if "uploads" in sections:

@@ -23,6 +23,7 @@ Usage:
   python benchmarks/speed_report.py [--sizes 100 500] [--repeat 15] [--skip objects jax]
                                     [--with side-by-side scenario-gen ...] [--markdown docs/speed.md]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -57,31 +58,83 @@ def sections(repeat: str, sizes: list[str]) -> tuple[Section, ...]:
     return (
         Section("one-scenario", "One scenario on one core", "score_speed.py", ("--repeat", repeat), one_core=True),
         Section("objects", "Cost against objects and evaluated objects", "score_objects.py", one_core=True),
-        Section("workers", "Whole submissions: workers and peak memory", "score_scaling.py",
-                ("--sizes", *sizes, "--workers", "1", "2"), one_core=True),
+        Section(
+            "workers",
+            "Whole submissions: workers and peak memory",
+            "score_scaling.py",
+            ("--sizes", *sizes, "--workers", "1", "2"),
+            one_core=True,
+        ),
         Section("backends", "numpy against JAX on the CPU", "score_backends.py", needs="jax"),
-        Section("allocator", "The allocator", "score_speed.py", ("--repeat", repeat, "--system-malloc"),
-                one_core=True, default=False),
-        Section("side-by-side", "Sim Agents side by side with the official evaluator", "official_side_by_side.py",
-                ("--repeat", "3", "--official-one-core"), default=False),
-        Section("scenario-gen", "Scenario Generation: one scene on one core", "scenario_gen_speed.py",
-                ("--repeat", "7"), one_core=True, default=False),
-        Section("side-by-side-scenario-gen", "Scenario Generation side by side with the official evaluator",
-                "official_side_by_side.py", ("--challenge", "scenario_gen", "--repeat", "3", "--official-one-core"),
-                default=False),
+        Section(
+            "allocator",
+            "The allocator",
+            "score_speed.py",
+            ("--repeat", repeat, "--system-malloc"),
+            one_core=True,
+            default=False,
+        ),
+        Section(
+            "side-by-side",
+            "Sim Agents side by side with the official evaluator",
+            "official_side_by_side.py",
+            ("--repeat", "3", "--official-one-core"),
+            default=False,
+        ),
+        Section(
+            "scenario-gen",
+            "Scenario Generation: one scene on one core",
+            "scenario_gen_speed.py",
+            ("--repeat", "7"),
+            one_core=True,
+            default=False,
+        ),
+        Section(
+            "side-by-side-scenario-gen",
+            "Scenario Generation side by side with the official evaluator",
+            "official_side_by_side.py",
+            ("--challenge", "scenario_gen", "--repeat", "3", "--official-one-core"),
+            default=False,
+        ),
         Section("analysis", "What the analysis costs", "analysis_cost.py", default=False),
-        Section("validate", "Validation throughput and memory", "validate_throughput.py", ("--scenarios", "100"),
-                default=False),
+        Section(
+            "validate",
+            "Validation throughput and memory",
+            "validate_throughput.py",
+            ("--scenarios", "100"),
+            default=False,
+        ),
         Section("gate", "Compare and report at the size of the test set", "bench_gate.py", default=False),
         Section("ray", "Ray scaling", "ray_scaling.py", ("--scenarios", "48"), default=False, needs="ray"),
-        Section("jax-realism", "JAX realism in a training loop", "jax_realism_speed.py",
-                ("--scenes", "16,64", "--repeat", "3"), default=False, needs="jax"),
-        Section("full-scale", "The whole validation set", "full_scale.py", ("--paths", "validate,cli,service"),
-                default=False),
-        Section("full-scale-scenario-gen", "Scenario Generation at 4,000 scenes", "full_scale.py",
-                ("--challenge", "scenario_gen", "--scenes", "4000", "--paths", "validate,cli"), default=False),
-        Section("full-scale-interrupt", "An interrupted run", "full_scale.py",
-                ("--scenes", "4000", "--paths", "cli,interrupt"), default=False),
+        Section(
+            "jax-realism",
+            "JAX realism in a training loop",
+            "jax_realism_speed.py",
+            ("--scenes", "16,64", "--repeat", "3"),
+            default=False,
+            needs="jax",
+        ),
+        Section(
+            "full-scale",
+            "The whole validation set",
+            "full_scale.py",
+            ("--paths", "validate,cli,service"),
+            default=False,
+        ),
+        Section(
+            "full-scale-scenario-gen",
+            "Scenario Generation at 4,000 scenes",
+            "full_scale.py",
+            ("--challenge", "scenario_gen", "--scenes", "4000", "--paths", "validate,cli"),
+            default=False,
+        ),
+        Section(
+            "full-scale-interrupt",
+            "An interrupted run",
+            "full_scale.py",
+            ("--scenes", "4000", "--paths", "cli,interrupt"),
+            default=False,
+        ),
     )
 
 
@@ -93,8 +146,10 @@ def command_line(section: Section) -> str:
 
 def git_commit(repo: Path) -> str:
     """The short commit of the tree, `+changes` when it differs from that commit; `unknown` outside git."""
+
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True).stdout.strip()
+
     try:
         commit = git("rev-parse", "--short", "HEAD")
         dirty = git("status", "--porcelain", "--untracked-files=no")
@@ -114,25 +169,32 @@ def cpu_model() -> str:
 
 def machine() -> dict[str, str]:
     """Where the figures come from: CPU model and cores, Python, system, date (UTC)."""
-    return {"cpu": f"{cpu_model()}, {os.cpu_count()} cores", "python": platform.python_version(),
-            "system": f"{platform.system()} {platform.machine()}",
-            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
+    return {
+        "cpu": f"{cpu_model()}, {os.cpu_count()} cores",
+        "python": platform.python_version(),
+        "system": f"{platform.system()} {platform.machine()}",
+        "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
+    }
 
 
-def section_markdown(key: str, title: str, command: str, commit: str, where: dict[str, str], seconds: float,
-                     output: str) -> str:
+def section_markdown(
+    key: str, title: str, command: str, commit: str, where: dict[str, str], seconds: float, output: str
+) -> str:
     """One section of the Markdown file, markers included: what was run, where, and what it printed."""
-    return (f"<!-- speed-report: {key} -->\n### {title}\n\n"
-            f"Command: `{command}` · commit `{commit}` · {where['cpu']} · Python {where['python']} · "
-            f"{where['system']} · {where['date']} ({seconds:.0f} s)\n\n"
-            f"```text\n{output.rstrip()}\n```\n<!-- /speed-report: {key} -->\n")
+    return (
+        f"<!-- speed-report: {key} -->\n### {title}\n\n"
+        f"Command: `{command}` · commit `{commit}` · {where['cpu']} · Python {where['python']} · "
+        f"{where['system']} · {where['date']} ({seconds:.0f} s)\n\n"
+        f"```text\n{output.rstrip()}\n```\n<!-- /speed-report: {key} -->\n"
+    )
 
 
 def replace_sections(document: str, rendered: dict[str, str]) -> str:
     """`document` with each rendered section in place of its marked part, or appended when it has none."""
     for key, text in rendered.items():
-        marked = re.compile(rf"<!-- speed-report: {re.escape(key)} -->\n.*?<!-- /speed-report: {re.escape(key)} -->\n",
-                            re.S)
+        marked = re.compile(
+            rf"<!-- speed-report: {re.escape(key)} -->\n.*?<!-- /speed-report: {re.escape(key)} -->\n", re.S
+        )
         if marked.search(document):
             document = marked.sub(lambda _: text, document, count=1)
         else:
@@ -152,9 +214,13 @@ def _run(section: Section) -> tuple[int, str, float]:
     """Run one section's script, echoing its output as it comes; (exit status, output, seconds)."""
     print(f"\n== {section.title} ==\n$ {command_line(section)}", flush=True)
     start = time.perf_counter()
-    process = subprocess.Popen([sys.executable, str(HERE / section.script), *section.args], stdout=subprocess.PIPE,
-                               stderr=subprocess.STDOUT, text=True,
-                               env={**os.environ, **(ONE_CORE if section.one_core else {})})
+    process = subprocess.Popen(
+        [sys.executable, str(HERE / section.script), *section.args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        env={**os.environ, **(ONE_CORE if section.one_core else {})},
+    )
     lines = []
     assert process.stdout is not None
     for line in process.stdout:
@@ -170,16 +236,28 @@ def main() -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sizes", nargs="+", default=["100", "500"], help="submission sizes of the workers section")
     p.add_argument("--repeat", default="15", help="runs of the single-scenario measurement")
-    p.add_argument("--skip", nargs="*", default=[], choices=["scenario", "objects", "workers", "jax"],
-                   help="default sections to leave out")
+    p.add_argument(
+        "--skip",
+        nargs="*",
+        default=[],
+        choices=["scenario", "objects", "workers", "jax"],
+        help="default sections to leave out",
+    )
     every = sections("15", ["100"])
-    p.add_argument("--with", dest="extra", nargs="*", default=[], choices=[s.key for s in every if not s.default],
-                   help="sections to run beside the default ones")
+    p.add_argument(
+        "--with",
+        dest="extra",
+        nargs="*",
+        default=[],
+        choices=[s.key for s in every if not s.default],
+        help="sections to run beside the default ones",
+    )
     p.add_argument("--markdown", type=Path, help="write the figures into this Markdown file (docs/speed.md)")
     args = p.parse_args()
     skipped = {{"scenario": "one-scenario", "jax": "backends"}.get(name, name) for name in args.skip}
-    chosen = [s for s in sections(args.repeat, args.sizes)
-              if (s.default and s.key not in skipped) or s.key in args.extra]
+    chosen = [
+        s for s in sections(args.repeat, args.sizes) if (s.default and s.key not in skipped) or s.key in args.extra
+    ]
     where, commit = machine(), git_commit(HERE.parent)
     print(f"machine: {where['cpu']}; python {where['python']}; commit {commit}")
     failed, rendered = 0, {}
@@ -190,8 +268,9 @@ def main() -> int:
         code, output, seconds = _run(section)
         failed |= code
         if code == 0:
-            rendered[section.key] = section_markdown(section.key, section.title, command_line(section), commit,
-                                                     where, seconds, output)
+            rendered[section.key] = section_markdown(
+                section.key, section.title, command_line(section), commit, where, seconds, output
+            )
     if args.markdown:
         document = args.markdown.read_text() if args.markdown.exists() else NEW_DOCUMENT
         args.markdown.write_text(replace_sections(document, rendered))

@@ -13,6 +13,7 @@ against one other box), compiled as the search's own kernels are, with no search
 `share of floor` is that time over the stage's time: 100% would mean the search costs nothing
 beyond computing the answer once.
 """
+
 from __future__ import annotations
 
 import statistics
@@ -51,6 +52,7 @@ class TimedSearch:
             self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
             self.arguments[name] = args
             return out
+
         return timed
 
 
@@ -64,8 +66,17 @@ def _one_selection_each(queries, segment, start, delta):
     out = np.empty(queries.shape[0], np.float32)
     for i in range(queries.shape[0]):
         k = segment[i]
-        out[i] = _selection_distance(queries[i, 0], queries[i, 1], queries[i, 2], start[k, 0], start[k, 1],
-                                     start[k, 2], delta[k, 0], delta[k, 1], delta[k, 2])[1]
+        out[i] = _selection_distance(
+            queries[i, 0],
+            queries[i, 1],
+            queries[i, 2],
+            start[k, 0],
+            start[k, 1],
+            start[k, 2],
+            delta[k, 0],
+            delta[k, 1],
+            delta[k, 2],
+        )[1]
     return out
 
 
@@ -77,7 +88,8 @@ def _one_box_distance_each(boxes, mine, partner):
         a, b = mine[i], partner[i]
         out[i] = _rounded_box_distance(
             (boxes[a, 0], boxes[a, 1], boxes[a, 2], boxes[a, 3], boxes[a, 4], boxes[a, 5], boxes[a, 6]),
-            (boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3], boxes[b, 4], boxes[b, 5], boxes[b, 6]))
+            (boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3], boxes[b, 4], boxes[b, 5], boxes[b, 6]),
+        )
     return out
 
 
@@ -91,8 +103,9 @@ def _median_time(fn, repeat: int):
     return statistics.median(runs), out
 
 
-def _road_edge_counts(table: road_edge.SegmentTable, x, y, bottom, length, width, cos_h, sin_h, valid,
-                      repeat: int) -> dict:
+def _road_edge_counts(
+    table: road_edge.SegmentTable, x, y, bottom, length, width, cos_h, sin_h, valid, repeat: int
+) -> dict:
     """Queries (valid box corners), pairs the search evaluates exactly, and the floor's seconds."""
     corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
     queries = np.asarray(corners, np.float32)[np.asarray(valid)].reshape(-1, 3)
@@ -111,27 +124,38 @@ def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluat
     interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated, counts)
     num_objects, num_steps = x.shape[-2:]
     radius = interaction.corner_radius(length, width)
-    boxes = np.stack([x, y, length - 2 * radius, width - 2 * radius, cos_h, sin_h, radius], axis=-1,
-                     dtype=np.float32).reshape(-1, 7)
+    boxes = np.stack(
+        [x, y, length - 2 * radius, width - 2 * radius, cos_h, sin_h, radius], axis=-1, dtype=np.float32
+    ).reshape(-1, 7)
     box = np.arange(x.size).reshape(x.shape)
     mine = box[..., :num_evaluated, :][np.asarray(valid)[..., :num_evaluated, :]]
     # One partner per query: the same box one object further on (any box costs the same arithmetic).
     partner = (mine + num_steps) % x.size
     floor, _ = _median_time(lambda: _one_box_distance_each(boxes, mine, partner), repeat)
     all_pairs = int(np.asarray(valid)[..., :num_evaluated, :].sum()) * (num_objects - 1)
-    return {"queries": len(mine), "all pairs": all_pairs, "pairs evaluated": counts["pairs evaluated"],
-            "floor seconds": floor}
+    return {
+        "queries": len(mine),
+        "all pairs": all_pairs,
+        "pairs evaluated": counts["pairs evaluated"],
+        "floor seconds": floor,
+    }
 
 
 def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str, repeat: int) -> dict:
     """Median seconds of each stage and end to end, operation counts and floors (see the module doc)."""
-    parse = lambda: (scenario_pb2.Scenario.FromString(raw_scenario),
-                     sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts))
+    parse = lambda: (
+        scenario_pb2.Scenario.FromString(raw_scenario),
+        sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts),
+    )
 
     def end_to_end_once():  # as a scoring worker does: parse, then the arrays from the parsed bytes
         scenario, rollouts = parse()
-        return score_scenario(scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts),
-                              config, challenge=challenge)
+        return score_scenario(
+            scenario_arrays(scenario, raw_scenario),
+            rollout_arrays(rollouts, challenge, raw_rollouts),
+            config,
+            challenge=challenge,
+        )
 
     end_to_end, metrics = _median_time(end_to_end_once, repeat)
     stages = {}
@@ -142,10 +166,12 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
     stages["map index"], context = _median_time(lambda: mf.map_context(arrays), repeat)
     layout = mf.feature_layout(batch.spec, batch.num_evaluated)
     trajectories = mf.trajectory_arrays(batch)
-    tails = mf.official_tails(batch.trajectories.num_objects, batch.num_evaluated,
-                              batch.trajectories.num_steps, layout.first_step)
-    search = PrunedSearch(context.road_edges, context.lanes, mf.signals_from(arrays.signals,
-                                                                             layout.first_red_light_step))
+    tails = mf.official_tails(
+        batch.trajectories.num_objects, batch.num_evaluated, batch.trajectories.num_steps, layout.first_step
+    )
+    search = PrunedSearch(
+        context.road_edges, context.lanes, mf.signals_from(arrays.signals, layout.first_red_light_step)
+    )
     runs = []
     for _ in range(repeat + 1):
         seconds = {}
@@ -163,14 +189,25 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
     log, sim = mf.metric_features(batch, per_step)
     stages["estimators and metrics"], _ = _median_time(lambda: scenario_metrics(config, log, sim), repeat)
     counts = {
-        "road edge": {**_road_edge_counts(context.road_edges, *timed.arguments["road_edge_distance"], repeat),
-                      "seconds": feature_seconds["road_edge_distance"]},
-        "nearest object": {**_nearest_object_counts(*timed.arguments["nearest_object"], repeat),
-                           "seconds": feature_seconds["nearest_object"]},
+        "road edge": {
+            **_road_edge_counts(context.road_edges, *timed.arguments["road_edge_distance"], repeat),
+            "seconds": feature_seconds["road_edge_distance"],
+        },
+        "nearest object": {
+            **_nearest_object_counts(*timed.arguments["nearest_object"], repeat),
+            "seconds": feature_seconds["nearest_object"],
+        },
     }
-    return {"scenario": arrays.scenario_id, "objects": int(batch.trajectories.num_objects),
-            "evaluated": int(batch.num_evaluated), "segments": int(context.road_edges.valid.sum()),
-            "seconds": end_to_end, "metametric": float(metrics["metametric"]), "stages": stages, "counts": counts}
+    return {
+        "scenario": arrays.scenario_id,
+        "objects": int(batch.trajectories.num_objects),
+        "evaluated": int(batch.num_evaluated),
+        "segments": int(context.road_edges.valid.sum()),
+        "seconds": end_to_end,
+        "metametric": float(metrics["metametric"]),
+        "stages": stages,
+        "counts": counts,
+    }
 
 
 def print_breakdown(r: dict) -> None:
@@ -181,6 +218,8 @@ def print_breakdown(r: dict) -> None:
     print("    searches: operation counts and share of the arithmetic floor (one exact evaluation per query)")
     for name, c in r["counts"].items():
         extra = f", of {c['all pairs']:,} pairs in all" if "all pairs" in c else ""
-        print(f"      {name}: {c['queries']:,} queries, {c['pairs evaluated']:,} pairs evaluated exactly "
-              f"({c['pairs evaluated'] / max(c['queries'], 1):.1f} per query{extra}); "
-              f"floor {c['floor seconds']:.4f} s of {c['seconds']:.4f} s = {c['floor seconds'] / c['seconds']:.0%}")
+        print(
+            f"      {name}: {c['queries']:,} queries, {c['pairs evaluated']:,} pairs evaluated exactly "
+            f"({c['pairs evaluated'] / max(c['queries'], 1):.1f} per query{extra}); "
+            f"floor {c['floor seconds']:.4f} s of {c['seconds']:.4f} s = {c['floor seconds'] / c['seconds']:.0%}"
+        )

@@ -8,6 +8,7 @@ sniff's raw and decompressed first bytes, then the stream), and the wall time of
 
     python benchmarks/submission_reads.py [--scenes 6] [--shards 3]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -49,8 +50,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
         paths = scenes.write_scenario_shards(scenes.generate_scenes(args.scenes, seed=0), root / "scenarios", 2)
-        archive = Path(baselines.make_submission(paths, "constant_velocity", root / "upload.tar.gz",
-                                                 num_shards=args.shards))
+        archive = Path(
+            baselines.make_submission(paths, "constant_velocity", root / "upload.tar.gz", num_shards=args.shards)
+        )
 
         def by_paths() -> None:  # each stage reads the archive itself
             check_container(archive)
@@ -67,8 +69,10 @@ def main() -> int:
         by_paths()  # warm-up: imports and caches, the same for both
         print(f"{args.scenes} synthetic scenes, {args.shards} shards, {archive.stat().st_size} bytes of tar.gz")
         print(f"{'way':<40} {'archive opens':>14} {'reads':>6} {'seconds':>8}")
-        for name, run in (("paths: check, score, pictures", by_paths),
-                          ("one SubmissionSource with a spool", by_source)):
+        for name, run in (
+            ("paths: check, score, pictures", by_paths),
+            ("one SubmissionSource with a spool", by_source),
+        ):
             opens, seconds = _opens_of(archive, run)
             print(f"{name:<40} {opens:>14} {opens / 3:>6.0f} {seconds:>8.3f}")
     return 0

@@ -89,8 +89,18 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
         subprocess.run(
-            [sys.executable, __file__, "--build", tmp, "--scenarios", str(args.scenarios),
-             "--per-shard", str(args.per_shard), "--case", args.case],
+            [
+                sys.executable,
+                __file__,
+                "--build",
+                tmp,
+                "--scenarios",
+                str(args.scenarios),
+                "--per-shard",
+                str(args.per_shard),
+                "--case",
+                args.case,
+            ],
             check=True,
         )
         built = time.perf_counter() - start
@@ -98,19 +108,27 @@ def main() -> None:
         archive = Path(tmp) / f"submission-{args.scenarios}.tar.gz"
         out = subprocess.run(
             [sys.executable, __file__, "--child", str(scenario_file), str(archive), "--workers", str(args.workers)],
-            check=True, capture_output=True, text=True,
+            check=True,
+            capture_output=True,
+            text=True,
         ).stdout
         figures = json.loads(out.strip().splitlines()[-1])
         size = archive.stat().st_size
     if not figures["valid"] or figures["scenarios"] != args.scenarios:
         sys.exit(f"unexpected result: {figures}")
-    print(f"submission: {args.scenarios} scenarios in {figures['shards']} shard(s) of {args.per_shard}, "
-          f"{size / 2**20:.1f} MiB .tar.gz ({figures['bytes_read'] / 2**20:.1f} MiB of shards); built in {built:.1f} s")
-    print(f"validated in {figures['wall_s']:.2f} s: {args.scenarios / figures['wall_s']:.1f} scenarios/s "
-          f"({figures['bytes_read'] / 2**20 / figures['wall_s']:.1f} MiB/s of shard bytes), valid={figures['valid']}")
+    print(
+        f"submission: {args.scenarios} scenarios in {figures['shards']} shard(s) of {args.per_shard}, "
+        f"{size / 2**20:.1f} MiB .tar.gz ({figures['bytes_read'] / 2**20:.1f} MiB of shards); built in {built:.1f} s"
+    )
+    print(
+        f"validated in {figures['wall_s']:.2f} s: {args.scenarios / figures['wall_s']:.1f} scenarios/s "
+        f"({figures['bytes_read'] / 2**20 / figures['wall_s']:.1f} MiB/s of shard bytes), valid={figures['valid']}"
+    )
     workers = f", each of {args.workers} workers {figures['worker_peak_rss_mib']:.0f} MiB" if args.workers > 1 else ""
-    print(f"peak RSS {figures['peak_rss_mib']:.0f} MiB{workers} (RSS after imports, before validating: "
-          f"{figures['rss_before_mib']:.0f} MiB; one shard is {figures['bytes_read'] / figures['shards'] / 2**20:.1f} MiB)")
+    print(
+        f"peak RSS {figures['peak_rss_mib']:.0f} MiB{workers} (RSS after imports, before validating: "
+        f"{figures['rss_before_mib']:.0f} MiB; one shard is {figures['bytes_read'] / figures['shards'] / 2**20:.1f} MiB)"
+    )
 
 
 if __name__ == "__main__":

@@ -97,9 +97,7 @@ def generate() -> int:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument(
-        "--check", action="store_true", help="exit 1 if the committed modules are stale"
-    )
+    parser.add_argument("--check", action="store_true", help="exit 1 if the committed modules are stale")
     args = parser.parse_args(argv)
     return check() if args.check else generate()
 

@@ -5,6 +5,7 @@
 Writes OUT_DIR/<scenario_id>__<challenge>.joint_scene.binproto: what
 `wosac_eval.compat.converters.scenario_to_joint_scene` must reproduce byte for byte.
 """
+
 import sys
 from pathlib import Path
 

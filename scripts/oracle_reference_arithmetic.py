@@ -15,6 +15,7 @@ golden cases made on any machine agree with the reference outputs. Checked:
 the cases of ../shared/golden and ../shared/golden/scenario_gen are reproduced
 bit for bit.
 """
+
 import os
 import runpy
 import sys
@@ -29,7 +30,7 @@ _BOX_CORNER_PRODUCT = "nij,nkj->nki"  # rotations (n, 3, 3) applied to corner of
 
 def _reference_product(rotation, offsets):
     a = tf.cast(rotation, tf.float64)[:, None, :, :]  # (n, 1, i, j)
-    b = tf.cast(offsets, tf.float64)[:, :, None, :]   # (n, k, 1, j)
+    b = tf.cast(offsets, tf.float64)[:, :, None, :]  # (n, k, 1, j)
     acc = tf.cast(a[..., 0] * b[..., 0], tf.float32)
     for j in (1, 2):  # acc + a_j * b_j, rounded once
         acc = tf.cast(tf.cast(acc, tf.float64) + a[..., j] * b[..., j], tf.float32)

@@ -14,6 +14,7 @@ For each scene, two cases in the layout of ../shared/oracle/make_scenario_gen_go
 Both pass the official `validate_scenario_rollouts`; wosac-eval's validator reports them as warnings
 (`rollouts.non_positive_size`, `rollouts.missing_object_type`) and must score them as the official does.
 """
+
 import gzip
 import json
 import os
@@ -28,11 +29,25 @@ from waymo_open_dataset.utils.sim_agents import converters, submission_specs  # 
 from waymo_open_dataset.wdl_limited.sim_agents_metrics import metric_features, metrics  # noqa: E402
 
 SG = submission_specs.ChallengeType.SCENARIO_GEN
-SHARED = os.environ.get("WOSAC_SHARED") or os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared")
-FIELDS = ("object_id", "object_type", "valid", "average_displacement_error", "linear_speed",
-          "linear_acceleration", "angular_speed", "angular_acceleration", "distance_to_nearest_object",
-          "collision_per_step", "time_to_collision", "distance_to_road_edge", "offroad_per_step",
-          "traffic_light_violation_per_step")
+SHARED = os.environ.get("WOSAC_SHARED") or os.path.join(
+    os.path.dirname(os.path.abspath(__file__)), "..", "..", "shared"
+)
+FIELDS = (
+    "object_id",
+    "object_type",
+    "valid",
+    "average_displacement_error",
+    "linear_speed",
+    "linear_acceleration",
+    "angular_speed",
+    "angular_acceleration",
+    "distance_to_nearest_object",
+    "collision_per_step",
+    "time_to_collision",
+    "distance_to_road_edge",
+    "offroad_per_step",
+    "traffic_light_violation_per_step",
+)
 
 
 def rollouts_of(scenario, policy: str, rng) -> sim_agents_submission_pb2.ScenarioRollouts:
@@ -72,25 +87,38 @@ def main(out_dir: str, *scene_files: str) -> None:
             submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission(
                 scenario_rollouts=[rollouts],
                 submission_type=sim_agents_submission_pb2.SimAgentsChallengeSubmission.SIM_AGENTS_SUBMISSION,
-                account_name="golden@example.com", unique_method_name="sg_" + policy, authors=["golden"],
-                affiliation="golden", description=f"scenario-gen edge case {policy}",
-                method_link="https://example.com", uses_lidar_data=False, uses_camera_data=False,
-                uses_public_model_pretraining=False, num_model_parameters="0",
-                acknowledge_complies_with_closed_loop_requirement=True)
+                account_name="golden@example.com",
+                unique_method_name="sg_" + policy,
+                authors=["golden"],
+                affiliation="golden",
+                description=f"scenario-gen edge case {policy}",
+                method_link="https://example.com",
+                uses_lidar_data=False,
+                uses_camera_data=False,
+                uses_public_model_pretraining=False,
+                num_model_parameters="0",
+                acknowledge_complies_with_closed_loop_requirement=True,
+            )
             with open(os.path.join(out_dir, tag + ".binproto.gz"), "wb") as f:
                 f.write(gzip.compress(submission.SerializeToString(), mtime=0))
             log_f, sim_f = metric_features.compute_scenario_rollouts_features(scenario, rollouts, SG)
             m = metrics.compute_scenario_metrics_for_features_bundle(config, scenario.scenario_id, log_f, sim_f)
             values = {f.name: v for f, v in m.ListFields() if f.name != "scenario_id"}
             values["buckets"] = {f.name: v for f, v in metrics.aggregate_metrics_to_buckets(config, m).ListFields()}
-            result = {"scenario_id": scenario.scenario_id, "policy": "sg_" + policy, "challenge": "scenario_gen",
-                      "n_evaluated_objects": len(rollouts.joint_scenes[0].simulated_trajectories),
-                      "metrics": {"scenario_gen_2025": values}}
+            result = {
+                "scenario_id": scenario.scenario_id,
+                "policy": "sg_" + policy,
+                "challenge": "scenario_gen",
+                "n_evaluated_objects": len(rollouts.joint_scenes[0].simulated_trajectories),
+                "metrics": {"scenario_gen_2025": values},
+            }
             with open(os.path.join(out_dir, tag + ".json"), "w") as f:
                 json.dump(result, f, indent=1, default=float)
-            np.savez_compressed(os.path.join(out_dir, tag + ".features.npz"),
-                                **{"log_" + k: np.asarray(getattr(log_f, k)) for k in FIELDS},
-                                **{"sim_" + k: np.asarray(getattr(sim_f, k)) for k in FIELDS})
+            np.savez_compressed(
+                os.path.join(out_dir, tag + ".features.npz"),
+                **{"log_" + k: np.asarray(getattr(log_f, k)) for k in FIELDS},
+                **{"sim_" + k: np.asarray(getattr(sim_f, k)) for k in FIELDS},
+            )
             print(tag, "metametric", values["metametric"], flush=True)
 
 

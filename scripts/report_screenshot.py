@@ -5,6 +5,7 @@
 Writes the gate demo's results and report into OUT_DIR (default a temporary
 folder) and renders the report in headless Chromium.
 """
+
 from __future__ import annotations
 
 import argparse

@@ -13,6 +13,7 @@ Markers (registered in pyproject.toml) come from three places: the folder a test
 (browser, docker, slow). Ray, browser and Docker tests are also `slow`; Ray tests run one at a time
 (`one_ray_cluster_at_a_time`).
 """
+
 from __future__ import annotations
 
 import fcntl
@@ -132,9 +133,13 @@ def pytest_testnodedown(node, error):
 
 def _processes_left_behind() -> list[str]:
     """The processes of this test process still alive after a grace period, each as a line; kills them."""
+
     def ours() -> dict[int, int]:
-        return {pid: ppid for pid, ppid in left_behind(os.getpid(), SESSION_MARK, os.environ[SESSION_MARK]).items()
-                if not _multiprocessing_resource_tracker(pid, ppid)}
+        return {
+            pid: ppid
+            for pid, ppid in left_behind(os.getpid(), SESSION_MARK, os.environ[SESSION_MARK]).items()
+            if not _multiprocessing_resource_tracker(pid, ppid)
+        }
 
     deadline = time.monotonic() + LEAK_GRACE_S
     found = ours()
@@ -162,8 +167,11 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
         return
     terminalreporter.section("processes left behind", sep="!", red=True, bold=True)
     count = sum(" (parent " in line for line in leaks)
-    terminalreporter.line(f"{count} process(es) started by this test run "
-                          f"were still alive {LEAK_GRACE_S:g} s after it ended (all fixtures torn down); "
-                          "killed them. The run fails:", red=True)
+    terminalreporter.line(
+        f"{count} process(es) started by this test run "
+        f"were still alive {LEAK_GRACE_S:g} s after it ended (all fixtures torn down); "
+        "killed them. The run fails:",
+        red=True,
+    )
     for line in leaks:
         terminalreporter.line("  " + line, red=True)

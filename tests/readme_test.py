@@ -4,6 +4,7 @@ As root with `unshare`, the blocks run in a network namespace with only
 loopback, so the Ray examples run too and no traffic leaves 127.0.0.1;
 otherwise the Ray blocks are skipped and named.
 """
+
 from __future__ import annotations
 
 import os

@@ -18,6 +18,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
     SubmissionWriter(SubmissionMetadata(...), "out.tar.gz"): .add(rollouts) per scenario
   The official module layout: wosac_eval.compat.{metrics, submission_specs, converters}
 """
+
 from __future__ import annotations
 
 import importlib

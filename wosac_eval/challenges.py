@@ -12,6 +12,7 @@ These are facts of the official submission specs (waymo-open-dataset 1.6.7,
 `utils/sim_agents/submission_specs.py`); everything below the fronts asks this
 module instead of restating them.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -19,7 +20,7 @@ import enum
 
 import numpy as np
 
-CURRENT_TIME_INDEX = 10   # the 11th step is "now"
+CURRENT_TIME_INDEX = 10  # the 11th step is "now"
 NUM_LOGGED_STEPS = 91
 NUM_ROLLOUTS = 32
 STEP_SECONDS = 0.1
@@ -69,12 +70,22 @@ class ChallengeSpec:
 
 
 SPECS = {
-    Challenge.SIM_AGENTS: ChallengeSpec(Challenge.SIM_AGENTS, num_simulation_steps=80,
-                                        first_simulated_step=CURRENT_TIME_INDEX + 1, submits_boxes=False,
-                                        evaluates_all_agents=False, default_config="2025"),
-    Challenge.SCENARIO_GEN: ChallengeSpec(Challenge.SCENARIO_GEN, num_simulation_steps=91,
-                                          first_simulated_step=0, submits_boxes=True,
-                                          evaluates_all_agents=True, default_config="scenario_gen_2025"),
+    Challenge.SIM_AGENTS: ChallengeSpec(
+        Challenge.SIM_AGENTS,
+        num_simulation_steps=80,
+        first_simulated_step=CURRENT_TIME_INDEX + 1,
+        submits_boxes=False,
+        evaluates_all_agents=False,
+        default_config="2025",
+    ),
+    Challenge.SCENARIO_GEN: ChallengeSpec(
+        Challenge.SCENARIO_GEN,
+        num_simulation_steps=91,
+        first_simulated_step=0,
+        submits_boxes=True,
+        evaluates_all_agents=True,
+        default_config="scenario_gen_2025",
+    ),
 }
 CHALLENGE_NAMES = tuple(c.value for c in Challenge)
 
@@ -105,9 +116,10 @@ def sim_agent_ids(scenario) -> np.ndarray:
     Both challenges simulate exactly these objects. A track too short to have
     a current step has no valid state there.
     """
-    return np.array([t.id for t in scenario.tracks
-                     if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
-                    dtype=np.int64)
+    return np.array(
+        [t.id for t in scenario.tracks if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
+        dtype=np.int64,
+    )
 
 
 def predicted_ids(scenario) -> np.ndarray:

@@ -6,6 +6,7 @@ alike, by every front through `scoring.evaluation`: a ValueError for an unknown
 name, `BackendUnavailableError` or `EngineUnavailableError` with the install
 command for a missing package.
 """
+
 from __future__ import annotations
 
 import importlib
@@ -22,8 +23,9 @@ def require_extra(what: str, module: str, package: str, extra: str, error: type[
     try:
         importlib.import_module(module)
     except ImportError as exc:
-        raise error(f"the {what} needs {package}, which is not installed ({exc}); "
-                    f"install it with: {install_hint(extra)}") from exc
+        raise error(
+            f"the {what} needs {package}, which is not installed ({exc}); install it with: {install_hint(extra)}"
+        ) from exc
 
 
 BACKENDS = Backend.names()

@@ -10,7 +10,9 @@
 
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
-from wosac_eval.backends.jax_realism import (  # noqa: F401
+
+from wosac_eval.backends.jax_backend import exact_cpu
+from wosac_eval.backends.jax_realism import (
     MODES,
     SEARCHES,
     PreparedScenes,
@@ -24,7 +26,17 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
     waymax_columns,
 )
 
-from wosac_eval.backends.jax_backend import exact_cpu  # noqa: F401
-
-__all__ = ["PreparedScenes", "Realism", "MODES", "SEARCHES", "prepare", "realism", "features", "stack_rollouts",
-           "waymax_columns", "from_waymax", "jit_step", "exact_cpu"]
+__all__ = [
+    "PreparedScenes",
+    "Realism",
+    "MODES",
+    "SEARCHES",
+    "prepare",
+    "realism",
+    "features",
+    "stack_rollouts",
+    "waymax_columns",
+    "from_waymax",
+    "jit_step",
+    "exact_cpu",
+]

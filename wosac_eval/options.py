@@ -9,6 +9,7 @@ else with one sentence naming the value and the allowed ones.
 
 (`class X(str, Enum)` rather than `enum.StrEnum`, which is Python 3.11's.)
 """
+
 from __future__ import annotations
 
 import enum

@@ -7,6 +7,7 @@ the answer. Large uploads can be resumed (tus-like, `routes.uploads`).
 Scoring itself happens in worker processes (`worker.py`); this process only
 reads and writes the job store.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -45,8 +46,7 @@ async def _disk_full_answer(request: Request, exc: Exception):
     if not disk.is_disk_full(exc):
         raise exc
     log.warning("%s %s: the data dir's disk is full (%s)", request.method, request.url.path, exc)
-    return JSONResponse({"detail": disk.FULL_DETAIL}, status_code=507,
-                        headers={"Retry-After": str(disk.RETRY_AFTER_S)})
+    return JSONResponse({"detail": disk.FULL_DETAIL}, status_code=507, headers={"Retry-After": str(disk.RETRY_AFTER_S)})
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -69,7 +69,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         title="wosac-eval scoring service",
         version="2",
         description="Upload a WOSAC submission (sim agents or scenario generation), follow its scoring, "
-                    "fetch exact results.",
+        "fetch exact results.",
         lifespan=lifespan,
         # The interactive docs pages load their scripts from a CDN; the schema alone is served.
         docs_url=None,

@@ -2,6 +2,7 @@
 
 Exit codes: 0 ok, 1 nothing to do (name taken, unknown key), 2 usage or configuration error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,8 +18,9 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
-    worker = sub.add_parser("worker", help="Run one scoring worker (for hosts that only score; WOSAC_* "
-                                           "environment like serve).")
+    worker = sub.add_parser(
+        "worker", help="Run one scoring worker (for hosts that only score; WOSAC_* environment like serve)."
+    )
     worker.set_defaults(_run=lambda args: __import__("wosac_server.worker", fromlist=["main"]).main())
     return parser
 

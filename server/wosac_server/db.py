@@ -6,6 +6,7 @@ understand (TEXT, INTEGER, BIGINT, DOUBLE PRECISION), times are float epoch
 seconds, ids are server-generated hex strings. Connections are per thread, so
 the API's thread pool and a worker's heartbeat thread never share one.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -117,13 +118,19 @@ def _fill_name_keys(store: Store) -> None:
             logging.getLogger(__name__).warning(
                 "leaderboard name %r (%s) of key %s looks like an earlier claim: dropped, the name stays "
                 "with its first owner (wosac-server methods assign to change that)",
-                row["method"], row["challenge"], row["key_id"])
-            store.execute("DELETE FROM method_names WHERE challenge = ? AND method = ?",
-                          (row["challenge"], row["method"]))
+                row["method"],
+                row["challenge"],
+                row["key_id"],
+            )
+            store.execute(
+                "DELETE FROM method_names WHERE challenge = ? AND method = ?", (row["challenge"], row["method"])
+            )
             continue
         kept.add(form)
-        store.execute("UPDATE method_names SET name_key = ? WHERE challenge = ? AND method = ?",
-                      (form[1], row["challenge"], row["method"]))
+        store.execute(
+            "UPDATE method_names SET name_key = ? WHERE challenge = ? AND method = ?",
+            (form[1], row["challenge"], row["method"]),
+        )
 
 
 class Store:
@@ -133,7 +140,7 @@ class Store:
         self.url = url
         if url.startswith("sqlite:///"):
             self.dialect = "sqlite"
-            self.sqlite_path = Path(url[len("sqlite:///"):])
+            self.sqlite_path = Path(url[len("sqlite:///") :])
         elif url.startswith(("postgresql://", "postgres://")):
             self.dialect = "postgresql"
         else:
@@ -145,8 +152,7 @@ class Store:
         if self.dialect == "sqlite":
             self.sqlite_path.parent.mkdir(parents=True, exist_ok=True)
             # isolation_level=None: we issue BEGIN ourselves, so a read never holds a lock.
-            conn = sqlite3.connect(self.sqlite_path, timeout=60.0, isolation_level=None,
-                                   check_same_thread=False)
+            conn = sqlite3.connect(self.sqlite_path, timeout=60.0, isolation_level=None, check_same_thread=False)
             conn.row_factory = sqlite3.Row
             conn.execute("PRAGMA journal_mode=WAL")
             # FULL: a COMMIT is on disk before we answer 202 (durability over a few ms).

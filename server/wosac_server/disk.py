@@ -11,6 +11,7 @@ SQLite's SQLITE_FULL, PostgreSQL's 53100): requests answer `507`, and the small 
 (`WOSAC_DISK_RESERVE_BYTES`) is deleted so that the database can still record the states that must
 not stay behind (an upload back to `open`); it is made again once there is room.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -82,21 +83,28 @@ def reserved_in_store(store: Store) -> int:
     uploads = store.fetch_aggregate(
         "SELECT COUNT(*) AS n, COALESCE(SUM(declared_length - received_bytes), 0) AS still,"
         " COALESCE(SUM(COALESCE(declared_length, received_bytes)), 0) AS total FROM uploads"
-        " WHERE submission_id IS NULL AND state != 'deleting'")
+        " WHERE submission_id IS NULL AND state != 'deleting'"
+    )
     running = store.fetch_aggregate(
         "SELECT COUNT(*) AS n, COALESCE(SUM(COALESCE(scenarios_total * ?, upload_bytes / ?)), 0) AS need"
         " FROM submissions WHERE state IN ('queued', 'validating', 'scoring')",
-        (JOB_BYTES_PER_SCENARIO, JOB_UPLOAD_DIVISOR))
-    return (max(0, int(uploads["still"])) + uploads["n"] * JOB_BASE_BYTES + int(uploads["total"]) // JOB_UPLOAD_DIVISOR
-            + running["n"] * JOB_BASE_BYTES + int(running["need"]))
+        (JOB_BYTES_PER_SCENARIO, JOB_UPLOAD_DIVISOR),
+    )
+    return (
+        max(0, int(uploads["still"]))
+        + uploads["n"] * JOB_BASE_BYTES
+        + int(uploads["total"]) // JOB_UPLOAD_DIVISOR
+        + running["n"] * JOB_BASE_BYTES
+        + int(running["need"])
+    )
 
 
 @dataclasses.dataclass(frozen=True)
 class DiskState:
-    total: int     # the data dir's filesystem
-    free: int      # available to this process (shutil.disk_usage)
+    total: int  # the data dir's filesystem
+    free: int  # available to this process (shutil.disk_usage)
     reserved: int  # promised to open uploads and jobs, not written yet
-    floor: int     # kept free
+    floor: int  # kept free
 
     def room(self, extra: int = 0) -> int:
         """Bytes that may still be promised after `extra` more (negative: refuse)."""
@@ -107,9 +115,13 @@ class DiskState:
         return self.room() < 0
 
     def refusal(self) -> HTTPException:
-        return HTTPException(507, f"the server's disk is too full to take this upload now ({self.free} bytes free, "
-                             f"{self.reserved} promised to uploads and jobs in progress, {self.floor} kept free); "
-                             f"retry in {RETRY_AFTER_S} s", headers={"Retry-After": str(RETRY_AFTER_S)})
+        return HTTPException(
+            507,
+            f"the server's disk is too full to take this upload now ({self.free} bytes free, "
+            f"{self.reserved} promised to uploads and jobs in progress, {self.floor} kept free); "
+            f"retry in {RETRY_AFTER_S} s",
+            headers={"Retry-After": str(RETRY_AFTER_S)},
+        )
 
 
 def floor_bytes(settings: Settings, total: int) -> int:
@@ -119,8 +131,7 @@ def floor_bytes(settings: Settings, total: int) -> int:
 def measure(settings: Settings, store: Store, in_flight: int = 0) -> DiskState:
     """The disk of the data dir now; `in_flight`: bytes promised by requests of this process."""
     usage = shutil.disk_usage(settings.data_dir)
-    return DiskState(usage.total, usage.free, reserved_in_store(store) + in_flight,
-                     floor_bytes(settings, usage.total))
+    return DiskState(usage.total, usage.free, reserved_in_store(store) + in_flight, floor_bytes(settings, usage.total))
 
 
 # -- the reserve file --------------------------------------------------------------------------

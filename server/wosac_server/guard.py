@@ -39,6 +39,7 @@ turn it is), `flow.read_paused`, `transport`, `client` and `loop`, and the
 methods `connection_made`, `connection_lost`, `data_received` and
 `on_response_complete` it extends.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -91,8 +92,10 @@ def connection_limit(max_connections: int, open_files: int | None = None) -> int
 
 def _plain_response(status: str, text: str) -> bytes:
     body = text.encode()
-    return (f"HTTP/1.1 {status}\r\ncontent-type: text/plain; charset=utf-8\r\ncontent-length: {len(body)}\r\n"
-            "connection: close\r\n\r\n").encode() + body
+    return (
+        f"HTTP/1.1 {status}\r\ncontent-type: text/plain; charset=utf-8\r\ncontent-length: {len(body)}\r\n"
+        "connection: close\r\n\r\n"
+    ).encode() + body
 
 
 class GuardedH11Protocol(H11Protocol):
@@ -124,14 +127,20 @@ class GuardedH11Protocol(H11Protocol):
         if len(self.open_connections) >= self.max_connections - reserve:
             oldest = next(iter(self.waiting), None)
             if oldest is not None:
-                log.warning("closed the connection from %s that waited longest for a request: the server holds "
-                            "%d connections", oldest._host, len(self.open_connections))
+                log.warning(
+                    "closed the connection from %s that waited longest for a request: the server holds %d connections",
+                    oldest._host,
+                    len(self.open_connections),
+                )
                 oldest._refuse("the server is at its connection limit and closed this idle connection\n")
             elif len(self.open_connections) < self.max_connections:
                 self._reserve = True  # may ask only for what has no body
             else:
-                log.warning("refused a connection from %s: the server holds %d connections, none idle",
-                            self._host, self.max_connections)
+                log.warning(
+                    "refused a connection from %s: the server holds %d connections, none idle",
+                    self._host,
+                    self.max_connections,
+                )
                 self._refuse("the server is at its connection limit; retry shortly\n")
                 return
         self._counted = True
@@ -214,8 +223,12 @@ class GuardedH11Protocol(H11Protocol):
         """When the body in progress breaks a rule, and which."""
         dues = [(self._last_data + self.body_timeout_s, f"its body paused for {self.body_timeout_s:g} s")]
         if self.body_min_rate > 0:
-            dues.append((self._body_start + self.body_grace_s + self._body_bytes / self.body_min_rate,
-                         f"its body came slower than {self.body_min_rate:g} bytes/s"))
+            dues.append(
+                (
+                    self._body_start + self.body_grace_s + self._body_bytes / self.body_min_rate,
+                    f"its body came slower than {self.body_min_rate:g} bytes/s",
+                )
+            )
         start = self._request_start if self._request_start is not None else self._body_start
         dues.append((start + self.request_deadline_s, f"the request took over {self.request_deadline_s:g} s"))
         return min(dues)
@@ -249,8 +262,11 @@ class GuardedH11Protocol(H11Protocol):
             if now < self._headers_due:
                 self._arm(self._headers_due - now)
                 return
-            log.warning("closed a connection from %s: no complete request headers within %g s", self._host,
-                        self.header_timeout_s)
+            log.warning(
+                "closed a connection from %s: no complete request headers within %g s",
+                self._host,
+                self.header_timeout_s,
+            )
             self.transport.write(_plain_response("408 Request Timeout", "request headers took too long\n"))
             self.transport.close()
 
@@ -272,8 +288,9 @@ class CloseUnreadBodies:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         headers = dict(scope["headers"])
-        body_done = (b"chunked" not in headers.get(b"transfer-encoding", b"").lower()
-                     and headers.get(b"content-length", b"0").strip() in (b"0", b""))
+        body_done = b"chunked" not in headers.get(b"transfer-encoding", b"").lower() and headers.get(
+            b"content-length", b"0"
+        ).strip() in (b"0", b"")
 
         async def tracked_receive():
             nonlocal body_done
@@ -294,13 +311,22 @@ class CloseUnreadBodies:
 def guarded_protocol(settings: Settings) -> type[GuardedH11Protocol]:
     """The protocol class for uvicorn's `http=`, with the service's limits (call it after the open-file
     limit is raised: the connection cap is sized from it)."""
-    return type("ServiceH11Protocol", (GuardedH11Protocol,), {
-        "header_timeout_s": settings.header_timeout_s, "body_timeout_s": settings.body_timeout_s,
-        "body_grace_s": settings.body_grace_s, "body_min_rate": settings.body_min_rate,
-        "request_deadline_s": settings.request_deadline_s,
-        "max_per_client": settings.max_connections_per_client,
-        "max_connections": connection_limit(settings.max_connections),
-        "open_per_client": collections.Counter(), "open_connections": set(), "waiting": {}})
+    return type(
+        "ServiceH11Protocol",
+        (GuardedH11Protocol,),
+        {
+            "header_timeout_s": settings.header_timeout_s,
+            "body_timeout_s": settings.body_timeout_s,
+            "body_grace_s": settings.body_grace_s,
+            "body_min_rate": settings.body_min_rate,
+            "request_deadline_s": settings.request_deadline_s,
+            "max_per_client": settings.max_connections_per_client,
+            "max_connections": connection_limit(settings.max_connections),
+            "open_per_client": collections.Counter(),
+            "open_connections": set(),
+            "waiting": {},
+        },
+    )
 
 
 class RateLimitedLog(logging.Filter):

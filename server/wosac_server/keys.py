@@ -4,6 +4,7 @@ Keys are stored salted and hashed in the service database (`WOSAC_DB_URL`, defau
 the SQLite file in `WOSAC_DATA_DIR`); `create` prints the new key once, on stdout.
 Exit codes: 0 ok, 1 nothing to do (name taken, unknown key), 2 usage error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -40,8 +41,11 @@ def run(args: argparse.Namespace) -> int:
         from .auth import METHOD_PATTERN
 
         if not re.match(METHOD_PATTERN, args.name):
-            print(f"wosac-server keys: the name {args.name!r} must match {METHOD_PATTERN} "
-                  "(it is the default method name on the leaderboard)", file=sys.stderr)
+            print(
+                f"wosac-server keys: the name {args.name!r} must match {METHOD_PATTERN} "
+                "(it is the default method name on the leaderboard)",
+                file=sys.stderr,
+            )
             return 2
         limits = {
             "max_concurrent": args.max_concurrent or settings.default_max_concurrent,
@@ -62,8 +66,10 @@ def run(args: argparse.Namespace) -> int:
         for row in auth.list_keys(store):
             created = datetime.fromtimestamp(row["created_at"], tz=timezone.utc).isoformat(timespec="seconds")
             status = "revoked" if row["revoked_at"] else "active"
-            print(f"{row['name']}\t{row['id']}\t{status}\tcreated {created}\tconcurrent {row['max_concurrent']}"
-                  f"\tdaily {row['max_daily']}\tbytes/day {row['max_daily_bytes']}")
+            print(
+                f"{row['name']}\t{row['id']}\t{status}\tcreated {created}\tconcurrent {row['max_concurrent']}"
+                f"\tdaily {row['max_daily']}\tbytes/day {row['max_daily_bytes']}"
+            )
         return 0
     if not auth.revoke_key(store, args.name):
         print(f"wosac-server keys: no active key named {args.name!r}", file=sys.stderr)

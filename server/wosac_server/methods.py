@@ -5,6 +5,7 @@ key's own name is reserved for it); other keys get `403` for it. The operator ca
 list the names, give one to another key, or free it.
 Exit codes: 0 ok, 1 nothing to do (unknown key or name), 2 usage error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,7 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     actions = [sub.add_parser("list", help="every claimed name: challenge, method, owning key")]
-    for action, text in (("assign", "give a name to a key"), ("release", "free a name (the next key to use it owns it)")):
+    for action, text in (
+        ("assign", "give a name to a key"),
+        ("release", "free a name (the next key to use it owns it)"),
+    ):
         p = sub.add_parser(action, help=text)
         p.add_argument("--challenge", default="sim_agents", choices=("sim_agents", "scenario_gen"))
         p.add_argument("--method", required=True)

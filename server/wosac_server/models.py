@@ -1,4 +1,5 @@
 """The API's response models (they make the OpenAPI schema) and how a job row becomes one."""
+
 from __future__ import annotations
 
 import json
@@ -32,15 +33,17 @@ class SubmissionStatus(BaseModel):
     finished_at: str | None = None
     error: str | None = Field(None, description="Why the submission failed.")
     validation_report: dict[str, Any] | None = Field(
-        None, description="The validator's report when the submission was judged invalid.")
+        None, description="The validator's report when the submission was judged invalid."
+    )
     realism_meta_metric: float | None = None
-    coverage: float | None = Field(None, description="Share of the scenario set the result covers (1.0 unless "
-                                   "scored with allow_partial).")
-    partial: bool = Field(False, description="A partial result: scored with allow_partial on part of the "
-                          "scenario set (coverage below 1).")
+    coverage: float | None = Field(
+        None, description="Share of the scenario set the result covers (1.0 unless scored with allow_partial)."
+    )
+    partial: bool = Field(
+        False, description="A partial result: scored with allow_partial on part of the scenario set (coverage below 1)."
+    )
     results_url: str | None = None
-    peak_rss_bytes: int | None = Field(None, description="Peak resident memory of the last scoring attempt's "
-                                       "process.")
+    peak_rss_bytes: int | None = Field(None, description="Peak resident memory of the last scoring attempt's process.")
     cpu_s: float | None = Field(None, description="CPU seconds the last scoring attempt's process used.")
 
 
@@ -67,6 +70,7 @@ class Leaderboard(BaseModel):
 
 class ResultSummary(BaseModel):
     """A result document without its per-scenario rows (`scenarios`); its other keys as stored."""
+
     model_config = {"extra": "allow"}
 
     challenge: Challenge
@@ -82,10 +86,12 @@ class ResultSummary(BaseModel):
 
 class ResultScenarios(BaseModel):
     """One page of a result's per-scenario rows, in the result's order."""
+
     total: int = Field(description="Rows in the whole result.")
     offset: int = Field(description="Index of the first row of this page.")
-    scenarios: list[dict[str, Any]] = Field(description="Rows offset .. offset+limit-1 (fewer at the end, none "
-                                            "past it).")
+    scenarios: list[dict[str, Any]] = Field(
+        description="Rows offset .. offset+limit-1 (fewer at the end, none past it)."
+    )
 
 
 class UploadStatus(BaseModel):
@@ -108,8 +114,10 @@ class DiskHealth(BaseModel):
 
 
 class Health(BaseModel):
-    status: str = Field(description="ok; degraded while uploads are refused for disk space; error when the "
-                        "database is unreachable (503).")
+    status: str = Field(
+        description="ok; degraded while uploads are refused for disk space; error when the "
+        "database is unreachable (503)."
+    )
     database: str
     scenario_shards: int  # the TFRecord files of the scenario set (each holds many scenarios)
     disk: DiskHealth | None = None
@@ -124,16 +132,26 @@ def iso(t: float | None) -> str | None:
 def status_of(row: dict) -> SubmissionStatus:
     report = json.loads(row["report"]) if row.get("report") else None
     return SubmissionStatus(
-        id=row["id"], state=row["state"], method=row["method"], challenge=row["challenge"], config=row["config"],
-        published=bool(row["published"]), allow_partial=bool(row["allow_partial"]),
+        id=row["id"],
+        state=row["state"],
+        method=row["method"],
+        challenge=row["challenge"],
+        config=row["config"],
+        published=bool(row["published"]),
+        allow_partial=bool(row["allow_partial"]),
         upload_bytes=row["upload_bytes"],
         progress=Progress(scenarios_done=row["scenarios_done"], scenarios_total=row["scenarios_total"]),
-        attempts=row["attempts"], created_at=iso(row["created_at"]), updated_at=iso(row["updated_at"]),
-        started_at=iso(row["started_at"]), finished_at=iso(row["finished_at"]), error=row["error"],
-        validation_report=report, realism_meta_metric=row["realism_meta_metric"], coverage=row.get("coverage"),
+        attempts=row["attempts"],
+        created_at=iso(row["created_at"]),
+        updated_at=iso(row["updated_at"]),
+        started_at=iso(row["started_at"]),
+        finished_at=iso(row["finished_at"]),
+        error=row["error"],
+        validation_report=report,
+        realism_meta_metric=row["realism_meta_metric"],
+        coverage=row.get("coverage"),
         partial=is_partial(row.get("coverage")),
         results_url=f"/v1/submissions/{row['id']}/results" if row["state"] == "done" else None,
-        peak_rss_bytes=row.get("peak_rss_bytes"), cpu_s=row.get("cpu_s"),
+        peak_rss_bytes=row.get("peak_rss_bytes"),
+        cpu_s=row.get("cpu_s"),
     )
-
-

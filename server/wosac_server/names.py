@@ -11,6 +11,7 @@ What is stored and shown (`display_name`) is the name as typed with its whitespa
 runs of it collapsed: a page collapses whitespace anyway, so two names that differ only there
 would show as the same text.
 """
+
 from __future__ import annotations
 
 import re

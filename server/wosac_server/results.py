@@ -30,6 +30,7 @@ document as stored, and its summary, pages and CSV by walking the file with the 
 decoder one value at a time (`_JsonStream`), so their memory is bounded too (a pass over the file
 per request).
 """
+
 from __future__ import annotations
 
 import codecs
@@ -45,9 +46,9 @@ from pathlib import Path
 from .jobs import fsync_dir
 
 FORMAT = "wosac-result/2"
-ROW_STRIDE = 1000       # row_offsets: the byte offset of every ROW_STRIDE-th row
-MAX_PAGE = 1000         # rows in one page of /results/scenarios
-CHUNK = 1 << 18         # bytes per piece of a streamed answer
+ROW_STRIDE = 1000  # row_offsets: the byte offset of every ROW_STRIDE-th row
+MAX_PAGE = 1000  # rows in one page of /results/scenarios
+CHUNK = 1 << 18  # bytes per piece of a streamed answer
 MAX_VALUE_CHARS = 64 << 20  # the longest value (a row, `skipped`...) read from a single-file result
 
 
@@ -118,8 +119,9 @@ def result_csv(result: dict) -> str:
     writer = csv.writer(out, lineterminator="\n")
     writer.writerow(["scenario_id", *fields])
     for s in scenarios:
-        writer.writerow([s.get("scenario_id"), *(repr(s[k]) if isinstance(s.get(k), float) else s.get(k, "")
-                                                 for k in fields)])
+        writer.writerow(
+            [s.get("scenario_id"), *(repr(s[k]) if isinstance(s.get(k), float) else s.get(k, "") for k in fields)]
+        )
     return out.getvalue()
 
 
@@ -157,9 +159,15 @@ def write_result(results_dir: Path, job_id: str, result: dict) -> None:
         _replace_atomically(tmp, rows_file)
     finally:
         tmp.unlink(missing_ok=True)
-    summary = {"format": FORMAT, "rows": len(rows), "rows_bytes": written, "row_offsets": offsets,
-               "csv_fields": csv_fields(rows), "scenarios_at": at,
-               "document": {k: v for k, v in result.items() if at is None or k != "scenarios"}}
+    summary = {
+        "format": FORMAT,
+        "rows": len(rows),
+        "rows_bytes": written,
+        "row_offsets": offsets,
+        "csv_fields": csv_fields(rows),
+        "scenarios_at": at,
+        "document": {k: v for k, v in result.items() if at is None or k != "scenarios"},
+    }
     path = summary_path(results_dir, job_id)
     tmp = path.with_name(path.name + tmp_suffix)
     try:
@@ -372,7 +380,7 @@ class _JsonStream:
         if self.eof:
             return False
         data = self.file.read(max(self.chunk, at_least))
-        self.text = self.text[self.pos:] + self.utf8.decode(data, final=not data)
+        self.text = self.text[self.pos :] + self.utf8.decode(data, final=not data)
         self.pos = 0
         self.eof = not data
         return bool(data)

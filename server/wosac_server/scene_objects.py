@@ -8,6 +8,7 @@ validation-size one holds about a million objects). After scoring, one pass over
 bytes of the index and its scene's few lines; its worst objects come from
 `wosac_eval.results.worst_objects.scene_worst_objects`.
 """
+
 from __future__ import annotations
 
 import json
@@ -24,7 +25,7 @@ _DECODER = json.JSONDecoder()
 def _scenario_of(line: bytes) -> str:
     """The record's scenario id: the library writes it first, so only that string is decoded."""
     if line.startswith(_PREFIX):
-        text = line[len(_PREFIX):len(_PREFIX) + 512].decode("utf-8", "replace")
+        text = line[len(_PREFIX) : len(_PREFIX) + 512].decode("utf-8", "replace")
         value, _ = _DECODER.raw_decode(text)
         return value
     return json.loads(line)["scenario_id"]

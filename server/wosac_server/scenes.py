@@ -5,6 +5,7 @@ Shared by the JSON API (`/v1/submissions/{id}/scenes`, `/v1/submissions/{id}/res
 and the web pages (`web.py`). Who may see them is decided by their callers: the submission's key, or
 anyone for a submission its leaderboard shows (`jobs.is_public`).
 """
+
 from __future__ import annotations
 
 import json
@@ -53,13 +54,17 @@ def scene_detail(settings: Settings, submission: dict, row: int) -> dict:
     try:
         stored = results.open_result(settings.results_dir, submission_id)
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
+        raise HTTPException(
+            410, f"the result file of submission {submission_id} is damaged on the server ({exc})"
+        ) from exc
     if stored is None:
         raise HTTPException(410, f"the result file of submission {submission_id} is missing on the server")
     try:
         total, rows = stored.page(row, 1)
     except results.ResultDamaged as exc:
-        raise HTTPException(410, f"the result file of submission {submission_id} is damaged on the server ({exc})") from exc
+        raise HTTPException(
+            410, f"the result file of submission {submission_id} is damaged on the server ({exc})"
+        ) from exc
     finally:
         stored.close()
     if not rows:
@@ -72,7 +77,13 @@ def scene_detail(settings: Settings, submission: dict, row: int) -> dict:
 
         worst = scene_worst_objects(records, scenario, submission["config"], WORST_OBJECTS)
     pictured = next((e for e in scene_index(settings, submission_id) if e.get("row") == row), None)
-    return {"row": row, "total": total, "scenario": scenario, "objects": None if records is None else len(records),
-            "worst_objects": worst,
-            "picture": None if pictured is None else {"rank": pictured["rank"],
-                                                      "object_picture": pictured["object_picture"]}}
+    return {
+        "row": row,
+        "total": total,
+        "scenario": scenario,
+        "objects": None if records is None else len(records),
+        "worst_objects": worst,
+        "picture": None
+        if pictured is None
+        else {"rank": pictured["rank"], "object_picture": pictured["object_picture"]},
+    }

@@ -10,6 +10,7 @@ start-up too (it is recorded and honoured at the next step; the workers already
 started are stopped, none is left behind), and after uvicorn's graceful shutdown
 the workers are stopped before the process exits.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -29,10 +30,17 @@ HELP = "Run the HTTP scoring service (upload submissions, follow scoring, leader
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--host", default=os.environ.get("WOSAC_HOST", "127.0.0.1"),
-                        help="address to listen on (default 127.0.0.1; WOSAC_HOST)")
-    parser.add_argument("--port", type=int, default=int(os.environ.get("WOSAC_PORT", "8000")),
-                        help="TCP port (default 8000; WOSAC_PORT)")
+    parser.add_argument(
+        "--host",
+        default=os.environ.get("WOSAC_HOST", "127.0.0.1"),
+        help="address to listen on (default 127.0.0.1; WOSAC_HOST)",
+    )
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=int(os.environ.get("WOSAC_PORT", "8000")),
+        help="TCP port (default 8000; WOSAC_PORT)",
+    )
     parser.add_argument("--scenarios", help="scenario shards, comma-separated paths or globs (WOSAC_SCENARIOS)")
     parser.add_argument("--data-dir", help="uploads, results, SQLite file (WOSAC_DATA_DIR)")
     parser.add_argument("--workers", type=int, help="scoring worker processes (WOSAC_WORKERS)")
@@ -87,8 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     # Flags become environment so the worker processes see the same configuration.
-    for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"),
-                      ("workers", "WOSAC_WORKERS")):
+    for flag, var in (("scenarios", "WOSAC_SCENARIOS"), ("data_dir", "WOSAC_DATA_DIR"), ("workers", "WOSAC_WORKERS")):
         value = getattr(args, flag)
         if value is not None:
             os.environ[var] = str(value)
@@ -104,8 +111,11 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
         return 2
     scenarios = settings.scenario_paths()
     if not scenarios:
-        print("wosac-server serve: no scenario shard found; set WOSAC_SCENARIOS (or --scenarios) to the "
-              f"TFRecord files to score against (got {settings.scenarios or 'nothing'})", file=sys.stderr)
+        print(
+            "wosac-server serve: no scenario shard found; set WOSAC_SCENARIOS (or --scenarios) to the "
+            f"TFRecord files to score against (got {settings.scenarios or 'nothing'})",
+            file=sys.stderr,
+        )
         return 2
     os.environ["WOSAC_DATA_DIR"] = str(settings.data_dir)
 
@@ -124,17 +134,27 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     jobs.reap_expired(app.state.store, settings.max_attempts)
     if stop.requested:
         return 0
-    print(f"wosac-server serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
-          f"{settings.workers} worker(s), http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
+    print(
+        f"wosac-server serve: {len(scenarios)} scenario shard(s), data in {settings.data_dir}, "
+        f"{settings.workers} worker(s), http://{args.host}:{args.port}/",
+        file=sys.stderr,
+        flush=True,
+    )
     pool = WorkerPool(settings.workers)
     app.state.worker_pool = pool
     try:
         pool.start(cancelled=lambda: stop.requested)
         raise_open_files_limit()
-        config = uvicorn.Config(app, host=args.host, port=args.port, log_level=args.log_level,
-                                timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
-                                http=guarded_protocol(settings), **proxy_options(settings),
-                                backlog=accept_backlog())  # accepted at once: fits the cap's spare descriptors
+        config = uvicorn.Config(
+            app,
+            host=args.host,
+            port=args.port,
+            log_level=args.log_level,
+            timeout_graceful_shutdown=int(settings.shutdown_grace_s) or 1,
+            http=guarded_protocol(settings),
+            **proxy_options(settings),
+            backlog=accept_backlog(),
+        )  # accepted at once: fits the cap's spare descriptors
         install_log_limits()  # after uvicorn.Config, which installs uvicorn's log handlers
         server = uvicorn.Server(config)
         stop.server = server  # a request from here on reaches uvicorn, even before it takes the signals

@@ -4,6 +4,7 @@ One `Service` per API process (`app.state.service`): the settings, the job
 store, and the in-memory locks of resumable uploads. Routes reach it through
 the `service` dependency and authenticate with `current_key`.
 """
+
 from __future__ import annotations
 
 import asyncio
@@ -78,6 +79,7 @@ class Service:
     # -- what may be asked for ---------------------------------------------------------------
     def config_for(self, challenge: str, config: str | None) -> str:
         """The config a job is scored with: the asked one, or the challenge's current one; 422 when not served."""
+
         def refuse_unserved(name: str) -> None:
             if name not in self.settings.configs:
                 raise HTTPException(422, f"unknown config {name!r}; this server scores {self.settings.configs}")
@@ -94,14 +96,16 @@ class Service:
     # -- keys, quotas, ownership ---------------------------------------------------------------
     def key_for(self, creds: HTTPAuthorizationCredentials | None, client: str = "") -> auth.ApiKey:
         if creds is None or creds.scheme.lower() != "bearer":
-            raise HTTPException(401, "missing API key: send 'Authorization: Bearer <key>'",
-                                headers={"WWW-Authenticate": "Bearer"})
+            raise HTTPException(
+                401, "missing API key: send 'Authorization: Bearer <key>'", headers={"WWW-Authenticate": "Bearer"}
+            )
         self._refuse_guessing(client)
         key = auth.verify_key(self.store, creds.credentials)
         if key is None:
             self._record_auth_failure(client)
-            raise HTTPException(401, "unknown or revoked API key",
-                                headers={"WWW-Authenticate": 'Bearer error="invalid_token"'})
+            raise HTTPException(
+                401, "unknown or revoked API key", headers={"WWW-Authenticate": 'Bearer error="invalid_token"'}
+            )
         return key
 
     def _recent_failures(self, client: str, now: float) -> collections.deque:
@@ -118,8 +122,11 @@ class Service:
             if len(failures) < self.settings.auth_failures_per_minute:
                 return
             retry = int(failures[0] + 60.0 - now) + 1
-        raise HTTPException(429, f"too many failed authentications from this address in the last minute; "
-                            f"retry in {retry} s", headers={"Retry-After": str(retry)})
+        raise HTTPException(
+            429,
+            f"too many failed authentications from this address in the last minute; retry in {retry} s",
+            headers={"Retry-After": str(retry)},
+        )
 
     def _record_auth_failure(self, client: str) -> None:
         now = time.monotonic()
@@ -155,14 +162,18 @@ class Service:
         shown = display_name(method)
         owner = jobs.method_owner(self.store, challenge, shown)
         if owner is None:
-            reserved = {r["id"] for r in self.store.fetchall("SELECT id FROM api_keys WHERE name_key = ?",
-                                                              (name_key(shown),))}
+            reserved = {
+                r["id"] for r in self.store.fetchall("SELECT id FROM api_keys WHERE name_key = ?", (name_key(shown),))
+            }
             owner = None if not reserved or key.id in reserved else reserved.pop()
         if owner is not None and owner != key.id:
-            raise HTTPException(403, f"the method name {shown!r} (or a name differing from it only in case, "
-                                f"spacing or look-alike characters) belongs to another key on the {challenge} "
-                                "leaderboard; choose another name (an operator can reassign names: "
-                                "wosac-server methods)")
+            raise HTTPException(
+                403,
+                f"the method name {shown!r} (or a name differing from it only in case, "
+                f"spacing or look-alike characters) belongs to another key on the {challenge} "
+                "leaderboard; choose another name (an operator can reassign names: "
+                "wosac-server methods)",
+            )
         return shown
 
     @contextlib.asynccontextmanager
@@ -190,13 +201,15 @@ class Service:
         """auth.check_submission_quota with the holds of the key's other uploads in flight."""
         slots, held_bytes = self.holds.held(key.id, but=hold)
         try:
-            auth.check_submission_quota(self.store, key, size, pending=slots, held_bytes=held_bytes,
-                                        exclude_upload=upload_id)
+            auth.check_submission_quota(
+                self.store, key, size, pending=slots, held_bytes=held_bytes, exclude_upload=upload_id
+            )
         except auth.QuotaExceeded as exc:
             raise self.quota_error(exc) from exc
 
-    def upload_limit(self, key: auth.ApiKey, upload_id: str | None = None, hold: Hold | None = None,
-                     single: bool = False) -> int:
+    def upload_limit(
+        self, key: auth.ApiKey, upload_id: str | None = None, hold: Hold | None = None, single: bool = False
+    ) -> int:
         """Bytes the key may still send: the server's limit (of one request's body when `single`), its day's
         quota less what other uploads hold."""
         held = self.holds.held(key.id, but=hold)[1]
@@ -210,13 +223,18 @@ class Service:
 
     def _single_limit_binds(self, limit: int) -> bool:
         """Whether a direct upload's `limit` is the single-request one, which a resumable upload escapes."""
-        return self.settings.max_single_upload_bytes < self.settings.max_upload_bytes and \
-            limit == self.settings.max_single_upload_bytes
+        return (
+            self.settings.max_single_upload_bytes < self.settings.max_upload_bytes
+            and limit == self.settings.max_single_upload_bytes
+        )
 
     def _single_refusal(self, what: str) -> HTTPException:
-        return HTTPException(413, f"{what}, more than one request may carry ({self.settings.max_single_upload_bytes} "
-                             "bytes, WOSAC_MAX_SINGLE_UPLOAD_BYTES); send it with `wosac-eval submit`, which uploads "
-                             "it in resumable chunks")
+        return HTTPException(
+            413,
+            f"{what}, more than one request may carry ({self.settings.max_single_upload_bytes} "
+            "bytes, WOSAC_MAX_SINGLE_UPLOAD_BYTES); send it with `wosac-eval submit`, which uploads "
+            "it in resumable chunks",
+        )
 
     def refuse_early(self, key: auth.ApiKey, declared: int | None, single: bool = False) -> None:
         """Quota and size checks before a single body byte is read: of a direct upload (`single`, under the
@@ -225,20 +243,27 @@ class Service:
         if declared is not None and declared > limit:
             if self._single_limit_binds(limit):
                 raise self._single_refusal(f"the body is {declared} bytes")
-            raise HTTPException(413, f"the body is {declared} bytes; this server accepts at most {limit} bytes "
-                                "(WOSAC_MAX_UPLOAD_BYTES)")
+            raise HTTPException(
+                413, f"the body is {declared} bytes; this server accepts at most {limit} bytes (WOSAC_MAX_UPLOAD_BYTES)"
+            )
         self._check_quota(key, 0, None)
         if declared is not None and declared > self.upload_limit(key):
-            raise HTTPException(413, f"the body is {declared} bytes; key {key.name!r} has "
-                                f"{self.upload_limit(key)} bytes left of its daily quota")
+            raise HTTPException(
+                413,
+                f"the body is {declared} bytes; key {key.name!r} has "
+                f"{self.upload_limit(key)} bytes left of its daily quota",
+            )
 
     def too_large(self, key: auth.ApiKey) -> HTTPException:
         """The 413 of a direct upload's body that went past `upload_limit(key, single=True)`."""
         limit = self.upload_limit(key, single=True)
         if self._single_limit_binds(limit):
             return self._single_refusal("the body is larger")
-        return HTTPException(413, f"the body exceeds the {limit} bytes this key may upload now "
-                             f"(server limit {self.settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)")
+        return HTTPException(
+            413,
+            f"the body exceeds the {limit} bytes this key may upload now "
+            f"(server limit {self.settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)",
+        )
 
     # -- disk space (see wosac_server.disk) ------------------------------------------------------
     def disk_state(self) -> disk.DiskState:
@@ -290,8 +315,12 @@ class Service:
         try:
             self.write_state(self._settle, upload_id, from_state, to_state)
         except Exception as exc:  # noqa: BLE001 - the request's own answer must not be replaced by this
-            log.warning("could not record upload %s as %s (%s); retrying in the background",
-                        upload_id, to_state or "deleted", exc)
+            log.warning(
+                "could not record upload %s as %s (%s); retrying in the background",
+                upload_id,
+                to_state or "deleted",
+                exc,
+            )
             with self._state_lock:
                 self.unsettled[upload_id] = (from_state, to_state)
 
@@ -318,8 +347,20 @@ class Service:
         disk.restore_reserve(self.settings, self.disk_state())
 
     # -- acceptance ------------------------------------------------------------------------------
-    def accept(self, key: auth.ApiKey, temp: Path, size: int, *, hold: Hold, method: str | None, challenge: str,
-               config: str, allow_partial: bool, publish: bool, upload_id: str | None = None) -> dict:
+    def accept(
+        self,
+        key: auth.ApiKey,
+        temp: Path,
+        size: int,
+        *,
+        hold: Hold,
+        method: str | None,
+        challenge: str,
+        config: str,
+        allow_partial: bool,
+        publish: bool,
+        upload_id: str | None = None,
+    ) -> dict:
         """Turn a complete, fsynced file into a queued submission (runs in a thread); `hold`, from
         `upload_slot`, is dropped in the same step as the job row is committed.
 
@@ -347,12 +388,21 @@ class Service:
             with self.holds.gate, store.transaction():
                 self._check_quota(key, size, hold, upload_id)  # again, under the write lock
                 if not jobs.claim_method(store, challenge, method, key.id):
-                    raise HTTPException(403, f"the method name {method!r} was just taken by "
-                                        "another key; choose another name")
-                jobs.insert_submission(store, submission_id=submission_id, key_id=key.id,
-                                       method=method, challenge=challenge, config=config,
-                                       allow_partial=allow_partial, published=publish,
-                                       file_name=file_name, upload_bytes=size)
+                    raise HTTPException(
+                        403, f"the method name {method!r} was just taken by another key; choose another name"
+                    )
+                jobs.insert_submission(
+                    store,
+                    submission_id=submission_id,
+                    key_id=key.id,
+                    method=method,
+                    challenge=challenge,
+                    config=config,
+                    allow_partial=allow_partial,
+                    published=publish,
+                    file_name=file_name,
+                    upload_bytes=size,
+                )
                 if upload_id is not None:  # same transaction: the upload and its submission agree
                     store.execute("UPDATE uploads SET submission_id = ? WHERE id = ?", (submission_id, upload_id))
                 self.holds.release(hold)  # still under the gate, committed on leaving: the job counts itself
@@ -431,8 +481,9 @@ def service(request: Request) -> Service:
     return request.app.state.service
 
 
-def current_key(request: Request,
-                creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]) -> auth.ApiKey:
+def current_key(
+    request: Request, creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]
+) -> auth.ApiKey:
     """The dependency of authenticated routes: the caller's key (401 when missing or revoked)."""
     return service(request).key_for(creds, request.client.host if request.client else "")
 

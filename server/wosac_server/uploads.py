@@ -3,6 +3,7 @@
 Nothing here holds a body in memory. The check of what was received is the reader's own
 (`wosac_eval.parse.archive.check_container`, called by `Service.accept`).
 """
+
 from __future__ import annotations
 
 import errno
@@ -21,9 +22,12 @@ class BodyTooLarge(Exception):
 
 
 def disk_full(exc: OSError) -> HTTPException:
-    return HTTPException(507, f"the server's disk is full ({os.strerror(exc.errno or 0)}); retry later "
-                         "(resumable uploads keep what was stored)",
-                         headers={"Retry-After": str(RETRY_AFTER_S)})
+    return HTTPException(
+        507,
+        f"the server's disk is full ({os.strerror(exc.errno or 0)}); retry later "
+        "(resumable uploads keep what was stored)",
+        headers={"Retry-After": str(RETRY_AFTER_S)},
+    )
 
 
 async def stream_body_to(request: Request, path: Path, limit: int, mode: str = "wb") -> tuple[int, bool]:

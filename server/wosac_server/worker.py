@@ -23,6 +23,7 @@ A worker of a `WorkerPool` is started as `python -m wosac_server.worker_main
 slow imports of this module: a supervisor that dies (SIGTERM during its start-up,
 SIGKILL, OOM) at any moment leaves no worker behind (`wosac_eval.runtime.processes`).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -42,10 +43,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from wosac_eval.extras import EngineUnavailableError
+from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import SubmissionSource
 from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal
-from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
@@ -60,15 +61,26 @@ log = logging.getLogger("wosac_server.worker")
 
 def evaluation_of(job: dict, settings: Settings) -> Evaluation:
     """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits)."""
-    options = RunOptions(limits=settings.input_limits(), engine=Engine.RAY if settings.ray_address else Engine.LOCAL,
-                         ray_address=settings.ray_address or None, workers=settings.score_threads,
-                         allow_partial=bool(job["allow_partial"]),
-                         metadata_checks=MetadataChecks.parse(settings.metadata_checks))
+    options = RunOptions(
+        limits=settings.input_limits(),
+        engine=Engine.RAY if settings.ray_address else Engine.LOCAL,
+        ray_address=settings.ray_address or None,
+        workers=settings.score_threads,
+        allow_partial=bool(job["allow_partial"]),
+        metadata_checks=MetadataChecks.parse(settings.metadata_checks),
+    )
     return resolve_evaluation(job["challenge"], job["config"], options)
 
 
-def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: dict, folder: Path,
-                      count: int, objects: Path | None = None, objects_index: Path | None = None) -> list[dict]:
+def draw_worst_scenes(
+    index: ScenarioIndex,
+    source: SubmissionSource,
+    result: dict,
+    folder: Path,
+    count: int,
+    objects: Path | None = None,
+    objects_index: Path | None = None,
+) -> list[dict]:
     """Pictures of the `count` lowest meta-metric scenes of a result, with their index (scenes.json).
 
     The rollouts come from what the scoring's validation recorded of the submission (no new walk).
@@ -95,15 +107,27 @@ def draw_worst_scenes(index: ScenarioIndex, source: SubmissionSource, result: di
         png = scene_png(scene_view(scenario, rollouts[scenario_id], result["challenge"]), dpi=80)
         (folder / f"{rank}.png").write_bytes(png)
         row = row_of[scenario_id]
-        entry = {"rank": rank, "scenario_id": scenario_id, "metametric": result["scenarios"][row]["metametric"],
-                 "row": row, "worst_objects": [], "object_picture": False}
+        entry = {
+            "rank": rank,
+            "scenario_id": scenario_id,
+            "metametric": result["scenarios"][row]["metametric"],
+            "row": row,
+            "worst_objects": [],
+            "object_picture": False,
+        }
         records = scene_records(objects, objects_index, row) if objects and objects_index else None
         if records:
             entry["worst_objects"] = scene_worst_objects(records, result["scenarios"][row], result["config"])
         if entry["worst_objects"]:
             try:
-                picture = object_png(scenario, rollouts[scenario_id], entry["worst_objects"][0]["object_id"],
-                                     result["challenge"], dpi=70, config=result["config"])
+                picture = object_png(
+                    scenario,
+                    rollouts[scenario_id],
+                    entry["worst_objects"][0]["object_id"],
+                    result["challenge"],
+                    dpi=70,
+                    config=result["config"],
+                )
             except Exception:  # noqa: BLE001  (a picture helps; the scene's entry stands without it)
                 log.warning("the worst object of scene %d could not be drawn:\n%s", rank, traceback.format_exc())
                 picture = None
@@ -151,8 +175,13 @@ class DiskWait:
     forever). The wait between tries while no space comes back doubles from `min_backoff_s` (default
     WOSAC_POLL_S) to `max_backoff_s`."""
 
-    def __init__(self, settings: Settings, stopping: Callable[[], bool] = lambda: False,
-                 min_backoff_s: float | None = None, max_backoff_s: float = 30.0):
+    def __init__(
+        self,
+        settings: Settings,
+        stopping: Callable[[], bool] = lambda: False,
+        min_backoff_s: float | None = None,
+        max_backoff_s: float = 30.0,
+    ):
         self.settings = settings
         self.stopping = stopping
         self.min_backoff_s = settings.poll_s if min_backoff_s is None else min_backoff_s
@@ -179,8 +208,11 @@ class DiskWait:
 
     def recovered(self) -> None:
         if self.since is not None:
-            log.warning("worker %s: space is back after %.0f s of a full disk; going on", os.getpid(),
-                        time.monotonic() - self.since)
+            log.warning(
+                "worker %s: space is back after %.0f s of a full disk; going on",
+                os.getpid(),
+                time.monotonic() - self.since,
+            )
             self.since = None
 
     def until_written(self, write: Callable[[], object]):
@@ -208,10 +240,15 @@ def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
     """A job's failure reason from how its scoring process ended without recording an outcome."""
     used = f"peak memory {peak_rss / 2**20:.0f} MiB"
     if os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGXCPU:
-        return (f"scoring used its CPU-time budget of {settings.job_cpu_budget_s:g} s (WOSAC_JOB_CPU_BUDGET_S) "
-                f"and was stopped ({used})")
-    limit = (f"its memory limit is {settings.job_memory_bytes} bytes (WOSAC_JOB_MEMORY_BYTES)"
-             if settings.job_memory_bytes else "it has no memory limit")
+        return (
+            f"scoring used its CPU-time budget of {settings.job_cpu_budget_s:g} s (WOSAC_JOB_CPU_BUDGET_S) "
+            f"and was stopped ({used})"
+        )
+    limit = (
+        f"its memory limit is {settings.job_memory_bytes} bytes (WOSAC_JOB_MEMORY_BYTES)"
+        if settings.job_memory_bytes
+        else "it has no memory limit"
+    )
     if os.WIFSIGNALED(status):
         name = signal.Signals(os.WTERMSIG(status)).name
         return f"the scoring process was ended by {name} ({used}; {limit}): most likely out of memory"
@@ -247,9 +284,12 @@ class _Heartbeat(threading.Thread):
             if time.monotonic() > self.deadline:
                 budget = w.settings.job_time_budget_s
                 jobs.finish_failed(
-                    w.store, job_id, w.owner,
+                    w.store,
+                    job_id,
+                    w.owner,
                     f"scoring exceeded its time budget of {budget:g} s (WOSAC_JOB_TIME_BUDGET_S) and "
-                    "was stopped; a submission this large needs a larger budget")
+                    "was stopped; a submission this large needs a larger budget",
+                )
                 log.error("worker %s: job %s exceeded its %g s budget", os.getpid(), job_id, budget)
                 self.stop_child()
                 return
@@ -355,8 +395,11 @@ class Worker:
             heartbeat.done.set()
             heartbeat.join()
         peak_rss, cpu_s = usage.ru_maxrss * 1024, usage.ru_utime + usage.ru_stime
-        self.disk_wait.until_written(lambda: self.store.execute(
-            "UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?", (peak_rss, cpu_s, job_id)))
+        self.disk_wait.until_written(
+            lambda: self.store.execute(
+                "UPDATE submissions SET peak_rss_bytes = ?, cpu_s = ? WHERE id = ?", (peak_rss, cpu_s, job_id)
+            )
+        )
         # Still ours and unfinished: the child died before recording an outcome.
         reason = why_child_ended(status, settings, peak_rss)
         if self.disk_wait.until_written(lambda: jobs.finish_failed(self.store, job_id, self.owner, reason)):
@@ -372,8 +415,15 @@ class Worker:
     def draw_pictures(self, index: ScenarioIndex, source: SubmissionSource, result: dict, job_id: str) -> None:
         """The job's worst scenes; pictures help, but a drawing problem must not fail a scored job."""
         try:
-            draw_worst_scenes(index, source, result, self.settings.scenes_dir(job_id), self.settings.scene_pictures,
-                              self.settings.objects_path(job_id), self.settings.objects_index_path(job_id))
+            draw_worst_scenes(
+                index,
+                source,
+                result,
+                self.settings.scenes_dir(job_id),
+                self.settings.scene_pictures,
+                self.settings.objects_path(job_id),
+                self.settings.objects_index_path(job_id),
+            )
         except Exception:  # noqa: BLE001
             log.error("worker %s: pictures of %s failed:\n%s", os.getpid(), job_id, traceback.format_exc())
 
@@ -386,8 +436,9 @@ class Worker:
         if not objects.is_file():
             return
         try:
-            write_index(objects, [row["scenario_id"] for row in result["scenarios"]],
-                        self.settings.objects_index_path(job_id))
+            write_index(
+                objects, [row["scenario_id"] for row in result["scenarios"]], self.settings.objects_index_path(job_id)
+            )
         except Exception as exc:
             if disk.is_disk_full(exc):
                 raise  # waited out and done again, as every other write of the job
@@ -412,16 +463,21 @@ class Worker:
         try:
             scenarios = settings.scenario_paths()
             if not scenarios:
-                jobs.finish_failed(self.store, job_id, self.owner,
-                                   "the server has no scenario shards configured (WOSAC_SCENARIOS)")
+                jobs.finish_failed(
+                    self.store, job_id, self.owner, "the server has no scenario shards configured (WOSAC_SCENARIOS)"
+                )
                 return
             evaluation = evaluation_of(job, settings)
             index = ScenarioIndex(scenarios)
             journal = settings.journal_path(job_id)
             resumed = journal_rows(journal)
             if resumed:
-                log.info("worker %s: job %s resumes from its journal: %d scenarios already scored",
-                         os.getpid(), job_id, resumed)
+                log.info(
+                    "worker %s: job %s resumes from its journal: %d scenarios already scored",
+                    os.getpid(),
+                    job_id,
+                    resumed,
+                )
             # Validation walks the upload under the service's limits and records where each scenario is;
             # scoring and the pictures stream the archive again rather than keep a decompressed copy on disk.
             with SubmissionSource(submission_path, evaluation.options.limits) as source:
@@ -430,8 +486,15 @@ class Worker:
                 # Per-object values too: streamed from the journal into the objects file (never all in memory),
                 # then indexed by row so that a scene's worst objects are read without a pass over the file.
                 objects = settings.objects_path(job_id)
-                result = score_submission(index, source, progress=progress, evaluation=evaluation, journal=journal,
-                                          per_object=True, objects=objects)
+                result = score_submission(
+                    index,
+                    source,
+                    progress=progress,
+                    evaluation=evaluation,
+                    journal=journal,
+                    per_object=True,
+                    objects=objects,
+                )
                 # The objects file is the server's own (scene pages): the result served stays the document of
                 # `wosac-eval score` without --per-object, byte for byte.
                 result.pop("per_object", None)
@@ -447,28 +510,47 @@ class Worker:
             report = getattr(exc, "report", None)
             payload = None
             if report is not None:
-                payload = self._public({"text": report.format_text(), "details": report.to_dict()},
-                                       submission_path)
-            jobs.finish_failed(self.store, job_id, self.owner,
-                               self._public(f"the submission is invalid: {exc.reason}; the report lists each",
-                                            submission_path), payload)
+                payload = self._public({"text": report.format_text(), "details": report.to_dict()}, submission_path)
+            jobs.finish_failed(
+                self.store,
+                job_id,
+                self.owner,
+                self._public(f"the submission is invalid: {exc.reason}; the report lists each", submission_path),
+                payload,
+            )
         except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
-            jobs.finish_failed(self.store, job_id, self.owner,
-                               self._public(f"the submission could not be scored: {exc}", submission_path))
+            jobs.finish_failed(
+                self.store,
+                job_id,
+                self.owner,
+                self._public(f"the submission could not be scored: {exc}", submission_path),
+            )
         except MemoryError:
-            jobs.finish_failed(self.store, job_id, self.owner,
-                               f"scoring ran out of its memory limit of {settings.job_memory_bytes} bytes "
-                               "(WOSAC_JOB_MEMORY_BYTES) and was stopped")
+            jobs.finish_failed(
+                self.store,
+                job_id,
+                self.owner,
+                f"scoring ran out of its memory limit of {settings.job_memory_bytes} bytes "
+                "(WOSAC_JOB_MEMORY_BYTES) and was stopped",
+            )
         except EngineUnavailableError as exc:  # the Ray cluster is down or refuses us: its own one sentence
             log.error("worker %s: job %s: %s", os.getpid(), job_id, exc)
-            jobs.finish_failed(self.store, job_id, self.owner, self._public(
-                f"the scoring engine is unavailable: {exc}", submission_path))
+            jobs.finish_failed(
+                self.store,
+                job_id,
+                self.owner,
+                self._public(f"the scoring engine is unavailable: {exc}", submission_path),
+            )
         except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
             if disk.is_disk_full(exc):
                 raise  # not the submission's doing: until_written (score_job) waits for space and resumes
             log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
-            jobs.finish_failed(self.store, job_id, self.owner, self._public(
-                f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path))
+            jobs.finish_failed(
+                self.store,
+                job_id,
+                self.owner,
+                self._public(f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path),
+            )
 
     def _sweep_stale_uploads(self) -> None:
         now = time.time()
@@ -499,8 +581,9 @@ class WorkerPool:
     def _spawn(self) -> subprocess.Popen:
         # Our pid on its command line: the worker checks it before its slow imports (and arms its
         # parent-death signal), so our death at any moment after this call ends it.
-        return subprocess.Popen([sys.executable, "-m", "wosac_server.worker_main", PARENT_PID_FLAG, str(os.getpid())],
-                                env=self.env)
+        return subprocess.Popen(
+            [sys.executable, "-m", "wosac_server.worker_main", PARENT_PID_FLAG, str(os.getpid())], env=self.env
+        )
 
     def start(self, cancelled: Callable[[], bool] = lambda: False) -> None:
         """Starts the workers one by one, each recorded as soon as it runs, until `cancelled()` (a stop

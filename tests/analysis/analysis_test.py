@@ -1,4 +1,5 @@
 """Criticality, SDC driving scores and realism per object type, on hand-built and demo scenes."""
+
 from __future__ import annotations
 
 import math
@@ -7,8 +8,14 @@ import numpy as np
 import pytest
 
 from wosac_eval.analysis.criticality_features import criticality_features
-from wosac_eval.analysis.criticality_scores import (BehaviourHistogram, scenario_criticality, scene_criticality,
-                                                   set_histogram, step_criticality, with_rarity)
+from wosac_eval.analysis.criticality_scores import (
+    BehaviourHistogram,
+    scenario_criticality,
+    scene_criticality,
+    set_histogram,
+    step_criticality,
+    with_rarity,
+)
 from wosac_eval.arrays.messages import rollouts_from_arrays
 from wosac_eval.arrays.scenario import scenario_arrays
 from wosac_eval.protos import scenario_pb2
@@ -41,9 +48,18 @@ def straight_road_scene(tracks: list[dict], scenario_id: str = "hand-built") -> 
         heading = spec.get("heading", np.arctan2(vy, vx) if np.hypot(vx, vy).max() > 0.1 else np.zeros(STEPS))
         track = sc.tracks.add(id=100 + k, object_type=spec.get("type", 1))
         for t in range(STEPS):
-            track.states.add(center_x=x[t], center_y=y[t], center_z=0.8, length=spec.get("length", 4.5),
-                             width=spec.get("width", 2.0), height=1.6, heading=float(np.broadcast_to(heading, STEPS)[t]),
-                             velocity_x=vx[t], velocity_y=vy[t], valid=True)
+            track.states.add(
+                center_x=x[t],
+                center_y=y[t],
+                center_z=0.8,
+                length=spec.get("length", 4.5),
+                width=spec.get("width", 2.0),
+                height=1.6,
+                heading=float(np.broadcast_to(heading, STEPS)[t]),
+                velocity_x=vx[t],
+                velocity_y=vy[t],
+                valid=True,
+            )
         if k:
             sc.tracks_to_predict.add(track_index=k)
     return sc
@@ -81,33 +97,41 @@ def test_a_hard_brake_is_more_critical_than_cruising():
 def test_a_near_miss_is_more_critical_than_free_flow():
     free = scene_score(straight_road_scene([cruise(-100, -3, 10.0), cruise(-20, 3, 10.0)]))
     # A car passes a stopped car in the next lane 0.3 m apart at 12 m/s.
-    passing = straight_road_scene([cruise(-100, -3.0, 12.0), {"x": np.full(STEPS, -40.0), "y": np.full(STEPS, -0.7),
-                                                              "heading": np.zeros(STEPS)}])
+    passing = straight_road_scene(
+        [cruise(-100, -3.0, 12.0), {"x": np.full(STEPS, -40.0), "y": np.full(STEPS, -0.7), "heading": np.zeros(STEPS)}]
+    )
     near = scene_score(passing)
     # exp(-0.3 / 0.5) x 12 / (12 + 2) = 0.47; no collision course (parallel paths): no closing speed.
     assert near["components"]["near_miss"] > 0.4 > 0.01 > free["components"]["near_miss"]
     assert near["raw"]["closing_speed"] == 0.0 and near["raw"]["time_to_collision"] is None  # none: inf
     assert near["score"] > free["score"] + 0.1
     # A head-on course (closing at 24 m/s) has a short time to collision and a high closing speed.
-    head_on = scene_score(straight_road_scene([cruise(-100, -3, 12.0),
-                                               {"x": 100 - 12.0 * DT * np.arange(STEPS), "y": np.full(STEPS, -3.0)}]))
+    head_on = scene_score(
+        straight_road_scene(
+            [cruise(-100, -3, 12.0), {"x": 100 - 12.0 * DT * np.arange(STEPS), "y": np.full(STEPS, -3.0)}]
+        )
+    )
     assert head_on["raw"]["time_to_collision"] < 1.0 and head_on["raw"]["closing_speed"] > 20
     assert head_on["score"] > free["score"] + 0.25
 
 
 def test_step_criticality_peaks_where_the_event_is():
-    features = criticality_features(scenario_arrays(
-        straight_road_scene([hard_brake(-100, -3, 14.0, 60, 7.0), cruise(-60, 3, 12.0)])))
+    features = criticality_features(
+        scenario_arrays(straight_road_scene([hard_brake(-100, -3, 14.0, 60, 7.0), cruise(-60, 3, 12.0)]))
+    )
     steps = step_criticality(features)
     assert steps.shape == (STEPS,) and np.all((steps >= 0) & (steps <= 0.85))
     assert steps[55:70].max() > 0.2 > steps[10:45].max()
 
 
 def test_rarity_depends_on_the_set():
-    calm = [scenario_criticality(scenario_arrays(straight_road_scene([cruise(-100, -3, 10.0 + k),
-                                                                      cruise(-60, 3, 11.0)]))) for k in range(5)]
-    brake = scenario_criticality(scenario_arrays(
-        straight_road_scene([hard_brake(-100, -3, 14.0, 40, 7.0), cruise(-60, 3, 12.0)])))
+    calm = [
+        scenario_criticality(scenario_arrays(straight_road_scene([cruise(-100, -3, 10.0 + k), cruise(-60, 3, 11.0)])))
+        for k in range(5)
+    ]
+    brake = scenario_criticality(
+        scenario_arrays(straight_road_scene([hard_brake(-100, -3, 14.0, 40, 7.0), cruise(-60, 3, 12.0)]))
+    )
     among_calm = with_rarity(brake, set_histogram(calm + [brake]))
     among_brakes = with_rarity(brake, set_histogram([brake] * 6))
     assert among_calm["components"]["rarity"] > among_brakes["components"]["rarity"]
@@ -152,8 +176,10 @@ def log_replay(scenario):
 def test_log_replay_drives_better_than_constant_velocity(demo_scenes):
     replay, constant = [], []
     for scenario in demo_scenes:
-        for rollouts, out in ((log_replay(scenario), replay),
-                              (policy_rollouts(scenario, "constant_velocity"), constant)):
+        for rollouts, out in (
+            (log_replay(scenario), replay),
+            (policy_rollouts(scenario, "constant_velocity"), constant),
+        ):
             row = score_scenario(scenario, rollouts, analysis=True)
             driving = row["driving"]
             assert set(driving) == {"score", "components"} and 0.0 <= driving["score"] <= 1.0
@@ -166,12 +192,14 @@ def test_log_replay_drives_better_than_constant_velocity(demo_scenes):
 
 def test_a_single_type_scene_has_the_overall_metrics_for_its_type():
     """With vehicles alone evaluated, the vehicle row repeats the scenario's own metrics."""
-    scenario = straight_road_scene([cruise(-100, -3, 12.0), hard_brake(-80, -3, 12.0, 40, 3.0),
-                                    cruise(-60, 3, 9.0), cruise(-20, 3, 9.5)])
+    scenario = straight_road_scene(
+        [cruise(-100, -3, 12.0), hard_brake(-80, -3, 12.0, 40, 3.0), cruise(-60, 3, 9.0), cruise(-20, 3, 9.5)]
+    )
     replay = log_replay(scenario)
     noise = np.random.default_rng(0).normal(0.0, 0.3, replay.x.shape).astype(np.float32)
-    rollouts = rollouts_from_arrays(scenario.scenario_id, replay.object_id, replay.x + noise, replay.y - noise,
-                                    replay.z, replay.heading)
+    rollouts = rollouts_from_arrays(
+        scenario.scenario_id, replay.object_id, replay.x + noise, replay.y - noise, replay.z, replay.heading
+    )
     row = score_scenario(scenario, rollouts, analysis=True)
     assert list(row["by_object_type"]) == ["vehicle"]
     vehicle = row["by_object_type"]["vehicle"]
@@ -184,12 +212,17 @@ def test_a_single_type_scene_has_the_overall_metrics_for_its_type():
 def test_object_type_rows_split_the_objects(demo_scenes):
     scenario = demo_scenes[0]
     rollouts = policy_rollouts(scenario, "constant_velocity")
-    sg = score_scenario(scenario, policy_rollouts(scenario, "log_replay_noise", challenge="scenario_gen"),
-                        challenge="scenario_gen", analysis=True)
+    sg = score_scenario(
+        scenario,
+        policy_rollouts(scenario, "log_replay_noise", challenge="scenario_gen"),
+        challenge="scenario_gen",
+        analysis=True,
+    )
     log = scenario_arrays(scenario).log
     sim_agent_types = log.object_type[np.isin(log.object_id, scenario_arrays(scenario).sim_agent_ids)]
-    counts = {name: int((sim_agent_types == code).sum()) for code, name in ((1, "vehicle"), (2, "pedestrian"),
-                                                                            (3, "cyclist"))}
+    counts = {
+        name: int((sim_agent_types == code).sum()) for code, name in ((1, "vehicle"), (2, "pedestrian"), (3, "cyclist"))
+    }
     assert {k: v["num_objects"] for k, v in sg["by_object_type"].items()} == {k: v for k, v in counts.items() if v}
     for values in sg["by_object_type"].values():
         for key, value in values.items():

@@ -10,10 +10,13 @@ def _rollouts(values, ids, extra=None):
     for r in range(values.shape[0]):
         trajectories = []
         for i, oid in enumerate(ids[r]):
-            t = sub_pb2.SimulatedTrajectory(object_id=int(oid), center_x=values[r, i, 0].tolist(),
-                                            center_y=values[r, i, 1].tolist(),
-                                            center_z=values[r, i, 2].tolist(),
-                                            heading=values[r, i, 3].tolist())
+            t = sub_pb2.SimulatedTrajectory(
+                object_id=int(oid),
+                center_x=values[r, i, 0].tolist(),
+                center_y=values[r, i, 1].tolist(),
+                center_z=values[r, i, 2].tolist(),
+                heading=values[r, i, 3].tolist(),
+            )
             if extra:
                 extra(t)
             trajectories.append(t)
@@ -42,6 +45,7 @@ def test_extra_fields_take_the_general_path_with_equal_results():
     def with_sizes(t):
         t.length.extend([4.0] * 80)
         t.valid.extend([True] * 80)
+
     extended = rollout_arrays(_rollouts(values, ids, with_sizes))
     np.testing.assert_array_equal(plain.x, extended.x)
     np.testing.assert_array_equal(plain.heading, extended.heading)

@@ -6,6 +6,7 @@
 2. On this CPU with XLA's fused multiply-adds allowed (no `exact_cpu()`: what a GPU compiler does), the
    exact mode's per-step features are still bit-identical to the numpy path's.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -5,6 +5,7 @@ against per-scenario calls, padding to larger buckets, and the estimators
 under jit. Compiled functions are shared across the module: each bucket
 compiles once.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -42,14 +43,16 @@ def test_no_fused_multiply_add_on_cpu():
     assert not jax_backend.fma_contraction()
 
 
-@pytest.mark.parametrize("n, minimum, expected", [(0, 8, 8), (1, 8, 8), (8, 8, 8), (9, 8, 16),
-                                                  (5251, 64, 8192), (3, 1, 4), (0, 1, 1)])
+@pytest.mark.parametrize(
+    "n, minimum, expected", [(0, 8, 8), (1, 8, 8), (8, 8, 8), (9, 8, 16), (5251, 64, 8192), (3, 1, 4), (0, 1, 1)]
+)
 def test_buckets_are_powers_of_two(n, minimum, expected):
     assert jax_backend.bucket(n, minimum) == expected
 
 
-@pytest.mark.parametrize("n, expected", [(0, 64), (64, 64), (65, 128), (300, 384), (5251, 6144),
-                                         (8192, 8192), (8193, 12288)])
+@pytest.mark.parametrize(
+    "n, expected", [(0, 64), (64, 64), (65, 128), (300, 384), (5251, 6144), (8192, 8192), (8193, 12288)]
+)
 def test_fine_buckets_pad_at_most_a_third(n, expected):
     assert jax_backend.fine_bucket(n) == expected
 
@@ -94,14 +97,25 @@ def test_padding_to_larger_buckets_changes_nothing():
     key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
     larger = key.sizes.with_counts(2 * k for k in key.sizes.as_tuple())  # objects, evaluated, every map size
     padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
-    golden.assert_features_equal(padded, golden.as_feature_dict(_set_features(ORACLE)[case]),
-                                 f"{case} padded to {larger}")
+    golden.assert_features_equal(
+        padded, golden.as_feature_dict(_set_features(ORACLE)[case]), f"{case} padded to {larger}"
+    )
 
 
-TIMESERIES = ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration",
-              "distance_to_nearest_object", "time_to_collision", "distance_to_road_edge")
-INDICATORS = {"collision_indication": "collision_per_step", "offroad_indication": "offroad_per_step",
-              "traffic_light_violation": "traffic_light_violation_per_step"}
+TIMESERIES = (
+    "linear_speed",
+    "linear_acceleration",
+    "angular_speed",
+    "angular_acceleration",
+    "distance_to_nearest_object",
+    "time_to_collision",
+    "distance_to_road_edge",
+)
+INDICATORS = {
+    "collision_indication": "collision_per_step",
+    "offroad_indication": "offroad_per_step",
+    "traffic_light_violation": "traffic_light_violation_per_step",
+}
 
 
 @pytest.mark.parametrize("config_name", ["2025", "2023", "scenario_gen_2025"])
@@ -109,13 +123,13 @@ def test_estimators_under_jit_equal_numpy(config_name):
     import jax
 
     from wosac_eval.estimators import likelihoods
+
     config = load_config(config_name)
     case = next(c for c in ORACLE.cases if "collision" in c)
     log, sim = _set_features(ORACLE)[case]
     for metric in TIMESERIES:
         feature_config = getattr(config, metric)
-        expected = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric)[0],
-                                                         getattr(sim, metric))
+        expected = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric)[0], getattr(sim, metric))
         fn = jax.jit(lambda lv, sv: likelihoods.timeseries_log_likelihood(feature_config, lv, sv))
         with jax.enable_x64(True):
             actual = np.asarray(fn(getattr(log, metric)[0], getattr(sim, metric)))
@@ -135,6 +149,7 @@ def test_kernel_density_under_jit_matches_numpy():
     import jax
 
     from wosac_eval.estimators import likelihoods
+
     rng = np.random.default_rng(3)
     log, sim = rng.normal(size=(4, 6)).astype(np.float32), rng.normal(size=(4, 32)).astype(np.float32)
     expected = likelihoods.kernel_density_log_likelihood(0.5, log, sim)
@@ -148,9 +163,12 @@ def test_kernel_density_under_jit_matches_numpy():
 def test_scenario_without_signals_or_lanes_matches_numpy():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     scenario, rollouts = golden.inputs(ORACLE, case)
-    for variant in (dataclasses.replace(scenario, signals=None),
-                    dataclasses.replace(scenario, lanes=(), lane_ids=scenario.lane_ids[:0])):
+    for variant in (
+        dataclasses.replace(scenario, signals=None),
+        dataclasses.replace(scenario, lanes=(), lane_ids=scenario.lane_ids[:0]),
+    ):
         expected = golden.as_feature_dict(scenario_features(variant, rollouts))
         assert not expected["sim_traffic_light_violation_per_step"].any()
-        golden.assert_features_equal(jax_backend.scenario_features(variant, rollouts), expected,
-                                     f"{case} without signals or lanes")
+        golden.assert_features_equal(
+            jax_backend.scenario_features(variant, rollouts), expected, f"{case} without signals or lanes"
+        )

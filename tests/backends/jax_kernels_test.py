@@ -3,6 +3,7 @@
 Random inputs reach corners the scenario data may miss: huge angles, the
 libm tail, degenerate segments, points past segment ends, ties.
 """
+
 import dataclasses
 import os
 import subprocess
@@ -36,8 +37,13 @@ def test_namespace_dispatch():
 
 def test_sincos_fma_and_divide_under_jit_and_vmap():
     rng = np.random.default_rng(0)
-    x = np.concatenate([rng.normal(0, 4, 4000), rng.uniform(-1e5, 1e5, 1000),
-                        [0.0, -0.0, 25966.0, 18838.0, 1e30, np.inf, -np.inf, np.nan]]).astype(F)
+    x = np.concatenate(
+        [
+            rng.normal(0, 4, 4000),
+            rng.uniform(-1e5, 1e5, 1000),
+            [0.0, -0.0, 25966.0, 18838.0, 1e30, np.inf, -np.inf, np.nan],
+        ]
+    ).astype(F)
     tail = rng.random(x.shape) < 0.2
     with np.errstate(invalid="ignore"):  # libm's sin(inf) is NaN, with a warning
         want_all = sincos32(x, tail)
@@ -86,8 +92,18 @@ def test_nearest_object_pruned_on_the_device_equals_numpy_in_crowds_and_apart():
     np.testing.assert_array_equal(got, expected)
     radius = interaction.corner_radius(length, width)
     outlines = interaction.box_outlines(x, y, length - 2 * radius, width - 2 * radius, cos_h, sin_h)
-    _, settled = jitted(lambda *a: dense._nearest_object_candidates(*a, evaluated), x, y, length, width, cos_h,
-                        sin_h, outlines, radius, valid)
+    _, settled = jitted(
+        lambda *a: dense._nearest_object_candidates(*a, evaluated),
+        x,
+        y,
+        length,
+        width,
+        cos_h,
+        sin_h,
+        outlines,
+        radius,
+        valid,
+    )
     assert settled.mean() > 0.5 and not settled[:, 4][valid[:evaluated, 4]].any() and not settled.all()
 
 
@@ -95,30 +111,40 @@ def test_time_to_collision_dense_equals_numpy():
     rng = np.random.default_rng(2)
     objects, steps, evaluated = 10, 9, 4
     # A convoy along x with jitter, so that many pairs follow each other.
-    x = (np.arange(objects)[:, None] * 7.0 + np.arange(steps)[None] * rng.uniform(0.5, 2, (objects, 1))
-         + rng.normal(0, 0.3, (objects, steps))).astype(F)
+    x = (
+        np.arange(objects)[:, None] * 7.0
+        + np.arange(steps)[None] * rng.uniform(0.5, 2, (objects, 1))
+        + rng.normal(0, 0.3, (objects, steps))
+    ).astype(F)
     y = rng.normal(0, 1.0, (objects, steps)).astype(F)
     heading = rng.normal(0, 0.2, (objects, steps)).astype(F)
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
-    expected = interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated=evaluated,
-                                             seconds_per_step=0.1, steps=steps_eval)
+    expected = interaction.time_to_collision(
+        x, y, length, width, heading, valid, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval
+    )
     assert (expected < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail
     from wosac_eval.features.kinematics import linear_speed
+
     speed = linear_speed(x, y, np.zeros_like(x), 0.1)
     step_major = lambda a: np.ascontiguousarray(a[:, steps_eval].T)
     ego_tail = packet_tail((steps, evaluated, 1))[steps_eval]
     pair_tail = packet_tail((steps, evaluated, objects))[steps_eval]
-    got = jitted(lambda *a: dense.time_to_collision(*a[:7], ego_tail=a[7], pair_tail=a[8], num_evaluated=evaluated),
-                 *map(step_major, (x, y, length, width, heading, speed, valid)), ego_tail, pair_tail)
+    got = jitted(
+        lambda *a: dense.time_to_collision(*a[:7], ego_tail=a[7], pair_tail=a[8], num_evaluated=evaluated),
+        *map(step_major, (x, y, length, width, heading, speed, valid)),
+        ego_tail,
+        pair_tail,
+    )
     np.testing.assert_array_equal(got.T, expected)
 
 
 def test_jax_searches_are_search_strategies():
     from support.strategies import assert_is_search_strategy
     from wosac_eval.backends.host_search import HostSearch, HostSearches
+
     assert_is_search_strategy(dense.DenseSearch({}))
     assert_is_search_strategy(HostSearch(HostSearches(()), 0))
 
@@ -130,15 +156,18 @@ def test_road_edge_dense_equals_numpy():
     zigzag = np.array([[-10, -10, 0], [0, -15, 0], [0, -15, 0], [10, -10, 0], [20, -18, 1]], F)
     ramp = np.array([[50, -5, 0], [50, 40, 12]], F)
     table = road_edge.build_segment_table([loop, zigzag, ramp])
-    queries = np.concatenate([rng.uniform([-20, -30, -1], [60, 50, 8], (3000, 3)),
-                              loop[:4] + F(0.0), [[45, 30, 0], [-3, -4, 0]]]).astype(F)
+    queries = np.concatenate(
+        [rng.uniform([-20, -30, -1], [60, 50, 8], (3000, 3)), loop[:4] + F(0.0), [[45, 30, 0], [-3, -4, 0]]]
+    ).astype(F)
     expected = road_edge.signed_distance_to_polylines(table, queries)
     segments = map_arrays.segment_table_arrays(table)
     got = jitted(dense.signed_distance_to_road_edge, queries, segments)
     np.testing.assert_array_equal(got, expected)
     # Padded segments and a small chunk (several lax.map steps) change nothing.
-    padded = {k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, 64, 0)
-              for k, v in segments.items()}
+    padded = {
+        k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, 64, 0)
+        for k, v in segments.items()
+    }
     old = dense.PAIRS_PER_CHUNK
     dense.PAIRS_PER_CHUNK = 64 * 100
     try:
@@ -185,11 +214,14 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     np.testing.assert_array_equal(best[settled], brute[settled])
     assert 0 < settled.sum() < len(queries)  # both the tables and the fallback ran
     print(f"{candidates} candidates per cell: {settled.mean():.1%} of the queries settled by the table")
-    assert not settled[-len(far):].any()
+    assert not settled[-len(far) :].any()
     # Padded segments and grid rows change nothing; unneeded queries are never searched exhaustively.
-    padded = {k: v if k in ("cell_origin", "cell_shape") or k.startswith(dense.NON_FINITE_PREFIX)
-              else jax_driver.pad_axis(v, len(v) + 50, 0)
-              for k, v in segments.items()}
+    padded = {
+        k: v
+        if k in ("cell_origin", "cell_shape") or k.startswith(dense.NON_FINITE_PREFIX)
+        else jax_driver.pad_axis(v, len(v) + 50, 0)
+        for k, v in segments.items()
+    }
     np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
     needed = rng.random(len(queries)) < 0.5
     got = jitted(lambda q, n: dense.signed_distance_to_road_edge(q, segments, n), queries, needed)
@@ -198,8 +230,11 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
 
 def test_lane_search_dense_equals_numpy():
     rng = np.random.default_rng(4)
-    lanes = [np.array([[0, 0, 0], [30, 0, 0], [60, 5, 0]], F), np.array([[0, 3.5, 0], [60, 3.5, 0]], F),
-             np.array([[30, -30, 0], [30, 30, 0], [30, 30, 0]], F)]
+    lanes = [
+        np.array([[0, 0, 0], [30, 0, 0], [60, 5, 0]], F),
+        np.array([[0, 3.5, 0], [60, 3.5, 0]], F),
+        np.array([[30, -30, 0], [30, 30, 0], [30, 30, 0]], F),
+    ]
     table = traffic_lights.build_lane_table(lanes, [1, 2, 3])
     xy = rng.uniform([-10, -35], [70, 35], (2000, 2)).astype(F)
     expected = traffic_lights.nearest_lane_segment(table, xy)
@@ -227,6 +262,7 @@ def test_box_geometry_under_jit(shape):
 
 # --- NaN and inf, as the official code scores them ------------------------------------------------
 
+
 def sequential_argmin(row):
     """TensorFlow's CPU argmin, one value at a time: strictly below the best so far, from float32's max."""
     best, index = F(np.finfo(F).max), 0
@@ -238,6 +274,7 @@ def sequential_argmin(row):
 
 def test_strict_argmin_is_tensorflows():
     from wosac_eval.features.spatial import strict_argmin
+
     rng = np.random.default_rng(7)
     rows = rng.normal(size=(400, 9)).astype(F)
     draw = rng.random(rows.shape)
@@ -274,7 +311,9 @@ def test_nearest_object_spreads_nan_as_the_all_pairs_minimum():
             want[e] = np.minimum(pairs.min(axis=0), interaction.EXTREMELY_LARGE_DISTANCE)
     assert np.isnan(want).any() and np.isfinite(want).any()
     np.testing.assert_array_equal(got, want)
-    dense_got = jitted(lambda *a: dense.nearest_object_distance(*a, evaluated), x, y, length, width, cos_h, sin_h, valid)
+    dense_got = jitted(
+        lambda *a: dense.nearest_object_distance(*a, evaluated), x, y, length, width, cos_h, sin_h, valid
+    )
     np.testing.assert_array_equal(dense_got, want)
 
 
@@ -282,21 +321,29 @@ def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
     loop = np.array([[0, 0, 0], [40, 0, 0], [40, 30, 0], [0, 30, 0], [0, 0, 0]], F)
     short = np.array([[-10, -10, 0], [0, -15, 0], [10, -12, 0]], F)  # shorter: padding segments follow it
     table = road_edge.build_segment_table([loop, short])
-    queries = np.array([[np.nan, 1, 0], [5, np.inf, 0], [-np.inf, 4, 0], [5, 5, np.nan], [5, 5, np.inf],
-                        [3, 4, 0]], F)
+    queries = np.array([[np.nan, 1, 0], [5, np.inf, 0], [-np.inf, 4, 0], [5, 5, np.nan], [5, 5, np.inf], [3, 4, 0]], F)
     got = road_edge.signed_distance_to_polylines(table, queries)
     # Officially every valid segment is then at NaN or inf, never picked: the first padding segment is
     # (at 1e10), and its signed distance is sign * 1e10, NaN where the sign is.
     from wosac_eval.features.spatial import non_finite_pick
+
     pick = non_finite_pick(table.valid)
     assert not table.valid[pick] and table.valid[:pick].all()
     with np.errstate(invalid="ignore"):
         rel_t, _, _ = road_edge.segment_distances(*queries.T, *table.start[pick], *table.delta[pick])
-        side = lambda seg: road_edge.side_of_segment(queries[:, 0], queries[:, 1], *table.start[seg, :2],
-                                                      *table.delta[seg, :2])
-        sign = road_edge.corner_sign(rel_t, side(pick), side(table.prior[pick]), side(table.next[pick]),
-                                     table.convex_before[pick], table.convex_after[pick],
-                                     table.prior_valid[pick], table.next_valid[pick])
+        side = lambda seg: road_edge.side_of_segment(
+            queries[:, 0], queries[:, 1], *table.start[seg, :2], *table.delta[seg, :2]
+        )
+        sign = road_edge.corner_sign(
+            rel_t,
+            side(pick),
+            side(table.prior[pick]),
+            side(table.next[pick]),
+            table.convex_before[pick],
+            table.convex_after[pick],
+            table.prior_valid[pick],
+            table.next_valid[pick],
+        )
     want = (sign * road_edge.EXTREMELY_LARGE_DISTANCE).astype(F)
     np.testing.assert_array_equal(got[:5], want[:5])
     assert np.isfinite(got[5]) and abs(got[5]) < 100
@@ -310,11 +357,15 @@ def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import policy_rollouts
     from wosac_eval.arrays.scenario import scenario_arrays
+
     proto = scenes.generate_scenes(1, seed=5)[0]
     scenario = scenario_arrays(proto)
     rollouts = policy_rollouts(proto, "constant_velocity", seed=1, challenge=challenge)
-    fields = {name: getattr(rollouts, name).copy() for name in ("x", "y", "z", "heading", "length", "height")
-              if getattr(rollouts, name) is not None}
+    fields = {
+        name: getattr(rollouts, name).copy()
+        for name in ("x", "y", "z", "heading", "length", "height")
+        if getattr(rollouts, name) is not None
+    }
     fields["x"][0, 0, 20] = np.nan
     fields["y"][1, 2, 30] = -np.inf
     fields["heading"][2, 1, 40] = np.inf
@@ -326,9 +377,17 @@ def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
     numpy_log, numpy_sim = scenario_features(scenario, rollouts, challenge=challenge)
     jax_log, jax_sim = jax_backend.scenario_features(scenario, rollouts, challenge=challenge)
     assert np.isnan(numpy_sim.distance_to_nearest_object).any() and np.isnan(numpy_sim.distance_to_road_edge).any()
-    for name in ("linear_speed", "angular_speed", "distance_to_nearest_object", "collision_per_step",
-                 "time_to_collision", "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step",
-                 "average_displacement_error"):
+    for name in (
+        "linear_speed",
+        "angular_speed",
+        "distance_to_nearest_object",
+        "collision_per_step",
+        "time_to_collision",
+        "distance_to_road_edge",
+        "offroad_per_step",
+        "traffic_light_violation_per_step",
+        "average_displacement_error",
+    ):
         np.testing.assert_array_equal(np.asarray(getattr(jax_sim, name)), getattr(numpy_sim, name), err_msg=name)
 
 
@@ -354,8 +413,9 @@ def test_speeds_stay_exact_where_xla_fuses_multiply_adds():
     """Without `exact_cpu()` XLA fuses `a * b + c` on a CPU with FMA (as on a GPU): the squares of a speed
     are still rounded one by one, so the kinematic features equal numpy's bit for bit."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    out = subprocess.run([sys.executable, "-c", _SPEEDS_WITH_FUSION], env=env, capture_output=True, text=True,
-                         check=True)
+    out = subprocess.run(
+        [sys.executable, "-c", _SPEEDS_WITH_FUSION], env=env, capture_output=True, text=True, check=True
+    )
     fused, control, differing = out.stdout.split()
     if fused != "True":
         pytest.skip("this CPU has no fused multiply-add: XLA cannot fuse here")

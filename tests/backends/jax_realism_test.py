@@ -11,6 +11,7 @@ kernels an accelerator runs, which on a CPU only tests exercise); the host
 search (the default on a CPU: the numpy path's pruned search called back from
 the trace) has its own tests and golden run below.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -79,8 +80,9 @@ def prepared_set(challenge: str, padded: bool = False, grouped: bool = False, se
     (`grouped`: three here, put back in scene order), or padded wider (`padded`); the searches on
     the device (fixed shapes) unless `search` says "host"."""
     scs, rollouts = scene_set(challenge)
-    prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None,
-                                   grouped=grouped, search=search)
+    prepared = jax_realism.prepare(
+        scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None, grouped=grouped, search=search
+    )
     assert len(prepared.groups) == (3 if grouped else 1) and prepared.search == search
     return prepared, jax_realism.stack_rollouts(prepared, rollouts)
 
@@ -168,9 +170,14 @@ def numpy_per_object(prepared, challenge: str) -> dict:
     return out
 
 
-@pytest.mark.parametrize("challenge, mode, search, grouped", [
-    ("sim_agents", "exact", "device", False), ("scenario_gen", "float32", "device", False),
-    ("sim_agents", "float32", "device", True)])
+@pytest.mark.parametrize(
+    "challenge, mode, search, grouped",
+    [
+        ("sim_agents", "exact", "device", False),
+        ("scenario_gen", "float32", "device", False),
+        ("sim_agents", "float32", "device", True),
+    ],
+)
 def test_per_object_values_equal_the_numpy_path(challenge, mode, search, grouped):
     """`realism(..., per_object=True)` inside a plain `jax.jit`: each evaluated object's likelihood and count
     in its rollout column, equal to the numpy path's (within the metrics' tolerance; bit-identical in exact
@@ -217,6 +224,7 @@ def test_a_plain_training_step_with_x64_off():
         def step(carry, sets):
             out = jax.vmap(lambda a: jax_realism.realism(prepared, **a))(sets)
             return carry, (out["metametric"], out.mode == "float32")
+
         return lax.scan(step, 0.0, steps)[1]
 
     with warnings.catch_warnings():
@@ -235,8 +243,21 @@ def test_a_plain_training_step_with_x64_off():
 
 
 _CONSTANT = re.compile(r"stablehlo\.constant\s+(dense(?:_resource)?)<(.{0,3})[^\n]*?:\s*tensor<([^>]*)>")
-_ELEMENT_BITS = {"i1": 8, "i8": 8, "ui8": 8, "i16": 16, "ui16": 16, "f16": 16, "bf16": 16, "i32": 32, "ui32": 32,
-                 "f32": 32, "i64": 64, "ui64": 64, "f64": 64}
+_ELEMENT_BITS = {
+    "i1": 8,
+    "i8": 8,
+    "ui8": 8,
+    "i16": 16,
+    "ui16": 16,
+    "f16": 16,
+    "bf16": 16,
+    "i32": 32,
+    "ui32": 32,
+    "f32": 32,
+    "i64": 64,
+    "ui64": 64,
+    "f64": 64,
+}
 
 
 def largest_constant_bytes(stablehlo: str) -> int:
@@ -261,8 +282,10 @@ def test_prepared_as_an_argument_embeds_no_large_constant(search):
     assert big.num_scenes == 256 and big.host_searches is prepared.host_searches
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        lowered = [_step.lower(big, big_arrays),
-                   jax_realism.jit_step(lambda p, a: jax_realism.realism(p, **a)["metametric"], big).lower(big_arrays)]
+        lowered = [
+            _step.lower(big, big_arrays),
+            jax_realism.jit_step(lambda p, a: jax_realism.realism(p, **a)["metametric"], big).lower(big_arrays),
+        ]
     for low in lowered:
         assert largest_constant_bytes(low.as_text()) <= 2**20
     if search == "device":
@@ -310,6 +333,7 @@ def test_the_host_search_in_a_training_step_with_x64_off(challenge):
         def step(carry, sets):
             out = jax.vmap(lambda a: jax_realism.realism(prepared, **a))(sets)
             return carry, out.metrics
+
         return lax.scan(step, 0.0, steps)[1]
 
     steps = {k: np.stack([np.stack([v, v + np.float32(k == "x")])] * 2) for k, v in arrays.items()}
@@ -347,8 +371,9 @@ def test_the_mode_is_explicit_and_recorded():
     assert (exact.mode, also_float32.mode) == ("exact", "float32")
     assert exact["metametric"].dtype == np.float64
     assert set(exact) == set(SCENARIO_FIELDS) and dict(exact).keys() == exact.keys()
-    np.testing.assert_allclose(np.asarray(also_float32["metametric"]), np.asarray(exact["metametric"]),
-                               rtol=0, atol=METRIC_TOLERANCE)
+    np.testing.assert_allclose(
+        np.asarray(also_float32["metametric"]), np.asarray(exact["metametric"]), rtol=0, atol=METRIC_TOLERANCE
+    )
 
 
 class DlpackOnly:
@@ -377,21 +402,27 @@ def test_any_dlpack_array_is_taken():
 def test_importing_leaves_the_jax_configuration_alone():
     """No XLA_FLAGS, no x64 switch: the user's model compiles as it would without wosac-eval."""
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    code = ("import os, jax; from wosac_eval import jax_realism; from wosac_eval.backends import jax_backend; "
-            "print(os.environ.get('XLA_FLAGS'), jax.config.jax_enable_x64, jax_backend.fma_contraction())")
+    code = (
+        "import os, jax; from wosac_eval import jax_realism; from wosac_eval.backends import jax_backend; "
+        "print(os.environ.get('XLA_FLAGS'), jax.config.jax_enable_x64, jax_backend.fma_contraction())"
+    )
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split()[:2] == ["None", "False"]
 
 
 def test_exact_cpu_is_an_opt_in_made_before_the_first_computation():
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
-    opt_in = ("from wosac_eval import jax_realism; from wosac_eval.backends import jax_backend; "
-              "jax_realism.exact_cpu(); print(jax_backend.fma_contraction())")
+    opt_in = (
+        "from wosac_eval import jax_realism; from wosac_eval.backends import jax_backend; "
+        "jax_realism.exact_cpu(); print(jax_backend.fma_contraction())"
+    )
     out = subprocess.run([sys.executable, "-c", opt_in], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False"]
-    too_late = ("import jax, jax.numpy as jnp; from wosac_eval.backends import jax_backend; "
-                "jax.block_until_ready(jnp.ones(3) * 2 + 1); "
-                "fused = jax_backend.fma_contraction(jax.devices('cpu')[0]); print(fused); jax_backend.exact_cpu()")
+    too_late = (
+        "import jax, jax.numpy as jnp; from wosac_eval.backends import jax_backend; "
+        "jax.block_until_ready(jnp.ones(3) * 2 + 1); "
+        "fused = jax_backend.fma_contraction(jax.devices('cpu')[0]); print(fused); jax_backend.exact_cpu()"
+    )
     out = subprocess.run([sys.executable, "-c", too_late], env=env, capture_output=True, text=True)
     if out.stdout.split()[:1] == ["True"]:  # a CPU with FMA: XLA had started fusing, exact_cpu says so
         assert out.returncode != 0 and "already started with fused multiply-adds" in out.stderr
@@ -447,8 +478,9 @@ def test_every_golden_case_matches_the_official_metrics(case_set, mode, search):
     pairs = [golden.inputs(case_set, case) for case in cases]
     config_name = case_set.configs[0]
     config = golden.config_reference(case_set, config_name)
-    prepared = jax_realism.prepare([scene for scene, _ in pairs], challenge=case_set.challenge, config=config,
-                                   grouped=False, search=search)
+    prepared = jax_realism.prepare(
+        [scene for scene, _ in pairs], challenge=case_set.challenge, config=config, grouped=False, search=search
+    )
     got = in_jit(mode, prepared, jax_realism.stack_rollouts(prepared, [ro for _, ro in pairs]))
     for s, case in enumerate(cases):
         expected = golden.expected_metrics(case_set, case, config_name)

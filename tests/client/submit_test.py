@@ -6,6 +6,7 @@ uploaded and followed to the same meta-metric as `wosac-eval score`; an upload i
 SIGKILL) and run again, going on from the server's offset; the server stopped and started again
 mid-upload; refusals printing the server's reason. Nothing is mocked.
 """
+
 from __future__ import annotations
 
 import json
@@ -28,7 +29,6 @@ pytest.importorskip("wosac_server", reason="the service is not installed (pip in
 from support.server_harness import GOLDEN_PAIR, SCENARIO_FILES, Server, scoring_data  # noqa: E402
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="the service's harness reads /proc")
-
 
 
 def paced(size: int, seconds: float) -> tuple[int, list[str]]:
@@ -74,16 +74,45 @@ def new_key(server: Server, name: str) -> tuple[str, str]:
 
 
 def submit_cli(server: Server, key: str, method: str, submission: Path, state: Path, *args: str):
-    return run_cli("submit", str(submission), "--server", server.url, "--key", key, "--method", method,
-                   "--state-dir", str(state), *args, timeout=120)
+    return run_cli(
+        "submit",
+        str(submission),
+        "--server",
+        server.url,
+        "--key",
+        key,
+        "--method",
+        method,
+        "--state-dir",
+        str(state),
+        *args,
+        timeout=120,
+    )
 
 
 def start_cli(server: Server, key: str, method: str, submission: Path, state: Path, *args: str) -> subprocess.Popen:
     """The command line in the background, its key in WOSAC_API_KEY (as a user keeps it out of the history)."""
-    return subprocess.Popen([sys.executable, "-m", "wosac_eval.fronts.cli", "submit", str(submission),
-                             "--server", server.url, "--method", method, "--state-dir", str(state), *args],
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**_env(), "WOSAC_API_KEY": key})
+    return subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "wosac_eval.fronts.cli",
+            "submit",
+            str(submission),
+            "--server",
+            server.url,
+            "--method",
+            method,
+            "--state-dir",
+            str(state),
+            *args,
+        ],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**_env(), "WOSAC_API_KEY": key},
+    )
 
 
 def _env() -> dict:
@@ -145,11 +174,28 @@ def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server
     from wosac_eval.client import follow, submit
 
     (key, method), state = new_key(scoring_server, "team-wait"), tmp_path / "state"
-    done = submit_cli(scoring_server, key, method, data.full, state, "--wait", "-o", str(tmp_path / "served.json"),
-                      "--chunk-bytes", "256K")
+    done = submit_cli(
+        scoring_server,
+        key,
+        method,
+        data.full,
+        state,
+        "--wait",
+        "-o",
+        str(tmp_path / "served.json"),
+        "--chunk-bytes",
+        "256K",
+    )
     assert done.returncode == 0, done.stderr
-    scored = run_cli("score", "--scenarios", *map(str, data.scenarios), "--submission", str(data.full),
-                     "-o", str(tmp_path / "local.json"))
+    scored = run_cli(
+        "score",
+        "--scenarios",
+        *map(str, data.scenarios),
+        "--submission",
+        str(data.full),
+        "-o",
+        str(tmp_path / "local.json"),
+    )
     assert scored.returncode == 0, scored.stderr
     local = json.loads((tmp_path / "local.json").read_text())["buckets"]
     assert json.loads((tmp_path / "served.json").read_text())["buckets"] == local
@@ -165,8 +211,9 @@ def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server
     # submission instead of uploading the file again.
     assert not any(key in p.read_text() for p in state.iterdir())
     lines: list[str] = []
-    status = submit(data.full, server=scoring_server.url, key=key, method=method, wait=True, state_dir=state,
-                    log=lines.append)
+    status = submit(
+        data.full, server=scoring_server.url, key=key, method=method, wait=True, state_dir=state, log=lines.append
+    )
     assert status["id"] == figures["submission"] and status["state"] == "done"
     assert status["result"]["buckets"] == local
     assert any("was uploaded before" in line for line in lines) and not any("created" in line for line in lines)
@@ -184,8 +231,11 @@ def test_a_failed_job_prints_its_error_and_exits_1(tmp_path, scoring_server, dat
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["ctrl-c", "kill"])
 def test_an_interrupted_upload_goes_on_from_the_servers_offset(tmp_path, api_server, big_file, sig):
-    (key, method), state, size = new_key(api_server, f"team-{sig.name.lower()}"), tmp_path / "state", \
-        big_file.stat().st_size
+    (key, method), state, size = (
+        new_key(api_server, f"team-{sig.name.lower()}"),
+        tmp_path / "state",
+        big_file.stat().st_size,
+    )
     chunk, pacing = paced(size, 2.0)
     proc = start_cli(api_server, key, method, big_file, state, *pacing)
     try:
@@ -253,14 +303,29 @@ def test_an_upload_gone_from_the_server_is_started_again(tmp_path, api_server, b
 
     lines: list[str] = []
     with pytest.raises(KeyboardInterrupt):
-        submit(big_file, server=api_server.url, key=key, method=method, chunk_bytes=size // 8, state_dir=state,
-               progress=interrupt, log=lines.append)
+        submit(
+            big_file,
+            server=api_server.url,
+            key=key,
+            method=method,
+            chunk_bytes=size // 8,
+            state_dir=state,
+            progress=interrupt,
+            log=lines.append,
+        )
     upload_id = the_upload_id(state)
     assert any(f"upload {upload_id} interrupted" in line for line in lines)
     httpx.delete(f"{api_server.url}/v1/uploads/{upload_id}", headers={"Authorization": f"Bearer {key}"})
     lines.clear()
-    status = submit(big_file, server=api_server.url, key=key, method=method, chunk_bytes=size // 8, state_dir=state,
-                    log=lines.append)
+    status = submit(
+        big_file,
+        server=api_server.url,
+        key=key,
+        method=method,
+        chunk_bytes=size // 8,
+        state_dir=state,
+        log=lines.append,
+    )
     assert status["state"] == "queued" and status["upload_bytes"] == size
     assert any(f"no longer has upload {upload_id}" in line and "starting a new upload" in line for line in lines)
     assert the_upload_id(state) != upload_id
@@ -277,15 +342,29 @@ def test_a_409_moves_the_client_to_the_servers_offset(tmp_path, api_server, big_
     def other_client(stage, done, total):
         if stage == "upload" and not appended:
             upload_id = the_upload_id(tmp_path / "state")
-            answer = httpx.patch(f"{api_server.url}/v1/uploads/{upload_id}", content=content[:size // 3],
-                                 headers={"Authorization": f"Bearer {key}", "Upload-Offset": "0",
-                                          "Content-Type": "application/offset+octet-stream"})
+            answer = httpx.patch(
+                f"{api_server.url}/v1/uploads/{upload_id}",
+                content=content[: size // 3],
+                headers={
+                    "Authorization": f"Bearer {key}",
+                    "Upload-Offset": "0",
+                    "Content-Type": "application/offset+octet-stream",
+                },
+            )
             assert answer.status_code == 204, answer.text
             appended.append(int(answer.headers["upload-offset"]))
 
     lines: list[str] = []
-    status = submit(big_file, server=api_server.url, key=key, method=method, chunk_bytes=size // 8,
-                    state_dir=tmp_path / "state", progress=other_client, log=lines.append)
+    status = submit(
+        big_file,
+        server=api_server.url,
+        key=key,
+        method=method,
+        chunk_bytes=size // 8,
+        state_dir=tmp_path / "state",
+        progress=other_client,
+        log=lines.append,
+    )
     assert appended == [size // 3]
     assert any(f"the server holds {size // 3:,} bytes" in line and "going on from there" in line for line in lines)
     assert stored_submission(api_server, status["id"]) == content
@@ -298,11 +377,26 @@ def test_a_refusal_prints_the_servers_reason_and_exits_1(tmp_path, api_server, b
     api_server.key(f"owner-{name}")  # its name is its own
     method = f"owner-{name}" if case == "name of another key" else f"team-{name}"
     args = ("--config", "1999") if case == "unknown config" else ()
-    reason = {"name of another key": "belongs to another key", "unknown config": "unknown config '1999'",
-              "wrong key": "unknown or revoked API key"}[case]
+    reason = {
+        "name of another key": "belongs to another key",
+        "unknown config": "unknown config '1999'",
+        "wrong key": "unknown or revoked API key",
+    }[case]
     used = key + "x" if case == "wrong key" else key
-    done = run_cli("submit", str(big_file), "--server", api_server.url, "--key", used, "--method", method,
-                   "--state-dir", str(tmp_path / "state"), *args, timeout=60)
+    done = run_cli(
+        "submit",
+        str(big_file),
+        "--server",
+        api_server.url,
+        "--key",
+        used,
+        "--method",
+        method,
+        "--state-dir",
+        str(tmp_path / "state"),
+        *args,
+        timeout=60,
+    )
     assert done.returncode == 1, done.stdout + done.stderr
     assert "wosac-eval submit: the server refused it (4" in done.stderr and reason in done.stderr, done.stderr
     assert "Traceback" not in done.stderr and done.stdout == ""
@@ -325,14 +419,44 @@ def test_a_quota_with_a_long_retry_after_is_refused_at_once(tmp_path, api_server
 
 def test_usage_errors_exit_2_before_any_upload(tmp_path, big_file, data):
     state = tmp_path / "state"
-    no_key = run_cli("submit", str(big_file), "--server", "http://127.0.0.1:9", "--method", "m1",
-                     "--state-dir", str(state), env=_env())
+    no_key = run_cli(
+        "submit",
+        str(big_file),
+        "--server",
+        "http://127.0.0.1:9",
+        "--method",
+        "m1",
+        "--state-dir",
+        str(state),
+        env=_env(),
+    )
     assert no_key.returncode == 2 and "WOSAC_API_KEY" in no_key.stderr, no_key.stderr
-    missing = run_cli("submit", str(tmp_path / "nope.tar.gz"), "--server", "http://127.0.0.1:9", "--key", "k",
-                      "--method", "m1", "--state-dir", str(state))
+    missing = run_cli(
+        "submit",
+        str(tmp_path / "nope.tar.gz"),
+        "--server",
+        "http://127.0.0.1:9",
+        "--key",
+        "k",
+        "--method",
+        "m1",
+        "--state-dir",
+        str(state),
+    )
     assert missing.returncode == 2 and "no such file" in missing.stderr, missing.stderr
     closed = Server(tmp_path / "unused", data.scenarios).port  # a free port: nobody listens there
-    unreachable = run_cli("submit", str(big_file), "--server", f"http://127.0.0.1:{closed}", "--key", "k",
-                          "--method", "m1", "--state-dir", str(state), timeout=60)
+    unreachable = run_cli(
+        "submit",
+        str(big_file),
+        "--server",
+        f"http://127.0.0.1:{closed}",
+        "--key",
+        "k",
+        "--method",
+        "m1",
+        "--state-dir",
+        str(state),
+        timeout=60,
+    )
     assert unreachable.returncode == 2, unreachable.stderr
     assert "cannot reach" in unreachable.stderr and "Traceback" not in unreachable.stderr

@@ -5,6 +5,7 @@ rollouts, compute its `SimAgentMetrics`, aggregate, bucket), run on official
 submissions, gives the official outputs; `scenario_to_joint_scene` gives the
 official converter's bytes.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,8 +19,10 @@ from wosac_eval.compat import converters, metrics, submission_specs
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 COMPAT_DATA = TEST_DATA / "oracle_compat"
-CHALLENGE_TYPES = {"sim_agents": submission_specs.ChallengeType.SIM_AGENTS,
-                   "scenario_gen": submission_specs.ChallengeType.SCENARIO_GEN}
+CHALLENGE_TYPES = {
+    "sim_agents": submission_specs.ChallengeType.SIM_AGENTS,
+    "scenario_gen": submission_specs.ChallengeType.SCENARIO_GEN,
+}
 
 
 def tutorial_metrics(scenario: scenario_pb2.Scenario, rollouts, challenge_type, config):
@@ -61,8 +64,9 @@ def test_aggregation_is_the_mean_of_each_field():
         metrics.aggregate_scenario_metrics([])
 
 
-@pytest.mark.parametrize("scene", ["oracle/scenes/occlusion.tfrecord",
-                                   "oracle_scenario_gen/scenes/synthetic-5-008-pedestrians.tfrecord"])
+@pytest.mark.parametrize(
+    "scene", ["oracle/scenes/occlusion.tfrecord", "oracle_scenario_gen/scenes/synthetic-5-008-pedestrians.tfrecord"]
+)
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
 def test_scenario_to_joint_scene_is_the_official_converter(scene, challenge):
     from wosac_eval.parse.scenarios import iter_scenarios
@@ -74,11 +78,17 @@ def test_scenario_to_joint_scene_is_the_official_converter(scene, challenge):
 
 
 def test_submission_specs_match_the_official_values():
-    for challenge_type, steps in ((submission_specs.ChallengeType.SIM_AGENTS, 80),
-                                  (submission_specs.ChallengeType.SCENARIO_GEN, 91)):
+    for challenge_type, steps in (
+        (submission_specs.ChallengeType.SIM_AGENTS, 80),
+        (submission_specs.ChallengeType.SCENARIO_GEN, 91),
+    ):
         config = submission_specs.get_submission_config(challenge_type)
-        assert (config.current_time_index, config.n_simulation_steps, config.n_rollouts,
-                config.step_duration_seconds) == (10, steps, 32, 0.1)
+        assert (
+            config.current_time_index,
+            config.n_simulation_steps,
+            config.n_rollouts,
+            config.step_duration_seconds,
+        ) == (10, steps, 32, 0.1)
     assert submission_specs.ChallengeType("scenario_gen") is submission_specs.ChallengeType.SCENARIO_GEN
 
 
@@ -93,11 +103,14 @@ def test_sim_agent_and_evaluation_ids():
     sim_agents = submission_specs.get_sim_agent_ids(scenario, submission_specs.ChallengeType.SIM_AGENTS)
     assert sim_agents == [t.id for t in scenario.tracks if t.states[10].valid]
     evaluated = submission_specs.get_evaluation_sim_agent_ids(scenario, submission_specs.ChallengeType.SIM_AGENTS)
-    wanted = {scenario.tracks[scenario.sdc_track_index].id} | {scenario.tracks[r.track_index].id
-                                                               for r in scenario.tracks_to_predict}
+    wanted = {scenario.tracks[scenario.sdc_track_index].id} | {
+        scenario.tracks[r.track_index].id for r in scenario.tracks_to_predict
+    }
     assert evaluated == sorted(wanted)
-    assert submission_specs.get_evaluation_sim_agent_ids(
-        scenario, submission_specs.ChallengeType.SCENARIO_GEN) == sim_agents
+    assert (
+        submission_specs.get_evaluation_sim_agent_ids(scenario, submission_specs.ChallengeType.SCENARIO_GEN)
+        == sim_agents
+    )
 
 
 def test_validators_raise_value_error_naming_the_fault():
@@ -132,9 +145,19 @@ def test_tutorial_simulation_from_arrays():
     scenario = _occlusion_scene()
     ids = submission_specs.get_sim_agent_ids(scenario, submission_specs.ChallengeType.SIM_AGENTS)
     tracks = {t.id: t for t in scenario.tracks}
-    current = np.array([[tracks[i].states[10].center_x, tracks[i].states[10].center_y, tracks[i].states[10].center_z,
-                         tracks[i].states[10].heading, tracks[i].states[10].velocity_x,
-                         tracks[i].states[10].velocity_y] for i in ids])
+    current = np.array(
+        [
+            [
+                tracks[i].states[10].center_x,
+                tracks[i].states[10].center_y,
+                tracks[i].states[10].center_z,
+                tracks[i].states[10].heading,
+                tracks[i].states[10].velocity_x,
+                tracks[i].states[10].velocity_y,
+            ]
+            for i in ids
+        ]
+    )
     rng = np.random.default_rng(0)
     scenes = []
     for _ in range(32):  # constant velocity with noisy speed, as the tutorial's extrapolation

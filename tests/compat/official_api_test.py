@@ -7,6 +7,7 @@ checked against the scenarios' tracks, the official per-feature arrays
 (golden cases: bit for bit, dtypes included) and the official metrics; and
 the signatures of every public function of the official modules (1.6.7).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -21,16 +22,29 @@ import pytest  # noqa: E402
 
 from support import golden  # noqa: E402
 from support.paths import TEST_DATA  # noqa: E402
-from wosac_eval.compat import (converters, metric_features, metrics, submission_specs,  # noqa: E402
-                               trajectory_utils, visualizations)
+from wosac_eval.compat import (
+    converters,
+    metric_features,
+    metrics,
+    submission_specs,  # noqa: E402
+    trajectory_utils,
+    visualizations,
+)
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2  # noqa: E402
 
-CHALLENGE_TYPES = {"sim_agents": submission_specs.ChallengeType.SIM_AGENTS,
-                   "scenario_gen": submission_specs.ChallengeType.SCENARIO_GEN}
+CHALLENGE_TYPES = {
+    "sim_agents": submission_specs.ChallengeType.SIM_AGENTS,
+    "scenario_gen": submission_specs.ChallengeType.SCENARIO_GEN,
+}
 # Official dtypes of the features (`tf.convert_to_tensor` of Python ints gives int32).
-FEATURE_DTYPES = {"object_id": np.int32, "object_type": np.int32, "valid": np.bool_,
-                  "collision_per_step": np.bool_, "offroad_per_step": np.bool_,
-                  "traffic_light_violation_per_step": np.bool_}
+FEATURE_DTYPES = {
+    "object_id": np.int32,
+    "object_type": np.int32,
+    "valid": np.bool_,
+    "collision_per_step": np.bool_,
+    "offroad_per_step": np.bool_,
+    "traffic_light_violation_per_step": np.bool_,
+}
 
 
 def _scene(name: str) -> scenario_pb2.Scenario:
@@ -63,8 +77,16 @@ def test_from_scenario_holds_every_track_in_track_order(name):
     scenario = _load(name)
     t = trajectory_utils.ObjectTrajectories.from_scenario(scenario)
     n, steps = len(scenario.tracks), len(scenario.tracks[0].states)
-    for field, dtype in (("x", np.float32), ("y", np.float32), ("z", np.float32), ("heading", np.float32),
-                         ("length", np.float32), ("width", np.float32), ("height", np.float32), ("valid", np.bool_)):
+    for field, dtype in (
+        ("x", np.float32),
+        ("y", np.float32),
+        ("z", np.float32),
+        ("heading", np.float32),
+        ("length", np.float32),
+        ("width", np.float32),
+        ("height", np.float32),
+        ("valid", np.bool_),
+    ):
         value = getattr(t, field)
         assert isinstance(value, np.ndarray) and value.dtype == dtype and value.shape == (n, steps), field
     assert t.object_id.dtype == np.int32 and t.object_type.dtype == np.int32
@@ -74,8 +96,9 @@ def test_from_scenario_holds_every_track_in_track_order(name):
     for k, track in enumerate(scenario.tracks):
         for field in ("x", "y", "z", "heading", "length", "width", "height", "valid"):
             expected = [getattr(s, proto_field.get(field, field)) for s in track.states]
-            np.testing.assert_array_equal(getattr(t, field)[k],
-                                          np.array(expected, np.bool_ if field == "valid" else np.float32))
+            np.testing.assert_array_equal(
+                getattr(t, field)[k], np.array(expected, np.bool_ if field == "valid" else np.float32)
+            )
 
 
 @pytest.mark.parametrize("name", _scenarios())
@@ -138,9 +161,10 @@ def test_gather_works_on_batched_trajectories():
     """The object axis is the second last of time series and the last of ids, as officially."""
     t = trajectory_utils.ObjectTrajectories.from_scenario(_scene("occlusion.tfrecord"))
     batched = trajectory_utils.ObjectTrajectories(
-        **{f: np.stack([getattr(t, f)] * 2) for f in ("x", "y", "z", "heading", "length", "width", "height",
-                                                         "valid")},
-        object_id=t.object_id, object_type=np.stack([t.object_type] * 2))
+        **{f: np.stack([getattr(t, f)] * 2) for f in ("x", "y", "z", "heading", "length", "width", "height", "valid")},
+        object_id=t.object_id,
+        object_type=np.stack([t.object_type] * 2),
+    )
     picked = batched.gather_objects([2, 0])
     assert picked.x.shape == (2, 2, 91) and picked.object_type.shape == (2, 2)
     np.testing.assert_array_equal(picked.y[1], t.y[[2, 0]])
@@ -166,13 +190,14 @@ def test_joint_scene_to_trajectories_prepends_the_logged_history(use_log_validit
     assert t.x.shape == (len(ids), 91) and t.x.dtype == np.float32 and t.valid.dtype == np.bool_
     for field, proto in (("x", "center_x"), ("y", "center_y"), ("z", "center_z"), ("heading", "heading")):
         np.testing.assert_array_equal(getattr(t, field)[:, :11], getattr(log, field)[:, :11])
-        np.testing.assert_array_equal(getattr(t, field)[:, 11:],
-                                      np.array([getattr(s, proto) for s in scene.simulated_trajectories],
-                                               np.float32))
+        np.testing.assert_array_equal(
+            getattr(t, field)[:, 11:], np.array([getattr(s, proto) for s in scene.simulated_trajectories], np.float32)
+        )
     for field in ("length", "width", "height"):  # frozen at the current step
-        np.testing.assert_array_equal(getattr(t, field),
-                                      np.concatenate([getattr(log, field)[:, :11],
-                                                      np.repeat(getattr(log, field)[:, 10:11], 80, axis=1)], 1))
+        np.testing.assert_array_equal(
+            getattr(t, field),
+            np.concatenate([getattr(log, field)[:, :11], np.repeat(getattr(log, field)[:, 10:11], 80, axis=1)], 1),
+        )
     np.testing.assert_array_equal(t.valid[:, :11], log.valid[:, :11])
     np.testing.assert_array_equal(t.valid[:, 11:], log.valid[:, 11:] if use_log_validity else True)
     np.testing.assert_array_equal(t.object_type, log.object_type)
@@ -241,8 +266,9 @@ def test_rollouts_features_are_the_official_arrays_bit_for_bit(case_set, case):
     golden.skip_if_absent(case_set, case)
     rollouts = golden.rollouts(case_set, case)
     scenario = golden.scenario(rollouts.scenario_id)
-    log, sim = metric_features.compute_scenario_rollouts_features(scenario, rollouts,
-                                                                  CHALLENGE_TYPES[case_set.challenge])
+    log, sim = metric_features.compute_scenario_rollouts_features(
+        scenario, rollouts, CHALLENGE_TYPES[case_set.challenge]
+    )
     assert isinstance(log, metric_features.MetricFeatures) and isinstance(sim, metric_features.MetricFeatures)
     expected = golden.expected_features(case_set, case)
     _assert_official_features(log, expected, "log_", where=case)
@@ -271,22 +297,27 @@ def test_features_bundle_gives_the_official_metrics(case_set, case):
 def test_features_bundle_reads_any_arrays():
     """Features rebuilt by a client (lists, another array type) give the same message."""
     _, scenario, rollouts = _case("oracle", "synthetic-7-000-collision__logreplay_noise05")
-    log, sim = metric_features.compute_scenario_rollouts_features(scenario, rollouts,
-                                                                  submission_specs.ChallengeType.SIM_AGENTS)
+    log, sim = metric_features.compute_scenario_rollouts_features(
+        scenario, rollouts, submission_specs.ChallengeType.SIM_AGENTS
+    )
     config = metrics.load_metrics_config(submission_specs.ChallengeType.SIM_AGENTS)
     expected = metrics.compute_scenario_metrics_for_features_bundle(config, "x", log, sim)
-    as_lists = metric_features.MetricFeatures(**{f.name: getattr(sim, f.name).tolist()
-                                                 for f in dataclasses.fields(sim)})
+    as_lists = metric_features.MetricFeatures(
+        **{f.name: getattr(sim, f.name).tolist() for f in dataclasses.fields(sim)}
+    )
     assert metrics.compute_scenario_metrics_for_features_bundle(config, "x", log, as_lists) == expected
 
 
-@pytest.mark.parametrize(("case_set_name", "case", "rollout"), [
-    ("oracle", "synthetic-7-000-red-light__constvel_noise", 7),
-    ("oracle", "synthetic-7-000-occlusion__wild", 31),
-    ("oracle_scenario_gen", "synthetic-5-001-red-light__sg_constvel_noise", 3),
-    ("shared", "637f20cafde22ff8__official_test_submission", 12),
-    ("shared_scenario_gen", "synthetic-11-000-intersection__sg_wild_boxes", 20),
-])
+@pytest.mark.parametrize(
+    ("case_set_name", "case", "rollout"),
+    [
+        ("oracle", "synthetic-7-000-red-light__constvel_noise", 7),
+        ("oracle", "synthetic-7-000-occlusion__wild", 31),
+        ("oracle_scenario_gen", "synthetic-5-001-red-light__sg_constvel_noise", 3),
+        ("shared", "637f20cafde22ff8__official_test_submission", 12),
+        ("shared_scenario_gen", "synthetic-11-000-intersection__sg_wild_boxes", 20),
+    ],
+)
 def test_one_joint_scene_features_are_the_official_sample(case_set_name, case, rollout):
     case_set = next(s for s in golden.SETS if s.name == case_set_name)
     golden.skip_if_absent(case_set, case if case in case_set.cases else None)
@@ -309,8 +340,9 @@ def test_one_joint_scene_with_log_validity_counts_the_logs_steps():
     scene = rollouts.joint_scenes[0]
     flagged = metric_features.compute_metric_features(scenario, scene, use_log_validity=True)
     plain = metric_features.compute_metric_features(scenario, scene)
-    log = metric_features.compute_metric_features(scenario, converters.scenario_to_joint_scene(scenario),
-                                                  use_log_validity=True)
+    log = metric_features.compute_metric_features(
+        scenario, converters.scenario_to_joint_scene(scenario), use_log_validity=True
+    )
     np.testing.assert_array_equal(flagged.valid, log.valid)
     assert plain.valid.all() and not log.valid.all()  # the occlusion scene has logged gaps
     np.testing.assert_array_equal(flagged.linear_speed, plain.linear_speed)  # kinematics ignore validity
@@ -319,9 +351,21 @@ def test_one_joint_scene_with_log_validity_counts_the_logs_steps():
 
 def test_metric_features_fields_are_the_official_ones():
     assert [f.name for f in dataclasses.fields(metric_features.MetricFeatures)] == [
-        "object_id", "object_type", "valid", "average_displacement_error", "linear_speed", "linear_acceleration",
-        "angular_speed", "angular_acceleration", "distance_to_nearest_object", "collision_per_step",
-        "time_to_collision", "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step"]
+        "object_id",
+        "object_type",
+        "valid",
+        "average_displacement_error",
+        "linear_speed",
+        "linear_acceleration",
+        "angular_speed",
+        "angular_acceleration",
+        "distance_to_nearest_object",
+        "collision_per_step",
+        "time_to_collision",
+        "distance_to_road_edge",
+        "offroad_per_step",
+        "traffic_light_violation_per_step",
+    ]
 
 
 # -- visualizations ----------------------------------------------------------------------------------
@@ -339,8 +383,10 @@ def test_add_map_draws_road_edges_and_road_lines():
         assert {line.get_linestyle() for line in ax.lines} == {"--"}
         assert {line.get_alpha() for line in ax.lines} <= {1.0, 0.5}
         edge = next(f.road_edge for f in scenario.map_features if f.HasField("road_edge"))
-        np.testing.assert_array_equal(ax.lines[[k for k in kinds if k in ("road_edge", "road_line")].index(
-            "road_edge")].get_xdata(), [p.x for p in edge.polyline])
+        np.testing.assert_array_equal(
+            ax.lines[[k for k in kinds if k in ("road_edge", "road_line")].index("road_edge")].get_xdata(),
+            [p.x for p in edge.polyline],
+        )
     finally:
         plt.close(fig)
 
@@ -364,8 +410,9 @@ def test_animated_states_is_a_func_animation_over_the_map(tmp_path):
     t = trajectory_utils.ObjectTrajectories.from_scenario(scenario).slice_time(10, 13)
     fig, ax = plt.subplots(1, 1, figsize=(4, 4))
     colours = np.tile(np.arange(t.x.shape[0])[:, None] % 6, (1, 3))
-    anim = visualizations.get_animated_states(fig, ax, scenario, t.x, t.y, t.heading, t.length, t.width,
-                                              color_idx=colours)
+    anim = visualizations.get_animated_states(
+        fig, ax, scenario, t.x, t.y, t.heading, t.length, t.width, color_idx=colours
+    )
     assert isinstance(anim, animation.FuncAnimation)
     assert not plt.fignum_exists(fig.number)  # closed, as officially
     assert len(ax.lines) > 0  # the map
@@ -389,51 +436,103 @@ OFFICIAL_SIGNATURES = {
     },
     converters: {
         "scenario_to_joint_scene": [("scenario", _REQUIRED), ("challenge_type", "sim_agents")],
-        "joint_scene_to_trajectories": [("joint_scene", _REQUIRED), ("scenario", _REQUIRED),
-                                        ("use_log_validity", False)],
-        "simulated_scenariogen_to_trajectories": [("joint_scene", _REQUIRED), ("scenario", _REQUIRED),
-                                                  ("challenge_type", _REQUIRED)],
+        "joint_scene_to_trajectories": [
+            ("joint_scene", _REQUIRED),
+            ("scenario", _REQUIRED),
+            ("use_log_validity", False),
+        ],
+        "simulated_scenariogen_to_trajectories": [
+            ("joint_scene", _REQUIRED),
+            ("scenario", _REQUIRED),
+            ("challenge_type", _REQUIRED),
+        ],
     },
     submission_specs: {
         "get_submission_config": [("challenge_type", _REQUIRED)],
         "get_sim_agent_ids": [("scenario", _REQUIRED), ("challenge_type", _REQUIRED)],
         "get_evaluation_sim_agent_ids": [("scenario", _REQUIRED), ("challenge_type", _REQUIRED)],
-        "validate_joint_scene": [("joint_scene", _REQUIRED), ("original_scenario", _REQUIRED),
-                                 ("challenge_type", _REQUIRED)],
-        "validate_scenario_rollouts": [("scenario_rollouts", _REQUIRED), ("original_scenario", _REQUIRED),
-                                       ("challenge_type", "sim_agents")],
+        "validate_joint_scene": [
+            ("joint_scene", _REQUIRED),
+            ("original_scenario", _REQUIRED),
+            ("challenge_type", _REQUIRED),
+        ],
+        "validate_scenario_rollouts": [
+            ("scenario_rollouts", _REQUIRED),
+            ("original_scenario", _REQUIRED),
+            ("challenge_type", "sim_agents"),
+        ],
         "SubmissionConfig.is_valid_sim_agent": [("track", _REQUIRED)],
     },
     metrics: {
         "load_metrics_config": [("challenge_type", _REQUIRED)],
-        "compute_scenario_metrics_for_bundle": [("config", _REQUIRED), ("scenario", _REQUIRED),
-                                                ("scenario_rollouts", _REQUIRED), ("challenge_type", "sim_agents")],
-        "compute_scenario_metrics_for_features_bundle": [("config", _REQUIRED), ("scenario_id", _REQUIRED),
-                                                         ("log_features", _REQUIRED), ("sim_features", _REQUIRED)],
+        "compute_scenario_metrics_for_bundle": [
+            ("config", _REQUIRED),
+            ("scenario", _REQUIRED),
+            ("scenario_rollouts", _REQUIRED),
+            ("challenge_type", "sim_agents"),
+        ],
+        "compute_scenario_metrics_for_features_bundle": [
+            ("config", _REQUIRED),
+            ("scenario_id", _REQUIRED),
+            ("log_features", _REQUIRED),
+            ("sim_features", _REQUIRED),
+        ],
         "aggregate_scenario_metrics": [("all_scenario_metrics", _REQUIRED)],
         "aggregate_metrics_to_buckets": [("config", _REQUIRED), ("metrics", _REQUIRED)],
     },
     metric_features: {
-        "compute_metric_features": [("scenario", _REQUIRED), ("joint_scene", _REQUIRED),
-                                    ("challenge_type", "sim_agents"), ("use_log_validity", False)],
-        "compute_scenario_rollouts_features": [("scenario", _REQUIRED), ("scenario_rollouts", _REQUIRED),
-                                               ("challenge_type", _REQUIRED)],
+        "compute_metric_features": [
+            ("scenario", _REQUIRED),
+            ("joint_scene", _REQUIRED),
+            ("challenge_type", "sim_agents"),
+            ("use_log_validity", False),
+        ],
+        "compute_scenario_rollouts_features": [
+            ("scenario", _REQUIRED),
+            ("scenario_rollouts", _REQUIRED),
+            ("challenge_type", _REQUIRED),
+        ],
     },
     visualizations: {
         "add_map": [("axis", _REQUIRED), ("scenario", _REQUIRED)],
         "add_road_edge": [("axis", _REQUIRED), ("road_edge", _REQUIRED)],
         "add_road_line": [("axis", _REQUIRED), ("road_line", _REQUIRED)],
-        "get_bbox_patch": [("x", _REQUIRED), ("y", _REQUIRED), ("bbox_yaw", _REQUIRED), ("length", _REQUIRED),
-                           ("width", _REQUIRED), ("color_idx", 0)],
-        "add_all_current_objects": [("axis", _REQUIRED), ("x", _REQUIRED), ("y", _REQUIRED), ("yaw", _REQUIRED),
-                                    ("length", _REQUIRED), ("width", _REQUIRED), ("color_idx", _REQUIRED)],
-        "get_animated_states": [("fig", _REQUIRED), ("axis", _REQUIRED), ("scenario", _REQUIRED),
-                                ("x", _REQUIRED), ("y", _REQUIRED), ("yaw", _REQUIRED), ("length", _REQUIRED),
-                                ("width", _REQUIRED), ("color_idx", _REQUIRED)],
+        "get_bbox_patch": [
+            ("x", _REQUIRED),
+            ("y", _REQUIRED),
+            ("bbox_yaw", _REQUIRED),
+            ("length", _REQUIRED),
+            ("width", _REQUIRED),
+            ("color_idx", 0),
+        ],
+        "add_all_current_objects": [
+            ("axis", _REQUIRED),
+            ("x", _REQUIRED),
+            ("y", _REQUIRED),
+            ("yaw", _REQUIRED),
+            ("length", _REQUIRED),
+            ("width", _REQUIRED),
+            ("color_idx", _REQUIRED),
+        ],
+        "get_animated_states": [
+            ("fig", _REQUIRED),
+            ("axis", _REQUIRED),
+            ("scenario", _REQUIRED),
+            ("x", _REQUIRED),
+            ("y", _REQUIRED),
+            ("yaw", _REQUIRED),
+            ("length", _REQUIRED),
+            ("width", _REQUIRED),
+            ("color_idx", _REQUIRED),
+        ],
     },
 }
-OFFICIAL_CLASSES = {trajectory_utils: ["ObjectTrajectories"], submission_specs: ["ChallengeType", "SubmissionConfig"],
-                    metric_features: ["MetricFeatures"], visualizations: []}
+OFFICIAL_CLASSES = {
+    trajectory_utils: ["ObjectTrajectories"],
+    submission_specs: ["ChallengeType", "SubmissionConfig"],
+    metric_features: ["MetricFeatures"],
+    visualizations: [],
+}
 
 
 @pytest.mark.parametrize("module", list(OFFICIAL_SIGNATURES), ids=lambda m: m.__name__.rsplit(".", 1)[-1])
@@ -443,25 +542,46 @@ def test_every_official_function_is_there_with_its_parameters(module):
         for part in name.split("."):
             target = getattr(target, part)
         params = [p for p in inspect.signature(target).parameters.values() if p.name not in ("self", "cls")]
-        assert [p.name for p in params[:len(official)]] == [n for n, _ in official], name
+        assert [p.name for p in params[: len(official)]] == [n for n, _ in official], name
         for param, (_, default) in zip(params, official):
             if default is _REQUIRED:
                 continue  # a default added here only widens what runs
             assert param.default is not _REQUIRED and param.default == default, (name, param.name)
-        assert all(p.default is not _REQUIRED for p in params[len(official):]), f"{name}: extra required parameter"
+        assert all(p.default is not _REQUIRED for p in params[len(official) :]), f"{name}: extra required parameter"
     for name in OFFICIAL_CLASSES.get(module, []):
         assert inspect.isclass(getattr(module, name)), name
     assert [f.name for f in dataclasses.fields(trajectory_utils.ObjectTrajectories)] == [
-        "x", "y", "z", "heading", "length", "width", "height", "valid", "object_id", "object_type"]
+        "x",
+        "y",
+        "z",
+        "heading",
+        "length",
+        "width",
+        "height",
+        "valid",
+        "object_id",
+        "object_type",
+    ]
     assert [f.name for f in dataclasses.fields(submission_specs.SubmissionConfig)] == [
-        "current_time_index", "n_simulation_steps", "n_rollouts", "step_duration_seconds"]
+        "current_time_index",
+        "n_simulation_steps",
+        "n_rollouts",
+        "step_duration_seconds",
+    ]
     assert [c.value for c in submission_specs.ChallengeType] == ["sim_agents", "scenario_gen"]
     assert [c.name for c in submission_specs.ChallengeType] == ["SIM_AGENTS", "SCENARIO_GEN"]
 
 
 def test_submission_specs_public_names_are_the_official_ones():
-    official = {"ChallengeType", "SubmissionConfig", "get_submission_config", "get_sim_agent_ids",
-                "get_evaluation_sim_agent_ids", "validate_joint_scene", "validate_scenario_rollouts"}
+    official = {
+        "ChallengeType",
+        "SubmissionConfig",
+        "get_submission_config",
+        "get_sim_agent_ids",
+        "get_evaluation_sim_agent_ids",
+        "validate_joint_scene",
+        "validate_scenario_rollouts",
+    }
     assert official <= set(dir(submission_specs))
     assert submission_specs.get_submission_config(submission_specs.ChallengeType.SCENARIO_GEN).n_simulation_steps == 91
 
@@ -469,8 +589,9 @@ def test_submission_specs_public_names_are_the_official_ones():
 def test_arrays_answer_numpy_as_the_official_tensors_do():
     """Client code ends with `.numpy()` (e.g. a parity script converting every feature): it runs unchanged."""
     _, scenario, rollouts = _case("oracle", "synthetic-7-000-collision__logreplay_noise05")
-    log, sim = metric_features.compute_scenario_rollouts_features(scenario, rollouts,
-                                                                  submission_specs.ChallengeType.SIM_AGENTS)
+    log, sim = metric_features.compute_scenario_rollouts_features(
+        scenario, rollouts, submission_specs.ChallengeType.SIM_AGENTS
+    )
     for features in (log, sim, metric_features.compute_metric_features(scenario, rollouts.joint_scenes[0])):
         for field in dataclasses.fields(metric_features.MetricFeatures):
             value = getattr(features, field.name)
@@ -483,8 +604,10 @@ def test_arrays_answer_numpy_as_the_official_tensors_do():
     for value in (picked.x, picked.valid, picked.object_id, t.gather_objects([0]).object_type):
         assert type(value.numpy()) is np.ndarray
     converted = converters.joint_scene_to_trajectories(rollouts.joint_scenes[0], scenario)
-    assert all(type(getattr(converted, f.name).numpy()) is np.ndarray
-               for f in dataclasses.fields(trajectory_utils.ObjectTrajectories))
+    assert all(
+        type(getattr(converted, f.name).numpy()) is np.ndarray
+        for f in dataclasses.fields(trajectory_utils.ObjectTrajectories)
+    )
     plain = t.x.numpy()
     plain[0, 0] = -1.0  # a copy, as a tensor's
     assert t.x[0, 0] != -1.0

@@ -1,6 +1,7 @@
 """`compat.submission_specs` refuses exactly what the official validators refuse (waymo-open-dataset 1.6.7
 checks a scenario_id, 32 joint scenes, 80 or 91 positions and headings per object, and that the objects are
 the sim agents): anything else a program sends is accepted, as the official accepts it."""
+
 from __future__ import annotations
 
 import math
@@ -34,8 +35,9 @@ def zero_scene(challenge, **extra) -> sim_agents_submission_pb2.JointScene:
 @pytest.mark.parametrize("challenge", [SA, SG])
 def test_the_official_tests_zero_scene_is_valid(challenge):
     submission_specs.validate_joint_scene(zero_scene(challenge), SCENARIO, challenge)
-    rollouts = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=SCENARIO.scenario_id,
-                                                          joint_scenes=[zero_scene(challenge)] * 32)
+    rollouts = sim_agents_submission_pb2.ScenarioRollouts(
+        scenario_id=SCENARIO.scenario_id, joint_scenes=[zero_scene(challenge)] * 32
+    )
     submission_specs.validate_scenario_rollouts(rollouts, SCENARIO, challenge)
 
 
@@ -60,15 +62,16 @@ def test_what_the_official_refuses_is_refused():
     with pytest.raises(ValueError, match="missing"):
         submission_specs.validate_joint_scene(missing, SCENARIO, SA)
     extra = zero_scene(SA)
-    stranger = extra.simulated_trajectories.add(object_id=10 ** 9)
+    stranger = extra.simulated_trajectories.add(object_id=10**9)
     for name in ("center_x", "center_y", "center_z", "heading"):
         getattr(stranger, name).extend([0.0] * 80)
     with pytest.raises(ValueError):
         submission_specs.validate_joint_scene(extra, SCENARIO, SA)
     with pytest.raises(ValueError, match="80"):
         submission_specs.validate_joint_scene(zero_scene(SG), SCENARIO, SA)  # 91 steps for sim agents
-    too_few = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=SCENARIO.scenario_id,
-                                                         joint_scenes=[zero_scene(SA)] * 31)
+    too_few = sim_agents_submission_pb2.ScenarioRollouts(
+        scenario_id=SCENARIO.scenario_id, joint_scenes=[zero_scene(SA)] * 31
+    )
     with pytest.raises(ValueError):
         submission_specs.validate_scenario_rollouts(too_few, SCENARIO, SA)
     with pytest.raises(ValueError, match="scenario_id"):

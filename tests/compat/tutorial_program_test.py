@@ -6,6 +6,7 @@ and the animation, joint scenes, validation, one scene's features, the
 scenario's metrics, a sharded submission in a tar.gz). Its outputs are
 checked against the library's own pipeline, called independently.
 """
+
 from __future__ import annotations
 
 import glob
@@ -24,16 +25,16 @@ PROGRAM = REPO / "tests" / "compat" / "programs" / "tutorial_sim_agents.py"
 
 
 def _run(pattern: str, out) -> dict:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]),
-               MPLBACKEND="Agg")
-    done = subprocess.run([sys.executable, str(PROGRAM), pattern, str(out)], capture_output=True, text=True,
-                          env=env, timeout=600)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]), MPLBACKEND="Agg")
+    done = subprocess.run(
+        [sys.executable, str(PROGRAM), pattern, str(out)], capture_output=True, text=True, env=env, timeout=600
+    )
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
     assert "Simulation length, in steps: 80" in done.stdout
     assert "Number of parallel simulations per Scenario: 32" in done.stdout
     result = [line for line in done.stdout.splitlines() if line.startswith("RESULT ")]
     assert result, done.stdout[-2000:]
-    return json.loads(result[-1][len("RESULT "):])
+    return json.loads(result[-1][len("RESULT ") :])
 
 
 @pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
@@ -57,7 +58,8 @@ def test_the_tutorial_runs_to_its_end_with_only_its_imports_changed(source, tmp_
     scenario = next(iter(read_scenarios(files[0])))
     assert result["scenario_id"] == scenario.scenario_id
     rollouts = sim_agents_submission_pb2.ScenarioRollouts.FromString(
-        (out / "first_scenario_rollouts.binproto").read_bytes())
+        (out / "first_scenario_rollouts.binproto").read_bytes()
+    )
     assert len(rollouts.joint_scenes) == 32
     # The metrics the program printed are the library's for the same rollouts (float32, exactly).
     assert np.float32(result["metametric"]) == np.float32(score_scenario(scenario, rollouts)["metametric"])
@@ -66,9 +68,16 @@ def test_the_tutorial_runs_to_its_end_with_only_its_imports_changed(source, tmp_
     features = np.load(out / "single_scene_features.npz")
     assert features["object_id"].dtype == np.int32
     np.testing.assert_array_equal(features["object_id"], sim.object_id)
-    for name in ("valid", "linear_speed", "angular_acceleration", "distance_to_nearest_object",
-                 "time_to_collision", "distance_to_road_edge", "traffic_light_violation_per_step",
-                 "average_displacement_error"):
+    for name in (
+        "valid",
+        "linear_speed",
+        "angular_acceleration",
+        "distance_to_nearest_object",
+        "time_to_collision",
+        "distance_to_road_edge",
+        "traffic_light_violation_per_step",
+        "average_displacement_error",
+    ):
         np.testing.assert_array_equal(features[name], getattr(sim, name)[:1], name)
     # The animation the notebook would show, and the submission archive: one shard per file, up to two
     # scenarios each, every one valid.
@@ -82,5 +91,4 @@ def test_the_tutorial_runs_to_its_end_with_only_its_imports_changed(source, tmp_
             shard = sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(tar.extractfile(name).read())
             assert shard.unique_method_name == "sim_agents_tutorial" and 1 <= len(shard.scenario_rollouts) <= 2
             for scenario_rollouts in shard.scenario_rollouts:
-                submission_specs.validate_scenario_rollouts(scenario_rollouts,
-                                                            scenarios[scenario_rollouts.scenario_id])
+                submission_specs.validate_scenario_rollouts(scenario_rollouts, scenarios[scenario_rollouts.scenario_id])

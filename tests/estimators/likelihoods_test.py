@@ -1,4 +1,5 @@
 """Tests of the histogram, Bernoulli and kernel-density log-likelihoods against hand counts."""
+
 import math
 import re
 
@@ -14,8 +15,11 @@ nan = float("nan")
 
 # --- Edges and bins ------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("lo, hi, bins", [(-12.0, 12.0, 11), (0.0, 25.0, 10), (-0.628, 0.628, 11),
-                                          (-3.14, 3.14, 11), (-5.0, 40.0, 10), (-20.0, 40.0, 10)])
+
+@pytest.mark.parametrize(
+    "lo, hi, bins",
+    [(-12.0, 12.0, 11), (0.0, 25.0, 10), (-0.628, 0.628, 11), (-3.14, 3.14, 11), (-5.0, 40.0, 10), (-20.0, 40.0, 10)],
+)
 def test_edges_are_float32_start_plus_i_step(lo, hi, bins):
     edges = likelihoods.histogram_edges(lo, hi, bins)
     assert edges.dtype == F and edges.shape == (bins + 1,)
@@ -59,16 +63,26 @@ def test_bins_equal_a_binary_search_over_the_edges_at_every_edge(config):
     extremes; the bins counted from the interior edges equal those of a binary search, and so do
     `histogram_counts` of rows of them, weighted or not."""
     from wosac_eval.metrics.config import load_config
+
     rng = np.random.default_rng(0)
     loaded = load_config(config)
-    histograms = [getattr(loaded, f.name).histogram for f in loaded.DESCRIPTOR.fields
-                  if getattr(getattr(loaded, f.name), "WhichOneof", lambda _: None)("estimator") == "histogram"]
+    histograms = [
+        getattr(loaded, f.name).histogram
+        for f in loaded.DESCRIPTOR.fields
+        if getattr(getattr(loaded, f.name), "WhichOneof", lambda _: None)("estimator") == "histogram"
+    ]
     assert histograms
     for h in histograms:
         edges = likelihoods.histogram_edges(h.min_val, h.max_val, h.num_bins)
         near = [np.nextafter(edges, F(np.inf)), np.nextafter(edges, F(-np.inf))]
-        values = np.concatenate([edges, *near, rng.uniform(h.min_val - 1, h.max_val + 1, 10_000),
-                                 [np.inf, -np.inf, np.nan, 1e30, -1e30, 0.0, -0.0]]).astype(F)
+        values = np.concatenate(
+            [
+                edges,
+                *near,
+                rng.uniform(h.min_val - 1, h.max_val + 1, 10_000),
+                [np.inf, -np.inf, np.nan, 1e30, -1e30, 0.0, -0.0],
+            ]
+        ).astype(F)
         expected = _first_edge_at_or_above(values, edges)
         np.testing.assert_array_equal(likelihoods.histogram_bins(values, edges), expected)
         bincount = lambda bins, w=None: np.bincount(bins, w, minlength=h.num_bins)  # noqa: E731
@@ -78,8 +92,9 @@ def test_bins_equal_a_binary_search_over_the_edges_at_every_edge(config):
         rows, row_bins = values[-n:].reshape(-1, 23), expected[-n:].reshape(-1, 23)
         weights = rng.integers(0, 2, rows.shape).astype(float)
         np.testing.assert_array_equal(likelihoods.histogram_counts(rows, edges), [bincount(b) for b in row_bins])
-        np.testing.assert_array_equal(likelihoods.histogram_counts(rows, edges, weights),
-                                      [bincount(b, w) for b, w in zip(row_bins, weights)])
+        np.testing.assert_array_equal(
+            likelihoods.histogram_counts(rows, edges, weights), [bincount(b, w) for b, w in zip(row_bins, weights)]
+        )
 
 
 def test_bins_clip_out_of_range_values():
@@ -94,6 +109,7 @@ def test_nan_goes_to_the_last_bin():
 
 
 # --- Histogram log-likelihood ----------------------------------------------------------------------
+
 
 def test_histogram_against_hand_counts():
     # 4 bins of width 1 on [0, 4]; 10 clips into the last bin.
@@ -129,6 +145,7 @@ def test_pseudocount_keeps_empty_bins_finite():
 
 # --- Bernoulli --------------------------------------------------------------------------------------
 
+
 def test_bernoulli_against_hand_counts():
     sim = np.array([[True, True, False, False, False]])
     log = np.array([[True, False]])
@@ -145,6 +162,7 @@ def test_bernoulli_all_agree():
 
 # --- Layouts --------------------------------------------------------------------------------------
 
+
 def histogram_config(independent: bool, aggregate: bool = False):
     config = likelihoods.FeatureConfig()
     config.histogram.min_val, config.histogram.max_val = 0.0, 2.0
@@ -156,10 +174,12 @@ def histogram_config(independent: bool, aggregate: bool = False):
 
 
 # (rollouts=2, objects=2, steps=3); bin 0 is [0, 1), bin 1 is [1, 2].
-SIM = np.array([
-    [[0.5, 0.5, 0.5], [1.5, 0.5, 1.5]],
-    [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]],
-])
+SIM = np.array(
+    [
+        [[0.5, 0.5, 0.5], [1.5, 0.5, 1.5]],
+        [[0.5, 0.5, 0.5], [1.5, 0.5, 0.5]],
+    ]
+)
 LOG = np.array([[0.5, 1.5, 0.5], [1.5, 1.5, 0.5]])
 
 
@@ -212,6 +232,7 @@ def test_config_without_estimator():
 
 # --- Kernel density -------------------------------------------------------------------------------
 
+
 def test_kernel_density_dirac_scores_zero():
     out = likelihoods.kernel_density_log_likelihood(0.5, np.array([[3.0]]), np.array([[3.0]]))
     assert out.dtype == F
@@ -248,11 +269,16 @@ def test_kernel_density_via_config():
 def test_mismatched_batches_are_refused_naming_both_shapes(log_shape, sim_shape):
     rng = np.random.default_rng(0)
     log, sim = rng.normal(size=log_shape).astype(np.float32), rng.normal(size=sim_shape).astype(np.float32)
-    for estimate in (lambda: likelihoods.histogram_log_likelihood(-1, 1, 4, 0.1, log, sim),
-                     lambda: likelihoods.kernel_density_log_likelihood(0.5, log, sim),
-                     lambda: likelihoods.bernoulli_log_likelihood(0.001, log > 0, sim > 0)):
-        with pytest.raises(ValueError, match=rf"log samples {re.escape(str(log_shape))} and simulated samples "
-                                             rf"{re.escape(str(sim_shape))}"):
+    for estimate in (
+        lambda: likelihoods.histogram_log_likelihood(-1, 1, 4, 0.1, log, sim),
+        lambda: likelihoods.kernel_density_log_likelihood(0.5, log, sim),
+        lambda: likelihoods.bernoulli_log_likelihood(0.001, log > 0, sim > 0),
+    ):
+        with pytest.raises(
+            ValueError,
+            match=rf"log samples {re.escape(str(log_shape))} and simulated samples "
+            rf"{re.escape(str(sim_shape))}",
+        ):
             estimate()
 
 

@@ -4,6 +4,7 @@ Hand-built cases have answers derived on paper; random cases are checked
 against two independent references: FCL (distance for separated pairs,
 penetration depth for overlapping ones) and shapely's polygon distance.
 """
+
 import math
 
 import fcl
@@ -55,8 +56,9 @@ def test_corners_rotated_45_degrees():
 def test_corners_are_counter_clockwise_for_any_heading():
     heading = np.linspace(-math.pi, math.pi, 101).astype(F)
     n = heading.size
-    cx, cy = box_geometry.box_corners_xy(np.full(n, 5, F), np.full(n, -3, F), np.full(n, 4.5, F),
-                                         np.full(n, 1.8, F), cos32(heading), sin32(heading))
+    cx, cy = box_geometry.box_corners_xy(
+        np.full(n, 5, F), np.full(n, -3, F), np.full(n, 4.5, F), np.full(n, 1.8, F), cos32(heading), sin32(heading)
+    )
     assert cx.shape == (n, 4)
     # Shoelace area: positive (counter-clockwise) and equal to length * width.
     area = 0.5 * np.sum(cx * np.roll(cy, -1, -1) - np.roll(cx, -1, -1) * cy, axis=-1)
@@ -80,16 +82,20 @@ def test_heading_cos_sin_uses_libm_on_the_trailing_partial_packet():
 BOX = (0, 0, 4, 2)  # 4 m x 2 m, axis aligned at the origin
 
 
-@pytest.mark.parametrize("other, expected", [
-    ((10, 0, 4, 2), 6.0),       # separated along x: 10 - 2 - 2
-    ((0, -7, 4, 2), 5.0),       # separated along y: 7 - 1 - 1
-    ((4, 0, 4, 2), 0.0),        # touching end to end
-    ((0, 2, 4, 2), 0.0),        # touching side to side
-    ((3, 0, 4, 2), -1.0),       # overlapping: pushed back 1 m along x (2 m along y)
-    ((1, 0, 4, 2), -2.0),       # deep overlap: 2 m sideways beats 3 m backwards
-    ((0, 0, 4, 2), -2.0),       # identical boxes
-    ((6, 5, 4, 2), math.hypot(2, 3)),  # corner to corner: (2, 1) to (4, 4)
-], ids=["gap-x", "gap-y", "touch-x", "touch-y", "overlap-x", "overlap-y", "same", "corners"])
+@pytest.mark.parametrize(
+    "other, expected",
+    [
+        ((10, 0, 4, 2), 6.0),  # separated along x: 10 - 2 - 2
+        ((0, -7, 4, 2), 5.0),  # separated along y: 7 - 1 - 1
+        ((4, 0, 4, 2), 0.0),  # touching end to end
+        ((0, 2, 4, 2), 0.0),  # touching side to side
+        ((3, 0, 4, 2), -1.0),  # overlapping: pushed back 1 m along x (2 m along y)
+        ((1, 0, 4, 2), -2.0),  # deep overlap: 2 m sideways beats 3 m backwards
+        ((0, 0, 4, 2), -2.0),  # identical boxes
+        ((6, 5, 4, 2), math.hypot(2, 3)),  # corner to corner: (2, 1) to (4, 4)
+    ],
+    ids=["gap-x", "gap-y", "touch-x", "touch-y", "overlap-x", "overlap-y", "same", "corners"],
+)
 def test_axis_aligned_pairs(other, expected):
     assert signed_distance(BOX, other) == pytest.approx(expected, abs=4 * EPS32 * 10)
     # Symmetric in its arguments.
@@ -132,10 +138,12 @@ def test_minkowski_difference_is_convex_counter_clockwise():
     rng = np.random.default_rng(7)
     n = 500
     h = rng.uniform(-math.pi, math.pi, (2, n)).astype(F)
-    ax, ay = box_geometry.box_corners_xy(*rng.uniform(-50, 50, (2, n)).astype(F),
-                                         *rng.uniform(0.5, 10, (2, n)).astype(F), cos32(h[0]), sin32(h[0]))
-    bx, by = box_geometry.box_corners_xy(*rng.uniform(-50, 50, (2, n)).astype(F),
-                                         *rng.uniform(0.5, 10, (2, n)).astype(F), cos32(h[1]), sin32(h[1]))
+    ax, ay = box_geometry.box_corners_xy(
+        *rng.uniform(-50, 50, (2, n)).astype(F), *rng.uniform(0.5, 10, (2, n)).astype(F), cos32(h[0]), sin32(h[0])
+    )
+    bx, by = box_geometry.box_corners_xy(
+        *rng.uniform(-50, 50, (2, n)).astype(F), *rng.uniform(0.5, 10, (2, n)).astype(F), cos32(h[1]), sin32(h[1])
+    )
     mx, my = box_geometry.minkowski_difference(ax, ay, bx, by)
     ex, ey = np.roll(mx, -1, -1) - mx, np.roll(my, -1, -1) - my
     turn = ex * np.roll(ey, -1, -1) - ey * np.roll(ex, -1, -1)
@@ -149,7 +157,7 @@ def test_minkowski_difference_is_convex_counter_clockwise():
 # --- Independent references -------------------------------------------------------------------
 
 _TALL = 1000.0  # FCL boxes are 3D: a tall extent keeps the vertical axis from ever being the
-                # shortest way out of an overlap, so the penetration is the planar one.
+# shortest way out of an overlap, so the penetration is the planar one.
 
 
 def _fcl_box(x, y, length, width, heading):
@@ -169,10 +177,16 @@ def fcl_signed_distance(a, b):
 
 def sat_minimum_translation(a, b):
     """Minimum translation distance of two overlapping rectangles, float64, by the separating axis theorem."""
+
     def pts(x, y, length, width, heading):
         c, s = math.cos(heading), math.sin(heading)
-        return np.array([[x + c * u * length / 2 - s * v * width / 2, y + s * u * length / 2 + c * v * width / 2]
-                         for u, v in ((1, 1), (-1, 1), (-1, -1), (1, -1))])
+        return np.array(
+            [
+                [x + c * u * length / 2 - s * v * width / 2, y + s * u * length / 2 + c * v * width / 2]
+                for u, v in ((1, 1), (-1, 1), (-1, -1), (1, -1))
+            ]
+        )
+
     pa, pb = pts(*a), pts(*b)
     best = math.inf
     for poly in (pa, pb):
@@ -184,13 +198,16 @@ def sat_minimum_translation(a, b):
     return best
 
 
-@pytest.mark.parametrize("b, depth", [
-    ((3, 0, 4, 2, 0.0), 1.0),
-    ((1, 0, 4, 2, 0.0), 2.0),
-    ((2.5, 0.3, 4, 2, math.radians(30)), None),
-    ((0.5, 0.2, 4, 2, math.radians(10)), None),
-    ((0.0, 0.0, 1, 1, math.radians(45)), None),
-])
+@pytest.mark.parametrize(
+    "b, depth",
+    [
+        ((3, 0, 4, 2, 0.0), 1.0),
+        ((1, 0, 4, 2, 0.0), 2.0),
+        ((2.5, 0.3, 4, 2, math.radians(30)), None),
+        ((0.5, 0.2, 4, 2, math.radians(10)), None),
+        ((0.0, 0.0, 1, 1, math.radians(45)), None),
+    ],
+)
 def test_fcl_box_penetration_is_the_minimum_translation_distance(b, depth):
     # What FCL's box-box contact depth means, checked before relying on it:
     # its deepest contact equals the separating-axis minimum translation.
@@ -236,16 +253,23 @@ def test_signed_distance_against_fcl_on_random_pairs():
     rng = np.random.default_rng(20251121)
     pairs = _random_pairs(rng, 2000)
     ours, scale = _kernel_signed_distance(*pairs)
-    reference = np.array([fcl_signed_distance((float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[4])),
-                                              (float(p[5]), float(p[6]), float(p[7]), float(p[8]), float(p[9])))
-                          for p in zip(*pairs)])
+    reference = np.array(
+        [
+            fcl_signed_distance(
+                (float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[4])),
+                (float(p[5]), float(p[6]), float(p[7]), float(p[8]), float(p[9])),
+            )
+            for p in zip(*pairs)
+        ]
+    )
     overlapping = reference < 0
     # The draw covers both regimes generously.
     assert 400 < overlapping.sum() < 1600
     error = np.abs(ours - reference)
     worst = np.argmax(error / _tolerance(scale))
     assert np.all(error <= _tolerance(scale)), (
-        f"pair {worst}: ours {ours[worst]}, FCL {reference[worst]}, inputs {[p[worst] for p in pairs]}")
+        f"pair {worst}: ours {ours[worst]}, FCL {reference[worst]}, inputs {[p[worst] for p in pairs]}"
+    )
     # Signs agree wherever the reference is clear of float32 noise.
     clear = np.abs(reference) > _tolerance(scale)
     np.testing.assert_array_equal(np.sign(ours[clear]), np.sign(reference[clear]))
@@ -264,8 +288,7 @@ def test_nested_pairs_against_fcl():
     bx, by = x + c * ox - s * oy, y + s * ox + c * oy
     pairs = tuple(v.astype(F) for v in (x, y, big[0], big[1], heading[0], bx, by, small[0], small[1], heading[1]))
     ours, scale = _kernel_signed_distance(*pairs)
-    reference = np.array([fcl_signed_distance(tuple(map(float, p[:5])), tuple(map(float, p[5:])))
-                          for p in zip(*pairs)])
+    reference = np.array([fcl_signed_distance(tuple(map(float, p[:5])), tuple(map(float, p[5:]))) for p in zip(*pairs)])
     assert np.all(reference < -1)  # nested: deep penetration
     assert np.all(np.abs(ours - reference) <= _tolerance(scale))
 
@@ -291,8 +314,10 @@ def test_touching_pairs_against_fcl():
     scale = np.abs(np.concatenate([ax, ay, cx, cy], -1)).max(-1)
     np.testing.assert_array_less(np.abs(ours), _tolerance(scale))
     for k in range(0, n, 20):
-        ref = fcl_signed_distance((float(x[k]), float(y[k]), float(length[k]), float(width[k]), turn[k] * math.pi / 2),
-                                  (float(bx[k]), float(by[k]), float(other_length[k]), float(other_width[k]), 0.0))
+        ref = fcl_signed_distance(
+            (float(x[k]), float(y[k]), float(length[k]), float(width[k]), turn[k] * math.pi / 2),
+            (float(bx[k]), float(by[k]), float(other_length[k]), float(other_width[k]), 0.0),
+        )
         assert abs(ref) < 1e-9
 
 

@@ -4,11 +4,20 @@ Each kernel runs vectorised on numpy arrays and, flattened and compiled by numba
 both must give the same float32 bits on ordinary values and on the ones that test the rules of the
 scalar operations: both zeros, NaN, infinities, ties, zero-length segments and boxes.
 """
+
 import numpy as np
 import pytest
 
-from wosac_eval.features import (box_geometry, compiled, float32_math, interaction, ops, road_edge, search,
-                                 traffic_lights)
+from wosac_eval.features import (
+    box_geometry,
+    compiled,
+    float32_math,
+    interaction,
+    ops,
+    road_edge,
+    search,
+    traffic_lights,
+)
 from wosac_eval.features.road_edge import cell_tables, pruned_search, segments
 from wosac_eval.parse import wire_walks as walks
 
@@ -53,7 +62,7 @@ KERNELS = {
 @pytest.mark.parametrize("name", sorted(KERNELS))
 def test_compiled_kernel_equals_numpy_bit_for_bit(name):
     kernel, arity, scale = KERNELS[name]
-    rng = np.random.default_rng(abs(hash(name)) % 2 ** 32)
+    rng = np.random.default_rng(abs(hash(name)) % 2**32)
     arguments = [special_floats(rng, 600, scale) for _ in range(arity)]
     if name == "box_pair_distance":  # boxes: sizes mostly positive, cos/sin of one heading, radii
         for side in (0, 7):
@@ -87,8 +96,13 @@ def test_following_gap_and_corner_sign_with_booleans():
 
 
 def test_every_ops_function_has_a_scalar_form():
-    public = {name for name in dir(ops) if not name.startswith("_") and callable(getattr(ops, name))
-              and getattr(getattr(ops, name), "__module__", "") == ops.__name__}
+    public = {
+        name
+        for name in dir(ops)
+        if not name.startswith("_")
+        and callable(getattr(ops, name))
+        and getattr(getattr(ops, name), "__module__", "") == ops.__name__
+    }
     assert public <= set(compiled.SCALAR_OPS)
 
 
@@ -103,8 +117,14 @@ def test_flat_source_inlines_every_kernel_and_operation():
 def test_cached_loops_are_named_after_the_kernels_digest():
     digest = compiled.KERNELS_DIGEST[:16]
     # Also the loops that call numba functions of another file (numba's cache checks the loop's file only).
-    for loop in (pruned_search._search_lists, pruned_search._query_cells, cell_tables._cell_table,
-                 interaction._nearest_object_search, interaction._followed_search, traffic_lights._crossings):
+    for loop in (
+        pruned_search._search_lists,
+        pruned_search._query_cells,
+        cell_tables._cell_table,
+        interaction._nearest_object_search,
+        interaction._followed_search,
+        traffic_lights._crossings,
+    ):
         assert loop.py_func.__qualname__.endswith(f"__kernels_{digest}")
 
 
@@ -120,10 +140,19 @@ def test_compile_searches_covers_what_scoring_calls():
     from wosac_eval.validate.rules import check_scenario_rollouts
 
     search.compile_searches()
-    loops = [pruned_search._query_cells, pruned_search._cell_lists, pruned_search._search_lists,
-             pruned_search._signed_distances, segments._bucket_lists, interaction._nearest_object_search,
-             interaction._followed_search,
-             traffic_lights._crossings, walks._message_spans, walks._scalar_fields, walks._float_fields]
+    loops = [
+        pruned_search._query_cells,
+        pruned_search._cell_lists,
+        pruned_search._search_lists,
+        pruned_search._signed_distances,
+        segments._bucket_lists,
+        interaction._nearest_object_search,
+        interaction._followed_search,
+        traffic_lights._crossings,
+        walks._message_spans,
+        walks._scalar_fields,
+        walks._float_fields,
+    ]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]
     for challenge, config in (("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")):

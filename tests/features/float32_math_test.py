@@ -1,4 +1,5 @@
 """Tests of the float32 sin/cos/fma that mimic the official evaluator's rounding."""
+
 import numpy as np
 import pytest
 
@@ -9,10 +10,12 @@ F = np.float32
 
 def ulp_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Number of float32 values between a and b (0 when equal, 1 for neighbours)."""
+
     def ordered(v):
         bits = np.asarray(v, F).view(np.int32).astype(np.int64)
         # Negative floats count down from -0, so that the integer order follows the float order.
         return np.where(bits < 0, -(bits & 0x7FFFFFFF), bits)
+
     return np.abs(ordered(a) - ordered(b))
 
 
@@ -76,14 +79,17 @@ def test_nan_and_inf_give_nan():
     assert np.all(np.isnan(cos32(np.array([np.nan, np.inf], F))))
 
 
-@pytest.mark.parametrize("shape, tail", [
-    ((3, 5), 7),      # 15 elements: one packet of 8, then 7 by libm
-    ((2, 4), 0),      # exactly one packet
-    ((3,), 3),        # shorter than a packet: everything by libm
-    ((91,), 3),
-    ((4, 2, 3), 0),
-    ((5, 1, 3), 7),
-])
+@pytest.mark.parametrize(
+    "shape, tail",
+    [
+        ((3, 5), 7),  # 15 elements: one packet of 8, then 7 by libm
+        ((2, 4), 0),  # exactly one packet
+        ((3,), 3),  # shorter than a packet: everything by libm
+        ((91,), 3),
+        ((4, 2, 3), 0),
+        ((5, 1, 3), 7),
+    ],
+)
 def test_packet_tail_marks_trailing_remainder(shape, tail):
     mask = packet_tail(shape)
     assert mask.shape == shape and mask.dtype == bool
@@ -91,7 +97,7 @@ def test_packet_tail_marks_trailing_remainder(shape, tail):
     assert flat.sum() == tail
     # The marked elements are exactly the last `tail` in row-major order.
     assert not flat[: flat.size - tail].any()
-    assert flat[flat.size - tail:].all()
+    assert flat[flat.size - tail :].all()
 
 
 def test_packet_tail_of_empty_shape():
@@ -102,12 +108,15 @@ def test_split_sum32_rounds_as_the_exact_sum_whatever_the_padding():
     """The float32 precision's padded sums: equal to the float64 sum rounded to float32 (all but
     near-ties), and unchanged by trailing zeros (padding) or the order of the values."""
     from wosac_eval.features.float32_math import split_sum32
+
     rng = np.random.default_rng(3)
-    values = (rng.lognormal(2, 2, (2000, 128)) * rng.choice([1, -1, 0], (2000, 128), p=[.8, .1, .1])).astype(np.float32)
+    values = (rng.lognormal(2, 2, (2000, 128)) * rng.choice([1, -1, 0], (2000, 128), p=[0.8, 0.1, 0.1])).astype(
+        np.float32
+    )
     want = values.astype(np.float64).sum(axis=1).astype(np.float32)
     got = split_sum32(values)
     assert np.mean(got == want) > 0.999
-    np.testing.assert_allclose(got, want, rtol=2 ** -23, atol=0)
+    np.testing.assert_allclose(got, want, rtol=2**-23, atol=0)
     padded = np.concatenate([values, np.zeros((2000, 72), np.float32)], axis=1)
     np.testing.assert_array_equal(split_sum32(padded), got)
     np.testing.assert_array_equal(split_sum32(values[:, ::-1]), got)

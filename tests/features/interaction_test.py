@@ -1,4 +1,5 @@
 """Tests of distance to the nearest object, collisions and time to collision on hand-built scenes."""
+
 import math
 
 import numpy as np
@@ -13,7 +14,7 @@ F = np.float32
 def scene(*boxes, steps=1, valid=None):
     """Arrays `(num_objects, steps)` for boxes (x, y, length, width, heading) held still."""
     values = np.array(boxes, np.float64)
-    arrays = [np.repeat(values[:, k:k + 1], steps, axis=1).astype(F) for k in range(5)]
+    arrays = [np.repeat(values[:, k : k + 1], steps, axis=1).astype(F) for k in range(5)]
     x, y, length, width, heading = arrays
     if valid is None:
         valid = np.ones(x.shape, bool)
@@ -66,12 +67,15 @@ def test_rotated_vertex_towards_face():
     np.testing.assert_allclose(d, 5 - 0.3 * math.sqrt(2) - 0.3 - 1.4, atol=TOL)
 
 
-@pytest.mark.parametrize("gap, distance, expected_collision", [
-    (0.5, 0.5, False),
-    (-0.5, -0.5, True),
-    # 3 m deep lengthwise: sideways is shorter, 0.6 m between the cores plus both radii.
-    (-3.0, -2.0, True),
-])
+@pytest.mark.parametrize(
+    "gap, distance, expected_collision",
+    [
+        (0.5, 0.5, False),
+        (-0.5, -0.5, True),
+        # 3 m deep lengthwise: sideways is shorter, 0.6 m between the cores plus both radii.
+        (-3.0, -2.0, True),
+    ],
+)
 def test_collisions_are_negative_distances(gap, distance, expected_collision):
     d = nearest((0, 0, *CAR), (4 + gap, 0, *CAR))
     np.testing.assert_allclose(d, distance, atol=TOL)
@@ -116,8 +120,9 @@ def test_batched_rollouts_and_steps():
     x = np.stack([x, x + np.array([[0], [5]], F)])  # rollout 1 moves the second box 5 m further
     shape = x.shape
     b = lambda a: np.broadcast_to(a, shape)
-    d = interaction.distance_to_nearest_object(x, b(y), b(length), b(width), b(cos32(heading)),
-                                               b(sin32(heading)), b(valid), 2)
+    d = interaction.distance_to_nearest_object(
+        x, b(y), b(length), b(width), b(cos32(heading)), b(sin32(heading)), b(valid), 2
+    )
     assert d.shape == (2, 2, 3)
     np.testing.assert_allclose(d[0], 6.0, atol=TOL)
     np.testing.assert_allclose(d[1], 11.0, atol=5e-6)
@@ -138,8 +143,17 @@ def ttc(*tracks, num_evaluated=1, valid=None):
     length, width, heading = (np.stack([np.full(STEPS, tr[k], F) for tr in tracks]) for k in (2, 3, 4))
     if valid is None:
         valid = np.ones(x.shape, bool)
-    return interaction.time_to_collision(x, y, length, width, heading, np.asarray(valid, bool),
-                                         num_evaluated=num_evaluated, seconds_per_step=DT, steps=INNER)
+    return interaction.time_to_collision(
+        x,
+        y,
+        length,
+        width,
+        heading,
+        np.asarray(valid, bool),
+        num_evaluated=num_evaluated,
+        seconds_per_step=DT,
+        steps=INNER,
+    )
 
 
 FOLLOWER = (F(5) * T, 0.0, 4.0, 2.0, 0.0)  # 10 m/s along +x
@@ -211,12 +225,15 @@ def test_ego_frame_rotation():
     np.testing.assert_allclose(ttc(follower, leader)[0], np.array([5.5, 3.0, 0.5]) / 5, atol=1e-5)
 
 
-@pytest.mark.parametrize("yaw_deg, lateral_overlap, followed", [
-    (20.0, -0.8, True),    # turned 20 degrees but well inside the path
-    (20.0, -0.3, False),   # small overlap needs a heading difference <= 10 degrees
-    (5.0, -0.3, True),
-    (80.0, -1.5, False),   # beyond 75 degrees
-])
+@pytest.mark.parametrize(
+    "yaw_deg, lateral_overlap, followed",
+    [
+        (20.0, -0.8, True),  # turned 20 degrees but well inside the path
+        (20.0, -0.3, False),  # small overlap needs a heading difference <= 10 degrees
+        (5.0, -0.3, True),
+        (80.0, -1.5, False),  # beyond 75 degrees
+    ],
+)
 def test_heading_and_lateral_overlap_rules(yaw_deg, lateral_overlap, followed):
     yaw = math.radians(yaw_deg)
     # The leader's half extents seen from the follower's frame.
@@ -248,8 +265,9 @@ def test_all_steps_with_nan_speeds_at_the_ends():
     leader = (F(12) + F(2.5) * T, 0.0, 4.0, 2.0, 0.0)
     x = np.stack([FOLLOWER[0], leader[0]])
     zeros = np.zeros_like(x)
-    full = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, np.ones(x.shape, bool),
-                                         num_evaluated=1, seconds_per_step=DT)
+    full = interaction.time_to_collision(
+        x, zeros, zeros + 4, zeros + 2, zeros, np.ones(x.shape, bool), num_evaluated=1, seconds_per_step=DT
+    )
     assert full.shape == (1, STEPS)
     # At the first and last step the speeds are NaN: no closing speed, 5 s.
     assert full[0, 0] == 5.0 and full[0, -1] == 5.0
@@ -273,8 +291,16 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
     x, y, length, width, heading, valid = random_traffic(rng)
     steps = slice(11, None)
     cos_h, sin_h = cos32(heading[..., steps]), sin32(heading[..., steps])
-    nearest_args = (x[..., steps], y[..., steps], length[..., steps], width[..., steps], cos_h, sin_h,
-                    valid[..., steps], 4)
+    nearest_args = (
+        x[..., steps],
+        y[..., steps],
+        length[..., steps],
+        width[..., steps],
+        cos_h,
+        sin_h,
+        valid[..., steps],
+        4,
+    )
     whole_nearest = interaction.distance_to_nearest_object(*nearest_args)
     ttc_args = (x, y, length, width, heading, valid)
     ttc_options = {"num_evaluated": 4, "seconds_per_step": 0.1, "steps": steps}
@@ -289,17 +315,27 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
 def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, speed):
     """The official all-objects time to collision at every step (`all_objects_time_to_collision`)."""
     from wosac_eval.features.float32_math import packet_tail, sincos32
+
     num_objects, num_steps = x.shape[-2:]
     pair_tail = packet_tail((num_steps, num_evaluated, num_objects))
     ego_tail = packet_tail((num_steps, num_evaluated, 1))
     t = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731  (..., steps, objects)
     with np.errstate(invalid="ignore", over="ignore"):
         ego_sin, ego_cos = sincos32(-t(heading)[..., :num_evaluated, None], ego_tail)
-        ahead, beside, yaw_diff = interaction.ego_frame_offsets(t(x), t(y), t(length), t(width), t(heading),
-                                                                 ego_cos, ego_sin, num_evaluated)
-        out = interaction.all_objects_time_to_collision(ahead, beside, yaw_diff, pair_tail, t(length)[..., None, :],
-                                                        t(width)[..., None, :], t(valid)[..., None, :], t(speed),
-                                                        num_evaluated)
+        ahead, beside, yaw_diff = interaction.ego_frame_offsets(
+            t(x), t(y), t(length), t(width), t(heading), ego_cos, ego_sin, num_evaluated
+        )
+        out = interaction.all_objects_time_to_collision(
+            ahead,
+            beside,
+            yaw_diff,
+            pair_tail,
+            t(length)[..., None, :],
+            t(width)[..., None, :],
+            t(valid)[..., None, :],
+            t(speed),
+            num_evaluated,
+        )
     return t(out)
 
 
@@ -308,6 +344,7 @@ def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
     equal to the all-objects one; an infinite speed sends its step to the all-objects search (a closing
     speed of +inf gives 0 s even where nothing is followed)."""
     from wosac_eval.features.kinematics import linear_speed
+
     rng = np.random.default_rng(21)
     x, y, length, width, heading, valid = random_traffic(rng, samples=4, objects=10, steps=40)
     with np.errstate(invalid="ignore"):
@@ -316,8 +353,9 @@ def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
     speed[0, 3, 7] = np.nan
     speed[1, 0, 12] = np.inf
     speed[2, 5, 20] = -np.inf
-    got = interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1,
-                                        speed=speed)
+    got = interaction.time_to_collision(
+        x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1, speed=speed
+    )
     want = all_objects_reference(x, y, length, width, heading, valid, 4, speed)
     assert (got < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     np.testing.assert_array_equal(got, want)
@@ -334,8 +372,9 @@ def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
     speed[0, 2] = np.inf
     valid = np.ones(x.shape, bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        got = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, valid, num_evaluated=1,
-                                            seconds_per_step=0.1, speed=speed)
+        got = interaction.time_to_collision(
+            x, zeros, zeros + 4, zeros + 2, zeros, valid, num_evaluated=1, seconds_per_step=0.1, speed=speed
+        )
     want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(got[0], [5, 5, 0, 5, 5])
@@ -358,7 +397,8 @@ def test_the_lowest_bound_is_the_first_strict_minimum():
             continue
         with np.errstate(invalid="ignore"):
             raw = np.sqrt((x - x[e]) ** 2 + (y - y[e]) ** 2) * interaction.BOUND_SCALE - (
-                (reach[e] + reach) + interaction.BOUND_MARGIN)
+                (reach[e] + reach) + interaction.BOUND_MARGIN
+            )
         raw[e] = np.inf
         want, best = -1, F(np.inf)
         for o, value in enumerate(raw):

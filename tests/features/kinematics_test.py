@@ -1,13 +1,20 @@
 """Tests of speeds and accelerations from central differences."""
+
 import math
 
 import numpy as np
 
-from wosac_eval.features.kinematics import (central_and, central_difference, kinematic_features,
-                                            kinematic_validity, linear_speed, wrap_angle)
+from wosac_eval.features.kinematics import (
+    central_and,
+    central_difference,
+    kinematic_features,
+    kinematic_validity,
+    linear_speed,
+    wrap_angle,
+)
 
 F = np.float32
-NAN_SPEED = np.array([True] + [False] * 8 + [True])          # 10 steps: speeds are NaN at the ends
+NAN_SPEED = np.array([True] + [False] * 8 + [True])  # 10 steps: speeds are NaN at the ends
 NAN_ACCEL = np.array([True, True] + [False] * 6 + [True, True])
 
 
@@ -112,8 +119,15 @@ def test_wrap_angle_is_the_floored_modulo_bit_for_bit():
     and their neighbours, zeros of both signs, NaN and infinities."""
     rng = np.random.default_rng(7)
     turns = F(2 * np.pi) * np.arange(-20, 21, dtype=F) - F(np.pi)
-    angles = np.concatenate([rng.uniform(-40, 40, 200_000), turns, np.nextafter(turns, F(np.inf)),
-                             np.nextafter(turns, F(-np.inf)), [0.0, -0.0, np.nan, np.inf, -np.inf]]).astype(F)
+    angles = np.concatenate(
+        [
+            rng.uniform(-40, 40, 200_000),
+            turns,
+            np.nextafter(turns, F(np.inf)),
+            np.nextafter(turns, F(-np.inf)),
+            [0.0, -0.0, np.nan, np.inf, -np.inf],
+        ]
+    ).astype(F)
     with np.errstate(invalid="ignore"):
         expected = np.mod(angles + F(np.pi), F(2 * np.pi)) - F(np.pi)
         np.testing.assert_array_equal(wrap_angle(angles).view(np.int32), expected.view(np.int32))

@@ -5,6 +5,7 @@ is a histogram time series in the kinematic bucket whose config lives in its reg
 proto has no field for it) and is scored into `step_length_likelihood`. The official features and
 likelihoods are unchanged by it; the meta-metric and the kinematic bucket take its weight.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,11 +34,19 @@ def step_length(context: registry.FeatureContext):
 
 
 STEP_LENGTH = registry.Feature(
-    "step_length", step_length,
+    "step_length",
+    step_length,
     metric=metric_registry.Metric(
-        "step_length", "kinematic", "step_length", per_object=False, mask="speed", official=False,
+        "step_length",
+        "kinematic",
+        "step_length",
+        per_object=False,
+        mask="speed",
+        official=False,
         config_default="histogram { min_val: 0.0 max_val: 4.0 num_bins: 20 additive_smoothing_pseudocount: 0.1 } "
-                       f"independent_timesteps: true metametric_weight: {WEIGHT}"))
+        f"independent_timesteps: true metametric_weight: {WEIGHT}",
+    ),
+)
 
 
 @pytest.fixture
@@ -77,12 +86,16 @@ def test_numpy_features_and_metrics(toy_feature):
     for field in SCENARIO_FIELDS:
         if field != "metametric":
             assert with_toy[field] == official[field], field
-    assert with_toy["metametric"] == pytest.approx(official["metametric"] + WEIGHT * with_toy["step_length_likelihood"],
-                                                   abs=1e-6)
+    assert with_toy["metametric"] == pytest.approx(
+        official["metametric"] + WEIGHT * with_toy["step_length_likelihood"], abs=1e-6
+    )
     # The kinematic bucket now weighs four official metrics and the toy one.
     buckets = bucket_metrics(config, with_toy)
-    weights = {m.name: metric_registry.metric_config(config, m).metametric_weight
-               for m in metric_registry.active_metrics() if m.bucket == "kinematic"}
+    weights = {
+        m.name: metric_registry.metric_config(config, m).metametric_weight
+        for m in metric_registry.active_metrics()
+        if m.bucket == "kinematic"
+    }
     kinematic = sum(w * with_toy[f"{m}_likelihood"] for m, w in weights.items()) / sum(weights.values())
     assert buckets["kinematic_metrics"] == pytest.approx(kinematic, abs=1e-6)
 
@@ -106,8 +119,11 @@ def test_registration_is_checked():
     with pytest.raises(ValueError, match="unknown map parts"):
         registry.register(registry.Feature("toy", step_length, needs=("sidewalks",)))
     with pytest.raises(ValueError, match="not official"):
-        registry.register(registry.Feature("toy", step_length,
-                                           metric=metric_registry.Metric("toy", "kinematic", "toy", False, "valid")))
+        registry.register(
+            registry.Feature(
+                "toy", step_length, metric=metric_registry.Metric("toy", "kinematic", "toy", False, "valid")
+            )
+        )
     assert registry.feature_names() == registry.OFFICIAL_FEATURE_NAMES
 
 

@@ -1,4 +1,5 @@
 """Tests of the signed distance to road edges on hand-built maps and against brute force."""
+
 import math
 
 import numpy as np
@@ -95,8 +96,8 @@ def test_height_difference_is_stretched_threefold():
     # A point 1 m above the plane of edge A, which is 3.1 m away in the plane,
     # and level with edge B 3.2 m away on the other side: stretched, A is
     # sqrt(3.1^2 + 3^2) = 4.31 m away, B 3.2 m, so B is picked.
-    a = polyline((-10, -3.1), (10, -3.1), z=0.0)   # runs +x: the point (y = 0) is on its road side
-    b = polyline((10, 3.2), (-10, 3.2), z=1.0)     # runs -x: the point is on its road side too
+    a = polyline((-10, -3.1), (10, -3.1), z=0.0)  # runs +x: the point (y = 0) is on its road side
+    b = polyline((10, 3.2), (-10, 3.2), z=1.0)  # runs -x: the point is on its road side too
     table = road_edge.build_segment_table([a, b])
     np.testing.assert_allclose(distances(table, (0, 0, 1.0)), [-3.2], rtol=1e-7)
     # Without the height difference A would win.
@@ -126,9 +127,17 @@ def boxes_distance(table, x, y, length, width, heading, valid=None, z=0.0):
     x, y, length, width, heading = (np.atleast_2d(np.asarray(v, F)) for v in (x, y, length, width, heading))
     if valid is None:
         valid = np.ones(x.shape, bool)
-    return road_edge.box_distance_to_road_edge(x, y, np.full(x.shape, z, F), length, width,
-                                               np.cos(heading).astype(F), np.sin(heading).astype(F),
-                                               np.asarray(valid, bool), table)
+    return road_edge.box_distance_to_road_edge(
+        x,
+        y,
+        np.full(x.shape, z, F),
+        length,
+        width,
+        np.cos(heading).astype(F),
+        np.sin(heading).astype(F),
+        np.asarray(valid, bool),
+        table,
+    )
 
 
 def test_box_distance_is_the_most_off_road_corner(square):
@@ -153,6 +162,7 @@ def test_box_distance_invalid_is_large_negative(square):
 
 
 # --- Brute force ---------------------------------------------------------------------------------
+
 
 def brute_force(table, queries):
     """Signed distance with every valid segment evaluated, same float32 operations."""
@@ -192,8 +202,10 @@ def assert_equals_brute_force(table, queries):
     ours = road_edge.signed_distance_to_polylines(table, queries)
     reference = brute_force(table, queries)
     mismatch = np.flatnonzero(ours != reference)
-    assert mismatch.size == 0, f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: " \
-                               f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+    assert mismatch.size == 0, (
+        f"{mismatch.size} mismatches, e.g. query {queries[mismatch[0]]}: "
+        f"{ours[mismatch[0]]} vs {reference[mismatch[0]]}"
+    )
 
 
 def random_map(rng):
@@ -222,14 +234,16 @@ def test_candidate_search_equals_brute_force():
     rng = np.random.default_rng(1234)
     polylines = random_map(rng)
     table = road_edge.build_segment_table(polylines)
-    queries = np.concatenate([
-        np.stack([rng.uniform(-250, 250, 3000), rng.uniform(-250, 250, 3000), rng.uniform(-2, 14, 3000)], 1),
-        # Far away from everything.
-        np.array([[2000, 2000, 0], [-3000, 100, 50]]),
-        # Exactly on vertices, and at the ring centre and near it.
-        np.concatenate(polylines)[::7],
-        np.array([[400, 400, 0], [400.3, 399.8, 0.1], [400, 400, 5]]),
-    ]).astype(F)
+    queries = np.concatenate(
+        [
+            np.stack([rng.uniform(-250, 250, 3000), rng.uniform(-250, 250, 3000), rng.uniform(-2, 14, 3000)], 1),
+            # Far away from everything.
+            np.array([[2000, 2000, 0], [-3000, 100, 50]]),
+            # Exactly on vertices, and at the ring centre and near it.
+            np.concatenate(polylines)[::7],
+            np.array([[400, 400, 0], [400.3, 399.8, 0.1], [400, 400, 5]]),
+        ]
+    ).astype(F)
     assert_equals_brute_force(table, queries)
 
 
@@ -290,14 +304,26 @@ def test_hints_never_change_the_answer(hint_stride):
     table = road_edge.build_segment_table(polylines)
     ring_centre = np.array([[400, 400, 0]] * 5 + [[400.0, 400.0, 1e-3], [400.0, 400.0, -1e-3]])
     walk = np.cumsum(rng.normal(0, 0.8, (3000, 3)) * [1, 1, 0.2], axis=0) + [0, 0, 6]
-    queries = np.concatenate([ring_centre, walk, ring_centre[::-1], rng.uniform(-250, 250, (500, 3)),
-                              np.concatenate(polylines)[::3]]).astype(F)
+    queries = np.concatenate(
+        [ring_centre, walk, ring_centre[::-1], rng.uniform(-250, 250, (500, 3)), np.concatenate(polylines)[::3]]
+    ).astype(F)
     reference = brute_force(table, queries)
     segments = road_edge.nearest_segments(table, queries, hint_stride=hint_stride)
     assert np.array_equal(segments, road_edge.nearest_segments(table, queries, hint_stride=len(queries)))
-    ours = pruned_search._signed_distances(queries, segments, table.start, table.delta, table.valid, table.prior,
-                                       table.next, table.prior_valid, table.next_valid, table.convex_before,
-                                       table.convex_after, 1)
+    ours = pruned_search._signed_distances(
+        queries,
+        segments,
+        table.start,
+        table.delta,
+        table.valid,
+        table.prior,
+        table.next,
+        table.prior_valid,
+        table.next_valid,
+        table.convex_before,
+        table.convex_after,
+        1,
+    )
     mismatch = np.flatnonzero(ours != reference)
     assert mismatch.size == 0, f"query {queries[mismatch[0]]}: {ours[mismatch[0]]} vs {reference[mismatch[0]]}"
 
@@ -311,12 +337,18 @@ def test_box_trajectories_equal_brute_force():
     samples, objects, steps = 3, 6, 40
     start = rng.uniform(-150, 150, (1, objects, 1, 2)) + rng.normal(0, 0.5, (samples, objects, 1, 2))
     heading = rng.uniform(-math.pi, math.pi, (samples, objects, 1)) + np.cumsum(
-        rng.normal(0, 0.05, (samples, objects, steps)), axis=-1)
+        rng.normal(0, 0.05, (samples, objects, steps)), axis=-1
+    )
     centre = (start + np.cumsum(1.2 * np.stack([np.cos(heading), np.sin(heading)], -1), axis=2)).astype(F)
-    boxes = (centre[..., 0], centre[..., 1],
-             (rng.choice([0.0, 6.0], (samples, objects, 1)) + np.zeros(heading.shape)).astype(F),  # bottom
-             np.full(heading.shape, 4.8, F), np.full(heading.shape, 2.0, F),
-             np.cos(heading).astype(F), np.sin(heading).astype(F))
+    boxes = (
+        centre[..., 0],
+        centre[..., 1],
+        (rng.choice([0.0, 6.0], (samples, objects, 1)) + np.zeros(heading.shape)).astype(F),  # bottom
+        np.full(heading.shape, 4.8, F),
+        np.full(heading.shape, 2.0, F),
+        np.cos(heading).astype(F),
+        np.sin(heading).astype(F),
+    )
     valid = rng.random((samples, objects, steps)) > 0.1
     ours = road_edge.box_distance_to_road_edge(*boxes, valid, table)
     corners = box_bottom_corners(*boxes)
@@ -331,6 +363,7 @@ def test_boxes_of_every_kind_equal_their_corners_one_by_one():
     its own, bit for bit: boxes on and off the map, on another level, invalid, NaN, and with two
     leading axes."""
     from wosac_eval.features.float32_math import sincos32
+
     rng = np.random.default_rng(12)
     table = road_edge.build_segment_table(random_map(rng))
     shape = (2, 3, 5, 17)
@@ -351,6 +384,7 @@ def test_boxes_of_every_kind_equal_their_corners_one_by_one():
 
 
 # --- Cell candidate tables (the fixed-shape search on a device) -------------------------------------
+
 
 def planar_distances(points, start, delta):
     """float64 `(num_points, num_segments)` planar distance from each point to each segment."""

@@ -3,6 +3,7 @@
 The JAX strategies (`DenseSearch`, `HostSearch`) are checked with the JAX tests
 (tests/parity/test_jax_kernels.py), which run last.
 """
+
 import numpy as np
 
 from support.strategies import assert_is_search_strategy, parameter_names

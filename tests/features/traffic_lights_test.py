@@ -1,4 +1,5 @@
 """Tests of red-light violations and the nearest-lane search on hand-built lanes."""
+
 import numpy as np
 import pytest
 
@@ -50,8 +51,9 @@ def test_crossing_on_stop_violates_at_the_crossing_step_only(lanes):
 
 
 def test_arrow_stop_counts_as_stop(lanes):
-    np.testing.assert_array_equal(violations(lanes, CROSSING, 0.0, signals([ARROW_STOP] * 5)),
-                                  [[False, False, False, True, False]])
+    np.testing.assert_array_equal(
+        violations(lanes, CROSSING, 0.0, signals([ARROW_STOP] * 5)), [[False, False, False, True, False]]
+    )
 
 
 @pytest.mark.parametrize("state", [GO, CAUTION, FLASHING_STOP, 0])
@@ -63,8 +65,9 @@ def test_state_at_the_crossing_step_decides(lanes):
     # Red until step 2, green when crossing at step 3: fine.
     assert not violations(lanes, CROSSING, 0.0, signals([STOP, STOP, STOP, GO, GO])).any()
     # Green until step 2, red at step 3: violation.
-    np.testing.assert_array_equal(violations(lanes, CROSSING, 0.0, signals([GO, GO, GO, STOP, STOP])),
-                                  [[False, False, False, True, False]])
+    np.testing.assert_array_equal(
+        violations(lanes, CROSSING, 0.0, signals([GO, GO, GO, STOP, STOP])), [[False, False, False, True, False]]
+    )
 
 
 def test_stopping_before_the_stop_point(lanes):
@@ -124,6 +127,7 @@ def test_signal_steps_must_match(lanes):
 
 # --- The nearest-lane measure ---------------------------------------------------------------------
 
+
 def test_lane_table_layout_keeps_the_padding_segment():
     # Lanes of 3 and 2 points are padded to 3 points; the shorter lane's
     # segment from its last point to the origin counts as valid (as officially).
@@ -173,11 +177,13 @@ def test_nearest_lane_segment_equals_brute_force():
         lanes.append(np.concatenate([xy, np.zeros((n, 1))], 1).astype(F))
         ids.append(1000 + k)
     table = traffic_lights.build_lane_table(lanes, ids)
-    points = np.concatenate([
-        rng.uniform(-260, 260, (3000, 2)),
-        np.concatenate(lanes)[::3, :2],              # exactly on lane points
-        np.array([[0.0, 0.0], [5000.0, -5000.0]]),   # the padding target, and far away
-    ]).astype(F)
+    points = np.concatenate(
+        [
+            rng.uniform(-260, 260, (3000, 2)),
+            np.concatenate(lanes)[::3, :2],  # exactly on lane points
+            np.array([[0.0, 0.0], [5000.0, -5000.0]]),  # the padding target, and far away
+        ]
+    ).astype(F)
     ours = traffic_lights.nearest_lane_segment(table, points)
     valid = np.flatnonzero(table.valid)
     measure = lane_measure(points, table.start[valid], table.delta[valid])
@@ -202,10 +208,10 @@ def test_compiled_crossings_equal_the_array_kernel():
     stop_point[:, 1] = seg_start[:, 1]  # the stop point at the segment's start
     x[2, 3, :] = stop_point[:, 2, 0]  # an object exactly on a stop point at every step
     stopping = rng.random((steps, signals)) > 0.3
-    want = traffic_lights.stop_line_crossings(np.stack([x, y], -1), valid, seg_start, seg_delta, stop_point,
-                                              stopping)
-    got, crossed_any = traffic_lights.compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point,
-                                                                   stopping)
+    want = traffic_lights.stop_line_crossings(np.stack([x, y], -1), valid, seg_start, seg_delta, stop_point, stopping)
+    got, crossed_any = traffic_lights.compiled_stop_line_crossings(
+        x, y, valid, seg_start, seg_delta, stop_point, stopping
+    )
     assert want.any()
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(crossed_any, want.any(axis=-1))

@@ -1,4 +1,5 @@
 """The analysis on the command line: `criticality`, `score --select`, `compare --stratify`, the report section."""
+
 from __future__ import annotations
 
 import csv
@@ -21,8 +22,15 @@ def runs(tmp_path_factory):
     for policy in ("constant_velocity", "idm"):
         submission = make_submission(shards, policy, root / policy, num_shards=1)
         out[policy] = submission
-        done = run_cli("score", "--scenarios", *out["scenarios"], "--submission", str(submission),
-                       "-o", str(root / f"{policy}.json"))
+        done = run_cli(
+            "score",
+            "--scenarios",
+            *out["scenarios"],
+            "--submission",
+            str(submission),
+            "-o",
+            str(root / f"{policy}.json"),
+        )
         assert done.returncode == 0, done.stderr
         out[f"{policy}.json"] = root / f"{policy}.json"
     return out
@@ -49,11 +57,16 @@ def test_criticality_table_ranks_the_set_like_the_result_rows(runs, tmp_path):
     assert scores == sorted(scores, reverse=True)
     assert "step_90" in rows[0] and "raw_time_to_collision" in rows[0]
     # The same scores as the scored rows (rarity against the same set).
-    scored = {r["scenario_id"]: r["criticality"]["score"] for r in json.loads(runs["idm.json"].read_text())["scenarios"]}
+    scored = {
+        r["scenario_id"]: r["criticality"]["score"] for r in json.loads(runs["idm.json"].read_text())["scenarios"]
+    }
     for row in rows:
         assert float(row["score"]) == pytest.approx(scored[row["scenario_id"]], abs=1e-12)
     as_json = run_cli("criticality", "--scenarios", *runs["scenarios"], "-o", str(tmp_path / "c.json"))
-    assert as_json.returncode == 0 and json.loads((tmp_path / "c.json").read_text())[0]["scenario_id"] == rows[0]["scenario_id"]
+    assert (
+        as_json.returncode == 0
+        and json.loads((tmp_path / "c.json").read_text())[0]["scenario_id"] == rows[0]["scenario_id"]
+    )
 
 
 def test_criticality_writes_parquet(runs, tmp_path):
@@ -65,8 +78,10 @@ def test_criticality_writes_parquet(runs, tmp_path):
 
 
 def test_criticality_refuses_bad_outputs_at_once(runs, tmp_path):
-    for output, message in ((tmp_path / "c.txt", "the suffix chooses the format"),
-                            (tmp_path / "nowhere" / "c.csv", "nowhere")):
+    for output, message in (
+        (tmp_path / "c.txt", "the suffix chooses the format"),
+        (tmp_path / "nowhere" / "c.csv", "nowhere"),
+    ):
         done = run_cli("criticality", "--scenarios", *runs["scenarios"], "-o", str(output))
         assert done.returncode == 2 and message in done.stderr and "Traceback" not in done.stderr
 
@@ -86,14 +101,25 @@ def test_selection_rules():
 
 def test_score_select_scores_the_long_tail_only(runs, tmp_path):
     ranked = scenario_set_criticality(runs["scenarios"])["scenarios"]
-    done = run_cli("score", "--scenarios", *runs["scenarios"], "--submission", str(runs["idm"]),
-                   "--select", "top:0.25", "-o", str(tmp_path / "tail.json"))
+    done = run_cli(
+        "score",
+        "--scenarios",
+        *runs["scenarios"],
+        "--submission",
+        str(runs["idm"]),
+        "--select",
+        "top:0.25",
+        "-o",
+        str(tmp_path / "tail.json"),
+    )
     assert done.returncode == 0, done.stderr
     assert "selection top:0.25: the 2 most critical of 8" in done.stderr
     tail = json.loads((tmp_path / "tail.json").read_text())
-    assert [r["scenario_id"] for r in tail["scenarios"]] == \
-        [r["scenario_id"] for r in json.loads(runs["idm.json"].read_text())["scenarios"]
-         if r["scenario_id"] in {x["scenario_id"] for x in ranked[:2]}]
+    assert [r["scenario_id"] for r in tail["scenarios"]] == [
+        r["scenario_id"]
+        for r in json.loads(runs["idm.json"].read_text())["scenarios"]
+        if r["scenario_id"] in {x["scenario_id"] for x in ranked[:2]}
+    ]
     assert tail["selection"]["scenarios"] == 2 and tail["selection"]["of"] == 8
     assert tail["coverage"] == {"scored": 2, "expected": 2, "fraction": 1.0}
     full = {r["scenario_id"]: r for r in json.loads(runs["idm.json"].read_text())["scenarios"]}
@@ -104,11 +130,22 @@ def test_score_select_scores_the_long_tail_only(runs, tmp_path):
     assert bad.returncode == 2 and "--select 'top'" in bad.stderr
 
 
-@pytest.mark.parametrize("by, strata", [("criticality", {"low", "mid", "high", "long tail", "rest"}),
-                                        ("object_type", {"vehicle"})])
+@pytest.mark.parametrize(
+    "by, strata", [("criticality", {"low", "mid", "high", "long tail", "rest"}), ("object_type", {"vehicle"})]
+)
 def test_compare_stratified(runs, tmp_path, by, strata):
-    done = run_cli("compare", str(runs["constant_velocity.json"]), str(runs["idm.json"]), "--stratify", by,
-                   "--n-boot", "500", "--n-perm", "500", "--json")
+    done = run_cli(
+        "compare",
+        str(runs["constant_velocity.json"]),
+        str(runs["idm.json"]),
+        "--stratify",
+        by,
+        "--n-boot",
+        "500",
+        "--n-perm",
+        "500",
+        "--json",
+    )
     assert done.returncode == 0, done.stderr
     out = json.loads(done.stdout)["stratified"]
     assert out["by"] == by and strata <= {r["stratum"] for r in out["strata"]}
@@ -117,8 +154,17 @@ def test_compare_stratified(runs, tmp_path, by, strata):
             assert row["ci_low"] <= row["difference"] <= row["ci_high"]
             assert 0 < row["p_value"] <= row["p_holm"] <= 1
     assert "tests (strata x metrics)" in out["notes"][0]
-    table = run_cli("compare", str(runs["constant_velocity.json"]), str(runs["idm.json"]), "--stratify", by,
-                    "--n-boot", "200", "--n-perm", "200")
+    table = run_cli(
+        "compare",
+        str(runs["constant_velocity.json"]),
+        str(runs["idm.json"]),
+        "--stratify",
+        by,
+        "--n-boot",
+        "200",
+        "--n-perm",
+        "200",
+    )
     assert table.returncode == 0 and f"stratified by {by.replace('_', ' ')}" in table.stdout
 
 
@@ -140,8 +186,16 @@ def test_report_shows_realism_against_criticality(runs, tmp_path):
 
 
 def test_no_analysis_leaves_the_official_fields_alone(runs, tmp_path):
-    done = run_cli("score", "--scenarios", *runs["scenarios"], "--submission", str(runs["idm"]), "--no-analysis",
-                   "-o", str(tmp_path / "plain.json"))
+    done = run_cli(
+        "score",
+        "--scenarios",
+        *runs["scenarios"],
+        "--submission",
+        str(runs["idm"]),
+        "--no-analysis",
+        "-o",
+        str(tmp_path / "plain.json"),
+    )
     assert done.returncode == 0, done.stderr
     plain = json.loads((tmp_path / "plain.json").read_text())
     full = json.loads(runs["idm.json"].read_text())

@@ -1,4 +1,5 @@
 """The CI recipe in examples/ci: the gate script run for real, and the workflow's structure."""
+
 import json
 import shlex
 import shutil
@@ -11,6 +12,7 @@ import pytest
 from wosac_eval.fronts.cli import main
 
 from support.paths import REPO, SHARED
+
 CI = REPO / "examples" / "ci"
 SCENARIO = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
 GOLDEN = SHARED / "golden"
@@ -26,19 +28,42 @@ def _submission(policy: str) -> Path:
 
 def _run_gate(tmp_path, submission, baseline, gates):
     summary = tmp_path / "summary.md"
-    env = {"PATH": "/usr/bin:/bin", "WOSAC_EVAL": f"{shlex.quote(sys.executable)} -m wosac_eval.fronts.cli",
-           "WOSAC_GATES": gates, "WOSAC_WORKERS": "1", "GITHUB_STEP_SUMMARY": str(summary),
-           "PYTHONPATH": str(REPO)}
-    proc = subprocess.run(["bash", str(CI / "run_gate.sh"), str(submission), str(baseline), str(tmp_path / "out"),
-                           str(SCENARIO)], check=False, capture_output=True, text=True, env=env,
-                          timeout=300, cwd=tmp_path)
+    env = {
+        "PATH": "/usr/bin:/bin",
+        "WOSAC_EVAL": f"{shlex.quote(sys.executable)} -m wosac_eval.fronts.cli",
+        "WOSAC_GATES": gates,
+        "WOSAC_WORKERS": "1",
+        "GITHUB_STEP_SUMMARY": str(summary),
+        "PYTHONPATH": str(REPO),
+    }
+    proc = subprocess.run(
+        ["bash", str(CI / "run_gate.sh"), str(submission), str(baseline), str(tmp_path / "out"), str(SCENARIO)],
+        check=False,
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=300,
+        cwd=tmp_path,
+    )
     return proc, summary
 
 
 def test_gate_script_fails_on_a_regression_and_still_writes_the_report(tmp_path):
     baseline = tmp_path / "baseline.json"
-    assert main(["score", "--scenarios", str(SCENARIO), "--submission", str(_submission("logreplay_noise05")),
-                 "--output", str(baseline)]) == 0
+    assert (
+        main(
+            [
+                "score",
+                "--scenarios",
+                str(SCENARIO),
+                "--submission",
+                str(_submission("logreplay_noise05")),
+                "--output",
+                str(baseline),
+            ]
+        )
+        == 0
+    )
     # A stationary policy is metres away from the logged trajectories.
     proc, summary = _run_gate(tmp_path, _submission("stationary"), baseline, "metametric:0.5 min_ade:1.0")
     assert proc.returncode == 1, proc.stdout + proc.stderr
@@ -52,12 +77,13 @@ def test_gate_script_fails_on_a_regression_and_still_writes_the_report(tmp_path)
     assert 'id="comparison"' in (out / "report.html").read_text()
     text = summary.read_text()  # the Markdown table, in the GitHub job summary
     assert "### WOSAC realism" in text and "**gate failed**" in text
-    assert "| `min_average_displacement_error` | lower |" in text and "**FAIL** `min_average_displacement_error:1`" in text
+    assert (
+        "| `min_average_displacement_error` | lower |" in text and "**FAIL** `min_average_displacement_error:1`" in text
+    )
 
 
 def test_gate_script_without_baseline_scores_and_reports(tmp_path):
-    proc, summary = _run_gate(tmp_path, _submission("logreplay_noise05"), tmp_path / "missing.json",
-                              "metametric:0.005")
+    proc, summary = _run_gate(tmp_path, _submission("logreplay_noise05"), tmp_path / "missing.json", "metametric:0.005")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "no baseline" in proc.stdout
     assert json.loads((tmp_path / "out" / "new.json").read_text())["scenarios"][0]["scenario_id"] == "637f20cafde22ff8"
@@ -66,8 +92,9 @@ def test_gate_script_without_baseline_scores_and_reports(tmp_path):
 
 
 def test_gate_script_usage_error():
-    proc = subprocess.run(["bash", str(CI / "run_gate.sh"), "only-one-arg"], check=False, capture_output=True,
-                          text=True)
+    proc = subprocess.run(
+        ["bash", str(CI / "run_gate.sh"), "only-one-arg"], check=False, capture_output=True, text=True
+    )
     assert proc.returncode == 2 and "usage:" in proc.stderr
 
 

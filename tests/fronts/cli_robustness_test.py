@@ -4,6 +4,7 @@ Every case runs the real `wosac-eval` in a subprocess on real files (synthetic
 scenes and a real baseline submission; the official test submission where the
 reference material is present).
 """
+
 from __future__ import annotations
 
 import json
@@ -63,8 +64,16 @@ def test_other_outputs_are_checked_first(tmp_path, scene_and_submission):
     scenarios, _ = scene_and_submission
     nowhere = tmp_path / "nowhere"
     (tmp_path / "file.txt").write_text("")
-    proc = run_cli("baseline", "--scenarios", str(scenarios), "--policy", "idm",
-                   "--output", str(tmp_path / "file.txt" / "sub.tar.gz"), cwd=tmp_path)
+    proc = run_cli(
+        "baseline",
+        "--scenarios",
+        str(scenarios),
+        "--policy",
+        "idm",
+        "--output",
+        str(tmp_path / "file.txt" / "sub.tar.gz"),
+        cwd=tmp_path,
+    )
     assert_one_clean_error(proc, "file.txt")
     demo = run_cli("demo", "--gate", str(tmp_path / "gate"), cwd=tmp_path)
     assert demo.returncode == 0, demo.stderr
@@ -88,9 +97,24 @@ def test_output_into_a_closed_pipe_ends_quietly(scene_and_submission):
     read_end, write_end = os.pipe()
     os.close(read_end)  # the reader is gone, as after `| head` has read its lines
     try:
-        proc = subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "validate", "--scenarios",
-                               str(scenarios), "--submission", str(submission), "--json"],
-                              stdout=write_end, stderr=subprocess.PIPE, text=True, cwd=REPO, timeout=300)
+        proc = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "wosac_eval.fronts.cli",
+                "validate",
+                "--scenarios",
+                str(scenarios),
+                "--submission",
+                str(submission),
+                "--json",
+            ],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+            timeout=300,
+        )
     finally:
         os.close(write_end)
     assert proc.returncode == 141, proc.stderr
@@ -128,8 +152,12 @@ def test_archive_bytes_given_as_a_shard_are_recognised(tmp_path, scene_and_submi
 def test_official_test_submission_scores_with_metadata_warnings(tmp_path):
     """The official test submission has no account or flags: local scoring lists them, validate refuses."""
     shared = require_shared("womd")
-    args = ["--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
-            "--submission", str(shared / "womd" / "test_submission.binproto")]
+    args = [
+        "--scenarios",
+        str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
+        "--submission",
+        str(shared / "womd" / "test_submission.binproto"),
+    ]
     out = tmp_path / "r.json"
     proc = run_cli("score", *args, "-o", str(out))
     assert proc.returncode == 0, proc.stderr
@@ -148,8 +176,16 @@ def test_official_test_submission_scores_with_metadata_warnings(tmp_path):
 def test_partial_scoring_states_its_coverage(tmp_path):
     shared = require_shared("womd")
     out = tmp_path / "r.json"
-    proc = run_cli("score", "--scenarios", str(shared / "womd"), "--submission",
-                   str(shared / "womd" / "test_submission.binproto"), "--partial", "-o", str(out))
+    proc = run_cli(
+        "score",
+        "--scenarios",
+        str(shared / "womd"),
+        "--submission",
+        str(shared / "womd" / "test_submission.binproto"),
+        "--partial",
+        "-o",
+        str(out),
+    )
     assert proc.returncode == 0, proc.stderr
     assert "partial result: scored 1 of 2 scenario(s) (50.0%)" in proc.stderr
     assert json.loads(out.read_text())["coverage"] == {"scored": 1, "expected": 2, "fraction": 0.5}
@@ -159,11 +195,17 @@ def test_interrupt_ends_with_130_and_no_traceback(tmp_path):
     """Ctrl-C during the demo: one line, exit 130; the demo's first progress line comes at once."""
     # Ctrl-C as at a terminal: a test run started in the background of a shell inherits SIGINT ignored,
     # and Python then never raises KeyboardInterrupt; the command itself runs as `python -m`.
-    as_at_a_terminal = ("import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-                        "sys.argv[0] = 'wosac-eval'; runpy.run_module('wosac_eval.fronts.cli', run_name='__main__')")
-    proc = subprocess.Popen([sys.executable, "-c", as_at_a_terminal, "demo", "--workdir",
-                             str(tmp_path / "demo"), "--workers", "1"], cwd=REPO, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    as_at_a_terminal = (
+        "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "sys.argv[0] = 'wosac-eval'; runpy.run_module('wosac_eval.fronts.cli', run_name='__main__')"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", as_at_a_terminal, "demo", "--workdir", str(tmp_path / "demo"), "--workers", "1"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         first = proc.stdout.readline()  # flushed before any scene is generated
         assert first.startswith("sim_agents: 3 policies on 10 synthetic scenes"), first

@@ -1,4 +1,5 @@
 """The `compare` and `report` sub-commands through the real CLI dispatcher."""
+
 import json
 import subprocess
 import sys
@@ -18,6 +19,7 @@ def results(tmp_path):
         path = tmp_path / name
         path.write_text(json.dumps(result_json(synthetic_scenarios(120, seed=0, **kwargs)[sl])))
         return str(path)
+
     return write
 
 
@@ -39,8 +41,19 @@ def test_compare_failed_gate_exits_1(results, capsys):
 def test_compare_json_output(results, capsys):
     base = results("base.json")
     new = results("new.json", shift={"simulated_offroad_rate": 0.02}, keep=slice(10, None))
-    code = main(["compare", base, new, *FAST, "--json", "--metric", "simulated_offroad_rate",
-                 "--fail-if-worse", "simulated_offroad_rate:0.01"])
+    code = main(
+        [
+            "compare",
+            base,
+            new,
+            *FAST,
+            "--json",
+            "--metric",
+            "simulated_offroad_rate",
+            "--fail-if-worse",
+            "simulated_offroad_rate:0.01",
+        ]
+    )
     captured = capsys.readouterr()
     out = json.loads(captured.out)
     assert code == 1 and out["passed"] is False
@@ -50,13 +63,16 @@ def test_compare_json_output(results, capsys):
     assert "warning: the scenario sets differ" in captured.err
 
 
-@pytest.mark.parametrize("make_args, message", [
-    (lambda b, n, d: [b, d], "share no scenario"),
-    (lambda b, n, d: [b, b + ".missing"], "no such file"),
-    (lambda b, n, d: [b, n, "--fail-if-worse", "metametric"], "expected METRIC:DELTA"),
-    (lambda b, n, d: [b, n, "--metric", "realism"], "unknown metric 'realism'"),
-    (lambda b, n, d: [b, n, "--min-shared", "1000"], "fewer than --min-shared 1000"),
-])
+@pytest.mark.parametrize(
+    "make_args, message",
+    [
+        (lambda b, n, d: [b, d], "share no scenario"),
+        (lambda b, n, d: [b, b + ".missing"], "no such file"),
+        (lambda b, n, d: [b, n, "--fail-if-worse", "metametric"], "expected METRIC:DELTA"),
+        (lambda b, n, d: [b, n, "--metric", "realism"], "unknown metric 'realism'"),
+        (lambda b, n, d: [b, n, "--min-shared", "1000"], "fewer than --min-shared 1000"),
+    ],
+)
 def test_compare_cannot_compare_exits_2(results, capsys, make_args, message):
     base, new = results("base.json"), results("new.json")
     disjoint = results("other.json", id_prefix="other")
@@ -68,9 +84,23 @@ def test_compare_cannot_compare_exits_2(results, capsys, make_args, message):
 def test_compare_exit_code_of_the_real_process(results):
     base = results("base.json")
     new = results("new.json", shift={"collision_indication_likelihood": -0.1})
-    proc = subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", "compare", base, new, *FAST,
-                           "--fail-if-worse", "collision_indication_likelihood:0.05"],
-                          check=False, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "wosac_eval.fronts.cli",
+            "compare",
+            base,
+            new,
+            *FAST,
+            "--fail-if-worse",
+            "collision_indication_likelihood:0.05",
+        ],
+        check=False,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert proc.returncode == 1, proc.stderr
     assert "collision_indication_likelihood" in proc.stdout and "FAIL" in proc.stdout
 
@@ -97,8 +127,23 @@ def test_compare_markdown_output_and_comma_separated_metrics(results, tmp_path, 
     base = results("base.json")
     new = results("new.json", shift={"metametric": 0.02})
     md = tmp_path / "comparison.md"
-    assert main(["compare", base, new, *FAST, "--metric", "metametric,min_ade", "--markdown-output", str(md),
-                 "--fail-if-worse", "metametric:1%"]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                base,
+                new,
+                *FAST,
+                "--metric",
+                "metametric,min_ade",
+                "--markdown-output",
+                str(md),
+                "--fail-if-worse",
+                "metametric:1%",
+            ]
+        )
+        == 0
+    )
     lines = md.read_text().splitlines()
     rows = [line for line in lines if line.startswith("| `")]
     assert [r.split("|")[1].strip() for r in rows] == ["`metametric`", "`min_average_displacement_error`"]

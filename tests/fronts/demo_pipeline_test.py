@@ -1,4 +1,5 @@
 """Tests of the demo's scene cache and leaderboard table."""
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,10 @@ from wosac_eval.sim import scenes
 
 def test_scenes_are_generated_once_then_loaded(tmp_path):
     paths, fresh = demo_pipeline.ensure_scenes(tmp_path, num_scenes=2, seed=4)
-    assert fresh and [p.name for p in paths] == ["synthetic.tfrecord-00000-of-00002", "synthetic.tfrecord-00001-of-00002"]
+    assert fresh and [p.name for p in paths] == [
+        "synthetic.tfrecord-00000-of-00002",
+        "synthetic.tfrecord-00001-of-00002",
+    ]
     manifest = json.loads((tmp_path / "scenarios" / "manifest.json").read_text())
     expected = scenes.generate_scenes(2, seed=4)
     assert manifest["sha256"] == scenes.scenario_fingerprint(expected)

@@ -1,5 +1,6 @@
 """Partial scoring means "score the valid scenarios and list the others": never past metadata errors,
 always past an archive whose end is cut off (the shards before the cut are scored)."""
+
 from __future__ import annotations
 
 import io
@@ -21,8 +22,16 @@ def test_partial_never_goes_past_metadata_errors(tmp_path):
     paths = _scenarios(tmp_path)
     anonymous = SubmissionMetadata(unique_method_name="cv", account_name="")
     submission = baselines.make_submission(paths, "constant_velocity", tmp_path / "cv.tar.gz", metadata=anonymous)
-    args = ["score", "--scenarios", *map(str, paths), "--submission", str(submission), "--strict-metadata",
-            "-o", str(tmp_path / "r.json")]
+    args = [
+        "score",
+        "--scenarios",
+        *map(str, paths),
+        "--submission",
+        str(submission),
+        "--strict-metadata",
+        "-o",
+        str(tmp_path / "r.json"),
+    ]
     proc = run_cli(*args, "--partial")
     assert proc.returncode == 1, proc.stderr
     assert "metadata" in proc.stderr and "partial scoring skips invalid scenarios, never the metadata" in proc.stderr
@@ -42,7 +51,7 @@ def test_partial_scores_the_shards_before_a_cut_off_end(tmp_path):
             tar.addfile(info, io.BytesIO(data))
     raw = buffer.getvalue()
     cut = tmp_path / "cut.tar"
-    cut.write_bytes(raw[:len(raw) - 512 * 4 - len(shards[-1][1]) // 2])
+    cut.write_bytes(raw[: len(raw) - 512 * 4 - len(shards[-1][1]) // 2])
     args = ["score", "--scenarios", *map(str, paths), "--submission", str(cut), "-o", str(tmp_path / "r.json")]
     refused = run_cli(*args)
     assert refused.returncode == 1 and "--partial" in refused.stderr

@@ -1,4 +1,5 @@
 """Tests of the metric configurations: presets, textprotos, defaults, bucket weights."""
+
 from pathlib import Path
 
 import pytest
@@ -8,9 +9,17 @@ from wosac_eval.metrics import config as cfg
 from wosac_eval.metrics.scenario_metrics import bucket_metrics
 
 from support.paths import SHARED
+
 OFFICIAL_CONFIGS = SHARED / "official-configs"
-HISTOGRAM_METRICS = ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration",
-                     "distance_to_nearest_object", "time_to_collision", "distance_to_road_edge")
+HISTOGRAM_METRICS = (
+    "linear_speed",
+    "linear_acceleration",
+    "angular_speed",
+    "angular_acceleration",
+    "distance_to_nearest_object",
+    "time_to_collision",
+    "distance_to_road_edge",
+)
 INDICATOR_METRICS = ("collision_indication", "offroad_indication", "traffic_light_violation")
 
 
@@ -56,14 +65,17 @@ def test_2025_histograms_by_hand():
     assert (h.min_val, h.max_val, h.num_bins) == (-20.0, 40.0, 10)
 
 
-@pytest.mark.parametrize("name, kinematic, interactive, map_based", [
-    # 4 x 0.05 | 0.1 + 0.25 + 0.1 | 0.05 + 0.25 + 0.05
-    ("2025", 0.20, 0.45, 0.35),
-    # 4 x 0.05 | 0.1 + 0.25 + 0.1 | 0.1 + 0.25 + 0 (no traffic-light metric yet)
-    ("2024", 0.20, 0.45, 0.35),
-    # 4 x 0.09 | 0.09 + 0.18 + 0.09 | 0.09 + 0.18 + 0
-    ("2023", 0.36, 0.36, 0.27),
-])
+@pytest.mark.parametrize(
+    "name, kinematic, interactive, map_based",
+    [
+        # 4 x 0.05 | 0.1 + 0.25 + 0.1 | 0.05 + 0.25 + 0.05
+        ("2025", 0.20, 0.45, 0.35),
+        # 4 x 0.05 | 0.1 + 0.25 + 0.1 | 0.1 + 0.25 + 0 (no traffic-light metric yet)
+        ("2024", 0.20, 0.45, 0.35),
+        # 4 x 0.09 | 0.09 + 0.18 + 0.09 | 0.09 + 0.18 + 0
+        ("2023", 0.36, 0.36, 0.27),
+    ],
+)
 def test_bucket_weights(name, kinematic, interactive, map_based):
     w = weights(cfg.preset(name))
     sums = {bucket: sum(w[m] for m in names) for bucket, names in cfg.METRIC_BUCKETS.items()}
@@ -78,16 +90,29 @@ def test_traffic_light_weight_only_from_2025():
 
 def _scenario_metrics(likelihood_by_metric):
     metrics = {f"{m}_likelihood": likelihood_by_metric[m] for m in cfg.METRIC_NAMES}
-    metrics.update(metametric=0.7, min_average_displacement_error=1.5, simulated_collision_rate=0.25,
-                   simulated_offroad_rate=0.125, simulated_traffic_light_violation_rate=0.0)
+    metrics.update(
+        metametric=0.7,
+        min_average_displacement_error=1.5,
+        simulated_collision_rate=0.25,
+        simulated_offroad_rate=0.125,
+        simulated_traffic_light_violation_rate=0.0,
+    )
     return metrics
 
 
 def test_bucket_metrics_are_weighted_means():
-    likelihood = {"linear_speed": 0.2, "linear_acceleration": 0.4, "angular_speed": 0.6,
-                  "angular_acceleration": 0.8, "distance_to_nearest_object": 0.5,
-                  "collision_indication": 0.9, "time_to_collision": 0.7, "distance_to_road_edge": 0.3,
-                  "offroad_indication": 1.0, "traffic_light_violation": 0.1}
+    likelihood = {
+        "linear_speed": 0.2,
+        "linear_acceleration": 0.4,
+        "angular_speed": 0.6,
+        "angular_acceleration": 0.8,
+        "distance_to_nearest_object": 0.5,
+        "collision_indication": 0.9,
+        "time_to_collision": 0.7,
+        "distance_to_road_edge": 0.3,
+        "offroad_indication": 1.0,
+        "traffic_light_violation": 0.1,
+    }
     out = bucket_metrics(cfg.preset("2025"), _scenario_metrics(likelihood))
     # Equal kinematic weights: plain mean.
     assert out["kinematic_metrics"] == pytest.approx(0.5, rel=1e-6)
@@ -198,9 +223,11 @@ def test_missing_file(tmp_path):
 
 # --- Against the official textprotos -------------------------------------------------------------
 
-OFFICIAL = {"2025": "challenge_2025_sim_agents_config.textproto",
-            "2024": "challenge_2024_config.textproto",
-            "2023": "challenge_2023_config.textproto"}
+OFFICIAL = {
+    "2025": "challenge_2025_sim_agents_config.textproto",
+    "2024": "challenge_2024_config.textproto",
+    "2023": "challenge_2023_config.textproto",
+}
 
 
 def need_official_configs():
@@ -230,8 +257,14 @@ def test_official_2023_has_no_traffic_light_metric():
     assert cfg.load_config(OFFICIAL_CONFIGS / OFFICIAL["2023"]).traffic_light_violation.metametric_weight == 0.0
 
 
-@pytest.mark.parametrize("file", ["challenge_2025_scenario_gen_config.textproto", "test_config.textproto",
-                                  "test_config_dependent_timesteps.textproto"])
+@pytest.mark.parametrize(
+    "file",
+    [
+        "challenge_2025_scenario_gen_config.textproto",
+        "test_config.textproto",
+        "test_config_dependent_timesteps.textproto",
+    ],
+)
 def test_other_official_configs_load(file):
     need_official_configs()
     config = cfg.load_config(OFFICIAL_CONFIGS / file)

@@ -12,6 +12,7 @@ float32 likelihoods); against the reported float32 field, 7.4e-7 (that field rou
 log-likelihood to float32 before `exp`, an error of about |ln field| x 2^-24 relative: largest for
 the smallest likelihoods).
 """
+
 from __future__ import annotations
 
 from functools import lru_cache
@@ -57,8 +58,9 @@ def test_scene_fields_are_count_weighted_geometric_means(case_set, case):
             assert values.dtype == np.float32 and counts.dtype == np.int32, where
             assert values.shape == counts.shape == (per_object.num_objects,), where
             # The weights: an object's counted samples (its steps under the metric's mask), 1 for an indicator.
-            want_counts = (np.ones(per_object.num_objects, np.int32) if metric.per_object
-                           else masks[metric.mask].sum(axis=-1))
+            want_counts = (
+                np.ones(per_object.num_objects, np.int32) if metric.per_object else masks[metric.mask].sum(axis=-1)
+            )
             np.testing.assert_array_equal(counts, want_counts, err_msg=where)
             np.testing.assert_array_equal(np.isnan(values), counts == 0, err_msg=where)
             # The identity, by hand: prod_i L_i ** (n_i / sum n), and as the method computes it.

@@ -1,5 +1,6 @@
 """The presets are data: textproto files beside the metrics module, and beside the compat metrics module
 where programs written for the official package open them."""
+
 from __future__ import annotations
 
 from pathlib import Path

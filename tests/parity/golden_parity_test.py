@@ -6,6 +6,7 @@ meta-metric and bucket within 1e-5 of the official value. The cases are
 whatever `support.golden.SETS` holds: `../shared` (extended on every landing)
 and the synthetic oracle cases in `tests/data`.
 """
+
 from __future__ import annotations
 
 from functools import lru_cache

@@ -1,4 +1,5 @@
 """`wosac-eval score` end to end on real files: result JSON equals the official outputs."""
+
 from __future__ import annotations
 
 import json
@@ -13,9 +14,15 @@ from support.runs import run_score
 def test_score_matches_golden(tmp_path, workers):
     shared = require_shared()
     case = "637f20cafde22ff8__official_test_submission"
-    proc, result = run_score(tmp_path, "--scenarios", str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
-                          "--submission", str(shared / "golden" / f"{case}.binproto"),
-                          "--workers", str(workers))
+    proc, result = run_score(
+        tmp_path,
+        "--scenarios",
+        str(shared / "womd" / "motion_data_one_scenario.tfrecord"),
+        "--submission",
+        str(shared / "golden" / f"{case}.binproto"),
+        "--workers",
+        str(workers),
+    )
     assert proc.returncode == 0, proc.stderr
     golden = json.loads((shared / "golden" / f"{case}.json").read_text())["metrics"]["2025"]
     assert result["config"] == "2025"
@@ -28,8 +35,12 @@ def test_score_matches_golden(tmp_path, workers):
 
 def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path):
     shared = require_shared()
-    args = ["--scenarios", str(shared / "womd"),
-            "--submission", str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto")]
+    args = [
+        "--scenarios",
+        str(shared / "womd"),
+        "--submission",
+        str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"),
+    ]
     proc, result = run_score(tmp_path, *args)
     assert proc.returncode == 1
     assert "ee519cf571686d19" in proc.stderr and result is None
@@ -42,8 +53,15 @@ def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path)
 
 def test_score_usage_error_on_unknown_config(tmp_path):
     shared = require_shared()
-    proc, _ = run_score(tmp_path, "--scenarios", str(shared / "womd"), "--submission",
-                     str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"), "--config", "2019")
+    proc, _ = run_score(
+        tmp_path,
+        "--scenarios",
+        str(shared / "womd"),
+        "--submission",
+        str(shared / "golden" / "637f20cafde22ff8__logreplay.binproto"),
+        "--config",
+        "2019",
+    )
     assert proc.returncode == 2
     assert "2019" in proc.stderr
 

@@ -26,6 +26,7 @@ from wosac_eval.parse.errors import (
 from wosac_eval.protos import sim_agents_submission_pb2
 
 from support.paths import SHARED
+
 Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission
 
 
@@ -140,9 +141,7 @@ def test_tar_archives_stream_every_shard_in_order(tmp_path, shards, file_name, m
 
 def test_a_plain_tar_named_tar_gz_is_read_with_a_warning(tmp_path, shards):
     path = make_tar(tmp_path / "lying.tar.gz", shards, "w")
-    with pytest.warns(
-        ArchiveNameWarning, match="name says compressed tar, but this is a uncompressed tar"
-    ):
+    with pytest.warns(ArchiveNameWarning, match="name says compressed tar, but this is a uncompressed tar"):
         found = read_all(path)
     assert [data for _, data in found] == list(shards.values())
 
@@ -156,9 +155,7 @@ def test_an_archive_named_binproto_is_read_with_a_warning(tmp_path, shards):
 def test_random_bytes_named_like_an_archive_are_refused(tmp_path):
     path = tmp_path / "sub.tar.gz"
     path.write_bytes(bytes(range(256)) * 4)
-    with pytest.raises(
-        ArchiveError, match="sub.tar.gz: named like a compressed tar archive but is neither"
-    ):
+    with pytest.raises(ArchiveError, match="sub.tar.gz: named like a compressed tar archive but is neither"):
         read_all(path)
 
 
@@ -166,9 +163,7 @@ def test_random_bytes_named_binproto_fail_when_parsed(tmp_path):
     path = tmp_path / "sub.binproto"
     path.write_bytes(b"\xff" * 64)
     ((name, data),) = read_all(path)
-    with pytest.raises(
-        InvalidShardError, match="shard sub.binproto: not a valid SimAgentsChallengeSubmission"
-    ):
+    with pytest.raises(InvalidShardError, match="shard sub.binproto: not a valid SimAgentsChallengeSubmission"):
         parse_submission_shard(name, data)
 
 
@@ -251,9 +246,7 @@ def test_oversize_member_is_named(tmp_path, shards):
 
 
 def test_total_decompressed_size_is_limited(tmp_path):
-    members = {
-        f"m{i}.binproto": b"\x00" * 3000 for i in range(10)
-    }  # 30 kB of zeros, tiny when gzipped
+    members = {f"m{i}.binproto": b"\x00" * 3000 for i in range(10)}  # 30 kB of zeros, tiny when gzipped
     path = make_tar(tmp_path / "bomb.tar.gz", members, "w:gz")
     assert path.stat().st_size < 2000
     # The third member's header already shows the total would pass the limit: refused before its data.
@@ -308,9 +301,7 @@ def test_truncated_plain_tar_inside_data_and_inside_header(tmp_path):
     raw = make_tar(tmp_path / "full.tar", members).read_bytes()
     last_header = raw.rfind(b"submission/b.binproto")
     (tmp_path / "data.tar").write_bytes(raw[: last_header + 512 + 100])
-    with pytest.raises(
-        ArchiveError, match="member 'submission/b.binproto' is truncated|unexpected end"
-    ):
+    with pytest.raises(ArchiveError, match="member 'submission/b.binproto' is truncated|unexpected end"):
         read_all(tmp_path / "data.tar")
     (tmp_path / "header.tar").write_bytes(raw[: last_header + 200])
     with pytest.raises(
@@ -320,9 +311,7 @@ def test_truncated_plain_tar_inside_data_and_inside_header(tmp_path):
         read_all(tmp_path / "header.tar")
     garbage = raw[:last_header] + b"\x7f" * 512 + raw[last_header + 512 :]
     (tmp_path / "garbage.tar").write_bytes(garbage)
-    with pytest.raises(
-        ArchiveError, match="garbage.tar: corrupt tar header after member 'submission/a.binproto'"
-    ):
+    with pytest.raises(ArchiveError, match="garbage.tar: corrupt tar header after member 'submission/a.binproto'"):
         read_all(tmp_path / "garbage.tar")
 
 

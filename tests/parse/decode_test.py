@@ -1,4 +1,5 @@
 """decode_message: a parse refused for memory is a MemoryError, damaged bytes stay a DecodeError."""
+
 from __future__ import annotations
 
 import subprocess
@@ -46,8 +47,7 @@ def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_d
     # line a run printed before it ended is checked.
     printed = []
     for margin in range(0, 2**21 + 1, 2**17):
-        done = subprocess.run([sys.executable, "-c", _PROGRAM, str(margin)],
-                              capture_output=True, text=True, timeout=60)
+        done = subprocess.run([sys.executable, "-c", _PROGRAM, str(margin)], capture_output=True, text=True, timeout=60)
         assert done.returncode in (0, -11), (margin, done.returncode, done.stderr)
         printed.append(dict(line.split(": ") for line in done.stdout.splitlines()))
     for lines in printed:
@@ -55,5 +55,9 @@ def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_d
         assert lines.get("damaged", "DecodeError") == "DecodeError", printed
         assert lines.get("limit kept", "True") == "True", printed
     # The reason decode_message exists: the runtime reports a refused allocation as damaged bytes.
-    assert any(lines.get("runtime") == "DecodeError" and lines.get("valid") == "MemoryError"
-               and lines.get("damaged") == "DecodeError" for lines in printed), printed
+    assert any(
+        lines.get("runtime") == "DecodeError"
+        and lines.get("valid") == "MemoryError"
+        and lines.get("damaged") == "DecodeError"
+        for lines in printed
+    ), printed

@@ -2,6 +2,7 @@
 exact sizes, floods of empty messages, garbage bytes, the compression-ratio budget and max_scenarios
 across shards (validation names the shard; partial scoring reads none of it). Real demo submissions,
 real protobuf bytes."""
+
 from __future__ import annotations
 
 import gzip
@@ -41,11 +42,17 @@ def test_the_census_passes_a_real_shard_at_its_exact_sizes_and_refuses_one_below
     assert scenes == 32 and objects > 1
     check_message_counts(name, data)  # the defaults
     check_message_counts(name, data, InputLimits(max_scenarios=1, max_joint_scenes=scenes, max_objects=objects))
-    with pytest.raises(SizeLimitError, match=rf"shard {name}: scenario_rollouts\[0\] holds more than "
-                                             rf"max_joint_scenes={scenes - 1} joint_scenes"):
+    with pytest.raises(
+        SizeLimitError,
+        match=rf"shard {name}: scenario_rollouts\[0\] holds more than "
+        rf"max_joint_scenes={scenes - 1} joint_scenes",
+    ):
         check_message_counts(name, data, InputLimits(max_joint_scenes=scenes - 1))
-    with pytest.raises(SizeLimitError, match=rf"scenario_rollouts\[0\]\.joint_scenes\[0\] holds more than "
-                                             rf"max_objects={objects - 1} simulated_trajectories"):
+    with pytest.raises(
+        SizeLimitError,
+        match=rf"scenario_rollouts\[0\]\.joint_scenes\[0\] holds more than "
+        rf"max_objects={objects - 1} simulated_trajectories",
+    ):
         check_message_counts(name, data, InputLimits(max_objects=objects - 1))
     with pytest.raises(SizeLimitError, match="more than max_scenarios=0 scenario_rollouts"):
         check_message_counts(name, data, InputLimits(max_scenarios=0))
@@ -57,8 +64,10 @@ def test_a_flood_of_empty_messages_is_refused_before_parsing():
     check_message_counts("few.binproto", b"\x0a\x00" * allowed)  # within the fixed allowance
     flood = b"\x0a\x00" * 20_000  # 40 kB: 20,000 empty scenario_rollouts
     budget = allowed + len(flood) // limits.message_bytes
-    with pytest.raises(SizeLimitError, match=f"shard flood.binproto: more than {budget} messages in "
-                                             f"{len(flood)} bytes at the top level"):
+    with pytest.raises(
+        SizeLimitError,
+        match=f"shard flood.binproto: more than {budget} messages in {len(flood)} bytes at the top level",
+    ):
         check_message_counts("flood.binproto", flood)
     # The same flood one level down, empty trajectories of one joint scene: max_objects stops it first,
     # and the message budget where max_objects is raised past it.
@@ -82,7 +91,7 @@ def test_garbage_bytes_never_break_the_census(demo):
     _, data, _ = first_shard(demo[1])
     rng = random.Random(7)
     for _ in range(300):
-        sample = bytearray(data[:rng.randrange(1, 4096)])
+        sample = bytearray(data[: rng.randrange(1, 4096)])
         for _ in range(rng.randrange(1, 16)):  # flip bytes of a real prefix
             sample[rng.randrange(len(sample))] = rng.randrange(256)
         for blob in (bytes(sample), rng.randbytes(rng.randrange(1, 512))):
@@ -97,8 +106,7 @@ def test_the_compression_ratio_budget_applies_to_a_compressed_shard(tmp_path):
     shard.write_bytes(gzip.compress(b"\x10\x01" * 200_000))  # 400 kB in about 1 kB
     compressed = shard.stat().st_size
     limits = InputLimits(max_compression_ratio=10, ratio_floor_bytes=4096)
-    for read in (lambda: list(iter_submission_shards(shard, limits=limits)),
-                 lambda: check_container(shard, limits)):
+    for read in (lambda: list(iter_submission_shards(shard, limits=limits)), lambda: check_container(shard, limits)):
         with pytest.raises(SizeLimitError, match=f"max_compression_ratio: 10 times the {compressed} compressed"):
             read()
     assert len(next(iter(iter_submission_shards(shard)))[1]) == 400_000  # the default budget allows it

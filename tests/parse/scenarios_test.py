@@ -27,9 +27,7 @@ from support.paths import SHARED
 
 def small_scenario(scenario_id: str, num_tracks: int = 2) -> scenario_pb2.Scenario:
     """A tiny but well-formed scenario with a few tracks and one map feature."""
-    scenario = scenario_pb2.Scenario(
-        scenario_id=scenario_id, current_time_index=1, timestamps_seconds=[0.0, 0.1, 0.2]
-    )
+    scenario = scenario_pb2.Scenario(scenario_id=scenario_id, current_time_index=1, timestamps_seconds=[0.0, 0.1, 0.2])
     for track_id in range(num_tracks):
         track = scenario.tracks.add(id=track_id, object_type=scenario_pb2.Track.TYPE_VEHICLE)
         for step in range(3):
@@ -103,9 +101,7 @@ def test_undecodable_record_names_file_and_offset(tmp_path):
     write_records(path, [small_scenario("ok").SerializeToString(), b"\xff\xff\xff"])
     second_offset = list(iter_records(path))[1].offset
     for action in (lambda: list(iter_scenarios(path)), lambda: ScenarioIndex(path)):
-        with pytest.raises(
-            ParseError, match=f"bad.tfrecord \\(record at byte offset {second_offset}\\)"
-        ):
+        with pytest.raises(ParseError, match=f"bad.tfrecord \\(record at byte offset {second_offset}\\)"):
             action()
 
 
@@ -113,9 +109,7 @@ def test_scenario_id_must_be_text(tmp_path):
     path = tmp_path / "bytes-id.tfrecord"
     write_records(path, [b"\x2a\x02\xff\xfe"])  # scenario_id = b"\xff\xfe"
     for action in (lambda: list(iter_scenarios(path)), lambda: ScenarioIndex(path)):
-        with pytest.raises(
-            ParseError, match="(?i)bytes-id.tfrecord \\(record at byte offset 0\\).*utf-8"
-        ):
+        with pytest.raises(ParseError, match="(?i)bytes-id.tfrecord \\(record at byte offset 0\\).*utf-8"):
             action()
 
 
@@ -143,10 +137,7 @@ def test_duplicate_ids_across_shards_name_both_places(tmp_path):
         ScenarioIndex([first, second])
     message = str(caught.value)
     assert "'dup' occurs twice" in message
-    assert (
-        f"{first} (record at byte offset" in message
-        and f"{second} (record at byte offset 0)" in message
-    )
+    assert f"{first} (record at byte offset" in message and f"{second} (record at byte offset 0)" in message
 
 
 def test_index_notices_a_shard_rewritten_after_indexing(tmp_path):
@@ -162,18 +153,14 @@ def test_skimmed_id_matches_a_full_parse():
     source = ScenarioSource(Path("mem"), 0)
     assert scenario_id_of(scenario.SerializeToString(), source) == "id-with-ünicode"
     # The last occurrence wins, as protobuf merging does.
-    doubled = (
-        scenario.SerializeToString() + scenario_pb2.Scenario(scenario_id="z").SerializeToString()
-    )
+    doubled = scenario.SerializeToString() + scenario_pb2.Scenario(scenario_id="z").SerializeToString()
     assert scenario_id_of(doubled, source) == scenario_pb2.Scenario.FromString(doubled).scenario_id
     for bad in (
         b"",
         scenario_pb2.Scenario(current_time_index=3).SerializeToString(),
         b"\x2a\x05ab",
     ):
-        with pytest.raises(
-            ParseError, match="mem \\(record at byte offset 0\\): not a valid Scenario"
-        ):
+        with pytest.raises(ParseError, match="mem \\(record at byte offset 0\\): not a valid Scenario"):
             scenario_id_of(bad, source)
 
 

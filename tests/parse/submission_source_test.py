@@ -1,4 +1,5 @@
 """The one walk over a submission and the handle the stages share (`parse.submission_source`)."""
+
 from __future__ import annotations
 
 import functools
@@ -33,8 +34,9 @@ def _scene(kind: str):
 def demo(tmp_path_factory):
     """(scenario shard paths, a two-shard .tar.gz submission) of three synthetic scenes."""
     root = tmp_path_factory.mktemp("source")
-    paths = scenes.write_scenario_shards([_scene("intersection"), _scene("occlusion"), _scene("cyclists")],
-                                         root / "scenarios", 2)
+    paths = scenes.write_scenario_shards(
+        [_scene("intersection"), _scene("occlusion"), _scene("cyclists")], root / "scenarios", 2
+    )
     archive = baselines.make_submission(paths, "constant_velocity", root / "cv.tar.gz", num_shards=2)
     return paths, archive
 
@@ -56,8 +58,9 @@ def test_spooled_archive_is_decompressed_once(demo, tmp_path):
         got = {sid: read_locator(locator) for sid, locator in source.rollouts_locators()}
         assert got == expected
         some = sorted(expected)[:2]
-        assert {sid: r.SerializeToString() for sid, r in source.rollouts(some).items()} == \
-            {sid: expected[sid] for sid in some}
+        assert {sid: r.SerializeToString() for sid, r in source.rollouts(some).items()} == {
+            sid: expected[sid] for sid in some
+        }
         spool_files = [p for p in tmp_path.rglob("*") if p.is_file()]
         assert spool_files, "the members were spooled"
     assert not any(p.is_file() for p in tmp_path.rglob("*")), "close() removes the spool"

@@ -96,9 +96,9 @@ def test_tarfile_archives_read_as_tarfile_reads_them(format_name):
 
 def test_pax_global_header_and_path_records_apply_as_in_tarfile():
     raw = tar_bytes([("a.binproto", b"1"), ("b.binproto", b"22")], tarfile.PAX_FORMAT, {"comment": "ours"})
-    assert read_with_reader(raw) == read_with_tarfile(raw) == [
-        ("a.binproto", "0", 1, b"1"), ("b.binproto", "0", 2, b"22")
-    ]
+    assert (
+        read_with_reader(raw) == read_with_tarfile(raw) == [("a.binproto", "0", 1, b"1"), ("b.binproto", "0", 2, b"22")]
+    )
     assert parse_pax_records(b"21 path=a/b.binproto\n11 size=42\n") == {"path": "a/b.binproto", "size": "42"}
 
 
@@ -114,8 +114,9 @@ def test_gnu_tar_archives_read_as_tarfile_reads_them(tmp_path, tar_format):
     for name, size in files.items():
         (root / name).write_bytes(rng.randbytes(size))
     archive = tmp_path / "s.tar"
-    subprocess.run(["tar", f"--format={tar_format}", "-cf", str(archive), "-C", str(tmp_path), "submission"],
-                   check=True)
+    subprocess.run(
+        ["tar", f"--format={tar_format}", "-cf", str(archive), "-C", str(tmp_path), "submission"], check=True
+    )
     raw = archive.read_bytes()
     members = read_with_reader(raw)
     assert members == read_with_tarfile(raw)
@@ -124,10 +125,17 @@ def test_gnu_tar_archives_read_as_tarfile_reads_them(tmp_path, tar_format):
 
 def test_cut_archives_yield_the_members_before_the_cut_then_a_format_error():
     rng = random.Random(1)
-    raw = tar_bytes([("a.binproto", rng.randbytes(700)), ("d", None), ("b.binproto", rng.randbytes(40)),
-                     ("c" * 120 + ".binproto", b"xyz")], tarfile.GNU_FORMAT)
+    raw = tar_bytes(
+        [
+            ("a.binproto", rng.randbytes(700)),
+            ("d", None),
+            ("b.binproto", rng.randbytes(40)),
+            ("c" * 120 + ".binproto", b"xyz"),
+        ],
+        tarfile.GNU_FORMAT,
+    )
     full = read_with_reader(raw)
-    end = len(raw) - raw[::-1].index(next(b for b in reversed(raw) if b) .to_bytes(1, "big"))
+    end = len(raw) - raw[::-1].index(next(b for b in reversed(raw) if b).to_bytes(1, "big"))
     for cut in range(0, end + BLOCK):  # every cut up to one block past the last non-zero byte
         source = io.BytesIO(raw[:cut])
         reader = TarStreamReader(source.read)
@@ -140,7 +148,7 @@ def test_cut_archives_yield_the_members_before_the_cut_then_a_format_error():
             pass
         complete = [m for m in got if len(m[3]) == m[2] or m[1] not in "0\x00"]
         # Every member read whole is the archive's own, in order; at most the last one is cut short.
-        assert complete == full[:len(complete)] and len(got) - len(complete) <= 1, cut
+        assert complete == full[: len(complete)] and len(got) - len(complete) <= 1, cut
 
 
 def test_clean_end_truncation_and_corruption_are_told_apart():
@@ -159,21 +167,21 @@ def test_clean_end_truncation_and_corruption_are_told_apart():
 
     assert outcome(raw) == "a.binproto,b.binproto"
     assert outcome(raw[:second]) == "truncated"  # ends after a member without the end block
-    assert outcome(raw[:second + 100]) == "truncated"  # ends inside a header
+    assert outcome(raw[: second + 100]) == "truncated"  # ends inside a header
     flipped = bytearray(raw)
     flipped[second] ^= 0x20
     assert outcome(bytes(flipped)) == "corrupt: bad checksum"
-    header = bytearray(raw[second:second + BLOCK])
+    header = bytearray(raw[second : second + BLOCK])
     header[124:136] = b"0000000000x\x00"
-    assert outcome(raw[:second] + with_checksum(header) + raw[second + BLOCK:]).startswith("corrupt: invalid header")
+    assert outcome(raw[:second] + with_checksum(header) + raw[second + BLOCK :]).startswith("corrupt: invalid header")
 
 
 def test_headers_parse_as_tarfile_parses_them():
     info = tarfile.TarInfo("some/where/x.binproto")
-    info.size = 8 ** 11  # past the 11 octal digits: tarfile's GNU format writes base-256
+    info.size = 8**11  # past the 11 octal digits: tarfile's GNU format writes base-256
     block = info.tobuf(tarfile.GNU_FORMAT)[:BLOCK]
     member = parse_header(block)
-    assert (member.name, member.size, member.type) == ("some/where/x.binproto", 8 ** 11, "0")
+    assert (member.name, member.size, member.type) == ("some/where/x.binproto", 8**11, "0")
     assert parse_header(b"\x00" * BLOCK) is None and is_tar_header(b"\x00" * BLOCK)
     assert not is_tar_header(b"\x00" * 100) and not is_tar_header(b"not a tar header".ljust(BLOCK, b"!"))
     negative = bytearray(block)
@@ -184,8 +192,12 @@ def test_headers_parse_as_tarfile_parses_them():
 
 @pytest.mark.parametrize(
     "record, problem",
-    [(b"99 path=x\n", "malformed pax"), (b"9 path=x\x00", "malformed pax"), (b"0 =\n", "malformed pax"),
-     (b"garbage", "malformed pax")],
+    [
+        (b"99 path=x\n", "malformed pax"),
+        (b"9 path=x\x00", "malformed pax"),
+        (b"0 =\n", "malformed pax"),
+        (b"garbage", "malformed pax"),
+    ],
 )
 def test_malformed_pax_records_are_format_errors(record, problem):
     with pytest.raises(TarFormatError, match=problem):
@@ -208,10 +220,18 @@ def test_mutated_archives_fail_cleanly_or_read_as_tarfile_does():
     """Random byte changes in headers, checksums recomputed as a crafted archive would have them: the
     reader raises TarFormatError or agrees with tarfile."""
     rng = random.Random(7)
-    raw = tar_bytes([("d", None), ("d/a.binproto", rng.randbytes(300)), ("d/" + "n" * 130, b"q" * 10),
-                     ("d/b.binproto", rng.randbytes(1000))], tarfile.PAX_FORMAT)
-    header_offsets = [o for o in range(0, len(raw), BLOCK) if is_tar_header(raw[o:o + BLOCK])
-                      and any(raw[o:o + BLOCK])]
+    raw = tar_bytes(
+        [
+            ("d", None),
+            ("d/a.binproto", rng.randbytes(300)),
+            ("d/" + "n" * 130, b"q" * 10),
+            ("d/b.binproto", rng.randbytes(1000)),
+        ],
+        tarfile.PAX_FORMAT,
+    )
+    header_offsets = [
+        o for o in range(0, len(raw), BLOCK) if is_tar_header(raw[o : o + BLOCK]) and any(raw[o : o + BLOCK])
+    ]
     agreed = failed = 0
     for _ in range(3000):
         data = bytearray(raw)
@@ -219,7 +239,7 @@ def test_mutated_archives_fail_cleanly_or_read_as_tarfile_does():
         offset = header + rng.randrange(BLOCK)
         data[offset] = rng.randrange(256)
         if offset - header not in range(148, 156):
-            data[header:header + BLOCK] = with_checksum(data[header:header + BLOCK])
+            data[header : header + BLOCK] = with_checksum(data[header : header + BLOCK])
         try:
             ours = read_with_reader(bytes(data))
         except TarFormatError:

@@ -172,7 +172,5 @@ def test_truncated_gzip_is_a_corrupt_record(tmp_path):
 def test_not_gzip_despite_the_name(tmp_path):
     path = tmp_path / "plain.tfrecord.gz"
     path.write_bytes(hand_built(PAYLOADS))
-    with pytest.raises(
-        CorruptRecordError, match="plain.tfrecord.gz: corrupt TFRecord at byte offset 0"
-    ):
+    with pytest.raises(CorruptRecordError, match="plain.tfrecord.gz: corrupt TFRecord at byte offset 0"):
         list(iter_records(path))

@@ -5,6 +5,7 @@ every test compares them with what a protobuf parse gives, field by field, inclu
 a parse treats specially: fields in another order, unknown fields, a known field number with the
 wrong wire type, closed-enum values out of range, unpacked repeated floats, negative ids.
 """
+
 import numpy as np
 import pytest
 
@@ -23,8 +24,11 @@ def reference_arrays(scenario):
     """What the parsed fields say: (track values float32 (tracks, steps, 7), valid, ids, types,
     road-edge polylines, surface lane ids, their polylines, signal (lanes, state, stop))."""
     fields = scenario_module._STATE_FIELDS
-    values = np.array([[[getattr(s, f) for f in fields] for s in t.states] for t in scenario.tracks],
-                      np.float64).astype(np.float32).reshape(len(scenario.tracks), -1, len(fields))
+    values = (
+        np.array([[[getattr(s, f) for f in fields] for s in t.states] for t in scenario.tracks], np.float64)
+        .astype(np.float32)
+        .reshape(len(scenario.tracks), -1, len(fields))
+    )
     valid = np.array([[s.valid for s in t.states] for t in scenario.tracks], bool).reshape(values.shape[:2])
     edges, lane_ids, lanes = [], [], []
     for feature in scenario.map_features:
@@ -45,8 +49,16 @@ def reference_arrays(scenario):
                 state[t, ids.index(s.lane)] = s.state
                 stop[t, ids.index(s.lane)] = (s.stop_point.x, s.stop_point.y)
         signals = (np.array(ids), state, stop.astype(np.float32))
-    return (values, valid, np.array([t.id for t in scenario.tracks]), np.array([t.object_type for t in scenario.tracks]),
-            edges, np.array(lane_ids, np.int64), lanes, signals)
+    return (
+        values,
+        valid,
+        np.array([t.id for t in scenario.tracks]),
+        np.array([t.object_type for t in scenario.tracks]),
+        edges,
+        np.array(lane_ids, np.int64),
+        lanes,
+        signals,
+    )
 
 
 def assert_reads_like_a_parse(scenario):
@@ -79,18 +91,27 @@ def random_scenario(seed: int):
     steps = 3
     scenario.timestamps_seconds.extend([0.0, 0.1, 0.2])
     for i in range(4):
-        track = scenario.tracks.add(id=int(rng.integers(-2 ** 31, 2 ** 31)) if i == 3 else i + 1,
-                                    object_type=int(rng.integers(0, 5)))
+        track = scenario.tracks.add(
+            id=int(rng.integers(-(2**31), 2**31)) if i == 3 else i + 1, object_type=int(rng.integers(0, 5))
+        )
         for t in range(steps):
-            values = dict(center_x=rng.uniform(-9e3, 9e3), center_y=rng.uniform(-9e3, 9e3), center_z=rng.normal(),
-                          length=4.5, width=float(rng.uniform(1, 3)), height=1.6, heading=float(rng.uniform(-4, 4)),
-                          velocity_x=1.0, valid=bool(rng.integers(0, 2)))
+            values = dict(
+                center_x=rng.uniform(-9e3, 9e3),
+                center_y=rng.uniform(-9e3, 9e3),
+                center_z=rng.normal(),
+                length=4.5,
+                width=float(rng.uniform(1, 3)),
+                height=1.6,
+                heading=float(rng.uniform(-4, 4)),
+                velocity_x=1.0,
+                valid=bool(rng.integers(0, 2)),
+            )
             for name in list(values):
                 if rng.random() < 0.2:
                     del values[name]
             track.states.add(**values)
     for f in range(6):
-        feature = scenario.map_features.add(id=int(rng.integers(0, 2 ** 40)))
+        feature = scenario.map_features.add(id=int(rng.integers(0, 2**40)))
         points = [dict(x=rng.normal() * 1e3, y=rng.normal() * 1e3, z=rng.normal()) for _ in range(rng.integers(0, 5))]
         if f % 3 == 0:
             feature.road_edge.type = 1
@@ -118,9 +139,14 @@ def test_scenario_arrays_read_like_a_parse(seed):
 
 def test_unknown_fields_wrong_wire_types_and_closed_enums_read_as_a_parse_reads_them():
     scenario = random_scenario(0)
-    extra = (key(12, 0) + b"\x01"                            # a field ObjectState does not know
-             + key(2, 0) + b"\x05"                           # center_x (a double) as a varint: unknown
-             + key(5, 1) + np.float64(3.0).tobytes())        # length (a float) as a double: unknown
+    extra = (
+        key(12, 0)
+        + b"\x01"  # a field ObjectState does not know
+        + key(2, 0)
+        + b"\x05"  # center_x (a double) as a varint: unknown
+        + key(5, 1)
+        + np.float64(3.0).tobytes()
+    )  # length (a float) as a double: unknown
     scenario.tracks[1].states[1].MergeFromString(extra)
     scenario.map_features[0].road_edge.polyline[0].MergeFromString(key(4, 0) + b"\x01")
     scenario.tracks[2].MergeFromString(key(2, 0) + b"\x63")  # object_type 99: out of the enum, ignored
@@ -146,9 +172,10 @@ def test_a_scenario_without_map_or_signals():
 
 
 def trajectory(rng, steps, **fields):
-    values = {name: rng.normal(size=steps).astype(np.float32).tolist() for name in ("center_x", "center_y", "center_z",
-                                                                                    "heading", "length", "width",
-                                                                                    "height")}
+    values = {
+        name: rng.normal(size=steps).astype(np.float32).tolist()
+        for name in ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
+    }
     values.update(fields)
     return pb.SimulatedTrajectory(**values)
 
@@ -167,7 +194,7 @@ def test_float_fields_packed_and_unpacked_with_counts_and_flags():
     for j, f in enumerate(fields):
         expected = np.array(getattr(parsed, f), np.float32)
         assert count[0, j] == len(expected)
-        np.testing.assert_array_equal(values[0, j, :len(expected)], expected[:4])
+        np.testing.assert_array_equal(values[0, j, : len(expected)], expected[:4])
         assert non_finite[0, j] == (not np.isfinite(expected).all())
         assert non_positive[0, j] == bool((expected[np.isfinite(expected)] <= 0).any())
     assert count[0].tolist() == [3, 5, 3, 3]
@@ -178,7 +205,7 @@ def test_rollout_arrays_equal_the_parsed_fields():
     rollouts = pb.ScenarioRollouts(scenario_id="r")
     for _ in range(3):
         scene = rollouts.joint_scenes.add()
-        for object_id in (5, -3, 2 ** 31 - 1):
+        for object_id in (5, -3, 2**31 - 1):
             scene.simulated_trajectories.append(trajectory(rng, 4, object_id=object_id, object_type=object_id % 5))
     rollouts.joint_scenes[1].simulated_trajectories[0].MergeFromString(key(10, 0) + b"\x63")  # type 99: ignored
     rollouts = pb.ScenarioRollouts.FromString(rollouts.SerializeToString())
@@ -186,8 +213,13 @@ def test_rollout_arrays_equal_the_parsed_fields():
     for r, scene in enumerate(rollouts.joint_scenes):
         for a, t in enumerate(scene.simulated_trajectories):
             assert arrays.object_id[r, a] == t.object_id and arrays.object_type[r, a] == t.object_type
-            for name, got in (("center_x", arrays.x), ("heading", arrays.heading), ("length", arrays.length),
-                              ("width", arrays.width), ("height", arrays.height)):
+            for name, got in (
+                ("center_x", arrays.x),
+                ("heading", arrays.heading),
+                ("length", arrays.length),
+                ("width", arrays.width),
+                ("height", arrays.height),
+            ):
                 np.testing.assert_array_equal(got[r, a], np.array(getattr(t, name), np.float32))
 
 
@@ -209,8 +241,17 @@ def test_rollouts_of_odd_shapes_are_refused_by_scene_and_field():
         rollout_arrays(rollouts)
 
 
-@pytest.mark.parametrize("bad", [b"\x0a\x05abc", b"\x0b\x00", b"\x08", b"\x00\x01",
-                                 b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01", b"\x15\x00\x00"])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        b"\x0a\x05abc",
+        b"\x0b\x00",
+        b"\x08",
+        b"\x00\x01",
+        b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01",
+        b"\x15\x00\x00",
+    ],
+)
 def test_walks_refuse_malformed_bytes(bad):
     data = np.frombuffer(bad, np.uint8)
     with pytest.raises(ValueError, match="protobuf wire data"):
@@ -219,12 +260,14 @@ def test_walks_refuse_malformed_bytes(bad):
 
 def test_field_spans_split_a_submission_like_a_parse():
     from wosac_eval.protos import sim_agents_submission_pb2 as pb
+
     submission = pb.SimAgentsChallengeSubmission(account_name="a", unique_method_name="m", authors=["x", "y"])
     for sid in ("s1", "s2", "s3"):
         rollouts = submission.scenario_rollouts.add(scenario_id=sid)
         scene = rollouts.joint_scenes.add()
-        scene.simulated_trajectories.add(object_id=7, center_x=[1.0, 2.0], center_y=[0.5, 0.5],
-                                         center_z=[0.0, 0.0], heading=[0.1, 0.2])
+        scene.simulated_trajectories.add(
+            object_id=7, center_x=[1.0, 2.0], center_y=[0.5, 0.5], center_z=[0.0, 0.0], heading=[0.1, 0.2]
+        )
     raw = submission.SerializeToString()
     spans = field_spans(raw, 1)
     assert [pb.ScenarioRollouts.FromString(raw[a:b]) for a, b in spans] == list(submission.scenario_rollouts)
@@ -234,6 +277,7 @@ def test_field_spans_split_a_submission_like_a_parse():
 
 def test_field_spans_reject_malformed_bytes():
     import pytest
+
     for bad in (b"\x0a\x05abc", b"\x0b\x00", b"\x08", b"\x00\x01", b"\x0a\xff\xff\xff\xff\xff\xff\xff\xff\xff\xff\x01"):
         with pytest.raises(ValueError):
             field_spans(bad, 1)
@@ -256,8 +300,12 @@ def test_scenario_arrays_from_the_parsed_bytes_equal_those_from_the_message():
     entry = map_pb2.TrafficSignalLaneState(lane=3, state=4, stop_point=map_pb2.MapPoint(y=2.5))
     merged_stop = entry.SerializeToString() + key(3, 2) + wire.varint(stop.ByteSize()) + stop.SerializeToString()
     step = key(1, 2) + wire.varint(len(merged_stop)) + merged_stop
-    for extra in (b"", key(8, 2) + wire.varint(len(twice)) + twice, key(8, 2) + wire.varint(len(switched)) + switched,
-                  key(7, 2) + wire.varint(len(step)) + step):
+    for extra in (
+        b"",
+        key(8, 2) + wire.varint(len(twice)) + twice,
+        key(8, 2) + wire.varint(len(switched)) + switched,
+        key(7, 2) + wire.varint(len(step)) + step,
+    ):
         data = raw + extra
         parsed = scenario_pb2.Scenario.FromString(data)
         from_bytes = scenario_module.scenario_arrays(parsed, data)

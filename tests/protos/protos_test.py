@@ -19,9 +19,7 @@ from wosac_eval.protos import (
 
 from support.paths import REPO as REPO_ROOT, SHARED
 
-needs_shared = pytest.mark.skipif(
-    not SHARED.is_dir(), reason="../shared (real WOMD files, official configs) is absent"
-)
+needs_shared = pytest.mark.skipif(not SHARED.is_dir(), reason="../shared (real WOMD files, official configs) is absent")
 
 
 def shared_files(pattern: str) -> list[Path]:
@@ -56,9 +54,7 @@ def test_smoothing_pseudocount_defaults_to_one_thousandth():
 def test_trajectory_floats_are_packed_on_the_wire():
     trajectory = sim_agents_submission_pb2.SimulatedTrajectory(center_x=[1.0, 2.0], object_id=7)
     # Field 2, wire type 2 (one length-delimited run of 8 bytes), then field 6 varint 7.
-    assert (
-        trajectory.SerializeToString() == b"\x12\x08" + b"\x00\x00\x80?\x00\x00\x00@" + b"\x30\x07"
-    )
+    assert trajectory.SerializeToString() == b"\x12\x08" + b"\x00\x00\x80?\x00\x00\x00@" + b"\x30\x07"
 
 
 @needs_shared

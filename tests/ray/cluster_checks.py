@@ -11,6 +11,7 @@ without warning stays alive in the GCS until its health checks fail (13 s on a
 lightly loaded 2-core machine), where `Cluster.add_node` and `wait_for_nodes` wait
 30 s at most, and a node's replacement registers in its own time.
 """
+
 from __future__ import annotations
 
 import json
@@ -45,7 +46,7 @@ from wosac_eval.validate import validate_submission  # noqa: E402
 
 
 NODES_TIMEOUT_S = 300  # nodes to register, and a killed node to be seen dead (Ray's default: 30 s)
-JOB_TIMEOUT_S = 600    # one scoring job or run of tasks through the cluster
+JOB_TIMEOUT_S = 600  # one scoring job or run of tasks through the cluster
 
 
 def canonical(result) -> str:
@@ -78,15 +79,27 @@ def data(tmp_path_factory):
     shards = scenes.write_scenario_shards(scenes.generate_scenes(6, seed=2), root / "scenarios", num_shards=2)
     out = {"scenarios": [str(p) for p in shards]}
     out["sim_agents_folder"] = make_submission(shards, "constant_velocity", root / "cv", num_shards=3)
-    out["scenario_gen_tar"] = make_submission(shards, "log_replay_noise", root / "sg.tar.gz", num_shards=2,
-                                              challenge="scenario_gen")
+    out["scenario_gen_tar"] = make_submission(
+        shards, "log_replay_noise", root / "sg.tar.gz", num_shards=2, challenge="scenario_gen"
+    )
     return out
 
 
 def test_cli_errors_at_once_when_the_cluster_is_unreachable(data):
     started = time.monotonic()
-    done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
-                   "--engine", "ray", "--ray-address", "127.0.0.1:1", "-o", "/dev/null")
+    done = run_cli(
+        "score",
+        "--scenarios",
+        *data["scenarios"],
+        "--submission",
+        str(data["sim_agents_folder"]),
+        "--engine",
+        "ray",
+        "--ray-address",
+        "127.0.0.1:1",
+        "-o",
+        "/dev/null",
+    )
     assert done.returncode == 2, done.stderr
     assert "cannot reach the Ray cluster at 127.0.0.1:1" in done.stderr
     assert time.monotonic() - started < 60
@@ -101,8 +114,19 @@ def test_cli_without_address_starts_a_local_ray(data, tmp_path):
     (ray_tmp / "ray").mkdir()
     (ray_tmp / "ray" / "ray_current_cluster").write_text("127.0.0.1:1")
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_TMPDIR": str(ray_tmp)}
-    done = run_cli("score", "--scenarios", *data["scenarios"], "--submission", str(data["sim_agents_folder"]),
-                   "--engine", "ray", "-o", str(tmp_path / "r.json"), env=env, timeout=JOB_TIMEOUT_S)
+    done = run_cli(
+        "score",
+        "--scenarios",
+        *data["scenarios"],
+        "--submission",
+        str(data["sim_agents_folder"]),
+        "--engine",
+        "ray",
+        "-o",
+        str(tmp_path / "r.json"),
+        env=env,
+        timeout=JOB_TIMEOUT_S,
+    )
     shutil.rmtree(ray_tmp, ignore_errors=True)
     assert done.returncode == 0, done.stderr
     assert canonical(json.loads((tmp_path / "r.json").read_text())) == canonical(local)
@@ -119,13 +143,11 @@ def cluster():
     c.shutdown()
 
 
-@pytest.mark.parametrize("kind, challenge", [("sim_agents_folder", "sim_agents"),
-                                             ("scenario_gen_tar", "scenario_gen")])
+@pytest.mark.parametrize("kind, challenge", [("sim_agents_folder", "sim_agents"), ("scenario_gen_tar", "scenario_gen")])
 def test_cluster_scores_exactly_as_local(cluster, data, kind, challenge):
     c, _ = cluster
     local = score_submission(data["scenarios"], data[kind], challenge=challenge)
-    remote = score_submission(data["scenarios"], data[kind], challenge=challenge, engine="ray",
-                              ray_address=c.address)
+    remote = score_submission(data["scenarios"], data[kind], challenge=challenge, engine="ray", ray_address=c.address)
     assert canonical(remote) == canonical(local)
     assert remote["num_scenarios"] == 6
 
@@ -151,13 +173,18 @@ def test_a_lost_driver_resumes_from_its_journal(cluster, data, tmp_path):
     c, _ = cluster
     local = score_submission(data["scenarios"], data["sim_agents_folder"])
     journal = tmp_path / "run.journal"
-    score_submission(data["scenarios"], data["sim_agents_folder"], engine="ray", ray_address=c.address,
-                     journal=journal)
+    score_submission(data["scenarios"], data["sim_agents_folder"], engine="ray", ray_address=c.address, journal=journal)
     lines = journal.read_bytes().splitlines(keepends=True)
-    journal.write_bytes(b"".join(lines[:1 + 3]))  # the run's identity and the first 3 rows
+    journal.write_bytes(b"".join(lines[: 1 + 3]))  # the run's identity and the first 3 rows
     done: list[int] = []
-    again = score_submission(data["scenarios"], data["sim_agents_folder"], engine="ray", ray_address=c.address,
-                             journal=journal, progress=lambda n, total: done.append(n))
+    again = score_submission(
+        data["scenarios"],
+        data["sim_agents_folder"],
+        engine="ray",
+        ray_address=c.address,
+        journal=journal,
+        progress=lambda n, total: done.append(n),
+    )
     assert canonical(again) == canonical(local)
     assert done[0] == 3 and done[-1] == 6
 
@@ -171,9 +198,14 @@ def test_a_killed_node_loses_no_work(cluster, data, monkeypatch):
     out = {}
 
     def run():
-        out["result"] = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen",
-                                         engine="ray", ray_address=c.address,
-                                         progress=lambda done, total: done and first_result.set())
+        out["result"] = score_submission(
+            data["scenarios"],
+            data["scenario_gen_tar"],
+            challenge="scenario_gen",
+            engine="ray",
+            ray_address=c.address,
+            progress=lambda done, total: done and first_result.set(),
+        )
 
     worker = threading.Thread(target=run)
     worker.start()
@@ -197,16 +229,14 @@ def test_tasks_of_a_dead_node_are_retried_elsewhere(cluster, tmp_path):
     release = Path(ray_helpers.release_path(str(log)))
     executor = make_executor("ray", ray_address=c.address)
     results = []
-    thread = threading.Thread(target=lambda: results.extend(
-        executor.imap(ray_helpers.held_square, range(9), str(log))))
+    thread = threading.Thread(target=lambda: results.extend(executor.imap(ray_helpers.held_square, range(9), str(log))))
     thread.start()
     by_id = {node.node_id: k for k, node in enumerate(nodes)}
     deadline, victim, worker = time.monotonic() + JOB_TIMEOUT_S, None, None
     try:
         while victim is None and time.monotonic() < deadline:  # the first worker node seen running an item
             starts = [line.split() for line in log.read_text().splitlines()] if log.exists() else []
-            victim, worker = next(((by_id[node], int(pid)) for _, node, pid in starts if node in by_id),
-                                  (None, None))
+            victim, worker = next(((by_id[node], int(pid)) for _, node, pid in starts if node in by_id), (None, None))
             time.sleep(0.05)
         assert victim is not None, f"no item ran on a worker node: {log.read_text() if log.exists() else ''}"
         c.remove_node(nodes[victim], allow_graceful=False)
@@ -244,13 +274,17 @@ def test_service_fans_jobs_out_to_the_cluster(cluster, data, tmp_path):
 
     c, _ = cluster
     local = score_submission(data["scenarios"], data["scenario_gen_tar"], challenge="scenario_gen")
-    server = Server(tmp_path / "service", [Path(p) for p in data["scenarios"]], WOSAC_WORKERS=1,
-                    WOSAC_RAY_ADDRESS=c.address)
+    server = Server(
+        tmp_path / "service", [Path(p) for p in data["scenarios"]], WOSAC_WORKERS=1, WOSAC_RAY_ADDRESS=c.address
+    )
     server.start(timeout=120)  # under load the service's start alone can pass the harness's default 30 s
     try:
         with server.client(server.key("team")) as client:
-            sid = client.post("/v1/submissions", content=Path(data["scenario_gen_tar"]).read_bytes(),
-                              params={"challenge": "scenario_gen"}).json()["id"]
+            sid = client.post(
+                "/v1/submissions",
+                content=Path(data["scenario_gen_tar"]).read_bytes(),
+                params={"challenge": "scenario_gen"},
+            ).json()["id"]
             status = server.wait_state(client, sid, timeout=JOB_TIMEOUT_S)
             assert status["state"] == "done", status
             assert canonical(client.get(f"/v1/submissions/{sid}/results").json()) == canonical(local)

@@ -9,6 +9,7 @@ ends (with `unshare`, `--kill-child`: also when the timeout kills it), the kerne
 ends whatever is left in it, so no Ray process outlives the checks.
 Without Ray, root or `unshare`, the calling test skips and says why.
 """
+
 from __future__ import annotations
 
 import os
@@ -44,8 +45,14 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]
-    done = subprocess.run(["unshare", *flags, "bash", "-c", inner], cwd=REPO, capture_output=True, text=True,
-                          timeout=timeout, env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"})
+    done = subprocess.run(
+        ["unshare", *flags, "bash", "-c", inner],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"},
+    )
     # A failure's report from its start (what failed, then the logs it carries), else the output's tail.
     failures = done.stdout.partition("= FAILURES =")[2]
     summary = (failures[:20000] if failures else "\n".join(done.stdout.splitlines()[-40:])) + "\n" + done.stderr[-3000:]

@@ -6,6 +6,7 @@ Ray binds to the machine's interface address; `unshare -n` (as root) gives the
 checks a namespace whose only interface is `lo`. Without Ray, root or
 `unshare` the test skips and says why.
 """
+
 from __future__ import annotations
 
 import sys

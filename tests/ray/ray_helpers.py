@@ -1,4 +1,5 @@
 """Functions the cluster checks run as Ray tasks (imported by the Ray worker processes)."""
+
 import os
 import time
 

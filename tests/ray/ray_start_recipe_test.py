@@ -6,6 +6,7 @@ token (the CLI and the service), and `ray stop` leaving no process.
 In network and PID namespaces of its own (`loopback.run_checks`): only loopback, and `ray stop` sees
 only the recipe's processes. Without Ray, root or `unshare` the test skips and says why.
 """
+
 from __future__ import annotations
 
 import sys

@@ -8,6 +8,7 @@ last check can see that every process the recipe started is gone. HOME and
 RAY_TMPDIR are fresh folders: a user's ~/.ray/auth_token and /tmp/ray session
 are never read or touched. Not collected on its own (its name matches no test pattern).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -39,8 +40,11 @@ STOP = ["ray", "stop"]
 NO_TOKEN_LINE = "requires token authentication and this process sent no token: set RAY_AUTH_MODE=token"
 
 if os.getppid() != 1:  # not the first process's child: not in a PID namespace of our own
-    pytest.skip("run by ray_start_recipe_test.py in a PID namespace of its own: `ray stop` here would stop "
-                "every Ray process of the machine", allow_module_level=True)
+    pytest.skip(
+        "run by ray_start_recipe_test.py in a PID namespace of its own: `ray stop` here would stop "
+        "every Ray process of the machine",
+        allow_module_level=True,
+    )
 
 
 def canonical(result) -> str:
@@ -69,15 +73,18 @@ def env():
     (root / "home").mkdir()
     (root / "tmp").mkdir()
     base = {k: v for k, v in os.environ.items() if not k.startswith(("RAY_ADDRESS", "RAY_AUTH"))}
-    base.update(HOME=str(root / "home"), RAY_TMPDIR=str(root / "tmp"), RAY_DISABLE_USAGE_STATS="1",
-                PATH=os.pathsep.join([str(BIN), os.environ.get("PATH", "")]))
+    base.update(
+        HOME=str(root / "home"),
+        RAY_TMPDIR=str(root / "tmp"),
+        RAY_DISABLE_USAGE_STATS="1",
+        PATH=os.pathsep.join([str(BIN), os.environ.get("PATH", "")]),
+    )
     yield base
     shutil.rmtree(root, ignore_errors=True)
 
 
 def run(command: list[str], env: dict, timeout: float = 300, **extra) -> subprocess.CompletedProcess:
-    return subprocess.run(command, env={**env, **extra}, cwd=REPO, capture_output=True, text=True,
-                          timeout=timeout)
+    return subprocess.run(command, env={**env, **extra}, cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
 
 @pytest.fixture(scope="module")
@@ -86,8 +93,12 @@ def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("recipe")
     shards = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=4), root / "scenarios", num_shards=1)
     submission = make_submission(shards, "constant_velocity", root / "cv.tar.gz")
-    return {"scenarios": [str(p) for p in shards], "submission": str(submission),
-            "local": score_submission(shards, submission), "out": root}
+    return {
+        "scenarios": [str(p) for p in shards],
+        "submission": str(submission),
+        "local": score_submission(shards, submission),
+        "out": root,
+    }
 
 
 @pytest.fixture(scope="module")
@@ -116,8 +127,14 @@ def cluster(env):
 
 def test_the_documentation_gives_this_recipe():
     section = (REPO / "docs" / "ray.md").read_text()
-    for text in ("ray get-auth-token --generate", "export RAY_AUTH_MODE=token", "ray start --head --port=6379",
-                 "ray start --address=HEAD_IP:6379", "--engine ray --ray-address HEAD_IP:6379", "ray stop"):
+    for text in (
+        "ray get-auth-token --generate",
+        "export RAY_AUTH_MODE=token",
+        "ray start --head --port=6379",
+        "ray start --address=HEAD_IP:6379",
+        "--engine ray --ray-address HEAD_IP:6379",
+        "ray stop",
+    ):
         assert text in section, text
 
 
@@ -135,8 +152,23 @@ def test_both_nodes_joined(cluster):
 
 def test_the_cluster_scores_exactly_as_the_local_engine(cluster, data):
     out = data["out"] / "ray.json"
-    done = run(["wosac-eval", "score", "--scenarios", *data["scenarios"], "--submission", data["submission"],
-                "--engine", "ray", "--ray-address", ADDRESS, "-o", str(out)], cluster["token_env"])
+    done = run(
+        [
+            "wosac-eval",
+            "score",
+            "--scenarios",
+            *data["scenarios"],
+            "--submission",
+            data["submission"],
+            "--engine",
+            "ray",
+            "--ray-address",
+            ADDRESS,
+            "-o",
+            str(out),
+        ],
+        cluster["token_env"],
+    )
     assert done.returncode == 0, done.stderr[-5000:]
     assert canonical(json.loads(out.read_text())) == canonical(data["local"])
 
@@ -190,20 +222,43 @@ def test_a_client_without_the_right_token_gets_one_line_that_names_the_fix(clust
     and a Ray Client (ray://) without RAY_AUTH_MODE: one line each, naming what to set; and the service
     without RAY_AUTH_MODE fails its job with the first case's line. All but the third wait out Ray's
     retries (20 s; the Ray Client's 30 s), side by side."""
+
     def score(address):
-        return ["wosac-eval", "score", "--scenarios", *data["scenarios"], "--submission", data["submission"],
-                "--engine", "ray", "--ray-address", address, "-o", str(data["out"] / "never.json")]
+        return [
+            "wosac-eval",
+            "score",
+            "--scenarios",
+            *data["scenarios"],
+            "--submission",
+            data["submission"],
+            "--engine",
+            "ray",
+            "--ray-address",
+            address,
+            "-o",
+            str(data["out"] / "never.json"),
+        ]
 
     empty_home = data["out"] / "empty-home"
     empty_home.mkdir()
-    cases = {"no mode": (ADDRESS, {}),
-             "wrong token": (ADDRESS, {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": "0" * 64}),
-             "no token": (ADDRESS, {"RAY_AUTH_MODE": "token", "HOME": str(empty_home)}),
-             "client, no mode": (CLIENT_ADDRESS, {})}
+    cases = {
+        "no mode": (ADDRESS, {}),
+        "wrong token": (ADDRESS, {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": "0" * 64}),
+        "no token": (ADDRESS, {"RAY_AUTH_MODE": "token", "HOME": str(empty_home)}),
+        "client, no mode": (CLIENT_ADDRESS, {}),
+    }
     with service(tmp_path / "service", data, env, ADDRESS) as (_, job):
-        procs = {name: subprocess.Popen(score(address), env={**env, **extra}, cwd=REPO, stdout=subprocess.PIPE,
-                                        stderr=subprocess.PIPE, text=True)
-                 for name, (address, extra) in cases.items()}
+        procs = {
+            name: subprocess.Popen(
+                score(address),
+                env={**env, **extra},
+                cwd=REPO,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.PIPE,
+                text=True,
+            )
+            for name, (address, extra) in cases.items()
+        }
         done = {}
         for name, proc in procs.items():
             stdout, stderr = proc.communicate(timeout=300)

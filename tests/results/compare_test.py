@@ -27,8 +27,17 @@ def _load(tmp_path, data, name, weights=None):
     return load_result(path, weights_for=lambda config: weights)
 
 
-def _pair(tmp_path, n=300, base_kwargs=None, new_kwargs=None, weights=None, base_slice=slice(None),
-          new_slice=slice(None), base_config="2025", new_config="2025"):
+def _pair(
+    tmp_path,
+    n=300,
+    base_kwargs=None,
+    new_kwargs=None,
+    weights=None,
+    base_slice=slice(None),
+    new_slice=slice(None),
+    base_config="2025",
+    new_config="2025",
+):
     base = result_json(synthetic_scenarios(n, seed=0, **(base_kwargs or {}))[base_slice], config=base_config)
     new = result_json(synthetic_scenarios(n, seed=0, **(new_kwargs or {}))[new_slice], config=new_config)
     return _load(tmp_path, base, "base.json", weights), _load(tmp_path, new, "new.json", weights)
@@ -63,10 +72,12 @@ def test_constant_improvement_is_detected_on_every_shifted_metric(tmp_path):
 
 
 def test_lower_is_better_metrics_are_judged_the_right_way(tmp_path):
-    base, new = _pair(tmp_path, new_kwargs={"shift": {"simulated_collision_rate": 0.01,
-                                                      "min_average_displacement_error": -0.2}})
-    c = compare_results(base, new, gates=[Gate.parse("simulated_collision_rate:0.005"), Gate.parse("min_ade:0")],
-                        **FAST)
+    base, new = _pair(
+        tmp_path, new_kwargs={"shift": {"simulated_collision_rate": 0.01, "min_average_displacement_error": -0.2}}
+    )
+    c = compare_results(
+        base, new, gates=[Gate.parse("simulated_collision_rate:0.005"), Gate.parse("min_ade:0")], **FAST
+    )
     rate = c.metric("simulated_collision_rate")
     assert rate.verdict == WORSE and rate.regression == pytest.approx(0.01)
     assert c.metric("min_ade").verdict == BETTER
@@ -77,8 +88,9 @@ def test_lower_is_better_metrics_are_judged_the_right_way(tmp_path):
 def test_noisy_regression_fails_a_tight_gate_and_passes_a_loose_one(tmp_path):
     shift = {"collision_indication_likelihood": -0.04}  # weight 0.25: metametric -0.01
     base, new = _pair(tmp_path, new_kwargs={"shift": shift, "jitter": 0.02})
-    c = compare_results(base, new, gates=[Gate.parse("metametric:0.005"), Gate.parse("realism_meta_metric:0.02")],
-                        **FAST)
+    c = compare_results(
+        base, new, gates=[Gate.parse("metametric:0.005"), Gate.parse("realism_meta_metric:0.02")], **FAST
+    )
     mm = c.metric("metametric")
     assert mm.verdict == WORSE and mm.ci_low < -0.01 < mm.ci_high
     assert [g.passed for g in c.gates] == [False, True]
@@ -95,8 +107,9 @@ def test_only_significant_gate_ignores_a_noise_level_regression(tmp_path):
     else:
         pytest.fail("no seed gave a non-significant regression")
     assert not c.passed
-    lenient = compare_results(base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")],
-                              only_significant=True, **FAST)
+    lenient = compare_results(
+        base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")], only_significant=True, **FAST
+    )
     assert lenient.passed and "not significant" in lenient.gates[0].reason
 
 
@@ -123,13 +136,13 @@ def test_aggregate_only_buckets_are_compared_without_statistics(tmp_path):
 
 
 def test_different_scenario_sets_compare_the_shared_ones_and_warn(tmp_path):
-    base, new = _pair(tmp_path, base_slice=slice(0, 200), new_slice=slice(50, 300),
-                      new_kwargs={"shift": {"metametric": 0.003}})
+    base, new = _pair(
+        tmp_path, base_slice=slice(0, 200), new_slice=slice(50, 300), new_kwargs={"shift": {"metametric": 0.003}}
+    )
     c = compare_results(base, new, **FAST)
     assert (c.num_shared, c.num_base_only, c.num_new_only) == (150, 50, 100)
     assert c.metric("metametric").difference == pytest.approx(0.003)
-    assert any("scenario sets differ" in w and "50 only in base" in w and "100 only in new" in w
-               for w in c.warnings)
+    assert any("scenario sets differ" in w and "50 only in base" in w and "100 only in new" in w for w in c.warnings)
 
 
 def test_no_shared_scenario_is_an_error(tmp_path):
@@ -151,15 +164,19 @@ def test_different_configs_warn(tmp_path):
 
 def test_metric_selection_aliases_and_unknown_names(tmp_path):
     base, new = _pair(tmp_path, n=50)
-    c = compare_results(base, new, metrics=["realism_meta_metric", "min_ade"],
-                        gates=[Gate.parse("simulated_offroad_rate:0.01")], **FAST)
-    assert [m.metric for m in c.metrics] == ["metametric", "min_average_displacement_error",
-                                             "simulated_offroad_rate"]
+    c = compare_results(
+        base, new, metrics=["realism_meta_metric", "min_ade"], gates=[Gate.parse("simulated_offroad_rate:0.01")], **FAST
+    )
+    assert [m.metric for m in c.metrics] == ["metametric", "min_average_displacement_error", "simulated_offroad_rate"]
     assert canonical_metric(" MetaMetric ") == "metametric"
     with pytest.raises(CompareError, match="unknown metric 'speed'.*linear_speed_likelihood"):
         canonical_metric("speed")
-    for bad, message in [("metametric", "expected METRIC:DELTA"), ("metametric:x", "not a number"),
-                         ("metametric:-1", ">= 0"), ("nope:0.1", "unknown metric")]:
+    for bad, message in [
+        ("metametric", "expected METRIC:DELTA"),
+        ("metametric:x", "not a number"),
+        ("metametric:-1", ">= 0"),
+        ("nope:0.1", "unknown metric"),
+    ]:
         with pytest.raises(CompareError, match=message):
             Gate.parse(bad)
 
@@ -181,9 +198,14 @@ def test_json_and_table_outputs(tmp_path):
     out = json.loads(json.dumps(c.to_json()))
     assert out["passed"] is False and out["scenarios"]["shared"] == 60
     assert [m["metric"] for m in out["metrics"]] == list(METRICS)
-    assert out["gates"][0] == {"gate": "metametric:0.005", "metric": "metametric", "max_regression": 0.005,
-                               "regression": pytest.approx(0.01), "passed": False,
-                               "reason": out["gates"][0]["reason"]}
+    assert out["gates"][0] == {
+        "gate": "metametric:0.005",
+        "metric": "metametric",
+        "max_regression": 0.005,
+        "regression": pytest.approx(0.01),
+        "passed": False,
+        "reason": out["gates"][0]["reason"],
+    }
     table = format_table(c)
     header = next(line for line in table.splitlines() if line.startswith("metric"))
     assert header.split() == ["metric", "best", "base", "new", "diff", "95%", "CI", "p", "verdict"]
@@ -214,8 +236,7 @@ def test_gate_on_a_metric_neither_file_has_fails_with_a_reason(tmp_path):
 def test_relative_gates_scale_with_the_baseline(tmp_path):
     base, new = _pair(tmp_path, n=80, new_kwargs={"shift": {"metametric": -0.01}})
     base_mean = float(base.values["metametric"].mean())  # about 0.45: a 0.01 drop is about 2.2%
-    c = compare_results(base, new, gates=[Gate.parse("metametric:2%"), Gate.parse("realism_meta_metric:3%")],
-                        **FAST)
+    c = compare_results(base, new, gates=[Gate.parse("metametric:2%"), Gate.parse("realism_meta_metric:3%")], **FAST)
     assert [g.passed for g in c.gates] == [False, True]
     assert c.gates[0].allowed == pytest.approx(0.02 * base_mean)
     assert c.gates[0].gate.spec == "metametric:2%" and c.gates[0].gate.relative

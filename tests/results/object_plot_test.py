@@ -1,4 +1,5 @@
 """`wosac-eval plot --object ID`: one evaluated object's rollouts against its log, with its feature time series."""
+
 from __future__ import annotations
 
 import io
@@ -59,15 +60,16 @@ def test_plot_object_writes_a_png_and_refuses_mistakes(tmp_path, files):
     scenarios, submission, scenario = files
     evaluated = int(scenario_arrays(scenario).evaluated_ids("sim_agents")[0])
     common = ["--scenarios", str(scenarios), "--scenario", scenario.scenario_id]
-    done = run_cli("plot", *common, "--submission", str(submission), "--object", str(evaluated),
-                   "-o", str(tmp_path / "o.png"))
+    done = run_cli(
+        "plot", *common, "--submission", str(submission), "--object", str(evaluated), "-o", str(tmp_path / "o.png")
+    )
     assert done.returncode == 0, done.stderr
     assert f"object {evaluated}" in done.stdout and "Warning" not in done.stderr
     _image((tmp_path / "o.png").read_bytes())
-    for extra, message in ((["--submission", str(submission), "--object", "999999", "-o", str(tmp_path / "x.png")],
-                            "is not evaluated"),
-                           (["--object", str(evaluated), "-o", str(tmp_path / "x.png")], "--object needs --submission"),
-                           (["--submission", str(submission), "--object", str(evaluated), "-o",
-                             str(tmp_path / "x.gif")], "draws a .png")):
+    for extra, message in (
+        (["--submission", str(submission), "--object", "999999", "-o", str(tmp_path / "x.png")], "is not evaluated"),
+        (["--object", str(evaluated), "-o", str(tmp_path / "x.png")], "--object needs --submission"),
+        (["--submission", str(submission), "--object", str(evaluated), "-o", str(tmp_path / "x.gif")], "draws a .png"),
+    ):
         refused = run_cli("plot", *common, *extra)
         assert refused.returncode == 2 and message in refused.stderr, refused.stderr

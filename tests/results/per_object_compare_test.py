@@ -4,6 +4,7 @@ object type x criticality strata that changed most, with paired intervals over s
 Two small real runs: the real WOMD scene 637f20cafde22ff8 scored for two golden policies (skipped without
 ../shared), and the demo's synthetic scenes for two baselines (strata over several scenes).
 """
+
 from __future__ import annotations
 
 import json
@@ -15,8 +16,13 @@ from support.paths import SHARED
 from wosac_eval.fronts.cli import main
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
 from wosac_eval.results import stats
-from wosac_eval.results.per_object_compare import (OBJECT_METAMETRIC, PerObjectError, compare_objects,
-                                                  format_objects, load_objects)
+from wosac_eval.results.per_object_compare import (
+    OBJECT_METAMETRIC,
+    PerObjectError,
+    compare_objects,
+    format_objects,
+    load_objects,
+)
 from wosac_eval.scoring.result_reader import load_result
 
 SCENARIO = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
@@ -24,8 +30,12 @@ GOLDEN = SHARED / "golden"
 
 
 def _score(scenarios, submission, output) -> None:
-    assert main(["score", "--scenarios", str(scenarios), "--submission", str(submission), "--per-object",
-                 "-o", str(output)]) == 0
+    assert (
+        main(
+            ["score", "--scenarios", str(scenarios), "--submission", str(submission), "--per-object", "-o", str(output)]
+        )
+        == 0
+    )
 
 
 @pytest.fixture(scope="module")
@@ -43,8 +53,9 @@ def demo(tmp_path_factory):
     from wosac_eval.fronts.demo_pipeline import run_demo
 
     workdir = tmp_path_factory.mktemp("demo")
-    run_demo(workdir, num_scenes=6, policies=("constant_velocity", "idm"), challenge="sim_agents",
-             log=lambda *a, **k: None)
+    run_demo(
+        workdir, num_scenes=6, policies=("constant_velocity", "idm"), challenge="sim_agents", log=lambda *a, **k: None
+    )
     for policy in ("constant_velocity", "idm"):
         _score(workdir / "scenarios", workdir / "submissions" / f"{policy}.tar.gz", workdir / f"{policy}.json")
     return workdir / "constant_velocity.json", workdir / "idm.json"
@@ -63,18 +74,24 @@ def test_real_runs_objects_changes_are_the_objects_values(real, capsys):
         assert change.difference == pytest.approx(n.values[OBJECT_METAMETRIC][j] - b.values[OBJECT_METAMETRIC][i])
         moved = {f: n.values[f][j] - b.values[f][i] for f in LIKELIHOOD_FIELDS}
         assert change.most_changed_difference == pytest.approx(
-            max((d for d in moved.values() if np.isfinite(d)), key=abs))
+            max((d for d in moved.values() if np.isfinite(d)), key=abs)
+        )
     # One scene: a stratum's difference is the mean of its objects' differences. A stationary policy's
     # speeds are far from the log's: the moving objects' speed likelihoods drop.
-    speed = next(s for s in comparison.strata if s.object_type == "vehicle" and s.criticality == "all"
-                 and s.metric == "linear_speed_likelihood")
+    speed = next(
+        s
+        for s in comparison.strata
+        if s.object_type == "vehicle" and s.criticality == "all" and s.metric == "linear_speed_likelihood"
+    )
     vehicles = b.object_type == "vehicle"
     drops = n.values["linear_speed_likelihood"][vehicles] - b.values["linear_speed_likelihood"][vehicles]
     assert speed.num_scenarios == 1 and speed.difference == pytest.approx(drops.mean())
     assert drops.max() <= 0 < -drops.min()
     capsys.readouterr()
-    assert main(["compare", str(base_path), str(new_path), "--per-object", "--json", "--n-boot", "200",
-                 "--n-perm", "200"]) == 0
+    assert (
+        main(["compare", str(base_path), str(new_path), "--per-object", "--json", "--n-boot", "200", "--n-perm", "200"])
+        == 0
+    )
     out = json.loads(capsys.readouterr().out)["per_object"]
     assert out["objects"]["matched"] == len(b) and out["changed_strata"][0]["label"]
 
@@ -86,12 +103,20 @@ def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     assert comparison.num_tests == len(comparison.strata) > 10
     b, n = load_objects(base), load_objects(new)
     # Recompute one stratum by hand: vehicles over every scene, the objects' meta-metric.
-    stratum = next(s for s in comparison.strata if s.object_type == "vehicle" and s.criticality == "all"
-                   and s.metric == OBJECT_METAMETRIC)
+    stratum = next(
+        s
+        for s in comparison.strata
+        if s.object_type == "vehicle" and s.criticality == "all" and s.metric == OBJECT_METAMETRIC
+    )
     vehicles = b.object_type == "vehicle"
     scenes = sorted(set(b.scenario_id[vehicles]))
-    per_scene = [(b.values[OBJECT_METAMETRIC][vehicles & (b.scenario_id == s)].mean(),
-                  n.values[OBJECT_METAMETRIC][vehicles & (n.scenario_id == s)].mean()) for s in scenes]
+    per_scene = [
+        (
+            b.values[OBJECT_METAMETRIC][vehicles & (b.scenario_id == s)].mean(),
+            n.values[OBJECT_METAMETRIC][vehicles & (n.scenario_id == s)].mean(),
+        )
+        for s in scenes
+    ]
     pairs = np.array(per_scene)
     test = stats.paired_test(pairs[:, 0], pairs[:, 1], seed=3, n_boot=500, n_perm=500)
     assert stratum.num_scenarios == len(scenes) and stratum.num_objects == int(vehicles.sum())
@@ -107,13 +132,47 @@ def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     text = format_objects(compare_objects(base, new, top=5, n_boot=200, n_perm=200, metrics=["metametric"]))
     assert "vehicles" in text and "strata that changed most" in text and "95% CI" in text
     capsys.readouterr()
-    assert main(["compare", str(base_path), str(new_path), "--per-object", "--metric",
-                 "metametric,collision_indication_likelihood", "--top", "3", "--n-boot", "200", "--n-perm", "200"]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                str(base_path),
+                str(new_path),
+                "--per-object",
+                "--metric",
+                "metametric,collision_indication_likelihood",
+                "--top",
+                "3",
+                "--n-boot",
+                "200",
+                "--n-perm",
+                "200",
+            ]
+        )
+        == 0
+    )
     printed = capsys.readouterr().out
     assert "objects that changed most" in printed and "collision_indication_likelihood" in printed
     markdown = base_path.parent / "summary.md"
-    assert main(["compare", str(base_path), str(new_path), "--per-object", "--top", "3", "--n-boot", "200",
-                 "--n-perm", "200", "--markdown-output", str(markdown)]) == 0
+    assert (
+        main(
+            [
+                "compare",
+                str(base_path),
+                str(new_path),
+                "--per-object",
+                "--top",
+                "3",
+                "--n-boot",
+                "200",
+                "--n-perm",
+                "200",
+                "--markdown-output",
+                str(markdown),
+            ]
+        )
+        == 0
+    )
     text = markdown.read_text()
     assert "#### Per object: the strata that changed most" in text and text.count("| `synthetic-") == 6
 

@@ -97,8 +97,8 @@ def test_report_sections_and_worst_scenarios(with_baseline):
     _assert_report_structure(_Page(text), with_comparison=True)
     assert "better" in text  # the metametric verdict
     # Scenario 17's meta-metric was set to 0.001 in the new run: the largest drop against the baseline.
-    drops = text[text.index('data-changes="drops"'):]
-    assert drops[drops.index("<code>") + 6:].startswith("scn000017</code>")
+    drops = text[text.index('data-changes="drops"') :]
+    assert drops[drops.index("<code>") + 6 :].startswith("scn000017</code>")
 
 
 def test_report_without_baseline_has_no_comparison_and_plots_buckets(alone):
@@ -148,9 +148,19 @@ def test_report_renders_in_headless_chromium(with_baseline):
     dom = browser.dump_dom(path)
     page = _Page(dom)
     _assert_report_structure(page, with_comparison=True)
-    headings = [h for h in ("Headline score", "Buckets", "Collision, offroad and red-light rates",
-                            "Per-scenario distributions", "Worst scenarios per metric", "Comparison with the baseline",
-                            "Skipped scenarios") if h in dom]
+    headings = [
+        h
+        for h in (
+            "Headline score",
+            "Buckets",
+            "Collision, offroad and red-light rates",
+            "Per-scenario distributions",
+            "Worst scenarios per metric",
+            "Comparison with the baseline",
+            "Skipped scenarios",
+        )
+        if h in dom
+    ]
     assert len(headings) == 7
 
 
@@ -171,9 +181,16 @@ def test_report_of_a_result_where_every_scenario_was_skipped():
     # What `score --partial` writes when nothing could be scored: no scenarios, NaN aggregates.
     from wosac_eval.scoring.result_reader import parse_result
 
-    result = parse_result({"config": "2025", "scenarios": [], "aggregate": {"metametric": float("nan")},
-                           "buckets": {"realism_meta_metric": float("nan")},
-                           "skipped": [{"scenario_id": "s1", "reason": "invalid rollouts"}]}, "empty.json")
+    result = parse_result(
+        {
+            "config": "2025",
+            "scenarios": [],
+            "aggregate": {"metametric": float("nan")},
+            "buckets": {"realism_meta_metric": float("nan")},
+            "skipped": [{"scenario_id": "s1", "reason": "invalid rollouts"}],
+        },
+        "empty.json",
+    )
     text = render_report(result)
     page = _Page(text)
     assert sorted(page.sections) == sorted(s for s in SECTIONS if s != "comparison")

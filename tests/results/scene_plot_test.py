@@ -1,4 +1,5 @@
 """`wosac-eval plot` and the scene pictures of the report: what is drawn is what the metrics flagged."""
+
 from __future__ import annotations
 
 import io
@@ -78,8 +79,19 @@ def test_plot_writes_png_gif_and_html(tmp_path, files):
 def test_plot_page_steps_through_frames_in_a_browser(tmp_path, files):
     scenarios, submission, ids = files
     out = tmp_path / "s.html"
-    done = run_cli("plot", "--scenarios", str(scenarios), "--submission", str(submission), "--scenario", ids[0],
-                   "-o", str(out), "--every", "10")
+    done = run_cli(
+        "plot",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--scenario",
+        ids[0],
+        "-o",
+        str(out),
+        "--every",
+        "10",
+    )
     assert done.returncode == 0, done.stderr
     dom = dump_dom(out)
     # The script ran: the frame shows a PNG and the label names its step.
@@ -96,8 +108,19 @@ def test_plot_mistakes_are_usage_errors(tmp_path, files):
     assert ambiguous.returncode == 2 and "choose one with --scenario" in ambiguous.stderr
     unknown = run_cli("plot", "--scenarios", str(scenarios), "-o", str(tmp_path / "s.png"), "--scenario", "nope")
     assert unknown.returncode == 2 and ids[0] in unknown.stderr
-    wrong = run_cli("plot", "--scenarios", str(scenarios), "--submission", str(submission), "--scenario", ids[0],
-                    "--challenge", "scenario_gen", "-o", str(tmp_path / "s.png"))
+    wrong = run_cli(
+        "plot",
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--scenario",
+        ids[0],
+        "--challenge",
+        "scenario_gen",
+        "-o",
+        str(tmp_path / "s.png"),
+    )
     assert wrong.returncode == 1 and "--challenge sim_agents" in wrong.stderr
     assert not (tmp_path / "s.png").exists()
     log_only = run_cli("plot", "--scenarios", str(scenarios), "--scenario", ids[0], "-o", str(tmp_path / "log.png"))
@@ -107,14 +130,26 @@ def test_plot_mistakes_are_usage_errors(tmp_path, files):
 def test_report_shows_the_worst_scenes(tmp_path, files):
     scenarios, submission, _ = files
     result = tmp_path / "r.json"
-    assert run_cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "-o",
-                   str(result)).returncode == 0
+    assert (
+        run_cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "-o", str(result)).returncode
+        == 0
+    )
     import json
 
     scored = json.loads(result.read_text())["scenarios"]
     worst = min(scored, key=lambda s: s["metametric"])["scenario_id"]
-    done = run_cli("report", str(result), "--html", str(tmp_path / "r.html"), "--scenarios", str(scenarios),
-                   "--submission", str(submission), "--scenes", "1")
+    done = run_cli(
+        "report",
+        str(result),
+        "--html",
+        str(tmp_path / "r.html"),
+        "--scenarios",
+        str(scenarios),
+        "--submission",
+        str(submission),
+        "--scenes",
+        "1",
+    )
     assert done.returncode == 0, done.stderr
     page = (tmp_path / "r.html").read_text()
     assert re.findall(r'<figure class="scene" data-scenario="([^"]+)">', page) == [worst]

@@ -58,8 +58,12 @@ def test_exact_p_value_matches_scipy_permutation_test():
     p, exact = stats.permutation_p_value(new - base, rng, n_perm=5000)
     assert exact
     ref = scipy.stats.permutation_test(
-        (new, base), lambda x, y: np.mean(x - y), permutation_type="samples", n_resamples=np.inf,
-        alternative="two-sided")
+        (new, base),
+        lambda x, y: np.mean(x - y),
+        permutation_type="samples",
+        n_resamples=np.inf,
+        alternative="two-sided",
+    )
     assert p[0] == pytest.approx(ref.pvalue, rel=1e-9)
 
 
@@ -76,11 +80,14 @@ def test_monte_carlo_p_value_agrees_with_exact_enumeration():
 
 def test_p_values_are_uniform_under_the_null():
     # Over many seeds, data with no real difference: the p-value must be (close to) uniform.
-    p = np.array([
-        stats.paired_test(np.zeros(40), np.random.default_rng(seed).standard_t(3, size=40), seed=seed,
-                          n_boot=1, n_perm=199).p_value[0]
-        for seed in range(400)
-    ])
+    p = np.array(
+        [
+            stats.paired_test(
+                np.zeros(40), np.random.default_rng(seed).standard_t(3, size=40), seed=seed, n_boot=1, n_perm=199
+            ).p_value[0]
+            for seed in range(400)
+        ]
+    )
     for level in (0.05, 0.1, 0.25, 0.5, 0.75):
         share = np.mean(p <= level)
         sigma = np.sqrt(level * (1 - level) / p.size)

@@ -1,5 +1,6 @@
 """The report's "worst objects" section (a result scored with `score --per-object`): per bucket, the objects
 contributing most to its gap from 1, which split that gap exactly; on the demo's synthetic scenes."""
+
 from __future__ import annotations
 
 import html.parser
@@ -52,8 +53,21 @@ def scored(tmp_path_factory):
     workdir = tmp_path_factory.mktemp("demo")
     run_demo(workdir, num_scenes=6, policies=("constant_velocity",), challenge="sim_agents", log=lambda *a, **k: None)
     output = workdir / "cv.json"
-    assert main(["score", "--scenarios", str(workdir / "scenarios"), "--submission",
-                 str(workdir / "submissions" / "constant_velocity.tar.gz"), "--per-object", "-o", str(output)]) == 0
+    assert (
+        main(
+            [
+                "score",
+                "--scenarios",
+                str(workdir / "scenarios"),
+                "--submission",
+                str(workdir / "submissions" / "constant_velocity.tar.gz"),
+                "--per-object",
+                "-o",
+                str(output),
+            ]
+        )
+        == 0
+    )
     return output
 
 

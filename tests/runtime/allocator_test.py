@@ -1,4 +1,5 @@
 """The allocator setting: applied on glibc, opt-out honoured, and page faults really drop."""
+
 import os
 import subprocess
 import sys
@@ -6,8 +7,10 @@ import textwrap
 
 import pytest
 
-glibc_only = pytest.mark.skipif(not sys.platform.startswith("linux") or os.confstr("CS_GNU_LIBC_VERSION") is None,
-                                reason="mallopt thresholds are a glibc feature")
+glibc_only = pytest.mark.skipif(
+    not sys.platform.startswith("linux") or os.confstr("CS_GNU_LIBC_VERSION") is None,
+    reason="mallopt thresholds are a glibc feature",
+)
 
 # Allocates and frees 2 MiB arrays many times, reporting the minor page faults it took.
 PROBE = textwrap.dedent("""
@@ -26,8 +29,9 @@ PROBE = textwrap.dedent("""
 
 
 def _probe(mode, **env):
-    out = subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True,
-                         env={**os.environ, **env}).stdout.split()
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True, env={**os.environ, **env}
+    ).stdout.split()
     return out[0] == "True", int(out[1])
 
 

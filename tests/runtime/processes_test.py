@@ -1,4 +1,5 @@
 """Worker pools fork by default and spawn once JAX is loaded; both run real work."""
+
 import os
 import subprocess
 import sys
@@ -22,8 +23,9 @@ PROBE = textwrap.dedent("""
 
 
 def _start_method(mode: str) -> list[str]:
-    return subprocess.run([sys.executable, "-c", PROBE, mode], capture_output=True, text=True,
-                          check=True).stdout.split()
+    return subprocess.run(
+        [sys.executable, "-c", PROBE, mode], capture_output=True, text=True, check=True
+    ).stdout.split()
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="fork is the default start method on Linux only")
@@ -89,8 +91,13 @@ def test_workers_of_a_parent_killed_while_they_start_end(tmp_path, mode):
     script = tmp_path / "probe.py"
     script.write_text(KILLED_AT_ONCE_PROBE)
     marker = ("WOSAC_POOL_PROBE", str(tmp_path))  # found by the environment they inherit
-    done = subprocess.run([sys.executable, str(script), mode], capture_output=True, text=True, timeout=60,
-                          env={**os.environ, marker[0]: marker[1]})
+    done = subprocess.run(
+        [sys.executable, str(script), mode],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={**os.environ, marker[0]: marker[1]},
+    )
     assert done.returncode == -9, done.stderr
     left = wait_gone(processes_with(*marker), 15)
     try:

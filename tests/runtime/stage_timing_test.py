@@ -3,6 +3,7 @@
 Timings are not checked here (they are measured by the benchmark scripts); what is checked is that
 the breakdown scores what `score_scenario` scores, and that its operation counts are consistent.
 """
+
 import sys
 
 import numpy as np
@@ -24,13 +25,23 @@ import stage_timing  # noqa: E402
 def test_breakdown_scores_as_score_scenario_and_counts_add_up(challenge, config):
     scenario = scenes.generate_scenes(1, seed=3)[0]
     raw_rollouts = rollouts_bytes(policy_rollouts(scenario, "constant_velocity", challenge=challenge))
-    r = stage_timing.stage_breakdown(scenario.SerializeToString(), raw_rollouts, load_config(config), challenge,
-                                     repeat=1)
-    expected = score_scenario(scenario, sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts),
-                              load_config(config), challenge=challenge)
+    r = stage_timing.stage_breakdown(
+        scenario.SerializeToString(), raw_rollouts, load_config(config), challenge, repeat=1
+    )
+    expected = score_scenario(
+        scenario,
+        sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts),
+        load_config(config),
+        challenge=challenge,
+    )
     assert r["metametric"] == pytest.approx(expected["metametric"], abs=0)
-    assert set(r["stages"]) >= {"parse protobufs", "map index", "features: road edge distance",
-                                "features: nearest object", "estimators and metrics"}
+    assert set(r["stages"]) >= {
+        "parse protobufs",
+        "map index",
+        "features: road edge distance",
+        "features: nearest object",
+        "estimators and metrics",
+    }
     assert all(np.isfinite(s) and s >= 0 for s in r["stages"].values())
     edge, nearest = r["counts"]["road edge"], r["counts"]["nearest object"]
     # Four corners per valid evaluated box, over 33 samples (the log and 32 rollouts).

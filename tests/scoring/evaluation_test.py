@@ -1,4 +1,5 @@
 """One evaluation resolved at the edge (`scoring.evaluation`): the rules every front shares."""
+
 from __future__ import annotations
 
 import pytest
@@ -46,14 +47,17 @@ def test_a_textproto_serves_either_challenge(tmp_path):
         assert resolve_evaluation(challenge, path).config_name == str(path)
 
 
-@pytest.mark.parametrize("kwargs, fragment", [
-    ({"challenge": "scenario-generation"}, "unknown challenge"),
-    ({"config": "2026"}, "neither a preset"),
-    ({"backend": "torch"}, "backend"),
-    ({"engine": "slurm"}, "engine"),
-    ({"select": "top:0"}, "--select"),
-    ({"metadata_checks": "ignore"}, "metadata_checks"),
-])
+@pytest.mark.parametrize(
+    "kwargs, fragment",
+    [
+        ({"challenge": "scenario-generation"}, "unknown challenge"),
+        ({"config": "2026"}, "neither a preset"),
+        ({"backend": "torch"}, "backend"),
+        ({"engine": "slurm"}, "engine"),
+        ({"select": "top:0"}, "--select"),
+        ({"metadata_checks": "ignore"}, "metadata_checks"),
+    ],
+)
 def test_each_bad_argument_is_one_sentence(kwargs, fragment):
     with pytest.raises(ValueError, match=fragment):
         resolve_evaluation(**kwargs)
@@ -62,21 +66,43 @@ def test_each_bad_argument_is_one_sentence(kwargs, fragment):
 def test_cli_refuses_a_preset_of_the_other_challenge_before_reading(tmp_path, capsys):
     submission = tmp_path / "s.binproto"
     submission.write_bytes(b"")
-    code = main(["score", "--scenarios", str(tmp_path / "none.tfrecord"), "--submission", str(submission),
-                 "--challenge", "scenario_gen", "--config", "2025"])
+    code = main(
+        [
+            "score",
+            "--scenarios",
+            str(tmp_path / "none.tfrecord"),
+            "--submission",
+            str(submission),
+            "--challenge",
+            "scenario_gen",
+            "--config",
+            "2025",
+        ]
+    )
     err = capsys.readouterr().err
     assert code == 2
     assert "config '2025' is the sim_agents challenge's; the scenario_gen challenge's is 'scenario_gen_2025'" in err
 
 
-@pytest.mark.parametrize("choice, bad", [(Backend, "torch"), (Engine, "slurm"), (MetadataChecks, "ignore"),
-                                         (Mode, "float16"), (Search, "gpu"), (Mask, "wheels")])
+@pytest.mark.parametrize(
+    "choice, bad",
+    [
+        (Backend, "torch"),
+        (Engine, "slurm"),
+        (MetadataChecks, "ignore"),
+        (Mode, "float16"),
+        (Search, "gpu"),
+        (Mask, "wheels"),
+    ],
+)
 def test_every_choice_is_refused_in_one_sentence_naming_the_value_and_the_allowed_ones(choice, bad):
     with pytest.raises(ValueError) as error:
         choice.parse(bad)
     assert str(error.value) == f"unknown {choice.kind()} {bad!r}: choose one of {', '.join(choice.names())}"
-    assert all(choice.parse(name) is member and str(member) == name == f"{member}"
-               for name, member in zip(choice.names(), choice))
+    assert all(
+        choice.parse(name) is member and str(member) == name == f"{member}"
+        for name, member in zip(choice.names(), choice)
+    )
 
 
 def test_a_metric_with_a_mask_no_kernel_computes_is_refused():
@@ -87,8 +113,11 @@ def test_a_metric_with_a_mask_no_kernel_computes_is_refused():
 
 def test_run_options_are_checked_once_and_hold_members():
     options = RunOptions(backend="numpy", engine="local", metadata_checks="error", workers=3)
-    assert (options.backend, options.engine, options.metadata_checks) == (Backend.NUMPY, Engine.LOCAL,
-                                                                          MetadataChecks.ERROR)
+    assert (options.backend, options.engine, options.metadata_checks) == (
+        Backend.NUMPY,
+        Engine.LOCAL,
+        MetadataChecks.ERROR,
+    )
     assert resolve_evaluation("sim_agents", None, options).options is options
     assert resolve_evaluation("sim_agents", workers=3, metadata_checks="error").options == options
     for bad in (0, 1.5, True):
@@ -104,12 +133,14 @@ def test_evaluation_and_arguments_that_disagree_are_refused_before_any_work(tmp_
     evaluation = resolve_evaluation("sim_agents", "2024", workers=2)
     missing = tmp_path / "none"  # never read: the refusal comes first
     with pytest.raises(ValueError) as error:
-        score_submission(missing, missing, "2025", evaluation=evaluation, backend="numpy", workers=3,
-                         challenge="scenario_gen")
+        score_submission(
+            missing, missing, "2025", evaluation=evaluation, backend="numpy", workers=3, challenge="scenario_gen"
+        )
     message = str(error.value)
     assert message.startswith("score_submission: evaluation= already decides the run, and ")
-    assert "challenge='scenario_gen' (it has 'sim_agents'); config='2025' (it has '2024'); workers=3 (it has 2)" \
-        in message
+    assert (
+        "challenge='scenario_gen' (it has 'sim_agents'); config='2025' (it has '2024'); workers=3 (it has 2)" in message
+    )
     assert "backend" not in message  # the same as the evaluation's: no conflict
     with pytest.raises(ValueError, match=r"metadata_checks='error' \(it has 'warn'\)"):
         score_submission(missing, missing, evaluation=evaluation, metadata_checks="error")
@@ -119,6 +150,11 @@ def test_evaluation_and_arguments_that_disagree_are_refused_before_any_work(tmp_
 
 def test_arguments_that_agree_with_the_evaluation_are_accepted():
     evaluation = resolve_evaluation("sim_agents", "2024", workers=2)
-    agreed = evaluation_for("score_submission", evaluation, "sim_agents", "2024",
-                            {"workers": 2, "backend": Backend.NUMPY, "limits": InputLimits()})
+    agreed = evaluation_for(
+        "score_submission",
+        evaluation,
+        "sim_agents",
+        "2024",
+        {"workers": 2, "backend": Backend.NUMPY, "limits": InputLimits()},
+    )
     assert agreed is evaluation

@@ -10,6 +10,7 @@ with the gzip stream stitched from pre-deflated pieces: the archive is also read
 standard library (tarfile, gzip) and its shards parsed, so a fault of the stitching cannot hide
 behind a reader of this project.
 """
+
 from __future__ import annotations
 
 import json
@@ -25,15 +26,38 @@ from wosac_eval.parse.tfrecord import iter_records
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
 
 SCENES, SHARDS, SYNTHETIC = 48, 3, 4  # 6 base scenes: the 2 real ones and 4 synthetic
-REQUIRED_METADATA = ("account_name", "unique_method_name", "affiliation", "description", "method_link",
-                     "num_model_parameters")
+REQUIRED_METADATA = (
+    "account_name",
+    "unique_method_name",
+    "affiliation",
+    "description",
+    "method_link",
+    "num_model_parameters",
+)
 
 
 def _bench(tmp_path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, str(REPO / "benchmarks" / "full_scale.py"), "--scenes", str(SCENES),
-                           "--shards", str(SHARDS), "--synthetic", str(SYNTHETIC), "--workdir", str(tmp_path / "work"),
-                           "--workers", "2", *args],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "benchmarks" / "full_scale.py"),
+            "--scenes",
+            str(SCENES),
+            "--shards",
+            str(SHARDS),
+            "--synthetic",
+            str(SYNTHETIC),
+            "--workdir",
+            str(tmp_path / "work"),
+            "--workers",
+            "2",
+            *args,
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def _check_workload(build) -> None:
@@ -92,8 +116,9 @@ def test_every_path_gives_the_same_result(tmp_path):
         assert row["digest"]["num_scenarios"] == SCENES and row["digest"]["copies_alike"]
         assert row["peak_rss"] and all(role["max_mib"] > 0 for role in row["peak_rss"].values())
     # The real base scene's copies score as the official implementation scored it (golden).
-    golden = json.loads((require_shared("golden") / "golden" /
-                         "637f20cafde22ff8__official_test_submission.json").read_text())
+    golden = json.loads(
+        (require_shared("golden") / "golden" / "637f20cafde22ff8__official_test_submission.json").read_text()
+    )
     assert abs(rows["cli"]["digest"]["base_metametric"]["0"] - golden["metrics"]["2025"]["metametric"]) < 1e-5
     # --per-object: the same scores, a side file of every evaluated object, its cost against the cli path's.
     objects = rows["cli-objects"]
@@ -121,11 +146,32 @@ def test_scenario_gen_workload_validates_and_scores_as_the_golden(tmp_path):
     require_shared("womd")
     shared = require_shared("golden/scenario_gen/scenes")
     summary = tmp_path / "summary.json"
-    done = subprocess.run([sys.executable, str(REPO / "benchmarks" / "full_scale.py"), "--challenge", "scenario_gen",
-                           "--scenes", str(SG_SCENES), "--shards", str(SG_SHARDS), "--synthetic", str(SG_SYNTHETIC),
-                           "--workdir", str(tmp_path / "work"), "--workers", "2", "--paths", "validate,cli",
-                           "--json", str(summary)],
-                          cwd=REPO, capture_output=True, text=True, timeout=600)
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(REPO / "benchmarks" / "full_scale.py"),
+            "--challenge",
+            "scenario_gen",
+            "--scenes",
+            str(SG_SCENES),
+            "--shards",
+            str(SG_SHARDS),
+            "--synthetic",
+            str(SG_SYNTHETIC),
+            "--workdir",
+            str(tmp_path / "work"),
+            "--workers",
+            "2",
+            "--paths",
+            "validate,cli",
+            "--json",
+            str(summary),
+        ],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stdout[-4000:] + done.stderr[-4000:]
     data = json.loads(summary.read_text())
     build = data["build"]

@@ -1,4 +1,5 @@
 """An interrupted scoring run resumes from its journal and writes the document an uninterrupted run writes."""
+
 from __future__ import annotations
 
 import json
@@ -100,10 +101,10 @@ def test_a_run_resumed_late_reads_the_members_it_kept_not_the_archive(workload, 
     records = pickle.loads(validated_path(journal).read_bytes())["records"]
     kept = [shard for shard, _ in records if shard.path is not None]
     assert kept and all(Path(shard.path).parent == members_path(journal) for shard in kept)
-    assert [shard.name for shard, _ in records][-len(kept):] == [shard.name for shard in kept], "the last ones"
+    assert [shard.name for shard, _ in records][-len(kept) :] == [shard.name for shard in kept], "the last ones"
     assert sum(shard.size for shard in kept) <= submission.stat().st_size
     left = len(records[-1][1])  # the last member's scenarios are not scored yet
-    journal.write_bytes(b"".join(_journal_lines(journal)[:1 + N - left]))
+    journal.write_bytes(b"".join(_journal_lines(journal)[: 1 + N - left]))
     stat = submission.stat()
     submission.write_bytes(bytes(stat.st_size))
     os.utime(submission, ns=(stat.st_atime_ns, stat.st_mtime_ns))
@@ -166,13 +167,30 @@ def test_cli_restart_discards_the_journal(workload, uninterrupted, tmp_path):
     scenarios, submission = workload
     output = tmp_path / "result.json"
     (tmp_path / "result.json.journal").write_bytes(b"left over\n")
-    done = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "-o", str(output),
-                               "--restart", "--no-analysis"), capture_output=True, text=True, timeout=300)
+    done = subprocess.run(
+        _cli(
+            "--scenarios",
+            str(scenarios),
+            "--submission",
+            str(submission),
+            "-o",
+            str(output),
+            "--restart",
+            "--no-analysis",
+        ),
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert done.returncode == 0, done.stderr
     assert "resuming" not in done.stderr and not (tmp_path / "result.json.journal").exists()
     assert json.loads(output.read_text())["buckets"] == uninterrupted["buckets"]
-    usage = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "--restart"),
-                           capture_output=True, text=True, timeout=120)
+    usage = subprocess.run(
+        _cli("--scenarios", str(scenarios), "--submission", str(submission), "--restart"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert usage.returncode == 2 and "--restart needs --output" in usage.stderr
 
 

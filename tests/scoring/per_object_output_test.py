@@ -5,6 +5,7 @@ On the demo's synthetic scenes (generated here, 6 scenes, two policies): every o
 values, an interrupted and resumed run writes the same side file byte for byte, and a run without
 `--per-object` is the same document as before (no key added).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,8 +33,13 @@ def demo(tmp_path_factory):
     from wosac_eval.fronts.demo_pipeline import run_demo
 
     workdir = tmp_path_factory.mktemp("per-object-demo")
-    run_demo(workdir, num_scenes=SCENES, policies=("constant_velocity", "idm"), challenge="sim_agents",
-             log=lambda *a, **k: None)
+    run_demo(
+        workdir,
+        num_scenes=SCENES,
+        policies=("constant_velocity", "idm"),
+        challenge="sim_agents",
+        log=lambda *a, **k: None,
+    )
     return workdir / "scenarios", workdir / "submissions" / "idm.tar.gz"
 
 
@@ -58,8 +64,11 @@ def test_objects_equal_score_scenario_per_object(demo, scored):
     grouped = _by_scenario(path)
     ids = [row["scenario_id"] for row in result["scenarios"]]
     assert list(grouped) == ids  # the result's order
-    assert result["per_object"] == {"objects": "r.objects.jsonl", "format": "jsonl",
-                                    "num_objects": sum(map(len, grouped.values()))}
+    assert result["per_object"] == {
+        "objects": "r.objects.jsonl",
+        "format": "jsonl",
+        "num_objects": sum(map(len, grouped.values())),
+    }
     index = ScenarioIndex([scenarios])
     rollouts = find_scenario_rollouts(submission, ids)
     for sid in ids:
@@ -87,8 +96,9 @@ def test_scene_fields_are_count_weighted_geometric_means_of_the_objects(scored):
     checked = 0
     for row in result["scenarios"]:
         for field in LIKELIHOOD_FIELDS:
-            counted = [(r[count_column(field)], r[field]) for r in grouped[row["scenario_id"]]
-                       if r[count_column(field)] > 0]
+            counted = [
+                (r[count_column(field)], r[field]) for r in grouped[row["scenario_id"]] if r[count_column(field)] > 0
+            ]
             if not counted:
                 continue
             total = sum(c for c, _ in counted)
@@ -124,7 +134,7 @@ def test_resumed_run_writes_the_same_objects(demo, scored, tmp_path):
     assert objects.read_bytes() == path.read_bytes()
     lines = journal.read_bytes().splitlines(keepends=True)
     assert len(lines) == 1 + SCENES and all(b'"objects"' in line for line in lines[1:])
-    journal.write_bytes(b"".join(lines[:3]) + lines[3][:len(lines[3]) // 2])  # as a kill leaves it
+    journal.write_bytes(b"".join(lines[:3]) + lines[3][: len(lines[3]) // 2])  # as a kill leaves it
     identity = json.loads(lines[0])["run"]
     with ScoringJournal(journal, identity) as kept:  # the kept rows are held without their objects
         assert len(kept.done) == 2 and not any("objects" in row for row in kept.done.values())
@@ -132,8 +142,14 @@ def test_resumed_run_writes_the_same_objects(demo, scored, tmp_path):
         assert kept.objects_of(first["scenario_id"]) == first["objects"]
     objects.unlink()
     calls = []
-    resumed = score_submission([scenarios], submission, journal=journal, per_object=True, objects=objects,
-                               progress=lambda done, total: calls.append(done))
+    resumed = score_submission(
+        [scenarios],
+        submission,
+        journal=journal,
+        per_object=True,
+        objects=objects,
+        progress=lambda done, total: calls.append(done),
+    )
     assert calls[0] == 2  # two rows were kept: not scored again
     assert objects.read_bytes() == path.read_bytes()
     assert json.loads(json.dumps(resumed)) == json.loads(json.dumps(result))
@@ -157,13 +173,21 @@ def test_cli_per_object_resumes_and_default_output_is_unchanged(demo, scored, tm
     side = tmp_path / "result.objects.jsonl"
     assert side.read_bytes() == path.read_bytes()
     document = json.loads(output.read_text())
-    assert document.pop("per_object") == {"objects": side.name, "format": "jsonl",
-                                          "num_objects": result["per_object"]["num_objects"]}
+    assert document.pop("per_object") == {
+        "objects": side.name,
+        "format": "jsonl",
+        "num_objects": result["per_object"]["num_objects"],
+    }
     assert document == json.loads(plain)
     assert not (tmp_path / "result.json.journal").exists()
     # Interrupted after two scenarios: the journal a kill leaves; the same command resumes.
-    score_submission([scenarios], submission, journal=tmp_path / "full.journal", per_object=True,
-                     objects=tmp_path / "scratch.objects.jsonl")
+    score_submission(
+        [scenarios],
+        submission,
+        journal=tmp_path / "full.journal",
+        per_object=True,
+        objects=tmp_path / "scratch.objects.jsonl",
+    )
     lines = (tmp_path / "full.journal").read_bytes().splitlines(keepends=True)
     (tmp_path / "result.json.journal").write_bytes(b"".join(lines[:3]))
     side.unlink()

@@ -65,8 +65,10 @@ def test_bucket_with_zero_weights_is_left_out():
 
 def _official_weights(config_path: Path) -> dict[str, float]:
     text = config_path.read_text()
-    return {m.group(1): float(m.group(2))
-            for m in re.finditer(r"^(\w+): \{.*?metametric_weight: ([0-9.]+)", text, re.DOTALL | re.MULTILINE)}
+    return {
+        m.group(1): float(m.group(2))
+        for m in re.finditer(r"^(\w+): \{.*?metametric_weight: ([0-9.]+)", text, re.DOTALL | re.MULTILINE)
+    }
 
 
 def test_weighted_buckets_match_the_official_buckets_on_golden_outputs():
@@ -83,27 +85,44 @@ def test_weighted_buckets_match_the_official_buckets_on_golden_outputs():
             assert value[0] == pytest.approx(metrics["buckets"][name], abs=1e-6), (path.name, name)
 
 
-@pytest.mark.parametrize("mutate, message", [
-    (lambda d: d.pop("scenarios"), "missing 'scenarios'"),
-    (lambda d: d.pop("config"), "missing 'config'"),
-    (lambda d: d["scenarios"][1].pop("offroad_indication_likelihood"),
-     r"scenario 'scn000001' \(scenarios\[1\]\) has no field 'offroad_indication_likelihood'"),
-    (lambda d: d["scenarios"][2].update(metametric="high"),
-     r"scenario 'scn000002' field 'metametric': expected a number, got 'high'"),
-    (lambda d: d["scenarios"][2].update(metametric=True),
-     r"scenario 'scn000002' field 'metametric': expected a number, got True"),
-    (lambda d: d["scenarios"][1].update(min_average_displacement_error="0.5"),
-     r"scenario 'scn000001' field 'min_average_displacement_error': expected a number, got '0.5'"),
-    (lambda d: d["scenarios"][1].update(linear_speed_likelihood=None),
-     r"scenario 'scn000001' field 'linear_speed_likelihood': expected a number, got None"),
-    (lambda d: d["scenarios"].__setitem__(1, ["not", "an", "object"]), r"scenarios\[1\] is not an object"),
-    (lambda d: d["scenarios"][2].update(simulated_offroad_rate=float("nan")),
-     r"scenario 'scn000002' field 'simulated_offroad_rate': value is nan"),
-    (lambda d: d["scenarios"][2].update(scenario_id="scn000000"),
-     r"scenario 'scn000000' appears twice \(scenarios\[0\] and scenarios\[2\]\)"),
-    (lambda d: d["scenarios"][0].pop("scenario_id"), r"scenarios\[0\] has no 'scenario_id'"),
-    (lambda d: d["aggregate"].update(metametric=None), r"aggregate.metametric: expected a number"),
-])
+@pytest.mark.parametrize(
+    "mutate, message",
+    [
+        (lambda d: d.pop("scenarios"), "missing 'scenarios'"),
+        (lambda d: d.pop("config"), "missing 'config'"),
+        (
+            lambda d: d["scenarios"][1].pop("offroad_indication_likelihood"),
+            r"scenario 'scn000001' \(scenarios\[1\]\) has no field 'offroad_indication_likelihood'",
+        ),
+        (
+            lambda d: d["scenarios"][2].update(metametric="high"),
+            r"scenario 'scn000002' field 'metametric': expected a number, got 'high'",
+        ),
+        (
+            lambda d: d["scenarios"][2].update(metametric=True),
+            r"scenario 'scn000002' field 'metametric': expected a number, got True",
+        ),
+        (
+            lambda d: d["scenarios"][1].update(min_average_displacement_error="0.5"),
+            r"scenario 'scn000001' field 'min_average_displacement_error': expected a number, got '0.5'",
+        ),
+        (
+            lambda d: d["scenarios"][1].update(linear_speed_likelihood=None),
+            r"scenario 'scn000001' field 'linear_speed_likelihood': expected a number, got None",
+        ),
+        (lambda d: d["scenarios"].__setitem__(1, ["not", "an", "object"]), r"scenarios\[1\] is not an object"),
+        (
+            lambda d: d["scenarios"][2].update(simulated_offroad_rate=float("nan")),
+            r"scenario 'scn000002' field 'simulated_offroad_rate': value is nan",
+        ),
+        (
+            lambda d: d["scenarios"][2].update(scenario_id="scn000000"),
+            r"scenario 'scn000000' appears twice \(scenarios\[0\] and scenarios\[2\]\)",
+        ),
+        (lambda d: d["scenarios"][0].pop("scenario_id"), r"scenarios\[0\] has no 'scenario_id'"),
+        (lambda d: d["aggregate"].update(metametric=None), r"aggregate.metametric: expected a number"),
+    ],
+)
 def test_bad_results_name_file_scenario_and_field(tmp_path, mutate, message):
     data = result_json(synthetic_scenarios(3, seed=0))
     mutate(data)

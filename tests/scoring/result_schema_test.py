@@ -3,6 +3,7 @@
 `tests/data/results/schema_v1_result.json` is a document of version 1 (written before the field), saved
 from `wosac-eval score` of two oracle scenes (its README says how).
 """
+
 from __future__ import annotations
 
 import copy
@@ -15,14 +16,22 @@ import pytest
 
 from wosac_eval.fronts.cli import main
 from wosac_eval.scoring import result_reader
-from wosac_eval.scoring.result_reader import (SCHEMA_VERSION, SCENARIO_FIELDS, VERSION_FIELDS, ResultError,
-                                              load_result, parse_result)
+from wosac_eval.scoring.result_reader import (
+    SCHEMA_VERSION,
+    SCENARIO_FIELDS,
+    VERSION_FIELDS,
+    ResultError,
+    load_result,
+    parse_result,
+)
 from wosac_eval.scoring.submission import score_submission
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 SAVED_V1 = DATA / "results" / "schema_v1_result.json"
-CASES = (("red_light", "synthetic-7-000-red-light__constvel_noise"),
-         ("offroad", "synthetic-7-000-offroad__logreplay_noise05"))
+CASES = (
+    ("red_light", "synthetic-7-000-red-light__constvel_noise"),
+    ("offroad", "synthetic-7-000-offroad__logreplay_noise05"),
+)
 
 
 def _saved() -> dict:
@@ -69,8 +78,23 @@ def test_compare_and_report_read_a_saved_document_beside_a_current_one(tmp_path,
     out = capsys.readouterr().out
     assert "realism_meta_metric" in out or "metametric" in out
     page = tmp_path / "report.html"
-    assert main(["report", str(current), "--compare", str(SAVED_V1), "--html", str(page),
-                 "--n-boot", "200", "--n-perm", "200"]) == 0
+    assert (
+        main(
+            [
+                "report",
+                str(current),
+                "--compare",
+                str(SAVED_V1),
+                "--html",
+                str(page),
+                "--n-boot",
+                "200",
+                "--n-perm",
+                "200",
+            ]
+        )
+        == 0
+    )
     assert "synthetic-7-000-red-light" in page.read_text()
     assert main(["report", str(SAVED_V1), "--html", str(tmp_path / "v1.html")]) == 0
 
@@ -79,8 +103,10 @@ def test_a_newer_version_is_refused_with_one_sentence(tmp_path, capsys):
     newer = _write(tmp_path / "newer.json", {"schema_version": SCHEMA_VERSION + 1, **_saved()})
     with pytest.raises(ResultError) as error:
         load_result(newer)
-    assert str(error.value) == (f"{newer}: result schema version {SCHEMA_VERSION + 1} is newer than this "
-                                f"wosac-eval reads (versions 1 to {SCHEMA_VERSION}): upgrade wosac-eval to read it")
+    assert str(error.value) == (
+        f"{newer}: result schema version {SCHEMA_VERSION + 1} is newer than this "
+        f"wosac-eval reads (versions 1 to {SCHEMA_VERSION}): upgrade wosac-eval to read it"
+    )
     assert main(["compare", str(SAVED_V1), str(newer)]) == 2
     assert "newer than this wosac-eval reads" in capsys.readouterr().err
 

@@ -3,6 +3,7 @@
 Synthetic scenes from `wosac_eval.sim` (no ../shared needed); parity with the
 official outputs is in tests/parity.
 """
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,9 @@ from wosac_eval.validate import rules
 def scene_dir(tmp_path_factory):
     folder = tmp_path_factory.mktemp("sg-scenes")
     # intersection (signals, turning traffic) and occlusion (logged invalid steps)
-    chosen = [s for s in scenes.generate_scenes(5, seed=4) if s.scenario_id.split("-", 3)[-1] in
-              ("intersection", "occlusion")]
+    chosen = [
+        s for s in scenes.generate_scenes(5, seed=4) if s.scenario_id.split("-", 3)[-1] in ("intersection", "occlusion")
+    ]
     scenes.write_scenario_shards(chosen, folder, num_shards=1)
     return folder
 
@@ -68,11 +70,11 @@ def test_box_and_type_faults_are_named_precisely(scene_dir):
     rollouts = pb.ScenarioRollouts.FromString(original.SerializeToString())
     scene = rollouts.joint_scenes[3]
     first, second, third, fourth = scene.simulated_trajectories[:4]
-    del first.length[:]                      # missing sizes
-    second.width[5] = -0.5                   # a negative size
-    second.height[7] = 0.0                   # a zero size
-    third.height[2] = float("nan")           # a non-finite size
-    fourth.ClearField("object_type")         # no type
+    del first.length[:]  # missing sizes
+    second.width[5] = -0.5  # a negative size
+    second.height[7] = 0.0  # a zero size
+    third.height[2] = float("nan")  # a non-finite size
+    fourth.ClearField("object_type")  # no type
     del scene.simulated_trajectories[4].width[90]  # one value short
     found = _findings(rollouts, agents)
     msg = found[("rollouts.wrong_length", "length")].message
@@ -104,7 +106,8 @@ def test_submitted_valid_flags_are_ignored_with_a_warning(scene_dir):
     assert found[("rollouts.ignored_field", "valid")].severity == "warning"
     # ... and ignored by the scorer, as officially.
     assert score_scenario(scenario, rollouts, challenge="scenario_gen") == score_scenario(
-        scenario, original, challenge="scenario_gen")
+        scenario, original, challenge="scenario_gen"
+    )
 
 
 def test_scoring_uses_the_submitted_sizes(scene_dir):
@@ -126,21 +129,29 @@ def test_rollout_reader_equals_the_parsed_fields(scene_dir):
     """Trajectories read from the wire (from the message, and from the bytes it was parsed from) equal the
     parsed fields."""
     from wosac_eval.arrays import rollouts as rollouts_module
+
     _, original = next(iter(generated(scene_dir).values()))
     odd = pb.ScenarioRollouts.FromString(original.SerializeToString())
-    odd.joint_scenes[1].simulated_trajectories[2].object_id = 2 ** 31 - 1  # a 5-byte id varint
+    odd.joint_scenes[1].simulated_trajectories[2].object_id = 2**31 - 1  # a 5-byte id varint
     odd.joint_scenes[1].simulated_trajectories[3].object_id = -2  # a 10-byte one
     raw = odd.SerializeToString()
-    for arrays in (rollouts_module.rollout_arrays(odd, "scenario_gen"),
-                   rollouts_module.rollout_arrays(odd, "scenario_gen", raw)):
+    for arrays in (
+        rollouts_module.rollout_arrays(odd, "scenario_gen"),
+        rollouts_module.rollout_arrays(odd, "scenario_gen", raw),
+    ):
         for r, scene in enumerate(odd.joint_scenes):
             assert arrays.object_id[r].tolist() == [t.object_id for t in scene.simulated_trajectories]
             assert arrays.object_type[r].tolist() == [t.object_type for t in scene.simulated_trajectories]
-            for field, name in (("x", "center_x"), ("heading", "heading"), ("length", "length"),
-                                ("width", "width"), ("height", "height")):
+            for field, name in (
+                ("x", "center_x"),
+                ("heading", "heading"),
+                ("length", "length"),
+                ("width", "width"),
+                ("height", "height"),
+            ):
                 expected = np.array([getattr(t, name) for t in scene.simulated_trajectories], np.float32)
                 np.testing.assert_array_equal(getattr(arrays, field)[r], expected, err_msg=field)
-        assert arrays.object_id[1, 2] == 2 ** 31 - 1 and arrays.object_id[1, 3] == -2
+        assert arrays.object_id[1, 2] == 2**31 - 1 and arrays.object_id[1, 3] == -2
 
 
 @pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
@@ -148,17 +159,38 @@ def test_baseline_score_and_compare_commands(tmp_path, scene_dir):
     results = {}
     for policy in ("log_replay_noise", "constant_velocity"):
         out = tmp_path / f"{policy}.tar.gz"
-        made = run_cli("baseline", "--challenge", "scenario_gen", "--scenarios", str(scene_dir), "--policy", policy,
-                       "--output", str(out), "--workers", "1")
+        made = run_cli(
+            "baseline",
+            "--challenge",
+            "scenario_gen",
+            "--scenarios",
+            str(scene_dir),
+            "--policy",
+            policy,
+            "--output",
+            str(out),
+            "--workers",
+            "1",
+        )
         assert made.returncode == 0, made.stderr
         assert "scenario_gen" in made.stdout and "validation: ok" in made.stdout
-        checked = run_cli("validate", "--challenge", "scenario_gen", "--scenarios", str(scene_dir),
-                          "--submission", str(out))
+        checked = run_cli(
+            "validate", "--challenge", "scenario_gen", "--scenarios", str(scene_dir), "--submission", str(out)
+        )
         assert checked.returncode == 0 and "VALID scenario_gen submission" in checked.stdout, checked.stdout
         wrong = run_cli("validate", "--scenarios", str(scene_dir), "--submission", str(out))
         assert wrong.returncode == 1 and "--challenge scenario_gen" in wrong.stdout
-        scored = run_cli("score", "--challenge", "scenario_gen", "--scenarios", str(scene_dir), "--submission",
-                         str(out), "-o", str(tmp_path / f"{policy}.json"))
+        scored = run_cli(
+            "score",
+            "--challenge",
+            "scenario_gen",
+            "--scenarios",
+            str(scene_dir),
+            "--submission",
+            str(out),
+            "-o",
+            str(tmp_path / f"{policy}.json"),
+        )
         assert scored.returncode == 0, scored.stderr
         results[policy] = json.loads((tmp_path / f"{policy}.json").read_text())
     for result in results.values():
@@ -166,8 +198,10 @@ def test_baseline_score_and_compare_commands(tmp_path, scene_dir):
         assert result["num_scenarios"] == 2 and result["coverage"]["fraction"] == 1.0
         assert result["aggregate"]["min_average_displacement_error"] == 0.0
     # The log replay is the more realistic scene generator.
-    assert (results["log_replay_noise"]["buckets"]["realism_meta_metric"]
-            > results["constant_velocity"]["buckets"]["realism_meta_metric"])
+    assert (
+        results["log_replay_noise"]["buckets"]["realism_meta_metric"]
+        > results["constant_velocity"]["buckets"]["realism_meta_metric"]
+    )
     # The result is the per-scenario score_scenario, scenario by scenario.
     for sid, (scenario, rollouts) in generated(scene_dir).items():
         row = next(r for r in results["log_replay_noise"]["scenarios"] if r["scenario_id"] == sid)
@@ -181,6 +215,12 @@ def test_baseline_score_and_compare_commands(tmp_path, scene_dir):
     mixed = run_cli("compare", str(tmp_path / "sa.json"), str(tmp_path / "log_replay_noise.json"))
     assert mixed.returncode == 2
     assert "different challenges" in mixed.stderr and "sim_agents" in mixed.stderr
-    report = run_cli("report", str(tmp_path / "log_replay_noise.json"), "--compare", str(tmp_path / "sa.json"),
-                     "--html", str(tmp_path / "r.html"))
+    report = run_cli(
+        "report",
+        str(tmp_path / "log_replay_noise.json"),
+        "--compare",
+        str(tmp_path / "sa.json"),
+        "--html",
+        str(tmp_path / "r.html"),
+    )
     assert report.returncode == 2 and "different challenges" in report.stderr

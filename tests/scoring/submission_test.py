@@ -1,4 +1,5 @@
 """Splitting shards for the workers: the same scenarios and bytes a full parse gives."""
+
 from wosac_eval.parse.shards import split_shard as _split_shard
 from wosac_eval.protos import sim_agents_submission_pb2 as pb
 
@@ -7,8 +8,9 @@ def shard(*scenario_ids):
     submission = pb.SimAgentsChallengeSubmission(account_name="a", unique_method_name="m")
     for sid in scenario_ids:
         rollouts = submission.scenario_rollouts.add(scenario_id=sid)
-        rollouts.joint_scenes.add().simulated_trajectories.add(object_id=3, center_x=[1.0], center_y=[2.0],
-                                                                center_z=[0.0], heading=[0.5])
+        rollouts.joint_scenes.add().simulated_trajectories.add(
+            object_id=3, center_x=[1.0], center_y=[2.0], center_z=[0.0], heading=[0.5]
+        )
     return submission
 
 

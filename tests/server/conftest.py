@@ -1,5 +1,6 @@
 """Fixtures for the service tests: the real server (uvicorn in a subprocess on
 127.0.0.1, a real SQLite file under tmp_path), real keys, real submissions."""
+
 from __future__ import annotations
 
 import json
@@ -11,7 +12,16 @@ import pytest
 
 from wosac_server.db import Store
 from support.server_harness import (  # noqa: F401  (re-exported to the test modules)
-    GOLDEN_PAIR, SCENARIO_FILES, SHARED, ScoringData, Server, canonical, files_under, free_port, tar_bytes)
+    GOLDEN_PAIR,
+    SCENARIO_FILES,
+    SHARED,
+    ScoringData,
+    Server,
+    canonical,
+    files_under,
+    free_port,
+    tar_bytes,
+)
 from support.server_harness import scoring_data as harness_scoring_data
 
 
@@ -40,8 +50,9 @@ def direct_single_result(scoring_data) -> dict:
     """`score_submission` called directly on the one-scenario submission (partial)."""
     from wosac_eval.scoring.submission import score_submission
 
-    return json.loads(canonical(score_submission(scoring_data.scenarios, scoring_data.single, "2025",
-                                                 allow_partial=True)))
+    return json.loads(
+        canonical(score_submission(scoring_data.scenarios, scoring_data.single, "2025", allow_partial=True))
+    )
 
 
 @pytest.fixture(scope="session")
@@ -124,8 +135,9 @@ def postgres_server():
 
     bindir = _pg_bindir()
     if bindir is None:
-        pytest.skip("PostgreSQL server binaries not found under /usr/lib/postgresql/*/bin "
-                    "(apt-get install -y postgresql)")
+        pytest.skip(
+            "PostgreSQL server binaries not found under /usr/lib/postgresql/*/bin (apt-get install -y postgresql)"
+        )
     pytest.importorskip("psycopg", reason="psycopg 3 is not installed (pip install 'psycopg[binary]')")
     root = Path(tempfile.mkdtemp(prefix="wosac-pg-"))
     data, port = root / "data", free_port()
@@ -148,8 +160,19 @@ def postgres_server():
         subprocess.run([*prefix, *args], check=True, capture_output=True, timeout=120, cwd=root)
 
     pg(str(bindir / "initdb"), "-D", str(data), "-U", "wosac", "--auth=trust", "-E", "UTF8", "--no-sync")
-    pg(str(bindir / "pg_ctl"), "-D", str(data), "-l", str(root / "log"), "-w", "-t", "60", "start", "-o",
-       f"-c listen_addresses=127.0.0.1 -p {port} -k {root} -c fsync=off")
+    pg(
+        str(bindir / "pg_ctl"),
+        "-D",
+        str(data),
+        "-l",
+        str(root / "log"),
+        "-w",
+        "-t",
+        "60",
+        "start",
+        "-o",
+        f"-c listen_addresses=127.0.0.1 -p {port} -k {root} -c fsync=off",
+    )
     base = f"postgresql://wosac@127.0.0.1:{port}"
     created = iter(range(10**6))
 
@@ -164,8 +187,12 @@ def postgres_server():
     try:
         yield new_database
     finally:
-        subprocess.run([*prefix, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
-                       capture_output=True, timeout=60, cwd=root)
+        subprocess.run(
+            [*prefix, str(bindir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
+            capture_output=True,
+            timeout=60,
+            cwd=root,
+        )
         shutil.rmtree(root, ignore_errors=True)
 
 

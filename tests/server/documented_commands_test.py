@@ -8,6 +8,7 @@ run until healthy, then stop cleanly on SIGTERM. Two substitutions only: a free 
 `--port 8000` (and `WOSAC_PORT` for a bare `serve`), and the demo's scenario shards where a line names none. `docker` lines are the
 Docker check's (`.ci/docker`).
 """
+
 from __future__ import annotations
 
 import os
@@ -39,20 +40,30 @@ def documented_commands() -> list[tuple[str, str]]:
         text = document.read_text()
         lines = []  # (line number, text) of every code line and inline code span
         for block in FENCED_BLOCK.finditer(text):
-            first = text[:block.start()].count("\n") + 2
-            lines += [(first + i, re.sub(r"\s+#\s.*$", "", code).strip())
-                      for i, code in enumerate(block.group(2).splitlines())]
+            first = text[: block.start()].count("\n") + 2
+            lines += [
+                (first + i, re.sub(r"\s+#\s.*$", "", code).strip())
+                for i, code in enumerate(block.group(2).splitlines())
+            ]
         prose = FENCED_BLOCK.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), text)  # blocks blanked, offsets kept
-        lines += [(text[:m.start()].count("\n") + 1, m.group(1).strip())
-                  for m in re.finditer(r"`([^`\n]+)`", prose)]
+        lines += [(text[: m.start()].count("\n") + 1, m.group(1).strip()) for m in re.finditer(r"`([^`\n]+)`", prose)]
         found += [(f"{document.relative_to(REPO)}:{n}", c) for n, c in sorted(lines) if _COMMAND.match(c)]
     return found
 
 
 def test_the_documents_show_the_operator_commands():
     commands = " ".join(command for _, command in documented_commands())
-    for piece in ("keys create", "keys list", "keys revoke", "methods list", "methods assign",
-                  "methods release", "serve", "worker", "--data-dir ./wosac-data"):
+    for piece in (
+        "keys create",
+        "keys list",
+        "keys revoke",
+        "methods list",
+        "methods assign",
+        "methods release",
+        "serve",
+        "worker",
+        "--data-dir ./wosac-data",
+    ):
         assert piece in commands, piece
 
 
@@ -61,9 +72,14 @@ def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
     port = free_port()
     command = command.replace("--port 8000", f"--port {port}")
     with open(log, "wb") as out:
-        process = subprocess.Popen(["bash", "-c", f"exec env {command}"], cwd=cwd, env={**env, "WOSAC_PORT": str(port)},
-                                   stdout=out,
-                                   stderr=subprocess.STDOUT, start_new_session=True)
+        process = subprocess.Popen(
+            ["bash", "-c", f"exec env {command}"],
+            cwd=cwd,
+            env={**env, "WOSAC_PORT": str(port)},
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         if " serve" in command:
             wait_healthy(f"http://127.0.0.1:{port}", process, timeout=60)
@@ -88,22 +104,28 @@ def _run_document(commands: list[tuple[str, str]], scratch: Path, scenarios: lis
     home = scratch / ".home"
     home.mkdir()
     inherited = {k: v for k, v in os.environ.items() if not k.startswith(("WOSAC_", "RAY_"))}
-    env = {**inherited, "HOME": str(home), "WOSAC_DATA_DIR": "./wosac-data",  # server/README's export
-           "WOSAC_SCENARIOS": str(validation / "*tfrecord*"), "WOSAC_WORKERS": "1",
-           "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")])}
+    env = {
+        **inherited,
+        "HOME": str(home),
+        "WOSAC_DATA_DIR": "./wosac-data",  # server/README's export
+        "WOSAC_SCENARIOS": str(validation / "*tfrecord*"),
+        "WOSAC_WORKERS": "1",
+        "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
+    }
     for index, (where, command) in enumerate(commands):
         words = shlex.split(command)
         if words[words.index("wosac-server") + 1] in ("serve", "worker"):
             _run_long_lived(command, scratch, env, log_dir / f"{scratch.name}-{index}.log")
             continue
-        done = subprocess.run(["bash", "-c", command], cwd=scratch, env=env, capture_output=True, text=True,
-                              timeout=120)
+        done = subprocess.run(
+            ["bash", "-c", command], cwd=scratch, env=env, capture_output=True, text=True, timeout=120
+        )
         message = f"{where}: {command}\nexit {done.returncode}\n{done.stdout}{done.stderr}"
         assert done.returncode != 2 and "usage:" not in done.stderr, message
-        assert done.returncode == 0 or (done.returncode == 1 and any(t in done.stderr for t in NOTHING_TO_DO)), \
-            message
-    listed = subprocess.run(["bash", "-c", "wosac-server keys list"], cwd=scratch, env=env, capture_output=True,
-                            text=True, timeout=60)
+        assert done.returncode == 0 or (done.returncode == 1 and any(t in done.stderr for t in NOTHING_TO_DO)), message
+    listed = subprocess.run(
+        ["bash", "-c", "wosac-server keys list"], cwd=scratch, env=env, capture_output=True, text=True, timeout=60
+    )
     assert "my-team" in listed.stdout, listed.stdout + listed.stderr
 
 
@@ -124,7 +146,12 @@ def test_data_dir_goes_before_or_after_the_action(tmp_path, before):
     head = ["--data-dir", str(data_dir)]
     for argv in (["keys", "create", "--name", "team-a"], ["keys", "list"], ["methods", "list"]):
         full = [argv[0], *head, *argv[1:]] if before else [*argv, *head]
-        done = subprocess.run([sys.executable, "-m", "wosac_server", *full], capture_output=True, text=True,
-                              timeout=60, env={**os.environ, "HOME": str(tmp_path)})
+        done = subprocess.run(
+            [sys.executable, "-m", "wosac_server", *full],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env={**os.environ, "HOME": str(tmp_path)},
+        )
         assert done.returncode == 0, done.stderr
     assert (data_dir / "wosac.sqlite3").exists()

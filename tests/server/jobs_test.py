@@ -1,5 +1,6 @@
 """The job store on both engines (a real SQLite file, a real PostgreSQL server):
 atomic claims, leases, the reaper, keys, the leaderboard."""
+
 from __future__ import annotations
 
 import json
@@ -11,12 +12,20 @@ import pytest
 from wosac_server import auth, jobs
 
 
-def add_job(store, key_id="k", method="m", config="2025", published=False, created=None,
-            challenge="sim_agents") -> str:
+def add_job(store, key_id="k", method="m", config="2025", published=False, created=None, challenge="sim_agents") -> str:
     sid = jobs.new_id()
-    jobs.insert_submission(store, submission_id=sid, key_id=key_id, method=method, challenge=challenge,
-                           config=config, allow_partial=False, published=published, file_name=sid + ".binproto",
-                           upload_bytes=10)
+    jobs.insert_submission(
+        store,
+        submission_id=sid,
+        key_id=key_id,
+        method=method,
+        challenge=challenge,
+        config=config,
+        allow_partial=False,
+        published=published,
+        file_name=sid + ".binproto",
+        upload_bytes=10,
+    )
     if created is not None:
         store.execute("UPDATE submissions SET created_at = ? WHERE id = ?", (created, sid))
     return sid
@@ -77,8 +86,10 @@ def test_heartbeat_keeps_the_lease_and_finish_records_the_score(store):
         time.sleep(0.1)
         assert jobs.renew_lease(store, sid, "w", lease_s=0.2)
         assert jobs.reap_expired(store, max_attempts=3) == (0, 0)
-    result = {"scenarios": [{"scenario_id": "a"}, {"scenario_id": "b"}],
-              "buckets": {"realism_meta_metric": 0.75, "min_ade": 1.5}}
+    result = {
+        "scenarios": [{"scenario_id": "a"}, {"scenario_id": "b"}],
+        "buckets": {"realism_meta_metric": 0.75, "min_ade": 1.5},
+    }
     assert jobs.finish_done(store, sid, "w", result)
     row = jobs.get_submission(store, sid)
     assert (row["state"], row["scenarios_done"], row["scenarios_total"]) == ("done", 2, 2)
@@ -99,8 +110,12 @@ def test_leaderboard_keeps_the_best_published_result_per_method(store):
         sid = add_job(store, method=method, published=published, config=config, challenge=challenge)
         job = jobs.claim_next(store, "w", 60)
         assert job["id"] == sid
-        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta},
-                                           "coverage": {"fraction": coverage}})
+        jobs.finish_done(
+            store,
+            sid,
+            "w",
+            {"scenarios": [{}], "buckets": {"realism_meta_metric": meta}, "coverage": {"fraction": coverage}},
+        )
         return sid
 
     scored("alpha", 0.50)
@@ -111,7 +126,9 @@ def test_leaderboard_keeps_the_best_published_result_per_method(store):
     scored("delta", 0.99, config="2024")
     board = jobs.leaderboard(store, "2025")
     assert [(e["rank"], e["method"], e["submission_id"], e["realism_meta_metric"]) for e in board] == [
-        (1, "alpha", best_alpha, 0.60), (2, "beta", best_beta, 0.58)]
+        (1, "alpha", best_alpha, 0.60),
+        (2, "beta", best_beta, 0.58),
+    ]
     assert [e["method"] for e in jobs.leaderboard(store, "2024")] == ["delta"]
     # One leaderboard per challenge; a partial result carries its coverage.
     generated = scored("epsilon", 0.3, config="scenario_gen_2025", challenge="scenario_gen", coverage=0.5)
@@ -126,14 +143,17 @@ def test_a_version_1_database_is_migrated(tmp_path):
     import sqlite3
 
     from wosac_server.db import SCHEMA, SCHEMA_VERSION, Store
+
     path = tmp_path / "old.sqlite3"
     with sqlite3.connect(path) as conn:
         for stmt in SCHEMA:
             conn.execute(stmt)
         conn.execute("INSERT INTO schema_version (version) VALUES (1)")
-        conn.execute("INSERT INTO submissions (id, key_id, method, config, allow_partial, published, state, file_name,"
-                     " upload_bytes, created_at, updated_at, scenarios_done, attempts) VALUES"
-                     " ('a', 'k', 'm', '2025', 0, 0, 'queued', 'a.binproto', 1, 0, 0, 0, 0)")
+        conn.execute(
+            "INSERT INTO submissions (id, key_id, method, config, allow_partial, published, state, file_name,"
+            " upload_bytes, created_at, updated_at, scenarios_done, attempts) VALUES"
+            " ('a', 'k', 'm', '2025', 0, 0, 'queued', 'a.binproto', 1, 0, 0, 0, 0)"
+        )
     store = Store(f"sqlite:///{path}")
     store.migrate()
     store.migrate()  # idempotent
@@ -148,8 +168,19 @@ def test_a_version_1_database_is_migrated(tmp_path):
 def test_names_compare_by_their_normal_form():
     from wosac_server.names import display_name, name_key
 
-    same = ["Team Rocket", "Team  Rocket", "Team Rocket ", " team ROCKET", "Team\tRocket", "Ｔｅａｍ Ｒｏｃｋｅｔ",
-            "Team\u00a0Rocket", "Team \u200bRocket", "Team\u200b Rocket", "Team Rocket\u200d\ufeff", "Team\u3000Rocket"]
+    same = [
+        "Team Rocket",
+        "Team  Rocket",
+        "Team Rocket ",
+        " team ROCKET",
+        "Team\tRocket",
+        "Ｔｅａｍ Ｒｏｃｋｅｔ",
+        "Team\u00a0Rocket",
+        "Team \u200bRocket",
+        "Team\u200b Rocket",
+        "Team Rocket\u200d\ufeff",
+        "Team\u3000Rocket",
+    ]
     assert {name_key(n) for n in same} == {"team rocket"}
     assert name_key("Team\u200bRocket") == name_key("TeamRocket") == "teamrocket"  # zero-width is nothing
     assert name_key("Team Rocket2") != name_key("Team Rocket") != name_key("Team-Rocket")
@@ -163,13 +194,19 @@ def test_look_alike_claims_are_one_name_and_the_board_shows_the_owner_only(store
     assert jobs.claim_method(store, "scenario_gen", "team rocket", "imitator")  # per challenge
     assert jobs.method_owner(store, "sim_agents", "Team\u00a0Rocket") == "owner"
     assert [(m["challenge"], m["method"]) for m in jobs.list_methods(store)] == [
-        ("scenario_gen", "team rocket"), ("sim_agents", "Team Rocket")]
+        ("scenario_gen", "team rocket"),
+        ("sim_agents", "Team Rocket"),
+    ]
 
     def scored(key_id, method, meta):
         sid = add_job(store, key_id=key_id, method=method, published=True)
         assert jobs.claim_next(store, "w", 60)["id"] == sid
-        jobs.finish_done(store, sid, "w", {"scenarios": [{}], "buckets": {"realism_meta_metric": meta},
-                                           "coverage": {"fraction": 1.0}})
+        jobs.finish_done(
+            store,
+            sid,
+            "w",
+            {"scenarios": [{}], "buckets": {"realism_meta_metric": meta}, "coverage": {"fraction": 1.0}},
+        )
         return sid
 
     # Rows as an older server stored them: an imitator's look-alike, the owner's own spellings.
@@ -198,28 +235,38 @@ def test_a_version_3_database_gets_normal_forms_and_look_alike_claims_resolved(e
     the first keeps the name."""
     from wosac_server.db import MIGRATIONS, SCHEMA, Store
 
-    url = (f"sqlite:///{tmp_path / 'v3.sqlite3'}" if engine == "sqlite"
-           else request.getfixturevalue("postgres_server")())
+    url = f"sqlite:///{tmp_path / 'v3.sqlite3'}" if engine == "sqlite" else request.getfixturevalue("postgres_server")()
     store = Store(url)
     with store.transaction():
         for stmt in [*SCHEMA, *MIGRATIONS[2], *MIGRATIONS[3]]:
             store.execute(stmt)
         store.execute("INSERT INTO schema_version (version) VALUES (3)")
-        for i, (challenge, method, key_id) in enumerate([
-                ("sim_agents", "Team Rocket", "first"), ("sim_agents", "Team  Rocket", "second"),
-                ("sim_agents", "team rocket ", "third"), ("scenario_gen", "TEAM ROCKET", "second"),
-                ("sim_agents", "Other", "second")]):
-            store.execute("INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)",
-                          (challenge, method, key_id, 100.0 + i))
-        store.execute("INSERT INTO api_keys (id, name, salt, key_hash, created_at, max_concurrent, max_daily,"
-                      " max_daily_bytes) VALUES ('kid', 'Old  Key', '00', 'x', 0, 1, 1, 1)")
+        for i, (challenge, method, key_id) in enumerate(
+            [
+                ("sim_agents", "Team Rocket", "first"),
+                ("sim_agents", "Team  Rocket", "second"),
+                ("sim_agents", "team rocket ", "third"),
+                ("scenario_gen", "TEAM ROCKET", "second"),
+                ("sim_agents", "Other", "second"),
+            ]
+        ):
+            store.execute(
+                "INSERT INTO method_names (challenge, method, key_id, claimed_at) VALUES (?, ?, ?, ?)",
+                (challenge, method, key_id, 100.0 + i),
+            )
+        store.execute(
+            "INSERT INTO api_keys (id, name, salt, key_hash, created_at, max_concurrent, max_daily,"
+            " max_daily_bytes) VALUES ('kid', 'Old  Key', '00', 'x', 0, 1, 1, 1)"
+        )
     store.migrate()
     store.migrate()  # idempotent
     assert store.fetchone("SELECT version FROM schema_version")["version"] == 4
     claims = store.fetchall("SELECT challenge, method, name_key, key_id FROM method_names ORDER BY challenge, method")
     assert [tuple(c.values()) for c in claims] == [
-        ("scenario_gen", "TEAM ROCKET", "team rocket", "second"), ("sim_agents", "Other", "other", "second"),
-        ("sim_agents", "Team Rocket", "team rocket", "first")]
+        ("scenario_gen", "TEAM ROCKET", "team rocket", "second"),
+        ("sim_agents", "Other", "other", "second"),
+        ("sim_agents", "Team Rocket", "team rocket", "first"),
+    ]
     assert not jobs.claim_method(store, "sim_agents", "Team  Rocket", "second")
     assert store.fetchone("SELECT name_key FROM api_keys WHERE id = 'kid'")["name_key"] == "old key"
     with pytest.raises(ValueError, match="'Old  Key' already exists"):

@@ -1,6 +1,7 @@
 """The API against a real server on loopback: uploads, auth, quotas, resumable
 uploads, bad requests. Its server runs no workers, so accepted jobs stay queued
 and every answer here depends on the API alone."""
+
 from __future__ import annotations
 
 import hashlib
@@ -28,20 +29,29 @@ def submission_bytes() -> bytes:
 def outside_data_dir(server) -> set:
     """Every file under the test's tmp root that is not in the data dir or a server log."""
     root = server.data_dir.parent
-    return {p for p in files_under(root)
-            if server.data_dir not in p.parents and not p.name.startswith("server-")}
+    return {p for p in files_under(root) if server.data_dir not in p.parents and not p.name.startswith("server-")}
 
 
 def test_health_and_openapi_schema(api_server):
     with api_server.client() as c:
         health = c.get("/healthz").json()
         disk = health.pop("disk")
-        assert health == {"status": "ok", "database": "ok",
-                          "scenario_shards": len(api_server.env["WOSAC_SCENARIOS"].split(","))}
+        assert health == {
+            "status": "ok",
+            "database": "ok",
+            "scenario_shards": len(api_server.env["WOSAC_SCENARIOS"].split(",")),
+        }
         assert disk["free_bytes"] > disk["floor_bytes"] > 0 and disk["refusing_uploads"] is False
         paths = c.get("/openapi.json").json()["paths"]
-    for path in ("/v1/submissions", "/v1/submissions/{submission_id}", "/v1/submissions/{submission_id}/results",
-                 "/v1/leaderboard", "/v1/uploads", "/v1/uploads/{upload_id}", "/v1/uploads/{upload_id}/complete"):
+    for path in (
+        "/v1/submissions",
+        "/v1/submissions/{submission_id}",
+        "/v1/submissions/{submission_id}/results",
+        "/v1/leaderboard",
+        "/v1/uploads",
+        "/v1/uploads/{upload_id}",
+        "/v1/uploads/{upload_id}/complete",
+    ):
         assert path in paths
 
 
@@ -67,9 +77,15 @@ def test_upload_is_stored_under_a_server_generated_name(api_server):
     body = submission_bytes()
     before = outside_data_dir(api_server)
     with api_server.client(key) as c:
-        r = c.post("/v1/submissions", content=body, params={"config": "2025", "method": "my-method"},
-                   headers={"Content-Disposition": 'attachment; filename="../../escape.binproto"',
-                            "Content-Type": "application/octet-stream"})
+        r = c.post(
+            "/v1/submissions",
+            content=body,
+            params={"config": "2025", "method": "my-method"},
+            headers={
+                "Content-Disposition": 'attachment; filename="../../escape.binproto"',
+                "Content-Type": "application/octet-stream",
+            },
+        )
         assert r.status_code == 202, r.text
         status = r.json()
         assert r.headers["location"] == f"/v1/submissions/{status['id']}"
@@ -120,7 +136,7 @@ def test_oversized_bodies_are_413_and_leave_no_file(api_server):
 
         def chunks():  # no Content-Length: refused while streaming
             for i in range(0, len(body), 65536):
-                yield body[i:i + 65536]
+                yield body[i : i + 65536]
 
         r = c.post("/v1/submissions", content=chunks())
         assert r.status_code == 413 and str(limit) in r.json()["detail"]
@@ -128,11 +144,14 @@ def test_oversized_bodies_are_413_and_leave_no_file(api_server):
     assert list((api_server.data_dir / "uploads").glob("*.body")) == []
 
 
-@pytest.mark.parametrize("members, reason", [
-    ({"../../evil.binproto": b"x"}, "'..' component"),
-    ({"/tmp/evil.binproto": b"x"}, "absolute path"),
-    ({"ok/../../evil.binproto": b"x"}, "'..' component"),
-])
+@pytest.mark.parametrize(
+    "members, reason",
+    [
+        ({"../../evil.binproto": b"x"}, "'..' component"),
+        ({"/tmp/evil.binproto": b"x"}, "absolute path"),
+        ({"ok/../../evil.binproto": b"x"}, "'..' component"),
+    ],
+)
 def test_archives_with_traversal_names_are_422(api_server, members, reason):
     key = api_server.key(f"traversal-{abs(hash(tuple(members)))}")
     before = outside_data_dir(api_server)
@@ -161,13 +180,16 @@ def test_links_in_archives_are_422(api_server):
     assert r.status_code == 422 and "link" in r.json()["detail"]
 
 
-@pytest.mark.parametrize("body, reason", [
-    (b"\x1f\x8b\x08\x00garbage that is not deflate data" * 20, "broken gzip stream"),
-    (tar_bytes({"a.binproto": b"y" * 5000}, gz=False)[:1000], "truncated or corrupt data in member 'a.binproto'"),
-    (tar_bytes({"a.binproto": b"y" * 5000})[:-40], "broken gzip stream"),
-    (tar_bytes({}, gz=True), "holds no submission shard"),
-    (b"", "empty"),
-])
+@pytest.mark.parametrize(
+    "body, reason",
+    [
+        (b"\x1f\x8b\x08\x00garbage that is not deflate data" * 20, "broken gzip stream"),
+        (tar_bytes({"a.binproto": b"y" * 5000}, gz=False)[:1000], "truncated or corrupt data in member 'a.binproto'"),
+        (tar_bytes({"a.binproto": b"y" * 5000})[:-40], "broken gzip stream"),
+        (tar_bytes({}, gz=True), "holds no submission shard"),
+        (b"", "empty"),
+    ],
+)
 def test_malformed_uploads_are_422(api_server, body, reason):
     with api_server.client(api_server.key(f"malformed-{hashlib.md5(body).hexdigest()}")) as c:
         r = c.post("/v1/submissions", content=body)
@@ -182,8 +204,10 @@ def test_bad_parameters_are_422(api_server):
         assert r.status_code == 422 and "unknown config '1999'" in r.json()["detail"]
         assert c.post("/v1/submissions", content=b"x", params={"method": "<script>"}).status_code == 422
         assert c.get("/v1/leaderboard", params={"config": "nope"}).status_code == 422
-        assert c.get("/v1/submissions/00000000000000000000000000000000/results",
-                     params={"format": "xml"}).status_code == 422
+        assert (
+            c.get("/v1/submissions/00000000000000000000000000000000/results", params={"format": "xml"}).status_code
+            == 422
+        )
 
 
 def test_quota_on_concurrent_jobs_is_429(api_server):
@@ -217,14 +241,19 @@ def test_quota_on_daily_bytes_is_413(api_server):
 
 
 def _patch(c, upload_id, offset, data):
-    return c.patch(f"/v1/uploads/{upload_id}", content=data,
-                   headers={"Upload-Offset": str(offset), "Content-Type": "application/offset+octet-stream"})
+    return c.patch(
+        f"/v1/uploads/{upload_id}",
+        content=data,
+        headers={"Upload-Offset": str(offset), "Content-Type": "application/offset+octet-stream"},
+    )
 
 
 def _drop_mid_chunk(server, key, upload_id, offset, chunk, sent):
     """Send a PATCH announcing `chunk` but hang up after `sent` bytes of it."""
-    head = (f"PATCH /v1/uploads/{upload_id} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {key}\r\n"
-            f"Upload-Offset: {offset}\r\nContent-Length: {len(chunk)}\r\n\r\n").encode()
+    head = (
+        f"PATCH /v1/uploads/{upload_id} HTTP/1.1\r\nHost: 127.0.0.1\r\nAuthorization: Bearer {key}\r\n"
+        f"Upload-Offset: {offset}\r\nContent-Length: {len(chunk)}\r\n\r\n"
+    ).encode()
     with socket.create_connection(("127.0.0.1", server.port)) as s:
         s.sendall(head + chunk[:sent])
         time.sleep(0.3)
@@ -251,7 +280,11 @@ def test_resumable_upload_survives_a_dropped_connection(api_server):
             time.sleep(0.05)
         assert 300_000 < offset <= 423_456  # what arrived before the drop is kept
         assert c.get(f"/v1/uploads/{upload_id}").json() == {
-            "upload_id": upload_id, "offset": offset, "length": len(body), "submission_id": None}
+            "upload_id": upload_id,
+            "offset": offset,
+            "length": len(body),
+            "submission_id": None,
+        }
 
         r = c.post(f"/v1/uploads/{upload_id}/complete")
         assert r.status_code == 409 and "PATCH the rest" in r.json()["detail"]
@@ -275,7 +308,7 @@ def test_resumable_upload_without_declared_length_and_delete(api_server):
     with api_server.client(key) as c:
         upload_id = c.post("/v1/uploads").json()["upload_id"]
         for start in range(0, len(body), 50_000):
-            assert _patch(c, upload_id, start, body[start:start + 50_000]).status_code == 204
+            assert _patch(c, upload_id, start, body[start : start + 50_000]).status_code == 204
         sub = c.post(f"/v1/uploads/{upload_id}/complete").json()
         assert (api_server.data_dir / "submissions" / f"{sub['id']}.tar.gz").read_bytes() == body
 
@@ -288,8 +321,13 @@ def test_resumable_upload_without_declared_length_and_delete(api_server):
 
 def test_keys_command_creates_lists_and_revokes(api_server):
     def keys(*args):
-        return subprocess.run([sys.executable, "-m", "wosac_server", "keys", *args],
-                              env=api_server.env, capture_output=True, text=True, timeout=60)
+        return subprocess.run(
+            [sys.executable, "-m", "wosac_server", "keys", *args],
+            env=api_server.env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
 
     created = keys("create", "--name", "carol", "--max-concurrent", "3")
     assert created.returncode == 0, created.stderr

@@ -1,6 +1,7 @@
 """The service under attack, on loopback: expansion bombs, slow clients, connection floods, quota
 dodges, name impersonation, racing upload requests, foreign bodies and key guessing. Real server
 (uvicorn in a subprocess, real SQLite, real worker processes), real sockets."""
+
 from __future__ import annotations
 
 import json
@@ -148,8 +149,11 @@ def test_slow_clients_are_closed_and_one_client_cannot_hold_every_connection(mak
                 break
         assert b"408" in _closed_within(dribbler, 5) and time.monotonic() - started < 4.5
     with socket.create_connection(address) as staller:  # a body that stops coming
-        staller.sendall(f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}\r\n"
-                        "Content-Length: 100000\r\n\r\n".encode() + as_submission(b"x" * 100)[:10])
+        staller.sendall(
+            f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}\r\n"
+            "Content-Length: 100000\r\n\r\n".encode()
+            + as_submission(b"x" * 100)[:10]
+        )
         _closed_within(staller, 5)
     with server.client(key) as c:
         assert _listed(c) == []
@@ -203,8 +207,13 @@ def test_leaderboard_names_belong_to_the_first_key_per_challenge(api_server):
     body = as_submission(b"n" * 64)
 
     def methods(*args):
-        return subprocess.run([sys.executable, "-m", "wosac_server", "methods", *args], env=api_server.env,
-                              capture_output=True, text=True, timeout=60)
+        return subprocess.run(
+            [sys.executable, "-m", "wosac_server", "methods", *args],
+            env=api_server.env,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
 
     with api_server.client(alice) as a, api_server.client(bob) as b:
         assert a.post("/v1/submissions", content=body, params={"method": "rocket"}).status_code == 202
@@ -278,8 +287,11 @@ def test_upload_requests_racing_each_other_never_corrupt_or_fail(api_server):
         assert c.patch(f"/v1/uploads/{upload}", content=b"part", headers={"Upload-Offset": "0"}).status_code == 204
         # What a request in flight leaves in the store: the others are turned away, nothing changes.
         api_server.store.execute("UPDATE uploads SET state = 'completing' WHERE id = ?", (upload,))
-        for r in (c.patch(f"/v1/uploads/{upload}", content=b"more", headers={"Upload-Offset": "4"}),
-                  c.delete(f"/v1/uploads/{upload}"), c.post(f"/v1/uploads/{upload}/complete")):
+        for r in (
+            c.patch(f"/v1/uploads/{upload}", content=b"more", headers={"Upload-Offset": "4"}),
+            c.delete(f"/v1/uploads/{upload}"),
+            c.post(f"/v1/uploads/{upload}/complete"),
+        ):
             assert r.status_code == 409 and "complete of this upload is in progress" in r.json()["detail"]
         api_server.store.execute("UPDATE uploads SET state = 'open' WHERE id = ?", (upload,))
         assert c.delete(f"/v1/uploads/{upload}").status_code == 204
@@ -291,10 +303,16 @@ def test_upload_requests_racing_each_other_never_corrupt_or_fail(api_server):
             assert c.patch(f"/v1/uploads/{upload}", content=body, headers={"Upload-Offset": "0"}).status_code == 204
             clients = [api_server.client(key) for _ in range(7)]
             try:
-                rs = _race([lambda k=k: k.post(f"/v1/uploads/{upload}/complete") for k in clients[:3]]
-                           + [lambda k=k: k.patch(f"/v1/uploads/{upload}", content=b"tail",
-                                                  headers={"Upload-Offset": str(len(body))}) for k in clients[3:5]]
-                           + [lambda k=k: k.delete(f"/v1/uploads/{upload}") for k in clients[5:]])
+                rs = _race(
+                    [lambda k=k: k.post(f"/v1/uploads/{upload}/complete") for k in clients[:3]]
+                    + [
+                        lambda k=k: k.patch(
+                            f"/v1/uploads/{upload}", content=b"tail", headers={"Upload-Offset": str(len(body))}
+                        )
+                        for k in clients[3:5]
+                    ]
+                    + [lambda k=k: k.delete(f"/v1/uploads/{upload}") for k in clients[5:]]
+                )
             finally:
                 for k in clients:
                     k.close()
@@ -321,8 +339,9 @@ def test_upload_requests_racing_each_other_never_corrupt_or_fail(api_server):
         assert c.patch(f"/v1/uploads/{upload}", content=bad, headers={"Upload-Offset": "0"}).status_code == 204
         clients = [api_server.client(key) for _ in range(2)]
         try:
-            codes = sorted(r.status_code for r in _race([lambda k=k: k.post(f"/v1/uploads/{upload}/complete")
-                                                          for k in clients]))
+            codes = sorted(
+                r.status_code for r in _race([lambda k=k: k.post(f"/v1/uploads/{upload}/complete") for k in clients])
+            )
         finally:
             for k in clients:
                 k.close()
@@ -411,8 +430,10 @@ def test_every_compression_is_checked_and_foreign_bodies_are_415(api_server):
 
         r = c.post("/v1/submissions", content=gzip.compress(shard))
         assert r.status_code == 202 and (api_server.data_dir / "submissions" / f"{r.json()['id']}.binproto.gz").exists()
-        for body, kind in ((json.dumps({"scenario_rollouts": []}).encode(), "JSON"),
-                           (b"\x89PNG\r\n\x1a\n" + b"\0" * 64, "a PNG image")):
+        for body, kind in (
+            (json.dumps({"scenario_rollouts": []}).encode(), "JSON"),
+            (b"\x89PNG\r\n\x1a\n" + b"\0" * 64, "a PNG image"),
+        ):
             r = c.post("/v1/submissions", content=body)
             assert r.status_code == 415 and kind in r.json()["detail"], r.text
         r = c.post("/v1/submissions", content=tar_bytes({"s.binproto": b'{"json": true}'}))
@@ -422,8 +443,11 @@ def test_every_compression_is_checked_and_foreign_bodies_are_415(api_server):
         r = c.post("/v1/submissions", files={"file": ("sub.tar.gz", tar_bytes({"s.binproto": shard}))})
         assert r.status_code == 415 and "--data-binary" in r.json()["detail"], r.text
         # curl --data-binary without -H labels the raw file application/x-www-form-urlencoded: accepted.
-        r = c.post("/v1/submissions", content=tar_bytes({"s.binproto": shard}),
-                   headers={"Content-Type": "application/x-www-form-urlencoded"})
+        r = c.post(
+            "/v1/submissions",
+            content=tar_bytes({"s.binproto": shard}),
+            headers={"Content-Type": "application/x-www-form-urlencoded"},
+        )
         assert r.status_code == 202, r.text
 
 

@@ -3,6 +3,7 @@ own (a tmpfs; the tests skip, saying why, where mounting one is not permitted), 
 file as another process would. Past the floor new uploads and chunks get 507 with Retry-After, counting
 what open uploads and queued jobs still need; on a disk that filled anyway no upload is left `writing`,
 DELETE frees space, and a worker waits for space (logging once) and then scores the job."""
+
 from __future__ import annotations
 
 import errno
@@ -33,8 +34,9 @@ def small_disk(tmp_path):
     mount.mkdir()
     if os.geteuid() != 0:
         pytest.skip("these tests mount a 64 MiB tmpfs for the data dir, which needs root")
-    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={DISK_MIB}m", "tmpfs", str(mount)],
-                          capture_output=True, text=True)
+    done = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={DISK_MIB}m", "tmpfs", str(mount)], capture_output=True, text=True
+    )
     if done.returncode != 0:
         pytest.skip(f"mounting a tmpfs for the data dir is not permitted here: {done.stderr.strip()}")
     yield mount
@@ -118,8 +120,13 @@ def test_uploads_past_the_floor_get_507_counting_what_open_uploads_and_jobs_stil
         # 16 MiB more would take the disk past its 10 % floor: refused, however it is sent.
         r = c.post("/v1/uploads", headers={"Upload-Length": str(16 * MiB)})
         assert_507(r.status_code, r.headers, r.json())
-        assert_507(*raw_request(server, f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}"
-                                        f"\r\nContent-Length: {16 * MiB}\r\n\r\n"))
+        assert_507(
+            *raw_request(
+                server,
+                f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}"
+                f"\r\nContent-Length: {16 * MiB}\r\n\r\n",
+            )
+        )
         # The promised upload's own chunks go on.
         r = c.patch(f"/v1/uploads/{big_id}", content=os.urandom(MiB), headers={"Upload-Offset": "0"})
         assert r.status_code == 204, r.text
@@ -135,9 +142,10 @@ def test_uploads_past_the_floor_get_507_counting_what_open_uploads_and_jobs_stil
         fill(filler, leave=5 * MiB)
         state = health(c)
         assert state["status"] == "degraded" and state["disk"]["refusing_uploads"] is True, state
-        for r in (c.post("/v1/uploads"),
-                  c.patch(f"/v1/uploads/{small.json()['upload_id']}", content=b"x" * 1024,
-                          headers={"Upload-Offset": "0"})):
+        for r in (
+            c.post("/v1/uploads"),
+            c.patch(f"/v1/uploads/{small.json()['upload_id']}", content=b"x" * 1024, headers={"Upload-Offset": "0"}),
+        ):
             assert_507(r.status_code, r.headers, r.json())
         assert set(upload_states(server).values()) == {"open"}
         filler.unlink()
@@ -146,7 +154,8 @@ def test_uploads_past_the_floor_get_507_counting_what_open_uploads_and_jobs_stil
 
 
 def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_scored(
-        small_disk, make_server, scoring_data, direct_single_result, tmp_path):
+    small_disk, make_server, scoring_data, direct_single_result, tmp_path
+):
     # Floor 0 (only the minimum): here the disk really runs out, as when another process fills it.
     server = make_server(data_dir=small_disk, workers=0, disk_reserve_bytes=MiB, scenarios=scoring_data.scenarios)
     key = server.key("full")
@@ -155,15 +164,18 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
         job = c.post("/v1/submissions", content=scoring_data.single.read_bytes(), params={"allow_partial": "true"})
         assert job.status_code == 202, job.text
         upload = c.post("/v1/uploads").json()["upload_id"]
-        assert c.patch(f"/v1/uploads/{upload}", content=os.urandom(MiB), headers={"Upload-Offset": "0"}
-                       ).status_code == 204
+        assert (
+            c.patch(f"/v1/uploads/{upload}", content=os.urandom(MiB), headers={"Upload-Offset": "0"}).status_code == 204
+        )
 
         # A chunk the space check lets in (no Content-Length), which then meets a full disk.
         state = health(c)["disk"]
         fill(small_disk / "other-process-1.bin", leave=state["reserved_bytes"] + state["floor_bytes"] + 2 * MiB)
         chunks = [os.urandom(256 * 1024)] * 32  # 8 MiB, chunked
-        head = (f"PATCH /v1/uploads/{upload} HTTP/1.1\r\nHost: x\r\n{auth}Upload-Offset: {MiB}\r\n"
-                "Transfer-Encoding: chunked\r\n\r\n")
+        head = (
+            f"PATCH /v1/uploads/{upload} HTTP/1.1\r\nHost: x\r\n{auth}Upload-Offset: {MiB}\r\n"
+            "Transfer-Encoding: chunked\r\n\r\n"
+        )
         framed = [b"%x\r\n%s\r\n" % (len(x), x) for x in chunks] + [b"0\r\n\r\n"]
         assert_507(*raw_request(server, head, framed))
         # Not left `writing`: the offset is the committed one, the bytes past it are gone, it takes requests.
@@ -175,8 +187,9 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
         fill(small_disk / "other-process-2.bin")
         state = health(c)
         assert state["status"] == "degraded" and state["disk"]["free_bytes"] < MiB, state
-        assert_507(*raw_request(server, f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\n{auth}"
-                                        f"Content-Length: {MiB}\r\n\r\n"))
+        assert_507(
+            *raw_request(server, f"POST /v1/submissions HTTP/1.1\r\nHost: x\r\n{auth}Content-Length: {MiB}\r\n\r\n")
+        )
         r = c.post("/v1/uploads")
         assert_507(r.status_code, r.headers, r.json())
         r = c.patch(f"/v1/uploads/{upload}", content=b"x" * 1024, headers={"Upload-Offset": str(MiB)})
@@ -193,8 +206,13 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
         fill(small_disk / "other-process-3.bin")
         log = tmp_path / "worker.log"
         with open(log, "wb") as out:
-            worker = subprocess.Popen([sys.executable, "-m", "wosac_server", "worker"], env=server.env,
-                                      stdout=out, stderr=subprocess.STDOUT, cwd=tmp_path)
+            worker = subprocess.Popen(
+                [sys.executable, "-m", "wosac_server", "worker"],
+                env=server.env,
+                stdout=out,
+                stderr=subprocess.STDOUT,
+                cwd=tmp_path,
+            )
         try:
             time.sleep(4)
             assert worker.poll() is None, log.read_text()
@@ -205,8 +223,7 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
                 filler.unlink()
             status = server.wait_state(c, job.json()["id"], timeout=60)
             assert status["state"] == "done" and status["attempts"] == 1, status
-            assert canonical(c.get(f"/v1/submissions/{status['id']}/results").json()) == \
-                canonical(direct_single_result)
+            assert canonical(c.get(f"/v1/submissions/{status['id']}/results").json()) == canonical(direct_single_result)
             # Logged once the worker's next write succeeds, which may be after the job's end is recorded.
             deadline = time.monotonic() + 30
             while "space is back" not in log.read_text() and time.monotonic() < deadline:
@@ -230,12 +247,12 @@ def journal_rows(path: Path) -> int:
         return 0
 
 
-def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(small_disk, make_server,
-                                                                              replicated_job):
+def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(small_disk, make_server, replicated_job):
     scenarios, submission, expected = replicated_job
     n = 16
-    server = make_server(data_dir=small_disk, workers=1, disk_reserve_bytes=MiB, scenarios=[scenarios],
-                         scene_pictures=0)
+    server = make_server(
+        data_dir=small_disk, workers=1, disk_reserve_bytes=MiB, scenarios=[scenarios], scene_pictures=0
+    )
     with server.client(server.key("midjob")) as c:
         sid = c.post("/v1/submissions", content=submission.read_bytes()).json()["id"]
         journal = small_disk / "results" / f"{sid}.journal"
@@ -277,11 +294,12 @@ def test_an_upload_state_a_full_database_could_not_record_is_recorded_once_it_ca
     key = server.key("wal")
     with server.client(key) as c:
         upload = c.post("/v1/uploads").json()["upload_id"]
-        assert c.patch(f"/v1/uploads/{upload}", content=b"a" * 65536, headers={"Upload-Offset": "0"}
-                       ).status_code == 204
+        assert c.patch(f"/v1/uploads/{upload}", content=b"a" * 65536, headers={"Upload-Offset": "0"}).status_code == 204
         with socket.create_connection(("127.0.0.1", server.port), timeout=30) as s:
-            s.sendall(f"PATCH /v1/uploads/{upload} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}\r\n"
-                      f"Upload-Offset: 65536\r\nContent-Length: {MiB}\r\n\r\n".encode())
+            s.sendall(
+                f"PATCH /v1/uploads/{upload} HTTP/1.1\r\nHost: x\r\nAuthorization: Bearer {key}\r\n"
+                f"Upload-Offset: 65536\r\nContent-Length: {MiB}\r\n\r\n".encode()
+            )
             deadline = time.monotonic() + 10
             while upload_states(server)[upload] != "writing" and time.monotonic() < deadline:
                 time.sleep(0.01)

@@ -3,6 +3,7 @@ demo data when it is absent) give exactly what `score_submission` gives; a worke
 killed with SIGKILL mid-job is replaced and the job completes; a job past its time
 budget fails with the reason; a restart keeps finished results. Real scorer, real
 worker processes, real SQLite file."""
+
 from __future__ import annotations
 
 import csv
@@ -18,15 +19,20 @@ from support.server_harness import as_submission, canonical, tar_bytes
 RUNNING = ("validating", "scoring")
 
 
-def test_submissions_score_exactly_as_score_submission(make_server, scoring_data, direct_full_result,
-                                                       direct_single_result):
+def test_submissions_score_exactly_as_score_submission(
+    make_server, scoring_data, direct_full_result, direct_single_result
+):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     n = len(scoring_data.scenarios)
     with server.client(server.key("golden")) as c:
-        full_id = c.post("/v1/submissions", content=scoring_data.full.read_bytes(),
-                         params={"publish": "true", "method": "baseline-1"}).json()["id"]
-        single_id = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
-                           params={"allow_partial": "true"}).json()["id"]
+        full_id = c.post(
+            "/v1/submissions",
+            content=scoring_data.full.read_bytes(),
+            params={"publish": "true", "method": "baseline-1"},
+        ).json()["id"]
+        single_id = c.post(
+            "/v1/submissions", content=scoring_data.single.read_bytes(), params={"allow_partial": "true"}
+        ).json()["id"]
         full = server.wait_state(c, full_id)
         assert full["state"] == "done", full
         assert full["progress"] == {"scenarios_done": n, "scenarios_total": n}
@@ -36,8 +42,9 @@ def test_submissions_score_exactly_as_score_submission(make_server, scoring_data
         assert canonical(served.json()) == canonical(direct_full_result)
         assert full["realism_meta_metric"] == direct_full_result["buckets"]["realism_meta_metric"]
 
-        rows = list(csv.DictReader(io.StringIO(c.get(f"/v1/submissions/{full_id}/results",
-                                                     params={"format": "csv"}).text)))
+        rows = list(
+            csv.DictReader(io.StringIO(c.get(f"/v1/submissions/{full_id}/results", params={"format": "csv"}).text))
+        )
         assert [r["scenario_id"] for r in rows] == [s["scenario_id"] for s in direct_full_result["scenarios"]]
         for row, scen in zip(rows, direct_full_result["scenarios"]):
             assert float(row["metametric"]) == scen["metametric"]
@@ -122,12 +129,14 @@ def test_job_over_its_time_budget_fails_with_the_reason(make_server, scoring_dat
 
 
 def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_restart(
-        make_server, scoring_data, direct_single_result):
+    make_server, scoring_data, direct_single_result
+):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("crash")
     with server.client(key) as c:
-        sid = c.post("/v1/submissions", content=scoring_data.single.read_bytes(),
-                     params={"allow_partial": "true"}).json()["id"]
+        sid = c.post(
+            "/v1/submissions", content=scoring_data.single.read_bytes(), params={"allow_partial": "true"}
+        ).json()["id"]
     worker = _running_worker_pid(server, sid)
     server.proc.kill()  # SIGKILL: no shutdown code runs in the server process
     server.proc.wait()
@@ -156,14 +165,24 @@ def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
     direct = score_submission(shards, full, challenge="scenario_gen")
     server = make_server(workers=1, scenarios=shards)
     with server.client(server.key("generator")) as c:
-        refused = c.post("/v1/submissions", content=full.read_bytes(),
-                         params={"challenge": "scenario_gen", "config": "2025"})
+        refused = c.post(
+            "/v1/submissions", content=full.read_bytes(), params={"challenge": "scenario_gen", "config": "2025"}
+        )
         assert refused.status_code == 422 and "scenario_gen_2025" in refused.json()["detail"]
         as_sim_agents = c.post("/v1/submissions", content=full.read_bytes()).json()
-        ids = [c.post("/v1/submissions", content=path.read_bytes(),
-                      params={"challenge": "scenario_gen", "publish": "true", "method": method,
-                              "allow_partial": str(method == "half").lower()}).json()["id"]
-               for path, method in ((full, "whole"), (half, "half"))]
+        ids = [
+            c.post(
+                "/v1/submissions",
+                content=path.read_bytes(),
+                params={
+                    "challenge": "scenario_gen",
+                    "publish": "true",
+                    "method": method,
+                    "allow_partial": str(method == "half").lower(),
+                },
+            ).json()["id"]
+            for path, method in ((full, "whole"), (half, "half"))
+        ]
         statuses = [server.wait_state(c, i) for i in ids]
         assert [s["state"] for s in statuses] == ["done", "done"], statuses
         assert statuses[0]["challenge"] == "scenario_gen" and statuses[0]["config"] == "scenario_gen_2025"
@@ -188,8 +207,9 @@ def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server,
 
     shards = scenes.write_scenario_shards(scenes.generate_scenes(1, seed=8), tmp_path / "scenarios", num_shards=1)
     anonymous = SubmissionMetadata(unique_method_name="anon", account_name="", authors=[])
-    upload = make_submission(shards, "constant_velocity", tmp_path / "anon.tar.gz", num_shards=1,
-                             metadata=anonymous).read_bytes()
+    upload = make_submission(
+        shards, "constant_velocity", tmp_path / "anon.tar.gz", num_shards=1, metadata=anonymous
+    ).read_bytes()
     for checks, state in (("error", "failed"), ("warn", "done")):
         server = make_server(workers=1, scenarios=shards, data_dir=tmp_path / f"data-{checks}", metadata_checks=checks)
         with server.client(server.key(checks)) as c:

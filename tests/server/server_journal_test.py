@@ -2,6 +2,7 @@
 16-scenario submission, the worker killed with SIGKILL mid-job (its scoring process dies with it); the
 retry skips the journaled scenarios and gives the result of an uninterrupted run. Meanwhile the data
 dir never holds more than 1.1 times the upload (no decompressed copy of the archive)."""
+
 from __future__ import annotations
 
 import os

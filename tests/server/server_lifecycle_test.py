@@ -2,6 +2,7 @@
 stopped (SIGTERM) or killed at any moment of its start-up leaves no scoring worker behind, and a
 worker whose parent dies before it has even finished importing ends by itself (it would otherwise
 poll the queue forever, re-parented to pid 1)."""
+
 from __future__ import annotations
 
 import os
@@ -32,9 +33,24 @@ def _serve(tmp_path, **env) -> tuple[Server, subprocess.Popen]:
     server = Server(tmp_path / "data", [placeholder], workers=2, **env)
     server.data_dir.mkdir(parents=True)
     log = open(server.log, "ab")
-    proc = subprocess.Popen([sys.executable, "-m", "wosac_server", "serve", "--host", "127.0.0.1",
-                             "--port", str(server.port), "--log-level", "warning"],
-                            env=server.env, stdout=log, stderr=subprocess.STDOUT, cwd=tmp_path)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "wosac_server",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(server.port),
+            "--log-level",
+            "warning",
+        ],
+        env=server.env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        cwd=tmp_path,
+    )
     log.close()
     return server, proc
 
@@ -64,9 +80,11 @@ def _wait_for_workers(server: Server, proc: subprocess.Popen) -> None:
     raise AssertionError(f"serve and 2 workers not seen after 60 s: {found}")
 
 
-@pytest.mark.parametrize("moment", [*(("start", d) for d in STARTUP_MOMENTS),
-                                    *(("workers", d) for d in WORKER_MOMENTS)],
-                         ids=lambda m: f"{m[1]}s-after-{m[0]}")
+@pytest.mark.parametrize(
+    "moment",
+    [*(("start", d) for d in STARTUP_MOMENTS), *(("workers", d) for d in WORKER_MOMENTS)],
+    ids=lambda m: f"{m[1]}s-after-{m[0]}",
+)
 def test_sigterm_at_any_moment_of_start_up_leaves_no_worker(tmp_path, moment):
     after, delay = moment
     server, proc = _serve(tmp_path)
@@ -77,9 +95,11 @@ def test_sigterm_at_any_moment_of_start_up_leaves_no_worker(tmp_path, moment):
         proc.send_signal(signal.SIGTERM)
         proc.wait(60)
         left = wait_gone(processes_of(server.data_dir), 15)
-        assert not left, (f"SIGTERM {delay} s after {after}: processes of the server outlived it: "
-                          f"{processes_of(server.data_dir)} (serve ended with {proc.returncode})\n"
-                          f"{server.log.read_text()}")
+        assert not left, (
+            f"SIGTERM {delay} s after {after}: processes of the server outlived it: "
+            f"{processes_of(server.data_dir)} (serve ended with {proc.returncode})\n"
+            f"{server.log.read_text()}"
+        )
     finally:
         _end_everything(server, proc)
 
@@ -131,8 +151,14 @@ def test_a_worker_whose_parent_died_before_it_finished_importing_ends_by_itself(
     server.data_dir.mkdir(parents=True)
     server.store.migrate()
     try:
-        parent = subprocess.run([sys.executable, "-c", ORPHANING_PARENT], env=server.env, cwd=tmp_path,
-                                capture_output=True, text=True, timeout=120)
+        parent = subprocess.run(
+            [sys.executable, "-c", ORPHANING_PARENT],
+            env=server.env,
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
         assert parent.returncode == 0, parent.stderr
         orphans = processes_of(server.data_dir)
         left = wait_gone(orphans, 15)
@@ -184,6 +210,11 @@ def test_a_stop_request_before_uvicorn_takes_the_signals_reaches_it(tmp_path):
     tells the real uvicorn server to shut down, which then returns instead of serving on."""
     from support.server_harness import free_port
 
-    done = subprocess.run([sys.executable, "-c", STOPPED_BEFORE_UVICORN_TAKES_THE_SIGNALS, str(free_port())],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    done = subprocess.run(
+        [sys.executable, "-c", STOPPED_BEFORE_UVICORN_TAKES_THE_SIGNALS, str(free_port())],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert done.returncode == 0 and done.stdout.strip() == "returned True", done.stderr

@@ -1,12 +1,14 @@
 """The whole service on PostgreSQL: a cluster started by the test run, the real
 server and workers using it through WOSAC_DB_URL."""
+
 from __future__ import annotations
 
 from support.server_harness import canonical
 
 
-def test_service_on_postgresql_scores_and_survives_restart(make_server, postgres_server, scoring_data,
-                                                            direct_single_result):
+def test_service_on_postgresql_scores_and_survives_restart(
+    make_server, postgres_server, scoring_data, direct_single_result
+):
     url = postgres_server()
     server = make_server(workers=1, db_url=url, scenarios=scoring_data.scenarios)
     assert not (server.data_dir / "wosac.sqlite3").exists()  # the data dir holds files only

@@ -3,6 +3,7 @@
 its rows, for a stored result of 5,000 rows, a result stored by an earlier service (one `<id>.json`),
 and a job scored end to end. A stored result is written as the worker writes it
 (`wosac_server.results.write_result`) for a job marked done."""
+
 from __future__ import annotations
 
 import csv
@@ -53,7 +54,8 @@ def _check_served(client, sid: str, doc: dict) -> None:
     assert table.status_code == 200 and table.headers["content-type"] == "text/csv; charset=utf-8"
     assert table.text == results.result_csv(doc)
     assert [r["scenario_id"] for r in csv.DictReader(io.StringIO(table.text))] == [
-        s["scenario_id"] for s in doc["scenarios"]]
+        s["scenario_id"] for s in doc["scenarios"]
+    ]
 
     summary = client.get(f"/v1/submissions/{sid}/results/summary")
     assert summary.status_code == 200 and summary.headers["content-type"] == "application/json"
@@ -68,17 +70,29 @@ def test_a_result_of_many_rows_is_streamed_paged_and_summarised(api_server):
         sid = _done_job(api_server, c)
         results.write_result(api_server.data_dir / "results", sid, doc)
         assert sorted(p.name for p in (api_server.data_dir / "results").glob(f"{sid}*")) == [
-            f"{sid}.rows.jsonl", f"{sid}.summary.json"]
+            f"{sid}.rows.jsonl",
+            f"{sid}.summary.json",
+        ]
         _check_served(c, sid, doc)
 
         # Pages: their boundaries, the last one short, past the end empty, the limit capped.
         base = f"/v1/submissions/{sid}/results/scenarios"
-        for offset, limit in [(0, 1000), (0, 1), (999, 2), (1000, 1000), (1999, 3), (4990, 1000), (ROWS - 1, 5),
-                              (ROWS, 10), (10**9, 1)]:
+        for offset, limit in [
+            (0, 1000),
+            (0, 1),
+            (999, 2),
+            (1000, 1000),
+            (1999, 3),
+            (4990, 1000),
+            (ROWS - 1, 5),
+            (ROWS, 10),
+            (10**9, 1),
+        ]:
             page = c.get(base, params={"offset": offset, "limit": limit})
             assert page.status_code == 200, page.text
             assert canonical(page.json()) == canonical(
-                {"total": ROWS, "offset": offset, "scenarios": rows[offset:offset + limit]}), (offset, limit)
+                {"total": ROWS, "offset": offset, "scenarios": rows[offset : offset + limit]}
+            ), (offset, limit)
         assert len(c.get(base).json()["scenarios"]) == results.MAX_PAGE  # the default: a whole page
         for bad in ({"limit": results.MAX_PAGE + 1}, {"limit": 0}, {"offset": -1}, {"offset": "x"}):
             assert c.get(base, params=bad).status_code == 422, bad
@@ -120,10 +134,11 @@ def test_a_result_stored_by_an_earlier_service_is_still_served(api_server):
         rows = json.loads(old.read_text())["scenarios"]
         for offset, limit in [(0, 1000), (999, 2), (2499, 10), (2500, 1)]:
             assert canonical(c.get(base, params={"offset": offset, "limit": limit}).json()) == canonical(
-                {"total": 2500, "offset": offset, "scenarios": rows[offset:offset + limit]})
+                {"total": 2500, "offset": offset, "scenarios": rows[offset : offset + limit]}
+            )
         assert canonical(_all_pages(c, sid, 1000)) == canonical(rows)
 
-        old.write_bytes(old.read_bytes()[:len(old.read_bytes()) // 2])  # cut short: the CSV finds it first
+        old.write_bytes(old.read_bytes()[: len(old.read_bytes()) // 2])  # cut short: the CSV finds it first
         r = c.get(f"/v1/submissions/{sid}/results", params={"format": "csv"})
         assert r.status_code == 410 and "damaged on the server" in r.json()["detail"]
         old.unlink()
@@ -148,5 +163,7 @@ def test_a_scored_job_is_stored_apart_and_served_whole(make_server, scoring_data
         assert len(doc["scenarios"]) == doc["num_scenarios"] == len(scoring_data.scenarios)
         _check_served(c, sid, doc)
         assert canonical(_all_pages(c, sid, 1)) == canonical(doc["scenarios"])
-        assert c.get(f"/v1/submissions/{sid}/results/summary").json()["buckets"]["realism_meta_metric"] == \
-            status["realism_meta_metric"]
+        assert (
+            c.get(f"/v1/submissions/{sid}/results/summary").json()["buckets"]["realism_meta_metric"]
+            == status["realism_meta_metric"]
+        )

@@ -1,6 +1,7 @@
 """A submission's scene pages: its pictured worst scenes and a page per scored scene with the objects that
 cost it most (from the per-object file the worker writes), seen as the results are (the key that uploaded
 it) for a private submission and by anyone for one its leaderboard shows; the leaderboard links to them."""
+
 from __future__ import annotations
 
 import itertools
@@ -27,8 +28,11 @@ def scored(tmp_path_factory, scoring_data):
         ids = {}
         for name, key, publish in (("private", owner, "false"), ("public", publisher, "true")):
             with server.client(key) as c:
-                answer = c.post("/v1/submissions", params={"method": f"{name}-method", "publish": publish},
-                                content=scoring_data.full.read_bytes())
+                answer = c.post(
+                    "/v1/submissions",
+                    params={"method": f"{name}-method", "publish": publish},
+                    content=scoring_data.full.read_bytes(),
+                )
                 assert answer.status_code == 202, answer.text
                 ids[name] = answer.json()["id"]
         for name, key in (("private", owner), ("public", publisher)):
@@ -51,10 +55,12 @@ def test_the_worker_writes_the_objects_and_their_row_index(scored, scoring_data)
         rows = c.get(f"/v1/submissions/{sid}/results").json()["scenarios"]
     # The served result is `wosac-eval score`'s without --per-object: the objects file is the server's own.
     assert "per_object" not in summary and sum(1 for _ in read_objects(objects)) > 0
-    offsets = [int.from_bytes(index.read_bytes()[i:i + 8], "little") for i in range(0, index.stat().st_size, 8)]
+    offsets = [int.from_bytes(index.read_bytes()[i : i + 8], "little") for i in range(0, index.stat().st_size, 8)]
     assert len(offsets) == len(rows) + 1 and offsets[0] == 0 and offsets[-1] == objects.stat().st_size
-    by_scene = {sid_: len(list(group)) for sid_, group in
-                itertools.groupby(read_objects(objects), key=lambda r: r["scenario_id"])}
+    by_scene = {
+        sid_: len(list(group))
+        for sid_, group in itertools.groupby(read_objects(objects), key=lambda r: r["scenario_id"])
+    }
     lines = objects.read_bytes().splitlines(keepends=True)
     starts = list(itertools.accumulate((len(line) for line in lines), initial=0))
     for i, row in enumerate(rows):
@@ -97,10 +103,13 @@ def test_scenes_and_worst_objects_in_the_api(scored):
             assert detail["scenario"] == scenario and detail["objects"] == len(records)
             assert detail["worst_objects"] == json.loads(json.dumps(scene_worst_objects(records, scenario, "2025")))
             pictured = next((e for e in listed if e["row"] == row), None)
-            assert detail["picture"] == (None if pictured is None else {"rank": pictured["rank"],
-                                                                        "object_picture": True})
-        assert listed[0]["worst_objects"] == c.get(
-            f"/v1/submissions/{sid}/results/scenarios/{worst['row']}").json()["worst_objects"]
+            assert detail["picture"] == (
+                None if pictured is None else {"rank": pictured["rank"], "object_picture": True}
+            )
+        assert (
+            listed[0]["worst_objects"]
+            == c.get(f"/v1/submissions/{sid}/results/scenarios/{worst['row']}").json()["worst_objects"]
+        )
         assert c.get(f"/v1/submissions/{sid}/results/scenarios/{len(rows)}").status_code == 404
     # The JSON API stays as the results are: the uploader's key only, published or not.
     with server.client(keys["stranger"]) as c:
@@ -127,7 +136,8 @@ def test_a_private_submissions_pages_need_its_key(scored):
     fragment = httpx.get(url + "/scenes?fragment=1", headers=owner)
     assert fragment.status_code == 200 and "<script" not in fragment.text
     assert [html_id for html_id in re.findall(r'data-scenario="([^"]+)"', fragment.text)] == [
-        e["scenario_id"] for e in listed]
+        e["scenario_id"] for e in listed
+    ]
     assert f'data-src="/submissions/{sid}/pictures/0.png"' in fragment.text
     assert httpx.get(url + "/pictures/0.png", headers=owner).content[:8] == PNG
     scene = httpx.get(url + f"/scenes/{listed[0]['row']}?fragment=1", headers=owner).text
@@ -169,19 +179,32 @@ def test_a_leaderboard_submissions_pages_are_public_and_linked_from_its_row(scor
 @pytest.mark.browser
 def test_a_private_scene_page_in_chromium(scored, tmp_path):
     """The shell's script fetches the page's content and its pictures with the key (CSP on)."""
-    chromium = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)),
-                    None)
+    chromium = next(
+        (shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)), None
+    )
     if chromium is None:
         pytest.skip("no Chromium on PATH (apt-get install -y chromium)")
     server, ids, keys = scored
     sid = ids["private"]
     with server.client(keys["owner"]) as c:
         worst = c.get(f"/v1/submissions/{sid}/scenes").json()["scenes"][0]
-    run = subprocess.run([chromium, "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
-                          "--disable-background-networking", f"--user-data-dir={tmp_path / 'profile'}",
-                          "--virtual-time-budget=8000", "--dump-dom",
-                          f"{server.url}/submissions/{sid}/scenes/{worst['row']}#key={keys['owner']}"],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [
+            chromium,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--no-first-run",
+            "--disable-background-networking",
+            f"--user-data-dir={tmp_path / 'profile'}",
+            "--virtual-time-budget=8000",
+            "--dump-dom",
+            f"{server.url}/submissions/{sid}/scenes/{worst['row']}#key={keys['owner']}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     dom = run.stdout
     assert f'<code id="scenario-id">{worst["scenario_id"]}</code>' in dom

@@ -1,6 +1,7 @@
 """Schemathesis fuzzes every operation of the live server's OpenAPI schema (and, through
 the schema's links, sequences of them: create an upload, patch it, complete it...); no
 input may produce a 5xx answer."""
+
 from __future__ import annotations
 
 import shutil
@@ -27,11 +28,33 @@ def test_fuzzed_requests_never_get_a_server_error(api_server, tmp_path):
     server = api_server
     key = server.key("fuzzer", max_concurrent=10**6, max_daily=10**6)
     run = subprocess.run(
-        [*schemathesis_cli(), "run", f"{server.url}/openapi.json", "--checks", "not_a_server_error",
-         "--max-examples", "15", "--seed", "20251121", "--workers", "1", "--no-color",
-         "--generation-database", "none", "--request-timeout", "20", "--phases", "examples,coverage,fuzzing,stateful",
-         "--header", f"Authorization: Bearer {key}"],
-        cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        [
+            *schemathesis_cli(),
+            "run",
+            f"{server.url}/openapi.json",
+            "--checks",
+            "not_a_server_error",
+            "--max-examples",
+            "15",
+            "--seed",
+            "20251121",
+            "--workers",
+            "1",
+            "--no-color",
+            "--generation-database",
+            "none",
+            "--request-timeout",
+            "20",
+            "--phases",
+            "examples,coverage,fuzzing,stateful",
+            "--header",
+            f"Authorization: Bearer {key}",
+        ],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     assert run.returncode == 0, run.stdout[-6000:] + run.stderr[-2000:]
     assert "No issues found" in run.stdout or "passed" in run.stdout, run.stdout[-3000:]
     assert "Traceback" not in server.log.read_text()  # no exception escaped a handler either

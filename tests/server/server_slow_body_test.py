@@ -2,6 +2,7 @@
 its connection at once, a body slower than the minimum rate or past the request deadline is closed
 (and frees its job slot and file), and past the global connection cap the process keeps descriptors
 to spare and still answers /healthz. Real uvicorn in a subprocess, real sockets."""
+
 from __future__ import annotations
 
 import socket

@@ -1,6 +1,7 @@
 """Upload size limits, on the real server: a whole validation-set submission (20-30 GB) fits the defaults
 through resumable uploads (64 GiB), and a single-request body has its own, smaller limit whose 413 says to
 use `wosac-eval submit`."""
+
 from __future__ import annotations
 
 import os

@@ -1,6 +1,7 @@
 """The web page in a real headless Chromium: a file uploaded through the form is
 scored, the status page's script follows it to `done`, the leaderboard is
 server-rendered. The browser is driven over the DevTools protocol on a pipe."""
+
 from __future__ import annotations
 
 import html
@@ -16,8 +17,16 @@ import httpx
 import pytest
 
 
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync"]
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
 
 
 def chromium() -> str:
@@ -30,9 +39,12 @@ def chromium() -> str:
 
 def rendered_dom(url: str, profile) -> str:
     """The DOM after the page's scripts ran (virtual time lets pending fetches finish)."""
-    run = subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
-                          "--virtual-time-budget=8000", "--dump-dom", url],
-                         capture_output=True, text=True, timeout=120)
+    run = subprocess.run(
+        [chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--virtual-time-budget=8000", "--dump-dom", url],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert run.returncode == 0, run.stderr[-2000:]
     return run.stdout
 
@@ -50,10 +62,13 @@ class Browser:
             os.dup2(a, 3)
             os.dup2(b, 4)
 
-        self.proc = subprocess.Popen([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}",
-                                      "--remote-debugging-pipe", "about:blank"],
-                                     pass_fds=(3, 4), preexec_fn=wire_fds,
-                                     stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.proc = subprocess.Popen(
+            [chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
+            pass_fds=(3, 4),
+            preexec_fn=wire_fds,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+        )
         os.close(cmd_read)
         os.close(reply_write)
         self._buffer, self._last_id, self.session = b"", 0, None
@@ -123,8 +138,9 @@ def field(dom: str, element_id: str) -> str:
 def test_leaderboard_cells_are_escaped():
     from wosac_server.web import leaderboard_table
 
-    table = leaderboard_table([{"rank": 1, "method": "<script>x</script>", "realism_meta_metric": 0.5,
-                                "buckets": {"min_ade": 1.25}}])
+    table = leaderboard_table(
+        [{"rank": 1, "method": "<script>x</script>", "realism_meta_metric": 0.5, "buckets": {"min_ade": 1.25}}]
+    )
     assert "<script>" not in table and "&lt;script&gt;x&lt;/script&gt;" in table
     assert '<td class="num">1.2500</td>' in table
 
@@ -132,7 +148,7 @@ def test_leaderboard_cells_are_escaped():
 def test_page_uses_no_external_resources(api_server):
     server = api_server
     page = httpx.get(server.url + "/").text
-    assert "<form id=\"upload-form\">" in page and "No published results yet" in page
+    assert '<form id="upload-form">' in page and "No published results yet" in page
     assert not re.search(r'(src|href)="(https?:)?//', page)  # nothing from a CDN
     assert httpx.get(server.url + "/static/style.css").headers["content-type"].startswith("text/css")
     assert httpx.get(server.url + "/docs").status_code == 404  # the CDN-backed docs page is off
@@ -178,15 +194,20 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
         # The form's script uploads, then goes to the status page, which polls until done.
         path = submit_upload_form(browser, server.url, scoring_data.full, key, "log-replay 1.0")
         browser.wait_for("document.readyState === 'complete'")
-        state = browser.wait_for("['done', 'failed'].includes(document.getElementById('state').textContent)"
-                                 " && document.getElementById('state').textContent", timeout=90)
+        state = browser.wait_for(
+            "['done', 'failed'].includes(document.getElementById('state').textContent)"
+            " && document.getElementById('state').textContent",
+            timeout=90,
+        )
         shown = browser.js("""(() => Object.fromEntries(['progress', 'method', 'meta'].map(
             id => [id, document.getElementById(id).textContent])))()""")
         links_visible = browser.js("!document.getElementById('links').hidden")
         # The worst scenes' pictures, fetched with the key and shown once the job is done.
         pictures = min(3, len(scoring_data.scenarios))
-        browser.wait_for(f"[...document.querySelectorAll('#scene-list img')].filter("
-                         f"i => i.complete && i.naturalWidth > 600).length === {pictures}")
+        browser.wait_for(
+            f"[...document.querySelectorAll('#scene-list img')].filter("
+            f"i => i.complete && i.naturalWidth > 600).length === {pictures}"
+        )
         shown_scenes = browser.js("[...document.querySelectorAll('#scene-list figure')].map(f => f.dataset.scenario)")
     finally:
         browser.close()
@@ -196,8 +217,11 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
     assert state == status["state"] == "done", status
     assert status["upload_bytes"] == scoring_data.full.stat().st_size and status["published"]
     n = len(scoring_data.scenarios)
-    assert shown == {"progress": f"{n} / {n} scenarios", "method": "log-replay 1.0",
-                     "meta": str(status["realism_meta_metric"])}
+    assert shown == {
+        "progress": f"{n} / {n} scenarios",
+        "method": "log-replay 1.0",
+        "meta": str(status["realism_meta_metric"]),
+    }
     assert links_visible
     with server.client(key) as c:
         result = c.get(f"/v1/submissions/{sid}/results").json()
@@ -236,8 +260,11 @@ def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server
     with server.client(key) as c:
         status = server.wait_state(c, sid)
         assert status["state"] == "done" and status["allow_partial"] and status["partial"], status
-        entry = next(e for e in c.get("/v1/leaderboard", params={"config": "2025"}).json()["entries"]
-                     if e["submission_id"] == sid)
+        entry = next(
+            e
+            for e in c.get("/v1/leaderboard", params={"config": "2025"}).json()["entries"]
+            if e["submission_id"] == sid
+        )
     assert entry["partial"] and entry["coverage"] < 1
     board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
     assert re.search(r'<span class="partial"[^>]*>[0-9.]+% partial</span>', board), board[-3000:]

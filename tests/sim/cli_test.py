@@ -1,4 +1,5 @@
 """End-to-end tests of `wosac-eval demo` and `wosac-eval baseline`, run as real subprocesses."""
+
 from __future__ import annotations
 
 import json
@@ -14,8 +15,14 @@ from support.paths import REPO
 
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    return subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", *args], cwd=cwd, env=env,
-                          capture_output=True, text=True, timeout=600)
+    return subprocess.run(
+        [sys.executable, "-m", "wosac_eval.fronts.cli", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
 
 
 def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
@@ -38,8 +45,18 @@ def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
         assert (workdir / "submissions" / f"{policy}.tar.gz").exists()
     assert metas["log_replay_noise"] > metas["idm"] > metas["constant_velocity"]
     # A second run reuses the cached scenes and gives the same numbers.
-    again = cli("demo", "--workdir", str(workdir), "--scenes", "3", "--policies", "constant_velocity",
-                "--workers", "1", cwd=tmp_path)
+    again = cli(
+        "demo",
+        "--workdir",
+        str(workdir),
+        "--scenes",
+        "3",
+        "--policies",
+        "constant_velocity",
+        "--workers",
+        "1",
+        cwd=tmp_path,
+    )
     assert again.returncode == 0, again.stderr
     assert "loaded 3 synthetic scenes" in again.stdout
     result = json.loads((workdir / "results" / "constant_velocity.json").read_text())
@@ -51,18 +68,33 @@ def test_baseline_command_writes_a_valid_submission(tmp_path):
 
     paths = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=3), tmp_path / "scenarios", 2)
     out = tmp_path / "sub" / "idm.tar.gz"
-    done = cli("baseline", "--scenarios", str(paths[0].parent), "--policy", "idm", "--output", str(out),
-               "--method-name", "my-idm", "--shards", "2", cwd=tmp_path)
+    done = cli(
+        "baseline",
+        "--scenarios",
+        str(paths[0].parent),
+        "--policy",
+        "idm",
+        "--output",
+        str(out),
+        "--method-name",
+        "my-idm",
+        "--shards",
+        "2",
+        cwd=tmp_path,
+    )
     assert done.returncode == 0, done.stderr
     assert "validation: ok" in done.stdout and out.exists()
     check = cli("validate", "--scenarios", *map(str, paths), "--submission", str(out), cwd=tmp_path)
     assert check.returncode == 0, check.stdout + check.stderr
 
 
-@pytest.mark.parametrize("args", [
-    ("--policy", "teleport"),
-    ("--policy", "idm", "--shards", "0"),
-])
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("--policy", "teleport"),
+        ("--policy", "idm", "--shards", "0"),
+    ],
+)
 def test_baseline_usage_errors_exit_2(tmp_path, args):
     from wosac_eval.sim import scenes
 
@@ -73,7 +105,8 @@ def test_baseline_usage_errors_exit_2(tmp_path, args):
 
 def test_baseline_missing_scenarios_exit_2_with_the_path(tmp_path):
     missing = tmp_path / "nope.tfrecord"
-    done = cli("baseline", "--scenarios", str(missing), "--policy", "idm", "--output", str(tmp_path / "x.tar.gz"),
-               cwd=tmp_path)
+    done = cli(
+        "baseline", "--scenarios", str(missing), "--policy", "idm", "--output", str(tmp_path / "x.tar.gz"), cwd=tmp_path
+    )
     assert done.returncode == 2
     assert "nope.tfrecord" in done.stderr

@@ -1,4 +1,5 @@
 """Tests of the baseline policies and the submission writer, on synthetic and (when present) real scenes."""
+
 from __future__ import annotations
 
 import functools
@@ -17,6 +18,7 @@ from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
 
 from support.paths import SHARED
+
 REAL = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
 
 
@@ -69,21 +71,30 @@ def test_idm_vehicles_stop_at_the_red_light_the_logged_runner_ignored():
     runner = sc.tracks[runner_index]
     ids, traj = policies.simulate_scenario(sc, "idm")
     k = ids.tolist().index(runner.id)
-    red = [t for t in range(11, 91) if all(
-        ls.state == map_pb2.TrafficSignalLaneState.LANE_STATE_STOP
-        for ls in sc.dynamic_map_states[t].lane_states
-        if abs(ls.stop_point.x - runner.states[10].center_x) + abs(ls.stop_point.y - runner.states[10].center_y) < 60
-        and _ahead(runner, ls.stop_point))]
+    red = [
+        t
+        for t in range(11, 91)
+        if all(
+            ls.state == map_pb2.TrafficSignalLaneState.LANE_STATE_STOP
+            for ls in sc.dynamic_map_states[t].lane_states
+            if abs(ls.stop_point.x - runner.states[10].center_x) + abs(ls.stop_point.y - runner.states[10].center_y)
+            < 60
+            and _ahead(runner, ls.stop_point)
+        )
+    ]
     assert len(red) > 20, "the runner's light stays red for a while"
     stop_points = [ls.stop_point for ls in sc.dynamic_map_states[10].lane_states if _ahead(runner, ls.stop_point)]
-    nearest = min(stop_points, key=lambda p: np.hypot(p.x - runner.states[10].center_x, p.y - runner.states[10].center_y))
+    nearest = min(
+        stop_points, key=lambda p: np.hypot(p.x - runner.states[10].center_x, p.y - runner.states[10].center_y)
+    )
     h = runner.states[10].heading
     along = (traj[:, k, :, 0] - nearest.x) * np.cos(h) + (traj[:, k, :, 1] - nearest.y) * np.sin(h)
     steps = np.array(red) - 11
     assert (along[:, steps] < 0.5).all(), "every rollout waits behind the stop point while red"
     # The log, by contrast, runs the red light.
-    logged = np.array([(s.center_x - nearest.x) * np.cos(h) + (s.center_y - nearest.y) * np.sin(h)
-                       for s in runner.states[11:]])
+    logged = np.array(
+        [(s.center_x - nearest.x) * np.cos(h) + (s.center_y - nearest.y) * np.sin(h) for s in runner.states[11:]]
+    )
     assert (logged[steps] > 0.5).any()
 
 
@@ -124,7 +135,8 @@ def test_policies_run_on_real_womd(policy):
 
 def test_baseline_submissions_validate_with_full_metadata(tmp_path):
     scenario_paths = scenes.write_scenario_shards(
-        [scene("intersection"), scene("occlusion"), scene("cyclists")], tmp_path / "scenarios", 2)
+        [scene("intersection"), scene("occlusion"), scene("cyclists")], tmp_path / "scenarios", 2
+    )
     for policy in sorted(policies.POLICIES):
         out = baselines.make_submission(scenario_paths, policy, tmp_path / f"{policy}.tar.gz", num_shards=2)
         report = validate_submission(scenario_paths, out)

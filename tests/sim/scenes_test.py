@@ -1,4 +1,5 @@
 """Tests of the synthetic scene generator: determinism, format, physical plausibility, scripted events."""
+
 from __future__ import annotations
 
 import functools
@@ -82,10 +83,15 @@ def test_scene_has_the_structure_the_official_metrics_need(kind):
     assert any(f.lane.type == map_pb2.LaneCenter.TYPE_SURFACE_STREET for f in sc.map_features if f.HasField("lane"))
     for f in sc.map_features:
         if f.HasField("lane"):
-            assert all(e in features and features[e].HasField("lane") for e in [*f.lane.entry_lanes, *f.lane.exit_lanes])
+            assert all(
+                e in features and features[e].HasField("lane") for e in [*f.lane.entry_lanes, *f.lane.exit_lanes]
+            )
     # Stop bars (solid white road lines) cross the lanes where the signalised lanes start.
-    bars = [np.array([(p.x, p.y) for p in f.road_line.polyline]) for f in sc.map_features
-            if f.HasField("road_line") and f.road_line.type == map_pb2.RoadLine.TYPE_SOLID_SINGLE_WHITE]
+    bars = [
+        np.array([(p.x, p.y) for p in f.road_line.polyline])
+        for f in sc.map_features
+        if f.HasField("road_line") and f.road_line.type == map_pb2.RoadLine.TYPE_SOLID_SINGLE_WHITE
+    ]
     for ls in sc.dynamic_map_states[0].lane_states:
         start = np.array([ls.stop_point.x, ls.stop_point.y])
         assert min(np.linalg.norm(bar - start, axis=1).min() for bar in bars) < 0.5

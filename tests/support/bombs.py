@@ -3,6 +3,7 @@
 Every bomb is built in memory by streaming compressors (nothing large is held), and
 every one is a well-formed container, so only the expansion limits can stop it.
 """
+
 from __future__ import annotations
 
 import bz2
@@ -38,7 +39,7 @@ def tar_stream(members: list[tuple[str, int, bytes]], kind: str) -> bytes:
         block = (pattern * (MiB // len(pattern) + 1))[:MiB]
         left = size
         while left:
-            piece = block[:min(left, MiB)]
+            piece = block[: min(left, MiB)]
             out.append(comp.compress(piece))
             left -= len(piece)
         out.append(comp.compress(b"\0" * (-size % tarfile.BLOCKSIZE)))

@@ -3,6 +3,7 @@
 Chromium runs with networking features off and a throw-away profile, so a
 report that tried to load anything from outside would show it as missing.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -13,9 +14,16 @@ from pathlib import Path
 _CANDIDATES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
 
 _FLAGS = (
-    "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-    "--disable-background-networking", "--disable-component-update", "--disable-sync",
-    "--disable-dev-shm-usage", "--hide-scrollbars",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-dev-shm-usage",
+    "--hide-scrollbars",
 )
 
 
@@ -33,8 +41,9 @@ def _run(args: list[str], timeout: float) -> subprocess.CompletedProcess:
     if chromium is None:
         raise FileNotFoundError("no chromium executable on PATH (apt-get install chromium)")
     with tempfile.TemporaryDirectory(prefix="wosac-chromium-") as profile:
-        return subprocess.run([chromium, *_FLAGS, f"--user-data-dir={profile}", *args],
-                              capture_output=True, timeout=timeout, check=True)
+        return subprocess.run(
+            [chromium, *_FLAGS, f"--user-data-dir={profile}", *args], capture_output=True, timeout=timeout, check=True
+        )
 
 
 def dump_dom(html_path: str | Path, timeout: float = 60.0) -> str:
@@ -43,8 +52,14 @@ def dump_dom(html_path: str | Path, timeout: float = 60.0) -> str:
     return _run(["--dump-dom", url], timeout).stdout.decode("utf-8")
 
 
-def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280, height: int = 2000,
-               timeout: float = 60.0, palette_colors: int | None = None) -> Path:
+def screenshot(
+    html_path: str | Path,
+    png_path: str | Path,
+    width: int = 1280,
+    height: int = 2000,
+    timeout: float = 60.0,
+    palette_colors: int | None = None,
+) -> Path:
     """Writes a PNG screenshot of a local HTML file at the given window size.
 
     Args:

@@ -14,6 +14,7 @@ Four collections, two per challenge:
 
 Scenarios are looked up by id in every scene folder of the collections.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -33,13 +34,25 @@ from wosac_eval.protos import sim_agents_submission_pb2
 
 # Per-step features compared bit for bit, and the displacement error (also bit-identical).
 EXACT_FEATURES = (
-    "object_id", "object_type", "valid", "linear_speed", "linear_acceleration", "angular_speed",
-    "angular_acceleration", "distance_to_nearest_object", "collision_per_step", "time_to_collision",
-    "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step",
+    "object_id",
+    "object_type",
+    "valid",
+    "linear_speed",
+    "linear_acceleration",
+    "angular_speed",
+    "angular_acceleration",
+    "distance_to_nearest_object",
+    "collision_per_step",
+    "time_to_collision",
+    "distance_to_road_edge",
+    "offroad_per_step",
+    "traffic_light_violation_per_step",
     "average_displacement_error",
 )
 SHARED_CONFIGS = {
-    "2025": "2025", "2024": "2024", "2023": "2023",
+    "2025": "2025",
+    "2024": "2024",
+    "2023": "2023",
     "test": "official-configs/test_config.textproto",
     "test_dependent": "official-configs/test_config_dependent_timesteps.textproto",
 }
@@ -68,8 +81,12 @@ SETS = (
     CaseSet("oracle", TEST_DATA / "oracle", "sim_agents", ("2025", "2024", "2023"), True),
     CaseSet("oracle_scenario_gen", TEST_DATA / "oracle_scenario_gen", "scenario_gen", ("scenario_gen_2025",), True),
 )
-SCENE_FOLDERS = (SHARED / "womd", SHARED / "golden" / "scenario_gen" / "scenes", TEST_DATA / "oracle" / "scenes",
-                 TEST_DATA / "oracle_scenario_gen" / "scenes")
+SCENE_FOLDERS = (
+    SHARED / "womd",
+    SHARED / "golden" / "scenario_gen" / "scenes",
+    TEST_DATA / "oracle" / "scenes",
+    TEST_DATA / "oracle_scenario_gen" / "scenes",
+)
 
 
 def all_cases(*names: str) -> list:
@@ -91,8 +108,10 @@ def skip_if_absent(case_set: CaseSet, case: str | None) -> None:
     import pytest
 
     if case is None:
-        pytest.skip(f"{case_set.folder} is absent: golden parity needs the official reference outputs "
-                    "(../shared, or WOSAC_SHARED, on developer machines and in CI; not in a user's clone)")
+        pytest.skip(
+            f"{case_set.folder} is absent: golden parity needs the official reference outputs "
+            "(../shared, or WOSAC_SHARED, on developer machines and in CI; not in a user's clone)"
+        )
 
 
 @lru_cache(maxsize=None)
@@ -112,7 +131,9 @@ def scenario(scenario_id: str):
 
 def rollouts(case_set: CaseSet, case: str):
     path = case_set.folder / f"{case}.binproto"
-    raw = path.read_bytes() if path.exists() else gzip.decompress((case_set.folder / f"{case}.binproto.gz").read_bytes())
+    raw = (
+        path.read_bytes() if path.exists() else gzip.decompress((case_set.folder / f"{case}.binproto.gz").read_bytes())
+    )
     return sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts[0]
 
 
@@ -156,5 +177,8 @@ def assert_features_equal(ours, expected, where: str, names=EXACT_FEATURES) -> N
 
 def as_feature_dict(pair) -> dict:
     """(log, sim) `MetricFeatures` as `{"log_<name>": ..., "sim_<name>": ...}`."""
-    return {f"{prefix}{name}": getattr(features, name)
-            for prefix, features in (("log_", pair[0]), ("sim_", pair[1])) for name in EXACT_FEATURES}
+    return {
+        f"{prefix}{name}": getattr(features, name)
+        for prefix, features in (("log_", pair[0]), ("sim_", pair[1]))
+        for name in EXACT_FEATURES
+    }

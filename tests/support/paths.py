@@ -5,6 +5,7 @@ the official implementation, the oracle scripts) sits at `../shared` beside the
 repository on developer machines and in CI; `WOSAC_SHARED=/path/to/shared`
 points elsewhere. A user's fresh clone has none: tests that need it skip.
 """
+
 from __future__ import annotations
 
 import os
@@ -19,8 +20,10 @@ def shared_missing_reason(what: str = "golden") -> str | None:
     """Why a test that needs `SHARED/what` cannot run, or None when it is there."""
     if (SHARED / what).exists():
         return None
-    return (f"{SHARED / what} is absent: the reference material (../shared, or WOSAC_SHARED) is on "
-            f"developer machines and in CI, not in a user's clone")
+    return (
+        f"{SHARED / what} is absent: the reference material (../shared, or WOSAC_SHARED) is on "
+        f"developer machines and in CI, not in a user's clone"
+    )
 
 
 def require_shared(what: str = "golden") -> Path:

@@ -1,5 +1,6 @@
 """Which processes live, read from Linux /proc: for the tests that kill scorers and workers and check
 that nothing is left behind."""
+
 from __future__ import annotations
 
 import os

@@ -15,6 +15,7 @@ skipped and named.
 Usage: python tests/support/readme_blocks.py SCRATCH_DIR [--skip-ray]
 Exit 0 when every block ran with exit 0; else 1, naming the block's line.
 """
+
 from __future__ import annotations
 
 import os
@@ -38,7 +39,7 @@ def readme_blocks(text: str) -> list[tuple[int, str, str]]:
             continue
         if setup and setup.start() <= match.start() < setup.end():
             continue
-        out.append((text[:match.start()].count("\n") + 1, match.group(1), match.group(2)))
+        out.append((text[: match.start()].count("\n") + 1, match.group(1), match.group(2)))
     return out
 
 
@@ -49,8 +50,11 @@ def documents() -> list[Path]:
 
 def document_blocks() -> list[tuple[str, int, str, str]]:
     """(document, line, language, code) of every block to run, documents in `documents()` order."""
-    return [(str(path.relative_to(REPO)), line, language, code)
-            for path in documents() for line, language, code in readme_blocks(path.read_text())]
+    return [
+        (str(path.relative_to(REPO)), line, language, code)
+        for path in documents()
+        for line, language, code in readme_blocks(path.read_text())
+    ]
 
 
 def uses_ray(code: str) -> bool:
@@ -63,9 +67,14 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
         (scratch / "examples").symlink_to(REPO / "examples")
     home = scratch / ".home"
     home.mkdir(exist_ok=True)
-    env = {**os.environ, "HOME": str(home), "MPLBACKEND": "Agg", "RAY_DISABLE_USAGE_STATS": "1",
-           "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
-           "PYTHONUNBUFFERED": "1"}
+    env = {
+        **os.environ,
+        "HOME": str(home),
+        "MPLBACKEND": "Agg",
+        "RAY_DISABLE_USAGE_STATS": "1",
+        "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
+        "PYTHONUNBUFFERED": "1",
+    }
     env.pop("RAY_ADDRESS", None)
     blocks = document_blocks()
     failed = 0
@@ -80,8 +89,10 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
         print(f"{document}:{line}: {language} block {status} in {time.monotonic() - start:.1f} s", flush=True)
         if done.returncode != 0:
             failed += 1
-            print(f"--- code\n{code}--- stdout (tail)\n{done.stdout[-3000:]}\n--- stderr (tail)\n{done.stderr[-3000:]}",
-                  flush=True)
+            print(
+                f"--- code\n{code}--- stdout (tail)\n{done.stdout[-3000:]}\n--- stderr (tail)\n{done.stderr[-3000:]}",
+                flush=True,
+            )
     print(f"{len(blocks)} block(s) of {len(documents())} document(s), {failed} failed", flush=True)
     return 1 if failed else 0
 

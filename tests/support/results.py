@@ -1,34 +1,66 @@
 """Synthetic result documents shaped like the service's (for the results tests and the streaming
 benchmark): rows of ~3.2 kB with the fields, nesting, nulls and NaNs of real per-scenario rows, so
 that 44,097 of them make a document of about the size of a validation-set result (~140 MB)."""
+
 from __future__ import annotations
 
 import random
 
-METRICS = ["linear_speed_likelihood", "linear_acceleration_likelihood", "angular_speed_likelihood",
-           "angular_acceleration_likelihood", "distance_to_nearest_object_likelihood",
-           "collision_indication_likelihood", "time_to_collision_likelihood", "distance_to_road_edge_likelihood",
-           "offroad_indication_likelihood", "traffic_light_violation_likelihood"]
+METRICS = [
+    "linear_speed_likelihood",
+    "linear_acceleration_likelihood",
+    "angular_speed_likelihood",
+    "angular_acceleration_likelihood",
+    "distance_to_nearest_object_likelihood",
+    "collision_indication_likelihood",
+    "time_to_collision_likelihood",
+    "distance_to_road_edge_likelihood",
+    "offroad_indication_likelihood",
+    "traffic_light_violation_likelihood",
+]
 RATES = ["simulated_collision_rate", "simulated_offroad_rate", "simulated_traffic_light_violation_rate"]
-CRITICALITY = ["braking", "jerk", "yaw_acceleration", "time_to_collision", "closing_speed", "offroad", "near_miss",
-               "red_light", "rarity"]
+CRITICALITY = [
+    "braking",
+    "jerk",
+    "yaw_acceleration",
+    "time_to_collision",
+    "closing_speed",
+    "offroad",
+    "near_miss",
+    "red_light",
+    "rarity",
+]
 DRIVING = ["at_fault_collision", "collision", "offroad", "red_light", "progress", "ttc_below", "comfortable"]
 
 
 def synthetic_row(i: int, rng: random.Random) -> dict:
     u = rng.random
-    row = {"scenario_id": f"{i:016x}", "metametric": u(), "average_displacement_error": 10 * u(),
-           "min_average_displacement_error": 5 * u(), **{m: u() for m in METRICS}, **{r: u() for r in RATES},
-           "criticality": {"score": u(), "components": {c: u() for c in CRITICALITY},
-                           "raw": {c: 20 * u() - 5 for c in CRITICALITY}, "peak_step": rng.randrange(91)},
-           "driving": None if i % 11 == 5 else {"score": u(), "components": {d: u() for d in DRIVING}},
-           "by_object_type": {kind: {"num_objects": rng.randrange(1, 40),
-                                     **{m: (None if kind != "vehicle" and m == "time_to_collision_likelihood" else u())
-                                        for m in METRICS},
-                                     "metametric": u(), "min_average_displacement_error": u(),
-                                     **{r: u() for r in RATES}}
-                              for kind, share in (("vehicle", 1.0), ("pedestrian", 0.7), ("cyclist", 0.2))
-                              if u() < share}}
+    row = {
+        "scenario_id": f"{i:016x}",
+        "metametric": u(),
+        "average_displacement_error": 10 * u(),
+        "min_average_displacement_error": 5 * u(),
+        **{m: u() for m in METRICS},
+        **{r: u() for r in RATES},
+        "criticality": {
+            "score": u(),
+            "components": {c: u() for c in CRITICALITY},
+            "raw": {c: 20 * u() - 5 for c in CRITICALITY},
+            "peak_step": rng.randrange(91),
+        },
+        "driving": None if i % 11 == 5 else {"score": u(), "components": {d: u() for d in DRIVING}},
+        "by_object_type": {
+            kind: {
+                "num_objects": rng.randrange(1, 40),
+                **{m: (None if kind != "vehicle" and m == "time_to_collision_likelihood" else u()) for m in METRICS},
+                "metametric": u(),
+                "min_average_displacement_error": u(),
+                **{r: u() for r in RATES},
+            }
+            for kind, share in (("vehicle", 1.0), ("pedestrian", 0.7), ("cyclist", 0.2))
+            if u() < share
+        },
+    }
     if i % 97 == 3:
         row["min_average_displacement_error"] = float("nan")  # stored and served as NaN, as json.dump writes it
     return row
@@ -45,10 +77,21 @@ def synthetic_result(n: int, seed: int = 0) -> dict:
         rows[1]["note"] = 'a "quoted", comma'
         rows[2]["driving"] = 0.5
     aggregate = {"metametric": 0.6, **{m: 0.5 for m in METRICS}}
-    return {"challenge": "sim_agents", "config": "2025", "num_scenarios": n, "scenarios": rows,
-            "aggregate": aggregate,
-            "buckets": {"realism_meta_metric": 0.6, "kinematic_metrics": 0.5, "interactive_metrics": 0.7,
-                        "map_based_metrics": 0.8, "min_ade": 1.25},
-            "skipped": [], "validation": {"errors": 0, "warnings": 0, "findings": []},
-            "coverage": {"scored": n, "expected": n, "fraction": 1.0},
-            "analysis": {"criticality": {"mean": 0.5, "long_tail_threshold": 0.9, "behaviour_samples": 7 * n}}}
+    return {
+        "challenge": "sim_agents",
+        "config": "2025",
+        "num_scenarios": n,
+        "scenarios": rows,
+        "aggregate": aggregate,
+        "buckets": {
+            "realism_meta_metric": 0.6,
+            "kinematic_metrics": 0.5,
+            "interactive_metrics": 0.7,
+            "map_based_metrics": 0.8,
+            "min_ade": 1.25,
+        },
+        "skipped": [],
+        "validation": {"errors": 0, "warnings": 0, "findings": []},
+        "coverage": {"scored": n, "expected": n, "fraction": 1.0},
+        "analysis": {"criticality": {"mean": 0.5, "long_tail_threshold": 0.9, "behaviour_samples": 7 * n}},
+    }

@@ -1,4 +1,5 @@
 """Running the `wosac-eval` command line in a subprocess, as a user would."""
+
 from __future__ import annotations
 
 import json
@@ -11,8 +12,14 @@ from support.paths import REPO
 
 def run_cli(*args: str, timeout: float = 600, **kwargs) -> subprocess.CompletedProcess:
     """`wosac-eval ARGS` in a fresh interpreter, output captured as text."""
-    return subprocess.run([sys.executable, "-m", "wosac_eval.fronts.cli", *args], cwd=kwargs.pop("cwd", REPO),
-                          capture_output=True, text=True, timeout=timeout, **kwargs)
+    return subprocess.run(
+        [sys.executable, "-m", "wosac_eval.fronts.cli", *args],
+        cwd=kwargs.pop("cwd", REPO),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        **kwargs,
+    )
 
 
 def run_score(tmp_path: Path, *args: str):

@@ -1,5 +1,6 @@
 """Run the real service for tests and benchmarks: `wosac-server serve` as a child
 process on 127.0.0.1 with its own data dir (a real SQLite file) and a free port."""
+
 from __future__ import annotations
 
 import gzip
@@ -21,22 +22,24 @@ from wosac_server import auth
 from wosac_server.db import Store
 
 from support.paths import REPO, SHARED
+
 GOLDEN = SHARED / "golden"
-SCENARIO_FILES = [SHARED / "womd" / "motion_data_one_scenario.tfrecord",
-                  SHARED / "womd" / "womd_scenario_input.tfrecord"]
+SCENARIO_FILES = [
+    SHARED / "womd" / "motion_data_one_scenario.tfrecord",
+    SHARED / "womd" / "womd_scenario_input.tfrecord",
+]
 # One golden submission per shared scenario: together they cover both.
-GOLDEN_PAIR = [GOLDEN / "637f20cafde22ff8__logreplay.binproto",
-               GOLDEN / "ee519cf571686d19__constvel_noise.binproto"]
+GOLDEN_PAIR = [GOLDEN / "637f20cafde22ff8__logreplay.binproto", GOLDEN / "ee519cf571686d19__constvel_noise.binproto"]
 
 
 @dataclass(frozen=True)
 class ScoringData:
     """What the end-to-end tests and the load benchmark score."""
 
-    source: str            # "shared golden" or "demo"
+    source: str  # "shared golden" or "demo"
     scenarios: list[Path]  # the scenario shards the server scores against
-    full: Path             # a valid submission covering every scenario
-    single: Path           # a submission covering one scenario (score with allow_partial)
+    full: Path  # a valid submission covering every scenario
+    single: Path  # a submission covering one scenario (score with allow_partial)
 
 
 def golden_data(workdir: Path) -> ScoringData | None:
@@ -53,8 +56,14 @@ def golden_data(workdir: Path) -> ScoringData | None:
     del merged.scenario_rollouts[:]
     merged.scenario_rollouts.extend(second.scenario_rollouts)
     full = workdir / "golden-pair.tar.gz"
-    full.write_bytes(tar_bytes({"shard-00000-of-00002.binproto": first.SerializeToString(),
-                                "shard-00001-of-00002.binproto": merged.SerializeToString()}))
+    full.write_bytes(
+        tar_bytes(
+            {
+                "shard-00000-of-00002.binproto": first.SerializeToString(),
+                "shard-00001-of-00002.binproto": merged.SerializeToString(),
+            }
+        )
+    )
     return ScoringData("shared golden", list(SCENARIO_FILES), full, GOLDEN_PAIR[0])
 
 
@@ -116,14 +125,22 @@ class Server:
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         inherited = {k: v for k, v in os.environ.items() if not k.startswith("WOSAC_")}
-        self.env = {**inherited, "WOSAC_DATA_DIR": str(data_dir),
-                    "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
-                    "WOSAC_POLL_S": "0.1", "WOSAC_HEARTBEAT_S": "0.2", "WOSAC_LEASE_S": "1.5",
-                    "WOSAC_WORKERS": "1", "WOSAC_SHUTDOWN_GRACE_S": "2", "PYTHONUNBUFFERED": "1",
-                    # Tests must not depend on how full the machine's disk is, nor leave 64 MiB reserve files:
-                    # the disk tests (server_disk_test.py) set these on a filesystem of their own.
-                    "WOSAC_MIN_FREE_FRACTION": "0", "WOSAC_DISK_RESERVE_BYTES": str(2**20),
-                    "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+        self.env = {
+            **inherited,
+            "WOSAC_DATA_DIR": str(data_dir),
+            "WOSAC_SCENARIOS": ",".join(str(p) for p in scenarios),
+            "WOSAC_POLL_S": "0.1",
+            "WOSAC_HEARTBEAT_S": "0.2",
+            "WOSAC_LEASE_S": "1.5",
+            "WOSAC_WORKERS": "1",
+            "WOSAC_SHUTDOWN_GRACE_S": "2",
+            "PYTHONUNBUFFERED": "1",
+            # Tests must not depend on how full the machine's disk is, nor leave 64 MiB reserve files:
+            # the disk tests (server_disk_test.py) set these on a filesystem of their own.
+            "WOSAC_MIN_FREE_FRACTION": "0",
+            "WOSAC_DISK_RESERVE_BYTES": str(2**20),
+            "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
+        }
         self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
         self.proc: subprocess.Popen | None = None
         self.log = data_dir.parent / f"server-{self.port}.log"
@@ -137,10 +154,24 @@ class Server:
         self.data_dir.mkdir(parents=True, exist_ok=True)
         log = open(self.log, "ab")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "wosac_server", "serve", "--host", "127.0.0.1",
-             "--port", str(self.port), "--log-level", "warning"],
-            env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=self.data_dir.parent,
-            preexec_fn=self._limit_open_files if self.nofile else None)
+            [
+                sys.executable,
+                "-m",
+                "wosac_server",
+                "serve",
+                "--host",
+                "127.0.0.1",
+                "--port",
+                str(self.port),
+                "--log-level",
+                "warning",
+            ],
+            env=self.env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=self.data_dir.parent,
+            preexec_fn=self._limit_open_files if self.nofile else None,
+        )
         try:
             wait_healthy(self.url, self.proc, timeout)
         except RuntimeError as error:
@@ -175,8 +206,9 @@ class Server:
         transport = httpx.HTTPTransport(local_address=source) if source else None
         return httpx.Client(base_url=self.url, headers=headers, timeout=timeout, transport=transport)
 
-    def wait_state(self, client: httpx.Client, submission_id: str, states=("done", "failed"),
-                   timeout: float = 90.0) -> dict:
+    def wait_state(
+        self, client: httpx.Client, submission_id: str, states=("done", "failed"), timeout: float = 90.0
+    ) -> dict:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             body = client.get(f"/v1/submissions/{submission_id}").json()

@@ -1,5 +1,6 @@
 """The search strategies' interface checked: `search_strategy.SearchStrategy` by `isinstance` (the methods
 are there) and by signature (each method takes the Protocol's parameters, by the same names)."""
+
 from __future__ import annotations
 
 import inspect
@@ -16,5 +17,7 @@ def parameter_names(function) -> list[str]:
 def assert_is_search_strategy(search) -> None:
     assert isinstance(search, SearchStrategy), type(search).__name__
     for method in METHODS:
-        assert parameter_names(getattr(type(search), method)) == parameter_names(getattr(SearchStrategy, method)), \
-            (type(search).__name__, method)
+        assert parameter_names(getattr(type(search), method)) == parameter_names(getattr(SearchStrategy, method)), (
+            type(search).__name__,
+            method,
+        )

@@ -17,6 +17,7 @@ from wosac_eval.parse.tfrecord import iter_records, write_records
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 from support.paths import REPO as REPO_ROOT, SHARED
+
 GOLDEN = SHARED / "golden"
 WOMD = SHARED / "womd"
 
@@ -34,7 +35,9 @@ def require_shared() -> None:
         pytest.skip(f"reference data {SHARED} is absent (golden/ and womd/ are needed)")
 
 
-def golden_submission(case: str = "637f20cafde22ff8__logreplay") -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
+def golden_submission(
+    case: str = "637f20cafde22ff8__logreplay",
+) -> sim_agents_submission_pb2.SimAgentsChallengeSubmission:
     require_shared()
     return sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString((GOLDEN / f"{case}.binproto").read_bytes())
 
@@ -87,9 +90,13 @@ def tar_bytes(members: dict[str, bytes], *, gzip: bool = True) -> bytes:
     return buffer.getvalue()
 
 
-def replicated_submission(folder: Path, n_scenarios: int, per_shard: int = 10,
-                          case: str = "637f20cafde22ff8__official_test_submission",
-                          layout: str = "tar.gz") -> tuple[Path, Path]:
+def replicated_submission(
+    folder: Path,
+    n_scenarios: int,
+    per_shard: int = 10,
+    case: str = "637f20cafde22ff8__official_test_submission",
+    layout: str = "tar.gz",
+) -> tuple[Path, Path]:
     """A benchmark workload: `n_scenarios` renamed copies of a golden case's scenario and rollouts.
 
     Writes `scenarios-N.tfrecord` and the submission (shards of `per_shard`
@@ -110,7 +117,7 @@ def replicated_submission(folder: Path, n_scenarios: int, per_shard: int = 10,
 
     def shard_bytes(s: int) -> bytes:
         shard = with_rollouts(template, [])
-        for sid in ids[s * per_shard:(s + 1) * per_shard]:
+        for sid in ids[s * per_shard : (s + 1) * per_shard]:
             r = shard.scenario_rollouts.add()
             r.CopyFrom(rollouts)
             r.scenario_id = sid

@@ -4,6 +4,7 @@ The tests lower `realism` over hundreds of scenes (abstract arrays: shapes only,
 benchmark times it on the device (concrete arrays, gathered on the device), both from a few scenes
 prepared once.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,9 +40,13 @@ def tiled(prepared: jax_realism.PreparedScenes, num_scenes: int, abstract: bool 
             take = lambda a: jnp.take(a, jnp.asarray(rows), axis=0)  # noqa: E731
         arrays.append(jax.tree_util.tree_map(take, group_arrays))
         groups.append((tuple(scenes), layout))
-    return dataclasses.replace(prepared, arrays=tuple(arrays), groups=tuple(groups),
-                               scenario_ids=tuple(prepared.scenario_ids[i] for i in source),
-                               agent_ids=tuple(prepared.agent_ids[i] for i in source))
+    return dataclasses.replace(
+        prepared,
+        arrays=tuple(arrays),
+        groups=tuple(groups),
+        scenario_ids=tuple(prepared.scenario_ids[i] for i in source),
+        agent_ids=tuple(prepared.agent_ids[i] for i in source),
+    )
 
 
 def tiled_rollouts(arrays: dict, num_scenes: int, abstract: bool = False) -> dict:

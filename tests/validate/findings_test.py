@@ -61,8 +61,13 @@ def test_control_characters_in_names_cannot_forge_report_lines():
 
 def test_hints_are_counted_per_group_and_merged_not_repeated():
     def finding(hint):
-        return make_finding("rollouts.wrong_length", "field heading has 91 values, expected 80", scenario_id="s",
-                            field="heading", hint=hint)
+        return make_finding(
+            "rollouts.wrong_length",
+            "field heading has 91 values, expected 80",
+            scenario_id="s",
+            field="heading",
+            hint=hint,
+        )
 
     first = ValidationReport("sub", max_listed=2)
     first.extend([finding("cause A"), finding("cause A"), finding(None)])

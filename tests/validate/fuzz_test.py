@@ -16,7 +16,11 @@ from support.submissions import golden_submission, scenario_path, tar_bytes, wit
 
 SID = "637f20cafde22ff8"
 # WOSAC_FUZZ_EXAMPLES=2000 for a deeper local run; the default keeps the suite fast.
-FUZZ = settings(max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "60")), deadline=None, suppress_health_check=[HealthCheck.too_slow])
+FUZZ = settings(
+    max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "60")),
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow],
+)
 
 
 @pytest.fixture(scope="module")
@@ -113,7 +117,11 @@ def test_corrupt_scenario_set_is_a_clean_usage_error(edits):
             assert all(a.dtype.kind == "i" for a in agents.values())
 
 
-@settings(FUZZ, max_examples=min(FUZZ.max_examples, 30), suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture])
+@settings(
+    FUZZ,
+    max_examples=min(FUZZ.max_examples, 30),
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
 @given(data=st.binary(max_size=2048), name=st.sampled_from(["s.binproto", "s.tar.gz", "s.tar"]))
 def test_cli_on_random_bytes_exits_1_with_a_report(capsys, data, name):
     from wosac_eval.fronts.cli import main

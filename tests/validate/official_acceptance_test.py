@@ -9,6 +9,7 @@ What the official does with each case was checked with its code (../shared/oracl
   the same way (golden cases `tests/data/oracle_scenario_gen/*__sg_logged_boxes`, `*__sg_odd_boxes`);
 - a repeated object id passes the official validator and fails its scorer: an error, saying so.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -31,9 +32,16 @@ def scene():
 
 def official_test_rollouts(scenario, n_steps=91):
     """The official tests' joint scene: every sim agent at zero, no box sizes, no object type."""
-    trajectories = [sim_agents_submission_pb2.SimulatedTrajectory(
-        object_id=int(i), center_x=[0.0] * n_steps, center_y=[0.0] * n_steps, center_z=[0.0] * n_steps,
-        heading=[0.0] * n_steps) for i in rules.sim_agent_ids(scenario)]
+    trajectories = [
+        sim_agents_submission_pb2.SimulatedTrajectory(
+            object_id=int(i),
+            center_x=[0.0] * n_steps,
+            center_y=[0.0] * n_steps,
+            center_z=[0.0] * n_steps,
+            heading=[0.0] * n_steps,
+        )
+        for i in rules.sim_agent_ids(scenario)
+    ]
     scene = sim_agents_submission_pb2.JointScene(simulated_trajectories=trajectories)
     return sim_agents_submission_pb2.ScenarioRollouts(scenario_id=scenario.scenario_id, joint_scenes=[scene] * 32)
 
@@ -54,8 +62,9 @@ def test_official_test_joint_scene_for_scenario_gen(scene):
     lengths = found["rollouts.wrong_length"]
     assert len(lengths) == 3 * n and {f.field for f in lengths} == {"length", "width", "height"}
     assert {f.severity for f in lengths} == {ERROR}
-    assert lengths[0].message.endswith("field length has 0 values, expected 91; the official validator accepts it "
-                                       "but its scorer fails on the scenario")
+    assert lengths[0].message.endswith(
+        "field length has 0 values, expected 91; the official validator accepts it but its scorer fails on the scenario"
+    )
     assert "one value per step (91)" in lengths[0].hint
     # No type: the official scores it as TYPE_UNSET: a warning.
     types = found["rollouts.missing_object_type"]
@@ -95,8 +104,9 @@ def test_repeated_object_says_the_official_scorer_fails(scene):
     scene0 = rollouts.joint_scenes[0]
     scene0.simulated_trajectories.append(scene0.simulated_trajectories[0])
     (f,) = by_code(rules.check_scenario_rollouts(rollouts, rules.sim_agent_ids(scene)))["rollouts.duplicate_objects"]
-    assert f.severity == ERROR and f.message.endswith("the official validator accepts it but its scorer fails on "
-                                                      "the scenario (repeated ids)")
+    assert f.severity == ERROR and f.message.endswith(
+        "the official validator accepts it but its scorer fails on the scenario (repeated ids)"
+    )
 
 
 def test_wrong_challenge_hint_is_one_line_per_cause(scene):
@@ -110,8 +120,10 @@ def test_wrong_challenge_hint_is_one_line_per_cause(scene):
     text = report.format_text()
     lines = text.splitlines()
     wrong = [line for line in lines if "is a sim_agents submission" in line]
-    assert wrong == [f"  hint ({4 * n} of {7 * n}): 80 values is a sim_agents submission: validate and score it "
-                     "with --challenge sim_agents"]
+    assert wrong == [
+        f"  hint ({4 * n} of {7 * n}): 80 values is a sim_agents submission: validate and score it "
+        "with --challenge sim_agents"
+    ]
     assert sum("one value per step" in line for line in lines) == 1
     assert sum(line.startswith("  hint (") for line in lines) == 3  # sizes, wrong challenge, missing type
     assert sum(line.startswith("  - ") for line in lines) == 8 * n  # every finding listed, without its hint
@@ -124,6 +136,7 @@ def test_sim_agents_rollouts_for_scenario_gen_length_hint(scene):
     rollouts = official_test_rollouts(scene, n_steps=91)
     findings = rules.check_scenario_rollouts(rollouts, rules.sim_agent_ids(scene))
     assert {f.code for f in findings} == {"rollouts.wrong_length"}
-    assert {f.hint for f in findings} == {"91 values is a scenario_gen submission: validate and score it with "
-                                          "--challenge scenario_gen"}
+    assert {f.hint for f in findings} == {
+        "91 values is a scenario_gen submission: validate and score it with --challenge scenario_gen"
+    }
     assert np.all([f.message.endswith("expected 80; the official validator refuses it") for f in findings])

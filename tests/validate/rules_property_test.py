@@ -46,8 +46,9 @@ def trajectory(draw, challenge="sim_agents"):
         field.extend([base] * n)
         for _ in range(draw(st.integers(0, 2))):
             if n:
-                field[draw(st.integers(0, n - 1))] = draw(st.one_of(values, st.sampled_from([0.0, -1.0]))
-                                                          if name in box_fields else values)
+                field[draw(st.integers(0, n - 1))] = draw(
+                    st.one_of(values, st.sampled_from([0.0, -1.0])) if name in box_fields else values
+                )
     if challenge == "scenario_gen":
         object_type = draw(st.sampled_from([None, 0, 1, 2, 3]))
         if object_type is not None:
@@ -153,8 +154,10 @@ def _check(r, known, challenge):
     assert observed(findings) == reference(r, agents, challenge)
     # a round trip through bytes (as read from a file) gives the same findings
     again = sim_agents_submission_pb2.ScenarioRollouts.FromString(r.SerializeToString())
-    assert [f.message for f in rules.check_scenario_rollouts(again, agents, shard="x", n_rollouts=N_ROLLOUTS,
-                                                             challenge=challenge)] == [f.message for f in findings]
+    assert [
+        f.message
+        for f in rules.check_scenario_rollouts(again, agents, shard="x", n_rollouts=N_ROLLOUTS, challenge=challenge)
+    ] == [f.message for f in findings]
 
 
 @settings(max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")), deadline=None)

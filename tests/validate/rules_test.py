@@ -125,10 +125,18 @@ def test_method_link_is_only_a_warning(submission):
 @pytest.mark.parametrize(
     "mutate,field,fragment",
     [
-        (lambda s: setattr(s, "submission_type", 0), "submission_type", "submission_type is UNKNOWN, expected SIM_AGENTS_SUBMISSION"),
+        (
+            lambda s: setattr(s, "submission_type", 0),
+            "submission_type",
+            "submission_type is UNKNOWN, expected SIM_AGENTS_SUBMISSION",
+        ),
         (lambda s: setattr(s, "account_name", "jdoe"), "account_name", "account_name 'jdoe' is not an email address"),
         (lambda s: s.authors.append("  "), "authors", "authors[1] is empty"),
-        (lambda s: setattr(s, "num_model_parameters", "about 3 million"), "num_model_parameters", "'about 3 million' is not a number"),
+        (
+            lambda s: setattr(s, "num_model_parameters", "about 3 million"),
+            "num_model_parameters",
+            "'about 3 million' is not a number",
+        ),
         (
             lambda s: setattr(s, "acknowledge_complies_with_closed_loop_requirement", False),
             "acknowledge_complies_with_closed_loop_requirement",
@@ -162,7 +170,9 @@ def test_metadata_differing_between_shards_names_both(submission):
     other.CopyFrom(submission)
     other.unique_method_name = "another-name"
     other.uses_lidar_data = True
-    findings = rules.check_metadata_consistency(rules.metadata_of(submission), "a.binproto", rules.metadata_of(other), "b.binproto")
+    findings = rules.check_metadata_consistency(
+        rules.metadata_of(submission), "a.binproto", rules.metadata_of(other), "b.binproto"
+    )
     assert [f.field for f in findings] == ["unique_method_name", "uses_lidar_data"]
     assert findings[0].message == "b.binproto: unique_method_name is 'another-name' but 'logreplay' in a.binproto"
 
@@ -177,9 +187,14 @@ def test_missing_scenarios_listed_in_scenario_set_order():
 
 
 def test_unknown_and_duplicate_scenario_messages():
-    assert rules.unknown_scenario("zz", "s1", 4).message == "s1: scenario zz: not in the scenario set (scenario_rollouts[4])"
+    assert (
+        rules.unknown_scenario("zz", "s1", 4).message
+        == "s1: scenario zz: not in the scenario set (scenario_rollouts[4])"
+    )
     dup = rules.duplicate_scenario("ab", "s2", 0, ("s1", 3))
-    assert dup.message == "s2: scenario ab: submitted again at scenario_rollouts[0]; first in s1 at scenario_rollouts[3]"
+    assert (
+        dup.message == "s2: scenario ab: submitted again at scenario_rollouts[0]; first in s1 at scenario_rollouts[3]"
+    )
 
 
 # -- per scenario rollouts -----------------------------------------------------
@@ -203,7 +218,9 @@ def test_missing_sim_agents_listed_by_id(rollouts, agents):
     del scene.simulated_trajectories[0]
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.scenario_id) == ("rollouts.missing_sim_agents", 3, SID)
-    assert f.message.startswith(f"s: scenario {SID} rollout 3: missing sim agents [{gone[0]}, {gone[1]}] (2 of {len(agents)}")
+    assert f.message.startswith(
+        f"s: scenario {SID} rollout 3: missing sim agents [{gone[0]}, {gone[1]}] (2 of {len(agents)}"
+    )
 
 
 def test_extra_objects_are_named(rollouts, agents, scenario):
@@ -233,7 +250,10 @@ def test_trajectory_without_object_id(rollouts, agents):
     scene.simulated_trajectories[2].ClearField("object_id")
     findings = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert codes(findings) == ["rollouts.missing_object_id", "rollouts.missing_sim_agents"]
-    assert "rollout 9: simulated_trajectories[2] has no object_id" in only(findings, "rollouts.missing_object_id")[0].message
+    assert (
+        "rollout 9: simulated_trajectories[2] has no object_id"
+        in only(findings, "rollouts.missing_object_id")[0].message
+    )
     assert f"missing sim agents [{oid}]" in only(findings, "rollouts.missing_sim_agents")[0].message
 
 
@@ -246,7 +266,10 @@ def test_wrong_length_names_object_field_and_count(rollouts, agents, field, size
     getattr(trajectory, field).extend((values + values)[:size])
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.object_id, f.field) == ("rollouts.wrong_length", 4, trajectory.object_id, field)
-    assert f.message == f"s: scenario {SID} rollout 4 object {trajectory.object_id}: field {field} has {size} values, expected 80; the official validator refuses it"
+    assert (
+        f.message
+        == f"s: scenario {SID} rollout 4 object {trajectory.object_id}: field {field} has {size} values, expected 80; the official validator refuses it"
+    )
 
 
 @pytest.mark.parametrize("field", rules.TRAJECTORY_FIELDS)
@@ -257,8 +280,10 @@ def test_non_finite_value_names_its_index(rollouts, agents, field, value, kind):
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert (f.code, f.rollout, f.object_id, f.field) == ("rollouts.non_finite", 5, trajectory.object_id, field)
     assert f.severity == "warning"  # the official scores it; so does wosac-eval
-    assert f.message == (f"s: scenario {SID} rollout 5 object {trajectory.object_id}: {field}[17] is {kind}; "
-                         "the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)")
+    assert f.message == (
+        f"s: scenario {SID} rollout 5 object {trajectory.object_id}: {field}[17] is {kind}; "
+        "the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
+    )
 
 
 def test_several_non_finite_values_counted_and_indexed(rollouts, agents):
@@ -266,7 +291,9 @@ def test_several_non_finite_values_counted_and_indexed(rollouts, agents):
     for i in (3, 40, 79):
         trajectory.heading[i] = math.nan
     (f,) = rules.check_scenario_rollouts(rollouts, agents, shard="s")
-    assert f.message.endswith("heading[3] is NaN (3 non-finite values, at indices [3, 40, 79])" + rules._NON_FINITE_OFFICIAL)
+    assert f.message.endswith(
+        "heading[3] is NaN (3 non-finite values, at indices [3, 40, 79])" + rules._NON_FINITE_OFFICIAL
+    )
 
 
 def test_non_finite_found_in_a_trajectory_of_wrong_length(rollouts, agents):
@@ -275,7 +302,9 @@ def test_non_finite_found_in_a_trajectory_of_wrong_length(rollouts, agents):
     trajectory.center_x.append(math.inf)
     findings = rules.check_scenario_rollouts(rollouts, agents, shard="s")
     assert codes(findings) == ["rollouts.non_finite", "rollouts.wrong_length"]
-    assert only(findings, "rollouts.non_finite")[0].message.endswith("center_x[80] is +inf" + rules._NON_FINITE_OFFICIAL)
+    assert only(findings, "rollouts.non_finite")[0].message.endswith(
+        "center_x[80] is +inf" + rules._NON_FINITE_OFFICIAL
+    )
 
 
 def test_unknown_layout_falls_back_and_still_finds_nan(rollouts, agents):

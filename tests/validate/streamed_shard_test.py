@@ -1,5 +1,6 @@
 """A shard is checked one scenario at a time, with the whole parse's result (`validate.validator.check_shard`,
 `parse.shard_stream`), and an archive is walked without holding a member whole (`SubmissionSource.shards`)."""
+
 from __future__ import annotations
 
 import functools
@@ -64,9 +65,18 @@ def large(demo, tmp_path_factory):
 def _summary(result) -> tuple:
     """Everything a ShardResult says, comparable."""
     rollouts = None if result.rollouts is None else result.rollouts.to_dict(include_skipped=True)
-    return (result.name, result.size, result.parse_error, result.parse_code, result.metadata,
-            [f.to_dict() for f in result.metadata_findings], result.empty_detail, result.entries, rollouts,
-            result.spans if result.parse_error is None else None)
+    return (
+        result.name,
+        result.size,
+        result.parse_error,
+        result.parse_code,
+        result.metadata,
+        [f.to_dict() for f in result.metadata_findings],
+        result.empty_detail,
+        result.entries,
+        rollouts,
+        result.spans if result.parse_error is None else None,
+    )
 
 
 def _both(raw: bytes, tmp_path, limits: InputLimits | None = None) -> tuple[tuple, tuple]:
@@ -92,18 +102,28 @@ def _variants(raw: bytes) -> dict[str, bytes]:
         "valid": raw,
         "empty": b"",
         "truncated": raw[:-7],
-        "cut in the middle": raw[:len(raw) // 2],
+        "cut in the middle": raw[: len(raw) // 2],
         "a stray end of group": raw + b"\x1c",
         "a damaged scenario": raw[:40] + b"\xff" * 64 + raw[104:],
         "scenario id not UTF-8": bad_id_bytes,
         "metadata not UTF-8": bad_name.SerializeToString().replace("\u00e9".encode(), b"\xff\xfe"),
         "an unknown field": raw + b"\xf8\x07\x01",
-        "not a shard": b"{\"json\": true}",
+        "not a shard": b'{"json": true}',
     }
 
 
-VARIANTS = ("valid", "empty", "truncated", "cut in the middle", "a stray end of group",
-            "a damaged scenario", "scenario id not UTF-8", "metadata not UTF-8", "an unknown field", "not a shard")
+VARIANTS = (
+    "valid",
+    "empty",
+    "truncated",
+    "cut in the middle",
+    "a stray end of group",
+    "a damaged scenario",
+    "scenario id not UTF-8",
+    "metadata not UTF-8",
+    "an unknown field",
+    "not a shard",
+)
 
 
 @pytest.mark.parametrize("variant", VARIANTS)
@@ -115,8 +135,12 @@ def test_a_shard_read_from_its_file_is_judged_as_the_whole_parse_judges_it(demo,
 
 def test_message_limits_are_refused_at_the_same_place(large, tmp_path):
     _, shard, _ = large
-    for limits in (InputLimits(message_allowance=100, message_bytes=1 << 30), InputLimits(max_scenarios=3),
-                   InputLimits(max_objects=2), InputLimits(max_joint_scenes=5)):
+    for limits in (
+        InputLimits(message_allowance=100, message_bytes=1 << 30),
+        InputLimits(max_scenarios=3),
+        InputLimits(max_objects=2),
+        InputLimits(max_joint_scenes=5),
+    ):
         whole, streamed = _both(shard, tmp_path, limits)
         assert whole[2] and whole[3] == "container.size_limit", whole[2]
         assert streamed == whole
@@ -175,15 +199,18 @@ def test_validation_of_an_archive_leaves_no_scratch_file(demo, tmp_path, monkeyp
 def test_a_resumed_read_of_an_archive_reads_only_what_is_left(demo):
     """`rollouts_locators(wanted)`: what is declined comes as None, unread; the rest as its bytes."""
     paths, archive, _, raw = demo
-    expected = {r.scenario_id: r.SerializeToString()
-                for r in sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts}
+    expected = {
+        r.scenario_id: r.SerializeToString()
+        for r in sim_agents_submission_pb2.SimAgentsChallengeSubmission.FromString(raw).scenario_rollouts
+    }
     last = list(expected)[-1]
     with SubmissionSource(archive) as source:
         assert validate_submission(paths, source).ok
         got = list(source.rollouts_locators(lambda sid: sid == last))
         assert [sid for sid, _ in got] == list(expected)
-        assert {sid: None if loc is None else read_locator(loc) for sid, loc in got} == \
-            {sid: data if sid == last else None for sid, data in expected.items()}
+        assert {sid: None if loc is None else read_locator(loc) for sid, loc in got} == {
+            sid: data if sid == last else None for sid, data in expected.items()
+        }
         assert {sid: read_locator(loc) for sid, loc in source.rollouts_locators()} == expected
 
 

@@ -104,7 +104,9 @@ def test_valid_tar_gz_exits_0(tmp_path, capsys, scenario_file, good_shards):
     assert "2 shard(s), 2 scenario(s) submitted, 2 valid, 0 missing of 2 expected" in out
 
 
-def test_valid_folder_and_single_binproto_exit_0(tmp_path, capsys, scenario_file, good_shards, template, rollouts_a, rollouts_b):
+def test_valid_folder_and_single_binproto_exit_0(
+    tmp_path, capsys, scenario_file, good_shards, template, rollouts_a, rollouts_b
+):
     folder = tmp_path / "shards"
     for name, data in good_shards.items():
         (folder / name).parent.mkdir(parents=True, exist_ok=True)
@@ -154,7 +156,10 @@ def test_not_a_tar_named_tar_gz(tmp_path, capsys, scenario_file):
     path = write(tmp_path / "submission.tar.gz", b"this is not an archive at all" * 40)
     code, report = validate_json(capsys, [scenario_file], path)
     assert code == 1
-    assert "named like a compressed tar archive but is neither tar nor gzip" in group(report, "container.unreadable")["listed"][0]["message"]
+    assert (
+        "named like a compressed tar archive but is neither tar nor gzip"
+        in group(report, "container.unreadable")["listed"][0]["message"]
+    )
     assert group(report, "coverage.missing_scenario")["count"] == 2
 
 
@@ -196,13 +201,17 @@ def test_size_limit(tmp_path, capsys, scenario_file, good_shards):
     path = write(tmp_path / "big.tar.gz", tar_bytes(good_shards))
     code, report = validate_json(capsys, [scenario_file], path, "--max-bytes", "1M")
     assert code == 1
-    assert f"more than the total limit of {1 << 20} bytes" in group(report, "container.size_limit")["listed"][0]["message"]
+    assert (
+        f"more than the total limit of {1 << 20} bytes" in group(report, "container.size_limit")["listed"][0]["message"]
+    )
     code, report = validate_json(capsys, [scenario_file], path, "--max-shard-bytes", "100K")
     assert code == 1
     assert "over the per-member limit of 102400 bytes" in group(report, "container.size_limit")["listed"][0]["message"]
 
 
-def test_folder_stray_file_reported_and_scan_goes_on(tmp_path, capsys, scenario_file, good_shards, template, rollouts_b):
+def test_folder_stray_file_reported_and_scan_goes_on(
+    tmp_path, capsys, scenario_file, good_shards, template, rollouts_b
+):
     folder = tmp_path / "shards"
     folder.mkdir()
     (folder / "a.binproto").write_bytes(good_shards["sub/a.binproto"])
@@ -212,7 +221,9 @@ def test_folder_stray_file_reported_and_scan_goes_on(tmp_path, capsys, scenario_
     (folder / "b.binproto").write_bytes(with_rollouts(template, [bad]).SerializeToString())
     code, report = validate_json(capsys, [scenario_file], folder)
     assert code == 1
-    assert "'results.json' is neither a submission shard" in group(report, "container.not_a_shard")["listed"][0]["message"]
+    assert (
+        "'results.json' is neither a submission shard" in group(report, "container.not_a_shard")["listed"][0]["message"]
+    )
     # the shard after the stray file is still checked
     assert group(report, "rollouts.wrong_count")["listed"][0]["message"] == (
         f"b.binproto: scenario {B}: found 31 joint scenes, expected 32; the official validator refuses it"
@@ -266,10 +277,15 @@ def test_shard_without_scenario(tmp_path, capsys, scenario_file, good_shards, te
         ("uses_camera_data", "uses_camera_data is not set"),
         ("uses_public_model_pretraining", "uses_public_model_pretraining is not set"),
         ("num_model_parameters", "num_model_parameters is empty"),
-        ("acknowledge_complies_with_closed_loop_requirement", "acknowledge_complies_with_closed_loop_requirement is not set"),
+        (
+            "acknowledge_complies_with_closed_loop_requirement",
+            "acknowledge_complies_with_closed_loop_requirement is not set",
+        ),
     ],
 )
-def test_missing_metadata_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b, field, fragment):
+def test_missing_metadata_through_cli(
+    tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b, field, fragment
+):
     shard = with_rollouts(template, [rollouts_a, rollouts_b])
     shard.ClearField(field)
     path = write(tmp_path / "one.binproto", shard.SerializeToString())
@@ -277,16 +293,23 @@ def test_missing_metadata_through_cli(tmp_path, capsys, scenario_file, template,
     assert code == 1 and report["errors"] == 1
     (finding,) = group(report, "metadata.missing")["listed"]
     assert finding == {
-        "code": "metadata.missing", "message": f"one.binproto: {finding['message'].split(': ', 1)[1]}",
-        "shard": "one.binproto", "field": field, "severity": "error",
+        "code": "metadata.missing",
+        "message": f"one.binproto: {finding['message'].split(': ', 1)[1]}",
+        "shard": "one.binproto",
+        "field": field,
+        "severity": "error",
     }
     assert finding["message"].startswith(f"one.binproto: {fragment}")
 
 
-def test_metadata_fault_shared_by_all_shards_is_one_finding(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
+def test_metadata_fault_shared_by_all_shards_is_one_finding(
+    tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b
+):
     meta = copy(template)
     meta.ClearField("affiliation")
-    members = {f"s{i}.binproto": with_rollouts(meta, [r]).SerializeToString() for i, r in enumerate([rollouts_a, rollouts_b])}
+    members = {
+        f"s{i}.binproto": with_rollouts(meta, [r]).SerializeToString() for i, r in enumerate([rollouts_a, rollouts_b])
+    }
     code, report = validate_json(capsys, [scenario_file], write(tmp_path / "s.tar.gz", tar_bytes(members)))
     assert code == 1 and report["errors"] == 1
     assert group(report, "metadata.missing")["listed"][0]["message"] == "s0.binproto: affiliation is empty"
@@ -344,7 +367,9 @@ def test_unknown_duplicate_and_id_less_scenarios(tmp_path, capsys, template, man
     anonymous.ClearField("scenario_id")
     members = {
         "s0.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[:8]]).SerializeToString(),
-        "s1.binproto": with_rollouts(template, [rollouts[sid] for sid in ids[6:]] + [stranger, anonymous]).SerializeToString(),
+        "s1.binproto": with_rollouts(
+            template, [rollouts[sid] for sid in ids[6:]] + [stranger, anonymous]
+        ).SerializeToString(),
     }
     code, report = validate_json(capsys, [scenario_path], write(tmp_path / "s.tar", tar_bytes(members, gzip=False)))
     assert code == 1
@@ -389,7 +414,9 @@ def test_missing_sim_agents_through_cli(tmp_path, capsys, scenario_file, templat
     def drop_two(r):
         del r.joint_scenes[3].simulated_trajectories[:2]
 
-    code, report = validate_json(capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, drop_two))
+    code, report = validate_json(
+        capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, drop_two)
+    )
     assert code == 1
     (finding,) = group(report, "rollouts.missing_sim_agents")["listed"]
     assert (finding["scenario_id"], finding["rollout"], finding["shard"]) == (A, 3, "sub/a.binproto")
@@ -405,10 +432,18 @@ def test_extra_and_duplicate_objects_through_cli(tmp_path, capsys, scenario_file
         stranger.object_id = 424242
 
     dup_id = rollouts_a.joint_scenes[7].simulated_trajectories[0].object_id
-    code, report = validate_json(capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, add_objects))
+    code, report = validate_json(
+        capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, add_objects)
+    )
     assert code == 1
-    assert f"rollout 7: object ids simulated more than once: {dup_id} (2 times)" in group(report, "rollouts.duplicate_objects")["listed"][0]["message"]
-    assert "rollout 7: objects [424242] are not sim agents" in group(report, "rollouts.extra_objects")["listed"][0]["message"]
+    assert (
+        f"rollout 7: object ids simulated more than once: {dup_id} (2 times)"
+        in group(report, "rollouts.duplicate_objects")["listed"][0]["message"]
+    )
+    assert (
+        "rollout 7: objects [424242] are not sim agents"
+        in group(report, "rollouts.extra_objects")["listed"][0]["message"]
+    )
 
 
 def test_wrong_length_and_nan_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
@@ -419,24 +454,37 @@ def test_wrong_length_and_nan_through_cli(tmp_path, capsys, scenario_file, templ
         del t.center_x[-1]
         t.center_y[17] = math.nan
 
-    code, report = validate_json(capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, corrupt))
+    code, report = validate_json(
+        capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, corrupt)
+    )
     assert code == 1
     length = group(report, "rollouts.wrong_length")["listed"][0]
-    assert length["message"] == f"sub/a.binproto: scenario {A} rollout 5 object {target}: field center_x has 79 values, expected 80; the official validator refuses it"
+    assert (
+        length["message"]
+        == f"sub/a.binproto: scenario {A} rollout 5 object {target}: field center_x has 79 values, expected 80; the official validator refuses it"
+    )
     assert (length["object_id"], length["field"], length["rollout"]) == (target, "center_x", 5)
     nan = group(report, "rollouts.non_finite")["listed"][0]
-    assert nan["message"] == (f"sub/a.binproto: scenario {A} rollout 5 object {target}: center_y[17] is NaN; the "
-                              "official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)")
+    assert nan["message"] == (
+        f"sub/a.binproto: scenario {A} rollout 5 object {target}: center_y[17] is NaN; the "
+        "official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
+    )
 
 
-def test_all_errors_reported_with_counts_not_just_first(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
+def test_all_errors_reported_with_counts_not_just_first(
+    tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b
+):
     def everywhere(r):
         for scene in r.joint_scenes:
             for t in scene.simulated_trajectories:
                 t.heading[0] = math.inf
 
     code, report = validate_json(
-        capsys, [scenario_file], _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, everywhere), "--max-listed", "5"
+        capsys,
+        [scenario_file],
+        _faulty_submission(tmp_path, template, rollouts_a, rollouts_b, everywhere),
+        "--max-listed",
+        "5",
     )
     n_objects = len(rollouts_a.joint_scenes[0].simulated_trajectories)
     g = group(report, "rollouts.non_finite")
@@ -484,7 +532,14 @@ def test_unreadable_scenario_set_exits_2(tmp_path, capsys, good_shards):
     assert "broken.tfrecord" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("argv", [["validate"], ["validate", "--scenarios", "x"], ["validate", "--scenarios", "x", "--submission", "y", "--max-bytes", "lots"]])
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["validate"],
+        ["validate", "--scenarios", "x"],
+        ["validate", "--scenarios", "x", "--submission", "y", "--max-bytes", "lots"],
+    ],
+)
 def test_argparse_usage_errors_exit_2(argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
@@ -542,27 +597,45 @@ def test_zero_byte_shard_is_called_empty(tmp_path, capsys, scenario_file, good_s
     members = {**good_shards, "sub/zero.binproto": b""}
     code, report = validate_json(capsys, [scenario_file], write(tmp_path / "s.tar.gz", tar_bytes(members)))
     assert code == 1
-    assert group(report, "shard.empty")["listed"][0]["message"] == "sub/zero.binproto: holds no scenario_rollouts (the shard is 0 bytes)"
+    assert (
+        group(report, "shard.empty")["listed"][0]["message"]
+        == "sub/zero.binproto: holds no scenario_rollouts (the shard is 0 bytes)"
+    )
 
 
 @pytest.mark.parametrize(
     "mutate,field,fragment",
     [
-        (lambda s: setattr(s, "submission_type", 0), "submission_type", "submission_type is UNKNOWN, expected SIM_AGENTS_SUBMISSION"),
+        (
+            lambda s: setattr(s, "submission_type", 0),
+            "submission_type",
+            "submission_type is UNKNOWN, expected SIM_AGENTS_SUBMISSION",
+        ),
         (lambda s: setattr(s, "account_name", "jdoe"), "account_name", "account_name 'jdoe' is not an email address"),
         (lambda s: s.authors.append(""), "authors", "authors[1] is empty"),
-        (lambda s: setattr(s, "num_model_parameters", "big"), "num_model_parameters", "num_model_parameters 'big' is not a number"),
-        (lambda s: setattr(s, "acknowledge_complies_with_closed_loop_requirement", False),
-         "acknowledge_complies_with_closed_loop_requirement", "is false; it must be true"),
+        (
+            lambda s: setattr(s, "num_model_parameters", "big"),
+            "num_model_parameters",
+            "num_model_parameters 'big' is not a number",
+        ),
+        (
+            lambda s: setattr(s, "acknowledge_complies_with_closed_loop_requirement", False),
+            "acknowledge_complies_with_closed_loop_requirement",
+            "is false; it must be true",
+        ),
     ],
 )
-def test_invalid_metadata_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b, mutate, field, fragment):
+def test_invalid_metadata_through_cli(
+    tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b, mutate, field, fragment
+):
     shard = with_rollouts(template, [rollouts_a, rollouts_b])
     mutate(shard)
     code, report = validate_json(capsys, [scenario_file], write(tmp_path / "one.binproto", shard.SerializeToString()))
     assert code == 1 and report["errors"] == 1
     (finding,) = group(report, "metadata.invalid")["listed"]
-    assert finding["field"] == field and finding["message"].startswith("one.binproto: ") and fragment in finding["message"]
+    assert (
+        finding["field"] == field and finding["message"].startswith("one.binproto: ") and fragment in finding["message"]
+    )
 
 
 def test_pretraining_without_model_names_through_cli(tmp_path, capsys, scenario_file, template, rollouts_a, rollouts_b):
@@ -607,8 +680,14 @@ def test_workers_give_the_same_report(tmp_path, capsys, template, many):
     assert code1 == code2 == 1
     assert one == two
     assert {g["code"] for g in one["groups"]} >= {
-        "shard.unparseable", "shard.empty", "metadata.inconsistent", "coverage.unknown_scenario",
-        "coverage.duplicate_scenario", "coverage.missing_scenario", "rollouts.non_finite", "rollouts.missing_sim_agents",
+        "shard.unparseable",
+        "shard.empty",
+        "metadata.inconsistent",
+        "coverage.unknown_scenario",
+        "coverage.duplicate_scenario",
+        "coverage.missing_scenario",
+        "rollouts.non_finite",
+        "rollouts.missing_sim_agents",
     }
 
 
@@ -624,8 +703,21 @@ def test_subprocess_on_an_ascii_console_with_non_ascii_names(tmp_path, scenario_
     path = write(tmp_path / "s.tar.gz", tar_bytes(members))
     env = {**os.environ, "PYTHONIOENCODING": "ascii", "PYTHONPATH": str(REPO)}
     done = subprocess.run(
-        [sys.executable, "-m", "wosac_eval.fronts.cli", "validate", "--scenarios", str(scenario_file), "--submission", str(path)],
-        capture_output=True, text=True, env=env, encoding="ascii", errors="strict",
+        [
+            sys.executable,
+            "-m",
+            "wosac_eval.fronts.cli",
+            "validate",
+            "--scenarios",
+            str(scenario_file),
+            "--submission",
+            str(path),
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        encoding="ascii",
+        errors="strict",
     )
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr

@@ -9,6 +9,7 @@ meta-metric is the config's weighted mean of the likelihoods the type has
 (weights renormalised over them). These are diagnostics beside the official
 metrics, not part of them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -26,8 +27,9 @@ def _likelihood(ll: np.ndarray, mask: np.ndarray | None, rows: np.ndarray) -> fl
     return float(np.exp(values.astype(np.float64).mean())) if values.size else None
 
 
-def by_object_type(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                   log_likelihoods: dict) -> dict[str, dict]:
+def by_object_type(
+    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, log_likelihoods: dict
+) -> dict[str, dict]:
     """Per object type present among the evaluated objects: its likelihoods, meta-metric, rates and count.
 
     Args:

@@ -27,6 +27,7 @@ step) alone, over all 91 steps:
 Each per-step series is the worst value over objects (or pairs) at that step:
 NaN where no object qualifies, inf (time to collision) or 0 where no pair does.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -37,14 +38,14 @@ from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_V
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.challenges import STEP_SECONDS
 
-RATE_HALF_WINDOW = 2        # steps each side of a central difference
-MOVING_SPEED = 2.0          # m/s: the yaw of slower objects is mostly heading noise
-PAIR_RANGE = 25.0           # m between centres: farther pairs do not interact within a step
-TTC_HORIZON = 5.0           # s
-MIN_CLOSING = 1.0           # m/s of relative speed for a collision course
-NEAR_MISS_GAP = 0.5         # m: the gap scale of the near miss
-NEAR_MISS_SPEED = 2.0       # m/s: the relative speed at which the near miss counts half
-OFFROAD_STRIDE = 5          # steps between off-road tests: an excursion worth noting lasts longer than 0.5 s
+RATE_HALF_WINDOW = 2  # steps each side of a central difference
+MOVING_SPEED = 2.0  # m/s: the yaw of slower objects is mostly heading noise
+PAIR_RANGE = 25.0  # m between centres: farther pairs do not interact within a step
+TTC_HORIZON = 5.0  # s
+MIN_CLOSING = 1.0  # m/s of relative speed for a collision course
+NEAR_MISS_GAP = 0.5  # m: the gap scale of the near miss
+NEAR_MISS_SPEED = 2.0  # m/s: the relative speed at which the near miss counts half
+OFFROAD_STRIDE = 5  # steps between off-road tests: an excursion worth noting lasts longer than 0.5 s
 # (acceleration m/s^2, yaw rate rad/s) bins of the behaviour histogram; values beyond clip to the end bins.
 BEHAVIOUR_BINS = (np.linspace(-8.0, 8.0, 33), np.linspace(-1.0, 1.0, 41))
 
@@ -75,8 +76,9 @@ class CriticalityFeatures:
     behaviour: np.ndarray
 
 
-def central_rate(values: np.ndarray, valid: np.ndarray, half: int = RATE_HALF_WINDOW,
-                 wrap: bool = False) -> tuple[np.ndarray, np.ndarray]:
+def central_rate(
+    values: np.ndarray, valid: np.ndarray, half: int = RATE_HALF_WINDOW, wrap: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     """(v[t + half] - v[t - half]) / (2 half dt) and its validity, `(..., num_steps)` each (NaN / False at the ends).
 
     wrap: the values are angles; their difference is wrapped to [-pi, pi).
@@ -84,11 +86,11 @@ def central_rate(values: np.ndarray, valid: np.ndarray, half: int = RATE_HALF_WI
     out = np.full(values.shape, np.nan)
     ok = np.zeros(values.shape, dtype=bool)
     if values.shape[-1] > 2 * half:
-        delta = values[..., 2 * half:] - values[..., :-2 * half]
+        delta = values[..., 2 * half :] - values[..., : -2 * half]
         if wrap:
             delta = np.mod(delta + np.pi, 2 * np.pi) - np.pi
         out[..., half:-half] = delta / (2 * half * STEP_SECONDS)
-        ok[..., half:-half] = valid[..., 2 * half:] & valid[..., :-2 * half]
+        ok[..., half:-half] = valid[..., 2 * half :] & valid[..., : -2 * half]
     return out, ok
 
 
@@ -119,8 +121,11 @@ def kinematic_volatility(log, moving_types: np.ndarray):
     yaw_worst = _worst(np.abs(yaw_accel), wa_valid & rows & (speed > MOVING_SPEED))
     sampled = a_valid & w_valid & rows
     a_edges, w_edges = BEHAVIOUR_BINS
-    behaviour, _, _ = np.histogram2d(np.clip(accel[sampled], a_edges[0], a_edges[-1]),
-                                     np.clip(yaw_rate[sampled], w_edges[0], w_edges[-1]), bins=(a_edges, w_edges))
+    behaviour, _, _ = np.histogram2d(
+        np.clip(accel[sampled], a_edges[0], a_edges[-1]),
+        np.clip(yaw_rate[sampled], w_edges[0], w_edges[-1]),
+        bins=(a_edges, w_edges),
+    )
     return braking, jerk_worst, yaw_worst, behaviour.astype(np.int64), (vx, vy, v_valid)
 
 
@@ -184,23 +189,25 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     relative_speed = np.hypot(ux, uy)
     centre_distance = np.hypot(dxc, dyc)
     # Only entries that can matter: boxes within reach of a collision in TTC_HORIZON, or within a few metres.
-    reach = (centre_distance - (length[a, t] + length[b, t]) / 2
-             < np.maximum(3.0, TTC_HORIZON * relative_speed)) & (centre_distance < PAIR_RANGE)
+    reach = (centre_distance - (length[a, t] + length[b, t]) / 2 < np.maximum(3.0, TTC_HORIZON * relative_speed)) & (
+        centre_distance < PAIR_RANGE
+    )
     a, b, t = a[reach], b[reach], t[reach]
     dxc, dyc, ux, uy, relative_speed = dxc[reach], dyc[reach], ux[reach], uy[reach], relative_speed[reach]
     if t.size == 0:
         return ttc, closing, near
-    dx, dy, radius = disc_pairs(dxc, dyc, heading[a, t], length[a, t], width[a, t],
-                                heading[b, t], length[b, t], width[b, t])
+    dx, dy, radius = disc_pairs(
+        dxc, dyc, heading[a, t], length[a, t], width[a, t], heading[b, t], length[b, t], width[b, t]
+    )
     distance2 = dx * dx + dy * dy
     gap = disc_gap(dx, dy, radius)
-    speed2 = (relative_speed ** 2)[:, None, None]
-    approach = dx * ux[:, None, None] + dy * uy[:, None, None]                # < 0: closing
-    c = distance2 - radius ** 2
-    disc = approach ** 2 - speed2 * c
+    speed2 = (relative_speed**2)[:, None, None]
+    approach = dx * ux[:, None, None] + dy * uy[:, None, None]  # < 0: closing
+    c = distance2 - radius**2
+    disc = approach**2 - speed2 * c
     with np.errstate(invalid="ignore", divide="ignore"):
         t_hit = (-approach - np.sqrt(np.maximum(disc, 0.0))) / speed2
-    course = (c > 0) & (approach < 0) & (disc >= 0) & (t_hit <= TTC_HORIZON) & (speed2 >= MIN_CLOSING ** 2)
+    course = (c > 0) & (approach < 0) & (disc >= 0) & (t_hit <= TTC_HORIZON) & (speed2 >= MIN_CLOSING**2)
     entry_ttc = np.where(course, t_hit, np.inf).min(axis=(1, 2))
     np.minimum.at(ttc, t, entry_ttc)
     np.maximum.at(closing, t, np.where(np.isfinite(entry_ttc), relative_speed, 0.0))
@@ -246,5 +253,4 @@ def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityF
     vx, vy, v_valid = velocity
     movers = (types == TYPE_VEHICLE) & (np.where(v_valid, np.hypot(vx, vy), 0.0) > MOVING_SPEED).any(axis=1)
     offroad, red_light = map_events(log, movers, context or map_context(scenario), scenario.signals)
-    return CriticalityFeatures(braking, jerk, yaw_acceleration, ttc, closing, near_miss, offroad, red_light,
-                               behaviour)
+    return CriticalityFeatures(braking, jerk, yaw_acceleration, ttc, closing, near_miss, offroad, red_light, behaviour)

@@ -32,6 +32,7 @@ The per-step criticality applies the same maps and weights to each step's
 values (rarity left out: it is a property of the whole scene); `peak_step` is
 where it is highest.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -52,8 +53,17 @@ INTERACTION = ("time_to_collision", "closing_speed", "near_miss")
 MAP = ("offroad", "red_light")
 COMPONENTS = KINEMATIC + INTERACTION + MAP + ("rarity",)
 WEIGHTS = {"kinematic": 0.25, "interaction": 0.35, "map": 0.25, "rarity": 0.15}
-RAW_UNITS = {"braking": "m/s^2", "jerk": "m/s^3", "yaw_acceleration": "rad/s^2", "time_to_collision": "s",
-             "closing_speed": "m/s", "near_miss": "", "offroad": "m", "red_light": "", "rarity": "nats"}
+RAW_UNITS = {
+    "braking": "m/s^2",
+    "jerk": "m/s^3",
+    "yaw_acceleration": "rad/s^2",
+    "time_to_collision": "s",
+    "closing_speed": "m/s",
+    "near_miss": "",
+    "offroad": "m",
+    "red_light": "",
+    "rarity": "nats",
+}
 KINEMATIC_PERCENTILE = 90
 SUSTAINED_STEPS = 3
 LONG_TAIL_QUANTILE = 0.9  # the long tail of a set: its most critical decile
@@ -95,16 +105,21 @@ def step_criticality(features: CriticalityFeatures) -> np.ndarray:
     Off-road, tested every few steps, holds its value until the next test.
     """
     kinematic = np.max([logistic(getattr(features, n), n) for n in KINEMATIC], axis=0)
-    interaction = np.max([logistic(features.time_to_collision, "time_to_collision"),
-                          logistic(features.closing_speed, "closing_speed"), features.near_miss], axis=0)
+    interaction = np.max(
+        [
+            logistic(features.time_to_collision, "time_to_collision"),
+            logistic(features.closing_speed, "closing_speed"),
+            features.near_miss,
+        ],
+        axis=0,
+    )
     tested = np.flatnonzero(np.isfinite(features.offroad))
     offroad = np.zeros(features.offroad.shape)
     if tested.size:
         held = tested[np.clip(np.searchsorted(tested, np.arange(offroad.size), side="right") - 1, 0, None)]
         offroad = logistic(features.offroad[held], "offroad")
     map_based = np.maximum(offroad, features.red_light.astype(np.float64))
-    return (WEIGHTS["kinematic"] * kinematic + WEIGHTS["interaction"] * interaction
-            + WEIGHTS["map"] * map_based)
+    return WEIGHTS["kinematic"] * kinematic + WEIGHTS["interaction"] * interaction + WEIGHTS["map"] * map_based
 
 
 class BehaviourHistogram:
@@ -161,8 +176,12 @@ def scene_criticality(features: CriticalityFeatures) -> dict:
     components = {name: float(logistic(raw[name], name)) for name in THRESHOLDS}
     components["near_miss"] = raw["near_miss"]
     components["red_light"] = raw["red_light"]
-    return {"components": components, "raw": {k: (float(v) if np.isfinite(v) else None) for k, v in raw.items()},
-            "peak_step": int(np.argmax(step_criticality(features))), "behaviour": behaviour_entries(features.behaviour)}
+    return {
+        "components": components,
+        "raw": {k: (float(v) if np.isfinite(v) else None) for k, v in raw.items()},
+        "peak_step": int(np.argmax(step_criticality(features))),
+        "behaviour": behaviour_entries(features.behaviour),
+    }
 
 
 def scenario_criticality(scenario, context=None) -> dict:

@@ -22,6 +22,7 @@ realism metrics, over its valid steps):
 the events). These are diagnostics of a driving policy beside the WOSAC
 realism metrics, not part of them.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -33,12 +34,17 @@ from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.challenges import CURRENT_TIME_INDEX, STEP_SECONDS
 from wosac_eval.features.metric_features import MetricFeatures
 
-MOVING_SPEED = 0.5          # m/s: a standing SDC is not at fault
-TTC_THRESHOLD = 0.95        # s
-MIN_ROUTE = 1.0             # m: a logged SDC that moved less has no route to measure progress on
-MIN_PROGRESS = 0.2          # below this share of the route the rollout scores 0 ("making progress")
-COMFORT = {"min_acceleration": -4.05, "max_acceleration": 2.40, "max_jerk": 4.13, "max_yaw_rate": 0.95,
-           "max_yaw_acceleration": 1.93}
+MOVING_SPEED = 0.5  # m/s: a standing SDC is not at fault
+TTC_THRESHOLD = 0.95  # s
+MIN_ROUTE = 1.0  # m: a logged SDC that moved less has no route to measure progress on
+MIN_PROGRESS = 0.2  # below this share of the route the rollout scores 0 ("making progress")
+COMFORT = {
+    "min_acceleration": -4.05,
+    "max_acceleration": 2.40,
+    "max_jerk": 4.13,
+    "max_yaw_rate": 0.95,
+    "max_yaw_acceleration": 1.93,
+}
 WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}
 COMPONENTS = ("at_fault_collision", "collision", "offroad", "red_light", "progress", "ttc_below", "comfortable")
 
@@ -64,8 +70,10 @@ def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays) -> tuple[np.nd
         return np.asarray(rollouts.length), np.asarray(rollouts.width)
     ids = np.asarray(rollouts.object_id)
     rows = index_of_ids(scenario.log.object_id, ids.reshape(-1)).reshape(ids.shape)
-    return tuple(np.asarray(a, np.float32)[rows, CURRENT_TIME_INDEX][..., None]
-                 for a in (scenario.log.length, scenario.log.width))
+    return tuple(
+        np.asarray(a, np.float32)[rows, CURRENT_TIME_INDEX][..., None]
+        for a in (scenario.log.length, scenario.log.width)
+    )
 
 
 def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
@@ -78,13 +86,22 @@ def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarr
     x, y, heading, length, width = map(pick, (rollouts.x, rollouts.y, rollouts.heading, *sizes))  # (entries, objects)
     entries = np.arange(rollout.size)
     me = lambda a: np.broadcast_to(a[entries, sdc][:, None], a.shape).ravel()  # noqa: E731
-    dx, dy, radius = disc_pairs((x - x[entries, sdc][:, None]).ravel(), (y - y[entries, sdc][:, None]).ravel(),
-                                me(heading), me(length), me(width), heading.ravel(), length.ravel(), width.ravel())
+    dx, dy, radius = disc_pairs(
+        (x - x[entries, sdc][:, None]).ravel(),
+        (y - y[entries, sdc][:, None]).ravel(),
+        me(heading),
+        me(length),
+        me(width),
+        heading.ravel(),
+        length.ravel(),
+        width.ravel(),
+    )
     gap = disc_gap(dx, dy, radius).reshape(x.shape)
     gap[entries, sdc] = np.inf
     partner = np.argmin(gap, axis=1)
-    along = ((x[entries, partner] - x[entries, sdc]) * np.cos(heading[entries, sdc])
-             + (y[entries, partner] - y[entries, sdc]) * np.sin(heading[entries, sdc]))
+    along = (x[entries, partner] - x[entries, sdc]) * np.cos(heading[entries, sdc]) + (
+        y[entries, partner] - y[entries, sdc]
+    ) * np.sin(heading[entries, sdc])
     return along > -length[entries, sdc] / 2
 
 
@@ -100,11 +117,14 @@ def comfortable(sim: MetricFeatures, e: int, valid: np.ndarray) -> np.ndarray:
     acceleration = np.asarray(sim.linear_acceleration[:, e], dtype=np.float64)
     jerk = np.full(acceleration.shape, np.nan)
     jerk[:, 1:-1] = (acceleration[:, 2:] - acceleration[:, :-2]) / (2 * STEP_SECONDS)
-    return (_within(acceleration, valid, COMFORT["min_acceleration"], COMFORT["max_acceleration"])
-            & _within(jerk, valid, -COMFORT["max_jerk"], COMFORT["max_jerk"])
-            & _within(sim.angular_speed[:, e], valid, -COMFORT["max_yaw_rate"], COMFORT["max_yaw_rate"])
-            & _within(sim.angular_acceleration[:, e], valid, -COMFORT["max_yaw_acceleration"],
-                      COMFORT["max_yaw_acceleration"]))
+    return (
+        _within(acceleration, valid, COMFORT["min_acceleration"], COMFORT["max_acceleration"])
+        & _within(jerk, valid, -COMFORT["max_jerk"], COMFORT["max_jerk"])
+        & _within(sim.angular_speed[:, e], valid, -COMFORT["max_yaw_rate"], COMFORT["max_yaw_rate"])
+        & _within(
+            sim.angular_acceleration[:, e], valid, -COMFORT["max_yaw_acceleration"], COMFORT["max_yaw_acceleration"]
+        )
+    )
 
 
 def route_progress_share(route_x: np.ndarray, route_y: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -133,23 +153,32 @@ def driving_scores(scenario: ScenarioArrays, rollouts: RolloutArrays, sim: Metri
     rollout, step = np.nonzero(collision & (np.asarray(sim.linear_speed[:, e]) > MOVING_SPEED))
     fault = np.zeros(rollouts.num_rollouts, dtype=bool)
     if rollout.size and rollouts.x.shape[1] > 1:
-        np.logical_or.at(fault, rollout, at_fault(rollouts, _box_sizes(scenario, rollouts), rollout,
-                                                  offset + step, rows[rollout]))
-    events = {"at_fault_collision": fault, "collision": collision.any(axis=-1),
-              "offroad": (np.asarray(sim.offroad_per_step[:, e], dtype=bool) & valid).any(axis=-1),
-              "red_light": (np.asarray(sim.traffic_light_violation_per_step[:, e], dtype=bool) & valid).any(axis=-1)}
+        np.logical_or.at(
+            fault, rollout, at_fault(rollouts, _box_sizes(scenario, rollouts), rollout, offset + step, rows[rollout])
+        )
+    events = {
+        "at_fault_collision": fault,
+        "collision": collision.any(axis=-1),
+        "offroad": (np.asarray(sim.offroad_per_step[:, e], dtype=bool) & valid).any(axis=-1),
+        "red_light": (np.asarray(sim.traffic_light_violation_per_step[:, e], dtype=bool) & valid).any(axis=-1),
+    }
     ttc = np.asarray(sim.time_to_collision[:, e], dtype=np.float64)
     ttc_below = (valid & (ttc < TTC_THRESHOLD)).any(axis=-1)
     last = rollouts.num_steps - 1
-    progress = route_progress_share(log.x[0, CURRENT_TIME_INDEX:][route].astype(np.float64),
-                                    log.y[0, CURRENT_TIME_INDEX:][route].astype(np.float64),
-                                    np.asarray(rollouts.x)[np.arange(rows.size), rows, last],
-                                    np.asarray(rollouts.y)[np.arange(rows.size), rows, last])
+    progress = route_progress_share(
+        log.x[0, CURRENT_TIME_INDEX:][route].astype(np.float64),
+        log.y[0, CURRENT_TIME_INDEX:][route].astype(np.float64),
+        np.asarray(rollouts.x)[np.arange(rows.size), rows, last],
+        np.asarray(rollouts.y)[np.arange(rows.size), rows, last],
+    )
     comfort = comfortable(sim, e, valid)
     multiplier = ~events["at_fault_collision"] & ~events["offroad"] & ~events["red_light"] & (progress >= MIN_PROGRESS)
-    weighted = (WEIGHTS["progress"] * progress + WEIGHTS["ttc"] * ~ttc_below
-                + WEIGHTS["comfort"] * comfort) / sum(WEIGHTS.values())
+    weighted = (WEIGHTS["progress"] * progress + WEIGHTS["ttc"] * ~ttc_below + WEIGHTS["comfort"] * comfort) / sum(
+        WEIGHTS.values()
+    )
     score = multiplier * weighted
     per_rollout = {**events, "progress": progress, "ttc_below": ttc_below, "comfortable": comfort}
-    return {"score": float(score.mean()),
-            "components": {k: float(np.mean(per_rollout[k], dtype=np.float64)) for k in COMPONENTS}}
+    return {
+        "score": float(score.mean()),
+        "components": {k: float(np.mean(per_rollout[k], dtype=np.float64)) for k in COMPONENTS},
+    }

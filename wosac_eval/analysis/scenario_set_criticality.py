@@ -4,6 +4,7 @@ Two passes over the set: each scenario's heuristic criticality (a task per few
 scenarios, on the same executors as scoring), then the set's behaviour
 histogram and every scenario's rarity against it (`analysis.criticality_scores`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,12 +49,19 @@ def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
 
 def _tasks(ids: list[str], per_step: bool) -> Iterable[CriticalityTask]:
     for start in range(0, len(ids), SCENARIOS_PER_TASK):
-        yield CriticalityTask(tuple(ids[start:start + SCENARIOS_PER_TASK]), per_step)
+        yield CriticalityTask(tuple(ids[start : start + SCENARIOS_PER_TASK]), per_step)
 
 
-def scenario_set_criticality(scenarios: PathLike | Iterable[PathLike] | ScenarioIndex, *, workers: int = 1,
-                             engine: str = "local", ray_address: str | None = None, per_step: bool = False,
-                             progress: Callable[[int, int], None] | None = None, executor=None) -> dict:
+def scenario_set_criticality(
+    scenarios: PathLike | Iterable[PathLike] | ScenarioIndex,
+    *,
+    workers: int = 1,
+    engine: str = "local",
+    ray_address: str | None = None,
+    per_step: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+    executor=None,
+) -> dict:
     """Every scenario's criticality against the set, most critical first.
 
     Args:
@@ -77,15 +85,19 @@ def scenario_set_criticality(scenarios: PathLike | Iterable[PathLike] | Scenario
     rated = []
     for row in rows:
         steps = row.pop("steps", None)
-        rated.append({"scenario_id": row["scenario_id"], **with_rarity(row, histogram),
-                      **({"steps": steps} if steps is not None else {})})
+        rated.append(
+            {
+                "scenario_id": row["scenario_id"],
+                **with_rarity(row, histogram),
+                **({"steps": steps} if steps is not None else {}),
+            }
+        )
     rated.sort(key=lambda r: (-r["score"], r["scenario_id"]))
     threshold = float(np.quantile([r["score"] for r in rated], LONG_TAIL_QUANTILE)) if rated else math.nan
     for rank, row in enumerate(rated, start=1):
         row["rank"] = rank
         row["long_tail"] = row["score"] >= threshold
-    return {"num_scenarios": len(rated), "long_tail_threshold": threshold, "histogram": histogram,
-            "scenarios": rated}
+    return {"num_scenarios": len(rated), "long_tail_threshold": threshold, "histogram": histogram, "scenarios": rated}
 
 
 _SELECT = re.compile(r"^top:(?:(?P<fraction>0?\.\d+|1\.0*)|(?P<count>[1-9]\d*))$")
@@ -95,8 +107,9 @@ def parse_selection(rule: str) -> tuple[str, float]:
     """`top:0.1` (the most critical tenth) or `top:N` (the N most critical) -> ("fraction"|"count", value)."""
     match = _SELECT.match(rule.strip())
     if not match:
-        raise ValueError(f"--select {rule!r}: expected top:FRACTION (0 < FRACTION <= 1, e.g. top:0.1) "
-                         "or top:N (e.g. top:100)")
+        raise ValueError(
+            f"--select {rule!r}: expected top:FRACTION (0 < FRACTION <= 1, e.g. top:0.1) or top:N (e.g. top:100)"
+        )
     if match["fraction"] is not None:
         return "fraction", float(match["fraction"])
     return "count", int(match["count"])
@@ -109,5 +122,4 @@ def select_scenarios(ranked: list[dict], rule: str) -> list[str]:
     return [row["scenario_id"] for row in ranked[:keep]]
 
 
-__all__ = ["scenario_set_criticality", "select_scenarios", "parse_selection", "rate_scenarios",
-           "CriticalityTask"]
+__all__ = ["scenario_set_criticality", "select_scenarios", "parse_selection", "rate_scenarios", "CriticalityTask"]

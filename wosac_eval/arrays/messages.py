@@ -9,6 +9,7 @@ float32 blocks, the canonical field order), byte-identical to what protobuf's
 own `SerializeToString` gives for the same message, and hundreds of times
 faster than filling a message value by value.
 """
+
 from __future__ import annotations
 
 import warnings
@@ -24,9 +25,9 @@ _COORDINATE_NUMBERS = tuple(_TRAJECTORY[f].number for f in ("center_x", "center_
 _SIZE_NUMBERS = tuple(_TRAJECTORY[f].number for f in ("width", "length", "height"))  # wire order
 _OBJECT_ID_KEY = varint(_TRAJECTORY["object_id"].number << 3)
 _OBJECT_TYPE_KEY = varint(_TRAJECTORY["object_type"].number << 3)
-_SCENARIO_ID_KEY = varint((1 << 3) | 2)     # ScenarioRollouts.scenario_id
-_JOINT_SCENE_KEY = varint((2 << 3) | 2)     # ScenarioRollouts.joint_scenes
-_TRAJECTORY_KEY = varint((1 << 3) | 2)      # JointScene.simulated_trajectories
+_SCENARIO_ID_KEY = varint((1 << 3) | 2)  # ScenarioRollouts.scenario_id
+_JOINT_SCENE_KEY = varint((2 << 3) | 2)  # ScenarioRollouts.joint_scenes
+_TRAJECTORY_KEY = varint((1 << 3) | 2)  # JointScene.simulated_trajectories
 
 
 def _as_float32(name: str, value, shape: tuple[int, ...], scenario_id: str) -> np.ndarray:
@@ -37,8 +38,10 @@ def _as_float32(name: str, value, shape: tuple[int, ...], scenario_id: str) -> n
     try:
         return np.ascontiguousarray(np.broadcast_to(array.astype(np.float32, copy=False), shape))
     except ValueError:
-        raise ValueError(f"scenario {scenario_id}: {name} has shape {array.shape}, which does not broadcast to "
-                         f"(num_rollouts, num_objects, num_steps) = {shape}") from None
+        raise ValueError(
+            f"scenario {scenario_id}: {name} has shape {array.shape}, which does not broadcast to "
+            f"(num_rollouts, num_objects, num_steps) = {shape}"
+        ) from None
 
 
 def _broadcasts(shape: tuple[int, ...], target: tuple[int, ...]) -> bool:
@@ -66,15 +69,20 @@ def _coordinates_shape(scenario_id: str, coordinates: dict) -> tuple[int, ...]:
         odd = [name for name, one in shapes.items() if not _broadcasts(one, common)]
         if not odd or len(odd) == len(shapes):  # no shape that most share: list them all
             listed = ", ".join(f"{name} {one}" for name, one in shapes.items())
-            raise ValueError(f"scenario {scenario_id}: x, y, z and heading do not broadcast to one "
-                             f"(num_rollouts, num_objects, num_steps) shape: {listed}") from None
+            raise ValueError(
+                f"scenario {scenario_id}: x, y, z and heading do not broadcast to one "
+                f"(num_rollouts, num_objects, num_steps) shape: {listed}"
+            ) from None
         others = [name for name in shapes if name not in odd]
-        raise ValueError(f"scenario {scenario_id}: {', '.join(f'{name} has shape {shapes[name]}' for name in odd)}, "
-                         f"which {'do' if len(odd) > 1 else 'does'} not broadcast to the shape of {', '.join(others)}: {common} "
-                         "(num_rollouts, num_objects, num_steps)") from None
+        raise ValueError(
+            f"scenario {scenario_id}: {', '.join(f'{name} has shape {shapes[name]}' for name in odd)}, "
+            f"which {'do' if len(odd) > 1 else 'does'} not broadcast to the shape of {', '.join(others)}: {common} "
+            "(num_rollouts, num_objects, num_steps)"
+        ) from None
     if len(shape) != 3:
-        raise ValueError(f"scenario {scenario_id}: x must be (num_rollouts, num_objects, num_steps), "
-                         f"got shape {shapes['x']}")
+        raise ValueError(
+            f"scenario {scenario_id}: x must be (num_rollouts, num_objects, num_steps), got shape {shapes['x']}"
+        )
     return tuple(shape)
 
 
@@ -87,13 +95,18 @@ def _warn_if_not_finite(scenario_id: str, name: str, value: np.ndarray, object_i
     bad = ~np.isfinite(value)
     if bad.any():
         r, i, t = (int(k) for k in np.argwhere(bad)[0])
-        warnings.warn(f"scenario {scenario_id} rollout {r} object {int(object_id[r, i])}: {name}[{t}] is not finite "
-                      f"({int(bad.sum())} such value(s) in {name}): scored as given, as the official evaluator "
-                      "does (NaN spreads into that object's features)", NonFiniteValueWarning, stacklevel=3)
+        warnings.warn(
+            f"scenario {scenario_id} rollout {r} object {int(object_id[r, i])}: {name}[{t}] is not finite "
+            f"({int(bad.sum())} such value(s) in {name}): scored as given, as the official evaluator "
+            "does (NaN spreads into that object's features)",
+            NonFiniteValueWarning,
+            stacklevel=3,
+        )
 
 
-def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, length=None, width=None,
-                         height=None, object_type=None) -> RolloutArrays:
+def rollouts_from_arrays(
+    scenario_id: str, object_id, x, y, z, heading, *, length=None, width=None, height=None, object_type=None
+) -> RolloutArrays:
     """Rollouts of one scenario from a simulator's arrays, checked.
 
     Args:
@@ -113,29 +126,36 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
     """
     scenario_id = str(scenario_id)
     shape = _coordinates_shape(scenario_id, {"x": x, "y": y, "z": z, "heading": heading})
-    coordinates = {name: _as_float32(name, value, shape, scenario_id)
-                   for name, value in (("x", x), ("y", y), ("z", z), ("heading", heading))}
+    coordinates = {
+        name: _as_float32(name, value, shape, scenario_id)
+        for name, value in (("x", x), ("y", y), ("z", z), ("heading", heading))
+    }
     ids = np.asarray(object_id)
     if ids.dtype.kind not in "iu":
         raise ValueError(f"scenario {scenario_id}: object_id must be integers, got dtype {ids.dtype}")
     try:
         ids = np.ascontiguousarray(np.broadcast_to(ids.astype(np.int64), shape[:2]))
     except ValueError:
-        raise ValueError(f"scenario {scenario_id}: object_id has shape {np.shape(object_id)}, expected "
-                         f"({shape[1]},) or {shape[:2]}") from None
+        raise ValueError(
+            f"scenario {scenario_id}: object_id has shape {np.shape(object_id)}, expected ({shape[1]},) or {shape[:2]}"
+        ) from None
     for r, row in enumerate(ids):
         unique, counts = np.unique(row, return_counts=True)
         if (counts > 1).any():
-            raise ValueError(f"scenario {scenario_id} rollout {r}: object {int(unique[counts > 1][0])} appears "
-                             f"{int(counts.max())} times in object_id")
+            raise ValueError(
+                f"scenario {scenario_id} rollout {r}: object {int(unique[counts > 1][0])} appears "
+                f"{int(counts.max())} times in object_id"
+            )
     for name, value in coordinates.items():
         _warn_if_not_finite(scenario_id, name, value, ids)
     sizes = {"length": length, "width": width, "height": height}
     given = [name for name, value in sizes.items() if value is not None]
     if given and (len(given) < 3 or object_type is None):
         missing = [name for name, value in {**sizes, "object_type": object_type}.items() if value is None]
-        raise ValueError(f"scenario {scenario_id}: {', '.join(given)} given without {', '.join(missing)}: box "
-                         "sizes and object types come together (scenario gen)")
+        raise ValueError(
+            f"scenario {scenario_id}: {', '.join(given)} given without {', '.join(missing)}: box "
+            "sizes and object types come together (scenario gen)"
+        )
     if object_type is not None and not given:
         raise ValueError(f"scenario {scenario_id}: object_type given without length, width and height")
     boxes = {}
@@ -147,10 +167,13 @@ def rollouts_from_arrays(scenario_id: str, object_id, x, y, z, heading, *, lengt
             _warn_if_not_finite(scenario_id, name, boxes[name], ids)
         try:
             boxes["object_type"] = np.ascontiguousarray(
-                np.broadcast_to(np.asarray(object_type).astype(np.int32), shape[:2]))
+                np.broadcast_to(np.asarray(object_type).astype(np.int32), shape[:2])
+            )
         except ValueError:
-            raise ValueError(f"scenario {scenario_id}: object_type has shape {np.shape(object_type)}, expected "
-                             f"({shape[1]},) or {shape[:2]}") from None
+            raise ValueError(
+                f"scenario {scenario_id}: object_type has shape {np.shape(object_type)}, expected "
+                f"({shape[1]},) or {shape[:2]}"
+            ) from None
     return RolloutArrays(scenario_id=scenario_id, object_id=ids, **coordinates, **boxes).validate()
 
 
@@ -160,8 +183,8 @@ def _packed_float_blocks(values: np.ndarray, field_numbers: tuple[int, ...]) -> 
     count, fields, steps = values.shape
     headers = packed_headers(steps, field_numbers)
     out = np.empty((count, fields, headers.shape[1] + 4 * steps), dtype=np.uint8)
-    out[:, :, :headers.shape[1]] = headers
-    out[:, :, headers.shape[1]:] = values.astype("<f4", copy=False).view(np.uint8).reshape(count, fields, 4 * steps)
+    out[:, :, : headers.shape[1]] = headers
+    out[:, :, headers.shape[1] :] = values.astype("<f4", copy=False).view(np.uint8).reshape(count, fields, 4 * steps)
     return out.reshape(count, -1)
 
 
@@ -185,14 +208,31 @@ def rollouts_bytes(rollouts: RolloutArrays) -> bytes:
         sizes = np.stack([width, length, height], axis=2)
         size_blocks = _packed_float_blocks(sizes.reshape(num_rollouts * num_objects, 3, -1), _SIZE_NUMBERS)
         types = object_type.reshape(-1).tolist()
-        trajectories = [_length_delimited(_TRAJECTORY_KEY, b"".join((
-            blocks[k].tobytes(), _OBJECT_ID_KEY, _int_varint(ids[k]), size_blocks[k].tobytes(),
-            _OBJECT_TYPE_KEY, _int_varint(types[k])))) for k in range(len(ids))]
+        trajectories = [
+            _length_delimited(
+                _TRAJECTORY_KEY,
+                b"".join(
+                    (
+                        blocks[k].tobytes(),
+                        _OBJECT_ID_KEY,
+                        _int_varint(ids[k]),
+                        size_blocks[k].tobytes(),
+                        _OBJECT_TYPE_KEY,
+                        _int_varint(types[k]),
+                    )
+                ),
+            )
+            for k in range(len(ids))
+        ]
     else:
-        trajectories = [_length_delimited(_TRAJECTORY_KEY, blocks[k].tobytes() + _OBJECT_ID_KEY + _int_varint(ids[k]))
-                        for k in range(len(ids))]
-    scenes = [_length_delimited(_JOINT_SCENE_KEY, b"".join(trajectories[r * num_objects:(r + 1) * num_objects]))
-              for r in range(num_rollouts)]
+        trajectories = [
+            _length_delimited(_TRAJECTORY_KEY, blocks[k].tobytes() + _OBJECT_ID_KEY + _int_varint(ids[k]))
+            for k in range(len(ids))
+        ]
+    scenes = [
+        _length_delimited(_JOINT_SCENE_KEY, b"".join(trajectories[r * num_objects : (r + 1) * num_objects]))
+        for r in range(num_rollouts)
+    ]
     return _length_delimited(_SCENARIO_ID_KEY, rollouts.scenario_id.encode("utf-8")) + b"".join(scenes)
 
 
@@ -201,14 +241,25 @@ def rollouts_message(rollouts: RolloutArrays) -> sim_agents_submission_pb2.Scena
     return sim_agents_submission_pb2.ScenarioRollouts.FromString(rollouts_bytes(rollouts))
 
 
-def joint_scene(object_id, x, y, z, heading, *, length=None, width=None, height=None,
-                object_type=None) -> sim_agents_submission_pb2.JointScene:
+def joint_scene(
+    object_id, x, y, z, heading, *, length=None, width=None, height=None, object_type=None
+) -> sim_agents_submission_pb2.JointScene:
     """One rollout as a `JointScene`: coordinates `(num_objects, num_steps)`, ids `(num_objects,)`, checked as in
     `rollouts_from_arrays` (sizes broadcastable to `(num_objects, num_steps)`, types `(num_objects,)`)."""
+
     def one(value):
         return None if value is None else np.asarray(value)[np.newaxis]
 
-    arrays = rollouts_from_arrays("(joint scene)", np.asarray(object_id)[np.newaxis], one(x), one(y), one(z), one(heading),
-                                  length=one(length), width=one(width), height=one(height),
-                                  object_type=one(object_type))
+    arrays = rollouts_from_arrays(
+        "(joint scene)",
+        np.asarray(object_id)[np.newaxis],
+        one(x),
+        one(y),
+        one(z),
+        one(heading),
+        length=one(length),
+        width=one(width),
+        height=one(height),
+        object_type=one(object_type),
+    )
     return rollouts_message(arrays).joint_scenes[0]

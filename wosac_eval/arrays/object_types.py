@@ -6,13 +6,18 @@ proto names), the analyses and results (the short names, per object type), the
 demo scenes. They live with the arrays because `object_type` is one of the
 arrays' columns.
 """
+
 from __future__ import annotations
 
 TYPE_UNSET, TYPE_VEHICLE, TYPE_PEDESTRIAN, TYPE_CYCLIST, TYPE_OTHER = 0, 1, 2, 3, 4
 
 # Code -> the enum value's name in the proto (as messages about a submission name it).
-PROTO_NAMES: dict[int, str] = {TYPE_VEHICLE: "TYPE_VEHICLE", TYPE_PEDESTRIAN: "TYPE_PEDESTRIAN",
-                               TYPE_CYCLIST: "TYPE_CYCLIST", TYPE_OTHER: "TYPE_OTHER"}
+PROTO_NAMES: dict[int, str] = {
+    TYPE_VEHICLE: "TYPE_VEHICLE",
+    TYPE_PEDESTRIAN: "TYPE_PEDESTRIAN",
+    TYPE_CYCLIST: "TYPE_CYCLIST",
+    TYPE_OTHER: "TYPE_OTHER",
+}
 
 # Code -> the short name results use, for the types analysed apart (`by_object_type`), in display order.
 # TYPE_OTHER is scored with the others but not reported apart.

@@ -1,4 +1,5 @@
 """A `ScenarioRollouts` message as columnar arrays `(num_rollouts, num_agents, num_steps)`."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -66,14 +67,18 @@ class RolloutArrays:
                 raise ValueError(f"RolloutArrays.{name} has shape {np.shape(getattr(self, name))}, x has {shape}")
         for name in ("object_id",) + (("object_type",) if self.object_type is not None else ()):
             if np.shape(getattr(self, name)) != shape[:2]:
-                raise ValueError(f"RolloutArrays.{name} has shape {np.shape(getattr(self, name))}, "
-                                 f"expected {shape[:2]}")
+                raise ValueError(
+                    f"RolloutArrays.{name} has shape {np.shape(getattr(self, name))}, expected {shape[:2]}"
+                )
         return self
 
 
 def _length_error(rollouts, r: int, field: str, num_steps: int) -> ValueError:
-    official = "; the official scorer fails on such a scenario too" if field in BOX_FIELDS else \
-        "; the official validator refuses it"
+    official = (
+        "; the official scorer fails on such a scenario too"
+        if field in BOX_FIELDS
+        else "; the official validator refuses it"
+    )
     return ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} lengths differ from {num_steps}{official}")
 
 
@@ -83,8 +88,10 @@ def _raise_for_the_first_odd_scene(rollouts, per_scene, scene, wrong_length, fie
     odd = (per_scene != per_scene[0]) | (np.bincount(scene, wrong_length.any(axis=1), len(per_scene)) > 0)
     for r in np.flatnonzero(odd)[:1].tolist():
         if per_scene[r] != per_scene[0]:
-            raise ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {int(per_scene[r])} "
-                             f"trajectories, rollout 0 has {int(per_scene[0])}")
+            raise ValueError(
+                f"scenario {rollouts.scenario_id} rollout {r}: {int(per_scene[r])} "
+                f"trajectories, rollout 0 has {int(per_scene[0])}"
+            )
         raise _length_error(rollouts, r, fields[int(np.argmax(wrong_length[scene == r].any(axis=0)))], num_steps)
 
 
@@ -100,14 +107,22 @@ def trajectory_spans(data: np.ndarray):
 def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
     """object_id int64, whether it is set (bool), and object_type int32 (TYPE_UNSET where unset) of
     each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10 (a closed enum)."""
-    _, header, present = walks.scalar_fields(data, start, end, np.array([6, 10], np.int64),
-                                            np.full(2, walks.WIRE_VARINT), np.array([0, _OBJECT_TYPES], np.int64))
+    _, header, present = walks.scalar_fields(
+        data,
+        start,
+        end,
+        np.array([6, 10], np.int64),
+        np.full(2, walks.WIRE_VARINT),
+        np.array([0, _OBJECT_TYPES], np.int64),
+    )
     return header[:, 0], present[:, 0], header[:, 1].astype(np.int32)
 
 
-def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
-                   challenge: challenges.Challenge | str = challenges.Challenge.SIM_AGENTS,
-                   wire_bytes: bytes | None = None) -> RolloutArrays:
+def rollout_arrays(
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts,
+    challenge: challenges.Challenge | str = challenges.Challenge.SIM_AGENTS,
+    wire_bytes: bytes | None = None,
+) -> RolloutArrays:
     """Stacks the joint scenes of a `ScenarioRollouts` (read from its wire bytes at once).
 
     Every joint scene must have the same number of trajectories, each with the
@@ -131,10 +146,27 @@ def rollout_arrays(rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     object_id, _, object_type = trajectory_headers(data, start, end)
     out = values.reshape(num_scenes, num_agents, len(fields), num_steps)
     ids = object_id.reshape(num_scenes, num_agents)
-    sizes = {"length": out[:, :, 4], "width": out[:, :, 5], "height": out[:, :, 6],
-             "object_type": object_type.reshape(num_scenes, num_agents)} if boxes else {}
-    return RolloutArrays(scenario_id=rollouts.scenario_id, object_id=ids,
-                         x=out[:, :, 0], y=out[:, :, 1], z=out[:, :, 2], heading=out[:, :, 3], **sizes)
+    sizes = (
+        {
+            "length": out[:, :, 4],
+            "width": out[:, :, 5],
+            "height": out[:, :, 6],
+            "object_type": object_type.reshape(num_scenes, num_agents),
+        }
+        if boxes
+        else {}
+    )
+    return RolloutArrays(
+        scenario_id=rollouts.scenario_id,
+        object_id=ids,
+        x=out[:, :, 0],
+        y=out[:, :, 1],
+        z=out[:, :, 2],
+        heading=out[:, :, 3],
+        **sizes,
+    )
 
 
-_OBJECT_TYPES = walks.enum_size(sim_agents_submission_pb2.SimulatedTrajectory.DESCRIPTOR.fields_by_name["object_type"].enum_type)
+_OBJECT_TYPES = walks.enum_size(
+    sim_agents_submission_pb2.SimulatedTrajectory.DESCRIPTOR.fields_by_name["object_type"].enum_type
+)

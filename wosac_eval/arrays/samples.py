@@ -13,6 +13,7 @@ objects first, in the official order:
   as valid (the log's validity at the current step, repeated), and the log's
   real validity is only reported beside the features.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -88,8 +89,9 @@ def _rollout_columns(rollouts: RolloutArrays, orders: np.ndarray):
     return lambda a: np.take_along_axis(a, cols.reshape(cols.shape + (1,) * (a.ndim - 2)), axis=1)
 
 
-def _sim_agents_composite(scenario: ScenarioArrays, order: np.ndarray, future: dict,
-                          future_valid: np.ndarray) -> ObjectTrajectories:
+def _sim_agents_composite(
+    scenario: ScenarioArrays, order: np.ndarray, future: dict, future_valid: np.ndarray
+) -> ObjectTrajectories:
     """History from the log, future from `future`, sizes frozen at the current step.
 
     Args:
@@ -105,13 +107,15 @@ def _sim_agents_composite(scenario: ScenarioArrays, order: np.ndarray, future: d
         return a[rows][..., : now + 1]
 
     def frozen(a: np.ndarray) -> np.ndarray:
-        return np.concatenate([history(a), np.repeat(a[rows][..., now:now + 1], n_future, axis=-1)], axis=-1)
+        return np.concatenate([history(a), np.repeat(a[rows][..., now : now + 1], n_future, axis=-1)], axis=-1)
 
     return ObjectTrajectories(
         **{f: np.concatenate([history(getattr(log, f)), future[f].astype(_F)], axis=-1) for f in _POSITIONS},
         **{f: frozen(getattr(log, f)) for f in _SIZES},
         valid=np.concatenate([history(log.valid), future_valid], axis=-1),
-        object_id=order, object_type=log.object_type[rows])
+        object_id=order,
+        object_type=log.object_type[rows],
+    )
 
 
 def log_sample(scenario: ScenarioArrays, challenge=challenges.Challenge.SIM_AGENTS):
@@ -125,16 +129,19 @@ def log_sample(scenario: ScenarioArrays, challenge=challenges.Challenge.SIM_AGEN
         # The logged values become a joint scene, valid wherever the object is valid now.
         logged = {f: getattr(log, f)[None] for f in _POSITIONS + _SIZES}
         now_valid = np.repeat(log.valid[:, challenges.CURRENT_TIME_INDEX, None], log.num_steps, axis=-1)
-        return ObjectTrajectories(**logged, valid=now_valid[None], object_id=order[None],
-                                  object_type=log.object_type[None]), feature_valid
+        return ObjectTrajectories(
+            **logged, valid=now_valid[None], object_id=order[None], object_type=log.object_type[None]
+        ), feature_valid
     future = spec.simulated_steps
-    traj = _sim_agents_composite(scenario, order[None], {f: getattr(log, f)[None, :, future] for f in _POSITIONS},
-                                 log.valid[None, :, future])
+    traj = _sim_agents_composite(
+        scenario, order[None], {f: getattr(log, f)[None, :, future] for f in _POSITIONS}, log.valid[None, :, future]
+    )
     return traj, feature_valid
 
 
-def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS,
-                    with_log: bool = False):
+def rollout_samples(
+    scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS, with_log: bool = False
+):
     """(trajectories `(num_rollouts, num_objects, 91)`, feature validity `(num_rollouts, num_evaluated, 91)`);
     with `with_log`, the log's sample first (`log_sample`; one composite for all samples, sim agents)."""
     spec = challenges.spec(challenge)
@@ -144,17 +151,25 @@ def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge
     positions = {f: take(getattr(rollouts, f)) for f in _POSITIONS}
     if spec.submits_boxes:
         if not rollouts.has_boxes:
-            raise ValueError(f"scenario {rollouts.scenario_id}: the {spec.challenge} challenge needs the "
-                             f"submitted box sizes and object types (read with rollout_arrays(..., challenge))")
+            raise ValueError(
+                f"scenario {rollouts.scenario_id}: the {spec.challenge} challenge needs the "
+                f"submitted box sizes and object types (read with rollout_arrays(..., challenge))"
+            )
         rows = index_of_ids(scenario.log.object_id, orders.reshape(-1)).reshape(orders.shape)
         # Valid wherever the logged object is valid now: every sim agent, at every step.
-        valid = np.repeat(scenario.log.valid[rows, challenges.CURRENT_TIME_INDEX][..., None],
-                          rollouts.num_steps, axis=-1)
-        traj = ObjectTrajectories(**positions, **{f: take(getattr(rollouts, f)) for f in _SIZES}, valid=valid,
-                                  object_id=orders,
-                                  # No submitted types: TYPE_UNSET, as the official scores an unset object_type.
-                                  object_type=take(rollouts.object_type) if rollouts.object_type is not None
-                                  else np.zeros(orders.shape, dtype=np.int32))
+        valid = np.repeat(
+            scenario.log.valid[rows, challenges.CURRENT_TIME_INDEX][..., None], rollouts.num_steps, axis=-1
+        )
+        traj = ObjectTrajectories(
+            **positions,
+            **{f: take(getattr(rollouts, f)) for f in _SIZES},
+            valid=valid,
+            object_id=orders,
+            # No submitted types: TYPE_UNSET, as the official scores an unset object_type.
+            object_type=take(rollouts.object_type)
+            if rollouts.object_type is not None
+            else np.zeros(orders.shape, dtype=np.int32),
+        )
         if with_log:
             log, log_valid = log_sample(scenario, spec)
             return stack_samples([log, traj]), np.concatenate([log_valid, traj.valid[:, : len(evaluated)]])
@@ -170,13 +185,20 @@ def rollout_samples(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge
     return traj, traj.valid[:, : len(evaluated)]
 
 
-def sample_batch(scenario: ScenarioArrays, rollouts: RolloutArrays,
-                 challenge=challenges.Challenge.SIM_AGENTS) -> SampleBatch:
+def sample_batch(
+    scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS
+) -> SampleBatch:
     """The log as sample 0, then one sample per rollout."""
     spec = challenges.spec(challenge)
     if rollouts.num_steps != spec.num_simulation_steps:
-        raise ValueError(f"scenario {rollouts.scenario_id}: rollouts have {rollouts.num_steps} steps, the "
-                         f"{spec.challenge} challenge expects {spec.num_simulation_steps}")
+        raise ValueError(
+            f"scenario {rollouts.scenario_id}: rollouts have {rollouts.num_steps} steps, the "
+            f"{spec.challenge} challenge expects {spec.num_simulation_steps}"
+        )
     trajectories, feature_valid = rollout_samples(scenario, rollouts, spec, with_log=True)
-    return SampleBatch(trajectories=trajectories.validate(), feature_valid=feature_valid,
-                       evaluated_ids=scenario.evaluated_ids(spec), spec=spec)
+    return SampleBatch(
+        trajectories=trajectories.validate(),
+        feature_valid=feature_valid,
+        evaluated_ids=scenario.evaluated_ids(spec),
+        spec=spec,
+    )

@@ -1,4 +1,5 @@
 """A `Scenario` message as columnar arrays: logged boxes, map polylines, signals."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -76,8 +77,16 @@ def _with_whole(data: np.ndarray):
 # type 2, polyline 8), road_edge 5 (polyline 2); MapPoint x, y, z 1..3; DynamicMapState: lane_states 1
 # (TrafficSignalLaneState: lane 1, state 2, stop_point 3).
 # A layout lists (field number, wire type[, closed enum]) per field read.
-_STATE_LAYOUT = ((2, walks.WIRE_FIXED64), (3, walks.WIRE_FIXED64), (4, walks.WIRE_FIXED64), (5, walks.WIRE_FIXED32),
-                 (6, walks.WIRE_FIXED32), (7, walks.WIRE_FIXED32), (8, walks.WIRE_FIXED32), (11, walks.WIRE_VARINT))
+_STATE_LAYOUT = (
+    (2, walks.WIRE_FIXED64),
+    (3, walks.WIRE_FIXED64),
+    (4, walks.WIRE_FIXED64),
+    (5, walks.WIRE_FIXED32),
+    (6, walks.WIRE_FIXED32),
+    (7, walks.WIRE_FIXED32),
+    (8, walks.WIRE_FIXED32),
+    (11, walks.WIRE_VARINT),
+)
 _STATE_FIELDS = ("center_x", "center_y", "center_z", "heading", "length", "width", "height")
 _STATE_COLUMNS = (0, 1, 2, 6, 3, 4, 5)  # _STATE_FIELDS in _STATE_LAYOUT
 _POINT_LAYOUT = ((1, walks.WIRE_FIXED64), (2, walks.WIRE_FIXED64), (3, walks.WIRE_FIXED64))
@@ -98,21 +107,31 @@ def _fields(data, starts, ends, layout):
 
 def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajectories:
     track_start, track_end, _ = walks.message_spans(data, starts, ends, 2)
-    _, header, _ = _fields(data, track_start, track_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _OBJECT_TYPES)))
+    _, header, _ = _fields(
+        data, track_start, track_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _OBJECT_TYPES))
+    )
     state_start, state_end, owner = walks.message_spans(data, track_start, track_end, 3)
     per_track = np.bincount(owner, minlength=len(track_start))
     num_steps = int(per_track.max(initial=0))
     if (per_track != num_steps).any():
-        raise ValueError(f"scenario {scenario_id}: tracks have different numbers "
-                         f"of states {sorted(set(per_track.tolist()))}")
+        raise ValueError(
+            f"scenario {scenario_id}: tracks have different numbers of states {sorted(set(per_track.tolist()))}"
+        )
     real, integer, _ = _fields(data, state_start, state_end, _STATE_LAYOUT)
     # float64 values are rounded once to float32, as the official converter does with Python floats.
     values = real[:, _STATE_COLUMNS].astype(np.float32).reshape(len(track_start), num_steps, len(_STATE_FIELDS))
     return ObjectTrajectories(
-        x=values[..., 0], y=values[..., 1], z=values[..., 2], heading=values[..., 3],
-        length=values[..., 4], width=values[..., 5], height=values[..., 6],
+        x=values[..., 0],
+        y=values[..., 1],
+        z=values[..., 2],
+        heading=values[..., 3],
+        length=values[..., 4],
+        width=values[..., 5],
+        height=values[..., 6],
         valid=(integer[:, -1] != 0).reshape(len(track_start), num_steps),
-        object_id=header[:, 0].astype(np.int64), object_type=header[:, 1].astype(np.int32))
+        object_id=header[:, 0].astype(np.int64),
+        object_type=header[:, 1].astype(np.int32),
+    )
 
 
 def _polylines(data, starts, ends, field_number: int) -> list:
@@ -131,8 +150,11 @@ def _map_polylines(data, starts, ends):
     lane_start, lane_end, lane_feature = walks.message_spans(data, feature_start, feature_end, 3)
     _, lane_type, _ = _fields(data, lane_start, lane_end, ((2, walks.WIRE_VARINT, _LANE_TYPES),))
     surface = lane_type[:, 0] == map_pb2.LaneCenter.TYPE_SURFACE_STREET
-    return (_polylines(data, edge_start, edge_end, 2), feature_id[lane_feature[surface], 0],
-            _polylines(data, lane_start[surface], lane_end[surface], 8))
+    return (
+        _polylines(data, edge_start, edge_end, 2),
+        feature_id[lane_feature[surface], 0],
+        _polylines(data, lane_start[surface], lane_end[surface], 8),
+    )
 
 
 _FEATURE_DATA = tuple(f.number for f in map_pb2.MapFeature.DESCRIPTOR.oneofs_by_name["feature_data"].fields)
@@ -154,7 +176,9 @@ def _traffic_signals(data, starts, ends) -> TrafficSignals | None:
     if not len(step_start):
         return None
     entry_start, entry_end, step = walks.message_spans(data, step_start, step_end, 1)
-    _, entry, _ = _fields(data, entry_start, entry_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _SIGNAL_STATES)))
+    _, entry, _ = _fields(
+        data, entry_start, entry_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _SIGNAL_STATES))
+    )
     point_start, point_end, point_entry = walks.message_spans(data, entry_start, entry_end, 3)
     point_xy, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT[:2])
     stop_xy = np.zeros((len(entry_start), 2))

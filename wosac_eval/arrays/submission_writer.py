@@ -8,6 +8,7 @@ A submission is a set of shards `<method>.binproto-0000k-of-0000n`, each a
         for scenario in scenarios:
             out.add(rollouts_from_arrays(scenario.scenario_id, ids, x, y, z, heading))
 """
+
 from __future__ import annotations
 
 import gzip
@@ -54,7 +55,9 @@ class SubmissionMetadata:
         message.uses_public_model_pretraining = self.uses_public_model_pretraining
         message.public_model_names.extend(self.public_model_names)
         message.num_model_parameters = self.num_model_parameters
-        message.acknowledge_complies_with_closed_loop_requirement = self.acknowledge_complies_with_closed_loop_requirement
+        message.acknowledge_complies_with_closed_loop_requirement = (
+            self.acknowledge_complies_with_closed_loop_requirement
+        )
 
 
 def shard_name(method: str, k: int, n: int) -> str:

@@ -4,6 +4,7 @@ The official evaluator converts every coordinate to float32 before computing
 features, so all positions, headings and box sizes here are float32: the same
 rounding is what makes our features bit-identical to the official ones.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -52,9 +53,10 @@ class ObjectTrajectories:
                 raise ValueError(f"ObjectTrajectories.{name} has dtype {value.dtype}")
         for name in ("object_id", "object_type"):
             value = np.shape(getattr(self, name))
-            if value != shape[:-1][-len(value):] or not value:
-                raise ValueError(f"ObjectTrajectories.{name} has shape {value}, expected (..., {shape[-2]}) "
-                                 f"matching x {shape}")
+            if value != shape[:-1][-len(value) :] or not value:
+                raise ValueError(
+                    f"ObjectTrajectories.{name} has shape {value}, expected (..., {shape[-2]}) matching x {shape}"
+                )
         return self
 
     @property
@@ -69,8 +71,11 @@ class ObjectTrajectories:
         """Selects objects by position (`(num_selected,)`), in the given order."""
         indices = np.asarray(indices, dtype=np.int64)
         fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in TIME_SERIES}
-        return ObjectTrajectories(**fields, object_id=np.take(self.object_id, indices, axis=-1),
-                                  object_type=np.take(self.object_type, indices, axis=-1))
+        return ObjectTrajectories(
+            **fields,
+            object_id=np.take(self.object_id, indices, axis=-1),
+            object_type=np.take(self.object_type, indices, axis=-1),
+        )
 
     def take_ids(self, object_ids) -> ObjectTrajectories:
         """Selects objects by id, in the order of `object_ids`; `object_id` must be `(num_objects,)`."""
@@ -83,8 +88,9 @@ class ObjectTrajectories:
 
 def stack_samples(parts) -> ObjectTrajectories:
     """The samples of each part, one after the other (same objects and steps)."""
-    return ObjectTrajectories(**{f.name: np.concatenate([getattr(p, f.name) for p in parts])
-                                 for f in dataclasses.fields(ObjectTrajectories)})
+    return ObjectTrajectories(
+        **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(ObjectTrajectories)}
+    )
 
 
 def index_of_ids(ids: np.ndarray, wanted) -> np.ndarray:

@@ -24,6 +24,7 @@ float32 rounding about once in 2**29 values.
 `float32_hazards(text)` lists what a lowered StableHLO module still leaves a compiler
 (the test of the exact mode reads the whole realism program with it).
 """
+
 from __future__ import annotations
 
 import collections
@@ -38,15 +39,46 @@ from jax.extend import core as jex
 # Float32 operations whose rounding a compiler may change (fusion or approximation): computed in
 # float64 from opaque operands and rounded once. Exact ones (add, min, compare, select, negate,
 # rem, floor) stay float32.
-WIDENED = frozenset({
-    "mul", "div", "sqrt", "rsqrt", "cbrt", "square", "integer_pow", "pow",
-    "exp", "exp2", "log", "log1p", "expm1", "tanh", "logistic",
-    "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "asinh", "acosh", "atanh",
-    "erf", "erfc", "erf_inv", "lgamma", "digamma",
-})
+WIDENED = frozenset(
+    {
+        "mul",
+        "div",
+        "sqrt",
+        "rsqrt",
+        "cbrt",
+        "square",
+        "integer_pow",
+        "pow",
+        "exp",
+        "exp2",
+        "log",
+        "log1p",
+        "expm1",
+        "tanh",
+        "logistic",
+        "sin",
+        "cos",
+        "tan",
+        "asin",
+        "acos",
+        "atan",
+        "atan2",
+        "sinh",
+        "cosh",
+        "asinh",
+        "acosh",
+        "atanh",
+        "erf",
+        "erfc",
+        "erf_inv",
+        "lgamma",
+        "digamma",
+    }
+)
 # Calls whose body is inlined into the rewritten program (XLA inlines them anyway).
-INLINED = frozenset({"pjit", "jit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call",
-                     "remat", "checkpoint"})
+INLINED = frozenset(
+    {"pjit", "jit", "closed_call", "core_call", "custom_jvp_call", "custom_vjp_call", "remat", "checkpoint"}
+)
 
 
 def exactly_rounded(fn):
@@ -57,6 +89,7 @@ def exactly_rounded(fn):
     jit, or a leaf of one); a constant would let the compiler see through the XOR. Call the result
     inside the caller's `jit`/`vmap` like `fn`.
     """
+
     @functools.wraps(fn)
     def rewritten(zero, *args):
         closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
@@ -83,8 +116,7 @@ def opaque_float64(value, zero):
 
 def _widened(eqn, invals, zero):
     """The equation's float32 result computed in float64 from opaque operands and rounded once."""
-    wide = [opaque_float64(value, zero) if _is_float32(var.aval) else value
-            for var, value in zip(eqn.invars, invals)]
+    wide = [opaque_float64(value, zero) if _is_float32(var.aval) else value for var, value in zip(eqn.invars, invals)]
     return lax.convert_element_type(eqn.primitive.bind(*wide, **eqn.params), np.float32)
 
 
@@ -105,8 +137,12 @@ def _loop(eqn, invals, zero):
         operands = [zero, *invals]
     elif name == "while":
         n = params["cond_nconsts"]
-        params.update(cond_jaxpr=_closed(params["cond_jaxpr"]), cond_nconsts=n + 1,
-                      body_jaxpr=_closed(params["body_jaxpr"]), body_nconsts=params["body_nconsts"] + 1)
+        params.update(
+            cond_jaxpr=_closed(params["cond_jaxpr"]),
+            cond_nconsts=n + 1,
+            body_jaxpr=_closed(params["body_jaxpr"]),
+            body_nconsts=params["body_nconsts"] + 1,
+        )
         operands = [zero, *invals[:n], zero, *invals[n:]]
     else:  # cond: the branch index, then the branches' operands
         params.update(branches=tuple(_closed(b) for b in params["branches"]))
@@ -131,7 +167,7 @@ def _inner(eqn):
 
 
 def _eval(jaxpr, consts, args: list, zero) -> list:
-    env = {}
+    env: dict = {}
 
     def read(v):
         return v.val if isinstance(v, jex.Literal) else env[v]
@@ -144,8 +180,7 @@ def _eval(jaxpr, consts, args: list, zero) -> list:
         out_avals = [v.aval for v in eqn.outvars]
         if name in WIDENED and any(map(_is_float32, out_avals)):
             outs = [_widened(eqn, invals, zero)]
-        elif name == "convert_element_type" and _is_float32(eqn.invars[0].aval) \
-                and out_avals[0].dtype == np.float64:
+        elif name == "convert_element_type" and _is_float32(eqn.invars[0].aval) and out_avals[0].dtype == np.float64:
             outs = [opaque_float64(invals[0], zero)]  # a kernel's own step through float64
         elif name in INLINED:
             body, body_consts = _inner(eqn)
@@ -165,14 +200,42 @@ def _eval(jaxpr, consts, args: list, zero) -> list:
 
 # StableHLO operations whose float32 rounding a compiler may change: a multiply (contracted with the add
 # it feeds into a fused multiply-add), and the divisions, roots and transcendentals it may approximate.
-HAZARDOUS = ("multiply", "divide", "sqrt", "rsqrt", "cbrt", "exponential", "exponential_minus_one", "log",
-             "log_plus_one", "logistic", "tanh", "sine", "cosine", "tan", "atan2", "power", "square",
-             "dot_general", "dot", "convolution")
+HAZARDOUS = (
+    "multiply",
+    "divide",
+    "sqrt",
+    "rsqrt",
+    "cbrt",
+    "exponential",
+    "exponential_minus_one",
+    "log",
+    "log_plus_one",
+    "logistic",
+    "tanh",
+    "sine",
+    "cosine",
+    "tan",
+    "atan2",
+    "power",
+    "square",
+    "dot_general",
+    "dot",
+    "convolution",
+)
 _OP = re.compile(r"^\s*(%[\w#]+)(?::\d+)?\s*=\s*\"?(?:stablehlo|chlo|mhlo)\.(\w+)\"?(.*)$")
 _F32_RESULT = re.compile(r"(?:->|:)\s*tensor<(?:[\d?]+x)*f32>\s*$")
 _WIDENING = re.compile(r"tensor<(?:[\d?]+x)*f32>\s*\)?\s*->\s*tensor<(?:[\d?]+x)*f64>\s*$")
-_SHAPE_OPS = ("broadcast_in_dim", "reshape", "transpose", "slice", "dynamic_slice", "concatenate", "gather",
-              "select", "pad")
+_SHAPE_OPS = (
+    "broadcast_in_dim",
+    "reshape",
+    "transpose",
+    "slice",
+    "dynamic_slice",
+    "concatenate",
+    "gather",
+    "select",
+    "pad",
+)
 
 
 def float32_hazards(stablehlo: str) -> collections.Counter:
@@ -199,8 +262,9 @@ def float32_hazards(stablehlo: str) -> collections.Counter:
         if match:
             result, op, rest = match.groups()
             operands = re.findall(r"%[\w#]+", rest.split(" : ")[0])
-            scopes[-1][result] = bool(op == "convert" and _WIDENING.search(rest)
-                                      or op in _SHAPE_OPS and any(map(widened, operands)))
+            scopes[-1][result] = bool(
+                op == "convert" and _WIDENING.search(rest) or op in _SHAPE_OPS and any(map(widened, operands))
+            )
             if op in HAZARDOUS:
                 if _F32_RESULT.search(rest):
                     hazards[op] += 1

@@ -15,6 +15,7 @@ The callbacks are pure (no state, same inputs, same outputs): they work under
 the caller's `jit`, `vmap` (one call per batch element) and `lax.scan`. They
 have no derivative, as the features a nearest search picks have none.
 """
+
 from __future__ import annotations
 
 import jax
@@ -35,6 +36,7 @@ class HostSearches:
 
 def _host(searches: HostSearches, method: str, dtype, arguments):
     """The host side of a callback: the scene's `PrunedSearch.method` of `arguments(numpy arrays)`."""
+
     def call(scene, *arrays):
         search = searches.searches[int(scene)]
         # NaN and inf in a submission are scored as given, as officially: they spread without warnings.
@@ -60,14 +62,20 @@ class HostSearch:
 
     def _call(self, method: str, shape: tuple, dtype, arrays: tuple, arguments=tuple):
         host = _host(self.searches, method, dtype, arguments)
-        return jax.pure_callback(host, jax.ShapeDtypeStruct(shape, dtype), self.scene, *arrays,
-                                 vmap_method="sequential")
+        return jax.pure_callback(
+            host, jax.ShapeDtypeStruct(shape, dtype), self.scene, *arrays, vmap_method="sequential"
+        )
 
     def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
         """float32 `(samples, num_evaluated, steps)` (see `PrunedSearch.nearest_object`)."""
         shape = x.shape[:-2] + (num_evaluated,) + x.shape[-1:]
-        return self._call("nearest_object", shape, _F, (x, y, length, width, cos_h, sin_h, valid),
-                          lambda arrays: (*arrays, num_evaluated))
+        return self._call(
+            "nearest_object",
+            shape,
+            _F,
+            (x, y, length, width, cos_h, sin_h, valid),
+            lambda arrays: (*arrays, num_evaluated),
+        )
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         """float32 `(samples, num_evaluated, len(steps))` (see `PrunedSearch.time_to_collision`)."""
@@ -78,9 +86,21 @@ class HostSearch:
 
         def on_host(host):
             x, y, length, width, heading, speed, valid, ego_tail, pair_tail = host
-            return (TimeToCollisionInputs(x=x, y=y, length=length, width=width, heading=heading, speed=speed,
-                                          valid=valid, num_evaluated=i.num_evaluated, steps=i.steps,
-                                          ego_tail=ego_tail, pair_tail=pair_tail),)
+            return (
+                TimeToCollisionInputs(
+                    x=x,
+                    y=y,
+                    length=length,
+                    width=width,
+                    heading=heading,
+                    speed=speed,
+                    valid=valid,
+                    num_evaluated=i.num_evaluated,
+                    steps=i.steps,
+                    ego_tail=ego_tail,
+                    pair_tail=pair_tail,
+                ),
+            )
 
         return self._call("time_to_collision", shape, _F, arrays, on_host)
 

@@ -24,6 +24,7 @@ library's: importing wosac-eval leaves it alone, `exact_cpu()` opts in (the
 CLI's `--backend jax` does), and without it features may differ in the last
 bit (a RuntimeWarning says so once per process).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -39,8 +40,18 @@ from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.backends.exact_rounding import exactly_rounded
-from wosac_eval.backends.jax_driver import (MIN_BUCKET, BucketKey, SceneInputs, Sizes, bucket,  # noqa: F401
-                                            device_features, fine_bucket, padded_inputs, scene_inputs, stacked)
+from wosac_eval.backends.jax_driver import (  # noqa: F401
+    MIN_BUCKET,
+    BucketKey,
+    SceneInputs,
+    Sizes,
+    bucket,
+    device_features,
+    fine_bucket,
+    padded_inputs,
+    scene_inputs,
+    stacked,
+)
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
 
@@ -67,9 +78,11 @@ def exact_cpu() -> None:
     if "xla_cpu_max_isa" not in flags:
         os.environ["XLA_FLAGS"] = f"{flags} {EXACT_CPU_FLAG}".strip()
     if fma_contraction(jax.devices("cpu")[0]):
-        raise RuntimeError("XLA's CPU backend already started with fused multiply-adds: set "
-                           f"XLA_FLAGS={EXACT_CPU_FLAG} in the environment (or call exact_cpu()) before "
-                           "the program's first JAX computation")
+        raise RuntimeError(
+            "XLA's CPU backend already started with fused multiply-adds: set "
+            f"XLA_FLAGS={EXACT_CPU_FLAG} in the environment (or call exact_cpu()) before "
+            "the program's first JAX computation"
+        )
 
 
 def fma_contraction(device=None) -> bool:
@@ -80,8 +93,8 @@ def fma_contraction(device=None) -> bool:
     """
     device = device or jax.devices()[0]
     if device not in _FMA_PROBED:
-        a = np.float32(1 + 2.0 ** -12)
-        c = np.float32(-(1 + 2.0 ** -11))
+        a = np.float32(1 + 2.0**-12)
+        c = np.float32(-(1 + 2.0**-11))
         # a * a = 1 + 2**-11 + 2**-24 rounds (ties to even) to 1 + 2**-11, so
         # separate roundings give exactly 0 and a fused one gives 2**-24.
         put = lambda v: jax.device_put(np.array([v]), device)  # noqa: E731
@@ -95,13 +108,17 @@ _FMA_PROBED: dict = {}
 
 def _warn_if_inexact() -> None:
     if fma_contraction():
-        warnings.warn("XLA fuses multiply-adds on this device (a GPU, or the CPU without "
-                      "wosac_eval.backends.jax_backend.exact_cpu() or XLA_FLAGS=--xla_cpu_max_isa=AVX set "
-                      "before JAX started): jax-backend features may differ from numpy in the last bit",
-                      RuntimeWarning, stacklevel=3)
+        warnings.warn(
+            "XLA fuses multiply-adds on this device (a GPU, or the CPU without "
+            "wosac_eval.backends.jax_backend.exact_cpu() or XLA_FLAGS=--xla_cpu_max_isa=AVX set "
+            "before JAX started): jax-backend features may differ from numpy in the last bit",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
 
 # --- Host preparation ----------------------------------------------------------------------------
+
 
 @dataclasses.dataclass(frozen=True)
 class PreparedScenario:
@@ -127,27 +144,37 @@ class PreparedScenario:
         return self.inputs.bucket_key()
 
 
-def map_arrays(scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int,
-               cells: bool = True) -> dict:
+def map_arrays(
+    scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int, cells: bool = True
+) -> dict:
     """The dense search's unpadded map arrays of a scenario (`features.map_arrays.scene_map_arrays`)."""
     return scene_map_arrays(scenario, context, layout, num_steps, cells)
 
 
-def prepare(scenario: ScenarioArrays, rollouts: RolloutArrays, context: mf.MapContext | None = None,
-            challenge=challenges.Challenge.SIM_AGENTS) -> PreparedScenario:
+def prepare(
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    context: mf.MapContext | None = None,
+    challenge=challenges.Challenge.SIM_AGENTS,
+) -> PreparedScenario:
     """Host-side inputs of one scenario: the log as sample 0, then one sample per rollout."""
     context = context or mf.map_context(scenario)
     batch = sample_batch(scenario, rollouts, challenge)
     layout = mf.feature_layout(batch.spec, batch.num_evaluated)
-    return PreparedScenario(scenario_id=scenario.scenario_id, batch=batch,
-                            inputs=scene_inputs(scenario, mf.trajectory_arrays(batch), layout, context))
+    return PreparedScenario(
+        scenario_id=scenario.scenario_id,
+        batch=batch,
+        inputs=scene_inputs(scenario, mf.trajectory_arrays(batch), layout, context),
+    )
 
 
 # --- Compiled functions ----------------------------------------------------------------------------
 
-@functools.lru_cache(maxsize=None)
+
+@functools.cache
 def _features_fn(layout: mf.FeatureLayout, features: tuple):
     """Jitted features (`features`, registry entries) of a stack of scenarios (leading axis) of one bucket."""
+
     def one_scene(traj, tails, maps):
         return device_features(traj, tails, maps, layout, features)
 
@@ -219,8 +246,9 @@ class FeaturePipeline:
         return done
 
 
-def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
-                      min_bucket: Sizes | tuple | None = None) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
+def prepared_features(
+    prepared: list[PreparedScenario], max_batch: int = 8, min_bucket: Sizes | tuple | None = None
+) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
     """(log features, simulated features) of each prepared scenario, in order (`FeaturePipeline`).
 
     Args:
@@ -238,14 +266,20 @@ def prepared_features(prepared: list[PreparedScenario], max_batch: int = 8,
     return results
 
 
-def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays, context: mf.MapContext | None = None,
-                      challenge=challenges.Challenge.SIM_AGENTS) -> tuple[mf.MetricFeatures, mf.MetricFeatures]:
+def scenario_features(
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    context: mf.MapContext | None = None,
+    challenge=challenges.Challenge.SIM_AGENTS,
+) -> tuple[mf.MetricFeatures, mf.MetricFeatures]:
     """JAX counterpart of `metric_features.scenario_features` (same results on CPU)."""
     return prepared_features([prepare(scenario, rollouts, context, challenge)])[0]
 
 
-def scenarios_features(pairs, max_batch: int = 8, min_bucket: Sizes | tuple | None = None,
-                       challenge=challenges.Challenge.SIM_AGENTS) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
+def scenarios_features(
+    pairs, max_batch: int = 8, min_bucket: Sizes | tuple | None = None, challenge=challenges.Challenge.SIM_AGENTS
+) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
     """Features of many (ScenarioArrays, RolloutArrays) pairs, batched by bucket."""
-    return prepared_features([prepare(s, r, challenge=challenge) for s, r in pairs], max_batch=max_batch,
-                             min_bucket=min_bucket)
+    return prepared_features(
+        [prepare(s, r, challenge=challenge) for s, r in pairs], max_batch=max_batch, min_bucket=min_bucket
+    )

@@ -9,6 +9,7 @@ pad to it with `padded_inputs`: every map array as its `registry.Pad` says,
 never by its name, stack scenes (`stacked`), and compute their features on the
 device with `device_features`. Scenes with one key share one compiled function.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -18,6 +19,7 @@ import numpy as np
 from wosac_eval.features import dense, registry
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
+from wosac_eval.features.search_strategy import SearchStrategy
 
 MIN_BUCKET = 8
 
@@ -68,16 +70,18 @@ class Sizes:
         bounds the first sizes only)."""
         floor = floor.as_tuple() if isinstance(floor, Sizes) else tuple(floor)
         mine = self.as_tuple()
-        return self.with_counts(map(max, mine, floor + mine[len(floor):]))
+        return self.with_counts(map(max, mine, floor + mine[len(floor) :]))
 
     def rounded(self, minimum_objects: int = MIN_BUCKET, minimum_fine: int = 64) -> Sizes:
         """Rounded up to bucket sizes: the next power of two of the objects (at least `minimum_objects`),
         of the evaluated objects (every padded row is computed against everything, so no minimum) and
         of the coarse map sizes; `fine_bucket` (at least `minimum_fine`) of the fine ones."""
         fine = {s.name: s.fine for part in registry.MAP_PARTS for s in part.sizes}
-        return Sizes(bucket(self.objects, minimum_objects), bucket(self.evaluated, 1),
-                     tuple((name, fine_bucket(n, minimum_fine) if fine[name] else bucket(n, 1))
-                           for name, n in self.map))
+        return Sizes(
+            bucket(self.objects, minimum_objects),
+            bucket(self.evaluated, 1),
+            tuple((name, fine_bucket(n, minimum_fine) if fine[name] else bucket(n, 1)) for name, n in self.map),
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,28 +129,42 @@ class SceneInputs:
     @property
     def sizes(self) -> Sizes:
         """The exact counts (`Sizes`)."""
-        return Sizes(self.num_objects, self.layout.num_evaluated,
-                     tuple((s.name, s.count(self.maps)) for s in registry.map_sizes(self.features)))
+        return Sizes(
+            self.num_objects,
+            self.layout.num_evaluated,
+            tuple((s.name, s.count(self.maps)) for s in registry.map_sizes(self.features)),
+        )
 
     def bucket_key(self, minimum: Sizes | tuple | None = None) -> BucketKey:
         """The scene's `BucketKey`: its sizes rounded (`Sizes.rounded`), then at least `minimum`."""
         samples, _, steps = self.traj["x"].shape
         sizes = self.sizes.rounded()
-        return BucketKey(samples, steps, self.layout.first_step, sizes if minimum is None else sizes.at_least(minimum),
-                         self.features)
+        return BucketKey(
+            samples, steps, self.layout.first_step, sizes if minimum is None else sizes.at_least(minimum), self.features
+        )
 
 
-def scene_inputs(scenario, traj: dict, layout: mf.FeatureLayout, context: mf.MapContext, cells: bool = True,
-                 features: tuple[registry.Feature, ...] | None = None) -> SceneInputs:
+def scene_inputs(
+    scenario,
+    traj: dict,
+    layout: mf.FeatureLayout,
+    context: mf.MapContext,
+    cells: bool = True,
+    features: tuple[registry.Feature, ...] | None = None,
+) -> SceneInputs:
     """A scene's `SceneInputs` from its trajectory arrays (evaluated objects first).
 
     cells: build the road-edge cell table (the device search's; the host search needs none).
     """
     features = registry.features() if features is None else tuple(features)
     _, num_objects, num_steps = traj["x"].shape
-    return SceneInputs(traj=traj, layout=layout, features=features,
-                       tails=mf.official_tails(num_objects, layout.num_evaluated, num_steps, layout.first_step),
-                       maps=scene_map_arrays(scenario, context, layout, num_steps, cells, features))
+    return SceneInputs(
+        traj=traj,
+        layout=layout,
+        features=features,
+        tails=mf.official_tails(num_objects, layout.num_evaluated, num_steps, layout.first_step),
+        maps=scene_map_arrays(scenario, context, layout, num_steps, cells, features),
+    )
 
 
 def pad_axis(a: np.ndarray, size: int, axis: int, value=0) -> np.ndarray:
@@ -171,11 +189,15 @@ def padded_inputs(inputs: SceneInputs, sizes: Sizes) -> tuple[dict, dict, dict]:
         pad = padding[name]
         return a if pad.size is None else pad_axis(a, sizes[pad.size], pad.axis, pad.fill)
 
-    return ({name: pad_axis(a, n_obj, 1) for name, a in inputs.traj.items()},
-            {"heading_tail": pad_axis(tails["heading_tail"], n_obj, 0),
-             "ego_tail": pad_axis(tails["ego_tail"], n_eval, 1),
-             "pair_tail": pad_axis(pad_axis(tails["pair_tail"], n_eval, 1), n_obj, 2)},
-            {name: pad_map(name, a) for name, a in inputs.maps.items()})
+    return (
+        {name: pad_axis(a, n_obj, 1) for name, a in inputs.traj.items()},
+        {
+            "heading_tail": pad_axis(tails["heading_tail"], n_obj, 0),
+            "ego_tail": pad_axis(tails["ego_tail"], n_eval, 1),
+            "pair_tail": pad_axis(pad_axis(tails["pair_tail"], n_eval, 1), n_obj, 2),
+        },
+        {name: pad_map(name, a) for name, a in inputs.maps.items()},
+    )
 
 
 def stacked(scenes: list):
@@ -185,17 +207,26 @@ def stacked(scenes: list):
     return jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *scenes)
 
 
-def device_features(traj: dict, tails: dict, maps: dict, layout: mf.FeatureLayout,
-                    features: tuple[registry.Feature, ...], host=None, scene=None) -> dict:
+def device_features(
+    traj: dict,
+    tails: dict,
+    maps: dict,
+    layout: mf.FeatureLayout,
+    features: tuple[registry.Feature, ...],
+    host=None,
+    scene=None,
+) -> dict:
     """`metric_features.per_step_features` of one padded scene on the device (traced).
 
     The searches run on the device over fixed shapes (`dense.DenseSearch` over `maps`), or, given
     `host` (`host_search.HostSearches`) and the traced `scene` index, in the numpy search called back
     from the trace (`host_search.HostSearch`).
     """
+    search: SearchStrategy
     if host is None:
         search = dense.DenseSearch(maps)
     else:
         from wosac_eval.backends.host_search import HostSearch
+
         search = HostSearch(host, scene)
     return mf.per_step_features(traj, layout, search, tails, features)

@@ -12,17 +12,29 @@
 
 `wosac-eval submit` is this function on the command line.
 """
+
 from __future__ import annotations
 
 from wosac_eval.client.transport import (
-                                         ProtocolError,
-                                         RetryPolicy,
-                                         ServerUnavailable,
-                                         SubmissionFailed,
-                                         SubmissionRefused,
-                                         SubmitError,
+    ProtocolError,
+    RetryPolicy,
+    ServerUnavailable,
+    SubmissionFailed,
+    SubmissionRefused,
+    SubmitError,
 )
 from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, follow, submit
 
-__all__ = ["DEFAULT_CHUNK_BYTES", "KEY_ENV", "ArgumentError", "ProtocolError", "RetryPolicy", "ServerUnavailable",
-           "SubmissionFailed", "SubmissionRefused", "SubmitError", "follow", "submit"]
+__all__ = [
+    "DEFAULT_CHUNK_BYTES",
+    "KEY_ENV",
+    "ArgumentError",
+    "ProtocolError",
+    "RetryPolicy",
+    "ServerUnavailable",
+    "SubmissionFailed",
+    "SubmissionRefused",
+    "SubmitError",
+    "follow",
+    "submit",
+]

@@ -5,6 +5,7 @@ path, size and modification time, and the upload's parameters (method, challenge
 partial): the same command run again finds it, and a changed file, another key or other parameters
 do not. It holds the upload's id and, once completed, the submission's id; never the key.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -4,6 +4,7 @@ bodies streamed from a file, the server's `{"detail": ...}` read out, and retrie
 One connection per request keeps every failure local to its request: a connection the server closed
 after an early answer, or one left half-written by an interruption, is never reused.
 """
+
 from __future__ import annotations
 
 import email.utils
@@ -90,8 +91,10 @@ class Response:
         except ValueError:
             value = None
         if not isinstance(value, dict):
-            raise ProtocolError(f"the server answered {self.status} with {_snippet(self.body)!r}, not a JSON "
-                                "object; is the URL a wosac-server?")
+            raise ProtocolError(
+                f"the server answered {self.status} with {_snippet(self.body)!r}, not a JSON "
+                "object; is the URL a wosac-server?"
+            )
         return value
 
     def detail(self) -> str:
@@ -183,9 +186,16 @@ class Server:
             return http.client.HTTPSConnection(host, port, timeout=timeout, context=ssl.create_default_context())
         return http.client.HTTPConnection(host, port, timeout=timeout)
 
-    def request(self, method: str, path: str, headers: dict[str, str] | None = None,
-                body: Iterable[bytes] | None = None, body_length: int = 0,
-                timeout: float | None = None, sink: BinaryIO | None = None) -> Response:
+    def request(
+        self,
+        method: str,
+        path: str,
+        headers: dict[str, str] | None = None,
+        body: Iterable[bytes] | None = None,
+        body_length: int = 0,
+        timeout: float | None = None,
+        sink: BinaryIO | None = None,
+    ) -> Response:
         """One request on a fresh connection; raises one of NETWORK_ERRORS when no answer came back.
 
         A server may answer before it has read the body (401, 413, 429: then it closes the
@@ -194,8 +204,12 @@ class Server:
         that ends before its Content-Length raises http.client.IncompleteRead.
         """
         conn = self._connection(self.timeout if timeout is None else timeout)
-        sent = {"User-Agent": USER_AGENT, "Authorization": f"Bearer {self.key}", "Connection": "close",
-                **(headers or {})}
+        sent = {
+            "User-Agent": USER_AGENT,
+            "Authorization": f"Bearer {self.key}",
+            "Connection": "close",
+            **(headers or {}),
+        }
         if body is not None or method in ("POST", "PUT", "PATCH"):
             sent["Content-Length"] = str(body_length)
         try:
@@ -259,8 +273,14 @@ class Retrier:
         self.sleep(delay)
         self.waited += delay
 
-    def call(self, server: Server, what: str, send: Callable[[], Response],
-             ok: Callable[[Response], bool] = lambda r: r.status < 400, reset: bool = True) -> Response:
+    def call(
+        self,
+        server: Server,
+        what: str,
+        send: Callable[[], Response],
+        ok: Callable[[Response], bool] = lambda r: r.status < 400,
+        reset: bool = True,
+    ) -> Response:
         """`send()` until it answers something that is not worth retrying (network errors, RETRYABLE_STATUS
         retried); returns that answer, successful or not: the caller reads refusals. `reset=False` goes on
         counting the failures before it (a resync after a failed chunk shares the chunk's budget)."""
@@ -276,7 +296,6 @@ class Retrier:
                 return answer
             self.wait(what, *status_reason(answer))
 
-
     def network_failure(self, server: Server, what: str, error: BaseException) -> None:
         """Wait after a request that got no answer, or raise: at once for a certificate or a host name that
         does not resolve, sooner while the server has not answered once in this run."""
@@ -285,8 +304,10 @@ class Retrier:
         if isinstance(error, socket.gaierror):
             raise ServerUnavailable(f"{what}: cannot resolve the host name of {server.url} ({error.strerror or error})")
         if not server.answered and self.failures + 1 >= self.policy.first_contact_attempts:
-            raise ServerUnavailable(f"{what}: cannot reach {server.url} ({network_error_text(error)}, "
-                                    f"{self.failures + 1} tries); is the URL right and the server up?")
+            raise ServerUnavailable(
+                f"{what}: cannot reach {server.url} ({network_error_text(error)}, "
+                f"{self.failures + 1} tries); is the URL right and the server up?"
+            )
         self.wait(what, f"server unreachable ({network_error_text(error)})")
 
 

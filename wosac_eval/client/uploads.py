@@ -9,6 +9,7 @@ process killed, the network, the server) asks the server for its offset and goes
 once complete, the file keeps the submission's id, and running it again follows that submission
 instead of uploading the file again.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -54,13 +55,28 @@ class _UploadGone(Exception):
     """The server no longer has the upload (404/410): expired, deleted, refused, or its bytes lost."""
 
 
-def submit(submission: str | os.PathLike, *, server: str, key: str | None = None, method: str,
-           challenge: str = "sim_agents", config: str | None = None, publish: bool = False,
-           allow_partial: bool = False, wait: bool = False, output: str | os.PathLike | None = None,
-           new: bool = False, chunk_bytes: int = DEFAULT_CHUNK_BYTES, limit_rate: int | None = None,
-           progress: Progress | None = None, log: Callable[[str], None] | None = None,
-           state_dir: str | os.PathLike | None = None, retry: RetryPolicy = RetryPolicy(),
-           timeout: float = 60.0, poll_s: tuple[float, float] = (0.5, 5.0)) -> dict:
+def submit(
+    submission: str | os.PathLike,
+    *,
+    server: str,
+    key: str | None = None,
+    method: str,
+    challenge: str = "sim_agents",
+    config: str | None = None,
+    publish: bool = False,
+    allow_partial: bool = False,
+    wait: bool = False,
+    output: str | os.PathLike | None = None,
+    new: bool = False,
+    chunk_bytes: int = DEFAULT_CHUNK_BYTES,
+    limit_rate: int | None = None,
+    progress: Progress | None = None,
+    log: Callable[[str], None] | None = None,
+    state_dir: str | os.PathLike | None = None,
+    retry: RetryPolicy = RetryPolicy(),
+    timeout: float = 60.0,
+    poll_s: tuple[float, float] = (0.5, 5.0),
+) -> dict:
     """Upload `submission` to the wosac-server at `server`, resumably; with `wait`, follow it to its result.
 
     Args:
@@ -98,24 +114,48 @@ def submit(submission: str | os.PathLike, *, server: str, key: str | None = None
       ValueError (ArgumentError): a bad argument (no key, a missing or empty file, a bad URL), before
         anything is sent.
     """
-    run = _Run(submission, server=server, key=key, method=method, challenge=challenge, config=config,
-               publish=publish, allow_partial=allow_partial, output=output, chunk_bytes=chunk_bytes,
-               limit_rate=limit_rate, progress=progress, log=log, state_dir=state_dir, retry=retry,
-               timeout=timeout, poll_s=poll_s)
+    run = _Run(
+        submission,
+        server=server,
+        key=key,
+        method=method,
+        challenge=challenge,
+        config=config,
+        publish=publish,
+        allow_partial=allow_partial,
+        output=output,
+        chunk_bytes=chunk_bytes,
+        limit_rate=limit_rate,
+        progress=progress,
+        log=log,
+        state_dir=state_dir,
+        retry=retry,
+        timeout=timeout,
+        poll_s=poll_s,
+    )
     return run.run(wait=wait, new=new)
 
 
-def follow(submission_id: str, *, server: str, key: str | None = None, output: str | os.PathLike | None = None,
-           progress: Progress | None = None, log: Callable[[str], None] | None = None,
-           retry: RetryPolicy = RetryPolicy(), timeout: float = 60.0,
-           poll_s: tuple[float, float] = (0.5, 5.0)) -> dict:
+def follow(
+    submission_id: str,
+    *,
+    server: str,
+    key: str | None = None,
+    output: str | os.PathLike | None = None,
+    progress: Progress | None = None,
+    log: Callable[[str], None] | None = None,
+    retry: RetryPolicy = RetryPolicy(),
+    timeout: float = 60.0,
+    poll_s: tuple[float, float] = (0.5, 5.0),
+) -> dict:
     """Follow a submission already on the server until it is done or failed; as `submit(..., wait=True)`."""
     try:
         server_ = Server(server, _key(key), timeout)
     except ValueError as error:
         raise ArgumentError(str(error)) from None
     return _Follower(server_, progress or _no_progress, log or _logger.info, retry, poll_s).follow(
-        submission_id, None, output)
+        submission_id, None, output
+    )
 
 
 def _key(key: str | None) -> str:
@@ -134,8 +174,14 @@ def _no_progress(stage: str, done: int, total: int | None) -> None:
 class _Follower:
     """Polls a submission's status until it is final, saying each state change; fetches the result."""
 
-    def __init__(self, server: Server, progress: Progress, log: Callable[[str], None], retry: RetryPolicy,
-                 poll_s: tuple[float, float]):
+    def __init__(
+        self,
+        server: Server,
+        progress: Progress,
+        log: Callable[[str], None],
+        retry: RetryPolicy,
+        poll_s: tuple[float, float],
+    ):
         self.server, self.progress, self.log, self.policy = server, progress, log, retry
         self.poll_min, self.poll_max = poll_s
 
@@ -173,8 +219,10 @@ class _Follower:
                 time.sleep(interval)
                 status = None
         except KeyboardInterrupt:
-            self.log(f"stopped following submission {submission_id}; it goes on at the server: run the same "
-                     "command again (with --wait) to follow it")
+            self.log(
+                f"stopped following submission {submission_id}; it goes on at the server: run the same "
+                "command again (with --wait) to follow it"
+            )
             raise
         if state == "failed":
             raise SubmissionFailed(status)
@@ -192,8 +240,9 @@ class _Follower:
         if output is not None:
             self._download(route, Path(output))
         status = dict(status)
-        status["result"] = {name: result.get(name) for name in ("challenge", "config", "num_scenarios", "coverage",
-                                                                  "buckets")}
+        status["result"] = {
+            name: result.get(name) for name in ("challenge", "config", "num_scenarios", "coverage", "buckets")
+        }
         return status
 
     def _download(self, route: str, path: Path) -> None:
@@ -201,10 +250,12 @@ class _Follower:
         temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             with open(temp, "wb") as f:
+
                 def fetch() -> Response:
                     f.seek(0)
                     f.truncate()
                     return self.server.request("GET", self.server.path(route), sink=f)
+
                 answer = Retrier(self.policy, self.log).call(self.server, "downloading the result", fetch)
                 if answer.status != 200:
                     raise _refused(answer)
@@ -219,8 +270,27 @@ class _Follower:
 class _Run:
     """One call of `submit`: the arguments checked, the state found, the upload resumed or started."""
 
-    def __init__(self, submission, *, server, key, method, challenge, config, publish, allow_partial, output,
-                 chunk_bytes, limit_rate, progress, log, state_dir, retry, timeout, poll_s):
+    def __init__(
+        self,
+        submission,
+        *,
+        server,
+        key,
+        method,
+        challenge,
+        config,
+        publish,
+        allow_partial,
+        output,
+        chunk_bytes,
+        limit_rate,
+        progress,
+        log,
+        state_dir,
+        retry,
+        timeout,
+        poll_s,
+    ):
         if challenge not in CHALLENGES:
             raise ArgumentError(f"challenge {challenge!r}: choose {' or '.join(CHALLENGES)}")
         if not method or not str(method).strip():
@@ -233,8 +303,10 @@ class _Run:
         if not self.file.exists():
             raise ArgumentError(f"{submission}: no such file")
         if not self.file.is_file():
-            raise ArgumentError(f"{submission}: not a file; send the submission as one file (a folder of shards: "
-                                f"pack it first, e.g. tar czf {self.file.name}.tar.gz -C {self.file} .)")
+            raise ArgumentError(
+                f"{submission}: not a file; send the submission as one file (a folder of shards: "
+                f"pack it first, e.g. tar czf {self.file.name}.tar.gz -C {self.file} .)"
+            )
         stat = self.file.stat()
         if stat.st_size == 0:
             raise ArgumentError(f"{submission}: the file is empty")
@@ -244,8 +316,13 @@ class _Run:
             self.server = Server(server, self.key, timeout)
         except ValueError as error:
             raise ArgumentError(str(error)) from None
-        self.params = {"method": str(method), "challenge": challenge, "config": config, "publish": bool(publish),
-                       "allow_partial": bool(allow_partial)}
+        self.params = {
+            "method": str(method),
+            "challenge": challenge,
+            "config": config,
+            "publish": bool(publish),
+            "allow_partial": bool(allow_partial),
+        }
         self.output = output
         self.chunk = int(chunk_bytes)
         self.limit_rate = int(limit_rate) if limit_rate else None
@@ -262,12 +339,20 @@ class _Run:
         if not os.access(folder, os.W_OK | os.X_OK):
             raise ArgumentError(f"state dir {folder}: not writable")
         prune(folder)
-        self.state = UploadState(folder, {"server": self.server.url, "key": key_digest(self.key),
-                                          "file": str(self.file), "size": self.size, "mtime_ns": self.mtime_ns,
-                                          **self.params})
-        self.sent = 0      # bytes sent in this run (a chunk sent again counts again)
-        self.patches = 0   # PATCH requests answered in this run
-        self.offset = 0    # the server's offset, as last known
+        self.state = UploadState(
+            folder,
+            {
+                "server": self.server.url,
+                "key": key_digest(self.key),
+                "file": str(self.file),
+                "size": self.size,
+                "mtime_ns": self.mtime_ns,
+                **self.params,
+            },
+        )
+        self.sent = 0  # bytes sent in this run (a chunk sent again counts again)
+        self.patches = 0  # PATCH requests answered in this run
+        self.offset = 0  # the server's offset, as last known
         self._rate_start = None
         self._rate_bytes = 0
 
@@ -280,23 +365,28 @@ class _Run:
         if status is None:
             with self.state.locked() as mine:
                 if not mine:
-                    raise SubmitError(f"another wosac-eval submit is uploading {self.file} to {self.server.url} now "
-                                      f"(its lock: {self.state.lock_path}); let it finish, then run this again")
+                    raise SubmitError(
+                        f"another wosac-eval submit is uploading {self.file} to {self.server.url} now "
+                        f"(its lock: {self.state.lock_path}); let it finish, then run this again"
+                    )
                 self.state.load()  # the run that held the lock may have finished it
                 try:
                     status = self._earlier_submission(quiet=True) or self._upload()
                 except ServerUnavailable as error:
                     if self.state.data.get("upload_id"):
-                        raise ServerUnavailable(f"{error}; the server keeps upload {self.state.data['upload_id']}: "
-                                                "run the same command again to resume it") from None
+                        raise ServerUnavailable(
+                            f"{error}; the server keeps upload {self.state.data['upload_id']}: "
+                            "run the same command again to resume it"
+                        ) from None
                     raise
         if not wait:
             return status
         try:
             return self.follower.follow(status["id"], status, self.output)
         except ServerUnavailable as error:
-            raise ServerUnavailable(f"{error}; submission {status['id']} goes on at the server: run the same "
-                                    "command again to follow it") from None
+            raise ServerUnavailable(
+                f"{error}; submission {status['id']} goes on at the server: run the same command again to follow it"
+            ) from None
 
     def _forget_earlier(self) -> None:
         upload_id = self.state.data.get("upload_id")
@@ -319,8 +409,10 @@ class _Run:
             self.state.forget()
             return None
         if not quiet:
-            self.log(f"{self.file.name} was uploaded before: submission {submission_id}, {status['state']} "
-                     "(--new uploads it again)")
+            self.log(
+                f"{self.file.name} was uploaded before: submission {submission_id}, {status['state']} "
+                "(--new uploads it again)"
+            )
         return status
 
     def _upload(self) -> dict:
@@ -338,8 +430,10 @@ class _Run:
         upload_id = self.state.data.get("upload_id")
         if upload_id:
             self.offset = self._head(upload_id)
-            self.log(f"resuming upload {upload_id} at byte {self.offset:,} of {self.size:,} "
-                     f"({self.offset / self.size:.0%}), the server's offset")
+            self.log(
+                f"resuming upload {upload_id} at byte {self.offset:,} of {self.size:,} "
+                f"({self.offset / self.size:.0%}), the server's offset"
+            )
             resumed_at = self.offset
         else:
             upload_id = self._create()
@@ -353,12 +447,16 @@ class _Run:
                 if status is not None:
                     break
         except KeyboardInterrupt:
-            self.log(f"upload {upload_id} interrupted at byte {self.offset:,} of {self.size:,}; the server keeps "
-                     "it (for 7 days by default): run the same command again to resume it")
+            self.log(
+                f"upload {upload_id} interrupted at byte {self.offset:,} of {self.size:,}; the server keeps "
+                "it (for 7 days by default): run the same command again to resume it"
+            )
             raise
         resumed = f", resumed at byte {resumed_at:,}" if resumed_at else ""
-        self.log(f"uploaded {self.file.name}: submission {status['id']}, {status['state']} "
-                 f"(sent {self.sent:,} bytes in {self.patches} PATCH request(s) in this run{resumed})")
+        self.log(
+            f"uploaded {self.file.name}: submission {status['id']}, {status['state']} "
+            f"(sent {self.sent:,} bytes in {self.patches} PATCH request(s) in this run{resumed})"
+        )
         return status
 
     # -- the protocol ------------------------------------------------------------------------------------
@@ -369,18 +467,28 @@ class _Run:
         upload_id = answer.json().get("upload_id")
         if not isinstance(upload_id, str) or not upload_id:
             raise ProtocolError("the server's answer to creating an upload holds no upload_id")
-        self.state.save(upload_id=upload_id, submission_id=None, server=self.server.url, file=str(self.file),
-                        size=self.size, mtime_ns=self.mtime_ns, created_at=time.time(), **self.params)
+        self.state.save(
+            upload_id=upload_id,
+            submission_id=None,
+            server=self.server.url,
+            file=str(self.file),
+            size=self.size,
+            mtime_ns=self.mtime_ns,
+            created_at=time.time(),
+            **self.params,
+        )
         self.log(f"upload {upload_id} created: {self.size:,} bytes to send in chunks of {self.chunk:,}")
         return upload_id
 
     def _head(self, upload_id: str, retrier: Retrier | None = None) -> int:
         """The offset the server holds; _UploadGone when it no longer has the upload."""
-        answer = _call(self, "asking the server for the upload's offset", "HEAD", f"uploads/{upload_id}",
-                       retrier=retrier)
+        answer = _call(
+            self, "asking the server for the upload's offset", "HEAD", f"uploads/{upload_id}", retrier=retrier
+        )
         if answer.status in (404, 410):
-            raise _UploadGone(f"the server no longer has upload {upload_id} ({answer.status}: expired, deleted, "
-                              "or its bytes lost)")
+            raise _UploadGone(
+                f"the server no longer has upload {upload_id} ({answer.status}: expired, deleted, or its bytes lost)"
+            )
         if answer.status != 200:
             raise _refused(answer)
         declared = answer.headers.get("upload-length")
@@ -416,11 +524,14 @@ class _Run:
                         retrier.reset()  # progress: the tries start again
                         continue
                     if answer.status in (404, 410):
-                        raise _UploadGone(f"the server no longer has upload {upload_id} ({answer.status}: "
-                                          f"{answer.detail()})")
+                        raise _UploadGone(
+                            f"the server no longer has upload {upload_id} ({answer.status}: {answer.detail()})"
+                        )
                     if answer.status == 409 and held is not None and held != self.offset:
-                        self.log(f"the server holds {held:,} bytes of upload {upload_id}, not {self.offset:,}: "
-                                 "going on from there")
+                        self.log(
+                            f"the server holds {held:,} bytes of upload {upload_id}, not {self.offset:,}: "
+                            "going on from there"
+                        )
                         self.offset = self._checked_offset(held, "PATCH")
                         self.progress("upload", self.offset, self.size)
                         continue
@@ -465,8 +576,10 @@ class _Run:
             with contextlib.suppress(*NETWORK_ERRORS):
                 self.server.request("DELETE", self.server.path(f"uploads/{upload_id}"))
             self.state.forget()
-            raise SubmitError(f"{self.file} changed while it was being uploaded (its size or modification time); "
-                              f"upload {upload_id} was deleted: run the command again to send the file as it is now")
+            raise SubmitError(
+                f"{self.file} changed while it was being uploaded (its size or modification time); "
+                f"upload {upload_id} was deleted: run the command again to send the file as it is now"
+            )
 
     def _complete(self, upload_id: str) -> dict | None:
         """The queued submission's status; None when the server holds less than the whole file (self.offset set)."""
@@ -503,18 +616,30 @@ class _Run:
                     raise _refused(answer)
             except SubmissionRefused as refusal:
                 if refusal.status == 429:
-                    raise SubmissionRefused(429, refusal.detail, "; the uploaded bytes stay on the server: run the "
-                                            "same command again later to complete the upload") from None
+                    raise SubmissionRefused(
+                        429,
+                        refusal.detail,
+                        "; the uploaded bytes stay on the server: run the "
+                        "same command again later to complete the upload",
+                    ) from None
                 raise
 
 
-def _call(owner, what: str, method: str, route: str, query: dict | None = None,
-          headers: dict[str, str] | None = None, retrier: Retrier | None = None) -> Response:
+def _call(
+    owner,
+    what: str,
+    method: str,
+    route: str,
+    query: dict | None = None,
+    headers: dict[str, str] | None = None,
+    retrier: Retrier | None = None,
+) -> Response:
     """One bodiless request, retried by `owner`'s policy (or `retrier`, counting on from its failures); the
     answer that was not worth retrying."""
     server = owner.server
     return (retrier or Retrier(owner.policy, owner.log)).call(
-        server, what, lambda: server.request(method, server.path(route, query), headers), reset=retrier is None)
+        server, what, lambda: server.request(method, server.path(route, query), headers), reset=retrier is None
+    )
 
 
 def _refused(answer: Response) -> SubmitError:

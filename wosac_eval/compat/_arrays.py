@@ -6,6 +6,7 @@ hand out `CompatArray`s, plain numpy arrays in every other respect, so that
 such code runs unchanged. (A single element, `array[i]`, is a numpy scalar,
 which has no `.numpy()`.)
 """
+
 from __future__ import annotations
 
 import numpy as np

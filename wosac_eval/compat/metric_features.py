@@ -10,9 +10,11 @@ bit-identical to the official ones, as numpy arrays with the official shapes
 and dtypes where the official ones are TensorFlow tensors (answering
 `.numpy()` as those do: `compat._arrays.CompatArray`).
 """
+
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -83,14 +85,20 @@ def _official(features: _features.MetricFeatures) -> MetricFeatures:
 def as_internal(features) -> _features.MetricFeatures:
     """Any object with the `MetricFeatures` fields (numpy arrays, or anything `np.asarray` reads, e.g.
     TensorFlow tensors) as wosac-eval's own `MetricFeatures`."""
-    return _features.MetricFeatures(**{f.name: np.asarray(getattr(features, f.name))
-                                       for f in dataclasses.fields(_features.MetricFeatures) if f.name != "extra"})
+    fields: dict[str, Any] = {
+        f.name: np.asarray(getattr(features, f.name))
+        for f in dataclasses.fields(_features.MetricFeatures)
+        if f.name != "extra"
+    }
+    return _features.MetricFeatures(**fields)
 
 
-def compute_metric_features(scenario: scenario_pb2.Scenario,
-                            joint_scene: sim_agents_submission_pb2.JointScene,
-                            challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
-                            use_log_validity: bool = False) -> MetricFeatures:
+def compute_metric_features(
+    scenario: scenario_pb2.Scenario,
+    joint_scene: sim_agents_submission_pb2.JointScene,
+    challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
+    use_log_validity: bool = False,
+) -> MetricFeatures:
     """The features of one joint scene (n_samples=1).
 
     Args:
@@ -106,8 +114,10 @@ def compute_metric_features(scenario: scenario_pb2.Scenario,
     """
     challenge = challenges.as_challenge(challenge_type)
     arrays = scenario_arrays(scenario)
-    rollouts = rollout_arrays(sim_agents_submission_pb2.ScenarioRollouts(
-        scenario_id=scenario.scenario_id, joint_scenes=[joint_scene]), challenge)
+    rollouts = rollout_arrays(
+        sim_agents_submission_pb2.ScenarioRollouts(scenario_id=scenario.scenario_id, joint_scenes=[joint_scene]),
+        challenge,
+    )
     try:
         # The log is sample 0 (the displacement error is measured against it), the joint scene sample 1.
         batch = sample_batch(arrays, rollouts, challenge)
@@ -117,19 +127,22 @@ def compute_metric_features(scenario: scenario_pb2.Scenario,
             if not batch.spec.submits_boxes:  # sim agents: the future is valid where the log is
                 rows = index_of_ids(arrays.log.object_id, traj.object_id[1])
                 valid = np.concatenate([valid[:1], arrays.log.valid[rows][None]])
-            batch = dataclasses.replace(batch, trajectories=dataclasses.replace(traj, valid=valid),
-                                        feature_valid=batch.feature_valid[[0, 0]])
+            batch = dataclasses.replace(
+                batch, trajectories=dataclasses.replace(traj, valid=valid), feature_valid=batch.feature_valid[[0, 0]]
+            )
     except KeyError as error:  # an object of the joint scene (or an evaluated one) is missing
-        raise ValueError(f"scenario {scenario.scenario_id}: the joint scene does not fit the scenario: "
-                         f"{error}") from error
+        raise ValueError(
+            f"scenario {scenario.scenario_id}: the joint scene does not fit the scenario: {error}"
+        ) from error
     _, simulated = _features.batch_features(arrays, batch)
     return _official(simulated)
 
 
-def compute_scenario_rollouts_features(scenario: scenario_pb2.Scenario,
-                                       scenario_rollouts: sim_agents_submission_pb2.ScenarioRollouts,
-                                       challenge_type: ChallengeType = ChallengeType.SIM_AGENTS
-                                       ) -> tuple[MetricFeatures, MetricFeatures]:
+def compute_scenario_rollouts_features(
+    scenario: scenario_pb2.Scenario,
+    scenario_rollouts: sim_agents_submission_pb2.ScenarioRollouts,
+    challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
+) -> tuple[MetricFeatures, MetricFeatures]:
     """(log features with n_samples=1, simulated features with one sample per joint scene).
 
     The log features are those of the logged scene as a joint scene, with the log's validity.
@@ -139,10 +152,9 @@ def compute_scenario_rollouts_features(scenario: scenario_pb2.Scenario,
     """
     challenge = challenges.as_challenge(challenge_type)
     try:
-        log, simulated = _features.scenario_features(scenario_arrays(scenario),
-                                                     rollout_arrays(scenario_rollouts, challenge),
-                                                     challenge=challenge)
+        log, simulated = _features.scenario_features(
+            scenario_arrays(scenario), rollout_arrays(scenario_rollouts, challenge), challenge=challenge
+        )
     except KeyError as error:
-        raise ValueError(f"scenario {scenario.scenario_id}: the rollouts do not fit the scenario: "
-                         f"{error}") from error
+        raise ValueError(f"scenario {scenario.scenario_id}: the rollouts do not fit the scenario: {error}") from error
     return _official(log), _official(simulated)

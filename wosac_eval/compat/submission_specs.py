@@ -9,6 +9,7 @@ accepts they accept too, even where `wosac-eval validate` warns or refuses
 (non-finite values, repeated objects, scenario-gen box sizes and types): a
 program written for the official package behaves the same.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -44,22 +45,29 @@ class SubmissionConfig:
 def get_submission_config(challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> SubmissionConfig:
     """The submission config of a challenge."""
     spec = challenges.spec(challenge_type)
-    return SubmissionConfig(current_time_index=spec.current_time_index, n_simulation_steps=spec.num_simulation_steps,
-                            n_rollouts=spec.num_rollouts, step_duration_seconds=spec.step_seconds)
+    return SubmissionConfig(
+        current_time_index=spec.current_time_index,
+        n_simulation_steps=spec.num_simulation_steps,
+        n_rollouts=spec.num_rollouts,
+        step_duration_seconds=spec.step_seconds,
+    )
 
 
-def get_sim_agent_ids(scenario: scenario_pb2.Scenario,
-                      challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> list[int]:
+def get_sim_agent_ids(
+    scenario: scenario_pb2.Scenario, challenge_type: ChallengeType = ChallengeType.SIM_AGENTS
+) -> list[int]:
     """Ids of the objects to simulate (valid at the current step), in track order."""
     challenges.as_challenge(challenge_type)
     return challenges.sim_agent_ids(scenario).tolist()
 
 
-def get_evaluation_sim_agent_ids(scenario: scenario_pb2.Scenario,
-                                 challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> list[int]:
+def get_evaluation_sim_agent_ids(
+    scenario: scenario_pb2.Scenario, challenge_type: ChallengeType = ChallengeType.SIM_AGENTS
+) -> list[int]:
     """Ids of the evaluated objects: sorted SDC and tracks_to_predict (sim agents), every sim agent (scenario gen)."""
-    return challenges.evaluated_ids(challenges.sim_agent_ids(scenario), challenges.predicted_ids(scenario),
-                                    challenge_type).tolist()
+    return challenges.evaluated_ids(
+        challenges.sim_agent_ids(scenario), challenges.predicted_ids(scenario), challenge_type
+    ).tolist()
 
 
 # Findings of `validate.rules` that the official validators refuse as well; the others are wosac-eval's
@@ -78,8 +86,13 @@ def _refused_by_official(finding, sim_agent_ids) -> bool:
     return finding.code in _OFFICIAL_REFUSALS
 
 
-def _raise_official_refusal(rollouts: sim_agents_submission_pb2.ScenarioRollouts, scenario: scenario_pb2.Scenario,
-                            challenge_type, what: str, n_rollouts: int | None = None) -> None:
+def _raise_official_refusal(
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts,
+    scenario: scenario_pb2.Scenario,
+    challenge_type,
+    what: str,
+    n_rollouts: int | None = None,
+) -> None:
     """ValueError naming the first of the problems the official validator refuses, if any."""
     from wosac_eval.validate import rules
 
@@ -92,18 +105,24 @@ def _raise_official_refusal(rollouts: sim_agents_submission_pb2.ScenarioRollouts
         raise ValueError(f"invalid {what}: {refused[0].message}{more}")
 
 
-def validate_joint_scene(joint_scene: sim_agents_submission_pb2.JointScene, original_scenario: scenario_pb2.Scenario,
-                         challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> None:
+def validate_joint_scene(
+    joint_scene: sim_agents_submission_pb2.JointScene,
+    original_scenario: scenario_pb2.Scenario,
+    challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
+) -> None:
     """Raises ValueError unless the joint scene holds every sim agent and no other object, each with the
     challenge's number of center_x, center_y, center_z and heading values (what the official checks)."""
-    rollouts = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=original_scenario.scenario_id,
-                                                          joint_scenes=[joint_scene])
+    rollouts = sim_agents_submission_pb2.ScenarioRollouts(
+        scenario_id=original_scenario.scenario_id, joint_scenes=[joint_scene]
+    )
     _raise_official_refusal(rollouts, original_scenario, challenge_type, "JointScene", n_rollouts=1)
 
 
-def validate_scenario_rollouts(scenario_rollouts: sim_agents_submission_pb2.ScenarioRollouts,
-                               original_scenario: scenario_pb2.Scenario,
-                               challenge_type: ChallengeType = ChallengeType.SIM_AGENTS) -> None:
+def validate_scenario_rollouts(
+    scenario_rollouts: sim_agents_submission_pb2.ScenarioRollouts,
+    original_scenario: scenario_pb2.Scenario,
+    challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
+) -> None:
     """Raises ValueError unless the rollouts have a scenario_id and 32 joint scenes, each valid as in
     `validate_joint_scene`."""
     if not scenario_rollouts.HasField("scenario_id"):

@@ -12,6 +12,7 @@ change the one they are called on. TensorFlow code that used the tensors can
 take the arrays as they are (`tf.convert_to_tensor`), or use numpy (e.g.
 `np.all(x)` for `tf.reduce_all(x).numpy()`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -58,8 +59,10 @@ class ObjectTrajectories:
         `object_id` and `object_type` are kept as they are.
         """
         steps = slice(start_index, end_index)
-        return ObjectTrajectories(**{f: compat_array(getattr(self, f))[..., steps] for f in TIME_SERIES},
-                                  **{f: getattr(self, f) for f in _PER_OBJECT})
+        return ObjectTrajectories(
+            **{f: compat_array(getattr(self, f))[..., steps] for f in TIME_SERIES},
+            **{f: getattr(self, f) for f in _PER_OBJECT},
+        )
 
     def gather_objects(self, object_indices) -> ObjectTrajectories:
         """The objects at the given positions, in that order (a position may repeat).
@@ -84,7 +87,8 @@ class ObjectTrajectories:
             raise IndexError(f"object indices {indices[bad].tolist()} are outside [0, {n_objects})")
         return ObjectTrajectories(
             **{f: np.take(compat_array(getattr(self, f)), indices, axis=-2) for f in TIME_SERIES},
-            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT})
+            **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT},
+        )
 
     def gather_objects_by_id(self, object_ids) -> ObjectTrajectories:
         """The objects with the given ids, in the order of `object_ids`.
@@ -102,9 +106,11 @@ class ObjectTrajectories:
         """Every track of the scenario, in track order, over all its steps (91 in training and validation
         data, 11 in the test set); every track must have the same number of steps."""
         log = track_trajectories(scenario)  # the library's reading of the tracks (float32, as officially)
-        return cls(**{f: compat_array(getattr(log, f)) for f in TIME_SERIES},
-                   object_id=compat_array(log.object_id, np.int32),  # Track.id is an int32 field
-                   object_type=compat_array(log.object_type, np.int32))
+        return cls(
+            **{f: compat_array(getattr(log, f)) for f in TIME_SERIES},
+            object_id=compat_array(log.object_id, np.int32),  # Track.id is an int32 field
+            object_type=compat_array(log.object_type, np.int32),
+        )
 
 
 def _positions_of_ids(ids, wanted) -> np.ndarray:
@@ -115,9 +121,7 @@ def _positions_of_ids(ids, wanted) -> np.ndarray:
     matches = wanted[:, None] == ids[None, :]
     count = matches.sum(axis=1)
     if (count < 1).any():
-        raise ValueError(f"object ids {wanted[count < 1].tolist()} are not among the trajectories' ids "
-                         f"{ids.tolist()}")
+        raise ValueError(f"object ids {wanted[count < 1].tolist()} are not among the trajectories' ids {ids.tolist()}")
     if (count > 1).any():
-        raise ValueError(f"object ids {wanted[count > 1].tolist()} appear more than once among the "
-                         "trajectories' ids")
+        raise ValueError(f"object ids {wanted[count > 1].tolist()} appear more than once among the trajectories' ids")
     return matches.argmax(axis=1).astype(np.int32)

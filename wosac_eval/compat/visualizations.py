@@ -15,6 +15,7 @@ tutorial's picture looks as it did; `wosac-eval plot`
 (`wosac_eval.results.scene_plot`) draws a scene with rollouts and metric
 events instead.
 """
+
 from __future__ import annotations
 
 from typing import TypedDict
@@ -24,8 +25,13 @@ import numpy as np
 from wosac_eval.protos import map_pb2, scenario_pb2
 
 # The official palette (RGB in [0, 1]): blue, green, amber, coral, purple, navy.
-WAYMO_COLORS = np.array([[0, 120, 255], [0, 232, 157], [255, 205, 85], [244, 175, 145], [145, 80, 200],
-                         [0, 51, 102]], dtype=np.float64) / 255.0
+WAYMO_COLORS = (
+    np.array(
+        [[0, 120, 255], [0, 232, 157], [255, 205, 85], [244, 175, 145], [145, 80, 200], [0, 51, 102]], dtype=np.float64
+    )
+    / 255.0
+)
+
 
 class _Style(TypedDict):
     fmt: str
@@ -63,8 +69,7 @@ def add_road_line(axis, road_line: map_pb2.RoadLine) -> None:
     _plot_polyline(axis, road_line.polyline, **_LINE_STYLE)
 
 
-def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: float,
-                   color_idx: int = 0):
+def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: float, color_idx: int = 0):
     """A `matplotlib.patches.Rectangle` for one box (not yet added to an axis).
 
     Args:
@@ -87,12 +92,12 @@ def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: fl
 def add_all_current_objects(axis, x, y, yaw, length, width, color_idx) -> list:
     """Adds one box per object (each argument `(n_objects,)`) to `axis`; returns the added patches."""
     x, y, yaw, length, width, color_idx = (np.asarray(v) for v in (x, y, yaw, length, width, color_idx))
-    return [axis.add_patch(get_bbox_patch(x[i], y[i], yaw[i], length[i], width[i], color_idx[i]))
-            for i in range(x.shape[0])]
+    return [
+        axis.add_patch(get_bbox_patch(x[i], y[i], yaw[i], length[i], width[i], color_idx[i])) for i in range(x.shape[0])
+    ]
 
 
-def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, length, width,
-                        color_idx=None):
+def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, length, width, color_idx=None):
     """A `matplotlib.animation.FuncAnimation` of the boxes over the scenario's map, one frame per step.
 
     As officially, `fig` is closed first (so a notebook shows the animation, not a second, static
@@ -115,7 +120,6 @@ def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, l
     def draw_step(t: int) -> list:
         for patch in list(axis.patches):
             patch.remove()
-        return add_all_current_objects(axis, x[:, t], y[:, t], yaw[:, t], length[:, t], width[:, t],
-                                       color_idx[:, t])
+        return add_all_current_objects(axis, x[:, t], y[:, t], yaw[:, t], length[:, t], width[:, t], color_idx[:, t])
 
     return animation.FuncAnimation(fig, draw_step, frames=x.shape[1], interval=_FRAME_MS, blit=True)

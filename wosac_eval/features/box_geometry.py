@@ -13,6 +13,7 @@ search loops (`features.compiled`). A box's corners and outline are separate
 values (`x0..x3`, `y0..y3`, ...), so that a scalar can be one. The `..._xy`
 and array functions below them lay the corners along a last axis of 4 (or 8).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -38,10 +39,16 @@ def box_corners(x, y, length, width, cos_h, sin_h):
     ahead, behind = length * _HALF * _ONE, length * _HALF * _MINUS_ONE
     left, right = width * _HALF * _ONE, width * _HALF * _MINUS_ONE
     minus_sin = -sin_h
-    return (ops.fma32(minus_sin, left, cos_h * ahead) + x, ops.fma32(minus_sin, left, cos_h * behind) + x,
-            ops.fma32(minus_sin, right, cos_h * behind) + x, ops.fma32(minus_sin, right, cos_h * ahead) + x,
-            ops.fma32(cos_h, left, sin_h * ahead) + y, ops.fma32(cos_h, left, sin_h * behind) + y,
-            ops.fma32(cos_h, right, sin_h * behind) + y, ops.fma32(cos_h, right, sin_h * ahead) + y)
+    return (
+        ops.fma32(minus_sin, left, cos_h * ahead) + x,
+        ops.fma32(minus_sin, left, cos_h * behind) + x,
+        ops.fma32(minus_sin, right, cos_h * behind) + x,
+        ops.fma32(minus_sin, right, cos_h * ahead) + x,
+        ops.fma32(cos_h, left, sin_h * ahead) + y,
+        ops.fma32(cos_h, left, sin_h * behind) + y,
+        ops.fma32(cos_h, right, sin_h * behind) + y,
+        ops.fma32(cos_h, right, sin_h * ahead) + y,
+    )
 
 
 def box_corners_xy(x, y, length, width, cos_h, sin_h):
@@ -95,10 +102,18 @@ def _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3):
     start = _first_lowest(y0, y1, y2, y3)
     # (start + k) % 4 of these non-negative indices.
     r0, r1, r2, r3 = start, (start + 1) & 3, (start + 2) & 3, (start + 3) & 3
-    rx0, rx1, rx2, rx3 = (ops.pick4(r0, x0, x1, x2, x3), ops.pick4(r1, x0, x1, x2, x3),
-                          ops.pick4(r2, x0, x1, x2, x3), ops.pick4(r3, x0, x1, x2, x3))
-    ry0, ry1, ry2, ry3 = (ops.pick4(r0, y0, y1, y2, y3), ops.pick4(r1, y0, y1, y2, y3),
-                          ops.pick4(r2, y0, y1, y2, y3), ops.pick4(r3, y0, y1, y2, y3))
+    rx0, rx1, rx2, rx3 = (
+        ops.pick4(r0, x0, x1, x2, x3),
+        ops.pick4(r1, x0, x1, x2, x3),
+        ops.pick4(r2, x0, x1, x2, x3),
+        ops.pick4(r3, x0, x1, x2, x3),
+    )
+    ry0, ry1, ry2, ry3 = (
+        ops.pick4(r0, y0, y1, y2, y3),
+        ops.pick4(r1, y0, y1, y2, y3),
+        ops.pick4(r2, y0, y1, y2, y3),
+        ops.pick4(r3, y0, y1, y2, y3),
+    )
     ex, ey = rx1 - rx0, ry1 - ry0
     length = ops.sqrt(ex * ex + ey * ey)
     return rx0, rx1, rx2, rx3, ry0, ry1, ry2, ry3, ops.divide(ex, length), ops.divide(ey, length)
@@ -113,8 +128,28 @@ def corner_outline(x0, x1, x2, x3, y0, y1, y2, y3):
     """
     a = _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3)
     b = _from_lowest(-x0, -x1, -x2, -x3, -y0, -y1, -y2, -y3)
-    return (a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8], a[9],
-            b[0], b[1], b[2], b[3], b[4], b[5], b[6], b[7], b[8], b[9])
+    return (
+        a[0],
+        a[1],
+        a[2],
+        a[3],
+        a[4],
+        a[5],
+        a[6],
+        a[7],
+        a[8],
+        a[9],
+        b[0],
+        b[1],
+        b[2],
+        b[3],
+        b[4],
+        b[5],
+        b[6],
+        b[7],
+        b[8],
+        b[9],
+    )
 
 
 def box_outline(x, y, length, width, cos_h, sin_h):
@@ -129,10 +164,11 @@ def _merged_vertex(j, a, b, b_turns_left):
     a_order = (0, 0, 1, 1, 2, 2, 3, 3)[j]
     b_order = (0, 1, 1, 2, 2, 3, 3, 0)[j]
     # B's outline is of the box negated: its corners come negated already.
-    return (ops.where(b_turns_left, a[b_order], a[a_order]) + ops.where(b_turns_left, b[10 + a_order],
-                                                                       b[10 + b_order]),
-            ops.where(b_turns_left, a[4 + b_order], a[4 + a_order]) + ops.where(b_turns_left, b[14 + a_order],
-                                                                               b[14 + b_order]))
+    return (
+        ops.where(b_turns_left, a[b_order], a[a_order]) + ops.where(b_turns_left, b[10 + a_order], b[10 + b_order]),
+        ops.where(b_turns_left, a[4 + b_order], a[4 + a_order])
+        + ops.where(b_turns_left, b[14 + a_order], b[14 + b_order]),
+    )
 
 
 def minkowski_vertices(a, b):
@@ -190,10 +226,12 @@ def octagon_signed_distance(m):
     # The nearest of the edges and vertices, a minimum passing NaN on (all are +0 or more: the order
     # does not change it). The vertices' square roots are one: the square root is correctly rounded
     # and monotone, so the root of the least square is the least of the roots.
-    edge = ops.minimum(ops.minimum(ops.minimum(e0, e4), ops.minimum(e2, e6)),
-                       ops.minimum(ops.minimum(e1, e5), ops.minimum(e3, e7)))
-    vertex = ops.minimum(ops.minimum(ops.minimum(v0, v4), ops.minimum(v2, v6)),
-                         ops.minimum(ops.minimum(v1, v5), ops.minimum(v3, v7)))
+    edge = ops.minimum(
+        ops.minimum(ops.minimum(e0, e4), ops.minimum(e2, e6)), ops.minimum(ops.minimum(e1, e5), ops.minimum(e3, e7))
+    )
+    vertex = ops.minimum(
+        ops.minimum(ops.minimum(v0, v4), ops.minimum(v2, v6)), ops.minimum(ops.minimum(v1, v5), ops.minimum(v3, v7))
+    )
     nearest = ops.minimum(edge, ops.sqrt(vertex))
     return ops.where(inside, -nearest, nearest)
 

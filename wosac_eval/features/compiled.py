@@ -17,6 +17,7 @@ the loop's own file only, not by the kernels or numba functions it calls from
 other files, so a cached loop's name carries `KERNELS_DIGEST` (their sources), which
 names numba's cache file: changed kernels make new loops, never a stale cache.
 """
+
 from __future__ import annotations
 
 import ast
@@ -31,6 +32,7 @@ import math
 import textwrap
 import types
 from pathlib import Path
+from typing import Any, TypeGuard
 
 import numba
 import numpy as np
@@ -57,8 +59,14 @@ SCALAR_OPS = {
     "opaque": "{0}",
     "pick4": "({1} if {0} == 0 else ({2} if {0} == 1 else ({3} if {0} == 2 else {4})))",
 }
-_MISSING = sorted(name for name, value in vars(ops).items() if isinstance(value, types.FunctionType)
-                  and value.__module__ == ops.__name__ and not name.startswith("_") and name not in SCALAR_OPS)
+_MISSING = sorted(
+    name
+    for name, value in vars(ops).items()
+    if isinstance(value, types.FunctionType)
+    and value.__module__ == ops.__name__
+    and not name.startswith("_")
+    and name not in SCALAR_OPS
+)
 assert not _MISSING, f"features.compiled lacks the scalar form of ops.{_MISSING}"
 
 
@@ -71,14 +79,18 @@ def _clip(v, low, high):
 
 def _is_kernel(value) -> bool:
     """A plain function of the feature kernels (inlined into the kernel calling it)."""
-    return (isinstance(value, types.FunctionType) and value.__module__.startswith("wosac_eval.features.")
-            and value.__module__ != ops.__name__)
+    return (
+        isinstance(value, types.FunctionType)
+        and value.__module__.startswith("wosac_eval.features.")
+        and value.__module__ != ops.__name__
+    )
 
 
 @functools.cache
 def _syntax(kernel: types.FunctionType) -> ast.FunctionDef:
     tree = ast.parse(textwrap.dedent(inspect.getsource(kernel)))
     (function,) = tree.body
+    assert isinstance(function, ast.FunctionDef)  # a kernel is a plain `def`
     return function
 
 
@@ -108,15 +120,14 @@ class _Flattener:
         params = [a.arg for a in function.args.args]
         if len(params) != len(arguments) or function.args.vararg or function.args.kwonlyargs:
             raise TypeError(f"kernel {kernel.__qualname__} is called with {len(arguments)} positional arguments")
-        stores = collections.Counter(n.id for n in ast.walk(function)
-                                     if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store))
-        local = {}
+        stores = collections.Counter(
+            n.id for n in ast.walk(function) if isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store)
+        )
+        local: dict[object, Any] = {}  # name -> expression or bound name; `_ASSIGNED_ONCE` -> names
         for param, argument in zip(params, arguments):
             # A constant argument (an index) stays a constant, so that what it indexes folds; a variable
             # the kernel does not reassign is read as it is (numba's compile time grows with statements).
-            if isinstance(argument, ast.Constant):
-                local[param] = argument
-            elif _simple(argument) and not stores[param]:
+            if isinstance(argument, ast.Constant) or _simple(argument) and not stores[param]:
                 local[param] = argument
             else:
                 local[param] = self.bind(param, argument)
@@ -125,7 +136,11 @@ class _Flattener:
         for statement in body[:-1]:
             self.statement(kernel, statement, local)
         last = body[-1]
-        if not isinstance(last, ast.Return) or any(isinstance(n, ast.Return) for s in body[:-1] for n in ast.walk(s)):
+        if (
+            not isinstance(last, ast.Return)
+            or last.value is None
+            or any(isinstance(n, ast.Return) for s in body[:-1] for n in ast.walk(s))
+        ):
             raise TypeError(f"kernel {kernel.__qualname__} must end in its one return statement")
         return self.expression(kernel, last.value, local)
 
@@ -139,8 +154,7 @@ class _Flattener:
         if isinstance(statement, ast.Assign) and len(statement.targets) == 1:
             value = self.expression(kernel, statement.value, local)
             target = statement.targets[0]
-            if isinstance(value, ast.Constant) and isinstance(target, ast.Name) and \
-                    target.id in local[_ASSIGNED_ONCE]:
+            if isinstance(value, ast.Constant) and isinstance(target, ast.Name) and target.id in local[_ASSIGNED_ONCE]:
                 local[target.id] = value  # a constant: substituted where it is read
                 return
             self.statements.append(ast.Assign(targets=[self.target(target, local)], value=value, lineno=0))
@@ -153,8 +167,10 @@ class _Flattener:
             body, self.statements = self.statements, outer
             self.statements.append(ast.For(target=target, iter=iterable, body=body, orelse=[], lineno=0))
         else:
-            raise TypeError(f"kernel {kernel.__qualname__}: only assignments and for loops can be compiled, "
-                            f"not {ast.unparse(statement)!r}")
+            raise TypeError(
+                f"kernel {kernel.__qualname__}: only assignments and for loops can be compiled, "
+                f"not {ast.unparse(statement)!r}"
+            )
 
     def target(self, node: ast.expr, local: dict) -> ast.expr:
         if isinstance(node, ast.Name):
@@ -169,8 +185,12 @@ class _Flattener:
         if isinstance(node, ast.Call) and not node.keywords and not any(isinstance(a, ast.Starred) for a in node.args):
             arguments = [self.expression(kernel, a, local) for a in node.args]
             func = node.func
-            if (isinstance(func, ast.Attribute) and isinstance(func.value, ast.Name) and func.value.id == "ops"
-                    and func.value.id not in local):
+            if (
+                isinstance(func, ast.Attribute)
+                and isinstance(func.value, ast.Name)
+                and func.value.id == "ops"
+                and func.value.id not in local
+            ):
                 bound = [a if _simple(a) else ast.Name(self.bind("arg", a), ast.Load()) for a in arguments]
                 text = SCALAR_OPS[func.attr].format(*(ast.unparse(a) for a in bound))
                 return ast.parse(text, mode="eval").body
@@ -185,8 +205,12 @@ class _Flattener:
             return ast.Name(local[node.id] if node.id in local else self.global_name(kernel, node.id), ast.Load())
         if isinstance(node, ast.Lambda):
             raise TypeError(f"kernel {kernel.__qualname__}: lambdas cannot be compiled")
-        node = type(node)(**{field: _map_field(getattr(node, field), lambda n: self.expression(kernel, n, local))
-                             for field in node._fields})
+        node = type(node)(
+            **{
+                field: _map_field(getattr(node, field), lambda n: self.expression(kernel, n, local))
+                for field in node._fields
+            }
+        )
         return _folded(node)
 
 
@@ -197,21 +221,42 @@ def _simple(node: ast.expr) -> bool:
     """A name, a constant, or an item of a named tuple at a constant index: free to evaluate twice."""
     if isinstance(node, (ast.Name, ast.Constant)):
         return True
-    return (isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and isinstance(node.slice, ast.Constant))
-_FOLDED = {ast.Add: lambda a, b: a + b, ast.Sub: lambda a, b: a - b, ast.Mult: lambda a, b: a * b,
-           ast.BitAnd: lambda a, b: a & b}
+    return isinstance(node, ast.Subscript) and isinstance(node.value, ast.Name) and isinstance(node.slice, ast.Constant)
+
+
+_FOLDED = {
+    ast.Add: lambda a, b: a + b,
+    ast.Sub: lambda a, b: a - b,
+    ast.Mult: lambda a, b: a * b,
+    ast.BitAnd: lambda a, b: a & b,
+}
 
 
 def _folded(node: ast.expr) -> ast.expr:
     """Integer arithmetic on constants, and a constant tuple at a constant index, as constants: the
     indices of tuples (a box's corners) become literal, which numba reads without a memory round trip."""
-    constant_int = lambda n: isinstance(n, ast.Constant) and type(n.value) is int  # noqa: E731
-    if isinstance(node, ast.BinOp) and type(node.op) in _FOLDED and constant_int(node.left) and \
-            constant_int(node.right):
+
+    def constant_int(n: ast.expr) -> TypeGuard[ast.Constant]:
+        return isinstance(n, ast.Constant) and type(n.value) is int
+
+    if (
+        isinstance(node, ast.BinOp)
+        and type(node.op) in _FOLDED
+        and constant_int(node.left)
+        and constant_int(node.right)
+    ):
         return ast.Constant(_FOLDED[type(node.op)](node.left.value, node.right.value))
-    if isinstance(node, ast.Subscript) and isinstance(node.value, ast.Tuple) and constant_int(node.slice) and \
-            all(isinstance(e, ast.Constant) for e in node.value.elts):
-        return ast.Constant(node.value.elts[node.slice.value].value)
+    if (
+        isinstance(node, ast.Subscript)
+        and isinstance(node.value, ast.Tuple)
+        and constant_int(node.slice)
+        and all(isinstance(e, ast.Constant) for e in node.value.elts)
+    ):
+        index = node.slice.value
+        assert isinstance(index, int)  # checked by constant_int
+        element = node.value.elts[index]
+        assert isinstance(element, ast.Constant)  # every element checked above
+        return ast.Constant(element.value)
     return node
 
 
@@ -224,8 +269,11 @@ def _map_field(value, transform):
 
 
 def _is_docstring(statement: ast.stmt) -> bool:
-    return isinstance(statement, ast.Expr) and isinstance(statement.value, ast.Constant) and \
-        isinstance(statement.value.value, str)
+    return (
+        isinstance(statement, ast.Expr)
+        and isinstance(statement.value, ast.Constant)
+        and isinstance(statement.value.value, str)
+    )
 
 
 def flat_source(kernel: types.FunctionType) -> tuple[str, dict]:
@@ -233,9 +281,15 @@ def flat_source(kernel: types.FunctionType) -> tuple[str, dict]:
     flattener = _Flattener()
     params = [a.arg for a in _syntax(kernel).args.args]
     result = flattener.inline(kernel, [ast.Name(p, ast.Load()) for p in params])
-    function = ast.FunctionDef(name=kernel.__name__, args=ast.arguments(
-        posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[], defaults=[]),
-        body=flattener.statements + [ast.Return(result)], decorator_list=[], lineno=0)
+    function = ast.FunctionDef(
+        name=kernel.__name__,
+        args=ast.arguments(
+            posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[], defaults=[]
+        ),
+        body=flattener.statements + [ast.Return(result)],
+        decorator_list=[],
+        lineno=0,
+    )
     module = ast.fix_missing_locations(ast.Module(body=[function], type_ignores=[]))
     return ast.unparse(module), flattener.namespace
 
@@ -254,10 +308,20 @@ def compiled(kernel: types.FunctionType, inline: bool = False):
 
 
 # The sources of the kernels and numba functions that cached loops call (from other files, too).
-_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge/segments",
-                   "road_edge/pruned_search", "road_edge/cell_tables", "traffic_lights")
-KERNELS_DIGEST = hashlib.sha256(b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes()
-                                         for m in _KERNEL_MODULES)).hexdigest()
+_KERNEL_MODULES = (
+    "ops",
+    "compiled",
+    "box_geometry",
+    "float32_math",
+    "interaction",
+    "road_edge/segments",
+    "road_edge/pruned_search",
+    "road_edge/cell_tables",
+    "traffic_lights",
+)
+KERNELS_DIGEST = hashlib.sha256(
+    b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes() for m in _KERNEL_MODULES)
+).hexdigest()
 
 
 def cached_loop(function):

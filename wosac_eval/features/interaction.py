@@ -4,13 +4,13 @@ Objects are laid out with the evaluated objects first (`num_evaluated` of
 them), followed by every other sim agent. Interactions are computed for the
 evaluated objects against all objects: `(num_evaluated x num_objects)` pairs.
 """
+
 from __future__ import annotations
 
 import math
 
-import numpy as np
-
 import numba
+import numpy as np
 
 from wosac_eval.features import ops
 from wosac_eval.features.box_geometry import box_outline, minkowski_vertices, octagon_signed_distance
@@ -19,7 +19,6 @@ from wosac_eval.features.float32_math import HUGE_COS, HUGE_SIN, packet_sincos, 
 from wosac_eval.features.kinematics import linear_speed
 from wosac_eval.features.spatial import nonzero, strict_argmin
 from wosac_eval.features.xp import array_namespace, errstate
-
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -58,15 +57,32 @@ def rounded_box_distance(a, b):
     Returns:
       float32 `(...)`.
     """
-    return outline_distance(box_outlines(a[0], a[1], a[2], a[3], a[4], a[5]),
-                            box_outlines(b[0], b[1], b[2], b[3], b[4], b[5]), a[6], b[6])
+    return outline_distance(
+        box_outlines(a[0], a[1], a[2], a[3], a[4], a[5]), box_outlines(b[0], b[1], b[2], b[3], b[4], b[5]), a[6], b[6]
+    )
 
 
-def box_pair_distance(x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a,
-                      x_b, y_b, core_length_b, core_width_b, cos_b, sin_b, radius_b):
+def box_pair_distance(
+    x_a,
+    y_a,
+    core_length_a,
+    core_width_a,
+    cos_a,
+    sin_a,
+    radius_a,
+    x_b,
+    y_b,
+    core_length_b,
+    core_width_b,
+    cos_b,
+    sin_b,
+    radius_b,
+):
     """`rounded_box_distance` of boxes given value by value (an `ops` kernel over pairs)."""
-    return rounded_box_distance((x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a),
-                                (x_b, y_b, core_length_b, core_width_b, cos_b, sin_b, radius_b))
+    return rounded_box_distance(
+        (x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a),
+        (x_b, y_b, core_length_b, core_width_b, cos_b, sin_b, radius_b),
+    )
 
 
 _box_pair_distance = compiled(box_pair_distance)
@@ -150,17 +166,43 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
                 if guess < 0:
                     continue
                 # The guess, then every other box whose bound its distance (capped at 1e10) does not exclude.
-                d = _box_pair_distance_inline(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e],
-                                              step[5, e], step[6, e], step[0, guess], step[1, guess], step[2, guess],
-                                              step[3, guess], step[4, guess], step[5, guess], step[6, guess])
+                d = _box_pair_distance_inline(
+                    step[0, e],
+                    step[1, e],
+                    step[2, e],
+                    step[3, e],
+                    step[4, e],
+                    step[5, e],
+                    step[6, e],
+                    step[0, guess],
+                    step[1, guess],
+                    step[2, guess],
+                    step[3, guess],
+                    step[4, guess],
+                    step[5, guess],
+                    step[6, guess],
+                )
                 d = d if (d < EXTREMELY_LARGE_DISTANCE) | (d != d) else EXTREMELY_LARGE_DISTANCE
                 threshold = d + BOUND_MARGIN
                 evaluated += 1
                 for o in range(num_objects):
                     if o != guess and lower[o] <= threshold:
-                        pair = _box_pair_distance(step[0, e], step[1, e], step[2, e], step[3, e], step[4, e],
-                                                  step[5, e], step[6, e], step[0, o], step[1, o], step[2, o],
-                                                  step[3, o], step[4, o], step[5, o], step[6, o])
+                        pair = _box_pair_distance(
+                            step[0, e],
+                            step[1, e],
+                            step[2, e],
+                            step[3, e],
+                            step[4, e],
+                            step[5, e],
+                            step[6, e],
+                            step[0, o],
+                            step[1, o],
+                            step[2, o],
+                            step[3, o],
+                            step[4, o],
+                            step[5, o],
+                            step[6, o],
+                        )
                         evaluated += 1
                         d = d if (d < pair) | (d != d) else pair  # numpy's minimum: NaN passes on
                 out[b, e, t] = d
@@ -193,8 +235,9 @@ def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
     return out.reshape(*lead, *out.shape[1:])
 
 
-def distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int,
-                               counts: dict | None = None):
+def distance_to_nearest_object(
+    x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, counts: dict | None = None
+):
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of
@@ -227,16 +270,34 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     # The valid pairs of these boxes are all evaluated exactly below, the self pair too.
     exhaustive = exhaustive_boxes(x, y, length, width, cos_h, sin_h)
     c = lambda a: np.ascontiguousarray(a, _F)  # noqa: E731
-    distance, evaluated = _nearest_object_search(c(x), c(y), c(length - _F(2) * radius), c(width - _F(2) * radius),
-                                                 c(cos_h), c(sin_h), c(radius), reach, np.ascontiguousarray(exhaustive),
-                                                 e)
+    distance, evaluated = _nearest_object_search(
+        c(x),
+        c(y),
+        c(length - _F(2) * radius),
+        c(width - _F(2) * radius),
+        c(cos_h),
+        c(sin_h),
+        c(radius),
+        reach,
+        np.ascontiguousarray(exhaustive),
+        e,
+    )
     work["pairs evaluated"] += evaluated
     if exhaustive.any():
         pair = (exhaustive[:, :e, None] | exhaustive[:, None]) & valid[:, :e, None] & valid[:, None]
         ub, ue, uo, us = nonzero(pair)
-        box = lambda i: (x[ub, i, us], y[ub, i, us], length[ub, i, us] - _F(2) * radius[ub, i, us],  # noqa: E731
-                         width[ub, i, us] - _F(2) * radius[ub, i, us], cos_h[ub, i, us], sin_h[ub, i, us],
-                         radius[ub, i, us])
+
+        def box(i):
+            return (
+                x[ub, i, us],
+                y[ub, i, us],
+                length[ub, i, us] - _F(2) * radius[ub, i, us],
+                width[ub, i, us] - _F(2) * radius[ub, i, us],
+                cos_h[ub, i, us],
+                sin_h[ub, i, us],
+                radius[ub, i, us],
+            )
+
         d = rounded_box_distance(box(ue), box(uo)).astype(_F)
         d = np.where(ue == uo, d + EXTREMELY_LARGE_DISTANCE, d)
         np.minimum.at(distance, (ub, ue, us), d)
@@ -295,8 +356,7 @@ def frame_offsets(x, y, x_ego, y_ego, ego_cos, ego_sin, ego_length, ego_width, h
     dx, dy = x - x_ego, y - y_ego
     rel_x = ego_cos * dx - ego_sin * dy
     rel_y = ego_sin * dx + ego_cos * dy
-    return (rel_x - ego_length / _F(2), ops.absolute(rel_y) - ego_width / _F(2),
-            ops.absolute(heading - heading_ego))
+    return (rel_x - ego_length / _F(2), ops.absolute(rel_y) - ego_width / _F(2), ops.absolute(heading - heading_ego))
 
 
 def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evaluated: int):
@@ -310,8 +370,18 @@ def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evalua
       (ahead_of_front, beside_path, yaw_diff), float32 `(..., num_evaluated, num_objects)`.
     """
     e = slice(0, num_evaluated)
-    return frame_offsets(x[..., None, :], y[..., None, :], x[..., e, None], y[..., e, None], ego_cos, ego_sin,
-                         length[..., e, None], width[..., e, None], heading[..., None, :], heading[..., e, None])
+    return frame_offsets(
+        x[..., None, :],
+        y[..., None, :],
+        x[..., e, None],
+        y[..., e, None],
+        ego_cos,
+        ego_sin,
+        length[..., e, None],
+        width[..., e, None],
+        heading[..., None, :],
+        heading[..., e, None],
+    )
 
 
 def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other_length, other_width):
@@ -327,20 +397,36 @@ def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other
     half_w = other_width / _F(2)
     long_distance = ahead_of_front - (half_l * ops.absolute(yaw_cos) + half_w * ops.absolute(yaw_sin))
     lat_overlap = beside_path - (half_l * ops.absolute(yaw_sin) + half_w * ops.absolute(yaw_cos))
-    following = ((long_distance > _F(0)) & (lat_overlap < _F(0))
-                 & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yaw_diff <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP)))
+    following = (
+        (long_distance > _F(0))
+        & (lat_overlap < _F(0))
+        & ((lat_overlap < -SMALL_OVERLAP_THRESHOLD) | (yaw_diff <= MAX_HEADING_DIFF_FOR_SMALL_OVERLAP))
+    )
     return long_distance, following
 
 
 def capped_time_to_collision(gap, closing):
     """gap / closing speed, capped at 5 s; 5 s when not closing in (an `ops` kernel). float32 `(...)`."""
-    return ops.where(closing > _F(0), ops.minimum(ops.divide(gap, closing), MAXIMUM_TIME_TO_COLLISION),
-                     MAXIMUM_TIME_TO_COLLISION)
+    return ops.where(
+        closing > _F(0), ops.minimum(ops.divide(gap, closing), MAXIMUM_TIME_TO_COLLISION), MAXIMUM_TIME_TO_COLLISION
+    )
 
 
-def time_to_collision(x, y, length, width, heading, valid, *, num_evaluated: int,
-                      seconds_per_step: float | None = None, steps: slice = slice(None), speed=None, ego_tail=None,
-                      pair_tail=None):
+def time_to_collision(
+    x,
+    y,
+    length,
+    width,
+    heading,
+    valid,
+    *,
+    num_evaluated: int,
+    seconds_per_step: float | None = None,
+    steps: slice = slice(None),
+    speed=None,
+    ego_tail=None,
+    pair_tail=None,
+):
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned
@@ -388,26 +474,49 @@ def time_to_collision(x, y, length, width, heading, valid, *, num_evaluated: int
         # float32 sign of a difference is exact), beside the path within that half-diagonal, and
         # aligned within 75 degrees.
         reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
-        ttc = _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail,
-                               reported.start, len(reported), num_evaluated)
+        ttc = _followed_search(
+            x,
+            y,
+            length,
+            width,
+            heading,
+            speed,
+            valid,
+            reach,
+            ego_tail,
+            pair_tail,
+            reported.start,
+            len(reported),
+            num_evaluated,
+        )
         # Steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite: the official
         # all-objects search, whose gaps of -inf and NaN the pruning above would skip, and whose closing
         # speed of +inf gives 0 s even where nothing is followed. A NaN speed needs no such step (the
         # first and last steps of every track have one): any closing speed with it is NaN, hence the
         # cap, in both searches alike.
         at = lambda a: a[..., steps]  # noqa: E731
-        irregular = (unbounded_boxes(*map(at, (x, y, heading, length, width))).any(axis=1)
-                     | np.isinf(at(speed)).any(axis=1))
+        irregular = unbounded_boxes(*map(at, (x, y, heading, length, width))).any(axis=1) | np.isinf(at(speed)).any(
+            axis=1
+        )
         rb, rst = np.nonzero(irregular)
         if rb.size:
             pick = lambda a: np.swapaxes(at(a), 1, 2)[rb, rst]  # noqa: E731  (pairs, objects)
             # The ego frames, as the official op computes them (shape: steps, evaluated, 1).
             ego_sin, ego_cos = sincos32(-pick(heading)[:, :num_evaluated, None], ego_tail[rst][..., None])
-            ahead, beside, yaw_diff = ego_frame_offsets(pick(x), pick(y), pick(length), pick(width), pick(heading),
-                                                        ego_cos, ego_sin, num_evaluated)
+            ahead, beside, yaw_diff = ego_frame_offsets(
+                pick(x), pick(y), pick(length), pick(width), pick(heading), ego_cos, ego_sin, num_evaluated
+            )
             ttc[rb, :, rst] = all_objects_time_to_collision(
-                ahead, beside, yaw_diff, pair_tail[rst], pick(length)[:, None], pick(width)[:, None],
-                pick(valid)[:, None], pick(speed), num_evaluated)
+                ahead,
+                beside,
+                yaw_diff,
+                pair_tail[rst],
+                pick(length)[:, None],
+                pick(width)[:, None],
+                pick(valid)[:, None],
+                pick(speed),
+                num_evaluated,
+            )
     return ttc.reshape(*lead, num_evaluated, -1)
 
 
@@ -430,8 +539,9 @@ def _sincos32(x, libm):
 
 
 @cached_loop
-def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail, first, num_reported,
-                     num_evaluated):
+def _followed_search(
+    x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail, first, num_reported, num_evaluated
+):
     """Time to collision with the nearest followed object, at `num_reported` steps from `first` (compiled).
 
     Args:
@@ -463,16 +573,26 @@ def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail
                 ego_sin, ego_cos = _sincos32(-step[4, e], ego_tail[st, e])
                 for o in range(num_objects):  # branch-free: the compiler vectorises it
                     ahead[o], beside[o], yaw_diff[o] = _frame_offsets(
-                        step[0, o], step[1, o], step[0, e], step[1, e], ego_cos, ego_sin, step[2, e], step[3, e],
-                        step[4, o], step[4, e])
+                        step[0, o],
+                        step[1, o],
+                        step[0, e],
+                        step[1, e],
+                        ego_cos,
+                        ego_sin,
+                        step[2, e],
+                        step[3, e],
+                        step[4, o],
+                        step[4, e],
+                    )
                     maybe[o] = (ahead[o] > 0) & (beside[o] < step_reach[o]) & (yaw_diff[o] <= MAX_HEADING_DIFF)
                 best, best_o = np.float32(np.inf), -1
                 for o in range(num_objects):
                     if not maybe[o]:  # most objects: a branch the processor predicts
                         continue
                     yaw_sin, yaw_cos = _sincos32(yaw_diff[o], pair_tail[st, e, o])
-                    gap, following = _following_gap(ahead[o], beside[o], yaw_diff[o], yaw_cos, yaw_sin, step[2, o],
-                                                     step[3, o])
+                    gap, following = _following_gap(
+                        ahead[o], beside[o], yaw_diff[o], yaw_cos, yaw_sin, step[2, o], step[3, o]
+                    )
                     if following and gap < best:  # the nearest, ties to the lowest object index
                         best, best_o = gap, o
                 if best_o >= 0:
@@ -482,8 +602,9 @@ def _followed_search(x, y, length, width, heading, speed, valid, reach, ego_tail
     return out
 
 
-def all_objects_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed,
-                                  num_evaluated: int):
+def all_objects_time_to_collision(
+    ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed, num_evaluated: int
+):
     """The official computation over every object (numpy or JAX): the JAX kernel, and numpy's
     steps with non-finite or huge values, where the pruned search would skip -inf and NaN gaps.
 
@@ -498,8 +619,7 @@ def all_objects_time_to_collision(ahead_of_front, beside_path, yaw_diff, pair_ta
     xp = array_namespace(ahead_of_front, speed)
     with errstate(xp, invalid="ignore", over="ignore"):
         yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
-        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin,
-                                                  length, width)
+        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, length, width)
         # Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps stay what they are,
         # and the nearest is the first strict minimum (ties to the lowest object index, NaN never).
         followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)

@@ -3,6 +3,7 @@
 All arithmetic is float32 in the official order of operations; the functions
 take numpy or JAX arrays.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -79,7 +80,7 @@ def kinematic_features(x, y, z, heading, seconds_per_step: float):
     heading_step = wrap_angle(central_difference(heading) * _F(2)) / _F(2)
     angular_speed = divide(heading_step, dt)
     heading_step2 = wrap_angle(central_difference(heading_step) * _F(2)) / _F(2)
-    angular_acceleration = divide(heading_step2, _F(seconds_per_step ** 2))
+    angular_acceleration = divide(heading_step2, _F(seconds_per_step**2))
     return speed, acceleration, angular_speed, angular_acceleration
 
 

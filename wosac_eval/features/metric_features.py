@@ -13,6 +13,7 @@ order, with the same kernel). The displacement error is computed here.
 Feature arrays have shape `(num_samples, num_evaluated, num_reported_steps)`:
 the 80 future steps for sim agents, all 91 for scenario gen.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -69,11 +70,16 @@ class MetricFeatures:
     traffic_light_violation_per_step: np.ndarray
     extra: dict = dataclasses.field(default_factory=dict)
 
-    def samples(self, rows: slice) -> "MetricFeatures":
+    def samples(self, rows: slice) -> MetricFeatures:
         """The given samples (`object_id` is shared by all samples)."""
-        return MetricFeatures(**{f.name: getattr(self, f.name) if f.name == "object_id"
-                                 else getattr(self, f.name)[rows] for f in dataclasses.fields(self)
-                                 if f.name != "extra"}, extra={k: v[rows] for k, v in self.extra.items()})
+        return MetricFeatures(
+            **{
+                f.name: getattr(self, f.name) if f.name == "object_id" else getattr(self, f.name)[rows]
+                for f in dataclasses.fields(self)
+                if f.name != "extra"
+            },
+            extra={k: v[rows] for k, v in self.extra.items()},
+        )
 
     def feature(self, name: str):
         """A per-step feature by name: an official field or a registered one."""
@@ -81,15 +87,15 @@ class MetricFeatures:
 
     def as_dict(self) -> dict:
         """Every field but `extra`, and the registered features, by name (see `from_dict`)."""
-        return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"},
-                **self.extra}
+        return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"}, **self.extra}
 
     @classmethod
-    def from_dict(cls, values: dict) -> "MetricFeatures":
+    def from_dict(cls, values: dict) -> MetricFeatures:
         """The fields of `values`; the names that are not fields go to `extra`."""
         names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
-        return cls(**{k: v for k, v in values.items() if k in names},
-                   extra={k: v for k, v in values.items() if k not in names})
+        return cls(
+            **{k: v for k, v in values.items() if k in names}, extra={k: v for k, v in values.items() if k not in names}
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,8 +126,12 @@ class FeatureLayout:
 
 
 def feature_layout(spec: challenges.ChallengeSpec, num_evaluated: int) -> FeatureLayout:
-    return FeatureLayout(num_evaluated=num_evaluated, first_step=spec.first_simulated_step,
-                         seconds_per_step=spec.step_seconds, displacement=not spec.evaluates_all_agents)
+    return FeatureLayout(
+        num_evaluated=num_evaluated,
+        first_step=spec.first_simulated_step,
+        seconds_per_step=spec.step_seconds,
+        displacement=not spec.evaluates_all_agents,
+    )
 
 
 def official_tails(num_objects: int, num_evaluated: int, num_steps: int, first_step: int) -> dict:
@@ -132,9 +142,11 @@ def official_tails(num_objects: int, num_evaluated: int, num_steps: int, first_s
       `(reported steps, num_evaluated, 1)`, pair_tail bool `(reported steps, num_evaluated, num_objects)`.
     """
     reported = slice(first_step, None)
-    return {"heading_tail": packet_tail((num_objects, num_steps))[:, reported],
-            "ego_tail": packet_tail((num_steps, num_evaluated, 1))[reported],
-            "pair_tail": packet_tail((num_steps, num_evaluated, num_objects))[reported]}
+    return {
+        "heading_tail": packet_tail((num_objects, num_steps))[:, reported],
+        "ego_tail": packet_tail((num_steps, num_evaluated, 1))[reported],
+        "pair_tail": packet_tail((num_steps, num_evaluated, num_objects))[reported],
+    }
 
 
 def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
@@ -155,8 +167,13 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 
 
-def per_step_features(t: dict, layout: FeatureLayout, search: SearchStrategy, tails: dict,
-                      features: tuple[registry.Feature, ...] | None = None) -> dict:
+def per_step_features(
+    t: dict,
+    layout: FeatureLayout,
+    search: SearchStrategy,
+    tails: dict,
+    features: tuple[registry.Feature, ...] | None = None,
+) -> dict:
     """Every per-step feature of the evaluated objects, for every sample.
 
     Args:
@@ -175,8 +192,9 @@ def per_step_features(t: dict, layout: FeatureLayout, search: SearchStrategy, ta
     out = {f.name: context[f.name] for f in features}
     xp, n_eval = context.xp, layout.num_evaluated
     if layout.displacement:
-        out["average_displacement_error"] = average_displacement_error(t["x"], t["y"], t["z"], t["valid"][0, :n_eval],
-                                                                       n_eval)
+        out["average_displacement_error"] = average_displacement_error(
+            t["x"], t["y"], t["z"], t["valid"][0, :n_eval], n_eval
+        )
     else:
         out["average_displacement_error"] = xp.zeros(t["x"].shape[:1] + (n_eval,), _F)
     return out
@@ -190,10 +208,14 @@ def metric_features(batch: SampleBatch, per_step: dict) -> tuple[MetricFeatures,
     """
     e = slice(0, batch.num_evaluated)
     reported = slice(batch.spec.first_simulated_step, None)
-    both = MetricFeatures.from_dict({"object_id": batch.evaluated_ids,
-                                     "object_type": np.asarray(batch.trajectories.object_type[:, e], np.int32),
-                                     "valid": batch.feature_valid[..., reported],
-                                     **{k: np.asarray(v) for k, v in per_step.items()}})
+    both = MetricFeatures.from_dict(
+        {
+            "object_id": batch.evaluated_ids,
+            "object_type": np.asarray(batch.trajectories.object_type[:, e], np.int32),
+            "valid": batch.feature_valid[..., reported],
+            **{k: np.asarray(v) for k, v in per_step.items()},
+        }
+    )
     n_log = batch.num_log_samples
     return both.samples(slice(0, n_log)), both.samples(slice(n_log, None))
 
@@ -207,8 +229,10 @@ class MapContext:
 
 
 def map_context(scenario: ScenarioArrays) -> MapContext:
-    return MapContext(road_edges=road_edge.build_segment_table(scenario.road_edges),
-                      lanes=traffic_lights.build_lane_table(scenario.lanes, scenario.lane_ids))
+    return MapContext(
+        road_edges=road_edge.build_segment_table(scenario.road_edges),
+        lanes=traffic_lights.build_lane_table(scenario.lanes, scenario.lane_ids),
+    )
 
 
 def signals_from(signals, start: int):
@@ -223,8 +247,12 @@ def trajectory_arrays(batch: SampleBatch) -> dict:
     return {f: getattr(batch.trajectories, f) for f in TRAJECTORY_FIELDS}
 
 
-def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays, context: MapContext | None = None,
-                      challenge=challenges.Challenge.SIM_AGENTS) -> tuple[MetricFeatures, MetricFeatures]:
+def scenario_features(
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    context: MapContext | None = None,
+    challenge=challenges.Challenge.SIM_AGENTS,
+) -> tuple[MetricFeatures, MetricFeatures]:
     """(log features, simulated features) of one scenario, with the numpy (pruned) search.
 
     The log is computed as one more sample beside the rollouts: every kernel
@@ -233,14 +261,16 @@ def scenario_features(scenario: ScenarioArrays, rollouts: RolloutArrays, context
     return batch_features(scenario, sample_batch(scenario, rollouts, challenge), context)
 
 
-def batch_features(scenario: ScenarioArrays, batch: SampleBatch,
-                   context: MapContext | None = None) -> tuple[MetricFeatures, MetricFeatures]:
+def batch_features(
+    scenario: ScenarioArrays, batch: SampleBatch, context: MapContext | None = None
+) -> tuple[MetricFeatures, MetricFeatures]:
     """(log features, simulated features) of a batch of samples of the scenario (`arrays.samples`),
     with the numpy (pruned) search; the first `batch.num_log_samples` samples are the log's."""
     layout = feature_layout(batch.spec, batch.num_evaluated)
     context = context or map_context(scenario)
-    search = PrunedSearch(context.road_edges, context.lanes,
-                          signals_from(scenario.signals, layout.first_red_light_step))
+    search = PrunedSearch(
+        context.road_edges, context.lanes, signals_from(scenario.signals, layout.first_red_light_step)
+    )
     traj = batch.trajectories
     tails = official_tails(traj.num_objects, batch.num_evaluated, traj.num_steps, layout.first_step)
     # NaN and inf in a submission are scored as given, as officially: they spread without warnings.

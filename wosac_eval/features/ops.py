@@ -15,6 +15,7 @@ float64), no `with` blocks (callers silence numpy's warnings), no methods on
 values (`ops.float32(v)`, not `v.astype(...)`), other kernels called by their
 bare name, and `ops.where` for every choice.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -102,7 +103,6 @@ def opaque(v, like):
     """`v`, hidden from XLA's algebraic simplifier when `like` is a JAX array (`xp.opaque`); numpy
     and numba leave it as is. `like` gives the namespace, since `v` is often a constant."""
     return _xp.opaque(v, array_namespace(like))
-
 
 
 def pick4(i, v0, v1, v2, v3):

@@ -14,6 +14,7 @@ Adding a feature is one `register(Feature(...))` call (see docs/extending.md);
 an official one is an entry in `OFFICIAL_FEATURES` (and its config field in
 the official proto and presets).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -33,6 +34,7 @@ _F = np.float32
 
 
 # --- Map parts: what the dense (device) searches read, and how it is padded -----------------------
+
 
 @dataclasses.dataclass(frozen=True)
 class Pad:
@@ -92,40 +94,73 @@ class MapPart:
 
 def _map_builder(name: str) -> Callable:
     """The builder `name` of `features.map_arrays` (imported on first use: the numpy path needs none)."""
+
     def build(*args):
         from wosac_eval.features import map_arrays
+
         return getattr(map_arrays, name)(*args)
 
     build.__name__ = name
     return build
 
 
-_SEGMENT_ARRAYS = ("start", "delta", "prior_start", "prior_delta", "next_start", "next_delta", "valid",
-                   "prior_valid", "next_valid", "convex_before", "convex_after")
+_SEGMENT_ARRAYS = (
+    "start",
+    "delta",
+    "prior_start",
+    "prior_delta",
+    "next_start",
+    "next_delta",
+    "valid",
+    "prior_valid",
+    "next_valid",
+    "convex_before",
+    "convex_after",
+)
 NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 
 MAP_PARTS: tuple[MapPart, ...] = (
-    MapPart("road_edges", _map_builder("road_edge_segments"),
-            tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
-            + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
-            (Size("road_edge_segments", "start", fine=True),)),
-    MapPart("red_lights", _map_builder("red_light_arrays"),
-            (("stop_start", Pad("signals", 1)), ("stop_delta", Pad("signals", 1)),
-             ("stop_point", Pad("signals", 1)), ("stopping", Pad("signals", 1)),
-             # Padded signals' lane rank is neither a lane's nor a point's without lane (-1).
-             ("signal_lane_id", Pad("signals", 0, -2)),
-             ("lane_start", Pad("lane_segments")), ("lane_delta", Pad("lane_segments")),
-             ("lane_valid", Pad("lane_segments")), ("lane_id", Pad("lane_segments"))),
-            (Size("signals", "signal_lane_id"), Size("lane_segments", "lane_start", fine=True))),
+    MapPart(
+        "road_edges",
+        _map_builder("road_edge_segments"),
+        tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
+        + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
+        (Size("road_edge_segments", "start", fine=True),),
+    ),
+    MapPart(
+        "red_lights",
+        _map_builder("red_light_arrays"),
+        (
+            ("stop_start", Pad("signals", 1)),
+            ("stop_delta", Pad("signals", 1)),
+            ("stop_point", Pad("signals", 1)),
+            ("stopping", Pad("signals", 1)),
+            # Padded signals' lane rank is neither a lane's nor a point's without lane (-1).
+            ("signal_lane_id", Pad("signals", 0, -2)),
+            ("lane_start", Pad("lane_segments")),
+            ("lane_delta", Pad("lane_segments")),
+            ("lane_valid", Pad("lane_segments")),
+            ("lane_id", Pad("lane_segments")),
+        ),
+        (Size("signals", "signal_lane_id"), Size("lane_segments", "lane_start", fine=True)),
+    ),
     # Rows past the grid are never looked up; its origin and shape are not padded.
-    MapPart("road_edge_cells", _map_builder("road_edge_cells"),
-            (("cell_origin", Pad(None)), ("cell_shape", Pad(None)), ("cell_candidates", Pad("road_edge_cells")),
-             ("cell_clearance", Pad("road_edge_cells"))),
-            (Size("road_edge_cells", "cell_clearance", fine=True),)),
+    MapPart(
+        "road_edge_cells",
+        _map_builder("road_edge_cells"),
+        (
+            ("cell_origin", Pad(None)),
+            ("cell_shape", Pad(None)),
+            ("cell_candidates", Pad("road_edge_cells")),
+            ("cell_clearance", Pad("road_edge_cells")),
+        ),
+        (Size("road_edge_cells", "cell_clearance", fine=True),),
+    ),
 )
 
 
 # --- Features ------------------------------------------------------------------------------------
+
 
 class FeatureContext:
     """What a kernel reads: the batch, the search strategy, and intermediates shared by kernels.
@@ -209,17 +244,36 @@ def _nearest_object(c: FeatureContext):
     sin_h, cos_h = c.heading_sincos
     x, y = c.box_centres
     t = c.traj
-    return c.search.nearest_object(c.reported(x), c.reported(y), c.reported(t["length"]), c.reported(t["width"]),
-                                   cos_h, sin_h, c.reported(t["valid"]), c.layout.num_evaluated)
+    return c.search.nearest_object(
+        c.reported(x),
+        c.reported(y),
+        c.reported(t["length"]),
+        c.reported(t["width"]),
+        cos_h,
+        sin_h,
+        c.reported(t["valid"]),
+        c.layout.num_evaluated,
+    )
 
 
 def _time_to_collision(c: FeatureContext):
     t = c.traj
     planar_speed = kinematics.linear_speed(t["x"], t["y"], c.xp.zeros_like(t["x"]), c.layout.seconds_per_step)
-    return c.search.time_to_collision(TimeToCollisionInputs(
-        x=t["x"], y=t["y"], length=t["length"], width=t["width"], heading=t["heading"], speed=planar_speed,
-        valid=t["valid"], num_evaluated=c.layout.num_evaluated, steps=c.layout.reported,
-        ego_tail=c.tails["ego_tail"], pair_tail=c.tails["pair_tail"]))
+    return c.search.time_to_collision(
+        TimeToCollisionInputs(
+            x=t["x"],
+            y=t["y"],
+            length=t["length"],
+            width=t["width"],
+            heading=t["heading"],
+            speed=planar_speed,
+            valid=t["valid"],
+            num_evaluated=c.layout.num_evaluated,
+            steps=c.layout.reported,
+            ego_tail=c.tails["ego_tail"],
+            pair_tail=c.tails["pair_tail"],
+        )
+    )
 
 
 def _road_edge_distance(c: FeatureContext):
@@ -228,8 +282,9 @@ def _road_edge_distance(c: FeatureContext):
     sin_h, cos_h = (c.evaluated(a) for a in c.heading_sincos)
     x, y = c.box_centres
     bottom = pick(t["z"]) + (-pick(t["height"]) * _F(0.5))
-    return c.search.road_edge_distance(pick(x), pick(y), bottom, pick(t["length"]), pick(t["width"]), cos_h, sin_h,
-                                       pick(t["valid"]))
+    return c.search.road_edge_distance(
+        pick(x), pick(y), bottom, pick(t["length"]), pick(t["width"]), cos_h, sin_h, pick(t["valid"])
+    )
 
 
 def _red_light_violation(c: FeatureContext):
@@ -246,12 +301,19 @@ OFFICIAL_FEATURES: tuple[Feature, ...] = (
     Feature("angular_speed", _kinematic(2)),
     Feature("angular_acceleration", _kinematic(3)),
     Feature("distance_to_nearest_object", _nearest_object),
-    Feature("collision_per_step",
-            lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD), "bool"),
+    Feature(
+        "collision_per_step",
+        lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD),
+        "bool",
+    ),
     Feature("time_to_collision", _time_to_collision),
     Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
-    Feature("offroad_per_step", lambda c: c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
-            "bool", needs=("road_edges", "road_edge_cells")),
+    Feature(
+        "offroad_per_step",
+        lambda c: c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
+        "bool",
+        needs=("road_edges", "road_edge_cells"),
+    ),
     Feature("traffic_light_violation_per_step", _red_light_violation, "bool", needs=("red_lights",)),
 )
 OFFICIAL_FEATURE_NAMES = tuple(f.name for f in OFFICIAL_FEATURES)

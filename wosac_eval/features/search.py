@@ -10,6 +10,7 @@ evaluates the exact float32 kernels on the survivors; its dense twin is
 `dense.DenseSearch` (JAX, fixed shapes). Both return the all-pairs minimum
 with the same tie rule, so their features are bit-identical.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -44,9 +45,19 @@ class PrunedSearch:
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         """`interaction.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
         i = inputs
-        return interaction.time_to_collision(i.x, i.y, i.length, i.width, i.heading, i.valid,
-                                             num_evaluated=i.num_evaluated, steps=i.steps, speed=i.speed,
-                                             ego_tail=i.ego_tail, pair_tail=i.pair_tail)
+        return interaction.time_to_collision(
+            i.x,
+            i.y,
+            i.length,
+            i.width,
+            i.heading,
+            i.valid,
+            num_evaluated=i.num_evaluated,
+            steps=i.steps,
+            speed=i.speed,
+            ego_tail=i.ego_tail,
+            pair_tail=i.pair_tail,
+        )
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
@@ -71,16 +82,18 @@ def compile_searches() -> float:
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite.
     centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
-    boxes = centres.T[:, None, :, None]  # x, y, z, each (samples, objects, steps)
-    road_edge.box_distance_to_road_edge(*boxes, *np.ones((2, 1, 4, 1), f) * 2, *np.ones((2, 1, 4, 1), f) * 0.6,
-                                        np.ones((1, 4, 1), bool), table)
+    x, y, z = centres.T[:, None, :, None]  # each (samples, objects, steps)
+    size, turn = np.ones((1, 4, 1), f) * 2, np.ones((1, 4, 1), f) * 0.6  # length = width, cos = sin
+    road_edge.box_distance_to_road_edge(x, y, z, size, size, turn, turn, np.ones((1, 4, 1), bool), table)
     x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (samples, objects, steps): a follower and its leader
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
-        interaction.time_to_collision(x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2,
-                                      seconds_per_step=0.1, steps=slice(1, None))
+        interaction.time_to_collision(
+            x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None)
+        )
         line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
-        traffic_lights.compiled_stop_line_crossings(x, zeros, ones > 0, line, line + [0, 1], line + [4, 0],
-                                                    np.ones((3, 1), bool))
+        traffic_lights.compiled_stop_line_crossings(
+            x, zeros, ones > 0, line, line + [0, 1], line + [4, 0], np.ones((3, 1), bool)
+        )
     return time.perf_counter() - start

@@ -10,6 +10,7 @@ their features are bit-identical.
 Shapes: `samples` leads every array (the log or the rollouts), then objects
 (evaluated objects first) and steps.
 """
+
 from __future__ import annotations
 
 import dataclasses

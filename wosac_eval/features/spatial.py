@@ -1,4 +1,5 @@
 """Map geometry helpers: padded polyline tables, and candidate search with k-d trees."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -84,12 +85,14 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
 
 def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(lowest, highest) of each column of `(n, k)`, `(k,)` each; column by column (`finite_rows`)."""
-    return (np.array([a[:, k].min() for k in range(a.shape[1])]),
-            np.array([a[:, k].max() for k in range(a.shape[1])]))
+    return (np.array([a[:, k].min() for k in range(a.shape[1])]), np.array([a[:, k].max() for k in range(a.shape[1])]))
 
 
 def pad_polylines(polylines, num_points: int):
-    """Polylines stacked and zero padded: float `(num_polylines, num_points, dims)`, bool valid `(num_polylines, num_points)`."""
+    """Polylines stacked and zero padded.
+
+    Returns float `(num_polylines, num_points, dims)` and bool valid `(num_polylines, num_points)`.
+    """
     lengths = np.array([len(p) for p in polylines], np.int64)
     flat = np.concatenate(polylines)
     rows = np.repeat(np.arange(len(polylines)), lengths)

@@ -12,6 +12,7 @@ the point, d along the segment, t the clamped projection) rather than
 origin (the official padding), which counts as valid. That measure lies
 at least |p|, so a k-d tree over segment starts finds all candidates.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -67,9 +68,15 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     delta = (points[:, 1:] - points[:, :-1]).reshape(-1, 2)
     valid = point_valid[:, :-1].reshape(-1)
     tree_segment = np.flatnonzero(valid)
-    return LaneTable(points=points, start=start, delta=delta, valid=valid,
-                     lane_ids=np.array([i for _, i in kept], np.int64),
-                     num_segments=max_points - 1, tree_segment=tree_segment)
+    return LaneTable(
+        points=points,
+        start=start,
+        delta=delta,
+        valid=valid,
+        lane_ids=np.array([i for _, i in kept], np.int64),
+        num_segments=max_points - 1,
+        tree_segment=tree_segment,
+    )
 
 
 def lane_measure(xy, start, delta):
@@ -133,14 +140,14 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     match = table.lane_ids[None, :] == signals.lane_id[:, None]  # (signals, lanes)
     lane_known = match.any(axis=1)
     lane_index = np.argmax(match, axis=1)
-    pts = table.points[lane_index]                                  # (signals, P, 2)
+    pts = table.points[lane_index]  # (signals, P, 2)
     seg_valid = np.zeros(pts.shape[:2], bool)
     seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
-    start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]            # (signals, S, 2)
-    stop = signals.stop_point                                       # (steps, signals, 2)
+    start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]  # (signals, S, 2)
+    stop = signals.stop_point  # (steps, signals, 2)
     d = lane_measure(stop[:, :, None, :], start[None], delta[None])
     d = np.where(seg_valid[None, :, :-1], d, _F(1e10))
-    seg = np.argmin(d, axis=-1)                                     # (steps, signals)
+    seg = np.argmin(d, axis=-1)  # (steps, signals)
     sig = np.arange(len(signals.lane_id))[None, :]
     seg_start = pts[sig, seg]
     seg_delta = pts[sig, seg + 1] - seg_start
@@ -228,13 +235,13 @@ def compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point, 
     whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
     lines = [np.ascontiguousarray(a, _F) for a in _stop_lines(seg_start, seg_delta, stop_point, np)]
     flat = lambda a, dtype: np.ascontiguousarray(np.reshape(a, (-1,) + np.shape(a)[-2:]), dtype)  # noqa: E731
-    out, crossed_any = _crossings(flat(x, _F), flat(y, _F), flat(valid, bool), *lines,
-                                  np.ascontiguousarray(stopping, bool))
+    out, crossed_any = _crossings(
+        flat(x, _F), flat(y, _F), flat(valid, bool), *lines, np.ascontiguousarray(stopping, bool)
+    )
     return out.reshape(np.shape(valid) + (lines[0].shape[1],)), crossed_any.reshape(np.shape(valid))
 
 
-def red_light_violation(x, y, valid, lanes: LaneTable | None,
-                        signals: TrafficSignals | None) -> np.ndarray:
+def red_light_violation(x, y, valid, lanes: LaneTable | None, signals: TrafficSignals | None) -> np.ndarray:
     """Per-step red-light violations of the given objects.
 
     Args:
@@ -249,23 +256,29 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
         return np.zeros(np.shape(valid), bool)
     num_steps = x.shape[-1]
     if signals.state.shape[0] != num_steps:
-        raise ValueError(f"the scenario has {signals.state.shape[0]} dynamic map states, "
-                         f"expected one per step ({num_steps})")
+        raise ValueError(
+            f"the scenario has {signals.state.shape[0]} dynamic map states, expected one per step ({num_steps})"
+        )
     # Only signals that show a stop at some step and sit on a known lane can be violated.
-    is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)              # (T, S)
+    is_stop = np.isin(signals.state, LANE_STATE_STOP_VALUES)  # (T, S)
     relevant = is_stop.any(axis=0) & np.isin(signals.lane_id, lanes.lane_ids)
     if not relevant.any():
         return np.zeros(np.shape(valid), bool)
-    signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
-                                  stop_point=signals.stop_point[:, relevant])
+    signals = dataclasses.replace(
+        signals,
+        lane_id=signals.lane_id[relevant],
+        state=signals.state[:, relevant],
+        stop_point=signals.stop_point[:, relevant],
+    )
     seg_start, seg_delta, _ = stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
-    suspect, crossed_any = compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, signals.stop_point,
-                                                        is_stop[:, relevant])
+    suspect, crossed_any = compiled_stop_line_crossings(
+        x, y, valid, seg_start, seg_delta, signals.stop_point, is_stop[:, relevant]
+    )
     violation = np.zeros(valid.shape, dtype=bool)
     where = np.nonzero(crossed_any)
     if where[0].size:
         points = np.stack([x[where], y[where]], axis=-1).astype(_F)
         lane_row = nearest_lane_segment(lanes, points) // lanes.num_segments
-        on_lane = lanes.lane_ids[lane_row][:, None] == signals.lane_id     # (points, S)
+        on_lane = lanes.lane_ids[lane_row][:, None] == signals.lane_id  # (points, S)
         violation[where] = np.any(suspect[where] & on_lane, axis=-1)
     return violation

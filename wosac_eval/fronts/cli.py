@@ -8,9 +8,11 @@ error, reported in one line; `WOSAC_EVAL_DEBUG=1` shows its traceback),
 130 interrupted. Output piped into a reader that stops early (`| head`) ends
 the command quietly, as any Unix tool (141).
 """
+
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
 import os
 import pkgutil
@@ -37,8 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="wosac-eval",
         description="Exact WOSAC realism metrics, without TensorFlow.",
     )
-    parser.add_argument("--version", action="version",
-                        version=f"wosac-eval {__version__} (metrics of waymo-open-dataset 1.6.7)")
+    parser.add_argument(
+        "--version", action="version", version=f"wosac-eval {__version__} (metrics of waymo-open-dataset 1.6.7)"
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for module in _command_modules():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
@@ -50,10 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
 def _quiet_stdout() -> None:
     """Point stdout at /dev/null so the interpreter's last flush cannot raise again."""
     devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
+    # ValueError: stdout replaced by an object without a descriptor (tests)
+    with contextlib.suppress(OSError, ValueError):
         os.dup2(devnull, sys.stdout.fileno())
-    except (OSError, ValueError):  # stdout replaced by an object without a descriptor (tests)
-        pass
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -77,12 +79,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\n{name}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    except Exception as error:  # noqa: BLE001 - a bug must not print a traceback at the user; say what failed
+    except Exception as error:
         if os.environ.get("WOSAC_EVAL_DEBUG"):
             raise
-        print(f"{name}: internal error: {type(error).__name__}: {error}\n"
-              f"  (this is a bug in wosac-eval, not in your input; please report it with the command line. "
-              f"WOSAC_EVAL_DEBUG=1 shows the traceback)", file=sys.stderr)
+        print(
+            f"{name}: internal error: {type(error).__name__}: {error}\n"
+            f"  (this is a bug in wosac-eval, not in your input; please report it with the command line. "
+            f"WOSAC_EVAL_DEBUG=1 shows the traceback)",
+            file=sys.stderr,
+        )
         return EXIT_USAGE
 
 

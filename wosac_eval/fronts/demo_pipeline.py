@@ -8,6 +8,7 @@ scenario gen results to `results/scenario_gen/<policy>.json` (submissions alike)
 It drives `sim` (scenes, baselines) and `scoring` as the `demo` command does, so it stands
 with the fronts, beside `commands/demo.py` (every module of `commands` is a command).
 """
+
 from __future__ import annotations
 
 import json
@@ -63,9 +64,17 @@ def ensure_scenes(workdir: Path, num_scenes: int = DEMO_SCENES, seed: int = DEMO
     for old in folder.glob("synthetic.tfrecord-*"):
         old.unlink()
     paths = scenes.write_scenario_shards(generated, folder, num_shards=2)
-    manifest.write_text(json.dumps({**wanted, "shards": [p.name for p in paths],
-                                    "sha256": scenes.scenario_fingerprint(generated),
-                                    "scenario_ids": [s.scenario_id for s in generated]}, indent=2))
+    manifest.write_text(
+        json.dumps(
+            {
+                **wanted,
+                "shards": [p.name for p in paths],
+                "sha256": scenes.scenario_fingerprint(generated),
+                "scenario_ids": [s.scenario_id for s in generated],
+            },
+            indent=2,
+        )
+    )
     return paths, True
 
 
@@ -85,9 +94,17 @@ def challenge_folder(workdir: Path, kind: str, challenge: str) -> Path:
     return folder if challenge == "sim_agents" else folder / challenge
 
 
-def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_SEED,
-             policies: tuple[str, ...] = DEMO_POLICIES, config: str | None = None, workers: int = 1,
-             challenge: str = "sim_agents", log=None) -> list[PolicyResult]:
+def run_demo(
+    workdir: Path,
+    *,
+    num_scenes: int = DEMO_SCENES,
+    seed: int = DEMO_SEED,
+    policies: tuple[str, ...] = DEMO_POLICIES,
+    config: str | None = None,
+    workers: int = 1,
+    challenge: str = "sim_agents",
+    log=None,
+) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
 
     `challenge`: "sim_agents" or "scenario_gen" (all 91 steps of every object);
@@ -101,15 +118,22 @@ def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_S
     start = time.perf_counter()
     log(f"{challenge}: {len(policies)} policies on {num_scenes} synthetic scenes ({workdir})")
     scenario_paths, fresh = ensure_scenes(workdir, num_scenes, seed)
-    log(f"{'generated' if fresh else 'loaded'} {num_scenes} synthetic scenes in {workdir / 'scenarios'} "
-        f"({time.perf_counter() - start:.1f} s)")
+    log(
+        f"{'generated' if fresh else 'loaded'} {num_scenes} synthetic scenes in {workdir / 'scenarios'} "
+        f"({time.perf_counter() - start:.1f} s)"
+    )
     rows = []
     for policy in policies:
         t0 = time.perf_counter()
         log(f"  {challenge} {policy}: simulating, validating and scoring ...")
-        submission = make_submission(scenario_paths, policy,
-                                     challenge_folder(workdir, "submissions", challenge) / f"{policy}.tar.gz",
-                                     seed=seed, workers=workers, challenge=challenge)
+        submission = make_submission(
+            scenario_paths,
+            policy,
+            challenge_folder(workdir, "submissions", challenge) / f"{policy}.tar.gz",
+            seed=seed,
+            workers=workers,
+            challenge=challenge,
+        )
         t1 = time.perf_counter()
         try:  # scoring validates the submission first
             result = score_submission(scenario_paths, submission, config, challenge=challenge, workers=workers)
@@ -121,8 +145,10 @@ def run_demo(workdir: Path, *, num_scenes: int = DEMO_SCENES, seed: int = DEMO_S
         result_json.parent.mkdir(parents=True, exist_ok=True)
         result_json.write_text(json.dumps(result, indent=2, sort_keys=True))
         rows.append(PolicyResult(policy, submission, result_json, result["buckets"], True, time.perf_counter() - t0))
-        log(f"  {challenge} {policy}: simulated in {t1 - t0:.1f} s, validated and scored in "
-            f"{time.perf_counter() - t1:.1f} s")
+        log(
+            f"  {challenge} {policy}: simulated in {t1 - t0:.1f} s, validated and scored in "
+            f"{time.perf_counter() - t1:.1f} s"
+        )
     return rows
 
 
@@ -137,7 +163,9 @@ def leaderboard(rows: list[PolicyResult], challenge: str = "sim_agents") -> str:
             continue
         table.append([row.policy] + [f"{row.buckets[key]:.4f}" for key, _ in columns])
     widths = [max(len(r[i]) for r in table) for i in range(len(header))]
-    lines = ["  ".join(cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(r, widths)))
-             for r in table]
+    lines = [
+        "  ".join(cell.ljust(w) if i == 0 else cell.rjust(w) for i, (cell, w) in enumerate(zip(r, widths)))
+        for r in table
+    ]
     lines.insert(1, "  ".join("-" * w for w in widths))
     return "\n".join(lines)

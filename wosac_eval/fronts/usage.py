@@ -4,8 +4,10 @@ A usage error is the user's to fix (a missing folder, an output that cannot be
 written, swapped arguments); the command line prints it as one line and exits 2
 before any long work, so an hour of scoring is never lost to a typo in `-o`.
 """
+
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -28,8 +30,9 @@ def check_output_file(path: str | os.PathLike | None, option: str) -> None:
     if target.is_dir():
         raise UsageError(f"{option} {path}: cannot write: is a folder; give a file name, e.g. {target / 'result.json'}")
     if not parent.exists():
-        raise UsageError(f"{option} {path}: cannot write: the folder {parent} does not exist; create it first "
-                         f"(mkdir -p {parent})")
+        raise UsageError(
+            f"{option} {path}: cannot write: the folder {parent} does not exist; create it first (mkdir -p {parent})"
+        )
     if not parent.is_dir():
         raise UsageError(f"{option} {path}: cannot write: {parent} is a file, not a folder")
     if target.exists() and not os.access(target, os.W_OK):
@@ -48,13 +51,12 @@ def _probe_create(target: Path, path, option: str) -> None:
         return
     except OSError as error:
         folder = target.parent if str(target.parent) else Path(".")
-        raise UsageError(f"{option} {path}: cannot write: cannot create a file in {folder} "
-                         f"({error.strerror or error})") from None
+        raise UsageError(
+            f"{option} {path}: cannot write: cannot create a file in {folder} ({error.strerror or error})"
+        ) from None
     os.close(fd)
-    try:
+    with contextlib.suppress(OSError):
         os.unlink(target)
-    except OSError:
-        pass
 
 
 def check_output_folder(path: str | os.PathLike | None, option: str) -> None:
@@ -108,7 +110,9 @@ def scenario_set_hint(scenario_paths, submission: str | os.PathLike) -> str:
         with sub.open("rb") as stream:
             sub_is_tfrecord = looks_like_tfrecord(stream.read(12))
     if suspicious or sub_is_tfrecord:
-        return (f" (--scenarios {' '.join(suspicious) or ' '.join(map(str, scenario_paths))} looks like a submission"
-                f"{' and --submission like scenarios' if sub_is_tfrecord else ''}: "
-                "are --scenarios and --submission swapped?)")
+        return (
+            f" (--scenarios {' '.join(suspicious) or ' '.join(map(str, scenario_paths))} looks like a submission"
+            f"{' and --submission like scenarios' if sub_is_tfrecord else ''}: "
+            "are --scenarios and --submission swapped?)"
+        )
     return ""

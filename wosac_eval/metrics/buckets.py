@@ -7,10 +7,11 @@ order, divided once by the sum of the weights. The scorer applies it to the
 aggregate (floats), the reader to per-scenario columns (arrays); both get the
 same arithmetic, element by element.
 """
+
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from wosac_eval.metrics.registry import METRIC_NAMES
 
@@ -22,8 +23,9 @@ def metametric_weights(config) -> dict[str, float]:
     return {m: getattr(config, m).metametric_weight for m in METRIC_NAMES}
 
 
-def weighted_bucket(members: tuple[str, ...], likelihoods: Mapping[str, Value],
-                    weights: Mapping[str, float]) -> Value | None:
+def weighted_bucket(
+    members: tuple[str, ...], likelihoods: Mapping[str, Value], weights: Mapping[str, float]
+) -> Value | None:
     """One bucket's weighted mean of likelihoods.
 
     Args:
@@ -37,4 +39,5 @@ def weighted_bucket(members: tuple[str, ...], likelihoods: Mapping[str, Value],
     total = sum(weights.get(m, 0.0) for m in members)
     if total == 0:
         return None
-    return sum(weights.get(m, 0.0) * likelihoods[f"{m}_likelihood"] for m in members) / total
+    values: Mapping[str, Any] = likelihoods  # floats or arrays: mypy types no arithmetic on a TypeVar
+    return sum(weights.get(m, 0.0) * values[f"{m}_likelihood"] for m in members) / total

@@ -10,9 +10,11 @@ its own (`challenge_2025_sim_agents_config.textproto`...); the same files lie
 beside `wosac_eval.compat.metrics`, where programs written for the official
 package look for them.
 """
+
 from __future__ import annotations
 
 import functools
+import os
 from pathlib import Path
 
 from google.protobuf import text_format
@@ -33,8 +35,10 @@ PRESET_FILES = {
 PRESET_NAMES = tuple(PRESET_FILES)
 DEFAULT_PRESET = "2025"
 # The challenge each preset was made for.
-PRESET_CHALLENGE = {name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen")
-                           else challenges.Challenge.SIM_AGENTS) for name in PRESET_NAMES}
+PRESET_CHALLENGE = {
+    name: (challenges.Challenge.SCENARIO_GEN if name.startswith("scenario_gen") else challenges.Challenge.SIM_AGENTS)
+    for name in PRESET_NAMES
+}
 
 
 def default_config(challenge=challenges.Challenge.SIM_AGENTS) -> str:
@@ -48,7 +52,7 @@ def preset_fits(name: str, challenge) -> bool:
     return made_for is None or made_for == challenges.as_challenge(challenge)
 
 
-def config_name_for(challenge, config: str | Path | None = None) -> str:
+def config_name_for(challenge, config: str | os.PathLike | None = None) -> str:
     """The config a challenge is scored with: the one asked for, or the challenge's current preset.
 
     A preset of the other challenge is refused (its metrics would be pooled, or not, against the
@@ -59,22 +63,25 @@ def config_name_for(challenge, config: str | Path | None = None) -> str:
     name = str(config)
     if not preset_fits(name, challenge):
         challenge = challenges.as_challenge(challenge)
-        raise ValueError(f"config {name!r} is the {PRESET_CHALLENGE[name].value} challenge's; the {challenge.value} "
-                         f"challenge's is {default_config(challenge)!r}")
+        raise ValueError(
+            f"config {name!r} is the {PRESET_CHALLENGE[name].value} challenge's; the {challenge.value} "
+            f"challenge's is {default_config(challenge)!r}"
+        )
     return name
 
 
 def preset(name: str) -> SimAgentMetricsConfig:
     """The metrics config of a challenge year ("2025", "2024", "2023", "scenario_gen_2025"), read from its file."""
     if name not in PRESET_FILES:
-        raise ValueError(f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} "
-                         f"or a .textproto file")
+        raise ValueError(
+            f"unknown config preset {name!r}; choose one of {', '.join(PRESET_NAMES)} or a .textproto file"
+        )
     config = SimAgentMetricsConfig()
     config.CopyFrom(_preset_file(name))  # a copy: callers may change theirs
     return config
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _preset_file(name: str) -> SimAgentMetricsConfig:
     return _read_textproto(Path(__file__).with_name(PRESET_FILES[name]))
 
@@ -84,8 +91,10 @@ def _read_textproto(path: Path) -> SimAgentMetricsConfig:
     try:
         config = text_format.Parse(path.read_text(encoding="utf-8"), SimAgentMetricsConfig())
     except UnicodeDecodeError as err:
-        raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte {err.start} is "
-                         f"0x{err.object[err.start]:02x}); is it a binary file?") from None
+        raise ValueError(
+            f"{path}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte {err.start} is "
+            f"0x{err.object[err.start]:02x}); is it a binary file?"
+        ) from None
     except text_format.ParseError as err:
         raise ValueError(f"{path}: not a SimAgentMetricsConfig textproto: {err}") from err
     return with_defaults(config)
@@ -102,9 +111,9 @@ def with_defaults(config: SimAgentMetricsConfig) -> SimAgentMetricsConfig:
     missing = [m for m in METRIC_NAMES if not config.HasField(m)]
     if missing:
         raise ValueError(f"metrics config lacks {', '.join(missing)}")
-    for metric in METRIC_NAMES:
-        if getattr(config, metric).WhichOneof("estimator") is None:
-            raise ValueError(f"metrics config: {metric} has no estimator")
+    for name in METRIC_NAMES:
+        if getattr(config, name).WhichOneof("estimator") is None:
+            raise ValueError(f"metrics config: {name} has no estimator")
     return config
 
 
@@ -117,6 +126,7 @@ def load_config(name_or_path: str | Path | SimAgentMetricsConfig = DEFAULT_PRESE
         return preset(text)
     path = Path(text)
     if not path.is_file():
-        raise ValueError(f"config {text!r} is neither a preset ({', '.join(PRESET_NAMES)}) "
-                         f"nor a readable textproto file")
+        raise ValueError(
+            f"config {text!r} is neither a preset ({', '.join(PRESET_NAMES)}) nor a readable textproto file"
+        )
     return _read_textproto(path)

@@ -20,6 +20,7 @@ flagged (rollout, object) pairs is the scene's `simulated_*_rate`.
 
 These are diagnostics beside the official metrics, from the same features; they change no result row.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -91,8 +92,9 @@ def event_steps(log: MetricFeatures, sim: MetricFeatures) -> tuple[dict, dict]:
     return flags, first
 
 
-def per_object_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                       log_likelihoods: dict | None = None) -> PerObjectMetrics:
+def per_object_metrics(
+    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, log_likelihoods: dict | None = None
+) -> PerObjectMetrics:
     """A scene's per-object likelihoods, counts and events, from its features (numpy).
 
     Args:
@@ -103,8 +105,11 @@ def per_object_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: 
     """
     values = per_object_likelihoods(config, log, sim, log_likelihoods)
     flags, first = event_steps(log, sim)
-    return PerObjectMetrics(object_id=np.asarray(log.object_id, np.int64),
-                            object_type=np.asarray(log.object_type, np.int32)[0],
-                            likelihood={f: np.asarray(values[f][0]) for f in LIKELIHOOD_FIELDS},
-                            count={f: np.asarray(values[f][1]) for f in LIKELIHOOD_FIELDS},
-                            flags=flags, first_step=first)
+    return PerObjectMetrics(
+        object_id=np.asarray(log.object_id, np.int64),
+        object_type=np.asarray(log.object_type, np.int32)[0],
+        likelihood={f: np.asarray(values[f][0]) for f in LIKELIHOOD_FIELDS},
+        count={f: np.asarray(values[f][1]) for f in LIKELIHOOD_FIELDS},
+        flags=flags,
+        first_step=first,
+    )

@@ -10,6 +10,7 @@ textproto, since the official proto has no field for it (`active_metrics`,
 `metric_config`). Everything that lists metrics (the scorer, the presets,
 result files, compare / report, the service) reads this module.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -44,7 +45,7 @@ class Metric:
     bucket: str
     feature: str
     per_object: bool
-    mask: Mask
+    mask: Mask | str  # a name or a member; a `Mask` once constructed (`__post_init__`)
     config_default: str | None = None
     official: bool = True
 
@@ -77,15 +78,25 @@ METRICS = (
     Metric("distance_to_road_edge", "map_based", "distance_to_road_edge", False, "valid"),
     Metric("offroad_indication", "map_based", "offroad_per_step", True, "valid"),
     # Pre-2025 configs have no traffic-light metric: it then counts as Bernoulli with weight 0.
-    Metric("traffic_light_violation", "map_based", "traffic_light_violation_per_step", True, "vehicle",
-           config_default="bernoulli {} metametric_weight: 0.0"),
+    Metric(
+        "traffic_light_violation",
+        "map_based",
+        "traffic_light_violation_per_step",
+        True,
+        "vehicle",
+        config_default="bernoulli {} metametric_weight: 0.0",
+    ),
 )
 RATES = (
     Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate", "Collision rate"),
     Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate", "Offroad rate"),
     # The official rate counts red lights of every valid object, vehicle or not.
-    Rate("simulated_traffic_light_violation_rate", "traffic_light_violation_per_step",
-         "simulated_traffic_light_violation_rate", "Red-light violation rate"),
+    Rate(
+        "simulated_traffic_light_violation_rate",
+        "traffic_light_violation_per_step",
+        "simulated_traffic_light_violation_rate",
+        "Red-light violation rate",
+    ),
 )
 
 METRIC_NAMES = tuple(m.name for m in METRICS)
@@ -97,9 +108,9 @@ DISPLACEMENT_FIELDS = ("average_displacement_error", "min_average_displacement_e
 # The per-scenario fields of a result (the official `SimAgentMetrics`), and whether higher is better.
 SCENARIO_FIELDS: dict[str, bool] = {
     "metametric": True,
-    **{f: True for f in LIKELIHOOD_FIELDS},
-    **{f: False for f in DISPLACEMENT_FIELDS},
-    **{f: False for f in RATE_FIELDS},
+    **dict.fromkeys(LIKELIHOOD_FIELDS, True),
+    **dict.fromkeys(DISPLACEMENT_FIELDS, False),
+    **dict.fromkeys(RATE_FIELDS, False),
 }
 # The leaderboard buckets (the official `SimAgentsBucketedMetrics`), and whether higher is better.
 BUCKET_FIELDS: dict[str, bool] = {
@@ -121,8 +132,14 @@ SCORE_BUCKETS = ("realism_meta_metric", *BUCKET_MEMBERS)
 
 # Per-scenario fields and weighted buckets in display order (compare tables, report distributions): the
 # headline, the weighted buckets, the likelihoods, then the displacement errors and the rates (lower is better).
-DISPLAY_ORDER = ("metametric", *BUCKET_MEMBERS, *LIKELIHOOD_FIELDS, "min_average_displacement_error",
-                 "average_displacement_error", *RATE_FIELDS)
+DISPLAY_ORDER = (
+    "metametric",
+    *BUCKET_MEMBERS,
+    *LIKELIHOOD_FIELDS,
+    "min_average_displacement_error",
+    "average_displacement_error",
+    *RATE_FIELDS,
+)
 
 
 # Metrics registered beside the official ones (`register_metric`), in registration order.
@@ -136,8 +153,10 @@ def register_metric(metric: Metric) -> None:
       ValueError: the name is taken, it is marked official, has no config, or its bucket is unknown.
     """
     if metric.official or metric.config_default is None:
-        raise ValueError(f"a registered metric ({metric.name}) is not official and carries its config "
-                         f"(official=False, config_default=...)")
+        raise ValueError(
+            f"a registered metric ({metric.name}) is not official and carries its config "
+            f"(official=False, config_default=...)"
+        )
     if metric.name in {m.name for m in active_metrics()}:
         raise ValueError(f"metric {metric.name!r} is already registered")
     if metric.bucket not in BUCKETS:
@@ -182,7 +201,7 @@ def default_feature_config(metric: Metric):
     return type(message).FromString(message.SerializeToString())
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _parsed_config(text: str):
     # Imported here: this module lists names for light readers (compare, report) that need no protobuf.
     from google.protobuf import text_format

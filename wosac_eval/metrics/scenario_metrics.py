@@ -7,20 +7,30 @@ exp(mean log-likelihood) over the valid logged samples. `metric_values`
 works on numpy or JAX arrays (under `jax.jit`, with x64 enabled);
 `scenario_metrics` returns plain floats.
 """
+
 from __future__ import annotations
 
 import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
+from wosac_eval.features.float32_math import split_sum32
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.features.float32_math import split_sum32
 from wosac_eval.features.xp import array_namespace, in_float32_precision, nan_spreading_min, wide_float
 from wosac_eval.metrics.buckets import weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
-from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, RATE_FIELDS, RATES,
-                                         active_buckets, active_likelihood_fields, active_metrics, metric_config)
+from wosac_eval.metrics.registry import (
+    BUCKET_FIELDS,
+    DISPLACEMENT_FIELDS,
+    LIKELIHOOD_FIELDS,
+    RATE_FIELDS,
+    RATES,
+    active_buckets,
+    active_likelihood_fields,
+    active_metrics,
+    metric_config,
+)
 
 _F = np.float32
 
@@ -30,7 +40,7 @@ SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE
 
 def scenario_fields() -> tuple[str, ...]:
     """`SCENARIO_FIELDS`, then the likelihoods of the metrics registered beside the official ones."""
-    return SCENARIO_FIELDS + active_likelihood_fields()[len(LIKELIHOOD_FIELDS):]
+    return SCENARIO_FIELDS + active_likelihood_fields()[len(LIKELIHOOD_FIELDS) :]
 
 
 def _weights(config) -> dict[str, float]:
@@ -61,12 +71,12 @@ def validity_masks(log: MetricFeatures) -> dict:
     valid = log.valid[0]
     speed_valid, accel_valid = kinematic_validity(valid)
     is_vehicle = log.object_type[0] == TYPE_VEHICLE
-    return {"valid": valid, "speed": speed_valid, "acceleration": accel_valid,
-            "vehicle": valid & is_vehicle[:, None]}
+    return {"valid": valid, "speed": speed_valid, "acceleration": accel_valid, "vehicle": valid & is_vehicle[:, None]}
 
 
-def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                           object_mask=None) -> dict:
+def metric_log_likelihoods(
+    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, object_mask=None
+) -> dict:
     """Each metric's log-likelihoods and the mask they count under, numpy or JAX.
 
     object_mask: optional bool `(num_evaluated,)`, the real rows when the features are padded (padded rows
@@ -86,8 +96,9 @@ def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
             ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask)
             out[metric.name] = (ll, None)
         else:
-            ll = likelihoods.timeseries_log_likelihood(feature_config, log.feature(metric.feature)[0],
-                                                       sim.feature(metric.feature), object_mask)
+            ll = likelihoods.timeseries_log_likelihood(
+                feature_config, log.feature(metric.feature)[0], sim.feature(metric.feature), object_mask
+            )
             out[metric.name] = (ll, mask)
     return out
 
@@ -107,8 +118,13 @@ def _object_mean(values, object_mask, dtype):
     return (total / object_mask.sum().astype(wide)).astype(dtype)
 
 
-def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                  log_likelihoods: dict | None = None, object_mask=None) -> dict:
+def metric_values(
+    config: SimAgentMetricsConfig,
+    log: MetricFeatures,
+    sim: MetricFeatures,
+    log_likelihoods: dict | None = None,
+    object_mask=None,
+) -> dict:
     """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX.
 
     log_likelihoods: `metric_log_likelihoods(config, log, sim)` when already computed.
@@ -123,19 +139,25 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
         ll, mask = lls[metric.name]
         # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
         padded_sum = _F if object_mask is None else wide  # see `_object_mean`
-        out[metric.output] = xp.exp(_object_mean(ll, object_mask, _F) if mask is None
-                                    else _masked_mean(ll, mask, padded_sum))
+        out[metric.output] = xp.exp(
+            _object_mean(ll, object_mask, _F) if mask is None else _masked_mean(ll, mask, padded_sum)
+        )
     ade = sim.average_displacement_error
     per_rollout = _object_mean(ade, object_mask, _F)
-    out["average_displacement_error"] = (ade.mean(dtype=_F) if object_mask is None
-                                         else (_padded_sum(per_rollout.astype(wide), -1, wide)
-                                               / wide(per_rollout.shape[-1])).astype(_F))
+    out["average_displacement_error"] = (
+        ade.mean(dtype=_F)
+        if object_mask is None
+        else (_padded_sum(per_rollout.astype(wide), -1, wide) / wide(per_rollout.shape[-1])).astype(_F)
+    )
     out["min_average_displacement_error"] = nan_spreading_min(per_rollout)
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
         flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])
-        out[rate.name] = (flags.mean(dtype=wide) if object_mask is None
-                          else _padded_sum(_object_mean(flags, object_mask, wide), -1, wide) / wide(flags.shape[0]))
+        out[rate.name] = (
+            flags.mean(dtype=wide)
+            if object_mask is None
+            else _padded_sum(_object_mean(flags, object_mask, wide), -1, wide) / wide(flags.shape[0])
+        )
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
     weights = _weights(config)
@@ -143,8 +165,13 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     return out
 
 
-def per_object_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                           log_likelihoods: dict | None = None, object_mask=None) -> dict:
+def per_object_likelihoods(
+    config: SimAgentMetricsConfig,
+    log: MetricFeatures,
+    sim: MetricFeatures,
+    log_likelihoods: dict | None = None,
+    object_mask=None,
+) -> dict:
     """Each likelihood field per evaluated object, and the weight it has in the scene's field; numpy or JAX.
 
     The scene's field is exp(the mean log-likelihood over its counted samples) (`metric_values`, as the
@@ -166,7 +193,7 @@ def per_object_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
     for metric in active_metrics():
         ll, mask = lls[metric.name]
         if mask is None:  # an indicator: the object's own log-likelihood, one sample
-            count = (xp.ones(ll.shape, xp.int32) if object_mask is None else object_mask.astype(xp.int32))
+            count = xp.ones(ll.shape, xp.int32) if object_mask is None else object_mask.astype(xp.int32)
             mean = ll.astype(wide)
         else:
             count = mask.sum(axis=-1).astype(xp.int32)
@@ -176,8 +203,9 @@ def per_object_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
     return out
 
 
-def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures,
-                     log_likelihoods: dict | None = None) -> dict[str, float]:
+def scenario_metrics(
+    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, log_likelihoods: dict | None = None
+) -> dict[str, float]:
     """The official per-scenario metrics from log and simulated features, as floats."""
     values = metric_values(config, log, sim, log_likelihoods)
     # The official results are stored in float32 proto fields.
@@ -188,8 +216,11 @@ def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
     """Mean of every field over scenarios (the official aggregation)."""
     if not per_scenario:
         raise ValueError("no scenario metrics to aggregate")
-    return {f: float(_F(np.mean([m[f] for m in per_scenario])))
-            for f in scenario_fields() if f in SCENARIO_FIELDS or f in per_scenario[0]}
+    return {
+        f: float(_F(np.mean([m[f] for m in per_scenario])))
+        for f in scenario_fields()
+        if f in SCENARIO_FIELDS or f in per_scenario[0]
+    }
 
 
 def metametric(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> float:

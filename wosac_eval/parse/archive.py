@@ -45,6 +45,7 @@ from typing import BinaryIO, Union
 
 from wosac_eval.parse.errors import ArchiveError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.shards import HEAD_BYTES, looks_like_submission
 from wosac_eval.parse.tar_format import (
     BLOCK,
     DEVICE_TYPES,
@@ -58,7 +59,6 @@ from wosac_eval.parse.tar_format import (
     TruncatedTarError,
     is_tar_header,
 )
-from wosac_eval.parse.shards import HEAD_BYTES, looks_like_submission
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -107,8 +107,10 @@ def is_ignored_name(name: str) -> bool:
 
 def not_a_shard_message(container: object, name: str) -> str:
     """Why a file of a folder or a member of an archive is refused: it is neither a shard nor documentation."""
-    return (f"{container}: {name!r} is neither a submission shard (a name containing {SHARD_NAME_MARKER!r}) "
-            "nor documentation (README*, *.md, *.txt); rename or remove it")
+    return (
+        f"{container}: {name!r} is neither a submission shard (a name containing {SHARD_NAME_MARKER!r}) "
+        "nor documentation (README*, *.md, *.txt); rename or remove it"
+    )
 
 
 def safe_member_name(archive: object, name: str) -> str:
@@ -123,9 +125,7 @@ def safe_member_name(archive: object, name: str) -> str:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} has an absolute path")
     parts = [part for part in re.split(r"[/\\]", name) if part not in ("", ".")]
     if ".." in parts:
-        raise UnsafeArchiveMemberError(
-            f"{archive}: member {name!r} has a '..' component (would escape the archive)"
-        )
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} has a '..' component (would escape the archive)")
     return "/".join(parts)
 
 
@@ -187,8 +187,10 @@ def uncompressed_tar_notice(path: Path) -> UncompressedTarWarning | None:
     """The challenge server expects a gzip-compressed tar: a notice for a plain `.tar`."""
     if not path.name.lower().endswith(".tar"):
         return None
-    return UncompressedTarWarning(f"{path}: an uncompressed tar; the challenge server expects a gzip-compressed "
-                                  "tar (tar czf submission.tar.gz ...)")
+    return UncompressedTarWarning(
+        f"{path}: an uncompressed tar; the challenge server expects a gzip-compressed "
+        "tar (tar czf submission.tar.gz ...)"
+    )
 
 
 # --------------------------------------------------------------------------- streams
@@ -218,13 +220,14 @@ class _LimitedStream:
             return b"".join(iter(lambda: self.read(_CHUNK_BYTES), b""))
         if self._pos >= len(self._chunk):
             self._chunk, self._pos = self._read_chunk(max(size, _CHUNK_BYTES)), 0
-        data = self._chunk[self._pos:self._pos + size]
+        data = self._chunk[self._pos : self._pos + size]
         self._pos += len(data)
         self.bytes_read += len(data)
         if self.bytes_read > self.limit:
             if self.limit_name == "max_member_bytes":  # a single compressed shard (`_open_single_shard`)
-                raise SizeLimitError(f"{self.archive}: shard decompresses to more than the per-member limit of "
-                                     f"{self.limit} bytes")
+                raise SizeLimitError(
+                    f"{self.archive}: shard decompresses to more than the per-member limit of {self.limit} bytes"
+                )
             raise SizeLimitError(
                 f"{self.archive}: decompresses to more than the total limit of {self.limit} bytes "
                 f"(while reading member {self.member!r}; limit {self.limit_name}); raise it if this is genuine"
@@ -236,7 +239,7 @@ def _open_decompressed(path: Path, compression: str | None) -> BinaryIO:
     """The file's bytes, decompressed on the fly when compression is set."""
     if compression is None:
         return open(path, "rb")
-    return _OPENERS[compression](path, "rb")  # type: ignore[return-value]
+    return _OPENERS[compression](path, "rb")
 
 
 def _sniff(path: Path) -> tuple[str | None, bytes]:
@@ -244,9 +247,7 @@ def _sniff(path: Path) -> tuple[str | None, bytes]:
     with open(path, "rb") as raw:
         head = raw.read(_SNIFF_BYTES)
     if head.startswith(_ZIP_MAGIC):
-        raise ArchiveError(
-            f"{path}: zip archives are not supported; package shards as .tar or .tar.gz"
-        )
+        raise ArchiveError(f"{path}: zip archives are not supported; package shards as .tar or .tar.gz")
     compression = _compression_of(head)
     if compression is None:
         return None, head
@@ -273,9 +274,7 @@ def _check_member_type(archive: Path, name: str, member: TarMember) -> None:
     if member.sparse:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} is a sparse file (unsupported type)")
     if not (member.is_file or member.is_dir):
-        raise UnsafeArchiveMemberError(
-            f"{archive}: member {name!r} has an unsupported type {member.type!r}"
-        )
+        raise UnsafeArchiveMemberError(f"{archive}: member {name!r} has an unsupported type {member.type!r}")
 
 
 def _data_error(archive: Path, name: str | None, error: Exception) -> ArchiveError:
@@ -290,9 +289,7 @@ def _read_member_data(tar: TarStreamReader, archive: Path, name: str, size: int)
     except _STREAM_ERRORS as error:
         raise _data_error(archive, name, error) from error
     if len(data) != size:
-        raise ArchiveError(
-            f"{archive}: member {name!r} is truncated ({len(data)} of {size} bytes)"
-        )
+        raise ArchiveError(f"{archive}: member {name!r} is truncated ({len(data)} of {size} bytes)")
     return data
 
 
@@ -351,8 +348,7 @@ def _iter_members(
         yield tar, name, member
     if not seen:
         raise ArchiveError(
-            f"{archive}: archive holds no submission shard (no member name "
-            f"containing {SHARD_NAME_MARKER!r})"
+            f"{archive}: archive holds no submission shard (no member name containing {SHARD_NAME_MARKER!r})"
         )
 
 
@@ -365,8 +361,7 @@ def _drain(stream: _LimitedStream, archive: Path) -> None:
         raise
     except _STREAM_ERRORS as error:
         raise ArchiveError(
-            f"{archive}: compressed stream is truncated or corrupt after member "
-            f"{stream.member!r}: {error}"
+            f"{archive}: compressed stream is truncated or corrupt after member {stream.member!r}: {error}"
         ) from error
 
 
@@ -438,8 +433,7 @@ def plain_shard_size(path: Path, limits: InputLimits) -> int:
     size = path.stat().st_size
     if size > limits.max_member_bytes:
         raise SizeLimitError(
-            f"{path}: shard is {size} bytes, over the per-member limit of "
-            f"{limits.max_member_bytes} bytes"
+            f"{path}: shard is {size} bytes, over the per-member limit of {limits.max_member_bytes} bytes"
         )
     return size
 
@@ -522,4 +516,3 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
         if compression is not None:
             _drain(stream, path)
     return ContainerSummary(compression, True, shards, stream.bytes_read)
-

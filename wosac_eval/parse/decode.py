@@ -4,6 +4,7 @@ The protobuf runtime (upb) reports an allocation refused under an address-space 
 (RLIMIT_AS: the service's WOSAC_JOB_MEMORY_BYTES, or a user's `ulimit -v`) as a DecodeError,
 the same error as for damaged bytes: a valid record would be reported as corrupt.
 """
+
 from __future__ import annotations
 
 import resource
@@ -33,5 +34,7 @@ def decode_message(message_class: type[M], data: bytes) -> M:
             message_class.FromString(data)  # damaged bytes raise their DecodeError here, limit or not
         finally:
             resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-        raise MemoryError(f"parsing a {message_class.DESCRIPTOR.name} message of {len(data)} bytes needed more "
-                          f"memory than the process's address-space limit of {soft} bytes allows") from None
+        raise MemoryError(
+            f"parsing a {message_class.DESCRIPTOR.name} message of {len(data)} bytes needed more "
+            f"memory than the process's address-space limit of {soft} bytes allows"
+        ) from None

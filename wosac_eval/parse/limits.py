@@ -12,6 +12,7 @@ times. A genuine trajectory carries 80 or 91 steps of 4 floats (>= 1.3 kB), so
 allowing one message per `message_bytes` bytes (past a fixed allowance) never
 refuses a real submission and bounds the parse at a fraction of the shard.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -58,15 +59,17 @@ class InputLimits:
             return self.max_total_bytes, "max_total_bytes"
         by_ratio = max(self.ratio_floor_bytes, int(self.max_compression_ratio * compressed_size))
         if by_ratio < self.max_total_bytes:
-            return by_ratio, (f"max_compression_ratio: {self.max_compression_ratio:g} times the "
-                              f"{compressed_size} compressed bytes, at least ratio_floor_bytes")
+            return by_ratio, (
+                f"max_compression_ratio: {self.max_compression_ratio:g} times the "
+                f"{compressed_size} compressed bytes, at least ratio_floor_bytes"
+            )
         return self.max_total_bytes, "max_total_bytes"
 
 
 # Field numbers on the wire (sim_agents_submission.proto).
-_SUBMISSION_ROLLOUTS = 1   # SimAgentsChallengeSubmission.scenario_rollouts
+_SUBMISSION_ROLLOUTS = 1  # SimAgentsChallengeSubmission.scenario_rollouts
 _ROLLOUTS_JOINT_SCENES = 2  # ScenarioRollouts.joint_scenes
-_JOINT_TRAJECTORIES = 1     # JointScene.simulated_trajectories
+_JOINT_TRAJECTORIES = 1  # JointScene.simulated_trajectories
 
 
 class _Census:
@@ -84,7 +87,8 @@ class _Census:
             raise SizeLimitError(
                 f"shard {self.shard}: more than {self.budget} messages in {span} bytes at {where} "
                 f"(one per {self.limits.message_bytes} bytes plus {self.limits.message_allowance}: a real "
-                "trajectory carries its steps); refused before parsing")
+                "trajectory carries its steps); refused before parsing"
+            )
 
     def fields(self, data: bytes, start: int, end: int, where: str):
         """(field number, value start, value end) of each length-delimited field in data[start:end]; every
@@ -168,8 +172,9 @@ def _count_rollouts(census: _Census, data: bytes, start: int, end: int, index: i
     """Count the messages of the shard's `index`th scenario_rollouts, data[start:end]."""
     shard, limits = census.shard, census.limits
     if index + 1 > limits.max_scenarios:
-        raise SizeLimitError(f"shard {shard}: more than max_scenarios={limits.max_scenarios} "
-                             "scenario_rollouts; refused before parsing")
+        raise SizeLimitError(
+            f"shard {shard}: more than max_scenarios={limits.max_scenarios} scenario_rollouts; refused before parsing"
+        )
     where = f"scenario_rollouts[{index}]"
     joint_scenes = 0
     for number, j_start, j_end in census.fields(data, start, end, where):
@@ -177,15 +182,19 @@ def _count_rollouts(census: _Census, data: bytes, start: int, end: int, index: i
             continue
         joint_scenes += 1
         if joint_scenes > limits.max_joint_scenes:
-            raise SizeLimitError(f"shard {shard}: {where} holds more than max_joint_scenes="
-                                 f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing")
+            raise SizeLimitError(
+                f"shard {shard}: {where} holds more than max_joint_scenes="
+                f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing"
+            )
         scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
         objects = 0
         for number, _, _ in census.fields(data, j_start, j_end, scene_where):
             objects += number == _JOINT_TRAJECTORIES
             if objects > limits.max_objects:
-                raise SizeLimitError(f"shard {shard}: {scene_where} holds more than max_objects="
-                                     f"{limits.max_objects} simulated_trajectories; refused before parsing")
+                raise SizeLimitError(
+                    f"shard {shard}: {scene_where} holds more than max_objects="
+                    f"{limits.max_objects} simulated_trajectories; refused before parsing"
+                )
 
 
 __all__ = ["InputLimits", "ShardCensus", "check_message_counts"]

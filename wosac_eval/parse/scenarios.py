@@ -80,8 +80,7 @@ def _expand_one(entry: PathLike) -> list[Path]:
         shards = _shards_in_folder(path)
         if not shards:
             raise ScenarioPathError(
-                f"{path}: folder holds no scenario shard (no file name containing "
-                f"{SHARD_NAME_MARKER!r})"
+                f"{path}: folder holds no scenario shard (no file name containing {SHARD_NAME_MARKER!r})"
             )
         return shards
     if _GLOB_CHARS & set(str(entry)):
@@ -155,7 +154,7 @@ def scenario_id_of(data: bytes, source: ScenarioSource) -> str:
     """
     try:
         spans = field_spans(data, _SCENARIO_ID_FIELD)
-        found = data[spans[-1][0]:spans[-1][1]] if spans else b""
+        found = data[spans[-1][0] : spans[-1][1]] if spans else b""
         if not found:
             raise ValueError("no scenario_id")
         return found.decode("utf-8")
@@ -187,9 +186,7 @@ class ScenarioIndex:
         """Record where scenario_id lives, refusing a second location."""
         earlier = self._sources.get(scenario_id)
         if earlier is not None:
-            raise DuplicateScenarioError(
-                f"scenario {scenario_id!r} occurs twice: in {earlier} and in {source}"
-            )
+            raise DuplicateScenarioError(f"scenario {scenario_id!r} occurs twice: in {earlier} and in {source}")
         self._sources[scenario_id] = source
 
     def __len__(self) -> int:

@@ -9,6 +9,7 @@ once. It accepts only a plainly well-formed top level (tags of field numbers 1 t
 the shard); anything else raises `IrregularShard`, and the reader then judges the
 shard whole, as before, so that every message about a malformed shard is unchanged.
 """
+
 from __future__ import annotations
 
 from collections.abc import Iterator

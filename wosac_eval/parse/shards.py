@@ -6,6 +6,7 @@ serialized `ScenarioRollouts` without parsing them; `looks_like_submission`
 tells from a shard's first bytes whether it can be one at all (the upload
 check asks it of every member).
 """
+
 from __future__ import annotations
 
 from google.protobuf.message import DecodeError
@@ -22,8 +23,14 @@ from wosac_eval.protos import sim_agents_submission_pb2
 _SUBMISSION_FIELDS = {1: 2, 2: 0, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2, 8: 2, 9: 0, 10: 0, 11: 0, 12: 2, 13: 2, 14: 0}
 HEAD_BYTES = 16  # the first bytes `looks_like_submission` judges
 _FOREIGN_FORMATS = (
-    (b"{", "JSON"), (b"[", "JSON"), (b"\x89PNG", "a PNG image"), (b"\xff\xd8\xff", "a JPEG image"),
-    (b"GIF8", "a GIF image"), (b"%PDF", "a PDF document"), (b"<", "HTML or XML"), (b"PK\x03\x04", "a zip archive"),
+    (b"{", "JSON"),
+    (b"[", "JSON"),
+    (b"\x89PNG", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF8", "a GIF image"),
+    (b"%PDF", "a PDF document"),
+    (b"<", "HTML or XML"),
+    (b"PK\x03\x04", "a zip archive"),
 )
 
 
@@ -43,7 +50,7 @@ def looks_like_submission(where: str, head: bytes) -> None:
         ok = False
     if ok:
         return
-    kind = next((name for magic, name in _FOREIGN_FORMATS if head.lstrip()[:len(magic)] == magic), None)
+    kind = next((name for magic, name in _FOREIGN_FORMATS if head.lstrip()[: len(magic)] == magic), None)
     detail = f"it looks like {kind}" if kind else f"its first bytes are {head[:8]!r}"
     raise NotASubmissionError(
         f"{where}: not a SimAgentsChallengeSubmission shard ({detail}); submit a .tar.gz of .binproto "
@@ -89,8 +96,10 @@ def _why_unparseable(raw: bytes) -> str:
         field_spans(raw, 1)
     except ValueError as error:
         if "past the end" in str(error) or "truncated" in str(error):
-            return (" (the shard is truncated: its last field runs past the end of the data; was the file "
-                    "cut short by an interrupted copy or upload?)")
+            return (
+                " (the shard is truncated: its last field runs past the end of the data; was the file "
+                "cut short by an interrupted copy or upload?)"
+            )
     return ""
 
 
@@ -127,7 +136,7 @@ def split_shard(name: str, raw: bytes, limits: InputLimits | None = None) -> lis
         for start, end in field_spans(raw, 1):
             data = raw[start:end]
             ids = field_spans(data, 1)  # a repeated singular field: the last one counts, as in a parse
-            items.append((data[ids[-1][0]:ids[-1][1]].decode("utf-8") if ids else "", data))
+            items.append((data[ids[-1][0] : ids[-1][1]].decode("utf-8") if ids else "", data))
         return items
     except (ValueError, UnicodeDecodeError):
         try:
@@ -135,4 +144,3 @@ def split_shard(name: str, raw: bytes, limits: InputLimits | None = None) -> lis
         except ParseError:
             return []
         return [(r.scenario_id, r.SerializeToString()) for r in submission.scenario_rollouts]
-

@@ -21,6 +21,7 @@ stages read the spool; else a scratch file removed once the member is checked,
 scenarios it asks for). Every read goes through the limits the handle was opened
 with.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -35,8 +36,8 @@ from typing import IO
 
 from wosac_eval.parse.archive import (
     SHARD_NAME_MARKER,
-    is_ignored_name,
     MemberReader,
+    is_ignored_name,
     is_shard_name,
     iter_archive_members,
     iter_archive_shards,
@@ -95,13 +96,16 @@ class ShardRef:
         end = self.size if end is None else end
         if self.data is not None:
             return self.data[start:end]
+        assert self.path is not None  # a shard is its bytes or a byte range of a file
         with open(self.path, "rb") as f:
             f.seek(self.offset + start)
             data = f.read(end - start)
         if len(data) != end - start:
-            raise ArchiveError(f"{self.path}: shard {self.name!r} is shorter than when it was listed "
-                               f"({self.offset + start + len(data)} of {self.offset + end} bytes); "
-                               "was it modified?")
+            raise ArchiveError(
+                f"{self.path}: shard {self.name!r} is shorter than when it was listed "
+                f"({self.offset + start + len(data)} of {self.offset + end} bytes); "
+                "was it modified?"
+            )
         return data
 
     def without_data(self) -> ShardRef:
@@ -145,8 +149,9 @@ def _folder_files(folder: Path, problems: Problems) -> list[tuple[str, Path]]:
             else:
                 problems(NotAShardError(not_a_shard_message(folder, relative), shard=relative))
     if not found:
-        problems(ArchiveError(f"{folder}: folder holds no submission shard (no file name containing "
-                              f"{SHARD_NAME_MARKER!r})"))
+        problems(
+            ArchiveError(f"{folder}: folder holds no submission shard (no file name containing {SHARD_NAME_MARKER!r})")
+        )
     return sorted(found)
 
 
@@ -157,13 +162,23 @@ def _iter_folder(folder: Path, limits: InputLimits, problems: Problems) -> Itera
     for relative, path in _folder_files(folder, problems):
         size = path.stat().st_size
         if size > limits.max_member_bytes:
-            problems(SizeLimitError(f"{folder}: shard {relative!r} is {size} bytes, over the per-member limit of "
-                                    f"{limits.max_member_bytes} bytes", shard=relative))
+            problems(
+                SizeLimitError(
+                    f"{folder}: shard {relative!r} is {size} bytes, over the per-member limit of "
+                    f"{limits.max_member_bytes} bytes",
+                    shard=relative,
+                )
+            )
             continue
         total += size
         if total > limits.max_total_bytes:
-            problems(SizeLimitError(f"{folder}: shards exceed the total limit of {limits.max_total_bytes} bytes "
-                                    f"at {relative!r}; the remaining shards are not read", shard=relative))
+            problems(
+                SizeLimitError(
+                    f"{folder}: shards exceed the total limit of {limits.max_total_bytes} bytes "
+                    f"at {relative!r}; the remaining shards are not read",
+                    shard=relative,
+                )
+            )
             return
         yield ShardRef(relative, size, path=str(path.resolve()))
 
@@ -171,8 +186,9 @@ def _iter_folder(folder: Path, limits: InputLimits, problems: Problems) -> Itera
 # --------------------------------------------------------------------------- files
 
 
-def _file_shards(path: Path, limits: InputLimits, problems: Problems | None,
-                 member_file: MemberFile | None = None) -> Iterator[ShardRef]:
+def _file_shards(
+    path: Path, limits: InputLimits, problems: Problems | None, member_file: MemberFile | None = None
+) -> Iterator[ShardRef]:
     """Shards of a single shard file or a tar archive (archive members carry their bytes, or with
     `member_file` are copied to a file a piece at a time and given as its byte range).
 
@@ -208,8 +224,13 @@ def _reported(shards: Iterator[ShardRef], problems: Problems) -> Iterator[ShardR
         problems(error)
 
 
-def iter_shard_refs(path: PathLike, *, limits: InputLimits | None = None,
-                    problems: Problems | None = None, member_file: MemberFile | None = None) -> Iterator[ShardRef]:
+def iter_shard_refs(
+    path: PathLike,
+    *,
+    limits: InputLimits | None = None,
+    problems: Problems | None = None,
+    member_file: MemberFile | None = None,
+) -> Iterator[ShardRef]:
     """Every submission shard found at path, as a `ShardRef`, in order: the one walk.
 
     Shards of a folder or an uncompressed shard file are byte ranges (nothing
@@ -271,8 +292,15 @@ class SubmissionSource:
       tail_dir, tail_bytes: where to keep the last members walked, and how many bytes of them.
     """
 
-    def __init__(self, path: PathLike, limits: InputLimits | None = None, *, spool_dir: PathLike | None = None,
-                 tail_dir: PathLike | None = None, tail_bytes: int = 0):
+    def __init__(
+        self,
+        path: PathLike,
+        limits: InputLimits | None = None,
+        *,
+        spool_dir: PathLike | None = None,
+        tail_dir: PathLike | None = None,
+        tail_bytes: int = 0,
+    ):
         self.path = Path(path)
         self._given = os.fspath(path)  # as the user wrote it, for reports
         self.limits = InputLimits() if limits is None else limits
@@ -413,8 +441,9 @@ class SubmissionSource:
         archive = self.path.is_file() and self._spool_dir is None
         self._kept = {shard.name: _still_there(shard) if archive else shard for shard, _ in records}
 
-    def _member_entries(self, wanted: Callable[[str], bool], shard: ShardRef, entries: list, members: Iterator
-                        ) -> Iterator[tuple[str, bytes | None]]:
+    def _member_entries(
+        self, wanted: Callable[[str], bool], shard: ShardRef, entries: list, members: Iterator
+    ) -> Iterator[tuple[str, bytes | None]]:
         """The wanted scenarios' bytes of a member streamed from the archive (`members`, advanced to it)."""
         for member in members:
             if member.name != shard.name:
@@ -427,8 +456,9 @@ class SubmissionSource:
                 yield sid, member.read(end - start)
             return
 
-    def rollouts_locators(self, wanted: Callable[[str], bool] | None = None
-                          ) -> Iterator[tuple[str, RolloutsLocator | None]]:
+    def rollouts_locators(
+        self, wanted: Callable[[str], bool] | None = None
+    ) -> Iterator[tuple[str, RolloutsLocator | None]]:
         """(scenario_id, where its rollouts are) of every recorded scenario, in submission order.
 
         A range of a submission file (or of a member kept in `tail_dir`) is given as (path, offset, size)
@@ -503,7 +533,7 @@ class _BytesReader:
 
     def read(self, size: int) -> bytes:
         self.position += size
-        return self.data[self.position - size:self.position]
+        return self.data[self.position - size : self.position]
 
 
 def _still_there(shard: ShardRef) -> ShardRef:
@@ -526,8 +556,9 @@ def read_locator(locator: RolloutsLocator) -> bytes:
     return ShardRef("", size, path=path, offset=offset).read()
 
 
-def find_scenario_rollouts(submission: PathLike | SubmissionSource, scenario_ids,
-                           limits: InputLimits | None = None) -> dict:
+def find_scenario_rollouts(
+    submission: PathLike | SubmissionSource, scenario_ids, limits: InputLimits | None = None
+) -> dict:
     """The `ScenarioRollouts` of the given scenarios in a submission (file, folder, archive or an open
     `SubmissionSource`), by id; shards are split on the wire and only the wanted entries are parsed."""
     if isinstance(submission, SubmissionSource):

@@ -149,10 +149,10 @@ def parse_pax_records(data: bytes) -> dict[str, str]:
         match = _PAX_RECORD.match(data, position)
         length = int(match.group(1)) if match else 0
         end = position + length
-        if not match or end <= match.end() or end > len(data) or data[end - 1:end] != b"\n":
+        if not match or end <= match.end() or end > len(data) or data[end - 1 : end] != b"\n":
             raise TarFormatError(f"malformed pax extended header record at byte {position}")
         key = match.group(2).decode("utf-8", "surrogateescape")
-        records[key] = data[match.end():end - 1].decode("utf-8", "surrogateescape")
+        records[key] = data[match.end() : end - 1].decode("utf-8", "surrogateescape")
         position = end
     return records
 
@@ -170,7 +170,8 @@ def _apply_pax(member: TarMember, records: dict[str, str]) -> TarMember:
         changes["size"] = int(records["size"])
     if any(key.startswith("GNU.sparse.") for key in records):
         changes["sparse"] = True
-    return dataclasses.replace(member, **changes) if changes else member
+    # `changes` maps field names to values of several types: mypy checks each against every field.
+    return dataclasses.replace(member, **changes) if changes else member  # type: ignore[arg-type]
 
 
 def padded(size: int) -> int:
@@ -233,7 +234,7 @@ class TarStreamReader:
         data = self.read_exact(padded(member.size))
         if len(data) < padded(member.size):
             raise TruncatedTarError("truncated extended header")
-        return data[:member.size]
+        return data[: member.size]
 
     def next_member(self) -> TarMember | None:
         """The next member (extended headers applied), None at the end-of-archive block."""

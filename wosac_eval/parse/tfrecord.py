@@ -58,7 +58,7 @@ def looks_like_tfrecord(head: bytes) -> bool:
     """True when head (a file's first bytes) starts with a TFRecord header: a length and its masked CRC."""
     if len(head) < HEADER_BYTES:
         return False
-    return _CRC.unpack_from(head, _LENGTH.size)[0] == masked_crc32c(head[:_LENGTH.size])
+    return _CRC.unpack_from(head, _LENGTH.size)[0] == masked_crc32c(head[: _LENGTH.size])
 
 
 def is_gzip_path(path: str | os.PathLike[str]) -> bool:
@@ -86,9 +86,7 @@ def _read_exactly(stream: BinaryIO, size: int, path: Path, offset: int, what: st
         raise CorruptRecordError(path, offset, f"cannot read {what}: {error}") from error
     data = chunks[0] if len(chunks) == 1 else b"".join(chunks)
     if len(data) != size:
-        raise CorruptRecordError(
-            path, offset, f"file truncated: {what} needs {size} bytes, only {len(data)} left"
-        )
+        raise CorruptRecordError(path, offset, f"file truncated: {what} needs {size} bytes, only {len(data)} left")
     return data
 
 
@@ -111,9 +109,7 @@ def _read_header(stream: BinaryIO, path: Path, offset: int, max_record_bytes: in
         raise CorruptRecordError(path, offset, "length field fails its CRC32C check")
     (length,) = _LENGTH.unpack(length_bytes)
     if length > max_record_bytes:
-        raise CorruptRecordError(
-            path, offset, f"record length {length} exceeds the limit of {max_record_bytes} bytes"
-        )
+        raise CorruptRecordError(path, offset, f"record length {length} exceeds the limit of {max_record_bytes} bytes")
     return length
 
 
@@ -129,9 +125,7 @@ def _read_one(stream: BinaryIO, path: Path, offset: int, max_record_bytes: int) 
     return data
 
 
-def iter_records(
-    path: str | os.PathLike[str], *, max_record_bytes: int = DEFAULT_MAX_RECORD_BYTES
-) -> Iterator[Record]:
+def iter_records(path: str | os.PathLike[str], *, max_record_bytes: int = DEFAULT_MAX_RECORD_BYTES) -> Iterator[Record]:
     """Yield every record of a TFRecord file with its byte offset, in file order.
 
     Raises CorruptRecordError (a ParseError) naming the file and offset of the
@@ -146,9 +140,7 @@ def iter_records(
             offset += HEADER_BYTES + len(data) + FOOTER_BYTES
 
 
-def read_records(
-    path: str | os.PathLike[str], *, max_record_bytes: int = DEFAULT_MAX_RECORD_BYTES
-) -> Iterator[bytes]:
+def read_records(path: str | os.PathLike[str], *, max_record_bytes: int = DEFAULT_MAX_RECORD_BYTES) -> Iterator[bytes]:
     """Yield the data of every record of a TFRecord file, in file order.
 
     Same checks and errors as iter_records; use that when offsets are needed.

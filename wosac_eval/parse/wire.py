@@ -8,6 +8,7 @@
 The compiled walks over whole messages (numba) are in `parse.wire_walks`, imported only where used:
 this module stays light for the processes that only split or check files.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -15,8 +16,15 @@ import numpy as np
 COORDINATE_FIELDS = ("center_x", "center_y", "center_z", "heading")
 BOX_FIELDS = ("length", "width", "height")
 # SimulatedTrajectory field numbers of COORDINATE_FIELDS and BOX_FIELDS (width is 7, length 8 on the wire).
-TRAJECTORY_FIELD_NUMBERS = {"center_x": 2, "center_y": 3, "center_z": 4, "heading": 5, "length": 8, "width": 7,
-                            "height": 9}
+TRAJECTORY_FIELD_NUMBERS = {
+    "center_x": 2,
+    "center_y": 3,
+    "center_z": 4,
+    "heading": 5,
+    "length": 8,
+    "width": 7,
+    "height": 9,
+}
 
 
 def varint(value: int) -> bytes:

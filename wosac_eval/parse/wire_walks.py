@@ -11,6 +11,7 @@ enum's value out of range is an unknown field. They read the bytes a message was
 serialisation (`message_bytes`); malformed bytes raise ValueError. Compiled once per installation
 and cached on disk by numba, like the search loops (`features.search.compile_searches`).
 """
+
 from __future__ import annotations
 
 import numba
@@ -170,8 +171,17 @@ def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
       varints (negative int32/int64 values as they are); present bool: where the field occurs).
       Fields absent from a record read as 0.
     """
-    return _scalar_fields(data, *_aligned(data), starts, ends, np.asarray(numbers, np.int64),
-                          np.asarray(wire_types, np.int64), np.asarray(enum_sizes, np.int64))
+    f64, f32 = _aligned(data)
+    return _scalar_fields(
+        data,
+        f64,
+        f32,
+        starts,
+        ends,
+        np.asarray(numbers, np.int64),
+        np.asarray(wire_types, np.int64),
+        np.asarray(enum_sizes, np.int64),
+    )
 
 
 @numba.njit(cache=True)
@@ -207,7 +217,7 @@ def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes
 
 @numba.njit(inline="always")
 def _any_finite_non_positive(block):
-    for v in block:
+    for v in block:  # noqa: SIM110 - numba compiles loops, not `any(generator)`
         if np.isfinite(v) and v <= 0:
             return True
     return False
@@ -246,10 +256,10 @@ def _float_fields(data, f32, starts, ends, numbers, num_values):
                 first = _varint(data, pos, end)[1]
                 if (after - first) % 4:
                     raise ValueError("protobuf wire data: a packed float field of a length not a multiple of 4")
-            block = f32[first % 4][first // 4:first // 4 + (after - first) // 4]
+            block = f32[first % 4][first // 4 : first // 4 + (after - first) // 4]
             c = count[i, j]
             take = min(max(num_values - c, 0), block.shape[0])
-            values[i, j, c:c + take] = block[:take]
+            values[i, j, c : c + take] = block[:take]
             count[i, j] = c + block.shape[0]
             finite, positive = True, True
             for v in block:  # branch-free, vectorised; one loop with both flags ran 2x slower

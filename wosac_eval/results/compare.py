@@ -6,6 +6,7 @@ what makes a 0.002 change in the meta-metric detectable on a few thousand
 scenarios: scenario difficulty, which dominates the spread of the raw scores,
 cancels out in the differences.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -48,8 +49,10 @@ def canonical_metric(name: str) -> str:
     key = name.strip().lower()
     key = ALIASES.get(key, key)
     if key not in METRICS:
-        raise CompareError(f"unknown metric {name!r}; known metrics: {', '.join(METRICS)} "
-                           f"(aliases: {', '.join(f'{a}={m}' for a, m in ALIASES.items())})")
+        raise CompareError(
+            f"unknown metric {name!r}; known metrics: {', '.join(METRICS)} "
+            f"(aliases: {', '.join(f'{a}={m}' for a, m in ALIASES.items())})"
+        )
     return key
 
 
@@ -161,12 +164,27 @@ class Comparison:
             "base": {"path": self.base_path, "config": self.base_config},
             "new": {"path": self.new_path, "config": self.new_config},
             "scenarios": {"shared": self.num_shared, "base_only": self.num_base_only, "new_only": self.num_new_only},
-            "settings": {"alpha": self.alpha, "adjust": self.adjust, "seed": self.seed, "n_boot": self.n_boot,
-                         "n_perm": self.n_perm, "exact_permutation": self.exact_permutation,
-                         "difference": "new - base, mean over shared scenarios"},
+            "settings": {
+                "alpha": self.alpha,
+                "adjust": self.adjust,
+                "seed": self.seed,
+                "n_boot": self.n_boot,
+                "n_perm": self.n_perm,
+                "exact_permutation": self.exact_permutation,
+                "difference": "new - base, mean over shared scenarios",
+            },
             "metrics": [dataclasses.asdict(m) for m in self.metrics],
-            "gates": [{"gate": g.gate.spec, "metric": g.gate.metric, "max_regression": g.allowed,
-                       "regression": g.regression, "passed": g.passed, "reason": g.reason} for g in self.gates],
+            "gates": [
+                {
+                    "gate": g.gate.spec,
+                    "metric": g.gate.metric,
+                    "max_regression": g.allowed,
+                    "regression": g.regression,
+                    "passed": g.passed,
+                    "reason": g.reason,
+                }
+                for g in self.gates
+            ],
             "warnings": list(self.warnings),
             "passed": self.passed,
         }
@@ -233,20 +251,26 @@ def compare_results(
     wanted = [m for m in METRICS if m in wanted]  # display order, no duplicates
 
     if base.challenge != new.challenge:
-        raise CompareError(f"{base.path} is a {base.challenge} result and {new.path} a {new.challenge} result: "
-                           f"results of different challenges measure different things and cannot be compared")
+        raise CompareError(
+            f"{base.path} is a {base.challenge} result and {new.path} a {new.challenge} result: "
+            f"results of different challenges measure different things and cannot be compared"
+        )
     warnings: list[str] = []
     if not _same_config(base.config, new.config):
-        warnings.append(f"the results were scored with different configs: base {base.config!r}, "
-                        f"new {new.config!r}; differences mix the simulator change with the config change")
+        warnings.append(
+            f"the results were scored with different configs: base {base.config!r}, "
+            f"new {new.config!r}; differences mix the simulator change with the config change"
+        )
 
     base_rows, new_rows = shared_rows(base, new)
     n = int(base_rows.size)
     base_only = np.setdiff1d(np.arange(base.num_scenarios), base_rows)
     new_only = np.setdiff1d(np.arange(new.num_scenarios), new_rows)
     if n == 0:
-        raise CompareError(f"{base.path} ({base.num_scenarios} scenarios) and {new.path} ({new.num_scenarios} "
-                           f"scenarios) share no scenario: they were scored on different data sets")
+        raise CompareError(
+            f"{base.path} ({base.num_scenarios} scenarios) and {new.path} ({new.num_scenarios} "
+            f"scenarios) share no scenario: they were scored on different data sets"
+        )
     if n < min_shared:
         raise CompareError(f"{base.path} and {new.path} share only {n} scenarios, fewer than --min-shared {min_shared}")
     if base_only.size or new_only.size:
@@ -261,8 +285,9 @@ def compare_results(
     skipped_base = {s.get("scenario_id") for s in base.skipped}
     skipped_new = {s.get("scenario_id") for s in new.skipped}
     if skipped_base != skipped_new:
-        warnings.append(f"the scorer skipped different scenarios: {len(skipped_base)} in base, "
-                        f"{len(skipped_new)} in new")
+        warnings.append(
+            f"the scorer skipped different scenarios: {len(skipped_base)} in base, {len(skipped_new)} in new"
+        )
 
     paired = [m for m in wanted if base.has_per_scenario(m) and new.has_per_scenario(m)]
     results: dict[str, MetricComparison] = {}
@@ -274,10 +299,16 @@ def compare_results(
         exact = test.exact_permutation
         for j, m in enumerate(paired):
             results[m] = MetricComparison(
-                metric=m, higher_is_better=higher_is_better(m), paired=True,
-                base=float(b[:, j].mean()), new=float(w[:, j].mean()),
+                metric=m,
+                higher_is_better=higher_is_better(m),
+                paired=True,
+                base=float(b[:, j].mean()),
+                new=float(w[:, j].mean()),
                 difference=float(test.mean_difference[j]),
-                ci_low=float(test.ci_low[j]), ci_high=float(test.ci_high[j]), p_value=float(test.p_value[j]))
+                ci_low=float(test.ci_low[j]),
+                ci_high=float(test.ci_high[j]),
+                p_value=float(test.p_value[j]),
+            )
         holm = stats.holm_adjust(test.p_value)
         for j, m in enumerate(paired):
             p_holm = results[m].p_holm = float(holm[j])
@@ -289,23 +320,42 @@ def compare_results(
         if bv is None or nv is None:
             warnings.append(f"{m}: not in both results, left out")
             continue
-        results[m] = MetricComparison(metric=m, higher_is_better=higher_is_better(m), paired=False,
-                                      base=bv, new=nv, difference=nv - bv)
+        results[m] = MetricComparison(
+            metric=m, higher_is_better=higher_is_better(m), paired=False, base=bv, new=nv, difference=nv - bv
+        )
     if any(m in results for m in unpaired):
         aggregated = ", ".join(m for m in unpaired if m in results)
-        scope = "all of each file's scenarios" if not (base_only.size or new_only.size) else \
-            "each file's own scenarios (the sets differ!)"
-        warnings.append(f"no per-scenario values for {aggregated}: compared the files' aggregates over {scope}, "
-                        f"without interval or p-value")
+        scope = (
+            "all of each file's scenarios"
+            if not (base_only.size or new_only.size)
+            else "each file's own scenarios (the sets differ!)"
+        )
+        warnings.append(
+            f"no per-scenario values for {aggregated}: compared the files' aggregates over {scope}, "
+            f"without interval or p-value"
+        )
 
     ordered = [results[m] for m in wanted if m in results]
     outcomes = [_apply_gate(g, results.get(g.metric), only_significant) for g in gates]
     return Comparison(
-        base_path=base.path, new_path=new.path, base_config=base.config, new_config=new.config,
+        base_path=base.path,
+        new_path=new.path,
+        base_config=base.config,
+        new_config=new.config,
         challenge=new.challenge,
-        num_shared=n, num_base_only=int(base_only.size), num_new_only=int(new_only.size),
-        alpha=alpha, adjust=adjust, seed=seed, n_boot=n_boot, n_perm=n_perm, exact_permutation=exact,
-        metrics=ordered, gates=outcomes, warnings=warnings)
+        num_shared=n,
+        num_base_only=int(base_only.size),
+        num_new_only=int(new_only.size),
+        alpha=alpha,
+        adjust=adjust,
+        seed=seed,
+        n_boot=n_boot,
+        n_perm=n_perm,
+        exact_permutation=exact,
+        metrics=ordered,
+        gates=outcomes,
+        warnings=warnings,
+    )
 
 
 def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) -> GateOutcome:
@@ -315,9 +365,14 @@ def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) 
     allowed = gate.allowed(m.base)
     too_much = regression > allowed
     if too_much and only_significant and m.paired and m.verdict != WORSE:
-        return GateOutcome(gate, regression, True,
-                           f"worse by {regression:.6g} > allowed {allowed:.6g}, but not significant "
-                           f"(p={m.p_value:.4g}); passing because of --only-significant", allowed)
+        return GateOutcome(
+            gate,
+            regression,
+            True,
+            f"worse by {regression:.6g} > allowed {allowed:.6g}, but not significant "
+            f"(p={m.p_value:.4g}); passing because of --only-significant",
+            allowed,
+        )
     if too_much:
         return GateOutcome(gate, regression, False, f"worse by {regression:.6g} > allowed {allowed:.6g}", allowed)
     if regression > 0:
@@ -355,29 +410,53 @@ def format_table(c: Comparison) -> str:
         ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
         p = m.p_holm if c.adjust == "holm" else m.p_value
         verdict = m.verdict.upper() if m.verdict == WORSE else m.verdict
-        rows.append([m.metric, "high" if m.higher_is_better else "low", _fmt(m.base), _fmt(m.new),
-                     _fmt(m.difference, True), ci, _fmt_p(p), verdict])
+        rows.append(
+            [
+                m.metric,
+                "high" if m.higher_is_better else "low",
+                _fmt(m.base),
+                _fmt(m.new),
+                _fmt(m.difference, True),
+                ci,
+                _fmt_p(p),
+                verdict,
+            ]
+        )
     widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
     right = {2, 3, 4, 6}
 
     def line(cells):
-        return "  ".join(c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))).rstrip()
+        return "  ".join(
+            c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
+        ).rstrip()
 
-    out = [f"base: {c.base_path}  (config {c.base_config})",
-           f"new:  {c.new_path}  (config {c.new_config})",
-           f"paired over {c.num_shared} shared scenarios; diff = new - base; "
-           f"seed {c.seed}, {c.n_boot} bootstrap resamples, "
-           + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips"),
-           "", line(header), line(["-" * w for w in widths])]
+    out = [
+        f"base: {c.base_path}  (config {c.base_config})",
+        f"new:  {c.new_path}  (config {c.new_config})",
+        f"paired over {c.num_shared} shared scenarios; diff = new - base; "
+        f"seed {c.seed}, {c.n_boot} bootstrap resamples, "
+        + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips"),
+        "",
+        line(header),
+        line(["-" * w for w in widths]),
+    ]
     out += [line(r) for r in rows]
     tested = sum(1 for m in c.metrics if m.paired)
     if tested > 1:
         p_kind = "Holm-adjusted p-values" if c.adjust == "holm" else "unadjusted p-values"
-        out += ["", _wrap(f"note: {tested} metrics tested at alpha={c.alpha:g} with {p_kind}."
-                + ("" if c.adjust == "holm" else
-                   f" With no real change, about {tested * c.alpha:.1f} of them can still come out"
-                   " better/worse by chance; use --adjust holm to control that.")
-                + " The metrics are correlated (buckets are weighted means of the likelihoods).")]
+        out += [
+            "",
+            _wrap(
+                f"note: {tested} metrics tested at alpha={c.alpha:g} with {p_kind}."
+                + (
+                    ""
+                    if c.adjust == "holm"
+                    else f" With no real change, about {tested * c.alpha:.1f} of them can still come out"
+                    " better/worse by chance; use --adjust holm to control that."
+                )
+                + " The metrics are correlated (buckets are weighted means of the likelihoods)."
+            ),
+        ]
     if c.warnings:
         out += [""] + [_wrap(f"warning: {w}") for w in c.warnings]
     if c.gates:
@@ -392,16 +471,22 @@ def format_markdown(c: Comparison) -> str:
     """The comparison as GitHub-flavoured Markdown (for a CI job summary or a pull-request comment)."""
     conf = f"{round((1 - c.alpha) * 100):d}% CI"
     status = "" if not c.gates else (" — all gates passed" if c.passed else " — **gate failed**")
-    out = [f"### WOSAC realism: `{c.new_path}` vs `{c.base_path}`{status}", "",
-           f"Paired over {c.num_shared} shared scenarios (config `{c.new_config}`); diff = new - base.", "",
-           f"| metric | better if | base | new | diff | {conf} | p | verdict |",
-           "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |"]
+    out = [
+        f"### WOSAC realism: `{c.new_path}` vs `{c.base_path}`{status}",
+        "",
+        f"Paired over {c.num_shared} shared scenarios (config `{c.new_config}`); diff = new - base.",
+        "",
+        f"| metric | better if | base | new | diff | {conf} | p | verdict |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |",
+    ]
     for m in c.metrics:
         ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
         p = m.p_holm if c.adjust == "holm" else m.p_value
         verdict = f"**{m.verdict}**" if m.verdict in (BETTER, WORSE) else m.verdict
-        out.append(f"| `{m.metric}` | {'higher' if m.higher_is_better else 'lower'} | {_fmt(m.base)} | "
-                   f"{_fmt(m.new)} | {_fmt(m.difference, True)} | {ci} | {_fmt_p(p)} | {verdict} |")
+        out.append(
+            f"| `{m.metric}` | {'higher' if m.higher_is_better else 'lower'} | {_fmt(m.base)} | "
+            f"{_fmt(m.new)} | {_fmt(m.difference, True)} | {ci} | {_fmt_p(p)} | {verdict} |"
+        )
     if c.gates:
         out.append("")
         out += [f"- {'PASS' if g.passed else '**FAIL**'} `{g.gate.spec}`: {g.reason}" for g in c.gates]

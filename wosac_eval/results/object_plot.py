@@ -9,6 +9,7 @@ where the log is invalid are left blank in the log's line. Behind them, the like
 (the config's bins of that metric): each bin shaded by the share of the rollouts' values in it, so a
 logged line through pale bins is what the metric finds unlikely.
 """
+
 from __future__ import annotations
 
 import io
@@ -21,9 +22,12 @@ from wosac_eval.arrays.object_types import SHORT_NAMES
 from wosac_eval.results.scene_plot import EVENT_KINDS
 
 # (feature, title, unit) of each panel.
-PANELS = (("linear_speed", "speed", "m/s"), ("linear_acceleration", "acceleration", "m/s²"),
-          ("distance_to_nearest_object", "distance to nearest object", "m"),
-          ("distance_to_road_edge", "distance to road edge", "m"))
+PANELS = (
+    ("linear_speed", "speed", "m/s"),
+    ("linear_acceleration", "acceleration", "m/s²"),
+    ("distance_to_nearest_object", "distance to nearest object", "m"),
+    ("distance_to_road_edge", "distance to road edge", "m"),
+)
 _LOG, _SIM = "#24292f", "#0969da"
 
 
@@ -37,12 +41,10 @@ def _shade_bins(axis, values: np.ndarray, histogram) -> None:
         return
     share = np.bincount(histogram_bins(finite, edges.astype(np.float32)), minlength=len(edges) - 1) / finite.size
     for k in np.flatnonzero(share):
-        axis.axhspan(edges[k], edges[k + 1], color=_SIM, alpha=0.05 + 0.3 * share[k] / share.max(), lw=0,
-                     zorder=0)
+        axis.axhspan(edges[k], edges[k + 1], color=_SIM, alpha=0.05 + 0.3 * share[k] / share.max(), lw=0, zorder=0)
 
 
-def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100,
-               config=None) -> bytes:
+def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100, config=None) -> bytes:
     """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
 
     `config`: the metrics config whose histogram bins are shaded (default: the challenge's current one).
@@ -64,8 +66,10 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
     log, sim = scenario_features(arrays, sim_arrays, challenge=challenge)
     evaluated = np.asarray(log.object_id).tolist()
     if object_id not in evaluated:
-        raise ValueError(f"object {object_id} is not evaluated in scenario {arrays.scenario_id}: its features are not "
-                         f"scored; evaluated objects: {', '.join(map(str, evaluated))}")
+        raise ValueError(
+            f"object {object_id} is not evaluated in scenario {arrays.scenario_id}: its features are not "
+            f"scored; evaluated objects: {', '.join(map(str, evaluated))}"
+        )
     e = evaluated.index(object_id)
     first = challenges.spec(challenge).first_simulated_step
     num_steps = sim_arrays.num_steps
@@ -74,13 +78,20 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
 
     figure = Figure(figsize=(14.0, 7.0))
     FigureCanvasAgg(figure)
-    grid = figure.add_gridspec(len(PANELS), 2, width_ratios=(1.15, 1.0), hspace=0.45, wspace=0.18,
-                               left=0.05, right=0.98, top=0.92, bottom=0.08)
+    grid = figure.add_gridspec(
+        len(PANELS), 2, width_ratios=(1.15, 1.0), hspace=0.45, wspace=0.18, left=0.05, right=0.98, top=0.92, bottom=0.08
+    )
     ax = figure.add_subplot(grid[:, 0])
-    ax.add_collection(LineCollection([lane[:, :2] for lane in arrays.lanes if len(lane) > 1], colors="#d0d7de",
-                                     linewidths=0.6, zorder=1))
-    ax.add_collection(LineCollection([edge[:, :2] for edge in arrays.road_edges if len(edge) > 1], colors="#24292f",
-                                     linewidths=1.0, zorder=2))
+    ax.add_collection(
+        LineCollection(
+            [lane[:, :2] for lane in arrays.lanes if len(lane) > 1], colors="#d0d7de", linewidths=0.6, zorder=1
+        )
+    )
+    ax.add_collection(
+        LineCollection(
+            [edge[:, :2] for edge in arrays.road_edges if len(edge) > 1], colors="#24292f", linewidths=1.0, zorder=2
+        )
+    )
     logged = arrays.log.take_ids(arrays.sim_agent_ids)
     for k, oid in enumerate(logged.object_id.tolist()):
         valid = logged.valid[k]
@@ -102,8 +113,9 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
         counts[label] = int(hit.size)
         for r in hit.tolist():
             k = int(flags[r].argmax())
-            ax.plot(rollout_xy[r][0][k], rollout_xy[r][1][k], ls="", marker=marker, color=colour, markersize=7,
-                    zorder=6)
+            ax.plot(
+                rollout_xy[r][0][k], rollout_xy[r][1][k], ls="", marker=marker, color=colour, markersize=7, zorder=6
+            )
     xs = np.concatenate([own[0][np.isfinite(own[0])], np.percentile([p[0] for p in rollout_xy], [1, 99])])
     ys = np.concatenate([own[1][np.isfinite(own[1])], np.percentile([p[1] for p in rollout_xy], [1, 99])])
     pad = 20.0
@@ -115,14 +127,19 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
     ax.set_ylabel("y (m)", fontsize=8)
     from matplotlib.lines import Line2D
 
-    handles = [Line2D([], [], color=_LOG, lw=1.8, ls=(0, (4, 2)), label="logged"),
-               Line2D([], [], color=_SIM, lw=0.8, label=f"{sim_arrays.num_rollouts} rollouts"),
-               Line2D([], [], color="#8c959f", lw=0.7, label="other objects (logged)")]
-    handles += [Line2D([], [], ls="", marker=m, color=c, label=f"{label} ({counts[label]} rollouts)")
-                for _, label, m, c in EVENT_KINDS]
+    handles = [
+        Line2D([], [], color=_LOG, lw=1.8, ls=(0, (4, 2)), label="logged"),
+        Line2D([], [], color=_SIM, lw=0.8, label=f"{sim_arrays.num_rollouts} rollouts"),
+        Line2D([], [], color="#8c959f", lw=0.7, label="other objects (logged)"),
+    ]
+    handles += [
+        Line2D([], [], ls="", marker=m, color=c, label=f"{label} ({counts[label]} rollouts)")
+        for _, label, m, c in EVENT_KINDS
+    ]
     ax.legend(handles=handles, fontsize=7, loc="upper left", framealpha=0.85)
-    figure.suptitle(f"scenario {arrays.scenario_id}: object {object_id} ({kind}), its rollouts against its log",
-                    fontsize=11)
+    figure.suptitle(
+        f"scenario {arrays.scenario_id}: object {object_id} ({kind}), its rollouts against its log", fontsize=11
+    )
 
     log_valid = np.asarray(log.valid)[0, e]
     for p, (feature, title, unit) in enumerate(PANELS):
@@ -138,8 +155,14 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
             warnings.simplefilter("ignore", RuntimeWarning)
             axis.plot(steps, np.nanmedian(values, axis=0), color=_SIM, lw=1.4, label="rollouts (median)")
         reference = np.asarray(getattr(log, feature), dtype=np.float64)[0, e]
-        axis.plot(steps, np.where(log_valid & np.isfinite(reference), reference, np.nan), color=_LOG, lw=1.6,
-                  ls=(0, (4, 2)), label="logged")
+        axis.plot(
+            steps,
+            np.where(log_valid & np.isfinite(reference), reference, np.nan),
+            color=_LOG,
+            lw=1.6,
+            ls=(0, (4, 2)),
+            label="logged",
+        )
         simulated = values[np.isfinite(values)]
         logged_values = reference[np.isfinite(reference) & log_valid]
         if simulated.size or logged_values.size:

@@ -17,6 +17,7 @@ object has (`object_metametric`, as `by_object_type` weights a type's).
 
 Every (stratum, metric) pair is a test: p-values are also Holm-adjusted over all of them.
 """
+
 from __future__ import annotations
 
 import array
@@ -71,8 +72,7 @@ def object_metametric(values: dict[str, np.ndarray], weights: dict[str, float] |
 def load_objects(result: ScoringResult) -> ObjectTable:
     """The per-object file of a result, as columns; PerObjectError if it has none or it is missing."""
     if result.objects is None:
-        raise PerObjectError(f"{result.path} has no per-object values: score it with `wosac-eval score "
-                             "--per-object`")
+        raise PerObjectError(f"{result.path} has no per-object values: score it with `wosac-eval score --per-object`")
     sids, oids, types = [], array.array("q"), []
     columns = {f: array.array("d") for f in LIKELIHOOD_FIELDS}  # 8 bytes a value, not a float object
     try:
@@ -83,15 +83,21 @@ def load_objects(result: ScoringResult) -> ObjectTable:
             for f in LIKELIHOOD_FIELDS:
                 columns[f].append(np.nan if record[f] is None else record[f])
     except FileNotFoundError:
-        raise PerObjectError(f"{result.path} names the per-object file {result.objects}, which is missing "
-                             "(keep it beside the result)") from None
+        raise PerObjectError(
+            f"{result.path} names the per-object file {result.objects}, which is missing (keep it beside the result)"
+        ) from None
     except (KeyError, TypeError, ValueError) as e:
-        raise PerObjectError(f"{result.objects}: not a per-object file of `wosac-eval score --per-object` "
-                             f"({e})") from None
+        raise PerObjectError(
+            f"{result.objects}: not a per-object file of `wosac-eval score --per-object` ({e})"
+        ) from None
     values = {f: np.frombuffer(c, dtype=np.float64).copy() for f, c in columns.items()}
     values[OBJECT_METAMETRIC] = object_metametric(values, default_bucket_weights(result.config))
-    return ObjectTable(np.asarray(sids, dtype=object), np.frombuffer(oids, dtype=np.int64).copy(),
-                       np.asarray(types, dtype=object), values)
+    return ObjectTable(
+        np.asarray(sids, dtype=object),
+        np.frombuffer(oids, dtype=np.int64).copy(),
+        np.asarray(types, dtype=object),
+        values,
+    )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -146,12 +152,14 @@ class PerObjectComparison:
     notes: list[str]
 
     def to_json(self) -> dict[str, Any]:
-        return {"objects": {"matched": self.num_matched, "base_only": self.num_base_only,
-                            "new_only": self.num_new_only},
-                "alpha": self.alpha, "num_tests": self.num_tests,
-                "changed_objects": [dataclasses.asdict(o) for o in self.objects],
-                "changed_strata": [{**dataclasses.asdict(s), "label": s.label} for s in self.strata],
-                "notes": list(self.notes)}
+        return {
+            "objects": {"matched": self.num_matched, "base_only": self.num_base_only, "new_only": self.num_new_only},
+            "alpha": self.alpha,
+            "num_tests": self.num_tests,
+            "changed_objects": [dataclasses.asdict(o) for o in self.objects],
+            "changed_strata": [{**dataclasses.asdict(s), "label": s.label} for s in self.strata],
+            "notes": list(self.notes),
+        }
 
 
 def _match(base: ObjectTable, new: ObjectTable) -> tuple[np.ndarray, np.ndarray]:
@@ -173,10 +181,19 @@ def _scene_means(groups: np.ndarray, values: np.ndarray, num_groups: int) -> tup
     return sums, counts
 
 
-def compare_objects(base_result: ScoringResult, new_result: ScoringResult, *, metrics: list[str] | None = None,
-                    top: int = 10, alpha: float = 0.05, seed: int = 0, n_boot: int = 5000,
-                    n_perm: int = 5000, base: ObjectTable | None = None,
-                    new: ObjectTable | None = None) -> PerObjectComparison:
+def compare_objects(
+    base_result: ScoringResult,
+    new_result: ScoringResult,
+    *,
+    metrics: list[str] | None = None,
+    top: int = 10,
+    alpha: float = 0.05,
+    seed: int = 0,
+    n_boot: int = 5000,
+    n_perm: int = 5000,
+    base: ObjectTable | None = None,
+    new: ObjectTable | None = None,
+) -> PerObjectComparison:
     """The objects and the (object type x criticality) strata whose likelihoods changed most (see the module).
 
     Args:
@@ -186,8 +203,10 @@ def compare_objects(base_result: ScoringResult, new_result: ScoringResult, *, me
     wanted = [OBJECT_METAMETRIC if m == "metametric" else m for m in (metrics or METRICS)]
     wanted = [m for m in METRICS if m in wanted]
     if not wanted:
-        raise PerObjectError(f"no per-object metric among {', '.join(metrics or [])}: the objects have "
-                             f"{', '.join(('metametric',) + LIKELIHOOD_FIELDS)}")
+        raise PerObjectError(
+            f"no per-object metric among {', '.join(metrics or [])}: the objects have "
+            f"{', '.join(('metametric',) + LIKELIHOOD_FIELDS)}"
+        )
     base = base if base is not None else load_objects(base_result)
     new = new if new is not None else load_objects(new_result)
     b_rows, n_rows = _match(base, new)
@@ -207,9 +226,18 @@ def compare_objects(base_result: ScoringResult, new_result: ScoringResult, *, me
         moved = {f: new.values[f][n_rows[i]] - base.values[f][b_rows[i]] for f in LIKELIHOOD_FIELDS}
         moved = {f: d for f, d in moved.items() if np.isfinite(d)}
         field = max(moved, key=lambda f: abs(moved[f])) if moved else None
-        changes.append(ObjectChange(str(base.scenario_id[b_rows[i]]), int(base.object_id[b_rows[i]]), str(types[i]),
-                                    float(b_meta[i]), float(n_meta[i]), float(diff[i]), field,
-                                    None if field is None else float(moved[field])))
+        changes.append(
+            ObjectChange(
+                str(base.scenario_id[b_rows[i]]),
+                int(base.object_id[b_rows[i]]),
+                str(types[i]),
+                float(b_meta[i]),
+                float(n_meta[i]),
+                float(diff[i]),
+                field,
+                None if field is None else float(moved[field]),
+            )
+        )
 
     # Strata: object type x criticality of the scene, one paired test per (stratum, metric) over scenes.
     scene_ids, groups = np.unique(base.scenario_id[b_rows].astype(str), return_inverse=True)
@@ -236,25 +264,49 @@ def compare_objects(base_result: ScoringResult, new_result: ScoringResult, *, me
                 if not keep.any():
                     continue
                 b_mean, n_mean = b_sum[keep] / count[keep], n_sum[keep] / count[keep]
-                test = stats.paired_test(b_mean, n_mean, seed=seed, n_boot=n_boot, n_perm=n_perm,
-                                         confidence=1 - alpha)
-                rows.append(StratumChange(kind, name, description, metric, int(keep.sum()), int(count[keep].sum()),
-                                          float(b_mean.mean()), float(n_mean.mean()), float(test.mean_difference[0]),
-                                          float(test.ci_low[0]), float(test.ci_high[0]), float(test.p_value[0]),
-                                          None, cohens_d(n_mean - b_mean)))
+                test = stats.paired_test(b_mean, n_mean, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
+                rows.append(
+                    StratumChange(
+                        kind,
+                        name,
+                        description,
+                        metric,
+                        int(keep.sum()),
+                        int(count[keep].sum()),
+                        float(b_mean.mean()),
+                        float(n_mean.mean()),
+                        float(test.mean_difference[0]),
+                        float(test.ci_low[0]),
+                        float(test.ci_high[0]),
+                        float(test.p_value[0]),
+                        None,
+                        cohens_d(n_mean - b_mean),
+                    )
+                )
     if rows:
         holm = stats.holm_adjust(np.array([r.p_value for r in rows]))
         rows = [dataclasses.replace(r, p_holm=float(p)) for r, p in zip(rows, holm)]
     # The significant ones first (a change, not noise: one scene never is), then by the size of the change.
-    ranked = sorted(rows, key=lambda r: (not r.p_value < alpha, -abs(r.difference), r.object_type, r.criticality,
-                                         r.metric))[:top]
-    notes.append(f"{len(rows)} tests (object type x criticality x metric) at alpha={alpha:g}; p_holm controls the "
-                 "family-wise error over all of them. The unit is the scene (the mean over its objects of the "
-                 "stratum): objects of one scene are not independent.")
+    ranked = sorted(
+        rows, key=lambda r: (not r.p_value < alpha, -abs(r.difference), r.object_type, r.criticality, r.metric)
+    )[:top]
+    notes.append(
+        f"{len(rows)} tests (object type x criticality x metric) at alpha={alpha:g}; p_holm controls the "
+        "family-wise error over all of them. The unit is the scene (the mean over its objects of the "
+        "stratum): objects of one scene are not independent."
+    )
     if any(r.num_scenarios < 30 for r in ranked):
         notes.append("strata with fewer than 30 scenes have rough intervals and p-values")
-    return PerObjectComparison(int(b_rows.size), len(base) - int(b_rows.size), len(new) - int(n_rows.size), alpha,
-                               changes, ranked, len(rows), notes)
+    return PerObjectComparison(
+        int(b_rows.size),
+        len(base) - int(b_rows.size),
+        len(new) - int(n_rows.size),
+        alpha,
+        changes,
+        ranked,
+        len(rows),
+        notes,
+    )
 
 
 def _f(x: float | None, signed: bool = False) -> str:
@@ -273,19 +325,50 @@ def _table(header: list[str], body: list[list[str]]) -> list[str]:
 def format_objects(c: PerObjectComparison) -> str:
     """The per-object comparison as plain text: the strata that changed most, then the objects."""
     conf = f"{round((1 - c.alpha) * 100)}% CI"
-    out = [f"per object: {c.num_matched} objects matched by (scenario_id, object_id)"
-           + (f"; {c.num_base_only} only in base, {c.num_new_only} only in new"
-              if c.num_base_only or c.num_new_only else ""), "",
-           "strata that changed most (object type x scene criticality; diff = new - base, mean over scenes):"]
-    out += _table(["stratum", "metric", "scenes", "objects", "base", "new", "diff", conf, "p", "p_holm"],
-                  [[s.label, s.metric, str(s.num_scenarios), str(s.num_objects), _f(s.base), _f(s.new),
-                    _f(s.difference, True), f"[{_f(s.ci_low, True)}, {_f(s.ci_high, True)}]", f"{s.p_value:.3g}",
-                    "-" if s.p_holm is None else f"{s.p_holm:.3g}"] for s in c.strata])
+    out = [
+        f"per object: {c.num_matched} objects matched by (scenario_id, object_id)"
+        + (
+            f"; {c.num_base_only} only in base, {c.num_new_only} only in new"
+            if c.num_base_only or c.num_new_only
+            else ""
+        ),
+        "",
+        "strata that changed most (object type x scene criticality; diff = new - base, mean over scenes):",
+    ]
+    out += _table(
+        ["stratum", "metric", "scenes", "objects", "base", "new", "diff", conf, "p", "p_holm"],
+        [
+            [
+                s.label,
+                s.metric,
+                str(s.num_scenarios),
+                str(s.num_objects),
+                _f(s.base),
+                _f(s.new),
+                _f(s.difference, True),
+                f"[{_f(s.ci_low, True)}, {_f(s.ci_high, True)}]",
+                f"{s.p_value:.3g}",
+                "-" if s.p_holm is None else f"{s.p_holm:.3g}",
+            ]
+            for s in c.strata
+        ],
+    )
     out += ["", f"objects that changed most ({OBJECT_METAMETRIC}: the config's weights over its likelihoods):"]
-    out += _table(["scenario", "object", "type", "base", "new", "diff", "moved most"],
-                  [[o.scenario_id, str(o.object_id), o.object_type, _f(o.base), _f(o.new), _f(o.difference, True),
-                    "-" if o.most_changed is None else f"{o.most_changed} {_f(o.most_changed_difference, True)}"]
-                   for o in c.objects])
+    out += _table(
+        ["scenario", "object", "type", "base", "new", "diff", "moved most"],
+        [
+            [
+                o.scenario_id,
+                str(o.object_id),
+                o.object_type,
+                _f(o.base),
+                _f(o.new),
+                _f(o.difference, True),
+                "-" if o.most_changed is None else f"{o.most_changed} {_f(o.most_changed_difference, True)}",
+            ]
+            for o in c.objects
+        ],
+    )
     out += [""] + [f"note: {n}" for n in c.notes]
     return "\n".join(out)
 
@@ -293,18 +376,32 @@ def format_objects(c: PerObjectComparison) -> str:
 def format_objects_markdown(c: PerObjectComparison) -> str:
     """The per-object comparison as GitHub-flavoured Markdown (appended to `compare --markdown-output`)."""
     conf = f"{round((1 - c.alpha) * 100)}% CI"
-    out = ["#### Per object: the strata that changed most", "",
-           f"{c.num_matched} objects matched by (scenario_id, object_id); diff = new - base, mean over scenes.", "",
-           f"| stratum | metric | scenes | objects | diff | {conf} | p | p_holm |",
-           "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |"]
-    out += [f"| {s.label} | `{s.metric}` | {s.num_scenarios} | {s.num_objects} | {_f(s.difference, True)} | "
-            f"[{_f(s.ci_low, True)}, {_f(s.ci_high, True)}] | {s.p_value:.3g} | "
-            f"{'-' if s.p_holm is None else f'{s.p_holm:.3g}'} |" for s in c.strata]
-    out += ["", "#### Per object: the objects that changed most", "",
-            "| scenario | object | type | base | new | diff | moved most |",
-            "| --- | ---: | --- | ---: | ---: | ---: | --- |"]
-    out += [f"| `{o.scenario_id}` | {o.object_id} | {o.object_type} | {_f(o.base)} | {_f(o.new)} | "
-            f"{_f(o.difference, True)} | "
-            + ("-" if o.most_changed is None else f"`{o.most_changed}` {_f(o.most_changed_difference, True)}") + " |"
-            for o in c.objects]
+    out = [
+        "#### Per object: the strata that changed most",
+        "",
+        f"{c.num_matched} objects matched by (scenario_id, object_id); diff = new - base, mean over scenes.",
+        "",
+        f"| stratum | metric | scenes | objects | diff | {conf} | p | p_holm |",
+        "| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |",
+    ]
+    out += [
+        f"| {s.label} | `{s.metric}` | {s.num_scenarios} | {s.num_objects} | {_f(s.difference, True)} | "
+        f"[{_f(s.ci_low, True)}, {_f(s.ci_high, True)}] | {s.p_value:.3g} | "
+        f"{'-' if s.p_holm is None else f'{s.p_holm:.3g}'} |"
+        for s in c.strata
+    ]
+    out += [
+        "",
+        "#### Per object: the objects that changed most",
+        "",
+        "| scenario | object | type | base | new | diff | moved most |",
+        "| --- | ---: | --- | ---: | ---: | ---: | --- |",
+    ]
+    out += [
+        f"| `{o.scenario_id}` | {o.object_id} | {o.object_type} | {_f(o.base)} | {_f(o.new)} | "
+        f"{_f(o.difference, True)} | "
+        + ("-" if o.most_changed is None else f"`{o.most_changed}` {_f(o.most_changed_difference, True)}")
+        + " |"
+        for o in c.objects
+    ]
     return "\n".join(out) + "\n"

@@ -10,6 +10,7 @@ Sections (each an element with this id): `headline`, `buckets`, `rates`,
 result has them, `criticality`, `scenes` and `worst-objects` (a result scored with
 `score --per-object`: the objects that cost each bucket most, `results.worst_objects`).
 """
+
 from __future__ import annotations
 
 import base64
@@ -167,8 +168,13 @@ def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     vals = [100 * (result.headline(r) or 0.0) for r in RATE_FIELDS]
     ax.barh(y, vals, height=height, color="#d1242f", label="this run")
     if base is not None:
-        ax.barh(y + height, [100 * (base.headline(r) or 0.0) for r in RATE_FIELDS], height=height,
-                color=_BASE_COLOR, label="baseline")
+        ax.barh(
+            y + height,
+            [100 * (base.headline(r) or 0.0) for r in RATE_FIELDS],
+            height=height,
+            color=_BASE_COLOR,
+            label="baseline",
+        )
         _legend_above(ax)
     for yi, v in zip(y, vals):
         ax.text(v, yi, f" {v:.2f}%", va="center", fontsize=8)
@@ -216,8 +222,9 @@ def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metric
         if k == 0 and b is not None:
             ax.legend(fontsize=7)
     # Fixed margins: tight_layout would cost a full extra drawing pass over every subplot.
-    fig.subplots_adjust(left=0.04, right=0.99, bottom=0.5 / (2.1 * rows), top=1 - 0.35 / (2.1 * rows),
-                        wspace=0.22, hspace=0.55)
+    fig.subplots_adjust(
+        left=0.04, right=0.99, bottom=0.5 / (2.1 * rows), top=1 - 0.35 / (2.1 * rows), wspace=0.22, hspace=0.55
+    )
     return _png(fig, tight=False)
 
 
@@ -264,8 +271,15 @@ def _criticality_plot(result: ScoringResult, c: np.ndarray, tail: float) -> str:
     fig = _figure(5.0, 3.6)
     ax = fig.add_subplot()
     in_tail = c >= tail
-    ax.scatter(c[~in_tail], m[~in_tail], s=5, alpha=0.5 if c.size > 500 else 0.8, color=_NEW_COLOR,
-               edgecolors="none", label="rest")
+    ax.scatter(
+        c[~in_tail],
+        m[~in_tail],
+        s=5,
+        alpha=0.5 if c.size > 500 else 0.8,
+        color=_NEW_COLOR,
+        edgecolors="none",
+        label="rest",
+    )
     ax.scatter(c[in_tail], m[in_tail], s=9, color="#cf222e", edgecolors="none", label="long tail (top decile)")
     ax.axvline(tail, color="#1b1f24", linewidth=0.6, linestyle=":")
     if c.size > 2 and np.ptp(c) > 0:
@@ -294,36 +308,54 @@ def _headline(result: ScoringResult, base: ScoringResult | None, comparison: Com
         m = next((m for m in comparison.metrics if m.metric == "metametric"), None)
         if m is not None:
             cls = {BETTER: "better", WORSE: "worse"}.get(m.verdict, "same")
-            cards.append(f'<div class="card"><div class="k">vs baseline (paired, {comparison.num_shared} scenarios)'
-                         f'</div><div class="v {cls}">{_num(m.difference, signed=True)} &middot; {_esc(m.verdict)}'
-                         f'</div></div>')
-    cards.append(f'<div class="card"><div class="k">scenarios scored</div><div class="v">{result.num_scenarios}'
-                 f'</div></div>')
-    cards.append(f'<div class="card"><div class="k">scenarios skipped</div><div class="v">{len(result.skipped)}'
-                 f'</div></div>')
-    cards.append(f'<div class="card"><div class="k">min ADE (m)</div><div class="v">'
-                 f'{_num(result.headline("min_ade"))}</div></div>')
-    body = [f'<p class="meta">Realism meta-metric (the leaderboard score), config <code>{_esc(result.config)}</code></p>',
-            f'<div class="cards">{"".join(cards)}</div>']
+            cards.append(
+                f'<div class="card"><div class="k">vs baseline (paired, {comparison.num_shared} scenarios)'
+                f'</div><div class="v {cls}">{_num(m.difference, signed=True)} &middot; {_esc(m.verdict)}'
+                f"</div></div>"
+            )
+    cards.append(
+        f'<div class="card"><div class="k">scenarios scored</div><div class="v">{result.num_scenarios}</div></div>'
+    )
+    cards.append(
+        f'<div class="card"><div class="k">scenarios skipped</div><div class="v">{len(result.skipped)}</div></div>'
+    )
+    cards.append(
+        f'<div class="card"><div class="k">min ADE (m)</div><div class="v">'
+        f"{_num(result.headline('min_ade'))}</div></div>"
+    )
+    body = [
+        f'<p class="meta">Realism meta-metric (the leaderboard score), config <code>{_esc(result.config)}</code></p>',
+        f'<div class="cards">{"".join(cards)}</div>',
+    ]
     return _section("headline", "Headline score", body)
 
 
 def _bucket_section(result: ScoringResult, base: ScoringResult | None) -> str:
     names = list(BUCKET_FIELDS)
-    head = "<tr><th>bucket</th><th class=n>this run</th>" + (
-        "<th class=n>baseline</th><th class=n>diff</th>" if base is not None else "") + "<th>better if</th></tr>"
+    head = (
+        "<tr><th>bucket</th><th class=n>this run</th>"
+        + ("<th class=n>baseline</th><th class=n>diff</th>" if base is not None else "")
+        + "<th>better if</th></tr>"
+    )
     rows = []
     for name in names:
         v = result.headline(name)
         cells = f"<td>{_esc(name)}</td><td class=n>{_num(v)}</td>"
         if base is not None:
             b = base.headline(name)
-            cells += f"<td class=n>{_num(b)}</td><td class=n>" + (
-                _num(v - b, signed=True) if v is not None and b is not None else "-") + "</td>"
+            cells += (
+                f"<td class=n>{_num(b)}</td><td class=n>"
+                + (_num(v - b, signed=True) if v is not None and b is not None else "-")
+                + "</td>"
+            )
         cells += f"<td>{'higher' if BUCKET_FIELDS[name] else 'lower'}</td>"
         rows.append(f"<tr>{cells}</tr>")
-    note = ('<p class="meta">Baseline figures are each file\'s own aggregate over all its scenarios; the paired '
-            'comparison below uses only the scenarios both share.</p>' if base is not None else "")
+    note = (
+        '<p class="meta">Baseline figures are each file\'s own aggregate over all its scenarios; the paired '
+        "comparison below uses only the scenarios both share.</p>"
+        if base is not None
+        else ""
+    )
     table = f"<table>{head}{''.join(rows)}</table>"
     return _section("buckets", "Buckets", [f'<div class="row">{_bucket_plot(result, base)}{table}</div>', note])
 
@@ -335,25 +367,39 @@ def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:
         worst = float(result.values[r].max()) if result.num_scenarios else None
         share = float((result.values[r] > 0).mean()) if result.num_scenarios else None
         b = f"<td class=n>{_pct(base.headline(r), 2)}</td>" if base is not None else ""
-        rows.append(f"<tr><td>{RATE_LABELS[r]}</td><td class=n>{_pct(v, 2)}</td>{b}"
-                    f"<td class=n>{_pct(share, 1)}</td><td class=n>{_pct(worst, 1)}</td></tr>")
-    head = ("<tr><th>rate</th><th class=n>this run</th>" + ("<th class=n>baseline</th>" if base is not None else "")
-            + "<th class=n>scenarios with any</th><th class=n>worst scenario</th></tr>")
-    return _section("rates", "Collision, offroad and red-light rates",
-                    [f'<div class="row">{_rate_plot(result, base)}<table>{head}{"".join(rows)}</table></div>'])
+        rows.append(
+            f"<tr><td>{RATE_LABELS[r]}</td><td class=n>{_pct(v, 2)}</td>{b}"
+            f"<td class=n>{_pct(share, 1)}</td><td class=n>{_pct(worst, 1)}</td></tr>"
+        )
+    head = (
+        "<tr><th>rate</th><th class=n>this run</th>"
+        + ("<th class=n>baseline</th>" if base is not None else "")
+        + "<th class=n>scenarios with any</th><th class=n>worst scenario</th></tr>"
+    )
+    return _section(
+        "rates",
+        "Collision, offroad and red-light rates",
+        [f'<div class="row">{_rate_plot(result, base)}<table>{head}{"".join(rows)}</table></div>'],
+    )
 
 
 def _available(result: ScoringResult, base: ScoringResult | None) -> list[str]:
-    return [m for m in DISTRIBUTION_METRICS
-            if _values(result, m) is not None and (base is None or _values(base, m) is not None)]
+    return [
+        m
+        for m in DISTRIBUTION_METRICS
+        if _values(result, m) is not None and (base is None or _values(base, m) is not None)
+    ]
 
 
 def _distribution_section(result: ScoringResult, base: ScoringResult | None) -> str:
     if result.num_scenarios == 0:
         return _section("distributions", "Per-scenario distributions", ["<p>No scenarios.</p>"])
     metrics = _available(result, base)
-    note = ('<p class="meta">Histograms over scenarios; red line: mean.'
-            + (' Outline: baseline.' if base is not None else "") + "</p>")
+    note = (
+        '<p class="meta">Histograms over scenarios; red line: mean.'
+        + (" Outline: baseline." if base is not None else "")
+        + "</p>"
+    )
     return _section("distributions", "Per-scenario distributions", [note, _distribution_plot(result, base, metrics)])
 
 
@@ -362,14 +408,20 @@ def _worst_section(result: ScoringResult, top_k: int) -> str:
     for k, metric in enumerate(m for m in DISTRIBUTION_METRICS if _values(result, m) is not None):
         v = _present_values(result, metric)
         order = np.argsort(v if higher_is_better(metric) else -v, kind="stable")[:top_k]
-        rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
-                       f"<td class=n>{v[i]:.4f}</td></tr>" for r, i in enumerate(order))
+        rows = "".join(
+            f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
+            f"<td class=n>{v[i]:.4f}</td></tr>"
+            for r, i in enumerate(order)
+        )
         direction = "lowest" if higher_is_better(metric) else "highest"
-        blocks.append(f'<details{" open" if k == 0 else ""} data-metric="{_esc(metric)}"><summary>{_esc(metric)}'
-                      f' &mdash; {direction} {len(order)}</summary><table><tr><th class=n>#</th><th>scenario</th>'
-                      f'<th class=n>value</th></tr>{rows}</table></details>')
-    return _section("worst", f"Worst scenarios per metric (top {top_k})",
-                    [f'<div class="worst-grid">{"".join(blocks)}</div>'])
+        blocks.append(
+            f'<details{" open" if k == 0 else ""} data-metric="{_esc(metric)}"><summary>{_esc(metric)}'
+            f" &mdash; {direction} {len(order)}</summary><table><tr><th class=n>#</th><th>scenario</th>"
+            f"<th class=n>value</th></tr>{rows}</table></details>"
+        )
+    return _section(
+        "worst", f"Worst scenarios per metric (top {top_k})", [f'<div class="worst-grid">{"".join(blocks)}</div>']
+    )
 
 
 def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
@@ -379,29 +431,41 @@ def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
     try:
         worst = worst_objects(result, top_k)
     except FileNotFoundError:
-        return _section("worst-objects", "Worst objects", [
-            f'<p class="warn">The per-object file <code>{_esc(result.objects)}</code> the result names is missing '
-            "(keep it beside the result).</p>"])
+        return _section(
+            "worst-objects",
+            "Worst objects",
+            [
+                f'<p class="warn">The per-object file <code>{_esc(result.objects)}</code> the result names is missing '
+                "(keep it beside the result).</p>"
+            ],
+        )
     blocks = []
     for k, (bucket, objects) in enumerate(worst.items()):
         gap = 1.0 - (result.headline(bucket) or 0.0)
         rows = []
         for r, o in enumerate(objects):
-            sunk = ", ".join(f"{_esc(_label(f))} {value:.3g} ({part / o.contribution:.0%})"
-                             for f, value, part in o.fields[:3])
+            sunk = ", ".join(
+                f"{_esc(_label(f))} {value:.3g} ({part / o.contribution:.0%})" for f, value, part in o.fields[:3]
+            )
             share = f"{o.contribution / gap:.1%}" if gap > 0 else "-"
-            rows.append(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(o.scenario_id)}</code></td>"
-                        f"<td class=n>{o.object_id}</td><td>{_esc(o.object_type)}</td>"
-                        f"<td class=n>{o.contribution:.5f}</td><td class=n>{share}</td><td>{sunk}</td></tr>")
-        blocks.append(f'<details{" open" if k == 0 else ""} data-bucket="{_esc(bucket)}"><summary>'
-                      f'{_esc(_label(bucket.removesuffix("_metrics")))} (gap from 1: {gap:.4f})</summary><table>'
-                      "<tr><th class=n>#</th><th>scenario</th><th class=n>object</th><th>type</th>"
-                      "<th class=n>part of the gap</th><th class=n>share</th><th>sunk by (likelihood, share)</th></tr>"
-                      f'{"".join(rows)}</table></details>')
-    note = ('<p class="meta">Each bucket\'s gap from 1 split exactly over the evaluated objects: a scene\'s '
-            "field is the count-weighted geometric mean of its objects' likelihoods, so its gap is shared in "
-            "proportion to each object's weighted -log likelihood. Sunk by: the object's likelihoods that "
-            "cost most, with their share of its part.</p>")
+            rows.append(
+                f"<tr><td class=n>{r + 1}</td><td><code>{_esc(o.scenario_id)}</code></td>"
+                f"<td class=n>{o.object_id}</td><td>{_esc(o.object_type)}</td>"
+                f"<td class=n>{o.contribution:.5f}</td><td class=n>{share}</td><td>{sunk}</td></tr>"
+            )
+        blocks.append(
+            f'<details{" open" if k == 0 else ""} data-bucket="{_esc(bucket)}"><summary>'
+            f"{_esc(_label(bucket.removesuffix('_metrics')))} (gap from 1: {gap:.4f})</summary><table>"
+            "<tr><th class=n>#</th><th>scenario</th><th class=n>object</th><th>type</th>"
+            "<th class=n>part of the gap</th><th class=n>share</th><th>sunk by (likelihood, share)</th></tr>"
+            f"{''.join(rows)}</table></details>"
+        )
+    note = (
+        "<p class=\"meta\">Each bucket's gap from 1 split exactly over the evaluated objects: a scene's "
+        "field is the count-weighted geometric mean of its objects' likelihoods, so its gap is shared in "
+        "proportion to each object's weighted -log likelihood. Sunk by: the object's likelihoods that "
+        "cost most, with their share of its part.</p>"
+    )
     return _section("worst-objects", f"Worst objects per bucket (top {top_k})", [note, *blocks])
 
 
@@ -421,12 +485,16 @@ def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> s
     for scenario_id, png in scenes:
         score = f"meta-metric {values[where[scenario_id]]:.4f}" if values is not None and scenario_id in where else ""
         data = base64.b64encode(png).decode("ascii")
-        cards.append(f'<figure class="scene" data-scenario="{_esc(scenario_id)}"><img alt="scenario '
-                     f'{_esc(scenario_id)}" src="data:image/png;base64,{data}"><figcaption><code>{_esc(scenario_id)}'
-                     f'</code> {score}</figcaption></figure>')
-    note = ('<p class="meta">The lowest meta-metric scenes: map, log (dashed), rollouts 0 to 2, boxes of rollout 0 '
-            'at the last event; crosses collisions, triangles off-road, squares red-light runs '
-            '(`wosac-eval plot` draws any scene, as .png, .gif or .html).</p>')
+        cards.append(
+            f'<figure class="scene" data-scenario="{_esc(scenario_id)}"><img alt="scenario '
+            f'{_esc(scenario_id)}" src="data:image/png;base64,{data}"><figcaption><code>{_esc(scenario_id)}'
+            f"</code> {score}</figcaption></figure>"
+        )
+    note = (
+        '<p class="meta">The lowest meta-metric scenes: map, log (dashed), rollouts 0 to 2, boxes of rollout 0 '
+        "at the last event; crosses collisions, triangles off-road, squares red-light runs "
+        "(`wosac-eval plot` draws any scene, as .png, .gif or .html).</p>"
+    )
     return _section("scenes", f"Worst scenes ({len(scenes)})", [note, "".join(cards)])
 
 
@@ -436,17 +504,24 @@ def _criticality_section(result: ScoringResult, c: np.ndarray, top_k: int) -> st
     tail = float(np.quantile(c, LONG_TAIL_QUANTILE))
     in_tail = np.flatnonzero(c >= tail)
     worst = in_tail[np.argsort(m[in_tail], kind="stable")][:top_k]
-    rows = "".join(f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
-                   f"<td class=n>{c[i]:.3f}</td><td class=n>{m[i]:.4f}</td></tr>" for r, i in enumerate(worst))
+    rows = "".join(
+        f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
+        f"<td class=n>{c[i]:.3f}</td><td class=n>{m[i]:.4f}</td></tr>"
+        for r, i in enumerate(worst)
+    )
     rest = np.flatnonzero(c < tail)
-    summary = (f"<p class=meta>Long tail: the {in_tail.size} scenario(s) with criticality &ge; {tail:.3f} "
-               f"(top decile): mean meta-metric {m[in_tail].mean():.4f}"
-               + (f" against {m[rest].mean():.4f} for the other {rest.size}" if rest.size else "")
-               + ". Criticality rates the logged scene alone (braking, jerk, time to collision, near misses, "
-               "off-road, red lights, rarity); `wosac-eval compare --stratify criticality` tests the "
-               "difference between two runs per stratum.</p>")
-    table = (f"<table data-table=long-tail><tr><th class=n>#</th><th>worst long-tail scenario</th>"
-             f"<th class=n>criticality</th><th class=n>meta-metric</th></tr>{rows}</table>")
+    summary = (
+        f"<p class=meta>Long tail: the {in_tail.size} scenario(s) with criticality &ge; {tail:.3f} "
+        f"(top decile): mean meta-metric {m[in_tail].mean():.4f}"
+        + (f" against {m[rest].mean():.4f} for the other {rest.size}" if rest.size else "")
+        + ". Criticality rates the logged scene alone (braking, jerk, time to collision, near misses, "
+        "off-road, red lights, rarity); `wosac-eval compare --stratify criticality` tests the "
+        "difference between two runs per stratum.</p>"
+    )
+    table = (
+        f"<table data-table=long-tail><tr><th class=n>#</th><th>worst long-tail scenario</th>"
+        f"<th class=n>criticality</th><th class=n>meta-metric</th></tr>{rows}</table>"
+    )
     return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, c, tail), table])
 
 
@@ -460,20 +535,29 @@ def _changed_scenarios(result: ScoringResult, base: ScoringResult, top_k: int) -
     order = np.argsort(change, kind="stable")
     tables = []
     for title, picks in (("largest drops", order[:top_k]), ("largest gains", order[::-1][:top_k])):
-        rows = "".join(f"<tr><td><code>{_esc(result.scenario_ids[ni[j]])}</code></td><td class=n>{b[j]:.4f}</td>"
-                       f"<td class=n>{n[j]:.4f}</td><td class=n>{change[j]:+.4f}</td></tr>" for j in picks)
-        tables.append(f'<div data-changes="{title.split()[1]}"><h3>Meta-metric: {title}</h3><table><tr>'
-                      f"<th>scenario</th><th class=n>baseline</th><th class=n>this run</th><th class=n>change</th>"
-                      f"</tr>{rows}</table></div>")
+        rows = "".join(
+            f"<tr><td><code>{_esc(result.scenario_ids[ni[j]])}</code></td><td class=n>{b[j]:.4f}</td>"
+            f"<td class=n>{n[j]:.4f}</td><td class=n>{change[j]:+.4f}</td></tr>"
+            for j in picks
+        )
+        tables.append(
+            f'<div data-changes="{title.split()[1]}"><h3>Meta-metric: {title}</h3><table><tr>'
+            f"<th>scenario</th><th class=n>baseline</th><th class=n>this run</th><th class=n>change</th>"
+            f"</tr>{rows}</table></div>"
+        )
     return f'<div class="row">{"".join(tables)}</div>'
 
 
 def _comparison_section(result: ScoringResult, base: ScoringResult, c: Comparison, top_k: int) -> str:
-    body = [f'<p class="meta">Baseline <code>{_esc(c.base_path)}</code> (config <code>{_esc(c.base_config)}</code>). '
-            f'Paired over {c.num_shared} shared scenarios ({c.num_base_only} only in baseline, {c.num_new_only} only '
-            f'in this run); diff = this run - baseline; {c.n_boot} bootstrap resamples, '
-            + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips")
-            + f", seed {c.seed}, alpha {c.alpha:g}" + (", Holm-adjusted" if c.adjust == "holm" else "") + ".</p>"]
+    body = [
+        f'<p class="meta">Baseline <code>{_esc(c.base_path)}</code> (config <code>{_esc(c.base_config)}</code>). '
+        f"Paired over {c.num_shared} shared scenarios ({c.num_base_only} only in baseline, {c.num_new_only} only "
+        f"in this run); diff = this run - baseline; {c.n_boot} bootstrap resamples, "
+        + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips")
+        + f", seed {c.seed}, alpha {c.alpha:g}"
+        + (", Holm-adjusted" if c.adjust == "holm" else "")
+        + ".</p>"
+    ]
     body += [f'<div class="warn">{_esc(w)}</div>' for w in c.warnings]
     conf = f"{round((1 - c.alpha) * 100):d}% CI"
     rows = []
@@ -481,21 +565,31 @@ def _comparison_section(result: ScoringResult, base: ScoringResult, c: Compariso
         cls = {BETTER: "better", WORSE: "worse"}.get(m.verdict, "same")
         p = m.p_holm if c.adjust == "holm" else m.p_value
         ci = f"[{_num(m.ci_low, signed=True)}, {_num(m.ci_high, signed=True)}]" if m.paired else "-"
-        rows.append(f"<tr><td>{_esc(m.metric)}</td><td>{'higher' if m.higher_is_better else 'lower'}</td>"
-                    f"<td class=n>{_num(m.base)}</td><td class=n>{_num(m.new)}</td>"
-                    f"<td class=n>{_num(m.difference, signed=True)}</td><td class=n>{ci}</td>"
-                    f"<td class=n>{'-' if p is None else f'{p:.4f}'}</td><td class={cls}>{_esc(m.verdict)}</td></tr>")
-    body.append("<table><tr><th>metric</th><th>better if</th><th class=n>baseline</th><th class=n>this run</th>"
-                f"<th class=n>diff</th><th class=n>{conf}</th><th class=n>p</th><th>verdict</th></tr>"
-                + "".join(rows) + "</table>")
+        rows.append(
+            f"<tr><td>{_esc(m.metric)}</td><td>{'higher' if m.higher_is_better else 'lower'}</td>"
+            f"<td class=n>{_num(m.base)}</td><td class=n>{_num(m.new)}</td>"
+            f"<td class=n>{_num(m.difference, signed=True)}</td><td class=n>{ci}</td>"
+            f"<td class=n>{'-' if p is None else f'{p:.4f}'}</td><td class={cls}>{_esc(m.verdict)}</td></tr>"
+        )
+    body.append(
+        "<table><tr><th>metric</th><th>better if</th><th class=n>baseline</th><th class=n>this run</th>"
+        f"<th class=n>diff</th><th class=n>{conf}</th><th class=n>p</th><th>verdict</th></tr>"
+        + "".join(rows)
+        + "</table>"
+    )
     tested = sum(1 for m in c.metrics if m.paired)
     if tested > 1 and c.adjust != "holm":
-        body.append(f'<p class="meta">{tested} metrics tested with unadjusted p-values: with no real change about '
-                    f'{tested * c.alpha:.1f} can still come out better/worse by chance.</p>')
+        body.append(
+            f'<p class="meta">{tested} metrics tested with unadjusted p-values: with no real change about '
+            f"{tested * c.alpha:.1f} can still come out better/worse by chance.</p>"
+        )
     if c.gates:
-        gates = "".join(f"<li><code>{_esc(g.gate.spec)}</code> "
-                        f"<span class={'pass' if g.passed else 'fail'}>{'PASS' if g.passed else 'FAIL'}</span> "
-                        f"{_esc(g.reason)}</li>" for g in c.gates)
+        gates = "".join(
+            f"<li><code>{_esc(g.gate.spec)}</code> "
+            f"<span class={'pass' if g.passed else 'fail'}>{'PASS' if g.passed else 'FAIL'}</span> "
+            f"{_esc(g.reason)}</li>"
+            for g in c.gates
+        )
         body.append(f"<h3>Gates</h3><ul>{gates}</ul>")
     plots = [p for p in (_forest_plot(c), _scatter_plot(result, base)) if p]
     body.append('<div class="cards">' + "".join(plots) + "</div>")
@@ -506,10 +600,15 @@ def _comparison_section(result: ScoringResult, base: ScoringResult, c: Compariso
 def _skipped_section(result: ScoringResult) -> str:
     if not result.skipped:
         return _section("skipped", "Skipped scenarios", ["<p>None: every scenario was scored.</p>"])
-    rows = "".join(f"<tr><td><code>{_esc(s.get('scenario_id', ''))}</code></td><td>{_esc(s.get('reason', ''))}</td>"
-                   f"</tr>" for s in result.skipped)
-    return _section("skipped", f"Skipped scenarios ({len(result.skipped)})",
-                    [f"<table><tr><th>scenario</th><th>reason</th></tr>{rows}</table>"])
+    rows = "".join(
+        f"<tr><td><code>{_esc(s.get('scenario_id', ''))}</code></td><td>{_esc(s.get('reason', ''))}</td></tr>"
+        for s in result.skipped
+    )
+    return _section(
+        "skipped",
+        f"Skipped scenarios ({len(result.skipped)})",
+        [f"<table><tr><th>scenario</th><th>reason</th></tr>{rows}</table>"],
+    )
 
 
 def render_report(
@@ -553,5 +652,6 @@ def render_report(
         f"<meta name=viewport content='width=device-width,initial-scale=1'><title>{_esc(title)}</title>"
         f"<style>{_CSS}</style></head><body><main><h1>{_esc(title)}</h1>"
         f'<p class="meta">Generated by wosac-eval on {now} from <code>{_esc(result.path)}</code></p>'
-        + "".join(parts) + "</main></body></html>\n"
+        + "".join(parts)
+        + "</main></body></html>\n"
     )

@@ -10,6 +10,7 @@ scene playing) or one self-contained HTML page with a step slider.
     view = scene_view(scenario, rollouts, "sim_agents")
     write_scene(view, "scene.png", step=40)
 """
+
 from __future__ import annotations
 
 import base64
@@ -34,10 +35,28 @@ EVENT_KINDS = (
     ("offroad_per_step", "off-road", "^", "#e36209"),
     ("traffic_light_violation_per_step", "red-light run", "s", "#8250df"),
 )
-_SIGNAL_COLOURS = {1: "#d1242f", 4: "#d1242f", 7: "#d1242f", 2: "#d4a72c", 5: "#d4a72c", 8: "#d4a72c",
-                   3: "#1a7f37", 6: "#1a7f37"}  # stop / caution / go (arrow, plain, flashing); else grey
-_PALETTE = ("#0969da", "#1a7f37", "#bf3989", "#9a6700", "#8250df", "#0a3069", "#116329", "#953800",
-            "#cf222e", "#57606a")
+_SIGNAL_COLOURS = {
+    1: "#d1242f",
+    4: "#d1242f",
+    7: "#d1242f",
+    2: "#d4a72c",
+    5: "#d4a72c",
+    8: "#d4a72c",
+    3: "#1a7f37",
+    6: "#1a7f37",
+}  # stop / caution / go (arrow, plain, flashing); else grey
+_PALETTE = (
+    "#0969da",
+    "#1a7f37",
+    "#bf3989",
+    "#9a6700",
+    "#8250df",
+    "#0a3069",
+    "#116329",
+    "#953800",
+    "#cf222e",
+    "#57606a",
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -114,15 +133,17 @@ def scene_view(scenario, rollouts=None, challenge="sim_agents") -> SceneView:
     _, sim = scenario_features(arrays, rollouts, challenge=challenge)
     first = challenges.spec(challenge).first_simulated_step
     # Each rollout lists its objects in its own order; events come in the evaluated order.
-    position = {(r, int(oid)): i for r in range(rollouts.num_rollouts)
-                for i, oid in enumerate(rollouts.object_id[r].tolist())}
+    position = {
+        (r, int(oid)): i for r in range(rollouts.num_rollouts) for i, oid in enumerate(rollouts.object_id[r].tolist())
+    }
     events = []
     for feature, label, _, _ in EVENT_KINDS:
         for r, e, k in _event_starts(np.asarray(getattr(sim, feature), dtype=bool)).tolist():
             object_id = int(sim.object_id[e])
             i = position[(r, object_id)]
-            events.append(SceneEvent(label, r, object_id, first + k, float(rollouts.x[r, i, k]),
-                                     float(rollouts.y[r, i, k])))
+            events.append(
+                SceneEvent(label, r, object_id, first + k, float(rollouts.x[r, i, k]), float(rollouts.y[r, i, k]))
+            )
     events.sort(key=lambda ev: (ev.rollout, ev.object_id, ev.step))
     return SceneView(arrays, rollouts, challenge, tuple(events), np.asarray(sim.object_id))
 
@@ -135,8 +156,13 @@ def _box_corners(x, y, heading, length, width) -> np.ndarray:
     """Corners `(num_boxes, 4, 2)` of boxes centred at x, y (all `(num_boxes,)`)."""
     c, s = np.cos(heading), np.sin(heading)
     half = np.stack([length, width], axis=-1)[:, None, :] / 2 * np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]])
-    return np.stack([x[:, None] + half[..., 0] * c[:, None] - half[..., 1] * s[:, None],
-                     y[:, None] + half[..., 0] * s[:, None] + half[..., 1] * c[:, None]], axis=-1)
+    return np.stack(
+        [
+            x[:, None] + half[..., 0] * c[:, None] - half[..., 1] * s[:, None],
+            y[:, None] + half[..., 0] * s[:, None] + half[..., 1] * c[:, None],
+        ],
+        axis=-1,
+    )
 
 
 class ScenePainter:
@@ -149,8 +175,13 @@ class ScenePainter:
       size: figure size in inches.
     """
 
-    def __init__(self, view: SceneView, rollouts: Sequence[int] | None = None, density: bool = False,
-                 size: tuple[float, float] = (8.0, 7.0)):
+    def __init__(
+        self,
+        view: SceneView,
+        rollouts: Sequence[int] | None = None,
+        density: bool = False,
+        size: tuple[float, float] = (8.0, 7.0),
+    ):
         from matplotlib.figure import Figure
 
         self.view = view
@@ -202,8 +233,15 @@ class ScenePainter:
         for k, object_id in enumerate(log.object_id.tolist()):
             valid = log.valid[k]
             colour = self.colour.get(object_id, "#8c959f")
-            self.ax.plot(np.where(valid, log.x[k], np.nan), np.where(valid, log.y[k], np.nan), ls=(0, (3, 2)),
-                         lw=0.9, color=colour, alpha=0.7, zorder=3)
+            self.ax.plot(
+                np.where(valid, log.x[k], np.nan),
+                np.where(valid, log.y[k], np.nan),
+                ls=(0, (3, 2)),
+                lw=0.9,
+                color=colour,
+                alpha=0.7,
+                zorder=3,
+            )
 
     def _draw_rollouts(self) -> None:
         sim = self.view.rollouts
@@ -213,15 +251,29 @@ class ScenePainter:
             x0, x1, y0, y1 = self._extent()
             counts, xe, ye = np.histogram2d(sim.x.ravel(), sim.y.ravel(), bins=160, range=((x0, x1), (y0, y1)))
             shown = np.ma.masked_equal(np.log1p(counts.T), 0)
-            self.ax.imshow(shown, origin="lower", extent=(x0, x1, y0, y1), cmap="Blues", alpha=0.85,
-                           interpolation="nearest", zorder=4, aspect="auto")
+            self.ax.imshow(
+                shown,
+                origin="lower",
+                extent=(x0, x1, y0, y1),
+                cmap="Blues",
+                alpha=0.85,
+                interpolation="nearest",
+                zorder=4,
+                aspect="auto",
+            )
             return
         styles = ("-", "--", ":", "-.")
         for n, r in enumerate(self.rollouts):
             for i, object_id in enumerate(sim.object_id[r].tolist()):
-                self.ax.plot(sim.x[r, i], sim.y[r, i], ls=styles[n % len(styles)], lw=1.2,
-                             color=self.colour.get(object_id, "#6e7781"), alpha=0.9 if object_id in self.colour
-                             else 0.45, zorder=4)
+                self.ax.plot(
+                    sim.x[r, i],
+                    sim.y[r, i],
+                    ls=styles[n % len(styles)],
+                    lw=1.2,
+                    color=self.colour.get(object_id, "#6e7781"),
+                    alpha=0.9 if object_id in self.colour else 0.45,
+                    zorder=4,
+                )
 
     def _draw_static(self) -> None:
         from matplotlib.lines import Line2D
@@ -239,23 +291,31 @@ class ScenePainter:
         ax.set_xlabel("x (m)", fontsize=8)
         ax.set_ylabel("y (m)", fontsize=8)
         counts = self.view.event_counts()
-        handles = [Line2D([], [], color="#24292f", lw=1.0, label="road edge"),
-                   Line2D([], [], color="#57606a", lw=0.9, ls=(0, (3, 2)), label="logged")]
+        handles = [
+            Line2D([], [], color="#24292f", lw=1.0, label="road edge"),
+            Line2D([], [], color="#57606a", lw=0.9, ls=(0, (3, 2)), label="logged"),
+        ]
         if self.view.rollouts is not None:
-            what = f"all {self.view.rollouts.num_rollouts} rollouts (density)" if self.density else \
-                f"rollout{'s' if len(self.rollouts) > 1 else ''} {', '.join(map(str, self.rollouts))}"
+            what = (
+                f"all {self.view.rollouts.num_rollouts} rollouts (density)"
+                if self.density
+                else f"rollout{'s' if len(self.rollouts) > 1 else ''} {', '.join(map(str, self.rollouts))}"
+            )
             handles.append(Line2D([], [], color="#0969da", lw=1.2, label=what))
             for _, label, marker, colour in EVENT_KINDS:
-                handles.append(Line2D([], [], ls="", marker=marker, color=colour, markersize=7,
-                                      label=f"{label} ({counts[label]})"))
-        self.figure.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.74, 0.95), fontsize=8,
-                           frameon=False)
+                handles.append(
+                    Line2D([], [], ls="", marker=marker, color=colour, markersize=7, label=f"{label} ({counts[label]})")
+                )
+        self.figure.legend(handles=handles, loc="upper left", bbox_to_anchor=(0.74, 0.95), fontsize=8, frameon=False)
         self.figure.text(0.745, 0.03, self._summary(), fontsize=7, va="bottom", family="monospace")
 
     def _summary(self) -> str:
         view = self.view
-        lines = [f"scenario {view.scenario.scenario_id}", f"challenge {view.challenge.value}",
-                 f"{view.scenario.sim_agent_ids.size} sim agents, {view.evaluated_ids.size} evaluated"]
+        lines = [
+            f"scenario {view.scenario.scenario_id}",
+            f"challenge {view.challenge.value}",
+            f"{view.scenario.sim_agent_ids.size} sim agents, {view.evaluated_ids.size} evaluated",
+        ]
         shown = [e for e in view.events if e.rollout in self.rollouts]
         if shown:
             lines.append("")
@@ -278,11 +338,20 @@ class ScenePainter:
         view, ax = self.view, self.ax
         log = view.scenario.log.take_ids(view.scenario.sim_agent_ids)
         valid = log.valid[:, step]
-        corners = _box_corners(log.x[valid, step], log.y[valid, step], log.heading[valid, step],
-                               log.length[valid, step], log.width[valid, step])
+        corners = _box_corners(
+            log.x[valid, step],
+            log.y[valid, step],
+            log.heading[valid, step],
+            log.length[valid, step],
+            log.width[valid, step],
+        )
         outlines = PolyCollection(
             corners,  # type: ignore[arg-type]  # (N, 4, 2) polygons: matplotlib takes them, its stubs ask a Sequence
-            facecolors="none", edgecolors="#24292f", linewidths=0.8, zorder=6)
+            facecolors="none",
+            edgecolors="#24292f",
+            linewidths=0.8,
+            zorder=6,
+        )
         self._dynamic.append(ax.add_collection(outlines))
         k = view.simulated_step(step)
         if k is not None and self.rollouts:
@@ -294,18 +363,42 @@ class ScenePainter:
             if on.any():
                 colours = [_SIGNAL_COLOURS.get(int(s), "#8c959f") for s in states[on]]
                 points = signals.stop_point[step][on]
-                self._dynamic.append(ax.scatter(points[:, 0], points[:, 1], s=22, c=colours, zorder=7,
-                                                edgecolors="white", linewidths=0.6))
+                self._dynamic.append(
+                    ax.scatter(
+                        points[:, 0], points[:, 1], s=22, c=colours, zorder=7, edgecolors="white", linewidths=0.6
+                    )
+                )
         for _, label, marker, colour in EVENT_KINDS:
             happened = [e for e in view.events if e.kind == label and e.step <= step and e.rollout in self.rollouts]
             if happened:
-                self._dynamic.append(ax.scatter([e.x for e in happened], [e.y for e in happened], marker=marker,
-                                                s=60, c=colour, edgecolors="white", linewidths=0.7, zorder=8))
+                self._dynamic.append(
+                    ax.scatter(
+                        [e.x for e in happened],
+                        [e.y for e in happened],
+                        marker=marker,
+                        s=60,
+                        c=colour,
+                        edgecolors="white",
+                        linewidths=0.7,
+                        zorder=8,
+                    )
+                )
         seconds = (step - challenges.CURRENT_TIME_INDEX) * challenges.STEP_SECONDS
-        label = f"step {step} ({seconds:+.1f} s)" + ("" if k is None or not self.rollouts else
-                                                      f", boxes of rollout {self.rollouts[0]}")
-        self._dynamic.append(ax.text(0.01, 0.99, label, transform=ax.transAxes, va="top", fontsize=8, zorder=9,
-                                     bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"}))
+        label = f"step {step} ({seconds:+.1f} s)" + (
+            "" if k is None or not self.rollouts else f", boxes of rollout {self.rollouts[0]}"
+        )
+        self._dynamic.append(
+            ax.text(
+                0.01,
+                0.99,
+                label,
+                transform=ax.transAxes,
+                va="top",
+                fontsize=8,
+                zorder=9,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"},
+            )
+        )
 
     def _rollout_boxes(self, r: int, k: int, step: int):
         from matplotlib.collections import PolyCollection
@@ -324,7 +417,12 @@ class ScenePainter:
         colours = [self.colour.get(int(i), "#8c959f") for i in ids.tolist()]
         return PolyCollection(
             corners,  # type: ignore[arg-type]  # (N, 4, 2) polygons: matplotlib takes them, its stubs ask a Sequence
-            facecolors=colours, edgecolors="white", linewidths=0.5, alpha=0.75, zorder=6)
+            facecolors=colours,
+            edgecolors="white",
+            linewidths=0.5,
+            alpha=0.75,
+            zorder=6,
+        )
 
     def png_bytes(self, dpi: int = 100) -> bytes:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -365,19 +463,28 @@ def default_step(view: SceneView) -> int:
 
 def animation_steps(every: int) -> list[int]:
     return list(range(0, challenges.NUM_LOGGED_STEPS, every)) + (
-        [challenges.NUM_LOGGED_STEPS - 1] if (challenges.NUM_LOGGED_STEPS - 1) % every else [])
+        [challenges.NUM_LOGGED_STEPS - 1] if (challenges.NUM_LOGGED_STEPS - 1) % every else []
+    )
 
 
-def scene_png(view: SceneView, *, step: int | None = None, rollouts: Sequence[int] | None = None,
-              density: bool = False, dpi: int = 100, size=(8.0, 7.0)) -> bytes:
+def scene_png(
+    view: SceneView,
+    *,
+    step: int | None = None,
+    rollouts: Sequence[int] | None = None,
+    density: bool = False,
+    dpi: int = 100,
+    size=(8.0, 7.0),
+) -> bytes:
     """A PNG of the view at one step (default: the last event, else the last step)."""
     painter = ScenePainter(view, rollouts, density, size)
     painter.show_step(default_step(view) if step is None else step)
     return painter.png_bytes(dpi)
 
 
-def scene_gif(view: SceneView, *, rollouts: Sequence[int] | None = None, density: bool = False,
-              every: int = 2, dpi: int = 72) -> bytes:
+def scene_gif(
+    view: SceneView, *, rollouts: Sequence[int] | None = None, density: bool = False, every: int = 2, dpi: int = 72
+) -> bytes:
     """A GIF playing the scene: one frame every `every` steps, at 10 Hz scene time."""
     frames = list(ScenePainter(view, rollouts, density).frames(animation_steps(every), dpi))
     buffer = io.BytesIO()
@@ -403,8 +510,9 @@ show(Number(document.body.dataset.start));
 """
 
 
-def scene_html(view: SceneView, *, rollouts: Sequence[int] | None = None, density: bool = False,
-               every: int = 2, dpi: int = 72) -> str:
+def scene_html(
+    view: SceneView, *, rollouts: Sequence[int] | None = None, density: bool = False, every: int = 2, dpi: int = 72
+) -> str:
     """One self-contained HTML page: the scene at every `every` steps behind a slider, and its events."""
     steps = animation_steps(every)
     frames: list[dict[str, Any]] = []
@@ -415,8 +523,11 @@ def scene_html(view: SceneView, *, rollouts: Sequence[int] | None = None, densit
         frames.append({"step": step, "png": base64.b64encode(buffer.getvalue()).decode("ascii")})
     target = default_step(view)
     start = min(range(len(frames)), key=lambda i: abs(frames[i]["step"] - target))
-    rows = "".join(f"<tr><td>{e.rollout}</td><td>{e.object_id}</td><td>{html.escape(e.kind)}</td><td>{e.step}</td>"
-                   f"<td>{e.x:.1f}, {e.y:.1f}</td></tr>" for e in view.events)
+    rows = "".join(
+        f"<tr><td>{e.rollout}</td><td>{e.object_id}</td><td>{html.escape(e.kind)}</td><td>{e.step}</td>"
+        f"<td>{e.x:.1f}, {e.y:.1f}</td></tr>"
+        for e in view.events
+    )
     counts = ", ".join(f"{n} {label}" for label, n in view.event_counts().items())
     title = f"{view.scenario.scenario_id} ({view.challenge.value})"
     return (
@@ -436,8 +547,15 @@ def scene_html(view: SceneView, *, rollouts: Sequence[int] | None = None, densit
     )
 
 
-def write_scene(view: SceneView, path: str | Path, *, step: int | None = None, rollouts: Sequence[int] | None = None,
-                density: bool = False, every: int = 2) -> Path:
+def write_scene(
+    view: SceneView,
+    path: str | Path,
+    *,
+    step: int | None = None,
+    rollouts: Sequence[int] | None = None,
+    density: bool = False,
+    every: int = 2,
+) -> Path:
     """Writes the view as .png (one step), .gif or .html (every `every` steps), by the path's suffix."""
     path = Path(path)
     suffix = path.suffix.lower()
@@ -452,8 +570,9 @@ def write_scene(view: SceneView, path: str | Path, *, step: int | None = None, r
     return path
 
 
-def scene_pictures(scenarios, submission, scenario_ids: Sequence[str], challenge="sim_agents",
-                   dpi: int = 80) -> list[tuple[str, bytes]]:
+def scene_pictures(
+    scenarios, submission, scenario_ids: Sequence[str], challenge="sim_agents", dpi: int = 80
+) -> list[tuple[str, bytes]]:
     """(scenario_id, PNG) of each scenario the submission holds, in the given order (for reports).
 
     scenarios: a `ScenarioIndex`, or scenario paths to index.
@@ -467,5 +586,8 @@ def scene_pictures(scenarios, submission, scenario_ids: Sequence[str], challenge
     index = scenarios if isinstance(scenarios, ScenarioIndex) else ScenarioIndex(scenarios)
     wanted = [sid for sid in scenario_ids if sid in index]
     rollouts = find_scenario_rollouts(submission, wanted)
-    return [(sid, scene_png(scene_view(index.load(sid), rollouts[sid], challenge), dpi=dpi))
-            for sid in wanted if sid in rollouts]
+    return [
+        (sid, scene_png(scene_view(index.load(sid), rollouts[sid], challenge), dpi=dpi))
+        for sid in wanted
+        if sid in rollouts
+    ]

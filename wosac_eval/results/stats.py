@@ -17,6 +17,7 @@ row of `counts @ d / n` (bootstrap) or `signs @ d / n` (permutation), one
 matrix product per chunk. Everything is seeded through `numpy.random.Generator`
 so that a given (input, seed) gives the same answer on every machine.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -93,7 +94,7 @@ def bootstrap_mean_ci(
         idx = rng.integers(0, n, size=(c, n), dtype=np.int32 if n < 2**31 else np.int64)
         for r in range(c):  # one row at a time: a 44k-bin histogram stays in cache
             counts[r] = np.bincount(idx[r], minlength=n)
-        means[start:start + c] = counts[:c] @ d / n
+        means[start : start + c] = counts[:c] @ d / n
     tail = (1.0 - confidence) / 2.0 * 100.0
     low, high = np.percentile(means, [tail, 100.0 - tail], axis=0)
     return low, high
@@ -123,11 +124,11 @@ def permutation_p_value(
     n, m = d.shape
     observed = np.abs(d.mean(axis=0))
     threshold = observed - _TIE_RELATIVE_TOLERANCE * np.maximum(np.abs(d).mean(axis=0), 1e-300)
-    if n <= _ALWAYS_EXACT_SCENARIOS or (n <= _MAX_EXACT_SCENARIOS and 2 ** n <= n_perm):
-        patterns = np.arange(2 ** n)[:, None] >> np.arange(n)[None, :] & 1  # (2**n, n) bits
+    if n <= _ALWAYS_EXACT_SCENARIOS or (n <= _MAX_EXACT_SCENARIOS and 2**n <= n_perm):
+        patterns = np.arange(2**n)[:, None] >> np.arange(n)[None, :] & 1  # (2**n, n) bits
         signs = 1.0 - 2.0 * patterns
         extreme = (np.abs(signs @ d / n) >= threshold).sum(axis=0)
-        return extreme / 2 ** n, True
+        return extreme / 2**n, True
     extreme = np.zeros(m, dtype=np.int64)
     total = d.sum(axis=0)
     rows = _chunk_rows(n)

@@ -14,6 +14,7 @@ long tail with a large change is visible beside the mean over all scenarios.
 Every (stratum, metric) pair is a test: p-values are also given Holm-adjusted
 over all of them, and the note says how many were run.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -60,8 +61,12 @@ class Stratification:
     notes: list[str]
 
     def to_json(self) -> dict[str, Any]:
-        return {"by": self.by, "alpha": self.alpha, "strata": [dataclasses.asdict(r) for r in self.rows],
-                "notes": list(self.notes)}
+        return {
+            "by": self.by,
+            "alpha": self.alpha,
+            "strata": [dataclasses.asdict(r) for r in self.rows],
+            "notes": list(self.notes),
+        }
 
 
 def cohens_d(differences: np.ndarray) -> float | None:
@@ -79,22 +84,46 @@ def criticality_strata(scores: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
     """(name, description, mask) of the terciles and of the long tail and the rest."""
     low, high = np.quantile(scores, [1 / 3, 2 / 3])
     tail = np.quantile(scores, LONG_TAIL_QUANTILE)
-    return [("low", f"criticality <= {low:.3f} (lowest third)", scores <= low),
-            ("mid", f"{low:.3f} < criticality <= {high:.3f}", (scores > low) & (scores <= high)),
-            ("high", f"criticality > {high:.3f} (highest third)", scores > high),
-            ("long tail", f"criticality >= {tail:.3f} (top decile)", scores >= tail),
-            ("rest", f"criticality < {tail:.3f}", scores < tail)]
+    return [
+        ("low", f"criticality <= {low:.3f} (lowest third)", scores <= low),
+        ("mid", f"{low:.3f} < criticality <= {high:.3f}", (scores > low) & (scores <= high)),
+        ("high", f"criticality > {high:.3f} (highest third)", scores > high),
+        ("long tail", f"criticality >= {tail:.3f} (top decile)", scores >= tail),
+        ("rest", f"criticality < {tail:.3f}", scores < tail),
+    ]
 
 
-def _compare(stratum: str, description: str, metric: str, base: np.ndarray, new: np.ndarray, seed: int,
-             n_boot: int, n_perm: int, alpha: float) -> StratumComparison:
+def _compare(
+    stratum: str,
+    description: str,
+    metric: str,
+    base: np.ndarray,
+    new: np.ndarray,
+    seed: int,
+    n_boot: int,
+    n_perm: int,
+    alpha: float,
+) -> StratumComparison:
     if base.size == 0:
-        return StratumComparison(stratum, description, metric, 0, None, None, None, None, None, None, None, None,
-                                 "n/a (no scenario)")
+        return StratumComparison(
+            stratum, description, metric, 0, None, None, None, None, None, None, None, None, "n/a (no scenario)"
+        )
     test = stats.paired_test(base, new, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
-    return StratumComparison(stratum, description, metric, int(base.size), float(base.mean()), float(new.mean()),
-                             float(test.mean_difference[0]), float(test.ci_low[0]), float(test.ci_high[0]),
-                             float(test.p_value[0]), None, cohens_d(new - base), "")
+    return StratumComparison(
+        stratum,
+        description,
+        metric,
+        int(base.size),
+        float(base.mean()),
+        float(new.mean()),
+        float(test.mean_difference[0]),
+        float(test.ci_low[0]),
+        float(test.ci_high[0]),
+        float(test.p_value[0]),
+        None,
+        cohens_d(new - base),
+        "",
+    )
 
 
 def _with_verdicts(rows: list[StratumComparison], alpha: float, adjust: str) -> list[StratumComparison]:
@@ -112,9 +141,18 @@ def _with_verdicts(rows: list[StratumComparison], alpha: float, adjust: str) -> 
     return out
 
 
-def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metrics: list[str], *,
-                          seed: int = 0, n_boot: int = 5000, n_perm: int = 5000,
-                          alpha: float = 0.05, adjust: str = "none") -> Stratification:
+def stratified_comparison(
+    base: ScoringResult,
+    new: ScoringResult,
+    by: str,
+    metrics: list[str],
+    *,
+    seed: int = 0,
+    n_boot: int = 5000,
+    n_perm: int = 5000,
+    alpha: float = 0.05,
+    adjust: str = "none",
+) -> Stratification:
     """Paired comparisons of `metrics` per stratum (see the module); raises StratifyError if impossible.
 
     Verdicts come from the raw p-values, or from the Holm-adjusted ones with `adjust="holm"`.
@@ -128,8 +166,10 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
     if by == "criticality":
         source = base if base.criticality is not None else new
         if source.criticality is None:
-            raise StratifyError(f"neither {base.path} nor {new.path} carries criticality scores: score them "
-                                "again with this version (every row then has `criticality`)")
+            raise StratifyError(
+                f"neither {base.path} nor {new.path} carries criticality scores: score them "
+                "again with this version (every row then has `criticality`)"
+            )
         scores = source.criticality[base_rows if source is base else new_rows]
         for metric in metrics:
             if not (base.has_per_scenario(metric) and new.has_per_scenario(metric)):
@@ -140,8 +180,10 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
     else:
         kinds = [k for k in ANALYSED_TYPES if k in base.by_type and k in new.by_type]
         if not kinds:
-            raise StratifyError(f"{base.path} and {new.path} share no per-object-type values (`by_object_type`): "
-                                "score them again with this version")
+            raise StratifyError(
+                f"{base.path} and {new.path} share no per-object-type values (`by_object_type`): "
+                "score them again with this version"
+            )
         for metric in metrics:
             for kind in kinds:
                 if metric not in base.by_type[kind] or metric not in new.by_type[kind]:
@@ -149,16 +191,32 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
                 b = base.by_type[kind][metric][base_rows]
                 n = new.by_type[kind][metric][new_rows]
                 both = np.isfinite(b) & np.isfinite(n)
-                rows.append(_compare(kind, f"scenarios with evaluated {kind}s; their {metric}", metric, b[both],
-                                     n[both], seed, n_boot, n_perm, alpha))
+                rows.append(
+                    _compare(
+                        kind,
+                        f"scenarios with evaluated {kind}s; their {metric}",
+                        metric,
+                        b[both],
+                        n[both],
+                        seed,
+                        n_boot,
+                        n_perm,
+                        alpha,
+                    )
+                )
         if not rows:
             raise StratifyError(f"no per-object-type values of {', '.join(metrics)} in both results")
     rows = _with_verdicts(rows, alpha, adjust)
     tested = sum(r.p_value is not None for r in rows)
-    notes = [f"{tested} tests (strata x metrics) at alpha={alpha:g}: about {tested * alpha:.1f} can come out "
-             "better/worse by chance alone; p_holm controls the family-wise error over all of them."
-             + (" The strata overlap (terciles; long tail and rest), so the tests are not independent."
-                if by == "criticality" else "")]
+    notes = [
+        f"{tested} tests (strata x metrics) at alpha={alpha:g}: about {tested * alpha:.1f} can come out "
+        "better/worse by chance alone; p_holm controls the family-wise error over all of them."
+        + (
+            " The strata overlap (terciles; long tail and rest), so the tests are not independent."
+            if by == "criticality"
+            else ""
+        )
+    ]
     if any(r.num_scenarios and r.num_scenarios < 30 for r in rows):
         notes.append("strata with fewer than 30 scenarios have rough intervals and p-values")
     return Stratification(by, alpha, rows, notes)
@@ -166,17 +224,39 @@ def stratified_comparison(base: ScoringResult, new: ScoringResult, by: str, metr
 
 def format_strata(s: Stratification) -> str:
     """The stratified comparison as a plain-text table, with its notes."""
-    header = ["stratum", "metric", "n", "base", "new", "diff", f"{round((1 - s.alpha) * 100)}% CI", "p", "p_holm",
-              "d", "verdict"]
+    header = [
+        "stratum",
+        "metric",
+        "n",
+        "base",
+        "new",
+        "diff",
+        f"{round((1 - s.alpha) * 100)}% CI",
+        "p",
+        "p_holm",
+        "d",
+        "verdict",
+    ]
 
     def f(x, signed=False):
         return "-" if x is None else (f"{x:+.4f}" if signed else f"{x:.4f}")
 
-    body = [[r.stratum, r.metric, str(r.num_scenarios), f(r.base), f(r.new), f(r.difference, True),
-             "-" if r.ci_low is None else f"[{r.ci_low:+.4f}, {r.ci_high:+.4f}]",
-             "-" if r.p_value is None else f"{r.p_value:.3g}", "-" if r.p_holm is None else f"{r.p_holm:.3g}",
-             "-" if r.cohens_d is None else f"{r.cohens_d:+.2f}", r.verdict.upper() if r.verdict == "worse"
-             else r.verdict] for r in s.rows]
+    body = [
+        [
+            r.stratum,
+            r.metric,
+            str(r.num_scenarios),
+            f(r.base),
+            f(r.new),
+            f(r.difference, True),
+            "-" if r.ci_low is None else f"[{r.ci_low:+.4f}, {r.ci_high:+.4f}]",
+            "-" if r.p_value is None else f"{r.p_value:.3g}",
+            "-" if r.p_holm is None else f"{r.p_holm:.3g}",
+            "-" if r.cohens_d is None else f"{r.cohens_d:+.2f}",
+            r.verdict.upper() if r.verdict == "worse" else r.verdict,
+        ]
+        for r in s.rows
+    ]
     widths = [max(len(row[i]) for row in [header] + body) for i in range(len(header))]
     line = lambda cells: "  ".join(c.ljust(w) for c, w in zip(cells, widths)).rstrip()  # noqa: E731
     out = [f"stratified by {s.by.replace('_', ' ')}:"]

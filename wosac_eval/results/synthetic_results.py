@@ -7,6 +7,7 @@ true difference between two runs: a run made with `shift` differs from the run
 made with the same seed by exactly that shift on every scenario (plus `jitter`
 noise when asked).
 """
+
 from __future__ import annotations
 
 from typing import Any
@@ -56,10 +57,12 @@ def synthetic_scenarios(
     # Rates and errors come from the unshifted draws, so a shift changes only the fields it names.
     values["average_displacement_error"] = rng.gamma(2.0, 1.5, n) * (1.5 - difficulty)
     values["min_average_displacement_error"] = values["average_displacement_error"] * rng.uniform(0.4, 0.8, n)
-    values["simulated_collision_rate"] = np.clip(0.25 * (1 - values["collision_indication_likelihood"])
-                                                 + rng.normal(0, 0.02, n), 0.0, 1.0)
-    values["simulated_offroad_rate"] = np.clip(0.2 * (1 - values["offroad_indication_likelihood"])
-                                               + rng.normal(0, 0.02, n), 0.0, 1.0)
+    values["simulated_collision_rate"] = np.clip(
+        0.25 * (1 - values["collision_indication_likelihood"]) + rng.normal(0, 0.02, n), 0.0, 1.0
+    )
+    values["simulated_offroad_rate"] = np.clip(
+        0.2 * (1 - values["offroad_indication_likelihood"]) + rng.normal(0, 0.02, n), 0.0, 1.0
+    )
     values["simulated_traffic_light_violation_rate"] = rng.binomial(1, 0.03, n) * rng.uniform(0.0, 0.5, n)
     if jitter:
         noise = np.random.default_rng(jitter_seed)
@@ -77,8 +80,9 @@ def synthetic_scenarios(
     return [{"scenario_id": f"{id_prefix}{i:06d}", **{f: float(v[i]) for f, v in values.items()}} for i in range(n)]
 
 
-def result_json(scenarios: list[dict[str, Any]], config: str = "2025",
-                skipped: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+def result_json(
+    scenarios: list[dict[str, Any]], config: str = "2025", skipped: list[dict[str, Any]] | None = None
+) -> dict[str, Any]:
     """A complete result JSON (aggregate and buckets computed) around per-scenario entries."""
     fields = [k for k in scenarios[0] if k != "scenario_id"] if scenarios else []
     aggregate = {f: float(np.mean([s[f] for s in scenarios])) for f in fields}
@@ -89,9 +93,15 @@ def result_json(scenarios: list[dict[str, Any]], config: str = "2025",
     buckets["min_ade"] = aggregate.get("min_average_displacement_error", 0.0)
     for rate in RATE_FIELDS:
         buckets[rate] = aggregate.get(rate, 0.0)
-    return {"schema_version": SCHEMA_VERSION, "challenge": "sim_agents", "config": config, "scenarios": scenarios,
-            "aggregate": aggregate,
-            "buckets": buckets, "skipped": list(skipped or [])}
+    return {
+        "schema_version": SCHEMA_VERSION,
+        "challenge": "sim_agents",
+        "config": config,
+        "scenarios": scenarios,
+        "aggregate": aggregate,
+        "buckets": buckets,
+        "skipped": list(skipped or []),
+    }
 
 
 def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwargs) -> dict[str, Any]:
@@ -115,12 +125,22 @@ def write_gate_demo_results(folder, num_scenarios: int = 2000):
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     base = synthetic_scenarios(num_scenarios, seed=0)
-    new = synthetic_scenarios(num_scenarios, seed=0, jitter=0.02, jitter_seed=7, shift={
-        "collision_indication_likelihood": 0.012, "offroad_indication_likelihood": -0.006,
-        "simulated_collision_rate": -0.004})
+    new = synthetic_scenarios(
+        num_scenarios,
+        seed=0,
+        jitter=0.02,
+        jitter_seed=7,
+        shift={
+            "collision_indication_likelihood": 0.012,
+            "offroad_indication_likelihood": -0.006,
+            "simulated_collision_rate": -0.004,
+        },
+    )
     kept = num_scenarios - 10
-    skipped = [{"scenario_id": s["scenario_id"], "reason": "no rollouts in the submission (scored with --partial)"}
-               for s in new[kept:]]
+    skipped = [
+        {"scenario_id": s["scenario_id"], "reason": "no rollouts in the submission (scored with --partial)"}
+        for s in new[kept:]
+    ]
     base_path, new_path = folder / "baseline.json", folder / "new.json"
     base_path.write_text(json.dumps(result_json(base)))
     new_path.write_text(json.dumps(result_json(new[:kept], skipped=skipped)))

@@ -12,6 +12,7 @@ These add up, over every object of every scene, to the bucket's gap from 1. The 
 read once, scene by scene (it is grouped by scene, in the result's order), keeping only the top objects
 of each bucket: memory does not grow with the number of objects.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -98,9 +99,16 @@ def scene_worst_objects(records: list[dict], row: dict, config: str, top_k: int 
     fields = {b: [m for m in ms if f"{m}_likelihood" in scene_field] for b, ms in fields.items()}
     per_object: dict[int, dict] = {}
     for bucket, record, total, parts in _scene_contributions(records, fields, weights, scene_field, 1):
-        entry = per_object.setdefault(int(record["object_id"]), {
-            "object_id": int(record["object_id"]), "object_type": record["object_type"], "contribution": 0.0,
-            "buckets": {}, "fields": []})
+        entry = per_object.setdefault(
+            int(record["object_id"]),
+            {
+                "object_id": int(record["object_id"]),
+                "object_type": record["object_type"],
+                "contribution": 0.0,
+                "buckets": {},
+                "fields": [],
+            },
+        )
         entry["contribution"] += total
         entry["buckets"][bucket] = total
         entry["fields"].extend([f, value, part] for f, value, part in parts)
@@ -128,11 +136,17 @@ def worst_objects(result: ScoringResult, top_k: int = 10) -> dict[str, list[Wors
         if i is None:
             continue
         records = list(group)
-        scene_field = {f"{m}_likelihood": float(result.values[f"{m}_likelihood"][i])
-                       for members in fields.values() for m in members}
+        scene_field = {
+            f"{m}_likelihood": float(result.values[f"{m}_likelihood"][i])
+            for members in fields.values()
+            for m in members
+        }
         for bucket, record, total, parts in _scene_contributions(records, fields, weights, scene_field, n):
-            entry = (total, next(tie), WorstObject(bucket, sid, int(record["object_id"]), record["object_type"],
-                                                   total, parts))
+            entry = (
+                total,
+                next(tie),
+                WorstObject(bucket, sid, int(record["object_id"]), record["object_type"], total, parts),
+            )
             heap = heaps[bucket]
             if len(heap) < top_k:
                 heapq.heappush(heap, entry)

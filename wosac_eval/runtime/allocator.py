@@ -9,6 +9,7 @@ the process (the peak RSS is unchanged; it is simply not returned between
 scenarios). Scoring entry points (`score_submission`, the CLI, the service
 workers) apply it; set WOSAC_EVAL_SYSTEM_MALLOC=1 to leave malloc untouched.
 """
+
 from __future__ import annotations
 
 import ctypes
@@ -18,7 +19,7 @@ import sys
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
-MMAP_THRESHOLD = 32 << 20   # glibc's largest allowed value on 64-bit systems
+MMAP_THRESHOLD = 32 << 20  # glibc's largest allowed value on 64-bit systems
 TRIM_THRESHOLD = 256 << 20
 _applied = False
 

@@ -13,6 +13,7 @@ per worker process, not once per item.
 - `RayExecutor(address)`: Ray tasks on a cluster (`ray_executor`, the `ray`
   extra); a task lost with its worker or node is retried.
 """
+
 from __future__ import annotations
 
 import collections
@@ -27,8 +28,9 @@ from wosac_eval.runtime.processes import worker_pool
 class Executor(Protocol):
     parallelism: int
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
-             ahead: int | None = None) -> Iterator:
+    def imap(
+        self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *, ahead: int | None = None
+    ) -> Iterator:
         """`fn(shared, item)` for every item, results in item order.
 
         `ahead`: how many items may wait, submitted, beyond one per worker (default: the executor's
@@ -40,7 +42,7 @@ class Executor(Protocol):
 _SHARED: dict[str, Any] = {}
 
 
-def _init_local_worker(shared: Any, initializer: Callable[[], None] | None) -> None:
+def _init_local_worker(shared: Any, initializer: Callable[[], object] | None) -> None:
     _SHARED["value"] = shared
     if initializer is not None:
         initializer()
@@ -59,14 +61,15 @@ class LocalExecutor:
       initializer: called once in every worker process (e.g. the allocator settings).
     """
 
-    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], None] | None = None):
+    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], object] | None = None):
         self.workers = max(1, int(workers))
         self.parallelism = self.workers
         self.force_spawn = force_spawn
         self.initializer = initializer
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
-             ahead: int | None = None) -> Iterator:
+    def imap(
+        self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *, ahead: int | None = None
+    ) -> Iterator:
         if self.workers <= 1:
             if self.initializer is not None:
                 self.initializer()
@@ -75,8 +78,12 @@ class LocalExecutor:
                 del item  # hold no item (a shard's bytes) while the next one is read
                 yield result
             return
-        with worker_pool(self.workers, force_spawn=self.force_spawn, initializer=_init_local_worker,
-                         initargs=(shared, self.initializer)) as pool:
+        with worker_pool(
+            self.workers,
+            force_spawn=self.force_spawn,
+            initializer=_init_local_worker,
+            initargs=(shared, self.initializer),
+        ) as pool:
             pending: collections.deque = collections.deque()
             for item in items:
                 pending.append(pool.submit(_call_local, fn, item))
@@ -86,10 +93,17 @@ class LocalExecutor:
                 yield pending.popleft().result()
 
 
-def make_executor(engine: Engine | str = Engine.LOCAL, *, workers: int = 1, ray_address: str | None = None,
-                  force_spawn: bool = False, initializer: Callable[[], None] | None = None) -> Executor:
+def make_executor(
+    engine: Engine | str = Engine.LOCAL,
+    *,
+    workers: int = 1,
+    ray_address: str | None = None,
+    force_spawn: bool = False,
+    initializer: Callable[[], object] | None = None,
+) -> Executor:
     """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run."""
     if check_engine(engine) is Engine.LOCAL:
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
     from wosac_eval.runtime.ray_executor import RayExecutor
+
     return RayExecutor(ray_address, initializer=initializer)

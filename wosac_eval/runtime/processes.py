@@ -20,6 +20,7 @@ live on forever.
 This module is imported first thing by processes that must check their parent
 before their slow imports: it imports only the standard library.
 """
+
 from __future__ import annotations
 
 import concurrent.futures as futures
@@ -31,14 +32,20 @@ import time
 from collections.abc import Callable
 
 
-def worker_pool(max_workers: int, *, force_spawn: bool = False, initializer: Callable | None = None,
-                initargs: tuple = (), **kwargs) -> futures.ProcessPoolExecutor:
+def worker_pool(
+    max_workers: int, *, force_spawn: bool = False, initializer: Callable | None = None, initargs: tuple = (), **kwargs
+) -> futures.ProcessPoolExecutor:
     """A `ProcessPoolExecutor` with a start method that is safe for this process, whose workers end
     when this process does (`initializer(*initargs)` runs in each worker, as in the executor)."""
     spawn = force_spawn or "jax" in sys.modules
     context = multiprocessing.get_context("spawn") if spawn else None
-    return futures.ProcessPoolExecutor(max_workers=max_workers, mp_context=context, initializer=_start_worker,
-                                       initargs=(os.getpid(), initializer, initargs), **kwargs)
+    return futures.ProcessPoolExecutor(
+        max_workers=max_workers,
+        mp_context=context,
+        initializer=_start_worker,
+        initargs=(os.getpid(), initializer, initargs),
+        **kwargs,
+    )
 
 
 def _start_worker(parent_pid: int, initializer: Callable | None, initargs: tuple) -> None:
@@ -73,8 +80,9 @@ def set_parent_death_signal(sig: int) -> bool:
         return False
 
 
-def exit_with_parent(parent_pid: int, poll_s: float = 0.5, *, death_signal: int | None = None,
-                     watch: bool = True) -> None:
+def exit_with_parent(
+    parent_pid: int, poll_s: float = 0.5, *, death_signal: int | None = None, watch: bool = True
+) -> None:
     """End this process (at once, mid-task) once `parent_pid` is no longer its parent.
 
     `parent_pid` comes from the parent itself (never this process's `os.getppid()`, which is already

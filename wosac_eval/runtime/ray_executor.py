@@ -18,6 +18,7 @@ retries for 20 s, logging a line per try (a Ray Client, ray://, just times out
 after 30 s); `connect` keeps those lines and says in one sentence what to set
 instead (`_auth_advice`, `_client_advice`).
 """
+
 from __future__ import annotations
 
 import collections
@@ -72,13 +73,16 @@ def _check_reachable(address: str, timeout_s: float = 5.0) -> None:
         with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout_s):
             pass
     except ValueError:
-        raise EngineUnavailableError(f"{address!r} is not a Ray cluster address (host:port, or "
-                                     "ray://host:10001)") from None
+        raise EngineUnavailableError(
+            f"{address!r} is not a Ray cluster address (host:port, or ray://host:10001)"
+        ) from None
     except OSError as error:
-        raise EngineUnavailableError(f"cannot reach the Ray cluster at {address}: {error.strerror or error}. "
-                                     "Is it up (`ray status` on its head), and is the address the head's "
-                                     "host:port (6379 by default, or ray://host:10001 from outside the "
-                                     "cluster)?") from None
+        raise EngineUnavailableError(
+            f"cannot reach the Ray cluster at {address}: {error.strerror or error}. "
+            "Is it up (`ray status` on its head), and is the address the head's "
+            "host:port (6379 by default, or ray://host:10001 from outside the "
+            "cluster)?"
+        ) from None
 
 
 AUTH_MODE, AUTH_TOKEN, AUTH_TOKEN_PATH = "RAY_AUTH_MODE", "RAY_AUTH_TOKEN", "RAY_AUTH_TOKEN_PATH"
@@ -95,8 +99,10 @@ def _token_source() -> str:
 
 
 def _give_token() -> str:
-    return (f"give the cluster's token (`ray get-auth-token` on its head) in {AUTH_TOKEN}, in a file named by "
-            f"{AUTH_TOKEN_PATH}, or in {Path.home() / '.ray' / 'auth_token'}")
+    return (
+        f"give the cluster's token (`ray get-auth-token` on its head) in {AUTH_TOKEN}, in a file named by "
+        f"{AUTH_TOKEN_PATH}, or in {Path.home() / '.ray' / 'auth_token'}"
+    )
 
 
 def _mode_unset() -> bool:
@@ -104,8 +110,11 @@ def _mode_unset() -> bool:
 
 
 def _set_mode() -> str:
-    ignored = (f" ({AUTH_TOKEN}/{AUTH_TOKEN_PATH} are ignored without it)"
-               if os.environ.get(AUTH_TOKEN) or os.environ.get(AUTH_TOKEN_PATH) else "")
+    ignored = (
+        f" ({AUTH_TOKEN}/{AUTH_TOKEN_PATH} are ignored without it)"
+        if os.environ.get(AUTH_TOKEN) or os.environ.get(AUTH_TOKEN_PATH)
+        else ""
+    )
     return f"set {AUTH_MODE}=token{ignored} and {_give_token()}"
 
 
@@ -123,8 +132,10 @@ def _client_advice(where: str, error: Exception) -> str:
     if _mode_unset():
         fix = f"if it requires token authentication (Ray turns it on when the head has a token), {_set_mode()}"
     else:
-        fix = (f"if it requires token authentication, is the token from {_token_source()} the cluster's "
-               "(`ray get-auth-token` on its head)?")
+        fix = (
+            f"if it requires token authentication, is the token from {_token_source()} the cluster's "
+            "(`ray get-auth-token` on its head)?"
+        )
     return f"cannot connect to {where} ({error}) although its port answers: {fix}"
 
 
@@ -173,8 +184,10 @@ def connect(address: str | None = None) -> None:
         _replay(logged)
         if address and address.startswith("ray://") and "timeout" in str(error):
             raise EngineUnavailableError(_client_advice(where, error)) from None
-        raise EngineUnavailableError(f"cannot connect to {where}: {error}. Is the cluster up (`ray status`), "
-                                     "and the address host:port of its head (or ray://host:10001)?") from error
+        raise EngineUnavailableError(
+            f"cannot connect to {where}: {error}. Is the cluster up (`ray status`), "
+            "and the address host:port of its head (or ray://host:10001)?"
+        ) from error
     _replay(logged)
 
 
@@ -190,12 +203,20 @@ _CLIENT_START_PAUSE_S = 1.0
 def _init_with_retries(address: str | None) -> None:
     for attempt in range(1, CLIENT_START_ATTEMPTS + 1):
         try:
-            ray.init(address=address or "local", ignore_reinit_error=True, include_dashboard=False,
-                     logging_level=logging.ERROR, log_to_driver=False)
+            ray.init(
+                address=address or "local",
+                ignore_reinit_error=True,
+                include_dashboard=False,
+                logging_level=logging.ERROR,
+                log_to_driver=False,
+            )
             return
         except ConnectionError as error:
-            passing = address is not None and address.startswith("ray://") and \
-                "Initialization failure from server" in str(error)
+            passing = (
+                address is not None
+                and address.startswith("ray://")
+                and "Initialization failure from server" in str(error)
+            )
             if not passing or attempt == CLIENT_START_ATTEMPTS:
                 raise
             ray.shutdown()
@@ -215,13 +236,14 @@ def _replay(logged: list[str], drop_ray_log: bool = False) -> None:
 class RayExecutor:
     """Ray tasks on the cluster at `address` (see `connect`)."""
 
-    def __init__(self, address: str | None = None, *, initializer: Callable[[], None] | None = None):
+    def __init__(self, address: str | None = None, *, initializer: Callable[[], object] | None = None):
         connect(address)
         self.initializer = initializer
         self.parallelism = max(1, int(ray.cluster_resources().get("CPU", 1)))
 
-    def imap(self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *,
-             ahead: int | None = None) -> Iterator:
+    def imap(
+        self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *, ahead: int | None = None
+    ) -> Iterator:
         box = [ray.put(shared)]  # in a list: Ray passes the reference, the worker fetches it once
         pending: collections.deque = collections.deque()
         limit = IN_FLIGHT_PER_CPU * self.parallelism if ahead is None else self.parallelism + ahead
@@ -245,7 +267,7 @@ def _result(ref):
         if isinstance(cause, Exception):
             raise cause from None
         raise RuntimeError(f"a Ray task failed: {error}") from None
-    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
-            ray.exceptions.ObjectLostError) as error:
-        raise RuntimeError(f"a Ray task was lost {MAX_RETRIES + 1} times (its worker or node died each "
-                           f"time): {error}") from error
+    except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError, ray.exceptions.ObjectLostError) as error:
+        raise RuntimeError(
+            f"a Ray task was lost {MAX_RETRIES + 1} times (its worker or node died each time): {error}"
+        ) from error

@@ -8,6 +8,7 @@ engine, workers, input limits...), each checked here and nowhere else, before
 any long work. The layers below take the `Evaluation` (or the parts they need)
 as decided.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -78,8 +79,10 @@ class RunOptions:
         """The options named in `values`, the others default; an unknown name is a TypeError of `caller`."""
         unknown = sorted(set(values) - OPTION_NAMES)
         if unknown:
-            raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r} "
-                            f"(its options: {', '.join(f.name for f in dataclasses.fields(cls))})")
+            raise TypeError(
+                f"{caller}() got an unexpected keyword argument {unknown[0]!r} "
+                f"(its options: {', '.join(f.name for f in dataclasses.fields(cls))})"
+            )
         return cls(**values)
 
 
@@ -107,8 +110,12 @@ class Evaluation:
         return self.spec.challenge
 
 
-def resolve_evaluation(challenge="sim_agents", config: str | os.PathLike | None = None,
-                       options: RunOptions | None = None, **option_values: Any) -> Evaluation:
+def resolve_evaluation(
+    challenge="sim_agents",
+    config: str | os.PathLike | None = None,
+    options: RunOptions | None = None,
+    **option_values: Any,
+) -> Evaluation:
     """Check and resolve everything an evaluation is asked with; ValueError (or the backend's and
     engine's unavailable errors) in one sentence for the first thing that cannot be.
 
@@ -118,8 +125,9 @@ def resolve_evaluation(challenge="sim_agents", config: str | os.PathLike | None 
       options: the run's `RunOptions`; or leave it out and name them (`workers=2`, `backend="jax"`...).
     """
     if options is not None and option_values:
-        raise TypeError(f"resolve_evaluation: give options= or the options by name "
-                        f"({', '.join(sorted(option_values))}), not both")
+        raise TypeError(
+            f"resolve_evaluation: give options= or the options by name ({', '.join(sorted(option_values))}), not both"
+        )
     if options is None:
         options = RunOptions.of("resolve_evaluation", **option_values)
     config_name = config_name_for(challenge, config)
@@ -129,8 +137,13 @@ def resolve_evaluation(challenge="sim_agents", config: str | os.PathLike | None 
     return Evaluation(spec=spec, config_name=config_name, config=load_config(config_name), options=options)
 
 
-def evaluation_for(caller: str, evaluation: Evaluation | None, challenge, config: str | os.PathLike | None,
-                   option_values: dict[str, Any]) -> Evaluation:
+def evaluation_for(
+    caller: str,
+    evaluation: Evaluation | None,
+    challenge,
+    config: str | os.PathLike | None,
+    option_values: dict[str, Any],
+) -> Evaluation:
     """The evaluation of a call that takes either `evaluation=` or the arguments it is resolved from.
 
     With `evaluation`, the arguments also given must say what it says: one that differs is refused
@@ -144,11 +157,16 @@ def evaluation_for(caller: str, evaluation: Evaluation | None, challenge, config
         conflicts.append(f"challenge={challenge!r} (it has {evaluation.challenge.value!r})")
     if config is not None and str(config) != evaluation.config_name:
         conflicts.append(f"config={str(config)!r} (it has {evaluation.config_name!r})")
-    conflicts += [f"{name}={_shown(option_values[name])} (it has {_shown(getattr(evaluation.options, name))})"
-                  for name in option_values if getattr(asked, name) != getattr(evaluation.options, name)]
+    conflicts += [
+        f"{name}={_shown(option_values[name])} (it has {_shown(getattr(evaluation.options, name))})"
+        for name in option_values
+        if getattr(asked, name) != getattr(evaluation.options, name)
+    ]
     if conflicts:
-        raise ValueError(f"{caller}: evaluation= already decides the run, and {'; '.join(conflicts)} "
-                         f"disagree(s) with it: pass these to resolve_evaluation instead, or leave them out")
+        raise ValueError(
+            f"{caller}: evaluation= already decides the run, and {'; '.join(conflicts)} "
+            f"disagree(s) with it: pass these to resolve_evaluation instead, or leave them out"
+        )
     return evaluation
 
 

@@ -34,6 +34,7 @@ their files, and a run resumed late decompresses the archive only up to them
 (a gzip stream cannot be entered midway: it would otherwise decompress all that
 was scored before the interruption again).
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -45,6 +46,7 @@ import shutil
 import time
 from collections.abc import Iterable
 from pathlib import Path
+from typing import BinaryIO
 
 from wosac_eval import __version__
 
@@ -68,8 +70,9 @@ def _size_mtime(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike],
-                 per_object: bool = False) -> dict:
+def run_identity(
+    evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike], per_object: bool = False
+) -> dict:
     """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
     return {
         **({"per_object": True} if per_object else {}),  # rows with their objects (absent: as before)
@@ -137,7 +140,7 @@ class ScoringJournal:
         self.set_aside: Path | None = None
         self.reason: str | None = None
         self._offsets: dict[str, int] = {}  # scenario id -> where its row's line starts (rows with objects)
-        self._reader = None
+        self._reader: BinaryIO | None = None
         good = 0
         if self.path.exists():
             self.done, good, self.reason = _read(self.path, identity, self._offsets)
@@ -145,8 +148,9 @@ class ScoringJournal:
                 self._offsets.clear()
                 self.set_aside = self.path.with_name(self.path.name + ".old")
                 os.replace(self.path, self.set_aside)
-                log.warning("%s was set aside as %s and the run starts afresh: %s", self.path, self.set_aside,
-                            self.reason)
+                log.warning(
+                    "%s was set aside as %s and the run starts afresh: %s", self.path, self.set_aside, self.reason
+                )
         if not good:  # a validation kept beside rows that are gone (or of another run) is not this run's
             validated_path(self.path).unlink(missing_ok=True)
         self._file = open(self.path, "r+b" if good else "wb")  # noqa: SIM115 - closed by close()
@@ -202,8 +206,9 @@ class ScoringJournal:
         path = validated_path(self.path)
         temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         with open(temp, "wb") as f:
-            pickle.dump({"run": self.identity, "report": report, "records": records}, f,
-                        protocol=pickle.HIGHEST_PROTOCOL)
+            pickle.dump(
+                {"run": self.identity, "report": report, "records": records}, f, protocol=pickle.HIGHEST_PROTOCOL
+            )
             f.flush()
             os.fsync(f.fileno())
         os.replace(temp, path)

@@ -15,6 +15,7 @@ side file is then the one an uninterrupted run writes, byte for byte. The result
 it is: `"per_object": {"objects": "R.objects.jsonl", "format": "jsonl", "num_objects": N}` (a file name,
 beside the result). `read_objects` reads either format back, one record at a time.
 """
+
 from __future__ import annotations
 
 import json
@@ -32,12 +33,12 @@ PARQUET_ROWS = 65_536  # objects per Parquet row group (bounded memory)
 def objects_path_for(result_path: os.PathLike | str, fmt: str = "jsonl") -> Path:
     """The side file of a result: `R.objects.jsonl` (or `.parquet`) beside `R.json`."""
     result_path = Path(result_path)
-    stem = result_path.name[:-len(result_path.suffix)] if result_path.suffix else result_path.name
+    stem = result_path.name[: -len(result_path.suffix)] if result_path.suffix else result_path.name
     return result_path.with_name(f"{stem}.objects.{fmt}")
 
 
 def format_of(path: os.PathLike | str) -> str:
-    """"jsonl" or "parquet", from the suffix; ValueError for another one."""
+    """ "jsonl" or "parquet", from the suffix; ValueError for another one."""
     suffix = Path(path).suffix.lower()
     if suffix not in FORMATS:
         raise ValueError(f"{path}: the per-object file's suffix chooses its format: {', '.join(FORMATS)}")

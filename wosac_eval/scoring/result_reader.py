@@ -7,6 +7,7 @@ so it turns the scenario list into one `(num_scenarios,)` array per metric.
 It lives beside its writer (`result`): scoring writes the document, and `results/`
 (compare, report, scene pictures), which stands above scoring, reads it from here.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -20,9 +21,16 @@ import numpy as np
 
 from wosac_eval.challenges import CHALLENGE_NAMES as CHALLENGES
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
+
 # The metric schema comes from the one registry: fields, buckets, directions.
 from wosac_eval.metrics.registry import (  # noqa: F401  (re-exported to compare and report)
-    BUCKET_ALIASES, BUCKET_FIELDS, BUCKET_MEMBERS, RATE_FIELDS, SCENARIO_FIELDS, higher_is_better)
+    BUCKET_ALIASES,
+    BUCKET_FIELDS,
+    BUCKET_MEMBERS,
+    RATE_FIELDS,
+    SCENARIO_FIELDS,
+    higher_is_better,
+)
 
 
 class ResultError(ValueError):
@@ -33,12 +41,24 @@ class ResultError(ValueError):
 # list frozen once its version is written: a saved document stays readable whatever the registry gains
 # later. A field the registry knows beyond its version's is read when every row carries it.
 # 1: the documents written before "schema_version" was recorded; 2: the same fields, the version recorded.
-_FIELDS_1 = ("metametric", "average_displacement_error", "min_average_displacement_error",
-             "linear_speed_likelihood", "linear_acceleration_likelihood", "angular_speed_likelihood",
-             "angular_acceleration_likelihood", "distance_to_nearest_object_likelihood",
-             "collision_indication_likelihood", "time_to_collision_likelihood", "distance_to_road_edge_likelihood",
-             "offroad_indication_likelihood", "traffic_light_violation_likelihood", "simulated_collision_rate",
-             "simulated_offroad_rate", "simulated_traffic_light_violation_rate")
+_FIELDS_1 = (
+    "metametric",
+    "average_displacement_error",
+    "min_average_displacement_error",
+    "linear_speed_likelihood",
+    "linear_acceleration_likelihood",
+    "angular_speed_likelihood",
+    "angular_acceleration_likelihood",
+    "distance_to_nearest_object_likelihood",
+    "collision_indication_likelihood",
+    "time_to_collision_likelihood",
+    "distance_to_road_edge_likelihood",
+    "offroad_indication_likelihood",
+    "traffic_light_violation_likelihood",
+    "simulated_collision_rate",
+    "simulated_offroad_rate",
+    "simulated_traffic_light_violation_rate",
+)
 VERSION_FIELDS: dict[int, tuple[str, ...]] = {1: _FIELDS_1, 2: _FIELDS_1}
 SCHEMA_VERSION = max(VERSION_FIELDS)  # the newest: what `scoring.result` writes
 
@@ -127,8 +147,11 @@ def _numbers(obj: Any, where: str) -> dict[str, float]:
         return {}
     if not isinstance(obj, dict):
         raise ResultError(f"{where}: expected an object, got {type(obj).__name__}")
-    return {k: _number(v, f"{where}.{k}", finite=k not in MAY_BE_NON_FINITE) for k, v in obj.items()
-            if k != "scenario_id" and not (isinstance(v, float) and math.isnan(v))}
+    return {
+        k: _number(v, f"{where}.{k}", finite=k not in MAY_BE_NON_FINITE)
+        for k, v in obj.items()
+        if k != "scenario_id" and not (isinstance(v, float) and math.isnan(v))
+    }
 
 
 def _scenario_ids(scenarios: list, path: str) -> list[str]:
@@ -175,8 +198,12 @@ def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
     """The rows' criticality scores (None unless every row has one) and per-type values (NaN where absent)."""
     criticality = None
     if ids and all(isinstance(e.get("criticality"), dict) for e in scenarios):
-        criticality = np.array([_number(e["criticality"].get("score"), f"{path}: scenario {sid!r} field "
-                                        "'criticality.score'") for e, sid in zip(scenarios, ids)])
+        criticality = np.array(
+            [
+                _number(e["criticality"].get("score"), f"{path}: scenario {sid!r} field 'criticality.score'")
+                for e, sid in zip(scenarios, ids)
+            ]
+        )
     by_type: dict[str, dict[str, np.ndarray]] = {}
     for i, entry in enumerate(scenarios):
         types = entry.get("by_object_type")
@@ -189,8 +216,11 @@ def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
                 if value is None or field == "num_objects":
                     continue
                 column = by_type.setdefault(kind, {}).setdefault(field, np.full(len(ids), np.nan))
-                column[i] = _number(value, f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}.{field}'",
-                                    finite=field not in MAY_BE_NON_FINITE)
+                column[i] = _number(
+                    value,
+                    f"{path}: scenario {ids[i]!r} field 'by_object_type.{kind}.{field}'",
+                    finite=field not in MAY_BE_NON_FINITE,
+                )
     return criticality, by_type
 
 
@@ -219,8 +249,11 @@ def weighted_buckets(values: dict[str, np.ndarray], weights: dict[str, float]) -
     scorer's (`buckets.weighted_bucket`). A bucket whose weights sum to zero is left out.
     """
     # A bucket one of whose weighted likelihoods the document predates cannot be recomputed: left out.
-    means = {bucket: weighted_bucket(members, values, weights) for bucket, members in BUCKET_MEMBERS.items()
-             if all(f"{m}_likelihood" in values for m in members if weights.get(m))}
+    means = {
+        bucket: weighted_bucket(members, values, weights)
+        for bucket, members in BUCKET_MEMBERS.items()
+        if all(f"{m}_likelihood" in values for m in members if weights.get(m))
+    }
     return {bucket: mean for bucket, mean in means.items() if mean is not None}
 
 
@@ -251,10 +284,12 @@ def parse_result(
     ids = _scenario_ids(scenarios, path)
     required = VERSION_FIELDS[version]
     values = {f: _column(scenarios, f, ids, path) for f in required}
-    values.update((f, _column(scenarios, f, ids, path)) for f in SCENARIO_FIELDS
-                  if f not in values and ids and all(f in e for e in scenarios))
-    carried = {b: _column(scenarios, b, ids, path) for b in BUCKET_MEMBERS
-               if ids and all(b in e for e in scenarios)}
+    values.update(
+        (f, _column(scenarios, f, ids, path))
+        for f in SCENARIO_FIELDS
+        if f not in values and ids and all(f in e for e in scenarios)
+    )
+    carried = {b: _column(scenarios, b, ids, path) for b in BUCKET_MEMBERS if ids and all(b in e for e in scenarios)}
     if len(carried) < len(BUCKET_MEMBERS) and ids:
         weights = weights_for(config)
         if weights is not None:
@@ -288,8 +323,10 @@ def schema_version(data: dict, path: str = "<result>") -> int:
     if isinstance(version, bool) or not isinstance(version, int) or version < 1:
         raise ResultError(f"{path}: 'schema_version' is {version!r}, expected a whole number >= 1")
     if version > SCHEMA_VERSION:
-        raise ResultError(f"{path}: result schema version {version} is newer than this wosac-eval reads "
-                          f"(versions 1 to {SCHEMA_VERSION}): upgrade wosac-eval to read it")
+        raise ResultError(
+            f"{path}: result schema version {version} is newer than this wosac-eval reads "
+            f"(versions 1 to {SCHEMA_VERSION}): upgrade wosac-eval to read it"
+        )
     return version
 
 
@@ -311,8 +348,10 @@ def load_result(path: str | Path, **kwargs) -> ScoringResult:
     except json.JSONDecodeError as e:
         raise ResultError(f"{path}: not valid JSON ({e}); give a result of `wosac-eval score --output`") from None
     except UnicodeDecodeError:
-        raise ResultError(f"{path}: a binary file, not a result JSON; give a result of `wosac-eval score "
-                          f"--output` (not a submission or a scenario file)") from None
+        raise ResultError(
+            f"{path}: a binary file, not a result JSON; give a result of `wosac-eval score "
+            f"--output` (not a submission or a scenario file)"
+        ) from None
     except IsADirectoryError:
         raise ResultError(f"{path}: is a folder; give a result JSON file") from None
     except OSError as e:

@@ -3,6 +3,7 @@
 parse -> arrays (`arrays.samples`) -> features (`features.metric_features`,
 numpy or JAX) -> metrics (`metrics.scenario_metrics`), for either challenge.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -14,10 +15,10 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.extras import check_backend
-from wosac_eval.options import Backend
 from wosac_eval.features.metric_features import map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
+from wosac_eval.options import Backend
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 
 PathLike = str | os.PathLike
@@ -31,9 +32,11 @@ def resolve_config(config: ConfigLike, challenge) -> SimAgentMetricsConfig:
     return load_config(config_name_for(challenge, config))
 
 
-def scenario_inputs(scenario: scenario_pb2.Scenario | ScenarioArrays,
-                    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
-                    challenge) -> tuple[ScenarioArrays, RolloutArrays]:
+def scenario_inputs(
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+    challenge,
+) -> tuple[ScenarioArrays, RolloutArrays]:
     """The arrays of a (scenario, rollouts) pair, checked to belong together."""
     arrays = scenario if isinstance(scenario, ScenarioArrays) else scenario_arrays(scenario)
     if rollouts.scenario_id != arrays.scenario_id:
@@ -55,13 +58,17 @@ def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challe
     sid = scenario.scenario_id
     rollouts.validate()
     if rollouts.num_steps != spec.num_simulation_steps:
-        raise ValueError(f"scenario {sid}: rollouts have {rollouts.num_steps} steps, the {spec.challenge} challenge "
-                         f"needs {spec.num_simulation_steps}")
+        raise ValueError(
+            f"scenario {sid}: rollouts have {rollouts.num_steps} steps, the {spec.challenge} challenge "
+            f"needs {spec.num_simulation_steps}"
+        )
     if rollouts.num_rollouts < 1:  # any count is scored, as the official code does; submissions need 32
         raise ValueError(f"scenario {sid}: no rollouts")
     if spec.submits_boxes and not rollouts.has_boxes:
-        raise ValueError(f"scenario {sid}: the {spec.challenge} challenge needs box sizes (length, width, height, "
-                         f"one per step); without them the official scorer fails on the scenario too")
+        raise ValueError(
+            f"scenario {sid}: the {spec.challenge} challenge needs box sizes (length, width, height, "
+            f"one per step); without them the official scorer fails on the scenario too"
+        )
     expected = np.sort(scenario.sim_agent_ids)
     ids = np.sort(rollouts.object_id, axis=1)
     if ids.shape[1] != expected.size:
@@ -72,8 +79,10 @@ def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challe
         r = int(bad[0])
         missing = np.setdiff1d(expected, rollouts.object_id[r])
         extra = np.setdiff1d(rollouts.object_id[r], expected)
-        raise ValueError(f"scenario {sid} rollout {r}: the rollouts must hold exactly the {expected.size} sim agents "
-                         f"(objects valid at step 10): missing {missing.tolist()}, not sim agents {extra.tolist()}")
+        raise ValueError(
+            f"scenario {sid} rollout {r}: the rollouts must hold exactly the {expected.size} sim agents "
+            f"(objects valid at step 10): missing {missing.tolist()}, not sim agents {extra.tolist()}"
+        )
 
 
 def unscorable(scenario_id: str, error: Exception) -> ValueError:
@@ -81,8 +90,16 @@ def unscorable(scenario_id: str, error: Exception) -> ValueError:
     return ValueError(f"scenario {scenario_id}: cannot be scored: {error}")
 
 
-def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, rollouts: RolloutArrays,
-                      log, sim, log_likelihoods: dict, context, criticality: dict | None = None) -> dict:
+def scenario_analysis(
+    config: SimAgentMetricsConfig,
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    log,
+    sim,
+    log_likelihoods: dict,
+    context,
+    criticality: dict | None = None,
+) -> dict:
     """What a result row carries beside the official metrics, from the same features.
 
     Returns:
@@ -96,9 +113,11 @@ def scenario_analysis(config: SimAgentMetricsConfig, scenario: ScenarioArrays, r
 
     if criticality is None:
         criticality = scenario_criticality(scenario, context)
-    return {"criticality": criticality,
-            "driving": driving_scores(scenario, rollouts, sim),
-            "by_object_type": by_object_type(config, log, sim, log_likelihoods)}
+    return {
+        "criticality": criticality,
+        "driving": driving_scores(scenario, rollouts, sim),
+        "by_object_type": by_object_type(config, log, sim, log_likelihoods),
+    }
 
 
 def object_records(scenario_id: str, values) -> list[dict]:
@@ -115,8 +134,9 @@ def object_records(scenario_id: str, values) -> list[dict]:
     likelihood = {f: values.likelihood[f].astype(np.float64).tolist() for f in LIKELIHOOD_FIELDS}
     count = {f: values.count[f].tolist() for f in LIKELIHOOD_FIELDS}
     flagged = {e: values.flags[e].sum(axis=0).tolist() for e in EVENTS}
-    first = {e: np.where(values.flags[e], values.first_step[e], np.iinfo(np.int32).max).min(axis=0).tolist()
-             for e in EVENTS}
+    first = {
+        e: np.where(values.flags[e], values.first_step[e], np.iinfo(np.int32).max).min(axis=0).tolist() for e in EVENTS
+    }
     num_rollouts = int(next(iter(values.flags.values())).shape[0])
     records = []
     for i, (object_id, kind) in enumerate(zip(values.object_id.tolist(), values.object_type.tolist())):
@@ -133,22 +153,38 @@ def object_records(scenario_id: str, values) -> list[dict]:
     return records
 
 
-def _row(config: SimAgentMetricsConfig, arrays: ScenarioArrays, rollout: RolloutArrays, log, sim, context,
-         analysis: bool, criticality: dict | None = None, per_object: bool = False) -> dict:
+def _row(
+    config: SimAgentMetricsConfig,
+    arrays: ScenarioArrays,
+    rollout: RolloutArrays,
+    log,
+    sim,
+    context,
+    analysis: bool,
+    criticality: dict | None = None,
+    per_object: bool = False,
+) -> dict:
     lls = metric_log_likelihoods(config, log, sim)
     row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
     if analysis:
         row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context, criticality))
     if per_object:
         from wosac_eval.metrics.per_object import per_object_metrics
+
         row["objects"] = object_records(arrays.scenario_id, per_object_metrics(config, log, sim, lls))
     return row
 
 
-def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
-                   rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
-                   config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
-                   backend: str = "numpy", analysis: bool = False, per_object: bool = False) -> dict:
+def score_scenario(
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+    config: ConfigLike = None,
+    *,
+    challenge=challenges.Challenge.SIM_AGENTS,
+    backend: str = "numpy",
+    analysis: bool = False,
+    per_object: bool = False,
+) -> dict:
     """Official `SimAgentMetrics` fields of one scenario, plus its `scenario_id`.
 
     Args:
@@ -164,39 +200,44 @@ def score_scenario(scenario: scenario_pb2.Scenario | ScenarioArrays,
       per_object: add `objects`, the values of every evaluated object (`object_records`), as
         `score_submission(per_object=True)` streams them.
     """
-    config, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(config, arrays, rollout, log, sim, context, analysis, per_object=per_object)
+    message, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return _row(message, arrays, rollout, log, sim, context, analysis, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
     """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
     backend = check_backend(backend)
     challenge = challenges.as_challenge(challenge)
-    config = resolve_config(config, challenge)
+    message = resolve_config(config, challenge)
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
     try:
         context = map_context(arrays)
         if backend is Backend.JAX:
             from wosac_eval.backends import jax_backend
+
             log, sim = jax_backend.scenario_features(arrays, rollout, context, challenge=challenge)
         else:
             log, sim = scenario_features(arrays, rollout, context, challenge=challenge)
     except (ValueError, KeyError) as error:
         raise unscorable(arrays.scenario_id, error) from error
-    return config, arrays, rollout, context, log, sim
+    return message, arrays, rollout, context, log, sim
 
 
-def score_scenario_per_object(scenario: scenario_pb2.Scenario | ScenarioArrays,
-                              rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
-                              config: ConfigLike = None, *, challenge=challenges.Challenge.SIM_AGENTS,
-                              backend: str = "numpy"):
+def score_scenario_per_object(
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
+    config: ConfigLike = None,
+    *,
+    challenge=challenges.Challenge.SIM_AGENTS,
+    backend: str = "numpy",
+):
     """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
     `metrics.per_object.PerObjectMetrics` (likelihoods and their weights per object, each rollout's
     collision, off-road and red-light flags and first steps)."""
     from wosac_eval.metrics.per_object import per_object_metrics
 
-    config, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return per_object_metrics(config, log, sim)
+    message, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
+    return per_object_metrics(message, log, sim)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -229,17 +270,26 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> J
     criticality = None
     if analysis:
         from wosac_eval.analysis.criticality_scores import scenario_criticality
+
         criticality = scenario_criticality(arrays, context)
     return JaxItem(arrays, rollout, context, prepared, criticality)
 
 
-def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
-                    challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False, per_object: bool = False):
+def score_jax_items(
+    items,
+    config: ConfigLike = None,
+    max_batch: int = 8,
+    *,
+    challenge=challenges.Challenge.SIM_AGENTS,
+    analysis: bool = False,
+    per_object: bool = False,
+):
     """Rows of a stream of `JaxItem`s, in stream order, the device computing while the host finishes rows.
 
     Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
     """
     from wosac_eval.backends import jax_backend
+
     config = resolve_config(config, challenges.as_challenge(challenge))
     pipeline = jax_backend.FeaturePipeline(max_batch=max_batch)
     rows: dict[int, dict] = {}
@@ -247,8 +297,9 @@ def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
 
     def finish(done):
         for (index, item), (log, sim) in done:
-            rows[index] = _row(config, item.arrays, item.rollout, log, sim, item.context, analysis,
-                               item.criticality, per_object)
+            rows[index] = _row(
+                config, item.arrays, item.rollout, log, sim, item.context, analysis, item.criticality, per_object
+            )
 
     def ready():
         nonlocal next_out
@@ -263,14 +314,21 @@ def score_jax_items(items, config: ConfigLike = None, max_batch: int = 8, *,
     yield from ready()
 
 
-def score_scenarios_jax(pairs, config: ConfigLike = None, max_batch: int = 8, *,
-                        challenge=challenges.Challenge.SIM_AGENTS, analysis: bool = False,
-                        per_object: bool = False) -> list[dict]:
+def score_scenarios_jax(
+    pairs,
+    config: ConfigLike = None,
+    max_batch: int = 8,
+    *,
+    challenge=challenges.Challenge.SIM_AGENTS,
+    analysis: bool = False,
+    per_object: bool = False,
+) -> list[dict]:
     """`score_scenario` with the jax backend for many (scenario, rollouts) pairs at once.
 
     Scenarios of the same size bucket share one `vmap`ped call.
     """
     challenge = challenges.as_challenge(challenge)
     items = (prepare_jax_item(scenario, rollouts, challenge, analysis) for scenario, rollouts in pairs)
-    return list(score_jax_items(items, config, max_batch, challenge=challenge, analysis=analysis,
-                                per_object=per_object))
+    return list(
+        score_jax_items(items, config, max_batch, challenge=challenge, analysis=analysis, per_object=per_object)
+    )

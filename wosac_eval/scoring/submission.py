@@ -15,6 +15,7 @@ this process, worker processes of this host, or a Ray cluster):
    document (`scoring.result`): identical whatever the engine, the number of
    workers or nodes, and the order in which the work finishes.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -53,7 +54,9 @@ class InvalidSubmissionError(ValueError):
         # What is wrong, in a few words (the service's job says "the submission is invalid: <reason>").
         self.reason = f"{report.error_count} error(s)" + (
             f", {report.metadata_error_count} of them in its metadata (partial scoring never goes past those)"
-            if self.metadata else "")
+            if self.metadata
+            else ""
+        )
         super().__init__(f"invalid submission: {self.reason}; run `wosac-eval validate` for the full report")
 
 
@@ -114,19 +117,30 @@ def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
     if context.backend is Backend.JAX:
-        return score_scenarios_jax(pairs, config, challenge=context.challenge, analysis=context.analysis,
-                                   per_object=context.per_object)
-    return [score_scenario(scenario, rollouts, config, challenge=context.challenge, analysis=context.analysis,
-                           per_object=context.per_object)
-            for scenario, rollouts in pairs]
+        return score_scenarios_jax(
+            pairs, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object
+        )
+    return [
+        score_scenario(
+            scenario,
+            rollouts,
+            config,
+            challenge=context.challenge,
+            analysis=context.analysis,
+            per_object=context.per_object,
+        )
+        for scenario, rollouts in pairs
+    ]
 
 
 def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
     """The host part of jax-backend scoring of a chunk (a worker task): `scoring.scenario.JaxItem`s."""
     from wosac_eval.scoring.scenario import prepare_jax_item
 
-    return [prepare_jax_item(scenario, rollouts, context.challenge, context.analysis)
-            for scenario, rollouts in _pairs(context, chunk)]
+    return [
+        prepare_jax_item(scenario, rollouts, context.challenge, context.analysis)
+        for scenario, rollouts in _pairs(context, chunk)
+    ]
 
 
 def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
@@ -134,13 +148,15 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
     from wosac_eval.scoring.scenario import score_jax_items
 
     items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
-    for row in score_jax_items(items, config, challenge=context.challenge, analysis=context.analysis,
-                               per_object=context.per_object):
+    for row in score_jax_items(
+        items, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object
+    ):
         yield [row]
 
 
-def _scored_rollouts(source: SubmissionSource, index: ScenarioIndex, report,
-                     selected: set[str] | None, done=()) -> Iterator[tuple[str, RolloutsLocator | None]]:
+def _scored_rollouts(
+    source: SubmissionSource, index: ScenarioIndex, report, selected: set[str] | None, done=()
+) -> Iterator[tuple[str, RolloutsLocator | None]]:
     """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order;
     the locator is None for a scenario in `done` (a resumed run does not read what it finished)."""
     seen: set[str] = set()
@@ -163,11 +179,19 @@ def _chunks(items: Iterable, size: int) -> Iterator[ScoringChunk]:
         yield ScoringChunk(tuple(batch))
 
 
-def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioIndex,
-                     submission: PathLike | SubmissionSource, config: str | PathLike | None = None, *,
-                     challenge=None, progress: Progress | None = None, evaluation: Evaluation | None = None,
-                     journal: PathLike | None = None, per_object: bool = False, objects: PathLike | None = None,
-                     **options) -> dict:
+def score_submission(
+    scenario_paths: PathLike | Iterable[PathLike] | ScenarioIndex,
+    submission: PathLike | SubmissionSource,
+    config: str | PathLike | None = None,
+    *,
+    challenge=None,
+    progress: Progress | None = None,
+    evaluation: Evaluation | None = None,
+    journal: PathLike | None = None,
+    per_object: bool = False,
+    objects: PathLike | None = None,
+    **options,
+) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
     Args:
@@ -203,23 +227,33 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     evaluation = evaluation_for("score_submission", evaluation, challenge, config, options)
     run = evaluation.options
     # The engine first: an unreachable cluster is reported before any long work.
-    executor = make_executor(run.engine, workers=run.workers, ray_address=run.ray_address,
-                             force_spawn=run.backend is Backend.JAX, initializer=keep_freed_memory)
-    owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
-    # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
-    # the archive up to them (`scoring.journal`).
-    tail = ({"tail_dir": members_path(journal), "tail_bytes": members_budget(submission, journal)}
-            if owned and journal is not None else {})
-    with SubmissionSource(submission, run.limits, **tail) if owned else contextlib.nullcontext(submission) as source:
+    executor = make_executor(
+        run.engine,
+        workers=run.workers,
+        ray_address=run.ray_address,
+        force_spawn=run.backend is Backend.JAX,
+        initializer=keep_freed_memory,
+    )
+    opened: contextlib.AbstractContextManager[SubmissionSource]
+    if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open
+        opened = contextlib.nullcontext(submission)
+    elif journal is not None:
+        # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
+        # the archive up to them (`scoring.journal`).
+        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
+        opened = SubmissionSource(submission, run.limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
+    else:
+        opened = SubmissionSource(submission, run.limits)
+    with opened as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
                 raise ValueError("objects= names the per-object file: it needs per_object=True")
             format_of(objects)  # a suffix that chooses no format is refused before any work
-        if journal is None and not (per_object and objects is not None):
-            return _score(index, source, evaluation, executor, progress, None, per_object, None)
         temporary = journal is None  # the objects wait in a journal of this run only
-        if temporary:
+        if journal is None:
+            if not (per_object and objects is not None):
+                return _score(index, source, evaluation, executor, progress, None, per_object, None)
             journal = Path(objects).with_name(f".{Path(objects).name}.{os.getpid()}.journal")
         try:
             with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths, per_object)) as record:
@@ -236,13 +270,18 @@ def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[
         return None, None, None
     ranked = scenario_set_criticality(index, executor=executor)
     selected = set(select_scenarios(ranked["scenarios"], rule))
-    selection = {"rule": rule, "scenarios": len(selected), "of": ranked["num_scenarios"],
-                 "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected)}
+    selection = {
+        "rule": rule,
+        "scenarios": len(selected),
+        "of": ranked["num_scenarios"],
+        "min_criticality": min(r["score"] for r in ranked["scenarios"] if r["scenario_id"] in selected),
+    }
     return selection, ranked["histogram"], selected
 
 
-def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
-               journal: ScoringJournal | None):
+def _validated(
+    index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor, journal: ScoringJournal | None
+):
     """The submission's validation report, refusing an invalid one; from the journal when an earlier run
     of the same inputs passed it (a resumed run does not walk the whole submission again)."""
     kept = None if journal is None else journal.validation()
@@ -250,8 +289,13 @@ def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evalu
         report, records = kept
         source.restore_records(records)
         return report
-    report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
-                                 metadata_checks=evaluation.options.metadata_checks)
+    report = validate_submission(
+        index,
+        source,
+        challenge=evaluation.challenge,
+        executor=executor,
+        metadata_checks=evaluation.options.metadata_checks,
+    )
     if refuses(report, evaluation.options.allow_partial):
         source.drop_tail()  # the archive members kept for scoring: none will be
         raise InvalidSubmissionError(report)
@@ -261,21 +305,33 @@ def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evalu
     return report
 
 
-def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor,
-           progress: Progress | None, journal: ScoringJournal | None, per_object: bool = False,
-           objects: PathLike | None = None) -> dict:
+def _score(
+    index: ScenarioIndex,
+    source: SubmissionSource,
+    evaluation: Evaluation,
+    executor,
+    progress: Progress | None,
+    journal: ScoringJournal | None,
+    per_object: bool = False,
+    objects: PathLike | None = None,
+) -> dict:
     """Validate (recording where each scenario is), select, score on the executor (but what the journal
     holds), assemble; per-object values go through the journal (see `score_submission`)."""
     report = _validated(index, source, evaluation, executor, journal)
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
-    context = ScoringContext(config=evaluation.config.SerializeToString(), challenge=evaluation.challenge.value,
-                             backend=evaluation.options.backend, index=index, analysis=evaluation.options.analysis,
-                             per_object=per_object)
+    context = ScoringContext(
+        config=evaluation.config.SerializeToString(),
+        challenge=evaluation.challenge.value,
+        backend=evaluation.options.backend,
+        index=index,
+        analysis=evaluation.options.analysis,
+        per_object=per_object,
+    )
     done = {} if journal is None else journal.done
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
 
-    def to_score() -> Iterator[tuple[str, RolloutsLocator]]:
+    def to_score() -> Iterator[tuple[str, RolloutsLocator | None]]:
         for sid, locator in _scored_rollouts(source, index, report, selected, done):
             order.append(sid)
             if sid not in done:
@@ -300,17 +356,28 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
             progress(len(rows), total)
     per_scenario = [rows[sid] for sid in order]
     if not per_scenario:
-        raise InvalidSubmissionError(report) if not report.ok else ValueError(
-            "the submission has no scenario in common with the scenario set")
+        raise (
+            InvalidSubmissionError(report)
+            if not report.ok
+            else ValueError("the submission has no scenario in common with the scenario set")
+        )
     if per_object and objects is None and journal is not None:  # inline: the rows carry them
         for sid, row in zip(order, per_scenario):
             row["objects"] = journal.objects_of(sid)
     written = None
     if objects is not None:
+        assert journal is not None  # `score_submission` records the objects in one (a temporary one at least)
         written = write_objects((journal.objects_of(sid) for sid in order), objects)
-    document = result_document(evaluation.challenge, evaluation.config_name, evaluation.config, per_scenario,
-                               report, selection=selection, selected=selected, histogram=histogram)
-    if written is not None:
-        document["per_object"] = {"objects": Path(objects).name, "format": format_of(objects),
-                                  "num_objects": written}
+    document = result_document(
+        evaluation.challenge,
+        evaluation.config_name,
+        evaluation.config,
+        per_scenario,
+        report,
+        selection=selection,
+        selected=selected,
+        histogram=histogram,
+    )
+    if objects is not None:  # then `written` is their count
+        document["per_object"] = {"objects": Path(objects).name, "format": format_of(objects), "num_objects": written}
     return document

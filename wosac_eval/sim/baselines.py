@@ -1,4 +1,5 @@
 """Baseline submissions for a scenario set: run a policy on every scenario, write the shards."""
+
 from __future__ import annotations
 
 import concurrent.futures as futures

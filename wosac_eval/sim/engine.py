@@ -10,6 +10,7 @@ agent can still stop comfortably).
 
 Shapes: B batch entries (rollouts), A agents, S path samples, T steps.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -28,7 +29,9 @@ MAX_BRAKE = 8.0
 PREDICTION_S = 1.5  # how far ahead drivers anticipate crossing traffic
 WINDOW = 12  # lookahead points tested per candidate obstacle (24 m of path)
 LATERAL_ACCELERATION = 2.5  # m/s^2 drivers accept in turns
-NEIGHBOURS = 10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
+NEIGHBOURS = (
+    10  # agents tested as obstacles for each agent, nearest first  # m/s^2, physical limit of an emergency stop
+)
 
 
 @dataclass
@@ -43,8 +46,9 @@ class Paths:
     ds: float
 
     @classmethod
-    def from_polylines(cls, polylines: list[list[np.ndarray]], ds: float, min_length: float,
-                       smooth_m: float = 0.0) -> Paths:
+    def from_polylines(
+        cls, polylines: list[list[np.ndarray]], ds: float, min_length: float, smooth_m: float = 0.0
+    ) -> Paths:
         """Resamples nested lists [batch][agent] of polylines to one array, extending each
         straight past its end so that all have the same number of samples covering `min_length`.
 
@@ -63,7 +67,9 @@ class Paths:
         tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
         half = int(round(smooth_m / ds / 2))
         if half > 0:
-            padded = np.concatenate([np.repeat(tangent[:, :, :1], half, 2), tangent, np.repeat(tangent[:, :, -1:], half, 2)], 2)
+            padded = np.concatenate(
+                [np.repeat(tangent[:, :, :1], half, 2), tangent, np.repeat(tangent[:, :, -1:], half, 2)], 2
+            )
             cumulative = np.concatenate([np.zeros_like(padded[:, :, :1]), np.cumsum(padded, axis=2)], 2)
             tangent = cumulative[:, :, 2 * half + 1 :] - cumulative[:, :, : -2 * half - 1]
             tangent /= np.maximum(np.linalg.norm(tangent, axis=-1, keepdims=True), 1e-9)
@@ -74,7 +80,9 @@ class Paths:
         if getattr(self, "_curvature", None) is None:
             angle = np.unwrap(np.arctan2(self.tangent[..., 1], self.tangent[..., 0]), axis=-1)
             window = max(1, int(round(2.0 / self.ds)))
-            padded = np.concatenate([np.repeat(angle[..., :1], window, -1), angle, np.repeat(angle[..., -1:], window, -1)], -1)
+            padded = np.concatenate(
+                [np.repeat(angle[..., :1], window, -1), angle, np.repeat(angle[..., -1:], window, -1)], -1
+            )
             self._curvature = np.abs(padded[..., 2 * window :] - padded[..., : -2 * window]) / (2 * window * self.ds)
         return self._curvature
 
@@ -227,7 +235,9 @@ def simulate(
         red = (stop_signal == ALWAYS_RED) | ((stop_signal >= 0) & np.isin(state, STOP_STATES) & can_brake)
         yellow = (stop_signal >= 0) & np.isin(state, CAUTION_STATES) & can_stop
         holding = (red | yellow) & (stop_gap > -0.5) & ~drivers.ignore_signals[..., None]
-        line_gap = np.where(holding & np.isfinite(stop_s), stop_gap + drivers.s0[..., None] - 1.0, np.inf).min(axis=-1, initial=np.inf)
+        line_gap = np.where(holding & np.isfinite(stop_s), stop_gap + drivers.s0[..., None] - 1.0, np.inf).min(
+            axis=-1, initial=np.inf
+        )
         use_line = line_gap < lead_gap
         lead_gap = np.where(use_line, line_gap, lead_gap)
         lead_v = np.where(use_line, 0.0, lead_v)
@@ -298,8 +308,10 @@ def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.nda
     if len(cand_b) == 0:
         return gap_full, along_full
     # Only a window of lookahead points around where j lies along the path can touch it.
-    start = np.floor((lon[cand_b, cand_i, cand_j] - d.length[cand_b, cand_i] / 2 - radius_j[cand_b, 0, cand_j] - 2.0)
-                     / LOOKAHEAD_SPACING_M).astype(np.int64)
+    start = np.floor(
+        (lon[cand_b, cand_i, cand_j] - d.length[cand_b, cand_i] / 2 - radius_j[cand_b, 0, cand_j] - 2.0)
+        / LOOKAHEAD_SPACING_M
+    ).astype(np.int64)
     window = np.clip(start, 0, len(k) - WINDOW)[:, None] + np.arange(WINDOW)  # (C, W)
     pts = pts_all[cand_b[:, None], cand_i[:, None], window]  # (C, W, 2)
     pts_heading = pts_heading_all[cand_b[:, None], cand_i[:, None], window]

@@ -3,6 +3,7 @@
 Polylines are float arrays of shape (num_points, 2); headings are radians,
 counter-clockwise from +x (East), as in WOMD.
 """
+
 from __future__ import annotations
 
 import numpy as np

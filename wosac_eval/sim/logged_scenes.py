@@ -4,6 +4,7 @@ Closed-loop traffic (`engine`) with every unscripted collision removed, occlusio
 steps, late appearances, early exits) and the evaluated objects (the SDC and up to 8
 `tracks_to_predict`): `build_scene(seed, index)` -> `LoggedScene`.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -213,4 +214,3 @@ def build_scene(seed: int, index: int, kind: str | None = None) -> LoggedScene:
     sdc, ttp = _choose_evaluated(spec, out, rng)
     valid = _occlusions(rng, len(spec.agents), {sdc, *ttp}, spec.occlusion_level)
     return LoggedScene(spec, out.x[0], out.y[0], out.heading[0], out.speed[0], valid, sdc, ttp)
-

@@ -16,6 +16,7 @@ center_x, center_y, center_z, heading for steps 11..90.
   at their current speed but also brake for obstacles. Rollouts differ by
   desired speeds, time headways and route choices.
 """
+
 from __future__ import annotations
 
 import zlib
@@ -152,7 +153,9 @@ def constant_velocity(ctx: SimContext, rng: np.random.Generator, num_rollouts: i
 
 def _filled_log(ctx: SimContext) -> np.ndarray:
     """Logged future with gaps filled: interpolated inside, constant velocity past the last valid step."""
-    full = np.concatenate([np.stack([ctx.x, ctx.y, ctx.z, ctx.heading], -1)[:, CURRENT:CURRENT + 1], ctx.log_future], axis=1)
+    full = np.concatenate(
+        [np.stack([ctx.x, ctx.y, ctx.z, ctx.heading], -1)[:, CURRENT : CURRENT + 1], ctx.log_future], axis=1
+    )
     steps = np.arange(NUM_FUTURE + 1)
     out = full.copy()
     for i in range(ctx.num_agents):
@@ -173,7 +176,9 @@ def _filled_log(ctx: SimContext) -> np.ndarray:
     return out[:, 1:]
 
 
-def log_replay_noise(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLOUTS, noise_m: float = 0.5) -> np.ndarray:
+def log_replay_noise(
+    ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLOUTS, noise_m: float = 0.5
+) -> np.ndarray:
     """The logged future (gaps filled) plus smooth per-rollout noise of up to `noise_m` metres."""
     base = _filled_log(ctx)  # (N, 80, 4)
     t = np.arange(1, NUM_FUTURE + 1) * DT
@@ -286,7 +291,9 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
     for i in range(n):
         m = matches[i]
         if m is None:
-            direction = ctx.velocity[i] / speed[i] if speed[i] > 0.5 else np.array([np.cos(heading[i]), np.sin(heading[i])])
+            direction = (
+                ctx.velocity[i] / speed[i] if speed[i] > 0.5 else np.array([np.cos(heading[i]), np.sin(heading[i])])
+            )
             line = np.stack([pos[i], pos[i] + direction * min_length])
             for k in range(r):
                 polylines[k][i] = line
@@ -334,7 +341,17 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
     along = np.maximum(np.einsum("nd,nd->n", ctx.velocity, np.stack([np.cos(heading), np.sin(heading)], -1)), 0.0)
     v_init = np.where(np.array([m is None for m in matches]), speed, along)
     signals = ctx.signals[CURRENT:]
-    out = engine.simulate(paths, drivers, np.zeros((r, n)), np.broadcast_to(v_init, (r, n)), stop_s, stop_signal, signals, NUM_FUTURE + 1, DT)
+    out = engine.simulate(
+        paths,
+        drivers,
+        np.zeros((r, n)),
+        np.broadcast_to(v_init, (r, n)),
+        stop_s,
+        stop_signal,
+        signals,
+        NUM_FUTURE + 1,
+        DT,
+    )
     # Merge from the current position onto the lane centre over _BLEND_M metres of travel.
     s = out.s[..., 1:]
     fade = np.exp(-s / _BLEND_M)
@@ -369,6 +386,7 @@ def _rng(scenario, policy: str, seed: int) -> np.random.Generator:
 
 # ---------------------------------------------------------------------------------------------
 # Scenario generation: all 91 steps of every sim agent, with box sizes and types.
+
 
 def _filled_history(ctx: SimContext) -> np.ndarray:
     """(N, 11, 4) logged history with gaps interpolated; before an object's first logged step,
@@ -433,8 +451,12 @@ def generate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = 
     history = _straight_history(ctx) if kind == "straight" else _filled_history(ctx)
     history = np.broadcast_to(history[None], (num_rollouts,) + history.shape).copy()
     if kind == "logged_noise":
-        history += _history_noise(np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), 7]),
-                                  num_rollouts, ctx.num_agents, noise_m=0.5)
+        history += _history_noise(
+            np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), 7]),
+            num_rollouts,
+            ctx.num_agents,
+            noise_m=0.5,
+        )
         history[..., 3] = geo.wrap_angle(history[..., 3])
     trajectories = np.concatenate([history, future], axis=2)
     sizes = np.stack([ctx.length, ctx.width, ctx.height], -1)[:, None, :]

@@ -10,6 +10,7 @@ world coordinates by the scene assembler. Conventions follow WOMD:
   i.e. counter-clockwise around the road, as the official off-road metric needs;
 * traffic is right-hand.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -123,8 +124,18 @@ def four_way_intersection(
     for a in range(4):
         for k in range(n):
             lat = (k + 0.5) * w
-            ap = Lane(ids(), geo.segment(at(a, r_end, lat), at(a, r_stop, lat), LANE_SPACING_M), speed_limit_mph, turn="approach")
-            de = Lane(ids(), geo.segment(at(a, r_stop, -lat), at(a, r_end, -lat), LANE_SPACING_M), speed_limit_mph, turn="departure")
+            ap = Lane(
+                ids(),
+                geo.segment(at(a, r_end, lat), at(a, r_stop, lat), LANE_SPACING_M),
+                speed_limit_mph,
+                turn="approach",
+            )
+            de = Lane(
+                ids(),
+                geo.segment(at(a, r_stop, -lat), at(a, r_end, -lat), LANE_SPACING_M),
+                speed_limit_mph,
+                turn="departure",
+            )
             approach[a, k], departure[a, k] = ap, de
             lanes[ap.id], lanes[de.id] = ap, de
 
@@ -148,7 +159,9 @@ def four_way_intersection(
 
     road_lines: list[tuple[int, int, np.ndarray]] = []
     for a in range(4):
-        road_lines.append((ids(), ROAD_LINE_SOLID_DOUBLE_YELLOW, geo.segment(at(a, r_stop, 0.0), at(a, r_end, 0.0), LANE_SPACING_M)))
+        road_lines.append(
+            (ids(), ROAD_LINE_SOLID_DOUBLE_YELLOW, geo.segment(at(a, r_stop, 0.0), at(a, r_end, 0.0), LANE_SPACING_M))
+        )
         for k in range(1, n):
             for side in (1.0, -1.0):
                 line = geo.segment(at(a, r_stop, side * k * w), at(a, r_end, side * k * w), LANE_SPACING_M)
@@ -156,7 +169,9 @@ def four_way_intersection(
 
     # Stop bars across the approach lanes, where the signalised connectors start.
     for a in range(4):
-        road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(at(a, r_stop, 0.0), at(a, r_stop, half), 0.5)))
+        road_lines.append(
+            (ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(at(a, r_stop, 0.0), at(a, r_stop, half), 0.5))
+        )
 
     # One curb per quadrant, between arm a (its left side) and arm a+1 (its right side).
     road_edges = []
@@ -244,7 +259,13 @@ def corridor(
         pieces, bounds = [], [0.0, *s_cuts, s[-1]]
         for lo, hi in zip(bounds[:-1], bounds[1:]):
             keep = (s > lo) & (s < hi)
-            pts = np.concatenate([[np.array([np.interp(lo, s, poly[:, k]) for k in range(2)])], poly[keep], [np.array([np.interp(hi, s, poly[:, k]) for k in range(2)])]])
+            pts = np.concatenate(
+                [
+                    [np.array([np.interp(lo, s, poly[:, k]) for k in range(2)])],
+                    poly[keep],
+                    [np.array([np.interp(hi, s, poly[:, k]) for k in range(2)])],
+                ]
+            )
             pieces.append(pts)
         return pieces
 
@@ -282,8 +303,13 @@ def corridor(
 
     # Stop bars across each direction's lanes, through the first points of its signalised lanes.
     for direction in (1, -1):
-        starts = np.array([lane.polyline[0] for lane in lanes.values()
-                           if lane.signal_group and np.sign(lane.polyline[-1, 0] - lane.polyline[0, 0]) == direction])
+        starts = np.array(
+            [
+                lane.polyline[0]
+                for lane in lanes.values()
+                if lane.signal_group and np.sign(lane.polyline[-1, 0] - lane.polyline[0, 0]) == direction
+            ]
+        )
         across = starts[-1] - starts[0] if len(starts) > 1 else np.array([0.0, -direction])
         across = across / np.linalg.norm(across)
         inner, outer = starts[0] - across * w / 2, starts[-1] + across * w / 2

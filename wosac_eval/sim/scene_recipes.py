@@ -17,6 +17,7 @@ A recipe (`RECIPES[kind](rng)`) returns a `SceneBuilder`: the network, its signa
 the `AgentSpec`s placed on it; `logged_scenes` simulates it closed-loop (see `engine.py`), so
 the logged motion is physically plausible and collision-free unless the recipe scripts a collision.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -89,7 +90,9 @@ def _chain(network: roads.RoadNetwork, lane_ids: list[int]) -> tuple[np.ndarray,
     return np.concatenate(pieces), stops
 
 
-def _route_from(network: roads.RoadNetwork, lane_id: int, rng: np.random.Generator, weights: dict[str, float]) -> list[int]:
+def _route_from(
+    network: roads.RoadNetwork, lane_id: int, rng: np.random.Generator, weights: dict[str, float]
+) -> list[int]:
     """Follows exits from `lane_id` to the end of the network, picking turns by `weights`."""
     route = [lane_id]
     while network.lanes[route[-1]].exit_lanes:
@@ -158,7 +161,18 @@ class SceneBuilder:
         self.agents.append(spec)
         return spec
 
-    def lane_queue(self, lane_ids: list[int], count: int, *, v_des: float, stopped_front: bool, weave=0.12, cyclist=False, lateral=0.0, min_s=0.0):
+    def lane_queue(
+        self,
+        lane_ids: list[int],
+        count: int,
+        *,
+        v_des: float,
+        stopped_front: bool,
+        weave=0.12,
+        cyclist=False,
+        lateral=0.0,
+        min_s=0.0,
+    ):
         """Spawns `count` vehicles in one lane chain, front to back, spaced like IDM traffic."""
         path, stops = _chain(self.network, lane_ids)
         path = _weave(_offset_path(geo.resample(path, PATH_SPACING_M), lateral), self.rng, weave)
@@ -171,7 +185,11 @@ class SceneBuilder:
                 spec.s_init = s_front - spec.length / 2
                 room = first_stop - s_front  # nose to the first stop line
                 # Fast enough to look natural, slow enough to stop comfortably if the light is red.
-                spec.v_init = 0.0 if stopped_front else float(min(spec.v0[0], 0.8 * np.sqrt(2 * spec.b_comf * max(room + 8.0, 0.0))))
+                spec.v_init = (
+                    0.0
+                    if stopped_front
+                    else float(min(spec.v0[0], 0.8 * np.sqrt(2 * spec.b_comf * max(room + 8.0, 0.0))))
+                )
             else:
                 prev = spawned[-1]
                 if stopped_front and prev.v_init == 0.0 and self.rng.random() < 0.7:
@@ -257,22 +275,42 @@ def _intersection_traffic(b: SceneBuilder, density: float, stopped_bias: float =
         if group is None:
             raise ValueError(f"lane {route[1]} after approach {lane.id} is not a signalised connector")
         red_now = signals.is_stop(b.signal_states[group][0]) or signals.is_caution(b.signal_states[group][0])
-        b.lane_queue(route, int(b.rng.integers(2, 6)), v_des=b.rng.uniform(9.0, 14.0), stopped_front=bool(red_now and b.rng.random() < 0.5 + stopped_bias))
+        b.lane_queue(
+            route,
+            int(b.rng.integers(2, 6)),
+            v_des=b.rng.uniform(9.0, 14.0),
+            stopped_front=bool(red_now and b.rng.random() < 0.5 + stopped_bias),
+        )
     for lane in net.lanes_of_turn("departure"):
         if b.rng.random() > density * 0.6 or lane.id in skip:
             continue
-        b.lane_queue([lane.id], int(b.rng.integers(1, 3)), v_des=b.rng.uniform(10.0, 14.0), stopped_front=False, min_s=20.0)
+        b.lane_queue(
+            [lane.id], int(b.rng.integers(1, 3)), v_des=b.rng.uniform(10.0, 14.0), stopped_front=False, min_s=20.0
+        )
 
 
-def _corridor_traffic(b: SceneBuilder, per_lane: tuple[int, int], v_range: tuple[float, float], stopped_front_p: float = 0.3, skip: frozenset = frozenset()):
+def _corridor_traffic(
+    b: SceneBuilder,
+    per_lane: tuple[int, int],
+    v_range: tuple[float, float],
+    stopped_front_p: float = 0.3,
+    skip: frozenset = frozenset(),
+):
     net = b.network
     for lane in [ln for ln in net.lanes_of_turn("approach") if ln.id not in skip]:
         route = _route_from(net, lane.id, b.rng, {})
         red = signals.is_stop(b.signal_states["PED"][0])
-        b.lane_queue(route, int(b.rng.integers(*per_lane)), v_des=b.rng.uniform(*v_range), stopped_front=bool(red and b.rng.random() < 0.5 + stopped_front_p))
+        b.lane_queue(
+            route,
+            int(b.rng.integers(*per_lane)),
+            v_des=b.rng.uniform(*v_range),
+            stopped_front=bool(red and b.rng.random() < 0.5 + stopped_front_p),
+        )
     for lane in net.lanes_of_turn("departure"):
         if b.rng.random() < 0.6 and lane.id not in skip:
-            b.lane_queue([lane.id], int(b.rng.integers(1, 3)), v_des=b.rng.uniform(*v_range), stopped_front=False, min_s=25.0)
+            b.lane_queue(
+                [lane.id], int(b.rng.integers(1, 3)), v_des=b.rng.uniform(*v_range), stopped_front=False, min_s=25.0
+            )
 
 
 def _signal_states(network: roads.RoadNetwork, rng: np.random.Generator, require=None) -> dict[str, np.ndarray]:
@@ -321,7 +359,11 @@ def _recipe_red_light(rng) -> SceneBuilder:
 
 
 def _recipe_dense_following(rng) -> SceneBuilder:
-    net = roads.corridor(lanes_per_direction=int(rng.integers(2, 4)), length=rng.uniform(200.0, 240.0), curvature=rng.uniform(-0.002, 0.002))
+    net = roads.corridor(
+        lanes_per_direction=int(rng.integers(2, 4)),
+        length=rng.uniform(200.0, 240.0),
+        curvature=rng.uniform(-0.002, 0.002),
+    )
     b = _new_scene("dense_following", rng, net)
     _corridor_traffic(b, (4, 7), (8.0, 13.0), stopped_front_p=0.5)
     # Stop-and-go: the front vehicle of each queue modulates its desired speed.
@@ -411,11 +453,24 @@ def _recipe_pedestrians(rng) -> SceneBuilder:
 
 
 def _recipe_cyclists(rng) -> SceneBuilder:
-    net = roads.corridor(lanes_per_direction=1, length=rng.uniform(200.0, 230.0), bike_lane_width=1.8, parking_width=2.4, speed_limit_mph=25.0)
+    net = roads.corridor(
+        lanes_per_direction=1,
+        length=rng.uniform(200.0, 230.0),
+        bike_lane_width=1.8,
+        parking_width=2.4,
+        speed_limit_mph=25.0,
+    )
     b = _new_scene("cyclists", rng, net)
     _corridor_traffic(b, (2, 4), (8.0, 11.0))
     for lane in net.lanes_of_turn("bike"):
-        b.lane_queue([lane.id], int(rng.integers(2, 4)), v_des=rng.uniform(4.0, 6.5), stopped_front=False, cyclist=True, weave=0.1)
+        b.lane_queue(
+            [lane.id],
+            int(rng.integers(2, 4)),
+            v_des=rng.uniform(4.0, 6.5),
+            stopped_front=False,
+            cyclist=True,
+            weave=0.1,
+        )
     for edge_sign in (1.0, -1.0):
         lat = edge_sign * (net.half_width - 1.2)
         ref = np.stack([np.linspace(-100, 100, 201), np.full(201, lat)], axis=1)
@@ -436,5 +491,3 @@ RECIPES = {
     "pedestrians": _recipe_pedestrians,
     "cyclists": _recipe_cyclists,
 }
-
-

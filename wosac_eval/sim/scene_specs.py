@@ -2,6 +2,7 @@
 
 Also the scene clock (`NUM_STEPS` steps of `DT` seconds, `TIMES`) and the spacing at which object paths are resampled.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

@@ -6,6 +6,7 @@ gives byte-identical serialised protos. Scene `i` draws all its randomness from
 `scene_recipes.SCENE_KINDS`; `logged_scenes` simulates it (closed loop, see `engine.py`)
 and this module writes it as a `Scenario` proto in world coordinates, and as TFRecord shards.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -79,13 +80,19 @@ def assemble(scene: LoggedScene, rng: np.random.Generator):
         for lane in signal_lanes:
             ls = dms.lane_states.add()
             ls.lane = lane.id
-            ls.state = int(spec.signal_states[lane.signal_group][t]) if lane.signal_group in spec.signal_states else map_pb2.TrafficSignalLaneState.LANE_STATE_UNKNOWN
+            ls.state = (
+                int(spec.signal_states[lane.signal_group][t])
+                if lane.signal_group in spec.signal_states
+                else map_pb2.TrafficSignalLaneState.LANE_STATE_UNKNOWN
+            )
             _map_points(spec, lane.polyline[:1], _Single(ls.stop_point))
 
     n = len(spec.agents)
     order = rng.permutation(n)  # WOMD lists tracks in no particular order
     first_id = int(rng.integers(100, 3000))
-    world_xy = np.round(_to_world(spec, np.stack([scene.x, scene.y], axis=-1).reshape(-1, 2)).reshape(n, NUM_STEPS, 2), 4).tolist()
+    world_xy = np.round(
+        _to_world(spec, np.stack([scene.x, scene.y], axis=-1).reshape(-1, 2)).reshape(n, NUM_STEPS, 2), 4
+    ).tolist()
     heading = geo.wrap_angle(scene.heading + spec.rotation)
     ground = _ground(spec, np.stack([scene.x, scene.y], axis=-1).reshape(-1, 2)).reshape(n, NUM_STEPS)
     heading_r = np.round(heading, 5).tolist()
@@ -143,7 +150,9 @@ def generate_scenes(n: int, seed: int = 0) -> list:
     return [generate_scene(seed, i) for i in range(n)]
 
 
-def write_scenario_shards(scenarios: list, directory: str | Path, num_shards: int = 1, prefix: str = "synthetic") -> list[Path]:
+def write_scenario_shards(
+    scenarios: list, directory: str | Path, num_shards: int = 1, prefix: str = "synthetic"
+) -> list[Path]:
     """Writes scenarios as TFRecord shards named `<prefix>.tfrecord-0000k-of-0000n`."""
     from wosac_eval.parse.tfrecord import write_records
 

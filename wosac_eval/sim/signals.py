@@ -2,6 +2,7 @@
 
 States are the integer values of `TrafficSignalLaneState.State`.
 """
+
 from __future__ import annotations
 
 import numpy as np

@@ -225,7 +225,7 @@ class ValidationReport:
         for f in findings:
             self.add(f)
 
-    def merge(self, other: "ValidationReport") -> None:
+    def merge(self, other: ValidationReport) -> None:
         """Add another report's findings (counts, listed findings, invalid scenarios) after this one's."""
         for code, theirs in other.groups.items():
             group = self.groups.get(code)
@@ -269,7 +269,7 @@ class ValidationReport:
     @property
     def skipped_scenarios(self) -> dict[str, str]:
         """Scenario id -> reason, for every scenario that a partial scorer must skip."""
-        skipped = {sid: "missing from the submission" for sid in self.missing_scenarios}
+        skipped = dict.fromkeys(self.missing_scenarios, "missing from the submission")
         skipped.update(self.invalid_scenarios)
         return skipped
 

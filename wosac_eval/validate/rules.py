@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Iterable, Sequence
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -33,7 +33,6 @@ from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
 from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS
-
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
 N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario
@@ -276,9 +275,9 @@ def _ignored_fields(trajectories: Sequence[Any], spec: challenges.ChallengeSpec)
 
 _IGNORED_WHY = {
     True: "the scenario gen evaluator takes every sim agent as valid at every step (the log's validity "
-          "at step 10), whatever the submitted valid says",
+    "at step 10), whatever the submitted valid says",
     False: "the sim agents evaluator takes box sizes and object types from the log (sizes at step 10) and "
-           "every simulated step as valid; these fields count for --challenge scenario_gen only",
+    "every simulated step as valid; these fields count for --challenge scenario_gen only",
 }
 
 
@@ -298,23 +297,35 @@ def _length_hint(count: int, field_index: int, spec: challenges.ChallengeSpec) -
     challenge's length, or missing box sizes."""
     other = next(s for s in challenges.SPECS.values() if s is not spec)
     if count == other.num_simulation_steps and field_index < len(TRAJECTORY_FIELDS):
-        return (f"{count} values is a {other.challenge} submission: validate and score it with "
-                f"--challenge {other.challenge}")
+        return (
+            f"{count} values is a {other.challenge} submission: validate and score it with "
+            f"--challenge {other.challenge}"
+        )
     if field_index >= len(TRAJECTORY_FIELDS):
-        return (f"the scenario gen challenge needs length, width and height with one value per step "
-                f"({spec.num_simulation_steps}); with another count the official scorer cannot score the scenario")
+        return (
+            f"the scenario gen challenge needs length, width and height with one value per step "
+            f"({spec.num_simulation_steps}); with another count the official scorer cannot score the scenario"
+        )
     return None
 
 
 # The official validator does not look at values, and its scorer lets NaN and inf spread through the
 # features to finite likelihoods (NaN or inf displacement errors); wosac-eval scores them the same way.
-_NON_FINITE_OFFICIAL = "; the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
-_NON_FINITE_HINT = ("a NaN or inf position, heading or box size is almost always a simulator bug: the object's "
-                    "distances and speeds at those steps become NaN, and its displacement error NaN or inf")
-_NON_POSITIVE_HINT = ("the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
-                      "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant")
-_MISSING_TYPE_HINT = ("the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
-                      "types from the log, and the submitted type is only carried along")
+_NON_FINITE_OFFICIAL = (
+    "; the official evaluator scores it as given, NaN spreading into its features (so does wosac-eval)"
+)
+_NON_FINITE_HINT = (
+    "a NaN or inf position, heading or box size is almost always a simulator bug: the object's "
+    "distances and speeds at those steps become NaN, and its displacement error NaN or inf"
+)
+_NON_POSITIVE_HINT = (
+    "the official evaluator scores zero or negative sizes as given (so does wosac-eval); logged "
+    "boxes are 0 on a track's invalid steps, so a log replay has them: check the sizes are meant"
+)
+_MISSING_TYPE_HINT = (
+    "the official evaluator scores it as TYPE_UNSET (so does wosac-eval): the metrics take the "
+    "types from the log, and the submitted type is only carried along"
+)
 
 
 def _non_finite_detail(field: str, values: Any) -> str:
@@ -326,6 +337,14 @@ def _non_finite_detail(field: str, values: Any) -> str:
     if len(bad) > 1:
         detail += f" ({len(bad)} non-finite values, at indices {format_ids(bad.tolist(), 10)})"
     return detail
+
+
+class _SceneLocation(TypedDict):
+    """Where a scene's findings are (`make_finding`'s keywords)."""
+
+    shard: str | None
+    scenario_id: str | None
+    rollout: int
 
 
 def check_scene_object_ids(
@@ -344,15 +363,21 @@ def check_scene_object_ids(
     the scenario is unknown (then only missing ids and duplicates are checked).
     """
     out: list[Finding] = []
-    loc = {"shard": shard, "scenario_id": scenario_id, "rollout": rollout}
+    loc = _SceneLocation(shard=shard, scenario_id=scenario_id, rollout=rollout)
     for k in np.flatnonzero(~has_id).tolist():
         out.append(make_finding("rollouts.missing_object_id", f"simulated_trajectories[{k}] has no object_id", **loc))
     present, multiplicity = np.unique(ids[has_id], return_counts=True)
     repeated = multiplicity > 1
     if repeated.any():
         dup = ", ".join(f"{i} ({m} times)" for i, m in zip(present[repeated].tolist(), multiplicity[repeated].tolist()))
-        out.append(make_finding("rollouts.duplicate_objects", f"object ids simulated more than once: {dup}; the official "
-                                "validator accepts it but its scorer fails on the scenario (repeated ids)", **loc))
+        out.append(
+            make_finding(
+                "rollouts.duplicate_objects",
+                f"object ids simulated more than once: {dup}; the official "
+                "validator accepts it but its scorer fails on the scenario (repeated ids)",
+                **loc,
+            )
+        )
     if sim_agent_ids is not None:
         missing = np.setdiff1d(sim_agent_ids, present, assume_unique=True)
         if missing.size:
@@ -417,7 +442,9 @@ def check_scenario_rollouts(
     expected = None if sim_agent_ids is None else np.unique(np.asarray(sim_agent_ids, dtype=np.int64))
     trajectories = [t for scene in scenes for t in scene.simulated_trajectories]
     n = len(trajectories)
-    scene_sizes = np.fromiter((len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes))
+    scene_sizes = np.fromiter(
+        (len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes)
+    )
     rollout_of = np.repeat(np.arange(len(scenes)), scene_sizes)
     starts = np.concatenate([[0], np.cumsum(scene_sizes)])
     fields = TRAJECTORY_FIELDS + (BOX_FIELDS if spec.submits_boxes else ())
@@ -457,8 +484,16 @@ def check_scenario_rollouts(
     for k, f in np.argwhere(non_finite).tolist():
         field = fields[f]
         detail = _non_finite_detail(field, getattr(trajectories[k], field))
-        out.append(make_finding("rollouts.non_finite", detail + _NON_FINITE_OFFICIAL, field=field,
-                                severity=WARNING, hint=_NON_FINITE_HINT, **where_(k)))
+        out.append(
+            make_finding(
+                "rollouts.non_finite",
+                detail + _NON_FINITE_OFFICIAL,
+                field=field,
+                severity=WARNING,
+                hint=_NON_FINITE_HINT,
+                **where_(k),
+            )
+        )
     for k, f in np.argwhere(non_positive).tolist():
         field = fields[f]
         values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)
@@ -467,18 +502,40 @@ def check_scenario_rollouts(
         if len(bad) > 1:
             detail += f" ({len(bad)} such values, at indices {format_ids(bad.tolist(), 10)})"
         detail += "; a box size is expected to be positive, the official evaluator scores it as given"
-        out.append(make_finding("rollouts.non_positive_size", detail, field=field, severity=WARNING,
-                                hint=_NON_POSITIVE_HINT, **where_(k)))
+        out.append(
+            make_finding(
+                "rollouts.non_positive_size",
+                detail,
+                field=field,
+                severity=WARNING,
+                hint=_NON_POSITIVE_HINT,
+                **where_(k),
+            )
+        )
     if spec.submits_boxes:
         for k in np.flatnonzero(~has_type).tolist():
-            out.append(make_finding("rollouts.missing_object_type",
-                                    "object_type is not set (or TYPE_UNSET); expected the type of the object "
-                                    f"({', '.join(PROTO_NAMES.values())}), the official evaluator scores it as "
-                                    "TYPE_UNSET", field="object_type", severity=WARNING, hint=_MISSING_TYPE_HINT,
-                                    **where_(k)))
+            out.append(
+                make_finding(
+                    "rollouts.missing_object_type",
+                    "object_type is not set (or TYPE_UNSET); expected the type of the object "
+                    f"({', '.join(PROTO_NAMES.values())}), the official evaluator scores it as "
+                    "TYPE_UNSET",
+                    field="object_type",
+                    severity=WARNING,
+                    hint=_MISSING_TYPE_HINT,
+                    **where_(k),
+                )
+            )
     ignored = _ignored_fields(trajectories, spec)
     if ignored:
-        out.append(make_finding("rollouts.ignored_field", f"fields {', '.join(ignored)} are set but ignored: "
-                                f"{_IGNORED_WHY[spec.submits_boxes]}", shard=shard, scenario_id=scenario_id,
-                                field=ignored[0], severity=WARNING))
+        out.append(
+            make_finding(
+                "rollouts.ignored_field",
+                f"fields {', '.join(ignored)} are set but ignored: {_IGNORED_WHY[spec.submits_boxes]}",
+                shard=shard,
+                scenario_id=scenario_id,
+                field=ignored[0],
+                severity=WARNING,
+            )
+        )
     return out

@@ -23,21 +23,19 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from google.protobuf.message import DecodeError
 
 from wosac_eval import challenges
 from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
-from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
-from google.protobuf.message import DecodeError
-
 from wosac_eval.parse.decode import decode_message
-from wosac_eval.parse.limits import ShardCensus
+from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
+from wosac_eval.parse.limits import InputLimits, ShardCensus
+from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.shard_stream import IrregularShard, iter_top_level_fields
 from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_text
-from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
-from wosac_eval.parse.limits import InputLimits
-from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
 from wosac_eval.parse.wire import field_spans
+from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.validate import rules
 from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
 
@@ -57,12 +55,15 @@ def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
     from wosac_eval.parse.tfrecord import read_record_at
 
     path, offsets = item
-    return [rules.sim_agent_ids(parse_scenario(read_record_at(path, offset), ScenarioSource(Path(path), offset)))
-            for offset in offsets]
+    return [
+        rules.sim_agent_ids(parse_scenario(read_record_at(path, offset), ScenarioSource(Path(path), offset)))
+        for offset in offsets
+    ]
 
 
 def load_sim_agents(
-    scenarios: ScenarioIndex | PathLike | Iterable[PathLike], progress: Callable[[int], Any] | None = None,
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
+    progress: Callable[[int], Any] | None = None,
     executor=None,
 ) -> dict[str, np.ndarray]:
     """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
@@ -79,8 +80,10 @@ def load_sim_agents(
             from wosac_eval.runtime.executors import LocalExecutor
 
             batches = _index_batches(scenarios)
-            for (ids, _), found in zip(batches, (executor or LocalExecutor()).imap(
-                    _sim_agents_of, ((path, offsets) for _, (path, offsets) in batches))):
+            for (ids, _), found in zip(
+                batches,
+                (executor or LocalExecutor()).imap(_sim_agents_of, ((path, offsets) for _, (path, offsets) in batches)),
+            ):
                 agents.update(zip(ids, found))
                 if progress is not None:
                     progress(len(ids))
@@ -131,8 +134,9 @@ def _container_finding(problem: Exception) -> Finding:
     return Finding("container.unreadable", str(problem))
 
 
-def validate_scenario_rollouts(rollouts_msg: Any, sim_agent_ids: Any, shard: str | None,
-                               challenge: Any = challenges.Challenge.SIM_AGENTS) -> list[Finding]:
+def validate_scenario_rollouts(
+    rollouts_msg: Any, sim_agent_ids: Any, shard: str | None, challenge: Any = challenges.Challenge.SIM_AGENTS
+) -> list[Finding]:
     """The per-scenario rules (32 joint scenes, sim agents, 80 or 91 finite values per field, boxes and
     types for scenario gen) on one ScenarioRollouts.
 
@@ -171,8 +175,9 @@ class ShardResult:
         return self.parse_error is None and not self.past_limit
 
 
-def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int, challenge: Any,
-                          limits: InputLimits | None) -> ShardResult | None:
+def _check_shard_streamed(
+    shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int, challenge: Any, limits: InputLimits | None
+) -> ShardResult | None:
     """`check_shard` of a shard in a file, read one top-level field at a time; None when the shard must be
     judged whole (its top level is not well-formed, a part does not parse, a string is not UTF-8).
 
@@ -227,8 +232,13 @@ def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_li
     return result
 
 
-def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
-                challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None) -> ShardResult:
+def check_shard(
+    shard: ShardRef,
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    limits: InputLimits | None = None,
+) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts.
 
     It is read one scenario at a time (`_check_shard_streamed`: from its file, or the bytes it carries),
@@ -240,9 +250,13 @@ def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
     return check_shard_whole(shard, agents, max_listed, challenge, limits)
 
 
-def check_shard_whole(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
-                      challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None
-                      ) -> ShardResult:
+def check_shard_whole(
+    shard: ShardRef,
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    limits: InputLimits | None = None,
+) -> ShardResult:
     """`check_shard` with the shard parsed whole: the reference the streamed check equals, and the judge of
     a shard that is not well-formed (its messages are a whole parse's)."""
     name, data = shard.name, shard.read()
@@ -282,8 +296,14 @@ class _Validation:
     merging in shard order makes the report identical for any worker count.
     """
 
-    def __init__(self, agents: dict[str, np.ndarray], report: ValidationReport, progress: Callable[[int], Any] | None,
-                 metadata_checks: str = "error", max_scenarios: int = InputLimits.max_scenarios):
+    def __init__(
+        self,
+        agents: dict[str, np.ndarray],
+        report: ValidationReport,
+        progress: Callable[[int], Any] | None,
+        metadata_checks: str = "error",
+        max_scenarios: int = InputLimits.max_scenarios,
+    ):
         self.agents = agents
         self.max_scenarios = max_scenarios
         self.metadata_checks = metadata_checks
@@ -303,11 +323,18 @@ class _Validation:
             return
         if report.stats.scenarios_submitted + len(result.entries) > self.max_scenarios:
             # Bounded memory: the scenarios past the limit are not recorded (nor scored).
-            report.add(Finding("container.size_limit", f"shard {name}: the submission holds more than "
-                               f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
-                               shard=name))
+            report.add(
+                Finding(
+                    "container.size_limit",
+                    f"shard {name}: the submission holds more than "
+                    f"max_scenarios={self.max_scenarios} scenario_rollouts; this shard is not read",
+                    shard=name,
+                )
+            )
             result.past_limit = True
             return
+        # A shard read without a parse error has its metadata and rollout report.
+        assert result.metadata is not None and result.rollouts is not None
         self.metadata(name, result.metadata, result.metadata_findings)
         if result.empty_detail is not None:
             report.add(make_finding("shard.empty", result.empty_detail, shard=name))
@@ -328,9 +355,11 @@ class _Validation:
         if self.reference_metadata is None:
             self.reference_metadata, self.reference_shard = metadata, name
         else:
-            self.report.extend(self.graded(
-                rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
-            ))
+            self.report.extend(
+                self.graded(
+                    rules.check_metadata_consistency(self.reference_metadata, self.reference_shard, metadata, name)
+                )
+            )
 
     def graded(self, findings: list[Finding]) -> list[Finding]:
         """Metadata findings at the severity asked for: local scoring needs no account or flags."""
@@ -353,8 +382,12 @@ class _Validation:
 
 
 def _shard_results(
-    shards: Iterable[ShardRef], agents: dict[str, np.ndarray], max_listed: int, executor,
-    challenge: challenges.Challenge, limits: InputLimits,
+    shards: Iterable[ShardRef],
+    agents: dict[str, np.ndarray],
+    max_listed: int,
+    executor,
+    challenge: challenges.Challenge,
+    limits: InputLimits,
 ) -> Iterator[ShardResult]:
     """Check every shard with the executor (this process, worker processes or Ray); results in shard order.
 
@@ -416,8 +449,10 @@ def validate_submission(
     if not source.path.exists():
         raise FileNotFoundError(f"{source}: no such submission file or folder")
     # Workers of this host read an archive's members from scratch files; other nodes get their bytes.
-    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)),
-                           members_in_memory=not isinstance(executor, LocalExecutor))
+    shards = source.shards(
+        problems=lambda problem: report.add(_container_finding(problem)),
+        members_in_memory=not isinstance(executor, LocalExecutor),
+    )
     listed: collections.deque = collections.deque()  # the names of the shards in flight
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:
@@ -437,7 +472,8 @@ def validate_submission(
             source.close()
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
-    report.missing_scenarios = [f.scenario_id for f in missing]
+    # Every missing-scenario finding names its scenario.
+    report.missing_scenarios = [f.scenario_id for f in missing if f.scenario_id is not None]
     report.extend(missing)
     report.stats.scenarios_valid = sum(
         1 for sid in run.first_seen if sid in agents and sid not in report.invalid_scenarios

@@ -1,4 +1,5 @@
 """The routes that need no key: the leaderboards and the health check."""
+
 from __future__ import annotations
 
 from fastapi import APIRouter
@@ -19,16 +20,18 @@ async def healthz(svc: ServiceDep):
     try:
         svc.store.ping()
     except Exception as exc:  # noqa: BLE001 - the answer must say the DB is down, not crash
-        return JSONResponse({"status": "error", "database": f"unreachable: {exc}", "scenario_shards": shards},
-                            status_code=503)
+        return JSONResponse(
+            {"status": "error", "database": f"unreachable: {exc}", "scenario_shards": shards}, status_code=503
+        )
     try:
         state = svc.disk_state()
     except OSError:  # the data dir itself is unreadable: uploads fail, status and results may still be served
         return Health(status="degraded", database="ok", scenario_shards=shards)
     # Still 200 while uploads are refused: status, results and the leaderboard are served, and a restart
     # (what a failed health check brings) would free no space.
-    disk = DiskHealth(free_bytes=state.free, reserved_bytes=state.reserved, floor_bytes=state.floor,
-                      refusing_uploads=state.refusing)
+    disk = DiskHealth(
+        free_bytes=state.free, reserved_bytes=state.reserved, floor_bytes=state.floor, refusing_uploads=state.refusing
+    )
     return Health(status="degraded" if state.refusing else "ok", database="ok", scenario_shards=shards, disk=disk)
 
 
@@ -36,6 +39,8 @@ async def healthz(svc: ServiceDep):
 def get_leaderboard(svc: ServiceDep, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None):
     """Best published result per method, one leaderboard per challenge and config (public, no key needed)."""
     config = svc.config_for(challenge, config)
-    entries = [LeaderboardEntry(**{**e, "finished_at": iso(e["finished_at"])})
-               for e in jobs.leaderboard(svc.store, config, challenge)]
+    entries = [
+        LeaderboardEntry(**{**e, "finished_at": iso(e["finished_at"])})
+        for e in jobs.leaderboard(svc.store, config, challenge)
+    ]
     return Leaderboard(challenge=challenge, config=config, entries=entries)

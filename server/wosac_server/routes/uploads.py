@@ -7,6 +7,7 @@ deleting, complete): every PATCH, complete and DELETE first moves it out of `ope
 compare-and-set, so at most one of them works on an upload at a time, and moves it on when it
 ends, even on a full disk (`Service.settle_upload`).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -50,13 +51,29 @@ def _headers(row: dict) -> dict[str, str]:
     return headers
 
 
-@router.post("", status_code=201, response_model=UploadStatus, operation_id="createUpload",
-             responses={201: UPLOAD_LINKS, 413: {"description": "Declared length too large"}, 507: DISK_FULL,
-                        429: {"description": "Quota, or too many unfinished uploads"},
-                        403: {"description": "Method name owned by another key"}})
-def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None,
-                  method: MethodQ = None, publish: PublishQ = False, allow_partial: PartialQ = False,
-                  upload_length: Annotated[int | None, Header(ge=1, le=MAX_HEADER_INT)] = None):
+@router.post(
+    "",
+    status_code=201,
+    response_model=UploadStatus,
+    operation_id="createUpload",
+    responses={
+        201: UPLOAD_LINKS,
+        413: {"description": "Declared length too large"},
+        507: DISK_FULL,
+        429: {"description": "Quota, or too many unfinished uploads"},
+        403: {"description": "Method name owned by another key"},
+    },
+)
+def create_upload(
+    svc: ServiceDep,
+    key: Key,
+    challenge: ChallengeQ = "sim_agents",
+    config: ConfigQ = None,
+    method: MethodQ = None,
+    publish: PublishQ = False,
+    allow_partial: PartialQ = False,
+    upload_length: Annotated[int | None, Header(ge=1, le=MAX_HEADER_INT)] = None,
+):
     """Start a resumable upload; send the bytes with PATCH, then POST .../complete."""
     config = svc.config_for(challenge, config)
     method = svc.check_method(key, challenge, method or key.name)
@@ -72,11 +89,22 @@ def create_upload(svc: ServiceDep, key: Key, challenge: ChallengeQ = "sim_agents
             with svc.store.transaction():  # the count and the insert under one write lock
                 held = jobs.open_uploads(svc.store, key.id)
                 if held >= svc.settings.max_open_uploads:
-                    raise HTTPException(429, f"key {key.name!r} has {held} unfinished uploads, its limit "
-                                        f"(WOSAC_MAX_OPEN_UPLOADS); complete or DELETE one first")
-                jobs.insert_upload(svc.store, upload_id=upload_id, key_id=key.id, method=method or key.name,
-                                   challenge=challenge, config=config, allow_partial=allow_partial,
-                                   published=publish, declared_length=upload_length)
+                    raise HTTPException(
+                        429,
+                        f"key {key.name!r} has {held} unfinished uploads, its limit "
+                        f"(WOSAC_MAX_OPEN_UPLOADS); complete or DELETE one first",
+                    )
+                jobs.insert_upload(
+                    svc.store,
+                    upload_id=upload_id,
+                    key_id=key.id,
+                    method=method or key.name,
+                    challenge=challenge,
+                    config=config,
+                    allow_partial=allow_partial,
+                    published=publish,
+                    declared_length=upload_length,
+                )
         except BaseException:
             part.unlink(missing_ok=True)
             raise
@@ -93,8 +121,15 @@ def head_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
 @router.get("/{upload_id}", response_model=UploadStatus, operation_id="getUpload")
 def get_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     row = svc.own_upload(key, upload_id)
-    return JSONResponse(UploadStatus(upload_id=row["id"], offset=row["received_bytes"], length=row["declared_length"],
-                                     submission_id=row["submission_id"]).model_dump(), headers=_headers(row))
+    return JSONResponse(
+        UploadStatus(
+            upload_id=row["id"],
+            offset=row["received_bytes"],
+            length=row["declared_length"],
+            submission_id=row["submission_id"],
+        ).model_dump(),
+        headers=_headers(row),
+    )
 
 
 def _busy(row: dict | None) -> HTTPException:
@@ -107,12 +142,25 @@ def _busy(row: dict | None) -> HTTPException:
     return HTTPException(409, f"{doing} of this upload is in progress; retry when it is done", headers=_headers(row))
 
 
-@router.patch("/{upload_id}", status_code=204, openapi_extra=OCTET_BODY, operation_id="patchUpload",
-              responses={409: {"description": "Upload-Offset does not match, or another request is at work"},
-                         413: {"description": "Chunk would exceed the size limit"}, 507: DISK_FULL})
-async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: UploadId,
-                       upload_offset: Annotated[int, Header(ge=0, le=MAX_HEADER_INT)],
-                       content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None):
+@router.patch(
+    "/{upload_id}",
+    status_code=204,
+    openapi_extra=OCTET_BODY,
+    operation_id="patchUpload",
+    responses={
+        409: {"description": "Upload-Offset does not match, or another request is at work"},
+        413: {"description": "Chunk would exceed the size limit"},
+        507: DISK_FULL,
+    },
+)
+async def patch_upload(
+    request: Request,
+    svc: ServiceDep,
+    key: Key,
+    upload_id: UploadId,
+    upload_offset: Annotated[int, Header(ge=0, le=MAX_HEADER_INT)],
+    content_length: Annotated[int | None, Header(ge=0, le=MAX_HEADER_INT)] = None,
+):
     """Append the body at `Upload-Offset`; answers the new offset in `Upload-Offset`."""
     known = await run_in_threadpool(svc.own_upload, key, upload_id)
     # A declared upload's bytes are promised (reserved) already; an undeclared one's chunk is promised here.
@@ -125,8 +173,12 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
         row = await run_in_threadpool(jobs.held_upload, svc.store, upload_id)
         offset = row["received_bytes"]
         if upload_offset != offset:
-            raise HTTPException(409, f"Upload-Offset {upload_offset} does not match the stored offset {offset}; "
-                                "HEAD the upload and resume from there", headers=_headers(row))
+            raise HTTPException(
+                409,
+                f"Upload-Offset {upload_offset} does not match the stored offset {offset}; "
+                "HEAD the upload and resume from there",
+                headers=_headers(row),
+            )
         part = svc.settings.uploads_dir / f"{upload_id}.part"
         _check_part(part, row)
         # Bytes past the committed offset (a crash mid-PATCH) are not trusted: cut them.
@@ -140,9 +192,13 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
             await run_in_threadpool(jobs.set_upload_offset, svc.store, upload_id, offset + written)
         except BodyTooLarge:
             _cut(part, offset)
-            raise HTTPException(413, f"this chunk would take the upload past its limit ({offset + max(0, limit)} "
-                                "bytes: declared Upload-Length, the server's WOSAC_MAX_UPLOAD_BYTES or the key's "
-                                "daily quota)", headers=_headers(row)) from None
+            raise HTTPException(
+                413,
+                f"this chunk would take the upload past its limit ({offset + max(0, limit)} "
+                "bytes: declared Upload-Length, the server's WOSAC_MAX_UPLOAD_BYTES or the key's "
+                "daily quota)",
+                headers=_headers(row),
+            ) from None
         except BaseException:
             # Bytes past the committed offset are cut at once: on a full disk their space lets the state
             # below be recorded.
@@ -154,9 +210,13 @@ async def patch_upload(request: Request, svc: ServiceDep, key: Key, upload_id: U
     return Response(status_code=204, headers={"Upload-Offset": str(offset + written)})
 
 
-@router.post("/{upload_id}/complete", status_code=202, response_model=SubmissionStatus,
-             operation_id="completeUpload",
-             responses={202: SUBMISSION_LINKS, 409: {"description": "Upload incomplete, or another request at work"}})
+@router.post(
+    "/{upload_id}/complete",
+    status_code=202,
+    response_model=SubmissionStatus,
+    operation_id="completeUpload",
+    responses={202: SUBMISSION_LINKS, 409: {"description": "Upload incomplete, or another request at work"}},
+)
 async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     """Turn the uploaded bytes into a queued submission (idempotent)."""
     await run_in_threadpool(svc.own_upload, key, upload_id)
@@ -172,8 +232,12 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
     try:
         row = await run_in_threadpool(jobs.held_upload, svc.store, upload_id)
         if row["declared_length"] is not None and row["received_bytes"] != row["declared_length"]:
-            raise HTTPException(409, f"received {row['received_bytes']} of the {row['declared_length']} declared "
-                                "bytes; PATCH the rest first", headers=_headers(row))
+            raise HTTPException(
+                409,
+                f"received {row['received_bytes']} of the {row['declared_length']} declared "
+                "bytes; PATCH the rest first",
+                headers=_headers(row),
+            )
         part = svc.settings.uploads_dir / f"{upload_id}.part"
         _check_part(part, row)
         with open(part, "ab") as f:
@@ -181,9 +245,18 @@ async def complete_upload(svc: ServiceDep, key: Key, upload_id: UploadId):
         async with svc.upload_slot(key) as hold, svc.check_slots:
             try:
                 sub = await run_in_threadpool(
-                    svc.accept, key, part, row["received_bytes"], hold=hold, method=row["method"],
-                    challenge=row["challenge"], config=row["config"], allow_partial=bool(row["allow_partial"]),
-                    publish=bool(row["published"]), upload_id=upload_id)
+                    svc.accept,
+                    key,
+                    part,
+                    row["received_bytes"],
+                    hold=hold,
+                    method=row["method"],
+                    challenge=row["challenge"],
+                    config=row["config"],
+                    allow_partial=bool(row["allow_partial"]),
+                    publish=bool(row["published"]),
+                    upload_id=upload_id,
+                )
             except HTTPException as exc:
                 if exc.status_code not in (429, 403):  # a quota may free up, a name be chosen: keep the bytes
                     outcome = "refused"

@@ -5,6 +5,7 @@ cell, the `CELL_CANDIDATES` (64) segments nearest its centre and a clearance
 that proves no other segment can be nearer; built once per scene on the host
 (`backends.jax_backend`), gathered per box corner on the device.
 """
+
 from __future__ import annotations
 
 import math
@@ -12,8 +13,15 @@ import math
 import numpy as np
 
 from wosac_eval.features.compiled import cached_loop
-from wosac_eval.features.road_edge.segments import (bucket_grid, gather_ring, planar_squared, ring_buffer,
-                                                    rings_around, search_grid, segment_frames)
+from wosac_eval.features.road_edge.segments import (
+    bucket_grid,
+    gather_ring,
+    planar_squared,
+    ring_buffer,
+    rings_around,
+    search_grid,
+    segment_frames,
+)
 from wosac_eval.features.spatial import column_bounds
 
 _F = np.float32
@@ -29,8 +37,9 @@ _MAX_CELLS = 1 << 20  # a larger grid (a map over 2 km across) gets a table that
 _MARGIN = 1e-3  # metres of slack in the clearance, far above float32 rounding
 
 
-def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CELL_SIDE,
-                         k: int = CELL_CANDIDATES) -> dict:
+def cell_candidate_table(
+    start: np.ndarray, delta: np.ndarray, side: float = CELL_SIDE, k: int = CELL_CANDIDATES
+) -> dict:
     """A planar grid over the segments: per cell, the `k` segments nearest its centre, and a clearance.
 
     The clearance is a lower bound of the planar distance from any point of the cell to every
@@ -60,19 +69,37 @@ def cell_candidate_table(start: np.ndarray, delta: np.ndarray, side: float = CEL
     if not np.isfinite(origin).all() or shape[0] * shape[1] > _MAX_CELLS:
         return unsettling_cell_table(k)  # every query searches all segments: exact, slower
     buckets = bucket_grid(start, delta, np.ones(len(start), bool))
-    grid = search_grid(buckets["bucket_origin"], buckets["bucket_side"], buckets["bucket_shape"],
-                       buckets["segment_buckets"])
-    candidates, clearance = _cell_table(segment_frames(start, delta), float(origin[0]), float(origin[1]),
-                                        int(shape[0]), int(shape[1]), float(side), int(k), grid,
-                                        buckets["bucket_start"], buckets["bucket_segments"])
-    return {"origin": origin.astype(_F), "shape": shape.astype(np.int32), "candidates": candidates,
-            "clearance": clearance.astype(_F)}
+    grid = search_grid(
+        buckets["bucket_origin"], buckets["bucket_side"], buckets["bucket_shape"], buckets["segment_buckets"]
+    )
+    candidates, clearance = _cell_table(
+        segment_frames(start, delta),
+        float(origin[0]),
+        float(origin[1]),
+        int(shape[0]),
+        int(shape[1]),
+        float(side),
+        int(k),
+        grid,
+        buckets["bucket_start"],
+        buckets["bucket_segments"],
+    )
+    return {
+        "origin": origin.astype(_F),
+        "shape": shape.astype(np.int32),
+        "candidates": candidates,
+        "clearance": clearance.astype(_F),
+    }
 
 
 def unsettling_cell_table(k: int = CELL_CANDIDATES) -> dict:
     """A `cell_candidate_table` of one cell that settles no query (a clearance of -inf)."""
-    return {"origin": np.zeros(2, _F), "shape": np.ones(2, np.int32), "candidates": np.zeros((1, k), np.int32),
-            "clearance": np.full(1, -np.inf, _F)}
+    return {
+        "origin": np.zeros(2, _F),
+        "shape": np.ones(2, np.int32),
+        "candidates": np.zeros((1, k), np.int32),
+        "clearance": np.full(1, -np.inf, _F),
+    }
 
 
 @cached_loop
@@ -109,8 +136,23 @@ def _cell_table(frame, origin_x, origin_y, num_x, num_y, side, k, grid, bucket_s
             for r in range(first, last + 1):
                 if r > first and (r - 1) * bucket_side > nearest_beyond + 2.0 * group_half:
                     break  # every segment not met yet is at least (r - 1) * bucket_side away
-                m = gather_ring(bx, by, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring,
-                                 gathered, gathered_distance, m)
+                m = gather_ring(
+                    bx,
+                    by,
+                    bi,
+                    bj,
+                    r,
+                    frame,
+                    grid,
+                    bucket_start,
+                    bucket_segments,
+                    seen,
+                    tag,
+                    ring,
+                    gathered,
+                    gathered_distance,
+                    m,
+                )
                 if m > k:
                     nearest_beyond = np.partition(gathered_distance[:m], k)[k]
             tag += 1

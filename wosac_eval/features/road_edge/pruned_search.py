@@ -18,6 +18,7 @@ not settle a query (a box on another level than every listed segment) grows
 its list; anything left searches the buckets ring by ring around itself.
 Results equal an all-pairs search bit for bit (tests compare with brute force).
 """
+
 from __future__ import annotations
 
 import math
@@ -27,10 +28,23 @@ import numpy as np
 
 from wosac_eval.features.box_geometry import box_corners
 from wosac_eval.features.compiled import cached_loop, compiled
-from wosac_eval.features.road_edge.segments import (EXTREMELY_LARGE_DISTANCE, Z_STRETCH, SegmentTable,
-                                                    bucket_coordinate, bucket_of, corner_sign, gather_ring,
-                                                    planar_distance, planar_squared, ring_buckets, ring_buffer,
-                                                    rings_around, search_grid, segment_distances, side_of_segment)
+from wosac_eval.features.road_edge.segments import (
+    EXTREMELY_LARGE_DISTANCE,
+    Z_STRETCH,
+    SegmentTable,
+    bucket_coordinate,
+    bucket_of,
+    corner_sign,
+    gather_ring,
+    planar_distance,
+    planar_squared,
+    ring_buckets,
+    ring_buffer,
+    rings_around,
+    search_grid,
+    segment_distances,
+    side_of_segment,
+)
 from wosac_eval.features.spatial import non_finite_pick
 
 _F = np.float32
@@ -62,8 +76,9 @@ def _rounding_margin(distance, length):
 
 @numba.njit
 def _selection(px, py, pz, k, start, delta):
-    return _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
-                                 delta[k, 0], delta[k, 1], delta[k, 2])[1]
+    return _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2], delta[k, 0], delta[k, 1], delta[k, 2])[
+        1
+    ]
 
 
 @cached_loop
@@ -95,8 +110,22 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
 
 
 @numba.njit(error_model="numpy")
-def _cell_candidates(cx, cy, half_diagonal, min_reach, frame, length, grid, bucket_start, bucket_segments, seen,
-                     tag, ring, out_segment, out_key):
+def _cell_candidates(
+    cx,
+    cy,
+    half_diagonal,
+    min_reach,
+    frame,
+    length,
+    grid,
+    bucket_start,
+    bucket_segments,
+    seen,
+    tag,
+    ring,
+    out_segment,
+    out_key,
+):
     """Every segment that can be nearest somewhere in a cell, by key; returns (count, clearance).
 
     For a point q within r of the centre c, segment k's planar distance is at least
@@ -111,13 +140,13 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, frame, length, grid, buck
     for r in range(first, last + 1):
         if r > first and (r - 1) * side - half_diagonal > reach:
             break
-        gathered = gather_ring(cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring,
-                                out_segment, out_key, n)
+        gathered = gather_ring(
+            cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring, out_segment, out_key, n
+        )
         for p in range(n, gathered):
             reach = min(reach, max(out_key[p] + half_diagonal + _LIST_SLACK, min_reach))
         n = gathered
     return _listed(n, reach, half_diagonal, length, out_segment, out_key), reach
-
 
 
 @numba.njit
@@ -255,8 +284,11 @@ def _cell_lists(centre, half_diagonal, min_reach, frame, length, grid, bucket_st
     parent = np.empty(num_cells, np.int64)
     for c in range(num_cells):
         inside = half_diagonal[c] < side * math.sqrt(0.5) and min_reach[c] == 0
-        parent[c] = bucket_of(centre[c, 0], origin_x, side) * grid[4] + bucket_of(centre[c, 1], origin_y, side) \
-            if inside else -1
+        parent[c] = (
+            bucket_of(centre[c, 0], origin_x, side) * grid[4] + bucket_of(centre[c, 1], origin_y, side)
+            if inside
+            else -1
+        )
     order = np.argsort(parent)
     bucket_list, bucket_key = np.empty(num_segments, np.int32), np.empty(num_segments, np.float64)
     bucket_count, current, used = 0, -2, 0
@@ -266,30 +298,67 @@ def _cell_lists(centre, half_diagonal, min_reach, frame, length, grid, bucket_st
             current = parent[c]
             bi, bj = current // grid[4], current % grid[4]
             bucket_x, bucket_y = origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side
-            bucket_count, _ = _cell_candidates(bucket_x, bucket_y, side * math.sqrt(0.5), 0.0, frame, length, grid,
-                                               bucket_start, bucket_segments, seen, num_cells + c, ring, bucket_list,
-                                               bucket_key)
+            bucket_count, _ = _cell_candidates(
+                bucket_x,
+                bucket_y,
+                side * math.sqrt(0.5),
+                0.0,
+                frame,
+                length,
+                grid,
+                bucket_start,
+                bucket_segments,
+                seen,
+                num_cells + c,
+                ring,
+                bucket_list,
+                bucket_key,
+            )
         if parent[c] >= 0:
             shift = math.hypot(centre[c, 0] - bucket_x, centre[c, 1] - bucket_y)
-            m, reach[c] = _cell_candidates_among(centre[c, 0], centre[c, 1], half_diagonal[c], frame, length,
-                                                 bucket_list, bucket_key, bucket_count, shift, scratch_segment,
-                                                 scratch_key)
+            m, reach[c] = _cell_candidates_among(
+                centre[c, 0],
+                centre[c, 1],
+                half_diagonal[c],
+                frame,
+                length,
+                bucket_list,
+                bucket_key,
+                bucket_count,
+                shift,
+                scratch_segment,
+                scratch_key,
+            )
         else:
-            m, reach[c] = _cell_candidates(centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], frame, length,
-                                           grid, bucket_start, bucket_segments, seen, c, ring, scratch_segment,
-                                           scratch_key)
+            m, reach[c] = _cell_candidates(
+                centre[c, 0],
+                centre[c, 1],
+                half_diagonal[c],
+                min_reach[c],
+                frame,
+                length,
+                grid,
+                bucket_start,
+                bucket_segments,
+                seen,
+                c,
+                ring,
+                scratch_segment,
+                scratch_key,
+            )
         while used + m > segment.shape[0]:
             segment, key = _grown(segment), _grown(key)
-        segment[used:used + m] = scratch_segment[:m]
-        key[used:used + m] = scratch_key[:m]
+        segment[used : used + m] = scratch_segment[:m]
+        key[used : used + m] = scratch_key[:m]
         begin[c], end[c] = used, used + m
         used += m
     return begin, end, segment[:used], key[:used], reach
 
 
 @cached_loop
-def _search_lists(queries, cell, centre, half_diagonal, begin, end, segment, key, reach, max_length, start, delta,
-                  frame, hint_stride):
+def _search_lists(
+    queries, cell, centre, half_diagonal, begin, end, segment, key, reach, max_length, start, delta, frame, hint_stride
+):
     """The nearest segment of each query among its cell's list.
 
     The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
@@ -357,8 +426,20 @@ def _ring_searches(queries, found, start, delta, grid, bucket_start, bucket_segm
     evaluated = 0
     for i in range(queries.shape[0]):
         if found[i] == _NOT_FOUND:
-            found[i], count = _ring_search(queries[i, 0], queries[i, 1], queries[i, 2], start, delta, grid,
-                                           bucket_start, bucket_segments, seen, i, ring, max_length)
+            found[i], count = _ring_search(
+                queries[i, 0],
+                queries[i, 1],
+                queries[i, 2],
+                start,
+                delta,
+                grid,
+                bucket_start,
+                bucket_segments,
+                seen,
+                i,
+                ring,
+                max_length,
+            )
             evaluated += count
     return evaluated
 
@@ -416,14 +497,31 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
     work = {"cells": 0, "pairs evaluated": 0}
 
     def search(rows, cells, min_reach):
-        lists = _cell_lists(centre[cells], half_diagonal[cells], min_reach, table.frame, table.length, grid,
-                            table.bucket_start, table.bucket_segments)
+        lists = _cell_lists(
+            centre[cells],
+            half_diagonal[cells],
+            min_reach,
+            table.frame,
+            table.length,
+            grid,
+            table.bucket_start,
+            table.bucket_segments,
+        )
         number = np.full(len(centre) + 2, -1, np.int64)
         number[cells] = np.arange(len(cells))
         number[_NON_FINITE] = _NON_FINITE  # the codes of queries without a cell stay
-        found, needed, evaluated = _search_lists(queries[rows], number[cell[rows]], centre[cells],
-                                                 half_diagonal[cells], *lists, max_length, table.start, table.delta,
-                                                 table.frame, hint_stride)
+        found, needed, evaluated = _search_lists(
+            queries[rows],
+            number[cell[rows]],
+            centre[cells],
+            half_diagonal[cells],
+            *lists,
+            max_length,
+            table.start,
+            table.delta,
+            table.frame,
+            hint_stride,
+        )
         work["cells"] += len(cells)
         work["pairs evaluated"] += evaluated
         return found, needed
@@ -436,8 +534,9 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
         again = np.flatnonzero((found == _NOT_FOUND) & np.isin(cell, grow))
         found[again] = search(again, grow, needed[grow])[0]
     if (found == _NOT_FOUND).any():
-        work["pairs evaluated"] += _ring_searches(queries, found, table.start, table.delta, grid, table.bucket_start,
-                                                  table.bucket_segments, max_length)
+        work["pairs evaluated"] += _ring_searches(
+            queries, found, table.start, table.delta, grid, table.bucket_start, table.bucket_segments, max_length
+        )
     if counts is not None:
         counts.update(work)
     return found
@@ -458,27 +557,30 @@ def _segments_around(bi, bj, r, grid, bucket_start):
 def _grown(a):
     """`a` in an array twice as long (first axis), its rows kept."""
     out = np.empty((2 * a.shape[0],) + a.shape[1:], a.dtype)
-    out[:a.shape[0]] = a
+    out[: a.shape[0]] = a
     return out
 
 
 @cached_loop
-def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior_valid, next_valid, convex_before,
-                      convex_after, group):
+def _signed_distances(
+    queries, segment, start, delta, valid, prior, next_, prior_valid, next_valid, convex_before, convex_after, group
+):
     """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`): the largest of
     each `group` of consecutive points (numpy's maximum: NaN passes on), float32 `(n // group,)`."""
     out = np.empty(queries.shape[0] // group, np.float32)
     for i in range(queries.shape[0]):
         px, py, pz, k = queries[i, 0], queries[i, 1], queries[i, 2], segment[i]
-        rel_t, _, planar = _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2],
-                                                 delta[k, 0], delta[k, 1], delta[k, 2])
+        rel_t, _, planar = _segment_distances(
+            px, py, pz, start[k, 0], start[k, 1], start[k, 2], delta[k, 0], delta[k, 1], delta[k, 2]
+        )
         a, b = prior[k], next_[k]
         side = _side_of(px, py, start[k, 0], start[k, 1], delta[k, 0], delta[k, 1])
         # The neighbours' sides count only past the segment's ends (`corner_sign`).
         side_prior = _side_of(px, py, start[a, 0], start[a, 1], delta[a, 0], delta[a, 1]) if rel_t < 0 else side
         side_next = _side_of(px, py, start[b, 0], start[b, 1], delta[b, 0], delta[b, 1]) if rel_t > 1 else side
-        sign = _corner_sign(rel_t, side, side_prior, side_next, convex_before[k], convex_after[k],
-                            prior_valid[k], next_valid[k])
+        sign = _corner_sign(
+            rel_t, side, side_prior, side_next, convex_before[k], convex_after[k], prior_valid[k], next_valid[k]
+        )
         # A padding segment's distance is 1e10, as officially (only non-finite points get one).
         distance = sign * (planar if valid[k] else EXTREMELY_LARGE_DISTANCE)
         g = i // group
@@ -486,8 +588,9 @@ def _signed_distances(queries, segment, start, delta, valid, prior, next_, prior
     return out
 
 
-def nearest_segments(table: SegmentTable, queries: np.ndarray, counts: dict | None = None,
-                     hint_stride: int = 1) -> np.ndarray:
+def nearest_segments(
+    table: SegmentTable, queries: np.ndarray, counts: dict | None = None, hint_stride: int = 1
+) -> np.ndarray:
     """Index of the nearest road-edge segment of each point, as the official all-pairs search picks it.
 
     Args:
@@ -519,12 +622,25 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
 def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None):
     # The same corner of the box before is the hint (`_nearest_segments`).
     segment = nearest_segments(table, queries, counts, hint_stride=group)
-    return _signed_distances(queries, segment, table.start, table.delta, table.valid, table.prior, table.next,
-                             table.prior_valid, table.next_valid, table.convex_before, table.convex_after, group)
+    return _signed_distances(
+        queries,
+        segment,
+        table.start,
+        table.delta,
+        table.valid,
+        table.prior,
+        table.next,
+        table.prior_valid,
+        table.next_valid,
+        table.convex_before,
+        table.convex_after,
+        group,
+    )
 
 
-def box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table: SegmentTable,
-                              counts: dict | None = None) -> np.ndarray:
+def box_distance_to_road_edge(
+    x, y, bottom, length, width, cos_h, sin_h, valid, table: SegmentTable, counts: dict | None = None
+) -> np.ndarray:
     """Signed distance of the most off-road bottom corner of each box.
 
     The corners (`box_geometry.box_corners` at the height `bottom`) are computed in the search's
@@ -543,8 +659,9 @@ def box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, 
     # step by step, the samples of each step in a row: boxes in a row are near one another, so one's
     # answer is a good hint for the next and their candidate lists stay in the cache.
     by_box = lambda a: np.ascontiguousarray(np.moveaxis(np.reshape(a, (-1,) + shape[-2:]), 0, -1))  # noqa: E731
-    queries, keep = _box_corner_queries(*(by_box(np.asarray(a, _F)) for a in (x, y, bottom, length, width, cos_h,
-                                                                            sin_h)), by_box(valid))
+    queries, keep = _box_corner_queries(
+        *(by_box(np.asarray(a, _F)) for a in (x, y, bottom, length, width, cos_h, sin_h)), by_box(valid)
+    )
     out = np.full((shape[-2], shape[-1], int(np.prod(shape[:-2], dtype=np.int64))), -EXTREMELY_LARGE_DISTANCE, _F)
     out.reshape(-1)[keep] = _signed_distance_groups(table, queries, 4, counts)
     return np.ascontiguousarray(np.moveaxis(out, -1, 0)).reshape(shape)
@@ -567,6 +684,5 @@ def _box_corner_queries(x, y, bottom, length, width, cos_h, sin_h, valid):
         x0, x1, x2, x3, y0, y1, y2, y3 = _box_corners(xs[k], ys[k], ls[k], ws[k], cs[k], ss[k])
         queries[4 * i, 0], queries[4 * i + 1, 0], queries[4 * i + 2, 0], queries[4 * i + 3, 0] = x0, x1, x2, x3
         queries[4 * i, 1], queries[4 * i + 1, 1], queries[4 * i + 2, 1], queries[4 * i + 3, 1] = y0, y1, y2, y3
-        queries[4 * i:4 * i + 4, 2] = bs[k]
+        queries[4 * i : 4 * i + 4, 2] = bs[k]
     return queries, keep
-

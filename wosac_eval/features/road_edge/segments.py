@@ -16,6 +16,7 @@ compiled, in the search loops; the float64 helpers at the end walk the bucket
 grid ring by ring for both searches built on it: `pruned_search` (numpy) and
 `cell_tables` (the candidate tables of the fixed-shape device search).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -26,7 +27,6 @@ import numpy as np
 
 from wosac_eval.features import ops
 from wosac_eval.features.spatial import column_bounds, finite_rows, pad_polylines
-
 
 _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
@@ -48,23 +48,23 @@ class SegmentTable:
     then the planar bucket grid of the searches (`bucket_grid`).
     """
 
-    start: np.ndarray        # float32 (S, 3)
-    delta: np.ndarray        # float32 (S, 3): end - start
-    valid: np.ndarray        # bool (S,)
-    prior: np.ndarray        # int64 (S,): neighbour used when projecting before the start
-    next: np.ndarray         # int64 (S,): neighbour used when projecting past the end
+    start: np.ndarray  # float32 (S, 3)
+    delta: np.ndarray  # float32 (S, 3): end - start
+    valid: np.ndarray  # bool (S,)
+    prior: np.ndarray  # int64 (S,): neighbour used when projecting before the start
+    next: np.ndarray  # int64 (S,): neighbour used when projecting past the end
     prior_valid: np.ndarray  # bool (S,)
-    next_valid: np.ndarray   # bool (S,)
+    next_valid: np.ndarray  # bool (S,)
     convex_before: np.ndarray  # bool (S,): left turn from the prior segment into this one
-    convex_after: np.ndarray   # bool (S,): left turn from this segment into the next
-    length: np.ndarray       # float64 (S,): |delta_xy| + 3 |delta_z|, for the float32 rounding margins
-    frame: np.ndarray        # float64 (S, 7): start x, y, unit direction x, y, planar length, lowest and
-                             # highest z (`pruned_search._distance_bound`)
+    convex_after: np.ndarray  # bool (S,): left turn from this segment into the next
+    length: np.ndarray  # float64 (S,): |delta_xy| + 3 |delta_z|, for the float32 rounding margins
+    frame: np.ndarray  # float64 (S, 7): start x, y, unit direction x, y, planar length, lowest and
+    # highest z (`pruned_search._distance_bound`)
     bucket_origin: np.ndarray  # float64 (2,): the grid's lower corner
-    bucket_side: float       # metres
-    bucket_shape: np.ndarray   # int64 (2,): buckets along x, y; then those holding segments:
+    bucket_side: float  # metres
+    bucket_shape: np.ndarray  # int64 (2,): buckets along x, y; then those holding segments:
     segment_buckets: np.ndarray  # int64 (4,): first and last bucket along x, then along y
-    bucket_start: np.ndarray   # int64 (num_buckets + 1,): where each bucket's list begins in
+    bucket_start: np.ndarray  # int64 (num_buckets + 1,): where each bucket's list begins in
     bucket_segments: np.ndarray  # int32: valid segments crossing each bucket, bucket by bucket
 
 
@@ -82,8 +82,18 @@ def segment_frames(start, delta):
     uy = np.where(has, dy / np.where(has, length, 1.0), 0.0)
     z0 = start[:, 2].astype(np.float64)
     z1 = z0 + delta[:, 2]
-    return np.stack([start[:, 0].astype(np.float64), start[:, 1].astype(np.float64), ux, uy, length,
-                     np.minimum(z0, z1), np.maximum(z0, z1)], axis=1)
+    return np.stack(
+        [
+            start[:, 0].astype(np.float64),
+            start[:, 1].astype(np.float64),
+            ux,
+            uy,
+            length,
+            np.minimum(z0, z1),
+            np.maximum(z0, z1),
+        ],
+        axis=1,
+    )
 
 
 def build_segment_table(polylines) -> SegmentTable:
@@ -123,13 +133,20 @@ def build_segment_table(polylines) -> SegmentTable:
     valid_flat = valid.reshape(-1)
     start, delta = np.ascontiguousarray(start.reshape(-1, 3)), np.ascontiguousarray(delta.reshape(-1, 3))
     return SegmentTable(
-        start=start, delta=delta, valid=valid_flat,
-        prior=prior, next=nxt, prior_valid=valid_flat[prior], next_valid=valid_flat[nxt],
-        convex_before=convex_before.reshape(-1), convex_after=convex_after.reshape(-1),
+        start=start,
+        delta=delta,
+        valid=valid_flat,
+        prior=prior,
+        next=nxt,
+        prior_valid=valid_flat[prior],
+        next_valid=valid_flat[nxt],
+        convex_before=convex_before.reshape(-1),
+        convex_after=convex_after.reshape(-1),
         length=np.hypot(delta[:, 0].astype(np.float64), delta[:, 1])
         + Z_STRETCH * np.abs(delta[:, 2].astype(np.float64)),
         frame=segment_frames(start, delta),
-        **bucket_grid(start, delta, valid_flat))
+        **bucket_grid(start, delta, valid_flat),
+    )
 
 
 def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
@@ -158,8 +175,9 @@ def segment_side(query_xy, start, delta):
     Returns:
       float32 `(...)` in {-1, 0, 1}.
     """
-    return side_of_segment(query_xy[..., 0], query_xy[..., 1], start[..., 0], start[..., 1],
-                           delta[..., 0], delta[..., 1])
+    return side_of_segment(
+        query_xy[..., 0], query_xy[..., 1], start[..., 0], start[..., 1], delta[..., 0], delta[..., 1]
+    )
 
 
 def side_of_segment(px, py, sx, sy, dx, dy):
@@ -178,7 +196,6 @@ def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_va
     before = ops.where(convex_before, ops.maximum(n, n_prior), ops.minimum(n, n_prior))
     after = ops.where(convex_after, ops.maximum(n, n_next), ops.minimum(n, n_next))
     return ops.where((rel_t < _F(0)) & prior_valid, before, ops.where((rel_t > _F(1)) & next_valid, after, n))
-
 
 
 # --- The bucket grid of the compiled searches -----------------------------------------------------
@@ -200,18 +217,24 @@ def bucket_grid(start: np.ndarray, delta: np.ndarray, valid: np.ndarray) -> dict
         if shape[0] * shape[1] <= _MAX_BUCKETS:
             break
         side *= 2
-    bucket_start, bucket_segments, occupied = _bucket_lists(start, delta, listed, origin[0], origin[1], side,
-                                                            shape[0], shape[1])
-    return {"bucket_origin": origin, "bucket_side": side, "bucket_shape": shape, "segment_buckets": occupied,
-            "bucket_start": bucket_start, "bucket_segments": bucket_segments}
+    bucket_start, bucket_segments, occupied = _bucket_lists(
+        start, delta, listed, origin[0], origin[1], side, shape[0], shape[1]
+    )
+    return {
+        "bucket_origin": origin,
+        "bucket_side": side,
+        "bucket_shape": shape,
+        "segment_buckets": occupied,
+        "bucket_start": bucket_start,
+        "bucket_segments": bucket_segments,
+    }
 
 
 def search_grid(origin, side, shape, occupied) -> tuple:
     """The bucket grid as the compiled loops read it, a tuple of 9: origin x, origin y and side (float), buckets
     along x and y, then the first and last bucket holding a segment along x and along y (int); from the
     `bucket_origin`, `bucket_side`, `bucket_shape` and `segment_buckets` of `bucket_grid` or a `SegmentTable`."""
-    return (*(float(v) for v in origin), float(side), *(int(v) for v in shape),
-            *(int(v) for v in occupied))
+    return (*(float(v) for v in origin), float(side), *(int(v) for v in shape), *(int(v) for v in occupied))
 
 
 @numba.njit(cache=True)
@@ -322,10 +345,10 @@ def planar_distance(cx, cy, k, frame):
     return math.sqrt(planar_squared(cx, cy, k, frame))
 
 
-
 @numba.njit
-def gather_ring(cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring, out_segment,
-                 out_key, n):
+def gather_ring(
+    cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring, out_segment, out_key, n
+):
     """Appends the segments of the buckets r rings around bucket (bi, bj) not met yet (`seen` is not
     `tag`), with their planar distance from (cx, cy), to `out_segment` and `out_key` from `n`;
     returns the new count. Before ring r, a segment not met yet is at least (r - 1) buckets away."""
@@ -337,4 +360,3 @@ def gather_ring(cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, s
                 out_segment[n], out_key[n] = k, planar_distance(cx, cy, k, frame)
                 n += 1
     return n
-

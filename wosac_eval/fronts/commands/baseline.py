@@ -7,6 +7,7 @@ metadata) as a .tar.gz, a .tar, or a folder; then validates it.
 Exit codes: 0 written and valid, 1 written but invalid (a bug: please report),
 2 usage error (unknown policy, missing or unreadable scenarios).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,19 +26,41 @@ HELP = "Write a baseline submission (constant velocity, noisy log replay or IDM 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set, the policy, where to write, and the submission metadata."""
-    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
-                        help="scenario TFRecord files, folders or globs (synthetic or real WOMD)")
-    parser.add_argument("--policy", required=True, choices=sorted(POLICIES),
-                        help="constant_velocity | log_replay_noise (needs the logged future) | idm")
-    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
-                        help="sim_agents (80 future steps; default) or scenario_gen (all 91 steps with box sizes "
-                             "and object types: the policy's future after the logged or straight-line history)")
-    parser.add_argument("--output", required=True, metavar="PATH",
-                        help="submission to write: NAME.tar.gz, NAME.tar, or a folder of shards")
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        required=True,
+        metavar="PATH",
+        help="scenario TFRecord files, folders or globs (synthetic or real WOMD)",
+    )
+    parser.add_argument(
+        "--policy",
+        required=True,
+        choices=sorted(POLICIES),
+        help="constant_velocity | log_replay_noise (needs the logged future) | idm",
+    )
+    parser.add_argument(
+        "--challenge",
+        choices=CHALLENGE_NAMES,
+        default="sim_agents",
+        help="sim_agents (80 future steps; default) or scenario_gen (all 91 steps with box sizes "
+        "and object types: the policy's future after the logged or straight-line history)",
+    )
+    parser.add_argument(
+        "--output",
+        required=True,
+        metavar="PATH",
+        help="submission to write: NAME.tar.gz, NAME.tar, or a folder of shards",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed of the rollouts (default 0)")
     parser.add_argument("--shards", type=int, default=4, metavar="N", help="number of binproto shards (default 4)")
-    parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 4), metavar="N",
-                        help="simulation processes (default: CPU count, at most 4)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(os.cpu_count() or 1, 4),
+        metavar="N",
+        help="simulation processes (default: CPU count, at most 4)",
+    )
     meta = parser.add_argument_group("submission metadata")
     meta.add_argument("--method-name", help="unique_method_name (default: the policy name)")
     meta.add_argument("--account-name", default="demo@example.com", help="the email registered at waymo.com/open")
@@ -49,9 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
+    from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.parse.errors import ParseError
     from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
-    from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.validate import validate_submission
 
     if args.shards < 1 or args.workers < 1:
@@ -82,8 +105,17 @@ def run(args: argparse.Namespace) -> int:
             bar.update(n)
 
     try:
-        out = make_submission(args.scenarios, args.policy, args.output, seed=args.seed, num_shards=args.shards,
-                              workers=args.workers, metadata=metadata, progress=progress, challenge=args.challenge)
+        out = make_submission(
+            args.scenarios,
+            args.policy,
+            args.output,
+            seed=args.seed,
+            num_shards=args.shards,
+            workers=args.workers,
+            metadata=metadata,
+            progress=progress,
+            challenge=args.challenge,
+        )
     except (ParseError, FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
     finally:

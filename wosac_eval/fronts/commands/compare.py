@@ -3,6 +3,7 @@
 Exit codes: 0 compared (and every gate passed), 1 a gate failed, 2 the results
 could not be compared (unreadable file, unknown metric, bad gate, no shared scenario).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -25,47 +26,91 @@ from wosac_eval.results.stratify import STRATIFY, StratifyError, format_strata, 
 from wosac_eval.scoring.result_reader import ResultError, load_result
 
 NAME = "compare"
-HELP = "Compare two `score` results scenario by scenario (paired bootstrap CI, permutation p-value); gate on regressions."
+HELP = (
+    "Compare two `score` results scenario by scenario (paired bootstrap CI, permutation p-value); gate on regressions."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The two results, the metrics to report, the gates, and the statistics settings."""
     parser.add_argument("base", metavar="BASE.json", help="result of the reference run (`wosac-eval score --output`)")
     parser.add_argument("new", metavar="NEW.json", help="result of the run under test")
-    parser.add_argument("--metric", action="append", metavar="NAME",
-                        help="report only this metric (repeatable or comma-separated; default all): " + ", ".join(METRICS)
-                        + "; aliases: " + ", ".join(f"{a}={m}" for a, m in ALIASES.items()))
-    parser.add_argument("--fail-if-worse", action="append", default=[], metavar="METRIC:DELTA",
-                        help="exit 1 when NEW is worse than BASE on METRIC by more than DELTA (in the metric's "
-                             "units, or with %% a share of the baseline value; mean over shared scenarios; "
-                             "repeatable), e.g. metametric:0.005 or metametric:1%%")
-    parser.add_argument("--only-significant", action="store_true",
-                        help="a gate fails only when the regression is also statistically significant")
+    parser.add_argument(
+        "--metric",
+        action="append",
+        metavar="NAME",
+        help="report only this metric (repeatable or comma-separated; default all): "
+        + ", ".join(METRICS)
+        + "; aliases: "
+        + ", ".join(f"{a}={m}" for a, m in ALIASES.items()),
+    )
+    parser.add_argument(
+        "--fail-if-worse",
+        action="append",
+        default=[],
+        metavar="METRIC:DELTA",
+        help="exit 1 when NEW is worse than BASE on METRIC by more than DELTA (in the metric's "
+        "units, or with %% a share of the baseline value; mean over shared scenarios; "
+        "repeatable), e.g. metametric:0.005 or metametric:1%%",
+    )
+    parser.add_argument(
+        "--only-significant",
+        action="store_true",
+        help="a gate fails only when the regression is also statistically significant",
+    )
     parser.add_argument("--alpha", type=float, default=0.05, help="significance level (default 0.05: 95%% CIs)")
-    parser.add_argument("--adjust", choices=("none", "holm"), default="none",
-                        help="base verdicts on Holm-adjusted p-values (family-wise error control over the metrics)")
+    parser.add_argument(
+        "--adjust",
+        choices=("none", "holm"),
+        default="none",
+        help="base verdicts on Holm-adjusted p-values (family-wise error control over the metrics)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the bootstrap and permutation draws (default 0)")
     parser.add_argument("--n-boot", type=int, default=5000, help="bootstrap resamples (default 5000)")
-    parser.add_argument("--n-perm", type=int, default=5000, help="random sign flips of the permutation test (default 5000)")
-    parser.add_argument("--min-shared", type=int, default=1, metavar="N",
-                        help="error (exit 2) when the results share fewer than N scenarios (default 1)")
-    parser.add_argument("--stratify", choices=STRATIFY,
-                        help="also compare per stratum: criticality terciles and the long tail (top decile) vs "
-                             f"the rest, or per object type ({', '.join(ANALYSED_TYPES)}); paired CI, p-value, "
-                             "Holm-adjusted p and Cohen's d per stratum, for the --metric metrics (default "
-                             "metametric)")
-    parser.add_argument("--per-object", action="store_true",
-                        help="also compare object by object (both results scored with `score --per-object`): "
-                             "the objects, matched by scenario_id and object_id, and the object type x criticality "
-                             "strata whose likelihoods changed most, with paired CIs over scenes, for the --metric "
-                             "likelihoods (default: the objects' meta-metric and every likelihood)")
-    parser.add_argument("--top", type=int, default=10, metavar="K",
-                        help="with --per-object: objects listed each way and strata listed (default 10)")
+    parser.add_argument(
+        "--n-perm", type=int, default=5000, help="random sign flips of the permutation test (default 5000)"
+    )
+    parser.add_argument(
+        "--min-shared",
+        type=int,
+        default=1,
+        metavar="N",
+        help="error (exit 2) when the results share fewer than N scenarios (default 1)",
+    )
+    parser.add_argument(
+        "--stratify",
+        choices=STRATIFY,
+        help="also compare per stratum: criticality terciles and the long tail (top decile) vs "
+        f"the rest, or per object type ({', '.join(ANALYSED_TYPES)}); paired CI, p-value, "
+        "Holm-adjusted p and Cohen's d per stratum, for the --metric metrics (default "
+        "metametric)",
+    )
+    parser.add_argument(
+        "--per-object",
+        action="store_true",
+        help="also compare object by object (both results scored with `score --per-object`): "
+        "the objects, matched by scenario_id and object_id, and the object type x criticality "
+        "strata whose likelihoods changed most, with paired CIs over scenes, for the --metric "
+        "likelihoods (default: the objects' meta-metric and every likelihood)",
+    )
+    parser.add_argument(
+        "--top",
+        type=int,
+        default=10,
+        metavar="K",
+        help="with --per-object: objects listed each way and strata listed (default 10)",
+    )
     parser.add_argument("--json", action="store_true", help="print the comparison as JSON on stdout")
-    parser.add_argument("--json-output", metavar="PATH",
-                        help="also write the comparison as JSON to PATH (the table still goes to stdout)")
-    parser.add_argument("--markdown-output", metavar="PATH",
-                        help="also write the comparison as a Markdown table to PATH (for a CI job summary)")
+    parser.add_argument(
+        "--json-output",
+        metavar="PATH",
+        help="also write the comparison as JSON to PATH (the table still goes to stdout)",
+    )
+    parser.add_argument(
+        "--markdown-output",
+        metavar="PATH",
+        help="also write the comparison as a Markdown table to PATH (for a CI job summary)",
+    )
 
 
 def _objects_markdown(objects) -> str:
@@ -85,34 +130,72 @@ def run(args: argparse.Namespace) -> int:
         base = load_result(args.base)
         new = load_result(args.new)
         comparison = compare_results(
-            base, new, metrics=args.metric, gates=gates, alpha=args.alpha, adjust=args.adjust, seed=args.seed,
-            n_boot=args.n_boot, n_perm=args.n_perm, min_shared=args.min_shared,
-            only_significant=args.only_significant)
+            base,
+            new,
+            metrics=args.metric,
+            gates=gates,
+            alpha=args.alpha,
+            adjust=args.adjust,
+            seed=args.seed,
+            n_boot=args.n_boot,
+            n_perm=args.n_perm,
+            min_shared=args.min_shared,
+            only_significant=args.only_significant,
+        )
         strata = None
         if args.stratify:
-            wanted = [canonical_metric(m.strip()) for spec in (args.metric or ["metametric"])
-                      for m in spec.split(",") if m.strip()]
-            strata = stratified_comparison(base, new, args.stratify, wanted, seed=args.seed, n_boot=args.n_boot,
-                                           n_perm=args.n_perm, alpha=args.alpha, adjust=args.adjust)
+            wanted = [
+                canonical_metric(m.strip())
+                for spec in (args.metric or ["metametric"])
+                for m in spec.split(",")
+                if m.strip()
+            ]
+            strata = stratified_comparison(
+                base,
+                new,
+                args.stratify,
+                wanted,
+                seed=args.seed,
+                n_boot=args.n_boot,
+                n_perm=args.n_perm,
+                alpha=args.alpha,
+                adjust=args.adjust,
+            )
         objects = None
         if args.per_object:
             if args.top < 1:
                 raise UsageError("--top must be at least 1")
             from wosac_eval.results.per_object_compare import compare_objects
 
-            wanted = None if not args.metric else [canonical_metric(m.strip()) for spec in args.metric
-                                                   for m in spec.split(",") if m.strip()]
-            objects = compare_objects(base, new, metrics=wanted, top=args.top, alpha=args.alpha, seed=args.seed,
-                                      n_boot=args.n_boot, n_perm=args.n_perm)
+            wanted_metrics = (
+                None
+                if not args.metric
+                else [canonical_metric(m.strip()) for spec in args.metric for m in spec.split(",") if m.strip()]
+            )
+            objects = compare_objects(
+                base,
+                new,
+                metrics=wanted_metrics,
+                top=args.top,
+                alpha=args.alpha,
+                seed=args.seed,
+                n_boot=args.n_boot,
+                n_perm=args.n_perm,
+            )
     except (ResultError, CompareError, StratifyError, ValueError) as e:
         raise UsageError(str(e)) from None
 
     def as_json() -> dict:
-        return {**comparison.to_json(), **({"stratified": strata.to_json()} if strata else {}),
-                **({"per_object": objects.to_json()} if objects else {})}
+        return {
+            **comparison.to_json(),
+            **({"stratified": strata.to_json()} if strata else {}),
+            **({"per_object": objects.to_json()} if objects else {}),
+        }
 
-    outputs = [(args.json_output, lambda: json.dumps(as_json(), indent=2) + "\n"),
-               (args.markdown_output, lambda: format_markdown(comparison) + _objects_markdown(objects))]
+    outputs = [
+        (args.json_output, lambda: json.dumps(as_json(), indent=2) + "\n"),
+        (args.markdown_output, lambda: format_markdown(comparison) + _objects_markdown(objects)),
+    ]
     for path, render in outputs:
         if path:
             try:

@@ -3,6 +3,7 @@
 Exit codes: 0 written, 2 usage error (missing scenarios, unwritable output, an
 unknown format, pyarrow missing for .parquet, a Ray engine that cannot start or connect).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -10,28 +11,40 @@ import csv
 import json
 from pathlib import Path
 
+from wosac_eval.analysis.criticality_scores import COMPONENTS
 from wosac_eval.extras import ENGINES
 from wosac_eval.fronts.usage import UsageError, check_output_file
-from wosac_eval.analysis.criticality_scores import COMPONENTS
 
 NAME = "criticality"
-HELP = ("Rate every scenario of a set for criticality (kinematic volatility, interaction, map events, "
-        "behaviour rarity) from the log alone, most critical first; for curating long-tail sets.")
+HELP = (
+    "Rate every scenario of a set for criticality (kinematic volatility, interaction, map events, "
+    "behaviour rarity) from the log alone, most critical first; for curating long-tail sets."
+)
 FORMATS = (".csv", ".parquet", ".json")
 SHOWN = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
-                        help="scenario TFRecord files, folders or globs")
-    parser.add_argument("--output", "-o", metavar="FILE.csv|.parquet|.json",
-                        help="the table, one row per scenario, most critical first (.parquet needs pyarrow); "
-                             f"without it the {SHOWN} most critical are printed")
-    parser.add_argument("--per-step", action="store_true",
-                        help="add each scenario's per-step criticality (columns step_0 .. step_90)")
+    parser.add_argument(
+        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        metavar="FILE.csv|.parquet|.json",
+        help="the table, one row per scenario, most critical first (.parquet needs pyarrow); "
+        f"without it the {SHOWN} most critical are printed",
+    )
+    parser.add_argument(
+        "--per-step", action="store_true", help="add each scenario's per-step criticality (columns step_0 .. step_90)"
+    )
     parser.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    parser.add_argument("--engine", choices=ENGINES, default="local",
-                        help="local processes (default) or a Ray cluster (needs the ray extra)")
+    parser.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default="local",
+        help="local processes (default) or a Ray cluster (needs the ray extra)",
+    )
     parser.add_argument("--ray-address", metavar="HOST:PORT", help="the Ray cluster to join (--engine ray)")
 
 
@@ -39,8 +52,13 @@ def table_rows(result: dict) -> list[dict]:
     """Flat rows: rank, scenario_id, score, long_tail, peak_step, each component, each raw value[, steps]."""
     rows = []
     for scene in result["scenarios"]:
-        row = {"rank": scene["rank"], "scenario_id": scene["scenario_id"], "score": scene["score"],
-               "long_tail": scene["long_tail"], "peak_step": scene["peak_step"]}
+        row = {
+            "rank": scene["rank"],
+            "scenario_id": scene["scenario_id"],
+            "score": scene["score"],
+            "long_tail": scene["long_tail"],
+            "peak_step": scene["peak_step"],
+        }
         row.update({name: scene["components"][name] for name in COMPONENTS})
         row.update({f"raw_{name}": scene["raw"][name] for name in COMPONENTS})
         for step, value in enumerate(scene.get("steps", ())):
@@ -66,9 +84,9 @@ def write_table(rows: list[dict], path: Path) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality
     from wosac_eval.extras import EngineUnavailableError
     from wosac_eval.parse.errors import ParseError
-    from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality
 
     if args.output is not None:
         if Path(args.output).suffix.lower() not in FORMATS:
@@ -78,13 +96,19 @@ def run(args: argparse.Namespace) -> int:
             try:
                 import pyarrow.parquet  # noqa: F401
             except ImportError:
-                raise UsageError("--output .parquet needs pyarrow (pip install pyarrow); "
-                                 ".csv and .json need nothing") from None
+                raise UsageError(
+                    "--output .parquet needs pyarrow (pip install pyarrow); .csv and .json need nothing"
+                ) from None
     if args.workers < 1:
         raise UsageError("--workers must be >= 1")
     try:
-        result = scenario_set_criticality(args.scenarios, workers=args.workers, engine=args.engine,
-                                          ray_address=args.ray_address, per_step=args.per_step)
+        result = scenario_set_criticality(
+            args.scenarios,
+            workers=args.workers,
+            engine=args.engine,
+            ray_address=args.ray_address,
+            per_step=args.per_step,
+        )
     except (ParseError, FileNotFoundError, EngineUnavailableError) as error:
         raise UsageError(str(error)) from None
     rows = table_rows(result)
@@ -93,9 +117,10 @@ def run(args: argparse.Namespace) -> int:
             write_table(rows, Path(args.output))
         except OSError as error:
             raise UsageError(f"--output {args.output}: cannot write: {error.strerror or error}") from None
-    print(f"{result['num_scenarios']} scenario(s); long tail (top decile): score >= "
-          f"{result['long_tail_threshold']:.3f}")
-    for row in rows[:SHOWN if args.output is None else 3]:
+    print(
+        f"{result['num_scenarios']} scenario(s); long tail (top decile): score >= {result['long_tail_threshold']:.3f}"
+    )
+    for row in rows[: SHOWN if args.output is None else 3]:
         print(f"{row['rank']:>4}  {row['score']:.3f}  {row['scenario_id']}  peak step {row['peak_step']}")
     if args.output is not None:
         print(f"wrote {args.output}")

@@ -12,6 +12,7 @@ scenarios (DIR/baseline.json, DIR/new.json) and their comparison report
 
 Exit codes: 0 done, 1 a baseline produced an invalid submission (a bug), 2 usage error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -20,12 +21,20 @@ import time
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.demo_pipeline import (DEMO_POLICIES, DEMO_SCENES, DEMO_SEED, default_workdir, leaderboard,
-                                             run_demo)
+from wosac_eval.fronts.demo_pipeline import (
+    DEMO_POLICIES,
+    DEMO_SCENES,
+    DEMO_SEED,
+    default_workdir,
+    leaderboard,
+    run_demo,
+)
 from wosac_eval.fronts.usage import UsageError, check_output_folder
 
-TITLES = {"sim_agents": "Sim agents (80 future steps; 2025 config)",
-          "scenario_gen": "Scenario generation (all 91 steps of every object; scenario_gen_2025 config)"}
+TITLES = {
+    "sim_agents": "Sim agents (80 future steps; 2025 config)",
+    "scenario_gen": "Scenario generation (all 91 steps of every object; scenario_gen_2025 config)",
+}
 
 NAME = "demo"
 HELP = "Run every baseline on built-in synthetic scenes, validate, score and print a leaderboard."
@@ -33,22 +42,47 @@ HELP = "Run every baseline on built-in synthetic scenes, validate, score and pri
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Where the demo works, how many scenes, which policies; or --gate for the compare/report demo."""
-    parser.add_argument("--workdir", type=Path, default=None,
-                        help=f"where scenes, submissions and results go (default {default_workdir()})")
+    parser.add_argument(
+        "--workdir",
+        type=Path,
+        default=None,
+        help=f"where scenes, submissions and results go (default {default_workdir()})",
+    )
     parser.add_argument("--scenes", type=int, default=DEMO_SCENES, metavar="N", help="number of scenes (default 10)")
     parser.add_argument("--seed", type=int, default=DEMO_SEED, help="scene and rollout seed (default 0)")
-    parser.add_argument("--policies", nargs="+", default=list(DEMO_POLICIES),
-                        choices=list(DEMO_POLICIES), metavar="POLICY",
-                        help=f"policies to run (default: {' '.join(DEMO_POLICIES)})")
-    parser.add_argument("--challenge", choices=("both",) + CHALLENGE_NAMES, default="both",
-                        help="which challenge's leaderboard to make (default both)")
-    parser.add_argument("--config", default=None,
-                        help="metrics config (a preset or a textproto path; default: each challenge's current one)")
-    parser.add_argument("--workers", type=int, default=min(os.cpu_count() or 1, 4), metavar="N",
-                        help="processes for simulation and scoring (default: CPU count, at most 4)")
-    parser.add_argument("--gate", type=Path, metavar="DIR",
-                        help="only write two synthetic results and their comparison report into DIR "
-                             "(baseline.json, new.json, report.html), to try compare and report")
+    parser.add_argument(
+        "--policies",
+        nargs="+",
+        default=list(DEMO_POLICIES),
+        choices=list(DEMO_POLICIES),
+        metavar="POLICY",
+        help=f"policies to run (default: {' '.join(DEMO_POLICIES)})",
+    )
+    parser.add_argument(
+        "--challenge",
+        choices=("both",) + CHALLENGE_NAMES,
+        default="both",
+        help="which challenge's leaderboard to make (default both)",
+    )
+    parser.add_argument(
+        "--config",
+        default=None,
+        help="metrics config (a preset or a textproto path; default: each challenge's current one)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=min(os.cpu_count() or 1, 4),
+        metavar="N",
+        help="processes for simulation and scoring (default: CPU count, at most 4)",
+    )
+    parser.add_argument(
+        "--gate",
+        type=Path,
+        metavar="DIR",
+        help="only write two synthetic results and their comparison report into DIR "
+        "(baseline.json, new.json, report.html), to try compare and report",
+    )
 
 
 def run_gate_demo(folder: Path) -> int:
@@ -64,8 +98,11 @@ def run_gate_demo(folder: Path) -> int:
     try:
         parser = _argparse.ArgumentParser()
         report.add_arguments(parser)  # the report command itself, with its defaults
-        return report.run(parser.parse_args(["new.json", "--html", "report.html", "--compare", "baseline.json",
-                                             "--title", GATE_DEMO_TITLE]))
+        return report.run(
+            parser.parse_args(
+                ["new.json", "--html", "report.html", "--compare", "baseline.json", "--title", GATE_DEMO_TITLE]
+            )
+        )
     finally:
         os.chdir(here)
 
@@ -84,8 +121,15 @@ def run(args: argparse.Namespace) -> int:
     tables = []
     try:
         for challenge in chosen:
-            rows = run_demo(workdir, num_scenes=args.scenes, seed=args.seed, policies=tuple(args.policies),
-                            config=args.config, workers=args.workers, challenge=challenge)
+            rows = run_demo(
+                workdir,
+                num_scenes=args.scenes,
+                seed=args.seed,
+                policies=tuple(args.policies),
+                config=args.config,
+                workers=args.workers,
+                challenge=challenge,
+            )
             tables.append((challenge, rows))
     except (OSError, ValueError) as error:
         raise UsageError(str(error)) from None

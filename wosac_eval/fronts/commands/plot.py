@@ -3,6 +3,7 @@
 Exit codes: 0 written, 1 the scenario's rollouts are invalid (the findings are
 printed), 2 usage error (missing scenario, unknown format, unwritable output).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,8 +14,10 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file
 
 NAME = "plot"
-HELP = ("Draw a scenario (map, log, rollouts, boxes at a step, collisions / off-road / red-light runs) "
-        "as .png, .gif or .html.")
+HELP = (
+    "Draw a scenario (map, log, rollouts, boxes at a step, collisions / off-road / red-light runs) "
+    "as .png, .gif or .html."
+)
 
 
 def _rollout_list(text: str) -> list[int] | None:
@@ -28,30 +31,57 @@ def _rollout_list(text: str) -> list[int] | None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set and scenario, the submission, the output and what to show."""
-    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
-                        help="scenario TFRecord files, folders or globs")
-    parser.add_argument("--scenario", metavar="ID",
-                        help="the scenario to draw (default: the only one of the scenario set)")
-    parser.add_argument("--submission", metavar="PATH",
-                        help="the submission whose rollouts to draw (default: the log alone)")
-    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
-                        help="the submission's challenge (default sim_agents)")
-    parser.add_argument("--output", "-o", required=True, metavar="FILE.png|.gif|.html",
-                        help="the picture; its suffix chooses: .png (one step), .gif (the scene playing), "
-                             ".html (a page with a step slider and the list of events)")
-    parser.add_argument("--step", type=int, metavar="N",
-                        help="the logged step (0..90, 10 is the current one) whose boxes a .png shows "
-                             "(default: the last event, else the last step)")
-    parser.add_argument("--rollouts", type=_rollout_list, default=[0, 1, 2], metavar="I,J,...|all",
-                        help="rollouts drawn as lines (default 0,1,2; all: every rollout)")
-    parser.add_argument("--density", action="store_true",
-                        help="draw the positions of all rollouts as a density instead of lines")
-    parser.add_argument("--every", type=int, default=2, metavar="K",
-                        help="a .gif or .html frame every K steps (default 2)")
-    parser.add_argument("--object", type=int, metavar="ID",
-                        help="with --submission, a .png of one evaluated object: its rollouts against its log on "
-                             "the map, and its speed, acceleration, distance to the nearest object and to the road "
-                             "edge over the steps, each rollout and their median against the log's")
+    parser.add_argument(
+        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
+    )
+    parser.add_argument(
+        "--scenario", metavar="ID", help="the scenario to draw (default: the only one of the scenario set)"
+    )
+    parser.add_argument(
+        "--submission", metavar="PATH", help="the submission whose rollouts to draw (default: the log alone)"
+    )
+    parser.add_argument(
+        "--challenge",
+        choices=CHALLENGE_NAMES,
+        default="sim_agents",
+        help="the submission's challenge (default sim_agents)",
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        required=True,
+        metavar="FILE.png|.gif|.html",
+        help="the picture; its suffix chooses: .png (one step), .gif (the scene playing), "
+        ".html (a page with a step slider and the list of events)",
+    )
+    parser.add_argument(
+        "--step",
+        type=int,
+        metavar="N",
+        help="the logged step (0..90, 10 is the current one) whose boxes a .png shows "
+        "(default: the last event, else the last step)",
+    )
+    parser.add_argument(
+        "--rollouts",
+        type=_rollout_list,
+        default=[0, 1, 2],
+        metavar="I,J,...|all",
+        help="rollouts drawn as lines (default 0,1,2; all: every rollout)",
+    )
+    parser.add_argument(
+        "--density", action="store_true", help="draw the positions of all rollouts as a density instead of lines"
+    )
+    parser.add_argument(
+        "--every", type=int, default=2, metavar="K", help="a .gif or .html frame every K steps (default 2)"
+    )
+    parser.add_argument(
+        "--object",
+        type=int,
+        metavar="ID",
+        help="with --submission, a .png of one evaluated object: its rollouts against its log on "
+        "the map, and its speed, acceleration, distance to the nearest object and to the road "
+        "edge over the steps, each rollout and their median against the log's",
+    )
 
 
 def _pick_scenario(index, wanted: str | None) -> str:
@@ -62,8 +92,9 @@ def _pick_scenario(index, wanted: str | None) -> str:
             raise UsageError(f"--scenario {wanted}: not in the scenario set ({len(ids)} scenarios: {shown})")
         return wanted
     if len(ids) != 1:
-        raise UsageError(f"the scenario set holds {len(ids)} scenarios: choose one with --scenario "
-                         f"(e.g. {', '.join(ids[:3])})")
+        raise UsageError(
+            f"the scenario set holds {len(ids)} scenarios: choose one with --scenario (e.g. {', '.join(ids[:3])})"
+        )
     return ids[0]
 
 
@@ -103,8 +134,11 @@ def run(args: argparse.Namespace) -> int:
             raise
         raise UsageError(str(error)) from None
     if rollouts is not None:
-        errors = [f for f in rules.check_scenario_rollouts(rollouts, rules.sim_agent_ids(scenario),
-                                                           challenge=args.challenge) if f.severity == "error"]
+        errors = [
+            f
+            for f in rules.check_scenario_rollouts(rollouts, rules.sim_agent_ids(scenario), challenge=args.challenge)
+            if f.severity == "error"
+        ]
         if errors:
             for finding in errors[:5]:
                 print(f"  - {finding.message}", file=sys.stderr)
@@ -114,8 +148,11 @@ def run(args: argparse.Namespace) -> int:
                     hints[finding.hint] = hints.get(finding.hint, 0) + 1
             for hint, count in hints.items():  # once per cause, not on every line
                 print(f"  hint ({count} of {len(errors)}): {hint}", file=sys.stderr)
-            print(f"wosac-eval plot: scenario {scenario_id}: {len(errors)} problem(s) in the rollouts "
-                  f"(`wosac-eval validate` reports them all)", file=sys.stderr)
+            print(
+                f"wosac-eval plot: scenario {scenario_id}: {len(errors)} problem(s) in the rollouts "
+                f"(`wosac-eval validate` reports them all)",
+                file=sys.stderr,
+            )
             return 1
     if args.object is not None:
         from wosac_eval.results.object_plot import object_png

@@ -3,6 +3,7 @@
 Exit codes: 0 report written, 2 a result could not be read or compared, or the
 output could not be written.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -14,7 +15,9 @@ from wosac_eval.results.report import render_report, worst_scenarios
 from wosac_eval.scoring.result_reader import ResultError, load_result
 
 NAME = "report"
-HELP = "Write a self-contained HTML report (scores, buckets, rates, distributions, worst scenarios) of a `score` result."
+HELP = (
+    "Write a self-contained HTML report (scores, buckets, rates, distributions, worst scenarios) of a `score` result."
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -22,14 +25,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("result", metavar="RESULT.json", help="result of `wosac-eval score --output`")
     parser.add_argument("--html", required=True, metavar="PATH", help="where to write the report")
     parser.add_argument("--compare", metavar="BASE.json", help="add a paired comparison against this baseline result")
-    parser.add_argument("--top", type=int, default=10, metavar="K", help="worst scenarios listed per metric (default 10)")
+    parser.add_argument(
+        "--top", type=int, default=10, metavar="K", help="worst scenarios listed per metric (default 10)"
+    )
     parser.add_argument("--title", help="page title (default: from the result's file name)")
-    parser.add_argument("--scenarios", nargs="+", metavar="PATH",
-                        help="with --submission: the scenario set, to draw the worst scenes")
-    parser.add_argument("--submission", metavar="PATH",
-                        help="with --scenarios: the scored submission, to draw the worst scenes")
-    parser.add_argument("--scenes", type=int, default=3, metavar="N",
-                        help="worst scenes drawn when --scenarios and --submission are given (default 3)")
+    parser.add_argument(
+        "--scenarios", nargs="+", metavar="PATH", help="with --submission: the scenario set, to draw the worst scenes"
+    )
+    parser.add_argument(
+        "--submission", metavar="PATH", help="with --scenarios: the scored submission, to draw the worst scenes"
+    )
+    parser.add_argument(
+        "--scenes",
+        type=int,
+        default=3,
+        metavar="N",
+        help="worst scenes drawn when --scenarios and --submission are given (default 3)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the comparison's bootstrap / permutation draws")
     parser.add_argument("--n-boot", type=int, default=5000, help="bootstrap resamples of the comparison (default 5000)")
     parser.add_argument("--n-perm", type=int, default=5000, help="sign flips of the comparison (default 5000)")
@@ -60,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
         from wosac_eval.results.scene_plot import scene_pictures
 
         try:
-            scenes = scene_pictures(args.scenarios, args.submission, worst_scenarios(result, args.scenes),
-                                    result.challenge)
+            scenes = scene_pictures(
+                args.scenarios, args.submission, worst_scenarios(result, args.scenes), result.challenge
+            )
         except (ParseError, ValueError) as e:
             raise UsageError(f"cannot draw the worst scenes: {e}") from None
     page = render_report(result, base=base, comparison=comparison, top_k=args.top, title=args.title, scenes=scenes)

@@ -3,6 +3,7 @@
 Exit codes: 0 scored, 1 the submission is invalid (the validation report is
 printed; `--partial` scores the valid scenarios instead), 2 usage error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -15,7 +16,7 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import BACKENDS, ENGINES, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
 from wosac_eval.metrics.config import PRESET_NAMES
-from wosac_eval.options import Backend
+from wosac_eval.options import Backend, MetadataChecks
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.scoring.evaluation import RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
@@ -28,50 +29,104 @@ HELP = "Score a submission with the official WOSAC realism metrics and write res
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Inputs, challenge and config, output, and where and how to compute (workers, engine, backend)."""
-    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
-                        help="scenario TFRecord files, folders or globs")
-    parser.add_argument("--submission", required=True, metavar="PATH",
-                        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
-    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
-                        help="sim_agents (80 future steps; default) or scenario_gen (91 steps of every object "
-                             "with box sizes and types)")
-    parser.add_argument("--config", default=None, metavar="PRESET|FILE.textproto",
-                        help=f"metrics config: a preset ({', '.join(PRESET_NAMES)}) or a "
-                             "SimAgentMetricsConfig textproto (default: the challenge's current one, "
-                             "2025 or scenario_gen_2025)")
-    parser.add_argument("--output", "-o", metavar="result.json",
-                        help="where to write the result JSON (default: stdout); with it, finished scenarios are "
-                             "kept in result.json.journal while the run lasts, and the same command run again "
-                             "after an interruption resumes from there")
-    parser.add_argument("--restart", action="store_true",
-                        help="with --output: discard the journal of an interrupted run and score everything")
-    parser.add_argument("--workers", type=int, default=1, metavar="N",
-                        help="score scenarios in N processes of this machine (identical results)")
-    parser.add_argument("--engine", choices=ENGINES, default="local",
-                        help="local (this machine, --workers processes; default) or ray (a Ray cluster, "
-                             "needs `pip install 'wosac-eval[ray]'`); identical results")
-    parser.add_argument("--ray-address", metavar="ADDR",
-                        help="the Ray cluster to join (host:port or ray://host:10001; default $RAY_ADDRESS, "
-                             "else a local Ray is started)")
-    parser.add_argument("--partial", action="store_true",
-                        help="score the valid scenarios of an invalid submission; skipped ones are listed")
-    parser.add_argument("--strict-metadata", action="store_true",
-                        help="treat metadata gaps (account, method name, flags) as errors, as the challenge "
-                             "server does (default: warnings, listed on stderr)")
-    parser.add_argument("--backend", choices=BACKENDS, default="numpy",
-                        help="compute features with numpy (default) or with JAX (jit, batched "
-                             "over scenarios; needs `pip install 'wosac-eval[jax]'`); same results")
-    parser.add_argument("--select", metavar="top:FRACTION|top:N",
-                        help="score only the most critical scenarios of the set (the long tail): top:0.1 "
-                             "the most critical tenth, top:100 the 100 most critical (`wosac-eval criticality` "
-                             "ranks them); the whole submission is still validated")
-    parser.add_argument("--no-analysis", action="store_true",
-                        help="official metrics only: no criticality, driving scores or per-type metrics in the rows")
-    parser.add_argument("--per-object", nargs="?", const="jsonl", choices=("jsonl", "parquet"), metavar="jsonl|parquet",
-                        help="with --output R.json: also write every evaluated object's likelihoods, their weights "
-                             "and its collision / off-road / red-light rollouts to R.objects.jsonl (or, with "
-                             "parquet, R.objects.parquet, needs pyarrow), streamed as scenarios are scored; "
-                             "the result's \"per_object\" names the file")
+    parser.add_argument(
+        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
+    )
+    parser.add_argument(
+        "--submission",
+        required=True,
+        metavar="PATH",
+        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto",
+    )
+    parser.add_argument(
+        "--challenge",
+        choices=CHALLENGE_NAMES,
+        default="sim_agents",
+        help="sim_agents (80 future steps; default) or scenario_gen (91 steps of every object "
+        "with box sizes and types)",
+    )
+    parser.add_argument(
+        "--config",
+        default=None,
+        metavar="PRESET|FILE.textproto",
+        help=f"metrics config: a preset ({', '.join(PRESET_NAMES)}) or a "
+        "SimAgentMetricsConfig textproto (default: the challenge's current one, "
+        "2025 or scenario_gen_2025)",
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        metavar="result.json",
+        help="where to write the result JSON (default: stdout); with it, finished scenarios are "
+        "kept in result.json.journal while the run lasts, and the same command run again "
+        "after an interruption resumes from there",
+    )
+    parser.add_argument(
+        "--restart",
+        action="store_true",
+        help="with --output: discard the journal of an interrupted run and score everything",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="score scenarios in N processes of this machine (identical results)",
+    )
+    parser.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default="local",
+        help="local (this machine, --workers processes; default) or ray (a Ray cluster, "
+        "needs `pip install 'wosac-eval[ray]'`); identical results",
+    )
+    parser.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="the Ray cluster to join (host:port or ray://host:10001; default $RAY_ADDRESS, "
+        "else a local Ray is started)",
+    )
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="score the valid scenarios of an invalid submission; skipped ones are listed",
+    )
+    parser.add_argument(
+        "--strict-metadata",
+        action="store_true",
+        help="treat metadata gaps (account, method name, flags) as errors, as the challenge "
+        "server does (default: warnings, listed on stderr)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=BACKENDS,
+        default="numpy",
+        help="compute features with numpy (default) or with JAX (jit, batched "
+        "over scenarios; needs `pip install 'wosac-eval[jax]'`); same results",
+    )
+    parser.add_argument(
+        "--select",
+        metavar="top:FRACTION|top:N",
+        help="score only the most critical scenarios of the set (the long tail): top:0.1 "
+        "the most critical tenth, top:100 the 100 most critical (`wosac-eval criticality` "
+        "ranks them); the whole submission is still validated",
+    )
+    parser.add_argument(
+        "--no-analysis",
+        action="store_true",
+        help="official metrics only: no criticality, driving scores or per-type metrics in the rows",
+    )
+    parser.add_argument(
+        "--per-object",
+        nargs="?",
+        const="jsonl",
+        choices=("jsonl", "parquet"),
+        metavar="jsonl|parquet",
+        help="with --output R.json: also write every evaluated object's likelihoods, their weights "
+        "and its collision / off-road / red-light rollouts to R.objects.jsonl (or, with "
+        "parquet, R.objects.parquet, needs pyarrow), streamed as scenarios are scored; "
+        'the result\'s "per_object" names the file',
+    )
 
 
 def _progress():
@@ -79,22 +134,26 @@ def _progress():
     if not sys.stderr.isatty():
         return None, None
     from tqdm import tqdm
+
     bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
     def update(done: int, total: int) -> None:
         """Moves the bar to `done` of `total` scenarios."""
         bar.total = total
         bar.update(done - bar.n)
+
     return update, bar
 
 
 def _headline(result: dict) -> str:
     """One line of the leaderboard figures of a result, for stderr."""
     b = result["buckets"]
-    return (f"scored {result['num_scenarios']} {result['challenge']} scenario(s) with config {result['config']}: "
-            f"realism meta-metric {b['realism_meta_metric']:.4f} (kinematic {b['kinematic_metrics']:.4f}, "
-            f"interactive {b['interactive_metrics']:.4f}, map-based {b['map_based_metrics']:.4f}), "
-            f"minADE {b['min_ade']:.3f} m")
+    return (
+        f"scored {result['num_scenarios']} {result['challenge']} scenario(s) with config {result['config']}: "
+        f"realism meta-metric {b['realism_meta_metric']:.4f} (kinematic {b['kinematic_metrics']:.4f}, "
+        f"interactive {b['interactive_metrics']:.4f}, map-based {b['map_based_metrics']:.4f}), "
+        f"minADE {b['min_ade']:.3f} m"
+    )
 
 
 def _stderr_findings(result: dict) -> None:
@@ -103,8 +162,11 @@ def _stderr_findings(result: dict) -> None:
     for group in warnings:
         print(f"warning: {group['code']} ({group['count']}x): {group['first']}", file=sys.stderr)
     if any(g["code"].startswith("metadata.") for g in warnings):
-        print("warning: metadata gaps do not stop local scoring, but the challenge server refuses them "
-              "(`wosac-eval validate` or --strict-metadata apply its rules)", file=sys.stderr)
+        print(
+            "warning: metadata gaps do not stop local scoring, but the challenge server refuses them "
+            "(`wosac-eval validate` or --strict-metadata apply its rules)",
+            file=sys.stderr,
+        )
 
 
 def _stderr_coverage(result: dict) -> None:
@@ -112,12 +174,18 @@ def _stderr_coverage(result: dict) -> None:
     coverage = result["coverage"]
     if "selection" in result:
         chosen = result["selection"]
-        print(f"selection {chosen['rule']}: the {chosen['scenarios']} most critical of {chosen['of']} scenario(s) "
-              f"(criticality >= {chosen['min_criticality']:.3f})", file=sys.stderr)
+        print(
+            f"selection {chosen['rule']}: the {chosen['scenarios']} most critical of {chosen['of']} scenario(s) "
+            f"(criticality >= {chosen['min_criticality']:.3f})",
+            file=sys.stderr,
+        )
     if result["skipped"]:
-        print(f"partial result: scored {coverage['scored']} of {coverage['expected']} scenario(s) "
-              f"({coverage['fraction']:.1%}); {len(result['skipped'])} skipped (listed under \"skipped\"), "
-              f"e.g. {result['skipped'][0]['scenario_id']}: {result['skipped'][0]['reason']}", file=sys.stderr)
+        print(
+            f"partial result: scored {coverage['scored']} of {coverage['expected']} scenario(s) "
+            f'({coverage["fraction"]:.1%}); {len(result["skipped"])} skipped (listed under "skipped"), '
+            f"e.g. {result['skipped'][0]['scenario_id']}: {result['skipped'][0]['reason']}",
+            file=sys.stderr,
+        )
 
 
 def _journal(args: argparse.Namespace) -> Path | None:
@@ -131,8 +199,11 @@ def _journal(args: argparse.Namespace) -> Path | None:
         if args.restart:
             remove_journal(journal)
         else:
-            print(f"resuming from {journal}: scenarios an earlier run finished are not scored again "
-                  "(--restart scores everything)", file=sys.stderr)
+            print(
+                f"resuming from {journal}: scenarios an earlier run finished are not scored again "
+                "(--restart scores everything)",
+                file=sys.stderr,
+            )
     return journal
 
 
@@ -171,9 +242,16 @@ def write_result(result: dict, path: Path) -> None:
 
 def run_options(args: argparse.Namespace) -> RunOptions:
     """The run's options as the command line gives them (checked by `RunOptions`)."""
-    return RunOptions(backend=args.backend, engine=args.engine, ray_address=args.ray_address, workers=args.workers,
-                      allow_partial=args.partial, metadata_checks="error" if args.strict_metadata else "warn",
-                      select=args.select, analysis=not args.no_analysis)
+    return RunOptions(
+        backend=args.backend,
+        engine=args.engine,
+        ray_address=args.ray_address,
+        workers=args.workers,
+        allow_partial=args.partial,
+        metadata_checks=MetadataChecks.ERROR if args.strict_metadata else MetadataChecks.WARN,
+        select=args.select,
+        analysis=not args.no_analysis,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -189,21 +267,34 @@ def run(args: argparse.Namespace) -> int:
     if evaluation.options.backend is Backend.JAX:
         # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
         from wosac_eval.backends.jax_backend import exact_cpu
+
         exact_cpu()
     objects = _objects(args)
     journal = _journal(args)
     update, bar = _progress()
     try:
-        result = score_submission(args.scenarios, args.submission, progress=update, evaluation=evaluation,
-                                  journal=journal, per_object=objects is not None, objects=objects)
+        result = score_submission(
+            args.scenarios,
+            args.submission,
+            progress=update,
+            evaluation=evaluation,
+            journal=journal,
+            per_object=objects is not None,
+            objects=objects,
+        )
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)
         if error.metadata:
-            print("wosac-eval score: the submission's metadata has errors (listed above); fix them: partial "
-                  "scoring skips invalid scenarios, never the metadata", file=sys.stderr)
+            print(
+                "wosac-eval score: the submission's metadata has errors (listed above); fix them: partial "
+                "scoring skips invalid scenarios, never the metadata",
+                file=sys.stderr,
+            )
         else:
-            print("wosac-eval score: the submission is invalid; fix it, or pass --partial to score "
-                  "its valid scenarios", file=sys.stderr)
+            print(
+                "wosac-eval score: the submission is invalid; fix it, or pass --partial to score its valid scenarios",
+                file=sys.stderr,
+            )
         return 1
     except (ScenarioSetError, ParseError) as error:
         raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None
@@ -211,8 +302,11 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(str(error)) from None
     except KeyboardInterrupt:
         if journal is not None and journal.exists():
-            print(f"\nwosac-eval score: the scenarios finished so far are kept in {journal}; run the same "
-                  "command again to resume", file=sys.stderr)
+            print(
+                f"\nwosac-eval score: the scenarios finished so far are kept in {journal}; run the same "
+                "command again to resume",
+                file=sys.stderr,
+            )
         raise
     finally:
         if bar is not None:
@@ -220,7 +314,8 @@ def run(args: argparse.Namespace) -> int:
     _stderr_findings(result)
     if args.output:
         write_result(result, Path(args.output))
-        remove_journal(journal)  # the result is on disk: nothing left to resume
+        if journal is not None:  # always, with --output
+            remove_journal(journal)  # the result is on disk: nothing left to resume
         print(_headline(result), file=sys.stderr)
         print(f"results written to {args.output}", file=sys.stderr)
         if objects is not None:

@@ -6,6 +6,7 @@ run is uploading it), 2 usage error, or the server unreachable or failing past t
 same command again: the upload goes on where the server holds it), 130 interrupted (the same: run
 it again to resume).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -13,10 +14,22 @@ import json
 import os
 import re
 import sys
+from typing import TYPE_CHECKING
 
-from wosac_eval.client import (DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, ProtocolError, ServerUnavailable,
-                               SubmissionFailed, SubmitError, submit)
+from wosac_eval.client import (
+    DEFAULT_CHUNK_BYTES,
+    KEY_ENV,
+    ArgumentError,
+    ProtocolError,
+    ServerUnavailable,
+    SubmissionFailed,
+    SubmitError,
+    submit,
+)
 from wosac_eval.fronts.usage import UsageError, check_output_file
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 NAME = "submit"
 HELP = "Upload a submission to a wosac-eval scoring service (resumable); with --wait, print its result."
@@ -32,40 +45,85 @@ def parse_size(text: str) -> int:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.epilog = (f"The key defaults to ${KEY_ENV}, so it need not appear in the shell's history. An "
-                     "interrupted upload (Ctrl-C, a dropped network, a server restart) goes on where the "
-                     "server holds it when the same command runs again; once uploaded, running it again "
-                     "follows the same submission (--new sends the file again).")
-    parser.add_argument("submission", metavar="SUBMISSION",
-                        help="the submission file: .tar.gz, .tar.bz2, .tar.xz, .tar, or one .binproto[.gz|.bz2|.xz]")
+    parser.epilog = (
+        f"The key defaults to ${KEY_ENV}, so it need not appear in the shell's history. An "
+        "interrupted upload (Ctrl-C, a dropped network, a server restart) goes on where the "
+        "server holds it when the same command runs again; once uploaded, running it again "
+        "follows the same submission (--new sends the file again)."
+    )
+    parser.add_argument(
+        "submission",
+        metavar="SUBMISSION",
+        help="the submission file: .tar.gz, .tar.bz2, .tar.xz, .tar, or one .binproto[.gz|.bz2|.xz]",
+    )
     parser.add_argument("--server", required=True, metavar="URL", help="the service, e.g. https://wosac.example.org")
-    parser.add_argument("--key", default=None, metavar="KEY",
-                        help=f"the API key (wosac_...; default: ${KEY_ENV}, which keeps it out of the shell's history)")
+    parser.add_argument(
+        "--key",
+        default=None,
+        metavar="KEY",
+        help=f"the API key (wosac_...; default: ${KEY_ENV}, which keeps it out of the shell's history)",
+    )
     parser.add_argument("--method", required=True, metavar="NAME", help="the leaderboard name of the method")
-    parser.add_argument("--challenge", choices=("sim_agents", "scenario_gen"), default="sim_agents",
-                        help="sim_agents (default) or scenario_gen")
-    parser.add_argument("--config", default=None, metavar="NAME",
-                        help="the metrics config the server scores with (default: the challenge's current one, "
-                             "2025 or scenario_gen_2025)")
+    parser.add_argument(
+        "--challenge",
+        choices=("sim_agents", "scenario_gen"),
+        default="sim_agents",
+        help="sim_agents (default) or scenario_gen",
+    )
+    parser.add_argument(
+        "--config",
+        default=None,
+        metavar="NAME",
+        help="the metrics config the server scores with (default: the challenge's current one, "
+        "2025 or scenario_gen_2025)",
+    )
     parser.add_argument("--publish", action="store_true", help="show the result on the public leaderboard")
-    parser.add_argument("--partial", action="store_true",
-                        help="score the valid scenarios of a submission that does not cover the whole scenario set")
-    parser.add_argument("--wait", action="store_true",
-                        help="follow the job (state and progress on stderr) and print its result row")
-    parser.add_argument("--output", "-o", metavar="result.json",
-                        help="with --wait: write the result document (the JSON of `wosac-eval score`) there")
-    parser.add_argument("--json", action="store_true",
-                        help="print the submission's status as JSON on stdout (with --wait: the final one, "
-                             "with \"result\") instead of the text row")
-    parser.add_argument("--new", action="store_true",
-                        help="forget an earlier upload of this file (an unfinished one is deleted) and send it again")
-    parser.add_argument("--chunk-bytes", type=parse_size, default=DEFAULT_CHUNK_BYTES, metavar="SIZE",
-                        help="bytes per upload request (default 64M; K, M, G accepted)")
-    parser.add_argument("--limit-rate", type=parse_size, default=None, metavar="SIZE",
-                        help="send at most SIZE bytes per second (e.g. 10M)")
-    parser.add_argument("--state-dir", default=None, metavar="DIR",
-                        help="where unfinished uploads are remembered (default $XDG_CACHE_HOME/wosac-eval/uploads, "
-                             "else ~/.cache/wosac-eval/uploads); the key is never written there")
+    parser.add_argument(
+        "--partial",
+        action="store_true",
+        help="score the valid scenarios of a submission that does not cover the whole scenario set",
+    )
+    parser.add_argument(
+        "--wait", action="store_true", help="follow the job (state and progress on stderr) and print its result row"
+    )
+    parser.add_argument(
+        "--output",
+        "-o",
+        metavar="result.json",
+        help="with --wait: write the result document (the JSON of `wosac-eval score`) there",
+    )
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the submission's status as JSON on stdout (with --wait: the final one, "
+        'with "result") instead of the text row',
+    )
+    parser.add_argument(
+        "--new",
+        action="store_true",
+        help="forget an earlier upload of this file (an unfinished one is deleted) and send it again",
+    )
+    parser.add_argument(
+        "--chunk-bytes",
+        type=parse_size,
+        default=DEFAULT_CHUNK_BYTES,
+        metavar="SIZE",
+        help="bytes per upload request (default 64M; K, M, G accepted)",
+    )
+    parser.add_argument(
+        "--limit-rate",
+        type=parse_size,
+        default=None,
+        metavar="SIZE",
+        help="send at most SIZE bytes per second (e.g. 10M)",
+    )
+    parser.add_argument(
+        "--state-dir",
+        default=None,
+        metavar="DIR",
+        help="where unfinished uploads are remembered (default $XDG_CACHE_HOME/wosac-eval/uploads, "
+        "else ~/.cache/wosac-eval/uploads); the key is never written there",
+    )
 
 
 class _Reporter:
@@ -73,12 +131,13 @@ class _Reporter:
 
     def __init__(self) -> None:
         self.tty = sys.stderr.isatty()
-        self.bars: dict[str, object] = {}
+        self.bars: dict[str, tqdm] = {}
         self.tenths: dict[str, int] = {}
 
     def log(self, message: str) -> None:
         if self.bars:
             from tqdm import tqdm
+
             tqdm.write(message, file=sys.stderr)
         else:
             print(message, file=sys.stderr, flush=True)
@@ -88,10 +147,15 @@ class _Reporter:
             bar = self.bars.get(stage)
             if bar is None:
                 from tqdm import tqdm
-                options = (dict(unit="B", unit_scale=True, unit_divisor=1024) if stage == "upload"
-                           else dict(unit="scenario"))
-                bar = self.bars[stage] = tqdm(desc=stage, total=total, file=sys.stderr, leave=False,
-                                              dynamic_ncols=True, **options)
+
+                options = (
+                    {"unit": "B", "unit_scale": True, "unit_divisor": 1024}
+                    if stage == "upload"
+                    else {"unit": "scenario"}
+                )
+                bar = self.bars[stage] = tqdm(
+                    desc=stage, total=total, file=sys.stderr, leave=False, dynamic_ncols=True, **options
+                )
             bar.total = total
             bar.n = done
             bar.refresh()
@@ -118,16 +182,26 @@ def result_row(status: dict) -> str:
     """The result's leaderboard figures: a header line and one row."""
     result = status["result"]
     b = result["buckets"]
-    cells = [("submission", status["id"]), ("method", status["method"]), ("challenge", result["challenge"]),
-             ("config", result["config"]), ("scenarios", str(result["num_scenarios"])),
-             ("meta-metric", f"{b['realism_meta_metric']:.4f}"), ("kinematic", f"{b['kinematic_metrics']:.4f}"),
-             ("interactive", f"{b['interactive_metrics']:.4f}"), ("map-based", f"{b['map_based_metrics']:.4f}"),
-             ("minADE", f"{b['min_ade']:.3f}")]
+    cells = [
+        ("submission", status["id"]),
+        ("method", status["method"]),
+        ("challenge", result["challenge"]),
+        ("config", result["config"]),
+        ("scenarios", str(result["num_scenarios"])),
+        ("meta-metric", f"{b['realism_meta_metric']:.4f}"),
+        ("kinematic", f"{b['kinematic_metrics']:.4f}"),
+        ("interactive", f"{b['interactive_metrics']:.4f}"),
+        ("map-based", f"{b['map_based_metrics']:.4f}"),
+        ("minADE", f"{b['min_ade']:.3f}"),
+    ]
     if status.get("partial"):
         cells.append(("coverage", f"{status['coverage']:.1%}"))
     widths = [max(len(a), len(b)) for a, b in cells]
-    return ("  ".join(a.ljust(w) for (a, _), w in zip(cells, widths)).rstrip() + "\n"
-            + "  ".join(b.ljust(w) for (_, b), w in zip(cells, widths)).rstrip())
+    return (
+        "  ".join(a.ljust(w) for (a, _), w in zip(cells, widths)).rstrip()
+        + "\n"
+        + "  ".join(b.ljust(w) for (_, b), w in zip(cells, widths)).rstrip()
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -140,10 +214,24 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"no API key: pass --key, or set {KEY_ENV} (which keeps it out of the shell's history)")
     reporter = _Reporter()
     try:
-        status = submit(args.submission, server=args.server, key=key, method=args.method, challenge=args.challenge,
-                        config=args.config, publish=args.publish, allow_partial=args.partial, wait=args.wait,
-                        output=args.output, new=args.new, chunk_bytes=args.chunk_bytes, limit_rate=args.limit_rate,
-                        progress=reporter.progress, log=reporter.log, state_dir=args.state_dir)
+        status = submit(
+            args.submission,
+            server=args.server,
+            key=key,
+            method=args.method,
+            challenge=args.challenge,
+            config=args.config,
+            publish=args.publish,
+            allow_partial=args.partial,
+            wait=args.wait,
+            output=args.output,
+            new=args.new,
+            chunk_bytes=args.chunk_bytes,
+            limit_rate=args.limit_rate,
+            progress=reporter.progress,
+            log=reporter.log,
+            state_dir=args.state_dir,
+        )
     except ArgumentError as error:
         raise UsageError(str(error)) from None
     except SubmissionFailed as failed:

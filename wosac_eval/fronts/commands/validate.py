@@ -4,6 +4,7 @@ Exit codes: 0 the submission is valid (warnings allowed), 1 it is invalid (the
 report says why), 2 usage error (bad arguments, missing paths, unreadable
 scenario set) or an internal error.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -12,9 +13,9 @@ import re
 import sys
 
 from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.extras import ENGINES, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, scenario_set_hint
 from wosac_eval.parse.limits import InputLimits
-from wosac_eval.extras import ENGINES, EngineUnavailableError
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.validate.validator import ScenarioSetError, load_sim_agents, validate_submission
 
@@ -39,27 +40,67 @@ def parse_size(text: str) -> int:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set, the submission, the challenge, report format and limits."""
-    parser.add_argument("--scenarios", nargs="+", required=True, metavar="PATH",
-                        help="scenario TFRecord files, folders or globs: the scenario set the submission must cover")
-    parser.add_argument("--submission", required=True, metavar="PATH",
-                        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto")
-    parser.add_argument("--challenge", choices=CHALLENGE_NAMES, default="sim_agents",
-                        help="the challenge's rules: sim_agents (80 future steps; default) or scenario_gen "
-                             "(91 steps with box sizes and object types)")
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        required=True,
+        metavar="PATH",
+        help="scenario TFRecord files, folders or globs: the scenario set the submission must cover",
+    )
+    parser.add_argument(
+        "--submission",
+        required=True,
+        metavar="PATH",
+        help="the submission: .tar.gz, .tar, a folder of shards or one .binproto",
+    )
+    parser.add_argument(
+        "--challenge",
+        choices=CHALLENGE_NAMES,
+        default="sim_agents",
+        help="the challenge's rules: sim_agents (80 future steps; default) or scenario_gen "
+        "(91 steps with box sizes and object types)",
+    )
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
-    parser.add_argument("--max-listed", type=int, default=20, metavar="N",
-                        help="findings shown in full per kind of problem; the rest are counted (default 20)")
-    parser.add_argument("--workers", type=int, default=1, metavar="N",
-                        help="processes checking shards in parallel (default 1); the report is the same for any N")
-    parser.add_argument("--engine", choices=ENGINES, default="local",
-                        help="local (this machine, --workers processes; default) or ray (a Ray cluster: one task "
-                             "per shard; the same report)")
-    parser.add_argument("--ray-address", metavar="ADDR",
-                        help="the Ray cluster to join (default $RAY_ADDRESS, else a local Ray is started)")
-    parser.add_argument("--max-bytes", type=parse_size, default=InputLimits.max_total_bytes, metavar="SIZE",
-                        help="refuse a submission that decompresses past SIZE in total (default 64G)")
-    parser.add_argument("--max-shard-bytes", type=parse_size, default=InputLimits.max_member_bytes, metavar="SIZE",
-                        help="refuse a shard that decompresses past SIZE (default 4G)")
+    parser.add_argument(
+        "--max-listed",
+        type=int,
+        default=20,
+        metavar="N",
+        help="findings shown in full per kind of problem; the rest are counted (default 20)",
+    )
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="processes checking shards in parallel (default 1); the report is the same for any N",
+    )
+    parser.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default="local",
+        help="local (this machine, --workers processes; default) or ray (a Ray cluster: one task "
+        "per shard; the same report)",
+    )
+    parser.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="the Ray cluster to join (default $RAY_ADDRESS, else a local Ray is started)",
+    )
+    parser.add_argument(
+        "--max-bytes",
+        type=parse_size,
+        default=InputLimits.max_total_bytes,
+        metavar="SIZE",
+        help="refuse a submission that decompresses past SIZE in total (default 64G)",
+    )
+    parser.add_argument(
+        "--max-shard-bytes",
+        type=parse_size,
+        default=InputLimits.max_member_bytes,
+        metavar="SIZE",
+        help="refuse a shard that decompresses past SIZE (default 4G)",
+    )
 
 
 def _progress_bar(total: int | None, what: str):
@@ -86,9 +127,15 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
         bar = _progress_bar(len(agents), "validating")
         report = validate_submission(
-            args.scenarios, args.submission, max_listed=args.max_listed, limits=limits,
-            progress=bar.update if bar is not None else None, sim_agents=agents, workers=args.workers,
-            challenge=args.challenge, executor=executor,
+            args.scenarios,
+            args.submission,
+            max_listed=args.max_listed,
+            limits=limits,
+            progress=bar.update if bar is not None else None,
+            sim_agents=agents,
+            workers=args.workers,
+            challenge=args.challenge,
+            executor=executor,
         )
     except ScenarioSetError as error:
         raise UsageError(f"{error}{scenario_set_hint(args.scenarios, args.submission)}") from None

@@ -39,7 +39,8 @@ def shared() -> Path:
 
 def pytest_collection_modifyitems(config, items):
     """Tests that start JAX run last: JAX runs threads, and later tests fork worker processes."""
-    uses_jax = ("jax_backend_test.py", "test_jax_kernels.py", "test_score_backends.py", "jax_realism_test.py")
+    uses_jax = ("jax_backend_test.py", "test_jax_kernels.py", "test_score_backends.py", "jax_realism_test.py",
+                "soft_realism_test.py")
     items.sort(key=lambda item: item.path.name in uses_jax)
 
 

@@ -15,12 +15,11 @@ from __future__ import annotations
 import sys
 import time
 
-from bench_env import SHARED  # noqa: F401  (puts tests/ on the path)
-
 import jax
 import jax.numpy as jnp
 import jax.test_util
 import numpy as np
+from bench_env import SHARED  # noqa: F401  (puts tests/ on the path)
 
 from support import golden
 from wosac_eval import jax_realism
@@ -69,7 +68,7 @@ def gradient_figures() -> None:
 
         grads = jax.grad(metametric, argnums=(0, 1, 2, 3))(arrays["x"], arrays["y"], arrays["z"], arrays["heading"])
         parts = ", ".join(f"{name} {int(np.count_nonzero(g))} non-zero, max |g| {float(jnp.abs(g).max()):.2e}"
-                          for name, g in zip("x y z heading".split(), grads))
+                          for name, g in zip(["x", "y", "z", "heading"], grads))
         finite = all(bool(jnp.isfinite(g).all()) for g in grads)
         print(f"  T={temperature}: gradient finite everywhere: {finite}; {parts}")
 
@@ -88,7 +87,7 @@ def gradient_figures() -> None:
     jax.test_util.check_grads(shifted, (shift,), order=1, modes=("fwd", "rev"), eps=2e-3)
     gradient = jax.grad(lambda s: shifted(s).sum())(shift)
     print(f"  check_grads(order=1, modes=fwd, rev; eps=2e-3) of the meta-metric in a shift (x, y, heading) = "
-          f"{tuple(np.asarray(shift).round(4))} of the first evaluated object's rollouts, T=1: passed in "
+          f"{tuple(round(float(v), 4) for v in shift)} of the first evaluated object's rollouts, T=1: passed in "
           f"{time.perf_counter() - start:.0f} s; gradient {np.asarray(gradient)}")
 
 

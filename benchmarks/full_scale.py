@@ -880,11 +880,13 @@ def path_interrupt(ctx) -> dict:
     resumed = "resum" in second.stderr.lower()  # the command says it resumes from the journal
     extra = (f"{first.wall_s + second.wall_s - ctx.cli_wall:+.1f} s against the uninterrupted cli run"
              if ctx.cli_wall else "no uninterrupted cli run to compare")
+    share = f", {100 * second.wall_s / ctx.cli_wall:.0f}% of the uninterrupted cli run" if ctx.cli_wall else ""
     row["note"] = (f"killed after {first.wall_s:.1f} s with {state['killed_at']} scenarios journaled; rerun "
-                   f"{second.wall_s:.1f} s ({'resumed' if resumed else 'DID NOT RESUME'}, "
+                   f"{second.wall_s:.1f} s{share} ({'resumed' if resumed else 'DID NOT RESUME'}, "
                    f"{ctx.layout.scenes - state['killed_at']} left to score); extra cost {extra}")
     row["interrupt"] = {"killed_after_s": round(first.wall_s, 2), "journaled": state["killed_at"],
                         "rerun_s": round(second.wall_s, 2), "resumed": resumed,
+                        "rerun_share": round(second.wall_s / ctx.cli_wall, 4) if ctx.cli_wall else None,
                         "extra_s": round(first.wall_s + second.wall_s - ctx.cli_wall, 2) if ctx.cli_wall else None}
     return ctx.with_result(row, out, second)
 

@@ -10,7 +10,7 @@ coordinate is one product plus one fused multiply-add, fma(a1, b1, a0 * b0), and
 the third term adds an exact zero; where TensorFlow leaves oneDNN off (e.g. AMD
 CPUs without AVX-512), every operation is rounded and about 1 corner in 5000
 differs in the last bit. This wrapper evaluates that product the reference way
-(the fused step in float64, then rounded: what `float32_math.fma32` does), so
+(the fused step in float64, then rounded: what `ops.fma32` does), so
 golden cases made on any machine agree with the reference outputs. Checked:
 the cases of ../shared/golden and ../shared/golden/scenario_gen are reproduced
 bit for bit.

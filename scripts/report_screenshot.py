@@ -1,4 +1,4 @@
-"""Regenerates the report screenshot of the README (docs/report.png); needs Chromium.
+"""Regenerates the report screenshot of the user guide (docs/report.png); needs Chromium.
 
     python scripts/report_screenshot.py [OUT_DIR] [--png docs/report.png]
 

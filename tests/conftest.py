@@ -5,10 +5,17 @@ and a short grace period): each is reported by pid and command line, then killed
 are its descendants, and every process carrying this run's `PYTEST_WOSAC_EVAL_SESSION` (set below,
 inherited by every child) however it was re-parented: orphans adopted by pid 1 or a subreaper, and
 daemons such as the PostgreSQL server of tests/server or the processes of a Ray cluster in its
-`unshare -n` namespace.
+`unshare -n` namespace. Under pytest-xdist each worker checks its own processes at its end and the
+controller reports what the workers found.
+
+Markers (registered in pyproject.toml) come from three places: the folder a test file lives in
+(`FOLDER_MARKERS`), the fixtures a test uses (`FIXTURE_MARKERS`), and explicit marks in the test files
+(browser, docker, slow). Ray, browser and Docker tests are also `slow`; Ray tests run one at a time
+(`one_ray_cluster_at_a_time`).
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import signal
 import sys
@@ -30,6 +37,7 @@ if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_max_isa=AVX".strip()
 LEAK_GRACE_S = 5.0
 _LEAKS_KEY = pytest.StashKey[list]()
+_LEAKS_OUTPUT = "wosac_processes_left_behind"  # in an xdist worker's workeroutput
 
 
 @pytest.fixture
@@ -37,11 +45,57 @@ def shared() -> Path:
     return require_shared()
 
 
+@pytest.fixture(autouse=True)
+def one_ray_cluster_at_a_time(request, tmp_path_factory):
+    """The `ray` tests of one run take turns, whichever xdist worker runs them: two clusters at once are
+    too heavy for 2 cores, and `ray stop` in the README's blocks would stop the other's. (A lock, not an
+    xdist_group: pytest 9.2 drops the group from the node ids, pytest-xdist#1386.)"""
+    if request.node.get_closest_marker("ray") is None:
+        yield
+        return
+    run_root = tmp_path_factory.getbasetemp()
+    if hasattr(request.config, "workerinput"):  # an xdist worker's basetemp is <the run's>/popen-gwN
+        run_root = run_root.parent
+    with open(run_root / "ray-cluster.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
+# What a test needs, by the folder of tests/ its file lives in: a new file there gets the same marks.
+FOLDER_MARKERS = {
+    "backends": ("jax",),  # the JAX backend: JAX in the test process
+    "parity": ("parity", "shared"),  # golden parity, on the reference material of ../shared
+    "ray": ("ray",),  # a real Ray cluster in a loopback namespace
+    "server": ("service",),  # the scoring service (wosac_server) as a real server
+}
+# ... and by the fixtures it uses.
+FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
+SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the fast tier) leaves out
+
+
+def _markers(item) -> set[str]:
+    tests = Path(__file__).parent
+    folder = item.path.relative_to(tests).parts[0] if item.path.is_relative_to(tests) else ""
+    names = set(FOLDER_MARKERS.get(folder, ()))
+    for fixture, marks in FIXTURE_MARKERS.items():
+        if fixture in item.fixturenames:
+            names.update(marks)
+    names.update(mark.name for mark in item.iter_markers())
+    if names.intersection(SLOW_MARKERS):
+        names.add("slow")
+    return names
+
+
+def pytest_itemcollected(item):
+    """Marks each test by folder and fixtures (above), as it is collected: before `-m` selects."""
+    names = _markers(item)
+    for name in sorted(names - {mark.name for mark in item.iter_markers()}):
+        item.add_marker(name)
+
+
 def pytest_collection_modifyitems(config, items):
     """Tests that start JAX run last: JAX runs threads, and later tests fork worker processes."""
-    uses_jax = ("jax_backend_test.py", "test_jax_kernels.py", "test_score_backends.py", "jax_realism_test.py",
-                "soft_realism_test.py")
-    items.sort(key=lambda item: item.path.name in uses_jax)
+    items.sort(key=lambda item: item.get_closest_marker("jax") is not None)
 
 
 def _multiprocessing_resource_tracker(pid: int, ppid: int) -> bool:
@@ -53,10 +107,31 @@ def _multiprocessing_resource_tracker(pid: int, ppid: int) -> bool:
 
 @pytest.hookimpl(trylast=True)  # after the runner's own sessionfinish, which tears the last fixtures down
 def pytest_sessionfinish(session, exitstatus):
-    """Fail the run if a process it started outlives it: report each, then kill it."""
-    if not sys.platform.startswith("linux") or hasattr(session.config, "workerinput"):
+    """Fail the run if a process it started outlives it: report each, then kill it. Under xdist each
+    worker checks its own (they carry its mark) and sends them to the controller, which fails the run."""
+    config = session.config
+    if config.pluginmanager.hasplugin("dsession"):  # the xdist controller: it started only the workers
+        leaks = config.stash.get(_LEAKS_KEY, [])
+    elif sys.platform.startswith("linux"):
+        leaks = _processes_left_behind()
+        if hasattr(config, "workeroutput"):  # an xdist worker: sent to the controller when it ends
+            config.workeroutput[_LEAKS_OUTPUT] = leaks
+    else:
         return
+    config.stash[_LEAKS_KEY] = leaks
+    if leaks and session.exitstatus == pytest.ExitCode.OK:
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
+
+@pytest.hookimpl(optionalhook=True)  # an xdist hook: called on the controller as each worker ends
+def pytest_testnodedown(node, error):
+    leaks = getattr(node, "workeroutput", {}).get(_LEAKS_OUTPUT, [])
+    worker = node.workerinput.get("workerid", "?")
+    node.config.stash.setdefault(_LEAKS_KEY, []).extend(f"[{worker}] {line}" for line in leaks)
+
+
+def _processes_left_behind() -> list[str]:
+    """The processes of this test process still alive after a grace period, each as a line; kills them."""
     def ours() -> dict[int, int]:
         return {pid: ppid for pid, ppid in left_behind(os.getpid(), SESSION_MARK, os.environ[SESSION_MARK]).items()
                 if not _multiprocessing_resource_tracker(pid, ppid)}
@@ -67,7 +142,7 @@ def pytest_sessionfinish(session, exitstatus):
         time.sleep(0.1)
         found = ours()
     if not found:
-        return
+        return []
     leaks = [f"pid {pid} (parent {ppid}): {command_line(pid) or '?'}" for pid, ppid in sorted(found.items())]
     for pid in found:
         try:
@@ -78,9 +153,7 @@ def pytest_sessionfinish(session, exitstatus):
     still = [pid for pid in found if alive(pid)]
     if still:
         leaks.append(f"(still alive after SIGKILL: {still})")
-    session.config.stash[_LEAKS_KEY] = leaks
-    if session.exitstatus == pytest.ExitCode.OK:
-        session.exitstatus = pytest.ExitCode.TESTS_FAILED
+    return leaks
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
@@ -88,7 +161,7 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     if not leaks:
         return
     terminalreporter.section("processes left behind", sep="!", red=True, bold=True)
-    count = sum(line.startswith("pid ") for line in leaks)
+    count = sum(" (parent " in line for line in leaks)
     terminalreporter.line(f"{count} process(es) started by this test run "
                           f"were still alive {LEAK_GRACE_S:g} s after it ended (all fixtures torn down); "
                           "killed them. The run fails:", red=True)

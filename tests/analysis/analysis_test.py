@@ -68,6 +68,7 @@ def scene_score(scenario) -> dict:
     return with_rarity(scene, histogram)
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_a_hard_brake_is_more_critical_than_cruising():
     cruising = scene_score(straight_road_scene([cruise(-100, -3, 12.0), cruise(-60, 3, 12.0)]))
     braking = scene_score(straight_road_scene([hard_brake(-100, -3, 14.0, 40, 7.0), cruise(-60, 3, 12.0)]))
@@ -147,6 +148,7 @@ def log_replay(scenario):
     return rollouts_from_arrays(scenario.scenario_id, arrays.sim_agent_ids, *columns)
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_log_replay_drives_better_than_constant_velocity(demo_scenes):
     replay, constant = [], []
     for scenario in demo_scenes:

@@ -94,6 +94,7 @@ print("bit-identical")
 """
 
 
+@pytest.mark.slow
 def test_exact_features_stay_bit_identical_where_the_compiler_fuses_multiply_adds():
     if "fma" not in open("/proc/cpuinfo").read().split():
         pytest.skip("this CPU has no fused multiply-add: XLA cannot contract here")

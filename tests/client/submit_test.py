@@ -140,6 +140,7 @@ def submission_id_of(stdout: str) -> str:
     return match.group(1)
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server, data):
     from wosac_eval.client import follow, submit
 
@@ -212,6 +213,7 @@ def test_an_interrupted_upload_goes_on_from_the_servers_offset(tmp_path, api_ser
     assert stored_submission(api_server, submission_id_of(done.stdout)) == big_file.read_bytes()
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_the_upload_survives_a_restart_of_the_server(tmp_path, data, big_file):
     server = Server(tmp_path / "data", data.scenarios, workers=0).start()
     try:

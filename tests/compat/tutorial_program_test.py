@@ -36,6 +36,7 @@ def _run(pattern: str, out) -> dict:
     return json.loads(result[-1][len("RESULT "):])
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 @pytest.mark.parametrize("source", ["repository", "womd"])
 def test_the_tutorial_runs_to_its_end_with_only_its_imports_changed(source, tmp_path):
     from wosac_eval import read_scenarios, score_scenario

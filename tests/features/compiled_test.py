@@ -9,6 +9,7 @@ import pytest
 
 from wosac_eval.features import (box_geometry, compiled, float32_math, interaction, ops, road_edge, search,
                                  traffic_lights)
+from wosac_eval.features.road_edge import cell_tables, pruned_search, segments
 from wosac_eval.parse import wire_walks as walks
 
 F = np.float32
@@ -101,8 +102,9 @@ def test_flat_source_inlines_every_kernel_and_operation():
 
 def test_cached_loops_are_named_after_the_kernels_digest():
     digest = compiled.KERNELS_DIGEST[:16]
-    for loop in (road_edge._search_lists, interaction._nearest_object_search, interaction._followed_search,
-                 traffic_lights._crossings):
+    # Also the loops that call numba functions of another file (numba's cache checks the loop's file only).
+    for loop in (pruned_search._search_lists, pruned_search._query_cells, cell_tables._cell_table,
+                 interaction._nearest_object_search, interaction._followed_search, traffic_lights._crossings):
         assert loop.py_func.__qualname__.endswith(f"__kernels_{digest}")
 
 
@@ -118,8 +120,9 @@ def test_compile_searches_covers_what_scoring_calls():
     from wosac_eval.validate.rules import check_scenario_rollouts
 
     search.compile_searches()
-    loops = [road_edge._query_cells, road_edge._cell_lists, road_edge._search_lists, road_edge._signed_distances,
-             road_edge._bucket_lists, interaction._nearest_object_search, interaction._followed_search,
+    loops = [pruned_search._query_cells, pruned_search._cell_lists, pruned_search._search_lists,
+             pruned_search._signed_distances, segments._bucket_lists, interaction._nearest_object_search,
+             interaction._followed_search,
              traffic_lights._crossings, walks._message_spans, walks._scalar_fields, walks._float_fields]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]

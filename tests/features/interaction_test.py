@@ -139,7 +139,7 @@ def ttc(*tracks, num_evaluated=1, valid=None):
     if valid is None:
         valid = np.ones(x.shape, bool)
     return interaction.time_to_collision(x, y, length, width, heading, np.asarray(valid, bool),
-                                         num_evaluated, DT, INNER)
+                                         num_evaluated=num_evaluated, seconds_per_step=DT, steps=INNER)
 
 
 FOLLOWER = (F(5) * T, 0.0, 4.0, 2.0, 0.0)  # 10 m/s along +x
@@ -249,7 +249,7 @@ def test_all_steps_with_nan_speeds_at_the_ends():
     x = np.stack([FOLLOWER[0], leader[0]])
     zeros = np.zeros_like(x)
     full = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, np.ones(x.shape, bool),
-                                         1, DT)
+                                         num_evaluated=1, seconds_per_step=DT)
     assert full.shape == (1, STEPS)
     # At the first and last step the speeds are NaN: no closing speed, 5 s.
     assert full[0, 0] == 5.0 and full[0, -1] == 5.0
@@ -276,13 +276,14 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
     nearest_args = (x[..., steps], y[..., steps], length[..., steps], width[..., steps], cos_h, sin_h,
                     valid[..., steps], 4)
     whole_nearest = interaction.distance_to_nearest_object(*nearest_args)
-    whole_ttc = interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, steps)
+    ttc_args = (x, y, length, width, heading, valid)
+    ttc_options = {"num_evaluated": 4, "seconds_per_step": 0.1, "steps": steps}
+    whole_ttc = interaction.time_to_collision(*ttc_args, **ttc_options)
     assert (whole_ttc < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     monkeypatch.setattr(interaction, "PAIRS_PER_CHUNK", 4 * 12 * 91 * 2)  # two samples per chunk
     assert len(interaction._sample_chunks(5, 4 * 12 * 91)) == 3
     np.testing.assert_array_equal(interaction.distance_to_nearest_object(*nearest_args), whole_nearest)
-    np.testing.assert_array_equal(interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, steps),
-                                  whole_ttc)
+    np.testing.assert_array_equal(interaction.time_to_collision(*ttc_args, **ttc_options), whole_ttc)
 
 
 def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, speed):
@@ -315,7 +316,8 @@ def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
     speed[0, 3, 7] = np.nan
     speed[1, 0, 12] = np.inf
     speed[2, 5, 20] = -np.inf
-    got = interaction.time_to_collision(x, y, length, width, heading, valid, 4, 0.1, speed=speed)
+    got = interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1,
+                                        speed=speed)
     want = all_objects_reference(x, y, length, width, heading, valid, 4, speed)
     assert (got < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     np.testing.assert_array_equal(got, want)
@@ -332,7 +334,8 @@ def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
     speed[0, 2] = np.inf
     valid = np.ones(x.shape, bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        got = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, 0.1, speed=speed)
+        got = interaction.time_to_collision(x, zeros, zeros + 4, zeros + 2, zeros, valid, num_evaluated=1,
+                                            seconds_per_step=0.1, speed=speed)
     want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(got[0], [5, 5, 0, 5, 5])

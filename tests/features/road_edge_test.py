@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from wosac_eval.features import road_edge
+from wosac_eval.features.road_edge import pruned_search
 from wosac_eval.features.box_geometry import box_bottom_corners
 
 F = np.float32
@@ -294,7 +295,7 @@ def test_hints_never_change_the_answer(hint_stride):
     reference = brute_force(table, queries)
     segments = road_edge.nearest_segments(table, queries, hint_stride=hint_stride)
     assert np.array_equal(segments, road_edge.nearest_segments(table, queries, hint_stride=len(queries)))
-    ours = road_edge._signed_distances(queries, segments, table.start, table.delta, table.valid, table.prior,
+    ours = pruned_search._signed_distances(queries, segments, table.start, table.delta, table.valid, table.prior,
                                        table.next, table.prior_valid, table.next_valid, table.convex_before,
                                        table.convex_after, 1)
     mismatch = np.flatnonzero(ours != reference)

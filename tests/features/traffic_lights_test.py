@@ -204,7 +204,8 @@ def test_compiled_crossings_equal_the_array_kernel():
     stopping = rng.random((steps, signals)) > 0.3
     want = traffic_lights.stop_line_crossings(np.stack([x, y], -1), valid, seg_start, seg_delta, stop_point,
                                               stopping)
-    got, crossed_any = traffic_lights._compiled_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping)
+    got, crossed_any = traffic_lights.compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point,
+                                                                   stopping)
     assert want.any()
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(crossed_any, want.any(axis=-1))

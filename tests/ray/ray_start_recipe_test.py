@@ -1,4 +1,4 @@
-"""The README's Ray cluster recipe with real `ray start` processes (`recipe_checks.py`): a head and a
+"""The Ray cluster recipe of docs/ray.md with real `ray start` processes (`recipe_checks.py`): a head and a
 second node on loopback with Ray 2.60's token authentication, `wosac-eval score --engine ray
 --ray-address` giving the local engine's result, one line naming the fix when the client lacks the
 token (the CLI and the service), and `ray stop` leaving no process.

@@ -1,8 +1,8 @@
-"""The README's Ray cluster recipe, run as written with real `ray start` processes (Ray 2.60, token auth).
+"""The Ray cluster recipe of docs/ray.md, run as written with real `ray start` processes (Ray 2.60, token auth).
 
 Run by `ray_start_recipe_test.py` inside network and PID namespaces of their own
 (`loopback.run_checks(own_pids=True)`): only loopback, so the head listens on the
-README's own port 6379 and no traffic leaves 127.0.0.1; its own processes, so
+recipe's own port 6379 and no traffic leaves 127.0.0.1; its own processes, so
 `ray stop` (which stops every Ray process it can see) stops only these, and the
 last check can see that every process the recipe started is gone. HOME and
 RAY_TMPDIR are fresh folders: a user's ~/.ray/auth_token and /tmp/ray session
@@ -29,10 +29,10 @@ from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission
 
 BIN = Path(sys.executable).parent
-HEAD_PORT = 6379  # the README's; free in a fresh network namespace
+HEAD_PORT = 6379  # the recipe's (docs/ray.md); free in a fresh network namespace
 ADDRESS = f"127.0.0.1:{HEAD_PORT}"
 CLIENT_ADDRESS = "ray://127.0.0.1:10001"  # the head's Ray Client server: what the service's compose file uses
-# The recipe of the README's Ray section; `--num-cpus=1` only keeps two nodes light on a small machine.
+# The recipe of docs/ray.md; `--num-cpus=1` only keeps two nodes light on a small machine.
 HEAD = ["ray", "start", "--head", f"--port={HEAD_PORT}", "--num-cpus=1"]
 NODE = ["ray", "start", f"--address={ADDRESS}", "--num-cpus=1"]
 STOP = ["ray", "stop"]
@@ -114,8 +114,8 @@ def cluster(env):
             run(STOP + ["--force"], token_env)
 
 
-def test_the_readme_gives_this_recipe():
-    section = (REPO / "README.md").read_text().split("## Beyond one machine: Ray", 1)[1].split("\n## ", 1)[0]
+def test_the_documentation_gives_this_recipe():
+    section = (REPO / "docs" / "ray.md").read_text()
     for text in ("ray get-auth-token --generate", "export RAY_AUTH_MODE=token", "ray start --head --port=6379",
                  "ray start --address=HEAD_IP:6379", "--engine ray --ray-address HEAD_IP:6379", "ray stop"):
         assert text in section, text

@@ -141,6 +141,7 @@ def _require_chromium():
         pytest.skip("chromium is not installed (apt-get install chromium); CI installs it")
 
 
+@pytest.mark.browser
 def test_report_renders_in_headless_chromium(with_baseline):
     _require_chromium()
     path, _ = with_baseline
@@ -153,6 +154,7 @@ def test_report_renders_in_headless_chromium(with_baseline):
     assert len(headings) == 7
 
 
+@pytest.mark.browser
 def test_report_screenshot_shows_content(with_baseline, tmp_path):
     _require_chromium()
     path, _ = with_baseline

@@ -73,6 +73,7 @@ def test_plot_writes_png_gif_and_html(tmp_path, files):
     assert text.count("<tr><td>") == events
 
 
+@pytest.mark.browser
 @pytest.mark.skipif(find_chromium() is None, reason="no chromium on PATH (apt-get install chromium)")
 def test_plot_page_steps_through_frames_in_a_browser(tmp_path, files):
     scenarios, submission, ids = files

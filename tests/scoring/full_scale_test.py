@@ -18,6 +18,8 @@ import subprocess
 import sys
 import tarfile
 
+import pytest
+
 from support.paths import REPO, require_shared
 from wosac_eval.parse.tfrecord import iter_records
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
@@ -60,6 +62,7 @@ def _check_workload(build) -> None:
                 assert shard.HasField(flag), flag
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_every_path_gives_the_same_result(tmp_path):
     require_shared("womd")
     require_shared("golden")

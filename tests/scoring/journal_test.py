@@ -84,6 +84,37 @@ def test_a_resumed_run_takes_the_validation_it_kept(workload, uninterrupted, tmp
     assert not journal.exists() and not validated_path(journal).exists()
 
 
+def test_a_run_resumed_late_reads_the_members_it_kept_not_the_archive(workload, uninterrupted, tmp_path):
+    """The last members of an archive stay beside the journal: a run resumed after every earlier member was
+    scored reads those files and does not decompress the archive again (here it could not: its bytes are
+    zeroed, its size and time kept, so that the run's identity is the same)."""
+    import pickle
+    import shutil
+
+    from wosac_eval.scoring.journal import members_path, remove_journal, validated_path
+
+    scenarios, original = workload
+    submission = Path(shutil.copy2(original, tmp_path / original.name))
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, journal=journal)
+    records = pickle.loads(validated_path(journal).read_bytes())["records"]
+    kept = [shard for shard, _ in records if shard.path is not None]
+    assert kept and all(Path(shard.path).parent == members_path(journal) for shard in kept)
+    assert [shard.name for shard, _ in records][-len(kept):] == [shard.name for shard in kept], "the last ones"
+    assert sum(shard.size for shard in kept) <= submission.stat().st_size
+    left = len(records[-1][1])  # the last member's scenarios are not scored yet
+    journal.write_bytes(b"".join(_journal_lines(journal)[:1 + N - left]))
+    stat = submission.stat()
+    submission.write_bytes(bytes(stat.st_size))
+    os.utime(submission, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    calls, progress = _progress_log()
+    resumed = score_submission([scenarios], submission, journal=journal, progress=progress)
+    assert json.loads(json.dumps(resumed)) == uninterrupted
+    assert calls[0] == (N - left, N) and calls[-1] == (N, N)
+    remove_journal(journal)
+    assert not members_path(journal).exists()
+
+
 def test_journal_of_another_run_is_set_aside(workload, uninterrupted, tmp_path, caplog):
     scenarios, submission = workload
     journal = tmp_path / "run.journal"
@@ -143,3 +174,29 @@ def test_cli_restart_discards_the_journal(workload, uninterrupted, tmp_path):
     usage = subprocess.run(_cli("--scenarios", str(scenarios), "--submission", str(submission), "--restart"),
                            capture_output=True, text=True, timeout=120)
     assert usage.returncode == 2 and "--restart needs --output" in usage.stderr
+
+
+def test_a_refused_submission_keeps_no_member(workload, tmp_path):
+    from wosac_eval.scoring.journal import members_path
+    from wosac_eval.scoring.submission import InvalidSubmissionError
+
+    _, submission = workload
+    fewer, _ = replicated_submission(tmp_path, 6, per_shard=5)  # 18 submitted scenarios it lacks
+    journal = tmp_path / "run.journal"
+    with pytest.raises(InvalidSubmissionError):
+        score_submission([fewer], submission, journal=journal)
+    assert not members_path(journal).exists()
+
+
+def test_a_resumed_run_whose_kept_members_are_gone_streams_them_again(workload, uninterrupted, tmp_path):
+    import shutil
+
+    from wosac_eval.scoring.journal import members_path
+
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, journal=journal)
+    assert any(members_path(journal).iterdir())
+    shutil.rmtree(members_path(journal))
+    journal.write_bytes(b"".join(_journal_lines(journal)[:4]))  # killed after 3 rows
+    assert json.loads(json.dumps(score_submission([scenarios], submission, journal=journal))) == uninterrupted

@@ -143,6 +143,7 @@ def test_rollout_reader_equals_the_parsed_fields(scene_dir):
         assert arrays.object_id[1, 2] == 2 ** 31 - 1 and arrays.object_id[1, 3] == -2
 
 
+@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_baseline_score_and_compare_commands(tmp_path, scene_dir):
     results = {}
     for policy in ("log_replay_noise", "constant_velocity"):

@@ -169,7 +169,7 @@ def postgres_server():
         shutil.rmtree(root, ignore_errors=True)
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
+@pytest.fixture(params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)])
 def store(request, tmp_path):
     """A migrated job store on each engine: a SQLite file, a fresh PostgreSQL database."""
     if request.param == "sqlite":

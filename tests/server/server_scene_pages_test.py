@@ -166,6 +166,7 @@ def test_a_leaderboard_submissions_pages_are_public_and_linked_from_its_row(scor
     assert httpx.get(url + "/pictures/7.png").status_code == 404
 
 
+@pytest.mark.browser
 def test_a_private_scene_page_in_chromium(scored, tmp_path):
     """The shell's script fetches the page's content and its pictures with the key (CSP on)."""
     chromium = next((shutil.which(n) for n in ("chromium", "chromium-browser", "google-chrome") if shutil.which(n)),

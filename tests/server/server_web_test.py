@@ -169,6 +169,7 @@ def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, 
     return browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
 
 
+@pytest.mark.browser
 def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scoring_data, tmp_path):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("browser")
@@ -220,6 +221,7 @@ def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scorin
     assert field(page, "state").startswith("error 404")
 
 
+@pytest.mark.browser
 def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server, scoring_data, tmp_path):
     """The form's partial box sends allow_partial; the published partial row says "partial" on the page
     and `partial: true` in the API."""

@@ -1,10 +1,13 @@
-"""Run the README's code blocks, in order, in one scratch folder: what `tests/readme_test.py` checks.
+"""Run the code blocks of the documentation, in order, in one scratch folder: what `tests/readme_test.py` checks.
 
+The documents are README.md, then every `docs/*.md` by name (`documents()`).
 Every ```bash and ```python block runs, except the two set-up commands (the
-blocks of the "Set up" section, which CI itself runs); ```text, ```json and
-unlabelled blocks show output or data. The blocks share the folder (the first
-one runs the demo into `demo/`, the later ones use its files) and `examples/`
-of the repository is linked into it. Blocks that use Ray need a network
+blocks of the README's "Set up" section, which CI itself runs); ```text, ```json
+and unlabelled blocks show output or data. The blocks share the folder, one
+reader's session: the README's first block runs the demo into `demo/` and its
+score block writes `result.json`, which the later blocks of the README and of
+`docs/` use, as those pages say; within a page, a block may use what an earlier
+block of the page wrote. `examples/` of the repository is linked into the folder. Blocks that use Ray need a network
 namespace with loopback only (Ray binds to the machine's address): run this
 module inside `unshare -n` (the test does when it is root), or they are
 skipped and named.
@@ -39,6 +42,17 @@ def readme_blocks(text: str) -> list[tuple[int, str, str]]:
     return out
 
 
+def documents() -> list[Path]:
+    """The documents whose blocks run, in the order they run: the README first (it runs the demo)."""
+    return [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+
+
+def document_blocks() -> list[tuple[str, int, str, str]]:
+    """(document, line, language, code) of every block to run, documents in `documents()` order."""
+    return [(str(path.relative_to(REPO)), line, language, code)
+            for path in documents() for line, language, code in readme_blocks(path.read_text())]
+
+
 def uses_ray(code: str) -> bool:
     return "--engine ray" in code or 'engine="ray"' in code or "ray start" in code
 
@@ -53,22 +67,22 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
            "PATH": os.pathsep.join([str(Path(sys.executable).parent), os.environ.get("PATH", "")]),
            "PYTHONUNBUFFERED": "1"}
     env.pop("RAY_ADDRESS", None)
-    blocks = readme_blocks((REPO / "README.md").read_text())
+    blocks = document_blocks()
     failed = 0
-    for line, language, code in blocks:
+    for document, line, language, code in blocks:
         if skip_ray and uses_ray(code):
-            print(f"README.md:{line}: skipped (uses Ray; run inside a loopback-only namespace)", flush=True)
+            print(f"{document}:{line}: skipped (uses Ray; run inside a loopback-only namespace)", flush=True)
             continue
         command = ["bash", "-euo", "pipefail", "-c", code] if language == "bash" else [sys.executable, "-c", code]
         start = time.monotonic()
         done = subprocess.run(command, cwd=scratch, env=env, capture_output=True, text=True, timeout=900)
         status = "ok" if done.returncode == 0 else f"FAILED (exit {done.returncode})"
-        print(f"README.md:{line}: {language} block {status} in {time.monotonic() - start:.1f} s", flush=True)
+        print(f"{document}:{line}: {language} block {status} in {time.monotonic() - start:.1f} s", flush=True)
         if done.returncode != 0:
             failed += 1
             print(f"--- code\n{code}--- stdout (tail)\n{done.stdout[-3000:]}\n--- stderr (tail)\n{done.stderr[-3000:]}",
                   flush=True)
-    print(f"{len(blocks)} block(s), {failed} failed", flush=True)
+    print(f"{len(blocks)} block(s) of {len(documents())} document(s), {failed} failed", flush=True)
     return 1 if failed else 0
 
 

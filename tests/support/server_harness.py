@@ -2,6 +2,7 @@
 process on 127.0.0.1 with its own data dir (a real SQLite file) and a free port."""
 from __future__ import annotations
 
+import gzip
 import io
 import json
 import os
@@ -74,9 +75,16 @@ def scoring_data(workdir: Path) -> ScoringData:
 
 
 def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A free 127.0.0.1 port. Under pytest-xdist, one whose remainder by the number of workers is this
+    worker's number: two workers never pick the same port between this probe and their server's bind."""
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % workers
+    while True:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        if port % workers == worker:
+            return port
 
 
 def wait_healthy(url: str, process: subprocess.Popen, timeout: float) -> None:
@@ -192,15 +200,16 @@ def as_submission(payload: bytes) -> bytes:
 
 
 def tar_bytes(members: dict[str, bytes], gz: bool = True) -> bytes:
-    """A .tar(.gz) holding `members` (name -> content), names taken verbatim."""
+    """A .tar(.gz) holding `members` (name -> content), names taken verbatim. The same bytes in every
+    process (gzip's time stamp 0): test ids made of them agree across pytest-xdist workers."""
     buf = io.BytesIO()
-    with tarfile.open(fileobj=buf, mode="w:gz" if gz else "w") as tar:
+    with tarfile.open(fileobj=buf, mode="w") as tar:
         for name, data in members.items():
             info = tarfile.TarInfo(name)
             info.size = len(data)
             info.mtime = 0
             tar.addfile(info, io.BytesIO(data))
-    return buf.getvalue()
+    return gzip.compress(buf.getvalue(), mtime=0) if gz else buf.getvalue()
 
 
 def files_under(root: Path) -> set[Path]:

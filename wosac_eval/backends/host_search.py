@@ -21,6 +21,7 @@ import jax
 import numpy as np
 
 from wosac_eval.features.search import PrunedSearch
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 
 _F = np.float32
 
@@ -45,7 +46,8 @@ def _host(searches: HostSearches, method: str, dtype, arguments):
 
 
 class HostSearch:
-    """The search strategy of `metric_features.per_step_features` for one traced scene, on the host.
+    """The search strategy of `metric_features.per_step_features` for one traced scene, on the host (a
+    `SearchStrategy`).
 
     Args:
       searches: the scene set's numpy searches.
@@ -67,14 +69,20 @@ class HostSearch:
         return self._call("nearest_object", shape, _F, (x, y, length, width, cos_h, sin_h, valid),
                           lambda arrays: (*arrays, num_evaluated))
 
-    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
-                          ego_tail, pair_tail):
+    def time_to_collision(self, inputs: TimeToCollisionInputs):
         """float32 `(samples, num_evaluated, len(steps))` (see `PrunedSearch.time_to_collision`)."""
-        shape = x.shape[:-2] + (num_evaluated, len(range(*steps.indices(x.shape[-1]))))
+        i = inputs
+        shape = i.x.shape[:-2] + (i.num_evaluated, len(range(*i.steps.indices(i.x.shape[-1]))))
         # The evaluated count and the slice are static; the tails are arrays of the prepared scene.
-        return self._call("time_to_collision", shape, _F, (x, y, length, width, heading, speed, valid,
-                                                            ego_tail, pair_tail),
-                          lambda arrays: (*arrays[:7], num_evaluated, steps, *arrays[7:]))
+        arrays = (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid, i.ego_tail, i.pair_tail)
+
+        def on_host(host):
+            x, y, length, width, heading, speed, valid, ego_tail, pair_tail = host
+            return (TimeToCollisionInputs(x=x, y=y, length=length, width=width, heading=heading, speed=speed,
+                                          valid=valid, num_evaluated=i.num_evaluated, steps=i.steps,
+                                          ego_tail=ego_tail, pair_tail=pair_tail),)
+
+        return self._call("time_to_collision", shape, _F, arrays, on_host)
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         """float32 `x.shape`, -1e10 where invalid (see `PrunedSearch.road_edge_distance`)."""

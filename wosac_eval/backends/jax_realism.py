@@ -55,17 +55,17 @@ from wosac_eval.arrays.samples import log_sample, official_object_order
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.backends.exact_rounding import exactly_rounded
-from wosac_eval.backends import jax_backend
-from wosac_eval.backends.host_search import HostSearch, HostSearches
-from wosac_eval.features import dense
+from wosac_eval.backends.host_search import HostSearches
+from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
+from wosac_eval.features import registry
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
-from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
+from wosac_eval.metrics.registry import active_likelihood_fields, active_metrics
+from wosac_eval.metrics.scenario_metrics import (metric_log_likelihoods, metric_values, per_object_likelihoods,
+                                                 scenario_fields)
 from wosac_eval.options import Mode, Search
-from wosac_eval.metrics.scenario_metrics import (SCENARIO_FIELDS, metric_log_likelihoods, metric_values,
-                                                 per_object_likelihoods)
 
 _F = np.float32
 _POSITIONS = ("x", "y", "z", "heading")
@@ -210,23 +210,40 @@ class PreparedScenes:
         return (self.num_scenes, challenges.spec(self.challenge).num_rollouts, self.max_agents, self.num_steps)
 
 
-def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, search: str) -> dict:
+@dataclasses.dataclass(frozen=True)
+class RealismScene:
+    """One scene's host inputs for `realism`, unpadded.
+
+    Attributes:
+      inputs: the log as one sample, tails and map arrays (`jax_driver.SceneInputs`).
+      search: the scene's numpy search (`prepare`'s "host" search calls it back).
+      feature_valid: bool `(num_evaluated, num_steps)`, the log's feature validity.
+      object_type: int32 `(num_objects,)`, in the official order.
+      columns: int `(num_objects,)`, each object's column among the sim agents.
+    """
+
+    inputs: SceneInputs
+    search: PrunedSearch
+    feature_valid: np.ndarray
+    object_type: np.ndarray
+    columns: np.ndarray
+
+
+def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, search: str) -> RealismScene:
     """The unpadded host arrays of one scene (see `prepare`)."""
     evaluated = scenario.evaluated_ids(spec)
     order = official_object_order(scenario.sim_agent_ids, evaluated)
     log, feature_valid = log_sample(scenario, spec)
     layout = mf.feature_layout(spec, len(evaluated))
-    steps = log.num_steps
     context = mf.map_context(scenario)
-    # The host search needs no cell tables (0.1-0.5 s per real scene to build).
-    maps = jax_backend.map_arrays(scenario, context, layout, steps, cells=search == "device")
     pruned = PrunedSearch(context.road_edges, context.lanes,
                           mf.signals_from(scenario.signals, layout.first_red_light_step))
-    return {"traj": {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, "maps": maps, "search": pruned,
-            "tails": mf.official_tails(len(order), len(evaluated), steps, layout.first_step),
-            "feature_valid": feature_valid[0], "object_type": np.asarray(log.object_type[0], np.int32),
-            "columns": index_of_ids(scenario.sim_agent_ids, order), "num_evaluated": len(evaluated),
-            "num_objects": len(order)}
+    # The host search needs no cell tables (0.1-0.5 s per real scene to build).
+    inputs = scene_inputs(scenario, {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, layout, context,
+                          cells=search == "device")
+    return RealismScene(inputs=inputs, search=pruned, feature_valid=feature_valid[0],
+                        object_type=np.asarray(log.object_type[0], np.int32),
+                        columns=index_of_ids(scenario.sim_agent_ids, order))
 
 
 def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
@@ -262,64 +279,54 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         search = "host" if jax.default_backend() == "cpu" else "device"
     inputs = [_scene_inputs(s, spec, search) for s in scenes]
     max_agents = max(len(s.sim_agent_ids) for s in scenes)
-    floor = (tuple(min_sizes) if min_sizes is not None else ()) + (1,) * (6 - len(min_sizes or ()))
-    members: dict[tuple, list[int]] = {}
-    for k, scene_input in enumerate(inputs):
-        members.setdefault(_group_key(_sizes(scene_input), floor) if grouped else (), []).append(k)
+    floor = tuple(min_sizes or ())
+    members: dict[Sizes | None, list[int]] = {}
+    for k, scene in enumerate(inputs):
+        members.setdefault(_group_key(scene.inputs.sizes, floor) if grouped else None, []).append(k)
     groups, arrays = [], []
     for indices in members.values():
         group_arrays, layout = _prepare_group(indices, [inputs[k] for k in indices], spec, floor, max_agents)
         groups.append((tuple(indices), layout))
         arrays.append(group_arrays)
-    host = HostSearches(tuple(scene_input["search"] for scene_input in inputs)) if search == "host" else None
+    host = HostSearches(tuple(scene.search for scene in inputs)) if search == "host" else None
     return PreparedScenes(arrays=tuple(arrays), groups=tuple(groups), scenario_ids=tuple(s.scenario_id for s in scenes),
                           agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
                           challenge=spec.challenge.value, config=str(config), host_searches=host)
 
 
-def _sizes(scene_input: dict) -> tuple:
-    """(objects, evaluated objects, road-edge segments, signals, lane segments, road-edge grid cells) of a scene."""
-    maps = scene_input["maps"]
-    return (scene_input["num_objects"], scene_input["num_evaluated"], len(maps["start"]),
-            len(maps["signal_lane_id"]), len(maps["lane_start"]), len(maps["cell_clearance"]))
-
-
-def _group_key(sizes: tuple, floor: tuple) -> tuple:
+def _group_key(sizes: Sizes, floor: tuple) -> Sizes:
     """Scenes whose sizes round to the same powers of two (finer for map segments) share a group."""
-    n_obj, n_eval, n_seg, n_sig, n_lane, n_cell = map(max, sizes, floor)
-    return (jax_backend.bucket(n_obj, 1), jax_backend.bucket(n_eval, 1), jax_backend.fine_bucket(n_seg, 1),
-            jax_backend.bucket(n_sig, 1), jax_backend.fine_bucket(n_lane, 1), jax_backend.fine_bucket(n_cell, 1))
+    return sizes.at_least(floor).rounded(minimum_objects=1, minimum_fine=1)
 
 
-def _prepare_group(indices: list[int], inputs: list[dict], spec: challenges.ChallengeSpec, floor: tuple,
+def _prepare_group(indices: list[int], scenes: list[RealismScene], spec: challenges.ChallengeSpec, floor: tuple,
                    max_agents: int):
     """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
-    # Exact maxima: a training loop compiles once per scene set, and every padded row costs.
-    sizes = [max(max(column), 1) for column in zip(*map(_sizes, inputs))]
-    sizes = list(map(max, sizes, floor))
-    sizes[1] = min(sizes[1], sizes[0])  # evaluated rows are the first object rows
-    n_obj, n_eval = sizes[:2]
-    key = (1, challenges.NUM_LOGGED_STEPS, spec.first_simulated_step, *sizes)
+    # Exact maxima (at least 1): a training loop compiles once per scene set, and every padded row costs.
+    exact = [scene.inputs.sizes for scene in scenes]
+    sizes = exact[0].with_counts(max(max(column), 1) for column in zip(*(s.as_tuple() for s in exact)))
+    sizes = sizes.at_least(floor)
+    sizes = dataclasses.replace(sizes, evaluated=min(sizes.evaluated, sizes.objects))  # the first object rows
+    n_obj, n_eval = sizes.objects, sizes.evaluated
     layout = mf.feature_layout(spec, n_eval)
     per_scene = []
-    for scene, scene_input in zip(indices, inputs):
-        traj, tails, maps = jax_backend.padded_inputs(scene_input["traj"], scene_input["tails"],
-                                                      scene_input["maps"], key)
-        n, e = scene_input["num_objects"], scene_input["num_evaluated"]
+    for index, scene in zip(indices, scenes):
+        traj, tails, maps = padded_inputs(scene.inputs, sizes)
+        n, e = scene.inputs.num_objects, scene.inputs.layout.num_evaluated
         columns = np.full(n_obj, max_agents, dtype=np.int32)  # padding reads the appended zero column
-        columns[:n] = scene_input["columns"]
+        columns[:n] = scene.columns
         feature_valid = np.zeros((n_eval, challenges.NUM_LOGGED_STEPS), bool)
-        feature_valid[:e] = scene_input["feature_valid"]
+        feature_valid[:e] = scene.feature_valid
         object_type = np.zeros(n_eval, np.int32)
-        object_type[: min(n, n_eval)] = scene_input["object_type"][:n_eval]
+        object_type[: min(n, n_eval)] = scene.object_type[:n_eval]
         per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
                           "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
                           "feature_valid": feature_valid, "object_type": object_type,
-                          "scene": np.int32(scene),  # the index of its host search
+                          "scene": np.int32(index),  # the index of its host search
                           # 0, read at run time: the exact mode's rounding barriers (`exact_rounding`)
                           "opaque_zero": np.int32(0)})
     # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
-    arrays = jax.tree_util.tree_map(lambda *leaves: jnp.asarray(np.stack(leaves)), *per_scene)
+    arrays = jax.tree_util.tree_map(jnp.asarray, stacked(per_scene))
     return arrays, layout
 
 
@@ -329,8 +336,8 @@ def _gather_agents(values, columns):
     return jnp.take(padded, columns, axis=1)
 
 
-def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
-                    host: HostSearches | None) -> mf.MetricFeatures:
+def scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
+                    host: HostSearches | None, features: tuple) -> mf.MetricFeatures:
     """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
     log, real = a["log"], a["real"]
     num_rollouts = rollouts["x"].shape[0]
@@ -346,30 +353,29 @@ def _scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a:
         future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
         sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
     traj = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
-    search = dense.DenseSearch(a["maps"]) if host is None else HostSearch(host, a["scene"])
-    per_step = mf.per_step_features(traj, layout, search, a["tails"])
+    per_step = device_features(traj, a["tails"], a["maps"], layout, features, host, a["scene"])
     reported = layout.reported
     e = layout.num_evaluated
     valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
-    return mf.MetricFeatures(object_id=jnp.zeros(e, jnp.int32),
-                             object_type=jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
-                             valid=valid[..., reported], **per_step)
+    return mf.MetricFeatures.from_dict({"object_id": jnp.zeros(e, jnp.int32),
+                                        "object_type": jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
+                                        "valid": valid[..., reported], **per_step})
 
 
 def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
-                   host: HostSearches | None):
-    """Every SCENARIO_FIELDS value of one prepared scene (leading scene axis removed) and its rollouts."""
-    both = _scene_features(spec, layout, a, rollouts, host)
+                   host: HostSearches | None, features: tuple):
+    """Every `scenario_fields()` value of one prepared scene (leading scene axis removed) and its rollouts."""
+    both = scene_features(spec, layout, a, rollouts, host, features)
     values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)),
                            object_mask=a["evaluated"])
-    return {f: values[f] for f in SCENARIO_FIELDS}
+    return {f: values[f] for f in scenario_fields()}
 
 
 def _scene_realism_per_object(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict,
-                              rollouts: dict, host: HostSearches | None):
+                              rollouts: dict, host: HostSearches | None, features: tuple):
     """`_scene_realism`'s fields, and each likelihood field per object in the rollouts' columns:
     (fields, {field: float32 `(max_agents,)`}, {field: int32 `(max_agents,)`}); one set of log-likelihoods."""
-    both = _scene_features(spec, layout, a, rollouts, host)
+    both = scene_features(spec, layout, a, rollouts, host, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
     lls = metric_log_likelihoods(config, log, sim, a["evaluated"])
     values = metric_values(config, log, sim, lls, object_mask=a["evaluated"])
@@ -381,32 +387,33 @@ def _scene_realism_per_object(config, spec: challenges.ChallengeSpec, layout: mf
     def to_columns(v, fill):
         return jnp.full((max_agents + 1,), fill, v.dtype).at[rows].set(v)[:max_agents]
 
-    return ({f: values[f] for f in SCENARIO_FIELDS},
-            {f: to_columns(per_object[f][0], np.nan) for f in LIKELIHOOD_FIELDS},
-            {f: to_columns(per_object[f][1], 0) for f in LIKELIHOOD_FIELDS})
+    return ({f: values[f] for f in scenario_fields()},
+            {f: to_columns(per_object[f][0], np.nan) for f in active_likelihood_fields()},
+            {f: to_columns(per_object[f][1], 0) for f in active_likelihood_fields()})
 
 
 # Bounded: a function holds its scene set's host searches (maps) while it is cached.
+# The registry's features and metrics are part of the key: registering one compiles anew.
 @functools.lru_cache(maxsize=32)
 def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None,
-                per_object: bool = False):
+                per_object: bool = False, features: tuple = (), metrics: tuple = ()):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
     scene = _scene_realism_per_object if per_object else _scene_realism
 
     def one(a, rollouts):
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
-            return scene(config, spec, layout, a, rollouts, host)
+            return scene(config, spec, layout, a, rollouts, host, features)
 
     return jax.jit(jax.vmap(_in_mode(one, mode)))
 
 
 @functools.lru_cache(maxsize=32)
-def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None):
+def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None, features: tuple):
     def one(a, rollouts):
         with _precision(mode):
-            both = _scene_features(challenges.spec(challenge), layout, a, rollouts, host)
-        return {f.name: getattr(both, f.name) for f in dataclasses.fields(both) if f.name != "object_id"}
+            both = scene_features(challenges.spec(challenge), layout, a, rollouts, host, features)
+        return {k: v for k, v in both.as_dict().items() if k != "object_id"}
 
     return jax.jit(jax.vmap(_in_mode(one, mode)))
 
@@ -454,24 +461,25 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
     Works under `jax.jit`, `jax.vmap` and `lax.scan` (e.g. over several rollout sets of the same scenes).
     """
     mode = resolve_mode(mode)
-    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
-    run = functools.partial(_realism_fn, prepared.config, prepared.challenge, mode=mode, host=prepared.host_searches)
+    fields = rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    run = functools.partial(_realism_fn, prepared.config, prepared.challenge, mode=mode, host=prepared.host_searches,
+                            features=registry.features(), metrics=active_metrics())
     if per_object:
         run = functools.partial(run, per_object=True)
-    parts = [run(layout)(arrays, _take_scenes(fields, indices))
+    parts = [run(layout)(arrays, take_scenes(fields, indices))
              for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
     if per_object:
-        metrics, values, counts = _in_scene_order(prepared, parts)
+        metrics, values, counts = in_scene_order(prepared, parts)
         return Realism(metrics, mode, per_object=values, per_object_counts=counts)
-    return Realism(_in_scene_order(prepared, parts), mode)
+    return Realism(in_scene_order(prepared, parts), mode)
 
 
-def _take_scenes(fields: dict, indices: tuple) -> dict:
+def take_scenes(fields: dict, indices: tuple) -> dict:
     rows = jnp.asarray(indices, jnp.int32)
     return {k: jnp.take(jnp.asarray(v), rows, axis=0) for k, v in fields.items()}
 
 
-def _in_scene_order(prepared: PreparedScenes, parts: list):
+def in_scene_order(prepared: PreparedScenes, parts: list):
     """Group results (pytrees with a leading scene axis) put back in the order of `prepared.scenario_ids`."""
     if len(parts) == 1:
         return parts[0]
@@ -539,7 +547,7 @@ def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
     return bound
 
 
-def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
+def rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
     """The rollout arrays by field, checked (shapes; box sizes exactly for scenario gen)."""
     _warn_if_closed_over(prepared)
     spec = challenges.spec(prepared.challenge)
@@ -566,17 +574,17 @@ def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=N
     bit-identical to the official features; in float32 mode a last bit may differ.
     """
     mode = resolve_mode(mode)
-    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     rows = prepared.layout.num_evaluated
     parts = []
     for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
-        fn = _features_fn(prepared.challenge, layout, mode, prepared.host_searches)
-        out = fn(arrays, _take_scenes(fields, indices))
+        fn = _features_fn(prepared.challenge, layout, mode, prepared.host_searches, registry.features())
+        out = fn(arrays, take_scenes(fields, indices))
         # Groups have different row counts: pad rows (axis 2) to the largest group's.
         parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
                       for k, v in out.items()})
-    out = _in_scene_order(prepared, parts)
-    return mf.MetricFeatures(object_id=np.zeros(rows, np.int32), **out)
+    out = in_scene_order(prepared, parts)
+    return mf.MetricFeatures.from_dict({"object_id": np.zeros(rows, np.int32), **out})
 
 
 def stack_rollouts(prepared: PreparedScenes, rollouts: list) -> dict:

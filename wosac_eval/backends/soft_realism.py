@@ -49,7 +49,7 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.backends import jax_realism as jr
 from wosac_eval.estimators import likelihoods
-from wosac_eval.features import interaction, road_edge
+from wosac_eval.features import interaction, registry, road_edge
 from wosac_eval.features.xp import differentiable, float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import METRICS, RATES
@@ -95,7 +95,7 @@ def _log_probability_of_bins(counts, pseudocount, log_bins):
 
 
 def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, temperature):
-    """The smooth twin of the official estimator of `config` (`likelihoods._estimate`'s signature).
+    """The smooth twin of the official estimator of `config` (`likelihoods.official_estimate`'s signature).
 
     Histogram: `soft_histogram_counts` with a kernel `temperature` bins wide. Bernoulli: the soft
     flags' sums (f in the true bin, 1 - f in the other). Kernel density: the official one (smooth).
@@ -115,7 +115,7 @@ def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, tempera
         counts = jnp.stack([jnp.sum(w, axis=1) - true, true], axis=1)
         log_bins = jnp.asarray(jnp.asarray(log_samples, _F) >= _F(0.5), jnp.int32)
         return _log_probability_of_bins(counts, config.bernoulli.additive_smoothing_pseudocount, log_bins)
-    return likelihoods._estimate(config, log_samples, sim_samples, sim_weights)
+    return likelihoods.official_estimate(config, log_samples, sim_samples, sim_weights)
 
 
 def soft_events(sim, temperature) -> dict:
@@ -157,9 +157,10 @@ def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperatur
     return out
 
 
-def _scene_soft_realism(config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature):
+def _scene_soft_realism(config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature,
+                        features: tuple):
     """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
-    both = jr._scene_features(spec, layout, a, rollouts, None)
+    both = jr.scene_features(spec, layout, a, rollouts, None, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
     events = soft_events(sim, temperature)
     lls = soft_log_likelihoods(config, log, sim, events, a["evaluated"], temperature)
@@ -173,13 +174,13 @@ def _scene_soft_realism(config, spec: challenges.ChallengeSpec, layout, a: dict,
 
 
 @functools.lru_cache(maxsize=32)
-def _soft_fn(config_name: str, challenge: str, layout):
+def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
 
     def one(a, rollouts, temperature):
         with float32_precision(), differentiable():  # read while tracing
-            return _scene_soft_realism(config, spec, layout, a, rollouts, temperature)
+            return _scene_soft_realism(config, spec, layout, a, rollouts, temperature, features)
 
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
 
@@ -207,10 +208,10 @@ def soft_realism(prepared: jr.PreparedScenes, x, y, z, heading, *, length=None, 
                          "prepare the scenes with jax_realism.prepare(..., search='device')")
     if not isinstance(temperature, jax.core.Tracer) and not float(temperature) > 0:
         raise ValueError(f"temperature must be positive, got {temperature}")
-    fields = jr._rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = jr.rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     fields = {k: jnp.asarray(v, _F) for k, v in fields.items()}
     temperature = jnp.asarray(temperature, _F)
-    parts = [_soft_fn(prepared.config, prepared.challenge, layout)(arrays, jr._take_scenes(fields, indices),
+    parts = [_soft_fn(prepared.config, prepared.challenge, layout, registry.features())(arrays, jr.take_scenes(fields, indices),
                                                                    temperature)
              for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
-    return jr.Realism(jr._in_scene_order(prepared, parts), SOFT_MODE)
+    return jr.Realism(jr.in_scene_order(prepared, parts), SOFT_MODE)

@@ -84,7 +84,7 @@ def as_internal(features) -> _features.MetricFeatures:
     """Any object with the `MetricFeatures` fields (numpy arrays, or anything `np.asarray` reads, e.g.
     TensorFlow tensors) as wosac-eval's own `MetricFeatures`."""
     return _features.MetricFeatures(**{f.name: np.asarray(getattr(features, f.name))
-                                       for f in dataclasses.fields(_features.MetricFeatures)})
+                                       for f in dataclasses.fields(_features.MetricFeatures) if f.name != "extra"})
 
 
 def compute_metric_features(scenario: scenario_pb2.Scenario,

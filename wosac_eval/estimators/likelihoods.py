@@ -151,7 +151,7 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weigh
     return log_mean.astype(_F)
 
 
-def _estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
+def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
     kind = config.WhichOneof("estimator")
     if kind == "histogram":
         h = config.histogram
@@ -181,7 +181,7 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
       float32 `(num_objects, num_steps)`.
     """
     xp = array_namespace(log_values, sim_values)
-    estimate = estimate or _estimate
+    estimate = estimate or official_estimate
     if np.ndim(sim_values) != 3:
         raise ValueError(f"simulated values must be (num_rollouts, num_objects, num_steps), got "
                          f"{tuple(np.shape(sim_values))}")

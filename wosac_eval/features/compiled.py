@@ -13,8 +13,8 @@ operations round exactly as numpy's.
 
 The search loops that call compiled kernels are compiled once and cached on
 disk by numba (`cached_loop`). numba tells a cached loop from a stale one by
-the loop's own file only, not by the kernels it calls from other files, so a
-cached loop's name carries `KERNELS_DIGEST` (the kernels' sources), which
+the loop's own file only, not by the kernels or numba functions it calls from
+other files, so a cached loop's name carries `KERNELS_DIGEST` (their sources), which
 names numba's cache file: changed kernels make new loops, never a stale cache.
 """
 from __future__ import annotations
@@ -253,13 +253,15 @@ def compiled(kernel: types.FunctionType, inline: bool = False):
     return numba.njit(inline="always" if inline else "never", error_model="numpy")(namespace[kernel.__name__])
 
 
-# The sources of the kernels that cached loops call.
-_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge", "traffic_lights")
+# The sources of the kernels and numba functions that cached loops call (from other files, too).
+_KERNEL_MODULES = ("ops", "compiled", "box_geometry", "float32_math", "interaction", "road_edge/segments",
+                   "road_edge/pruned_search", "road_edge/cell_tables", "traffic_lights")
 KERNELS_DIGEST = hashlib.sha256(b"".join((Path(__file__).resolve().parent / f"{m}.py").read_bytes()
                                          for m in _KERNEL_MODULES)).hexdigest()
 
 
 def cached_loop(function):
-    """`numba.njit(cache=True)` for a loop calling compiled kernels, named after the kernels' digest."""
+    """`numba.njit(cache=True)` for a loop calling compiled kernels or numba functions of other files, named
+    after the digest of their sources (`KERNELS_DIGEST`)."""
     function.__qualname__ = f"{function.__qualname__}__kernels_{KERNELS_DIGEST[:16]}"
     return numba.njit(cache=True, error_model="numpy")(function)

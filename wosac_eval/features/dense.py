@@ -30,6 +30,7 @@ from jax import lax
 
 from wosac_eval.features import box_geometry, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.xp import in_differentiable, nan_spreading_max, nan_spreading_min
 
 _F = np.float32
@@ -170,7 +171,7 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     return distance.reshape(num_evaluated, num_steps)
 
 
-def time_to_collision(x, y, length, width, heading, speed, valid, ego_tail, pair_tail, num_evaluated: int):
+def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, pair_tail, num_evaluated: int):
     """Dense `interaction.time_to_collision` for one sample, step-major.
 
     Args:
@@ -352,7 +353,7 @@ def red_light_violation(xy, valid, m):
 
 
 class DenseSearch:
-    """The dense (JAX) search strategy of `metric_features.per_step_features`.
+    """The dense (JAX) search strategy of `metric_features.per_step_features` (a `SearchStrategy`).
 
     Every candidate pair of padded, masked arrays is evaluated and minima are
     picked with `argmin` (lowest index wins ties, as in `PrunedSearch`); the
@@ -370,12 +371,12 @@ class DenseSearch:
 
         return lax.map(per_sample, (x, y, length, width, cos_h, sin_h, valid))
 
-    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
-                          ego_tail, pair_tail):
-        step_major = lambda a: jnp.swapaxes(a[..., steps], -1, -2)
-        per_sample = functools.partial(time_to_collision, ego_tail=ego_tail, pair_tail=pair_tail,
-                                       num_evaluated=num_evaluated)
-        ttc = jax.vmap(per_sample)(*map(step_major, (x, y, length, width, heading, speed, valid)))
+    def time_to_collision(self, inputs: TimeToCollisionInputs):
+        i = inputs
+        step_major = lambda a: jnp.swapaxes(a[..., i.steps], -1, -2)
+        per_sample = functools.partial(time_to_collision, ego_tail=i.ego_tail, pair_tail=i.pair_tail,
+                                       num_evaluated=i.num_evaluated)
+        ttc = jax.vmap(per_sample)(*map(step_major, (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid)))
         return jnp.swapaxes(ttc, -1, -2)
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):

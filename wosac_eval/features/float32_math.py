@@ -9,9 +9,10 @@ collision threshold, so we reproduce the same arithmetic step by step:
 Cody-Waite reduction by pi/2 in four float32 pieces, then the minimax
 polynomials, each multiply and add rounded separately.
 
-The functions take numpy or JAX arrays. Under JAX the libm and fma paths round
-through float64 when x64 is on while tracing (exact); inside
-`xp.float32_precision()` they stay in float32 (last-bit differences).
+The functions take numpy or JAX arrays. Under JAX the libm path (like
+`ops.fma32`, the fused multiply-add of the box corners) rounds through float64
+when x64 is on while tracing (exact); inside `xp.float32_precision()` it stays
+in float32 (last-bit differences).
 
 Tensors whose length is not a multiple of the packet size have their last
 `n % 8` elements evaluated by the scalar libm routine instead; `packet_tail`
@@ -149,18 +150,6 @@ def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
 def cos32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
     """`cos` counterpart of `sin32`."""
     return sincos32(x, libm_mask)[1]
-
-
-def fma32(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Fused multiply-add a * b + c with a single float32 rounding.
-
-    The product of two float32 values is exact in float64 and so is the sum up
-    to one rounding, which is then undone by the final rounding to float32 in
-    all but double-rounding corner cases (~2**-29 of inputs).
-    """
-    xp = array_namespace(a, b, c)
-    wide = wide_float(xp)  # float32 in JAX's float32 precision: then two roundings, not one
-    return (xp.asarray(a, wide) * xp.asarray(b, wide) + xp.asarray(c, wide)).astype(_F)
 
 
 def packet_sum32(values):

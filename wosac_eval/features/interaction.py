@@ -338,8 +338,9 @@ def capped_time_to_collision(gap, closing):
                      MAXIMUM_TIME_TO_COLLISION)
 
 
-def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, seconds_per_step: float,
-                      steps: slice = slice(None), *, speed=None, ego_tail=None, pair_tail=None):
+def time_to_collision(x, y, length, width, heading, valid, *, num_evaluated: int,
+                      seconds_per_step: float | None = None, steps: slice = slice(None), speed=None, ego_tail=None,
+                      pair_tail=None):
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned
@@ -351,6 +352,8 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, s
       x, y, length, width, heading: float32 `(..., num_objects, num_steps)`,
         the whole trajectories (speeds need neighbouring steps).
       valid: bool `(..., num_objects, num_steps)`.
+      num_evaluated: the evaluated objects, the first of the object axis.
+      seconds_per_step: the step's duration, for the speeds (needed when `speed` is not given).
       steps: the steps to evaluate.
       speed: float32 `(..., num_objects, num_steps)`, the planar speed, if
         already computed.
@@ -363,6 +366,8 @@ def time_to_collision(x, y, length, width, heading, valid, num_evaluated: int, s
     """
     num_objects, num_steps = x.shape[-2:]
     if speed is None:
+        if seconds_per_step is None:
+            raise ValueError("time_to_collision needs the speeds or the seconds per step")
         with np.errstate(invalid="ignore", over="ignore"):
             speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
     if ego_tail is None:

@@ -2,12 +2,13 @@
 
 `per_step_features` computes every feature of a batch of samples (the log as
 sample 0, then the rollouts; `arrays.samples`) for numpy and JAX arrays alike.
-The searches for a nearest thing are delegated to a strategy: `PrunedSearch`
-(numpy, compiled loops over proven bounds, `features.search`) or `DenseSearch`
-(JAX, fixed shapes, `features.dense`); the road-edge search takes the boxes and
-places their corners itself (in its own order, with the same kernel).
-Kinematics, headings' sines and cosines, thresholds, the red-light steps and
-the displacement error are computed here once.
+The features are the entries of `features.registry` (the official ones, then
+any registered beside them), each computed by its kernel from one shared
+`registry.FeatureContext`. The searches for a nearest thing are delegated to a
+strategy: `PrunedSearch` (numpy, compiled loops over proven bounds,
+`features.search`) or `DenseSearch` (JAX, fixed shapes, `features.dense`); the
+road-edge search takes the boxes and places their corners itself (in its own
+order, with the same kernel). The displacement error is computed here.
 
 Feature arrays have shape `(num_samples, num_evaluated, num_reported_steps)`:
 the 80 future steps for sim agents, all 91 for scenario gen.
@@ -22,16 +23,16 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
-from wosac_eval.features import interaction, kinematics, road_edge, traffic_lights
-from wosac_eval.features.float32_math import packet_sum32, packet_tail, sincos32
+from wosac_eval.features import registry, road_edge, traffic_lights
+from wosac_eval.features.float32_math import packet_sum32, packet_tail
 from wosac_eval.features.search import PrunedSearch
+from wosac_eval.features.search_strategy import SearchStrategy
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
 
 _F = np.float32
 TRAJECTORY_FIELDS = ("x", "y", "z", "heading", "length", "width", "height", "valid")
-PER_STEP_FIELDS = ("linear_speed", "linear_acceleration", "angular_speed", "angular_acceleration",
-                   "distance_to_nearest_object", "collision_per_step", "time_to_collision",
-                   "distance_to_road_edge", "offroad_per_step", "traffic_light_violation_per_step")
+# The official per-step features (`registry.OFFICIAL_FEATURES`); registered ones follow in `MetricFeatures.extra`.
+PER_STEP_FIELDS = registry.OFFICIAL_FEATURE_NAMES
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,6 +49,8 @@ class MetricFeatures:
         float32 `(num_samples, num_evaluated, num_steps)`.
       collision_per_step, offroad_per_step, traffic_light_violation_per_step:
         bool `(num_samples, num_evaluated, num_steps)`.
+      extra: the features registered beside the official ones (`features.registry.register`), by
+        name, `(num_samples, num_evaluated, num_steps)` each; empty without any.
     """
 
     object_id: np.ndarray
@@ -64,11 +67,29 @@ class MetricFeatures:
     distance_to_road_edge: np.ndarray
     offroad_per_step: np.ndarray
     traffic_light_violation_per_step: np.ndarray
+    extra: dict = dataclasses.field(default_factory=dict)
 
     def samples(self, rows: slice) -> "MetricFeatures":
         """The given samples (`object_id` is shared by all samples)."""
         return MetricFeatures(**{f.name: getattr(self, f.name) if f.name == "object_id"
-                                 else getattr(self, f.name)[rows] for f in dataclasses.fields(self)})
+                                 else getattr(self, f.name)[rows] for f in dataclasses.fields(self)
+                                 if f.name != "extra"}, extra={k: v[rows] for k, v in self.extra.items()})
+
+    def feature(self, name: str):
+        """A per-step feature by name: an official field or a registered one."""
+        return self.extra[name] if name in self.extra else getattr(self, name)
+
+    def as_dict(self) -> dict:
+        """Every field but `extra`, and the registered features, by name (see `from_dict`)."""
+        return {**{f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "extra"},
+                **self.extra}
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "MetricFeatures":
+        """The fields of `values`; the names that are not fields go to `extra`."""
+        names = {f.name for f in dataclasses.fields(cls)} - {"extra"}
+        return cls(**{k: v for k, v in values.items() if k in names},
+                   extra={k: v for k, v in values.items() if k not in names})
 
 
 @dataclasses.dataclass(frozen=True)
@@ -134,56 +155,31 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 
 
-def per_step_features(t: dict, layout: FeatureLayout, search, tails: dict) -> dict:
+def per_step_features(t: dict, layout: FeatureLayout, search: SearchStrategy, tails: dict,
+                      features: tuple[registry.Feature, ...] | None = None) -> dict:
     """Every per-step feature of the evaluated objects, for every sample.
 
     Args:
       t: x, y, z, heading, length, width, height float32 and valid bool, each
         `(num_samples, num_objects, num_steps)`, evaluated objects first.
-      search: `PrunedSearch` or `DenseSearch` over the scenario's map.
+      search: the searches over the scenario's map (`PrunedSearch`, `DenseSearch` or `HostSearch`).
       tails: `official_tails` of the real shapes.
+      features: the registry's entries to compute (default `registry.features()`: the official ones
+        and those registered).
     Returns:
-      dict of `PER_STEP_FIELDS` `(num_samples, num_evaluated, reported steps)`
+      dict of each feature `(num_samples, num_evaluated, reported steps)`, in registry order,
       and average_displacement_error `(num_samples, num_evaluated)`.
     """
-    xp = array_namespace(t["x"])
-    n_eval, dt, reported = layout.num_evaluated, layout.seconds_per_step, layout.reported
-    e = slice(0, n_eval)
-    at = lambda a: a[..., reported]
-    x, y, length, width, valid = t["x"], t["y"], t["length"], t["width"], t["valid"]
-    speed, accel, ang_speed, ang_accel = kinematics.kinematic_features(
-        x[:, e], t["y"][:, e], t["z"][:, e], t["heading"][:, e], dt)
-
-    sin_h, cos_h = sincos32(at(t["heading"]), tails["heading_tail"])
-    # The official box corners come from a 3D rotation, where a NaN or inf height turns every corner
-    # NaN (0 * inf): for the distances, such boxes are NaN boxes.
-    finite_height = xp.isfinite(t["height"])
-    corner_x, corner_y = xp.where(finite_height, x, _F(np.nan)), xp.where(finite_height, y, _F(np.nan))
-    nearest = search.nearest_object(at(corner_x), at(corner_y), at(length), at(width), cos_h, sin_h, at(valid), n_eval)
-    planar_speed = kinematics.linear_speed(x, y, xp.zeros_like(x), dt)
-    ttc = search.time_to_collision(x, y, length, width, t["heading"], planar_speed, valid, n_eval, reported,
-                                   tails["ego_tail"], tails["pair_tail"])
-
-    pick = lambda a: at(a[:, e])
-    bottom = pick(t["z"]) + (-pick(t["height"]) * _F(0.5))
-    edge = search.road_edge_distance(pick(corner_x), pick(corner_y), bottom, pick(length), pick(width), cos_h[:, e],
-                                     sin_h[:, e], pick(valid))
-
-    lights = slice(layout.first_red_light_step, None)
-    red = search.red_light_violation(x[:, e, lights], y[:, e, lights], valid[:, e, lights])
-    if layout.first_step > 0:
-        red = red[..., 1:]
-
+    features = registry.features() if features is None else features
+    context = registry.FeatureContext(t, layout, search, tails, features)
+    out = {f.name: context[f.name] for f in features}
+    xp, n_eval = context.xp, layout.num_evaluated
     if layout.displacement:
-        ade = average_displacement_error(x, y, t["z"], valid[0, e], n_eval)
+        out["average_displacement_error"] = average_displacement_error(t["x"], t["y"], t["z"], t["valid"][0, :n_eval],
+                                                                       n_eval)
     else:
-        ade = xp.zeros(x.shape[:1] + (n_eval,), _F)
-    return {"linear_speed": at(speed), "linear_acceleration": at(accel), "angular_speed": at(ang_speed),
-            "angular_acceleration": at(ang_accel), "distance_to_nearest_object": nearest,
-            "collision_per_step": nearest < _F(interaction.COLLISION_DISTANCE_THRESHOLD),
-            "time_to_collision": ttc, "distance_to_road_edge": edge,
-            "offroad_per_step": edge > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
-            "traffic_light_violation_per_step": red, "average_displacement_error": ade}
+        out["average_displacement_error"] = xp.zeros(t["x"].shape[:1] + (n_eval,), _F)
+    return out
 
 
 def metric_features(batch: SampleBatch, per_step: dict) -> tuple[MetricFeatures, MetricFeatures]:
@@ -194,10 +190,10 @@ def metric_features(batch: SampleBatch, per_step: dict) -> tuple[MetricFeatures,
     """
     e = slice(0, batch.num_evaluated)
     reported = slice(batch.spec.first_simulated_step, None)
-    both = MetricFeatures(object_id=batch.evaluated_ids,
-                          object_type=np.asarray(batch.trajectories.object_type[:, e], np.int32),
-                          valid=batch.feature_valid[..., reported],
-                          **{k: np.asarray(v) for k, v in per_step.items()})
+    both = MetricFeatures.from_dict({"object_id": batch.evaluated_ids,
+                                     "object_type": np.asarray(batch.trajectories.object_type[:, e], np.int32),
+                                     "valid": batch.feature_valid[..., reported],
+                                     **{k: np.asarray(v) for k, v in per_step.items()}})
     n_log = batch.num_log_samples
     return both.samples(slice(0, n_log)), both.samples(slice(n_log, None))
 

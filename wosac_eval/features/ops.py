@@ -72,9 +72,15 @@ def divide(a, b):
 
 
 def fma32(a, b, c):
-    """a * b + c rounded once to float32 (through float64; `float32_math.fma32`)."""
-    from wosac_eval.features.float32_math import fma32 as array_fma32
-    return array_fma32(a, b, c)
+    """Fused multiply-add a * b + c with a single float32 rounding.
+
+    The product of two float32 values is exact in float64 and so is the sum up
+    to one rounding, which is then undone by the final rounding to float32 in
+    all but double-rounding corner cases (~2**-29 of inputs).
+    """
+    xp = array_namespace(a, b, c)
+    wide = _xp.wide_float(xp)  # float32 in JAX's float32 precision: then two roundings, not one
+    return (xp.asarray(a, wide) * xp.asarray(b, wide) + xp.asarray(c, wide)).astype(_F)
 
 
 def float32(v):

@@ -3,8 +3,9 @@
 `metric_features.per_step_features` computes every feature once, for numpy
 and JAX alike; the four searches that look for a nearest thing (nearest
 object, followed object, nearest road edge, lane of a red-light crossing) are
-delegated to a strategy with the methods below. This one prunes candidates by
-proven bounds in compiled loops (numba; the lane search with a k-d tree) and
+delegated to a strategy (`search_strategy.SearchStrategy`). This one prunes
+candidates by proven bounds in compiled loops (numba: the road edge over a
+bucket grid, objects by bounding radii; the lane search with a k-d tree) and
 evaluates the exact float32 kernels on the survivors; its dense twin is
 `dense.DenseSearch` (JAX, fixed shapes). Both return the all-pairs minimum
 with the same tie rule, so their features are bit-identical.
@@ -18,12 +19,13 @@ import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import interaction, road_edge, traffic_lights
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.parse import wire_walks
 
 
 @dataclasses.dataclass(frozen=True)
 class PrunedSearch:
-    """Searches over one scenario's map with k-d trees (numpy arrays).
+    """The searches over one scenario's map by compiled loops (numpy arrays; a `SearchStrategy`).
 
     Attributes:
       road_edges: the road-edge segment table.
@@ -39,11 +41,12 @@ class PrunedSearch:
         """`interaction.distance_to_nearest_object`: float32 `(samples, num_evaluated, steps)`."""
         return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
-    def time_to_collision(self, x, y, length, width, heading, speed, valid, num_evaluated: int, steps: slice,
-                          ego_tail, pair_tail):
-        """`interaction.time_to_collision`: float32 `(samples, num_evaluated, len(steps))`."""
-        return interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated, 0.0, steps,
-                                             speed=speed, ego_tail=ego_tail, pair_tail=pair_tail)
+    def time_to_collision(self, inputs: TimeToCollisionInputs):
+        """`interaction.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
+        i = inputs
+        return interaction.time_to_collision(i.x, i.y, i.length, i.width, i.heading, i.valid,
+                                             num_evaluated=i.num_evaluated, steps=i.steps, speed=i.speed,
+                                             ego_tail=i.ego_tail, pair_tail=i.pair_tail)
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
@@ -75,8 +78,9 @@ def compile_searches() -> float:
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
-        interaction.time_to_collision(x, zeros, ones * 4, ones * 2, zeros, ones > 0, 2, 0.1, slice(1, None))
+        interaction.time_to_collision(x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2,
+                                      seconds_per_step=0.1, steps=slice(1, None))
         line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
-        traffic_lights._compiled_crossings(x, zeros, ones > 0, line, line + [0, 1], line + [4, 0],
-                                           np.ones((3, 1), bool))
+        traffic_lights.compiled_stop_line_crossings(x, zeros, ones > 0, line, line + [0, 1], line + [4, 0],
+                                                    np.ones((3, 1), bool))
     return time.perf_counter() - start

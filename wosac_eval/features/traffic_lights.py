@@ -124,7 +124,7 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def _stop_point_segments(table: LaneTable, signals: TrafficSignals):
+def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     """For each (step, signal): the lane segment nearest the stop point.
 
     Returns (segment_start, segment_delta, lane_known), float32 `(steps, signals, 2)`
@@ -223,7 +223,7 @@ def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
     return out, crossed_any
 
 
-def _compiled_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping):
+def compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping):
     """`stop_line_crossings` by `_crossings`: x, y float32 and valid `(..., num_objects, num_steps)`; and
     whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
     lines = [np.ascontiguousarray(a, _F) for a in _stop_lines(seg_start, seg_delta, stop_point, np)]
@@ -258,9 +258,9 @@ def red_light_violation(x, y, valid, lanes: LaneTable | None,
         return np.zeros(np.shape(valid), bool)
     signals = dataclasses.replace(signals, lane_id=signals.lane_id[relevant], state=signals.state[:, relevant],
                                   stop_point=signals.stop_point[:, relevant])
-    seg_start, seg_delta, _ = _stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
-    suspect, crossed_any = _compiled_crossings(x, y, valid, seg_start, seg_delta, signals.stop_point,
-                                               is_stop[:, relevant])
+    seg_start, seg_delta, _ = stop_point_segments(lanes, signals)  # (T, S, 2); every kept lane is known
+    suspect, crossed_any = compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, signals.stop_point,
+                                                        is_stop[:, relevant])
     violation = np.zeros(valid.shape, dtype=bool)
     where = np.nonzero(crossed_any)
     if where[0].size:

@@ -18,7 +18,7 @@ from pathlib import Path
 from google.protobuf import text_format
 
 from wosac_eval import challenges
-from wosac_eval.metrics.registry import METRIC_BUCKETS, METRIC_NAMES  # noqa: F401  (re-exported)
+from wosac_eval.metrics.registry import METRIC_BUCKETS, METRIC_NAMES, METRICS, default_feature_config  # noqa: F401
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 SimAgentMetricsConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig
@@ -92,13 +92,13 @@ def _read_textproto(path: Path) -> SimAgentMetricsConfig:
 
 
 def with_defaults(config: SimAgentMetricsConfig) -> SimAgentMetricsConfig:
-    """Fills metrics a config omits: pre-2025 configs have no traffic-light
-    metric, which then counts as Bernoulli with weight 0 (the meta-metric those
-    years defined). Other missing metrics are an error."""
+    """Fills metrics a config omits from their registry default (`registry.Metric.config_default`):
+    pre-2025 configs have no traffic-light metric, which then counts as Bernoulli with weight 0 (the
+    meta-metric those years defined). Other missing metrics are an error."""
     config = SimAgentMetricsConfig.FromString(config.SerializeToString())
-    if not config.HasField("traffic_light_violation"):
-        config.traffic_light_violation.bernoulli.SetInParent()
-        config.traffic_light_violation.metametric_weight = 0.0
+    for metric in METRICS:
+        if metric.config_default is not None and not config.HasField(metric.name):
+            getattr(config, metric.name).CopyFrom(default_feature_config(metric))
     missing = [m for m in METRIC_NAMES if not config.HasField(m)]
     if missing:
         raise ValueError(f"metrics config lacks {', '.join(missing)}")

@@ -2,13 +2,18 @@
 
 Like the official metrics package, a metric is a config field `X` (its
 estimator and meta-metric weight) scored into the output `X_likelihood` from
-one feature of `MetricFeatures`: adding a metric is one entry here, one config
-entry and one feature function. Everything that lists metrics (the scorer,
-the presets, result files, compare / report, the service) reads this module.
+one feature of `MetricFeatures`. The official metrics are the rows of
+`METRICS` (their configs are fields of the official `SimAgentMetricsConfig`);
+a feature registered beside them (`features.registry.register`) brings its
+own metric, whose config (estimator, bounds, weight) is its `config_default`
+textproto, since the official proto has no field for it (`active_metrics`,
+`metric_config`). Everything that lists metrics (the scorer, the presets,
+result files, compare / report, the service) reads this module.
 """
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 from wosac_eval.options import Mask
 
@@ -28,6 +33,11 @@ class Metric:
       mask: which logged steps count: "valid", "speed" (both neighbours
         valid), "acceleration" (two steps each side), "vehicle" (valid
         vehicles only).
+      config_default: a `SimAgentMetricsConfig.FeatureConfig` textproto (e.g. `"bernoulli {}
+        metametric_weight: 0.0"`): for an official metric, what a config that omits the field gets
+        (`config.with_defaults`; None: omitting it is an error); for a registered one, its config.
+      official: a field of the official config and result messages (`METRICS`); False for a metric
+        registered beside them (`register_metric`).
     """
 
     name: str
@@ -35,6 +45,8 @@ class Metric:
     feature: str
     per_object: bool
     mask: Mask
+    config_default: str | None = None
+    official: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "mask", Mask.parse(self.mask))  # a mask no kernel computes is refused here
@@ -64,7 +76,9 @@ METRICS = (
     Metric("time_to_collision", "interactive", "time_to_collision", False, "vehicle"),
     Metric("distance_to_road_edge", "map_based", "distance_to_road_edge", False, "valid"),
     Metric("offroad_indication", "map_based", "offroad_per_step", True, "valid"),
-    Metric("traffic_light_violation", "map_based", "traffic_light_violation_per_step", True, "vehicle"),
+    # Pre-2025 configs have no traffic-light metric: it then counts as Bernoulli with weight 0.
+    Metric("traffic_light_violation", "map_based", "traffic_light_violation_per_step", True, "vehicle",
+           config_default="bernoulli {} metametric_weight: 0.0"),
 )
 RATES = (
     Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate", "Collision rate"),
@@ -109,6 +123,73 @@ SCORE_BUCKETS = ("realism_meta_metric", *BUCKET_MEMBERS)
 # headline, the weighted buckets, the likelihoods, then the displacement errors and the rates (lower is better).
 DISPLAY_ORDER = ("metametric", *BUCKET_MEMBERS, *LIKELIHOOD_FIELDS, "min_average_displacement_error",
                  "average_displacement_error", *RATE_FIELDS)
+
+
+# Metrics registered beside the official ones (`register_metric`), in registration order.
+_REGISTERED: list[Metric] = []
+
+
+def register_metric(metric: Metric) -> None:
+    """Adds a non-official metric: scored with its own `config_default` after the official ones.
+
+    Raises:
+      ValueError: the name is taken, it is marked official, has no config, or its bucket is unknown.
+    """
+    if metric.official or metric.config_default is None:
+        raise ValueError(f"a registered metric ({metric.name}) is not official and carries its config "
+                         f"(official=False, config_default=...)")
+    if metric.name in {m.name for m in active_metrics()}:
+        raise ValueError(f"metric {metric.name!r} is already registered")
+    if metric.bucket not in BUCKETS:
+        raise ValueError(f"metric {metric.name!r}: bucket must be one of {', '.join(BUCKETS)}, got {metric.bucket!r}")
+    default_feature_config(metric)  # a config that does not parse is refused now
+    _REGISTERED.append(metric)
+
+
+def unregister_metric(name: str) -> None:
+    """Removes a metric added by `register_metric` (KeyError if there is none of that name)."""
+    index = next((k for k, m in enumerate(_REGISTERED) if m.name == name), None)
+    if index is None:
+        raise KeyError(name)
+    del _REGISTERED[index]
+
+
+def active_metrics() -> tuple[Metric, ...]:
+    """The official metrics, then the registered ones: what the scorer computes."""
+    return METRICS + tuple(_REGISTERED)
+
+
+def active_likelihood_fields() -> tuple[str, ...]:
+    return tuple(m.output for m in active_metrics())
+
+
+def active_buckets() -> dict[str, tuple[str, ...]]:
+    """`METRIC_BUCKETS` with the registered metrics in their buckets."""
+    return {bucket: tuple(m.name for m in active_metrics() if m.bucket == bucket) for bucket in BUCKETS}
+
+
+def metric_config(config, metric: Metric):
+    """The `FeatureConfig` a metric is scored with: the official config's field, or a registered
+    metric's own `config_default` (the official proto has no field for it)."""
+    return getattr(config, metric.name) if metric.official else default_feature_config(metric)
+
+
+def default_feature_config(metric: Metric):
+    """The metric's `config_default` as a `FeatureConfig` message (a fresh copy), or None."""
+    if metric.config_default is None:
+        return None
+    message = _parsed_config(metric.config_default)
+    return type(message).FromString(message.SerializeToString())
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed_config(text: str):
+    # Imported here: this module lists names for light readers (compare, report) that need no protobuf.
+    from google.protobuf import text_format
+
+    from wosac_eval.protos import sim_agents_metrics_pb2
+
+    return text_format.Parse(text, sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig())
 
 
 def higher_is_better(field: str) -> bool:

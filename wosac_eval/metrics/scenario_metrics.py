@@ -1,7 +1,8 @@
 """Per-scenario metrics: likelihoods of each feature, rates, meta-metric; aggregation and buckets.
 
 Outputs use the official `SimAgentMetrics` field names; the metrics and their
-validity masks come from `metrics.registry`. Every likelihood is
+validity masks come from `metrics.registry` (the official metrics, then any
+registered beside them, scored with their own config: `registry.metric_config`). Every likelihood is
 exp(mean log-likelihood) over the valid logged samples. `metric_values`
 works on numpy or JAX arrays (under `jax.jit`, with x64 enabled);
 `scenario_metrics` returns plain floats.
@@ -16,15 +17,25 @@ from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
 from wosac_eval.features.float32_math import split_sum32
 from wosac_eval.features.xp import array_namespace, in_float32_precision, nan_spreading_min, wide_float
-from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
+from wosac_eval.metrics.buckets import weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
-from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, METRIC_BUCKETS,
-                                         METRIC_NAMES, METRICS, RATE_FIELDS, RATES)
+from wosac_eval.metrics.registry import (BUCKET_FIELDS, DISPLACEMENT_FIELDS, LIKELIHOOD_FIELDS, RATE_FIELDS, RATES,
+                                         active_buckets, active_likelihood_fields, active_metrics, metric_config)
 
 _F = np.float32
 
 # The per-scenario fields of a result, in result order.
 SCENARIO_FIELDS = ("metametric", *DISPLACEMENT_FIELDS, *LIKELIHOOD_FIELDS, *RATE_FIELDS)
+
+
+def scenario_fields() -> tuple[str, ...]:
+    """`SCENARIO_FIELDS`, then the likelihoods of the metrics registered beside the official ones."""
+    return SCENARIO_FIELDS + active_likelihood_fields()[len(LIKELIHOOD_FIELDS):]
+
+
+def _weights(config) -> dict[str, float]:
+    """Every active metric's meta-metric weight (a registered metric's from its own config)."""
+    return {m.name: metric_config(config, m).metametric_weight for m in active_metrics()}
 
 
 def _padded_sum(values, axis, dtype):
@@ -66,17 +77,17 @@ def metric_log_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
     """
     masks = validity_masks(log)
     out = {}
-    for metric in METRICS:
-        feature_config = getattr(config, metric.name)
+    for metric in active_metrics():
+        feature_config = metric_config(config, metric)
         mask = masks[metric.mask]
         if metric.per_object:
-            log_flags = _any_over_time(getattr(log, metric.feature), mask)[0]
-            sim_flags = _any_over_time(getattr(sim, metric.feature), mask)
+            log_flags = _any_over_time(log.feature(metric.feature), mask)[0]
+            sim_flags = _any_over_time(sim.feature(metric.feature), mask)
             ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask)
             out[metric.name] = (ll, None)
         else:
-            ll = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric.feature)[0],
-                                                       getattr(sim, metric.feature), object_mask)
+            ll = likelihoods.timeseries_log_likelihood(feature_config, log.feature(metric.feature)[0],
+                                                       sim.feature(metric.feature), object_mask)
             out[metric.name] = (ll, mask)
     return out
 
@@ -108,7 +119,7 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
     masks = validity_masks(log)
     lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
     out = {}
-    for metric in METRICS:
+    for metric in active_metrics():
         ll, mask = lls[metric.name]
         # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
         padded_sum = _F if object_mask is None else wide  # see `_object_mean`
@@ -127,8 +138,8 @@ def metric_values(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Metri
                           else _padded_sum(_object_mean(flags, object_mask, wide), -1, wide) / wide(flags.shape[0]))
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
-    weights = metametric_weights(config)
-    out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(wide) for m in METRIC_NAMES)
+    weights = _weights(config)
+    out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(wide) for m in weights)
     return out
 
 
@@ -152,7 +163,7 @@ def per_object_likelihoods(config: SimAgentMetricsConfig, log: MetricFeatures, s
     wide = wide_float(xp)  # float64, except in JAX's float32 precision
     lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
     out = {}
-    for metric in METRICS:
+    for metric in active_metrics():
         ll, mask = lls[metric.name]
         if mask is None:  # an indicator: the object's own log-likelihood, one sample
             count = (xp.ones(ll.shape, xp.int32) if object_mask is None else object_mask.astype(xp.int32))
@@ -170,27 +181,28 @@ def scenario_metrics(config: SimAgentMetricsConfig, log: MetricFeatures, sim: Me
     """The official per-scenario metrics from log and simulated features, as floats."""
     values = metric_values(config, log, sim, log_likelihoods)
     # The official results are stored in float32 proto fields.
-    return {field: float(_F(values[field])) for field in SCENARIO_FIELDS}
+    return {field: float(_F(values[field])) for field in scenario_fields()}
 
 
 def aggregate_metrics(per_scenario: list[dict[str, float]]) -> dict[str, float]:
     """Mean of every field over scenarios (the official aggregation)."""
     if not per_scenario:
         raise ValueError("no scenario metrics to aggregate")
-    return {f: float(_F(np.mean([m[f] for m in per_scenario]))) for f in SCENARIO_FIELDS}
+    return {f: float(_F(np.mean([m[f] for m in per_scenario])))
+            for f in scenario_fields() if f in SCENARIO_FIELDS or f in per_scenario[0]}
 
 
 def metametric(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> float:
     """Weighted sum of the likelihoods with the config's meta-metric weights."""
-    weights = metametric_weights(config)
-    return sum(weights[m] * metrics[f"{m}_likelihood"] for m in METRIC_NAMES)
+    weights = _weights(config)
+    return sum(weights[m] * metrics[f"{m}_likelihood"] for m in weights)
 
 
 def bucket_metrics(config: SimAgentMetricsConfig, metrics: dict[str, float]) -> dict[str, float]:
     """Kinematic / interactive / map-based weighted means, plus headline figures (the official buckets)."""
     out = {"realism_meta_metric": metrics["metametric"]}
-    weights = metametric_weights(config)
-    for bucket, names in METRIC_BUCKETS.items():
+    weights = _weights(config)
+    for bucket, names in active_buckets().items():
         mean = weighted_bucket(names, metrics, weights)
         if mean is None:  # the official scorer rejects the config
             raise ValueError(f"the {bucket} bucket has zero total weight in this config")

@@ -387,6 +387,49 @@ def iter_archive_shards(path: Path, compression: str | None, limits: InputLimits
             _drain(stream, path)
 
 
+class MemberReader:
+    """The data of one archive member, read in pieces from the stream (never held whole).
+
+    `read(n)` gives its next `n` bytes (fewer only at its end); a member that ends early raises the
+    `ArchiveError` reading it whole would (`_read_member_data`). Moving to the next member skips
+    whatever was not read.
+    """
+
+    def __init__(self, tar: TarStreamReader, archive: Path, name: str, size: int) -> None:
+        self._tar, self._archive, self.name, self.size = tar, archive, name, size
+        self.position = 0
+
+    def read(self, size: int) -> bytes:
+        size = min(size, self.size - self.position)
+        try:
+            data = self._tar.read_data(size)
+        except _STREAM_ERRORS as error:
+            raise _data_error(self._archive, self.name, error) from error
+        self.position += len(data)
+        if len(data) != size:
+            raise ArchiveError(
+                f"{self._archive}: member {self.name!r} is truncated ({self.position} of {self.size} bytes)"
+            )
+        return data
+
+    def skip(self, size: int) -> None:
+        """Read past the next `size` bytes, a bounded piece at a time."""
+        while size > 0:
+            size -= len(self.read(min(size, _CHUNK_BYTES)))
+
+
+def iter_archive_members(path: Path, compression: str | None, limits: InputLimits) -> Iterator[MemberReader]:
+    """A `MemberReader` for every shard of a (possibly compressed) tar file, in order: the same walk and
+    errors as `iter_archive_shards`, but a member's bytes are read in pieces by whoever takes it (before
+    the next one is asked for), so that no shard is held whole."""
+    source, stream = _open_limited(path, compression, limits)
+    with source:
+        for tar, name, member in _iter_members(path, stream, limits):
+            yield MemberReader(tar, path, name, member.size)
+        if compression is not None:
+            _drain(stream, path)
+
+
 # --------------------------------------------------------------------------- single files
 
 

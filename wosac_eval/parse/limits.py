@@ -77,6 +77,15 @@ class _Census:
         self.budget = limits.message_allowance + size // limits.message_bytes
         self.messages = 0
 
+    def count(self, span: int, where: str) -> None:
+        """One more message, in a level of `span` bytes: SizeLimitError past the budget."""
+        self.messages += 1
+        if self.messages > self.budget:
+            raise SizeLimitError(
+                f"shard {self.shard}: more than {self.budget} messages in {span} bytes at {where} "
+                f"(one per {self.limits.message_bytes} bytes plus {self.limits.message_allowance}: a real "
+                "trajectory carries its steps); refused before parsing")
+
     def fields(self, data: bytes, start: int, end: int, where: str):
         """(field number, value start, value end) of each length-delimited field in data[start:end]; every
         field counts as one message. Malformed bytes end the walk (the parser reports them)."""
@@ -90,12 +99,7 @@ class _Census:
                 if not byte & 0x80 or pos >= end or shift > 56:
                     break
                 shift += 7
-            self.messages += 1
-            if self.messages > self.budget:
-                raise SizeLimitError(
-                    f"shard {self.shard}: more than {self.budget} messages in {end - start} bytes at {where} "
-                    f"(one per {self.limits.message_bytes} bytes plus {self.limits.message_allowance}: a real "
-                    "trajectory carries its steps); refused before parsing")
+            self.count(end - start, where)
             wire_type = key & 7
             if wire_type == 2:
                 length, shift = 0, 0
@@ -133,28 +137,55 @@ def check_message_counts(shard: str, data: bytes, limits: InputLimits | None = N
     census = _Census(shard, len(data), limits)
     scenarios = 0
     for number, start, end in census.fields(data, 0, len(data), "the top level"):
-        if number != _SUBMISSION_ROLLOUTS:
+        if number == _SUBMISSION_ROLLOUTS:
+            scenarios += 1
+            _count_rollouts(census, data, start, end, scenarios - 1)
+
+
+class ShardCensus:
+    """`check_message_counts` of a shard read one top-level field at a time (`parse.shard_stream`): the
+    same counts in the same order, so the same SizeLimitError at the same place, for a shard whose top
+    level is well-formed.
+
+    Args:
+      shard: its name; size: its size in bytes (the budget); limits: default `InputLimits()`.
+    """
+
+    def __init__(self, shard: str, size: int, limits: InputLimits | None = None):
+        self._census = _Census(shard, size, InputLimits() if limits is None else limits)
+        self._size = size
+        self.scenarios = 0
+
+    def top_level_field(self, number: int, wire_type: int, data: bytes, start: int, end: int) -> None:
+        """Count one top-level field and, for a scenario_rollouts, what it holds (its value: data[start:end])."""
+        self._census.count(self._size, "the top level")
+        if number == _SUBMISSION_ROLLOUTS and wire_type == 2:
+            self.scenarios += 1
+            _count_rollouts(self._census, data, start, end, self.scenarios - 1)
+
+
+def _count_rollouts(census: _Census, data: bytes, start: int, end: int, index: int) -> None:
+    """Count the messages of the shard's `index`th scenario_rollouts, data[start:end]."""
+    shard, limits = census.shard, census.limits
+    if index + 1 > limits.max_scenarios:
+        raise SizeLimitError(f"shard {shard}: more than max_scenarios={limits.max_scenarios} "
+                             "scenario_rollouts; refused before parsing")
+    where = f"scenario_rollouts[{index}]"
+    joint_scenes = 0
+    for number, j_start, j_end in census.fields(data, start, end, where):
+        if number != _ROLLOUTS_JOINT_SCENES:
             continue
-        scenarios += 1
-        if scenarios > limits.max_scenarios:
-            raise SizeLimitError(f"shard {shard}: more than max_scenarios={limits.max_scenarios} "
-                                 "scenario_rollouts; refused before parsing")
-        where = f"scenario_rollouts[{scenarios - 1}]"
-        joint_scenes = 0
-        for number, j_start, j_end in census.fields(data, start, end, where):
-            if number != _ROLLOUTS_JOINT_SCENES:
-                continue
-            joint_scenes += 1
-            if joint_scenes > limits.max_joint_scenes:
-                raise SizeLimitError(f"shard {shard}: {where} holds more than max_joint_scenes="
-                                     f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing")
-            scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
-            objects = 0
-            for number, _, _ in census.fields(data, j_start, j_end, scene_where):
-                objects += number == _JOINT_TRAJECTORIES
-                if objects > limits.max_objects:
-                    raise SizeLimitError(f"shard {shard}: {scene_where} holds more than max_objects="
-                                         f"{limits.max_objects} simulated_trajectories; refused before parsing")
+        joint_scenes += 1
+        if joint_scenes > limits.max_joint_scenes:
+            raise SizeLimitError(f"shard {shard}: {where} holds more than max_joint_scenes="
+                                 f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing")
+        scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
+        objects = 0
+        for number, _, _ in census.fields(data, j_start, j_end, scene_where):
+            objects += number == _JOINT_TRAJECTORIES
+            if objects > limits.max_objects:
+                raise SizeLimitError(f"shard {shard}: {scene_where} holds more than max_objects="
+                                     f"{limits.max_objects} simulated_trajectories; refused before parsing")
 
 
-__all__ = ["InputLimits", "check_message_counts"]
+__all__ = ["InputLimits", "ShardCensus", "check_message_counts"]

@@ -51,7 +51,7 @@ def looks_like_submission(where: str, head: bytes) -> None:
     )
 
 
-def _string_fields_are_text(
+def string_fields_are_text(
     submission: sim_agents_submission_pb2.SimAgentsChallengeSubmission,
 ) -> str | None:
     """The first string field holding invalid UTF-8, as 'field (index)', else None.
@@ -107,7 +107,7 @@ def parse_submission_shard(
             f"shard {name}: not a valid SimAgentsChallengeSubmission message "
             f"({len(raw)} bytes): {error}{_why_unparseable(raw)}"
         ) from error
-    bad_field = _string_fields_are_text(submission)
+    bad_field = string_fields_are_text(submission)
     if bad_field is not None:
         raise InvalidShardError(f"shard {name}: field {bad_field} is not valid UTF-8 text")
     return submission

@@ -27,6 +27,12 @@ the submission, written once validation has passed): a resumed run does not chec
 a 20 GB submission again, which would cost a quarter of the whole run. It is our
 own pickle, next to the journal and trusted as the journal is, and used only under
 the same run identity.
+
+An archive's last members are kept too (PATH.members: as many bytes as the archive
+itself, less if the disk is short): the stages after validation read them from
+their files, and a run resumed late decompresses the archive only up to them
+(a gzip stream cannot be entered midway: it would otherwise decompress all that
+was scored before the interruption again).
 """
 from __future__ import annotations
 
@@ -35,6 +41,7 @@ import json
 import logging
 import os
 import pickle
+import shutil
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -231,8 +238,27 @@ def validated_path(journal: os.PathLike | str) -> Path:
     return Path(journal).with_name(Path(journal).name + ".validated")
 
 
+def members_path(journal: os.PathLike | str) -> Path:
+    """Where a journal keeps its run's last archive members (`SubmissionSource(tail_dir=...)`)."""
+    return Path(journal).with_name(Path(journal).name + ".members")
+
+
+def members_budget(submission: os.PathLike | str, journal: os.PathLike | str) -> int:
+    """How many bytes of an archive's last members a journal keeps: the archive's own size (about the last
+    40% of a gzip-compressed submission), at most half the free space beside the journal."""
+    folder = Path(journal).resolve().parent
+    try:
+        size = os.path.getsize(submission) if Path(submission).is_file() else 0
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return 0
+    return min(size, free // 2)
+
+
 def remove_journal(journal: os.PathLike | str) -> None:
-    """Remove a journal and what it keeps beside it (its validation, a journal of another run set aside)."""
+    """Remove a journal and what it keeps beside it (its validation and archive members, a journal of
+    another run set aside)."""
     journal = Path(journal)
     for path in (journal, validated_path(journal), journal.with_name(journal.name + ".old")):
         path.unlink(missing_ok=True)
+    shutil.rmtree(members_path(journal), ignore_errors=True)

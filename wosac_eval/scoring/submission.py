@@ -33,7 +33,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
-from wosac_eval.scoring.journal import ScoringJournal, remove_journal, run_identity
+from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
 from wosac_eval.validate import validate_submission
@@ -140,10 +140,11 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
 
 
 def _scored_rollouts(source: SubmissionSource, index: ScenarioIndex, report,
-                     selected: set[str] | None) -> Iterator[tuple[str, RolloutsLocator]]:
-    """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order."""
+                     selected: set[str] | None, done=()) -> Iterator[tuple[str, RolloutsLocator | None]]:
+    """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order;
+    the locator is None for a scenario in `done` (a resumed run does not read what it finished)."""
     seen: set[str] = set()
-    for sid, locator in source.rollouts_locators():
+    for sid, locator in source.rollouts_locators(lambda sid: sid not in done):
         if sid in seen or sid not in index or not report.is_scenario_valid(sid):
             continue
         seen.add(sid)
@@ -186,7 +187,8 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
       journal: a file where each finished scenario's row is recorded as it is scored
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
-        It is left in place (with its validation, PATH.validated): remove both once the result is stored
+        It is left in place (with its validation, PATH.validated, and an archive's last members,
+        PATH.members): remove them once the result is stored
         (`scoring.journal.remove_journal`).
       per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
         `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
@@ -204,7 +206,11 @@ def score_submission(scenario_paths: PathLike | Iterable[PathLike] | ScenarioInd
     executor = make_executor(run.engine, workers=run.workers, ray_address=run.ray_address,
                              force_spawn=run.backend is Backend.JAX, initializer=keep_freed_memory)
     owned = not isinstance(submission, SubmissionSource)  # a handle the caller opened stays open
-    with SubmissionSource(submission, run.limits) if owned else contextlib.nullcontext(submission) as source:
+    # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
+    # the archive up to them (`scoring.journal`).
+    tail = ({"tail_dir": members_path(journal), "tail_bytes": members_budget(submission, journal)}
+            if owned and journal is not None else {})
+    with SubmissionSource(submission, run.limits, **tail) if owned else contextlib.nullcontext(submission) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
@@ -247,6 +253,7 @@ def _validated(index: ScenarioIndex, source: SubmissionSource, evaluation: Evalu
     report = validate_submission(index, source, challenge=evaluation.challenge, executor=executor,
                                  metadata_checks=evaluation.options.metadata_checks)
     if refuses(report, evaluation.options.allow_partial):
+        source.drop_tail()  # the archive members kept for scoring: none will be
         raise InvalidSubmissionError(report)
     records = source.records()
     if journal is not None and records is not None:
@@ -269,7 +276,7 @@ def _score(index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluatio
     order: list[str] = []  # every scored scenario, in submission order (the rows' order)
 
     def to_score() -> Iterator[tuple[str, RolloutsLocator]]:
-        for sid, locator in _scored_rollouts(source, index, report, selected):
+        for sid, locator in _scored_rollouts(source, index, report, selected, done):
             order.append(sid)
             if sid not in done:
                 yield sid, locator

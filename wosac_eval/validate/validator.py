@@ -1,15 +1,20 @@
 """Validate a whole submission against a scenario set, streaming shard by shard.
 
 Memory stays bounded: from the scenario set only the sim agent ids of each
-scenario are kept (a few hundred bytes per scenario); from the submission one
-shard is held at a time (bytes, then the parsed message); the report keeps
-counts and the first findings of each kind.
+scenario are kept (a few hundred bytes per scenario); a shard is read from its
+file one scenario at a time (`parse.shard_stream`: archive members are copied to
+a file a piece at a time by the walk), so a process holds one scenario's bytes
+and message, whatever the shard's size; the report keeps counts and the first
+findings of each kind. Only a shard that is not well-formed at its top level, or
+that does not parse, is judged whole (read into memory), so that its messages are
+those of a whole parse.
 """
 
 from __future__ import annotations
 
 import collections
 import dataclasses
+import io
 import os
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -22,7 +27,13 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
-from wosac_eval.parse.shards import parse_submission_shard
+from google.protobuf.message import DecodeError
+
+from wosac_eval.parse.decode import decode_message
+from wosac_eval.parse.limits import ShardCensus
+from wosac_eval.parse.shard_stream import IrregularShard, iter_top_level_fields
+from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_text
+from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
@@ -160,9 +171,80 @@ class ShardResult:
         return self.parse_error is None and not self.past_limit
 
 
+def _check_shard_streamed(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int, challenge: Any,
+                          limits: InputLimits | None) -> ShardResult | None:
+    """`check_shard` of a shard in a file, read one top-level field at a time; None when the shard must be
+    judged whole (its top level is not well-formed, a part does not parse, a string is not UTF-8).
+
+    Each scenario_rollouts is parsed as a shard holding it alone (its field's own bytes), the metadata as
+    the shard's other fields together: what a whole parse does, field by field, so that the result is the
+    whole parse's. The messages are counted (`ShardCensus`) in the order `check_message_counts` counts them.
+    """
+    name = shard.name
+    result = ShardResult(name, shard.size)
+    census = ShardCensus(name, shard.size, limits)
+    report = ValidationReport(name, max_listed=max_listed)
+    metadata_fields: list[bytes] = []
+    Submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission
+    with open(str(shard.path), "rb") if shard.data is None else io.BytesIO(shard.data) as f:
+        f.seek(shard.offset if shard.data is None else 0)
+        offset = 0  # of the field in the shard
+        try:
+            for number, wire_type, field_bytes, start, end in iter_top_level_fields(f, shard.size):
+                try:
+                    census.top_level_field(number, wire_type, field_bytes, start, end)
+                except SizeLimitError as error:  # the whole shard's census stops here too
+                    return ShardResult(name, shard.size, parse_error=str(error), parse_code="container.size_limit")
+                if number != 1 or wire_type != 2:
+                    metadata_fields.append(field_bytes)
+                    offset += end
+                    continue
+                try:
+                    (rollouts,) = decode_message(Submission, field_bytes).scenario_rollouts
+                except DecodeError:
+                    return None
+                if not isinstance(rollouts.scenario_id, str):
+                    return None
+                scenario_id = rollouts.scenario_id or None  # unset or empty
+                result.entries.append((len(result.entries), scenario_id))
+                result.spans.append((offset + start, offset + end))
+                if scenario_id is not None:
+                    report.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name, challenge))
+                offset += end
+        except IrregularShard:
+            return None
+    try:
+        metadata = decode_message(Submission, b"".join(metadata_fields))
+    except DecodeError:
+        return None
+    if string_fields_are_text(metadata) is not None:
+        return None
+    result.metadata = rules.metadata_of(metadata)
+    result.metadata_findings = rules.check_metadata(metadata, name)
+    if not result.entries:
+        result.empty_detail = "holds no scenario_rollouts" + (" (the shard is 0 bytes)" if not shard.size else "")
+    result.rollouts = report
+    return result
+
+
 def check_shard(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
                 challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None) -> ShardResult:
-    """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts."""
+    """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts.
+
+    It is read one scenario at a time (`_check_shard_streamed`: from its file, or the bytes it carries),
+    unless it must be judged whole."""
+    if shard.data is not None or shard.path is not None:
+        streamed = _check_shard_streamed(shard, agents, max_listed, challenge, limits)
+        if streamed is not None:
+            return streamed
+    return check_shard_whole(shard, agents, max_listed, challenge, limits)
+
+
+def check_shard_whole(shard: ShardRef, agents: dict[str, np.ndarray], max_listed: int,
+                      challenge: Any = challenges.Challenge.SIM_AGENTS, limits: InputLimits | None = None
+                      ) -> ShardResult:
+    """`check_shard` with the shard parsed whole: the reference the streamed check equals, and the judge of
+    a shard that is not well-formed (its messages are a whole parse's)."""
     name, data = shard.name, shard.read()
     result = ShardResult(name, len(data))
     try:
@@ -333,7 +415,9 @@ def validate_submission(
     run = _Validation(agents, report, progress, metadata_checks, source.limits.max_scenarios)
     if not source.path.exists():
         raise FileNotFoundError(f"{source}: no such submission file or folder")
-    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)))
+    # Workers of this host read an archive's members from scratch files; other nodes get their bytes.
+    shards = source.shards(problems=lambda problem: report.add(_container_finding(problem)),
+                           members_in_memory=not isinstance(executor, LocalExecutor))
     listed: collections.deque = collections.deque()  # the names of the shards in flight
 
     def remember(refs: Iterable[ShardRef]) -> Iterator[ShardRef]:
@@ -341,11 +425,16 @@ def validate_submission(
             listed.append(ref.name)
             yield ref
 
-    for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, source.limits):
-        run.merge(result)
-        name = listed.popleft()  # results come back in shard order
-        if result.readable:
-            source.record(name, ((sid, span) for (_, sid), span in zip(result.entries, result.spans)))
+    try:
+        for result in _shard_results(remember(shards), agents, max_listed, executor, challenge, source.limits):
+            run.merge(result)
+            name = listed.popleft()  # results come back in shard order
+            if result.readable:
+                source.record(name, ((sid, span) for (_, sid), span in zip(result.entries, result.spans)))
+            source.release(name)
+    finally:
+        if source is not submission:  # opened here: its scratch files go with it
+            source.close()
     report.extend(rules.check_overlap(len(agents), run.first_seen, agents))
     missing = rules.check_missing_scenarios(agents, run.first_seen)
     report.missing_scenarios = [f.scenario_id for f in missing]

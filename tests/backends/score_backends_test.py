@@ -13,6 +13,7 @@ from support.runs import run_score
 CASE = "637f20cafde22ff8__official_test_submission"
 
 
+@pytest.mark.slow  # XLA compiling for real golden scenes: about a minute on 2 cores
 @pytest.mark.parametrize("workers", [1, 2])
 def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
     shared = require_shared()
@@ -33,6 +34,7 @@ def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
     assert result["aggregate"] == numpy_result["aggregate"]
 
 
+@pytest.mark.slow  # XLA compiling for real golden scenes: about a minute on 2 cores
 def test_score_submission_jax_batches_several_scenarios(tmp_path):
     shared = require_shared()
     from wosac_eval.scoring.submission import score_submission

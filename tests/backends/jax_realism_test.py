@@ -27,6 +27,9 @@ import pytest
 
 from wosac_eval import jax_realism
 
+# About 10 minutes on 2 cores, most of it XLA compiling: the full run's, not the fast tier's.
+pytestmark = pytest.mark.slow
+
 import jax  # noqa: E402
 from jax import lax  # noqa: E402
 

@@ -14,9 +14,10 @@ import pytest
 import jax
 import jax.numpy as jnp
 
-from wosac_eval.backends import jax_backend
-from wosac_eval.features import box_geometry, dense, interaction, road_edge, traffic_lights
-from wosac_eval.features.float32_math import fma32, sincos32
+from wosac_eval.backends import jax_backend, jax_driver
+from wosac_eval.features import box_geometry, dense, interaction, map_arrays, road_edge, traffic_lights
+from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.ops import fma32
 from wosac_eval.features.xp import array_namespace, divide
 
 F = np.float32
@@ -101,7 +102,8 @@ def test_time_to_collision_dense_equals_numpy():
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
-    expected = interaction.time_to_collision(x, y, length, width, heading, valid, evaluated, 0.1, steps_eval)
+    expected = interaction.time_to_collision(x, y, length, width, heading, valid, num_evaluated=evaluated,
+                                             seconds_per_step=0.1, steps=steps_eval)
     assert (expected < interaction.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail
     from wosac_eval.features.kinematics import linear_speed
@@ -109,9 +111,16 @@ def test_time_to_collision_dense_equals_numpy():
     step_major = lambda a: np.ascontiguousarray(a[:, steps_eval].T)
     ego_tail = packet_tail((steps, evaluated, 1))[steps_eval]
     pair_tail = packet_tail((steps, evaluated, objects))[steps_eval]
-    got = jitted(lambda *a: dense.time_to_collision(*a, num_evaluated=evaluated),
+    got = jitted(lambda *a: dense.time_to_collision(*a[:7], ego_tail=a[7], pair_tail=a[8], num_evaluated=evaluated),
                  *map(step_major, (x, y, length, width, heading, speed, valid)), ego_tail, pair_tail)
     np.testing.assert_array_equal(got.T, expected)
+
+
+def test_jax_searches_are_search_strategies():
+    from support.strategies import assert_is_search_strategy
+    from wosac_eval.backends.host_search import HostSearch, HostSearches
+    assert_is_search_strategy(dense.DenseSearch({}))
+    assert_is_search_strategy(HostSearch(HostSearches(()), 0))
 
 
 def test_road_edge_dense_equals_numpy():
@@ -124,11 +133,11 @@ def test_road_edge_dense_equals_numpy():
     queries = np.concatenate([rng.uniform([-20, -30, -1], [60, 50, 8], (3000, 3)),
                               loop[:4] + F(0.0), [[45, 30, 0], [-3, -4, 0]]]).astype(F)
     expected = road_edge.signed_distance_to_polylines(table, queries)
-    segments = jax_backend._segment_arrays(table)
+    segments = map_arrays.segment_table_arrays(table)
     got = jitted(dense.signed_distance_to_road_edge, queries, segments)
     np.testing.assert_array_equal(got, expected)
     # Padded segments and a small chunk (several lax.map steps) change nothing.
-    padded = {k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_backend._pad_axis(v, 64, 0)
+    padded = {k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, 64, 0)
               for k, v in segments.items()}
     old = dense.PAIRS_PER_CHUNK
     dense.PAIRS_PER_CHUNK = 64 * 100
@@ -158,7 +167,7 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     from every edge, on another level) fall back to every segment. Both paths run here."""
     rng = np.random.default_rng(5)
     table = road_edge.build_segment_table(random_road_edges(rng, 60))
-    segments = jax_backend._segment_arrays(table)
+    segments = map_arrays.segment_table_arrays(table)
     cells = road_edge.cell_candidate_table(segments["start"], segments["delta"], k=candidates)
     segments.update({f"cell_{k}": v for k, v in cells.items()})
     on_map = rng.uniform([-170, -170, -3], [170, 170, 3], (4000, 3))
@@ -179,7 +188,7 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     assert not settled[-len(far):].any()
     # Padded segments and grid rows change nothing; unneeded queries are never searched exhaustively.
     padded = {k: v if k in ("cell_origin", "cell_shape") or k.startswith(dense.NON_FINITE_PREFIX)
-              else jax_backend._pad_axis(v, len(v) + 50, 0)
+              else jax_driver.pad_axis(v, len(v) + 50, 0)
               for k, v in segments.items()}
     np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
     needed = rng.random(len(queries)) < 0.5
@@ -291,7 +300,7 @@ def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
     want = (sign * road_edge.EXTREMELY_LARGE_DISTANCE).astype(F)
     np.testing.assert_array_equal(got[:5], want[:5])
     assert np.isfinite(got[5]) and abs(got[5]) < 100
-    segments = jax_backend._segment_arrays(table)
+    segments = map_arrays.segment_table_arrays(table)
     np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, segments), got)
 
 

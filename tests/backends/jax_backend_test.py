@@ -54,6 +54,7 @@ def test_fine_buckets_pad_at_most_a_third(n, expected):
     assert jax_backend.fine_bucket(n) == expected
 
 
+@pytest.mark.slow  # an XLA compilation per bucket of sizes: minutes on 2 cores
 @pytest.mark.parametrize("case_set, case", CASES)
 def test_features_bit_identical_to_official_and_numpy(case_set, case):
     golden.skip_if_absent(case_set, case)
@@ -91,7 +92,7 @@ def test_batched_call_equals_per_scenario_calls():
 def test_padding_to_larger_buckets_changes_nothing():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
-    larger = tuple(2 * k for k in key[3:])  # objects, evaluated, road-edge segments, signals, lanes, grid cells
+    larger = key.sizes.with_counts(2 * k for k in key.sizes.as_tuple())  # objects, evaluated, every map size
     padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
     golden.assert_features_equal(padded, golden.as_feature_dict(_set_features(ORACLE)[case]),
                                  f"{case} padded to {larger}")

@@ -1,0 +1,329 @@
+"""The per-step feature registry: each feature declared once, with what it needs.
+
+A `Feature` entry names a per-step feature, its kernel (a function of a
+`FeatureContext`: the batch's trajectories, the search strategy, the shared
+intermediates), the map parts its search reads on the device (`MapPart`:
+the arrays, how each is padded, the bucket sizes they count), and, for a
+feature registered beside the official ones, its metric (a
+`metrics.registry.Metric` carrying its config). Everything that computes or
+lists per-step features reads this module: `metric_features.per_step_features`
+(numpy and JAX alike), the JAX drivers' map arrays, padding and bucket keys,
+and the scorer through `metrics.registry`.
+
+Adding a feature is one `register(Feature(...))` call (see docs/extending.md);
+an official one is an entry in `OFFICIAL_FEATURES` (and its config field in
+the official proto and presets).
+"""
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+from collections.abc import Callable, Mapping
+
+import numpy as np
+
+from wosac_eval.features import interaction, kinematics, road_edge
+from wosac_eval.features.float32_math import sincos32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
+from wosac_eval.features.xp import array_namespace
+from wosac_eval.metrics import registry as metric_registry
+
+_F = np.float32
+
+
+# --- Map parts: what the dense (device) searches read, and how it is padded -----------------------
+
+@dataclasses.dataclass(frozen=True)
+class Pad:
+    """How one map array is padded to a bucket.
+
+    Attributes:
+      size: the `Size` it is padded to; None: never padded (a grid's origin, a fixed fallback row).
+      axis: the padded axis.
+      fill: the padding value (invalid everywhere it is read).
+    """
+
+    size: str | None
+    axis: int = 0
+    fill: int | float | bool = 0
+
+
+@dataclasses.dataclass(frozen=True)
+class Size:
+    """One padded size of a bucket: the length of `axis` of the array `counted_by`.
+
+    Attributes:
+      fine: rounded to a multiple of a quarter of the next power of two (`fine_bucket`), for the
+        large map counts that dominate the dense searches' work; else to the next power of two.
+    """
+
+    name: str
+    counted_by: str
+    axis: int = 0
+    fine: bool = False
+
+    def count(self, arrays: Mapping[str, np.ndarray]) -> int:
+        return int(np.shape(arrays[self.counted_by])[self.axis])
+
+
+@dataclasses.dataclass(frozen=True)
+class MapPart:
+    """Map arrays of one scene for the dense searches, built on the host.
+
+    Attributes:
+      name: what a `Feature.needs` names.
+      build: (scenario, `metric_features.MapContext`, `metric_features.FeatureLayout`, num_steps,
+        cells) -> the unpadded arrays by name (`cells`: False where the searches run on the host,
+        which need no road-edge cell table).
+      arrays: every array's `Pad`.
+      sizes: the bucket sizes the part counts.
+    """
+
+    name: str
+    build: Callable
+    arrays: tuple[tuple[str, Pad], ...]
+    sizes: tuple[Size, ...]
+
+    @property
+    def padding(self) -> dict[str, Pad]:
+        return dict(self.arrays)
+
+
+def _map_builder(name: str) -> Callable:
+    """The builder `name` of `features.map_arrays` (imported on first use: the numpy path needs none)."""
+    def build(*args):
+        from wosac_eval.features import map_arrays
+        return getattr(map_arrays, name)(*args)
+
+    build.__name__ = name
+    return build
+
+
+_SEGMENT_ARRAYS = ("start", "delta", "prior_start", "prior_delta", "next_start", "next_delta", "valid",
+                   "prior_valid", "next_valid", "convex_before", "convex_after")
+NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
+
+MAP_PARTS: tuple[MapPart, ...] = (
+    MapPart("road_edges", _map_builder("road_edge_segments"),
+            tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
+            + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
+            (Size("road_edge_segments", "start", fine=True),)),
+    MapPart("red_lights", _map_builder("red_light_arrays"),
+            (("stop_start", Pad("signals", 1)), ("stop_delta", Pad("signals", 1)),
+             ("stop_point", Pad("signals", 1)), ("stopping", Pad("signals", 1)),
+             # Padded signals' lane rank is neither a lane's nor a point's without lane (-1).
+             ("signal_lane_id", Pad("signals", 0, -2)),
+             ("lane_start", Pad("lane_segments")), ("lane_delta", Pad("lane_segments")),
+             ("lane_valid", Pad("lane_segments")), ("lane_id", Pad("lane_segments"))),
+            (Size("signals", "signal_lane_id"), Size("lane_segments", "lane_start", fine=True))),
+    # Rows past the grid are never looked up; its origin and shape are not padded.
+    MapPart("road_edge_cells", _map_builder("road_edge_cells"),
+            (("cell_origin", Pad(None)), ("cell_shape", Pad(None)), ("cell_candidates", Pad("road_edge_cells")),
+             ("cell_clearance", Pad("road_edge_cells"))),
+            (Size("road_edge_cells", "cell_clearance", fine=True),)),
+)
+
+
+# --- Features ------------------------------------------------------------------------------------
+
+class FeatureContext:
+    """What a kernel reads: the batch, the search strategy, and intermediates shared by kernels.
+
+    Attributes:
+      traj: x, y, z, heading, length, width, height float32 and valid bool, each
+        `(num_samples, num_objects, num_steps)`, evaluated objects first.
+      layout: the `metric_features.FeatureLayout`.
+      search: the search strategy (`PrunedSearch`, `DenseSearch` or `HostSearch`).
+      tails: `metric_features.official_tails` of the real shapes.
+    Kernels return `(num_samples, num_evaluated, reported steps)`; `context[name]` is another
+    feature's value, computed once.
+    """
+
+    def __init__(self, traj: dict, layout, search, tails: dict, features: tuple[Feature, ...]):
+        self.traj, self.layout, self.search, self.tails = traj, layout, search, tails
+        self.xp = array_namespace(traj["x"])
+        self._features = {f.name: f for f in features}
+        self._values: dict = {}
+
+    def __getitem__(self, name: str):
+        if name not in self._values:
+            self._values[name] = self._features[name].kernel(self)
+        return self._values[name]
+
+    def reported(self, a):
+        """`a`'s reported steps (its last axis)."""
+        return a[..., self.layout.reported]
+
+    def evaluated(self, a):
+        """`a`'s evaluated objects (axis 1 of `(num_samples, num_objects, ...)`)."""
+        return a[:, : self.layout.num_evaluated]
+
+    @functools.cached_property
+    def kinematics(self) -> tuple:
+        """(speed, acceleration, angular speed, angular acceleration) of the evaluated objects, all steps."""
+        x, y, z, heading = (self.evaluated(self.traj[f]) for f in ("x", "y", "z", "heading"))
+        return kinematics.kinematic_features(x, y, z, heading, self.layout.seconds_per_step)
+
+    @functools.cached_property
+    def heading_sincos(self) -> tuple:
+        """(sin, cos) of every object's heading at the reported steps, as the official op rounds them."""
+        return sincos32(self.reported(self.traj["heading"]), self.tails["heading_tail"])
+
+    @functools.cached_property
+    def box_centres(self) -> tuple:
+        """(x, y) with NaN for boxes of non-finite height: the official corners come from a 3D rotation,
+        where a NaN or inf height turns every corner NaN (0 * inf)."""
+        t, xp = self.traj, self.xp
+        finite_height = xp.isfinite(t["height"])
+        return xp.where(finite_height, t["x"], _F(np.nan)), xp.where(finite_height, t["y"], _F(np.nan))
+
+
+@dataclasses.dataclass(frozen=True)
+class Feature:
+    """One per-step feature.
+
+    Attributes:
+      name: its `MetricFeatures` field (an official one), or its key in `MetricFeatures.extra`.
+      kernel: `FeatureContext` -> `(num_samples, num_evaluated, reported steps)`, numpy or JAX (written
+        with `xp = context.xp`, it serves both).
+      dtype: "float32" or "bool".
+      needs: the `MAP_PARTS` its search reads on the device (their arrays are built, padded and
+        counted in bucket keys only when a registered feature needs them).
+      metric: a registered feature's metric (`metrics.registry.Metric` with `official=False` and its
+        `config_default`), or None (an official feature: its metric is a row of `metrics.registry.METRICS`).
+    """
+
+    name: str
+    kernel: Callable
+    dtype: str = "float32"
+    needs: tuple[str, ...] = ()
+    metric: metric_registry.Metric | None = None
+
+
+def _kinematic(index: int) -> Callable:
+    return lambda c: c.reported(c.kinematics[index])
+
+
+def _nearest_object(c: FeatureContext):
+    sin_h, cos_h = c.heading_sincos
+    x, y = c.box_centres
+    t = c.traj
+    return c.search.nearest_object(c.reported(x), c.reported(y), c.reported(t["length"]), c.reported(t["width"]),
+                                   cos_h, sin_h, c.reported(t["valid"]), c.layout.num_evaluated)
+
+
+def _time_to_collision(c: FeatureContext):
+    t = c.traj
+    planar_speed = kinematics.linear_speed(t["x"], t["y"], c.xp.zeros_like(t["x"]), c.layout.seconds_per_step)
+    return c.search.time_to_collision(TimeToCollisionInputs(
+        x=t["x"], y=t["y"], length=t["length"], width=t["width"], heading=t["heading"], speed=planar_speed,
+        valid=t["valid"], num_evaluated=c.layout.num_evaluated, steps=c.layout.reported,
+        ego_tail=c.tails["ego_tail"], pair_tail=c.tails["pair_tail"]))
+
+
+def _road_edge_distance(c: FeatureContext):
+    t = c.traj
+    pick = lambda a: c.reported(c.evaluated(a))  # noqa: E731
+    sin_h, cos_h = (c.evaluated(a) for a in c.heading_sincos)
+    x, y = c.box_centres
+    bottom = pick(t["z"]) + (-pick(t["height"]) * _F(0.5))
+    return c.search.road_edge_distance(pick(x), pick(y), bottom, pick(t["length"]), pick(t["width"]), cos_h, sin_h,
+                                       pick(t["valid"]))
+
+
+def _red_light_violation(c: FeatureContext):
+    t, n = c.traj, c.layout.num_evaluated
+    # A crossing is found between a step and the one before: one step earlier where there is one.
+    lights = slice(c.layout.first_red_light_step, None)
+    red = c.search.red_light_violation(t["x"][:, :n, lights], t["y"][:, :n, lights], t["valid"][:, :n, lights])
+    return red[..., 1:] if c.layout.first_step > 0 else red
+
+
+OFFICIAL_FEATURES: tuple[Feature, ...] = (
+    Feature("linear_speed", _kinematic(0)),
+    Feature("linear_acceleration", _kinematic(1)),
+    Feature("angular_speed", _kinematic(2)),
+    Feature("angular_acceleration", _kinematic(3)),
+    Feature("distance_to_nearest_object", _nearest_object),
+    Feature("collision_per_step",
+            lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD), "bool"),
+    Feature("time_to_collision", _time_to_collision),
+    Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
+    Feature("offroad_per_step", lambda c: c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
+            "bool", needs=("road_edges", "road_edge_cells")),
+    Feature("traffic_light_violation_per_step", _red_light_violation, "bool", needs=("red_lights",)),
+)
+OFFICIAL_FEATURE_NAMES = tuple(f.name for f in OFFICIAL_FEATURES)
+
+_REGISTERED: list[Feature] = []
+
+
+def register(feature: Feature) -> None:
+    """Adds a per-step feature (and its metric, if it has one) after the official ones.
+
+    Raises:
+      ValueError: the name is taken, a need is not a `MAP_PARTS` name, or the metric is refused
+        (`metrics.registry.register_metric`).
+    """
+    if feature.name in {f.name for f in features()}:
+        raise ValueError(f"feature {feature.name!r} is already registered")
+    unknown = set(feature.needs) - {p.name for p in MAP_PARTS}
+    if unknown:
+        raise ValueError(f"feature {feature.name!r} needs unknown map parts {sorted(unknown)}")
+    if feature.dtype not in ("float32", "bool"):
+        raise ValueError(f"feature {feature.name!r}: dtype must be 'float32' or 'bool', got {feature.dtype!r}")
+    if feature.metric is not None:
+        if feature.metric.feature != feature.name:
+            raise ValueError(f"feature {feature.name!r}: its metric scores {feature.metric.feature!r}")
+        metric_registry.register_metric(feature.metric)
+    _REGISTERED.append(feature)
+
+
+def unregister(name: str) -> None:
+    """Removes a feature added by `register`, and its metric (KeyError if there is none of that name)."""
+    index = next((k for k, f in enumerate(_REGISTERED) if f.name == name), None)
+    if index is None:
+        raise KeyError(name)
+    feature = _REGISTERED.pop(index)
+    if feature.metric is not None:
+        metric_registry.unregister_metric(feature.metric.name)
+
+
+@contextlib.contextmanager
+def registered(feature: Feature):
+    """`register(feature)` for the duration of a `with` block (tests, experiments)."""
+    register(feature)
+    try:
+        yield feature
+    finally:
+        unregister(feature.name)
+
+
+def features() -> tuple[Feature, ...]:
+    """The official features, then the registered ones, in computation and output order."""
+    return OFFICIAL_FEATURES + tuple(_REGISTERED)
+
+
+def feature_names() -> tuple[str, ...]:
+    return tuple(f.name for f in features())
+
+
+def map_parts(selected: tuple[Feature, ...] | None = None) -> tuple[MapPart, ...]:
+    """The map parts the features need, in `MAP_PARTS` order."""
+    needed = {need for f in (features() if selected is None else selected) for need in f.needs}
+    return tuple(p for p in MAP_PARTS if p.name in needed)
+
+
+def size_names(selected: tuple[Feature, ...] | None = None) -> tuple[str, ...]:
+    """The map sizes of a bucket key, in order (objects and evaluated objects come before them)."""
+    return tuple(s.name for p in map_parts(selected) for s in p.sizes)
+
+
+def map_sizes(selected: tuple[Feature, ...] | None = None) -> tuple[Size, ...]:
+    return tuple(s for p in map_parts(selected) for s in p.sizes)
+
+
+def map_padding(selected: tuple[Feature, ...] | None = None) -> dict[str, Pad]:
+    """Every map array's `Pad`, by name."""
+    return {name: pad for p in map_parts(selected) for name, pad in p.arrays}

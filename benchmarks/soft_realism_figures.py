@@ -10,6 +10,7 @@ and whether its gradients are real.
 
 Usage: python benchmarks/soft_realism_figures.py [--oracle] [--no-golden] [--no-gradients]
 """
+
 from __future__ import annotations
 
 import sys
@@ -37,15 +38,21 @@ def golden_gaps(case_set) -> None:
         return
     pairs = [golden.inputs(case_set, c) for c in cases]
     config_name = case_set.configs[0]
-    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge,
-                                   config=golden.config_reference(case_set, config_name), search="device")
+    prepared = jax_realism.prepare(
+        [s for s, _ in pairs],
+        challenge=case_set.challenge,
+        config=golden.config_reference(case_set, config_name),
+        search="device",
+    )
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     step = jax.jit(lambda p, a, t: jax_realism.soft_realism(p, **a, temperature=t)["metametric"])
     start = time.perf_counter()
     soft = {t: np.asarray(step(prepared, arrays, t)) for t in TEMPERATURES}  # the temperature is traced
     seconds = time.perf_counter() - start
-    print(f"{case_set.name} ({case_set.challenge}, config {config_name}; {len(cases)} cases, "
-          f"{seconds:.0f} s with one compile)")
+    print(
+        f"{case_set.name} ({case_set.challenge}, config {config_name}; {len(cases)} cases, "
+        f"{seconds:.0f} s with one compile)"
+    )
     print(f"  {'case':58s} {'official':>9s} " + " ".join(f"{'T=' + str(t):>9s}" for t in TEMPERATURES))
     worst = dict.fromkeys(TEMPERATURES, 0.0)
     for k, case in enumerate(cases):
@@ -60,15 +67,19 @@ def gradient_figures() -> None:
     """Gradient of the soft meta-metric on a demo scene, and `check_grads` of a shift of one agent."""
     scene = scenes.generate_scenes(10, seed=0)[1]
     prepared = jax_realism.prepare([scene], search="device")
-    arrays = {k: jnp.asarray(v) for k, v in
-              jax_realism.stack_rollouts(prepared, [policy_rollouts(scene, "idm")]).items()}
+    arrays = {
+        k: jnp.asarray(v) for k, v in jax_realism.stack_rollouts(prepared, [policy_rollouts(scene, "idm")]).items()
+    }
     for temperature in TEMPERATURES:
+
         def metametric(x, y, z, heading):
             return jax_realism.soft_realism(prepared, x, y, z, heading, temperature=temperature)["metametric"].sum()
 
         grads = jax.grad(metametric, argnums=(0, 1, 2, 3))(arrays["x"], arrays["y"], arrays["z"], arrays["heading"])
-        parts = ", ".join(f"{name} {int(np.count_nonzero(g))} non-zero, max |g| {float(jnp.abs(g).max()):.2e}"
-                          for name, g in zip(["x", "y", "z", "heading"], grads))
+        parts = ", ".join(
+            f"{name} {int(np.count_nonzero(g))} non-zero, max |g| {float(jnp.abs(g).max()):.2e}"
+            for name, g in zip(["x", "y", "z", "heading"], grads)
+        )
         finite = all(bool(jnp.isfinite(g).all()) for g in grads)
         print(f"  T={temperature}: gradient finite everywhere: {finite}; {parts}")
 
@@ -76,9 +87,14 @@ def gradient_figures() -> None:
     column = jnp.arange(prepared.max_agents) == int(prepared.arrays[0]["columns"][0, 0])
 
     def shifted(shift):
-        out = jax_realism.soft_realism(prepared, arrays["x"] + shift[0] * column[:, None],
-                                       arrays["y"] + shift[1] * column[:, None], arrays["z"],
-                                       arrays["heading"] + shift[2] * column[:, None], temperature=1.0)
+        out = jax_realism.soft_realism(
+            prepared,
+            arrays["x"] + shift[0] * column[:, None],
+            arrays["y"] + shift[1] * column[:, None],
+            arrays["z"],
+            arrays["heading"] + shift[2] * column[:, None],
+            temperature=1.0,
+        )
         return out["metametric"]
 
     # A generic point: unshifted, the demo's boxes are parallel, where box distances have kinks in the heading.
@@ -86,9 +102,11 @@ def gradient_figures() -> None:
     start = time.perf_counter()
     jax.test_util.check_grads(shifted, (shift,), order=1, modes=("fwd", "rev"), eps=2e-3)
     gradient = jax.grad(lambda s: shifted(s).sum())(shift)
-    print(f"  check_grads(order=1, modes=fwd, rev; eps=2e-3) of the meta-metric in a shift (x, y, heading) = "
-          f"{tuple(round(float(v), 4) for v in shift)} of the first evaluated object's rollouts, T=1: passed in "
-          f"{time.perf_counter() - start:.0f} s; gradient {np.asarray(gradient)}")
+    print(
+        f"  check_grads(order=1, modes=fwd, rev; eps=2e-3) of the meta-metric in a shift (x, y, heading) = "
+        f"{tuple(round(float(v), 4) for v in shift)} of the first evaluated object's rollouts, T=1: passed in "
+        f"{time.perf_counter() - start:.0f} s; gradient {np.asarray(gradient)}"
+    )
 
 
 def main(argv: list[str]) -> None:

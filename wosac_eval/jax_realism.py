@@ -13,7 +13,9 @@ surrogate (a training signal, not the official metric; `wosac_eval.backends.soft
 
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
-from wosac_eval.backends.jax_realism import (  # noqa: F401
+
+from wosac_eval.backends.jax_backend import exact_cpu
+from wosac_eval.backends.jax_realism import (
     MODES,
     SEARCHES,
     PreparedScenes,
@@ -26,9 +28,20 @@ from wosac_eval.backends.jax_realism import (  # noqa: F401
     stack_rollouts,
     waymax_columns,
 )
+from wosac_eval.backends.soft_realism import soft_realism
 
-from wosac_eval.backends.jax_backend import exact_cpu  # noqa: F401
-from wosac_eval.backends.soft_realism import soft_realism  # noqa: F401
-
-__all__ = ["PreparedScenes", "Realism", "MODES", "SEARCHES", "prepare", "realism", "features", "stack_rollouts",
-           "waymax_columns", "from_waymax", "jit_step", "exact_cpu", "soft_realism"]
+__all__ = [
+    "PreparedScenes",
+    "Realism",
+    "MODES",
+    "SEARCHES",
+    "prepare",
+    "realism",
+    "features",
+    "stack_rollouts",
+    "waymax_columns",
+    "from_waymax",
+    "jit_step",
+    "exact_cpu",
+    "soft_realism",
+]

@@ -6,6 +6,7 @@ rollout field that moves the score, `jax.test_util.check_grads` in forward and r
 |soft - official meta-metric| decreasing with the temperature, at most 5e-3 at 0.01. On the golden
 cases of ../shared (skipped where absent) at temperature 0.01: within 5e-3 of the official outputs.
 """
+
 from __future__ import annotations
 
 from functools import cache
@@ -51,8 +52,9 @@ def test_same_fields_as_realism_and_soft_mode():
 
 def test_goes_to_the_official_value_as_the_temperature_goes_to_zero():
     prepared, arrays = demo()
-    official = float(jax.jit(lambda p, a: jax_realism.realism(p, **a, mode="float32"))(prepared, arrays)
-                     ["metametric"][0])
+    official = float(
+        jax.jit(lambda p, a: jax_realism.realism(p, **a, mode="float32"))(prepared, arrays)["metametric"][0]
+    )
     gaps = [abs(float(_soft(prepared, arrays, t)["metametric"][0]) - official) for t in TEMPERATURES]
     assert gaps[0] > gaps[1] > gaps[2], gaps
     assert gaps[2] <= GAP_AT_SMALLEST, gaps
@@ -64,8 +66,9 @@ def test_gradients_are_finite_and_non_zero():
     def metametric(x, y, z, heading):
         return jax_realism.soft_realism(prepared, x, y, z, heading, temperature=0.1)["metametric"].sum()
 
-    grads = jax.jit(jax.grad(metametric, argnums=(0, 1, 2, 3)))(arrays["x"], arrays["y"], arrays["z"],
-                                                                 arrays["heading"])
+    grads = jax.jit(jax.grad(metametric, argnums=(0, 1, 2, 3)))(
+        arrays["x"], arrays["y"], arrays["z"], arrays["heading"]
+    )
     for name, g in zip(("x", "y", "z", "heading"), grads):
         assert bool(jnp.isfinite(g).all()), name
     # IDM keeps z constant: the 3D speed's derivative in dz (dz / speed) is 0, so z's gradient is mostly 0.
@@ -79,9 +82,14 @@ def test_check_grads_of_a_shifted_agent():
     column = (jnp.arange(prepared.max_agents) == int(prepared.arrays[0]["columns"][0, 0]))[:, None]
 
     def shifted(shift):
-        return jax_realism.soft_realism(prepared, arrays["x"] + shift[0] * column, arrays["y"] + shift[1] * column,
-                                        arrays["z"], arrays["heading"] + shift[2] * column,
-                                        temperature=1.0)["metametric"]
+        return jax_realism.soft_realism(
+            prepared,
+            arrays["x"] + shift[0] * column,
+            arrays["y"] + shift[1] * column,
+            arrays["z"],
+            arrays["heading"] + shift[2] * column,
+            temperature=1.0,
+        )["metametric"]
 
     # A generic point: at no shift, the demo's boxes are parallel (headings of 0 or 90 degrees), where the
     # distance between two boxes has a kink in the heading (the closest corner switches).
@@ -106,8 +114,12 @@ def test_golden_cases_within_5e3_at_temperature_0_01(set_name):
     golden.skip_if_absent(case_set, cases[0] if cases else None)
     pairs = [golden.inputs(case_set, c) for c in cases]
     config_name = case_set.configs[0]
-    prepared = jax_realism.prepare([s for s, _ in pairs], challenge=case_set.challenge,
-                                   config=golden.config_reference(case_set, config_name), search="device")
+    prepared = jax_realism.prepare(
+        [s for s, _ in pairs],
+        challenge=case_set.challenge,
+        config=golden.config_reference(case_set, config_name),
+        search="device",
+    )
     arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
     soft = np.asarray(_soft(prepared, arrays, 0.01)["metametric"])
     for k, case in enumerate(cases):

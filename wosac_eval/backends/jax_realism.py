@@ -38,6 +38,7 @@ about 3 MB per synthetic scene, 3.8 MB per real one: 7.88 GB at 2,048 real
 scenes, which had not compiled after 220 s on an H200); `realism` warns once
 when it sees that.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -57,14 +58,18 @@ from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends.host_search import HostSearches
 from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
-from wosac_eval.features import registry
 from wosac_eval.features import metric_features as mf
+from wosac_eval.features import registry
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import active_likelihood_fields, active_metrics
-from wosac_eval.metrics.scenario_metrics import (metric_log_likelihoods, metric_values, per_object_likelihoods,
-                                                 scenario_fields)
+from wosac_eval.metrics.scenario_metrics import (
+    metric_log_likelihoods,
+    metric_values,
+    per_object_likelihoods,
+    scenario_fields,
+)
 from wosac_eval.options import Mode, Search
 
 _F = np.float32
@@ -85,9 +90,11 @@ def resolve_mode(mode: str | None = None) -> str:
         return "exact" if x64 else "float32"
     mode = Mode.parse(mode).value
     if mode == "exact" and not x64:
-        raise ValueError("mode='exact' rounds through float64, so x64 must be on while it traces: wrap the call "
-                         "(or your jit's first call) in `with jax.enable_x64(True):`, or pass mode='float32' "
-                         "(metrics within 1e-5)")
+        raise ValueError(
+            "mode='exact' rounds through float64, so x64 must be on while it traces: wrap the call "
+            "(or your jit's first call) in `with jax.enable_x64(True):`, or pass mode='float32' "
+            "(metrics within 1e-5)"
+        )
     return mode
 
 
@@ -172,8 +179,14 @@ class PreparedScenes:
         return "device" if self.host_searches is None else "host"
 
     def tree_flatten(self):
-        return (self.arrays,), (self.groups, self.scenario_ids, self.agent_ids, self.challenge, self.config,
-                                self.host_searches)
+        return (self.arrays,), (
+            self.groups,
+            self.scenario_ids,
+            self.agent_ids,
+            self.challenge,
+            self.config,
+            self.host_searches,
+        )
 
     @classmethod
     def tree_unflatten(cls, aux, children):
@@ -236,18 +249,30 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, sear
     log, feature_valid = log_sample(scenario, spec)
     layout = mf.feature_layout(spec, len(evaluated))
     context = mf.map_context(scenario)
-    pruned = PrunedSearch(context.road_edges, context.lanes,
-                          mf.signals_from(scenario.signals, layout.first_red_light_step))
+    pruned = PrunedSearch(
+        context.road_edges, context.lanes, mf.signals_from(scenario.signals, layout.first_red_light_step)
+    )
     # The host search needs no cell tables (0.1-0.5 s per real scene to build).
-    inputs = scene_inputs(scenario, {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, layout, context,
-                          cells=search == "device")
-    return RealismScene(inputs=inputs, search=pruned, feature_valid=feature_valid[0],
-                        object_type=np.asarray(log.object_type[0], np.int32),
-                        columns=index_of_ids(scenario.sim_agent_ids, order))
+    inputs = scene_inputs(
+        scenario, {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, layout, context, cells=search == "device"
+    )
+    return RealismScene(
+        inputs=inputs,
+        search=pruned,
+        feature_valid=feature_valid[0],
+        object_type=np.asarray(log.object_type[0], np.int32),
+        columns=index_of_ids(scenario.sim_agent_ids, order),
+    )
 
 
-def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
-            min_sizes: tuple | None = None, grouped: bool = True, search: str = "auto") -> PreparedScenes:
+def prepare(
+    scenarios,
+    challenge: str = "sim_agents",
+    config: str | None = None,
+    min_sizes: tuple | None = None,
+    grouped: bool = True,
+    search: str = "auto",
+) -> PreparedScenes:
     """Scenes (Scenario messages or `ScenarioArrays`) as a device-resident `PreparedScenes`, once.
 
     Args:
@@ -289,9 +314,15 @@ def prepare(scenarios, challenge: str = "sim_agents", config: str | None = None,
         groups.append((tuple(indices), layout))
         arrays.append(group_arrays)
     host = HostSearches(tuple(scene.search for scene in inputs)) if search == "host" else None
-    return PreparedScenes(arrays=tuple(arrays), groups=tuple(groups), scenario_ids=tuple(s.scenario_id for s in scenes),
-                          agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
-                          challenge=spec.challenge.value, config=str(config), host_searches=host)
+    return PreparedScenes(
+        arrays=tuple(arrays),
+        groups=tuple(groups),
+        scenario_ids=tuple(s.scenario_id for s in scenes),
+        agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
+        challenge=spec.challenge.value,
+        config=str(config),
+        host_searches=host,
+    )
 
 
 def _group_key(sizes: Sizes, floor: tuple) -> Sizes:
@@ -299,8 +330,9 @@ def _group_key(sizes: Sizes, floor: tuple) -> Sizes:
     return sizes.at_least(floor).rounded(minimum_objects=1, minimum_fine=1)
 
 
-def _prepare_group(indices: list[int], scenes: list[RealismScene], spec: challenges.ChallengeSpec, floor: tuple,
-                   max_agents: int):
+def _prepare_group(
+    indices: list[int], scenes: list[RealismScene], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int
+):
     """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
     # Exact maxima (at least 1): a training loop compiles once per scene set, and every padded row costs.
     exact = [scene.inputs.sizes for scene in scenes]
@@ -319,12 +351,21 @@ def _prepare_group(indices: list[int], scenes: list[RealismScene], spec: challen
         feature_valid[:e] = scene.feature_valid
         object_type = np.zeros(n_eval, np.int32)
         object_type[: min(n, n_eval)] = scene.object_type[:n_eval]
-        per_scene.append({"log": {f: a[0] for f, a in traj.items()}, "tails": tails, "maps": maps,
-                          "columns": columns, "real": np.arange(n_obj) < n, "evaluated": np.arange(n_eval) < e,
-                          "feature_valid": feature_valid, "object_type": object_type,
-                          "scene": np.int32(index),  # the index of its host search
-                          # 0, read at run time: the exact mode's rounding barriers (`exact_rounding`)
-                          "opaque_zero": np.int32(0)})
+        per_scene.append(
+            {
+                "log": {f: a[0] for f, a in traj.items()},
+                "tails": tails,
+                "maps": maps,
+                "columns": columns,
+                "real": np.arange(n_obj) < n,
+                "evaluated": np.arange(n_eval) < e,
+                "feature_valid": feature_valid,
+                "object_type": object_type,
+                "scene": np.int32(index),  # the index of its host search
+                # 0, read at run time: the exact mode's rounding barriers (`exact_rounding`)
+                "opaque_zero": np.int32(0),
+            }
+        )
     # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
     arrays = jax.tree_util.tree_map(jnp.asarray, stacked(per_scene))
     return arrays, layout
@@ -336,8 +377,14 @@ def _gather_agents(values, columns):
     return jnp.take(padded, columns, axis=1)
 
 
-def scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
-                    host: HostSearches | None, features: tuple) -> mf.MetricFeatures:
+def scene_features(
+    spec: challenges.ChallengeSpec,
+    layout: mf.FeatureLayout,
+    a: dict,
+    rollouts: dict,
+    host: HostSearches | None,
+    features: tuple,
+) -> mf.MetricFeatures:
     """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
     log, real = a["log"], a["real"]
     num_rollouts = rollouts["x"].shape[0]
@@ -357,22 +404,40 @@ def scene_features(spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: 
     reported = layout.reported
     e = layout.num_evaluated
     valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
-    return mf.MetricFeatures.from_dict({"object_id": jnp.zeros(e, jnp.int32),
-                                        "object_type": jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
-                                        "valid": valid[..., reported], **per_step})
+    return mf.MetricFeatures.from_dict(
+        {
+            "object_id": jnp.zeros(e, jnp.int32),
+            "object_type": jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
+            "valid": valid[..., reported],
+            **per_step,
+        }
+    )
 
 
-def _scene_realism(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict, rollouts: dict,
-                   host: HostSearches | None, features: tuple):
+def _scene_realism(
+    config,
+    spec: challenges.ChallengeSpec,
+    layout: mf.FeatureLayout,
+    a: dict,
+    rollouts: dict,
+    host: HostSearches | None,
+    features: tuple,
+):
     """Every `scenario_fields()` value of one prepared scene (leading scene axis removed) and its rollouts."""
     both = scene_features(spec, layout, a, rollouts, host, features)
-    values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)),
-                           object_mask=a["evaluated"])
+    values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)), object_mask=a["evaluated"])
     return {f: values[f] for f in scenario_fields()}
 
 
-def _scene_realism_per_object(config, spec: challenges.ChallengeSpec, layout: mf.FeatureLayout, a: dict,
-                              rollouts: dict, host: HostSearches | None, features: tuple):
+def _scene_realism_per_object(
+    config,
+    spec: challenges.ChallengeSpec,
+    layout: mf.FeatureLayout,
+    a: dict,
+    rollouts: dict,
+    host: HostSearches | None,
+    features: tuple,
+):
     """`_scene_realism`'s fields, and each likelihood field per object in the rollouts' columns:
     (fields, {field: float32 `(max_agents,)`}, {field: int32 `(max_agents,)`}); one set of log-likelihoods."""
     both = scene_features(spec, layout, a, rollouts, host, features)
@@ -387,16 +452,26 @@ def _scene_realism_per_object(config, spec: challenges.ChallengeSpec, layout: mf
     def to_columns(v, fill):
         return jnp.full((max_agents + 1,), fill, v.dtype).at[rows].set(v)[:max_agents]
 
-    return ({f: values[f] for f in scenario_fields()},
-            {f: to_columns(per_object[f][0], np.nan) for f in active_likelihood_fields()},
-            {f: to_columns(per_object[f][1], 0) for f in active_likelihood_fields()})
+    return (
+        {f: values[f] for f in scenario_fields()},
+        {f: to_columns(per_object[f][0], np.nan) for f in active_likelihood_fields()},
+        {f: to_columns(per_object[f][1], 0) for f in active_likelihood_fields()},
+    )
 
 
 # Bounded: a function holds its scene set's host searches (maps) while it is cached.
 # The registry's features and metrics are part of the key: registering one compiles anew.
 @functools.lru_cache(maxsize=32)
-def _realism_fn(config_name: str, challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None,
-                per_object: bool = False, features: tuple = (), metrics: tuple = ()):
+def _realism_fn(
+    config_name: str,
+    challenge: str,
+    layout: mf.FeatureLayout,
+    mode: str,
+    host: HostSearches | None,
+    per_object: bool = False,
+    features: tuple = (),
+    metrics: tuple = (),
+):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
     scene = _scene_realism_per_object if per_object else _scene_realism
@@ -432,16 +507,29 @@ def _check_rollouts(prepared: PreparedScenes, fields: dict) -> None:
     for name, value in fields.items():
         shape = tuple(np.shape(value))
         if shape[:1] + shape[2:] != want[:1] + want[2:] or len(shape) != 4:
-            raise ValueError(f"{name} must be (num_scenes, num_rollouts, max_agents, num_steps) = "
-                             f"({want[0]}, num_rollouts, {want[2]}, {want[3]}) for these {prepared.challenge} "
-                             f"scenes, got {shape}")
+            raise ValueError(
+                f"{name} must be (num_scenes, num_rollouts, max_agents, num_steps) = "
+                f"({want[0]}, num_rollouts, {want[2]}, {want[3]}) for these {prepared.challenge} "
+                f"scenes, got {shape}"
+            )
     rollouts = {tuple(np.shape(v))[1] for v in fields.values()}
     if len(rollouts) != 1:
         raise ValueError(f"every field must have the same number of rollouts, got {sorted(rollouts)}")
 
 
-def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None,
-            mode: str | None = None, per_object: bool = False) -> Realism:
+def realism(
+    prepared: PreparedScenes,
+    x,
+    y,
+    z,
+    heading,
+    *,
+    length=None,
+    width=None,
+    height=None,
+    mode: str | None = None,
+    per_object: bool = False,
+) -> Realism:
     """Every `SimAgentMetrics` field of every scene, from rollouts on the device.
 
     Args:
@@ -462,12 +550,21 @@ def realism(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=No
     """
     mode = resolve_mode(mode)
     fields = rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
-    run = functools.partial(_realism_fn, prepared.config, prepared.challenge, mode=mode, host=prepared.host_searches,
-                            features=registry.features(), metrics=active_metrics())
+    run = functools.partial(
+        _realism_fn,
+        prepared.config,
+        prepared.challenge,
+        mode=mode,
+        host=prepared.host_searches,
+        features=registry.features(),
+        metrics=active_metrics(),
+    )
     if per_object:
         run = functools.partial(run, per_object=True)
-    parts = [run(layout)(arrays, take_scenes(fields, indices))
-             for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
+    parts = [
+        run(layout)(arrays, take_scenes(fields, indices))
+        for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)
+    ]
     if per_object:
         metrics, values, counts = in_scene_order(prepared, parts)
         return Realism(metrics, mode, per_object=values, per_object_counts=counts)
@@ -519,11 +616,14 @@ def _warn_if_closed_over(prepared: PreparedScenes) -> None:
     if size <= CLOSED_OVER_WARNING_BYTES or not _under_a_jit():
         return
     _closed_over_warned = True
-    warnings.warn(f"jax_realism: your jax.jit closes over the {size / 1e6:.0f} MB of prepared scenes, which makes "
-                  f"them constants of the compiled program (slow to compile, slower to run): pass them as an "
-                  f"argument instead, `step = jax.jit(lambda prepared, x, y, z, heading: "
-                  f"jax_realism.realism(prepared, x, y, z, heading))` called as `step(prepared, x, y, z, heading)`, "
-                  f"or `jax_realism.jit_step(your_step, prepared)`.", stacklevel=4)
+    warnings.warn(
+        f"jax_realism: your jax.jit closes over the {size / 1e6:.0f} MB of prepared scenes, which makes "
+        f"them constants of the compiled program (slow to compile, slower to run): pass them as an "
+        f"argument instead, `step = jax.jit(lambda prepared, x, y, z, heading: "
+        f"jax_realism.realism(prepared, x, y, z, heading))` called as `step(prepared, x, y, z, heading)`, "
+        f"or `jax_realism.jit_step(your_step, prepared)`.",
+        stacklevel=4,
+    )
 
 
 def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
@@ -564,8 +664,9 @@ def rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> d
     return fields
 
 
-def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None,
-             height=None, mode: str | None = None) -> mf.MetricFeatures:
+def features(
+    prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None, mode: str | None = None
+) -> mf.MetricFeatures:
     """The per-step features behind `realism` (same arguments), a `MetricFeatures` of device arrays.
 
     Every field has the leading axes `(num_scenes, 1 + num_rollouts, num_evaluated_rows)`: sample 0 is
@@ -581,8 +682,9 @@ def features(prepared: PreparedScenes, x, y, z, heading, *, length=None, width=N
         fn = _features_fn(prepared.challenge, layout, mode, prepared.host_searches, registry.features())
         out = fn(arrays, take_scenes(fields, indices))
         # Groups have different row counts: pad rows (axis 2) to the largest group's.
-        parts.append({k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3))
-                      for k, v in out.items()})
+        parts.append(
+            {k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3)) for k, v in out.items()}
+        )
     out = in_scene_order(prepared, parts)
     return mf.MetricFeatures.from_dict({"object_id": np.zeros(rows, np.int32), **out})
 
@@ -614,15 +716,15 @@ def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:
     """
     object_ids = np.asarray(object_ids)
     if object_ids.ndim != 2 or object_ids.shape[0] != prepared.num_scenes:
-        raise ValueError(f"object_ids must be (num_scenes={prepared.num_scenes}, num_objects), "
-                         f"got {object_ids.shape}")
+        raise ValueError(f"object_ids must be (num_scenes={prepared.num_scenes}, num_objects), got {object_ids.shape}")
     out = np.zeros((prepared.num_scenes, prepared.max_agents), np.int32)
     for s, ids in enumerate(prepared.agent_ids):
         where = {int(v): k for k, v in enumerate(object_ids[s])}
         missing = [i for i in ids if i not in where]
         if missing:
-            raise ValueError(f"scenario {prepared.scenario_ids[s]}: sim agents {missing[:5]} are not among "
-                             f"the Waymax objects")
+            raise ValueError(
+                f"scenario {prepared.scenario_ids[s]}: sim agents {missing[:5]} are not among the Waymax objects"
+            )
         out[s, : len(ids)] = [where[i] for i in ids]
     return out
 

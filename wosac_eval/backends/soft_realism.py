@@ -38,6 +38,7 @@ official `realism`. Rates are the soft flags' means; displacement errors are the
 official ones (continuous already). The searches must run on the device:
 `prepare(..., search="device")` (the host search is a callback without gradients).
 """
+
 from __future__ import annotations
 
 import functools
@@ -106,8 +107,9 @@ def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, tempera
         edges = likelihoods.histogram_edges(h.min_val, h.max_val, h.num_bins)
         width = temperature * _F((_F(h.max_val) - _F(h.min_val)) / _F(h.num_bins))
         counts = soft_histogram_counts(sim_samples, edges, width, sim_weights)
-        return _log_probability_of_bins(counts, h.additive_smoothing_pseudocount,
-                                        likelihoods.histogram_bins(log_samples, edges))
+        return _log_probability_of_bins(
+            counts, h.additive_smoothing_pseudocount, likelihoods.histogram_bins(log_samples, edges)
+        )
     if kind == "bernoulli":
         flags = jnp.asarray(sim_samples, _F)
         w = jnp.ones(flags.shape, _F) if sim_weights is None else sim_weights.astype(_F)
@@ -127,9 +129,11 @@ def soft_events(sim, temperature) -> dict:
     """
     collision = _F(interaction.COLLISION_DISTANCE_THRESHOLD) - sim.distance_to_nearest_object
     offroad = sim.distance_to_road_edge - _F(road_edge.OFFROAD_DISTANCE_THRESHOLD)
-    return {"collision_per_step": _safe_sigmoid(collision / temperature),
-            "offroad_per_step": _safe_sigmoid(offroad / temperature),
-            "traffic_light_violation_per_step": sim.traffic_light_violation_per_step.astype(_F)}
+    return {
+        "collision_per_step": _safe_sigmoid(collision / temperature),
+        "offroad_per_step": _safe_sigmoid(offroad / temperature),
+        "traffic_light_violation_per_step": sim.traffic_light_violation_per_step.astype(_F),
+    }
 
 
 def soft_any_over_time(events, mask):
@@ -148,17 +152,21 @@ def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperatur
         if metric.per_object:
             log_flags = (getattr(log, metric.feature) & mask).any(axis=-1)[0]
             sim_flags = soft_any_over_time(events[metric.feature], mask)
-            out[metric.name] = (likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags,
-                                                                          object_mask, estimate), None)
+            out[metric.name] = (
+                likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask, estimate),
+                None,
+            )
         else:
-            ll = likelihoods.timeseries_log_likelihood(feature_config, getattr(log, metric.feature)[0],
-                                                       getattr(sim, metric.feature), object_mask, estimate)
+            ll = likelihoods.timeseries_log_likelihood(
+                feature_config, getattr(log, metric.feature)[0], getattr(sim, metric.feature), object_mask, estimate
+            )
             out[metric.name] = (ll, mask)
     return out
 
 
-def _scene_soft_realism(config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature,
-                        features: tuple):
+def _scene_soft_realism(
+    config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature, features: tuple
+):
     """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
     both = jr.scene_features(spec, layout, a, rollouts, None, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
@@ -185,8 +193,18 @@ def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
     return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
 
 
-def soft_realism(prepared: jr.PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None,
-                 temperature=DEFAULT_TEMPERATURE) -> jr.Realism:
+def soft_realism(
+    prepared: jr.PreparedScenes,
+    x,
+    y,
+    z,
+    heading,
+    *,
+    length=None,
+    width=None,
+    height=None,
+    temperature=DEFAULT_TEMPERATURE,
+) -> jr.Realism:
     """A smooth surrogate of every `SimAgentMetrics` field per scene, differentiable in the rollouts.
 
     A training signal, not the official metric (see the module for each smoothing): report `realism`.
@@ -204,14 +222,19 @@ def soft_realism(prepared: jr.PreparedScenes, x, y, z, heading, *, length=None, 
       ValueError: `prepared`'s searches run on the host, or a non-positive temperature.
     """
     if prepared.host_searches is not None:
-        raise ValueError("soft_realism differentiates through the searches, which run on the device only: "
-                         "prepare the scenes with jax_realism.prepare(..., search='device')")
+        raise ValueError(
+            "soft_realism differentiates through the searches, which run on the device only: "
+            "prepare the scenes with jax_realism.prepare(..., search='device')"
+        )
     if not isinstance(temperature, jax.core.Tracer) and not float(temperature) > 0:
         raise ValueError(f"temperature must be positive, got {temperature}")
     fields = jr.rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     fields = {k: jnp.asarray(v, _F) for k, v in fields.items()}
     temperature = jnp.asarray(temperature, _F)
-    parts = [_soft_fn(prepared.config, prepared.challenge, layout, registry.features())(arrays, jr.take_scenes(fields, indices),
-                                                                   temperature)
-             for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)]
+    parts = [
+        _soft_fn(prepared.config, prepared.challenge, layout, registry.features())(
+            arrays, jr.take_scenes(fields, indices), temperature
+        )
+        for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)
+    ]
     return jr.Realism(jr.in_scene_order(prepared, parts), SOFT_MODE)

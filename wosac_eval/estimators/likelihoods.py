@@ -9,6 +9,7 @@ The estimators take numpy or JAX arrays; the log-probabilities are computed in
 float64 (`xp.wide_float`: under JAX, x64 on while tracing, or float32 inside
 `xp.float32_precision()`).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -96,12 +97,15 @@ def check_batches(log_samples, sim_samples) -> None:
     """
     log_shape, sim_shape = tuple(np.shape(log_samples)), tuple(np.shape(sim_samples))
     if len(log_shape) != 2 or len(sim_shape) != 2 or log_shape[0] != sim_shape[0]:
-        raise ValueError(f"log samples {log_shape} and simulated samples {sim_shape} must both be "
-                         f"(batch, samples) with the same batch size")
+        raise ValueError(
+            f"log samples {log_shape} and simulated samples {sim_shape} must both be "
+            f"(batch, samples) with the same batch size"
+        )
 
 
-def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
-                             log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None) -> np.ndarray:
+def histogram_log_likelihood(
+    min_val, max_val, num_bins, pseudocount, log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None
+) -> np.ndarray:
     """Per-population histogram log-likelihoods.
 
     Args:
@@ -127,8 +131,9 @@ def histogram_log_likelihood(min_val, max_val, num_bins, pseudocount,
 
 def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
     """Two-bin histogram over booleans: bins [-0.5, 0.5) and [0.5, 1.5]."""
-    return histogram_log_likelihood(-0.5, 1.5, 2, pseudocount,
-                                    log_samples.astype(_F), sim_samples.astype(_F), sim_weights)
+    return histogram_log_likelihood(
+        -0.5, 1.5, 2, pseudocount, log_samples.astype(_F), sim_samples.astype(_F), sim_weights
+    )
 
 
 def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
@@ -155,19 +160,21 @@ def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weigh
     kind = config.WhichOneof("estimator")
     if kind == "histogram":
         h = config.histogram
-        return histogram_log_likelihood(h.min_val, h.max_val, h.num_bins,
-                                        h.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights)
+        return histogram_log_likelihood(
+            h.min_val, h.max_val, h.num_bins, h.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights
+        )
     if kind == "bernoulli":
-        return bernoulli_log_likelihood(config.bernoulli.additive_smoothing_pseudocount,
-                                        log_samples, sim_samples, sim_weights)
+        return bernoulli_log_likelihood(
+            config.bernoulli.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights
+        )
     if kind == "kernel_density":
-        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples,
-                                             sim_weights)
+        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples, sim_weights)
     raise ValueError(f"feature config has no estimator (got {kind!r})")
 
 
-def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
-                              sim_values: np.ndarray, object_mask=None, estimate=None) -> np.ndarray:
+def timeseries_log_likelihood(
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
+) -> np.ndarray:
     """Log-likelihood of each logged value.
 
     Args:
@@ -183,12 +190,15 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
     xp = array_namespace(log_values, sim_values)
     estimate = estimate or official_estimate
     if np.ndim(sim_values) != 3:
-        raise ValueError(f"simulated values must be (num_rollouts, num_objects, num_steps), got "
-                         f"{tuple(np.shape(sim_values))}")
+        raise ValueError(
+            f"simulated values must be (num_rollouts, num_objects, num_steps), got {tuple(np.shape(sim_values))}"
+        )
     n_rollouts, n_objects, n_steps = sim_values.shape
     if log_values.shape != (n_objects, n_steps):
-        raise ValueError(f"log values {tuple(log_values.shape)} must have shape {(n_objects, n_steps)} to match "
-                         f"the simulated values {tuple(sim_values.shape)}")
+        raise ValueError(
+            f"log values {tuple(log_values.shape)} must have shape {(n_objects, n_steps)} to match "
+            f"the simulated values {tuple(sim_values.shape)}"
+        )
     if config.aggregate_objects:
         # One distribution for the whole scene (per step, or pooled over steps).
         weights = None
@@ -212,11 +222,13 @@ def timeseries_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
     return estimate(config, log, sim).reshape(n_objects, n_steps)
 
 
-def scenario_level_log_likelihood(config: FeatureConfig, log_values: np.ndarray,
-                                  sim_values: np.ndarray, object_mask=None, estimate=None) -> np.ndarray:
+def scenario_level_log_likelihood(
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
+) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
     if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
-        raise ValueError(f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
-                         f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)")
-    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask,
-                                     estimate)[:, 0]
+        raise ValueError(
+            f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
+            f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)"
+        )
+    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask, estimate)[:, 0]

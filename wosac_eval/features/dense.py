@@ -19,6 +19,7 @@ Everything here expects float32 inputs that are already padded (invalid
 padding masked by the `valid` arrays). The float32 math rounds a few steps
 through `xp.wide_float` (float64 under x64; float32 in `xp.float32_precision()`).
 """
+
 from __future__ import annotations
 
 import functools
@@ -45,7 +46,8 @@ def _chunked(fn, xs, chunk: int):
         return fn(xs)
     pad = (-n) % chunk
     padded = jax.tree_util.tree_map(
-        lambda a: jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) if pad else a, xs)
+        lambda a: jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) if pad else a, xs
+    )
     grouped = jax.tree_util.tree_map(lambda a: a.reshape((-1, chunk) + a.shape[1:]), padded)
     out = lax.map(fn, grouped)
     return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n], out)
@@ -112,7 +114,8 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     reach = interaction.bounding_reach(length, width, valid)
     dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (evaluated, objects, steps)
     lower = jnp.sqrt(dx * dx + dy * dy) * interaction.BOUND_SCALE - (
-        (reach[e, None] + reach[None]) + interaction.BOUND_MARGIN)
+        (reach[e, None] + reach[None]) + interaction.BOUND_MARGIN
+    )
     self_pair = jnp.eye(num_evaluated, x.shape[0], dtype=bool)[..., None]
     # NaN and the self pair never guide the search; -0 ranks as +0 (the loop's order).
     lower = jnp.where(jnp.isnan(lower) | self_pair, jnp.inf, jnp.where(lower == 0, _F(0), lower))
@@ -124,17 +127,20 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     rows = pick[..., :k] * num_steps + jnp.arange(num_steps)[None, :, None]
     gathered = jnp.take(boxes, rows, axis=0)  # (evaluated, steps, k, values)
     own = tuple(jnp.broadcast_to(v[e, :, None], rows.shape) for v in outlines)
-    d = interaction.outline_distance(own, tuple(jnp.moveaxis(gathered[..., :-1], -1, 0)), radius[e, :, None],
-                                     gathered[..., -1])
+    d = interaction.outline_distance(
+        own, tuple(jnp.moveaxis(gathered[..., :-1], -1, 0)), radius[e, :, None], gathered[..., -1]
+    )
     guess = d[..., 0]
-    guess = jnp.where((guess < interaction.EXTREMELY_LARGE_DISTANCE) | jnp.isnan(guess), guess,
-                      interaction.EXTREMELY_LARGE_DISTANCE)
+    guess = jnp.where(
+        (guess < interaction.EXTREMELY_LARGE_DISTANCE) | jnp.isnan(guess), guess, interaction.EXTREMELY_LARGE_DISTANCE
+    )
     threshold = guess + interaction.BOUND_MARGIN
     searched = (lowest[..., :k] <= threshold[..., None]).at[..., 0].set(True) & (lowest[..., :k] < jnp.inf)
     d = nan_spreading_min(jnp.where(searched, d.at[..., 0].set(guess), jnp.inf), axis=-1)
     found = lowest[..., 0] < jnp.inf
-    distance = jnp.where(found, jnp.minimum(d, interaction.EXTREMELY_LARGE_DISTANCE),
-                         interaction.EXTREMELY_LARGE_DISTANCE)
+    distance = jnp.where(
+        found, jnp.minimum(d, interaction.EXTREMELY_LARGE_DISTANCE), interaction.EXTREMELY_LARGE_DISTANCE
+    )
     exhaustive = (interaction.exhaustive_boxes(x, y, length, width, cos_h, sin_h) & valid).any(axis=0)
     settled = (~(lowest[..., k] <= threshold) | jnp.isnan(threshold)) & ~exhaustive[None]
     return distance, settled | ~valid[e]
@@ -164,8 +170,9 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     # `while_loop`): all pairs at once.
     if num_objects <= NEAREST_OBJECT_CANDIDATES + 1 or in_differentiable(jnp):
         return _nearest_object_all_pairs(outlines, radius, valid, rows, steps).reshape(num_evaluated, num_steps)
-    distance, settled = _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radius, valid,
-                                                   num_evaluated)
+    distance, settled = _nearest_object_candidates(
+        x, y, length, width, cos_h, sin_h, outlines, radius, valid, num_evaluated
+    )
     every_box = lambda r: _nearest_object_all_pairs(outlines, radius, valid, rows[r], steps[r])  # noqa: E731
     distance = _fill_rows(distance.reshape(-1), ~settled.reshape(-1), NEAREST_OBJECT_FALLBACK_CHUNK, every_box)
     return distance.reshape(num_evaluated, num_steps)
@@ -186,10 +193,20 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
     e = slice(0, num_evaluated)
     minus_yaw = -heading[:, e, None]
     ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
-    ahead, beside, yaw_diff = interaction.ego_frame_offsets(x, y, length, width, heading,
-                                                            ego_cos, ego_sin, num_evaluated)
-    return interaction.all_objects_time_to_collision(ahead, beside, yaw_diff, pair_tail, length[:, None, :],
-                                                     width[:, None, :], valid[:, None, :], speed, num_evaluated)
+    ahead, beside, yaw_diff = interaction.ego_frame_offsets(
+        x, y, length, width, heading, ego_cos, ego_sin, num_evaluated
+    )
+    return interaction.all_objects_time_to_collision(
+        ahead,
+        beside,
+        yaw_diff,
+        pair_tail,
+        length[:, None, :],
+        width[:, None, :],
+        valid[:, None, :],
+        speed,
+        num_evaluated,
+    )
 
 
 # Queries the cell tables do not settle are searched against every segment, this many at a time.
@@ -200,8 +217,9 @@ NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_p
 
 def _nearest_segment_all(q, s):
     """Index of the nearest valid segment (stretched selection distance, lowest index on ties)."""
-    d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][None]),
-                                     *_columns(s["delta"][None]))[1]
+    d3 = road_edge.segment_distances(
+        *_columns(q[:, None, :]), *_columns(s["start"][None]), *_columns(s["delta"][None])
+    )[1]
     return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
 
 
@@ -217,8 +235,9 @@ def _nearest_listed_segment(q, s, cells):
     cell = jnp.where(inside[:, None], cell, _F(0)).astype(jnp.int32)
     row = cell[:, 0] * cells["cell_shape"][1] + cell[:, 1]
     index = cells["cell_candidates"][row]
-    d3 = road_edge.segment_distances(*_columns(q[:, None, :]), *_columns(s["start"][index]),
-                                     *_columns(s["delta"][index]))[1]
+    d3 = road_edge.segment_distances(
+        *_columns(q[:, None, :]), *_columns(s["start"][index]), *_columns(s["delta"][index])
+    )[1]
     d3 = jnp.where(s["valid"][index], d3, jnp.inf)
     best_d = d3.min(axis=1)
     big = jnp.iinfo(index.dtype).max
@@ -259,8 +278,9 @@ def _nearest_segment(queries, s, cells, needed):
     searched against every segment in a `while_loop`, FALLBACK_CHUNK at a time. Unneeded queries
     get some segment.
     """
-    best, settled = _chunked(lambda q: _nearest_listed_segment(q, s, cells), queries,
-                             _rows_per_chunk(cells["cell_candidates"].shape[-1]))
+    best, settled = _chunked(
+        lambda q: _nearest_listed_segment(q, s, cells), queries, _rows_per_chunk(cells["cell_candidates"].shape[-1])
+    )
     return _fill_rows(best, needed & ~settled, FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
 
 
@@ -281,22 +301,27 @@ def signed_distance_to_road_edge(queries, segments, needed=None):
       float32 `(num_points,)`, negative on the road side.
     """
     cells = {k: jnp.asarray(segments[k]) for k in CELL_KEYS}
-    fallback = {k[len(NON_FINITE_PREFIX):]: jnp.asarray(v) for k, v in segments.items()
-                if k.startswith(NON_FINITE_PREFIX)}
+    fallback = {
+        k[len(NON_FINITE_PREFIX) :]: jnp.asarray(v) for k, v in segments.items() if k.startswith(NON_FINITE_PREFIX)
+    }
     s = {k: jnp.asarray(v) for k, v in segments.items() if k not in CELL_KEYS and not k.startswith(NON_FINITE_PREFIX)}
     finite = jnp.isfinite(queries).all(axis=1)
     needed = finite if needed is None else needed & finite
     best = _nearest_segment(queries, s, cells, needed)
     # A point with a NaN or infinite coordinate gets the official pick (`spatial.non_finite_pick`).
     pick = {k: jnp.where(finite.reshape((-1,) + (1,) * (v.ndim - 1)), s[k][best], v) for k, v in fallback.items()}
-    rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]),
-                                               *_columns(pick["delta"]))
+    rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]), *_columns(pick["delta"]))
     xy = queries[:, :2]
     sign = road_edge.corner_sign(
-        rel_t, road_edge.segment_side(xy, pick["start"], pick["delta"]),
+        rel_t,
+        road_edge.segment_side(xy, pick["start"], pick["delta"]),
         road_edge.segment_side(xy, pick["prior_start"], pick["prior_delta"]),
         road_edge.segment_side(xy, pick["next_start"], pick["next_delta"]),
-        pick["convex_before"], pick["convex_after"], pick["prior_valid"], pick["next_valid"])
+        pick["convex_before"],
+        pick["convex_after"],
+        pick["prior_valid"],
+        pick["next_valid"],
+    )
     return (sign * jnp.where(pick["valid"], d2, road_edge.EXTREMELY_LARGE_DISTANCE)).astype(_F)
 
 
@@ -309,6 +334,7 @@ def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
     Returns:
       int `(num_points,)`.
     """
+
     def nearest(q):
         d = traffic_lights.lane_measure(q[:, None, :], lane_start[None], lane_delta[None])
         return jnp.argmin(jnp.where(lane_valid[None], d, jnp.inf), axis=-1)
@@ -338,8 +364,9 @@ def red_light_violation(xy, valid, m):
     Returns:
       bool `(..., num_objects, num_steps)`.
     """
-    suspect = traffic_lights.stop_line_crossings(xy, valid, m["stop_start"], m["stop_delta"],
-                                                 m["stop_point"], m["stopping"])
+    suspect = traffic_lights.stop_line_crossings(
+        xy, valid, m["stop_start"], m["stop_delta"], m["stop_point"], m["stopping"]
+    )
     flat_suspect = suspect.reshape(-1, suspect.shape[-1])
     points = xy.reshape(-1, 2)
     needed = flat_suspect.any(axis=-1)
@@ -374,8 +401,9 @@ class DenseSearch:
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         i = inputs
         step_major = lambda a: jnp.swapaxes(a[..., i.steps], -1, -2)
-        per_sample = functools.partial(time_to_collision, ego_tail=i.ego_tail, pair_tail=i.pair_tail,
-                                       num_evaluated=i.num_evaluated)
+        per_sample = functools.partial(
+            time_to_collision, ego_tail=i.ego_tail, pair_tail=i.pair_tail, num_evaluated=i.num_evaluated
+        )
         ttc = jax.vmap(per_sample)(*map(step_major, (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid)))
         return jnp.swapaxes(ttc, -1, -2)
 

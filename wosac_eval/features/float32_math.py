@@ -18,6 +18,7 @@ Tensors whose length is not a multiple of the packet size have their last
 `n % 8` elements evaluated by the scalar libm routine instead; `packet_tail`
 marks those elements for a given official tensor shape.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -29,15 +30,24 @@ _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
 _TWO_OVER_PI = _F(0.636619746685028076171875)
 _ROUNDING_MAGIC = _F(12582912.0)  # 1.5 * 2**23: adding it rounds to an integer.
-_PIO2_PARTS = (_F(-1.5703125), _F(-0.000483989715576171875),
-               _F(1.62865035235881805419921875e-07),
-               _F(5.5644315544167710640977020375430583953857421875e-11))
-_COS_COEFFS = (_F(2.4372266125283204019069671630859375e-05),
-               _F(-0.00138865201734006404876708984375),
-               _F(0.041666619479656219482421875), _F(-0.5), _F(1.0))
-_SIN_COEFFS = (_F(-0.0001959234114083702898469196984621021329076029360294342041015625),
-               _F(0.0083326873655616851693794799871284340042620897293090820312500000),
-               _F(-0.1666666203982298255503735617821803316473960876464843750000000000))
+_PIO2_PARTS = (
+    _F(-1.5703125),
+    _F(-0.000483989715576171875),
+    _F(1.62865035235881805419921875e-07),
+    _F(5.5644315544167710640977020375430583953857421875e-11),
+)
+_COS_COEFFS = (
+    _F(2.4372266125283204019069671630859375e-05),
+    _F(-0.00138865201734006404876708984375),
+    _F(0.041666619479656219482421875),
+    _F(-0.5),
+    _F(1.0),
+)
+_SIN_COEFFS = (
+    _F(-0.0001959234114083702898469196984621021329076029360294342041015625),
+    _F(0.0083326873655616851693794799871284340042620897293090820312500000),
+    _F(-0.1666666203982298255503735617821803316473960876464843750000000000),
+)
 # Beyond these magnitudes the packet code switches to a slow exact reduction;
 # there we fall back to the correctly rounded value.
 _HUGE = {True: 25966.0, False: 18838.0}
@@ -106,7 +116,7 @@ def packet_tail(shape) -> np.ndarray:
     """
     size = int(np.prod(shape, dtype=np.int64))
     mask = np.zeros(size, dtype=bool)
-    mask[size - size % _PACKET:] = True
+    mask[size - size % _PACKET :] = True
     return mask.reshape(shape)
 
 
@@ -169,7 +179,7 @@ def packet_sum32(values):
     """
     xp = array_namespace(values)
     n = values.shape[-1]
-    packet = lambda start: values[..., start:start + _PACKET]
+    packet = lambda start: values[..., start : start + _PACKET]
     block = 4 * _PACKET
     blocked = (n // block) * block
     lanes = [xp.zeros(values.shape[:-1] + (_PACKET,), _F) for _ in range(4)]

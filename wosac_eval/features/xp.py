@@ -4,6 +4,7 @@ Kernels call `array_namespace(*arrays)` and use the returned module (`numpy`
 or `jax.numpy`) for their arithmetic. JAX is only looked up when it has
 already been imported by someone, so the numpy path never imports it.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -32,6 +33,7 @@ def bitcast(x, dtype, xp):
     if is_numpy(xp):
         return x.view(dtype)
     from jax import lax
+
     return lax.bitcast_convert_type(x, dtype)
 
 
@@ -94,6 +96,7 @@ def in_differentiable(xp) -> bool:
 
 def _stop_gradient(v):
     from jax import lax
+
     return lax.stop_gradient(v)
 
 
@@ -107,12 +110,15 @@ def wide_float(xp):
         return np.float64
     if _FLOAT32_PRECISION.get():
         return np.float32
-    raise RuntimeError("this kernel rounds through float64: trace it under `with jax.enable_x64(True):` "
-                       "(exact), or inside `wosac_eval.features.xp.float32_precision()` (metrics within 1e-5)")
+    raise RuntimeError(
+        "this kernel rounds through float64: trace it under `with jax.enable_x64(True):` "
+        "(exact), or inside `wosac_eval.features.xp.float32_precision()` (metrics within 1e-5)"
+    )
 
 
 def _jax_x64() -> bool:
     import jax
+
     return bool(jax.config.jax_enable_x64)
 
 
@@ -155,6 +161,7 @@ def divide(a, b):
     if is_numpy(xp):
         return a / b
     from jax import lax
+
     b = xp.asarray(b)
     if in_differentiable(xp):  # a / 0 or a / NaN keeps its value but passes no NaN gradient on
         plain = (b != 0) & xp.isfinite(b)
@@ -182,6 +189,7 @@ def rounded_square(a, xp):
     if is_numpy(xp) or in_differentiable(xp):
         return square
     from jax import lax
+
     width = 8 * square.dtype.itemsize
     bits = lax.bitcast_convert_type(square, np.dtype(f"int{width}"))
     sign = (bits >> (width - 1)) << (width - 1)  # shifts, not a constant mask a compiler may read as abs()
@@ -198,6 +206,7 @@ def opaque(value, xp):
     if is_numpy(xp) or in_differentiable(xp):
         return value
     from jax import lax
+
     return lax.optimization_barrier(xp.asarray(value))
 
 

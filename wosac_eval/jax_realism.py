@@ -8,6 +8,9 @@
     step = jax.jit(lambda prepared, x, y, z, heading: jax_realism.realism(prepared, x, y, z, heading))
     metrics = step(prepared, x, y, z, heading)               # or jax_realism.jit_step(step_fn, prepared)
 
+For gradient-based training, `soft_realism(prepared, x, y, z, heading, temperature=...)` is a smooth
+surrogate (a training signal, not the official metric; `wosac_eval.backends.soft_realism`).
+
 See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapter.
 """
 
@@ -25,6 +28,7 @@ from wosac_eval.backends.jax_realism import (
     stack_rollouts,
     waymax_columns,
 )
+from wosac_eval.backends.soft_realism import soft_realism
 
 __all__ = [
     "PreparedScenes",
@@ -39,4 +43,5 @@ __all__ = [
     "from_waymax",
     "jit_step",
     "exact_cpu",
+    "soft_realism",
 ]

@@ -15,14 +15,13 @@ runs the same orchestration as numpy (`metric_features.per_step_features`)
 with the dense search (`features.dense.DenseSearch`), the red-light lane
 search included, so features are bit-identical on CPU.
 
-Exactness on CPU: XLA's CPU compiler fuses a multiply followed by an add into
-one fused multiply-add (one rounding instead of two) whenever the processor
-has FMA instructions. The official float32 arithmetic rounds each operation,
-so bit-identical features need XLA's CPU code restricted to AVX, which has no
-FMA (`XLA_FLAGS=--xla_cpu_max_isa=AVX`). That is the process's setting, not a
-library's: importing wosac-eval leaves it alone, `exact_cpu()` opts in (the
-CLI's `--backend jax` does), and without it features may differ in the last
-bit (a RuntimeWarning says so once per process).
+Exactness on any device: XLA fuses a multiply followed by an add into one fused
+multiply-add (one rounding instead of two) on a GPU and on a CPU with FMA, and GPU
+compilers approximate float32 division and square root. The official float32
+arithmetic rounds each operation, so the features' program is rewritten
+(`exact_rounding.exactly_rounded`) so that no compiler can do either: no flag is
+needed. `exact_cpu()` (XLA's CPU code restricted to AVX, no FMA) predates that
+rewrite and stays for programs that call it.
 """
 
 from __future__ import annotations
@@ -30,7 +29,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-import warnings
 
 import jax
 import numpy as np
@@ -64,7 +62,7 @@ PAIRS_PER_BATCH = 1 << 23
 
 
 def exact_cpu() -> None:
-    """Opts this process in to bit-identical features on XLA's CPU (no fused multiply-adds).
+    """Restricts XLA's CPU code to AVX (no fused multiply-adds); no longer needed for exact features.
 
     Adds `EXACT_CPU_FLAG` to `XLA_FLAGS` unless it already names a CPU instruction set, then checks
     that XLA's CPU compiler honours it. It applies to every JAX computation of the process on CPU
@@ -104,17 +102,6 @@ def fma_contraction(device=None) -> bool:
 
 
 _FMA_PROBED: dict = {}
-
-
-def _warn_if_inexact() -> None:
-    if fma_contraction():
-        warnings.warn(
-            "XLA fuses multiply-adds on this device (a GPU, or the CPU without "
-            "wosac_eval.backends.jax_backend.exact_cpu() or XLA_FLAGS=--xla_cpu_max_isa=AVX set "
-            "before JAX started): jax-backend features may differ from numpy in the last bit",
-            RuntimeWarning,
-            stacklevel=3,
-        )
 
 
 # --- Host preparation ----------------------------------------------------------------------------
@@ -212,7 +199,6 @@ class FeaturePipeline:
 
     def add(self, tag, p: PreparedScenario) -> list:
         """Queues a scenario; returns the (tag, (log, sim)) of the batches now collected."""
-        _warn_if_inexact()
         key = self._key(p)
         group = self.groups.setdefault(key, [])
         group.append((tag, p))

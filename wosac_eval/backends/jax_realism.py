@@ -378,7 +378,7 @@ def _gather_agents(values, columns):
     return jnp.take(padded, columns, axis=1)
 
 
-def _scene_features(
+def scene_features(
     spec: challenges.ChallengeSpec,
     layout: mf.FeatureLayout,
     a: dict,
@@ -425,7 +425,7 @@ def _scene_realism(
     features: tuple,
 ):
     """Every `scenario_fields()` value of one prepared scene (leading scene axis removed) and its rollouts."""
-    both = _scene_features(spec, layout, a, rollouts, host, features)
+    both = scene_features(spec, layout, a, rollouts, host, features)
     values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)), object_mask=a["evaluated"])
     return {f: values[f] for f in scenario_fields()}
 
@@ -441,7 +441,7 @@ def _scene_realism_per_object(
 ):
     """`_scene_realism`'s fields, and each likelihood field per object in the rollouts' columns:
     (fields, {field: float32 `(max_agents,)`}, {field: int32 `(max_agents,)`}); one set of log-likelihoods."""
-    both = _scene_features(spec, layout, a, rollouts, host, features)
+    both = scene_features(spec, layout, a, rollouts, host, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
     lls = metric_log_likelihoods(config, log, sim, a["evaluated"])
     values = metric_values(config, log, sim, lls, object_mask=a["evaluated"])
@@ -488,7 +488,7 @@ def _realism_fn(
 def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None, features: tuple):
     def one(a, rollouts):
         with _precision(mode):
-            both = _scene_features(challenges.spec(challenge), layout, a, rollouts, host, features)
+            both = scene_features(challenges.spec(challenge), layout, a, rollouts, host, features)
         return {k: v for k, v in both.as_dict().items() if k != "object_id"}
 
     return jax.jit(jax.vmap(_in_mode(one, mode)))
@@ -550,7 +550,7 @@ def realism(
     Works under `jax.jit`, `jax.vmap` and `lax.scan` (e.g. over several rollout sets of the same scenes).
     """
     mode = resolve_mode(mode)
-    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     run = functools.partial(
         _realism_fn,
         prepared.config,
@@ -563,21 +563,21 @@ def realism(
     if per_object:
         run = functools.partial(run, per_object=True)
     parts = [
-        run(layout)(arrays, _take_scenes(fields, indices))
+        run(layout)(arrays, take_scenes(fields, indices))
         for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)
     ]
     if per_object:
-        metrics, values, counts = _in_scene_order(prepared, parts)
+        metrics, values, counts = in_scene_order(prepared, parts)
         return Realism(metrics, mode, per_object=values, per_object_counts=counts)
-    return Realism(_in_scene_order(prepared, parts), mode)
+    return Realism(in_scene_order(prepared, parts), mode)
 
 
-def _take_scenes(fields: dict, indices: tuple) -> dict:
+def take_scenes(fields: dict, indices: tuple) -> dict:
     rows = jnp.asarray(indices, jnp.int32)
     return {k: jnp.take(jnp.asarray(v), rows, axis=0) for k, v in fields.items()}
 
 
-def _in_scene_order(prepared: PreparedScenes, parts: list):
+def in_scene_order(prepared: PreparedScenes, parts: list):
     """Group results (pytrees with a leading scene axis) put back in the order of `prepared.scenario_ids`."""
     if len(parts) == 1:
         return parts[0]
@@ -649,7 +649,7 @@ def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
     return bound
 
 
-def _rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
+def rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
     """The rollout arrays by field, checked (shapes; box sizes exactly for scenario gen)."""
     _warn_if_closed_over(prepared)
     spec = challenges.spec(prepared.challenge)
@@ -677,17 +677,17 @@ def features(
     bit-identical to the official features; in float32 mode a last bit may differ.
     """
     mode = resolve_mode(mode)
-    fields = _rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
     rows = prepared.layout.num_evaluated
     parts = []
     for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups):
         fn = _features_fn(prepared.challenge, layout, mode, prepared.host_searches, registry.features())
-        out = fn(arrays, _take_scenes(fields, indices))
+        out = fn(arrays, take_scenes(fields, indices))
         # Groups have different row counts: pad rows (axis 2) to the largest group's.
         parts.append(
             {k: jnp.pad(v, [(0, 0), (0, 0), (0, rows - v.shape[2])] + [(0, 0)] * (v.ndim - 3)) for k, v in out.items()}
         )
-    out = _in_scene_order(prepared, parts)
+    out = in_scene_order(prepared, parts)
     return mf.MetricFeatures.from_dict({"object_id": np.zeros(rows, np.int32), **out})
 
 

@@ -156,7 +156,7 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weigh
     return log_mean.astype(_F)
 
 
-def _estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
+def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
     kind = config.WhichOneof("estimator")
     if kind == "histogram":
         h = config.histogram
@@ -173,7 +173,7 @@ def _estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None)
 
 
 def timeseries_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
 ) -> np.ndarray:
     """Log-likelihood of each logged value.
 
@@ -182,10 +182,13 @@ def timeseries_log_likelihood(
       sim_values: `(num_rollouts, num_objects, num_steps)`.
       object_mask: optional bool `(num_objects,)`, the real objects: the simulated values of the others
         (padding) take no part in a distribution shared by objects (`aggregate_objects`).
+      estimate: the estimator of one batch of populations, `(config, log (batch, n), sim (batch, m),
+        sim weights or None) -> (batch, n)`; default the official one (the soft surrogate passes its own).
     Returns:
       float32 `(num_objects, num_steps)`.
     """
     xp = array_namespace(log_values, sim_values)
+    estimate = estimate or official_estimate
     if np.ndim(sim_values) != 3:
         raise ValueError(
             f"simulated values must be (num_rollouts, num_objects, num_steps), got {tuple(np.shape(sim_values))}"
@@ -209,18 +212,18 @@ def timeseries_log_likelihood(
             sim = xp.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
             log = log_values.T
             weights = None if weights is None else xp.transpose(weights, (2, 1, 0)).reshape(n_steps, -1)
-        return _estimate(config, log, sim, weights).reshape(n_steps, n_objects).T
+        return estimate(config, log, sim, weights).reshape(n_steps, n_objects).T
     if config.independent_timesteps:
         sim = xp.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
         log = log_values
     else:
         sim = xp.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
         log = log_values.reshape(n_objects * n_steps, 1)
-    return _estimate(config, log, sim).reshape(n_objects, n_steps)
+    return estimate(config, log, sim).reshape(n_objects, n_steps)
 
 
 def scenario_level_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
 ) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
     if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
@@ -228,4 +231,4 @@ def scenario_level_log_likelihood(
             f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
             f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)"
         )
-    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask)[:, 0]
+    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask, estimate)[:, 0]

@@ -32,7 +32,7 @@ from jax import lax
 from wosac_eval.features import box_geometry, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
-from wosac_eval.features.xp import nan_spreading_max, nan_spreading_min
+from wosac_eval.features.xp import in_differentiable, nan_spreading_max, nan_spreading_min
 
 _F = np.float32
 # Pairs evaluated at once in the chunked searches (bounds the working memory).
@@ -166,7 +166,9 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     outlines = interaction.box_outlines(x, y, length - _F(2) * radius, width - _F(2) * radius, cos_h, sin_h)
     rows = jnp.repeat(jnp.arange(num_evaluated), num_steps)
     steps = jnp.tile(jnp.arange(num_steps), num_evaluated)
-    if num_objects <= NEAREST_OBJECT_CANDIDATES + 1:  # as many boxes as candidates: all pairs at once
+    # As many boxes as candidates, or traced for gradients (reverse mode cannot pass the fallback's
+    # `while_loop`): all pairs at once.
+    if num_objects <= NEAREST_OBJECT_CANDIDATES + 1 or in_differentiable(jnp):
         return _nearest_object_all_pairs(outlines, radius, valid, rows, steps).reshape(num_evaluated, num_steps)
     distance, settled = _nearest_object_candidates(
         x, y, length, width, cos_h, sin_h, outlines, radius, valid, num_evaluated

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval.features import ops
-from wosac_eval.features.xp import array_namespace, errstate, is_numpy, opaque, wide_float
+from wosac_eval.features.xp import array_namespace, errstate, in_differentiable, is_numpy, opaque, wide_float
 
 _F = np.float32
 _PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
@@ -129,6 +129,9 @@ def sincos32(x: np.ndarray, libm_mask: np.ndarray | None = None):
         official op's trailing partial packet, see `packet_tail`).
     """
     xp = array_namespace(x, libm_mask)
+    if in_differentiable(xp):  # the packet algorithm's quadrant rounding has a wrong gradient
+        x = xp.asarray(x, dtype=_F)
+        return xp.sin(x), xp.cos(x)
     if not is_numpy(xp):
         x = xp.asarray(x, dtype=_F)
         sin, cos = _packet_sincos(x)

@@ -68,6 +68,38 @@ def in_float32_precision(xp) -> bool:
     return not is_numpy(xp) and _FLOAT32_PRECISION.get()
 
 
+# Set by `differentiable()`: JAX kernels traced inside it use plain, differentiable operations.
+_DIFFERENTIABLE = contextvars.ContextVar("wosac_eval_differentiable", default=False)
+
+
+@contextlib.contextmanager
+def differentiable():
+    """JAX kernels traced inside this block give real gradients (the soft surrogate, `soft_realism`).
+
+    The exact arithmetic hides some operations from XLA (bit tricks around squares and divisors,
+    optimization barriers, Eigen's packet sine), whose gradients are zero or wrong; they only serve
+    the last bit. Inside this block they are the plain operations, and a division by zero or the
+    square root of zero keeps its value but passes no NaN gradient on. Use it with
+    `float32_precision()`; it is read while tracing. numpy code is not affected.
+    """
+    token = _DIFFERENTIABLE.set(True)
+    try:
+        yield
+    finally:
+        _DIFFERENTIABLE.reset(token)
+
+
+def in_differentiable(xp) -> bool:
+    """True for JAX code traced inside `differentiable()`."""
+    return not is_numpy(xp) and _DIFFERENTIABLE.get()
+
+
+def _stop_gradient(v):
+    from jax import lax
+
+    return lax.stop_gradient(v)
+
+
 def wide_float(xp):
     """The dtype of the steps the official arithmetic rounds through float64, for `xp`.
 
@@ -105,6 +137,9 @@ def through_float64(xp, dtype) -> bool:
 def sqrt(v, xp):
     """Square root, correctly rounded also for float32 under JAX with x64 (see `through_float64`)."""
     v = xp.asarray(v)
+    if in_differentiable(xp):  # the value of sqrt(0) and sqrt(< 0), without their inf or NaN gradient
+        positive = v > 0
+        return xp.where(positive, xp.sqrt(xp.where(positive, v, xp.ones_like(v))), _stop_gradient(xp.sqrt(v)))
     if through_float64(xp, v.dtype):
         return xp.sqrt(v.astype(np.float64)).astype(v.dtype)
     return xp.sqrt(v)
@@ -128,6 +163,9 @@ def divide(a, b):
     from jax import lax
 
     b = xp.asarray(b)
+    if in_differentiable(xp):  # a / 0 or a / NaN keeps its value but passes no NaN gradient on
+        plain = (b != 0) & xp.isfinite(b)
+        return xp.where(plain, a / xp.where(plain, b, xp.ones_like(b)), _stop_gradient(a / b))
     if through_float64(xp, b.dtype):
         return divide(xp.asarray(a).astype(np.float64), b.astype(np.float64)).astype(b.dtype)
     shape = xp.broadcast_shapes(xp.shape(a), xp.shape(b))
@@ -148,7 +186,7 @@ def rounded_square(a, xp):
     no multiply is left next to the addition. numpy is left as is.
     """
     square = a * a
-    if is_numpy(xp):
+    if is_numpy(xp) or in_differentiable(xp):
         return square
     from jax import lax
 
@@ -165,7 +203,7 @@ def opaque(value, xp):
     wrong in floating point (the rounding trick of `float32_math` relies on
     it); an optimization barrier keeps the operations as written.
     """
-    if is_numpy(xp):
+    if is_numpy(xp) or in_differentiable(xp):
         return value
     from jax import lax
 

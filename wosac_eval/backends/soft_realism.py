@@ -1,0 +1,240 @@
+"""A smooth surrogate of the realism metrics, for gradient-based training: a training signal, not the metric.
+
+`soft_realism(prepared, x, y, z, heading, temperature=...)` takes the arguments of
+`jax_realism.realism` and returns the same kind of mapping (every `SimAgentMetrics`
+field per scene, the meta-metric included), differentiable in the rollouts. The
+official metric is piecewise constant in the rollouts (a sample moves the score
+only when it crosses a histogram edge or a threshold), so its gradient is zero
+almost everywhere; the surrogate replaces each discontinuous step by a smooth
+one, with one `temperature`:
+
+- Histogram counts: a simulated sample is in bin k with the weight
+  sigmoid((e_k+1 - s) / w) - sigmoid((e_k - s) / w), `w = temperature * bin width`
+  (the outer edges at -inf and +inf, which clip as the official histogram does; a
+  NaN sample stays in the last bin). The weights of a sample sum to 1, so the
+  counts are the official counts' smooth version; the logged value keeps its
+  hard bin (the log does not depend on the rollouts).
+- Indicator features: collision at a step is sigmoid(-distance_to_nearest_object / t),
+  offroad sigmoid(distance_to_road_edge / t), `t = temperature` metres (both
+  distances are signed, thresholds 0). "At any valid step" is the maximum over
+  the steps (the gradient goes to the step nearest to the event; a product of
+  per-step probabilities would add up the tails of 80 steps). The Bernoulli
+  estimator counts a soft flag f as f in the "true" bin and 1 - f in the other.
+- Traffic-light violation stays the official hard flag: a crossing of a red
+  signal's stop line on the signal's lane has no signed distance whose sigmoid
+  would make sense, so its gradient is zero (weight 0.05 in the 2025 config).
+- Minima (nearest object, nearest road edge, over the four corners) stay hard:
+  they are continuous already, and their gradient is the one of the minimising
+  pair. The kernel density estimator (no leaderboard config uses one) is smooth.
+- Kernels: the bit tricks that make the official roundings (`xp.differentiable`)
+  are the plain operations; the nearest-object search is all pairs (no
+  `while_loop` to differentiate through). Features are computed in float32
+  (`xp.float32_precision`), whatever x64 says.
+
+As the temperature goes to 0 the surrogate goes to the official value (see
+docs/soft-realism.md for the figures on the golden cases): a training signal
+whose value tracks the official metric, not a replacement for it: report the
+official `realism`. Rates are the soft flags' means; displacement errors are the
+official ones (continuous already). The searches must run on the device:
+`prepare(..., search="device")` (the host search is a callback without gradients).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from wosac_eval import challenges
+from wosac_eval.backends import jax_realism as jr
+from wosac_eval.estimators import likelihoods
+from wosac_eval.features import interaction, registry, road_edge
+from wosac_eval.features.xp import differentiable, float32_precision
+from wosac_eval.metrics.config import load_config
+from wosac_eval.metrics.registry import METRICS, RATES
+from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values, validity_masks
+
+_F = np.float32
+SOFT_MODE = "soft"  # `Realism.mode` of what `soft_realism` returns
+DEFAULT_TEMPERATURE = 0.1
+
+
+def _safe_sigmoid(z):
+    """sigmoid(z), 0 for NaN, with a finite gradient everywhere."""
+    nan = jnp.isnan(z)
+    return jnp.where(nan, _F(0), jax.nn.sigmoid(jnp.where(nan, _F(0), z)))
+
+
+def soft_histogram_counts(samples, edges: np.ndarray, width, weights=None):
+    """The smooth `likelihoods.histogram_counts`: `(batch, num_bins)`, float32.
+
+    A sample is below interior edge e with the weight sigmoid((e - s) / width); bin k holds the
+    differences of those cumulative weights (as the hard counts), so each sample's weights sum to 1.
+    NaN samples count in the last bin, as officially.
+
+    Args:
+      samples: `(batch, num_samples)`.
+      width: the kernel's width in the samples' unit (temperature x bin width), > 0.
+      weights: optional 0/1 `(batch, num_samples)`: which samples count.
+    """
+    samples = jnp.asarray(samples, _F)
+    w = jnp.ones(samples.shape, _F) if weights is None else weights.astype(_F)
+    interior = np.asarray(edges, _F)[1:-1]
+    below = [jnp.sum(w * _safe_sigmoid((edge - samples) / width), axis=1) for edge in interior]
+    total = jnp.sum(w, axis=1)
+    cumulative = jnp.stack([jnp.zeros_like(total), *below, total], axis=1)
+    return cumulative[:, 1:] - cumulative[:, :-1]
+
+
+def _log_probability_of_bins(counts, pseudocount, log_bins):
+    """log p(bin of each logged value) from soft counts plus the pseudo-count, float32 `(batch, n)`."""
+    counts = counts + _F(pseudocount)
+    log_prob = jnp.log(counts) - jnp.log(counts.sum(axis=1, keepdims=True))
+    return jnp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
+
+
+def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, temperature):
+    """The smooth twin of the official estimator of `config` (`likelihoods.official_estimate`'s signature).
+
+    Histogram: `soft_histogram_counts` with a kernel `temperature` bins wide. Bernoulli: the soft
+    flags' sums (f in the true bin, 1 - f in the other). Kernel density: the official one (smooth).
+    """
+    kind = config.WhichOneof("estimator")
+    if kind == "histogram":
+        h = config.histogram
+        edges = likelihoods.histogram_edges(h.min_val, h.max_val, h.num_bins)
+        width = temperature * _F((_F(h.max_val) - _F(h.min_val)) / _F(h.num_bins))
+        counts = soft_histogram_counts(sim_samples, edges, width, sim_weights)
+        return _log_probability_of_bins(
+            counts, h.additive_smoothing_pseudocount, likelihoods.histogram_bins(log_samples, edges)
+        )
+    if kind == "bernoulli":
+        flags = jnp.asarray(sim_samples, _F)
+        w = jnp.ones(flags.shape, _F) if sim_weights is None else sim_weights.astype(_F)
+        true = jnp.sum(w * flags, axis=1)
+        counts = jnp.stack([jnp.sum(w, axis=1) - true, true], axis=1)
+        log_bins = jnp.asarray(jnp.asarray(log_samples, _F) >= _F(0.5), jnp.int32)
+        return _log_probability_of_bins(counts, config.bernoulli.additive_smoothing_pseudocount, log_bins)
+    return likelihoods.official_estimate(config, log_samples, sim_samples, sim_weights)
+
+
+def soft_events(sim, temperature) -> dict:
+    """The soft per-step event of each indicator feature, float32 `(num_rollouts, num_evaluated, num_steps)`.
+
+    Collision: sigmoid((threshold - distance to the nearest object) / temperature), offroad:
+    sigmoid((distance to the road edge - threshold) / temperature), the distances in metres; the
+    red-light violation is the official flag (see the module).
+    """
+    collision = _F(interaction.COLLISION_DISTANCE_THRESHOLD) - sim.distance_to_nearest_object
+    offroad = sim.distance_to_road_edge - _F(road_edge.OFFROAD_DISTANCE_THRESHOLD)
+    return {
+        "collision_per_step": _safe_sigmoid(collision / temperature),
+        "offroad_per_step": _safe_sigmoid(offroad / temperature),
+        "traffic_light_violation_per_step": sim.traffic_light_violation_per_step.astype(_F),
+    }
+
+
+def soft_any_over_time(events, mask):
+    """Whether the event happened at a step of `mask`, smoothly: the largest soft event, `(..., num_evaluated)`."""
+    return jnp.max(jnp.where(mask, events, _F(0)), axis=-1)
+
+
+def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperature) -> dict:
+    """`scenario_metrics.metric_log_likelihoods` with the soft estimators and indicators."""
+    masks = validity_masks(log)
+    estimate = functools.partial(soft_estimate, temperature=temperature)
+    out = {}
+    for metric in METRICS:
+        feature_config = getattr(config, metric.name)
+        mask = masks[metric.mask]
+        if metric.per_object:
+            log_flags = (getattr(log, metric.feature) & mask).any(axis=-1)[0]
+            sim_flags = soft_any_over_time(events[metric.feature], mask)
+            out[metric.name] = (
+                likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask, estimate),
+                None,
+            )
+        else:
+            ll = likelihoods.timeseries_log_likelihood(
+                feature_config, getattr(log, metric.feature)[0], getattr(sim, metric.feature), object_mask, estimate
+            )
+            out[metric.name] = (ll, mask)
+    return out
+
+
+def _scene_soft_realism(
+    config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature, features: tuple
+):
+    """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
+    both = jr.scene_features(spec, layout, a, rollouts, None, features)
+    log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
+    events = soft_events(sim, temperature)
+    lls = soft_log_likelihoods(config, log, sim, events, a["evaluated"], temperature)
+    values = metric_values(config, log, sim, lls, object_mask=a["evaluated"])
+    valid = validity_masks(log)["valid"]
+    real = a["evaluated"].astype(_F)
+    for rate in RATES:  # the share of (rollout, evaluated object) pairs with the soft event
+        flags = soft_any_over_time(events[rate.feature], valid)
+        values[rate.name] = jnp.mean(jnp.sum(flags * real, axis=-1) / jnp.sum(real)).astype(_F)
+    return {f: values[f] for f in SCENARIO_FIELDS}
+
+
+@functools.lru_cache(maxsize=32)
+def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
+    config = load_config(config_name)
+    spec = challenges.spec(challenge)
+
+    def one(a, rollouts, temperature):
+        with float32_precision(), differentiable():  # read while tracing
+            return _scene_soft_realism(config, spec, layout, a, rollouts, temperature, features)
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+
+
+def soft_realism(
+    prepared: jr.PreparedScenes,
+    x,
+    y,
+    z,
+    heading,
+    *,
+    length=None,
+    width=None,
+    height=None,
+    temperature=DEFAULT_TEMPERATURE,
+) -> jr.Realism:
+    """A smooth surrogate of every `SimAgentMetrics` field per scene, differentiable in the rollouts.
+
+    A training signal, not the official metric (see the module for each smoothing): report `realism`.
+
+    Args:
+      prepared: from `jax_realism.prepare(..., search="device")`; in a jitted step, an argument.
+      x, y, z, heading, length, width, height: as for `jax_realism.realism` (gradients flow to x, y, z
+        and heading).
+      temperature: > 0, a float or a traced scalar (an annealing schedule does not recompile): the
+        histogram kernels are `temperature` bin widths wide, the indicator sigmoids `temperature`
+        metres. As it goes to 0 the values go to the official ones.
+    Returns:
+      a `Realism` of float32 `(num_scenes,)` arrays, mode "soft".
+    Raises:
+      ValueError: `prepared`'s searches run on the host, or a non-positive temperature.
+    """
+    if prepared.host_searches is not None:
+        raise ValueError(
+            "soft_realism differentiates through the searches, which run on the device only: "
+            "prepare the scenes with jax_realism.prepare(..., search='device')"
+        )
+    if not isinstance(temperature, jax.core.Tracer) and not float(temperature) > 0:
+        raise ValueError(f"temperature must be positive, got {temperature}")
+    fields = jr.rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = {k: jnp.asarray(v, _F) for k, v in fields.items()}
+    temperature = jnp.asarray(temperature, _F)
+    parts = [
+        _soft_fn(prepared.config, prepared.challenge, layout, registry.features())(
+            arrays, jr.take_scenes(fields, indices), temperature
+        )
+        for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)
+    ]
+    return jr.Realism(jr.in_scene_order(prepared, parts), SOFT_MODE)

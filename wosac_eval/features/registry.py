@@ -236,8 +236,21 @@ class Feature:
     metric: metric_registry.Metric | None = None
 
 
+def _kinematic_at(index: int, c: FeatureContext):
+    return c.reported(c.kinematics[index])
+
+
 def _kinematic(index: int) -> Callable:
-    return lambda c: c.reported(c.kinematics[index])
+    # A partial of a module function, not a lambda: entries travel to worker processes (pickled).
+    return functools.partial(_kinematic_at, index)
+
+
+def _collision_per_step(c: FeatureContext):
+    return c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD)
+
+
+def _offroad_per_step(c: FeatureContext):
+    return c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD)
 
 
 def _nearest_object(c: FeatureContext):
@@ -301,19 +314,10 @@ OFFICIAL_FEATURES: tuple[Feature, ...] = (
     Feature("angular_speed", _kinematic(2)),
     Feature("angular_acceleration", _kinematic(3)),
     Feature("distance_to_nearest_object", _nearest_object),
-    Feature(
-        "collision_per_step",
-        lambda c: c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD),
-        "bool",
-    ),
+    Feature("collision_per_step", _collision_per_step, "bool"),
     Feature("time_to_collision", _time_to_collision),
     Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
-    Feature(
-        "offroad_per_step",
-        lambda c: c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD),
-        "bool",
-        needs=("road_edges", "road_edge_cells"),
-    ),
+    Feature("offroad_per_step", _offroad_per_step, "bool", needs=("road_edges", "road_edge_cells")),
     Feature("traffic_light_violation_per_step", _red_light_violation, "bool", needs=("red_lights",)),
 )
 OFFICIAL_FEATURE_NAMES = tuple(f.name for f in OFFICIAL_FEATURES)

@@ -7,6 +7,7 @@ import gzip
 import io
 import json
 import os
+import random
 import signal
 import socket
 import subprocess
@@ -18,10 +19,9 @@ from pathlib import Path
 
 import httpx
 
+from support.paths import REPO, SHARED
 from wosac_server import auth
 from wosac_server.db import Store
-
-from support.paths import REPO, SHARED
 
 GOLDEN = SHARED / "golden"
 SCENARIO_FILES = [
@@ -88,12 +88,18 @@ def free_port() -> int:
     worker's number: two workers never pick the same port between this probe and their server's bind."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % workers
-    while True:
+    # Explicit candidates from a random start (the kernel's own choice of port 0 may never fall in this
+    # worker's class: on some machines it hands out odd ports only).
+    start = random.randrange(20000, 60000)
+    start -= start % workers
+    for port in range(start + worker, 65536, workers):
         with socket.socket() as s:
-            s.bind(("127.0.0.1", 0))
-            port = s.getsockname()[1]
-        if port % workers == worker:
-            return port
+            try:
+                s.bind(("127.0.0.1", port))
+            except OSError:
+                continue
+        return port
+    raise RuntimeError("no free 127.0.0.1 port in this worker's class")
 
 
 def wait_healthy(url: str, process: subprocess.Popen, timeout: float) -> None:

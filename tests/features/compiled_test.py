@@ -18,7 +18,7 @@ from wosac_eval.features import (
     search,
     traffic_lights,
 )
-from wosac_eval.features.road_edge import cell_tables, pruned_search, segments
+from wosac_eval.features.road_edge import cell_tables, pruned_search, segments, signed_distance
 from wosac_eval.parse import wire_walks as walks
 
 F = np.float32
@@ -144,7 +144,7 @@ def test_compile_searches_covers_what_scoring_calls():
         pruned_search._query_cells,
         pruned_search._cell_lists,
         pruned_search._search_lists,
-        pruned_search._signed_distances,
+        signed_distance._signed_distances,
         segments._bucket_lists,
         interaction._nearest_object_search,
         interaction._followed_search,

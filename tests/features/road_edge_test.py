@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from wosac_eval.features import road_edge
-from wosac_eval.features.road_edge import pruned_search
 from wosac_eval.features.box_geometry import box_bottom_corners
+from wosac_eval.features.road_edge import signed_distance
 
 F = np.float32
 
@@ -310,7 +310,7 @@ def test_hints_never_change_the_answer(hint_stride):
     reference = brute_force(table, queries)
     segments = road_edge.nearest_segments(table, queries, hint_stride=hint_stride)
     assert np.array_equal(segments, road_edge.nearest_segments(table, queries, hint_stride=len(queries)))
-    ours = pruned_search._signed_distances(
+    ours = signed_distance._signed_distances(
         queries,
         segments,
         table.start,

@@ -1,10 +1,12 @@
 """Signed distance from box corners to the road edge; offroad.
 
-Three modules, used in this order:
+Four modules, used in this order:
 - `segments`: the segment table of a scenario's road edges (official order, neighbours, the planar
   bucket grid) and the float32 kernels of the signed distance, shared by numpy, JAX and numba;
-- `pruned_search`: the compiled search of the numpy path (`box_distance_to_road_edge`,
-  `signed_distance_to_polylines`), exact by proven bounds;
+- `pruned_search`: the compiled search of the numpy path for the nearest segment (`nearest_segments`),
+  exact by proven bounds;
+- `signed_distance`: the signed distance of points and of box corners from those segments
+  (`signed_distance_to_polylines`, `box_distance_to_road_edge`);
 - `cell_tables`: per-cell candidate lists with a clearance, for the fixed-shape search on a device
   (`features.dense`).
 Their public names are importable from here.
@@ -16,11 +18,7 @@ from wosac_eval.features.road_edge.cell_tables import (
     cell_candidate_table,
     unsettling_cell_table,
 )
-from wosac_eval.features.road_edge.pruned_search import (
-    box_distance_to_road_edge,
-    nearest_segments,
-    signed_distance_to_polylines,
-)
+from wosac_eval.features.road_edge.pruned_search import nearest_segments
 from wosac_eval.features.road_edge.segments import (
     BUCKET_SIDE,
     CYCLIC_TOLERANCE_M2,
@@ -34,6 +32,7 @@ from wosac_eval.features.road_edge.segments import (
     segment_side,
     side_of_segment,
 )
+from wosac_eval.features.road_edge.signed_distance import box_distance_to_road_edge, signed_distance_to_polylines
 
 __all__ = [
     "BUCKET_SIDE",

@@ -855,23 +855,21 @@ def path_validate(ctx) -> dict:
     return row
 
 
+def _score_command(ctx, scenarios: Path, submission: Path, out: Path, *extra: str) -> list[str]:
+    """`wosac-eval score` of the workload with one worker per core into `out` (the cli, cli-objects and
+    interrupt paths)."""
+    return _cli(
+        "score", "--scenarios", str(scenarios), "--submission", str(submission), "--workers", str(ctx.workers),
+        *extra, "-o", str(out), *ctx.challenge_args,
+    )  # fmt: skip
+
+
 def path_cli(ctx) -> dict:
     scenarios, submission = _paths(ctx.build)
     out = ctx.runs / "cli" / "result.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
-    cmd = _cli(
-        "score",
-        "--scenarios",
-        str(scenarios),
-        "--submission",
-        str(submission),
-        "--workers",
-        str(ctx.workers),
-        "-o",
-        str(out),
-        *ctx.challenge_args,
-    )
+    cmd = _score_command(ctx, scenarios, submission, out)
     run = run_watched(cmd, ctx.runs, "cli", env=_env(), dirs={"out": out.parent})
     row = ctx.row(
         "cli",
@@ -895,19 +893,7 @@ def path_cli_objects(ctx) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     for stale in (out, objects, out.with_name(out.name + ".journal")):
         stale.unlink(missing_ok=True)
-    cmd = _cli(
-        "score",
-        "--scenarios",
-        str(scenarios),
-        "--submission",
-        str(submission),
-        "--workers",
-        str(ctx.workers),
-        "--per-object",
-        "-o",
-        str(out),
-        *ctx.challenge_args,
-    )
+    cmd = _score_command(ctx, scenarios, submission, out, "--per-object")
     run = run_watched(cmd, ctx.runs, "cli-objects", env=_env(), dirs={"out": out.parent})
     row = ctx.row(
         "cli-objects",
@@ -958,18 +944,7 @@ def path_interrupt(ctx) -> dict:
     folder.mkdir(parents=True)
     out = folder / "result.json"
     journal = folder / "result.json.journal"
-    cmd = _cli(
-        "score",
-        "--scenarios",
-        str(scenarios),
-        "--submission",
-        str(submission),
-        "--workers",
-        str(ctx.workers),
-        "-o",
-        str(out),
-        *ctx.challenge_args,
-    )
+    cmd = _score_command(ctx, scenarios, submission, out)
     target = max(1, min(ctx.layout.scenes - 1, math.ceil(ctx.interrupt_at * ctx.layout.scenes)))
     state = {"offset": 0, "rows": -1, "killed_at": None}  # rows: lines after the journal's header
 

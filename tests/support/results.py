@@ -6,31 +6,14 @@ from __future__ import annotations
 
 import random
 
-METRICS = [
-    "linear_speed_likelihood",
-    "linear_acceleration_likelihood",
-    "angular_speed_likelihood",
-    "angular_acceleration_likelihood",
-    "distance_to_nearest_object_likelihood",
-    "collision_indication_likelihood",
-    "time_to_collision_likelihood",
-    "distance_to_road_edge_likelihood",
-    "offroad_indication_likelihood",
-    "traffic_light_violation_likelihood",
-]
-RATES = ["simulated_collision_rate", "simulated_offroad_rate", "simulated_traffic_light_violation_rate"]
-CRITICALITY = [
-    "braking",
-    "jerk",
-    "yaw_acceleration",
-    "time_to_collision",
-    "closing_speed",
-    "offroad",
-    "near_miss",
-    "red_light",
-    "rarity",
-]
-DRIVING = ["at_fault_collision", "collision", "offroad", "red_light", "progress", "ttc_below", "comfortable"]
+from wosac_eval.analysis import criticality_scores, driving_scores
+from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS, RATE_FIELDS
+
+# The fields of real rows, from where the scoring code declares them.
+METRICS = list(LIKELIHOOD_FIELDS)
+RATES = list(RATE_FIELDS)
+CRITICALITY = list(criticality_scores.COMPONENTS)
+DRIVING = list(driving_scores.COMPONENTS)
 
 
 def synthetic_row(i: int, rng: random.Random) -> dict:

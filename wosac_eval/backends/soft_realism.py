@@ -20,9 +20,9 @@ one, with one `temperature`:
   the steps (the gradient goes to the step nearest to the event; a product of
   per-step probabilities would add up the tails of 80 steps). The Bernoulli
   estimator counts a soft flag f as f in the "true" bin and 1 - f in the other.
-- Red-light violation at a step: the official flag crosses a stop line (behind it
-  at the step before, ahead of it now) where the signal shows stop and the object's
-  nearest lane is the signal's; the soft crossing is
+- Red-light violation at a step: officially, the object's centre passes a stop
+  point (behind it at the step before, past it now) whose signal shows stop, and
+  the object's nearest lane is the signal's; the soft crossing is
   max(0, sigmoid(a_now / t) - sigmoid(a_before / t)), a the signed distance in
   metres of the object's centre past the stop point along the stop point's lane
   segment (each step's own segment): the weight of the stop point in the step's

@@ -4,11 +4,14 @@ and whether its gradients are real.
 1. Per golden case (the reference material's cases with ../shared or WOSAC_SHARED; the repository's
    oracle cases with `--oracle`), |soft - official meta-metric| at temperatures 1, 0.1 and 0.01, the
    official value from the case's JSON (the challenge's leaderboard config).
-2. On a demo scene (`sim.scenes`, IDM rollouts): the gradient of the soft meta-metric with respect to
+2. On the repository's oracle case whose rollouts run red lights: the soft red-light likelihood and
+   violation rate against the official ones at each temperature, and the red-light likelihood's gradient
+   in x and y (finite? how many non-zero?).
+3. On a demo scene (`sim.scenes`, IDM rollouts): the gradient of the soft meta-metric with respect to
    x, y, z and heading (finite? how many non-zero?), and `jax.test_util.check_grads` (order 1, forward
    and reverse) of the meta-metric as a function of a shift (x, y, heading) of the first evaluated object's rollouts.
 
-Usage: python benchmarks/soft_realism_figures.py [--oracle] [--no-golden] [--no-gradients]
+Usage: python benchmarks/soft_realism_figures.py [--oracle] [--no-golden] [--no-red-light] [--no-gradients]
 """
 
 from __future__ import annotations
@@ -63,6 +66,43 @@ def golden_gaps(case_set) -> None:
     print(f"  {'largest':58s} {'':9s} " + " ".join(f"{worst[t]:9.2e}" for t in TEMPERATURES))
 
 
+RED_LIGHT_CASE = "synthetic-7-000-red-light__constvel_noise"
+RED_LIGHT_FIELDS = ("traffic_light_violation_likelihood", "simulated_traffic_light_violation_rate")
+
+
+def red_light_figures() -> None:
+    """The soft red-light values against the official ones, and their gradient, on the oracle red-light case."""
+    case_set = next(s for s in golden.SETS if s.name == "oracle")
+    scenario, rollouts = golden.inputs(case_set, RED_LIGHT_CASE)
+    prepared = jax_realism.prepare(
+        [scenario], challenge=case_set.challenge, config=golden.config_reference(case_set, "2025"), search="device"
+    )
+    arrays = {k: jnp.asarray(v) for k, v in jax_realism.stack_rollouts(prepared, [rollouts]).items()}
+    official = golden.expected_metrics(case_set, RED_LIGHT_CASE, "2025")
+    crossings = golden.expected_features(case_set, RED_LIGHT_CASE)["sim_traffic_light_violation_per_step"]
+    print(f"red light (oracle case {RED_LIGHT_CASE}, config 2025; {int(crossings.sum())} crossings on red):")
+    step = jax.jit(lambda p, a, t: jax_realism.soft_realism(p, **a, temperature=t))
+    temperatures = (*TEMPERATURES, 1e-3)
+    outs = {t: step(prepared, arrays, t) for t in temperatures}
+    print(f"  {'field':40s} {'official':>9s} " + " ".join(f"{'T=' + str(t):>9s}" for t in temperatures))
+    for field in (*RED_LIGHT_FIELDS, "metametric"):
+        gaps = " ".join(f"{abs(float(outs[t][field][0]) - official[field]):9.2e}" for t in temperatures)
+        print(f"  {field:40s} {official[field]:9.5f} {gaps}")
+    for temperature in TEMPERATURES:
+
+        def likelihood(x, y):
+            out = jax_realism.soft_realism(prepared, x, y, arrays["z"], arrays["heading"], temperature=temperature)
+            return out["traffic_light_violation_likelihood"].sum()
+
+        grads = jax.grad(likelihood, argnums=(0, 1))(arrays["x"], arrays["y"])
+        finite = all(bool(jnp.isfinite(g).all()) for g in grads)
+        parts = ", ".join(
+            f"{name} {int(np.count_nonzero(g))} non-zero, max |g| {float(jnp.abs(g).max()):.2e}"
+            for name, g in zip(["x", "y"], grads)
+        )
+        print(f"  T={temperature}: red-light likelihood's gradient finite everywhere: {finite}; {parts}")
+
+
 def gradient_figures() -> None:
     """Gradient of the soft meta-metric on a demo scene, and `check_grads` of a shift of one agent."""
     scene = scenes.generate_scenes(10, seed=0)[1]
@@ -115,6 +155,8 @@ def main(argv: list[str]) -> None:
         for case_set in golden.SETS:
             if case_set.name in names:
                 golden_gaps(case_set)
+    if "--no-red-light" not in argv:
+        red_light_figures()
     if "--no-gradients" not in argv:
         print("gradients (demo scene 1 of sim.scenes.generate_scenes(10, seed=0), IDM rollouts, sim agents 2025):")
         gradient_figures()

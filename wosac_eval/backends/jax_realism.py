@@ -387,6 +387,24 @@ def scene_features(
     features: tuple,
 ) -> mf.MetricFeatures:
     """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
+    traj = scene_trajectories(spec, a, rollouts)
+    per_step = device_features(traj, a["tails"], a["maps"], layout, features, host, a["scene"])
+    reported = layout.reported
+    e = layout.num_evaluated
+    valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
+    return mf.MetricFeatures.from_dict(
+        {
+            "object_id": jnp.zeros(e, jnp.int32),
+            "object_type": jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
+            "valid": valid[..., reported],
+            **per_step,
+        }
+    )
+
+
+def scene_trajectories(spec: challenges.ChallengeSpec, a: dict, rollouts: dict) -> dict:
+    """The `metric_features.TRAJECTORY_FIELDS` of one prepared scene (leading scene axis removed), each
+    `(1 + num_rollouts, num_objects, num_steps)`: sample 0 the log, then the rollouts over the log's history."""
     log, real = a["log"], a["real"]
     num_rollouts = rollouts["x"].shape[0]
     n_obj, steps = log["x"].shape
@@ -400,19 +418,7 @@ def scene_features(
         sim.update({f: tile(log[f]) for f in _SIZES})
         future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
         sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
-    traj = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
-    per_step = device_features(traj, a["tails"], a["maps"], layout, features, host, a["scene"])
-    reported = layout.reported
-    e = layout.num_evaluated
-    valid = jnp.concatenate([a["feature_valid"][None], traj["valid"][1:, :e] & a["evaluated"][None, :, None]])
-    return mf.MetricFeatures.from_dict(
-        {
-            "object_id": jnp.zeros(e, jnp.int32),
-            "object_type": jnp.broadcast_to(a["object_type"][None], valid.shape[:2]),
-            "valid": valid[..., reported],
-            **per_step,
-        }
-    )
+    return {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
 
 
 def _scene_realism(

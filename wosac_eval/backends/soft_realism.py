@@ -20,9 +20,19 @@ one, with one `temperature`:
   the steps (the gradient goes to the step nearest to the event; a product of
   per-step probabilities would add up the tails of 80 steps). The Bernoulli
   estimator counts a soft flag f as f in the "true" bin and 1 - f in the other.
-- Traffic-light violation stays the official hard flag: a crossing of a red
-  signal's stop line on the signal's lane has no signed distance whose sigmoid
-  would make sense, so its gradient is zero (weight 0.05 in the 2025 config).
+- Red-light violation at a step: officially, the object's centre passes a stop
+  point (behind it at the step before, past it now) whose signal shows stop, and
+  the object's nearest lane is the signal's; the soft crossing is
+  max(0, sigmoid(a_now / t) - sigmoid(a_before / t)), a the signed distance in
+  metres of the object's centre past the stop point along the stop point's lane
+  segment (each step's own segment): the weight of the stop point in the step's
+  sweep [a_before, a_now], as a histogram bin's. An object that waits at the line
+  scores 0 (a product of a "behind" and an "ahead" sigmoid would score up to 1/4 at
+  every step it waits within t of the line). The signal's state and the lane match
+  stay hard (the match is an argmin over lanes, like the minima's pair). The largest
+  over the signals; "at any valid step" is the largest over one step or two
+  consecutive ones (a crossing whose step ends near the line shares its weight
+  with the next step: their sum is the line's weight in the two-step sweep).
 - Minima (nearest object, nearest road edge, over the four corners) stay hard:
   they are continuous already, and their gradient is the one of the minimising
   pair. The kernel density estimator (no leaderboard config uses one) is smooth.
@@ -50,7 +60,7 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.backends import jax_realism as jr
 from wosac_eval.estimators import likelihoods
-from wosac_eval.features import interaction, registry, road_edge
+from wosac_eval.features import dense, interaction, ops, registry, road_edge, traffic_lights
 from wosac_eval.features.xp import differentiable, float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import METRICS, RATES
@@ -120,25 +130,116 @@ def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, tempera
     return likelihoods.official_estimate(config, log_samples, sim_samples, sim_weights)
 
 
-def soft_events(sim, temperature) -> dict:
+# Soft crossings below this weight skip the lane search (their lane match counts as none): the search
+# then follows the few points near a stopped signal's line, as the official one follows the crossings.
+SOFT_CROSSING_FLOOR = 1e-6
+# Points whose lane is looked up at once (`dense._fill_rows`), more in further rounds.
+SOFT_LANE_SEARCH_CHUNK = 256
+
+
+def soft_stop_line_crossings(x, y, valid, m: dict, temperature):
+    """The soft `traffic_lights.stop_line_crossings`: float32 `(..., num_objects, num_steps, num_signals)`.
+
+    max(0, sigmoid(a_now / temperature) - sigmoid(a_before / temperature)) where the signal shows stop
+    and the object is valid, a the signed distance (metres) past the stop point along the line of that
+    step's stop segment: the official crossing (a_before < 0 < a_now) as the temperature goes to 0, 0
+    without motion along the line. A NaN position or a stop segment of no length (padding) is never
+    crossed, as officially.
+
+    Args:
+      x, y: float32 `(..., num_objects, num_steps)`; valid: bool, the same shape.
+      m: the padded red-light map arrays (`dense.red_light_violation`).
+    """
+    sx, sy = m["stop_start"][..., 0], m["stop_start"][..., 1]
+    dx, dy = m["stop_delta"][..., 0], m["stop_delta"][..., 1]
+    squared = dx * dx + dy * dy
+    stop_t = traffic_lights.line_parameter(m["stop_point"][..., 0], m["stop_point"][..., 1], sx, sy, dx, dy, squared)
+    obj_t = traffic_lights.line_parameter(x[..., None], y[..., None], sx, sy, dx, dy, squared)
+    # Line parameters are in segment lengths: times the length, metres (the sign is the official comparison's).
+    past = (obj_t - stop_t) * ops.sqrt(squared)
+    before, now = past[..., :-1, :], past[..., 1:, :]
+    # The stop point's weight in the sweep [before, now] (0 when the object moves back or stays).
+    swept = jnp.maximum(_safe_sigmoid(now / temperature) - _safe_sigmoid(before / temperature), _F(0))
+    crossed = jnp.concatenate([jnp.zeros_like(past[..., :1, :]), swept], axis=-2)
+    line = squared > 0
+    counts = valid[..., None] & m["stopping"] & line & jnp.concatenate([line[:1], line[:-1]])
+    counts = counts & ~jnp.isnan(past) & ~jnp.isnan(jnp.concatenate([past[..., :1, :], before], axis=-2))
+    return jnp.where(counts, crossed, _F(0))
+
+
+def soft_red_light_crossings(x, y, valid, m: dict, temperature):
+    """The soft red-light violations per signal: float32 `(..., num_objects, num_steps, num_signals)`, in [0, 1].
+
+    `soft_stop_line_crossings` of the signals on the object's nearest lane (the official lane match of
+    `dense.red_light_violation`, hard: found for the points whose soft crossing passes
+    `SOFT_CROSSING_FLOOR`); `soft_any_crossing` takes the official `any` over signals and steps.
+    """
+    crossings = soft_stop_line_crossings(x, y, valid, m, temperature)
+    if crossings.shape[-1] == 0:
+        return crossings
+    flat = crossings.reshape(-1, crossings.shape[-1])
+    points = jax.lax.stop_gradient(jnp.stack([x, y], axis=-1).reshape(-1, 2))
+    needed = (flat > _F(SOFT_CROSSING_FLOOR)).any(axis=-1)
+
+    def lane_of(rows):
+        return m["lane_id"][dense.nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
+
+    lane = dense._fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, SOFT_LANE_SEARCH_CHUNK, lane_of)
+    on_lane = lane[:, None] == m["signal_lane_id"][None, :]
+    return jnp.where(on_lane, flat, _F(0)).reshape(crossings.shape)
+
+
+def _soft_red_light_feature(traj: dict, m: dict, layout, temperature):
+    """`soft_red_light_crossings` over the official window of `registry`'s red-light feature (from one
+    step before the first reported one, where there is one): `(samples, num_evaluated, reported steps,
+    num_signals)`."""
+    n, lights = layout.num_evaluated, slice(layout.first_red_light_step, None)
+    red = soft_red_light_crossings(
+        traj["x"][:, :n, lights], traj["y"][:, :n, lights], traj["valid"][:, :n, lights], m, temperature
+    )
+    return red[..., 1:, :] if layout.first_step > 0 else red
+
+
+def soft_events(sim, red_light_violation, temperature) -> dict:
     """The soft per-step event of each indicator feature, float32 `(num_rollouts, num_evaluated, num_steps)`.
 
     Collision: sigmoid((threshold - distance to the nearest object) / temperature), offroad:
     sigmoid((distance to the road edge - threshold) / temperature), the distances in metres; the
-    red-light violation is the official flag (see the module).
+    red-light violation: `red_light_violation`, per signal (`soft_red_light_crossings`, of the rollouts:
+    `(..., num_steps, num_signals)`, for `soft_any_crossing`).
     """
     collision = _F(interaction.COLLISION_DISTANCE_THRESHOLD) - sim.distance_to_nearest_object
     offroad = sim.distance_to_road_edge - _F(road_edge.OFFROAD_DISTANCE_THRESHOLD)
     return {
         "collision_per_step": _safe_sigmoid(collision / temperature),
         "offroad_per_step": _safe_sigmoid(offroad / temperature),
-        "traffic_light_violation_per_step": sim.traffic_light_violation_per_step.astype(_F),
+        "traffic_light_violation_per_step": red_light_violation,
     }
 
 
 def soft_any_over_time(events, mask):
     """Whether the event happened at a step of `mask`, smoothly: the largest soft event, `(..., num_evaluated)`."""
     return jnp.max(jnp.where(mask, events, _F(0)), axis=-1)
+
+
+def soft_any_crossing(crossings, mask):
+    """`soft_any_over_time` of soft crossings `(..., num_steps, num_signals)`: the largest over the signals
+    at each step, then over one step or two consecutive ones, at most 1, `(...)`.
+
+    A crossing whose step ends near the line shares its weight with the next step: the largest single
+    step would count it as little as 1/2; the two steps' sum is the line's weight in the two-step
+    sweep. The two steps may count it under two signals (lanes that start at one stop point, the
+    lane match switching at the line): there the sum can pass 1, and the minimum stops it (no
+    gradient: a sure crossing). As the temperature goes to 0, the official `any`.
+    """
+    events = jnp.max(jnp.where(mask[..., None], crossings, _F(0)), axis=-1, initial=_F(0))
+    following = jnp.concatenate([events[..., 1:], jnp.zeros_like(events[..., :1])], axis=-1)
+    return jnp.minimum(jnp.max(events + following, axis=-1), _F(1))
+
+
+def _soft_any(feature: str):
+    """The soft `any over time` of an indicator feature."""
+    return soft_any_crossing if feature == "traffic_light_violation_per_step" else soft_any_over_time
 
 
 def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperature) -> dict:
@@ -151,7 +252,7 @@ def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperatur
         mask = masks[metric.mask]
         if metric.per_object:
             log_flags = (getattr(log, metric.feature) & mask).any(axis=-1)[0]
-            sim_flags = soft_any_over_time(events[metric.feature], mask)
+            sim_flags = _soft_any(metric.feature)(events[metric.feature], mask)
             out[metric.name] = (
                 likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask, estimate),
                 None,
@@ -170,13 +271,16 @@ def _scene_soft_realism(
     """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
     both = jr.scene_features(spec, layout, a, rollouts, None, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
-    events = soft_events(sim, temperature)
+    traj = jr.scene_trajectories(spec, a, rollouts)  # the same program as in scene_features: XLA shares it
+    rollouts_only = {k: traj[k][1:] for k in ("x", "y", "valid")}  # the log's flags stay the official ones
+    red_light = _soft_red_light_feature(rollouts_only, a["maps"], layout, temperature)
+    events = soft_events(sim, red_light, temperature)
     lls = soft_log_likelihoods(config, log, sim, events, a["evaluated"], temperature)
     values = metric_values(config, log, sim, lls, object_mask=a["evaluated"])
     valid = validity_masks(log)["valid"]
     real = a["evaluated"].astype(_F)
     for rate in RATES:  # the share of (rollout, evaluated object) pairs with the soft event
-        flags = soft_any_over_time(events[rate.feature], valid)
+        flags = _soft_any(rate.feature)(events[rate.feature], valid)
         values[rate.name] = jnp.mean(jnp.sum(flags * real, axis=-1) / jnp.sum(real)).astype(_F)
     return {f: values[f] for f in SCENARIO_FIELDS}
 

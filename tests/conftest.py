@@ -62,34 +62,16 @@ def one_ray_cluster_at_a_time(request, tmp_path_factory):
         yield
 
 
-def _memory_maps() -> tuple[int, int] | None:
-    """(memory mappings of this process, the kernel's limit per process), where Linux says."""
-    try:
-        with open("/proc/self/maps", "rb") as maps, open("/proc/sys/vm/max_map_count") as limit:
-            return sum(1 for _ in maps), int(limit.read())
-    except OSError:
-        return None
-
-
 @pytest.fixture(autouse=True)
 def jax_programs_within_the_map_limit():
-    """Drops JAX's compiled programs after a test once they hold half the process's memory-map limit.
-
-    Each program XLA compiles for the CPU keeps 1,000-2,000 memory mappings while cached (measured: a
-    realism program about 1,200); an xdist worker that runs most JAX tests reaches the kernel's limit
-    (`vm.max_map_count`, 65,530 by default), where the next compile's mmap fails and XLA segfaults.
-    `jax.clear_caches()` and a collection give them back; the next test compiles what it needs."""
+    """After a test, JAX's compiled programs are dropped once they hold half the process's memory-map
+    limit (`jax_driver.drop_programs_near_map_limit`): an xdist worker that runs most JAX tests
+    otherwise reaches `vm.max_map_count` and XLA segfaults in its next compile."""
     yield
-    if "jax" not in sys.modules:
-        return
-    counted = _memory_maps()
-    if counted and counted[0] > counted[1] // 2:
-        import gc
+    if "jax" in sys.modules:
+        from wosac_eval.backends.jax_driver import drop_programs_near_map_limit
 
-        import jax
-
-        jax.clear_caches()
-        gc.collect()
+        drop_programs_near_map_limit()
 
 
 # What a test needs, by the folder of tests/ its file lives in: a new file there gets the same marks.

@@ -443,3 +443,17 @@ def test_float32_roots_and_quotients_go_through_float64_in_the_exact_mode():
         np.testing.assert_array_equal(got_sqrt, np.sqrt(a))
         np.testing.assert_array_equal(got_div, a / b)
     assert got_sqrt.dtype == got_div.dtype == F
+
+
+@pytest.mark.skipif(jax_driver.memory_maps() is None, reason="no /proc/self/maps or vm.max_map_count here (not Linux)")
+def test_compiled_programs_are_dropped_past_a_share_of_the_map_limit():
+    # XLA's CPU programs hold memory mappings while cached; past the share, they are given back.
+    programs = [jax.jit(lambda x, k=k: jnp.sin(x) * k + jnp.cumsum(x)) for k in range(8)]
+    for f in programs:
+        f(jnp.arange(64.0)).block_until_ready()
+    held = jax_driver.memory_maps()[0]
+    pending = programs[0](jnp.arange(64.0))
+    assert not jax_driver.drop_programs_near_map_limit([pending], share=1.0)
+    assert jax_driver.drop_programs_near_map_limit([pending], share=0.0)
+    assert jax_driver.memory_maps()[0] < held
+    np.testing.assert_array_equal(np.asarray(pending), np.asarray(programs[0](jnp.arange(64.0))))

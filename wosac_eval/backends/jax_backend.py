@@ -45,6 +45,7 @@ from wosac_eval.backends.jax_driver import (  # noqa: F401
     Sizes,
     bucket,
     device_features,
+    drop_programs_near_map_limit,
     fine_bucket,
     padded_inputs,
     scene_inputs,
@@ -192,6 +193,7 @@ class FeaturePipeline:
         self.max_batch, self.min_bucket, self.in_flight = max_batch, min_bucket, in_flight
         self.groups: dict[BucketKey, list] = {}
         self.dispatched: list = []
+        self.compiled: set = set()  # the (bucket, layout, batch size) of the programs compiled here
 
     def _key(self, p: PreparedScenario) -> BucketKey:
         # A shorter lower bound (no grid cells, say) leaves the other sizes as they are.
@@ -217,6 +219,11 @@ class FeaturePipeline:
         padded = [padded_inputs(p.inputs, key.sizes) for _, p in items]
         size = min(bucket(len(items), 1), _per_call(key, self.max_batch))
         padded += [padded[0]] * (size - len(padded))  # a partial batch repeats its first scenario
+        program = (key, layout, size)
+        # A new program is compiled: within the process's memory-map limit (`drop_programs_near_map_limit`).
+        if program not in self.compiled and drop_programs_near_map_limit([out for _, out in self.dispatched]):
+            self.compiled.clear()
+        self.compiled.add(program)
         with jax.enable_x64(True):
             zero = np.zeros(size, np.int32)  # the exact mode's run-time zero, one per scenario
             self.dispatched.append((items, _features_fn(layout, key.features)(zero, *stacked(padded))))

@@ -13,7 +13,9 @@ device with `device_features`. Scenes with one key share one compiled function.
 from __future__ import annotations
 
 import dataclasses
+import gc
 
+import jax
 import numpy as np
 
 from wosac_eval.features import dense, registry
@@ -22,6 +24,33 @@ from wosac_eval.features.map_arrays import scene_map_arrays
 from wosac_eval.features.search_strategy import SearchStrategy
 
 MIN_BUCKET = 8
+
+
+def memory_maps() -> tuple[int, int] | None:
+    """(memory mappings of this process, the kernel's limit per process `vm.max_map_count`), where Linux
+    says; None elsewhere."""
+    try:
+        with open("/proc/self/maps", "rb") as maps, open("/proc/sys/vm/max_map_count") as limit:
+            return sum(1 for _ in maps), int(limit.read())
+    except (OSError, ValueError):
+        return None
+
+
+def drop_programs_near_map_limit(pending=(), share: float = 0.5) -> bool:
+    """Drops JAX's compiled programs (`jax.clear_caches()`) once this process's memory mappings pass `share`
+    of the kernel's limit, after `pending` (arrays still computing) is ready; True if it did.
+
+    A program XLA compiles for the CPU holds 1,000-2,000 mappings while cached (a realism program about
+    1,200): a process that compiles many shapes (a run over many buckets) reaches `vm.max_map_count`
+    (65,530 by default), where the next compile's mmap fails and XLA crashes with a segmentation fault.
+    A program used again is compiled again."""
+    counted = memory_maps()
+    if counted is None or counted[0] <= share * counted[1]:
+        return False
+    jax.block_until_ready(pending)
+    jax.clear_caches()
+    gc.collect()
+    return True
 
 
 def bucket(n: int, minimum: int = MIN_BUCKET) -> int:
@@ -202,8 +231,6 @@ def padded_inputs(inputs: SceneInputs, sizes: Sizes) -> tuple[dict, dict, dict]:
 
 def stacked(scenes: list):
     """Per-scene pytrees (dicts of numpy arrays, or tuples of them) with a leading scene axis (numpy)."""
-    import jax
-
     return jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *scenes)
 
 

@@ -253,11 +253,18 @@ def _nearest_of(q, s, index, inside, clearance):
         *_columns(q[:, None, :]), *_columns(s["start"][index]), *_columns(s["delta"][index])
     )[1]
     d3 = jnp.where(s["valid"][index], d3, jnp.inf)
-    best_d = d3.min(axis=1)
     big = jnp.iinfo(index.dtype).max
-    best = jnp.where(d3 == best_d[:, None], index, big).min(axis=1)
+    best_d, best = lax.reduce((d3, index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
     settled = inside & (best_d < clearance)
     return jnp.where(best == big, 0, best), settled
+
+
+def _nearer(a, b):
+    """The nearer of two (distance, segment index) pairs, the lower index on ties, NaN winning: the NaN
+    minimum of the distances and the lowest index at it, as one reduction (no (points x k) array)."""
+    # lax operations only: the exact mode keeps a combiner of comparisons and selects as it is.
+    take = lax.lt(b[0], a[0]) | (lax.eq(b[0], a[0]) & lax.lt(b[1], a[1])) | lax.ne(b[0], b[0])
+    return lax.select(take, b[0], a[0]), lax.select(take, b[1], a[1])
 
 
 def _nearest_near_segment(q, s, cells):

@@ -4,11 +4,12 @@ The numpy path prunes candidate pairs in compiled loops over bucket grids and
 bounds (a k-d tree for the lane search), whose work depends on the data. Under
 `jax.jit` shapes must be static, so these drivers evaluate the SAME per-pair
 kernels (box_geometry, road_edge, traffic_lights, interaction) over fixed-size
-candidate sets. For the road edge, each corner gathers the segments listed for
-its grid cell (`road_edge.cell_candidate_table`, built once per scene on the
-host), then checks a proven bound that nothing left out can be nearer (or tie
-at a lower index). The rare queries the bound does not settle are compacted
-and computed against everything in a `while_loop`, so results equal an
+candidate sets. For the road edge, each corner gathers the first segments
+listed for its grid cell (`road_edge.cell_candidate_table`, built once per scene
+on the host, nearest first), then checks a proven bound that nothing left out
+can be nearer (or tie at a lower index). The queries that bound does not settle
+are compacted and computed against the cell's whole list, the rare ones left
+against everything, in `while_loop`s, so results equal an
 all-pairs search (`argmin`: the first index among ties, as in the numpy path) bit
 for bit. The nearest object evaluates the few boxes of lowest bound (the numpy
 search's bound) and falls back likewise where the bound does not settle it.

@@ -255,7 +255,8 @@ def _nearest_of(q, s, index, inside, clearance):
     )[1]
     d3 = jnp.where(s["valid"][index], d3, jnp.inf)
     big = jnp.iinfo(index.dtype).max
-    best_d, best = lax.reduce((d3, index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
+    # Only which segment is picked: no gradient (JAX differentiates no reduction of a custom combiner).
+    best_d, best = lax.reduce((lax.stop_gradient(d3), index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
     settled = inside & (best_d < clearance)
     return jnp.where(best == big, 0, best), settled
 

@@ -166,6 +166,20 @@ def _inner(eqn):
     raise NotImplementedError(f"exact mode: no body found in {eqn.primitive.name}")
 
 
+def _exact_combiner(eqn) -> bool:
+    """A reduction whose combiner (a closed jaxpr) is exact as it is: no float32 operation of `WIDENED`,
+    no program inside (e.g. a minimum with its index by comparisons and selects)."""
+    if eqn.primitive.name != "reduce":
+        return False
+    body = eqn.params.get("jaxpr")
+    if not isinstance(body, jex.ClosedJaxpr):
+        return False
+    return not any(
+        (e.primitive.name in WIDENED and any(_is_float32(v.aval) for v in e.outvars)) or _holds_program(e.params)
+        for e in body.jaxpr.eqns
+    )
+
+
 def _eval(jaxpr, consts, args: list, zero) -> list:
     env: dict = {}
 
@@ -187,7 +201,7 @@ def _eval(jaxpr, consts, args: list, zero) -> list:
             outs = _eval(body, body_consts, invals, zero)
         elif name in ("scan", "while", "cond"):
             outs = _loop(eqn, invals, zero)
-        elif _holds_program(eqn.params):
+        elif _holds_program(eqn.params) and not _exact_combiner(eqn):
             raise NotImplementedError(f"exact mode cannot rewrite the body of {name!r}")
         else:  # exact as it is (open jaxprs: a scatter's or reduction's combiner, which the check sees)
             result = eqn.primitive.bind(*invals, **eqn.params)

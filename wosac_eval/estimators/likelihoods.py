@@ -70,8 +70,14 @@ def histogram_counts(samples, edges: np.ndarray, weights=None):
         total = xp.full((batch,), samples.shape[1])
     else:
         total = xp.sum(weights, axis=1)
-    below = [_count(samples < edge, weights, xp) for edge in _interior_edges(edges)]
-    cumulative = xp.stack([xp.zeros_like(total), *(b.astype(total.dtype) for b in below), total], axis=1)
+    interior = _interior_edges(edges)
+    if is_numpy(xp) and interior.size:
+        below = xp.stack([_count(samples < edge, weights, xp) for edge in interior], axis=1)
+    else:
+        # Every edge in one pass over the samples (a compiler fuses the comparisons into the sum):
+        # the same whole counts, without an array per edge.
+        below = _count(samples[..., None] < interior, None if weights is None else weights[..., None], xp)
+    cumulative = xp.concatenate([xp.zeros_like(total)[:, None], below.astype(total.dtype), total[:, None]], axis=1)
     return cumulative[:, 1:] - cumulative[:, :-1]
 
 
@@ -81,7 +87,7 @@ def _interior_edges(edges: np.ndarray) -> np.ndarray:
 
 
 def _count(mask, weights, xp):
-    """The true values of each row of `mask` (`(batch, n)`), or the sum of their weights."""
+    """The true values of each row of `mask` (`(batch, n, ...)`, summed over `n`), or the sum of their weights."""
     if weights is not None:
         return xp.sum(xp.where(mask, weights, 0), axis=1)
     if is_numpy(xp) and mask.shape[0] == 1:

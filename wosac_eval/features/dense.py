@@ -4,11 +4,12 @@ The numpy path prunes candidate pairs in compiled loops over bucket grids and
 bounds (a k-d tree for the lane search), whose work depends on the data. Under
 `jax.jit` shapes must be static, so these drivers evaluate the SAME per-pair
 kernels (box_geometry, road_edge, traffic_lights, interaction) over fixed-size
-candidate sets. For the road edge, each corner gathers the segments listed for
-its grid cell (`road_edge.cell_candidate_table`, built once per scene on the
-host), then checks a proven bound that nothing left out can be nearer (or tie
-at a lower index). The rare queries the bound does not settle are compacted
-and computed against everything in a `while_loop`, so results equal an
+candidate sets. For the road edge, each corner gathers the first segments
+listed for its grid cell (`road_edge.cell_candidate_table`, built once per scene
+on the host, nearest first), then checks a proven bound that nothing left out
+can be nearer (or tie at a lower index). The queries that bound does not settle
+are compacted and computed against the cell's whole list, the rare ones left
+against everything, in `while_loop`s, so results equal an
 all-pairs search (`argmin`: the first index among ties, as in the numpy path) bit
 for bit. The nearest object evaluates the few boxes of lowest bound (the numpy
 search's bound) and falls back likewise where the bound does not settle it.
@@ -211,7 +212,11 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
 
 # Queries the cell tables do not settle are searched against every segment, this many at a time.
 FALLBACK_CHUNK = 256
-CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance")  # road_edge.cell_candidate_table
+# Queries the first `road_edge.CELL_NEAR_CANDIDATES` segments of their cell do not settle are searched
+# against the cell's whole list, this many at a time.
+LISTED_CHUNK = 1024
+# road_edge.cell_candidate_table
+CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance", "cell_near_clearance")
 NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 
 
@@ -223,27 +228,53 @@ def _nearest_segment_all(q, s):
     return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
 
 
+def _query_cells(q, cells):
+    """(grid row of each query's cell, whether the query is on the grid): int32 and bool `(num_points,)`."""
+    side = _F(road_edge.CELL_SIDE)
+    cell = jnp.floor((q[:, :2] - cells["cell_origin"]) / side)  # a power of two: exact
+    inside = ((cell >= 0) & (cell < cells["cell_shape"].astype(_F))).all(axis=1)
+    cell = jnp.where(inside[:, None], cell, _F(0)).astype(jnp.int32)
+    return cell[:, 0] * cells["cell_shape"][1] + cell[:, 1], inside
+
+
 def _nearest_listed_segment(q, s, cells):
     """(nearest segment among the query cell's listed ones, whether it is the nearest of all).
 
     Settled when the query is on the grid and nearer to it than the cell's clearance
     (`road_edge.cell_candidate_table`): no segment left out can be nearer, or tie at a lower index.
     """
-    side = _F(road_edge.CELL_SIDE)
-    cell = jnp.floor((q[:, :2] - cells["cell_origin"]) / side)  # a power of two: exact
-    inside = ((cell >= 0) & (cell < cells["cell_shape"].astype(_F))).all(axis=1)
-    cell = jnp.where(inside[:, None], cell, _F(0)).astype(jnp.int32)
-    row = cell[:, 0] * cells["cell_shape"][1] + cell[:, 1]
-    index = cells["cell_candidates"][row]
+    row, inside = _query_cells(q, cells)
+    return _nearest_of(q, s, cells["cell_candidates"][row], inside, cells["cell_clearance"][row])
+
+
+def _nearest_of(q, s, index, inside, clearance):
+    """(nearest of the segments `index` int `(num_points, k)` to each point, the lowest index on ties;
+    whether it is on the grid (`inside`) and nearer than `clearance` float32 `(num_points,)`)."""
     d3 = road_edge.segment_distances(
         *_columns(q[:, None, :]), *_columns(s["start"][index]), *_columns(s["delta"][index])
     )[1]
     d3 = jnp.where(s["valid"][index], d3, jnp.inf)
-    best_d = d3.min(axis=1)
     big = jnp.iinfo(index.dtype).max
-    best = jnp.where(d3 == best_d[:, None], index, big).min(axis=1)
-    settled = inside & (best_d < cells["cell_clearance"][row])
+    # Only which segment is picked: no gradient (JAX differentiates no reduction of a custom combiner).
+    best_d, best = lax.reduce((lax.stop_gradient(d3), index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
+    settled = inside & (best_d < clearance)
     return jnp.where(best == big, 0, best), settled
+
+
+def _nearer(a, b):
+    """The nearer of two (distance, segment index) pairs, the lower index on ties, NaN winning: the NaN
+    minimum of the distances and the lowest index at it, as one reduction (no (points x k) array)."""
+    # lax operations only: the exact mode keeps a combiner of comparisons and selects as it is.
+    take = lax.lt(b[0], a[0]) | (lax.eq(b[0], a[0]) & lax.lt(b[1], a[1])) | lax.ne(b[0], b[0])
+    return lax.select(take, b[0], a[0]), lax.select(take, b[1], a[1])
+
+
+def _nearest_near_segment(q, s, cells):
+    """`_nearest_listed_segment` among the first `road_edge.CELL_NEAR_CANDIDATES` listed segments, settled
+    by their clearance (`cell_near_clearance`)."""
+    row, inside = _query_cells(q, cells)
+    index = cells["cell_candidates"][:, : road_edge.CELL_NEAR_CANDIDATES][row]
+    return _nearest_of(q, s, index, inside, cells["cell_near_clearance"][row])
 
 
 def _fill_rows(out, which, chunk: int, compute):
@@ -273,15 +304,24 @@ def _fill_rows(out, which, chunk: int, compute):
 def _nearest_segment(queries, s, cells, needed):
     """Index of the nearest valid road-edge segment of each needed query, as the all-pairs search picks it.
 
-    Queries the cell tables settle (nearly all) cost `road_edge.CELL_CANDIDATES` exact distances;
-    the others (off the grid, far from every road edge, on another level, NaN) are compacted and
-    searched against every segment in a `while_loop`, FALLBACK_CHUNK at a time. Unneeded queries
-    get some segment.
+    Queries the first `road_edge.CELL_NEAR_CANDIDATES` segments of their cell settle (most) cost that
+    many exact distances; the others are compacted and searched against their cell's whole list
+    (`road_edge.CELL_CANDIDATES`) in a `while_loop`, LISTED_CHUNK at a time; those it does not settle
+    either (off the grid, far from every road edge, on another level, NaN) against every segment,
+    FALLBACK_CHUNK at a time. Unneeded queries get some segment.
     """
     best, settled = _chunked(
-        lambda q: _nearest_listed_segment(q, s, cells), queries, _rows_per_chunk(cells["cell_candidates"].shape[-1])
+        lambda q: _nearest_near_segment(q, s, cells),
+        queries,
+        _rows_per_chunk(min(road_edge.CELL_NEAR_CANDIDATES, cells["cell_candidates"].shape[-1])),
     )
-    return _fill_rows(best, needed & ~settled, FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
+
+    def whole_list(rows):  # -1: not settled by the whole list either
+        listed, listed_settled = _nearest_listed_segment(queries[rows], s, cells)
+        return jnp.where(listed_settled, listed, -1)
+
+    best = _fill_rows(best, needed & ~settled, LISTED_CHUNK, whole_list)
+    return _fill_rows(best, needed & (best < 0), FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
 
 
 def signed_distance_to_road_edge(queries, segments, needed=None):

@@ -153,6 +153,7 @@ MAP_PARTS: tuple[MapPart, ...] = (
             ("cell_shape", Pad(None)),
             ("cell_candidates", Pad("road_edge_cells")),
             ("cell_clearance", Pad("road_edge_cells")),
+            ("cell_near_clearance", Pad("road_edge_cells")),
         ),
         (Size("road_edge_cells", "cell_clearance", fine=True),),
     ),

@@ -14,6 +14,7 @@ Their public names are importable from here.
 
 from wosac_eval.features.road_edge.cell_tables import (
     CELL_CANDIDATES,
+    CELL_NEAR_CANDIDATES,
     CELL_SIDE,
     cell_candidate_table,
     unsettling_cell_table,
@@ -37,6 +38,7 @@ from wosac_eval.features.road_edge.signed_distance import box_distance_to_road_e
 __all__ = [
     "BUCKET_SIDE",
     "CELL_CANDIDATES",
+    "CELL_NEAR_CANDIDATES",
     "CELL_SIDE",
     "CYCLIC_TOLERANCE_M2",
     "EXTREMELY_LARGE_DISTANCE",

@@ -133,7 +133,7 @@ def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, tempera
 # Soft crossings below this weight skip the lane search (their lane match counts as none): the search
 # then follows the few points near a stopped signal's line, as the official one follows the crossings.
 SOFT_CROSSING_FLOOR = 1e-6
-# Points whose lane is looked up at once (`dense._fill_rows`), more in further rounds.
+# Points whose lane is looked up at once (`dense.fill_rows`), more in further rounds.
 SOFT_LANE_SEARCH_CHUNK = 256
 
 
@@ -184,7 +184,7 @@ def soft_red_light_crossings(x, y, valid, m: dict, temperature):
     def lane_of(rows):
         return m["lane_id"][dense.nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
 
-    lane = dense._fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, SOFT_LANE_SEARCH_CHUNK, lane_of)
+    lane = dense.fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, SOFT_LANE_SEARCH_CHUNK, lane_of)
     on_lane = lane[:, None] == m["signal_lane_id"][None, :]
     return jnp.where(on_lane, flat, _F(0)).reshape(crossings.shape)
 

@@ -310,20 +310,7 @@ def test_hints_never_change_the_answer(hint_stride):
     reference = brute_force(table, queries)
     segments = road_edge.nearest_segments(table, queries, hint_stride=hint_stride)
     assert np.array_equal(segments, road_edge.nearest_segments(table, queries, hint_stride=len(queries)))
-    ours = signed_distance._signed_distances(
-        queries,
-        segments,
-        table.start,
-        table.delta,
-        table.valid,
-        table.prior,
-        table.next,
-        table.prior_valid,
-        table.next_valid,
-        table.convex_before,
-        table.convex_after,
-        1,
-    )
+    ours = signed_distance.signed_distance_to_segments(table, queries, segments)
     mismatch = np.flatnonzero(ours != reference)
     assert mismatch.size == 0, f"query {queries[mismatch[0]]}: {ours[mismatch[0]]} vs {reference[mismatch[0]]}"
 

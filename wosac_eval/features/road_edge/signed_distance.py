@@ -66,6 +66,19 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
 def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None):
     # The same corner of the box before is the hint (`_nearest_segments`).
     segment = nearest_segments(table, queries, counts, hint_stride=group)
+    return signed_distance_to_segments(table, queries, segment, group)
+
+
+def signed_distance_to_segments(table: SegmentTable, queries: np.ndarray, segment: np.ndarray, group: int = 1):
+    """Signed planar distance of each point to its given segment, the largest of each `group` of
+    consecutive points (NaN passes on).
+
+    Args:
+      queries: float32 `(num_points, 3)`, contiguous.
+      segment: int64 `(num_points,)`, each point's segment (`nearest_segments`).
+    Returns:
+      float32 `(num_points // group,)`.
+    """
     return _signed_distances(
         queries,
         segment,

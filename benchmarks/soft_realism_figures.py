@@ -39,15 +39,8 @@ def golden_gaps(case_set) -> None:
     if not cases:
         print(f"{case_set.name}: absent ({case_set.folder})")
         return
-    pairs = [golden.inputs(case_set, c) for c in cases]
     config_name = case_set.configs[0]
-    prepared = jax_realism.prepare(
-        [s for s, _ in pairs],
-        challenge=case_set.challenge,
-        config=golden.config_reference(case_set, config_name),
-        search="device",
-    )
-    arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
+    prepared, arrays = golden.device_inputs(case_set, cases, config_name)
     step = jax.jit(lambda p, a, t: jax_realism.soft_realism(p, **a, temperature=t)["metametric"])
     start = time.perf_counter()
     soft = {t: np.asarray(step(prepared, arrays, t)) for t in TEMPERATURES}  # the temperature is traced
@@ -73,11 +66,8 @@ RED_LIGHT_FIELDS = ("traffic_light_violation_likelihood", "simulated_traffic_lig
 def red_light_figures() -> None:
     """The soft red-light values against the official ones, and their gradient, on the oracle red-light case."""
     case_set = next(s for s in golden.SETS if s.name == "oracle")
-    scenario, rollouts = golden.inputs(case_set, RED_LIGHT_CASE)
-    prepared = jax_realism.prepare(
-        [scenario], challenge=case_set.challenge, config=golden.config_reference(case_set, "2025"), search="device"
-    )
-    arrays = {k: jnp.asarray(v) for k, v in jax_realism.stack_rollouts(prepared, [rollouts]).items()}
+    prepared, arrays = golden.device_inputs(case_set, [RED_LIGHT_CASE], "2025")
+    arrays = {k: jnp.asarray(v) for k, v in arrays.items()}
     official = golden.expected_metrics(case_set, RED_LIGHT_CASE, "2025")
     crossings = golden.expected_features(case_set, RED_LIGHT_CASE)["sim_traffic_light_violation_per_step"]
     print(f"red light (oracle case {RED_LIGHT_CASE}, config 2025; {int(crossings.sum())} crossings on red):")

@@ -114,15 +114,8 @@ def test_golden_cases_within_5e3_at_temperature_0_01(set_name):
     case_set = next(s for s in golden.SETS if s.name == set_name)
     cases = case_set.cases
     golden.skip_if_absent(case_set, cases[0] if cases else None)
-    pairs = [golden.inputs(case_set, c) for c in cases]
     config_name = case_set.configs[0]
-    prepared = jax_realism.prepare(
-        [s for s, _ in pairs],
-        challenge=case_set.challenge,
-        config=golden.config_reference(case_set, config_name),
-        search="device",
-    )
-    arrays = jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
+    prepared, arrays = golden.device_inputs(case_set, cases, config_name)
     soft = np.asarray(_soft(prepared, arrays, 0.01)["metametric"])
     for k, case in enumerate(cases):
         official = golden.expected_metrics(case_set, case, config_name)["metametric"]
@@ -139,11 +132,8 @@ def red_light_case():
     npz, official metrics of the 2025 config)."""
     case_set = next(s for s in golden.SETS if s.name == "oracle")
     golden.skip_if_absent(case_set, RED_LIGHT_CASE if RED_LIGHT_CASE in case_set.cases else None)
-    scenario, rollouts = golden.inputs(case_set, RED_LIGHT_CASE)
-    prepared = jax_realism.prepare(
-        [scenario], challenge=case_set.challenge, config=golden.config_reference(case_set, "2025"), search="device"
-    )
-    arrays = {k: jnp.asarray(v) for k, v in jax_realism.stack_rollouts(prepared, [rollouts]).items()}
+    prepared, arrays = golden.device_inputs(case_set, [RED_LIGHT_CASE], "2025")
+    arrays = {k: jnp.asarray(v) for k, v in arrays.items()}
     expected = golden.expected_features(case_set, RED_LIGHT_CASE)
     return prepared, arrays, expected, golden.expected_metrics(case_set, RED_LIGHT_CASE, "2025")
 

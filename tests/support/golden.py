@@ -144,6 +144,21 @@ def inputs(case_set: CaseSet, case: str):
     return scenario_arrays(scenario(r.scenario_id)), rollout_arrays(r, case_set.challenge)
 
 
+def device_inputs(case_set: CaseSet, cases: list, config_name: str):
+    """`jax_realism.prepare` of `cases` with the device searches under the config `config_name`, and their
+    rollouts stacked: (prepared, arrays). JAX is imported here, by its callers only."""
+    from wosac_eval import jax_realism
+
+    pairs = [inputs(case_set, c) for c in cases]
+    prepared = jax_realism.prepare(
+        [s for s, _ in pairs],
+        challenge=case_set.challenge,
+        config=config_reference(case_set, config_name),
+        search="device",
+    )
+    return prepared, jax_realism.stack_rollouts(prepared, [r for _, r in pairs])
+
+
 def expected_features(case_set: CaseSet, case: str):
     return np.load(case_set.folder / f"{case}.features.npz")
 

@@ -264,6 +264,10 @@ def remove_journal(journal: os.PathLike | str) -> None:
     """Remove a journal and what it keeps beside it (its validation and archive members, a journal of
     another run set aside)."""
     journal = Path(journal)
-    for path in (journal, validated_path(journal), journal.with_name(journal.name + ".old")):
+    # The journal goes last: its absence then means nothing of the run is left beside it (a reader that waits
+    # for it to go sees the folder clean), and a crash midway leaves a journal that resumes, never files
+    # without their journal.
+    for path in (validated_path(journal), journal.with_name(journal.name + ".old")):
         path.unlink(missing_ok=True)
     shutil.rmtree(members_path(journal), ignore_errors=True)
+    journal.unlink(missing_ok=True)

@@ -24,6 +24,10 @@ process of its tree and the disk use of the folders it writes:
 
 - validate:  `wosac-eval validate --json --workers K`
 - cli:       `wosac-eval score --workers K -o result.json` (default analysis)
+- core:      the scoring core the cli path is measured against: one copy of each base scene scored on
+             one core (`score_scenario` of its protobuf bytes, parsing included, as `score_speed.py`
+             measures one scene: median of --core-repeat runs after a warm-up), weighted by the base's
+             copies; with the cli path in the same run, the cli path's CPU per scene over it
 - cli-objects: the same with `--per-object`: every evaluated object's values streamed through the run's
              journal into the side file `result.objects.jsonl`; its size, its objects, and its wall and
              CPU time against the cli path's of the same run (the goal: at most 10 % more, in bounded memory)
@@ -93,7 +97,7 @@ OFFICIAL_SHARDS = 150  # validation.tfrecord-0000k-of-00150
 PER_SHARD = math.ceil(VALIDATION_SET / OFFICIAL_SHARDS)  # 294 scenarios per official shard
 PLACEHOLDER = b"<full-scale-id!>"  # 16 bytes, as a WOMD scenario id: copies patch these in place
 LAYOUT_VERSION = 1  # bump when the bytes a build writes change
-ALL_PATHS = ("validate", "cli", "cli-objects", "service", "ray", "interrupt")
+ALL_PATHS = ("validate", "cli", "core", "cli-objects", "service", "ray", "interrupt")
 METHOD = "full-scale-benchmark"
 MiB = 1 << 20
 GiB = 1 << 30
@@ -885,6 +889,75 @@ def path_cli(ctx) -> dict:
     return ctx.with_result(row, out, run)
 
 
+# One core, protobuf bytes in, metrics out: what benchmarks/score_speed.py times for one scene, here for
+# each base scene of the workload (argv: the folder of base-K.scenario / base-K.rollouts, repeats, challenge).
+CORE_SCRIPT = """
+import json, statistics, sys, time
+from pathlib import Path
+from wosac_eval.runtime.allocator import keep_freed_memory
+from wosac_eval.arrays.rollouts import rollout_arrays
+from wosac_eval.arrays.scenario import scenario_arrays
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+from wosac_eval import challenges
+from wosac_eval.scoring.scenario import resolve_config, score_scenario
+
+keep_freed_memory()
+folder, repeat, challenge = Path(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+config = resolve_config(None, challenges.as_challenge(challenge))
+medians = []
+for k in range(len(list(folder.glob("base-*.scenario")))):
+    raw_scenario = (folder / f"base-{k}.scenario").read_bytes()
+    raw_rollouts = (folder / f"base-{k}.rollouts").read_bytes()
+    times = []
+    for _ in range(repeat + 1):
+        t0 = time.perf_counter()
+        scenario = scenario_pb2.Scenario.FromString(raw_scenario)
+        rollouts = sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts)
+        score_scenario(
+            scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts), config,
+            challenge=challenge,
+        )
+        times.append(time.perf_counter() - t0)
+    medians.append(statistics.median(times[1:]))
+print(json.dumps(medians))
+"""
+
+
+def path_core(ctx) -> dict:
+    """The scoring core on one core: each base scene's median seconds, weighted by its copies."""
+    pool = base_pool(ctx.manifest["key"]["synthetic"], ctx.manifest["key"]["seed"], ctx.challenge)
+    folder = ctx.runs / "core"
+    folder.mkdir(parents=True, exist_ok=True)
+    for k, base in enumerate(pool):  # each base under a copy's id (the placeholder's length)
+        sid = scenario_id(k, ctx.layout.seed).encode()
+        (folder / f"base-{k}.scenario").write_bytes(base.scenario_head + sid + base.scenario_tail)
+        (folder / f"base-{k}.rollouts").write_bytes(base.rollouts_head + sid + base.rollouts_tail)
+    env = {**_env(), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    cmd = [PYTHON, "-c", CORE_SCRIPT, str(folder), str(ctx.core_repeat), ctx.challenge]
+    run = run_watched(cmd, ctx.runs, "core", env=env)
+    row = ctx.row("core", f"score_scenario of each base scene, one core, median of {ctx.core_repeat}", run,
+                  run.watch.peaks(by_depth("main")), disk=0)  # fmt: skip
+    row["scenes_per_s"] = 0.0  # one core, not the run's wall: set below from the per-scene cost
+    if run.rc != 0:
+        row["ok"], row["note"] = False, f"exit {run.rc}: {run.stderr.strip()[-500:]}"
+        return row
+    medians = json.loads(run.stdout.strip().splitlines()[-1])
+    copies = [len(range(k, ctx.layout.scenes, len(pool))) for k in range(len(pool))]  # copy i is base i % P
+    per_scene = sum(m * c for m, c in zip(medians, copies)) / sum(copies)
+    row["core_s_per_scene"] = per_scene
+    row["scenes_per_s"] = round(1 / per_scene, 2)
+    row["base_medians_s"] = medians
+    row["note"] = (
+        f"{per_scene * 1e3:.1f} ms per scene (bases {min(medians) * 1e3:.1f}-{max(medians) * 1e3:.1f} ms, "
+        f"weighted by their copies)"
+    )
+    if ctx.cli_cpu is not None:
+        cli = ctx.cli_cpu / ctx.layout.scenes
+        row["cli_over_core"] = cli / per_scene
+        row["note"] += f"; the cli path {cli * 1e3:.1f} ms per scene per core: {cli / per_scene:.2f}x the core"
+    return row
+
+
 def path_cli_objects(ctx) -> dict:
     """The cli path with `--per-object`: what the side file costs (time, memory, disk) over the plain run."""
     scenarios, submission = _paths(ctx.build)
@@ -1328,6 +1401,7 @@ def path_ray(ctx) -> dict:
 PATH_RUNNERS = {
     "validate": path_validate,
     "cli": path_cli,
+    "core": path_core,
     "cli-objects": path_cli_objects,
     "service": path_service,
     "ray": path_ray,
@@ -1350,6 +1424,7 @@ class Context:
         self.workers = args.workers
         self.disk_margin_gb = args.disk_margin_gb
         self.interrupt_at = args.interrupt_at
+        self.core_repeat = args.core_repeat
         self.ray_kill_at = args.ray_kill_at
         self.ray_timeout = args.ray_timeout
         self.service_timeout = args.service_timeout
@@ -1535,6 +1610,7 @@ def main(argv: list[str] | None = None) -> int:
         default=0.5,
         help="share of the scenarios scored when the ray path kills a node (default 0.5)",
     )
+    p.add_argument("--core-repeat", type=int, default=5, help="runs of each base scene in the core path (default 5)")
     p.add_argument("--ray-timeout", type=float, default=7200.0)
     p.add_argument("--service-timeout", type=float, default=7 * 3600.0)
     p.add_argument(

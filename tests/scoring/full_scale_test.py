@@ -90,7 +90,7 @@ def _check_workload(build) -> None:
 def test_every_path_gives_the_same_result(tmp_path):
     require_shared("womd")
     require_shared("golden")
-    paths = ["validate", "cli", "cli-objects", "service", "interrupt"]
+    paths = ["validate", "cli", "core", "cli-objects", "service", "interrupt"]
     try:
         import wosac_server  # noqa: F401
     except ImportError:
@@ -110,7 +110,12 @@ def test_every_path_gives_the_same_result(tmp_path):
     assert "valid, 0 error(s), 0 warning(s)" in rows["validate"]["note"]
     scored = [row for row in rows.values() if "digest" in row]
     assert rows["cli"]["same"] == "reference"
-    assert {p for p, row in rows.items() if "skipped" not in row} - {"validate"} == {r["path"] for r in scored}
+    assert {p for p, row in rows.items() if "skipped" not in row} - {"validate", "core"} == {r["path"] for r in scored}
+    # The scoring core, one copy of each of the 6 base scenes on one core, and the cli path's CPU over it.
+    core = rows["core"]
+    assert core["ok"] and len(core["base_medians_s"]) == 6 and all(m > 0 for m in core["base_medians_s"])
+    assert min(core["base_medians_s"]) <= core["core_s_per_scene"] <= max(core["base_medians_s"])
+    assert core["cli_over_core"] == pytest.approx(rows["cli"]["cpu_s"] / SCENES / core["core_s_per_scene"], rel=1e-3)
     for row in scored:
         assert row["ok"] and row["same"] in ("reference", "yes"), (row["path"], row["same"], row["note"])
         assert row["digest"]["num_scenarios"] == SCENES and row["digest"]["copies_alike"]

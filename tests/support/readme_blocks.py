@@ -1,4 +1,4 @@
-"""Run the code blocks of the documentation, in order, in one scratch folder: what `tests/readme_test.py` checks.
+"""Run the code blocks of the documentation, in order, in a scratch folder: what `tests/readme_test.py` checks.
 
 The documents are README.md, then every `docs/*.md` by name (`documents()`).
 Every ```bash and ```python block runs, except the two set-up commands (the
@@ -12,8 +12,12 @@ namespace with loopback only (Ray binds to the machine's address): run this
 module inside `unshare -n` (the test does when it is root), or they are
 skipped and named.
 
-Usage: python tests/support/readme_blocks.py SCRATCH_DIR [--skip-ray]
-Exit 0 when every block ran with exit 0; else 1, naming the block's line.
+The test runs the README's blocks once, then each page of `docs/` in a copy of that folder (the
+pages run side by side: none uses what another page wrote).
+
+Usage: python tests/support/readme_blocks.py SCRATCH_DIR [--skip-ray] [--document README.md ...]
+(every document, in order, unless --document names some). Exit 0 when every block ran with exit 0;
+else 1, naming the block's line.
 """
 
 from __future__ import annotations
@@ -61,7 +65,9 @@ def uses_ray(code: str) -> bool:
     return "--engine ray" in code or 'engine="ray"' in code or "ray start" in code
 
 
-def run_blocks(scratch: Path, skip_ray: bool) -> int:
+def run_blocks(scratch: Path, skip_ray: bool, only: list[str] | None = None) -> int:
+    """Run the blocks of every document, or of the documents named in `only` (paths as in
+    `document_blocks()`), in order in `scratch`; 1 if any failed."""
     scratch.mkdir(parents=True, exist_ok=True)
     if not (scratch / "examples").exists():
         (scratch / "examples").symlink_to(REPO / "examples")
@@ -76,7 +82,10 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
         "PYTHONUNBUFFERED": "1",
     }
     env.pop("RAY_ADDRESS", None)
-    blocks = document_blocks()
+    blocks = [block for block in document_blocks() if only is None or block[0] in only]
+    if not blocks:
+        print(f"no blocks to run in {only}", flush=True)
+        return 1
     failed = 0
     for document, line, language, code in blocks:
         if skip_ray and uses_ray(code):
@@ -93,9 +102,15 @@ def run_blocks(scratch: Path, skip_ray: bool) -> int:
                 f"--- code\n{code}--- stdout (tail)\n{done.stdout[-3000:]}\n--- stderr (tail)\n{done.stderr[-3000:]}",
                 flush=True,
             )
-    print(f"{len(blocks)} block(s) of {len(documents())} document(s), {failed} failed", flush=True)
+    print(f"{len(blocks)} block(s) of {len({block[0] for block in blocks})} document(s), {failed} failed", flush=True)
     return 1 if failed else 0
 
 
+def main(argv: list[str]) -> int:
+    scratch, options = Path(argv[0]), argv[1:]
+    only = [options[i + 1] for i, option in enumerate(options[:-1]) if option == "--document"]
+    return run_blocks(scratch, "--skip-ray" in options, only or None)
+
+
 if __name__ == "__main__":
-    sys.exit(run_blocks(Path(sys.argv[1]), "--skip-ray" in sys.argv[2:]))
+    sys.exit(main(sys.argv[1:]))

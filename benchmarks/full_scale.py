@@ -953,6 +953,7 @@ def path_core(ctx) -> dict:
     )
     if ctx.cli_cpu is not None:
         cli = ctx.cli_cpu / ctx.layout.scenes
+        row["cli_s_per_scene"] = cli
         row["cli_over_core"] = cli / per_scene
         row["note"] += f"; the cli path {cli * 1e3:.1f} ms per scene per core: {cli / per_scene:.2f}x the core"
     return row

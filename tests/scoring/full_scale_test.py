@@ -115,7 +115,8 @@ def test_every_path_gives_the_same_result(tmp_path):
     core = rows["core"]
     assert core["ok"] and len(core["base_medians_s"]) == 6 and all(m > 0 for m in core["base_medians_s"])
     assert min(core["base_medians_s"]) <= core["core_s_per_scene"] <= max(core["base_medians_s"])
-    assert core["cli_over_core"] == pytest.approx(rows["cli"]["cpu_s"] / SCENES / core["core_s_per_scene"], rel=1e-3)
+    assert core["cli_s_per_scene"] == pytest.approx(rows["cli"]["cpu_s"] / SCENES, abs=0.05 / SCENES)  # cpu_s: 0.1 s
+    assert core["cli_over_core"] == pytest.approx(core["cli_s_per_scene"] / core["core_s_per_scene"], rel=1e-12)
     for row in scored:
         assert row["ok"] and row["same"] in ("reference", "yes"), (row["path"], row["same"], row["note"])
         assert row["digest"]["num_scenarios"] == SCENES and row["digest"]["copies_alike"]
@@ -144,6 +145,7 @@ def test_every_path_gives_the_same_result(tmp_path):
 SG_SCENES, SG_SHARDS, SG_SYNTHETIC = 24, 2, 2  # 7 base scenes: 3 golden, 2 real, 2 synthetic
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_scenario_gen_workload_validates_and_scores_as_the_golden(tmp_path):
     """`--challenge scenario_gen`: each copy a full-scene SG submission (all 91 steps of every object valid
     at step 10, with box sizes and types), valid under the challenge's rules, scored by `wosac-eval score

@@ -66,6 +66,7 @@ def test_features_bit_identical_to_official_and_numpy(case_set, case):
     golden.assert_features_equal(ours, golden.as_feature_dict(_numpy(case_set, case)), f"{case} vs numpy")
 
 
+@pytest.mark.slow  # an XLA compilation per golden case's buckets: minutes on 2 cores
 @pytest.mark.parametrize("case_set, case", CASES)
 def test_metrics_match_official(case_set, case):
     golden.skip_if_absent(case_set, case)
@@ -84,6 +85,7 @@ def test_metrics_match_official(case_set, case):
 ORACLE = golden.SETS[2]
 
 
+@pytest.mark.slow  # an XLA compilation per golden case's buckets: minutes on 2 cores
 def test_batched_call_equals_per_scenario_calls():
     batched = _set_features(ORACLE)
     # Two scenes that share a bucket with others in the batched call, scored alone.
@@ -92,6 +94,7 @@ def test_batched_call_equals_per_scenario_calls():
         golden.assert_features_equal(alone, golden.as_feature_dict(batched[case]), f"{case} alone vs batched")
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_padding_to_larger_buckets_changes_nothing():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
@@ -118,6 +121,7 @@ INDICATORS = {
 }
 
 
+@pytest.mark.slow  # the estimators of every field compiled per config: 100 s on 2 cores
 @pytest.mark.parametrize("config_name", ["2025", "2023", "scenario_gen_2025"])
 def test_estimators_under_jit_equal_numpy(config_name):
     import jax
@@ -160,6 +164,7 @@ def test_kernel_density_under_jit_matches_numpy():
     np.testing.assert_allclose(actual, expected, rtol=1e-6)
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_scenario_without_signals_or_lanes_matches_numpy():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     scenario, rollouts = golden.inputs(ORACLE, case)

@@ -76,6 +76,7 @@ def test_nearest_object_dense_equals_numpy():
     np.testing.assert_array_equal(got, expected)
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_nearest_object_pruned_on_the_device_equals_numpy_in_crowds_and_apart():
     """Many boxes: rows the candidate bound settles (boxes apart) and rows it does not (a crowd of
     touching boxes, a huge box), both equal to the numpy search bit for bit."""
@@ -190,6 +191,7 @@ def random_road_edges(rng, count):
 
 
 @pytest.mark.parametrize("candidates", [2, 8, road_edge.CELL_CANDIDATES])
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates):
     """The cell tables never leave out the nearest segment (nor a tie at a lower index): every settled
     query equals the brute-force all-pairs search; the queries they do not settle (off the grid, far
@@ -352,6 +354,7 @@ def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
 
 
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_scene_features_with_nan_and_inf_equal_between_numpy_and_jax(challenge):
     from wosac_eval.features.metric_features import scenario_features
     from wosac_eval.sim import scenes

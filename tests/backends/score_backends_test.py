@@ -105,6 +105,7 @@ def test_unknown_backend_is_rejected():
         check_backend("torch")
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_pipelined_jax_file_path_equals_numpy_on_demo_scenes(tmp_path):
     """Workers prepare on the host, this process feeds the device: the whole document equals numpy's."""
     from wosac_eval.scoring.submission import score_submission

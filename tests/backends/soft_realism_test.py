@@ -25,6 +25,9 @@ from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import policy_rollouts
 
+# Each test compiles a realism program and its gradient (30-50 s on 2 cores): the full run's, not the fast tier's.
+pytestmark = pytest.mark.slow
+
 TEMPERATURES = (1.0, 0.1, 0.01)
 GAP_AT_SMALLEST = 5e-3  # |soft - official meta-metric| at temperature 0.01 (#42)
 SHIFT = (0.013, -0.021, 0.0173)  # metres, metres, radians: where check_grads looks

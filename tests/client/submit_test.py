@@ -417,6 +417,7 @@ def test_a_quota_with_a_long_retry_after_is_refused_at_once(tmp_path, api_server
     assert "retrying" not in done.stderr and time.monotonic() - start < 30
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_usage_errors_exit_2_before_any_upload(tmp_path, big_file, data):
     state = tmp_path / "state"
     no_key = run_cli(

@@ -128,6 +128,7 @@ def test_registration_is_checked():
 
 
 @pytest.mark.jax
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_jax_backend_and_realism_equal_numpy(toy_feature):
     import jax
 

@@ -385,6 +385,7 @@ def planar_distances(points, start, delta):
 
 
 @pytest.mark.parametrize("k", [1, 8, road_edge.CELL_CANDIDATES])
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_cell_tables_list_the_nearest_and_bound_the_rest(k):
     """Every cell lists the k segments nearest its centre (ties aside), and every segment it leaves
     out is at least its clearance from every point of the cell (corners and random points)."""

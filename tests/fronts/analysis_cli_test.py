@@ -36,6 +36,7 @@ def runs(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_every_row_carries_the_analysis(runs):
     result = json.loads(runs["idm.json"].read_text())
     for row in result["scenarios"]:

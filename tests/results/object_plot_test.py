@@ -54,6 +54,7 @@ def test_object_picture_of_a_log_replay_with_a_collision():
         object_png(scenario, rollouts, not_evaluated)
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_plot_object_writes_a_png_and_refuses_mistakes(tmp_path, files):
     from wosac_eval.arrays.scenario import scenario_arrays
 

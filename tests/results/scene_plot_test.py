@@ -55,6 +55,7 @@ def test_a_collision_is_marked_where_and_when_it_starts():
     assert image.format == "PNG" and image.width >= 600
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_plot_writes_png_gif_and_html(tmp_path, files):
     scenarios, submission, ids = files
     common = ["--scenarios", str(scenarios), "--submission", str(submission), "--scenario", ids[1]]
@@ -100,6 +101,7 @@ def test_plot_page_steps_through_frames_in_a_browser(tmp_path, files):
     assert 'max="9"' in dom  # 0, 10, ..., 90: ten frames behind the slider
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_plot_mistakes_are_usage_errors(tmp_path, files):
     scenarios, submission, ids = files
     bad_suffix = run_cli("plot", "--scenarios", str(scenarios), "-o", str(tmp_path / "s.jpg"), "--scenario", ids[0])
@@ -127,6 +129,7 @@ def test_plot_mistakes_are_usage_errors(tmp_path, files):
     assert log_only.returncode == 0, log_only.stderr
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_report_shows_the_worst_scenes(tmp_path, files):
     scenarios, submission, _ = files
     result = tmp_path / "r.json"

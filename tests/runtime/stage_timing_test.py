@@ -22,6 +22,7 @@ import stage_timing  # noqa: E402
 
 
 @pytest.mark.parametrize("challenge, config", [("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")])
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_breakdown_scores_as_score_scenario_and_counts_add_up(challenge, config):
     scenario = scenes.generate_scenes(1, seed=3)[0]
     raw_rollouts = rollouts_bytes(policy_rollouts(scenario, "constant_velocity", challenge=challenge))

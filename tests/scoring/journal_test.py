@@ -42,6 +42,7 @@ def _progress_log():
     return calls, lambda done, total: calls.append((done, total))
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_journal_holds_every_row_and_resuming_scores_only_the_rest(workload, uninterrupted, tmp_path):
     scenarios, submission = workload
     journal = tmp_path / "run.journal"
@@ -58,6 +59,7 @@ def test_journal_holds_every_row_and_resuming_scores_only_the_rest(workload, uni
     assert len(_journal_lines(journal)) == 1 + N and journal.read_bytes().endswith(b"\n")
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_resumed_run_takes_the_validation_it_kept(workload, uninterrupted, tmp_path, monkeypatch):
     """Validation walks the whole submission (a quarter of a full run): the journal keeps it."""
     from wosac_eval.scoring import submission as scoring
@@ -136,6 +138,7 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args]
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_cli_interrupted_then_run_again_writes_the_same_document(workload, uninterrupted, tmp_path):
     scenarios, submission = workload
     output = tmp_path / "result.json"

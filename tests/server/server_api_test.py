@@ -346,6 +346,7 @@ def test_keys_command_creates_lists_and_revokes(api_server):
         assert c.get("/v1/submissions").status_code == 401
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_restart_keeps_accepted_submissions(make_server, tmp_path):
     server = make_server(workers=0)
     key = server.key("restarter")

@@ -35,6 +35,7 @@ def _usage(c, submission_id: str, timeout: float = 10.0) -> dict:
     return status
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_expansion_bombs_are_refused_at_upload_and_nothing_is_kept(make_server):
     server = make_server(workers=0, max_archive_members=100)
     with server.client(server.key("bomber")) as c:
@@ -75,6 +76,7 @@ def test_a_job_over_its_memory_limit_fails_with_the_reason_and_the_worker_goes_o
             assert "WOSAC_JOB_MEMORY_BYTES" in status["error"], status["error"]
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_scoring_process_over_its_cpu_budget_is_stopped_with_the_reason():
     """The limits a worker puts on a job's process, applied to a forked process that spins."""
     from wosac_server.settings import Settings
@@ -132,6 +134,7 @@ def _closed_within(sock: socket.socket, seconds: float) -> bytes:
         received += chunk
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_slow_clients_are_closed_and_one_client_cannot_hold_every_connection(make_server):
     server = make_server(workers=0, header_timeout_s=1, body_timeout_s=1, max_connections_per_client=4)
     key = server.key("slow-client")
@@ -366,6 +369,7 @@ def _finish(server, key: str, keep: int) -> None:
         server.store.execute("UPDATE submissions SET state = 'failed', error = 'test' WHERE id = ?", (sid,))
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_simultaneous_uploads_from_one_key_take_exactly_the_free_slots(api_server):
     """K uploads at once on a key with N free job slots: exactly N accepted, every round; the refused
     ones hold nothing (the slots freed afterwards take exactly that many uploads again)."""
@@ -469,6 +473,7 @@ def test_failed_authentication_is_throttled_per_address(make_server, limit):
 
 
 @pytest.mark.parametrize("limit", [3])
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_forwarded_for_is_believed_only_from_trusted_proxies(make_server, limit):
     """uvicorn alone believes X-Forwarded-For from 127.0.0.1: rotating it would dodge the per-address
     throttle. Without WOSAC_TRUSTED_PROXIES the peer address counts."""

@@ -102,6 +102,7 @@ def upload_states(server) -> dict[str, str]:
     return {r["id"]: r["state"] for r in server.store.fetchall("SELECT id, state FROM uploads")}
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_uploads_past_the_floor_get_507_counting_what_open_uploads_and_jobs_still_need(small_disk, make_server):
     server = make_server(data_dir=small_disk, workers=0, min_free_fraction=0.10, disk_reserve_bytes=MiB)
     key = server.key("floor")
@@ -153,6 +154,7 @@ def test_uploads_past_the_floor_get_507_counting_what_open_uploads_and_jobs_stil
         assert c.post("/v1/uploads").status_code == 201
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_scored(
     small_disk, make_server, scoring_data, direct_single_result, tmp_path
 ):
@@ -247,6 +249,7 @@ def journal_rows(path: Path) -> int:
         return 0
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(small_disk, make_server, replicated_job):
     scenarios, submission, expected = replicated_job
     n = 16

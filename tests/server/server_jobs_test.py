@@ -13,12 +13,15 @@ import os
 import signal
 import time
 
+import pytest
+
 from support.processes import alive, processes_of
 from support.server_harness import as_submission, canonical, tar_bytes
 
 RUNNING = ("validating", "scoring")
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_submissions_score_exactly_as_score_submission(
     make_server, scoring_data, direct_full_result, direct_single_result
 ):
@@ -60,6 +63,7 @@ def test_submissions_score_exactly_as_score_submission(
         assert [e["method"] for e in c.get("/v1/leaderboard").json()["entries"]] == ["baseline-1"]  # unpublished
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_invalid_submission_fails_with_its_report(make_server, scoring_data):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     with server.client(server.key("invalid")) as c:
@@ -91,6 +95,7 @@ def _running_worker_pid(server, submission_id: str, timeout: float = 60.0) -> in
     raise AssertionError("no worker claimed the job")
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_job_of_a_killed_worker_completes_and_survives_restart(make_server, scoring_data, direct_single_result):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     key = server.key("killer")
@@ -118,6 +123,7 @@ def _lease_owner_pid(server, sid):
     return server.store.fetchone("SELECT lease_owner FROM submissions WHERE id = ?", (sid,))["lease_owner"]
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_job_over_its_time_budget_fails_with_the_reason(make_server, scoring_data):
     server = make_server(workers=1, scenarios=scoring_data.scenarios, job_time_budget_s=0.05, heartbeat_s=0.02)
     with server.client(server.key("slow")) as c:
@@ -128,6 +134,7 @@ def test_job_over_its_time_budget_fails_with_the_reason(make_server, scoring_dat
     assert status["attempts"] == 1
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_restart(
     make_server, scoring_data, direct_single_result
 ):
@@ -152,6 +159,7 @@ def test_server_killed_mid_job_leaves_no_orphan_and_the_job_completes_after_rest
         assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == canonical(direct_single_result)
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
     """A scenario-gen submission is validated and scored as such, lands on the scenario-gen
     leaderboard (not the sim agents one), and a partial result shows its coverage."""
@@ -198,12 +206,13 @@ def test_scenario_gen_jobs_have_their_own_leaderboard(make_server, tmp_path):
         assert 'id="leaderboard-scenario_gen"' in page and "whole" in page and 'class="partial"' in page
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server, tmp_path):
     """The service keeps the challenge server's metadata rules by default; WOSAC_METADATA_CHECKS=warn
     scores such a submission and its result lists the gaps as warnings."""
+    from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import make_submission
-    from wosac_eval.arrays.submission_writer import SubmissionMetadata
 
     shards = scenes.write_scenario_shards(scenes.generate_scenes(1, seed=8), tmp_path / "scenarios", num_shards=1)
     anonymous = SubmissionMetadata(unique_method_name="anon", account_name="", authors=[])
@@ -223,6 +232,7 @@ def test_metadata_gaps_fail_a_job_unless_the_service_is_set_to_warn(make_server,
         server.stop()
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_killed_job_process_leaves_no_scoring_process_behind(make_server, scoring_data):
     """A job's process scoring with a pool (WOSAC_SCORE_THREADS=2) killed as the OOM killer would: the
     pool's processes end with it (they would otherwise wait on their queue forever, each holding its

@@ -11,6 +11,8 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
+
 from support.server_harness import canonical, resumed_and_scored, wait_gone
 
 N = 16
@@ -36,6 +38,7 @@ def stored_bytes(data_dir: Path) -> int:
     return total
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_job_whose_worker_is_killed_resumes_from_its_journal(make_server, replicated_job):
     scenarios, submission, expected = replicated_job
     server = make_server(workers=1, scenarios=[scenarios], scene_pictures=0)

@@ -85,6 +85,7 @@ def _wait_for_workers(server: Server, proc: subprocess.Popen) -> None:
     [*(("start", d) for d in STARTUP_MOMENTS), *(("workers", d) for d in WORKER_MOMENTS)],
     ids=lambda m: f"{m[1]}s-after-{m[0]}",
 )
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_sigterm_at_any_moment_of_start_up_leaves_no_worker(tmp_path, moment):
     after, delay = moment
     server, proc = _serve(tmp_path)

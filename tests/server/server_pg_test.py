@@ -3,9 +3,12 @@ server and workers using it through WOSAC_DB_URL."""
 
 from __future__ import annotations
 
+import pytest
+
 from support.server_harness import canonical
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_service_on_postgresql_scores_and_survives_restart(
     make_server, postgres_server, scoring_data, direct_single_result
 ):

@@ -10,10 +10,11 @@ import csv
 import io
 import json
 
-from wosac_server import jobs, results
+import pytest
 
 from support.results import synthetic_result
 from support.server_harness import as_submission, canonical, wait_gone
+from wosac_server import jobs, results
 
 ROWS = 5_000
 
@@ -63,6 +64,7 @@ def _check_served(client, sid: str, doc: dict) -> None:
     assert canonical(summary.json()) == canonical(_without_rows(doc))
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_result_of_many_rows_is_streamed_paged_and_summarised(api_server):
     doc = synthetic_result(ROWS)
     rows = [json.loads(json.dumps(r, allow_nan=True)) for r in doc["scenarios"]]
@@ -120,6 +122,7 @@ def test_a_result_of_many_rows_is_streamed_paged_and_summarised(api_server):
         assert "rows file is missing" in c.get(f"/v1/submissions/{sid}/results").json()["detail"]
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_result_stored_by_an_earlier_service_is_still_served(api_server):
     """A service upgraded in place keeps its results of the single-file format (`<id>.json`, the whole
     document, as `jobs.write_json_atomically` wrote it)."""
@@ -147,6 +150,7 @@ def test_a_result_stored_by_an_earlier_service_is_still_served(api_server):
             assert r.status_code == 410 and "missing on the server" in r.json()["detail"], form
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_scored_job_is_stored_apart_and_served_whole(make_server, scoring_data):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     with server.client(server.key("scored")) as c:

@@ -43,6 +43,7 @@ def scored(tmp_path_factory, scoring_data):
         server.stop()
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_the_worker_writes_the_objects_and_their_row_index(scored, scoring_data):
     server, ids, keys = scored
     from wosac_eval.scoring.objects import read_objects
@@ -82,6 +83,7 @@ def test_the_row_index_skips_scenes_without_objects_and_refuses_another_order(tm
     assert scene_records(tmp_path / "none.jsonl", index, 0) is None  # scored before per-object files
 
 
+@pytest.mark.slow  # a job scored by the service (the module's `scored`, 40 s on 2 cores): the full run's
 def test_scenes_and_worst_objects_in_the_api(scored):
     server, ids, keys = scored
     from wosac_eval.results.worst_objects import scene_worst_objects
@@ -118,6 +120,7 @@ def test_scenes_and_worst_objects_in_the_api(scored):
             assert c.get(f"/v1/submissions/{ids[name]}/scenes/0/object.png").status_code == 404
 
 
+@pytest.mark.slow  # a job scored by the service (the module's `scored`, 40 s on 2 cores): the full run's
 def test_a_private_submissions_pages_need_its_key(scored):
     server, ids, keys = scored
     sid, url = ids["private"], f"{server.url}/submissions/{ids['private']}"
@@ -150,6 +153,7 @@ def test_a_private_submissions_pages_need_its_key(scored):
     assert httpx.get(url + "/scenes?fragment=1", headers={"Authorization": "Bearer wosac_x_y"}).status_code == 401
 
 
+@pytest.mark.slow  # a job scored by the service (the module's `scored`, 40 s on 2 cores): the full run's
 def test_a_leaderboard_submissions_pages_are_public_and_linked_from_its_row(scored):
     server, ids, keys = scored
     sid, url = ids["public"], f"{server.url}/submissions/{ids['public']}"

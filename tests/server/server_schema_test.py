@@ -24,6 +24,7 @@ def schemathesis_cli() -> list[str]:
     return [found]
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_fuzzed_requests_never_get_a_server_error(api_server, tmp_path):
     server = api_server
     key = server.key("fuzzer", max_concurrent=10**6, max_daily=10**6)

@@ -9,6 +9,7 @@ import socket
 import time
 
 import httpx
+import pytest
 
 from support.server_harness import as_submission
 
@@ -81,6 +82,7 @@ def test_a_refused_request_closes_its_connection_without_reading_the_body(make_s
     assert list((server.data_dir / "uploads").glob("*.body")) == []
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_body_slower_than_the_minimum_rate_is_closed_and_frees_its_slot_and_file(make_server):
     server = make_server(workers=0, body_grace_s=3, body_min_rate=1000, body_timeout_s=60)
     key = server.key("dribbler", max_concurrent=1)
@@ -106,6 +108,7 @@ def test_a_body_slower_than_the_minimum_rate_is_closed_and_frees_its_slot_and_fi
     assert "its body came slower than 1000 bytes/s" in server.log.read_text()
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_a_request_past_its_deadline_is_closed_however_fast_its_body_comes(make_server):
     server = make_server(workers=0, body_grace_s=1, body_min_rate=100, request_deadline_s=3)
     key = server.key("never-ending")

@@ -25,6 +25,7 @@ def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
     workdir = tmp_path / "demo"
     done = cli("demo", "--workdir", str(workdir), "--scenes", "3", "--workers", "2", cwd=tmp_path)

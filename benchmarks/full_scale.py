@@ -889,36 +889,26 @@ def path_cli(ctx) -> dict:
     return ctx.with_result(row, out, run)
 
 
-# One core, protobuf bytes in, metrics out: what benchmarks/score_speed.py times for one scene, here for
-# each base scene of the workload (argv: the folder of base-K.scenario / base-K.rollouts, repeats, challenge).
+# One core, protobuf bytes in, metrics out: `stage_timing.score_bytes`, what benchmarks/score_speed.py times for
+# one scene, here for each base scene of the workload (argv: benchmarks/, the folder of base-K.scenario /
+# base-K.rollouts, repeats, challenge).
 CORE_SCRIPT = """
-import json, statistics, sys, time
+import json, sys
 from pathlib import Path
-from wosac_eval.runtime.allocator import keep_freed_memory
-from wosac_eval.arrays.rollouts import rollout_arrays
-from wosac_eval.arrays.scenario import scenario_arrays
-from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+sys.path.insert(0, sys.argv[1])
+from stage_timing import median_time, score_bytes
 from wosac_eval import challenges
-from wosac_eval.scoring.scenario import resolve_config, score_scenario
+from wosac_eval.runtime.allocator import keep_freed_memory
+from wosac_eval.scoring.scenario import resolve_config
 
 keep_freed_memory()
-folder, repeat, challenge = Path(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+folder, repeat, challenge = Path(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 config = resolve_config(None, challenges.as_challenge(challenge))
 medians = []
 for k in range(len(list(folder.glob("base-*.scenario")))):
     raw_scenario = (folder / f"base-{k}.scenario").read_bytes()
     raw_rollouts = (folder / f"base-{k}.rollouts").read_bytes()
-    times = []
-    for _ in range(repeat + 1):
-        t0 = time.perf_counter()
-        scenario = scenario_pb2.Scenario.FromString(raw_scenario)
-        rollouts = sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts)
-        score_scenario(
-            scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts), config,
-            challenge=challenge,
-        )
-        times.append(time.perf_counter() - t0)
-    medians.append(statistics.median(times[1:]))
+    medians.append(median_time(lambda: score_bytes(raw_scenario, raw_rollouts, config, challenge), repeat)[0])
 print(json.dumps(medians))
 """
 
@@ -933,7 +923,8 @@ def path_core(ctx) -> dict:
         (folder / f"base-{k}.scenario").write_bytes(base.scenario_head + sid + base.scenario_tail)
         (folder / f"base-{k}.rollouts").write_bytes(base.rollouts_head + sid + base.rollouts_tail)
     env = {**_env(), "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    cmd = [PYTHON, "-c", CORE_SCRIPT, str(folder), str(ctx.core_repeat), ctx.challenge]
+    cmd = [PYTHON, "-c", CORE_SCRIPT, str(Path(__file__).resolve().parent), str(folder), str(ctx.core_repeat),
+           ctx.challenge]  # fmt: skip
     run = run_watched(cmd, ctx.runs, "core", env=env)
     row = ctx.row("core", f"score_scenario of each base scene, one core, median of {ctx.core_repeat}", run,
                   run.watch.peaks(by_depth("main")), disk=0)  # fmt: skip

@@ -93,7 +93,7 @@ def _one_box_distance_each(boxes, mine, partner):
     return out
 
 
-def _median_time(fn, repeat: int):
+def median_time(fn, repeat: int):
     fn()
     runs = []
     for _ in range(repeat):
@@ -114,7 +114,7 @@ def _road_edge_counts(
     road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, table, counts)
     valid_segments = np.flatnonzero(table.valid)
     segment = valid_segments[np.arange(len(queries)) % len(valid_segments)]  # any segment costs the same
-    floor, _ = _median_time(lambda: _one_selection_each(queries, segment, table.start, table.delta), repeat)
+    floor, _ = median_time(lambda: _one_selection_each(queries, segment, table.start, table.delta), repeat)
     return {"queries": len(queries), "pairs evaluated": counts["pairs evaluated"], "floor seconds": floor}
 
 
@@ -131,7 +131,7 @@ def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluat
     mine = box[..., :num_evaluated, :][np.asarray(valid)[..., :num_evaluated, :]]
     # One partner per query: the same box one object further on (any box costs the same arithmetic).
     partner = (mine + num_steps) % x.size
-    floor, _ = _median_time(lambda: _one_box_distance_each(boxes, mine, partner), repeat)
+    floor, _ = median_time(lambda: _one_box_distance_each(boxes, mine, partner), repeat)
     all_pairs = int(np.asarray(valid)[..., :num_evaluated, :].sum()) * (num_objects - 1)
     return {
         "queries": len(mine),
@@ -141,6 +141,16 @@ def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluat
     }
 
 
+def score_bytes(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str) -> dict:
+    """One scenario scored end to end as a scoring worker does: parse, then the arrays from the parsed bytes."""
+    scenario = scenario_pb2.Scenario.FromString(raw_scenario)
+    rollouts = sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts)
+    return score_scenario(
+        scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts), config,
+        challenge=challenge,
+    )  # fmt: skip
+
+
 def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str, repeat: int) -> dict:
     """Median seconds of each stage and end to end, operation counts and floors (see the module doc)."""
     parse = lambda: (
@@ -148,22 +158,13 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
         sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts),
     )
 
-    def end_to_end_once():  # as a scoring worker does: parse, then the arrays from the parsed bytes
-        scenario, rollouts = parse()
-        return score_scenario(
-            scenario_arrays(scenario, raw_scenario),
-            rollout_arrays(rollouts, challenge, raw_rollouts),
-            config,
-            challenge=challenge,
-        )
-
-    end_to_end, metrics = _median_time(end_to_end_once, repeat)
+    end_to_end, metrics = median_time(lambda: score_bytes(raw_scenario, raw_rollouts, config, challenge), repeat)
     stages = {}
-    stages["parse protobufs"], (scenario, rollouts) = _median_time(parse, repeat)
-    stages["scenario arrays"], arrays = _median_time(lambda: scenario_arrays(scenario, raw_scenario), repeat)
-    stages["rollout arrays"], rollout = _median_time(lambda: rollout_arrays(rollouts, challenge, raw_rollouts), repeat)
-    stages["samples"], batch = _median_time(lambda: sample_batch(arrays, rollout, challenge), repeat)
-    stages["map index"], context = _median_time(lambda: mf.map_context(arrays), repeat)
+    stages["parse protobufs"], (scenario, rollouts) = median_time(parse, repeat)
+    stages["scenario arrays"], arrays = median_time(lambda: scenario_arrays(scenario, raw_scenario), repeat)
+    stages["rollout arrays"], rollout = median_time(lambda: rollout_arrays(rollouts, challenge, raw_rollouts), repeat)
+    stages["samples"], batch = median_time(lambda: sample_batch(arrays, rollout, challenge), repeat)
+    stages["map index"], context = median_time(lambda: mf.map_context(arrays), repeat)
     layout = mf.feature_layout(batch.spec, batch.num_evaluated)
     trajectories = mf.trajectory_arrays(batch)
     tails = mf.official_tails(
@@ -187,7 +188,7 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
         stages[f"features: {name.replace('_', ' ')}"] = feature_seconds[name]
     stages["features: the rest"] = feature_seconds["features"] - sum(feature_seconds[n] for n in SEARCHES)
     log, sim = mf.metric_features(batch, per_step)
-    stages["estimators and metrics"], _ = _median_time(lambda: scenario_metrics(config, log, sim), repeat)
+    stages["estimators and metrics"], _ = median_time(lambda: scenario_metrics(config, log, sim), repeat)
     counts = {
         "road edge": {
             **_road_edge_counts(context.road_edges, *timed.arguments["road_edge_distance"], repeat),

@@ -133,7 +133,7 @@ def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, tempera
 # Soft crossings below this weight skip the lane search (their lane match counts as none): the search
 # then follows the few points near a stopped signal's line, as the official one follows the crossings.
 SOFT_CROSSING_FLOOR = 1e-6
-# Points whose lane is looked up at once (`dense.fill_rows`), more in further rounds.
+# Points whose lane is looked up at once (`dense.on_signal_lane`), more in further rounds.
 SOFT_LANE_SEARCH_CHUNK = 256
 
 
@@ -180,12 +180,7 @@ def soft_red_light_crossings(x, y, valid, m: dict, temperature):
     flat = crossings.reshape(-1, crossings.shape[-1])
     points = jax.lax.stop_gradient(jnp.stack([x, y], axis=-1).reshape(-1, 2))
     needed = (flat > _F(SOFT_CROSSING_FLOOR)).any(axis=-1)
-
-    def lane_of(rows):
-        return m["lane_id"][dense.nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
-
-    lane = dense.fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, SOFT_LANE_SEARCH_CHUNK, lane_of)
-    on_lane = lane[:, None] == m["signal_lane_id"][None, :]
+    on_lane = dense.on_signal_lane(points, needed, m, SOFT_LANE_SEARCH_CHUNK)
     return jnp.where(on_lane, flat, _F(0)).reshape(crossings.shape)
 
 

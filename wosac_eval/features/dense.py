@@ -175,7 +175,7 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
         x, y, length, width, cos_h, sin_h, outlines, radius, valid, num_evaluated
     )
     every_box = lambda r: _nearest_object_all_pairs(outlines, radius, valid, rows[r], steps[r])  # noqa: E731
-    distance = fill_rows(distance.reshape(-1), ~settled.reshape(-1), NEAREST_OBJECT_FALLBACK_CHUNK, every_box)
+    distance = _fill_rows(distance.reshape(-1), ~settled.reshape(-1), NEAREST_OBJECT_FALLBACK_CHUNK, every_box)
     return distance.reshape(num_evaluated, num_steps)
 
 
@@ -277,7 +277,7 @@ def _nearest_near_segment(q, s, cells):
     return _nearest_of(q, s, index, inside, cells["cell_near_clearance"][row])
 
 
-def fill_rows(out, which, chunk: int, compute):
+def _fill_rows(out, which, chunk: int, compute):
     """`out` with the rows where `which` is True replaced by `compute(rows)`, `chunk` rows per round.
 
     The rows are compacted to the front and computed in a `while_loop`, so the work follows their
@@ -320,8 +320,8 @@ def _nearest_segment(queries, s, cells, needed):
         listed, listed_settled = _nearest_listed_segment(queries[rows], s, cells)
         return jnp.where(listed_settled, listed, -1)
 
-    best = fill_rows(best, needed & ~settled, LISTED_CHUNK, whole_list)
-    return fill_rows(best, needed & (best < 0), FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
+    best = _fill_rows(best, needed & ~settled, LISTED_CHUNK, whole_list)
+    return _fill_rows(best, needed & (best < 0), FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
 
 
 def signed_distance_to_road_edge(queries, segments, needed=None):
@@ -408,15 +408,24 @@ def red_light_violation(xy, valid, m):
         xy, valid, m["stop_start"], m["stop_delta"], m["stop_point"], m["stopping"]
     )
     flat_suspect = suspect.reshape(-1, suspect.shape[-1])
-    points = xy.reshape(-1, 2)
-    needed = flat_suspect.any(axis=-1)
+    on_lane = on_signal_lane(xy.reshape(-1, 2), flat_suspect.any(axis=-1), m)
+    return (flat_suspect & on_lane).any(axis=-1).reshape(suspect.shape[:-1])
+
+
+def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
+    """Whether each point's nearest lane is each signal's lane: bool `(num_points, num_signals)`, the lane
+    searched only for the `needed` points (False elsewhere), `chunk` points per round (`_fill_rows`).
+
+    Args:
+      points: float32 `(num_points, 2)`; needed: bool `(num_points,)`.
+      m: the padded map arrays of `red_light_violation`.
+    """
 
     def lane_of(rows):
         return m["lane_id"][nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
 
-    lane_of_point = fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, LANE_SEARCH_CHUNK, lane_of)
-    on_lane = lane_of_point[:, None] == m["signal_lane_id"][None, :]
-    return (flat_suspect & on_lane).any(axis=-1).reshape(suspect.shape[:-1])
+    lane_of_point = _fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, chunk, lane_of)
+    return lane_of_point[:, None] == m["signal_lane_id"][None, :]
 
 
 class DenseSearch:

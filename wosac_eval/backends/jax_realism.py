@@ -387,7 +387,13 @@ def scene_features(
     features: tuple,
 ) -> mf.MetricFeatures:
     """The features of one prepared scene (leading scene axis removed): sample 0 the log, then the rollouts."""
-    traj = scene_trajectories(spec, a, rollouts)
+    return trajectory_features(layout, a, scene_trajectories(spec, a, rollouts), host, features)
+
+
+def trajectory_features(
+    layout: mf.FeatureLayout, a: dict, traj: dict, host: HostSearches | None, features: tuple
+) -> mf.MetricFeatures:
+    """`scene_features` of the scene's trajectories (`scene_trajectories`), for a caller that needs them too."""
     per_step = device_features(traj, a["tails"], a["maps"], layout, features, host, a["scene"])
     reported = layout.reported
     e = layout.num_evaluated

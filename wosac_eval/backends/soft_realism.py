@@ -264,9 +264,9 @@ def _scene_soft_realism(
     config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature, features: tuple
 ):
     """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
-    both = jr.scene_features(spec, layout, a, rollouts, None, features)
+    traj = jr.scene_trajectories(spec, a, rollouts)
+    both = jr.trajectory_features(layout, a, traj, None, features)
     log, sim = both.samples(slice(0, 1)), both.samples(slice(1, None))
-    traj = jr.scene_trajectories(spec, a, rollouts)  # the same program as in scene_features: XLA shares it
     rollouts_only = {k: traj[k][1:] for k in ("x", "y", "valid")}  # the log's flags stay the official ones
     red_light = _soft_red_light_feature(rollouts_only, a["maps"], layout, temperature)
     events = soft_events(sim, red_light, temperature)

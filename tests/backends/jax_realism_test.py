@@ -421,11 +421,15 @@ def test_exact_cpu_is_an_opt_in_made_before_the_first_computation():
     too_late = (
         "import jax, jax.numpy as jnp; from wosac_eval.backends import jax_backend; "
         "jax.block_until_ready(jnp.ones(3) * 2 + 1); "
-        "fused = jax_backend.fma_contraction(jax.devices('cpu')[0]); print(fused); jax_backend.exact_cpu()"
+        "fused = jax_backend.fma_contraction(jax.devices('cpu')[0]); print(fused)\n"
+        "try:\n    jax_backend.exact_cpu()\n"
+        "finally:\n    import os; print(os.environ.get('XLA_FLAGS'))"
     )
     out = subprocess.run([sys.executable, "-c", too_late], env=env, capture_output=True, text=True)
     if out.stdout.split()[:1] == ["True"]:  # a CPU with FMA: XLA had started fusing, exact_cpu says so
         assert out.returncode != 0 and "already started with fused multiply-adds" in out.stderr
+        # ... and leaves XLA_FLAGS unset, as it was: children and JAX's compilation cache key read them
+        assert out.stdout.split() == ["True", "None"]
 
 
 def test_waymax_style_arrays_in():

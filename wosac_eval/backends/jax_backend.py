@@ -73,10 +73,16 @@ def exact_cpu() -> None:
     Raises:
       RuntimeError: XLA's CPU backend had already started with fused multiply-adds.
     """
-    flags = os.environ.get("XLA_FLAGS", "")
-    if "xla_cpu_max_isa" not in flags:
-        os.environ["XLA_FLAGS"] = f"{flags} {EXACT_CPU_FLAG}".strip()
+    flags = os.environ.get("XLA_FLAGS")
+    if "xla_cpu_max_isa" not in (flags or ""):
+        os.environ["XLA_FLAGS"] = f"{flags or ''} {EXACT_CPU_FLAG}".strip()
     if fma_contraction(jax.devices("cpu")[0]):
+        # The flags back as they were: the running compiler ignores them, while a child process and JAX's
+        # compilation cache key (which hashes XLA_FLAGS) would take them for the compiler's settings.
+        if flags is None:
+            os.environ.pop("XLA_FLAGS", None)
+        else:
+            os.environ["XLA_FLAGS"] = flags
         raise RuntimeError(
             "XLA's CPU backend already started with fused multiply-adds: set "
             f"XLA_FLAGS={EXACT_CPU_FLAG} in the environment (or call exact_cpu()) before "

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from support.paths import require_shared
+from support.paths import JAX_TEST_CACHE, require_shared
 from support.processes import alive, command_line, left_behind
 
 # Not a WOSAC_* name: the service harness passes no WOSAC_* variable of the test run on to a server.
@@ -36,6 +36,13 @@ os.environ[SESSION_MARK] = uuid.uuid4().hex  # before any test starts a process:
 # with `jax_backend.exact_cpu()`: here before anything can start JAX, and inherited by every child.
 if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} --xla_cpu_max_isa=AVX".strip()
+# XLA's compiled programs kept on disk (JAX's persistent compilation cache), shared by the run's workers
+# and every process they start, and by later runs: the JAX tests spend most of their time compiling, the
+# same programs each run. A program is found by a digest of its HLO, the compiler's flags (XLA_FLAGS) and
+# the JAX and XLA versions, so a changed program compiles anew. Set JAX_COMPILATION_CACHE_DIR to choose
+# the folder (CI gives each run a fresh one); the least recently used programs go past 2 GiB.
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_TEST_CACHE))
+os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(2 << 30))
 LEAK_GRACE_S = 5.0
 _LEAKS_KEY = pytest.StashKey[list]()
 _LEAKS_OUTPUT = "wosac_processes_left_behind"  # in an xdist worker's workeroutput

@@ -53,17 +53,24 @@ def shared() -> Path:
     return require_shared()
 
 
+@pytest.fixture(scope="session")
+def run_root(request, tmp_path_factory) -> Path:
+    """The folder of the whole test run, the same in every xdist worker: for what the workers share
+    (locks, a set-up done once)."""
+    root = tmp_path_factory.getbasetemp()
+    if hasattr(request.config, "workerinput"):  # an xdist worker's basetemp is <the run's>/popen-gwN
+        root = root.parent
+    return root
+
+
 @pytest.fixture(autouse=True)
-def one_ray_cluster_at_a_time(request, tmp_path_factory):
+def one_ray_cluster_at_a_time(request, run_root):
     """The `ray` tests of one run take turns, whichever xdist worker runs them: two clusters at once are
     too heavy for 2 cores, and `ray stop` in the README's blocks would stop the other's. (A lock, not an
     xdist_group: pytest 9.2 drops the group from the node ids, pytest-xdist#1386.)"""
     if request.node.get_closest_marker("ray") is None:
         yield
         return
-    run_root = tmp_path_factory.getbasetemp()
-    if hasattr(request.config, "workerinput"):  # an xdist worker's basetemp is <the run's>/popen-gwN
-        run_root = run_root.parent
     with open(run_root / "ray-cluster.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         yield

@@ -61,14 +61,11 @@ def run_documents(scratch, names: list[str]) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="session")
-def reader_folder(request, tmp_path_factory):
+def reader_folder(run_root):
     """The folder after the README's blocks: run once in the run (a lock beside the workers' folders),
     with how it went kept beside it for the other workers."""
-    root = tmp_path_factory.getbasetemp()
-    if hasattr(request.config, "workerinput"):  # an xdist worker's basetemp is <the run's>/popen-gwN
-        root = root.parent
-    folder, status = root / "readme-reader", root / "readme-reader.json"
-    with open(root / "readme-reader.lock", "a") as lock:
+    folder, status = run_root / "readme-reader", run_root / "readme-reader.json"
+    with open(run_root / "readme-reader.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         if not status.exists():
             done = run_documents(folder, [README])

@@ -22,6 +22,7 @@ else 1, naming the block's line.
 
 from __future__ import annotations
 
+import argparse
 import os
 import re
 import subprocess
@@ -107,9 +108,12 @@ def run_blocks(scratch: Path, skip_ray: bool, only: list[str] | None = None) -> 
 
 
 def main(argv: list[str]) -> int:
-    scratch, options = Path(argv[0]), argv[1:]
-    only = [options[i + 1] for i, option in enumerate(options[:-1]) if option == "--document"]
-    return run_blocks(scratch, "--skip-ray" in options, only or None)
+    parser = argparse.ArgumentParser(description="Run the documentation's code blocks in order in SCRATCH_DIR.")
+    parser.add_argument("scratch", type=Path, metavar="SCRATCH_DIR")
+    parser.add_argument("--skip-ray", action="store_true", help="skip (and name) the blocks that start Ray")
+    parser.add_argument("--document", action="append", help="only this document (repeatable); default all")
+    args = parser.parse_args(argv)
+    return run_blocks(args.scratch, args.skip_ray, args.document)
 
 
 if __name__ == "__main__":

@@ -16,6 +16,7 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from wosac_eval.parse.wire import varint
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.validate import rules
 
@@ -55,9 +56,12 @@ def trajectory(draw, challenge="sim_agents"):
             t.object_type = object_type
         if draw(st.booleans()):
             t.valid.extend(draw(st.lists(st.booleans(), max_size=3)))
-    elif draw(st.booleans()):  # fields the challenge ignores must not disturb the checks
-        t.width.extend([1.0] * draw(st.integers(0, 3)))
-        t.object_type = 1
+    elif draw(st.booleans()):  # fields the challenge ignores must not disturb the checks, and are reported
+        for name in draw(st.sets(st.sampled_from(rules.BOX_FIELDS))):
+            getattr(t, name).extend([1.0] * draw(st.integers(0, 3)))
+        t.valid.extend(draw(st.lists(st.booleans(), max_size=2)))
+        if draw(st.booleans()):
+            t.object_type = draw(st.sampled_from([0, 1]))  # set, even to TYPE_UNSET
     return t
 
 
@@ -148,6 +152,28 @@ def observed(findings) -> set[tuple]:
     return out
 
 
+def unpacked_valid(r) -> bytes:
+    """`r` serialized with every trajectory's `valid` unpacked (a varint field per value), as a writer
+    other than protobuf's own may send it and every parser must read it."""
+
+    def field(number: int, payload: bytes) -> bytes:
+        return varint(number << 3 | 2) + varint(len(payload)) + payload
+
+    head = sim_agents_submission_pb2.ScenarioRollouts()
+    head.CopyFrom(r)
+    head.ClearField("joint_scenes")
+    out = head.SerializeToString()
+    for scene in r.joint_scenes:
+        body = b""
+        for t in scene.simulated_trajectories:
+            rest = sim_agents_submission_pb2.SimulatedTrajectory()
+            rest.CopyFrom(t)
+            rest.ClearField("valid")
+            body += field(1, rest.SerializeToString() + b"".join(varint(11 << 3) + varint(int(v)) for v in t.valid))
+        out += field(2, body)
+    return out
+
+
 def _check(r, known, challenge):
     agents = np.array(AGENTS) if known else None
     findings = rules.check_scenario_rollouts(r, agents, shard="x", n_rollouts=N_ROLLOUTS, challenge=challenge)
@@ -158,6 +184,16 @@ def _check(r, known, challenge):
         f.message
         for f in rules.check_scenario_rollouts(again, agents, shard="x", n_rollouts=N_ROLLOUTS, challenge=challenge)
     ] == [f.message for f in findings]
+    # read from the bytes it was parsed from (as validation reads a shard), whatever their encoding
+    for data in (r.SerializeToString(), unpacked_valid(r)):
+        parsed = sim_agents_submission_pb2.ScenarioRollouts.FromString(data)
+        assert parsed == r
+        assert [
+            f.message
+            for f in rules.check_scenario_rollouts(
+                parsed, agents, shard="x", n_rollouts=N_ROLLOUTS, challenge=challenge, wire_bytes=memoryview(data)
+            )
+        ] == [f.message for f in findings]
 
 
 @settings(max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")), deadline=None)

@@ -105,8 +105,9 @@ def trajectory_spans(data: np.ndarray):
 
 
 def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
-    """object_id int64, whether it is set (bool), and object_type int32 (TYPE_UNSET where unset) of
-    each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10 (a closed enum)."""
+    """object_id int64, whether it is set (bool), object_type int32 (TYPE_UNSET where unset) and whether it
+    is set (bool: `HasField`) of each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10
+    (a closed enum)."""
     _, header, present = walks.scalar_fields(
         data,
         start,
@@ -115,7 +116,7 @@ def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
         np.full(2, walks.WIRE_VARINT),
         np.array([0, _OBJECT_TYPES], np.int64),
     )
-    return header[:, 0], present[:, 0], header[:, 1].astype(np.int32)
+    return header[:, 0], present[:, 0], header[:, 1].astype(np.int32), present[:, 1]
 
 
 def rollout_arrays(
@@ -143,7 +144,7 @@ def rollout_arrays(
     num_steps = int(walks.float_fields(data, start[:1], end[:1], numbers[:1], 0)[1][0, 0]) if num_agents else 0
     values, count, _, _ = walks.float_fields(data, start, end, numbers, num_steps)
     _raise_for_the_first_odd_scene(rollouts, per_scene, scene, count != num_steps, fields, num_steps)
-    object_id, _, object_type = trajectory_headers(data, start, end)
+    object_id, _, object_type, _ = trajectory_headers(data, start, end)
     out = values.reshape(num_scenes, num_agents, len(fields), num_steps)
     ids = object_id.reshape(num_scenes, num_agents)
     sizes = (

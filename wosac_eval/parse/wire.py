@@ -25,6 +25,7 @@ TRAJECTORY_FIELD_NUMBERS = {
     "width": 7,
     "height": 9,
 }
+VALID_FIELD_NUMBER = 11  # SimulatedTrajectory.valid, a repeated bool
 
 
 def varint(value: int) -> bytes:

@@ -2,7 +2,8 @@
 
 - `message_spans`: the submessages of a field in many parents at once;
 - `scalar_fields`: the scalar fields of many small records (track states, map points);
-- `float_fields`: repeated float fields (the coordinates and box sizes of simulated trajectories).
+- `float_fields`: repeated float fields (the coordinates and box sizes of simulated trajectories);
+- `bool_fields`: a repeated bool field's count and whether any value is false (a trajectory's `valid`).
 
 The walks follow the protobuf encoding rules as a parse does: fields in any order, a field whose wire
 type does not match its declaration is an unknown field (skipped), the last occurrence of a scalar
@@ -271,6 +272,39 @@ def _float_fields(data, f32, starts, ends, numbers, num_values):
     return values, count, non_finite, non_positive
 
 
+def bool_fields(data, starts, ends, number: int):
+    """The repeated bool field `number` of each record (packed or not), as a parse reads it (a varint, true
+    unless 0).
+
+    Returns:
+      (count int64 `(num_records,)`: the values it holds; any_false bool `(num_records,)`: whether one is false).
+    """
+    return _bool_fields(data, starts, ends, np.int64(number))
+
+
+@numba.njit(cache=True)
+def _bool_fields(data, starts, ends, number):
+    n = starts.shape[0]
+    count = np.zeros(n, np.int64)
+    any_false = np.zeros(n, np.bool_)
+    for i in range(n):
+        pos, end = starts[i], ends[i]
+        while pos < end:
+            field, wire_type, pos = _key(data, pos, end)  # (see `_scalar_fields`)
+            after = _value_end(data, pos, end, wire_type)
+            if field == number and wire_type == WIRE_VARINT:
+                count[i] += 1
+                any_false[i] |= _varint(data, pos, end)[0] == 0
+            elif field == number and wire_type == WIRE_BYTES:  # packed
+                value_pos = _varint(data, pos, end)[1]
+                while value_pos < after:
+                    value, value_pos = _varint(data, value_pos, after)
+                    count[i] += 1
+                    any_false[i] |= value == 0
+            pos = after
+    return count, any_false
+
+
 def compile_walks() -> None:
     """Compiles the walks now (or loads them from numba's cache), for the argument types scoring and
     validation pass: called by `features.search.compile_searches`."""
@@ -279,3 +313,4 @@ def compile_walks() -> None:
     start, end, _ = message_spans(data, *whole(data), 1)
     scalar_fields(data, start, end, np.array([1]), np.array([WIRE_VARINT]), np.array([0]))
     float_fields(data, start, end, np.array([2]), 2)
+    bool_fields(data, start, end, 2)

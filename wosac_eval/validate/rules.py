@@ -32,7 +32,7 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
 from wosac_eval.challenges import CURRENT_TIME_INDEX
-from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS
+from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS, VALID_FIELD_NUMBER
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
 N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario
@@ -239,10 +239,11 @@ def missing_scenario_id(shard: str, index: int) -> Finding:
 # --------------------------------------------------------------------------
 # Rollouts
 # --------------------------------------------------------------------------
-def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int):
+def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int, spec: challenges.ChallengeSpec):
     """Per trajectory of `rollouts` (in joint-scene order) and field: value counts, non-finite and
-    non-positive (finite, <= 0; box sizes only) masks, each shape (num_trajectories, len(fields)); and the object ids,
-    whether each is set, and whether an object_type is set (not TYPE_UNSET), shape (num_trajectories,).
+    non-positive (finite, <= 0; box sizes only) masks, each shape (num_trajectories, len(fields)); the object
+    ids, whether each is set, and whether an object_type is set (not TYPE_UNSET), shape (num_trajectories,);
+    and the fields set that the challenge's evaluator does not read (`_ignored_fields`).
     Read from the scenario's serialized bytes at once (`parse.wire_walks`, imported here: a process that
     refuses a file before its rules run does not load the compiled walks)."""
     from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
@@ -252,23 +253,37 @@ def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int):
     start, end, _, _ = trajectory_spans(data)
     if len(start) != n_trajectories:
         raise AssertionError("the wire and the parsed message disagree on the number of trajectories")
-    numbers = np.array([TRAJECTORY_FIELD_NUMBERS[f] for f in fields], np.int64)
+    # The box sizes are walked for either challenge: for sim agents only to say whether they are set.
+    walked = tuple(fields) + tuple(f for f in BOX_FIELDS if f not in fields)
+    numbers = np.array([TRAJECTORY_FIELD_NUMBERS[f] for f in walked], np.int64)
     _, counts, non_finite, non_positive = wire_walks.float_fields(data, start, end, numbers, 0)
-    ids, has_id, object_type = trajectory_headers(data, start, end)
-    non_positive &= np.isin(fields, BOX_FIELDS)
-    return counts, non_finite, non_positive, ids, has_id, object_type != TYPE_UNSET
+    ids, has_id, object_type, type_set = trajectory_headers(data, start, end)
+    valid_count, valid_false = wire_walks.bool_fields(data, start, end, VALID_FIELD_NUMBER)
+    ignored = _ignored_fields(spec, dict(zip(walked, counts.any(axis=0))), valid_count, valid_false, type_set)
+    k = len(fields)
+    non_positive = non_positive[:, :k] & np.isin(fields, BOX_FIELDS)
+    return counts[:, :k], non_finite[:, :k], non_positive, ids, has_id, object_type != TYPE_UNSET, ignored
 
 
-def _ignored_fields(trajectories: Sequence[Any], spec: challenges.ChallengeSpec) -> list[str]:
-    """Fields set in some trajectory that the challenge's evaluator does not read."""
+def _ignored_fields(
+    spec: challenges.ChallengeSpec,
+    set_in_some: dict[str, bool],
+    valid_count: np.ndarray,
+    valid_false: np.ndarray,
+    type_set: np.ndarray,
+) -> list[str]:
+    """Fields set in some trajectory that the challenge's evaluator does not read.
+
+    set_in_some: float field -> whether some trajectory holds a value of it; valid_count, valid_false,
+    type_set: per trajectory, its `valid` values, whether one is false, whether object_type is set.
+    """
     if spec.submits_boxes:
         # Scenario gen: validity is the log's at the current step, whatever is submitted.
-        return ["valid"] if any(not all(t.valid) for t in trajectories if len(t.valid)) else []
-    names = []
-    for name in ("length", "width", "height", "valid"):
-        if any(len(getattr(t, name)) for t in trajectories):
-            names.append(name)
-    if any(t.HasField("object_type") for t in trajectories):
+        return ["valid"] if valid_false.any() else []
+    names = [name for name in BOX_FIELDS if set_in_some[name]]
+    if valid_count.any():
+        names.append("valid")
+    if type_set.any():
         names.append("object_type")
     return names
 
@@ -404,6 +419,12 @@ def check_scene_object_ids(
     return out
 
 
+def _trajectory(scenes: list, starts: np.ndarray, k: int):
+    """The `k`th trajectory in joint-scene order (its scene found from the scenes' first indices `starts`)."""
+    r = int(np.searchsorted(starts, k, side="right")) - 1
+    return scenes[r].simulated_trajectories[k - int(starts[r])]
+
+
 def check_scenario_rollouts(
     rollouts: Any,
     sim_agent_ids: Sequence[int] | np.ndarray | None,
@@ -412,6 +433,7 @@ def check_scenario_rollouts(
     challenge: Any = challenges.Challenge.SIM_AGENTS,
     n_rollouts: int | None = None,
     n_steps: int | None = None,
+    wire_bytes: bytes | memoryview | None = None,
 ) -> list[Finding]:
     """Rules on one ScenarioRollouts: n_rollouts joint scenes, each with exactly the sim agents, each
     trajectory with n_steps finite values in center_x, center_y, center_z and heading; for a challenge
@@ -423,6 +445,8 @@ def check_scenario_rollouts(
     All joint scenes are checked together: the trajectories of the scenario
     are flattened to shape (num_trajectories,), `rollout_of` maps each to its
     joint scene, and the checks run on whole arrays.
+    wire_bytes: the serialized `rollouts` it was parsed from, when the caller has them (the checks read
+    the wire; without them the message is serialized again).
     """
     spec = challenges.spec(challenge)
     n_rollouts = spec.num_rollouts if n_rollouts is None else n_rollouts
@@ -440,15 +464,15 @@ def check_scenario_rollouts(
             )
         )
     expected = None if sim_agent_ids is None else np.unique(np.asarray(sim_agent_ids, dtype=np.int64))
-    trajectories = [t for scene in scenes for t in scene.simulated_trajectories]
-    n = len(trajectories)
     scene_sizes = np.fromiter(
         (len(scene.simulated_trajectories) for scene in scenes), dtype=np.int64, count=len(scenes)
     )
+    n = int(scene_sizes.sum())
     rollout_of = np.repeat(np.arange(len(scenes)), scene_sizes)
     starts = np.concatenate([[0], np.cumsum(scene_sizes)])
     fields = TRAJECTORY_FIELDS + (BOX_FIELDS if spec.submits_boxes else ())
-    counts, non_finite, non_positive, ids, has_id, has_type = _field_checks(rollouts, fields, n)
+    checks = _field_checks(rollouts if wire_bytes is None else wire_bytes, fields, n, spec)
+    counts, non_finite, non_positive, ids, has_id, has_type, ignored = checks
 
     # Object ids. The common case (every scene holds exactly the sim agents) is
     # proven for all scenes at once; only the other scenes are looked at one by one.
@@ -483,7 +507,7 @@ def check_scenario_rollouts(
         )
     for k, f in np.argwhere(non_finite).tolist():
         field = fields[f]
-        detail = _non_finite_detail(field, getattr(trajectories[k], field))
+        detail = _non_finite_detail(field, getattr(_trajectory(scenes, starts, k), field))
         out.append(
             make_finding(
                 "rollouts.non_finite",
@@ -496,7 +520,7 @@ def check_scenario_rollouts(
         )
     for k, f in np.argwhere(non_positive).tolist():
         field = fields[f]
-        values = np.asarray(getattr(trajectories[k], field), dtype=np.float64)
+        values = np.asarray(getattr(_trajectory(scenes, starts, k), field), dtype=np.float64)
         bad = np.flatnonzero(np.isfinite(values) & (values <= 0))
         detail = f"{field}[{bad[0]}] is {values[bad[0]]:g}"
         if len(bad) > 1:
@@ -526,7 +550,6 @@ def check_scenario_rollouts(
                     **where_(k),
                 )
             )
-    ignored = _ignored_fields(trajectories, spec)
     if ignored:
         out.append(
             make_finding(

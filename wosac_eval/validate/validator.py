@@ -135,15 +135,22 @@ def _container_finding(problem: Exception) -> Finding:
 
 
 def validate_scenario_rollouts(
-    rollouts_msg: Any, sim_agent_ids: Any, shard: str | None, challenge: Any = challenges.Challenge.SIM_AGENTS
+    rollouts_msg: Any,
+    sim_agent_ids: Any,
+    shard: str | None,
+    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    wire_bytes: bytes | memoryview | None = None,
 ) -> list[Finding]:
     """The per-scenario rules (32 joint scenes, sim agents, 80 or 91 finite values per field, boxes and
     types for scenario gen) on one ScenarioRollouts.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
     (num_sim_agents,), or None for a scenario outside the scenario set.
+    wire_bytes: the bytes the message was parsed from (`rules.check_scenario_rollouts`).
     """
-    return rules.check_scenario_rollouts(rollouts_msg, sim_agent_ids, shard=shard, challenge=challenge)
+    return rules.check_scenario_rollouts(
+        rollouts_msg, sim_agent_ids, shard=shard, challenge=challenge, wire_bytes=wire_bytes
+    )
 
 
 @dataclass
@@ -214,7 +221,8 @@ def _check_shard_streamed(
                 result.entries.append((len(result.entries), scenario_id))
                 result.spans.append((offset + start, offset + end))
                 if scenario_id is not None:
-                    report.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name, challenge))
+                    value = memoryview(field_bytes)[start:end]  # the ScenarioRollouts' own bytes
+                    report.extend(validate_scenario_rollouts(rollouts, agents.get(scenario_id), name, challenge, value))
                 offset += end
         except IrregularShard:
             return None

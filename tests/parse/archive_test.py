@@ -288,6 +288,49 @@ def test_truncated_tar_gz_names_archive_and_member_after_streaming_earlier_ones(
         list(stream)
 
 
+def test_isal_and_zlib_read_the_same_shards_and_refuse_the_same_damage(tmp_path, shards, monkeypatch):
+    """.tar.gz members are inflated by ISA-L (the `isal` dependency) when it is installed, else by zlib:
+    the same shards, and a cut or corrupt stream refused naming the archive and the damaged member after
+    the intact members before it. ISA-L checks the gzip trailer with the last bytes it inflates, so a
+    damaged last member is refused before it is delivered; zlib's reader delivers it, then refuses the
+    archive (validation refuses the submission either way)."""
+    from wosac_eval.parse import archive
+
+    pytest.importorskip("isal")
+    assert archive._OPENERS["gzip"].__module__.startswith("isal")
+    first_name, first_data = next(iter(shards.items()))
+    members = {first_name: first_data, "late.binproto": random.Random(0).randbytes(1 << 20)}
+    raw = make_tar(tmp_path / "full.tar.gz", members, "w:gz").read_bytes()
+    middle = len(raw) // 2  # in the incompressible late member
+    damaged = {
+        "cut.tar.gz": raw[: len(raw) - (1 << 19)],
+        "trailer.tar.gz": raw[:-4],
+        "flipped.tar.gz": raw[:middle] + bytes([raw[middle] ^ 0xFF]) + raw[middle + 1 :],
+    }
+    for name, data in damaged.items():
+        (tmp_path / name).write_bytes(data)
+
+    def read(name: str) -> tuple[list, str]:
+        got = []
+        with pytest.raises(ArchiveError) as refused:
+            for shard in iter_submission_shards(tmp_path / name):
+                got.append(shard)
+        return got, str(refused.value)
+
+    intact = [(f"submission/{first_name}", first_data)]
+    with_isal = {name: read(name) for name in damaged}
+    for name, (got, message) in with_isal.items():
+        assert got == intact, name
+        assert message.startswith(f"{tmp_path / name}: ") and "'submission/late.binproto'" in message, message
+    assert read_all(tmp_path / "full.tar.gz") == [(f"submission/{n}", d) for n, d in members.items()]
+    monkeypatch.setitem(archive._OPENERS, "gzip", gzip.GzipFile)
+    assert read_all(tmp_path / "full.tar.gz") == [(f"submission/{n}", d) for n, d in members.items()]
+    for name in damaged:
+        got, message = read(name)
+        assert got[: len(intact)] == intact, name
+        assert message.startswith(f"{tmp_path / name}: ") and "'submission/late.binproto'" in message, message
+
+
 def test_truncated_gzip_trailer_is_detected(tmp_path, shards):
     raw = make_tar(tmp_path / "full.tar.gz", shards, "w:gz").read_bytes()
     path = tmp_path / "cut.tar.gz"

@@ -76,6 +76,11 @@ def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays) -> tuple[np.nd
     )
 
 
+# Metres added to the bound below which objects are tried as partners: far above float64's rounding of
+# the bounds, so no object that could be the nearest is left out.
+_PARTNER_SLACK = 1e-6
+
+
 def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
     """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(entries,)`.
 
@@ -85,19 +90,27 @@ def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarr
     pick = lambda a: np.asarray(np.broadcast_to(a, rollouts.x.shape)[rollout, :, step], np.float64)  # noqa: E731
     x, y, heading, length, width = map(pick, (rollouts.x, rollouts.y, rollouts.heading, *sizes))  # (entries, objects)
     entries = np.arange(rollout.size)
-    me = lambda a: np.broadcast_to(a[entries, sdc][:, None], a.shape).ravel()  # noqa: E731
-    dx, dy, radius = disc_pairs(
-        (x - x[entries, sdc][:, None]).ravel(),
-        (y - y[entries, sdc][:, None]).ravel(),
-        me(heading),
-        me(length),
-        me(width),
-        heading.ravel(),
-        length.ravel(),
-        width.ravel(),
+    dxc, dyc = x - x[entries, sdc][:, None], y - y[entries, sdc][:, None]
+    # A box's discs lie within `reach` of its centre and its middle disc is the centre, so a pair's disc gap
+    # is at least their centres' distance less both reaches and the radii, and at most that distance less
+    # the radii. Only objects whose least gap can reach the entry's least most are measured disc by disc:
+    # their gaps are the same arithmetic as over every object, the others cannot be the nearest (NaN
+    # bounds keep an object in).
+    centre = np.hypot(dxc, dyc)
+    radius = (width + width[entries, sdc][:, None]) / 2
+    reach = np.maximum(length - width, 0.0) / 2
+    most = np.maximum(centre - radius, 0.0)
+    most[entries, sdc] = np.inf
+    least = np.maximum(centre - reach - reach[entries, sdc][:, None] - radius, 0.0)
+    tried = ~(least > most.min(axis=1, keepdims=True) + _PARTNER_SLACK)
+    tried[entries, sdc] = False
+    e, j = np.nonzero(tried)
+    me = sdc[e]
+    dx, dy, radii = disc_pairs(
+        dxc[e, j], dyc[e, j], heading[e, me], length[e, me], width[e, me], heading[e, j], length[e, j], width[e, j]
     )
-    gap = disc_gap(dx, dy, radius).reshape(x.shape)
-    gap[entries, sdc] = np.inf
+    gap = np.full(x.shape, np.inf)
+    gap[e, j] = disc_gap(dx, dy, radii)
     partner = np.argmin(gap, axis=1)
     along = (x[entries, partner] - x[entries, sdc]) * np.cos(heading[entries, sdc]) + (
         y[entries, partner] - y[entries, sdc]

@@ -1,0 +1,80 @@
+"""`driving_scores.at_fault`: measuring only the objects that can be the SDC's nearest gives every answer that
+measuring all of them does, on crowded, tied and non-finite scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wosac_eval.analysis.criticality_features import disc_gap, disc_pairs
+from wosac_eval.analysis.driving_scores import at_fault
+from wosac_eval.arrays.rollouts import RolloutArrays
+
+
+def every_object(rollouts: RolloutArrays, sizes, rollout, step, sdc) -> np.ndarray:
+    """The plain definition: the disc gap to every other object, the nearest (lowest row among ties) the partner."""
+    pick = lambda a: np.asarray(np.broadcast_to(a, rollouts.x.shape)[rollout, :, step], np.float64)  # noqa: E731
+    x, y, heading, length, width = map(pick, (rollouts.x, rollouts.y, rollouts.heading, *sizes))
+    entries = np.arange(rollout.size)
+    gap = np.empty(x.shape)
+    for j in range(x.shape[1]):
+        dx, dy, radius = disc_pairs(
+            x[:, j] - x[entries, sdc],
+            y[:, j] - y[entries, sdc],
+            heading[entries, sdc],
+            length[entries, sdc],
+            width[entries, sdc],
+            heading[:, j],
+            length[:, j],
+            width[:, j],
+        )
+        with np.errstate(invalid="ignore"):
+            gap[:, j] = disc_gap(dx, dy, radius)
+    gap[entries, sdc] = np.inf
+    partner = np.argmin(gap, axis=1)
+    along = (x[entries, partner] - x[entries, sdc]) * np.cos(heading[entries, sdc]) + (
+        y[entries, partner] - y[entries, sdc]
+    ) * np.sin(heading[entries, sdc])
+    return along > -length[entries, sdc] / 2
+
+
+def scene(seed: int, objects: int, spread: float, grid: bool) -> tuple[RolloutArrays, tuple]:
+    """Random rollouts (4 x objects x 6 steps) and box sizes; `grid`: positions on a 2 m lattice with
+    headings of 0 or 90 degrees and two box sizes, where many objects tie for the nearest."""
+    rng = np.random.default_rng(seed)
+    shape = (4, objects, 6)
+    if grid:
+        x = rng.integers(-3, 4, shape).astype(np.float32) * 2
+        y = rng.integers(-3, 4, shape).astype(np.float32) * 2
+        heading = rng.integers(0, 2, shape).astype(np.float32) * np.float32(np.pi / 2)
+        length = rng.choice(np.float32([4.0, 2.0]), (1, objects, 1)) * np.ones(shape, np.float32)
+        width = np.full(shape, 2.0, np.float32)
+    else:
+        x, y = (rng.normal(0, spread, shape).astype(np.float32) for _ in range(2))
+        heading = rng.uniform(-np.pi, np.pi, shape).astype(np.float32)
+        length = rng.uniform(0.5, 12, shape).astype(np.float32)
+        width = rng.uniform(0.5, 3, shape).astype(np.float32)
+    ids = np.tile(np.arange(objects), (4, 1))
+    return RolloutArrays("s", ids, x, y, np.zeros(shape, np.float32), heading), (length, width)
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("objects, spread, grid", [(2, 3.0, False), (30, 4.0, False), (30, 60.0, False), (25, 0, True)])
+def test_the_nearest_partner_is_every_objects(seed, objects, spread, grid):
+    rollouts, sizes = scene(seed, objects, spread, grid)
+    rng = np.random.default_rng(seed + 100)
+    rollout, step, sdc = rng.integers(0, 4, 200), rng.integers(0, 6, 200), rng.integers(0, objects, 200)
+    np.testing.assert_array_equal(
+        at_fault(rollouts, sizes, rollout, step, sdc), every_object(rollouts, sizes, rollout, step, sdc)
+    )
+
+
+def test_a_non_finite_position_is_answered_as_by_every_object():
+    rollouts, sizes = scene(0, 12, 5.0, False)
+    rollouts.x[1, 3, 2] = np.nan
+    rollouts.y[2, 5, :] = np.inf
+    rollout, step, sdc = np.repeat(np.arange(4), 12), np.tile(np.arange(6), 8), np.tile(np.arange(12), 4)
+    with np.errstate(invalid="ignore"):
+        np.testing.assert_array_equal(
+            at_fault(rollouts, sizes, rollout, step, sdc), every_object(rollouts, sizes, rollout, step, sdc)
+        )

@@ -35,13 +35,14 @@ from __future__ import annotations
 import bz2
 import dataclasses
 import gzip
+import io
 import lzma
 import os
 import re
 import zlib
 from collections.abc import Iterator
 from pathlib import Path, PurePosixPath
-from typing import BinaryIO, Union
+from typing import Any, BinaryIO, Union, cast
 
 from wosac_eval.parse.errors import ArchiveError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.limits import InputLimits
@@ -68,23 +69,76 @@ _DOC_SUFFIXES = (".md", ".txt", ".rst")
 _CHUNK_BYTES = 1 << 20
 _SNIFF_BYTES = BLOCK  # one tar header
 
+# Errors the decompressors raise on broken or truncated input.
+_STREAM_ERRORS: tuple[type[Exception], ...] = (OSError, EOFError, zlib.error, lzma.LZMAError)
+igzip: Any = None
 try:  # ISA-L's inflate (the `isal` dependency): the same bytes as zlib's, about twice as fast (docs/speed.md)
     from isal import igzip, isal_zlib
 
-    _GzipFile: type = igzip.GzipFile
-    _GZIP_ERRORS: tuple = (isal_zlib.error,)
-except ImportError:  # installed without its dependencies: zlib's, as fast as Python's own gzip
-    _GzipFile, _GZIP_ERRORS = gzip.GzipFile, ()
+    _STREAM_ERRORS += (cast("type[Exception]", isal_zlib.error),)
+except ImportError:  # installed without its dependencies: zlib's alone
+    pass
 
-# Errors the decompressors raise on broken or truncated input.
-_STREAM_ERRORS = (OSError, EOFError, zlib.error, lzma.LZMAError, *_GZIP_ERRORS)
+_MEMBER_DATA_ERRORS: tuple[type[Exception], ...] = (TruncatedDataError, *_STREAM_ERRORS)
 
 _COMPRESSION_MAGIC = {
     b"\x1f\x8b": "gzip",
     b"BZh": "bzip2",
     b"\xfd7zXZ\x00": "xz",
 }
-_OPENERS = {"gzip": _GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
+_OPENERS = {"gzip": gzip.GzipFile, "bzip2": bz2.BZ2File, "xz": lzma.LZMAFile}
+
+
+class _FastGzipFile(io.BufferedIOBase):
+    """A gzip file inflated by ISA-L until its first error, then by zlib from where ISA-L stopped.
+
+    ISA-L gives nothing of a deflate block it cannot finish, where zlib gives every byte it can: at a cut
+    or damaged place zlib's reader delivers the intact bytes before it, then raises (every shard before
+    the damage is read, as from a plain `gzip.GzipFile`). Intact files are read by ISA-L alone.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._path = path
+        self._file: Any = igzip.GzipFile(path, "rb")
+        self._fast = True
+        self._inflated = 0  # bytes delivered so far
+
+    def readable(self) -> bool:
+        return True
+
+    def read(self, size: int | None = -1) -> bytes:
+        return self._guarded("read", -1 if size is None else size)
+
+    def read1(self, size: int = -1) -> bytes:
+        return self._guarded("read1", size)
+
+    def close(self) -> None:
+        self._file.close()
+        super().close()
+
+    def _guarded(self, method: str, size: int) -> bytes:
+        try:
+            data = getattr(self._file, method)(size)
+        except _STREAM_ERRORS:
+            if not self._fast:
+                raise
+            self._to_zlib()
+            return self._guarded(method, size)
+        self._inflated += len(data)
+        return data
+
+    def _to_zlib(self) -> None:
+        """zlib's reader in ISA-L's place, past the bytes ISA-L delivered (zlib raises where the damage is)."""
+        self._file.close()
+        self._file, self._fast = gzip.GzipFile(self._path, "rb"), False
+        left = self._inflated
+        while left:
+            piece = self._file.read(min(left, _CHUNK_BYTES))
+            if not piece:
+                raise EOFError("the gzip stream ended before the bytes already read")
+            left -= len(piece)
+
+
 _ZIP_MAGIC = b"PK\x03\x04"
 
 
@@ -247,6 +301,8 @@ def _open_decompressed(path: Path, compression: str | None) -> BinaryIO:
     """The file's bytes, decompressed on the fly when compression is set."""
     if compression is None:
         return open(path, "rb")
+    if compression == "gzip" and igzip is not None:
+        return _FastGzipFile(path)  # type: ignore[return-value]
     return _OPENERS[compression](path, "rb")
 
 
@@ -517,7 +573,7 @@ def check_container(path: PathLike, limits: InputLimits | None = None) -> Contai
             head = _read_member_data(tar, path, name, min(HEAD_BYTES, member.size))
             try:  # a member cut short is told as such before its first bytes are judged
                 tar.skip_data()
-            except (TruncatedDataError, *_STREAM_ERRORS) as error:
+            except _MEMBER_DATA_ERRORS as error:
                 raise _data_error(path, name, error) from error
             looks_like_submission(f"{path}: member {name!r}", head)
             shards += 1

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import gzip
 import random
+import re
 
 import pytest
 
@@ -127,3 +128,140 @@ def test_max_scenarios_names_the_shard_past_it_and_partial_scoring_reads_none_of
     # The same metrics (criticality is ranked within the scored set, so it is left out here).
     assert {**partial["scenarios"][0], "criticality": None} == {**whole["scenarios"][0], "criticality": None}
     assert [s["scenario_id"] for s in partial["skipped"]] == [whole["scenarios"][1]["scenario_id"]]
+
+
+def plain_census(shard: str, data: bytes, limits: InputLimits) -> str | None:
+    """The census by its definition, a Python walk of the three levels: the first refusal's message, or None.
+    Every field of a walked level is one message; a malformed field ends its level's walk."""
+    budget = limits.message_allowance + len(data) // limits.message_bytes
+    messages = 0
+
+    class Refused(Exception):
+        pass
+
+    def fields(start: int, end: int, where: str):
+        nonlocal messages
+        pos = start
+        while pos < end:
+            key, shift = 0, 0
+            while True:
+                byte = data[pos]
+                key |= (byte & 0x7F) << shift
+                pos += 1
+                if not byte & 0x80 or pos >= end or shift > 56:
+                    break
+                shift += 7
+            messages += 1
+            if messages > budget:
+                raise Refused(
+                    f"shard {shard}: more than {budget} messages in {end - start} bytes at {where} "
+                    f"(one per {limits.message_bytes} bytes plus {limits.message_allowance}: a real "
+                    "trajectory carries its steps); refused before parsing"
+                )
+            wire_type = key & 7
+            if wire_type == 2:
+                length, shift = 0, 0
+                while pos < end:
+                    byte = data[pos]
+                    length |= (byte & 0x7F) << shift
+                    pos += 1
+                    if not byte & 0x80 or shift > 56:
+                        break
+                    shift += 7
+                if pos + length > end:
+                    return
+                yield key >> 3, pos, pos + length
+                pos += length
+            elif wire_type == 0:
+                while pos < end and data[pos] & 0x80:
+                    pos += 1
+                pos += 1
+            elif wire_type in (1, 5):
+                pos += 8 if wire_type == 1 else 4
+            else:
+                return
+
+    try:
+        scenarios = 0
+        for number, start, end in fields(0, len(data), "the top level"):
+            if number != 1:
+                continue
+            scenarios += 1
+            if scenarios > limits.max_scenarios:
+                raise Refused(
+                    f"shard {shard}: more than max_scenarios={limits.max_scenarios} scenario_rollouts; "
+                    "refused before parsing"
+                )
+            where = f"scenario_rollouts[{scenarios - 1}]"
+            joint_scenes = 0
+            for number, j_start, j_end in fields(start, end, where):
+                if number != 2:
+                    continue
+                joint_scenes += 1
+                if joint_scenes > limits.max_joint_scenes:
+                    raise Refused(
+                        f"shard {shard}: {where} holds more than max_joint_scenes={limits.max_joint_scenes} "
+                        "joint_scenes (the challenge asks for 32); refused before parsing"
+                    )
+                scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
+                objects = 0
+                for number, _, _ in fields(j_start, j_end, scene_where):
+                    objects += number == 1
+                    if objects > limits.max_objects:
+                        raise Refused(
+                            f"shard {shard}: {scene_where} holds more than max_objects={limits.max_objects} "
+                            "simulated_trajectories; refused before parsing"
+                        )
+    except Refused as refused:
+        return str(refused)
+    return None
+
+
+def _census_outcome(data: bytes, limits: InputLimits) -> str | None:
+    try:
+        check_message_counts("census.binproto", data, limits)
+    except SizeLimitError as error:
+        return str(error)
+    return None
+
+
+def test_the_compiled_census_counts_and_refuses_as_the_plain_walk(demo):
+    """The same refusal (or none) with the same message as the walk of the definition, on a real shard at
+    tight limits, floods, damaged prefixes, random bytes and varints of 10 bytes and more (keys past 2^64)."""
+    _, data, parsed = first_shard(demo[1])
+    objects = len(parsed.scenario_rollouts[0].joint_scenes[0].simulated_trajectories)
+    rng = random.Random(11)
+    tight = [
+        InputLimits(),
+        InputLimits(max_joint_scenes=31),
+        InputLimits(max_objects=objects - 1),
+        InputLimits(message_allowance=0, message_bytes=1000),
+        InputLimits(message_allowance=40, message_bytes=10**9),
+        InputLimits(message_allowance=64),
+    ]
+    overlong = [b"\x12" + b"\xff" * 9 + b"\x7f", b"\x92" + b"\x80" * 8 + b"\x02" + b"\x00", b"\x0a\xff" + b"\x80" * 9]
+    blobs = [data, data[: len(data) // 2], b"\x0a\x00" * 20_000]
+    for tail in overlong:
+        scene = b"\x12" + _varint(len(tail)) + tail
+        blobs += [b"\x0a" + _varint(len(tail)) + tail, b"\x0a" + _varint(len(scene)) + scene + data[:300]]
+    rollouts = parsed.scenario_rollouts[0].SerializeToString()
+    for _ in range(200):
+        sample = bytearray(rollouts[: rng.randrange(1, 6000)])
+        for _ in range(rng.randrange(1, 16)):
+            sample[rng.randrange(len(sample))] = rng.randrange(256)
+        # Damaged within a well-formed scenario_rollouts field (the walk enters it), and as a shard's start.
+        blobs += [b"\x0a" + _varint(len(sample)) + bytes(sample), bytes(sample), rng.randbytes(rng.randrange(1, 512))]
+    kinds = set()
+    for blob in blobs:
+        for limits in [*tight, InputLimits(message_allowance=rng.randrange(1, 1500), message_bytes=10**9)]:
+            want = plain_census("census.binproto", blob, limits)
+            assert _census_outcome(blob, limits) == want
+            if want is not None:  # which limit, at which level
+                kinds.add(re.sub(r"\d+", "N", want.split(" holds more than ")[-1].split(" bytes at ")[-1])[:28])
+    assert kinds == {
+        "the top level (one per N byt",
+        "scenario_rollouts[N] (one pe",
+        "scenario_rollouts[N].joint_s",
+        "max_joint_scenes=N joint_sce",
+        "max_objects=N simulated_traj",
+    }  # every limit was reached, the message budget at every level

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 
+from wosac_eval.parse import wire_walks
 from wosac_eval.parse.errors import SizeLimitError
 
 GiB = 1 << 30
@@ -66,10 +67,8 @@ class InputLimits:
         return self.max_total_bytes, "max_total_bytes"
 
 
-# Field numbers on the wire (sim_agents_submission.proto).
+# Field numbers on the wire (sim_agents_submission.proto); the levels below are `wire_walks.rollouts_census`'s.
 _SUBMISSION_ROLLOUTS = 1  # SimAgentsChallengeSubmission.scenario_rollouts
-_ROLLOUTS_JOINT_SCENES = 2  # ScenarioRollouts.joint_scenes
-_JOINT_TRAJECTORIES = 1  # JointScene.simulated_trajectories
 
 
 class _Census:
@@ -84,11 +83,14 @@ class _Census:
         """One more message, in a level of `span` bytes: SizeLimitError past the budget."""
         self.messages += 1
         if self.messages > self.budget:
-            raise SizeLimitError(
-                f"shard {self.shard}: more than {self.budget} messages in {span} bytes at {where} "
-                f"(one per {self.limits.message_bytes} bytes plus {self.limits.message_allowance}: a real "
-                "trajectory carries its steps); refused before parsing"
-            )
+            raise self.over_budget(span, where)
+
+    def over_budget(self, span: int, where: str) -> SizeLimitError:
+        return SizeLimitError(
+            f"shard {self.shard}: more than {self.budget} messages in {span} bytes at {where} "
+            f"(one per {self.limits.message_bytes} bytes plus {self.limits.message_allowance}: a real "
+            "trajectory carries its steps); refused before parsing"
+        )
 
     def fields(self, data: bytes, start: int, end: int, where: str):
         """(field number, value start, value end) of each length-delimited field in data[start:end]; every
@@ -169,32 +171,30 @@ class ShardCensus:
 
 
 def _count_rollouts(census: _Census, data: bytes, start: int, end: int, index: int) -> None:
-    """Count the messages of the shard's `index`th scenario_rollouts, data[start:end]."""
+    """Count the messages of the shard's `index`th scenario_rollouts, data[start:end], and its joint scenes'
+    (`wire_walks.rollouts_census`, a compiled walk: a Python walk cost 0.35 ms per real scene)."""
     shard, limits = census.shard, census.limits
     if index + 1 > limits.max_scenarios:
         raise SizeLimitError(
             f"shard {shard}: more than max_scenarios={limits.max_scenarios} scenario_rollouts; refused before parsing"
         )
+    census.messages, outcome, joint_scene, span = wire_walks.rollouts_census(
+        data, start, end, census.messages, census.budget, limits.max_joint_scenes, limits.max_objects
+    )
     where = f"scenario_rollouts[{index}]"
-    joint_scenes = 0
-    for number, j_start, j_end in census.fields(data, start, end, where):
-        if number != _ROLLOUTS_JOINT_SCENES:
-            continue
-        joint_scenes += 1
-        if joint_scenes > limits.max_joint_scenes:
-            raise SizeLimitError(
-                f"shard {shard}: {where} holds more than max_joint_scenes="
-                f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing"
-            )
-        scene_where = f"{where}.joint_scenes[{joint_scenes - 1}]"
-        objects = 0
-        for number, _, _ in census.fields(data, j_start, j_end, scene_where):
-            objects += number == _JOINT_TRAJECTORIES
-            if objects > limits.max_objects:
-                raise SizeLimitError(
-                    f"shard {shard}: {scene_where} holds more than max_objects="
-                    f"{limits.max_objects} simulated_trajectories; refused before parsing"
-                )
+    scene_where = f"{where}.joint_scenes[{joint_scene}]"
+    if outcome == wire_walks.CENSUS_MESSAGES:
+        raise census.over_budget(span, where if joint_scene < 0 else scene_where)
+    if outcome == wire_walks.CENSUS_JOINT_SCENES:
+        raise SizeLimitError(
+            f"shard {shard}: {where} holds more than max_joint_scenes="
+            f"{limits.max_joint_scenes} joint_scenes (the challenge asks for 32); refused before parsing"
+        )
+    if outcome == wire_walks.CENSUS_OBJECTS:
+        raise SizeLimitError(
+            f"shard {shard}: {scene_where} holds more than max_objects="
+            f"{limits.max_objects} simulated_trajectories; refused before parsing"
+        )
 
 
 __all__ = ["InputLimits", "ShardCensus", "check_message_counts"]

@@ -3,13 +3,15 @@
 - `message_spans`: the submessages of a field in many parents at once;
 - `scalar_fields`: the scalar fields of many small records (track states, map points);
 - `float_fields`: repeated float fields (the coordinates and box sizes of simulated trajectories);
-- `bool_fields`: a repeated bool field's count and whether any value is false (a trajectory's `valid`).
+- `bool_fields`: a repeated bool field's count and whether any value is false (a trajectory's `valid`);
+- `rollouts_census`: the messages of a `ScenarioRollouts` counted against the input limits (`parse.limits`).
 
 The walks follow the protobuf encoding rules as a parse does: fields in any order, a field whose wire
 type does not match its declaration is an unknown field (skipped), the last occurrence of a scalar
 wins, a repeated float may be packed or not, an unset field reads as its default (0), a closed
 enum's value out of range is an unknown field. They read the bytes a message was parsed from, or its
-serialisation (`message_bytes`); malformed bytes raise ValueError. Compiled once per installation
+serialisation (`message_bytes`); malformed bytes raise ValueError (but in `rollouts_census`, which counts
+before any parse: there they end a level's walk). Compiled once per installation
 and cached on disk by numba, like the search loops (`features.search.compile_searches`).
 """
 
@@ -314,3 +316,101 @@ def compile_walks() -> None:
     scalar_fields(data, start, end, np.array([1]), np.array([WIRE_VARINT]), np.array([0]))
     float_fields(data, start, end, np.array([2]), 2)
     bool_fields(data, start, end, 2)
+    rollouts_census(message, 0, len(message), 0, 10, 1, 1)
+
+
+# `rollouts_census`'s outcomes: counted within the limits, or the first limit passed.
+CENSUS_OK, CENSUS_MESSAGES, CENSUS_JOINT_SCENES, CENSUS_OBJECTS = 0, 1, 2, 3
+
+
+def rollouts_census(data, start: int, end: int, messages: int, budget: int, max_joint_scenes: int, max_objects: int):
+    """Counts the messages of one serialized `ScenarioRollouts`, data[start:end], and of its joint scenes, as
+    `parse.limits` counts them (every field of both levels is one message), stopping at the first limit passed.
+
+    The walk is lenient, not a parse: malformed bytes end a level's walk (the parser reports them).
+
+    Args:
+      data: the bytes (any buffer); messages: those counted before it in the shard; budget: the shard's.
+    Returns:
+      (messages counted so far, outcome: one of CENSUS_*, the joint scene at fault (-1: the scenario's own
+      level), the byte span of the level whose field passed the message budget).
+    """
+    return _rollouts_census(np.frombuffer(data, np.uint8), start, end, messages, budget, max_joint_scenes, max_objects)
+
+
+@numba.njit(inline="always")
+def _census_key(data, pos, end):
+    """The lenient key step: (field number, -1 for one past 2^60; wire type; next offset)."""
+    key, shift, big = 0, 0, False
+    while True:
+        byte = np.int64(data[pos])
+        if shift == 63:
+            big |= (byte & 0x7F) != 0  # the key has bits past the 64th: no field number of ours
+        else:
+            key |= (byte & 0x7F) << shift
+        pos += 1
+        if not byte & 0x80 or pos >= end or shift > 56:
+            break
+        shift += 7
+    return (-1 if big else key >> 3), key & 7, pos
+
+
+@numba.njit(inline="always")
+def _census_value(data, pos, end, wire_type):
+    """The lenient value step: (value start, value end, next offset), or next offset -1 where the walk stops."""
+    if wire_type == WIRE_BYTES:
+        length, shift, big = 0, 0, False
+        while pos < end:
+            byte = np.int64(data[pos])
+            if shift == 63:
+                big |= (byte & 0x7F) != 0
+            else:
+                length |= (byte & 0x7F) << shift
+            pos += 1
+            if not byte & 0x80 or shift > 56:
+                break
+            shift += 7
+        if big or length > end - pos:
+            return pos, pos, -1
+        return pos, pos + length, pos + length
+    if wire_type == WIRE_VARINT:
+        while pos < end and data[pos] & 0x80:
+            pos += 1
+        return pos, pos, pos + 1
+    if wire_type == WIRE_FIXED64:
+        return pos, pos, pos + 8
+    if wire_type == WIRE_FIXED32:
+        return pos, pos, pos + 4
+    return pos, pos, -1
+
+
+@numba.njit(cache=True)
+def _rollouts_census(data, start, end, messages, budget, max_joint_scenes, max_objects):
+    pos, joint_scenes = start, 0
+    while pos < end:
+        number, wire_type, pos = _census_key(data, pos, end)
+        messages += 1
+        if messages > budget:
+            return messages, CENSUS_MESSAGES, -1, end - start
+        j_start, j_end, pos = _census_value(data, pos, end, wire_type)
+        if pos < 0:
+            break
+        if wire_type != WIRE_BYTES or number != 2:  # ScenarioRollouts.joint_scenes
+            continue
+        joint_scenes += 1
+        if joint_scenes > max_joint_scenes:
+            return messages, CENSUS_JOINT_SCENES, joint_scenes - 1, 0
+        objects, at = 0, j_start
+        while at < j_end:
+            number, wire_type, at = _census_key(data, at, j_end)
+            messages += 1
+            if messages > budget:
+                return messages, CENSUS_MESSAGES, joint_scenes - 1, j_end - j_start
+            _, _, at = _census_value(data, at, j_end, wire_type)
+            if at < 0:
+                break
+            if wire_type == WIRE_BYTES:
+                objects += number == 1  # JointScene.simulated_trajectories
+                if objects > max_objects:
+                    return messages, CENSUS_OBJECTS, joint_scenes - 1, 0
+    return messages, CENSUS_OK, -1, 0

@@ -20,6 +20,7 @@ from wosac_eval.features import (
 )
 from wosac_eval.features.road_edge import cell_tables, pruned_search, segments, signed_distance
 from wosac_eval.parse import wire_walks as walks
+from wosac_eval.analysis import criticality_features
 
 F = np.float32
 
@@ -152,12 +153,14 @@ def test_compile_searches_covers_what_scoring_calls():
         walks._message_spans,
         walks._scalar_fields,
         walks._float_fields,
+        walks._rollouts_census,
+        criticality_features._pair_entries,
     ]
     before = {loop: len(loop.signatures) for loop in loops}
     scenario = scenes.generate_scenes(1, seed=2)[0]
     for challenge, config in (("sim_agents", "2025"), ("scenario_gen", "scenario_gen_2025")):
         rollouts = policy_rollouts(scenario, "constant_velocity", challenge=challenge)
-        score_scenario(scenario, rollouts, load_config(config), challenge=challenge)
+        score_scenario(scenario, rollouts, load_config(config), challenge=challenge, analysis=True)
         raw = rollouts_bytes(rollouts)
         message = ScenarioRollouts.FromString(raw)
         rollout_arrays(message, challenge, raw)

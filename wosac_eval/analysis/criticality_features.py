@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba
 import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
@@ -179,40 +180,89 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     gap_y = np.maximum(low_y[j] - high_y[i], low_y[i] - high_y[j])
     close_paths = valid_xy[i] & valid_xy[j] & (np.hypot(np.maximum(gap_x, 0.0), np.maximum(gap_y, 0.0)) < PAIR_RANGE)
     keep = close_paths & ~(pedestrian[i] & pedestrian[j])
-    i, j = i[keep], j[keep]
     # Two objects that both stand still neither close in nor miss each other: most pairs of a car park.
     moving = v_valid & (np.hypot(vx, vy) >= MIN_CLOSING / 2)
-    pair, t = np.nonzero(v_valid[i] & v_valid[j] & (moving[i] | moving[j]))
-    a, b = i[pair], j[pair]
-    dxc, dyc = x[b, t] - x[a, t], y[b, t] - y[a, t]
-    ux, uy = vx[b, t] - vx[a, t], vy[b, t] - vy[a, t]
-    relative_speed = np.hypot(ux, uy)
-    centre_distance = np.hypot(dxc, dyc)
-    # Only entries that can matter: boxes within reach of a collision in TTC_HORIZON, or within a few metres.
-    reach = (centre_distance - (length[a, t] + length[b, t]) / 2 < np.maximum(3.0, TTC_HORIZON * relative_speed)) & (
-        centre_distance < PAIR_RANGE
+    # The front disc's offsets of every box at every step, as `disc_pairs` takes them (numpy's sine and
+    # cosine: the compiled loop repeats numpy's arithmetic, not its library's transcendentals).
+    offset = np.maximum(length - width, 0.0) / 2
+    offset_x, offset_y = np.cos(heading) * offset, np.sin(heading) * offset
+    step, gap, relative_speed = _pair_entries(
+        i[keep], j[keep], x, y, vx, vy, v_valid, moving, length, width, offset_x, offset_y, ttc, closing
     )
-    a, b, t = a[reach], b[reach], t[reach]
-    dxc, dyc, ux, uy, relative_speed = dxc[reach], dyc[reach], ux[reach], uy[reach], relative_speed[reach]
-    if t.size == 0:
-        return ttc, closing, near
-    dx, dy, radius = disc_pairs(
-        dxc, dyc, heading[a, t], length[a, t], width[a, t], heading[b, t], length[b, t], width[b, t]
-    )
-    distance2 = dx * dx + dy * dy
-    gap = disc_gap(dx, dy, radius)
-    speed2 = (relative_speed**2)[:, None, None]
-    approach = dx * ux[:, None, None] + dy * uy[:, None, None]  # < 0: closing
-    c = distance2 - radius**2
-    disc = approach**2 - speed2 * c
-    with np.errstate(invalid="ignore", divide="ignore"):
-        t_hit = (-approach - np.sqrt(np.maximum(disc, 0.0))) / speed2
-    course = (c > 0) & (approach < 0) & (disc >= 0) & (t_hit <= TTC_HORIZON) & (speed2 >= MIN_CLOSING**2)
-    entry_ttc = np.where(course, t_hit, np.inf).min(axis=(1, 2))
-    np.minimum.at(ttc, t, entry_ttc)
-    np.maximum.at(closing, t, np.where(np.isfinite(entry_ttc), relative_speed, 0.0))
-    np.maximum.at(near, t, np.exp(-gap / NEAR_MISS_GAP) * relative_speed / (relative_speed + NEAR_MISS_SPEED))
+    # exp by numpy, as the ufunc computes it (the compiled loop's exp may round differently).
+    np.maximum.at(near, step, np.exp(-gap / NEAR_MISS_GAP) * relative_speed / (relative_speed + NEAR_MISS_SPEED))
     return ttc, closing, near
+
+
+@numba.njit(cache=True, error_model="numpy")  # float division by zero gives inf or NaN, as numpy's
+def _pair_entries(pair_a, pair_b, x, y, vx, vy, v_valid, moving, length, width, offset_x, offset_y, ttc, closing):
+    """The (pair, step) entries that can matter, as `pairwise_interaction` defines them, pair by pair and step
+    by step: lowers `ttc` and raises `closing` in place; returns each entry's step, disc gap and relative speed
+    (for the near miss). The arithmetic is numpy's on float64, operation by operation (NaN and ties alike)."""
+    capacity = 1024
+    out_step = np.empty(capacity, np.int64)
+    out_gap = np.empty(capacity, np.float64)
+    out_speed = np.empty(capacity, np.float64)
+    n = 0
+    discs = (-1.0, 0.0, 1.0)  # rear, middle and front disc along the length (`_DISC`)
+    for p in range(pair_a.shape[0]):
+        a, b = pair_a[p], pair_b[p]
+        for t in range(x.shape[1]):
+            if not (v_valid[a, t] and v_valid[b, t] and (moving[a, t] or moving[b, t])):
+                continue
+            dxc, dyc = x[b, t] - x[a, t], y[b, t] - y[a, t]
+            ux, uy = vx[b, t] - vx[a, t], vy[b, t] - vy[a, t]
+            speed = np.hypot(ux, uy)
+            centre = np.hypot(dxc, dyc)
+            limit = TTC_HORIZON * speed
+            if not (limit != limit or limit > 3.0):  # np.maximum(3.0, limit), NaN kept
+                limit = 3.0
+            if not (centre - (length[a, t] + length[b, t]) / 2 < limit and centre < PAIR_RANGE):
+                continue
+            radius = (width[a, t] + width[b, t]) / 2
+            speed2 = speed * speed
+            least = np.inf
+            nan = False
+            entry_ttc = np.inf
+            for da in discs:
+                for db in discs:
+                    dx = dxc + offset_x[b, t] * db - offset_x[a, t] * da
+                    dy = dyc + offset_y[b, t] * db - offset_y[a, t] * da
+                    distance2 = dx * dx + dy * dy
+                    if distance2 != distance2:
+                        nan = True
+                    elif distance2 < least:
+                        least = distance2
+                    approach = dx * ux + dy * uy
+                    c = distance2 - radius * radius
+                    disc = approach * approach - speed2 * c
+                    root = disc if (disc != disc or disc >= 0.0) else 0.0  # np.maximum(disc, 0.0)
+                    t_hit = (-approach - np.sqrt(root)) / speed2
+                    course = c > 0 and approach < 0 and disc >= 0 and t_hit <= TTC_HORIZON
+                    if course and speed2 >= MIN_CLOSING * MIN_CLOSING and t_hit < entry_ttc:
+                        entry_ttc = t_hit
+            gap = np.nan if nan else np.sqrt(least) - radius
+            if not (gap != gap or gap >= 0.0):  # np.maximum(gap, 0.0)
+                gap = 0.0
+            if entry_ttc < ttc[t]:
+                ttc[t] = entry_ttc
+            if entry_ttc < np.inf and speed > closing[t]:
+                closing[t] = speed
+            if n == capacity:
+                capacity *= 2
+                out_step = _grown(out_step, capacity)
+                out_gap = _grown(out_gap, capacity)
+                out_speed = _grown(out_speed, capacity)
+            out_step[n], out_gap[n], out_speed[n] = t, gap, speed
+            n += 1
+    return out_step[:n], out_gap[:n], out_speed[:n]
+
+
+@numba.njit(inline="always")
+def _grown(values, capacity):
+    out = np.empty(capacity, values.dtype)
+    out[: values.shape[0]] = values
+    return out
 
 
 def map_events(log, movers: np.ndarray, context, signals) -> tuple[np.ndarray, np.ndarray]:
@@ -254,3 +304,10 @@ def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityF
     movers = (types == TYPE_VEHICLE) & (np.where(v_valid, np.hypot(vx, vy), 0.0) > MOVING_SPEED).any(axis=1)
     offroad, red_light = map_events(log, movers, context or map_context(scenario), scenario.signals)
     return CriticalityFeatures(braking, jerk, yaw_acceleration, ttc, closing, near_miss, offroad, red_light, behaviour)
+
+
+def compile_loops() -> None:
+    """Compiles `pairwise_interaction`'s loop now (or loads it from numba's cache), for the argument types
+    scoring passes: called by `features.search.compile_searches`."""
+    f, b, i = np.zeros((2, 3)), np.ones((2, 3), bool), np.zeros(1, np.int64)
+    _pair_entries(i, i + 1, f, f, f, f, b, b, f + 4, f + 2, f, f, np.full(3, np.inf), np.zeros(3))

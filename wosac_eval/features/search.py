@@ -96,4 +96,7 @@ def compile_searches() -> float:
         traffic_lights.compiled_stop_line_crossings(
             x, zeros, ones > 0, line, line + [0, 1], line + [4, 0], np.ones((3, 1), bool)
         )
+    from wosac_eval.analysis import criticality_features  # scoring's default analysis has a loop of its own
+
+    criticality_features.compile_loops()
     return time.perf_counter() - start

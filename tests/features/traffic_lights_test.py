@@ -215,3 +215,40 @@ def test_compiled_crossings_equal_the_array_kernel():
     assert want.any()
     np.testing.assert_array_equal(got, want)
     np.testing.assert_array_equal(crossed_any, want.any(axis=-1))
+
+
+def stop_point_segments_step_by_step(table, sig):
+    """The definition: at every step, each signal's lane segment nearest its stop point (lowest on ties)."""
+    match = table.lane_ids[None, :] == sig.lane_id[:, None]
+    lane_index = np.argmax(match, axis=1)
+    pts = table.points[lane_index]
+    seg_valid = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
+    start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]
+    d = traffic_lights.lane_measure(sig.stop_point[:, :, None, :], start[None], delta[None])
+    seg = np.argmin(np.where(seg_valid[None], d, F(1e10)), axis=-1)
+    signal = np.arange(len(sig.lane_id))[None, :]
+    return pts[signal, seg], pts[signal, seg + 1] - pts[signal, seg], np.broadcast_to(match.any(axis=1), seg.shape)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stop_point_segments_measure_each_step_as_the_definition(seed):
+    """Stop points measured where they change give every step's segment: points that stay, move at some steps,
+    come back, jump between lanes, sit on a segment's end (ties), are NaN or -0.0; lanes of different lengths,
+    a lane no signal names and a signal on an unknown lane."""
+    rng = np.random.default_rng(seed)
+    lanes_xy = [lane(*[(x, 7.0 * k + rng.normal(0, 0.5)) for x in range(0, 10 * (3 + 2 * k), 10)]) for k in range(4)]
+    table = traffic_lights.build_lane_table(lanes_xy, [10, 11, 12, 13])
+    steps, num_signals = 91, 6
+    ids = np.array([10, 11, 12, 10, 99, 13], np.int64)
+    stop = np.broadcast_to(rng.uniform(0, 40, (1, num_signals, 2)).astype(F), (steps, num_signals, 2)).copy()
+    stop[30:60, 0] = rng.uniform(0, 40, 2)  # moves, then comes back
+    stop[::7, 1] = rng.uniform(-10, 50, (len(range(0, steps, 7)), 2))  # jumps every 7th step
+    stop[:, 2] = (20.0, 14.0)  # on a segment's end: two segments tie
+    stop[45:, 3] = np.nan
+    stop[10:, 5] = (-0.0, 21.0)
+    stop[20:, 5] = (0.0, 21.0)
+    sig = TrafficSignals(lane_id=ids, state=np.full((steps, num_signals), STOP, np.int32), stop_point=stop)
+    for got, want in zip(
+        traffic_lights.stop_point_segments(table, sig), stop_point_segments_step_by_step(table, sig), strict=True
+    ):
+        np.testing.assert_array_equal(got, want, strict=True)

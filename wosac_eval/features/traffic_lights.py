@@ -144,10 +144,19 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_valid = np.zeros(pts.shape[:2], bool)
     seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
     start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]  # (signals, S, 2)
-    stop = signals.stop_point  # (steps, signals, 2)
-    d = lane_measure(stop[:, :, None, :], start[None], delta[None])
-    d = np.where(seg_valid[None, :, :-1], d, _F(1e10))
-    seg = np.argmin(d, axis=-1)  # (steps, signals)
+    stop = np.ascontiguousarray(signals.stop_point, _F)  # (steps, signals, 2)
+    # A signal's stop point rarely moves: it is measured where it differs from the step before (told apart
+    # by its bits), and each step takes the measure of its signal's last change: every step's values.
+    bits = stop.view(np.int64)[..., 0]  # (steps, signals)
+    changed = np.ones(bits.shape, bool)
+    changed[1:] = bits[1:] != bits[:-1]
+    step_at, signal_at = np.nonzero(changed)
+    d = lane_measure(stop[step_at, signal_at][:, None, :], start[signal_at], delta[signal_at])
+    d = np.where(seg_valid[signal_at, :-1], d, _F(1e10))
+    seg_at_change = np.zeros(bits.shape, np.int64)
+    seg_at_change[step_at, signal_at] = np.argmin(d, axis=-1)
+    last_change = np.maximum.accumulate(np.where(changed, np.arange(len(bits))[:, None], 0), axis=0)
+    seg = seg_at_change[last_change, np.arange(bits.shape[1])[None, :]]  # (steps, signals)
     sig = np.arange(len(signals.lane_id))[None, :]
     seg_start = pts[sig, seg]
     seg_delta = pts[sig, seg + 1] - seg_start

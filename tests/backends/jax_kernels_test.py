@@ -130,16 +130,17 @@ def test_time_to_collision_dense_equals_numpy():
     from wosac_eval.features.kinematics import linear_speed
 
     speed = linear_speed(x, y, np.zeros_like(x), 0.1)
-    step_major = lambda a: np.ascontiguousarray(a[:, steps_eval].T)
-    ego_tail = packet_tail((steps, evaluated, 1))[steps_eval]
-    pair_tail = packet_tail((steps, evaluated, objects))[steps_eval]
+    # Object-major, the official (step-major) tails transposed as the pairs.
+    object_major = lambda tail: np.ascontiguousarray(np.transpose(tail[steps_eval], (1, 2, 0)))
+    ego_tail = object_major(packet_tail((steps, evaluated, 1)))
+    pair_tail = object_major(packet_tail((steps, evaluated, objects)))
     got = jitted(
         lambda *a: dense.time_to_collision(*a[:7], ego_tail=a[7], pair_tail=a[8], num_evaluated=evaluated),
-        *map(step_major, (x, y, length, width, heading, speed, valid)),
+        *(a[:, steps_eval] for a in (x, y, length, width, heading, speed, valid)),
         ego_tail,
         pair_tail,
     )
-    np.testing.assert_array_equal(got.T, expected)
+    np.testing.assert_array_equal(got, expected)
 
 
 def test_jax_searches_are_search_strategies():
@@ -230,6 +231,28 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     np.testing.assert_array_equal(got[needed], expected[needed])
 
 
+def test_road_edge_box_distances_equal_numpy():
+    """`DenseSearch.road_edge_distance` (corners searched, their NaN-spreading maximum in one reduction)
+    equals numpy's box distances, with boxes on and off the grid, huge, NaN and far from every edge."""
+    rng = np.random.default_rng(6)
+    table = road_edge.build_segment_table(random_road_edges(rng, 60))
+    segments = map_arrays.segment_table_arrays(table)
+    n = 3000
+    x, y = (rng.uniform(-170, 170, n).astype(F) for _ in range(2))
+    bottom = rng.uniform(-3, 3, n).astype(F)
+    length, width = rng.uniform(0.5, 12, n).astype(F), rng.uniform(0.5, 4, n).astype(F)
+    heading = rng.uniform(-4, 4, n).astype(F)
+    x[:100] = rng.choice([-1, 1], 100) * rng.uniform(1e3, 5e3, 100)  # off the grid, far from every edge
+    length[100:110] = 300  # huge: its corners are far from the centre's cell
+    x[110], heading[111], bottom[112] = np.nan, np.nan, np.inf
+    sin_h, cos_h = sincos32(heading)
+    valid = rng.random(n) < 0.9
+    boxes = [a.reshape(30, -1) for a in (x, y, bottom, length, width, cos_h, sin_h, valid)]  # (objects, steps)
+    expected = road_edge.box_distance_to_road_edge(*boxes, table)
+    got = jitted(dense.DenseSearch(segments).road_edge_distance, *boxes)
+    np.testing.assert_array_equal(got, expected)
+
+
 def test_lane_search_dense_equals_numpy():
     rng = np.random.default_rng(4)
     lanes = [
@@ -288,6 +311,11 @@ def test_strict_argmin_is_tensorflows():
     want = [sequential_argmin(r) for r in rows]
     np.testing.assert_array_equal(strict_argmin(rows), want)
     np.testing.assert_array_equal(jitted(strict_argmin, rows), want)
+    # Along another axis, and in one reduction with the value picked (the dense time to collision's).
+    np.testing.assert_array_equal(jitted(lambda r: strict_argmin(r.T, axis=0), rows), want)
+    pick, value = jitted(dense._strict_argmin_and_value, rows)
+    np.testing.assert_array_equal(pick, want)
+    np.testing.assert_array_equal(value, rows[np.arange(len(rows)), want])
 
 
 def test_nearest_object_spreads_nan_as_the_all_pairs_minimum():

@@ -418,13 +418,15 @@ def scene_trajectories(spec: challenges.ChallengeSpec, a: dict, rollouts: dict) 
     gathered = {f: _gather_agents(v.astype(_F), a["columns"]) for f, v in rollouts.items()}
     if spec.submits_boxes:
         sim = {**gathered, "valid": tile(log["valid"])}
-    else:
-        now = spec.first_simulated_step
-        sim = {f: jnp.concatenate([tile(log[f][:, :now]), gathered[f]], axis=-1) for f in _POSITIONS}
-        sim.update({f: tile(log[f]) for f in _SIZES})
-        future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
-        sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
-    return {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
+        return {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in mf.TRAJECTORY_FIELDS}
+    now = spec.first_simulated_step
+    sim = {f: jnp.concatenate([tile(log[f][:, :now]), gathered[f]], axis=-1) for f in _POSITIONS}
+    future_valid = jnp.broadcast_to(real[None, :, None], (num_rollouts, n_obj, steps - now))
+    sim["valid"] = jnp.concatenate([tile(log["valid"][:, :now]), future_valid], axis=-1)
+    out = {f: jnp.concatenate([log[f][None], sim[f]], axis=0) for f in sim}
+    # The box sizes are the log's in every sample: a broadcast, which XLA reads from the log, never stored.
+    out.update({f: jnp.broadcast_to(log[f][None], (1 + num_rollouts, n_obj, steps)) for f in _SIZES})
+    return {f: out[f] for f in mf.TRAJECTORY_FIELDS}
 
 
 def _scene_realism(

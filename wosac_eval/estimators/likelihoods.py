@@ -92,7 +92,8 @@ def _count(mask, weights, xp):
         return xp.sum(xp.where(mask, weights, 0), axis=1)
     if is_numpy(xp) and mask.shape[0] == 1:
         return np.reshape(np.count_nonzero(mask), (1,))  # numpy counts a whole array 6x faster than along an axis
-    return xp.sum(mask, axis=1)
+    # int32 (the counts are far below 2**31): under x64 a bool sum would count in int64, twice the bytes.
+    return xp.sum(mask, axis=1, dtype=np.int32)
 
 
 def check_batches(log_samples, sim_samples) -> None:

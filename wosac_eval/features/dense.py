@@ -14,7 +14,8 @@ all-pairs search (`argmin`: the first index among ties, as in the numpy path) bi
 for bit. The nearest object evaluates the few boxes of lowest bound (the numpy
 search's bound) and falls back likewise where the bound does not settle it.
 Time to collision stays all-pairs (evaluated objects x all objects, a cheap
-kernel), and so does the red-light lane search (over crossing points only).
+kernel, reduced as the pairs are computed), and so does the red-light lane
+search (over crossing points only).
 
 Everything here expects float32 inputs that are already padded (invalid
 padding masked by the `valid` arrays). The float32 math rounds a few steps
@@ -33,6 +34,7 @@ from jax import lax
 from wosac_eval.features import box_geometry, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
+from wosac_eval.features.spatial import strict_argmin
 from wosac_eval.features.xp import in_differentiable, nan_spreading_max, nan_spreading_min
 
 _F = np.float32
@@ -180,33 +182,71 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
 
 
 def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, pair_tail, num_evaluated: int):
-    """Dense `interaction.time_to_collision` for one sample, step-major.
+    """Dense `interaction.time_to_collision` for one sample, object-major: the pairs are
+    `(num_evaluated, num_objects, num_steps)`, in the trajectories' own layout (no transposed copy of
+    them), with the official kernels' elementwise arithmetic and the same nearest followed object.
 
     Args:
-      x, y, length, width, heading, speed: float32 `(num_steps, num_objects)`.
-      valid: bool `(num_steps, num_objects)`.
-      ego_tail: bool `(num_steps, num_evaluated, 1)`, pair_tail: bool
-        `(num_steps, num_evaluated, num_objects)`: the official ops' trailing
+      x, y, length, width, heading, speed: float32 `(num_objects, num_steps)`, the evaluated steps.
+      valid: bool `(num_objects, num_steps)`.
+      ego_tail: bool `(num_evaluated, 1, num_steps)`, pair_tail: bool
+        `(num_evaluated, num_objects, num_steps)`: the official ops' trailing
         packets, from the real (unpadded) shapes.
     Returns:
-      float32 `(num_steps, num_evaluated)`.
+      float32 `(num_evaluated, num_steps)`.
     """
     e = slice(0, num_evaluated)
-    minus_yaw = -heading[:, e, None]
-    ego_sin, ego_cos = sincos32(minus_yaw, ego_tail)
-    ahead, beside, yaw_diff = interaction.ego_frame_offsets(
-        x, y, length, width, heading, ego_cos, ego_sin, num_evaluated
+    ego_sin, ego_cos = sincos32(-heading[e, None], ego_tail)
+    ahead, beside, yaw_diff = interaction.frame_offsets(
+        x[None],
+        y[None],
+        x[e, None],
+        y[e, None],
+        ego_cos,
+        ego_sin,
+        length[e, None],
+        width[e, None],
+        heading[None],
+        heading[e, None],
     )
-    return interaction.all_objects_time_to_collision(
-        ahead,
-        beside,
-        yaw_diff,
-        pair_tail,
-        length[:, None, :],
-        width[:, None, :],
-        valid[:, None, :],
-        speed,
-        num_evaluated,
+    masked = interaction.followed_gaps(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    # The nearest followed object, as `interaction.all_objects_time_to_collision` picks it along its objects.
+    if in_differentiable(jnp):  # gradients through the gap: JAX differentiates no custom reduction
+        nearest = strict_argmin(masked, axis=1)
+        gap = jnp.take_along_axis(masked, nearest[:, None], axis=1)[:, 0]
+    else:
+        nearest, gap = _strict_argmin_and_value(masked)
+    closing = speed[e] - jnp.take_along_axis(speed, nearest, axis=0)
+    return interaction.capped_time_to_collision(gap, closing)
+
+
+def _strict_argmin_and_value(values):
+    """`spatial.strict_argmin` along axis 1 of `values` `(rows, n, ...)` and the value it picks, in one
+    reduction: the pairs are never stored, only reduced as they are computed. int32 and float32 `(rows, ...)`."""
+    n = values.shape[1]
+    index = lax.broadcasted_iota(jnp.int32, values.shape, 1)
+    candidates = jnp.where(jnp.isnan(values), _F(np.inf), values)
+    init = (_F(np.inf), np.int32(n), _F(0), np.int32(n), _F(0))
+    # (first lowest candidate, its index, its value; the first index, its value): the first is strict_argmin's
+    # pick when its candidate is below float32's largest finite value, else index 0 is.
+    lowest, pick, picked, _, first = lax.reduce(
+        (candidates, index, values, index, values), init, _first_lowest_and_first, (1,)
+    )
+    below = lowest < np.finfo(np.float32).max
+    return jnp.where(below, pick, 0), jnp.where(below, picked, first)
+
+
+def _first_lowest_and_first(a, b):
+    """`_strict_argmin_and_value`'s combiner: the lower candidate (the lower index on ties) with its value,
+    and the lower index with its value (comparisons and selects only: the exact mode keeps it as it is)."""
+    take = lax.lt(b[0], a[0]) | (lax.eq(b[0], a[0]) & lax.lt(b[1], a[1]))
+    first = lax.lt(b[3], a[3])
+    return (
+        lax.select(take, b[0], a[0]),
+        lax.select(take, b[1], a[1]),
+        lax.select(take, b[2], a[2]),
+        lax.select(first, b[3], a[3]),
+        lax.select(first, b[4], a[4]),
     )
 
 
@@ -287,18 +327,20 @@ def _fill_rows(out, which, chunk: int, compute):
       out: `(n,)` array; which: bool `(n,)`; compute: int32 `(chunk,)` row indices -> `(chunk,)` values.
     """
     n = which.shape[0]
-    count = which.sum()
     chunk = min(chunk, max(1, n))
-    order = jnp.nonzero(which, size=n, fill_value=0)[0]
-    order = jnp.concatenate([order, jnp.zeros(chunk, order.dtype)])  # room for a last partial chunk
+    # The number of rows up to each one (one prefix sum, no compacted copy of the indices): a round
+    # finds its rows, ranks done + 1 to done + chunk, by binary search in it.
+    place = jnp.cumsum(which, dtype=jnp.int32)
+    count = place[-1] if n else jnp.zeros((), jnp.int32)
 
     def round_(carry):
         done, out = carry
-        rows = lax.dynamic_slice(order, (done,), (chunk,))
-        real = jnp.arange(chunk) < count - done
+        ranks = done + jnp.arange(1, chunk + 1, dtype=jnp.int32)
+        real = ranks <= count
+        rows = jnp.where(real, jnp.searchsorted(place, ranks, side="left").astype(jnp.int32), 0)
         return done + chunk, out.at[jnp.where(real, rows, n)].set(compute(rows).astype(out.dtype), mode="drop")
 
-    return lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), order.dtype), out))[1]
+    return lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), jnp.int32), out))[1]
 
 
 def _nearest_segment(queries, s, cells, needed):
@@ -428,6 +470,16 @@ def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
     return lane_of_point[:, None] == m["signal_lane_id"][None, :]
 
 
+def _nan_spreading_max_last(a):
+    """`xp.nan_spreading_max(a, axis=-1)` as one reduction: the maximum and whether a NaN is met."""
+    top, nan = lax.reduce((a, jnp.isnan(a)), (_F(-np.inf), False), _max_and_any, (a.ndim - 1,))
+    return jnp.where(nan, _F(np.nan), top)
+
+
+def _max_and_any(a, b):
+    return lax.max(a[0], b[0]), lax.bitwise_or(a[1], b[1])
+
+
 class DenseSearch:
     """The dense (JAX) search strategy of `metric_features.per_step_features` (a `SearchStrategy`).
 
@@ -442,29 +494,35 @@ class DenseSearch:
         self.m = m
 
     def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
-        def per_sample(args):
-            x, y, length, width, cos_h, sin_h, valid = args
-            return nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
+        boxes = (x, y, length, width, cos_h, sin_h, valid)
 
-        return lax.map(per_sample, (x, y, length, width, cos_h, sin_h, valid))
+        def per_sample(sample):
+            # The sample read in place: mapped over as `lax.map`'s operands, arrays with a scene axis
+            # before the samples (under `vmap`) would be copied with that axis moved behind them first.
+            one = (lax.dynamic_index_in_dim(a, sample, keepdims=False) for a in boxes)
+            return nearest_object_distance(*one, num_evaluated)
+
+        return lax.map(per_sample, jnp.arange(x.shape[0]))
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         i = inputs
-
-        def step_major(a):
-            return jnp.swapaxes(a[..., i.steps], -1, -2)
-
+        # The tails (official shapes, step-major) object-major as the pairs: one scene's, not per sample.
         per_sample = functools.partial(
-            time_to_collision, ego_tail=i.ego_tail, pair_tail=i.pair_tail, num_evaluated=i.num_evaluated
+            time_to_collision,
+            ego_tail=jnp.transpose(jnp.asarray(i.ego_tail), (1, 2, 0)),
+            pair_tail=jnp.transpose(jnp.asarray(i.pair_tail), (1, 2, 0)),
+            num_evaluated=i.num_evaluated,
         )
-        ttc = jax.vmap(per_sample)(*map(step_major, (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid)))
-        return jnp.swapaxes(ttc, -1, -2)
+        at = lambda a: a[..., i.steps]  # noqa: E731
+        return jax.vmap(per_sample)(*map(at, (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid)))
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
         needed = jnp.broadcast_to(valid[..., None], corners.shape[:-1]).reshape(-1)
         edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m, needed)
-        edge = nan_spreading_max(edge.reshape(corners.shape[:-1]), axis=-1)
+        edge = edge.reshape(corners.shape[:-1])
+        # The corners' maximum in one pass (its two reductions in one: the corners' distances never stored).
+        edge = nan_spreading_max(edge, axis=-1) if in_differentiable(jnp) else _nan_spreading_max_last(edge)
         return jnp.where(valid, edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
 
     def red_light_violation(self, x, y, valid):

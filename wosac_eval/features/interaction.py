@@ -602,6 +602,21 @@ def _followed_search(
     return out
 
 
+def followed_gaps(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid):
+    """The gap to each other object, 1e10 more where it is not followed: float32, the pairs' shape `(...)`.
+
+    Elementwise (numpy or JAX, pairs in any layout): the arguments as `all_objects_time_to_collision`'s,
+    broadcast to one shape. Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps
+    stay what they are.
+    """
+    xp = array_namespace(ahead_of_front, yaw_diff)
+    with errstate(xp, invalid="ignore", over="ignore"):
+        yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
+        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, length, width)
+        followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)
+        return long_distance + xp.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
+
+
 def all_objects_time_to_collision(
     ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed, num_evaluated: int
 ):
@@ -617,13 +632,9 @@ def all_objects_time_to_collision(
       float32 `(..., num_evaluated)`.
     """
     xp = array_namespace(ahead_of_front, speed)
+    masked = followed_gaps(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid)
     with errstate(xp, invalid="ignore", over="ignore"):
-        yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
-        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, length, width)
-        # Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps stay what they are,
-        # and the nearest is the first strict minimum (ties to the lowest object index, NaN never).
-        followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)
-        masked = long_distance + xp.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
+        # The nearest is the first strict minimum (ties to the lowest object index, NaN never).
         ahead = strict_argmin(masked)
         gap = xp.take_along_axis(masked, ahead[..., None], axis=-1)[..., 0]
         closing = speed[..., :num_evaluated] - xp.take_along_axis(speed, ahead, axis=-1)

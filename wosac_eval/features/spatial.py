@@ -127,15 +127,15 @@ def non_finite_pick(valid: np.ndarray) -> int:
     return int(padding[0]) if padding.size else 0
 
 
-def strict_argmin(values):
+def strict_argmin(values, axis: int = -1):
     """Index of the first value below every earlier one, starting from float32's largest finite value.
 
     TensorFlow's argmin on the CPU: NaN is never chosen, and a row with no
     value below 3.4e38 (all NaN or +inf) gives 0. int `(...)` from float32
-    `(..., n)`, numpy or JAX (whose own argmin picks the first NaN).
+    `(..., n)` (n along `axis`), numpy or JAX (whose own argmin picks the first NaN).
     """
     xp = array_namespace(values)
     candidates = xp.where(xp.isnan(values), xp.inf, values)
-    index = xp.argmin(candidates, axis=-1)
-    lowest = xp.take_along_axis(candidates, index[..., None], axis=-1)[..., 0]
+    index = xp.argmin(candidates, axis=axis)
+    lowest = xp.squeeze(xp.take_along_axis(candidates, xp.expand_dims(index, axis), axis=axis), axis=axis)
     return xp.where(lowest < np.finfo(np.float32).max, index, 0)

@@ -500,7 +500,7 @@ class DenseSearch:
             # The sample read in place: mapped over as `lax.map`'s operands, arrays with a scene axis
             # before the samples (under `vmap`) would be copied with that axis moved behind them first.
             one = (lax.dynamic_index_in_dim(a, sample, keepdims=False) for a in boxes)
-            return nearest_object_distance(*one, num_evaluated)
+            return nearest_object_distance(*one, num_evaluated=num_evaluated)
 
         return lax.map(per_sample, jnp.arange(x.shape[0]))
 

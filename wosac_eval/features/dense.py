@@ -499,7 +499,9 @@ class DenseSearch:
         def per_sample(sample):
             # The sample read in place: mapped over as `lax.map`'s operands, arrays with a scene axis
             # before the samples (under `vmap`) would be copied with that axis moved behind them first.
-            x, y, length, width, cos_h, sin_h, valid = (lax.dynamic_index_in_dim(a, sample, False) for a in boxes)
+            x, y, length, width, cos_h, sin_h, valid = (
+                lax.dynamic_index_in_dim(a, sample, keepdims=False) for a in boxes
+            )
             return nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
         return lax.map(per_sample, jnp.arange(x.shape[0]))

@@ -69,8 +69,8 @@ class PrunedSearch:
 
 
 def compile_searches() -> float:
-    """Compiles the search loops and the protobuf wire walks (`parse.wire_walks`) now (or loads them from
-    numba's cache); returns the seconds it took.
+    """Compiles the search loops, the protobuf wire walks (`parse.wire_walks`) and the criticality's loop
+    (`analysis.criticality_features`) now (or loads them from numba's cache); returns the seconds it took.
 
     numba compiles a loop on its first call, once per installation (about half a minute for all of
     them), and caches it on disk; a process that should not pay that in its first scenario (a

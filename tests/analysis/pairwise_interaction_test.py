@@ -16,6 +16,7 @@ from wosac_eval.analysis.criticality_features import (
     TTC_HORIZON,
     disc_gap,
     disc_pairs,
+    interacting_pairs,
     kinematic_volatility,
     pairwise_interaction,
 )
@@ -27,8 +28,9 @@ from wosac_eval.sim import scenes
 
 
 def plain_definition(log, velocity, pedestrian):
-    """Every pair of objects (not two pedestrians) at every step where both are valid and one moves, by array
-    operations over the entries: the disc pairs' gap, the first touch at constant velocities and the near miss."""
+    """The pairs that can interact (`interacting_pairs`, which both share) at every step where both are valid
+    and one moves, by array operations over the entries: the disc pairs' gap, the first touch at constant
+    velocities and the near miss."""
     vx, vy, v_valid = velocity
     x, y, heading = (np.asarray(a, dtype=np.float64) for a in (log.x, log.y, log.heading))
     length, width = np.asarray(log.length, np.float64), np.asarray(log.width, np.float64)
@@ -36,16 +38,7 @@ def plain_definition(log, velocity, pedestrian):
     ttc, closing, near = np.full(steps, np.inf), np.zeros(steps), np.zeros(steps)
     if n < 2:
         return ttc, closing, near
-    i, j = np.triu_indices(n, k=1)
-    valid_xy = v_valid.any(axis=1)
-    with np.errstate(invalid="ignore"):
-        low_x, high_x = np.where(v_valid, x, np.inf).min(axis=1), np.where(v_valid, x, -np.inf).max(axis=1)
-        low_y, high_y = np.where(v_valid, y, np.inf).min(axis=1), np.where(v_valid, y, -np.inf).max(axis=1)
-    gap_x = np.maximum(low_x[j] - high_x[i], low_x[i] - high_x[j])
-    gap_y = np.maximum(low_y[j] - high_y[i], low_y[i] - high_y[j])
-    close_paths = valid_xy[i] & valid_xy[j] & (np.hypot(np.maximum(gap_x, 0.0), np.maximum(gap_y, 0.0)) < PAIR_RANGE)
-    keep = close_paths & ~(pedestrian[i] & pedestrian[j])
-    i, j = i[keep], j[keep]
+    i, j = interacting_pairs(x, y, v_valid, pedestrian)  # the same pairs: what is compared is the entries
     moving = v_valid & (np.hypot(vx, vy) >= MIN_CLOSING / 2)
     pair, t = np.nonzero(v_valid[i] & v_valid[j] & (moving[i] | moving[j]))
     a, b = i[pair], j[pair]

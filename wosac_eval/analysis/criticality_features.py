@@ -156,6 +156,27 @@ def disc_gap(dx, dy, radius) -> np.ndarray:
     return np.maximum(np.sqrt((dx * dx + dy * dy).min(axis=(1, 2))) - radius[:, 0, 0], 0.0)
 
 
+def interacting_pairs(x, y, valid, pedestrian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The pairs of objects that can interact: (first, second) int `(num_pairs,)`, first < second, in
+    `np.triu_indices` order, both valid at some step, not both pedestrians, and whose valid positions'
+    bounding boxes come within PAIR_RANGE (farther paths never interact: most pairs of a large scene,
+    dropped before any per-step work).
+
+    x, y: float64 `(num_objects, num_steps)`; valid: bool `(num_objects, num_steps)`; pedestrian: bool
+    `(num_objects,)`.
+    """
+    i, j = np.triu_indices(x.shape[0], k=1)
+    valid_xy = valid.any(axis=1)
+    with np.errstate(invalid="ignore"):
+        low_x, high_x = (np.where(valid, x, np.inf).min(axis=1), np.where(valid, x, -np.inf).max(axis=1))
+        low_y, high_y = (np.where(valid, y, np.inf).min(axis=1), np.where(valid, y, -np.inf).max(axis=1))
+    gap_x = np.maximum(low_x[j] - high_x[i], low_x[i] - high_x[j])
+    gap_y = np.maximum(low_y[j] - high_y[i], low_y[i] - high_y[j])
+    close_paths = valid_xy[i] & valid_xy[j] & (np.hypot(np.maximum(gap_x, 0.0), np.maximum(gap_y, 0.0)) < PAIR_RANGE)
+    keep = close_paths & ~(pedestrian[i] & pedestrian[j])
+    return i[keep], j[keep]
+
+
 def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     """Per-step least time to collision, most closing speed and worst near miss over pairs of objects.
 
@@ -169,17 +190,7 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     ttc, closing, near = np.full(steps, np.inf), np.zeros(steps), np.zeros(steps)
     if n < 2:
         return ttc, closing, near
-    i, j = np.triu_indices(n, k=1)
-    # Pairs whose whole paths stay PAIR_RANGE apart (their bounding boxes do) never interact: drop them
-    # before any per-step work (most pairs of a large scene).
-    valid_xy = v_valid.any(axis=1)
-    with np.errstate(invalid="ignore"):
-        low_x, high_x = (np.where(v_valid, x, np.inf).min(axis=1), np.where(v_valid, x, -np.inf).max(axis=1))
-        low_y, high_y = (np.where(v_valid, y, np.inf).min(axis=1), np.where(v_valid, y, -np.inf).max(axis=1))
-    gap_x = np.maximum(low_x[j] - high_x[i], low_x[i] - high_x[j])
-    gap_y = np.maximum(low_y[j] - high_y[i], low_y[i] - high_y[j])
-    close_paths = valid_xy[i] & valid_xy[j] & (np.hypot(np.maximum(gap_x, 0.0), np.maximum(gap_y, 0.0)) < PAIR_RANGE)
-    keep = close_paths & ~(pedestrian[i] & pedestrian[j])
+    a, b = interacting_pairs(x, y, v_valid, pedestrian)
     # Two objects that both stand still neither close in nor miss each other: most pairs of a car park.
     moving = v_valid & (np.hypot(vx, vy) >= MIN_CLOSING / 2)
     # The front disc's offsets of every box at every step, as `disc_pairs` takes them (numpy's sine and
@@ -187,7 +198,7 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
     offset = np.maximum(length - width, 0.0) / 2
     offset_x, offset_y = np.cos(heading) * offset, np.sin(heading) * offset
     step, gap, relative_speed = _pair_entries(
-        i[keep], j[keep], x, y, vx, vy, v_valid, moving, length, width, offset_x, offset_y, ttc, closing
+        a, b, x, y, vx, vy, v_valid, moving, length, width, offset_x, offset_y, ttc, closing
     )
     # exp by numpy, as the ufunc computes it (the compiled loop's exp may round differently).
     np.maximum.at(near, step, np.exp(-gap / NEAR_MISS_GAP) * relative_speed / (relative_speed + NEAR_MISS_SPEED))

@@ -5,6 +5,7 @@ real protobuf bytes."""
 
 from __future__ import annotations
 
+import functools
 import gzip
 import random
 import re
@@ -14,7 +15,7 @@ import pytest
 from wosac_eval.parse.archive import check_container
 from wosac_eval.parse.submission_source import iter_submission_shards
 from wosac_eval.parse.errors import SizeLimitError
-from wosac_eval.parse.limits import InputLimits, check_message_counts
+from wosac_eval.parse.limits import InputLimits, _Census, check_message_counts
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 from wosac_eval.validate.validator import validate_submission
@@ -131,56 +132,11 @@ def test_max_scenarios_names_the_shard_past_it_and_partial_scoring_reads_none_of
 
 
 def plain_census(shard: str, data: bytes, limits: InputLimits) -> str | None:
-    """The census by its definition, a Python walk of the three levels: the first refusal's message, or None.
-    Every field of a walked level is one message; a malformed field ends its level's walk."""
-    budget = limits.message_allowance + len(data) // limits.message_bytes
-    messages = 0
-
-    class Refused(Exception):
-        pass
-
-    def fields(start: int, end: int, where: str):
-        nonlocal messages
-        pos = start
-        while pos < end:
-            key, shift = 0, 0
-            while True:
-                byte = data[pos]
-                key |= (byte & 0x7F) << shift
-                pos += 1
-                if not byte & 0x80 or pos >= end or shift > 56:
-                    break
-                shift += 7
-            messages += 1
-            if messages > budget:
-                raise Refused(
-                    f"shard {shard}: more than {budget} messages in {end - start} bytes at {where} "
-                    f"(one per {limits.message_bytes} bytes plus {limits.message_allowance}: a real "
-                    "trajectory carries its steps); refused before parsing"
-                )
-            wire_type = key & 7
-            if wire_type == 2:
-                length, shift = 0, 0
-                while pos < end:
-                    byte = data[pos]
-                    length |= (byte & 0x7F) << shift
-                    pos += 1
-                    if not byte & 0x80 or shift > 56:
-                        break
-                    shift += 7
-                if pos + length > end:
-                    return
-                yield key >> 3, pos, pos + length
-                pos += length
-            elif wire_type == 0:
-                while pos < end and data[pos] & 0x80:
-                    pos += 1
-                pos += 1
-            elif wire_type in (1, 5):
-                pos += 8 if wire_type == 1 else 4
-            else:
-                return
-
+    """The census by its definition, the Python walk of `parse.limits` (`_Census.fields`, which walks the
+    top level) down all three levels: the first refusal's message, or None. Every field of a walked level is
+    one message; a malformed field ends its level's walk."""
+    census = _Census(shard, len(data), limits)
+    fields = functools.partial(census.fields, data)
     try:
         scenarios = 0
         for number, start, end in fields(0, len(data), "the top level"):
@@ -188,7 +144,7 @@ def plain_census(shard: str, data: bytes, limits: InputLimits) -> str | None:
                 continue
             scenarios += 1
             if scenarios > limits.max_scenarios:
-                raise Refused(
+                raise SizeLimitError(
                     f"shard {shard}: more than max_scenarios={limits.max_scenarios} scenario_rollouts; "
                     "refused before parsing"
                 )
@@ -199,7 +155,7 @@ def plain_census(shard: str, data: bytes, limits: InputLimits) -> str | None:
                     continue
                 joint_scenes += 1
                 if joint_scenes > limits.max_joint_scenes:
-                    raise Refused(
+                    raise SizeLimitError(
                         f"shard {shard}: {where} holds more than max_joint_scenes={limits.max_joint_scenes} "
                         "joint_scenes (the challenge asks for 32); refused before parsing"
                     )
@@ -208,11 +164,11 @@ def plain_census(shard: str, data: bytes, limits: InputLimits) -> str | None:
                 for number, _, _ in fields(j_start, j_end, scene_where):
                     objects += number == 1
                     if objects > limits.max_objects:
-                        raise Refused(
+                        raise SizeLimitError(
                             f"shard {shard}: {scene_where} holds more than max_objects={limits.max_objects} "
                             "simulated_trajectories; refused before parsing"
                         )
-    except Refused as refused:
+    except SizeLimitError as refused:
         return str(refused)
     return None
 

@@ -42,18 +42,16 @@ import time
 import warnings
 from pathlib import Path
 
-from bench_env import SHARED, VALIDATION_SET, median_seconds
-
 import jax
 import numpy as np
+from bench_env import SHARED, VALIDATION_SET, median_seconds
 
 from support.tiling import tiled, tiled_rollouts
 from wosac_eval import jax_realism
-from wosac_eval.backends.jax_realism import CLOSED_OVER_WARNING_BYTES
+from wosac_eval.backends.realism_inputs import CLOSED_OVER_WARNING_BYTES
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import make_submission, policy_rollouts
-
 
 _FILE_PATH_CHILD = """
 import statistics, sys, time

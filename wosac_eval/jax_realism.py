@@ -15,19 +15,8 @@ See `wosac_eval.backends.jax_realism` for the shapes and the Waymax-style adapte
 """
 
 from wosac_eval.backends.jax_backend import exact_cpu
-from wosac_eval.backends.jax_realism import (
-    MODES,
-    SEARCHES,
-    PreparedScenes,
-    Realism,
-    features,
-    from_waymax,
-    jit_step,
-    prepare,
-    realism,
-    stack_rollouts,
-    waymax_columns,
-)
+from wosac_eval.backends.jax_realism import MODES, SEARCHES, PreparedScenes, Realism, features, prepare, realism
+from wosac_eval.backends.realism_inputs import from_waymax, jit_step, stack_rollouts, waymax_columns
 from wosac_eval.backends.soft_realism import soft_realism
 
 __all__ = [

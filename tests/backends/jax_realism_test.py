@@ -298,7 +298,7 @@ def test_prepared_as_an_argument_embeds_no_large_constant(search):
 def test_a_closed_over_prepared_set_warns_once_with_the_fix(monkeypatch):
     """Traced by a jit with `prepared` closed over (its arrays concrete: 9 MB here), `realism` warns once per
     process in one sentence showing the fix; an eager call or vmap stages nothing and is not a jit."""
-    from wosac_eval.backends import jax_realism as backend
+    from wosac_eval.backends import realism_inputs as backend
 
     monkeypatch.setattr(backend, "_closed_over_warned", False)
     prepared, arrays = prepared_set("sim_agents")

@@ -59,6 +59,7 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.backends import jax_realism as jr
+from wosac_eval.backends import realism_inputs
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features import dense, interaction, ops, registry, road_edge, traffic_lights
 from wosac_eval.features.xp import differentiable, float32_precision
@@ -327,12 +328,14 @@ def soft_realism(
         )
     if not isinstance(temperature, jax.core.Tracer) and not float(temperature) > 0:
         raise ValueError(f"temperature must be positive, got {temperature}")
-    fields = jr.rollout_fields(prepared, x, y, z, heading, {"length": length, "width": width, "height": height})
+    fields = realism_inputs.rollout_fields(
+        prepared, x, y, z, heading, {"length": length, "width": width, "height": height}
+    )
     fields = {k: jnp.asarray(v, _F) for k, v in fields.items()}
     temperature = jnp.asarray(temperature, _F)
     parts = [
         _soft_fn(prepared.config, prepared.challenge, layout, registry.features())(
-            arrays, jr.take_scenes(fields, indices), temperature
+            arrays, realism_inputs.take_scenes(fields, indices), temperature
         )
         for arrays, (indices, layout) in zip(prepared.arrays, prepared.groups)
     ]

@@ -238,7 +238,7 @@ def test_an_internal_error_is_one_line_unless_debugging(monkeypatch, capsys):
 def test_report_legend_covers_no_bar(tmp_path):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    from wosac_eval.results.report import bucket_figure
+    from wosac_eval.results.report_plots import bucket_figure
     from wosac_eval.scoring.result_reader import load_result
     from wosac_eval.results.synthetic_results import write_gate_demo_results
 

@@ -201,7 +201,7 @@ def test_report_of_a_result_where_every_scenario_was_skipped():
 def test_histogram_axis_of_one_scenario_reads_plain_numbers(tmp_path, monkeypatch, num_scenarios):
     # One scenario (or all values equal) used to give bins of width 1e-6 and an axis reading
     # '1e-6+2.5824e-1'; the span is now readable and the axis never uses an offset.
-    from wosac_eval.results import report
+    from wosac_eval.results import report_plots
 
     scenarios = synthetic_scenarios(num_scenarios, seed=0)
     for s in scenarios:
@@ -214,12 +214,12 @@ def test_histogram_axis_of_one_scenario_reads_plain_numbers(tmp_path, monkeypatc
     def keep(fig, tight=True):
         from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-        FigureCanvasAgg(fig).draw()  # as _png draws it: tick labels and offset text set
+        FigureCanvasAgg(fig).draw()  # as png draws it: tick labels and offset text set
         figures.append(fig)
         return ""
 
-    monkeypatch.setattr(report, "_png", keep)
-    report._distribution_plot(result, None, ["metametric", "linear_speed_likelihood"])
+    monkeypatch.setattr(report_plots, "png", keep)
+    report_plots.distribution_plot(result, None, ["metametric", "linear_speed_likelihood"])
     (fig,) = figures
     for ax in fig.axes:
         assert ax.xaxis.get_offset_text().get_text() == ""
@@ -227,5 +227,5 @@ def test_histogram_axis_of_one_scenario_reads_plain_numbers(tmp_path, monkeypatc
         assert labels and all("e" not in label for label in labels), labels
         low, high = ax.get_xlim()
         assert high - low > 1e-3
-    bins = report._histogram_bins(np.array([0.25824]))
+    bins = report_plots._histogram_bins(np.array([0.25824]))
     assert bins[0] < 0.25824 < bins[-1] and bins[-1] - bins[0] == pytest.approx(0.025824)

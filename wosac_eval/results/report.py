@@ -16,16 +16,26 @@ from __future__ import annotations
 import base64
 import datetime
 import html
-import io
 from collections.abc import Iterable
 
 import numpy as np
 
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
-from wosac_eval.metrics.registry import DISPLAY_ORDER, RATES, SCORE_BUCKETS
+from wosac_eval.metrics.registry import DISPLAY_ORDER
 from wosac_eval.results.compare import BETTER, WORSE, Comparison
+from wosac_eval.results.report_plots import (
+    RATE_LABELS,
+    bucket_plot,
+    criticality_plot,
+    distribution_plot,
+    forest_plot,
+    metric_label,
+    metric_values,
+    present_values,
+    rate_plot,
+    scatter_plot,
+)
 from wosac_eval.scoring.result_reader import (
-    BUCKET_ALIASES,
     BUCKET_FIELDS,
     RATE_FIELDS,
     ScoringResult,
@@ -35,13 +45,9 @@ from wosac_eval.scoring.result_reader import (
 
 SECTIONS = ("headline", "buckets", "rates", "distributions", "worst", "comparison", "skipped")
 
-RATE_LABELS = {rate.name: rate.title for rate in RATES}
-
 # Metrics whose per-scenario distribution and worst scenarios the report shows: all but the mean ADE
 # (the leaderboard's displacement figure is the min ADE).
 DISTRIBUTION_METRICS = tuple(f for f in DISPLAY_ORDER if f != "average_displacement_error")
-
-_BASE_COLOR, _NEW_COLOR = "#9aa5b1", "#1f6feb"
 
 _CSS = """
 body{font-family:system-ui,-apple-system,'Segoe UI',Roboto,sans-serif;margin:0;color:#1b1f24;background:#f6f8fa}
@@ -68,31 +74,6 @@ code{font-size:.85rem}
 """
 
 
-def _png(fig, tight: bool = True) -> str:
-    """The figure as an `<img>` with a base64 PNG data URI.
-
-    `tight` crops to the drawn content, at the cost of one more drawing pass
-    (large grids of subplots set their margins by hand instead).
-    """
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(fig)
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=80, bbox_inches="tight" if tight else None, metadata={"Software": None})
-    data = base64.b64encode(buf.getvalue()).decode("ascii")
-    return f'<img alt="plot" src="data:image/png;base64,{data}">'
-
-
-def _figure(width: float, height: float):
-    from matplotlib.figure import Figure
-
-    return Figure(figsize=(width, height))
-
-
-def _label(metric: str) -> str:
-    return metric.removesuffix("_likelihood").replace("_", " ")
-
-
 def _esc(x) -> str:
     return html.escape(str(x), quote=True)
 
@@ -106,191 +87,6 @@ def _num(x: float | None, digits: int = 4, signed: bool = False) -> str:
 
 def _pct(x: float | None, digits: int) -> str:
     return "-" if x is None else f"{100 * x:.{digits}f}%"
-
-
-def _values(result: ScoringResult, metric: str) -> np.ndarray | None:
-    key = BUCKET_ALIASES.get(metric, metric)
-    return result.values.get(key)
-
-
-def _present_values(result: ScoringResult, metric: str) -> np.ndarray:
-    """`_values` of a metric the caller knows the result has (`_available`)."""
-    values = _values(result, metric)
-    if values is None:
-        raise KeyError(f"the result has no per-scenario {metric}")
-    return values
-
-
-# ------------------------------------------------------------------------------------------------
-# Plots
-
-
-def _legend_above(ax) -> None:
-    """The legend above the axes, outside them: inside it would cover a bar whatever corner it took."""
-    ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8, frameon=False, borderaxespad=0.2)
-
-
-def _bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
-    fig = bucket_figure(result, base)
-    return _png(fig) if fig is not None else ""
-
-
-def bucket_figure(result: ScoringResult, base: ScoringResult | None):
-    """Horizontal bars of the bucket scores (this run, and the baseline's beside them); None without buckets."""
-    names = [b for b in SCORE_BUCKETS if result.headline(b) is not None]
-    if not names:
-        return None
-    fig = _figure(5.6, 2.6)
-    ax = fig.add_subplot()
-    y = np.arange(len(names))
-    height = 0.38 if base is not None else 0.6
-    new_vals = [result.headline(n) or 0.0 for n in names]  # each present (`names`)
-    ax.barh(y, new_vals, height=height, color=_NEW_COLOR, label="this run")
-    if base is not None:
-        base_vals = [base.headline(n) or 0.0 for n in names]
-        ax.barh(y + height, base_vals, height=height, color=_BASE_COLOR, label="baseline")
-        _legend_above(ax)
-    for yi, v in zip(y, new_vals):
-        ax.text(v + 0.01, yi, f"{v:.4f}", va="center", fontsize=8)
-    ax.set_yticks(y + (height / 2 if base is not None else 0), [_label(n) for n in names])
-    ax.invert_yaxis()
-    ax.set_xlim(0, 1.08)
-    ax.set_xlabel("score (higher is better)")
-    ax.grid(axis="x", alpha=0.3)
-    return fig
-
-
-def _rate_plot(result: ScoringResult, base: ScoringResult | None) -> str:
-    fig = _figure(4.6, 2.0)
-    ax = fig.add_subplot()
-    y = np.arange(len(RATE_FIELDS))
-    height = 0.38 if base is not None else 0.6
-    vals = [100 * (result.headline(r) or 0.0) for r in RATE_FIELDS]
-    ax.barh(y, vals, height=height, color="#d1242f", label="this run")
-    if base is not None:
-        ax.barh(
-            y + height,
-            [100 * (base.headline(r) or 0.0) for r in RATE_FIELDS],
-            height=height,
-            color=_BASE_COLOR,
-            label="baseline",
-        )
-        _legend_above(ax)
-    for yi, v in zip(y, vals):
-        ax.text(v, yi, f" {v:.2f}%", va="center", fontsize=8)
-    ax.set_yticks(y + (height / 2 if base is not None else 0), [RATE_LABELS[r] for r in RATE_FIELDS])
-    ax.invert_yaxis()
-    ax.set_xlim(0, max(vals + [1.0]) * 1.25)
-    ax.set_xlabel("% of simulated objects (lower is better)")
-    ax.grid(axis="x", alpha=0.3)
-    return _png(fig)
-
-
-def _histogram_bins(data: np.ndarray, count: int = 30) -> np.ndarray:
-    """`count + 1` bin edges over the values; a single value (one scenario, or all equal) or a spread
-    far below the values' scale gets a readable span around it instead of a sliver of 1e-6."""
-    lo, hi = float(data.min()), float(data.max())
-    scale = max(abs(lo), abs(hi), 0.2)
-    if hi - lo < 1e-3 * scale:
-        middle, pad = (lo + hi) / 2, 0.05 * scale
-        lo, hi = middle - pad, middle + pad
-    return np.linspace(lo, hi, count + 1)
-
-
-def _distribution_plot(result: ScoringResult, base: ScoringResult | None, metrics: list[str]) -> str:
-    from matplotlib.ticker import MaxNLocator
-
-    cols = 4
-    rows = (len(metrics) + cols - 1) // cols
-    fig = _figure(14, 2.1 * rows)
-    for k, metric in enumerate(metrics):
-        ax = fig.add_subplot(rows, cols, k + 1)
-        v = _present_values(result, metric)
-        b = _present_values(base, metric) if base is not None else None
-        data = np.concatenate([v, b]) if b is not None else v
-        bins = _histogram_bins(data)
-        # One artist per histogram (ax.hist draws a patch per bin, several times slower over 19 panels).
-        ax.stairs(np.histogram(v, bins)[0], bins, fill=True, color=_NEW_COLOR, alpha=0.75, label="this run")
-        if b is not None:
-            ax.stairs(np.histogram(b, bins)[0], bins, color="#444c56", linewidth=1.2, label="baseline")
-        ax.axvline(float(v.mean()), color="#cf222e", linewidth=1)
-        ax.set_title(f"{_label(metric)}  (mean {v.mean():.3f})", fontsize=9)
-        ax.tick_params(labelsize=7)
-        ax.xaxis.set_major_locator(MaxNLocator(5))
-        ax.xaxis.get_major_formatter().set_useOffset(False)  # never '1e-6+2.5824e-1' under the axis
-        ax.yaxis.set_major_locator(MaxNLocator(4))
-        if k == 0 and b is not None:
-            ax.legend(fontsize=7)
-    # Fixed margins: tight_layout would cost a full extra drawing pass over every subplot.
-    fig.subplots_adjust(
-        left=0.04, right=0.99, bottom=0.5 / (2.1 * rows), top=1 - 0.35 / (2.1 * rows), wspace=0.22, hspace=0.55
-    )
-    return _png(fig, tight=False)
-
-
-def _forest_plot(comparison: Comparison) -> str | None:
-    # Displacement errors are in metres, the rest in [0, 1]: they would crush the scale.
-    rows = [m for m in comparison.metrics if m.paired and "displacement" not in m.metric]
-    if not rows:
-        return None
-    fig = _figure(8, 0.32 * len(rows) + 1.0)
-    ax = fig.add_subplot()
-    y = np.arange(len(rows))
-    for yi, m in zip(y, rows):
-        color = {BETTER: "#1a7f37", WORSE: "#cf222e"}.get(m.verdict, "#57606a")
-        ax.plot([m.ci_low, m.ci_high], [yi, yi], color=color, linewidth=2)
-        ax.plot([m.difference], [yi], "o", color=color, markersize=4)
-    ax.axvline(0.0, color="#1b1f24", linewidth=0.8)
-    ax.set_yticks(y, [_label(m.metric) for m in rows], fontsize=8)
-    ax.invert_yaxis()
-    ax.set_xlabel("new - base, mean over shared scenarios, with 95% CI", fontsize=9)
-    ax.grid(axis="x", alpha=0.3)
-    return _png(fig)
-
-
-def _scatter_plot(result: ScoringResult, base: ScoringResult) -> str | None:
-    bi, ni = shared_rows(base, result)
-    if bi.size == 0:
-        return None
-    b, n = base.values["metametric"][bi], result.values["metametric"][ni]
-    fig = _figure(4.2, 4.0)
-    ax = fig.add_subplot()
-    ax.scatter(b, n, s=4, alpha=0.4 if b.size > 500 else 0.8, color=_NEW_COLOR, edgecolors="none")
-    lo, hi = float(min(b.min(), n.min())), float(max(b.max(), n.max()))
-    ax.plot([lo, hi], [lo, hi], color="#1b1f24", linewidth=0.8)
-    ax.set_xlabel("baseline meta-metric", fontsize=9)
-    ax.set_ylabel("this run's meta-metric", fontsize=9)
-    ax.set_title("per scenario (above the line: improved)", fontsize=9)
-    ax.tick_params(labelsize=7)
-    return _png(fig)
-
-
-def _criticality_plot(result: ScoringResult, c: np.ndarray, tail: float) -> str:
-    """`c`: the scenes' criticality scores (`result.criticality`)."""
-    m = result.values["metametric"]
-    fig = _figure(5.0, 3.6)
-    ax = fig.add_subplot()
-    in_tail = c >= tail
-    ax.scatter(
-        c[~in_tail],
-        m[~in_tail],
-        s=5,
-        alpha=0.5 if c.size > 500 else 0.8,
-        color=_NEW_COLOR,
-        edgecolors="none",
-        label="rest",
-    )
-    ax.scatter(c[in_tail], m[in_tail], s=9, color="#cf222e", edgecolors="none", label="long tail (top decile)")
-    ax.axvline(tail, color="#1b1f24", linewidth=0.6, linestyle=":")
-    if c.size > 2 and np.ptp(c) > 0:
-        slope, intercept = np.polyfit(c, m, 1)
-        xs = np.array([c.min(), c.max()])
-        ax.plot(xs, slope * xs + intercept, color="#1b1f24", linewidth=0.8, label=f"trend (slope {slope:+.3f})")
-    ax.set_xlabel("criticality of the logged scene", fontsize=9)
-    ax.set_ylabel("meta-metric", fontsize=9)
-    ax.tick_params(labelsize=7)
-    _legend_above(ax)
-    return _png(fig)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -357,7 +153,7 @@ def _bucket_section(result: ScoringResult, base: ScoringResult | None) -> str:
         else ""
     )
     table = f"<table>{head}{''.join(rows)}</table>"
-    return _section("buckets", "Buckets", [f'<div class="row">{_bucket_plot(result, base)}{table}</div>', note])
+    return _section("buckets", "Buckets", [f'<div class="row">{bucket_plot(result, base)}{table}</div>', note])
 
 
 def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:
@@ -379,7 +175,7 @@ def _rate_section(result: ScoringResult, base: ScoringResult | None) -> str:
     return _section(
         "rates",
         "Collision, offroad and red-light rates",
-        [f'<div class="row">{_rate_plot(result, base)}<table>{head}{"".join(rows)}</table></div>'],
+        [f'<div class="row">{rate_plot(result, base)}<table>{head}{"".join(rows)}</table></div>'],
     )
 
 
@@ -387,7 +183,7 @@ def _available(result: ScoringResult, base: ScoringResult | None) -> list[str]:
     return [
         m
         for m in DISTRIBUTION_METRICS
-        if _values(result, m) is not None and (base is None or _values(base, m) is not None)
+        if metric_values(result, m) is not None and (base is None or metric_values(base, m) is not None)
     ]
 
 
@@ -400,13 +196,13 @@ def _distribution_section(result: ScoringResult, base: ScoringResult | None) -> 
         + (" Outline: baseline." if base is not None else "")
         + "</p>"
     )
-    return _section("distributions", "Per-scenario distributions", [note, _distribution_plot(result, base, metrics)])
+    return _section("distributions", "Per-scenario distributions", [note, distribution_plot(result, base, metrics)])
 
 
 def _worst_section(result: ScoringResult, top_k: int) -> str:
     blocks = []
-    for k, metric in enumerate(m for m in DISTRIBUTION_METRICS if _values(result, m) is not None):
-        v = _present_values(result, metric)
+    for k, metric in enumerate(m for m in DISTRIBUTION_METRICS if metric_values(result, m) is not None):
+        v = present_values(result, metric)
         order = np.argsort(v if higher_is_better(metric) else -v, kind="stable")[:top_k]
         rows = "".join(
             f"<tr><td class=n>{r + 1}</td><td><code>{_esc(result.scenario_ids[i])}</code></td>"
@@ -445,7 +241,7 @@ def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
         rows = []
         for r, o in enumerate(objects):
             sunk = ", ".join(
-                f"{_esc(_label(f))} {value:.3g} ({part / o.contribution:.0%})" for f, value, part in o.fields[:3]
+                f"{_esc(metric_label(f))} {value:.3g} ({part / o.contribution:.0%})" for f, value, part in o.fields[:3]
             )
             share = f"{o.contribution / gap:.1%}" if gap > 0 else "-"
             rows.append(
@@ -455,7 +251,7 @@ def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
             )
         blocks.append(
             f'<details{" open" if k == 0 else ""} data-bucket="{_esc(bucket)}"><summary>'
-            f"{_esc(_label(bucket.removesuffix('_metrics')))} (gap from 1: {gap:.4f})</summary><table>"
+            f"{_esc(metric_label(bucket.removesuffix('_metrics')))} (gap from 1: {gap:.4f})</summary><table>"
             "<tr><th class=n>#</th><th>scenario</th><th class=n>object</th><th>type</th>"
             "<th class=n>part of the gap</th><th class=n>share</th><th>sunk by (likelihood, share)</th></tr>"
             f"{''.join(rows)}</table></details>"
@@ -471,7 +267,7 @@ def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
 
 def worst_scenarios(result: ScoringResult, count: int, metric: str = "metametric") -> list[str]:
     """Ids of the `count` scenarios with the lowest meta-metric (the scenes worth looking at first)."""
-    values = _values(result, metric)
+    values = metric_values(result, metric)
     if values is None:
         return []
     return [str(result.scenario_ids[i]) for i in np.argsort(values, kind="stable")[:count]]
@@ -479,7 +275,7 @@ def worst_scenarios(result: ScoringResult, count: int, metric: str = "metametric
 
 def _scenes_section(result: ScoringResult, scenes: list[tuple[str, bytes]]) -> str:
     """The pictures of the worst scenes (`wosac-eval plot` at the step of the last event)."""
-    values = _values(result, "metametric")
+    values = metric_values(result, "metametric")
     where = {sid: i for i, sid in enumerate(result.scenario_ids.tolist())}
     cards = []
     for scenario_id, png in scenes:
@@ -522,7 +318,7 @@ def _criticality_section(result: ScoringResult, c: np.ndarray, top_k: int) -> st
         f"<table data-table=long-tail><tr><th class=n>#</th><th>worst long-tail scenario</th>"
         f"<th class=n>criticality</th><th class=n>meta-metric</th></tr>{rows}</table>"
     )
-    return _section("criticality", "Realism against criticality", [summary, _criticality_plot(result, c, tail), table])
+    return _section("criticality", "Realism against criticality", [summary, criticality_plot(result, c, tail), table])
 
 
 def _changed_scenarios(result: ScoringResult, base: ScoringResult, top_k: int) -> str:
@@ -591,7 +387,7 @@ def _comparison_section(result: ScoringResult, base: ScoringResult, c: Compariso
             for g in c.gates
         )
         body.append(f"<h3>Gates</h3><ul>{gates}</ul>")
-    plots = [p for p in (_forest_plot(c), _scatter_plot(result, base)) if p]
+    plots = [p for p in (forest_plot(c), scatter_plot(result, base)) if p]
     body.append('<div class="cards">' + "".join(plots) + "</div>")
     body.append(_changed_scenarios(result, base, top_k))
     return _section("comparison", "Comparison with the baseline", body)

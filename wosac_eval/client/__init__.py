@@ -15,7 +15,10 @@
 
 from __future__ import annotations
 
+from wosac_eval.client.following import follow
 from wosac_eval.client.transport import (
+    KEY_ENV,
+    ArgumentError,
     ProtocolError,
     RetryPolicy,
     ServerUnavailable,
@@ -23,7 +26,7 @@ from wosac_eval.client.transport import (
     SubmissionRefused,
     SubmitError,
 )
-from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, KEY_ENV, ArgumentError, follow, submit
+from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, submit
 
 __all__ = [
     "DEFAULT_CHUNK_BYTES",

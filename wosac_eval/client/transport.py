@@ -10,6 +10,7 @@ from __future__ import annotations
 import email.utils
 import http.client
 import json
+import os
 import random
 import socket
 import ssl
@@ -316,3 +317,42 @@ def status_reason(answer: Response) -> tuple[str, float | None, int | None]:
     if answer.status == 429:  # a quota or rate limit: in the end, the server's refusal with its reason
         return answer.detail(), answer.retry_after(), 429
     return f"{answer.status} {answer.detail()}", answer.retry_after(), None
+
+
+KEY_ENV = "WOSAC_API_KEY"
+
+
+class ArgumentError(ValueError):
+    """A bad argument of `submit`, found before anything is sent."""
+
+
+def api_key(key: str | None) -> str:
+    key = key if key is not None else os.environ.get(KEY_ENV)
+    if not key:
+        raise ArgumentError(f"no API key: pass key=... or set {KEY_ENV}")
+    if any(c.isspace() for c in key) or not key.isprintable():
+        raise ArgumentError("the API key holds spaces or control characters; copy it again")
+    return key
+
+
+def call(
+    owner,
+    what: str,
+    method: str,
+    route: str,
+    query: dict | None = None,
+    headers: dict[str, str] | None = None,
+    retrier: Retrier | None = None,
+) -> Response:
+    """One bodiless request, retried by `owner`'s policy (or `retrier`, counting on from its failures); the
+    answer that was not worth retrying."""
+    server = owner.server
+    return (retrier or Retrier(owner.policy, owner.log)).call(
+        server, what, lambda: server.request(method, server.path(route, query), headers), reset=retrier is None
+    )
+
+
+def refused(answer: Response) -> SubmitError:
+    if 400 <= answer.status < 500:
+        return SubmissionRefused(answer.status, answer.detail())
+    return ProtocolError(f"unexpected answer {answer.status}: {answer.detail()}")

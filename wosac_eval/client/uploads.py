@@ -19,36 +19,30 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from wosac_eval.client.following import Follower, Progress, no_progress
 from wosac_eval.client.state import UploadState, default_state_dir, key_digest, prune
 from wosac_eval.client.transport import (
     NETWORK_ERRORS,
     RETRYABLE_STATUS,
+    ArgumentError,
     ProtocolError,
-    Response,
     Retrier,
     RetryPolicy,
     Server,
     ServerUnavailable,
-    SubmissionFailed,
     SubmissionRefused,
     SubmitError,
+    api_key,
+    call,
+    refused,
     status_reason,
 )
 
 DEFAULT_CHUNK_BYTES = 64 * 2**20
 BLOCK_BYTES = 2**20  # what is read from the file, and sent, at a time
-KEY_ENV = "WOSAC_API_KEY"
 CHALLENGES = ("sim_agents", "scenario_gen")
-FINAL_STATES = ("done", "failed")
-# progress(stage, done, total): stage "upload" counts bytes the server holds (or that are on their way),
-# "scoring" the job's scenarios (total None until validation has read the submission).
-Progress = Callable[[str, int, "int | None"], None]
 
 _logger = logging.getLogger("wosac_eval.client")
-
-
-class ArgumentError(ValueError):
-    """A bad argument of `submit`, found before anything is sent."""
 
 
 class _UploadGone(Exception):
@@ -136,137 +130,6 @@ def submit(
     return run.run(wait=wait, new=new)
 
 
-def follow(
-    submission_id: str,
-    *,
-    server: str,
-    key: str | None = None,
-    output: str | os.PathLike | None = None,
-    progress: Progress | None = None,
-    log: Callable[[str], None] | None = None,
-    retry: RetryPolicy = RetryPolicy(),
-    timeout: float = 60.0,
-    poll_s: tuple[float, float] = (0.5, 5.0),
-) -> dict:
-    """Follow a submission already on the server until it is done or failed; as `submit(..., wait=True)`."""
-    try:
-        server_ = Server(server, _key(key), timeout)
-    except ValueError as error:
-        raise ArgumentError(str(error)) from None
-    return _Follower(server_, progress or _no_progress, log or _logger.info, retry, poll_s).follow(
-        submission_id, None, output
-    )
-
-
-def _key(key: str | None) -> str:
-    key = key if key is not None else os.environ.get(KEY_ENV)
-    if not key:
-        raise ArgumentError(f"no API key: pass key=... or set {KEY_ENV}")
-    if any(c.isspace() for c in key) or not key.isprintable():
-        raise ArgumentError("the API key holds spaces or control characters; copy it again")
-    return key
-
-
-def _no_progress(stage: str, done: int, total: int | None) -> None:
-    pass
-
-
-class _Follower:
-    """Polls a submission's status until it is final, saying each state change; fetches the result."""
-
-    def __init__(
-        self,
-        server: Server,
-        progress: Progress,
-        log: Callable[[str], None],
-        retry: RetryPolicy,
-        poll_s: tuple[float, float],
-    ):
-        self.server, self.progress, self.log, self.policy = server, progress, log, retry
-        self.poll_min, self.poll_max = poll_s
-
-    def status(self, submission_id: str) -> dict | None:
-        """The submission's status; None when the server does not know it (404)."""
-        answer = _call(self, "asking for the submission's status", "GET", f"submissions/{submission_id}")
-        if answer.status == 404:
-            return None
-        if answer.status != 200:
-            raise _refused(answer)
-        return answer.json()
-
-    def follow(self, submission_id: str, status: dict | None, output) -> dict:
-        """Poll until the job is done or failed (`status`: its status as the caller last saw and said it)."""
-        seen, interval, said = None, self.poll_min, status is not None
-        try:
-            while True:
-                if status is None:
-                    status = self.status(submission_id)
-                    if status is None:
-                        raise SubmitError(f"the server has no submission {submission_id} for this key")
-                state, done = status["state"], status["progress"]
-                now = (state, status.get("attempts"), done.get("scenarios_done"), done.get("scenarios_total"))
-                if said:
-                    said = False
-                elif seen is None or state != seen[0] or now[1] != seen[1]:
-                    again = f" (attempt {now[1]})" if (now[1] or 0) > 1 and state not in FINAL_STATES else ""
-                    self.log(f"submission {submission_id}: {state}{again}")
-                if state == "scoring" or (state == "done" and done.get("scenarios_total")):
-                    self.progress("scoring", done.get("scenarios_done") or 0, done.get("scenarios_total"))
-                if state in FINAL_STATES:
-                    break
-                interval = self.poll_min if now != seen else min(self.poll_max, interval * 1.5)
-                seen = now
-                time.sleep(interval)
-                status = None
-        except KeyboardInterrupt:
-            self.log(
-                f"stopped following submission {submission_id}; it goes on at the server: run the same "
-                "command again (with --wait) to follow it"
-            )
-            raise
-        if state == "failed":
-            raise SubmissionFailed(status)
-        return self._with_result(status, output)
-
-    def _with_result(self, status: dict, output) -> dict:
-        """The status with its result's figures ("result"); the whole result document written to `output`."""
-        route = f"submissions/{status['id']}/results"
-        answer = _call(self, "fetching the result's summary", "GET", route + "/summary")
-        if answer.status == 404 and answer.detail() == "Not Found":  # a server without that route (FastAPI's
-            answer = _call(self, "fetching the result", "GET", route)  # 404): the whole document, rows too
-        if answer.status != 200:
-            raise _refused(answer)
-        result = answer.json()
-        if output is not None:
-            self._download(route, Path(output))
-        status = dict(status)
-        status["result"] = {
-            name: result.get(name) for name in ("challenge", "config", "num_scenarios", "coverage", "buckets")
-        }
-        return status
-
-    def _download(self, route: str, path: Path) -> None:
-        """The result document into `path`, streamed (a validation-size result is ~140 MB), atomically."""
-        temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        try:
-            with open(temp, "wb") as f:
-
-                def fetch() -> Response:
-                    f.seek(0)
-                    f.truncate()
-                    return self.server.request("GET", self.server.path(route), sink=f)
-
-                answer = Retrier(self.policy, self.log).call(self.server, "downloading the result", fetch)
-                if answer.status != 200:
-                    raise _refused(answer)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(temp, path)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                temp.unlink()
-
-
 class _Run:
     """One call of `submit`: the arguments checked, the state found, the upload resumed or started."""
 
@@ -311,7 +174,7 @@ class _Run:
         if stat.st_size == 0:
             raise ArgumentError(f"{submission}: the file is empty")
         self.size, self.mtime_ns = stat.st_size, stat.st_mtime_ns
-        self.key = _key(key)
+        self.key = api_key(key)
         try:
             self.server = Server(server, self.key, timeout)
         except ValueError as error:
@@ -327,10 +190,10 @@ class _Run:
         self.chunk = int(chunk_bytes)
         self.limit_rate = int(limit_rate) if limit_rate else None
         self.block = max(4096, min(BLOCK_BYTES, self.limit_rate // 20)) if self.limit_rate else BLOCK_BYTES
-        self.progress = progress or _no_progress
+        self.progress = progress or no_progress
         self.log = log or _logger.info
         self.policy = retry
-        self.follower = _Follower(self.server, self.progress, self.log, retry, poll_s)
+        self.follower = Follower(self.server, self.progress, self.log, retry, poll_s)
         folder = Path(state_dir) if state_dir is not None else default_state_dir()
         try:
             folder.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -461,9 +324,9 @@ class _Run:
 
     # -- the protocol ------------------------------------------------------------------------------------
     def _create(self) -> str:
-        answer = _call(self, "creating the upload", "POST", "uploads", self.params, {"Upload-Length": str(self.size)})
+        answer = call(self, "creating the upload", "POST", "uploads", self.params, {"Upload-Length": str(self.size)})
         if answer.status != 201:
-            raise _refused(answer)
+            raise refused(answer)
         upload_id = answer.json().get("upload_id")
         if not isinstance(upload_id, str) or not upload_id:
             raise ProtocolError("the server's answer to creating an upload holds no upload_id")
@@ -482,7 +345,7 @@ class _Run:
 
     def _head(self, upload_id: str, retrier: Retrier | None = None) -> int:
         """The offset the server holds; _UploadGone when it no longer has the upload."""
-        answer = _call(
+        answer = call(
             self, "asking the server for the upload's offset", "HEAD", f"uploads/{upload_id}", retrier=retrier
         )
         if answer.status in (404, 410):
@@ -490,7 +353,7 @@ class _Run:
                 f"the server no longer has upload {upload_id} ({answer.status}: expired, deleted, or its bytes lost)"
             )
         if answer.status != 200:
-            raise _refused(answer)
+            raise refused(answer)
         declared = answer.headers.get("upload-length")
         if declared is not None and declared != str(self.size):
             raise _UploadGone(f"upload {upload_id} on the server was declared {declared} bytes long, not {self.size}")
@@ -540,7 +403,7 @@ class _Run:
                     elif answer.status in RETRYABLE_STATUS:
                         reason, retry_after, refusal = status_reason(answer)
                     else:
-                        raise _refused(answer)
+                        raise refused(answer)
                 self.progress("upload", self.offset, self.size)
                 retrier.wait("uploading", reason, retry_after, refusal)
                 self.offset = self._head(upload_id, retrier)
@@ -613,7 +476,7 @@ class _Run:
                 else:
                     if answer.status not in (403, 429):  # refused for good: the server dropped the bytes
                         self.state.forget()
-                    raise _refused(answer)
+                    raise refused(answer)
             except SubmissionRefused as refusal:
                 if refusal.status == 429:
                     raise SubmissionRefused(
@@ -623,26 +486,3 @@ class _Run:
                         "same command again later to complete the upload",
                     ) from None
                 raise
-
-
-def _call(
-    owner,
-    what: str,
-    method: str,
-    route: str,
-    query: dict | None = None,
-    headers: dict[str, str] | None = None,
-    retrier: Retrier | None = None,
-) -> Response:
-    """One bodiless request, retried by `owner`'s policy (or `retrier`, counting on from its failures); the
-    answer that was not worth retrying."""
-    server = owner.server
-    return (retrier or Retrier(owner.policy, owner.log)).call(
-        server, what, lambda: server.request(method, server.path(route, query), headers), reset=retrier is None
-    )
-
-
-def _refused(answer: Response) -> SubmitError:
-    if 400 <= answer.status < 500:
-        return SubmissionRefused(answer.status, answer.detail())
-    return ProtocolError(f"unexpected answer {answer.status}: {answer.detail()}")

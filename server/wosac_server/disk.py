@@ -10,6 +10,7 @@ When the disk fills anyway (another process, a shared volume), writes fail with 
 SQLite's SQLITE_FULL, PostgreSQL's 53100): requests answer `507`, and the small *reserve* file
 (`WOSAC_DISK_RESERVE_BYTES`) is deleted so that the database can still record the states that must
 not stay behind (an upload back to `open`); it is made again once there is room.
+A worker that meets a full disk waits for space (`DiskWait`) instead of crash-looping.
 """
 
 from __future__ import annotations
@@ -20,6 +21,8 @@ import logging
 import os
 import shutil
 import sqlite3
+import time
+from collections.abc import Callable
 
 from fastapi import HTTPException
 
@@ -175,3 +178,71 @@ def release_reserve_if_low(settings: Settings) -> None:
     """At start-up: a disk with less free than the reserve gets the reserve's space, so the database opens."""
     if shutil.disk_usage(settings.data_dir).free < max(settings.disk_reserve_bytes, MIN_FLOOR_BYTES):
         release_reserve(settings)
+
+
+class DiskWait:
+    """A worker's wait while the data dir's disk is full: until space is freed, or else a backoff runs out;
+    one log line when it starts and one when it ends (a crash-looping worker would log, and restart,
+    forever). The wait between tries while no space comes back doubles from `min_backoff_s` (default
+    WOSAC_POLL_S) to `max_backoff_s`."""
+
+    def __init__(
+        self,
+        settings: Settings,
+        stopping: Callable[[], bool] = lambda: False,
+        min_backoff_s: float | None = None,
+        max_backoff_s: float = 30.0,
+    ):
+        self.settings = settings
+        self.stopping = stopping
+        self.min_backoff_s = settings.poll_s if min_backoff_s is None else min_backoff_s
+        self.max_backoff_s = max_backoff_s
+        self.since: float | None = None
+        self.backoff_s = self.min_backoff_s
+
+    def wait(self, exc: BaseException) -> None:
+        """Sleep until space was freed or the backoff ran out (then the caller tries again)."""
+        if self.since is None:
+            self.since = time.monotonic()
+            self.backoff_s = self.min_backoff_s
+            log.warning("worker %s: the data dir's disk is full (%s); waiting for space", os.getpid(), exc)
+        free = self._free()
+        deadline = time.monotonic() + self.backoff_s
+        while time.monotonic() < deadline and not self.stopping():
+            time.sleep(min(self.settings.poll_s, self.backoff_s, 1.0))
+            if self._free() > free + MIN_FLOOR_BYTES:  # space came back: try again at once
+                break
+        self.backoff_s = min(self.backoff_s * 2, self.max_backoff_s)
+
+    def _free(self) -> int:
+        return shutil.disk_usage(self.settings.data_dir).free
+
+    def recovered(self) -> None:
+        if self.since is not None:
+            log.warning(
+                "worker %s: space is back after %.0f s of a full disk; going on",
+                os.getpid(),
+                time.monotonic() - self.since,
+            )
+            self.since = None
+
+    def until_written(self, write: Callable[[], object]):
+        """`write()`, again after each wait while it fails for a full disk (until the worker stops)."""
+        while True:
+            try:
+                result = write()
+            except Exception as exc:
+                if not is_disk_full(exc) or self.stopping():
+                    raise
+                self.wait(exc)
+                continue
+            self.recovered()
+            return result
+
+
+def full_now(settings: Settings) -> bool:
+    """Whether the data dir's disk has less than `MIN_FLOOR_BYTES` free (False when it cannot be read)."""
+    try:
+        return shutil.disk_usage(settings.data_dir).free < MIN_FLOOR_BYTES
+    except OSError:
+        return False

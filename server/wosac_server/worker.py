@@ -31,7 +31,6 @@ import logging
 import os
 import resource
 import secrets
-import shutil
 import signal
 import socket
 import subprocess
@@ -169,73 +168,6 @@ def journal_rows(path: Path) -> int:
         return 0
 
 
-class DiskWait:
-    """A worker's wait while the data dir's disk is full: until space is freed, or else a backoff runs out;
-    one log line when it starts and one when it ends (a crash-looping worker would log, and restart,
-    forever). The wait between tries while no space comes back doubles from `min_backoff_s` (default
-    WOSAC_POLL_S) to `max_backoff_s`."""
-
-    def __init__(
-        self,
-        settings: Settings,
-        stopping: Callable[[], bool] = lambda: False,
-        min_backoff_s: float | None = None,
-        max_backoff_s: float = 30.0,
-    ):
-        self.settings = settings
-        self.stopping = stopping
-        self.min_backoff_s = settings.poll_s if min_backoff_s is None else min_backoff_s
-        self.max_backoff_s = max_backoff_s
-        self.since: float | None = None
-        self.backoff_s = self.min_backoff_s
-
-    def wait(self, exc: BaseException) -> None:
-        """Sleep until space was freed or the backoff ran out (then the caller tries again)."""
-        if self.since is None:
-            self.since = time.monotonic()
-            self.backoff_s = self.min_backoff_s
-            log.warning("worker %s: the data dir's disk is full (%s); waiting for space", os.getpid(), exc)
-        free = self._free()
-        deadline = time.monotonic() + self.backoff_s
-        while time.monotonic() < deadline and not self.stopping():
-            time.sleep(min(self.settings.poll_s, self.backoff_s, 1.0))
-            if self._free() > free + disk.MIN_FLOOR_BYTES:  # space came back: try again at once
-                break
-        self.backoff_s = min(self.backoff_s * 2, self.max_backoff_s)
-
-    def _free(self) -> int:
-        return shutil.disk_usage(self.settings.data_dir).free
-
-    def recovered(self) -> None:
-        if self.since is not None:
-            log.warning(
-                "worker %s: space is back after %.0f s of a full disk; going on",
-                os.getpid(),
-                time.monotonic() - self.since,
-            )
-            self.since = None
-
-    def until_written(self, write: Callable[[], object]):
-        """`write()`, again after each wait while it fails for a full disk (until the worker stops)."""
-        while True:
-            try:
-                result = write()
-            except Exception as exc:
-                if not disk.is_disk_full(exc) or self.stopping():
-                    raise
-                self.wait(exc)
-                continue
-            self.recovered()
-            return result
-
-
-def _disk_full_now(settings: Settings) -> bool:
-    try:
-        return shutil.disk_usage(settings.data_dir).free < disk.MIN_FLOOR_BYTES
-    except OSError:
-        return False
-
-
 def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
     """A job's failure reason from how its scoring process ended without recording an outcome."""
     used = f"peak memory {peak_rss / 2**20:.0f} MiB"
@@ -279,7 +211,7 @@ class _Heartbeat(threading.Thread):
                 log.info("worker %s: released job %s on shutdown", os.getpid(), job_id)
                 self.stop_child()
                 return
-            if _disk_full_now(w.settings):
+            if disk.full_now(w.settings):
                 self.deadline += w.settings.heartbeat_s  # the job waits for space (DiskWait): not its scoring time
             if time.monotonic() > self.deadline:
                 budget = w.settings.job_time_budget_s
@@ -322,7 +254,7 @@ class Worker:
         self.owner = f"{socket.gethostname()}:{os.getpid()}:{secrets.token_hex(4)}"
         self.stopping = False
         self._last_upload_sweep = 0.0
-        self.disk_wait = DiskWait(settings, lambda: self.stopping or not self.parent_alive())
+        self.disk_wait = disk.DiskWait(settings, lambda: self.stopping or not self.parent_alive())
 
     def parent_alive(self) -> bool:
         # Re-parented means the supervisor died; stop rather than score unsupervised forever.
@@ -380,7 +312,7 @@ class Worker:
                 self.store = Store(settings.resolved_db_url)
                 # It ends with its worker, so it never stops waiting; each try validates the upload again, so
                 # tries come when space was freed, or else rarely.
-                self.disk_wait = DiskWait(settings, min_backoff_s=60.0, max_backoff_s=600.0)
+                self.disk_wait = disk.DiskWait(settings, min_backoff_s=60.0, max_backoff_s=600.0)
                 # A full disk (journal, result or database writes) is waited out, then the job is scored again
                 # from its journal: what was computed is not lost, and the job is not failed for it.
                 self.disk_wait.until_written(lambda: self.score_here(job))

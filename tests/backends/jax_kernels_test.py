@@ -16,7 +16,7 @@ import jax
 import jax.numpy as jnp
 
 from wosac_eval.backends import jax_backend, jax_driver
-from wosac_eval.features import box_geometry, dense, interaction, map_arrays, road_edge, traffic_lights
+from wosac_eval.features import box_geometry, dense, following, interaction, map_arrays, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.ops import fma32
 from wosac_eval.features.xp import array_namespace, divide
@@ -122,10 +122,10 @@ def test_time_to_collision_dense_equals_numpy():
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
-    expected = interaction.time_to_collision(
+    expected = following.time_to_collision(
         x, y, length, width, heading, valid, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval
     )
-    assert (expected < interaction.MAXIMUM_TIME_TO_COLLISION).any()
+    assert (expected < following.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail
     from wosac_eval.features.kinematics import linear_speed
 

@@ -12,6 +12,7 @@ from wosac_eval.features import (
     box_geometry,
     compiled,
     float32_math,
+    following,
     interaction,
     ops,
     road_edge,
@@ -53,8 +54,8 @@ def value_by_value(kernel, arguments):
 KERNELS = {
     "segment_distances": (road_edge.segment_distances, 9, 20.0),
     "side_of_segment": (road_edge.side_of_segment, 6, 20.0),
-    "frame_offsets": (interaction.frame_offsets, 10, 10.0),
-    "capped_time_to_collision": (interaction.capped_time_to_collision, 2, 5.0),
+    "frame_offsets": (following.frame_offsets, 10, 10.0),
+    "capped_time_to_collision": (following.capped_time_to_collision, 2, 5.0),
     "packet_sincos": (float32_math.packet_sincos, 1, 4.0),
     "box_pair_distance": (interaction.box_pair_distance, 14, 5.0),
 }
@@ -86,8 +87,8 @@ def test_following_gap_and_corner_sign_with_booleans():
     n = 400
     floats = [special_floats(rng, n, 5.0) for _ in range(7)]
     with np.errstate(all="ignore"):
-        expected = interaction.following_gap(*floats)
-    got = value_by_value(interaction.following_gap, floats)
+        expected = following.following_gap(*floats)
+    got = value_by_value(following.following_gap, floats)
     assert same_bits(got[0], expected[0]) and same_bits(got[1], expected[1])
     signs = [rng.choice(np.array([-1, 0, 1, np.nan], F), n) for _ in range(3)]
     flags = [rng.random(n) < 0.5 for _ in range(4)]
@@ -123,7 +124,7 @@ def test_cached_loops_are_named_after_the_kernels_digest():
         pruned_search._query_cells,
         cell_tables._cell_table,
         interaction._nearest_object_search,
-        interaction._followed_search,
+        following._followed_search,
         traffic_lights._crossings,
     ):
         assert loop.py_func.__qualname__.endswith(f"__kernels_{digest}")
@@ -148,7 +149,7 @@ def test_compile_searches_covers_what_scoring_calls():
         signed_distance._signed_distances,
         segments._bucket_lists,
         interaction._nearest_object_search,
-        interaction._followed_search,
+        following._followed_search,
         traffic_lights._crossings,
         walks._message_spans,
         walks._scalar_fields,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from wosac_eval.features import interaction
+from wosac_eval.features import following, interaction
 from wosac_eval.features.float32_math import cos32, sin32
 
 F = np.float32
@@ -143,7 +143,7 @@ def ttc(*tracks, num_evaluated=1, valid=None):
     length, width, heading = (np.stack([np.full(STEPS, tr[k], F) for tr in tracks]) for k in (2, 3, 4))
     if valid is None:
         valid = np.ones(x.shape, bool)
-    return interaction.time_to_collision(
+    return following.time_to_collision(
         x,
         y,
         length,
@@ -171,7 +171,7 @@ def test_follower_behind_slower_leader():
 
 def test_capped_at_five_seconds():
     leader = (F(40) + F(2.5) * T, 0.0, 4.0, 2.0, 0.0)  # gap 33.5 m at step 1: 6.7 s
-    np.testing.assert_array_equal(ttc(FOLLOWER, leader), interaction.MAXIMUM_TIME_TO_COLLISION)
+    np.testing.assert_array_equal(ttc(FOLLOWER, leader), following.MAXIMUM_TIME_TO_COLLISION)
 
 
 def test_faster_leader():
@@ -265,7 +265,7 @@ def test_all_steps_with_nan_speeds_at_the_ends():
     leader = (F(12) + F(2.5) * T, 0.0, 4.0, 2.0, 0.0)
     x = np.stack([FOLLOWER[0], leader[0]])
     zeros = np.zeros_like(x)
-    full = interaction.time_to_collision(
+    full = following.time_to_collision(
         x, zeros, zeros + 4, zeros + 2, zeros, np.ones(x.shape, bool), num_evaluated=1, seconds_per_step=DT
     )
     assert full.shape == (1, STEPS)
@@ -304,12 +304,12 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
     whole_nearest = interaction.distance_to_nearest_object(*nearest_args)
     ttc_args = (x, y, length, width, heading, valid)
     ttc_options = {"num_evaluated": 4, "seconds_per_step": 0.1, "steps": steps}
-    whole_ttc = interaction.time_to_collision(*ttc_args, **ttc_options)
-    assert (whole_ttc < interaction.MAXIMUM_TIME_TO_COLLISION).any()
+    whole_ttc = following.time_to_collision(*ttc_args, **ttc_options)
+    assert (whole_ttc < following.MAXIMUM_TIME_TO_COLLISION).any()
     monkeypatch.setattr(interaction, "PAIRS_PER_CHUNK", 4 * 12 * 91 * 2)  # two samples per chunk
     assert len(interaction._sample_chunks(5, 4 * 12 * 91)) == 3
     np.testing.assert_array_equal(interaction.distance_to_nearest_object(*nearest_args), whole_nearest)
-    np.testing.assert_array_equal(interaction.time_to_collision(*ttc_args, **ttc_options), whole_ttc)
+    np.testing.assert_array_equal(following.time_to_collision(*ttc_args, **ttc_options), whole_ttc)
 
 
 def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, speed):
@@ -322,10 +322,10 @@ def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, sp
     t = lambda a: np.swapaxes(a, -1, -2)  # noqa: E731  (..., steps, objects)
     with np.errstate(invalid="ignore", over="ignore"):
         ego_sin, ego_cos = sincos32(-t(heading)[..., :num_evaluated, None], ego_tail)
-        ahead, beside, yaw_diff = interaction.ego_frame_offsets(
+        ahead, beside, yaw_diff = following.ego_frame_offsets(
             t(x), t(y), t(length), t(width), t(heading), ego_cos, ego_sin, num_evaluated
         )
-        out = interaction.all_objects_time_to_collision(
+        out = following.all_objects_time_to_collision(
             ahead,
             beside,
             yaw_diff,
@@ -353,11 +353,11 @@ def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
     speed[0, 3, 7] = np.nan
     speed[1, 0, 12] = np.inf
     speed[2, 5, 20] = -np.inf
-    got = interaction.time_to_collision(
+    got = following.time_to_collision(
         x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1, speed=speed
     )
     want = all_objects_reference(x, y, length, width, heading, valid, 4, speed)
-    assert (got < interaction.MAXIMUM_TIME_TO_COLLISION).any()
+    assert (got < following.MAXIMUM_TIME_TO_COLLISION).any()
     np.testing.assert_array_equal(got, want)
 
 
@@ -372,7 +372,7 @@ def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
     speed[0, 2] = np.inf
     valid = np.ones(x.shape, bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        got = interaction.time_to_collision(
+        got = following.time_to_collision(
             x, zeros, zeros + 4, zeros + 2, zeros, valid, num_evaluated=1, seconds_per_step=0.1, speed=speed
         )
     want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)

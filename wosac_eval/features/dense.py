@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from wosac_eval.features import box_geometry, interaction, road_edge, traffic_lights
+from wosac_eval.features import box_geometry, following, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.spatial import strict_argmin
@@ -182,7 +182,7 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
 
 
 def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, pair_tail, num_evaluated: int):
-    """Dense `interaction.time_to_collision` for one sample, object-major: the pairs are
+    """Dense `following.time_to_collision` for one sample, object-major: the pairs are
     `(num_evaluated, num_objects, num_steps)`, in the trajectories' own layout (no transposed copy of
     them), with the official kernels' elementwise arithmetic and the same nearest followed object.
 
@@ -197,7 +197,7 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
     """
     e = slice(0, num_evaluated)
     ego_sin, ego_cos = sincos32(-heading[e, None], ego_tail)
-    ahead, beside, yaw_diff = interaction.frame_offsets(
+    ahead, beside, yaw_diff = following.frame_offsets(
         x[None],
         y[None],
         x[e, None],
@@ -209,15 +209,15 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
         heading[None],
         heading[e, None],
     )
-    masked = interaction.followed_gaps(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
-    # The nearest followed object, as `interaction.all_objects_time_to_collision` picks it along its objects.
+    masked = following.followed_gaps(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    # The nearest followed object, as `following.all_objects_time_to_collision` picks it along its objects.
     if in_differentiable(jnp):  # gradients through the gap: JAX differentiates no custom reduction
         nearest = strict_argmin(masked, axis=1)
         gap = jnp.take_along_axis(masked, nearest[:, None], axis=1)[:, 0]
     else:
         nearest, gap = _strict_argmin_and_value(masked)
     closing = speed[e] - jnp.take_along_axis(speed, nearest, axis=0)
-    return interaction.capped_time_to_collision(gap, closing)
+    return following.capped_time_to_collision(gap, closing)
 
 
 def _strict_argmin_and_value(values):

@@ -19,7 +19,7 @@ import time
 import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
-from wosac_eval.features import interaction, road_edge, traffic_lights
+from wosac_eval.features import following, interaction, road_edge, traffic_lights
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.parse import wire_walks
 
@@ -43,9 +43,9 @@ class PrunedSearch:
         return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
-        """`interaction.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
+        """`following.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
         i = inputs
-        return interaction.time_to_collision(
+        return following.time_to_collision(
             i.x,
             i.y,
             i.length,
@@ -89,7 +89,7 @@ def compile_searches() -> float:
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
-        interaction.time_to_collision(
+        following.time_to_collision(
             x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None)
         )
         line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4

@@ -60,7 +60,7 @@ class SearchStrategy(Protocol):
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         """Seconds until each evaluated object hits the object it follows, capped at 5 s.
 
-        Returns float32 `(samples, num_evaluated, len(inputs.steps))` (`interaction.time_to_collision`).
+        Returns float32 `(samples, num_evaluated, len(inputs.steps))` (`following.time_to_collision`).
         """
         ...
 

@@ -20,7 +20,7 @@ its title, the command, the git commit, the machine (CPU model, cores, Python, s
 and the figures as the script printed them. Sections not run, or failed, keep what FILE holds.
 
 Usage:
-  python benchmarks/speed_report.py [--sizes 100 500] [--repeat 15] [--skip objects jax]
+  python benchmarks/speed_report.py [--sizes 100 500] [--repeat 15] [--skip objects backends]
                                     [--with side-by-side scenario-gen ...] [--markdown docs/speed.md]
 """
 
@@ -240,8 +240,9 @@ def main() -> int:
         "--skip",
         nargs="*",
         default=[],
-        choices=["scenario", "objects", "workers", "jax"],
-        help="default sections to leave out",
+        choices=[s.key for s in sections("15", ["100"]) if s.default] + ["scenario", "jax"],
+        help="default sections to leave out (their keys, as --with names the others; `scenario` and `jax` are "
+        "one-scenario and backends)",
     )
     every = sections("15", ["100"])
     p.add_argument(

@@ -29,7 +29,6 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import resource
 import secrets
 import signal
 import socket
@@ -45,13 +44,13 @@ from wosac_eval.extras import EngineUnavailableError
 from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import SubmissionSource
-from wosac_eval.runtime.processes import exit_with_parent, set_parent_death_signal
 from wosac_eval.scoring.evaluation import Evaluation, RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
 
 from . import disk, jobs, results
 from .db import Store
+from .job_limits import limit_this_process, why_child_ended
 from .settings import Settings, load_settings
 from .worker_main import PARENT_PID_FLAG, parent_pid_argument, tie_to_supervisor
 
@@ -138,27 +137,6 @@ def draw_worst_scenes(
     return index_of_scenes
 
 
-def limit_this_process(settings: Settings, parent_pid: int) -> None:
-    """The limits of a job's scoring process: death with its worker, address space, CPU time and a
-    lower CPU priority than the API's (so scoring never starves /healthz and uploads)."""
-    # A worker killed between its fork and the signal's set-up sends no signal: the job's process
-    # would score on unsupervised and race the retry of its job; `exit_with_parent` sees that case.
-    # Off Linux (no signal) a thread watches the worker instead.
-    armed = set_parent_death_signal(signal.SIGKILL)
-    exit_with_parent(parent_pid, watch=not armed)
-    if settings.job_nice:
-        os.nice(settings.job_nice)
-    if settings.job_memory_bytes:
-        # The soft limit (what the kernel enforces); the hard one stays, so that a protobuf parse
-        # refused for memory can be told from damaged bytes (wosac_eval.parse.decode).
-        hard = resource.getrlimit(resource.RLIMIT_AS)[1]
-        soft = settings.job_memory_bytes if hard == resource.RLIM_INFINITY else min(settings.job_memory_bytes, hard)
-        resource.setrlimit(resource.RLIMIT_AS, (soft, hard))
-    if settings.job_cpu_budget_s:
-        soft = max(1, int(settings.job_cpu_budget_s))
-        resource.setrlimit(resource.RLIMIT_CPU, (soft, soft + 5))  # SIGXCPU at soft, SIGKILL at hard
-
-
 def journal_rows(path: Path) -> int:
     """Scenario rows a job's journal holds (complete lines after its header); 0 when there is none."""
     try:
@@ -168,23 +146,32 @@ def journal_rows(path: Path) -> int:
         return 0
 
 
-def why_child_ended(status: int, settings: Settings, peak_rss: int) -> str:
-    """A job's failure reason from how its scoring process ended without recording an outcome."""
-    used = f"peak memory {peak_rss / 2**20:.0f} MiB"
-    if os.WIFSIGNALED(status) and os.WTERMSIG(status) == signal.SIGXCPU:
-        return (
-            f"scoring used its CPU-time budget of {settings.job_cpu_budget_s:g} s (WOSAC_JOB_CPU_BUDGET_S) "
-            f"and was stopped ({used})"
-        )
-    limit = (
-        f"its memory limit is {settings.job_memory_bytes} bytes (WOSAC_JOB_MEMORY_BYTES)"
-        if settings.job_memory_bytes
-        else "it has no memory limit"
-    )
-    if os.WIFSIGNALED(status):
-        name = signal.Signals(os.WTERMSIG(status)).name
-        return f"the scoring process was ended by {name} ({used}; {limit}): most likely out of memory"
-    return f"the scoring process exited with status {os.WEXITSTATUS(status)} without a result ({used}; {limit})"
+# A Ray cluster that refuses a connection may be restarting, or its client server may have lost the
+# process it started for us (ray-project/ray#63202): a job tries again, after 2 s then 4 s, before it fails.
+ENGINE_ATTEMPTS = 3
+ENGINE_RETRY_S = 2.0
+
+
+def _with_engine_retries(job_id: str, score: Callable[[], dict]) -> dict:
+    """`score()`, tried again up to ENGINE_ATTEMPTS in all while the scoring engine is unavailable (the
+    engine is reached before any other work, so a try costs only the connection; the last error is raised
+    with the number of attempts)."""
+    for attempt in range(1, ENGINE_ATTEMPTS + 1):
+        try:
+            return score()
+        except EngineUnavailableError as exc:
+            if attempt == ENGINE_ATTEMPTS:
+                raise EngineUnavailableError(f"{exc} ({ENGINE_ATTEMPTS} attempts)") from exc
+            wait = ENGINE_RETRY_S * attempt
+            log.warning(
+                "worker %s: job %s: the scoring engine is unavailable (%s); trying again in %g s",
+                os.getpid(),
+                job_id,
+                exc,
+                wait,
+            )
+            time.sleep(wait)
+    raise AssertionError("unreachable")  # the loop returns or raises
 
 
 class _Heartbeat(threading.Thread):
@@ -418,14 +405,17 @@ class Worker:
                 # Per-object values too: streamed from the journal into the objects file (never all in memory),
                 # then indexed by row so that a scene's worst objects are read without a pass over the file.
                 objects = settings.objects_path(job_id)
-                result = score_submission(
-                    index,
-                    source,
-                    progress=progress,
-                    evaluation=evaluation,
-                    journal=journal,
-                    per_object=True,
-                    objects=objects,
+                result = _with_engine_retries(
+                    job_id,
+                    lambda: score_submission(
+                        index,
+                        source,
+                        progress=progress,
+                        evaluation=evaluation,
+                        journal=journal,
+                        per_object=True,
+                        objects=objects,
+                    ),
                 )
                 # The objects file is the server's own (scene pages): the result served stays the document of
                 # `wosac-eval score` without --per-object, byte for byte.

@@ -43,7 +43,7 @@ _PROGRAM = textwrap.dedent("""
 def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_decode_error():
     # Where upb's first refused allocation lands depends on the margin, and at some margins upb
     # itself crashes (SIGSEGV) instead of failing the parse: a process of the service's jobs ended
-    # so is reported by its signal (worker.why_child_ended). So several margins are tried, and each
+    # so is reported by its signal (job_limits.why_child_ended). So several margins are tried, and each
     # line a run printed before it ended is checked.
     printed = []
     for margin in range(0, 2**21 + 1, 2**17):

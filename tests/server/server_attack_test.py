@@ -80,7 +80,7 @@ def test_a_job_over_its_memory_limit_fails_with_the_reason_and_the_worker_goes_o
 def test_a_scoring_process_over_its_cpu_budget_is_stopped_with_the_reason():
     """The limits a worker puts on a job's process, applied to a forked process that spins."""
     from wosac_server.settings import Settings
-    from wosac_server.worker import limit_this_process, why_child_ended
+    from wosac_server.job_limits import limit_this_process, why_child_ended
 
     settings = Settings(job_cpu_budget_s=1, job_memory_bytes=0)
     parent = os.getpid()
@@ -104,7 +104,7 @@ def test_a_scoring_process_whose_worker_died_before_it_was_limited_ends_at_once(
     """A worker killed between its fork and the parent-death signal's set-up sends no signal: its
     job's process must see it has lost its worker and end, not score on beside the job's retry."""
     from wosac_server.settings import Settings
-    from wosac_server.worker import limit_this_process
+    from wosac_server.job_limits import limit_this_process
 
     read_end, write_end = os.pipe()
     worker = os.fork()

@@ -262,3 +262,21 @@ def test_a_killed_job_process_leaves_no_scoring_process_behind(make_server, scor
     while processes_of(server.data_dir) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert processes_of(server.data_dir) == {}
+
+
+@pytest.mark.slow  # over 4.5 s on 2 cores (the two waits): the full run's, not the fast tier's
+def test_an_unreachable_scoring_engine_is_tried_again_before_the_job_fails(make_server, scoring_data):
+    """WOSAC_RAY_ADDRESS names a Ray client port where nothing listens (a cluster down or restarting): the job
+    connects again twice, 2 s then 4 s later, then fails with the reason and the number of attempts."""
+    import socket
+
+    with socket.socket() as probe:  # a loopback port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, ray_address=f"ray://127.0.0.1:{port}")
+    with server.client(server.key("engine")) as c:
+        status = server.wait_state(c, c.post("/v1/submissions", content=scoring_data.full.read_bytes()).json()["id"])
+    assert status["state"] == "failed", status
+    assert status["error"].startswith("the scoring engine is unavailable: cannot reach the Ray cluster"), status
+    assert status["error"].endswith("(3 attempts)"), status
+    assert server.log.read_text().count("the scoring engine is unavailable") >= 2  # the two retries, logged

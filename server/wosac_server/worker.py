@@ -155,11 +155,13 @@ ENGINE_RETRY_S = 2.0
 def _with_engine_retries(job_id: str, score: Callable[[], dict]) -> dict:
     """`score()`, tried again up to ENGINE_ATTEMPTS in all while the scoring engine is unavailable (the
     engine is reached before any other work, so a try costs only the connection; the last error is raised
-    with the number of attempts)."""
+    with the number of attempts). A missing Ray package fails at once."""
     for attempt in range(1, ENGINE_ATTEMPTS + 1):
         try:
             return score()
         except EngineUnavailableError as exc:
+            if isinstance(exc.__cause__, ImportError):
+                raise  # Ray is not installed here: no retry brings it
             if attempt == ENGINE_ATTEMPTS:
                 raise EngineUnavailableError(f"{exc} ({ENGINE_ATTEMPTS} attempts)") from exc
             wait = ENGINE_RETRY_S * attempt

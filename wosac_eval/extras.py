@@ -40,6 +40,10 @@ class EngineUnavailableError(RuntimeError):
     """The requested engine cannot run here (Ray not installed, cluster unreachable)."""
 
 
+class EngineNotInstalledError(EngineUnavailableError):
+    """The requested engine's package is not installed: unlike an unreachable cluster, no retry brings it."""
+
+
 def check_backend(name: str) -> Backend:
     """Validates a backend name (`Backend.parse`) and that its dependencies import; returns the member."""
     backend = Backend.parse(name)
@@ -52,5 +56,5 @@ def check_engine(name: str) -> Engine:
     """Validates an engine name (`Engine.parse`) and that its dependencies import; returns the member."""
     engine = Engine.parse(name)
     if engine is Engine.RAY:
-        require_extra("ray engine", "ray", "Ray", "ray", EngineUnavailableError)
+        require_extra("ray engine", "ray", "Ray", "ray", EngineNotInstalledError)
     return engine

@@ -40,7 +40,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
-from wosac_eval.extras import EngineUnavailableError
+from wosac_eval.extras import EngineNotInstalledError, EngineUnavailableError
 from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import SubmissionSource
@@ -159,9 +159,9 @@ def _with_engine_retries(job_id: str, score: Callable[[], dict]) -> dict:
     for attempt in range(1, ENGINE_ATTEMPTS + 1):
         try:
             return score()
+        except EngineNotInstalledError:
+            raise  # Ray is not installed here: no retry brings it
         except EngineUnavailableError as exc:
-            if isinstance(exc.__cause__, ImportError):
-                raise  # Ray is not installed here: no retry brings it
             if attempt == ENGINE_ATTEMPTS:
                 raise EngineUnavailableError(f"{exc} ({ENGINE_ATTEMPTS} attempts)") from exc
             wait = ENGINE_RETRY_S * attempt

@@ -283,3 +283,19 @@ def test_an_unreachable_scoring_engine_is_tried_again_before_the_job_fails(make_
     assert status["error"].startswith("the scoring engine is unavailable: cannot reach the Ray cluster"), status
     assert status["error"].endswith("(3 attempts)"), status
     assert server.log.read_text().count("the scoring engine is unavailable") >= 2  # the two retries, logged
+
+
+def test_a_job_without_the_ray_package_fails_at_once_with_the_install_hint(make_server, scoring_data):
+    """Where Ray is not installed (the `test-core` environments), a job sent to a Ray cluster fails at its first
+    try with the install command: no retry brings a package."""
+    import importlib.util
+
+    if importlib.util.find_spec("ray.util") is not None:  # ray.util: tests/ray is a namespace package `ray`
+        pytest.skip("Ray is installed here: the unreachable-engine test covers the retries")
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, ray_address="ray://127.0.0.1:1")
+    with server.client(server.key("no-ray")) as c:
+        status = server.wait_state(c, c.post("/v1/submissions", content=scoring_data.full.read_bytes()).json()["id"])
+    assert status["state"] == "failed", status
+    assert "needs Ray, which is not installed" in status["error"] and "wosac-eval[ray]" in status["error"], status
+    assert "attempts" not in status["error"]
+    assert "trying again" not in server.log.read_text()

@@ -40,7 +40,7 @@ if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
 # and every process they start, and by later runs: the JAX tests spend most of their time compiling, the
 # same programs each run. A program is found by a digest of its HLO, the compiler's flags (XLA_FLAGS) and
 # the JAX and XLA versions, so a changed program compiles anew. Set JAX_COMPILATION_CACHE_DIR to choose
-# the folder (CI gives each run a fresh one); the least recently used programs go past 2 GiB.
+# the folder (CI keeps its own between its runs, .ci/run); the least recently used programs go past 2 GiB.
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_TEST_CACHE))
 os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(2 << 30))
 LEAK_GRACE_S = 5.0

@@ -29,9 +29,12 @@ the reference material (`../shared/womd`, or WOSAC_SHARED) as the scene set to r
 (`score_submission`, jax and numpy backends, in fresh processes: parsing, validation and host
 preparation included), for comparison.
 
+`--cost-only` sizes are compiled from the arrays' shapes alone and print XLA's cost analysis only (no
+call, no arrays: 2,048 real scenes' would not fit a small machine's memory).
+
 Usage: python benchmarks/jax_realism_speed.py [--scenes 16,64,256] [--repeat 3] [--distinct 8 | --womd]
                                               [--search auto|host|device|host,device] [--modes float32,exact]
-                                              [--closed-over 16] [--file-path [--workers 2]]
+                                              [--closed-over 16] [--cost-only 2048] [--file-path [--workers 2]]
 """
 
 from __future__ import annotations
@@ -148,6 +151,17 @@ def in_the_loop(prepared, rollouts, mode: str, repeat: int) -> tuple[float, floa
     return compile_s, seconds, cost_per_scene(compiled, prepared.num_scenes)
 
 
+def cost_only(prepared, arrays, size: int, mode: str) -> tuple[float, tuple]:
+    """(compile s, cost per scene) of the in-loop program for `size` scenes, lowered from their shapes
+    alone: no arrays made, no call (sizes whose arrays a machine's memory cannot hold)."""
+    batch, rollouts = tiled(prepared, size, abstract=True), tiled_rollouts(arrays, size, abstract=True)
+    with jax.enable_x64(mode == "exact"):
+        start = time.perf_counter()
+        compiled = jax.jit(step).lower(batch, rollouts, np.float32(0)).compile()
+        compile_s = time.perf_counter() - start
+    return compile_s, cost_per_scene(compiled, size)
+
+
 def closed_over(prepared, rollouts, repeat: int) -> tuple[float, float, tuple, bool]:
     """The same, float32 mode, with `prepared` closed over (constants of the program); and whether
     `realism` warned about it (it warns once per process)."""
@@ -185,6 +199,11 @@ def main() -> None:
         "--closed-over",
         default=None,
         help="comma-separated batch sizes of the closed-over rows (default: the smallest; 0: none)",
+    )
+    parser.add_argument(
+        "--cost-only",
+        default="",
+        help="comma-separated batch sizes whose program is only compiled, from shapes, for XLA's cost analysis",
     )
     parser.add_argument("--file-path", action="store_true", help="also the file path's rows, for the distinct scenes")
     parser.add_argument("--workers", type=int, default=2, help="numpy workers of the file path's rows")
@@ -250,6 +269,14 @@ def main() -> None:
                 print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}", flush=True)
             finally:
                 batch = resident = None
+        for size in [int(n) for n in args.cost_only.split(",") if n]:
+            for mode in args.modes.split(","):
+                compile_s, cost = cost_only(prepared, arrays, size, mode)
+                print(
+                    f"{f'compiled only, {prepared.search} search, {mode} mode':62s} {size:6d} {compile_s:9.1f} "
+                    f"{'-':>8s} {'-':>9s} {'-':>8s} {cost[0]:11.2e} {cost[1]:11.2e} {'-':>14s}",
+                    flush=True,
+                )
     if args.file_path:
         with tempfile.TemporaryDirectory() as tmp:
             if shards is None:

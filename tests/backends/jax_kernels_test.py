@@ -191,6 +191,35 @@ def random_road_edges(rng, count):
     return lines
 
 
+def test_road_edge_segments_shared_by_a_stack_of_scenes_change_nothing():
+    """`jax_driver.vmap_scenes` gathers every scene's candidates from one table of the stack's segments
+    (`dense.shared_segments`): each scene's distances are still its own, padding and fallback included."""
+    rng = np.random.default_rng(11)
+    scenes = []
+    for count in (12, 20):
+        table = road_edge.build_segment_table(random_road_edges(rng, count))
+        on_map = rng.uniform([-170, -170, -3], [170, 170, 3], (600, 3))
+        far = rng.uniform([-5e3, -5e3, -50], [5e3, 5e3, 50], (40, 3))  # off the grid: the fallback
+        queries = np.concatenate([on_map, far]).astype(F)
+        scenes.append((road_edge.signed_distance_to_polylines(table, queries), queries, table))
+    arrays = [map_arrays.segment_table_arrays(table) for _, _, table in scenes]
+    sizes = {k: max(a[k].shape[0] for a in arrays) for k in arrays[0]}
+    padded = [
+        {k: v if k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, sizes[k], 0) for k, v in a.items()}
+        for a in arrays
+    ]
+    assert padded[0]["start"].shape[0] > len(scenes[0][2].start)  # the smaller scene is padded
+    shared, axes = dense.shared_segments(jax_driver.stacked(padded))
+    assert axes["shared_start"] is None and axes["start"] == 0  # one table, not one per scene
+    got = jitted(
+        jax_driver.vmap_scenes(dense.signed_distance_to_road_edge),
+        np.stack([q for _, q, _ in scenes]),
+        jax_driver.stacked(padded),
+    )
+    for (expected, _, _), distances in zip(scenes, got):
+        np.testing.assert_array_equal(distances, expected)
+
+
 @pytest.mark.parametrize("candidates", [2, 8, road_edge.CELL_CANDIDATES])
 @pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates):

@@ -50,6 +50,7 @@ from wosac_eval.backends.jax_driver import (  # noqa: F401
     padded_inputs,
     scene_inputs,
     stacked,
+    vmap_scenes,
 )
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.map_arrays import scene_map_arrays
@@ -175,7 +176,7 @@ def _features_fn(layout: mf.FeatureLayout, features: tuple):
     # Traced under x64: every float32 product, quotient, root and transcendental rounded once from
     # float64, so no compiler (a GPU's, or a CPU's with FMA) can fuse or approximate it; `zero` is 0,
     # an argument so that the compiler cannot see it (`exact_rounding`).
-    return jax.jit(jax.vmap(exactly_rounded(one_scene)))
+    return jax.jit(vmap_scenes(exactly_rounded(one_scene)))
 
 
 def _per_call(key: BucketKey, max_batch: int) -> int:

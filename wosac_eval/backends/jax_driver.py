@@ -234,6 +234,28 @@ def stacked(scenes: list):
     return jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *scenes)
 
 
+def vmap_scenes(one):
+    """`jax.vmap` of `one` over the leading scene axis of every argument, where each stack of padded
+    map arrays (a dict with road-edge cell tables) enters with its segments shared
+    (`dense.shared_segments`): the same result, fewer bytes moved. Call it inside the `jit`."""
+
+    def batched(*args):
+        shared, axes = zip(*map(_shared_maps, args))
+        return jax.vmap(one, in_axes=axes)(*shared)
+
+    return batched
+
+
+def _shared_maps(tree):
+    """(tree, its `in_axes`): 0 for every leaf, but `dense.shared_segments` for map arrays."""
+    if not isinstance(tree, dict):
+        return tree, 0
+    if "cell_candidates" in tree:
+        return dense.shared_segments(tree)
+    pairs = {k: _shared_maps(v) for k, v in tree.items()}
+    return {k: v for k, (v, _) in pairs.items()}, {k: axes for k, (_, axes) in pairs.items()}
+
+
 def device_features(
     traj: dict,
     tails: dict,

@@ -258,6 +258,10 @@ LISTED_CHUNK = 1024
 # road_edge.cell_candidate_table
 CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance", "cell_near_clearance")
 NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
+# `shared_segments`: the scene set's segments one table, and each scene's offset in it
+SHARED_PREFIX = "shared_"
+SHARED_SEGMENT_ARRAYS = ("start", "delta", "valid")
+SEGMENT_OFFSET = "segment_offset"
 
 
 def _nearest_segment_all(q, s):
@@ -290,15 +294,42 @@ def _nearest_listed_segment(q, s, cells):
 def _nearest_of(q, s, index, inside, clearance):
     """(nearest of the segments `index` int `(num_points, k)` to each point, the lowest index on ties;
     whether it is on the grid (`inside`) and nearer than `clearance` float32 `(num_points,)`)."""
+    table, offset = _gathered_segments(s)
+    index = index + offset
     d3 = road_edge.segment_distances(
-        *_columns(q[:, None, :]), *_columns(s["start"][index]), *_columns(s["delta"][index])
+        *_columns(q[:, None, :]), *_columns(table["start"][index]), *_columns(table["delta"][index])
     )[1]
-    d3 = jnp.where(s["valid"][index], d3, jnp.inf)
+    d3 = jnp.where(table["valid"][index], d3, jnp.inf)
     big = jnp.iinfo(index.dtype).max
     # Only which segment is picked: no gradient (JAX differentiates no reduction of a custom combiner).
     best_d, best = lax.reduce((lax.stop_gradient(d3), index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
     settled = inside & (best_d < clearance)
-    return jnp.where(best == big, 0, best), settled
+    return jnp.where(best == big, 0, best - offset), settled
+
+
+def _gathered_segments(s):
+    """(the start, delta and valid arrays the candidate lists gather from, the offset of this scene's
+    segments in them): the scene set's shared tables (`shared_segments`) where given, else its own."""
+    if SEGMENT_OFFSET in s:
+        return {k: s[SHARED_PREFIX + k] for k in SHARED_SEGMENT_ARRAYS}, s[SEGMENT_OFFSET]
+    return s, 0
+
+
+def shared_segments(maps: dict) -> tuple[dict, dict]:
+    """A stack of scenes' padded map arrays (leading scene axis) for `jax.vmap` with the road-edge
+    segments the candidate lists gather from shared: (maps, their `in_axes`).
+
+    Gathering a scene's own segments under `vmap` makes XLA build and store, for every point and
+    candidate, a (scene, segment) index pair; from one table of every scene's segments (a reshape:
+    no copy) and the scene's offset in it, each candidate is one index. The result is the same.
+    """
+    if "start" not in maps or "cell_candidates" not in maps:
+        return maps, dict.fromkeys(maps, 0)
+    scenes, count = maps["start"].shape[:2]
+    shared = {SHARED_PREFIX + k: maps[k].reshape((scenes * count,) + maps[k].shape[2:]) for k in SHARED_SEGMENT_ARRAYS}
+    offsets = jnp.arange(scenes, dtype=maps["cell_candidates"].dtype) * count
+    axes = {**dict.fromkeys(maps, 0), **dict.fromkeys(shared), SEGMENT_OFFSET: 0}
+    return {**maps, **shared, SEGMENT_OFFSET: offsets}, axes
 
 
 def _nearer(a, b):

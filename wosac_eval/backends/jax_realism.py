@@ -51,17 +51,10 @@ from wosac_eval import challenges
 from wosac_eval.arrays.samples import log_sample, official_object_order
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.arrays.trajectories import index_of_ids
+from wosac_eval.backends import jax_driver
 from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends.host_search import HostSearches
-from wosac_eval.backends.jax_driver import (
-    SceneInputs,
-    Sizes,
-    device_features,
-    padded_inputs,
-    scene_inputs,
-    stacked,
-    vmap_scenes,
-)
+from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
 from wosac_eval.backends.realism_inputs import POSITIONS, SIZES, rollout_fields, take_scenes
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features import registry
@@ -498,7 +491,7 @@ def _realism_fn(
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
             return scene(config, spec, layout, a, rollouts, host, features)
 
-    return jax.jit(vmap_scenes(_in_mode(one, mode)))
+    return jax.jit(jax_driver.vmap_scenes(_in_mode(one, mode)))
 
 
 @functools.lru_cache(maxsize=32)
@@ -508,7 +501,7 @@ def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: Host
             both = scene_features(challenges.spec(challenge), layout, a, rollouts, host, features)
         return {k: v for k, v in both.as_dict().items() if k != "object_id"}
 
-    return jax.jit(vmap_scenes(_in_mode(one, mode)))
+    return jax.jit(jax_driver.vmap_scenes(_in_mode(one, mode)))
 
 
 def _in_mode(one, mode: str):

@@ -92,7 +92,7 @@ def jax_programs_within_the_map_limit():
 FOLDER_MARKERS = {
     "backends": ("jax",),  # the JAX backend: JAX in the test process
     "parity": ("parity", "shared"),  # golden parity, on the reference material of ../shared
-    "ray": ("ray",),  # a real Ray cluster in a loopback namespace
+    "ray_cluster": ("ray",),  # a real Ray cluster in a loopback namespace
     "server": ("service",),  # the scoring service (wosac_server) as a real server
 }
 # ... and by the fixtures it uses.

@@ -36,12 +36,12 @@ def why_not() -> str | None:
 
 
 def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
-    """Runs pytest on `tests/ray/<module>` in the namespace; fails with the output's tail unless every check
+    """Runs pytest on `tests/ray_cluster/<module>` in the namespace; fails with the output's tail unless every check
     passed; returns pytest's summary line. Skips the calling test when `why_not()` says so."""
     reason = why_not()
     if reason:
         pytest.skip(reason)
-    checks = f"{sys.executable} -m pytest -q -p no:cacheprovider -x -o python_files={module} tests/ray/{module}"
+    checks = f"{sys.executable} -m pytest -q -p no:cacheprovider -x -o python_files={module} tests/ray_cluster/{module}"
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]

@@ -270,8 +270,7 @@ def test_an_unreachable_scoring_engine_is_tried_again_before_the_job_fails(make_
     connects again twice, 2 s then 4 s later, then fails with the reason and the number of attempts."""
     import socket
 
-    # ray.util: `import ray` alone would find the tests' own tests/ray folder (a namespace package) on sys.path.
-    pytest.importorskip("ray.util", reason="the ray engine needs the `ray` extra (without it a job fails at once)")
+    pytest.importorskip("ray", reason="the ray engine needs the `ray` extra (without it a job fails at once)")
 
     with socket.socket() as probe:  # a loopback port nothing listens on
         probe.bind(("127.0.0.1", 0))
@@ -290,7 +289,7 @@ def test_a_job_without_the_ray_package_fails_at_once_with_the_install_hint(make_
     try with the install command: no retry brings a package."""
     import importlib.util
 
-    if importlib.util.find_spec("ray.util") is not None:  # ray.util: tests/ray is a namespace package `ray`
+    if importlib.util.find_spec("ray") is not None:
         pytest.skip("Ray is installed here: the unreachable-engine test covers the retries")
     server = make_server(workers=1, scenarios=scoring_data.scenarios, ray_address="ray://127.0.0.1:1")
     with server.client(server.key("no-ray")) as c:

@@ -58,8 +58,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from wosac_eval import challenges
+from wosac_eval.backends import jax_driver, realism_inputs
 from wosac_eval.backends import jax_realism as jr
-from wosac_eval.backends import realism_inputs
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features import dense, interaction, ops, registry, road_edge, traffic_lights
 from wosac_eval.features.xp import differentiable, float32_precision
@@ -286,11 +286,14 @@ def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
     config = load_config(config_name)
     spec = challenges.spec(challenge)
 
-    def one(a, rollouts, temperature):
-        with float32_precision(), differentiable():  # read while tracing
-            return _scene_soft_realism(config, spec, layout, a, rollouts, temperature, features)
+    def scenes(a, rollouts, temperature):  # the temperature shared by the scenes, their segments too
+        def one(a, rollouts):
+            with float32_precision(), differentiable():  # read while tracing
+                return _scene_soft_realism(config, spec, layout, a, rollouts, temperature, features)
 
-    return jax.jit(jax.vmap(one, in_axes=(0, 0, None)))
+        return jax_driver.vmap_scenes(one)(a, rollouts)
+
+    return jax.jit(scenes)
 
 
 def soft_realism(

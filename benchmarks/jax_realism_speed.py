@@ -120,12 +120,17 @@ HEADER = (
 )
 
 
-def row(label: str, num_scenes: int, compile_s: float, seconds: float, cost=(float("nan"),) * 2) -> None:
-    peak = _peak_device_bytes()
+def row(label: str, num_scenes: int, compile_s: float, seconds: float | None, cost=(float("nan"),) * 2) -> None:
+    """One row of the table; `seconds` None for a program compiled only (no call: no time, no peak memory)."""
+    peak = _peak_device_bytes() if seconds is not None else None
     peak_text = "-" if peak is None else f"{peak / num_scenes / 2**20:.1f}"
+    timing = (
+        f"{'-':>8s} {'-':>9s} {'-':>8s}"
+        if seconds is None
+        else f"{seconds:8.3f} {num_scenes / seconds:9.1f} {VALIDATION_SET * seconds / num_scenes / 60:6.1f} m"
+    )
     print(
-        f"{label:62s} {num_scenes:6d} {compile_s:9.1f} {seconds:8.3f} {num_scenes / seconds:9.1f} "
-        f"{VALIDATION_SET * seconds / num_scenes / 60:6.1f} m {cost[0]:11.2e} {cost[1]:11.2e} {peak_text:>14s}",
+        f"{label:62s} {num_scenes:6d} {compile_s:9.1f} {timing} {cost[0]:11.2e} {cost[1]:11.2e} {peak_text:>14s}",
         flush=True,
     )
 
@@ -141,12 +146,18 @@ def timed_calls(compiled, args_of, repeat: int) -> float:
     return median_seconds(call, repeat, warmup=1)
 
 
+def compiled_step(prepared, rollouts):
+    """(`jax.jit(step)` compiled for `prepared` and the rollouts as arguments, the seconds it took); arrays
+    or their shapes (`jax.ShapeDtypeStruct`)."""
+    start = time.perf_counter()
+    compiled = jax.jit(step).lower(prepared, rollouts, np.float32(0)).compile()
+    return compiled, time.perf_counter() - start
+
+
 def in_the_loop(prepared, rollouts, mode: str, repeat: int) -> tuple[float, float, tuple]:
     """(compile s, s/call, cost per scene) of `jax.jit(step)` with `prepared` and the rollouts as arguments."""
     with jax.enable_x64(mode == "exact"):
-        start = time.perf_counter()
-        compiled = jax.jit(step).lower(prepared, rollouts, np.float32(0)).compile()
-        compile_s = time.perf_counter() - start
+        compiled, compile_s = compiled_step(prepared, rollouts)
         seconds = timed_calls(compiled, lambda shift: (prepared, rollouts, shift), repeat)
     return compile_s, seconds, cost_per_scene(compiled, prepared.num_scenes)
 
@@ -156,9 +167,7 @@ def cost_only(prepared, arrays, size: int, mode: str) -> tuple[float, tuple]:
     alone: no arrays made, no call (sizes whose arrays a machine's memory cannot hold)."""
     batch, rollouts = tiled(prepared, size, abstract=True), tiled_rollouts(arrays, size, abstract=True)
     with jax.enable_x64(mode == "exact"):
-        start = time.perf_counter()
-        compiled = jax.jit(step).lower(batch, rollouts, np.float32(0)).compile()
-        compile_s = time.perf_counter() - start
+        compiled, compile_s = compiled_step(batch, rollouts)
     return compile_s, cost_per_scene(compiled, size)
 
 
@@ -272,11 +281,7 @@ def main() -> None:
         for size in [int(n) for n in args.cost_only.split(",") if n]:
             for mode in args.modes.split(","):
                 compile_s, cost = cost_only(prepared, arrays, size, mode)
-                print(
-                    f"{f'compiled only, {prepared.search} search, {mode} mode':62s} {size:6d} {compile_s:9.1f} "
-                    f"{'-':>8s} {'-':>9s} {'-':>8s} {cost[0]:11.2e} {cost[1]:11.2e} {'-':>14s}",
-                    flush=True,
-                )
+                row(f"compiled only, {prepared.search} search, {mode} mode", size, compile_s, None, cost)
     if args.file_path:
         with tempfile.TemporaryDirectory() as tmp:
             if shards is None:

@@ -209,13 +209,10 @@ def test_road_edge_segments_shared_by_a_stack_of_scenes_change_nothing():
         for a in arrays
     ]
     assert padded[0]["start"].shape[0] > len(scenes[0][2].start)  # the smaller scene is padded
-    shared, axes = dense.shared_segments(jax_driver.stacked(padded))
+    stack = jax_driver.stacked(padded)
+    _, axes = dense.shared_segments(stack)
     assert axes["shared_start"] is None and axes["start"] == 0  # one table, not one per scene
-    got = jitted(
-        jax_driver.vmap_scenes(dense.signed_distance_to_road_edge),
-        np.stack([q for _, q, _ in scenes]),
-        jax_driver.stacked(padded),
-    )
+    got = jitted(jax_driver.vmap_scenes(dense.signed_distance_to_road_edge), np.stack([q for _, q, _ in scenes]), stack)
     for (expected, _, _), distances in zip(scenes, got):
         np.testing.assert_array_equal(distances, expected)
 

@@ -315,7 +315,14 @@ def test_an_upload_gone_from_the_server_is_started_again(tmp_path, api_server, b
         )
     upload_id = the_upload_id(state)
     assert any(f"upload {upload_id} interrupted" in line for line in lines)
-    httpx.delete(f"{api_server.url}/v1/uploads/{upload_id}", headers={"Authorization": f"Bearer {key}"})
+    # The server may still be taking the PATCH the interrupt cut short: its DELETE answers 409 until then.
+    deadline = time.monotonic() + 60
+    while True:
+        gone = httpx.delete(f"{api_server.url}/v1/uploads/{upload_id}", headers={"Authorization": f"Bearer {key}"})
+        if gone.status_code != 409 or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
+    assert gone.status_code == 204, gone.text
     lines.clear()
     status = submit(
         big_file,

@@ -146,6 +146,7 @@ def test_compile_searches_covers_what_scoring_calls():
         pruned_search._query_cells,
         pruned_search._cell_lists,
         pruned_search._search_lists,
+        pruned_search._ring_searches,
         signed_distance._signed_distances,
         segments._bucket_lists,
         interaction._nearest_object_search,

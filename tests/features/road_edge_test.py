@@ -7,7 +7,7 @@ import pytest
 
 from wosac_eval.features import road_edge
 from wosac_eval.features.box_geometry import box_bottom_corners
-from wosac_eval.features.road_edge import signed_distance
+from wosac_eval.features.road_edge import pruned_search, signed_distance
 
 F = np.float32
 
@@ -164,6 +164,15 @@ def test_box_distance_invalid_is_large_negative(square):
 # --- Brute force ---------------------------------------------------------------------------------
 
 
+@pytest.fixture(params=["cell lists", "ring searches"])
+def strategy(request, monkeypatch):
+    """Each brute-force test runs with each of the search's two ways forced: every query through its
+    cell's candidate list, and every query by its own ring search (what scattered queries get)."""
+    limit = 0.0 if request.param == "cell lists" else math.inf
+    monkeypatch.setattr(pruned_search, "SPARSE_QUERIES_PER_CELL", limit)
+    return request.param
+
+
 def brute_force(table, queries):
     """Signed distance with every valid segment evaluated, same float32 operations."""
     q = np.asarray(queries, F)[:, None, :]
@@ -230,7 +239,7 @@ def random_map(rng):
     return polylines
 
 
-def test_candidate_search_equals_brute_force():
+def test_candidate_search_equals_brute_force(strategy):
     rng = np.random.default_rng(1234)
     polylines = random_map(rng)
     table = road_edge.build_segment_table(polylines)
@@ -247,7 +256,7 @@ def test_candidate_search_equals_brute_force():
     assert_equals_brute_force(table, queries)
 
 
-def test_hand_cases_equal_brute_force(square):
+def test_hand_cases_equal_brute_force(square, strategy):
     table = road_edge.build_segment_table([L_SHAPE, SQUARE, polyline((0, 0), (10, 0), (10, 10))])
     q = np.array([(8, 8, 0), (12, 12, 0), (-3, -4, 0), (12, -2, 0), (50, 50, 0), (10, 10, 0)], F)
     np.testing.assert_array_equal(road_edge.signed_distance_to_polylines(table, q), brute_force(table, q))
@@ -271,7 +280,7 @@ def steep_ramps():
     return ramps
 
 
-def test_steep_ramps_equal_brute_force():
+def test_steep_ramps_equal_brute_force(strategy):
     rng = np.random.default_rng(7)
     table = road_edge.build_segment_table(steep_ramps())
     n = 20000
@@ -279,7 +288,7 @@ def test_steep_ramps_equal_brute_force():
     assert_equals_brute_force(table, queries)
 
 
-def test_far_placeholder_queries_equal_brute_force():
+def test_far_placeholder_queries_equal_brute_force(strategy):
     """A map kilometres from the origin, with boxes at placeholder states (the origin, and 50 m up).
 
     The few far queries are grouped apart from those near the map (`_cells_of`'s core box);
@@ -296,7 +305,7 @@ def test_far_placeholder_queries_equal_brute_force():
 
 
 @pytest.mark.parametrize("hint_stride", [1, 2, 4, 7])
-def test_hints_never_change_the_answer(hint_stride):
+def test_hints_never_change_the_answer(hint_stride, strategy):
     """Each query first tries the answer of the query `hint_stride` before it: a hint from anywhere (a
     far query, a tie with a higher index, a segment on another level) leaves every answer exact."""
     rng = np.random.default_rng(5)
@@ -315,7 +324,23 @@ def test_hints_never_change_the_answer(hint_stride):
     assert mismatch.size == 0, f"query {queries[mismatch[0]]}: {ours[mismatch[0]]} vs {reference[mismatch[0]]}"
 
 
-def test_box_trajectories_equal_brute_force():
+def test_scattered_queries_search_their_rings_and_dense_ones_share_cell_lists():
+    """By default a call's queries go through cell lists when many share a cell (a box's corners along its
+    trajectories) and each by its own ring search when they are scattered (one vehicle every 50 m): either
+    way the answers of the all-pairs search."""
+    rng = np.random.default_rng(3)
+    table = road_edge.build_segment_table(random_map(rng))
+    scattered = np.stack([rng.uniform(-150, 150, 300), rng.uniform(-150, 150, 300), rng.uniform(-1, 13, 300)], 1)
+    walk = np.cumsum(rng.normal(0, 0.05, (6000, 3)) * [1, 1, 0.1], axis=0) + [20, 20, 6]
+    for queries, lists_built in ((scattered.astype(F), False), (walk.astype(F), True)):
+        counts = {}
+        segments = road_edge.nearest_segments(table, queries, counts)
+        assert (counts["cells"] > 0) == lists_built, counts
+        ours = signed_distance.signed_distance_to_segments(table, queries, segments)
+        np.testing.assert_array_equal(ours, brute_force(table, queries))
+
+
+def test_box_trajectories_equal_brute_force(strategy):
     """`box_distance_to_road_edge` over samples x objects x steps of boxes driving through the map (the
     order it searches in, a box's answer the hint of the next) equals the all-pairs search of their
     corners."""

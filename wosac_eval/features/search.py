@@ -80,11 +80,13 @@ def compile_searches() -> float:
     wire_walks.compile_walks()
     f = np.float32
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
-    # Boxes near the edge, on another level, far off the map, and not finite.
+    # Boxes near the edge, on another level, far off the map, and not finite, in 16 samples: enough
+    # queries a cell for the cell lists (scoring's case); the centres alone are the scattered case.
     centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
-    x, y, z = centres.T[:, None, :, None]  # each (samples, objects, steps)
-    size, turn = np.ones((1, 4, 1), f) * 2, np.ones((1, 4, 1), f) * 0.6  # length = width, cos = sin
-    road_edge.box_distance_to_road_edge(x, y, z, size, size, turn, turn, np.ones((1, 4, 1), bool), table)
+    x, y, z = np.broadcast_to(centres.T[:, None, :, None], (3, 16, 4, 1))  # each (samples, objects, steps)
+    size, turn = np.ones((16, 4, 1), f) * 2, np.ones((16, 4, 1), f) * 0.6  # length = width, cos = sin
+    road_edge.box_distance_to_road_edge(x, y, z, size, size, turn, turn, np.ones((16, 4, 1), bool), table)
+    road_edge.signed_distance_to_polylines(table, centres)
     x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (samples, objects, steps): a follower and its leader
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):

@@ -90,7 +90,9 @@ def raw_components(features: CriticalityFeatures) -> dict[str, float]:
     raw = {}
     for name in KINEMATIC:
         series = getattr(features, name)
-        raw[name] = float(np.nanpercentile(series, KINEMATIC_PERCENTILE)) if np.isfinite(series).any() else float("nan")
+        # `np.nanpercentile` of a 1-D series, without its general machinery (a tenth of a millisecond a scene).
+        kept = series[~np.isnan(series)]
+        raw[name] = float(np.percentile(kept, KINEMATIC_PERCENTILE)) if np.isfinite(kept).any() else float("nan")
     raw["time_to_collision"] = _sustained(features.time_to_collision, True)
     raw["closing_speed"] = _sustained(features.closing_speed, False)
     raw["near_miss"] = _sustained(features.near_miss, False)

@@ -83,16 +83,33 @@ def scoring_data(workdir: Path) -> ScoringData:
     return golden_data(workdir) or demo_data(workdir)
 
 
+def _below_ephemeral_ports() -> tuple[int, int]:
+    """Ports the kernel never hands out by itself: below its ephemeral range (where the local ports of
+    outgoing connections and port-0 binds come from; a test run makes thousands of connections, and one
+    once took a port between this probe and a server's bind). From 10000, so as to stay clear of services'
+    usual ports."""
+    try:
+        low, high = (int(p) for p in Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+    except (OSError, ValueError):
+        low, high = 32768, 60999  # Linux's default
+    if low > 11000:
+        return 10000, low
+    return (high + 1, 65536) if high < 64000 else (1024, 65536)  # above it, else anywhere (a wide range)
+
+
 def free_port() -> int:
-    """A free 127.0.0.1 port. Under pytest-xdist, one whose remainder by the number of workers is this
-    worker's number: two workers never pick the same port between this probe and their server's bind."""
+    """A free 127.0.0.1 port outside the kernel's ephemeral range. Under pytest-xdist, one whose remainder
+    by the number of workers is this worker's number: two workers never pick the same port between this
+    probe and their server's bind."""
     workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
     worker = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0) % workers
     # Explicit candidates from a random start (the kernel's own choice of port 0 may never fall in this
     # worker's class: on some machines it hands out odd ports only).
-    start = random.randrange(20000, 60000)
+    low, high = _below_ephemeral_ports()
+    start = random.randrange(low, high)
     start -= start % workers
-    for port in range(start + worker, 65536, workers):
+    candidates = [*range(start + worker, high, workers), *range(low + (worker - low) % workers, start, workers)]
+    for port in candidates:
         with socket.socket() as s:
             try:
                 s.bind(("127.0.0.1", port))

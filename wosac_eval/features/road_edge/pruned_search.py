@@ -495,14 +495,6 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
     cell, centre, half_diagonal = _with_far_cells(queries, cell, centre, half_diagonal, table)
     max_length = float(table.length[table.bucket_segments].max(initial=0.0))
     work = {"cells": 0, "pairs evaluated": 0}
-    if queries.shape[0] < SPARSE_QUERIES_PER_CELL * len(centre):
-        found = np.full(queries.shape[0], _NOT_FOUND, np.int64)
-        work["pairs evaluated"] = _ring_searches(
-            queries, found, table.start, table.delta, grid, table.bucket_start, table.bucket_segments, max_length
-        )
-        if counts is not None:
-            counts.update(work)
-        return found
 
     def search(rows, cells, min_reach):
         lists = _cell_lists(
@@ -534,13 +526,16 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
         work["pairs evaluated"] += evaluated
         return found, needed
 
-    found, needed = search(slice(None), np.arange(len(centre)), np.zeros(len(centre)))
-    # Cells whose list left queries unsettled (a box on another level than the road edges near it):
-    # their lists grown to settle them, once per cell; whatever is left searches the buckets.
-    grow = np.flatnonzero(needed > 0)
-    if grow.size:
-        again = np.flatnonzero((found == _NOT_FOUND) & np.isin(cell, grow))
-        found[again] = search(again, grow, needed[grow])[0]
+    if queries.shape[0] < SPARSE_QUERIES_PER_CELL * len(centre):
+        found = np.full(queries.shape[0], _NOT_FOUND, np.int64)  # scattered: every query searches the buckets
+    else:
+        found, needed = search(slice(None), np.arange(len(centre)), np.zeros(len(centre)))
+        # Cells whose list left queries unsettled (a box on another level than the road edges near it):
+        # their lists grown to settle them, once per cell; whatever is left searches the buckets.
+        grow = np.flatnonzero(needed > 0)
+        if grow.size:
+            again = np.flatnonzero((found == _NOT_FOUND) & np.isin(cell, grow))
+            found[again] = search(again, grow, needed[grow])[0]
     if (found == _NOT_FOUND).any():
         work["pairs evaluated"] += _ring_searches(
             queries, found, table.start, table.delta, grid, table.bucket_start, table.bucket_segments, max_length

@@ -278,6 +278,10 @@ def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(sm
         status = server.wait_state(c, sid, timeout=60)
         assert status["state"] == "done" and status["attempts"] == 1, status
         assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == expected
+    # Logged when the retried scoring returns, which is after it recorded the job done (until_written).
+    deadline = time.monotonic() + 30
+    while "space is back" not in server.log.read_text() and time.monotonic() < deadline:
+        time.sleep(0.1)
     log = server.log.read_text()
     assert "space is back" in log
     # Scoring went on from the journal: the rows written before the disk filled were not scored again.

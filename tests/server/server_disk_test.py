@@ -282,10 +282,9 @@ def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(sm
     deadline = time.monotonic() + 30
     while "space is back" not in server.log.read_text() and time.monotonic() < deadline:
         time.sleep(0.1)
-    log = server.log.read_text()
-    assert "space is back" in log
+    assert "space is back" in server.log.read_text()
     # Scoring went on from the journal: the rows written before the disk filled were not scored again.
-    resumed, scored = resumed_and_scored(log, sid)
+    resumed, scored = resumed_and_scored(server.log, sid)
     assert resumed >= at_fill - 1 and resumed + scored == n, (resumed, scored, at_fill)
     assert wait_gone(journal)  # removed by the worker once its job's process ended
 

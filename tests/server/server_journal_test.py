@@ -68,8 +68,7 @@ def test_a_job_whose_worker_is_killed_resumes_from_its_journal(make_server, repl
     watching.set()
     watcher.join()
     # The second attempt started from the journal: it scored only what the first had not.
-    log = server.log.read_text()
-    resumed, scored = resumed_and_scored(log, sid)
+    resumed, scored = resumed_and_scored(server.log, sid)
     assert resumed >= at_kill - 1 and resumed + scored == N, (resumed, scored, at_kill)
     assert wait_gone(journal)  # removed by the worker once the job's process ended
     size = submission.stat().st_size

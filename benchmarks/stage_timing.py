@@ -4,8 +4,9 @@ Shared by `score_speed.py` (Sim Agents) and `scenario_gen_speed.py` (Scenario Ge
 
 The stages are the pipeline's (parse, arrays, samples, map index, the four searches of the
 features, the rest of the features, estimators and metrics); the end-to-end figure is what a
-scoring worker does with a scenario (protobuf bytes in: parsed, their arrays read from the same
-bytes, `score_scenario`; metrics out), timed apart.
+scoring worker does with a scenario (protobuf bytes in: the rollouts parsed and their arrays read from
+the same bytes, the scenario's arrays read from its record's bytes, `score_scenario`; metrics out),
+timed apart.
 
 For the two searches that look for a nearest thing, the floor is the arithmetic alone: one exact
 float32 evaluation per query (a box corner against one road-edge segment; an evaluated box
@@ -24,12 +25,12 @@ import numpy as np
 
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.samples import sample_batch
-from wosac_eval.arrays.scenario import scenario_arrays
+from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.features import box_geometry, interaction, metric_features as mf, road_edge
 from wosac_eval.features.compiled import compiled
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.metrics.scenario_metrics import scenario_metrics
-from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.scoring.scenario import score_scenario
 
 SEARCHES = ("nearest_object", "time_to_collision", "road_edge_distance", "red_light_violation")
@@ -142,26 +143,23 @@ def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluat
 
 
 def score_bytes(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str) -> dict:
-    """One scenario scored end to end as a scoring worker does: parse, then the arrays from the parsed bytes."""
-    scenario = scenario_pb2.Scenario.FromString(raw_scenario)
+    """One scenario scored end to end as a scoring worker does: the scenario's arrays from its record's bytes, the
+    rollouts parsed and their arrays read from the same bytes."""
     rollouts = sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts)
     return score_scenario(
-        scenario_arrays(scenario, raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts), config,
+        record_arrays(raw_scenario), rollout_arrays(rollouts, challenge, raw_rollouts), config,
         challenge=challenge,
     )  # fmt: skip
 
 
 def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge: str, repeat: int) -> dict:
     """Median seconds of each stage and end to end, operation counts and floors (see the module doc)."""
-    parse = lambda: (
-        scenario_pb2.Scenario.FromString(raw_scenario),
-        sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts),
-    )
+    parse = lambda: sim_agents_submission_pb2.ScenarioRollouts.FromString(raw_rollouts)
 
     end_to_end, metrics = median_time(lambda: score_bytes(raw_scenario, raw_rollouts, config, challenge), repeat)
     stages = {}
-    stages["parse protobufs"], (scenario, rollouts) = median_time(parse, repeat)
-    stages["scenario arrays"], arrays = median_time(lambda: scenario_arrays(scenario, raw_scenario), repeat)
+    stages["scenario arrays"], arrays = median_time(lambda: record_arrays(raw_scenario), repeat)
+    stages["parse rollouts"], rollouts = median_time(parse, repeat)
     stages["rollout arrays"], rollout = median_time(lambda: rollout_arrays(rollouts, challenge, raw_rollouts), repeat)
     stages["samples"], batch = median_time(lambda: sample_batch(arrays, rollout, challenge), repeat)
     stages["map index"], context = median_time(lambda: mf.map_context(arrays), repeat)

@@ -116,17 +116,43 @@ def sim_agent_ids(scenario) -> np.ndarray:
     Both challenges simulate exactly these objects. A track too short to have
     a current step has no valid state there.
     """
-    return np.array(
-        [t.id for t in scenario.tracks if len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid],
-        dtype=np.int64,
+    return sim_agents_among(
+        [t.id for t in scenario.tracks],
+        [len(t.states) > CURRENT_TIME_INDEX and t.states[CURRENT_TIME_INDEX].valid for t in scenario.tracks],
     )
+
+
+def sim_agents_among(track_ids, valid_at_current) -> np.ndarray:
+    """`sim_agent_ids` of tracks given as arrays (a message or its wire bytes read alike).
+
+    Args:
+      track_ids: int `(num_tracks,)`; valid_at_current: bool `(num_tracks,)`, false for a track
+        without a current step.
+    """
+    return np.asarray(track_ids, np.int64).reshape(-1)[np.asarray(valid_at_current, bool).reshape(-1)]
 
 
 def predicted_ids(scenario) -> np.ndarray:
     """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_predicted,)`."""
-    ids = {scenario.tracks[scenario.sdc_track_index].id}
-    ids.update(scenario.tracks[r.track_index].id for r in scenario.tracks_to_predict)
-    return np.array(sorted(ids), dtype=np.int64)
+    return predicted_among(
+        [t.id for t in scenario.tracks], scenario.sdc_track_index, [r.track_index for r in scenario.tracks_to_predict]
+    )
+
+
+def predicted_among(track_ids, sdc_track_index: int, predicted_track_indices) -> np.ndarray:
+    """`predicted_ids` of tracks given as arrays: the ids at `sdc_track_index` and at each of the
+    `predicted_track_indices`, indexed as the message's repeated field is (from the end when negative;
+    IndexError past either end)."""
+    ids = np.asarray(track_ids, np.int64).reshape(-1)
+
+    def track_id(index, field: str) -> int:
+        if not -len(ids) <= int(index) < len(ids):
+            raise IndexError(f"{field} {int(index)} is not the index of a track (there are {len(ids)})")
+        return int(ids[int(index)])
+
+    found = {track_id(sdc_track_index, "sdc_track_index")}
+    found.update(track_id(index, "a tracks_to_predict track_index") for index in predicted_track_indices)
+    return np.array(sorted(found), dtype=np.int64)
 
 
 def evaluated_ids(sim_agents: np.ndarray, predicted: np.ndarray, challenge) -> np.ndarray:

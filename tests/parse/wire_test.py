@@ -9,9 +9,11 @@ wrong wire type, closed-enum values out of range, unpacked repeated floats, nega
 import numpy as np
 import pytest
 
+from wosac_eval import challenges
 from wosac_eval.arrays import scenario as scenario_module
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.parse import wire, wire_walks as walks
+from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import map_pb2, scenario_pb2, sim_agents_submission_pb2 as pb
 
@@ -81,15 +83,51 @@ def assert_reads_like_a_parse(scenario):
     else:
         for a, b in zip((arrays.signals.lane_id, arrays.signals.state, arrays.signals.stop_point), signals):
             np.testing.assert_array_equal(a, b)
+    # The objects to simulate and to evaluate, as the parsed message names them.
+    assert arrays.scenario_id == scenario.scenario_id
+    for got, expected in (
+        (arrays.sim_agent_ids, challenges.sim_agent_ids(scenario)),
+        (arrays.predicted_ids, challenges.predicted_ids(scenario)),
+    ):
+        assert got.dtype == expected.dtype == np.int64
+        np.testing.assert_array_equal(got, expected)
+    assert arrays.sdc_id == scenario.tracks[scenario.sdc_track_index].id
     return arrays
 
 
-def random_scenario(seed: int):
+def assert_record_reads_like_a_parse(record: bytes):
+    """`record_arrays` and `record_sim_agent_ids` of serialized bytes equal what the parsed message gives."""
+    parsed = scenario_pb2.Scenario.FromString(record)
+    expected = assert_reads_like_a_parse(parsed)
+    got = scenario_module.record_arrays(record)
+    assert_same_arrays(got, expected)
+    np.testing.assert_array_equal(scenario_module.record_sim_agent_ids(record), challenges.sim_agent_ids(parsed))
+    return got
+
+
+def assert_same_arrays(a, b):
+    import dataclasses
+
+    if dataclasses.is_dataclass(a):
+        assert type(a) is type(b)
+        for field in dataclasses.fields(a):
+            assert_same_arrays(getattr(a, field.name), getattr(b, field.name))
+    elif isinstance(a, tuple):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            assert_same_arrays(x, y)
+    elif isinstance(a, np.ndarray):
+        assert a.dtype == b.dtype and a.shape == b.shape
+        np.testing.assert_array_equal(a, b)
+    else:
+        assert a == b
+
+
+def random_scenario(seed: int, steps: int = 3):
     """A small scenario with every kind of content the reader looks at, some fields left unset."""
     rng = np.random.default_rng(seed)
     scenario = scenario_pb2.Scenario(scenario_id=f"s{seed}", current_time_index=1, sdc_track_index=0)
-    steps = 3
-    scenario.timestamps_seconds.extend([0.0, 0.1, 0.2])
+    scenario.timestamps_seconds.extend(0.1 * np.arange(steps))
     for i in range(4):
         track = scenario.tracks.add(
             id=int(rng.integers(-(2**31), 2**31)) if i == 3 else i + 1, object_type=int(rng.integers(0, 5))
@@ -110,6 +148,7 @@ def random_scenario(seed: int):
                 if rng.random() < 0.2:
                     del values[name]
             track.states.add(**values)
+    scenario.tracks_to_predict.add(track_index=int(rng.integers(-4, 4)))
     for f in range(6):
         feature = scenario.map_features.add(id=int(rng.integers(0, 2**40)))
         points = [dict(x=rng.normal() * 1e3, y=rng.normal() * 1e3, z=rng.normal()) for _ in range(rng.integers(0, 5))]
@@ -135,6 +174,71 @@ def random_scenario(seed: int):
 @pytest.mark.parametrize("seed", range(8))
 def test_scenario_arrays_read_like_a_parse(seed):
     assert_reads_like_a_parse(random_scenario(seed))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_a_record_reads_like_its_parse_without_one(seed):
+    """What a scoring worker reads (`record_arrays`, a record's bytes, no parse) and what the validator
+    asks of every scenario (`record_sim_agent_ids`); with 12 steps, so that a current step exists."""
+    assert_record_reads_like_a_parse(random_scenario(seed, steps=12).SerializeToString())
+
+
+def test_a_real_womd_scene_reads_like_its_parse():
+    from support.submissions import SCENARIO_FILES, load_scenario
+
+    for scenario_id in SCENARIO_FILES:
+        arrays = assert_record_reads_like_a_parse(load_scenario(scenario_id).SerializeToString())
+        assert len(arrays.sim_agent_ids) > 0 and len(arrays.predicted_ids) > 0
+
+
+def test_track_ids_and_indices_as_a_parse_reads_int32_fields():
+    """Encodings a parse accepts and a serializer never writes: an int32 id or index as a 5-byte varint
+    (a parse keeps its low 32 bits), the SDC's index given twice (the last wins) and negative (from the end),
+    tracks of different lengths (the validator's ids count each track's own states)."""
+    scenario = random_scenario(7, steps=12)
+    for track in scenario.tracks:
+        track.states[10].valid = True
+    raw = scenario.SerializeToString()
+    five_byte_minus_two = b"\xfe\xff\xff\xff\x0f"
+    track = scenario_pb2.Track(object_type=1)
+    for _ in range(12):
+        track.states.add(center_x=1.0, valid=True)
+    odd_track = key(1, 0) + five_byte_minus_two + track.SerializeToString()
+    required = key(1, 0) + five_byte_minus_two
+    raw += key(2, 2) + wire.varint(len(odd_track)) + odd_track
+    raw += key(11, 2) + wire.varint(len(required)) + required
+    raw += key(6, 0) + b"\x01" + key(6, 0) + wire.varint((1 << 64) - 1)  # sdc_track_index 1, then -1
+    parsed = scenario_pb2.Scenario.FromString(raw)
+    assert parsed.tracks[-1].id == -2 and parsed.sdc_track_index == -1 and parsed.tracks_to_predict[-1].track_index == -2
+    arrays = assert_record_reads_like_a_parse(raw)
+    assert -2 in arrays.sim_agent_ids and arrays.sdc_id == -2
+
+    short = scenario_pb2.Scenario()
+    short.CopyFrom(parsed)
+    del short.tracks[0].states[5:]  # a track without a current step: not a sim agent
+    raw = short.SerializeToString()
+    assert scenario_module.record_sim_agent_ids(raw).tolist() == challenges.sim_agent_ids(short).tolist()
+    assert short.tracks[0].id not in scenario_module.record_sim_agent_ids(raw)
+    with pytest.raises(ParseError, match="here: scenario s7: tracks have different numbers of states"):
+        scenario_module.record_arrays(raw, "here")
+
+
+def test_a_record_naming_a_track_it_does_not_hold_is_refused_as_its_parse_is():
+    scenario = random_scenario(2, steps=12)
+    scenario.tracks_to_predict.add(track_index=4)
+    with pytest.raises(IndexError, match="a tracks_to_predict track_index 4 is not the index of a track"):
+        challenges.predicted_ids(scenario)
+    with pytest.raises(ParseError, match="shard-3 @ 80: a tracks_to_predict track_index 4 is not the index"):
+        scenario_module.record_arrays(scenario.SerializeToString(), "shard-3 @ 80")
+
+
+@pytest.mark.parametrize("bad", [b"\x12\x05abc", b"\x12\x02\x1a\x09", b"\x2a\x02\xff\xfe"])
+def test_a_malformed_record_is_refused_naming_its_source(bad):
+    with pytest.raises(ParseError, match="^shard-1 @ 0: "):
+        scenario_module.record_arrays(bad, "shard-1 @ 0")
+    if bad.startswith(b"\x12"):  # the tracks: what the validator reads
+        with pytest.raises(ParseError, match="^shard-1 @ 0: not a valid Scenario message"):
+            scenario_module.record_sim_agent_ids(bad, "shard-1 @ 0")
 
 
 def test_unknown_fields_wrong_wire_types_and_closed_enums_read_as_a_parse_reads_them():

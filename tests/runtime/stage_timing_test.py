@@ -37,7 +37,8 @@ def test_breakdown_scores_as_score_scenario_and_counts_add_up(challenge, config)
     )
     assert r["metametric"] == pytest.approx(expected["metametric"], abs=0)
     assert set(r["stages"]) >= {
-        "parse protobufs",
+        "scenario arrays",
+        "parse rollouts",
         "map index",
         "features: road edge distance",
         "features: nearest object",

@@ -116,7 +116,7 @@ def expand_scenario_paths(paths: PathLike | Iterable[PathLike]) -> list[Path]:
     return expanded
 
 
-def parse_scenario(data: bytes, source: ScenarioSource) -> scenario_pb2.Scenario:
+def parse_scenario(data: bytes, source: ScenarioSource | str) -> scenario_pb2.Scenario:
     """Parse one record as a Scenario, naming the source when it is not one."""
     try:
         scenario = decode_message(scenario_pb2.Scenario, data)
@@ -146,7 +146,7 @@ def read_scenarios(paths: PathLike | Iterable[PathLike]) -> Iterator[scenario_pb
         yield scenario
 
 
-def scenario_id_of(data: bytes, source: ScenarioSource) -> str:
+def scenario_id_of(data: bytes, source: ScenarioSource | str) -> str:
     """The scenario_id of a serialized Scenario, found by skimming its top-level fields.
 
     Much cheaper than a full parse (tracks and map are skipped, not decoded; a compiled walk,
@@ -231,5 +231,16 @@ class ScenarioIndex:
                 "(was the file modified after indexing?)"
             )
         return scenario, data
+
+    def load_record(self, scenario_id: str) -> bytes:
+        """The serialized scenario with this id, unparsed (`arrays.scenario.record_arrays` reads it)."""
+        source = self.source(scenario_id)
+        data = read_record_at(source.path, source.offset)
+        found = scenario_id_of(data, source)
+        if found != scenario_id:  # the shard changed since indexing
+            raise ParseError(
+                f"{source}: expected scenario {scenario_id!r}, found {found!r} (was the file modified after indexing?)"
+            )
+        return data
 
     __getitem__ = load

@@ -96,17 +96,19 @@ class ScoringChunk:
 
 
 def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
-    """The chunk's (ScenarioArrays, RolloutArrays), read by the worker: each message is parsed (which
-    refuses bytes that are not one) and its arrays read from the bytes it was parsed from."""
+    """The chunk's (ScenarioArrays, RolloutArrays), read by the worker: the rollouts are parsed (which
+    refuses bytes that are not a message) and their arrays read from the bytes they were parsed from; the
+    scenario's arrays are read from its record's bytes (`record_arrays`: the operator's scenario set is
+    not parsed whole for each submission)."""
     from wosac_eval.arrays.rollouts import rollout_arrays
-    from wosac_eval.arrays.scenario import scenario_arrays
+    from wosac_eval.arrays.scenario import record_arrays
 
     pairs = []
     for sid, locator in chunk.items:
-        scenario, scenario_bytes = context.index.load_with_bytes(sid)
+        scenario = record_arrays(context.index.load_record(sid), context.index.source(sid))
         data = read_locator(locator)
         rollouts = decode_message(sim_agents_submission_pb2.ScenarioRollouts, data)
-        pairs.append((scenario_arrays(scenario, scenario_bytes), rollout_arrays(rollouts, context.challenge, data)))
+        pairs.append((scenario, rollout_arrays(rollouts, context.challenge, data)))
     return pairs
 
 

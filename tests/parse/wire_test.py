@@ -209,7 +209,9 @@ def test_track_ids_and_indices_as_a_parse_reads_int32_fields():
     raw += key(11, 2) + wire.varint(len(required)) + required
     raw += key(6, 0) + b"\x01" + key(6, 0) + wire.varint((1 << 64) - 1)  # sdc_track_index 1, then -1
     parsed = scenario_pb2.Scenario.FromString(raw)
-    assert parsed.tracks[-1].id == -2 and parsed.sdc_track_index == -1 and parsed.tracks_to_predict[-1].track_index == -2
+    assert (
+        parsed.tracks[-1].id == -2 and parsed.sdc_track_index == -1 and parsed.tracks_to_predict[-1].track_index == -2
+    )
     arrays = assert_record_reads_like_a_parse(raw)
     assert -2 in arrays.sim_agent_ids and arrays.sdc_id == -2
 

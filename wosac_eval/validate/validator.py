@@ -26,13 +26,15 @@ import numpy as np
 from google.protobuf.message import DecodeError
 
 from wosac_eval import challenges
+from wosac_eval.arrays.scenario import record_sim_agent_ids
 from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
 from wosac_eval.parse.decode import decode_message
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.limits import InputLimits, ShardCensus
-from wosac_eval.parse.scenarios import ScenarioIndex, iter_scenarios
+from wosac_eval.parse.scenarios import ScenarioIndex, ScenarioSource, expand_scenario_paths, scenario_id_of
 from wosac_eval.parse.shard_stream import IrregularShard, iter_top_level_fields
 from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_text
+from wosac_eval.parse.tfrecord import iter_records, read_record_at
 from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
 from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import sim_agents_submission_pb2
@@ -51,9 +53,6 @@ class ScenarioSetError(ValueError):
 
 def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
     """Sorted sim agent ids of the scenarios at these offsets of one scenario file (a worker task)."""
-    from wosac_eval.arrays.scenario import record_sim_agent_ids
-    from wosac_eval.parse.scenarios import ScenarioSource
-    from wosac_eval.parse.tfrecord import read_record_at
 
     path, offsets = item
     # Read from the records' tracks alone: a whole parse of each scenario cost the validation about a
@@ -92,14 +91,16 @@ def load_sim_agents(
                     progress(len(ids))
         else:
             first_source: dict[str, Any] = {}
-            for scenario, source in iter_scenarios(scenarios):
-                sid = scenario.scenario_id
-                if sid in agents:
-                    raise ScenarioSetError(f"scenario {sid!r} occurs twice: in {first_source[sid]} and in {source}")
-                first_source[sid] = source
-                agents[sid] = rules.sim_agent_ids(scenario)
-                if progress is not None:
-                    progress(1)
+            for path in expand_scenario_paths(scenarios):
+                for record in iter_records(path):
+                    source = ScenarioSource(path, record.offset)
+                    sid = scenario_id_of(record.data, source)
+                    if sid in agents:
+                        raise ScenarioSetError(f"scenario {sid!r} occurs twice: in {first_source[sid]} and in {source}")
+                    first_source[sid] = source
+                    agents[sid] = np.unique(record_sim_agent_ids(record.data, source))
+                    if progress is not None:
+                        progress(1)
     except (ParseError, OSError) as error:
         raise ScenarioSetError(f"cannot read the scenario set: {error}") from error
     return agents

@@ -119,6 +119,7 @@ def test_index_loads_single_scenarios_on_demand(shard_folder):
     assert "c" in index and "z" not in index
     assert index.load("c") == small_scenario("c")
     assert index["a"] == small_scenario("a")
+    assert index.load_record("b") == small_scenario("b").SerializeToString()  # the bytes, unparsed
     assert index.source("d").path.name == "validation.tfrecord-00001-of-00002"
 
 
@@ -144,8 +145,9 @@ def test_index_notices_a_shard_rewritten_after_indexing(tmp_path):
     path = write_shard(tmp_path / "s.tfrecord", ["a", "b"])
     index = ScenarioIndex(path)
     write_shard(path, ["b", "a"])  # same sizes, swapped order
-    with pytest.raises(ParseError, match="expected scenario 'a', found 'b'"):
-        index.load("a")
+    for load in (index.load, index.load_record):
+        with pytest.raises(ParseError, match="expected scenario 'a', found 'b'"):
+            load("a")
 
 
 def test_skimmed_id_matches_a_full_parse():

@@ -73,7 +73,7 @@ def new_key(server: Server, name: str) -> tuple[str, str]:
     return server.key(name), name
 
 
-def submit_cli(server: Server, key: str, method: str, submission: Path, state: Path, *args: str):
+def submit_cli(server: Server, key: str, method: str, submission: Path, state: Path, *args: str, timeout: float = 120):
     return run_cli(
         "submit",
         str(submission),
@@ -86,7 +86,7 @@ def submit_cli(server: Server, key: str, method: str, submission: Path, state: P
         "--state-dir",
         str(state),
         *args,
-        timeout=120,
+        timeout=timeout,
     )
 
 
@@ -185,6 +185,9 @@ def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server
         str(tmp_path / "served.json"),
         "--chunk-bytes",
         "256K",
+        # --wait includes the server's scoring: on a fresh install the first job compiles the numba kernels
+        # (about 40 s of a core, several times that while the other tests load both cores; 120 s ran out twice).
+        timeout=600,
     )
     assert done.returncode == 0, done.stderr
     scored = run_cli(

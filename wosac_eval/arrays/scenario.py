@@ -262,7 +262,9 @@ def record_sim_agent_ids(record: bytes, source: ScenarioSource | str = "a Scenar
 
 def _wire_arrays(scenario_id: str, data, starts, ends) -> ScenarioArrays:
     log = _track_trajectories(scenario_id, data, starts, ends)
-    track_start, track_end, _ = walks.message_spans(data, starts, ends, 2)
+    # Every track has the log's steps (`_track_trajectories` refuses others): its current state is a column.
+    current = challenges.CURRENT_TIME_INDEX
+    valid_at_current = log.valid[:, current] if log.num_steps > current else np.zeros(log.num_objects, bool)
     _, sdc_index, _ = _fields(data, starts, ends, ((6, walks.WIRE_VARINT),))
     required_start, required_end, _ = walks.message_spans(data, starts, ends, 11)
     _, required_index, _ = _fields(data, required_start, required_end, ((1, walks.WIRE_VARINT),))
@@ -271,7 +273,7 @@ def _wire_arrays(scenario_id: str, data, starts, ends) -> ScenarioArrays:
     return ScenarioArrays(
         scenario_id=scenario_id,
         log=log,
-        sim_agent_ids=challenges.sim_agents_among(log.object_id, _current_validity(data, track_start, track_end)),
+        sim_agent_ids=challenges.sim_agents_among(log.object_id, valid_at_current),
         predicted_ids=challenges.predicted_among(log.object_id, sdc_track_index, _int32(required_index[:, 0])),
         road_edges=tuple(road_edges),
         lane_ids=lane_ids.astype(np.int64),

@@ -222,15 +222,8 @@ class ScenarioIndex:
     def load_with_bytes(self, scenario_id: str) -> tuple[scenario_pb2.Scenario, bytes]:
         """`load`, and the record's bytes the scenario was parsed from (`arrays.scenario.scenario_arrays`
         reads them instead of serialising the message again)."""
-        source = self.source(scenario_id)
-        data = read_record_at(source.path, source.offset)
-        scenario = parse_scenario(data, source)
-        if scenario.scenario_id != scenario_id:  # the shard changed since indexing
-            raise ParseError(
-                f"{source}: expected scenario {scenario_id!r}, found {scenario.scenario_id!r} "
-                "(was the file modified after indexing?)"
-            )
-        return scenario, data
+        data = self.load_record(scenario_id)
+        return parse_scenario(data, self.source(scenario_id)), data
 
     def load_record(self, scenario_id: str) -> bytes:
         """The serialized scenario with this id, unparsed (`arrays.scenario.record_arrays` reads it)."""

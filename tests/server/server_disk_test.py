@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from support.server_harness import canonical, resumed_and_scored, wait_gone
+from support.server_harness import canonical, resumed_and_scored, wait_gone, wait_logged
 
 MiB = 2**20
 DISK_MIB = 64
@@ -227,10 +227,7 @@ def test_a_disk_filled_by_another_process_leaves_nothing_stuck_and_every_job_is_
             assert status["state"] == "done" and status["attempts"] == 1, status
             assert canonical(c.get(f"/v1/submissions/{status['id']}/results").json()) == canonical(direct_single_result)
             # Logged once the worker's next write succeeds, which may be after the job's end is recorded.
-            deadline = time.monotonic() + 30
-            while "space is back" not in log.read_text() and time.monotonic() < deadline:
-                time.sleep(0.1)
-            assert "space is back" in log.read_text()
+            assert "space is back" in wait_logged(log, "space is back")
         finally:
             worker.send_signal(signal.SIGTERM)
             worker.wait(20)
@@ -279,10 +276,7 @@ def test_a_worker_whose_disk_fills_mid_job_waits_and_loses_no_scored_scenario(sm
         assert status["state"] == "done" and status["attempts"] == 1, status
         assert canonical(c.get(f"/v1/submissions/{sid}/results").json()) == expected
     # Logged when the retried scoring returns, which is after it recorded the job done (until_written).
-    deadline = time.monotonic() + 30
-    while "space is back" not in server.log.read_text() and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert "space is back" in server.log.read_text()
+    assert "space is back" in wait_logged(server.log, "space is back")
     # Scoring went on from the journal: the rows written before the disk filled were not scored again.
     resumed, scored = resumed_and_scored(server.log, sid)
     assert resumed >= at_fill - 1 and resumed + scored == n, (resumed, scored, at_fill)

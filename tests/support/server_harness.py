@@ -271,13 +271,19 @@ def files_under(root: Path) -> set[Path]:
     return {p for p in root.rglob("*") if p.is_file()}
 
 
-def resumed_and_scored(log_path: Path, submission_id: str, timeout: float = 30.0) -> tuple[int, int]:
-    """(scenarios a job's last attempt took from its journal, scenarios it scored), from the worker's log.
-    Its "done" line is written after the job's end is recorded, so a client can see `done` before it."""
+def wait_logged(log_path: Path, text: str, timeout: float = 30.0) -> str:
+    """The log once it holds `text` (or as it is after `timeout`): a worker logs some lines after it
+    records a job's end, so a client can see the job ended before they are written."""
     deadline = time.monotonic() + timeout
-    while f"{submission_id} done (" not in log_path.read_text() and time.monotonic() < deadline:
+    while text not in (log := log_path.read_text()) and time.monotonic() < deadline:
         time.sleep(0.1)
-    log = log_path.read_text()
+    return log
+
+
+def resumed_and_scored(log_path: Path, submission_id: str, timeout: float = 30.0) -> tuple[int, int]:
+    """(scenarios a job's last attempt took from its journal, scenarios it scored), from the worker's log
+    (waiting for its "done" line, `wait_logged`)."""
+    log = wait_logged(log_path, f"{submission_id} done (", timeout)
     resumed = int(log.split(f"job {submission_id} resumes from its journal: ")[1].split()[0])
     scored = int(log.split(f"{submission_id} done (")[1].split()[0])
     return resumed, scored

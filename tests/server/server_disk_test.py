@@ -45,11 +45,12 @@ def small_disk(tmp_path):
 
 def fill(path: Path, leave: int = 0) -> None:
     """Grow `path` (a file outside the service's folders) until its disk has at most `leave` bytes free."""
-    with open(path, "ab") as f:
+    # Unbuffered: a buffered file keeps the part of a write the full disk refused and raises ENOSPC again
+    # when the `with` closes it (seen on CPython 3.10), outside the `try`.
+    with open(path, "ab", buffering=0) as f:
         try:
             while (room := shutil.disk_usage(path.parent).free - leave) > 0:
                 f.write(bytes(min(room, MiB)))
-                f.flush()
         except OSError as exc:
             if exc.errno != errno.ENOSPC:
                 raise

@@ -15,12 +15,13 @@ import os
 import time
 from pathlib import Path
 
+from wosac_eval.runtime.cache_dirs import user_cache_dir
+
 KEEP_S = 30 * 86400  # forget uploads untouched for 30 days (the server drops unfinished ones after 7 by default)
 
 
 def default_state_dir() -> Path:
-    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(cache) / "wosac-eval" / "uploads"
+    return user_cache_dir("uploads")
 
 
 def key_digest(key: str) -> str:

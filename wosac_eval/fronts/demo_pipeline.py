@@ -12,11 +12,11 @@ with the fronts, beside `commands/demo.py` (every module of `commands` is a comm
 from __future__ import annotations
 
 import json
-import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from wosac_eval.runtime.cache_dirs import user_cache_dir
 from wosac_eval.sim import scenes
 
 DEMO_SEED = 0
@@ -40,8 +40,7 @@ def _say(line: str) -> None:
 
 
 def default_workdir() -> Path:
-    cache = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(cache) / "wosac-eval" / "demo"
+    return user_cache_dir("demo")
 
 
 def ensure_scenes(workdir: Path, num_scenes: int = DEMO_SCENES, seed: int = DEMO_SEED) -> tuple[list[Path], bool]:

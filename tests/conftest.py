@@ -63,6 +63,13 @@ def run_root(request, tmp_path_factory) -> Path:
     return root
 
 
+@pytest.fixture(scope="session", autouse=True)
+def criticality_cache_of_the_run(run_root):
+    """Scenes' criticality kept (`analysis.criticality_cache`) in one file for the whole run, shared by its
+    workers and every process they start (the service harness passes it on), never the user's own cache."""
+    os.environ.setdefault("WOSAC_CRITICALITY_CACHE", str(run_root / "criticality.sqlite3"))
+
+
 @pytest.fixture(autouse=True)
 def one_ray_cluster_at_a_time(request, run_root):
     """The `ray` tests of one run take turns, whichever xdist worker runs them: two clusters at once are

@@ -162,6 +162,8 @@ class Server:
             # the disk tests (server_disk_test.py) set these on a filesystem of their own.
             "WOSAC_MIN_FREE_FRACTION": "0",
             "WOSAC_DISK_RESERVE_BYTES": str(2**20),
+            # The run's own cache of scenes' criticality (tests/conftest.py), not the user's.
+            "WOSAC_CRITICALITY_CACHE": os.environ.get("WOSAC_CRITICALITY_CACHE", "off"),
             "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
         }
         self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})

@@ -32,18 +32,29 @@ class CriticalityTask:
 
 
 def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
-    """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked)."""
+    """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked); a
+    scene rated by an earlier run (`analysis.criticality_cache`) is not rated again unless `steps` are asked."""
+    from wosac_eval.analysis import criticality_cache
     from wosac_eval.analysis.criticality_features import criticality_features
     from wosac_eval.analysis.criticality_scores import scene_criticality, step_criticality
-    from wosac_eval.arrays.scenario import scenario_arrays
+    from wosac_eval.arrays.scenario import record_arrays
 
-    out = []
+    out, computed = [], []
     for sid in task.scenario_ids:
-        features = criticality_features(scenario_arrays(index.load(sid)))
-        row = {"scenario_id": sid, **scene_criticality(features)}
+        record = index.load_record(sid)
+        key = criticality_cache.record_key(sid, record)
+        known = None if task.per_step else criticality_cache.cached(key)
+        if known is not None:
+            out.append({"scenario_id": sid, **known})
+            continue
+        features = criticality_features(record_arrays(record, index.source(sid)))
+        scene = scene_criticality(features)
+        computed.append((key, scene))
+        row = {"scenario_id": sid, **scene}
         if task.per_step:
             row["steps"] = [round(float(v), 6) for v in step_criticality(features)]
         out.append(row)
+    criticality_cache.keep(computed)
     return out
 
 

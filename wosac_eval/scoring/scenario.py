@@ -184,6 +184,7 @@ def score_scenario(
     backend: str = "numpy",
     analysis: bool = False,
     per_object: bool = False,
+    criticality: dict | None = None,
 ) -> dict:
     """Official `SimAgentMetrics` fields of one scenario, plus its `scenario_id`.
 
@@ -199,9 +200,11 @@ def score_scenario(
         metrics per object type (`scenario_analysis`), as `score_submission` does.
       per_object: add `objects`, the values of every evaluated object (`object_records`), as
         `score_submission(per_object=True)` streams them.
+      criticality: with `analysis`, the scene's criticality when known already (kept from an earlier run:
+        `analysis.criticality_cache`), instead of computing it.
     """
     message, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(message, arrays, rollout, log, sim, context, analysis, per_object=per_object)
+    return _row(message, arrays, rollout, log, sim, context, analysis, criticality, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
@@ -257,8 +260,9 @@ class JaxItem:
     criticality: dict | None = None
 
 
-def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> JaxItem:
-    """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs."""
+def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False, criticality: dict | None = None) -> JaxItem:
+    """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs (and, with
+    `analysis`, the scene's criticality: `criticality` when known already, else computed)."""
     from wosac_eval.backends import jax_backend
 
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
@@ -267,8 +271,9 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False) -> J
         prepared = jax_backend.prepare(arrays, rollout, context, challenge=challenge)
     except (ValueError, KeyError) as error:
         raise unscorable(arrays.scenario_id, error) from error
-    criticality = None
-    if analysis:
+    if not analysis:
+        criticality = None
+    elif criticality is None:
         from wosac_eval.analysis.criticality_scores import scenario_criticality
 
         criticality = scenario_criticality(arrays, context)

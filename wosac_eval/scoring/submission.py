@@ -96,53 +96,87 @@ class ScoringChunk:
 
 
 def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
-    """The chunk's (ScenarioArrays, RolloutArrays), read by the worker: the rollouts are parsed (which
-    refuses bytes that are not a message) and their arrays read from the bytes they were parsed from; the
-    scenario's arrays are read from its record's bytes (`record_arrays`: the operator's scenario set is
-    not parsed whole for each submission)."""
+    """The chunk's (ScenarioArrays, RolloutArrays, criticality, cache key), read by the worker: the rollouts
+    are parsed (which refuses bytes that are not a message) and their arrays read from the bytes they were
+    parsed from; the scenario's arrays are read from its record's bytes (`record_arrays`: the operator's
+    scenario set is not parsed whole for each submission). With the analysis, the scene's criticality is
+    the one an earlier run kept (`analysis.criticality_cache`, under the record's key), None when none did;
+    without it both are None."""
+    from wosac_eval.analysis import criticality_cache
     from wosac_eval.arrays.rollouts import rollout_arrays
     from wosac_eval.arrays.scenario import record_arrays
 
     pairs = []
     for sid, locator in chunk.items:
-        scenario = record_arrays(context.index.load_record(sid), context.index.source(sid))
+        record = context.index.load_record(sid)
+        scenario = record_arrays(record, context.index.source(sid))
+        key = criticality_cache.record_key(sid, record) if context.analysis else None
+        known = criticality_cache.cached(key) if key is not None else None
         data = read_locator(locator)
         rollouts = decode_message(sim_agents_submission_pb2.ScenarioRollouts, data)
-        pairs.append((scenario, rollout_arrays(rollouts, context.challenge, data)))
+        pairs.append((scenario, rollout_arrays(rollouts, context.challenge, data), known, key))
     return pairs
+
+
+def _keep_criticality(pairs: list[tuple], criticality: list) -> None:
+    """Keeps the scenes' criticality computed now (`analysis.criticality_cache`) for later runs."""
+    from wosac_eval.analysis import criticality_cache
+
+    criticality_cache.keep(
+        [
+            (key, computed)
+            for (_, _, known, key), computed in zip(pairs, criticality)
+            if known is None and key is not None and computed is not None
+        ]
+    )
 
 
 def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     """Scores the scenarios of a chunk (a worker task); results in chunk order."""
-    from wosac_eval.scoring.scenario import score_scenario, score_scenarios_jax
+    from wosac_eval.scoring.scenario import score_jax_items, score_scenario
 
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
     if context.backend is Backend.JAX:
-        return score_scenarios_jax(
-            pairs, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object
+        items = _jax_items(context, pairs)
+        rows = list(
+            score_jax_items(
+                items, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object
+            )
         )
-    return [
-        score_scenario(
-            scenario,
-            rollouts,
-            config,
-            challenge=context.challenge,
-            analysis=context.analysis,
-            per_object=context.per_object,
-        )
-        for scenario, rollouts in pairs
-    ]
+    else:
+        rows = [
+            score_scenario(
+                scenario,
+                rollouts,
+                config,
+                challenge=context.challenge,
+                analysis=context.analysis,
+                per_object=context.per_object,
+                criticality=known,
+            )
+            for scenario, rollouts, known, _ in pairs
+        ]
+        if context.analysis:
+            _keep_criticality(pairs, [row.get("criticality") for row in rows])
+    return rows
 
 
 def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
     """The host part of jax-backend scoring of a chunk (a worker task): `scoring.scenario.JaxItem`s."""
+    return _jax_items(context, _pairs(context, chunk))
+
+
+def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
     from wosac_eval.scoring.scenario import prepare_jax_item
 
-    return [
-        prepare_jax_item(scenario, rollouts, context.challenge, context.analysis)
-        for scenario, rollouts in _pairs(context, chunk)
+    items = [
+        prepare_jax_item(scenario, rollouts, context.challenge, context.analysis, known)
+        for scenario, rollouts, known, _ in pairs
     ]
+    if context.analysis:
+        _keep_criticality(pairs, [item.criticality for item in items])
+    return items
 
 
 def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:

@@ -23,7 +23,12 @@ Then each path runs as its own subprocess, sampled every 0.2 s for the peak RSS 
 process of its tree and the disk use of the folders it writes:
 
 - validate:  `wosac-eval validate --json --workers K`
-- cli:       `wosac-eval score --workers K -o result.json` (default analysis)
+- cli:       `wosac-eval score --workers K -o result.json` (default analysis), the first run against the
+             scenario set: every path but cli-again starts with an empty criticality cache
+             (`WORKDIR/runs/criticality.sqlite3`, `analysis.criticality_cache`)
+- cli-again: the same command again, the scenes' criticality kept by the cli path read from the cache
+             (what scoring the next checkpoint against the same set costs); with the core in the same
+             run, its CPU per scene over the core too
 - core:      the scoring core the cli path is measured against: one copy of each base scene scored on
              one core (`score_scenario` of its protobuf bytes, parsing included, as `score_speed.py`
              measures one scene: median of --core-repeat runs after a warm-up), weighted by the base's
@@ -97,7 +102,8 @@ OFFICIAL_SHARDS = 150  # validation.tfrecord-0000k-of-00150
 PER_SHARD = math.ceil(VALIDATION_SET / OFFICIAL_SHARDS)  # 294 scenarios per official shard
 PLACEHOLDER = b"<full-scale-id!>"  # 16 bytes, as a WOMD scenario id: copies patch these in place
 LAYOUT_VERSION = 1  # bump when the bytes a build writes change
-ALL_PATHS = ("validate", "cli", "core", "cli-objects", "service", "ray", "interrupt")
+ALL_PATHS = ("validate", "cli", "cli-again", "core", "cli-objects", "service", "ray", "interrupt")
+CRITICALITY_CACHE = "criticality.sqlite3"  # in WORKDIR/runs: emptied before every path but cli-again
 METHOD = "full-scale-benchmark"
 MiB = 1 << 20
 GiB = 1 << 30
@@ -808,9 +814,21 @@ def same_as(reference: dict | None, digest: dict | None) -> str:
 
 def _env() -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("WOSAC_")}
+    if CACHE_FILE is not None:  # the workload's own cache of scenes' criticality, never the user's
+        env["WOSAC_CRITICALITY_CACHE"] = str(CACHE_FILE)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))
     env.setdefault("OMP_NUM_THREADS", "1")
     return env
+
+
+CACHE_FILE: Path | None = None  # set by main: WORKDIR/runs/CRITICALITY_CACHE
+
+
+def empty_criticality_cache() -> None:
+    """A first run against the scenario set: no scene's criticality kept yet."""
+    if CACHE_FILE is not None:
+        for suffix in ("", "-wal", "-shm"):
+            Path(f"{CACHE_FILE}{suffix}").unlink(missing_ok=True)
 
 
 PYTHON = os.path.abspath(sys.executable)  # ".." collapsed, symbolic links kept (a venv's python is one)
@@ -868,22 +886,26 @@ def _score_command(ctx, scenarios: Path, submission: Path, out: Path, *extra: st
     )  # fmt: skip
 
 
-def path_cli(ctx) -> dict:
+def path_cli(ctx, name: str = "cli") -> dict:
     scenarios, submission = _paths(ctx.build)
-    out = ctx.runs / "cli" / "result.json"
+    out = ctx.runs / name / "result.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
     cmd = _score_command(ctx, scenarios, submission, out)
-    run = run_watched(cmd, ctx.runs, "cli", env=_env(), dirs={"out": out.parent})
+    run = run_watched(cmd, ctx.runs, name, env=_env(), dirs={"out": out.parent})
+    again = " (criticality kept by the cli path)" if name == "cli-again" else ""
     row = ctx.row(
-        "cli",
-        f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json",
+        name,
+        f"wosac-eval score --workers {ctx.workers}{ctx.challenge_flag} -o R.json{again}",
         run,
         run.watch.peaks(by_depth("main", "workers")),
         disk=run.watch.disk_peak["out"],
     )
-    ctx.cli_wall = run.wall_s if run.rc == 0 else None
-    ctx.cli_cpu = run.cpu_s if run.rc == 0 else None
+    if name == "cli-again":
+        ctx.cli_again_cpu = run.cpu_s if run.rc == 0 else None
+    else:
+        ctx.cli_wall = run.wall_s if run.rc == 0 else None
+        ctx.cli_cpu = run.cpu_s if run.rc == 0 else None
     if out.exists():
         row["note"] = f"result document {out.stat().st_size / MiB:.1f} MiB"
     return ctx.with_result(row, out, run)
@@ -947,6 +969,11 @@ def path_core(ctx) -> dict:
         row["cli_s_per_scene"] = cli
         row["cli_over_core"] = cli / per_scene
         row["note"] += f"; the cli path {cli * 1e3:.1f} ms per scene per core: {cli / per_scene:.2f}x the core"
+    if ctx.cli_again_cpu is not None:
+        again = ctx.cli_again_cpu / ctx.layout.scenes
+        row["cli_again_s_per_scene"] = again
+        row["cli_again_over_core"] = again / per_scene
+        row["note"] += f"; again {again * 1e3:.1f} ms: {again / per_scene:.2f}x"
     return row
 
 
@@ -1393,6 +1420,7 @@ def path_ray(ctx) -> dict:
 PATH_RUNNERS = {
     "validate": path_validate,
     "cli": path_cli,
+    "cli-again": lambda ctx: path_cli(ctx, "cli-again"),
     "core": path_core,
     "cli-objects": path_cli_objects,
     "service": path_service,
@@ -1422,6 +1450,7 @@ class Context:
         self.service_timeout = args.service_timeout
         self.cli_wall: float | None = None
         self.cli_cpu: float | None = None
+        self.cli_again_cpu: float | None = None
         self.load_before = 0.0
         # The first result on this build is the reference of every later one, in this run or a later run
         # on the same cached build (so that paths measured one at a time are compared too).
@@ -1640,10 +1669,14 @@ def main(argv: list[str] | None = None) -> int:
     manifest = build(args)
     print_build(manifest, args.workdir)
     ctx = Context(args, manifest)
+    global CACHE_FILE
+    CACHE_FILE = ctx.runs / CRITICALITY_CACHE
     rows = []
     for path in paths:
         print(f"[{path}] running...", flush=True)
         ctx.load_before = os.getloadavg()[0]
+        if path != "cli-again":
+            empty_criticality_cache()
         try:
             row = PATH_RUNNERS[path](ctx)
         except Exception as error:  # noqa: BLE001 - one path's failure is a row; the others still run

@@ -90,7 +90,7 @@ def _check_workload(build) -> None:
 def test_every_path_gives_the_same_result(tmp_path):
     require_shared("womd")
     require_shared("golden")
-    paths = ["validate", "cli", "core", "cli-objects", "service", "interrupt"]
+    paths = ["validate", "cli", "cli-again", "core", "cli-objects", "service", "interrupt"]
     try:
         import wosac_server  # noqa: F401
     except ImportError:
@@ -117,6 +117,9 @@ def test_every_path_gives_the_same_result(tmp_path):
     assert min(core["base_medians_s"]) <= core["core_s_per_scene"] <= max(core["base_medians_s"])
     assert core["cli_s_per_scene"] == pytest.approx(rows["cli"]["cpu_s"] / SCENES, abs=0.05 / SCENES)  # cpu_s: 0.1 s
     assert core["cli_over_core"] == pytest.approx(core["cli_s_per_scene"] / core["core_s_per_scene"], rel=1e-12)
+    # Again, each scene's criticality read from the cache the cli path filled (the workload's own file).
+    assert "criticality kept" in rows["cli-again"]["what"]
+    assert core["cli_again_s_per_scene"] == pytest.approx(rows["cli-again"]["cpu_s"] / SCENES, abs=0.05 / SCENES)
     for row in scored:
         assert row["ok"] and row["same"] in ("reference", "yes"), (row["path"], row["same"], row["note"])
         assert row["digest"]["num_scenarios"] == SCENES and row["digest"]["copies_alike"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import hashlib
+import importlib.util
 import json
 import os
 import sqlite3
@@ -47,15 +48,19 @@ def record_key(scenario_id: str, record: bytes) -> RecordKey:
     return scenario_id, len(record), google_crc32c.value(record)
 
 
+RATED_BY = ("wosac_eval.analysis.criticality_features", "wosac_eval.analysis.criticality_scores")
+
+
 @functools.cache
 def code_version() -> str:
-    """The version of the code that computes a scene's criticality, as it is installed."""
+    """The version of the code that computes a scene's criticality, as it is installed: the package's
+    version and the source of the modules `RATED_BY` names (read as files, not imported)."""
     from wosac_eval import __version__
-    from wosac_eval.analysis import criticality_features, criticality_scores
 
     digest = hashlib.sha256(__version__.encode())
-    for module in (criticality_features, criticality_scores):
-        digest.update(Path(str(module.__file__)).read_bytes())
+    for name in RATED_BY:
+        spec = importlib.util.find_spec(name)
+        digest.update(Path(str(spec.origin if spec else name)).read_bytes())
     return digest.hexdigest()[:16]
 
 

@@ -44,7 +44,7 @@ RecordKey = tuple[str, int, int]  # (scenario_id, record length, CRC-32C of the 
 
 
 def record_key(scenario_id: str, record: bytes) -> RecordKey:
-    """The cache key of a serialized `Scenario` (0.1 ms for a 1 MB record)."""
+    """The cache key of a serialized `Scenario` (about 0.04 ms for a 1 MB record: one hardware CRC pass)."""
     return scenario_id, len(record), google_crc32c.value(record)
 
 

@@ -97,6 +97,7 @@ from pathlib import Path
 
 from bench_env import REPO, SHARED, VALIDATION_SET
 from wosac_eval.parse.wire import varint  # the protobuf varint the readers use
+from wosac_eval.runtime.cache_dirs import user_cache_dir
 
 OFFICIAL_SHARDS = 150  # validation.tfrecord-0000k-of-00150
 PER_SHARD = math.ceil(VALIDATION_SET / OFFICIAL_SHARDS)  # 294 scenarios per official shard
@@ -1595,7 +1596,7 @@ def main(argv: list[str] | None = None) -> int:
         default=",".join(ALL_PATHS),
         help=f"comma-separated, run in this order (default {','.join(ALL_PATHS)}); 'none': build only",
     )
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "wosac-eval"
+    cache = user_cache_dir()
     p.add_argument(
         "--workdir",
         type=Path,

@@ -11,11 +11,13 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from wosac_eval.runtime.cache_dirs import user_cache_dir
+
 REPO = Path(__file__).resolve().parents[2]
 SHARED = Path(os.environ["WOSAC_SHARED"]).resolve() if os.environ.get("WOSAC_SHARED") else REPO.parent / "shared"
 TEST_DATA = REPO / "tests" / "data"
 # The tests' JAX compilation cache (tests/conftest.py), in the user's cache folder as pip's and numba's are.
-JAX_TEST_CACHE = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "wosac-eval" / "jax-tests"
+JAX_TEST_CACHE = user_cache_dir("jax-tests")
 
 
 def shared_missing_reason(what: str = "golden") -> str | None:

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wosac_eval.analysis.criticality_features import disc_gap, disc_pairs
-from wosac_eval.analysis.driving_scores import at_fault
+from wosac_eval.analysis.driving_scores import at_fault, rollouts_at_fault
 from wosac_eval.arrays.rollouts import RolloutArrays
 
 
@@ -78,3 +78,50 @@ def test_a_non_finite_position_is_answered_as_by_every_object():
         np.testing.assert_array_equal(
             at_fault(rollouts, sizes, rollout, step, sdc), every_object(rollouts, sizes, rollout, step, sdc)
         )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rollouts_at_fault_is_any_entry_at_fault(seed):
+    """Tested in rounds, stopping at a rollout's first entry at fault: per rollout, the OR of every entry's
+    answer, on rollouts with no collision entry, a few and one at every step, their partners ahead of and
+    behind the SDC."""
+    rng = np.random.default_rng(seed)
+    num_rollouts, objects, steps = 12, 10, 80
+    shape = (num_rollouts, objects, steps)
+    x, y = (rng.normal(0, 4.0, shape).astype(np.float32) for _ in range(2))
+    heading = rng.uniform(-np.pi, np.pi, shape).astype(np.float32)
+    rollouts = RolloutArrays(
+        "s", np.tile(np.arange(objects), (num_rollouts, 1)), x, y, np.zeros(shape, np.float32), heading
+    )
+    sizes = (rng.uniform(0.5, 12, shape).astype(np.float32), rng.uniform(0.5, 3, shape).astype(np.float32))
+    sdc_rows = rng.integers(0, objects, num_rollouts)
+    share = rng.choice([0.0, 0.03, 0.5, 1.0], size=(num_rollouts, 1))
+    rollout, step = np.nonzero(rng.random((num_rollouts, steps)) < share)
+    answers = at_fault(rollouts, sizes, rollout, step, sdc_rows[rollout])
+    every = np.zeros(num_rollouts, dtype=bool)
+    np.logical_or.at(every, rollout, answers)
+    np.testing.assert_array_equal(rollouts_at_fault(rollouts, sizes, rollout, step, sdc_rows), every)
+    assert answers.any() and not answers.all()  # entries of both answers, so skipping some could matter
+
+
+def test_a_rollout_at_fault_only_late_in_its_collisions():
+    """The SDC rear-ended at every step (not at fault), but in rollout k its partner is ahead of it from step
+    10 k on: found in the rounds after the first few, whatever the round the step falls in."""
+    num_rollouts, steps = 8, 80
+    shape = (num_rollouts, 2, steps)
+    x = np.zeros(shape, np.float32)
+    x[:, 1] = -4.0  # the partner's centre behind the SDC's rear bumper (SDC length 4.5)
+    for k in range(1, num_rollouts):
+        x[k, 1, 10 * k :] = 4.0
+    rollouts = RolloutArrays(
+        "s",
+        np.tile(np.arange(2), (num_rollouts, 1)),
+        x,
+        np.zeros(shape, np.float32),
+        np.zeros(shape, np.float32),
+        np.zeros(shape, np.float32),
+    )
+    sizes = (np.full(shape, 4.5, np.float32), np.full(shape, 2.0, np.float32))
+    rollout, step = np.nonzero(np.ones((num_rollouts, steps), bool))
+    got = rollouts_at_fault(rollouts, sizes, rollout, step, np.zeros(num_rollouts, np.int64))
+    np.testing.assert_array_equal(got, np.arange(num_rollouts) > 0)

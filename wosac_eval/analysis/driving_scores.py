@@ -118,6 +118,29 @@ def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarr
     return along > -length[entries, sdc] / 2
 
 
+def rollouts_at_fault(
+    rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc_rows: np.ndarray
+) -> np.ndarray:
+    """Whether the SDC is at fault in any of its collision entries, per rollout, bool `(num_rollouts,)`.
+
+    rollout, step: the entries `(entries,)`, rollout by rollout, steps ascending (`np.nonzero`'s order);
+    sdc_rows: the SDC's row in each rollout `(num_rollouts,)`. The entries are tested in rounds, each
+    rollout's first entry, then its next 4, 16, ...: a rollout found at fault is not tested further (a
+    poor policy's SDC collides at most of its steps, and one entry at fault decides its rollout).
+    """
+    fault = np.zeros(rollouts.num_rollouts, dtype=bool)
+    first = np.flatnonzero(np.r_[True, rollout[1:] != rollout[:-1]])
+    rank = np.arange(rollout.size) - np.repeat(first, np.diff(np.r_[first, rollout.size]))
+    low, width = 0, 1
+    while low <= rank.max():
+        tested = (rank >= low) & (rank < low + width) & ~fault[rollout]
+        if tested.any():
+            r = rollout[tested]
+            np.logical_or.at(fault, r, at_fault(rollouts, sizes, r, step[tested], sdc_rows[r]))
+        low, width = low + width, width * 4
+    return fault
+
+
 def _within(values: np.ndarray, valid: np.ndarray, low: float, high: float) -> np.ndarray:
     """Per rollout: every valid finite value of `(num_rollouts, num_steps)` lies in [low, high]."""
     values = np.asarray(values, dtype=np.float64)
@@ -166,9 +189,7 @@ def driving_scores(scenario: ScenarioArrays, rollouts: RolloutArrays, sim: Metri
     rollout, step = np.nonzero(collision & (np.asarray(sim.linear_speed[:, e]) > MOVING_SPEED))
     fault = np.zeros(rollouts.num_rollouts, dtype=bool)
     if rollout.size and rollouts.x.shape[1] > 1:
-        np.logical_or.at(
-            fault, rollout, at_fault(rollouts, _box_sizes(scenario, rollouts), rollout, offset + step, rows[rollout])
-        )
+        fault = rollouts_at_fault(rollouts, _box_sizes(scenario, rollouts), rollout, offset + step, rows)
     events = {
         "at_fault_collision": fault,
         "collision": collision.any(axis=-1),

@@ -125,3 +125,7 @@ def test_a_rollout_at_fault_only_late_in_its_collisions():
     rollout, step = np.nonzero(np.ones((num_rollouts, steps), bool))
     got = rollouts_at_fault(rollouts, sizes, rollout, step, np.zeros(num_rollouts, np.int64))
     np.testing.assert_array_equal(got, np.arange(num_rollouts) > 0)
+    none = np.zeros(0, np.int64)
+    np.testing.assert_array_equal(
+        rollouts_at_fault(rollouts, sizes, none, none, np.zeros(num_rollouts, np.int64)), [False] * 8
+    )

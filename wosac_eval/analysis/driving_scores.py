@@ -129,6 +129,8 @@ def rollouts_at_fault(
     poor policy's SDC collides at most of its steps, and one entry at fault decides its rollout).
     """
     fault = np.zeros(rollouts.num_rollouts, dtype=bool)
+    if rollout.size == 0:
+        return fault
     first = np.flatnonzero(np.r_[True, rollout[1:] != rollout[:-1]])
     rank = np.arange(rollout.size) - np.repeat(first, np.diff(np.r_[first, rollout.size]))
     low, width = 0, 1

@@ -127,5 +127,5 @@ def test_a_rollout_at_fault_only_late_in_its_collisions():
     np.testing.assert_array_equal(got, np.arange(num_rollouts) > 0)
     none = np.zeros(0, np.int64)
     np.testing.assert_array_equal(
-        rollouts_at_fault(rollouts, sizes, none, none, np.zeros(num_rollouts, np.int64)), [False] * 8
+        rollouts_at_fault(rollouts, sizes, none, none, np.zeros(num_rollouts, np.int64)), np.zeros(num_rollouts, bool)
     )

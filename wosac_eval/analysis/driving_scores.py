@@ -131,10 +131,9 @@ def rollouts_at_fault(
     fault = np.zeros(rollouts.num_rollouts, dtype=bool)
     if rollout.size == 0:
         return fault
-    first = np.flatnonzero(np.r_[True, rollout[1:] != rollout[:-1]])
-    rank = np.arange(rollout.size) - np.repeat(first, np.diff(np.r_[first, rollout.size]))
-    low, width = 0, 1
-    while low <= rank.max():
+    rank = np.arange(rollout.size) - np.searchsorted(rollout, rollout)  # each entry's place in its rollout
+    low, width, last = 0, 1, rank.max()
+    while low <= last:
         tested = (rank >= low) & (rank < low + width) & ~fault[rollout]
         if tested.any():
             r = rollout[tested]

@@ -288,6 +288,34 @@ def test_truncated_tar_gz_names_archive_and_member_after_streaming_earlier_ones(
         list(stream)
 
 
+@pytest.mark.parametrize("mode", ["w", "w:gz"])
+def test_member_pieces_name_a_truncated_member(tmp_path, shards, mode):
+    """`MemberReader.read1` (how the walk copies a member to its file) gives the member's bytes, then refuses
+    a member cut short naming archive and member, as reading it whole does."""
+    from wosac_eval.parse.archive import iter_archive_members, sniff_file
+
+    first_name, first_data = next(iter(shards.items()))
+    late = random.Random(1).randbytes(1 << 20)
+    raw = make_tar(tmp_path / "full.tar", {first_name: first_data, "late.binproto": late}, mode).read_bytes()
+    whole, cut = tmp_path / "whole.tar", tmp_path / "cut.tar"
+    whole.write_bytes(raw)
+    cut.write_bytes(raw[: len(raw) - (1 << 19)])
+    compression = sniff_file(whole)[0]
+    read = {}
+    for member in iter_archive_members(whole, compression, InputLimits()):
+        read[member.name] = b"".join(iter(lambda m=member: m.read1(1 << 16), b""))
+    assert read[f"submission/{first_name}"] == first_data and read["submission/late.binproto"] == late
+    members = iter_archive_members(cut, compression, InputLimits())
+    with pytest.raises(
+        ArchiveError,
+        match=r"cut.tar: (member 'submission/late.binproto' is truncated|truncated or "
+        r"corrupt data in member 'submission/late.binproto')",
+    ):
+        for member in members:
+            while member.read1(1 << 16):
+                pass
+
+
 @pytest.mark.parametrize("first", ["shard", "small"])
 def test_isal_reads_what_zlib_reads_and_refuses_the_same_damage(tmp_path, shards, monkeypatch, first):
     """.tar.gz members are inflated by ISA-L (the `isal` dependency) when it is installed, and by zlib from

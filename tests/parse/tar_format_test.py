@@ -123,6 +123,38 @@ def test_gnu_tar_archives_read_as_tarfile_reads_them(tmp_path, tar_format):
     assert {name for name, kind, *_ in members if kind in "0\x00"} == {f"submission/{n}" for n in files}
 
 
+@pytest.mark.parametrize("chunk", [1, 700, 1 << 20])
+def test_read_data1_gives_each_member_in_pieces_of_at_most_what_was_asked(chunk):
+    """`read_data1` (a copy loop's reads) gives a member's bytes in pieces of whatever one read of the stream
+    gives, never past the member nor the size asked, and b'' at its end; the next member reads whole after."""
+    rng = random.Random(chunk)
+    files = [("a.bin", rng.randbytes(5000)), ("b.bin", rng.randbytes(3 * BLOCK + 17)), ("c.bin", b"")]
+    raw = tar_bytes(files, tarfile.PAX_FORMAT)
+    source = io.BytesIO(raw)
+    reader = TarStreamReader(lambda n: source.read(min(n, chunk)))
+    for member, (name, data) in zip(reader, files):
+        assert member.name == name
+        pieces = []
+        while piece := reader.read_data1(1024):
+            assert len(piece) <= min(1024, chunk)
+            pieces.append(piece)
+        assert b"".join(pieces) == data
+        assert reader.read_data1(1024) == b""
+
+
+def test_read_data1_ends_with_the_stream():
+    """A stream cut inside a member's data: the bytes before the cut, then b'' (the caller, which knows the
+    member's size, names the truncation)."""
+    raw = tar_bytes([("a.bin", bytes(range(256)) * 40)], tarfile.USTAR_FORMAT)[: BLOCK + 3000]
+    source = io.BytesIO(raw)
+    reader = TarStreamReader(source.read)
+    member = next(iter(reader))
+    got = b""
+    while piece := reader.read_data1(1000):
+        got += piece
+    assert got == (bytes(range(256)) * 40)[:3000] and member.size == 10240
+
+
 def test_cut_archives_yield_the_members_before_the_cut_then_a_format_error():
     rng = random.Random(1)
     raw = tar_bytes(

@@ -471,10 +471,24 @@ class MemberReader:
             )
         return data
 
+    def read1(self, size: int) -> bytes:
+        """Up to `size` of its next bytes, as one read of the stream gives them (a copy loop's pieces: no
+        piece is gathered from smaller ones); b'' at its end. A member that ends early raises as `read`."""
+        try:
+            data = self._tar.read_data1(min(size, self.size - self.position))
+        except _STREAM_ERRORS as error:
+            raise _data_error(self._archive, self.name, error) from error
+        self.position += len(data)
+        if not data and size > 0 and self.position < self.size:
+            raise ArchiveError(
+                f"{self._archive}: member {self.name!r} is truncated ({self.position} of {self.size} bytes)"
+            )
+        return data
+
     def skip(self, size: int) -> None:
         """Read past the next `size` bytes, a bounded piece at a time."""
         while size > 0:
-            size -= len(self.read(min(size, _CHUNK_BYTES)))
+            size -= len(self.read1(min(size, _CHUNK_BYTES)))
 
 
 def iter_archive_members(path: Path, compression: str | None, limits: InputLimits) -> Iterator[MemberReader]:

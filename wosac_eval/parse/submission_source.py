@@ -367,7 +367,7 @@ class SubmissionSource:
             offset = 0
             self._scratch[member.name] = out.name
         try:
-            while piece := member.read(_COPY_BYTES):
+            while piece := member.read1(_COPY_BYTES):
                 out.write(piece)
             out.flush()
         finally:

@@ -217,6 +217,17 @@ class TarStreamReader:
             self._left = self._padding = 0
         return data
 
+    def read_data1(self, size: int) -> bytes:
+        """Up to `size` of the current member's next data bytes: what one read of the stream gives (a copy
+        loop's pieces, never gathered); b'' once its data are all read, or when the stream ends in them."""
+        if size <= 0 or self._left == 0:
+            return b""
+        data = self._read(min(size, self._left))
+        if not data:  # the stream ended: nothing more can be skipped either
+            self._left = self._padding = 0
+        self._left -= len(data)
+        return data
+
     def skip_data(self) -> None:
         """Read past what is left of the current member's data and padding, a bounded piece at a time
         (TruncatedDataError when the stream ends inside them)."""

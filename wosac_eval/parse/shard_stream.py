@@ -12,6 +12,7 @@ shard whole, as before, so that every message about a malformed shard is unchang
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterator
 from typing import IO
 
@@ -48,7 +49,7 @@ def _exactly(f: IO[bytes], size: int) -> bytes:
 
 def iter_top_level_fields(f: IO[bytes], size: int) -> Iterator[tuple[int, int, bytes, int, int]]:
     """(field number, wire type, the field's bytes, start, end) of every top-level field of the `size`-byte
-    shard at the file's position, in order. The field's bytes are its tag, length and value (they parse as a
+    shard at the (seekable) file's position, in order. The field's bytes are its tag, length and value (they parse as a
     message of the shard's type holding that field alone); its value is bytes[start:end].
 
     Raises:
@@ -74,7 +75,8 @@ def iter_top_level_fields(f: IO[bytes], size: int) -> Iterator[tuple[int, int, b
             head = tag + prefix
             if length > _MAX_LENGTH or length > size - at - len(head):
                 raise IrregularShard("a field runs past the end")
-            field = head + _exactly(f, length)
+            f.seek(-len(head), io.SEEK_CUR)  # the head read again with its value: one read, no join of the two
+            field = _exactly(f, len(head) + length)
         else:
             raise IrregularShard(f"wire type {wire_type}")
         yield number, wire_type, field, len(head), len(field)

@@ -40,7 +40,7 @@ import lzma
 import os
 import re
 import zlib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path, PurePosixPath
 from typing import Any, BinaryIO, Union, cast
 
@@ -341,6 +341,11 @@ def _check_member_type(archive: Path, name: str, member: TarMember) -> None:
         raise UnsafeArchiveMemberError(f"{archive}: member {name!r} has an unsupported type {member.type!r}")
 
 
+def _truncated(archive: Path, name: str, got: int, size: int) -> ArchiveError:
+    """The error of a member whose data end before its size."""
+    return ArchiveError(f"{archive}: member {name!r} is truncated ({got} of {size} bytes)")
+
+
 def _data_error(archive: Path, name: str | None, error: Exception) -> ArchiveError:
     """The error of a member whose data end early or do not decompress."""
     return ArchiveError(f"{archive}: truncated or corrupt data in member {name!r}: {error}")
@@ -353,7 +358,7 @@ def _read_member_data(tar: TarStreamReader, archive: Path, name: str, size: int)
     except _STREAM_ERRORS as error:
         raise _data_error(archive, name, error) from error
     if len(data) != size:
-        raise ArchiveError(f"{archive}: member {name!r} is truncated ({len(data)} of {size} bytes)")
+        raise _truncated(archive, name, len(data), size)
     return data
 
 
@@ -459,30 +464,24 @@ class MemberReader:
         self.position = 0
 
     def read(self, size: int) -> bytes:
-        size = min(size, self.size - self.position)
-        try:
-            data = self._tar.read_data(size)
-        except _STREAM_ERRORS as error:
-            raise _data_error(self._archive, self.name, error) from error
-        self.position += len(data)
-        if len(data) != size:
-            raise ArchiveError(
-                f"{self._archive}: member {self.name!r} is truncated ({self.position} of {self.size} bytes)"
-            )
-        return data
+        return self._take(self._tar.read_data, size, whole=True)
 
     def read1(self, size: int) -> bytes:
         """Up to `size` of its next bytes, as one read of the stream gives them (a copy loop's pieces: no
         piece is gathered from smaller ones); b'' at its end. A member that ends early raises as `read`."""
+        return self._take(self._tar.read_data1, size, whole=False)
+
+    def _take(self, read_data: Callable[[int], bytes], size: int, *, whole: bool) -> bytes:
+        """The next bytes by `read_data` (all `size` of them when `whole`, else at least one), at most to the
+        member's end; a stream that ends or breaks first is the member's error."""
+        size = min(size, self.size - self.position)
         try:
-            data = self._tar.read_data1(min(size, self.size - self.position))
+            data = read_data(size)
         except _STREAM_ERRORS as error:
             raise _data_error(self._archive, self.name, error) from error
         self.position += len(data)
-        if not data and size > 0 and self.position < self.size:
-            raise ArchiveError(
-                f"{self._archive}: member {self.name!r} is truncated ({self.position} of {self.size} bytes)"
-            )
+        if (len(data) != size) if whole else (size > 0 and not data):
+            raise _truncated(self._archive, self.name, self.position, self.size)
         return data
 
     def skip(self, size: int) -> None:

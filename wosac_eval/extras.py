@@ -44,6 +44,11 @@ class EngineNotInstalledError(EngineUnavailableError):
     """The requested engine's package is not installed: unlike an unreachable cluster, no retry brings it."""
 
 
+class EngineAuthenticationError(EngineUnavailableError):
+    """The cluster turned away this process's credentials (no token, or another one): a retry would send
+    the same, so none is made."""
+
+
 def check_backend(name: str) -> Backend:
     """Validates a backend name (`Backend.parse`) and that its dependencies import; returns the member."""
     backend = Backend.parse(name)

@@ -40,7 +40,7 @@ import traceback
 from collections.abc import Callable
 from pathlib import Path
 
-from wosac_eval.extras import EngineNotInstalledError, EngineUnavailableError
+from wosac_eval.extras import EngineAuthenticationError, EngineNotInstalledError, EngineUnavailableError
 from wosac_eval.options import Engine, MetadataChecks
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import SubmissionSource
@@ -155,12 +155,12 @@ ENGINE_RETRY_S = 2.0
 def _with_engine_retries(job_id: str, score: Callable[[], dict]) -> dict:
     """`score()`, tried again up to ENGINE_ATTEMPTS in all while the scoring engine is unavailable (the
     engine is reached before any other work, so a try costs only the connection; the last error is raised
-    with the number of attempts). A missing Ray package fails at once."""
+    with the number of attempts). A missing Ray package, or a token the cluster refuses, fails at once."""
     for attempt in range(1, ENGINE_ATTEMPTS + 1):
         try:
             return score()
-        except EngineNotInstalledError:
-            raise  # Ray is not installed here: no retry brings it
+        except (EngineNotInstalledError, EngineAuthenticationError):
+            raise  # Ray is not installed here, or the cluster refused our token: no retry brings either
         except EngineUnavailableError as exc:
             if attempt == ENGINE_ATTEMPTS:
                 raise EngineUnavailableError(f"{exc} ({ENGINE_ATTEMPTS} attempts)") from exc

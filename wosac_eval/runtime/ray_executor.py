@@ -37,7 +37,7 @@ from typing import Any
 
 import ray
 
-from wosac_eval.extras import EngineUnavailableError
+from wosac_eval.extras import EngineAuthenticationError, EngineUnavailableError
 
 MAX_RETRIES = 3  # system failures (a dead worker process or node) per task
 IN_FLIGHT_PER_CPU = 2
@@ -176,11 +176,11 @@ def connect(address: str | None = None) -> None:
             _init_with_retries(address)
     except ray.exceptions.AuthenticationError as error:  # RAY_AUTH_MODE=token: no token, or a rejected one
         _replay(logged, drop_ray_log=True)
-        raise EngineUnavailableError(_auth_advice(where, "no authentication token" not in str(error))) from None
+        raise EngineAuthenticationError(_auth_advice(where, "no authentication token" not in str(error))) from None
     except (ConnectionError, RuntimeError, ValueError, TimeoutError) as error:
         if "InvalidAuthToken" in "".join(logged):  # the head turned the token away on every try
             _replay(logged, drop_ray_log=True)
-            raise EngineUnavailableError(_auth_advice(where, True)) from None
+            raise EngineAuthenticationError(_auth_advice(where, True)) from None
         _replay(logged)
         if address and address.startswith("ray://") and "timeout" in str(error):
             raise EngineUnavailableError(_client_advice(where, error)) from None

@@ -237,13 +237,23 @@ class Feature:
     metric: metric_registry.Metric | None = None
 
 
-def _kinematic_at(index: int, c: FeatureContext):
-    return c.reported(c.kinematics[index])
+# Kernels are module functions, never lambdas or `functools.partial`s: entries travel to worker processes
+# (pickled by name, they come back as the same function), and the JAX programs are found by the entries'
+# equality, which a partial loses in the round trip (each batch a worker prepared was traced anew).
+def _linear_speed(c: FeatureContext):
+    return c.reported(c.kinematics[0])
 
 
-def _kinematic(index: int) -> Callable:
-    # A partial of a module function, not a lambda: entries travel to worker processes (pickled).
-    return functools.partial(_kinematic_at, index)
+def _linear_acceleration(c: FeatureContext):
+    return c.reported(c.kinematics[1])
+
+
+def _angular_speed(c: FeatureContext):
+    return c.reported(c.kinematics[2])
+
+
+def _angular_acceleration(c: FeatureContext):
+    return c.reported(c.kinematics[3])
 
 
 def _collision_per_step(c: FeatureContext):
@@ -310,10 +320,10 @@ def _red_light_violation(c: FeatureContext):
 
 
 OFFICIAL_FEATURES: tuple[Feature, ...] = (
-    Feature("linear_speed", _kinematic(0)),
-    Feature("linear_acceleration", _kinematic(1)),
-    Feature("angular_speed", _kinematic(2)),
-    Feature("angular_acceleration", _kinematic(3)),
+    Feature("linear_speed", _linear_speed),
+    Feature("linear_acceleration", _linear_acceleration),
+    Feature("angular_speed", _angular_speed),
+    Feature("angular_acceleration", _angular_acceleration),
     Feature("distance_to_nearest_object", _nearest_object),
     Feature("collision_per_step", _collision_per_step, "bool"),
     Feature("time_to_collision", _time_to_collision),
@@ -330,7 +340,8 @@ def register(feature: Feature) -> None:
     """Adds a per-step feature (and its metric, if it has one) after the official ones.
 
     Raises:
-      ValueError: the name is taken, a need is not a `MAP_PARTS` name, or the metric is refused
+      ValueError: the name is taken, the kernel is a lambda or a `functools.partial`, a need is not a
+        `MAP_PARTS` name, or the metric is refused
         (`metrics.registry.register_metric`).
     """
     if feature.name in {f.name for f in features()}:
@@ -338,6 +349,12 @@ def register(feature: Feature) -> None:
     unknown = set(feature.needs) - {p.name for p in MAP_PARTS}
     if unknown:
         raise ValueError(f"feature {feature.name!r} needs unknown map parts {sorted(unknown)}")
+    if isinstance(feature.kernel, functools.partial) or getattr(feature.kernel, "__name__", "") == "<lambda>":
+        raise ValueError(
+            f"feature {feature.name!r}: its kernel must be a module-level function, not a lambda or a "
+            "functools.partial (worker processes receive entries pickled, and a partial unpickled no longer "
+            "equals its entry: the JAX backend would trace its program again for every batch)"
+        )
     if feature.dtype not in ("float32", "bool"):
         raise ValueError(f"feature {feature.name!r}: dtype must be 'float32' or 'bool', got {feature.dtype!r}")
     if feature.metric is not None:

@@ -26,8 +26,9 @@ from pathlib import Path
 
 import pytest
 
-from support.paths import JAX_TEST_CACHE, require_shared
+from support.paths import JAX_TEST_CACHE, JAX_TEST_PROGRAMS, require_shared
 from support.processes import alive, command_line, left_behind
+from wosac_eval.runtime.cache_dirs import bounded
 
 # Not a WOSAC_* name: the service harness passes no WOSAC_* variable of the test run on to a server.
 SESSION_MARK = "PYTEST_WOSAC_EVAL_SESSION"
@@ -40,9 +41,15 @@ if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
 # and every process they start, and by later runs: the JAX tests spend most of their time compiling, the
 # same programs each run. A program is found by a digest of its HLO, the compiler's flags (XLA_FLAGS) and
 # the JAX and XLA versions, so a changed program compiles anew. Set JAX_COMPILATION_CACHE_DIR to choose
-# the folder (CI keeps its own between its runs, .ci/run); the least recently used programs go past 2 GiB.
+# the folder (CI keeps its own between its runs, .ci/run). It is emptied at the start of a run when it
+# holds more than 2 GiB (`program_cache.bounded`: not JAX's own size limit, which one interrupted write
+# turns into a cache that stores nothing more).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_TEST_CACHE))
-os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(2 << 30))
+if "PYTEST_XDIST_WORKER" not in os.environ:  # the run's first process, before any worker starts
+    bounded(Path(os.environ["JAX_COMPILATION_CACHE_DIR"]), 2 << 30)
+# The traced `--backend jax` programs likewise (`backends/program_cache`: found by a digest of the
+# package's sources, so a changed kernel traces anew), never the user's own folder.
+os.environ.setdefault("WOSAC_JAX_PROGRAM_CACHE", str(JAX_TEST_PROGRAMS))
 LEAK_GRACE_S = 5.0
 _LEAKS_KEY = pytest.StashKey[list]()
 _LEAKS_OUTPUT = "wosac_processes_left_behind"  # in an xdist worker's workeroutput

@@ -18,6 +18,7 @@ SHARED = Path(os.environ["WOSAC_SHARED"]).resolve() if os.environ.get("WOSAC_SHA
 TEST_DATA = REPO / "tests" / "data"
 # The tests' JAX compilation cache (tests/conftest.py), in the user's cache folder as pip's and numba's are.
 JAX_TEST_CACHE = user_cache_dir("jax-tests")
+JAX_TEST_PROGRAMS = user_cache_dir("jax-test-programs")  # their traced programs (backends/program_cache)
 
 
 def shared_missing_reason(what: str = "golden") -> str | None:

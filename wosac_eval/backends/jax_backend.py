@@ -29,6 +29,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
+from collections.abc import Callable
 
 import jax
 import numpy as np
@@ -37,6 +38,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.backends import program_cache
 from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends.jax_driver import (  # noqa: F401
     MIN_BUCKET,
@@ -179,6 +181,18 @@ def _features_fn(layout: mf.FeatureLayout, features: tuple):
     return jax.jit(vmap_scenes(exactly_rounded(one_scene)))
 
 
+def _features_program(layout: mf.FeatureLayout, features: tuple, args) -> Callable:
+    """`_features_fn(layout, features)` for `args`, kept between runs (`program_cache`) when every kernel
+    is this package's."""
+    jitted = _features_fn(layout, features)
+    if not all(program_cache.is_ours(f.kernel) for f in features):
+        return jitted
+    static = repr(layout) + "".join(
+        f"|{f.name}:{f.kernel.__module__}.{f.kernel.__qualname__}:{f.dtype}:{','.join(f.needs)}" for f in features
+    )
+    return program_cache.kept("features", static, jitted, args)
+
+
 def _per_call(key: BucketKey, max_batch: int) -> int:
     """Scenarios of one bucket per call: at most `max_batch`, fewer for big scenes; a power of two."""
     fit = max(1, PAIRS_PER_BATCH // (key.samples * key.steps * key.sizes.objects * key.sizes.evaluated))
@@ -232,8 +246,8 @@ class FeaturePipeline:
             self.compiled.clear()
         self.compiled.add(program)
         with jax.enable_x64(True):
-            zero = np.zeros(size, np.int32)  # the exact mode's run-time zero, one per scenario
-            self.dispatched.append((items, _features_fn(layout, key.features)(zero, *stacked(padded))))
+            args = (np.zeros(size, np.int32), *stacked(padded))  # the exact mode's run-time zero per scenario
+            self.dispatched.append((items, _features_program(layout, key.features, args)(*args)))
 
     def _collect(self, keep: int) -> list:
         done = []

@@ -265,9 +265,12 @@ def run(args: argparse.Namespace) -> int:
     except (BackendUnavailableError, EngineUnavailableError, ValueError) as error:
         raise UsageError(str(error)) from None
     if evaluation.options.backend is Backend.JAX:
-        # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds).
+        # This process is the CLI's own: features bit-identical to numpy on CPU (no fused multiply-adds),
+        # and XLA's compiled programs kept between runs (JAX's persistent compilation cache).
         from wosac_eval.backends.jax_backend import exact_cpu
+        from wosac_eval.backends.program_cache import keep_compiled_programs
 
+        keep_compiled_programs()  # before the first compilation (exact_cpu's probe), when JAX reads it
         exact_cpu()
     objects = _objects(args)
     journal = _journal(args)

@@ -115,6 +115,13 @@ def sections(repeat: str, sizes: list[str]) -> tuple[Section, ...]:
             needs="jax",
         ),
         Section(
+            "jax-programs",
+            "JAX: a first run and a later one",
+            "jax_program_cache.py",
+            default=False,
+            needs="jax",
+        ),
+        Section(
             "full-scale",
             "The whole validation set",
             "full_scale.py",

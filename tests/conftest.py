@@ -42,7 +42,7 @@ if "xla_cpu_max_isa" not in os.environ.get("XLA_FLAGS", ""):
 # same programs each run. A program is found by a digest of its HLO, the compiler's flags (XLA_FLAGS) and
 # the JAX and XLA versions, so a changed program compiles anew. Set JAX_COMPILATION_CACHE_DIR to choose
 # the folder (CI keeps its own between its runs, .ci/run). It is emptied at the start of a run when it
-# holds more than 2 GiB (`program_cache.bounded`: not JAX's own size limit, which one interrupted write
+# holds more than 2 GiB (`runtime.cache_dirs.bounded`: not JAX's own size limit, which one interrupted write
 # turns into a cache that stores nothing more).
 os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(JAX_TEST_CACHE))
 if "PYTEST_XDIST_WORKER" not in os.environ:  # the run's first process, before any worker starts

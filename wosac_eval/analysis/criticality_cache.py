@@ -33,10 +33,9 @@ from pathlib import Path
 
 import google_crc32c
 
-from wosac_eval.runtime.cache_dirs import user_cache_dir
+from wosac_eval.runtime.cache_dirs import configured_cache
 
 ENV = "WOSAC_CRITICALITY_CACHE"
-OFF = frozenset({"off", "0", "no", "false"})
 MAX_ROWS = 250_000  # about 1 KB each: five validation sets
 LOCK_TIMEOUT_S = 30.0  # SQLite waits this long for another process's write
 
@@ -66,10 +65,7 @@ def code_version() -> str:
 
 def cache_path() -> Path | None:
     """Where the cache lives (`$WOSAC_CRITICALITY_CACHE`, else the user's cache folder); None when off."""
-    setting = os.environ.get(ENV, "").strip()
-    if setting.lower() in OFF:
-        return None
-    return Path(setting) if setting else user_cache_dir("criticality.sqlite3")
+    return configured_cache(ENV, "criticality.sqlite3")
 
 
 class CriticalityCache:

@@ -39,10 +39,9 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from wosac_eval.runtime.cache_dirs import bounded, user_cache_dir
+from wosac_eval.runtime.cache_dirs import bounded, configured_cache, user_cache_dir
 
 ENV = "WOSAC_JAX_PROGRAM_CACHE"
-OFF = frozenset({"off", "0", "no", "false"})
 MAX_BYTES = 512 << 20  # a program is 0.1-1 MB: thousands of buckets
 SUFFIX = ".jaxexport"
 PACKAGE = "wosac_eval"
@@ -54,10 +53,7 @@ stats = {"read": 0, "written": 0}  # files read back and written by this process
 
 def cache_dir() -> Path | None:
     """Where the programs live (`$WOSAC_JAX_PROGRAM_CACHE`, else the user's cache folder); None when off."""
-    setting = os.environ.get(ENV, "").strip()
-    if setting.lower() in OFF:
-        return None
-    return Path(setting) if setting else user_cache_dir("jax-programs")
+    return configured_cache(ENV, "jax-programs")
 
 
 @functools.cache
@@ -163,15 +159,15 @@ def _write(folder: Path, name: str, exported) -> None:
 
 def _prune(folder: Path) -> None:
     try:
-        files = [(p.stat().st_mtime, p.stat().st_size, p) for p in folder.glob("*" + SUFFIX)]
+        files = [(p.stat(), p) for p in folder.glob("*" + SUFFIX)]
     except OSError:
         return
-    total = sum(size for _, size, _ in files)
-    for _, size, path in sorted(files, key=lambda f: f[0]):
+    total = sum(stat.st_size for stat, _ in files)
+    for stat, path in sorted(files, key=lambda f: f[0].st_mtime):
         if total <= MAX_BYTES:
             break
         path.unlink(missing_ok=True)
-        total -= size
+        total -= stat.st_size
 
 
 _warned: set[Path] = set()

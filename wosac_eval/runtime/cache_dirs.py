@@ -12,6 +12,18 @@ def user_cache_dir(*parts: str) -> Path:
     return Path(root, "wosac-eval", *parts)
 
 
+OFF = frozenset({"off", "0", "no", "false"})
+
+
+def configured_cache(env: str, *parts: str) -> Path | None:
+    """The cache a setting `env` names: None when it says off ("off", "0", "no", "false"), its path when it
+    gives one, else `user_cache_dir(*parts)`."""
+    setting = os.environ.get(env, "").strip()
+    if setting.lower() in OFF:
+        return None
+    return Path(setting) if setting else user_cache_dir(*parts)
+
+
 def bounded(folder: Path, max_bytes: int) -> bool:
     """Empties `folder` (a cache: what it held is rebuilt on demand) when its files hold more than
     `max_bytes`; True if it did.

@@ -253,6 +253,7 @@ class Worker:
         signal.signal(signal.SIGTERM, self._on_term)
         signal.signal(signal.SIGINT, self._on_term)
         # (A SIGTERM before the line above ended this process: nothing to release yet.)
+        log.info("worker %s: ready, looking for queued jobs every %g s", os.getpid(), self.settings.poll_s)
         while not self.stopping and self.parent_alive():
             try:
                 busy = self.run_once()

@@ -67,6 +67,15 @@ def test_the_documents_show_the_operator_commands():
         assert piece in commands, piece
 
 
+def wait_for_line(log: Path, text: str, process: subprocess.Popen, timeout: float) -> None:
+    """Waits until `text` is in the log, failing at once when the process exits first."""
+    deadline = time.monotonic() + timeout
+    while text not in log.read_text(errors="replace"):
+        assert process.poll() is None, f"exited with {process.returncode}\n{log.read_text()[-3000:]}"
+        assert time.monotonic() < deadline, f"no {text!r} in {timeout} s\n{log.read_text()[-3000:]}"
+        time.sleep(0.2)
+
+
 def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
     """A serve or worker line: started, healthy (serve) or running (worker), then stopped by SIGTERM."""
     port = free_port()
@@ -84,8 +93,11 @@ def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
         if " serve" in command:
             wait_healthy(f"http://127.0.0.1:{port}", process, timeout=60)
         else:
-            time.sleep(3)  # a worker has nothing to answer: it must still be polling after its start-up
-            assert process.poll() is None, f"exited with {process.returncode}"
+            # A worker has nothing to answer: its log says when it has its SIGTERM handler and polls
+            # (its imports take over 3 s on a busy host, and a SIGTERM before that ends it by the signal).
+            wait_for_line(log, ": ready, looking for queued jobs", process, timeout=60)
+            time.sleep(1)  # and it goes on polling
+            assert process.poll() is None, f"exited with {process.returncode}\n{log.read_text()[-3000:]}"
         process.send_signal(signal.SIGTERM)
         assert process.wait(60) == 0, f"{command}: exit {process.returncode}\n{log.read_text()[-3000:]}"
     finally:

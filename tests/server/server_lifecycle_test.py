@@ -15,7 +15,7 @@ import time
 import pytest
 
 from support.processes import processes_of, wait_gone
-from support.server_harness import Server
+from support.server_harness import Server, wait_healthy
 
 pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
 
@@ -127,7 +127,7 @@ def test_serve_stops_its_workers_before_it_exits(tmp_path):
     server, proc = _serve(tmp_path)
     try:
         _wait_for_workers(server, proc)
-        time.sleep(1.5)  # past its start-up: uvicorn serves
+        wait_healthy(server.url, proc, timeout=60)  # past its start-up: uvicorn serves
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(60) == 0, server.log.read_text()
         assert processes_of(server.data_dir) == {}  # the workers ended (and were reaped) before serve did

@@ -111,7 +111,7 @@ def scenario_gen_inputs(folder: Path) -> tuple:
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import policy_rollouts
 
-    scene = scenes.generate_scenes(10, seed=5)[6]
+    scene = scenes.generate_scene(5, 6)
     shard = scenes.write_scenario_shards([scene], folder, num_shards=1)[0]
     rollouts = policy_rollouts(scene, "log_replay_noise", challenge="scenario_gen")
     submission = sim_agents_submission_pb2.SimAgentsChallengeSubmission(scenario_rollouts=[rollouts_message(rollouts)])

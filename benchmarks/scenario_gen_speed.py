@@ -55,7 +55,7 @@ elif which == "real-128":
     from score_objects import scene_with
     scenario = scene_with(next(s for s, _ in iter_scenarios(sys.argv[3])), 128, 128)
 else:
-    scenario = scenes.generate_scenes(10, seed=5)[6]
+    scenario = scenes.generate_scene(5, 6)
 rollouts = policy_rollouts(scenario, "log_replay_noise", challenge="scenario_gen")
 r = stage_breakdown(scenario.SerializeToString(), rollouts_bytes(rollouts), load_config("scenario_gen_2025"),
                     "scenario_gen", repeat)

@@ -95,7 +95,7 @@ def red_light_figures() -> None:
 
 def gradient_figures() -> None:
     """Gradient of the soft meta-metric on a demo scene, and `check_grads` of a shift of one agent."""
-    scene = scenes.generate_scenes(10, seed=0)[1]
+    scene = scenes.generate_scene(0, 1)
     prepared = jax_realism.prepare([scene], search="device")
     arrays = {
         k: jnp.asarray(v) for k, v in jax_realism.stack_rollouts(prepared, [policy_rollouts(scene, "idm")]).items()

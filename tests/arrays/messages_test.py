@@ -157,7 +157,7 @@ def test_joint_scene_of_one_rollout():
 
 @pytest.fixture(scope="module")
 def scene():
-    return scenes.generate_scenes(3, seed=2)[1]
+    return scenes.generate_scene(2, 1)
 
 
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])

@@ -28,7 +28,7 @@ CHALLENGES = ("sim_agents", "scenario_gen")
 
 
 def demo_set(challenge: str, keys=(1,)):
-    scs = [scenes.generate_scenes(10, seed=0)[k] for k in keys]
+    scs = [scenes.generate_scene(0, k) for k in keys]
     policy = "idm" if challenge == "sim_agents" else "log_replay_noise"
     return scs, [policy_rollouts(sc, policy, challenge=challenge) for sc in scs]
 

@@ -68,7 +68,7 @@ def in_jit(mode: str, prepared, arrays: dict):
 @lru_cache(maxsize=None)
 def scene_set(challenge: str):
     """Three demo scenes of different sizes, their rollouts (IDM / scenario-gen log replay) and arrays."""
-    scs = [scenes.generate_scenes(10, seed=0)[k] for k in (1, 5, 8)]
+    scs = [scenes.generate_scene(0, k) for k in (1, 5, 8)]
     policy = "idm" if challenge == "sim_agents" else "log_replay_noise"
     rollouts = [policy_rollouts(sc, policy, challenge=challenge) for sc in scs]
     return scs, rollouts

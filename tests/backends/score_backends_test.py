@@ -112,7 +112,7 @@ def test_pipelined_jax_file_path_equals_numpy_on_demo_scenes(tmp_path):
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import make_submission
 
-    shards = scenes.write_scenario_shards(scenes.generate_scenes(10, seed=0)[:5], tmp_path / "scenarios", num_shards=2)
+    shards = scenes.write_scenario_shards(scenes.generate_scenes(5, seed=0), tmp_path / "scenarios", num_shards=2)
     submission = make_submission(shards, "idm", tmp_path / "idm.tar.gz", num_shards=2)
     numpy_result = score_submission(shards, submission)
     for workers in (1, 2):

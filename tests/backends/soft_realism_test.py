@@ -37,7 +37,7 @@ CHECK_EPS = 2e-3  # its finite-difference step: the float32 surrogate's rounding
 @cache
 def demo():
     """One small demo scene prepared for the device searches, and its IDM rollouts as device arrays."""
-    scene = scenes.generate_scenes(10, seed=0)[1]
+    scene = scenes.generate_scene(0, 1)
     prepared = jax_realism.prepare([scene], search="device")
     arrays = jax_realism.stack_rollouts(prepared, [policy_rollouts(scene, "idm")])
     return prepared, {k: jnp.asarray(v) for k, v in arrays.items()}
@@ -107,7 +107,7 @@ def test_host_searches_and_bad_temperatures_are_refused():
     prepared, arrays = demo()
     with pytest.raises(ValueError, match="temperature must be positive"):
         jax_realism.soft_realism(prepared, **arrays, temperature=0.0)
-    host = jax_realism.prepare([scenes.generate_scenes(10, seed=0)[1]], search="host")
+    host = jax_realism.prepare([scenes.generate_scene(0, 1)], search="host")
     with pytest.raises(ValueError, match="search='device'"):
         jax_realism.soft_realism(host, **arrays)
 

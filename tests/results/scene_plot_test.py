@@ -22,9 +22,10 @@ def files(tmp_path_factory):
     from wosac_eval.sim.baselines import make_submission
 
     folder = tmp_path_factory.mktemp("plot")
-    paths = scenes.write_scenario_shards(scenes.generate_scenes(2, seed=5), folder / "scenarios", num_shards=1)
+    generated = scenes.generate_scenes(2, seed=5)
+    paths = scenes.write_scenario_shards(generated, folder / "scenarios", num_shards=1)
     submission = make_submission(paths, "idm", folder / "idm.tar.gz", num_shards=1)
-    ids = [s.scenario_id for s in scenes.generate_scenes(2, seed=5)]
+    ids = [s.scenario_id for s in generated]
     return paths[0], submission, ids
 
 

@@ -279,3 +279,23 @@ def test_score_with_a_binary_config_names_the_file(tmp_path, scene_and_submissio
     proc = run_cli("score", "--scenarios", str(scenarios), "--submission", str(submission), "--config", str(config))
     assert_one_clean_error(proc, f"{config}: not a SimAgentMetricsConfig textproto: not UTF-8 text (byte 7 is 0xff)")
     assert "codec" not in proc.stderr
+
+
+def test_a_command_loads_only_its_own_modules():
+    """`wosac-eval compare` and `report` read result files: they start without the scoring stack, which
+    `score` loads; `--help` still lists every command."""
+    from wosac_eval.fronts import cli
+
+    for name in cli.command_names():
+        assert __import__(f"wosac_eval.fronts.commands.{name}", fromlist=["NAME"]).NAME == name
+    probe = (
+        "import sys; from wosac_eval.fronts import cli; sys.argv = ['wosac-eval', '{0}', '--help']\n"
+        "try: cli.main()\nexcept SystemExit: pass\n"
+        "print('wosac_eval.scoring.submission' in sys.modules)"
+    )
+    for name, loaded in (("compare", "False"), ("report", "False"), ("score", "True")):
+        done = subprocess.run([sys.executable, "-c", probe.format(name)], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert f"usage: wosac-eval {name}" in done.stdout and done.stdout.splitlines()[-1] == loaded, done.stdout
+    listing = run_cli("--help")
+    assert listing.returncode == 0 and all(name in listing.stdout for name in cli.command_names())

@@ -1,7 +1,8 @@
 """The `wosac-eval` command line.
 
 Each sub-command lives in its own module under `wosac_eval.fronts.commands`
-and exposes `NAME`, `HELP`, `add_arguments(parser)` and `run(args) -> int`.
+and exposes `NAME` (the module's name), `HELP`, `add_arguments(parser)` and
+`run(args) -> int`; a run imports only its own command's module.
 The exit-code contract shared by every command: 0 success, 1 the input was
 judged bad (invalid submission, failed gate), 2 usage error (or an internal
 error, reported in one line; `WOSAC_EVAL_DEBUG=1` shows its traceback),
@@ -28,13 +29,15 @@ EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 141  # 128 + SIGPIPE, what a C tool's shell status would be
 
 
-def _command_modules():
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda i: i.name):
-        if not info.name.startswith("_") and not info.name.endswith("_test"):
-            yield importlib.import_module(f"{commands.__name__}.{info.name}")
+def command_names() -> list[str]:
+    """The sub-commands, one module each, found without importing them."""
+    found = pkgutil.iter_modules(commands.__path__)
+    return sorted(i.name for i in found if not i.name.startswith("_") and not i.name.endswith("_test"))
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with `only`, that command's options alone: the others are bare names, so
+    that a run imports only its own command's modules (`compare` does not load the scoring stack)."""
     parser = argparse.ArgumentParser(
         prog="wosac-eval",
         description="Exact WOSAC realism metrics, without TensorFlow.",
@@ -43,7 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
         "--version", action="version", version=f"wosac-eval {__version__} (metrics of waymo-open-dataset 1.6.7)"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for module in _command_modules():
+    for name in command_names():
+        if only is not None and name != only:
+            sub.add_parser(name)
+            continue
+        module = importlib.import_module(f"{commands.__name__}.{name}")
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
@@ -59,8 +66,9 @@ def _quiet_stdout() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = sys.argv[1:] if argv is None else argv
+    parser = build_parser(only=words[0] if words and words[0] in command_names() else None)
+    args = parser.parse_args(words)
     if not hasattr(args, "_run"):
         parser.print_help(sys.stderr)
         return EXIT_USAGE

@@ -175,8 +175,8 @@ class SubmissionWriter:
                 stream.close()
 
 
-# ISA-L's deflate at its highest level (3): on rollouts about 7x faster than zlib's default level 9
-# (a 20 GiB submission: minutes, not most of an hour), for archives about 7% larger. Any gzip reader reads it.
+# ISA-L's deflate at its highest level (3): on rollouts 4-7x faster than zlib's default level 9 (a 20 GiB
+# submission: minutes, not most of an hour), for archives 7-11% larger (benchmarks/submission_archive.py).
 ARCHIVE_LEVEL = 3
 
 

@@ -1,20 +1,15 @@
 """Realism as a JAX function on device arrays: prepare scenes once, score new rollouts every training step.
 
-`prepare(scenarios)` does the host work once per scene set: the log in the
-official object order, the map (road-edge segments, stop lines, lane
-segments), the trailing-packet masks of the official float32 ops, all padded
-to common sizes and stacked into a device pytree (`PreparedScenes`).
-`realism(prepared, x, y, z, heading)` then runs the whole metric on the
-device: rollouts gathered into the official order, joined to the logged
-history, per-step features (`metric_features.per_step_features`),
-log-likelihoods and every `SimAgentMetrics` field
-(`metrics.scenario_metrics.metric_values`), per scene, under one `jax.jit`.
-The four nearest-thing searches run where `prepare`'s `search` says: on the
-device over fixed-size candidate sets (`dense.DenseSearch`, an accelerator's
-choice), or, on a CPU, in the numpy path's compiled, pruned search called back
-from the trace (`host_search.HostSearch`). It is the same orchestration as the file path; padding
-(objects, evaluated objects, map entries) is masked everywhere, so it never
-changes a result.
+`prepare(scenarios)` does the host work once per scene set: the log in the official object order, the map
+(road-edge segments, stop lines, lane segments), the trailing-packet masks of the official float32 ops, all
+padded to common sizes and stacked into a device pytree (`PreparedScenes`). `realism(prepared, x, y, z,
+heading)` then runs the whole metric on the device: rollouts gathered into the official order, joined to the
+logged history, per-step features (`metric_features.per_step_features`), log-likelihoods and every
+`SimAgentMetrics` field (`metrics.scenario_metrics.metric_values`), per scene, under one `jax.jit`. The four
+nearest-thing searches run where `prepare`'s `search` says: on the device over fixed-size candidate sets
+(`dense.DenseSearch`, an accelerator's choice), or, on a CPU, in the numpy path's compiled, pruned search
+called back from the trace (`host_search.HostSearch`). It is the same orchestration as the file path; padding
+(objects, evaluated objects, map entries) is masked everywhere, so it never changes a result.
 
 Shapes: rollouts are `(num_scenes, num_rollouts, max_agents, num_steps)`
 with the agents in the order of `prepared.sim_agent_ids` (`-1` columns are
@@ -505,11 +500,8 @@ def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: Host
 
 
 def _scenes_in_mode(one, mode: str):
-    """`one` over the stacked scenes (`jax_driver.vmap_scenes`). In exact mode every float32 multiply,
-    division, root and transcendental rounded once from float64, so that no compiler can fuse or
-    approximate it (`exact_rounding`): exact on any device. The rewrite reads the batched program (it
-    wraps the `vmap`): the same operations, traced in two thirds of the time, as the loops' batching rules
-    then run over the smaller program."""
+    """`one` over the stacked scenes (`jax_driver.vmap_scenes`); in exact mode rewritten by `exact_rounding`
+    (exact on any device). The rewrite wraps the `vmap`: batching the unrewritten program is faster."""
     batched = jax_driver.vmap_scenes(one)
     if mode != "exact":
         return batched

@@ -36,8 +36,9 @@ def command_names() -> list[str]:
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
-    """The whole command line; with `only`, that command's options alone: the others are bare names, so
-    that a run imports only its own command's modules (`compare` does not load the scoring stack)."""
+    """The whole command line; with `only` a command's name, that command's options alone: the others are
+    bare names, so that a run imports only its own command's modules (`compare` does not load the scoring
+    stack). Any other `only` (an option, a mistyped name) gives the whole command line."""
     parser = argparse.ArgumentParser(
         prog="wosac-eval",
         description="Exact WOSAC realism metrics, without TensorFlow.",
@@ -46,8 +47,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         "--version", action="version", version=f"wosac-eval {__version__} (metrics of waymo-open-dataset 1.6.7)"
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in command_names():
-        if only is not None and name != only:
+    names = command_names()
+    for name in names:
+        if only in names and name != only:
             sub.add_parser(name)
             continue
         module = importlib.import_module(f"{commands.__name__}.{name}")
@@ -67,7 +69,7 @@ def _quiet_stdout() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     words = sys.argv[1:] if argv is None else argv
-    parser = build_parser(only=words[0] if words and words[0] in command_names() else None)
+    parser = build_parser(only=words[0] if words else None)
     args = parser.parse_args(words)
     if not hasattr(args, "_run"):
         parser.print_help(sys.stderr)

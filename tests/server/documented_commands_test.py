@@ -25,7 +25,7 @@ import pytest
 from support.paths import REPO
 from support.processes import alive
 from support.readme_blocks import FENCED_BLOCK
-from support.server_harness import demo_data, free_port, wait_healthy
+from support.server_harness import demo_data, free_port, wait_healthy, wait_logged
 
 DOCUMENTS = (REPO / "README.md", REPO / "server" / "README.md", *sorted((REPO / "docs").glob("*.md")))
 _COMMAND = re.compile(r"^(?:[A-Z_]+=\S+\s+)*wosac-server\s+[a-z]")
@@ -67,15 +67,6 @@ def test_the_documents_show_the_operator_commands():
         assert piece in commands, piece
 
 
-def wait_for_line(log: Path, text: str, process: subprocess.Popen, timeout: float) -> None:
-    """Waits until `text` is in the log, failing at once when the process exits first."""
-    deadline = time.monotonic() + timeout
-    while text not in log.read_text(errors="replace"):
-        assert process.poll() is None, f"exited with {process.returncode}\n{log.read_text()[-3000:]}"
-        assert time.monotonic() < deadline, f"no {text!r} in {timeout} s\n{log.read_text()[-3000:]}"
-        time.sleep(0.2)
-
-
 def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
     """A serve or worker line: started, healthy (serve) or running (worker), then stopped by SIGTERM."""
     port = free_port()
@@ -95,7 +86,8 @@ def _run_long_lived(command: str, cwd: Path, env: dict, log: Path) -> None:
         else:
             # A worker has nothing to answer: its log says when it has its SIGTERM handler and polls
             # (its imports take over 3 s on a busy host, and a SIGTERM before that ends it by the signal).
-            wait_for_line(log, ": ready, looking for queued jobs", process, timeout=60)
+            ready = wait_logged(log, ": ready, looking for queued jobs", timeout=60, process=process)
+            assert ": ready, looking for queued jobs" in ready, f"exit {process.poll()}\n{ready[-3000:]}"
             time.sleep(1)  # and it goes on polling
             assert process.poll() is None, f"exited with {process.returncode}\n{log.read_text()[-3000:]}"
         process.send_signal(signal.SIGTERM)

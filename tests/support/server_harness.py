@@ -273,11 +273,14 @@ def files_under(root: Path) -> set[Path]:
     return {p for p in root.rglob("*") if p.is_file()}
 
 
-def wait_logged(log_path: Path, text: str, timeout: float = 30.0) -> str:
-    """The log once it holds `text` (or as it is after `timeout`): a worker logs some lines after it
-    records a job's end, so a client can see the job ended before they are written."""
+def wait_logged(log_path: Path, text: str, timeout: float = 30.0, process: subprocess.Popen | None = None) -> str:
+    """The log once it holds `text` (or as it is after `timeout`, or once `process`, the writer, has
+    exited): a worker logs some lines after it records a job's end, so a client can see the job ended
+    before they are written."""
     deadline = time.monotonic() + timeout
-    while text not in (log := log_path.read_text()) and time.monotonic() < deadline:
+    while text not in (log := log_path.read_text(errors="replace")) and time.monotonic() < deadline:
+        if process is not None and process.poll() is not None:
+            return log_path.read_text(errors="replace")
         time.sleep(0.1)
     return log
 

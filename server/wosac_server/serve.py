@@ -126,7 +126,7 @@ def _run(args: argparse.Namespace, stop: StopRequest) -> int:
     from . import jobs
     from .app import create_app
     from .guard import accept_backlog, guarded_protocol, install_log_limits
-    from .worker import WorkerPool
+    from .pool import WorkerPool
 
     logging.basicConfig(level=args.log_level.upper(), format="%(asctime)s %(name)s %(levelname)s %(message)s")
     app = create_app(settings)

@@ -14,7 +14,7 @@ another worker. The child's own scoring processes (`WOSAC_SCORE_THREADS` > 1) en
 with it (`wosac_eval.runtime.processes`).
 
 Run one with `wosac-server worker` (configured by the same `WOSAC_*`
-environment as the API); `WorkerPool` starts and supervises N of them. With
+environment as the API); `wosac_server.pool.WorkerPool` starts and supervises N of them. With
 `WOSAC_RAY_ADDRESS` set, each job is fanned out to that Ray cluster, so one
 big submission uses every node.
 
@@ -32,7 +32,6 @@ import os
 import secrets
 import signal
 import socket
-import subprocess
 import sys
 import threading
 import time
@@ -52,7 +51,7 @@ from . import disk, jobs, results
 from .db import Store
 from .job_limits import limit_this_process, why_child_ended
 from .settings import Settings, load_settings
-from .worker_main import PARENT_PID_FLAG, parent_pid_argument, tie_to_supervisor
+from .worker_main import parent_pid_argument, tie_to_supervisor
 
 log = logging.getLogger("wosac_server.worker")
 
@@ -489,69 +488,6 @@ class Worker:
             part = self.settings.uploads_dir / f"{row['id']}.part"
             part.unlink(missing_ok=True)
             self.store.execute("DELETE FROM uploads WHERE id = ? AND submission_id IS NULL", (row["id"],))
-
-
-class WorkerPool:
-    """Starts `n` worker processes and restarts any that exit until `stop()`."""
-
-    def __init__(self, n: int, env: dict[str, str] | None = None, check_s: float = 0.5):
-        self.n = n
-        self.env = dict(os.environ if env is None else env)
-        self.check_s = check_s
-        self.procs: list[subprocess.Popen] = []
-        self._stop = threading.Event()
-        self._lock = threading.Lock()
-        self._monitor = threading.Thread(target=self._watch, name="worker-pool", daemon=True)
-
-    def _spawn(self) -> subprocess.Popen:
-        # Our pid on its command line: the worker checks it before its slow imports (and arms its
-        # parent-death signal), so our death at any moment after this call ends it.
-        return subprocess.Popen(
-            [sys.executable, "-m", "wosac_server.worker_main", PARENT_PID_FLAG, str(os.getpid())], env=self.env
-        )
-
-    def start(self, cancelled: Callable[[], bool] = lambda: False) -> None:
-        """Starts the workers one by one, each recorded as soon as it runs, until `cancelled()` (a stop
-        requested while `serve` starts); `stop()` then stops every one already started."""
-        for _ in range(self.n):
-            with self._lock:
-                if self._stop.is_set() or cancelled():
-                    return
-                self.procs.append(self._spawn())
-        self._monitor.start()
-
-    def pids(self) -> list[int]:
-        with self._lock:
-            return [p.pid for p in self.procs]
-
-    def _watch(self) -> None:
-        # The workers this thread restarts get their parent-death signal when it ends: only in stop(),
-        # which stops them anyway; it must not die of a failed restart, so that is retried.
-        while not self._stop.wait(self.check_s):
-            with self._lock:
-                for i, proc in enumerate(self.procs):
-                    code = proc.poll()
-                    if code is not None and not self._stop.is_set():
-                        log.warning("worker %d exited with %s; starting a new one", proc.pid, code)
-                        try:
-                            self.procs[i] = self._spawn()
-                        except OSError as exc:
-                            log.error("could not start a worker (%s); trying again", exc)
-
-    def stop(self, grace_s: float = 10.0) -> None:
-        self._stop.set()
-        with self._lock:
-            procs = list(self.procs)
-        for proc in procs:
-            if proc.poll() is None:
-                proc.terminate()
-        deadline = time.monotonic() + grace_s
-        for proc in procs:
-            try:
-                proc.wait(max(0.0, deadline - time.monotonic()))
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
 
 
 def main(parent_pid: int | None = None) -> int:

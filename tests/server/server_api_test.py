@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
@@ -53,6 +54,18 @@ def test_health_and_openapi_schema(api_server):
         "/v1/uploads/{upload_id}/complete",
     ):
         assert path in paths
+
+
+@pytest.mark.skipif(not Path("/proc/self/maps").exists(), reason="reads the server's memory map in /proc")
+def test_the_api_process_starts_without_the_scoring_stack(api_server):
+    """`serve` loads what answers requests (the upload check's compiled walks included); the scoring
+    modules (the features' k-d trees, the pictures' plotting) load in its workers, psycopg only for a
+    PostgreSQL store: a second less of every start and restart. Read from the running server's memory map
+    (the compiled extension modules it has loaded)."""
+    loaded = Path(f"/proc/{api_server.proc.pid}/maps").read_text()
+    assert "numba" in loaded  # what the map shows: the extension modules of the packages imported
+    for package in ("scipy/spatial", "matplotlib", "psycopg_binary"):
+        assert package not in loaded, package
 
 
 def test_requests_without_a_valid_key_are_401(api_server):

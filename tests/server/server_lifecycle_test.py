@@ -137,7 +137,7 @@ def test_serve_stops_its_workers_before_it_exits(tmp_path):
 
 ORPHANING_PARENT = textwrap.dedent("""
     import os
-    from wosac_server.worker import WorkerPool
+    from wosac_server.pool import WorkerPool
 
     pool = WorkerPool(2)
     pool.start()

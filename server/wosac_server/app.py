@@ -82,7 +82,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.include_router(module.router)
     install_pages(app, svc)
     install_scene_pages(app, svc)
-    for error_type in disk.full_error_types():
+    for error_type in disk.full_error_types(svc.store.dialect):
         app.add_exception_handler(error_type, _disk_full_answer)
     app.add_middleware(CloseUnreadBodies)  # an early answer closes its connection: no unread body is waited for
     return app

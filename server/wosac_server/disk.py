@@ -59,13 +59,14 @@ def is_disk_full(exc: BaseException) -> bool:
     return getattr(exc, "sqlstate", None) == "53100"  # psycopg's DiskFull
 
 
-def full_error_types() -> list[type[Exception]]:
-    """The exception classes `is_disk_full` may accept (for the app's exception handler)."""
+def full_error_types(dialect: str) -> list[type[Exception]]:
+    """The exception classes `is_disk_full` may accept (for the app's exception handler) with a store of
+    `dialect` ("sqlite" or "postgresql": psycopg imported only for the latter, a slow import)."""
     types: list[type[Exception]] = [OSError, sqlite3.Error]
-    try:
-        import psycopg
-    except ImportError:
+    if dialect != "postgresql":
         return types
+    import psycopg
+
     return [*types, psycopg.errors.DiskFull]
 
 

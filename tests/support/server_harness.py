@@ -10,11 +10,13 @@ import os
 import random
 import signal
 import socket
+import ssl
 import subprocess
 import sys
 import tarfile
 import time
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import httpx
@@ -119,18 +121,27 @@ def free_port() -> int:
     raise RuntimeError("no free 127.0.0.1 port in this worker's class")
 
 
+@cache
+def tls_context() -> ssl.SSLContext:
+    """One TLS context for every client of this process: an httpx client otherwise builds its own (the CA
+    bundle read and parsed, ~40 ms of CPU each), unused on these plain-HTTP loopback URLs; at ten polls a
+    second that was a sixth of the service tests' work."""
+    return ssl.create_default_context()
+
+
 def wait_healthy(url: str, process: subprocess.Popen, timeout: float) -> None:
     """Returns once `url`/healthz answers 200; RuntimeError when `process` exits first or time runs out."""
     deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            raise RuntimeError(f"exited with {process.returncode}")
-        try:
-            if httpx.get(url + "/healthz", timeout=1.0).status_code == 200:
-                return
-        except httpx.HTTPError:
-            pass
-        time.sleep(0.1)
+    with httpx.Client(timeout=1.0, verify=tls_context()) as client:
+        while time.monotonic() < deadline:
+            if process.poll() is not None:
+                raise RuntimeError(f"exited with {process.returncode}")
+            try:
+                if client.get(url + "/healthz").status_code == 200:
+                    return
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.1)
     raise RuntimeError(f"did not come up in {timeout} s")
 
 
@@ -157,6 +168,9 @@ class Server:
             "WOSAC_LEASE_S": "1.5",
             "WOSAC_WORKERS": "1",
             "WOSAC_SHUTDOWN_GRACE_S": "2",
+            # No pictures of the worst scenes (drawn after scoring: ~1.5 s of a job here) unless a test
+            # looks at them and asks (`scene_pictures=3`, the service's default).
+            "WOSAC_SCENE_PICTURES": "0",
             "PYTHONUNBUFFERED": "1",
             # Tests must not depend on how full the machine's disk is, nor leave 64 MiB reserve files:
             # the disk tests (server_disk_test.py) set these on a filesystem of their own.
@@ -228,8 +242,10 @@ class Server:
     def client(self, key: str | None = None, timeout: float = 60.0, source: str | None = None) -> httpx.Client:
         """An HTTP client; `source`: the loopback address it connects from (127.0.0.2 is another client)."""
         headers = {"Authorization": f"Bearer {key}"} if key else {}
-        transport = httpx.HTTPTransport(local_address=source) if source else None
-        return httpx.Client(base_url=self.url, headers=headers, timeout=timeout, transport=transport)
+        transport = httpx.HTTPTransport(local_address=source, verify=tls_context()) if source else None
+        return httpx.Client(
+            base_url=self.url, headers=headers, timeout=timeout, transport=transport, verify=tls_context()
+        )
 
     def wait_state(
         self, client: httpx.Client, submission_id: str, states=("done", "failed"), timeout: float = 90.0

@@ -22,7 +22,7 @@ def scored(tmp_path_factory, scoring_data):
     from support.server_harness import Server
 
     root = tmp_path_factory.mktemp("scene-pages")
-    server = Server(root / "data", scoring_data.scenarios, workers=1).start()
+    server = Server(root / "data", scoring_data.scenarios, workers=1, scene_pictures=3).start()
     try:
         owner, publisher, stranger = server.key("owner"), server.key("publisher"), server.key("stranger")
         ids = {}

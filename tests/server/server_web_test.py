@@ -187,7 +187,7 @@ def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, 
 
 @pytest.mark.browser
 def test_upload_form_status_page_and_leaderboard_in_chromium(make_server, scoring_data, tmp_path):
-    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    server = make_server(workers=1, scenarios=scoring_data.scenarios, scene_pictures=3)
     key = server.key("browser")
     browser = Browser(tmp_path / "profile")
     try:

@@ -37,6 +37,7 @@ from jax import lax  # noqa: E402
 from support import golden, tiling  # noqa: E402
 from wosac_eval.arrays.scenario import scenario_arrays  # noqa: E402
 from wosac_eval.features.metric_features import PER_STEP_FIELDS, scenario_features  # noqa: E402
+from wosac_eval.features.registry import MAP_PARTS  # noqa: E402
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS  # noqa: E402
 from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS  # noqa: E402
 from wosac_eval.scoring.scenario import score_scenario, score_scenario_per_object  # noqa: E402
@@ -80,11 +81,25 @@ def prepared_set(challenge: str, padded: bool = False, grouped: bool = False, se
     (`grouped`: three here, put back in scene order), or padded wider (`padded`); the searches on
     the device (fixed shapes) unless `search` says "host"."""
     scs, rollouts = scene_set(challenge)
-    prepared = jax_realism.prepare(
-        scs, challenge=challenge, min_sizes=(64, 40, 5000, 8, 700) if padded else None, grouped=grouped, search=search
-    )
+    floor = wider_than(prepared_set(challenge)[0]) if padded else None
+    prepared = jax_realism.prepare(scs, challenge=challenge, min_sizes=floor, grouped=grouped, search=search)
     assert len(prepared.groups) == (3 if grouped else 1) and prepared.search == search
     return prepared, jax_realism.stack_rollouts(prepared, rollouts)
+
+
+def padded_sizes(prepared) -> tuple[int, ...]:
+    """The padded sizes of `prepared`'s one group, in `min_sizes` order: objects, evaluated objects, then
+    the registry's map sizes (road-edge segments, signals, lane segments, road-edge grid cells)."""
+    (arrays,) = prepared.arrays
+    maps = arrays["maps"]
+    map_sizes = (np.shape(maps[size.counted_by])[size.axis + 1] for part in MAP_PARTS for size in part.sizes)
+    return (np.shape(arrays["real"])[1], np.shape(arrays["evaluated"])[1], *map_sizes)
+
+
+def wider_than(prepared) -> tuple[int, ...]:
+    """`min_sizes` past every padded size of `prepared`: padding rows in every dimension, each padding rule
+    of the registry at work, and none very wide (on a CPU every padded row costs the program's work)."""
+    return tuple(n + max(3, n // 8) for n in padded_sizes(prepared))
 
 
 def as_numpy(tree):
@@ -132,6 +147,7 @@ def test_padding_never_changes_a_result(challenge, mode):
     padding zeros the reduction meets cannot reach a float32 result."""
     tight, arrays = prepared_set(challenge)
     wide, wide_arrays = prepared_set(challenge, padded=True)
+    assert all(w > t for w, t in zip(padded_sizes(wide), padded_sizes(tight), strict=True))
     assert wide.layout.num_evaluated > tight.layout.num_evaluated
     a = in_jit(mode, tight, arrays)
     b = in_jit(mode, wide, wide_arrays)

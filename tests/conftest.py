@@ -19,6 +19,7 @@ from __future__ import annotations
 import fcntl
 import os
 import signal
+import subprocess
 import sys
 import time
 import uuid
@@ -52,7 +53,45 @@ if "PYTEST_XDIST_WORKER" not in os.environ:  # the run's first process, before a
 os.environ.setdefault("WOSAC_JAX_PROGRAM_CACHE", str(JAX_TEST_PROGRAMS))
 LEAK_GRACE_S = 5.0
 _LEAKS_KEY = pytest.StashKey[list]()
+_NUMBA_WARM_UPS = pytest.StashKey[list]()
 _LEAKS_OUTPUT = "wosac_processes_left_behind"  # in an xdist worker's workeroutput
+
+
+def pytest_configure(config):
+    """numba compiles the package's loops on their first call, once per installation (about 50 s of one
+    core here), and caches them on disk beside the package. On a fresh installation (CI's, a newcomer's
+    first run) every process that starts before one has written the cache compiles them too: both xdist
+    workers, each process of a Ray cluster, the documents' commands (4 min more CPU in the README's test
+    command). So an xdist run's controller compiles them first (`compile_searches`; about 1 s when
+    cached), while the workers start, and the tests wait for it (`pytest_runtestloop` below). Twice
+    where the tests' processes import the package from two places: the installed copy (`-I`: what the
+    console scripts and the test processes import) and this tree (what `python -m` run here and the
+    service harness's PYTHONPATH import); one place with an editable install."""
+    if "PYTEST_XDIST_WORKER" in os.environ or config.option.collectonly:
+        return
+    if not getattr(config.option, "numprocesses", None):
+        return
+    warm_up = "from wosac_eval.features.search import compile_searches; compile_searches()"
+    tree = Path(__file__).resolve().parents[1]
+    config.stash[_NUMBA_WARM_UPS] = [
+        subprocess.Popen(
+            [sys.executable, *flags, "-c", warm_up], cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+        )
+        for flags in (["-I"], [])
+    ]
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtestloop(session):
+    """Before the controller hands out the first test: the numba warm-ups (above) have ended. One that
+    failed (no installed copy) changes nothing: a test that calls the loops then compiles them."""
+    for warm_up in session.config.stash.get(_NUMBA_WARM_UPS, []):
+        warm_up.wait()
+
+
+def pytest_unconfigure(config):
+    for warm_up in config.stash.get(_NUMBA_WARM_UPS, []):  # a run that ended before its test loop
+        warm_up.wait()
 
 
 @pytest.fixture

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import httpx
 
-from support.paths import REPO, SHARED
+from support.paths import SHARED
 from wosac_server import auth
 from wosac_server.db import Store
 
@@ -178,7 +178,6 @@ class Server:
             "WOSAC_DISK_RESERVE_BYTES": str(2**20),
             # The run's own cache of scenes' criticality (tests/conftest.py), not the user's.
             "WOSAC_CRITICALITY_CACHE": os.environ.get("WOSAC_CRITICALITY_CACHE", "off"),
-            "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")])),
         }
         self.env.update({f"WOSAC_{k.upper()}": str(v) for k, v in env.items()})
         self.proc: subprocess.Popen | None = None

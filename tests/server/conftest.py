@@ -143,7 +143,8 @@ def postgres_server():
     data, port = root / "data", free_port()
     prefix: list[str] = []
     if os.geteuid() == 0:
-        runuser = shutil.which("runuser")
+        # util-linux puts it in /usr/sbin, which a non-login root shell's PATH may lack.
+        runuser = shutil.which("runuser") or shutil.which("runuser", path="/usr/sbin:/sbin")
         import pwd
 
         try:
@@ -151,7 +152,7 @@ def postgres_server():
         except KeyError:
             pytest.skip("running as root and there is no 'postgres' user to run the cluster as")
         if runuser is None:
-            pytest.skip("running as root and runuser is missing")
+            pytest.skip("running as root and runuser is missing (not on PATH, /usr/sbin or /sbin)")
         shutil.chown(root, "postgres")
         os.chmod(root, 0o700)
         prefix = [runuser, "-u", "postgres", "--"]

@@ -65,8 +65,9 @@ def pytest_configure(config):
     command). So an xdist run's controller compiles them first (`compile_searches`; about 1 s when
     cached), while the workers start, and the tests wait for it (`pytest_runtestloop` below). Twice
     where the tests' processes import the package from two places: the installed copy (`-I`: what the
-    console scripts and the test processes import) and this tree (what `python -m` run here and the
-    service harness's PYTHONPATH import); one place with an editable install."""
+    console scripts, the test processes and the service harness's servers import) and this tree (what
+    `python -m` run here and the tests that put it on PYTHONPATH import); one place with an editable
+    install."""
     if "PYTEST_XDIST_WORKER" in os.environ or config.option.collectonly:
         return
     if not getattr(config.option, "numprocesses", None):

@@ -239,7 +239,8 @@ def test_an_interrupted_upload_goes_on_from_the_servers_offset(tmp_path, api_ser
         tmp_path / "state",
         big_file.stat().st_size,
     )
-    chunk, pacing = paced(size, 2.0)
+    # 8 s in all: the signal comes at a quarter, with 6 s to spare for a test process slowed by a loaded host
+    chunk, pacing = paced(size, 8.0)
     proc = start_cli(api_server, key, method, big_file, state, *pacing)
     try:
         upload_id = the_upload_id(state, proc)

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import pytest
 
-from support.paths import JAX_TEST_CACHE, JAX_TEST_PROGRAMS, require_shared
+from support.paths import JAX_TEST_CACHE, JAX_TEST_PROGRAMS, REPO, require_shared
 from support.processes import alive, command_line, left_behind
 from wosac_eval.runtime.cache_dirs import bounded
 
@@ -73,10 +73,9 @@ def pytest_configure(config):
     if not getattr(config.option, "numprocesses", None):
         return
     warm_up = "from wosac_eval.features.search import compile_searches; compile_searches()"
-    tree = Path(__file__).resolve().parents[1]
     config.stash[_NUMBA_WARM_UPS] = [
         subprocess.Popen(
-            [sys.executable, *flags, "-c", warm_up], cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            [sys.executable, *flags, "-c", warm_up], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
         for flags in (["-I"], [])
     ]

@@ -59,13 +59,24 @@ class LocalExecutor:
       workers: processes; 1 runs everything in the calling process.
       force_spawn: start fresh interpreters instead of forking (JAX work).
       initializer: called once in every worker process (e.g. the allocator settings).
+      warm_up: called once in this process, before its first pool of workers starts: what each
+        worker would otherwise do itself, all at once (numba's loops: on a fresh installation every
+        worker compiled them; forked workers inherit them, spawned ones read the cache it wrote).
     """
 
-    def __init__(self, workers: int = 1, *, force_spawn: bool = False, initializer: Callable[[], object] | None = None):
+    def __init__(
+        self,
+        workers: int = 1,
+        *,
+        force_spawn: bool = False,
+        initializer: Callable[[], object] | None = None,
+        warm_up: Callable[[], object] | None = None,
+    ):
         self.workers = max(1, int(workers))
         self.parallelism = self.workers
         self.force_spawn = force_spawn
         self.initializer = initializer
+        self.warm_up = warm_up
 
     def imap(
         self, fn: Callable[[Any, Any], Any], items: Iterable, shared: Any = None, *, ahead: int | None = None
@@ -78,6 +89,9 @@ class LocalExecutor:
                 del item  # hold no item (a shard's bytes) while the next one is read
                 yield result
             return
+        if self.warm_up is not None:
+            self.warm_up()
+            self.warm_up = None  # once
         with worker_pool(
             self.workers,
             force_spawn=self.force_spawn,
@@ -100,10 +114,12 @@ def make_executor(
     ray_address: str | None = None,
     force_spawn: bool = False,
     initializer: Callable[[], object] | None = None,
+    warm_up: Callable[[], object] | None = None,
 ) -> Executor:
-    """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run."""
+    """The executor of an engine (`extras.ENGINES`); raises `extras.EngineUnavailableError` when it cannot run.
+    `warm_up`: a local pool's (`LocalExecutor`); a Ray cluster's workers start on their own nodes."""
     if check_engine(engine) is Engine.LOCAL:
-        return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer)
+        return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer, warm_up=warm_up)
     from wosac_eval.runtime.ray_executor import RayExecutor
 
     return RayExecutor(ray_address, initializer=initializer)

@@ -25,6 +25,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
+from wosac_eval.features.search import compile_searches
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
@@ -269,6 +270,7 @@ def score_submission(
         ray_address=run.ray_address,
         force_spawn=run.backend is Backend.JAX,
         initializer=keep_freed_memory,
+        warm_up=compile_searches,  # numba's loops compiled once here, not in every worker of a fresh installation
     )
     opened: contextlib.AbstractContextManager[SubmissionSource]
     if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open

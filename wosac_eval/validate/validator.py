@@ -446,10 +446,11 @@ def validate_submission(
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
     when the submission path does not exist (both usage errors, not findings).
     """
+    from wosac_eval.parse.wire_walks import compile_walks
     from wosac_eval.runtime.executors import LocalExecutor
 
     start = time.perf_counter()
-    executor = executor or LocalExecutor(workers)
+    executor = executor or LocalExecutor(workers, warm_up=compile_walks)  # once here, not in each worker
     agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios, executor=executor)
     challenge = challenges.as_challenge(challenge)
     source = submission if isinstance(submission, SubmissionSource) else SubmissionSource(submission, limits)

@@ -16,6 +16,7 @@ from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import ENGINES, EngineUnavailableError
 from wosac_eval.fronts.usage import UsageError, check_input, scenario_set_hint
 from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.wire_walks import compile_walks
 from wosac_eval.runtime.executors import make_executor
 from wosac_eval.validate.validator import ScenarioSetError, load_sim_agents, validate_submission
 
@@ -120,7 +121,9 @@ def run(args: argparse.Namespace) -> int:
     limits = InputLimits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes)
     bar = None
     try:
-        executor = make_executor(args.engine, workers=args.workers, ray_address=args.ray_address)
+        executor = make_executor(
+            args.engine, workers=args.workers, ray_address=args.ray_address, warm_up=compile_walks
+        )  # numba's wire walks compiled once here, not in each worker of a fresh installation
         bar = _progress_bar(None, "reading scenarios")
         agents = load_sim_agents(args.scenarios, progress=bar.update if bar is not None else None)
         if bar is not None:

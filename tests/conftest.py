@@ -63,11 +63,9 @@ def pytest_configure(config):
     first run) every process that starts before one has written the cache compiles them too: both xdist
     workers, each process of a Ray cluster, the documents' commands (4 min more CPU in the README's test
     command). So an xdist run's controller compiles them first (`compile_searches`; about 1 s when
-    cached), while the workers start, and the tests wait for it (`pytest_runtestloop` below). Twice
-    where the tests' processes import the package from two places: the installed copy (`-I`: what the
-    console scripts, the test processes and the service harness's servers import) and this tree (what
-    `python -m` run here and the tests that put it on PYTHONPATH import); one place with an editable
-    install."""
+    cached), while the workers start, and the tests wait for it (`pytest_runtestloop` below). For the
+    installed package (`-I`: not this tree beside it), which every process of the tests imports: the
+    test processes, the console scripts they run (`support.runs`) and the service harness's servers."""
     if "PYTEST_XDIST_WORKER" in os.environ or config.option.collectonly:
         return
     if not getattr(config.option, "numprocesses", None):
@@ -75,15 +73,14 @@ def pytest_configure(config):
     warm_up = "from wosac_eval.features.search import compile_searches; compile_searches()"
     config.stash[_NUMBA_WARM_UPS] = [
         subprocess.Popen(
-            [sys.executable, *flags, "-c", warm_up], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+            [sys.executable, "-I", "-c", warm_up], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
         )
-        for flags in (["-I"], [])
     ]
 
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtestloop(session):
-    """Before the controller hands out the first test: the numba warm-ups (above) have ended. One that
+    """Before the controller hands out the first test: the numba warm-up (above) has ended. One that
     failed (no installed copy) changes nothing: a test that calls the loops then compiles them."""
     for warm_up in session.config.stash.get(_NUMBA_WARM_UPS, []):
         warm_up.wait()

@@ -23,7 +23,7 @@ import httpx
 import pytest
 
 from support.paths import REPO
-from support.runs import run_cli
+from support.runs import WOSAC_EVAL, run_cli
 
 pytest.importorskip("wosac_server", reason="the service is not installed (pip install ./server)")
 from support.server_harness import GOLDEN_PAIR, SCENARIO_FILES, Server, scoring_data  # noqa: E402
@@ -94,9 +94,7 @@ def start_cli(server: Server, key: str, method: str, submission: Path, state: Pa
     """The command line in the background, its key in WOSAC_API_KEY (as a user keeps it out of the history)."""
     return subprocess.Popen(
         [
-            sys.executable,
-            "-m",
-            "wosac_eval.fronts.cli",
+            *WOSAC_EVAL,
             "submit",
             str(submission),
             "--server",

@@ -4,7 +4,6 @@ import json
 import shlex
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +11,7 @@ import pytest
 from wosac_eval.fronts.cli import main
 
 from support.paths import REPO, SHARED
+from support.runs import WOSAC_EVAL
 
 CI = REPO / "examples" / "ci"
 SCENARIO = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
@@ -30,11 +30,10 @@ def _run_gate(tmp_path, submission, baseline, gates):
     summary = tmp_path / "summary.md"
     env = {
         "PATH": "/usr/bin:/bin",
-        "WOSAC_EVAL": f"{shlex.quote(sys.executable)} -m wosac_eval.fronts.cli",
+        "WOSAC_EVAL": shlex.join(WOSAC_EVAL),
         "WOSAC_GATES": gates,
         "WOSAC_WORKERS": "1",
         "GITHUB_STEP_SUMMARY": str(summary),
-        "PYTHONPATH": str(REPO),
     }
     proc = subprocess.run(
         ["bash", str(CI / "run_gate.sh"), str(submission), str(baseline), str(tmp_path / "out"), str(SCENARIO)],

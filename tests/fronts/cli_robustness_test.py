@@ -19,7 +19,7 @@ import pytest
 from wosac_eval.parse.submission_source import iter_submission_shards
 
 from support.paths import REPO, require_shared
-from support.runs import run_cli
+from support.runs import WOSAC_EVAL, run_cli
 
 
 @pytest.fixture(scope="module")
@@ -99,9 +99,7 @@ def test_output_into_a_closed_pipe_ends_quietly(scene_and_submission):
     try:
         proc = subprocess.run(
             [
-                sys.executable,
-                "-m",
-                "wosac_eval.fronts.cli",
+                *WOSAC_EVAL,
                 "validate",
                 "--scenarios",
                 str(scenarios),
@@ -201,7 +199,7 @@ def test_interrupt_ends_with_130_and_no_traceback(tmp_path):
     )
     proc = subprocess.Popen(
         [sys.executable, "-c", as_at_a_terminal, "demo", "--workdir", str(tmp_path / "demo"), "--workers", "1"],
-        cwd=REPO,
+        cwd=tmp_path,  # not the repository: `-c` imports from its working folder
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

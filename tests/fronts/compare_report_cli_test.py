@@ -2,12 +2,13 @@
 
 import json
 import subprocess
-import sys
 
 import pytest
 
 from wosac_eval.fronts.cli import main
 from wosac_eval.results.synthetic_results import result_json, synthetic_scenarios
+
+from support.runs import WOSAC_EVAL
 
 FAST = ["--n-boot", "300", "--n-perm", "300"]
 
@@ -86,9 +87,7 @@ def test_compare_exit_code_of_the_real_process(results):
     new = results("new.json", shift={"collision_indication_likelihood": -0.1})
     proc = subprocess.run(
         [
-            sys.executable,
-            "-m",
-            "wosac_eval.fronts.cli",
+            *WOSAC_EVAL,
             "compare",
             base,
             new,

@@ -13,13 +13,18 @@ Without Ray, root or `unshare`, the calling test skips and says why.
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import subprocess
-import sys
 
 import pytest
 
 from support.paths import REPO
+from support.runs import console_script
+
+# The checks' pytest, the installed script: `python -m pytest` run in the repository would import this tree
+# beside the installed package.
+PYTEST = console_script("pytest", "pytest")
 
 
 def why_not() -> str | None:
@@ -41,7 +46,7 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     reason = why_not()
     if reason:
         pytest.skip(reason)
-    checks = f"{sys.executable} -m pytest -q -p no:cacheprovider -x -o python_files={module} tests/ray_cluster/{module}"
+    checks = f"{shlex.join(PYTEST)} -q -p no:cacheprovider -x -o python_files={module} tests/ray_cluster/{module}"
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]

@@ -7,12 +7,12 @@ import logging
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 
+from support.runs import WOSAC_EVAL
 from support.submissions import replicated_submission
 from wosac_eval.scoring.submission import score_submission
 
@@ -135,7 +135,7 @@ def test_journal_of_another_run_is_set_aside(workload, uninterrupted, tmp_path, 
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "wosac_eval.fronts.cli", "score", *args]
+    return [*WOSAC_EVAL, "score", *args]
 
 
 @pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's

@@ -25,6 +25,7 @@ import pytest
 from support.paths import REPO
 from support.processes import alive
 from support.readme_blocks import FENCED_BLOCK
+from support.runs import WOSAC_SERVER
 from support.server_harness import demo_data, free_port, wait_healthy, wait_logged
 
 DOCUMENTS = (REPO / "README.md", REPO / "server" / "README.md", *sorted((REPO / "docs").glob("*.md")))
@@ -152,7 +153,7 @@ def test_data_dir_goes_before_or_after_the_action(tmp_path, before):
     for argv in (["keys", "create", "--name", "team-a"], ["keys", "list"], ["methods", "list"]):
         full = [argv[0], *head, *argv[1:]] if before else [*argv, *head]
         done = subprocess.run(
-            [sys.executable, "-m", "wosac_server", *full],
+            [*WOSAC_SERVER, *full],
             capture_output=True,
             text=True,
             timeout=60,

@@ -8,7 +8,6 @@ import hashlib
 import os
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -16,6 +15,7 @@ import pytest
 
 from wosac_eval.parse.wire import varint
 
+from support.runs import WOSAC_SERVER
 from support.server_harness import GOLDEN_PAIR, as_submission, files_under, tar_bytes
 
 
@@ -337,7 +337,7 @@ def test_resumable_upload_without_declared_length_and_delete(api_server):
 def test_keys_command_creates_lists_and_revokes(api_server):
     def keys(*args):
         return subprocess.run(
-            [sys.executable, "-m", "wosac_server", "keys", *args],
+            [*WOSAC_SERVER, "keys", *args],
             env=api_server.env,
             capture_output=True,
             text=True,

@@ -9,13 +9,13 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
 
 import pytest
 
 from support.bombs import empty_rollouts_bomb, empty_trajectories_bomb, members_bomb, tar_stream, zeros_bomb
+from support.runs import WOSAC_SERVER
 from support.server_harness import as_submission, tar_bytes
 
 MiB = 1 << 20
@@ -211,7 +211,7 @@ def test_leaderboard_names_belong_to_the_first_key_per_challenge(api_server):
 
     def methods(*args):
         return subprocess.run(
-            [sys.executable, "-m", "wosac_server", "methods", *args],
+            [*WOSAC_SERVER, "methods", *args],
             env=api_server.env,
             capture_output=True,
             text=True,

@@ -3,22 +3,18 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from support.paths import REPO
+from support.runs import WOSAC_EVAL
 
 
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
     return subprocess.run(
-        [sys.executable, "-m", "wosac_eval.fronts.cli", *args],
+        [*WOSAC_EVAL, *args],
         cwd=cwd,
-        env=env,
         capture_output=True,
         text=True,
         timeout=600,

@@ -17,7 +17,7 @@ import pytest
 from wosac_eval.fronts.cli import main
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.validate import validate_submission
-from support.paths import REPO
+from support.runs import WOSAC_EVAL
 from support.submissions import (
     golden_submission,
     load_scenario,
@@ -701,12 +701,10 @@ def test_subprocess_on_an_ascii_console_with_non_ascii_names(tmp_path, scenario_
     other.affiliation = "Universität"
     members = {"é/0.binproto": shard.SerializeToString(), "é/1.binproto": with_rollouts(other, []).SerializeToString()}
     path = write(tmp_path / "s.tar.gz", tar_bytes(members))
-    env = {**os.environ, "PYTHONIOENCODING": "ascii", "PYTHONPATH": str(REPO)}
+    env = {**os.environ, "PYTHONIOENCODING": "ascii"}
     done = subprocess.run(
         [
-            sys.executable,
-            "-m",
-            "wosac_eval.fronts.cli",
+            *WOSAC_EVAL,
             "validate",
             "--scenarios",
             str(scenario_file),

@@ -96,10 +96,12 @@ print("bit-identical")
 
 
 @pytest.mark.slow
-def test_exact_features_stay_bit_identical_where_the_compiler_fuses_multiply_adds():
+def test_exact_features_stay_bit_identical_where_the_compiler_fuses_multiply_adds(tmp_path):
     if "fma" not in open("/proc/cpuinfo").read().split():
         pytest.skip("this CPU has no fused multiply-add: XLA cannot contract here")
     env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}  # no exact_cpu(): FMA on
     env["PYTHONPATH"] = os.pathsep.join([os.path.dirname(__file__), *sys.path])
-    done = subprocess.run([sys.executable, "-c", FMA_RUN], env=env, capture_output=True, text=True, timeout=1200)
+    done = subprocess.run(  # (not run in the repository: `-c` imports from its working folder)
+        [sys.executable, "-c", FMA_RUN], env=env, capture_output=True, text=True, timeout=1200, cwd=tmp_path
+    )
     assert done.returncode == 0 and "bit-identical" in done.stdout, done.stdout[-3000:] + done.stderr[-5000:]

@@ -40,14 +40,16 @@ _PROGRAM = textwrap.dedent("""
 """)
 
 
-def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_decode_error():
+def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_decode_error(tmp_path):
     # Where upb's first refused allocation lands depends on the margin, and at some margins upb
     # itself crashes (SIGSEGV) instead of failing the parse: a process of the service's jobs ended
     # so is reported by its signal (job_limits.why_child_ended). So several margins are tried, and each
     # line a run printed before it ended is checked.
     printed = []
     for margin in range(0, 2**21 + 1, 2**17):
-        done = subprocess.run([sys.executable, "-c", _PROGRAM, str(margin)], capture_output=True, text=True, timeout=60)
+        done = subprocess.run(  # (not run in the repository: `-c` imports from its working folder)
+            [sys.executable, "-c", _PROGRAM, str(margin)], capture_output=True, text=True, timeout=60, cwd=tmp_path
+        )
         assert done.returncode in (0, -11), (margin, done.returncode, done.stderr)
         printed.append(dict(line.split(": ") for line in done.stdout.splitlines()))
     for lines in printed:

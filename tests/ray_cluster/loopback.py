@@ -16,6 +16,7 @@ import os
 import shlex
 import shutil
 import subprocess
+import tempfile
 
 import pytest
 
@@ -46,18 +47,22 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     reason = why_not()
     if reason:
         pytest.skip(reason)
-    checks = f"{shlex.join(PYTEST)} -q -p no:cacheprovider -x -o python_files={module} tests/ray_cluster/{module}"
+    path = REPO / "tests" / "ray_cluster" / module
+    checks = f"{shlex.join(PYTEST)} -q -p no:cacheprovider -x -o python_files={module} {shlex.quote(str(path))}"
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]
-    done = subprocess.run(
-        ["unshare", *flags, "bash", "-c", inner],
-        cwd=REPO,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"},
-    )
+    with tempfile.TemporaryDirectory() as scratch:
+        # Not in the repository: the checks' working folder goes on their Ray workers' sys.path (Ray does
+        # that), where they would import the tree beside the installed package.
+        done = subprocess.run(
+            ["unshare", *flags, "bash", "-c", inner],
+            cwd=scratch,
+            capture_output=True,
+            text=True,
+            timeout=timeout,
+            env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"},
+        )
     # A failure's report from its start (what failed, then the logs it carries), else the output's tail.
     failures = done.stdout.partition("= FAILURES =")[2]
     summary = (failures[:20000] if failures else "\n".join(done.stdout.splitlines()[-40:])) + "\n" + done.stderr[-3000:]

@@ -84,7 +84,11 @@ def env():
 
 
 def run(command: list[str], env: dict, timeout: float = 300, **extra) -> subprocess.CompletedProcess:
-    return subprocess.run(command, env={**env, **extra}, cwd=REPO, capture_output=True, text=True, timeout=timeout)
+    # In the run's fresh HOME, not the repository: a Ray driver's working folder goes on its workers' sys.path,
+    # and there they would import the tree beside the installed package.
+    return subprocess.run(
+        command, env={**env, **extra}, cwd=env["HOME"], capture_output=True, text=True, timeout=timeout
+    )
 
 
 @pytest.fixture(scope="module")
@@ -252,7 +256,7 @@ def test_a_client_without_the_right_token_gets_one_line_that_names_the_fix(clust
             name: subprocess.Popen(
                 score(address),
                 env={**env, **extra},
-                cwd=REPO,
+                cwd=env["HOME"],  # not the repository (see `run`)
                 stdout=subprocess.PIPE,
                 stderr=subprocess.PIPE,
                 text=True,

@@ -30,13 +30,16 @@ PROBE = textwrap.dedent("""
 """)
 
 
-def _probe(workers: int) -> dict:
-    output = subprocess.run([sys.executable, "-c", PROBE, str(workers)], capture_output=True, text=True, check=True)
+def _probe(workers: int, folder) -> dict:
+    # (not run in the repository: `-c` imports from its working folder, the tree beside the installed package)
+    output = subprocess.run(
+        [sys.executable, "-c", PROBE, str(workers)], capture_output=True, text=True, check=True, cwd=folder
+    )
     return json.loads(output.stdout)
 
 
-def test_a_pools_warm_up_runs_once_in_this_process_and_its_workers_start_with_it_done():
-    seen = _probe(2)
+def test_a_pools_warm_up_runs_once_in_this_process_and_its_workers_start_with_it_done(tmp_path):
+    seen = _probe(2, tmp_path)
     assert seen["calls"] == [seen["parent"]]  # once, here, for both pools
     for run in seen["runs"]:
         pids = {pid for pid, _ in run}
@@ -45,7 +48,7 @@ def test_a_pools_warm_up_runs_once_in_this_process_and_its_workers_start_with_it
         assert len(compiled) == 1 and compiled.pop() > 0  # every worker found the walks compiled
 
 
-def test_without_workers_there_is_no_warm_up():
-    seen = _probe(1)
+def test_without_workers_there_is_no_warm_up(tmp_path):
+    seen = _probe(1, tmp_path)
     assert seen["calls"] == []  # the work runs here and compiles what it calls, as it always did
     assert {pid for run in seen["runs"] for pid, _ in run} == {seen["parent"]}

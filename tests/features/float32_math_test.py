@@ -107,7 +107,7 @@ def test_packet_tail_of_empty_shape():
 def test_split_sum32_rounds_as_the_exact_sum_whatever_the_padding():
     """The float32 precision's padded sums: equal to the float64 sum rounded to float32 (all but
     near-ties), and unchanged by trailing zeros (padding) or the order of the values."""
-    from wosac_eval.features.float32_math import split_sum32
+    from wosac_eval.features.float32_sums import split_sum32
 
     rng = np.random.default_rng(3)
     values = (rng.lognormal(2, 2, (2000, 128)) * rng.choice([1, -1, 0], (2000, 128), p=[0.8, 0.1, 0.1])).astype(

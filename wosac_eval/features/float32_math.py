@@ -24,10 +24,10 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval.features import ops
-from wosac_eval.features.xp import array_namespace, errstate, in_differentiable, is_numpy, opaque, wide_float
+from wosac_eval.features.float32_sums import PACKET
+from wosac_eval.features.xp import array_namespace, errstate, in_differentiable, is_numpy, wide_float
 
 _F = np.float32
-_PACKET = 8  # AVX float packets: the official TensorFlow wheels are built for AVX.
 _TWO_OVER_PI = _F(0.636619746685028076171875)
 _ROUNDING_MAGIC = _F(12582912.0)  # 1.5 * 2**23: adding it rounds to an integer.
 _PIO2_PARTS = (
@@ -116,7 +116,7 @@ def packet_tail(shape) -> np.ndarray:
     """
     size = int(np.prod(shape, dtype=np.int64))
     mask = np.zeros(size, dtype=bool)
-    mask[size - size % _PACKET :] = True
+    mask[size - size % PACKET :] = True
     return mask.reshape(shape)
 
 
@@ -160,65 +160,3 @@ def sin32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
 def cos32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> np.ndarray:
     """`cos` counterpart of `sin32`."""
     return sincos32(x, libm_mask)[1]
-
-
-def packet_sum32(values):
-    """Float32 sum along the last axis in the order of the official `tf.reduce_sum`.
-
-    Eigen's inner-most reduction adds packets of 8 into four accumulators
-    (blocks of 32), folds them, adds the remaining whole packets, sums the
-    trailing elements one by one, and adds that to the horizontal sum of the
-    accumulator ((a0+a4)+(a2+a6)) + ((a1+a5)+(a3+a7)). Reproducing the order
-    makes sums bit-identical to the official ones (checked on every golden
-    displacement error).
-
-    Args:
-      values: float32 `(..., n)` (numpy or JAX).
-    Returns:
-      float32 `(...)`.
-    """
-    xp = array_namespace(values)
-    n = values.shape[-1]
-
-    def packet(start):
-        return values[..., start : start + _PACKET]
-
-    block = 4 * _PACKET
-    blocked = (n // block) * block
-    lanes = [xp.zeros(values.shape[:-1] + (_PACKET,), _F) for _ in range(4)]
-    for start in range(0, blocked, block):
-        lanes = [lane + packet(start + k * _PACKET) for k, lane in enumerate(lanes)]
-    acc = ((lanes[0] + lanes[1]) + lanes[2]) + lanes[3]
-    whole = (n // _PACKET) * _PACKET
-    for start in range(blocked, whole, _PACKET):
-        acc = acc + packet(start)
-    tail = xp.zeros(values.shape[:-1], _F)
-    for j in range(whole, n):
-        tail = tail + values[..., j]
-    halves = acc[..., :4] + acc[..., 4:]
-    return tail + ((halves[..., 0] + halves[..., 2]) + (halves[..., 1] + halves[..., 3]))
-
-
-def split_sum32(values, axis=-1):
-    """Float32 sum along `axis`, as if summed exactly and rounded (nearly always), in any order.
-
-    Each value is split at a power-of-two scale above the row's total magnitude: the high parts
-    are multiples of the scale's last place and sum exactly in float32, the low parts are tiny
-    and sum with negligible error (Rump's error-free extraction). Used where a float32 sum's
-    rounding would otherwise follow the reduction tree (padding, XLA's order): JAX's float32
-    precision, instead of a float64 sum.
-
-    Args:
-      values: float32 `(..., n, ...)` (numpy or JAX), finite values for an accurate result.
-    Returns:
-      float32, `values` without `axis`.
-    """
-    xp = array_namespace(values)
-    v = xp.asarray(values, _F)
-    bound = xp.max(xp.abs(v), axis=axis, keepdims=True) * _F(max(1, v.shape[axis]))
-    _, exponent = xp.frexp(bound)  # bound < 2 ** exponent
-    scale = opaque(xp.ldexp(xp.ones_like(bound), exponent + 1), xp)  # XLA would fold (v + s) - s
-    with errstate(xp, invalid="ignore", over="ignore"):
-        high = (v + scale) - scale
-        low = v - high
-    return high.sum(axis=axis) + low.sum(axis=axis)

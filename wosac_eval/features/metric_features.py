@@ -25,7 +25,8 @@ from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.features import registry, road_edge, traffic_lights
-from wosac_eval.features.float32_math import packet_sum32, packet_tail
+from wosac_eval.features.float32_math import packet_tail
+from wosac_eval.features.float32_sums import eigen_sum32
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.search_strategy import SearchStrategy
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
@@ -152,7 +153,7 @@ def official_tails(num_objects: int, num_evaluated: int, num_steps: int, first_s
 def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     """Mean 3D distance to sample 0 (the log) over the log's valid steps, float32 `(num_samples, num_evaluated)`.
 
-    Summed in the official order (`packet_sum32`), so it is bit-identical to
+    Summed in the official order (`eigen_sum32`), so it is bit-identical to
     the official value.
 
     Args:
@@ -163,7 +164,7 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     e = slice(0, num_evaluated)
     dx, dy, dz = (a[:, e] - a[:1, e] for a in (x, y, z))
     displacement = sqrt(rounded_square(dx, xp) + rounded_square(dy, xp) + rounded_square(dz, xp), xp)
-    total = packet_sum32(xp.where(log_valid, displacement, _F(0)))
+    total = eigen_sum32(xp.where(log_valid, displacement, _F(0)))
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 
 

@@ -106,8 +106,9 @@ def _log_probability_of_bins(counts, pseudocount, log_bins):
     return jnp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
 
 
-def soft_estimate(config, log_samples, sim_samples, sim_weights=None, *, temperature):
-    """The smooth twin of the official estimator of `config` (`likelihoods.official_estimate`'s signature).
+def soft_estimate(config, log_samples, sim_samples, sim_weights=None, num_rows=None, *, temperature):
+    """The smooth twin of the official estimator of `config` (`likelihoods.official_estimate`'s signature;
+    `num_rows` is not needed: the soft estimates follow no packet boundaries).
 
     Histogram: `soft_histogram_counts` with a kernel `temperature` bins wide. Bernoulli: the soft
     flags' sums (f in the true bin, 1 - f in the other). Kernel density: the official one (smooth).

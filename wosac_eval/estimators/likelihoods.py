@@ -5,20 +5,30 @@ additive pseudo-count) and score each logged value by the log-probability of
 its bin. Bernoulli estimates are two-bin histograms over booleans. With
 independent timesteps, one distribution per object pools all rollouts and
 steps; otherwise each (object, step) has its own distribution over rollouts.
-The estimators take numpy or JAX arrays; the log-probabilities are computed in
-float64 (`xp.wide_float`: under JAX, x64 on while tracing, or float32 inside
-`xp.float32_precision()`).
+
+The log-probabilities are the official float32 ones, bit for bit: the official
+estimator builds a categorical distribution from the counts and scores a bin by
+its softmax cross-entropy, so each value is log(count + pseudo-count) shifted by
+the row's maximum, minus the log of the row's sum of exponentials, with
+TensorFlow's CPU `log`, `exp` and summation order (`features.float32_explog`,
+`features.float32_sums`). The estimators take numpy or JAX arrays.
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
 import numpy as np
 
+from wosac_eval.estimators.categorical import BinCounts, log_probabilities
 from wosac_eval.features.xp import array_namespace, is_numpy, wide_float
 from wosac_eval.protos import sim_agents_metrics_pb2
 
 _F = np.float32
-FeatureConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig
+_Config = sim_agents_metrics_pb2.SimAgentMetricsConfig
+FeatureConfig = _Config.FeatureConfig
 
 
 def histogram_edges(min_val: float, max_val: float, num_bins: int) -> np.ndarray:
@@ -110,41 +120,71 @@ def check_batches(log_samples, sim_samples) -> None:
         )
 
 
-def histogram_log_likelihood(
-    min_val, max_val, num_bins, pseudocount, log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None
-) -> np.ndarray:
-    """Per-population histogram log-likelihoods.
+def histogram_bin_counts(
+    histogram, log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None, num_rows=None
+) -> BinCounts:
+    """The official histogram estimate's inputs to its categorical distribution (`categorical.BinCounts`).
 
     Args:
+      histogram: a `HistogramEstimate` (min_val, max_val, num_bins, additive_smoothing_pseudocount).
       log_samples: `(batch, num_log_samples)`.
       sim_samples: `(batch, num_sim_samples)`.
       sim_weights: optional 0/1 `(batch, num_sim_samples)`: which simulated samples count (padding does not).
-    Returns:
-      float32 `(batch, num_log_samples)`.
+      num_rows: how many leading rows are the official batch when the batch is padded (the rest
+        padding), an int or a traced 0-d integer; None: all of them.
     Raises:
       ValueError: the batch sizes differ (naming both shapes).
     """
     check_batches(log_samples, sim_samples)
     xp = array_namespace(log_samples, sim_samples)
-    wide = wide_float(xp)
-    edges = histogram_edges(min_val, max_val, num_bins)
+    edges = histogram_edges(histogram.min_val, histogram.max_val, histogram.num_bins)
     # Whole counts: exact in any order.
-    counts = histogram_counts(sim_samples, edges, None if sim_weights is None else sim_weights.astype(wide))
-    counts = (counts.astype(_F) + _F(pseudocount)).astype(wide)
-    log_prob = xp.log(counts) - xp.log(counts.sum(axis=1, keepdims=True))
-    log_bins = histogram_bins(log_samples, edges)
-    return xp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
+    weights = None if sim_weights is None else sim_weights.astype(wide_float(xp))
+    counts = histogram_counts(sim_samples, edges, weights).astype(_F) + _F(histogram.additive_smoothing_pseudocount)
+    return BinCounts(counts, histogram_bins(log_samples, edges), num_rows)
 
 
-def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
-    """Two-bin histogram over booleans: bins [-0.5, 0.5) and [0.5, 1.5]."""
-    return histogram_log_likelihood(
-        -0.5, 1.5, 2, pseudocount, log_samples.astype(_F), sim_samples.astype(_F), sim_weights
+def bernoulli_bin_counts(bernoulli, log_samples, sim_samples, sim_weights=None, num_rows=None) -> BinCounts:
+    """The Bernoulli estimate's: a two-bin histogram over booleans, bins [-0.5, 0.5) and [0.5, 1.5]."""
+    histogram = _Config.HistogramEstimate(
+        min_val=-0.5, max_val=1.5, num_bins=2, additive_smoothing_pseudocount=bernoulli.additive_smoothing_pseudocount
     )
+    return histogram_bin_counts(histogram, log_samples.astype(_F), sim_samples.astype(_F), sim_weights, num_rows)
+
+
+def histogram_log_likelihood(
+    min_val,
+    max_val,
+    num_bins,
+    pseudocount,
+    log_samples: np.ndarray,
+    sim_samples: np.ndarray,
+    sim_weights=None,
+    num_rows=None,
+) -> np.ndarray:
+    """Per-population histogram log-likelihoods, the official float32 values: `(batch, num_log_samples)`.
+
+    The histogram's range, bins and pseudo-count as numbers; the rest as for `histogram_bin_counts`.
+    """
+    histogram = _Config.HistogramEstimate(
+        min_val=min_val, max_val=max_val, num_bins=num_bins, additive_smoothing_pseudocount=pseudocount
+    )
+    return log_probabilities([histogram_bin_counts(histogram, log_samples, sim_samples, sim_weights, num_rows)])[0]
+
+
+def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples, sim_weights=None, num_rows=None) -> np.ndarray:
+    """Per-population Bernoulli log-likelihoods, the official float32 values (see `bernoulli_bin_counts`)."""
+    bernoulli = _Config.BernoulliEstimate(additive_smoothing_pseudocount=pseudocount)
+    return log_probabilities([bernoulli_bin_counts(bernoulli, log_samples, sim_samples, sim_weights, num_rows)])[0]
 
 
 def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
-    """Gaussian KDE log-density, shifted so that a Dirac sample scores 0 (`sim_weights` as for histograms)."""
+    """Gaussian KDE log-density, shifted so that a Dirac sample scores 0 (`sim_weights` as for histograms).
+
+    The official metrics cannot score a kernel density estimate (their estimator returns float64, which
+    their float32 average refuses): no official output to match. Computed in the wide float, returned
+    as float32.
+    """
     if bandwidth <= 0:
         raise ValueError("kernel density bandwidth must be positive")
     check_batches(log_samples, sim_samples)
@@ -163,39 +203,65 @@ def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weigh
     return log_mean.astype(_F)
 
 
-def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None):
-    kind = config.WhichOneof("estimator")
-    if kind == "histogram":
-        h = config.histogram
-        return histogram_log_likelihood(
-            h.min_val, h.max_val, h.num_bins, h.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights
-        )
-    if kind == "bernoulli":
-        return bernoulli_log_likelihood(
-            config.bernoulli.additive_smoothing_pseudocount, log_samples, sim_samples, sim_weights
-        )
-    if kind == "kernel_density":
-        return kernel_density_log_likelihood(config.kernel_density.bandwidth, log_samples, sim_samples, sim_weights)
-    raise ValueError(f"feature config has no estimator (got {kind!r})")
+@dataclasses.dataclass(frozen=True)
+class Populations:
+    """One feature's populations as its estimator takes them.
+
+    Attributes:
+      log: `(batch, num_log_samples)`; sim: `(batch, num_sim_samples)`.
+      weights: optional 0/1 `(batch, num_sim_samples)`: which simulated samples count.
+      num_rows: the official batch's rows when the batch is padded (`histogram_bin_counts`), or None.
+    """
+
+    log: Any
+    sim: Any
+    weights: Any = None
+    num_rows: Any = None
 
 
-def timeseries_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
-) -> np.ndarray:
-    """Log-likelihood of each logged value.
+def official_estimates(configs: Sequence[FeatureConfig], populations: Sequence[Populations]) -> list:
+    """The official estimator of each config on its populations: float32 `(batch, num_log_samples)` each.
+
+    Histograms and Bernoulli estimates are computed together (`categorical.log_probabilities`), with
+    the same values as one by one.
+    """
+    scored: list = [None] * len(configs)
+    batches, members = [], []
+    for k, (config, p) in enumerate(zip(configs, populations)):
+        kind = config.WhichOneof("estimator")
+        if kind == "histogram":
+            batches.append(histogram_bin_counts(config.histogram, p.log, p.sim, p.weights, p.num_rows))
+        elif kind == "bernoulli":
+            batches.append(bernoulli_bin_counts(config.bernoulli, p.log, p.sim, p.weights, p.num_rows))
+        elif kind == "kernel_density":
+            scored[k] = kernel_density_log_likelihood(config.kernel_density.bandwidth, p.log, p.sim, p.weights)
+            continue
+        else:
+            raise ValueError(f"feature config has no estimator (got {kind!r})")
+        members.append(k)
+    for k, values in zip(members, log_probabilities(batches)):
+        scored[k] = values
+    return scored
+
+
+def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None, num_rows=None):
+    """The official estimator of `config` on one batch of populations (`official_estimates`' one)."""
+    return official_estimates([config], [Populations(log_samples, sim_samples, sim_weights, num_rows)])[0]
+
+
+def populations(config: FeatureConfig, log_values, sim_values, object_mask=None) -> Populations:
+    """A feature's per-step values as the populations its config estimates.
 
     Args:
       log_values: `(num_objects, num_steps)`.
       sim_values: `(num_rollouts, num_objects, num_steps)`.
-      object_mask: optional bool `(num_objects,)`, the real objects: the simulated values of the others
-        (padding) take no part in a distribution shared by objects (`aggregate_objects`).
-      estimate: the estimator of one batch of populations, `(config, log (batch, n), sim (batch, m),
-        sim weights or None) -> (batch, n)`; default the official one (the soft surrogate passes its own).
-    Returns:
-      float32 `(num_objects, num_steps)`.
+      object_mask: optional bool `(num_objects,)`, the real objects, first (the rest padding): the
+        simulated values of the others take no part in a distribution shared by objects
+        (`aggregate_objects`), and the official batch is the real objects' rows (`num_rows`).
+    Raises:
+      ValueError: the shapes do not match (naming both).
     """
     xp = array_namespace(log_values, sim_values)
-    estimate = estimate or official_estimate
     if np.ndim(sim_values) != 3:
         raise ValueError(
             f"simulated values must be (num_rollouts, num_objects, num_steps), got {tuple(np.shape(sim_values))}"
@@ -208,34 +274,74 @@ def timeseries_log_likelihood(
         )
     if config.aggregate_objects:
         # One distribution for the whole scene (per step, or pooled over steps).
-        weights = None
-        if object_mask is not None:
-            weights = xp.broadcast_to(object_mask[None, :, None], sim_values.shape)
-        if config.independent_timesteps:
-            sim = xp.transpose(sim_values, (1, 0, 2)).reshape(1, -1)
-            log = log_values.T.reshape(1, -1)
-            weights = None if weights is None else xp.transpose(weights, (1, 0, 2)).reshape(1, -1)
-        else:
-            sim = xp.transpose(sim_values, (2, 1, 0)).reshape(n_steps, -1)
-            log = log_values.T
-            weights = None if weights is None else xp.transpose(weights, (2, 1, 0)).reshape(n_steps, -1)
-        return estimate(config, log, sim, weights).reshape(n_steps, n_objects).T
+        weights = None if object_mask is None else xp.broadcast_to(object_mask[None, :, None], sim_values.shape)
+        order = (1, 0, 2) if config.independent_timesteps else (2, 1, 0)
+        rows = 1 if config.independent_timesteps else n_steps
+        sim = xp.transpose(sim_values, order).reshape(rows, -1)
+        weights = None if weights is None else xp.transpose(weights, order).reshape(rows, -1)
+        return Populations(log_values.T.reshape(rows, -1), sim, weights)
+    real_objects = None if object_mask is None else object_mask.sum()
     if config.independent_timesteps:
         sim = xp.transpose(sim_values, (1, 0, 2)).reshape(n_objects, n_rollouts * n_steps)
-        log = log_values
+        return Populations(log_values, sim, None, real_objects)
+    sim = xp.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
+    real_rows = None if real_objects is None else real_objects * n_steps
+    return Populations(log_values.reshape(n_objects * n_steps, 1), sim, None, real_rows)
+
+
+def per_step(config: FeatureConfig, scored, num_objects: int, num_steps: int):
+    """An estimator's `(batch, n)` output for `populations(config, ...)` back as `(num_objects, num_steps)`."""
+    if config.aggregate_objects:
+        return scored.reshape(num_steps, num_objects).T
+    return scored.reshape(num_objects, num_steps)
+
+
+def timeseries_log_likelihoods(
+    configs: Sequence[FeatureConfig], log_values: Sequence, sim_values: Sequence, object_mask=None, estimate=None
+) -> list:
+    """`timeseries_log_likelihood` of several features (one config, log and simulated values each), at once.
+
+    estimate: as for `timeseries_log_likelihood`; None: the official estimators, computed together
+      (`official_estimates`).
+    """
+    inputs = [populations(c, log, sim, object_mask) for c, log, sim in zip(configs, log_values, sim_values)]
+    if estimate is None:
+        scored = official_estimates(configs, inputs)
     else:
-        sim = xp.transpose(sim_values, (1, 2, 0)).reshape(n_objects * n_steps, n_rollouts)
-        log = log_values.reshape(n_objects * n_steps, 1)
-    return estimate(config, log, sim).reshape(n_objects, n_steps)
+        scored = [estimate(c, p.log, p.sim, p.weights, p.num_rows) for c, p in zip(configs, inputs)]
+    return [per_step(c, values, *np.shape(log)) for c, values, log in zip(configs, scored, log_values)]
+
+
+def timeseries_log_likelihood(
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
+) -> np.ndarray:
+    """Log-likelihood of each logged value.
+
+    Args:
+      log_values: `(num_objects, num_steps)`.
+      sim_values: `(num_rollouts, num_objects, num_steps)`.
+      object_mask: as for `populations`.
+      estimate: the estimator of one batch of populations, `(config, log (batch, n), sim (batch, m),
+        sim weights or None, num_rows) -> (batch, n)` (`official_estimate`'s signature); default the
+        official one (the soft surrogate passes its own).
+    Returns:
+      float32 `(num_objects, num_steps)`.
+    """
+    return timeseries_log_likelihoods([config], [log_values], [sim_values], object_mask, estimate)[0]
 
 
 def scenario_level_log_likelihood(
     config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
 ) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
+    check_scenario_level(log_values, sim_values)
+    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask, estimate)[:, 0]
+
+
+def check_scenario_level(log_values, sim_values) -> None:
+    """Raises ValueError naming both shapes unless they are `(num_objects,)` and `(num_rollouts, num_objects)`."""
     if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
         raise ValueError(
             f"log values {tuple(np.shape(log_values))} must be (num_objects,) and simulated values "
             f"{tuple(np.shape(sim_values))} (num_rollouts, num_objects)"
         )
-    return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask, estimate)[:, 0]

@@ -14,10 +14,11 @@ import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_VEHICLE
 from wosac_eval.estimators import likelihoods
-from wosac_eval.features.float32_math import split_sum32
+from wosac_eval.features.float32_explog import libm_expf
+from wosac_eval.features.float32_sums import eigen_mean32, eigen_sum32, split_sum32
 from wosac_eval.features.kinematics import kinematic_validity
 from wosac_eval.features.metric_features import MetricFeatures
-from wosac_eval.features.xp import array_namespace, in_float32_precision, nan_spreading_min, wide_float
+from wosac_eval.features.xp import array_namespace, divide, in_float32_precision, nan_spreading_min, wide_float
 from wosac_eval.metrics.buckets import weighted_bucket
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.registry import (
@@ -49,17 +50,11 @@ def _weights(config) -> dict[str, float]:
 
 
 def _padded_sum(values, axis, dtype):
-    """The sum of padded values (see `_object_mean`) along `axis` (None: all): in `dtype` (float64),
+    """The sum of padded values (zeros in the padding) along `axis` (None: all): in `dtype` (float64),
     or in JAX's float32 precision `split_sum32`, which rounds as that float64 sum nearly always does."""
     if dtype == np.float32 and in_float32_precision(array_namespace(values)):
         return split_sum32(values.reshape(-1), -1) if axis is None else split_sum32(values, axis)
     return values.sum(axis=axis, dtype=dtype)
-
-
-def _masked_mean(values, valid, dtype=_F):
-    xp = array_namespace(values, valid)
-    total = _padded_sum(xp.where(valid, values, _F(0)), None, dtype)
-    return (total / valid.sum().astype(dtype)).astype(_F)
 
 
 def _any_over_time(per_step, valid):
@@ -86,36 +81,19 @@ def metric_log_likelihoods(
       indicator metric (one value per object), `(num_evaluated, num_steps)` for a time series.
     """
     masks = validity_masks(log)
-    out = {}
-    for metric in active_metrics():
-        feature_config = metric_config(config, metric)
-        mask = masks[metric.mask]
-        if metric.per_object:
-            log_flags = _any_over_time(log.feature(metric.feature), mask)[0]
-            sim_flags = _any_over_time(sim.feature(metric.feature), mask)
-            ll = likelihoods.scenario_level_log_likelihood(feature_config, log_flags, sim_flags, object_mask)
-            out[metric.name] = (ll, None)
+    metrics = active_metrics()
+    configs, log_values, sim_values = [], [], []
+    for metric in metrics:
+        configs.append(metric_config(config, metric))
+        if metric.per_object:  # an indicator: whether the event happened over the valid steps, one step
+            log_values.append(_any_over_time(log.feature(metric.feature), masks[metric.mask])[0][:, None])
+            sim_values.append(_any_over_time(sim.feature(metric.feature), masks[metric.mask])[..., None])
         else:
-            ll = likelihoods.timeseries_log_likelihood(
-                feature_config, log.feature(metric.feature)[0], sim.feature(metric.feature), object_mask
-            )
-            out[metric.name] = (ll, mask)
-    return out
-
-
-def _object_mean(values, object_mask, dtype):
-    """Mean over the last axis (objects), over the real ones only when `object_mask` is given.
-
-    With a mask (padded features) the sum runs in float64 whatever `dtype`: a float32 sum's rounding
-    depends on how many padding zeros the reduction tree meets, a float64 one's does not reach float32.
-    In JAX's float32 precision (`xp.wide_float`) it is `split_sum32`: as exact, in float32.
-    """
-    if object_mask is None:
-        return values.mean(axis=-1, dtype=dtype)
-    xp = array_namespace(values, object_mask)
-    wide = wide_float(xp)
-    total = _padded_sum(xp.where(object_mask, values, 0).astype(wide), -1, wide)
-    return (total / object_mask.sum().astype(wide)).astype(dtype)
+            log_values.append(log.feature(metric.feature)[0])
+            sim_values.append(sim.feature(metric.feature))
+    # Every metric's estimate at once (`likelihoods.official_estimates`: the same values as one by one).
+    scored = likelihoods.timeseries_log_likelihoods(configs, log_values, sim_values, object_mask)
+    return {m.name: (ll[:, 0], None) if m.per_object else (ll, masks[m.mask]) for m, ll in zip(metrics, scored)}
 
 
 def metric_values(
@@ -127,42 +105,79 @@ def metric_values(
 ) -> dict:
     """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX.
 
+    Each is the official float32 value, bit for bit: the means over steps, objects and rollouts add in
+    the official order (`eigen_sum32`) and divide once, `exp` is the C library's (`libm_expf`).
+
     log_likelihoods: `metric_log_likelihoods(config, log, sim)` when already computed.
-    object_mask: as for `metric_log_likelihoods`: means over objects count the real rows only.
+    object_mask: as for `metric_log_likelihoods` (the real rows first): the means follow the
+      official tensors, which hold the real rows only.
     """
     xp = array_namespace(log.valid, sim.linear_speed)
     wide = wide_float(xp)  # float64, except in JAX's float32 precision
     masks = validity_masks(log)
     lls = metric_log_likelihoods(config, log, sim, object_mask) if log_likelihoods is None else log_likelihoods
-    out = {}
-    for metric in active_metrics():
-        ll, mask = lls[metric.name]
-        # An indicator: the mean over objects; a time series: over the valid (object, step) pairs.
-        padded_sum = _F if object_mask is None else wide  # see `_object_mean`
-        out[metric.output] = xp.exp(
-            _object_mean(ll, object_mask, _F) if mask is None else _masked_mean(ll, mask, padded_sum)
-        )
+    real = None if object_mask is None else object_mask.sum()
+    means = _mean_log_likelihoods([lls[m.name] for m in active_metrics()], real)
+    # Each mean is a tensor of its own to the official `tf.exp`: the C library's `expf`, all at once here.
+    out = dict(zip((m.output for m in active_metrics()), libm_expf(means)))
     ade = sim.average_displacement_error
-    per_rollout = _object_mean(ade, object_mask, _F)
-    out["average_displacement_error"] = (
-        ade.mean(dtype=_F)
-        if object_mask is None
-        else (_padded_sum(per_rollout.astype(wide), -1, wide) / wide(per_rollout.shape[-1])).astype(_F)
-    )
-    out["min_average_displacement_error"] = nan_spreading_min(per_rollout)
+    out["average_displacement_error"] = eigen_mean32(*_rollout_major(ade, real))
+    out["min_average_displacement_error"] = nan_spreading_min(eigen_mean32(ade, real))
     for rate in RATES:
         # int32 counts divided as float64, as officially, then stored as float32.
         flags = _any_over_time(getattr(sim, rate.feature), masks["valid"])
-        out[rate.name] = (
-            flags.mean(dtype=wide)
-            if object_mask is None
-            else _padded_sum(_object_mean(flags, object_mask, wide), -1, wide) / wide(flags.shape[0])
-        )
+        if object_mask is not None:
+            flags = flags & object_mask
+        counted = flags.shape[0] * (flags.shape[1] if real is None else real)
+        out[rate.name] = flags.sum().astype(wide) / xp.asarray(counted).astype(wide)
     out = {k: xp.asarray(v, _F) for k, v in out.items()}
     # The official meta-metric sums float32 likelihoods with Python floats.
     weights = _weights(config)
     out["metametric"] = sum(weights[m] * out[f"{m}_likelihood"].astype(wide) for m in weights)
     return out
+
+
+def _mean_log_likelihoods(scored: list, real):
+    """Each metric's mean log-likelihood, float32 `(num_metrics,)`, in the official order of operations.
+
+    An indicator is averaged over objects (`tf.reduce_mean`), a time series over its valid (object, step)
+    pairs (`tf.reduce_sum` of the valid values, divided by their count). The metrics of each kind are
+    reduced together: each row's sum is the same as alone.
+
+    Args:
+      scored: (log-likelihood, mask) per metric, as `metric_log_likelihoods` gives them.
+      real: the number of real objects (padded rows follow), or None.
+    """
+    xp = array_namespace(*(ll for ll, _ in scored))
+    means: list = [None] * len(scored)
+    indicators = [k for k, (_, mask) in enumerate(scored) if mask is None]
+    if indicators:
+        rows = eigen_mean32(xp.stack([scored[k][0] for k in indicators]), real)
+        for k, mean in zip(indicators, rows):
+            means[k] = mean
+    series = [k for k, (_, mask) in enumerate(scored) if mask is not None]
+    if series:
+        masked = xp.stack([xp.where(scored[k][1], scored[k][0], _F(0)) for k in series])
+        steps = masked.shape[-1]
+        totals = eigen_sum32(masked.reshape(len(series), -1), None if real is None else real * steps)
+        counts = xp.stack([scored[k][1].sum() for k in series]).astype(_F)
+        for k, mean in zip(series, divide(totals, counts)):
+            means[k] = mean
+    return xp.stack(means)
+
+
+def _rollout_major(values, real):
+    """`(values flattened, count)`: a `(num_rollouts, num_objects)` array as the official tensor of its real
+    objects lies in memory, rollout after rollout, followed by the padding (`real`: None, no padding)."""
+    if real is None:
+        return values.reshape(-1), None
+    xp = array_namespace(values, real)
+    rollouts, padded = values.shape
+    k = xp.arange(rollouts * padded)
+    per_rollout = xp.maximum(real, 1)
+    position = (k // per_rollout) * padded + k % per_rollout
+    counted = rollouts * real
+    return xp.where(k < counted, values.reshape(-1)[xp.where(k < counted, position, 0)], _F(0)), counted
 
 
 def per_object_likelihoods(

@@ -22,6 +22,7 @@ from wosac_eval.metrics.config import default_config, preset_fits
 
 from . import jobs, scenes
 from .models import is_partial
+from .reading import scene_of
 
 TEMPLATES = Path(__file__).with_name("templates")
 BUCKET_COLUMNS = [
@@ -278,7 +279,7 @@ def scenes_content(svc, row: dict, public: bool) -> str:
 
 def scene_content(svc, row: dict, number: int, public: bool) -> str:
     sid = row["id"]
-    detail = scenes.scene_detail(svc.settings, row, number)
+    detail = scene_of(svc.settings, row, number)
     scenario, total = detail["scenario"], detail["total"]
     base = f"/submissions/{sid}/scenes"
     pager = [

@@ -182,6 +182,9 @@ def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, 
     browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
         f.key.value = {json.dumps(key)}; f.method.value = {json.dumps(method)}; f.publish.checked = true;
         f.partial.checked = {json.dumps(partial)}; f.requestSubmit(); }})()""")
+    # The page uploads through tus, then follows the submission on the same page; its link opens the status page.
+    browser.wait_for("document.getElementById('result-id').textContent.length === 32")
+    browser.js("document.getElementById('result-link').click()")
     return browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
 
 

@@ -271,3 +271,93 @@ def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server
     assert entry["partial"] and entry["coverage"] < 1
     board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
     assert re.search(r'<span class="partial"[^>]*>[0-9.]+% partial</span>', board), board[-3000:]
+
+
+def padded_submission(data, path, pad_bytes: int):
+    """One binproto of every rollout of `data.full` (a .tar.gz of shards, or one binproto), its description
+    `pad_bytes` long: a valid submission of a few hundred MB that scores in seconds."""
+    import tarfile
+
+    from wosac_eval.protos import sim_agents_submission_pb2 as pb
+
+    if data.full.name.endswith((".tar.gz", ".tar")):
+        with tarfile.open(data.full) as tar:
+            shards = [tar.extractfile(m).read() for m in tar.getmembers() if m.isfile()]
+    else:
+        shards = [data.full.read_bytes()]
+    merged = pb.SimAgentsChallengeSubmission.FromString(shards[0])
+    for shard in shards[1:]:
+        merged.scenario_rollouts.extend(pb.SimAgentsChallengeSubmission.FromString(shard).scenario_rollouts)
+    merged.description = "x" * pad_bytes
+    path.write_bytes(merged.SerializeToString())
+    return path
+
+
+# Every PATCH's Upload-Offset the page sends, recorded in the page (the browser's own requests, not mocked).
+RECORD_OFFSETS = """(() => { window.sentOffsets = []; const set = XMLHttpRequest.prototype.setRequestHeader;
+    XMLHttpRequest.prototype.setRequestHeader = function (name, value) {
+        if (name.toLowerCase() === 'upload-offset') { window.sentOffsets.push(Number(value)); }
+        return set.call(this, name, value); }; })()"""
+
+
+def start_page_upload(browser: Browser, url: str, file, key: str | None) -> None:
+    """Choose the file and send the form: on a new tab with `key`, else on this tab reloaded (its key from
+    the tab's sessionStorage)."""
+    if key:
+        browser.open(url + "/")
+    else:
+        browser.js("window.beforeReload = true; location.reload()")
+        browser.wait_for("window.beforeReload === undefined && document.readyState === 'complete'")
+    browser.js(RECORD_OFFSETS)
+    browser.choose_file("#upload-form input[type=file]", file)
+    fill = f"f.key.value = {json.dumps(key)}; f.method.value = 'resumed'; f.publish.checked = true;" if key else ""
+    browser.js(f"""(() => {{ const f = document.getElementById("upload-form"); {fill} f.requestSubmit(); }})()""")
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_a_large_upload_survives_a_killed_server_and_a_reload(make_server, scoring_data, tmp_path):
+    """A 320 MB submission through the page: the server killed (SIGKILL) and started again mid-way, the page
+    reloaded and the file chosen again; the upload goes on from the server's offset (same upload, no byte
+    sent twice but the chunk cut short), is scored, the result shown; the bytes on disk are the file's."""
+    big = padded_submission(scoring_data, tmp_path / "big.binproto", 320 * 2**20)
+    size = big.stat().st_size
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    key = server.key("resumer")
+    browser = Browser(tmp_path / "profile")
+    try:
+        start_page_upload(browser, server.url, big, key)
+        deadline = time.monotonic() + 120
+        while True:  # until the server holds at least two of the page's 64 MiB chunks
+            held = server.store.fetchone("SELECT id, received_bytes FROM uploads")
+            if held and held["received_bytes"] >= 2 * 64 * 2**20:
+                break
+            assert time.monotonic() < deadline, browser.js("document.getElementById('upload-status').textContent")
+            time.sleep(0.05)
+        upload_id = held["id"]
+        server.proc.kill()  # SIGKILL: no shutdown, a PATCH cut off mid-body
+        server.proc.wait()
+        server.start()
+        at_restart = server.store.fetchone("SELECT received_bytes FROM uploads WHERE id = ?", (upload_id,))
+        start_page_upload(browser, server.url, big, None)  # reloaded; the key from the tab's sessionStorage
+        state = browser.wait_for(
+            "['done', 'failed'].includes(document.getElementById('result-state').textContent)"
+            " && document.getElementById('result-state').textContent",
+            timeout=240,
+        )
+        shown = browser.js(
+            "[document.getElementById('result-id').textContent, document.getElementById('result-meta').textContent]"
+        )
+        resumed_offsets = browser.js("window.sentOffsets")
+    finally:
+        browser.close()
+    sid, meta = shown
+    assert state == "done", state
+    rows = server.store.fetchall("SELECT id, submission_id FROM uploads")
+    assert rows == [{"id": upload_id, "submission_id": sid}]  # the same upload, resumed, never a new one
+    assert resumed_offsets[0] == at_restart["received_bytes"] > 0 and resumed_offsets == sorted(resumed_offsets)
+    with server.client(key) as c:
+        status = c.get(f"/v1/submissions/{sid}").json()
+    assert status["upload_bytes"] == size and meta == str(status["realism_meta_metric"])
+    stored = next(server.data_dir.glob(f"submissions/{sid}.*"))
+    assert stored.stat().st_size == size and stored.read_bytes() == big.read_bytes()

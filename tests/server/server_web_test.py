@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import re
-import select
 import shutil
 import subprocess
 import time
 
 import httpx
 import pytest
+
+from support.browser import DevToolsBrowser
 
 
 CHROMIUM_FLAGS = [
@@ -37,6 +37,11 @@ def chromium() -> str:
     pytest.skip("no Chromium on PATH (apt-get install -y chromium)")
 
 
+def Browser(profile) -> DevToolsBrowser:  # noqa: N802 - reads as the class it makes
+    """Headless Chromium driven over its DevTools pipe (tests/support/browser.py); skipped without one."""
+    return DevToolsBrowser(chromium(), profile, CHROMIUM_FLAGS)
+
+
 def rendered_dom(url: str, profile) -> str:
     """The DOM after the page's scripts ran (virtual time lets pending fetches finish)."""
     run = subprocess.run(
@@ -47,86 +52,6 @@ def rendered_dom(url: str, profile) -> str:
     )
     assert run.returncode == 0, run.stderr[-2000:]
     return run.stdout
-
-
-class Browser:
-    """Headless Chromium driven over `--remote-debugging-pipe` (DevTools protocol:
-    JSON messages separated by NUL; Chromium reads fd 3 and writes fd 4)."""
-
-    def __init__(self, profile):
-        cmd_read, self._cmd = os.pipe()
-        self._replies, reply_write = os.pipe()
-
-        def wire_fds():  # in the child: its fd 3 and 4 become our pipes
-            a, b = os.dup(cmd_read), os.dup(reply_write)
-            os.dup2(a, 3)
-            os.dup2(b, 4)
-
-        self.proc = subprocess.Popen(
-            [chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
-            pass_fds=(3, 4),
-            preexec_fn=wire_fds,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        os.close(cmd_read)
-        os.close(reply_write)
-        self._buffer, self._last_id, self.session = b"", 0, None
-
-    def send(self, method: str, **params):
-        self._last_id += 1
-        message = {"id": self._last_id, "method": method, "params": params}
-        if self.session and not method.startswith(("Target.", "Browser.")):
-            message["sessionId"] = self.session
-        os.write(self._cmd, json.dumps(message).encode() + b"\0")
-        deadline = time.monotonic() + 30
-        while True:
-            while b"\0" in self._buffer:
-                raw, self._buffer = self._buffer.split(b"\0", 1)
-                reply = json.loads(raw)
-                if reply.get("id") == self._last_id:
-                    assert "error" not in reply, f"{method}: {reply['error']}"
-                    return reply["result"]
-            ready, _, _ = select.select([self._replies], [], [], max(0.0, deadline - time.monotonic()))
-            assert ready, f"Chromium did not answer {method}"
-            chunk = os.read(self._replies, 1 << 16)
-            assert chunk, "Chromium closed the DevTools pipe"
-            self._buffer += chunk
-
-    def open(self, url: str) -> None:
-        target = self.send("Target.createTarget", url=url)["targetId"]
-        self.session = self.send("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
-        # The new tab starts on about:blank, itself "complete": wait for our page.
-        self.wait_for(f"location.href === {json.dumps(url)} && document.readyState === 'complete'")
-
-    def js(self, expression: str):
-        result = self.send("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
-        assert "exceptionDetails" not in result, result["exceptionDetails"]
-        return result["result"].get("value")
-
-    def wait_for(self, expression: str, timeout: float = 60.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            value = self.js(expression)
-            if value:
-                return value
-            time.sleep(0.1)
-        raise AssertionError(f"still false after {timeout} s: {expression}")
-
-    def choose_file(self, selector: str, path) -> None:
-        root = self.send("DOM.getDocument")["root"]["nodeId"]
-        node = self.send("DOM.querySelector", nodeId=root, selector=selector)["nodeId"]
-        self.send("DOM.setFileInputFiles", files=[str(path)], nodeId=node)
-
-    def close(self) -> None:
-        try:
-            self.send("Browser.close")
-            self.proc.wait(10)
-        except (AssertionError, subprocess.TimeoutExpired):
-            self.proc.kill()
-            self.proc.wait()
-        os.close(self._cmd)
-        os.close(self._replies)
 
 
 def field(dom: str, element_id: str) -> str:
@@ -175,7 +100,7 @@ def test_pages_send_a_strict_content_security_policy(api_server):
     assert httpx.get(api_server.url + "/static/style.css").headers["x-content-type-options"] == "nosniff"
 
 
-def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, partial: bool = False) -> str:
+def submit_upload_form(browser: DevToolsBrowser, url: str, file, key: str, method: str, partial: bool = False) -> str:
     """Fill the page's upload form (published, partial when asked) and send it; the status page's path."""
     browser.open(url + "/")
     browser.choose_file("#upload-form input[type=file]", file)
@@ -300,7 +225,7 @@ RECORD_OFFSETS = """(() => { window.sentOffsets = []; const set = XMLHttpRequest
         return set.call(this, name, value); }; })()"""
 
 
-def start_page_upload(browser: Browser, url: str, file, key: str | None) -> None:
+def start_page_upload(browser: DevToolsBrowser, url: str, file, key: str | None) -> None:
     """Choose the file and send the form: on a new tab with `key`, else on this tab reloaded (its key from
     the tab's sessionStorage)."""
     if key:

@@ -25,6 +25,9 @@ def reading_of(request: Request) -> Reading:
     return request.app.state.reading
 
 
+MAX_PAGE = results.MAX_PAGE  # rows in one page of /results/scenarios
+
+
 class Reading:
     """What a key (or anyone, for the leaderboards) may read, through one `Service`."""
 

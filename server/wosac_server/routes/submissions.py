@@ -15,8 +15,7 @@ from fastapi.responses import FileResponse, JSONResponse, Response, StreamingRes
 from ..errors import NotASubmission
 from ..intake import receive_submission
 from ..models import ResultScenarios, ResultSummary, SubmissionList, SubmissionStatus, status_of
-from ..reading import ReadingDep, page_text, readable_csv, sent_then_closed, summary_text
-from ..results import MAX_PAGE
+from ..reading import MAX_PAGE, ReadingDep, page_text, readable_csv, sent_then_closed, summary_text
 from ..service import Key, ServiceDep
 from .params import MAX_HEADER_INT, OCTET_BODY, SUBMISSION_LINKS, ClientBody, Params, SubmissionId
 

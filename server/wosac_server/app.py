@@ -3,7 +3,7 @@
 Uploads are streamed to a server-named file inside the data dir in chunks
 (never read whole into memory), fsynced, renamed, and only then is the job row
 committed and `202` answered: an accepted submission survives any crash after
-the answer. Large uploads can be resumed (tus-like, `routes.uploads`).
+the answer. Large uploads can be resumed (tus 1.0.0, `routes.uploads`).
 Scoring itself happens in worker processes (`worker.py`); this process only
 reads and writes the job store.
 """
@@ -19,11 +19,14 @@ from contextlib import asynccontextmanager
 import anyio
 from fastapi import FastAPI, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse
+from fastapi.middleware.cors import CORSMiddleware
 
 from . import disk
 from .guard import CloseUnreadBodies
-from .routes import public, submissions, uploads
+from .reading import Reading
+from .resumable import Resumable
+from .routes import answers, public, submissions, uploads
+from .routes.answers import TUS_ANSWER_HEADERS, TUS_REQUEST_HEADERS
 from .service import Service
 from .settings import Settings, load_settings
 from .web import install_pages, install_scene_pages
@@ -46,7 +49,25 @@ async def _disk_full_answer(request: Request, exc: Exception):
     if not disk.is_disk_full(exc):
         raise exc
     log.warning("%s %s: the data dir's disk is full (%s)", request.method, request.url.path, exc)
-    return JSONResponse({"detail": disk.FULL_DETAIL}, status_code=507, headers={"Retry-After": str(disk.RETRY_AFTER_S)})
+    return await answers.refusal(request, disk.full_answer())
+
+
+def _allow_origins(app: FastAPI, origins: list[str]) -> None:
+    """CORS for the origins configured (WOSAC_CORS_ORIGINS; none by default): a page of another origin may
+    upload through tus and read the answers' tus headers. Never with credentials: the API's key travels
+    in `Authorization`, which the page sets itself, so no cookie or ambient credential is ever allowed,
+    and `*` stays a plain wildcard."""
+    if not origins:
+        return
+    app.add_middleware(
+        CORSMiddleware,
+        allow_origins=origins,
+        allow_credentials=False,
+        allow_methods=["GET", "HEAD", "POST", "PATCH", "DELETE", "OPTIONS"],
+        allow_headers=["Authorization", "Content-Type", *TUS_REQUEST_HEADERS],
+        expose_headers=["Location", "Retry-After", "Submission-Id", *TUS_ANSWER_HEADERS],
+        max_age=600,
+    )
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -78,11 +99,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.service = svc
     app.state.settings = svc.settings  # kept for the worker pool and tests
     app.state.store = svc.store
+    app.state.reading = Reading(svc)
+    app.state.uploads = Resumable(svc)
     for module in (public, submissions, uploads):
         app.include_router(module.router)
+    answers.install(app)
     install_pages(app, svc)
     install_scene_pages(app, svc)
     for error_type in disk.full_error_types(svc.store.dialect):
         app.add_exception_handler(error_type, _disk_full_answer)
     app.add_middleware(CloseUnreadBodies)  # an early answer closes its connection: no unread body is waited for
+    _allow_origins(app, svc.settings.cors_origin_list)
     return app

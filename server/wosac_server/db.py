@@ -19,7 +19,7 @@ from typing import Any
 
 from .names import name_key
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 SCHEMA = [
     """CREATE TABLE IF NOT EXISTS api_keys (
@@ -100,6 +100,9 @@ MIGRATIONS: dict[int, list[str | Callable[[Store], None]]] = {
         lambda store: _fill_name_keys(store),
         "CREATE UNIQUE INDEX IF NOT EXISTS method_names_name_key ON method_names (challenge, name_key)",
         "CREATE INDEX IF NOT EXISTS api_keys_name_key ON api_keys (name_key)",
+    ],
+    5: [  # a tus upload's Upload-Metadata as its client sent it (HEAD gives it back)
+        "ALTER TABLE uploads ADD COLUMN metadata TEXT",
     ],
 }
 

@@ -24,9 +24,8 @@ import sqlite3
 import time
 from collections.abc import Callable
 
-from fastapi import HTTPException
-
 from .db import Store
+from .errors import NoSpace
 from .settings import Settings
 
 log = logging.getLogger("wosac_server.disk")
@@ -70,8 +69,8 @@ def full_error_types(dialect: str) -> list[type[Exception]]:
     return [*types, psycopg.errors.DiskFull]
 
 
-def full_answer() -> HTTPException:
-    return HTTPException(507, FULL_DETAIL, headers={"Retry-After": str(RETRY_AFTER_S)})
+def full_answer() -> NoSpace:
+    return NoSpace(FULL_DETAIL, retry_after_s=RETRY_AFTER_S)
 
 
 def job_need_bytes(upload_bytes: int, scenarios: int | None = None) -> int:
@@ -118,13 +117,12 @@ class DiskState:
     def refusing(self) -> bool:
         return self.room() < 0
 
-    def refusal(self) -> HTTPException:
-        return HTTPException(
-            507,
+    def refusal(self) -> NoSpace:
+        return NoSpace(
             f"the server's disk is too full to take this upload now ({self.free} bytes free, "
             f"{self.reserved} promised to uploads and jobs in progress, {self.floor} kept free); "
             f"retry in {RETRY_AFTER_S} s",
-            headers={"Retry-After": str(RETRY_AFTER_S)},
+            retry_after_s=RETRY_AFTER_S,
         )
 
 

@@ -15,6 +15,7 @@ import json
 import os
 import time
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 from .db import Store
@@ -67,20 +68,24 @@ def write_json_atomically(path: Path, payload: dict) -> None:
     fsync_dir(path.parent)
 
 
+@dataclass(frozen=True)
+class SubmissionParams:
+    """What a submission asks for, however sent (query parameters, or a tus upload's `Upload-Metadata`):
+    `config` and `method` None until the service resolves them (the challenge's current config, the key's
+    name)."""
+
+    challenge: str = "sim_agents"
+    config: str | None = None
+    method: str | None = None
+    publish: bool = False
+    allow_partial: bool = False
+
+
 # -- submissions ----------------------------------------------------------------------
 def insert_submission(
-    store: Store,
-    *,
-    submission_id: str,
-    key_id: str,
-    method: str,
-    challenge: str,
-    config: str,
-    allow_partial: bool,
-    published: bool,
-    file_name: str,
-    upload_bytes: int,
+    store: Store, submission_id: str, key_id: str, params: SubmissionParams, *, file_name: str, upload_bytes: int
 ) -> None:
+    """A queued job of resolved `params` (its config and method set)."""
     now = time.time()
     store.execute(
         "INSERT INTO submissions (id, key_id, method, challenge, config, allow_partial, published, state,"
@@ -89,11 +94,11 @@ def insert_submission(
         (
             submission_id,
             key_id,
-            method,
-            challenge,
-            config,
-            int(allow_partial),
-            int(published),
+            params.method,
+            params.challenge,
+            params.config,
+            int(params.allow_partial),
+            int(params.publish),
             file_name,
             upload_bytes,
             now,
@@ -295,21 +300,31 @@ def is_public(store: Store, row: dict) -> bool:
 # -- resumable uploads ------------------------------------------------------------------
 def insert_upload(
     store: Store,
-    *,
     upload_id: str,
     key_id: str,
-    method: str,
-    challenge: str,
-    config: str,
-    allow_partial: bool,
-    published: bool,
+    params: SubmissionParams,
+    *,
     declared_length: int | None,
+    metadata: str | None,
 ) -> None:
+    """An open resumable upload of resolved `params`; `metadata`: tus's Upload-Metadata as sent, given back by HEAD."""
     now = time.time()
     store.execute(
         "INSERT INTO uploads (id, key_id, method, challenge, config, allow_partial, published, declared_length,"
-        " received_bytes, created_at, updated_at) VALUES (?, ?, ?, ?, ?, ?, ?, ?, 0, ?, ?)",
-        (upload_id, key_id, method, challenge, config, int(allow_partial), int(published), declared_length, now, now),
+        " received_bytes, created_at, updated_at, metadata) VALUES (?, ?, ?, ?, ?, ?, ?, ?, 0, ?, ?, ?)",
+        (
+            upload_id,
+            key_id,
+            params.method,
+            params.challenge,
+            params.config,
+            int(params.allow_partial),
+            int(params.publish),
+            declared_length,
+            now,
+            now,
+            metadata,
+        ),
     )
 
 

@@ -14,7 +14,7 @@ import threading
 import time
 from collections.abc import Callable
 
-from .worker_main import PARENT_PID_FLAG
+from .supervision import PARENT_PID_FLAG
 
 log = logging.getLogger("wosac_server.worker")
 

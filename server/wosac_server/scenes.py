@@ -11,9 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from fastapi import HTTPException
-
-from . import results
+from .errors import Gone, NotFound
 from .scene_objects import scene_records
 from .settings import Settings
 
@@ -34,45 +32,32 @@ def scene_index(settings: Settings, submission_id: str) -> list[dict]:
 
 
 def picture_path(settings: Settings, submission_id: str, rank: int, of_object: bool = False) -> Path:
-    """A picture of `scene_index` by rank: the scene, or its worst object; 404 when there is none, 410 when
-    its file is gone."""
+    """A picture of `scene_index` by rank: the scene, or its worst object; `NotFound` when there is none, `Gone`
+    when its file is gone."""
     entry = next((e for e in scene_index(settings, submission_id) if e["rank"] == rank), None)
     if entry is None or (of_object and not entry["object_picture"]):
         what = "object picture" if of_object else "scene picture"
-        raise HTTPException(404, f"submission {submission_id} has no {what} {rank}")
+        raise NotFound(f"submission {submission_id} has no {what} {rank}")
     picture = settings.scenes_dir(submission_id) / (f"{rank}.object.png" if of_object else f"{rank}.png")
     if not picture.is_file():
-        raise HTTPException(410, f"picture {rank} of submission {submission_id} is missing on the server")
+        raise Gone(f"picture {rank} of submission {submission_id} is missing on the server")
     return picture
 
 
-def scene_detail(settings: Settings, submission: dict, row: int) -> dict:
-    """One scene of a done submission's result: its row, its worst objects (from the job's per-object
-    file; [] for a job scored without one) and its pictures when it is one of the pictured scenes.
-    404 past the last row, 410 when the result is gone."""
+def scene_detail(settings: Settings, submission: dict, row: int, total: int, rows: list[str]) -> dict:
+    """One scene of a done submission's result, from the page of its result at `row` (`total` rows; `rows`
+    the JSON text of that one, or none past the end): its row, its worst objects (from the job's
+    per-object file; [] for a job scored without one) and its pictures when it is one of the pictured
+    scenes. `NotFound` past the last row."""
     submission_id = submission["id"]
-    try:
-        stored = results.open_result(settings.results_dir, submission_id)
-    except results.ResultDamaged as exc:
-        raise HTTPException(
-            410, f"the result file of submission {submission_id} is damaged on the server ({exc})"
-        ) from exc
-    if stored is None:
-        raise HTTPException(410, f"the result file of submission {submission_id} is missing on the server")
-    try:
-        total, rows = stored.page(row, 1)
-    except results.ResultDamaged as exc:
-        raise HTTPException(
-            410, f"the result file of submission {submission_id} is damaged on the server ({exc})"
-        ) from exc
-    finally:
-        stored.close()
     if not rows:
-        raise HTTPException(404, f"submission {submission_id} has {total} scenes (rows 0 to {total - 1})")
+        raise NotFound(f"submission {submission_id} has {total} scenes (rows 0 to {total - 1})")
     scenario = json.loads(rows[0])
     records = scene_records(settings.objects_path(submission_id), settings.objects_index_path(submission_id), row)
     worst = []
     if records:
+        # Imported here: it loads the scoring stack (features, k-d trees), kept out of the API process's start
+        # (server_api_test: the API starts without it) until a scene page asks.
         from wosac_eval.results.worst_objects import scene_worst_objects
 
         worst = scene_worst_objects(records, scenario, submission["config"], WORST_OBJECTS)

@@ -1,8 +1,11 @@
-"""The service's state and the rules every route applies: keys, quotas, ownership, acceptance.
+"""The service layer: the service's state and the rules every route applies (keys, quotas, ownership,
+disk space, acceptance), between the routes (HTTP) and storage (`jobs`, `results`, the data dir).
 
-One `Service` per API process (`app.state.service`): the settings, the job
-store, and the in-memory locks of resumable uploads. Routes reach it through
-the `service` dependency and authenticate with `current_key`.
+One `Service` per API process (`app.state.service`): the settings, the job store, the holds of
+uploads in flight. Routes reach it through the `service` dependency and authenticate with
+`current_key`; it refuses with the domain errors of `errors`, which `routes.answers` alone turns into
+status codes. Its parts: `intake` (a whole body received), `resumable` (tus uploads), `reading`
+(statuses, results, scenes).
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import collections
 import contextlib
+import dataclasses
 import logging
 import os
 import re
@@ -19,9 +23,8 @@ import time
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, Request
 from fastapi.concurrency import run_in_threadpool
-from fastapi.responses import JSONResponse
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
 from wosac_eval.metrics.config import config_name_for
@@ -31,7 +34,9 @@ from wosac_eval.parse.shards import NotASubmissionError
 
 from . import auth, disk, jobs
 from .db import Store
-from .models import status_of
+from .errors import Invalid, NotASubmission, NotFound, NotOwner, TooLarge, TooMany, Unauthenticated
+from .holds import Hold, Holds
+from .jobs import SubmissionParams
 from .names import display_name, name_key
 from .settings import Settings
 
@@ -82,30 +87,33 @@ class Service:
 
         def refuse_unserved(name: str) -> None:
             if name not in self.settings.configs:
-                raise HTTPException(422, f"unknown config {name!r}; this server scores {self.settings.configs}")
+                raise Invalid(f"unknown config {name!r}; this server scores {self.settings.configs}")
 
         if config is not None:
             refuse_unserved(config)
         try:
             name = config_name_for(challenge, config)
         except ValueError as error:  # a preset of the other challenge: the library's rule
-            raise HTTPException(422, str(error)) from None
+            raise Invalid(str(error)) from None
         refuse_unserved(name)
         return name
+
+    def resolve(self, key: auth.ApiKey, asked: SubmissionParams) -> SubmissionParams:
+        """The parameters a job is made with: its config (422 when not served) and its leaderboard name as
+        stored (403 when another key owns it); runs in a thread (it reads the database)."""
+        config = self.config_for(asked.challenge, asked.config)
+        method = self.check_method(key, asked.challenge, asked.method or key.name)
+        return dataclasses.replace(asked, config=config, method=method)
 
     # -- keys, quotas, ownership ---------------------------------------------------------------
     def key_for(self, creds: HTTPAuthorizationCredentials | None, client: str = "") -> auth.ApiKey:
         if creds is None or creds.scheme.lower() != "bearer":
-            raise HTTPException(
-                401, "missing API key: send 'Authorization: Bearer <key>'", headers={"WWW-Authenticate": "Bearer"}
-            )
+            raise Unauthenticated("missing API key: send 'Authorization: Bearer <key>'", sent_a_key=False)
         self._refuse_guessing(client)
         key = auth.verify_key(self.store, creds.credentials)
         if key is None:
             self._record_auth_failure(client)
-            raise HTTPException(
-                401, "unknown or revoked API key", headers={"WWW-Authenticate": 'Bearer error="invalid_token"'}
-            )
+            raise Unauthenticated("unknown or revoked API key", sent_a_key=True)
         return key
 
     def _recent_failures(self, client: str, now: float) -> collections.deque:
@@ -122,10 +130,9 @@ class Service:
             if len(failures) < self.settings.auth_failures_per_minute:
                 return
             retry = int(failures[0] + 60.0 - now) + 1
-        raise HTTPException(
-            429,
+        raise TooMany(
             f"too many failed authentications from this address in the last minute; retry in {retry} s",
-            headers={"Retry-After": str(retry)},
+            retry_after_s=retry,
         )
 
     def _record_auth_failure(self, client: str) -> None:
@@ -137,15 +144,15 @@ class Service:
             self._recent_failures(client, now).append(now)
 
     @staticmethod
-    def quota_error(exc: auth.QuotaExceeded) -> HTTPException:
-        headers = {"Retry-After": str(exc.retry_after_s)} if exc.retry_after_s else None
-        return HTTPException(exc.status, exc.message, headers=headers)
+    def quota_error(exc: auth.QuotaExceeded) -> TooMany | TooLarge:
+        kind = TooMany if exc.status == 429 else TooLarge
+        return kind(exc.message, retry_after_s=exc.retry_after_s or None)
 
     def own_submission(self, key: auth.ApiKey, submission_id: str) -> dict:
         # 404 (not 403) for another user's id: ids of others are not even confirmed to exist.
         row = jobs.get_submission(self.store, submission_id) if re.match(ID_PATTERN, submission_id) else None
         if row is None or row["key_id"] != key.id:
-            raise HTTPException(404, f"no submission {submission_id!r} for this API key")
+            raise NotFound(f"no submission {submission_id!r} for this API key")
         return row
 
     def own_upload(self, key: auth.ApiKey, upload_id: str) -> dict:
@@ -153,7 +160,7 @@ class Service:
             self.retry_unsettled()
         row = jobs.get_upload(self.store, upload_id) if re.match(ID_PATTERN, upload_id) else None
         if row is None or row["key_id"] != key.id or row["state"] == "deleting":
-            raise HTTPException(404, f"no upload {upload_id!r} for this API key")
+            raise NotFound(f"no upload {upload_id!r} for this API key")
         return row
 
     def check_method(self, key: auth.ApiKey, challenge: str, method: str) -> str:
@@ -167,8 +174,7 @@ class Service:
             }
             owner = None if not reserved or key.id in reserved else reserved.pop()
         if owner is not None and owner != key.id:
-            raise HTTPException(
-                403,
+            raise NotOwner(
                 f"the method name {shown!r} (or a name differing from it only in case, "
                 f"spacing or look-alike characters) belongs to another key on the {challenge} "
                 "leaderboard; choose another name (an operator can reassign names: "
@@ -228,9 +234,8 @@ class Service:
             and limit == self.settings.max_single_upload_bytes
         )
 
-    def _single_refusal(self, what: str) -> HTTPException:
-        return HTTPException(
-            413,
+    def _single_refusal(self, what: str) -> TooLarge:
+        return TooLarge(
             f"{what}, more than one request may carry ({self.settings.max_single_upload_bytes} "
             "bytes, WOSAC_MAX_SINGLE_UPLOAD_BYTES); send it with `wosac-eval submit`, which uploads "
             "it in resumable chunks",
@@ -243,24 +248,22 @@ class Service:
         if declared is not None and declared > limit:
             if self._single_limit_binds(limit):
                 raise self._single_refusal(f"the body is {declared} bytes")
-            raise HTTPException(
-                413, f"the body is {declared} bytes; this server accepts at most {limit} bytes (WOSAC_MAX_UPLOAD_BYTES)"
+            raise TooLarge(
+                f"the body is {declared} bytes; this server accepts at most {limit} bytes (WOSAC_MAX_UPLOAD_BYTES)"
             )
         self._check_quota(key, 0, None)
         if declared is not None and declared > self.upload_limit(key):
-            raise HTTPException(
-                413,
+            raise TooLarge(
                 f"the body is {declared} bytes; key {key.name!r} has "
                 f"{self.upload_limit(key)} bytes left of its daily quota",
             )
 
-    def too_large(self, key: auth.ApiKey) -> HTTPException:
+    def too_large(self, key: auth.ApiKey) -> TooLarge:
         """The 413 of a direct upload's body that went past `upload_limit(key, single=True)`."""
         limit = self.upload_limit(key, single=True)
         if self._single_limit_binds(limit):
             return self._single_refusal("the body is larger")
-        return HTTPException(
-            413,
+        return TooLarge(
             f"the body exceeds the {limit} bytes this key may upload now "
             f"(server limit {self.settings.max_upload_bytes} bytes, WOSAC_MAX_UPLOAD_BYTES)",
         )
@@ -354,30 +357,26 @@ class Service:
         size: int,
         *,
         hold: Hold,
-        method: str | None,
-        challenge: str,
-        config: str,
-        allow_partial: bool,
-        publish: bool,
+        params: SubmissionParams,
         upload_id: str | None = None,
     ) -> dict:
         """Turn a complete, fsynced file into a queued submission (runs in a thread); `hold`, from
         `upload_slot`, is dropped in the same step as the job row is committed.
 
-        On refusal (HTTPException) `temp` is left where it was: the caller decides
+        On refusal (a `ServiceError`) `temp` is left where it was: the caller decides
         whether the bytes are kept (a resumable upload refused by a quota) or dropped.
         """
         if size == 0:
-            raise HTTPException(422, "the upload is empty")
+            raise Invalid("the upload is empty")
         store, settings = self.store, self.settings
-        method = display_name(method or key.name)
+        method = display_name(params.method or key.name)
         self._check_quota(key, size, hold, upload_id)
         try:
             suffix = check_container(temp, self.limits).suffix
         except NotASubmissionError as exc:
-            raise HTTPException(415, public_message(exc, temp)) from exc
+            raise NotASubmission(public_message(exc, temp)) from exc
         except ParseError as exc:
-            raise HTTPException(422, public_message(exc, temp)) from exc
+            raise Invalid(public_message(exc, temp)) from exc
         submission_id = jobs.new_id()
         file_name = submission_id + suffix
         final = settings.submissions_dir / file_name
@@ -387,19 +386,13 @@ class Service:
         try:
             with self.holds.gate, store.transaction():
                 self._check_quota(key, size, hold, upload_id)  # again, under the write lock
-                if not jobs.claim_method(store, challenge, method, key.id):
-                    raise HTTPException(
-                        403, f"the method name {method!r} was just taken by another key; choose another name"
-                    )
+                if not jobs.claim_method(store, params.challenge, method, key.id):
+                    raise NotOwner(f"the method name {method!r} was just taken by another key; choose another name")
                 jobs.insert_submission(
                     store,
-                    submission_id=submission_id,
-                    key_id=key.id,
-                    method=method,
-                    challenge=challenge,
-                    config=config,
-                    allow_partial=allow_partial,
-                    published=publish,
+                    submission_id,
+                    key.id,
+                    dataclasses.replace(params, method=method),
                     file_name=file_name,
                     upload_bytes=size,
                 )
@@ -411,64 +404,8 @@ class Service:
             raise
         row = jobs.get_submission(store, submission_id)
         if row is None:  # its owner deleted it in the instant since its commit
-            raise HTTPException(404, f"submission {submission_id} was deleted")
+            raise NotFound(f"submission {submission_id} was deleted")
         return row
-
-    @staticmethod
-    def accepted(row: dict) -> JSONResponse:
-        body = status_of(row).model_dump()
-        return JSONResponse(body, status_code=202, headers={"Location": f"/v1/submissions/{row['id']}"})
-
-
-class Hold:
-    """One upload's reservation: a job slot and `bytes` of its key's daily quota, until released."""
-
-    __slots__ = ("key_id", "bytes", "active")
-
-    def __init__(self, key_id: str, nbytes: int):
-        self.key_id, self.bytes, self.active = key_id, nbytes, False  # active once granted
-
-
-class Holds:
-    """The job slots and daily bytes that uploads in flight hold, per key, in this API process.
-
-    `gate` orders the steps that must not interleave: a quota check and the grant of a hold
-    (`Service.reserve`), and the commit of a job with the release of its hold (`Service.accept`). A
-    check inside the gate therefore counts every slot exactly once: as a hold, or as the job row that
-    replaced it. Refused uploads never got a hold, and every hold is released when its upload ends
-    (accepted, refused, or cut off), so nothing is held for an upload that is gone. The counters have
-    their own small lock: releasing (on the event loop) never waits for a database commit.
-    """
-
-    def __init__(self):
-        self.gate = threading.Lock()
-        self._lock = threading.Lock()
-        self._slots: collections.Counter[str] = collections.Counter()
-        self._bytes: collections.Counter[str] = collections.Counter()
-
-    def grant(self, hold: Hold) -> None:
-        with self._lock:
-            hold.active = True
-            self._slots[hold.key_id] += 1
-            self._bytes[hold.key_id] += hold.bytes
-
-    def release(self, hold: Hold | None) -> None:
-        with self._lock:
-            if hold is None or not hold.active:
-                return
-            hold.active = False
-            self._slots[hold.key_id] -= 1
-            self._bytes[hold.key_id] -= hold.bytes
-            if not self._slots[hold.key_id]:
-                del self._slots[hold.key_id], self._bytes[hold.key_id]
-
-    def held(self, key_id: str, but: Hold | None = None) -> tuple[int, int]:
-        """(slots, bytes) the key's holds take, but `but`'s own."""
-        with self._lock:
-            slots, nbytes = self._slots.get(key_id, 0), self._bytes.get(key_id, 0)
-            if but is not None and but.active:
-                slots, nbytes = slots - 1, nbytes - but.bytes
-        return slots, nbytes
 
 
 def public_message(exc: Exception, path: Path) -> str:

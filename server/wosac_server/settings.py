@@ -169,6 +169,12 @@ class Settings(BaseModel):
     max_connections: int = Field(
         0, ge=0, description="Open connections in all (WOSAC_MAX_CONNECTIONS); 0: sized from the open-file limit."
     )
+    cors_origins: str = Field(
+        "",
+        description="Origins (comma-separated, e.g. https://challenge.example.org; `*`: any) whose pages may call "
+        "the API from a browser, e.g. a tus uploader on another site (WOSAC_CORS_ORIGINS); default none. "
+        "Never with credentials: the key travels in Authorization.",
+    )
 
     @field_validator("configs", mode="before")
     @classmethod
@@ -184,6 +190,10 @@ class Settings(BaseModel):
             parts = [p.strip() for chunk in value.split(",") for p in chunk.split(os.pathsep)]
             return [p for p in parts if p]
         return value
+
+    @property
+    def cors_origin_list(self) -> list[str]:
+        return [o.strip().rstrip("/") for o in self.cors_origins.split(",") if o.strip()]
 
     def input_limits(self):
         """The `InputLimits` every upload check and scoring job applies."""

@@ -1,9 +1,9 @@
 """The small web page: leaderboard, upload form, a submission's status.
 
 Server-rendered from the templates beside this file with `string.Template`
-(every value HTML-escaped here); no external CDN, no build step. The upload and
-status forms talk to the same `/v1` API with the user's key, kept in the tab's
-sessionStorage only.
+(every value HTML-escaped here); no external CDN, no build step. The upload form
+sends the file through tus (`/v1/uploads`, with tus-js-client served from the package), the
+status forms talk to the same `/v1` API; the user's key is kept in the tab's sessionStorage only.
 """
 
 import base64
@@ -22,8 +22,10 @@ from wosac_eval.metrics.config import default_config, preset_fits
 
 from . import jobs, scenes
 from .models import is_partial
+from .reading import scene_of
 
 TEMPLATES = Path(__file__).with_name("templates")
+VENDORED = Path(__file__).with_name("static")
 BUCKET_COLUMNS = [
     ("kinematic_metrics", "Kinematic"),
     ("interactive_metrics", "Interactive"),
@@ -46,7 +48,7 @@ def security_headers(page: str) -> dict:
         f"'sha256-{base64.b64encode(hashlib.sha256(body.encode()).digest()).decode()}'"
         for body in _SCRIPT.findall(page)
     )
-    script_src = hashes or "'none'"
+    script_src = f"'self' {hashes}".strip()  # the page's own inline scripts, and /static/tus.min.js
     policy = (
         f"default-src 'none'; script-src {script_src}; style-src 'self'; "
         "img-src 'self' data: blob:; connect-src 'self'; form-action 'self'; base-uri 'none'; "
@@ -164,6 +166,15 @@ def install_pages(app: FastAPI, svc) -> None:
         content = _template("submission.html").substitute(submission_id=submission_id)
         return _page(f"Submission {submission_id}", content)
 
+    @app.get("/static/tus.min.js", include_in_schema=False)
+    def tus_client():
+        """tus-js-client, the tus protocol's own browser client (vendored: static/tus-js-client/README.md)."""
+        return FileResponse(
+            VENDORED / "tus-js-client" / "tus.min.js",
+            media_type="text/javascript",
+            headers={"Cache-Control": "max-age=3600", "X-Content-Type-Options": "nosniff"},
+        )
+
     @app.get("/static/style.css", include_in_schema=False)
     def style():
         return Response(
@@ -278,7 +289,7 @@ def scenes_content(svc, row: dict, public: bool) -> str:
 
 def scene_content(svc, row: dict, number: int, public: bool) -> str:
     sid = row["id"]
-    detail = scenes.scene_detail(svc.settings, row, number)
+    detail = scene_of(svc.settings, row, number)
     scenario, total = detail["scenario"], detail["total"]
     base = f"/submissions/{sid}/scenes"
     pager = [

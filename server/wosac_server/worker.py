@@ -51,7 +51,7 @@ from . import disk, jobs, results
 from .db import Store
 from .job_limits import limit_this_process, why_child_ended
 from .settings import Settings, load_settings
-from .worker_main import parent_pid_argument, tie_to_supervisor
+from .supervision import parent_pid_argument, tie_to_supervisor
 
 log = logging.getLogger("wosac_server.worker")
 
@@ -367,7 +367,65 @@ class Worker:
 
     def score_here(self, job: dict) -> None:
         """Score a job in this process and record its outcome (done or failed, with the reason)."""
+        job_id = job["id"]
+        submission_path = self.settings.submissions_dir / job["file_name"]
+        try:
+            scenarios = self.settings.scenario_paths()
+            if not scenarios:
+                jobs.finish_failed(
+                    self.store, job_id, self.owner, "the server has no scenario shards configured (WOSAC_SCENARIOS)"
+                )
+                return
+            result, scored_now = self._score(job, ScenarioIndex(scenarios), submission_path)
+            jobs.finish_done(self.store, job_id, self.owner, result)
+            log.info("worker %s: %s done (%d scenarios scored in this attempt)", os.getpid(), job_id, scored_now)
+        except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
+            if disk.is_disk_full(exc):
+                raise  # not the submission's doing: until_written (score_job) waits for space and resumes
+            error, report = self._failure(job_id, exc, submission_path)
+            jobs.finish_failed(self.store, job_id, self.owner, error, report)
+
+    def _score(self, job: dict, index: ScenarioIndex, submission_path: Path) -> tuple[dict, int]:
+        """(the job's result, stored; the scenarios this attempt scored), its pictures drawn."""
         settings, job_id = self.settings, job["id"]
+        evaluation = evaluation_of(job, settings)
+        journal = settings.journal_path(job_id)
+        resumed = journal_rows(journal)
+        if resumed:
+            log.info(
+                "worker %s: job %s resumes from its journal: %d scenarios already scored", os.getpid(), job_id, resumed
+            )
+        # Validation walks the upload under the service's limits and records where each scenario is;
+        # scoring and the pictures stream the archive again rather than keep a decompressed copy on disk.
+        with SubmissionSource(submission_path, evaluation.options.limits) as source:
+            # The same function `wosac-eval score` calls; finished scenarios go to the journal as they are
+            # scored, so a retry after this process died (or waited out a full disk) skips them.
+            # Per-object values too: streamed from the journal into the objects file (never all in memory),
+            # then indexed by row so that a scene's worst objects are read without a pass over the file.
+            result = _with_engine_retries(
+                job_id,
+                lambda: score_submission(
+                    index,
+                    source,
+                    progress=self._progress_of(job_id),
+                    evaluation=evaluation,
+                    journal=journal,
+                    per_object=True,
+                    objects=settings.objects_path(job_id),
+                ),
+            )
+            # The objects file is the server's own (scene pages): the result served stays the document of
+            # `wosac-eval score` without --per-object, byte for byte.
+            result.pop("per_object", None)
+            # The summary and the rows apart (results.py): served in bounded memory, however many rows.
+            results.write_result(settings.results_dir, job_id, result)
+            self.index_objects(result, job_id)
+            if settings.scene_pictures:
+                self.draw_pictures(index, source, result, job_id)
+        return result, journal_rows(journal) - resumed
+
+    def _progress_of(self, job_id: str) -> Callable[[int, int], None]:
+        """The job's progress, written at most every 0.5 s (and at its first and last scenario)."""
         last_write = [0.0]
 
         def progress(done: int, total: int) -> None:
@@ -380,101 +438,31 @@ class Worker:
                     if not disk.is_disk_full(exc):
                         raise  # progress is only shown: a full disk must not stop the scoring for it
 
-        submission_path = settings.submissions_dir / job["file_name"]
-        try:
-            scenarios = settings.scenario_paths()
-            if not scenarios:
-                jobs.finish_failed(
-                    self.store, job_id, self.owner, "the server has no scenario shards configured (WOSAC_SCENARIOS)"
-                )
-                return
-            evaluation = evaluation_of(job, settings)
-            index = ScenarioIndex(scenarios)
-            journal = settings.journal_path(job_id)
-            resumed = journal_rows(journal)
-            if resumed:
-                log.info(
-                    "worker %s: job %s resumes from its journal: %d scenarios already scored",
-                    os.getpid(),
-                    job_id,
-                    resumed,
-                )
-            # Validation walks the upload under the service's limits and records where each scenario is;
-            # scoring and the pictures stream the archive again rather than keep a decompressed copy on disk.
-            with SubmissionSource(submission_path, evaluation.options.limits) as source:
-                # The same function `wosac-eval score` calls; finished scenarios go to the journal as they are
-                # scored, so a retry after this process died (or waited out a full disk) skips them.
-                # Per-object values too: streamed from the journal into the objects file (never all in memory),
-                # then indexed by row so that a scene's worst objects are read without a pass over the file.
-                objects = settings.objects_path(job_id)
-                result = _with_engine_retries(
-                    job_id,
-                    lambda: score_submission(
-                        index,
-                        source,
-                        progress=progress,
-                        evaluation=evaluation,
-                        journal=journal,
-                        per_object=True,
-                        objects=objects,
-                    ),
-                )
-                # The objects file is the server's own (scene pages): the result served stays the document of
-                # `wosac-eval score` without --per-object, byte for byte.
-                result.pop("per_object", None)
-                # The summary and the rows apart (results.py): served in bounded memory, however many rows.
-                results.write_result(settings.results_dir, job_id, result)
-                self.index_objects(result, job_id)
-                if settings.scene_pictures:
-                    self.draw_pictures(index, source, result, job_id)
-            scored_now = journal_rows(journal) - resumed
-            jobs.finish_done(self.store, job_id, self.owner, result)
-            log.info("worker %s: %s done (%d scenarios scored in this attempt)", os.getpid(), job_id, scored_now)
-        except InvalidSubmissionError as exc:
+        return progress
+
+    def _failure(self, job_id: str, exc: Exception, submission_path: Path) -> tuple[str, dict | None]:
+        """(the failed job's error, its validation report) for a submission that could not be scored, as its
+        sender may see them (no server path)."""
+        if isinstance(exc, InvalidSubmissionError):
             report = getattr(exc, "report", None)
             payload = None
             if report is not None:
                 payload = self._public({"text": report.format_text(), "details": report.to_dict()}, submission_path)
-            jobs.finish_failed(
-                self.store,
-                job_id,
-                self.owner,
-                self._public(f"the submission is invalid: {exc.reason}; the report lists each", submission_path),
-                payload,
-            )
-        except ValueError as exc:  # e.g. no scenario in common with the server's scenario set
-            jobs.finish_failed(
-                self.store,
-                job_id,
-                self.owner,
-                self._public(f"the submission could not be scored: {exc}", submission_path),
-            )
-        except MemoryError:
-            jobs.finish_failed(
-                self.store,
-                job_id,
-                self.owner,
-                f"scoring ran out of its memory limit of {settings.job_memory_bytes} bytes "
-                "(WOSAC_JOB_MEMORY_BYTES) and was stopped",
-            )
-        except EngineUnavailableError as exc:  # the Ray cluster is down or refuses us: its own one sentence
+            return self._public(
+                f"the submission is invalid: {exc.reason}; the report lists each", submission_path
+            ), payload
+        if isinstance(exc, MemoryError):
+            return (
+                f"scoring ran out of its memory limit of {self.settings.job_memory_bytes} bytes "
+                "(WOSAC_JOB_MEMORY_BYTES) and was stopped"
+            ), None
+        if isinstance(exc, EngineUnavailableError):  # the Ray cluster is down or refuses us: its own one sentence
             log.error("worker %s: job %s: %s", os.getpid(), job_id, exc)
-            jobs.finish_failed(
-                self.store,
-                job_id,
-                self.owner,
-                self._public(f"the scoring engine is unavailable: {exc}", submission_path),
-            )
-        except Exception as exc:  # a scorer bug must fail the job with a reason, not hang it
-            if disk.is_disk_full(exc):
-                raise  # not the submission's doing: until_written (score_job) waits for space and resumes
-            log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
-            jobs.finish_failed(
-                self.store,
-                job_id,
-                self.owner,
-                self._public(f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path),
-            )
+            return self._public(f"the scoring engine is unavailable: {exc}", submission_path), None
+        if isinstance(exc, ValueError):  # e.g. no scenario in common with the server's scenario set
+            return self._public(f"the submission could not be scored: {exc}", submission_path), None
+        log.error("worker %s: job %s crashed:\n%s", os.getpid(), job_id, traceback.format_exc())
+        return self._public(f"internal error while scoring ({type(exc).__name__}: {exc})", submission_path), None
 
     def _sweep_stale_uploads(self) -> None:
         now = time.time()

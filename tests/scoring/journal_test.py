@@ -221,3 +221,33 @@ def test_a_resumed_run_whose_kept_members_are_gone_streams_them_again(workload, 
     shutil.rmtree(members_path(journal))
     journal.write_bytes(b"".join(_journal_lines(journal)[:4]))  # killed after 3 rows
     assert json.loads(json.dumps(score_submission([scenarios], submission, journal=journal))) == uninterrupted
+
+
+@pytest.mark.parametrize(
+    ("tamper", "named"),
+    [
+        (lambda row: [row], "a list, not a row"),
+        (lambda row: {k: v for k, v in row.items() if k != "scenario_id"}, "no scenario_id"),
+        (lambda row: {**row, "metametric": "high"}, "without a meta-metric"),
+        (lambda row: {k: v for k, v in row.items() if k != "by_object_type"}, "other fields than the rows before"),
+    ],
+    ids=["not-a-row", "no-id", "bad-metametric", "fields-missing"],
+)
+def test_a_damaged_journal_is_named_with_what_to_do(workload, tmp_path, tamper, named):
+    """A record of this run's journal altered after it was written (valid JSON, not a row of the run): the
+    resumed run stops with one sentence naming the journal, the line and --restart, not an internal error.
+    (`wosac-eval score` prints a ValueError's sentence as its own.)"""
+    from wosac_eval.scoring.journal import JournalDamaged
+
+    scenarios, submission = workload
+    journal = tmp_path / "run.journal"
+    score_submission([scenarios], submission, journal=journal)
+    lines = _journal_lines(journal)
+    lines[3] = (json.dumps(tamper(json.loads(lines[3]))) + "\n").encode()
+    journal.write_bytes(b"".join(lines))
+    with pytest.raises(JournalDamaged) as caught:
+        score_submission([scenarios], submission, journal=journal)
+    message = str(caught.value)
+    assert isinstance(caught.value, ValueError) and named in message
+    assert f"the journal {journal}" in message and "line 4" in message and "--restart" in message
+    assert "damaged or altered" in message

@@ -14,18 +14,8 @@ from wosac_server import auth, jobs
 
 def add_job(store, key_id="k", method="m", config="2025", published=False, created=None, challenge="sim_agents") -> str:
     sid = jobs.new_id()
-    jobs.insert_submission(
-        store,
-        submission_id=sid,
-        key_id=key_id,
-        method=method,
-        challenge=challenge,
-        config=config,
-        allow_partial=False,
-        published=published,
-        file_name=sid + ".binproto",
-        upload_bytes=10,
-    )
+    params = jobs.SubmissionParams(challenge=challenge, config=config, method=method, publish=published)
+    jobs.insert_submission(store, sid, key_id, params, file_name=sid + ".binproto", upload_bytes=10)
     if created is not None:
         store.execute("UPDATE submissions SET created_at = ? WHERE id = ?", (created, sid))
     return sid
@@ -157,7 +147,7 @@ def test_a_version_1_database_is_migrated(tmp_path):
     store = Store(f"sqlite:///{path}")
     store.migrate()
     store.migrate()  # idempotent
-    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION == 4
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION == 5
     row = jobs.get_submission(store, "a")
     assert (row["challenge"], row["coverage"], row["state"]) == ("sim_agents", None, "queued")
     assert (row["peak_rss_bytes"], row["cpu_s"]) == (None, None)
@@ -233,7 +223,7 @@ def test_key_names_are_unique_by_their_normal_form(store):
 def test_a_version_3_database_gets_normal_forms_and_look_alike_claims_resolved(engine, tmp_path, request):
     """Claims and keys of a version 3 database get their normal form; of look-alike claims made before,
     the first keeps the name."""
-    from wosac_server.db import MIGRATIONS, SCHEMA, Store
+    from wosac_server.db import MIGRATIONS, SCHEMA, SCHEMA_VERSION, Store
 
     url = f"sqlite:///{tmp_path / 'v3.sqlite3'}" if engine == "sqlite" else request.getfixturevalue("postgres_server")()
     store = Store(url)
@@ -260,7 +250,7 @@ def test_a_version_3_database_gets_normal_forms_and_look_alike_claims_resolved(e
         )
     store.migrate()
     store.migrate()  # idempotent
-    assert store.fetchone("SELECT version FROM schema_version")["version"] == 4
+    assert store.fetchone("SELECT version FROM schema_version")["version"] == SCHEMA_VERSION
     claims = store.fetchall("SELECT challenge, method, name_key, key_id FROM method_names ORDER BY challenge, method")
     assert [tuple(c.values()) for c in claims] == [
         ("scenario_gen", "TEAM ROCKET", "team rocket", "second"),

@@ -171,3 +171,47 @@ def test_a_scored_job_is_stored_apart_and_served_whole(make_server, scoring_data
             c.get(f"/v1/submissions/{sid}/results/summary").json()["buckets"]["realism_meta_metric"]
             == status["realism_meta_metric"]
         )
+
+
+def _peak_rss_bytes(pid: int) -> int:
+    for line in open(f"/proc/{pid}/status"):
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError("no VmHWM in /proc status")
+
+
+def test_ten_clients_fetching_a_result_at_once_do_not_grow_the_api(make_server):
+    """The whole JSON of a 1 MB result, to ten clients at once that read it slowly: streamed from the stored
+    files, the API process's peak RSS grows by a few MB at most (not by the result times its readers)."""
+    import threading
+    import time
+
+    server = make_server(workers=0)
+    key = server.key("ten-readers")
+    doc = synthetic_result(330)  # about 1 MB of JSON
+    whole = json.dumps(doc, allow_nan=True).encode()
+    assert 0.9e6 < len(whole) < 1.4e6
+    with server.client(key) as c:
+        sid = _done_job(server, c)
+        results.write_result(server.data_dir / "results", sid, doc)
+        assert c.get(f"/v1/submissions/{sid}/results").content == whole  # every code path warm
+    baseline = _peak_rss_bytes(server.proc.pid)
+    got: list[bytes] = []
+
+    def read_slowly() -> None:
+        with server.client(key) as c, c.stream("GET", f"/v1/submissions/{sid}/results") as answer:
+            parts = []
+            for part in answer.iter_raw(65536):
+                parts.append(part)
+                time.sleep(0.02)
+            got.append(b"".join(parts))
+
+    readers = [threading.Thread(target=read_slowly) for _ in range(10)]
+    for reader in readers:
+        reader.start()
+    for reader in readers:
+        reader.join()
+    growth = _peak_rss_bytes(server.proc.pid) - baseline
+    assert got == [whole] * 10
+    # 10.8 MiB when each reader's stream went in pieces of 256 KiB
+    assert growth < 5 * 2**20, f"the API grew by {growth / 2**20:.1f} MiB serving a {len(whole) / 1e6:.1f} MB result"

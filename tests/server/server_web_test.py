@@ -6,15 +6,15 @@ from __future__ import annotations
 
 import html
 import json
-import os
 import re
-import select
 import shutil
 import subprocess
 import time
 
 import httpx
 import pytest
+
+from support.browser import DevToolsBrowser
 
 
 CHROMIUM_FLAGS = [
@@ -37,6 +37,11 @@ def chromium() -> str:
     pytest.skip("no Chromium on PATH (apt-get install -y chromium)")
 
 
+def Browser(profile) -> DevToolsBrowser:  # noqa: N802 - reads as the class it makes
+    """Headless Chromium driven over its DevTools pipe (tests/support/browser.py); skipped without one."""
+    return DevToolsBrowser(chromium(), profile, CHROMIUM_FLAGS)
+
+
 def rendered_dom(url: str, profile) -> str:
     """The DOM after the page's scripts ran (virtual time lets pending fetches finish)."""
     run = subprocess.run(
@@ -47,86 +52,6 @@ def rendered_dom(url: str, profile) -> str:
     )
     assert run.returncode == 0, run.stderr[-2000:]
     return run.stdout
-
-
-class Browser:
-    """Headless Chromium driven over `--remote-debugging-pipe` (DevTools protocol:
-    JSON messages separated by NUL; Chromium reads fd 3 and writes fd 4)."""
-
-    def __init__(self, profile):
-        cmd_read, self._cmd = os.pipe()
-        self._replies, reply_write = os.pipe()
-
-        def wire_fds():  # in the child: its fd 3 and 4 become our pipes
-            a, b = os.dup(cmd_read), os.dup(reply_write)
-            os.dup2(a, 3)
-            os.dup2(b, 4)
-
-        self.proc = subprocess.Popen(
-            [chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
-            pass_fds=(3, 4),
-            preexec_fn=wire_fds,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        os.close(cmd_read)
-        os.close(reply_write)
-        self._buffer, self._last_id, self.session = b"", 0, None
-
-    def send(self, method: str, **params):
-        self._last_id += 1
-        message = {"id": self._last_id, "method": method, "params": params}
-        if self.session and not method.startswith(("Target.", "Browser.")):
-            message["sessionId"] = self.session
-        os.write(self._cmd, json.dumps(message).encode() + b"\0")
-        deadline = time.monotonic() + 30
-        while True:
-            while b"\0" in self._buffer:
-                raw, self._buffer = self._buffer.split(b"\0", 1)
-                reply = json.loads(raw)
-                if reply.get("id") == self._last_id:
-                    assert "error" not in reply, f"{method}: {reply['error']}"
-                    return reply["result"]
-            ready, _, _ = select.select([self._replies], [], [], max(0.0, deadline - time.monotonic()))
-            assert ready, f"Chromium did not answer {method}"
-            chunk = os.read(self._replies, 1 << 16)
-            assert chunk, "Chromium closed the DevTools pipe"
-            self._buffer += chunk
-
-    def open(self, url: str) -> None:
-        target = self.send("Target.createTarget", url=url)["targetId"]
-        self.session = self.send("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
-        # The new tab starts on about:blank, itself "complete": wait for our page.
-        self.wait_for(f"location.href === {json.dumps(url)} && document.readyState === 'complete'")
-
-    def js(self, expression: str):
-        result = self.send("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
-        assert "exceptionDetails" not in result, result["exceptionDetails"]
-        return result["result"].get("value")
-
-    def wait_for(self, expression: str, timeout: float = 60.0):
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            value = self.js(expression)
-            if value:
-                return value
-            time.sleep(0.1)
-        raise AssertionError(f"still false after {timeout} s: {expression}")
-
-    def choose_file(self, selector: str, path) -> None:
-        root = self.send("DOM.getDocument")["root"]["nodeId"]
-        node = self.send("DOM.querySelector", nodeId=root, selector=selector)["nodeId"]
-        self.send("DOM.setFileInputFiles", files=[str(path)], nodeId=node)
-
-    def close(self) -> None:
-        try:
-            self.send("Browser.close")
-            self.proc.wait(10)
-        except (AssertionError, subprocess.TimeoutExpired):
-            self.proc.kill()
-            self.proc.wait()
-        os.close(self._cmd)
-        os.close(self._replies)
 
 
 def field(dom: str, element_id: str) -> str:
@@ -175,13 +100,16 @@ def test_pages_send_a_strict_content_security_policy(api_server):
     assert httpx.get(api_server.url + "/static/style.css").headers["x-content-type-options"] == "nosniff"
 
 
-def submit_upload_form(browser: Browser, url: str, file, key: str, method: str, partial: bool = False) -> str:
+def submit_upload_form(browser: DevToolsBrowser, url: str, file, key: str, method: str, partial: bool = False) -> str:
     """Fill the page's upload form (published, partial when asked) and send it; the status page's path."""
     browser.open(url + "/")
     browser.choose_file("#upload-form input[type=file]", file)
     browser.js(f"""(() => {{ const f = document.getElementById("upload-form");
         f.key.value = {json.dumps(key)}; f.method.value = {json.dumps(method)}; f.publish.checked = true;
         f.partial.checked = {json.dumps(partial)}; f.requestSubmit(); }})()""")
+    # The page uploads through tus, then follows the submission on the same page; its link opens the status page.
+    browser.wait_for("document.getElementById('result-id').textContent.length === 32")
+    browser.js("document.getElementById('result-link').click()")
     return browser.wait_for("location.pathname.startsWith('/submissions/') && location.pathname")
 
 
@@ -268,3 +196,93 @@ def test_upload_form_asks_for_partial_scoring_and_the_board_marks_it(make_server
     assert entry["partial"] and entry["coverage"] < 1
     board = rendered_dom(server.url + "/?config=2025", tmp_path / "profile-a")
     assert re.search(r'<span class="partial"[^>]*>[0-9.]+% partial</span>', board), board[-3000:]
+
+
+def padded_submission(data, path, pad_bytes: int):
+    """One binproto of every rollout of `data.full` (a .tar.gz of shards, or one binproto), its description
+    `pad_bytes` long: a valid submission of a few hundred MB that scores in seconds."""
+    import tarfile
+
+    from wosac_eval.protos import sim_agents_submission_pb2 as pb
+
+    if data.full.name.endswith((".tar.gz", ".tar")):
+        with tarfile.open(data.full) as tar:
+            shards = [tar.extractfile(m).read() for m in tar.getmembers() if m.isfile()]
+    else:
+        shards = [data.full.read_bytes()]
+    merged = pb.SimAgentsChallengeSubmission.FromString(shards[0])
+    for shard in shards[1:]:
+        merged.scenario_rollouts.extend(pb.SimAgentsChallengeSubmission.FromString(shard).scenario_rollouts)
+    merged.description = "x" * pad_bytes
+    path.write_bytes(merged.SerializeToString())
+    return path
+
+
+# Every PATCH's Upload-Offset the page sends, recorded in the page (the browser's own requests, not mocked).
+RECORD_OFFSETS = """(() => { window.sentOffsets = []; const set = XMLHttpRequest.prototype.setRequestHeader;
+    XMLHttpRequest.prototype.setRequestHeader = function (name, value) {
+        if (name.toLowerCase() === 'upload-offset') { window.sentOffsets.push(Number(value)); }
+        return set.call(this, name, value); }; })()"""
+
+
+def start_page_upload(browser: DevToolsBrowser, url: str, file, key: str | None) -> None:
+    """Choose the file and send the form: on a new tab with `key`, else on this tab reloaded (its key from
+    the tab's sessionStorage)."""
+    if key:
+        browser.open(url + "/")
+    else:
+        browser.js("window.beforeReload = true; location.reload()")
+        browser.wait_for("window.beforeReload === undefined && document.readyState === 'complete'")
+    browser.js(RECORD_OFFSETS)
+    browser.choose_file("#upload-form input[type=file]", file)
+    fill = f"f.key.value = {json.dumps(key)}; f.method.value = 'resumed'; f.publish.checked = true;" if key else ""
+    browser.js(f"""(() => {{ const f = document.getElementById("upload-form"); {fill} f.requestSubmit(); }})()""")
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+def test_a_large_upload_survives_a_killed_server_and_a_reload(make_server, scoring_data, tmp_path):
+    """A 320 MB submission through the page: the server killed (SIGKILL) and started again mid-way, the page
+    reloaded and the file chosen again; the upload goes on from the server's offset (same upload, no byte
+    sent twice but the chunk cut short), is scored, the result shown; the bytes on disk are the file's."""
+    big = padded_submission(scoring_data, tmp_path / "big.binproto", 320 * 2**20)
+    size = big.stat().st_size
+    server = make_server(workers=1, scenarios=scoring_data.scenarios)
+    key = server.key("resumer")
+    browser = Browser(tmp_path / "profile")
+    try:
+        start_page_upload(browser, server.url, big, key)
+        deadline = time.monotonic() + 120
+        while True:  # until the server holds at least two of the page's 64 MiB chunks
+            held = server.store.fetchone("SELECT id, received_bytes FROM uploads")
+            if held and held["received_bytes"] >= 2 * 64 * 2**20:
+                break
+            assert time.monotonic() < deadline, browser.js("document.getElementById('upload-status').textContent")
+            time.sleep(0.05)
+        upload_id = held["id"]
+        server.proc.kill()  # SIGKILL: no shutdown, a PATCH cut off mid-body
+        server.proc.wait()
+        server.start()
+        at_restart = server.store.fetchone("SELECT received_bytes FROM uploads WHERE id = ?", (upload_id,))
+        start_page_upload(browser, server.url, big, None)  # reloaded; the key from the tab's sessionStorage
+        state = browser.wait_for(
+            "['done', 'failed'].includes(document.getElementById('result-state').textContent)"
+            " && document.getElementById('result-state').textContent",
+            timeout=240,
+        )
+        shown = browser.js(
+            "[document.getElementById('result-id').textContent, document.getElementById('result-meta').textContent]"
+        )
+        resumed_offsets = browser.js("window.sentOffsets")
+    finally:
+        browser.close()
+    sid, meta = shown
+    assert state == "done", state
+    rows = server.store.fetchall("SELECT id, submission_id FROM uploads")
+    assert rows == [{"id": upload_id, "submission_id": sid}]  # the same upload, resumed, never a new one
+    assert resumed_offsets[0] == at_restart["received_bytes"] > 0 and resumed_offsets == sorted(resumed_offsets)
+    with server.client(key) as c:
+        status = c.get(f"/v1/submissions/{sid}").json()
+    assert status["upload_bytes"] == size and meta == str(status["realism_meta_metric"])
+    stored = next(server.data_dir.glob(f"submissions/{sid}.*"))
+    assert stored.stat().st_size == size and stored.read_bytes() == big.read_bytes()

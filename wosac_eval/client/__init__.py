@@ -1,4 +1,5 @@
-"""A client of the wosac-server scoring service (server/), on the standard library's HTTP alone.
+"""A client of the wosac-server scoring service (server/), on the standard library's HTTP alone; its
+uploads speak tus 1.0.0 (`tus.py`), so any tus server of the service's API takes them.
 
   submit(path, server=URL, key=KEY, method=NAME, challenge="sim_agents", config=None, publish=False,
          allow_partial=False, wait=False, output=None, ...) -> the submission's status
@@ -6,9 +7,11 @@
       server's offset), retried with backoff; with wait=True, followed to its result.
   follow(submission_id, server=URL, key=KEY, output=None) -> the final status with its result
   SubmitError and its kinds: SubmissionRefused (4xx: .status, .detail), SubmissionFailed (the job
-  failed: .status), ServerUnavailable (past the retry budget), ProtocolError; ArgumentError (a
-  ValueError) for bad arguments, raised before anything is sent.
-  RetryPolicy(attempts, base_s, cap_s, max_wait_s): how long each request is retried.
+  failed: .status), ServerUnavailable (past the retry budget; AnswerTooSlow: an answer past its
+  deadline), ProtocolError (an answer that is not the service's, naming what it lacks); ArgumentError
+  (a ValueError) for bad arguments, raised before anything is sent.
+  RetryPolicy(attempts, base_s, cap_s, max_wait_s, answer_deadline_s): how long each request is retried,
+  and how long a status or result answer may take to come whole.
 
 `wosac-eval submit` is this function on the command line.
 """
@@ -18,6 +21,7 @@ from __future__ import annotations
 from wosac_eval.client.following import follow
 from wosac_eval.client.transport import (
     KEY_ENV,
+    AnswerTooSlow,
     ArgumentError,
     ProtocolError,
     RetryPolicy,
@@ -26,11 +30,12 @@ from wosac_eval.client.transport import (
     SubmissionRefused,
     SubmitError,
 )
-from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, submit
+from wosac_eval.client.uploads import DEFAULT_CHUNK_BYTES, SubmitOptions, submit
 
 __all__ = [
     "DEFAULT_CHUNK_BYTES",
     "KEY_ENV",
+    "AnswerTooSlow",
     "ArgumentError",
     "ProtocolError",
     "RetryPolicy",
@@ -38,6 +43,7 @@ __all__ = [
     "SubmissionFailed",
     "SubmissionRefused",
     "SubmitError",
+    "SubmitOptions",
     "follow",
     "submit",
 ]

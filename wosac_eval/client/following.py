@@ -23,9 +23,22 @@ from wosac_eval.client.transport import (
     api_key,
     call,
     refused,
+    required,
 )
 
 FINAL_STATES = ("done", "failed")
+NUMBER = (int, float)
+# What this client reads of the server's answers (`transport.required` names what one lacks).
+STATUS_FIELDS: dict[str, type | tuple[type, ...]] = {"id": str, "state": str, "method": str, "progress": dict}
+RESULT_FIELDS: dict[str, type | tuple[type, ...]] = {
+    "buckets": dict,
+    "num_scenarios": int,
+    "challenge": str,
+    "config": str,
+}
+BUCKET_FIELDS: dict[str, type | tuple[type, ...]] = dict.fromkeys(
+    ("realism_meta_metric", "kinematic_metrics", "interactive_metrics", "map_based_metrics", "min_ade"), NUMBER
+)
 # progress(stage, done, total): stage "upload" counts bytes the server holds (or that are on their way),
 # "scoring" the job's scenarios (total None until validation has read the submission).
 Progress = Callable[[str, int, "int | None"], None]
@@ -47,7 +60,7 @@ def follow(
 ) -> dict:
     """Follow a submission already on the server until it is done or failed; as `submit(..., wait=True)`."""
     try:
-        server_ = Server(server, api_key(key), timeout)
+        server_ = Server(server, api_key(key), timeout, retry.answer_deadline_s)
     except ValueError as error:
         raise ArgumentError(str(error)) from None
     return Follower(server_, progress or no_progress, log or _logger.info, retry, poll_s).follow(
@@ -80,7 +93,9 @@ class Follower:
             return None
         if answer.status != 200:
             raise refused(answer)
-        return answer.json()
+        status = required(answer.json(), STATUS_FIELDS, f"asking for submission {submission_id}'s status")
+        required(status["progress"], {"scenarios_done": int}, f"asking for submission {submission_id}'s progress")
+        return status
 
     def follow(self, submission_id: str, status: dict | None, output) -> dict:
         """Poll until the job is done or failed (`status`: its status as the caller last saw and said it)."""
@@ -124,7 +139,8 @@ class Follower:
             answer = call(self, "fetching the result", "GET", route)  # 404): the whole document, rows too
         if answer.status != 200:
             raise refused(answer)
-        result = answer.json()
+        result = required(answer.json(), RESULT_FIELDS, f"fetching submission {status['id']}'s result")
+        required(result["buckets"], BUCKET_FIELDS, f"fetching submission {status['id']}'s result (its buckets)")
         if output is not None:
             self._download(route, Path(output))
         status = dict(status)
@@ -142,7 +158,7 @@ class Follower:
                 def fetch() -> Response:
                     f.seek(0)
                     f.truncate()
-                    return self.server.request("GET", self.server.path(route), sink=f)
+                    return self.server.request("GET", self.server.path(route), sink=f, deadline=self.server.deadline_s)
 
                 answer = Retrier(self.policy, self.log).call(self.server, "downloading the result", fetch)
                 if answer.status != 200:

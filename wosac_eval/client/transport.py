@@ -7,6 +7,7 @@ after an early answer, or one left half-written by an interruption, is never reu
 
 from __future__ import annotations
 
+import contextlib
 import email.utils
 import http.client
 import json
@@ -14,6 +15,7 @@ import os
 import random
 import socket
 import ssl
+import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -57,6 +59,15 @@ class ProtocolError(SubmitError):
     """The server answered something this client does not understand (is the URL a wosac-server?)."""
 
 
+class AnswerTooSlow(ServerUnavailable):
+    """An answer that did not come whole within its deadline (a server trickling a few bytes a second)."""
+
+
+# A downloaded answer (the result document) may take this long per byte of its Content-Length besides the
+# request's own deadline: at least 256 KiB/s, a few minutes for a validation-size result of ~150 MB.
+DOWNLOAD_S_PER_BYTE = 1 / (256 * 1024)
+
+
 @dataclass(frozen=True)
 class RetryPolicy:
     """How long one request is retried before giving up.
@@ -72,6 +83,7 @@ class RetryPolicy:
     cap_s: float = 30.0
     max_wait_s: float = 900.0
     first_contact_attempts: int = 3  # a server that never answered in this run (a wrong URL?) is given up sooner
+    answer_deadline_s: float = 120.0  # a status or result answer must come whole within this (not retried)
 
     def delay(self, failures: int, retry_after: float | None) -> float:
         if retry_after is not None:
@@ -158,7 +170,8 @@ class Server:
 
     url: str
     key: str = field(repr=False)
-    timeout: float = 60.0
+    timeout: float = 60.0  # seconds a connection may stay silent
+    deadline_s: float = 120.0  # seconds a bodiless request's whole answer may take, however it trickles
     answered: bool = field(default=False, init=False)  # any answer in this run: the URL is right
 
     def __post_init__(self) -> None:
@@ -196,15 +209,54 @@ class Server:
         body_length: int = 0,
         timeout: float | None = None,
         sink: BinaryIO | None = None,
+        deadline: float | None = None,
     ) -> Response:
         """One request on a fresh connection; raises one of NETWORK_ERRORS when no answer came back.
 
         A server may answer before it has read the body (401, 413, 429: then it closes the
         connection): when sending fails, the answer is still read if it arrived. With `sink`, a 200
         answer's body is written there a block at a time (the Response's body is then empty); a body
-        that ends before its Content-Length raises http.client.IncompleteRead.
+        that ends before its Content-Length raises http.client.IncompleteRead. With `deadline`, the whole
+        exchange must end within that many seconds (a sink's within that plus its Content-Length at
+        256 KiB/s), else AnswerTooSlow: a server that trickles its answer never holds the client.
         """
         conn = self._connection(self.timeout if timeout is None else timeout)
+        watchdog = _Watchdog(deadline)
+        try:
+            conn.connect()
+            watchdog.sock = conn.sock  # the connection lets go of it once the answer's headers are read
+            answer = self._exchange(conn, method, path, headers, body, body_length)
+            self.answered = True
+            if sink is not None and answer.status == 200:
+                length = answer.getheader("content-length")
+                if length is not None and length.isdigit():
+                    watchdog.extend(int(length) * DOWNLOAD_S_PER_BYTE)
+                while block := answer.read1(2**20):
+                    sink.write(block)
+                if answer.length:  # http.client counts what a Content-Length still promised
+                    raise http.client.IncompleteRead(b"", answer.length)
+                data = b""
+            else:
+                data = answer.read()
+            watchdog.check(method, path)
+            return Response(answer.status, {k.lower(): v for k, v in answer.getheaders()}, data)
+        except NETWORK_ERRORS:
+            watchdog.check(method, path)
+            raise
+        finally:
+            watchdog.stop()
+            conn.close()
+
+    def _exchange(
+        self,
+        conn: http.client.HTTPConnection,
+        method: str,
+        path: str,
+        headers: dict[str, str] | None,
+        body: Iterable[bytes] | None,
+        body_length: int,
+    ) -> http.client.HTTPResponse:
+        """Send the request; its answer's status and headers read."""
         sent = {
             "User-Agent": USER_AGENT,
             "Authorization": f"Bearer {self.key}",
@@ -214,30 +266,62 @@ class Server:
         if body is not None or method in ("POST", "PUT", "PATCH"):
             sent["Content-Length"] = str(body_length)
         try:
+            conn.putrequest(method, path, skip_accept_encoding=True)
+            for name, value in sent.items():
+                conn.putheader(name, value)
+            conn.endheaders()
+            for piece in body or ():
+                conn.send(piece)
+        except (BrokenPipeError, ConnectionResetError) as send_error:
             try:
-                conn.putrequest(method, path, skip_accept_encoding=True)
-                for name, value in sent.items():
-                    conn.putheader(name, value)
-                conn.endheaders()
-                for piece in body or ():
-                    conn.send(piece)
-            except (BrokenPipeError, ConnectionResetError) as send_error:
-                try:
-                    answer = conn.getresponse()
-                except NETWORK_ERRORS:
-                    raise send_error from None
-            else:
-                answer = conn.getresponse()
-            self.answered = True
-            if sink is not None and answer.status == 200:
-                while block := answer.read(2**20):
-                    sink.write(block)
-                data = b""
-            else:
-                data = answer.read()
-            return Response(answer.status, {k.lower(): v for k, v in answer.getheaders()}, data)
-        finally:
-            conn.close()
+                return conn.getresponse()
+            except NETWORK_ERRORS:
+                raise send_error from None
+        return conn.getresponse()
+
+
+class _Watchdog:
+    """Ends a connection whose exchange outlives its deadline (its socket shut down: a blocked read returns),
+    and says so as AnswerTooSlow."""
+
+    def __init__(self, deadline: float | None):
+        self.deadline, self.fired = deadline, threading.Event()
+        self.sock: socket.socket | None = None
+        self.started = time.monotonic()
+        self.timer: threading.Timer | None = None
+        if deadline is not None:
+            self._arm(deadline)
+
+    def _arm(self, seconds: float) -> None:
+        self.timer = threading.Timer(max(0.0, seconds), self._fire)
+        self.timer.daemon = True
+        self.timer.start()
+
+    def _fire(self) -> None:
+        self.fired.set()
+        sock = self.sock
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.shutdown(socket.SHUT_RDWR)
+
+    def extend(self, seconds: float) -> None:
+        """More time for a body whose length is known now."""
+        if self.timer is None or self.deadline is None:
+            return
+        self.timer.cancel()
+        self.deadline += seconds
+        self._arm(self.deadline - (time.monotonic() - self.started))
+
+    def check(self, method: str, path: str) -> None:
+        if self.fired.is_set():
+            raise AnswerTooSlow(
+                f"{method} {path}: the server's answer did not come whole within {self.deadline:.0f} s (it "
+                "sends too slowly); the server or the network to it is at fault: try again later"
+            )
+
+    def stop(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
 
 
 def _query_value(value) -> str:
@@ -343,12 +427,17 @@ def call(
     query: dict | None = None,
     headers: dict[str, str] | None = None,
     retrier: Retrier | None = None,
+    deadline: float | None = None,
 ) -> Response:
     """One bodiless request, retried by `owner`'s policy (or `retrier`, counting on from its failures); the
-    answer that was not worth retrying."""
+    answer that was not worth retrying. Its answer must come whole within `deadline` (default: the
+    server's `deadline_s`)."""
     server = owner.server
     return (retrier or Retrier(owner.policy, owner.log)).call(
-        server, what, lambda: server.request(method, server.path(route, query), headers), reset=retrier is None
+        server,
+        what,
+        lambda: server.request(method, server.path(route, query), headers, deadline=deadline or server.deadline_s),
+        reset=retrier is None,
     )
 
 
@@ -356,3 +445,18 @@ def refused(answer: Response) -> SubmitError:
     if 400 <= answer.status < 500:
         return SubmissionRefused(answer.status, answer.detail())
     return ProtocolError(f"unexpected answer {answer.status}: {answer.detail()}")
+
+
+def required(value: dict, fields: dict[str, type | tuple[type, ...]], what: str) -> dict:
+    """`value` (a JSON object the server sent) once it holds each of `fields` with a value of its type; else
+    ProtocolError naming what is missing: the server's fault, not this client's."""
+    wrong = [name for name, kind in fields.items() if not isinstance(value.get(name), kind) or value.get(name) is True]
+    if wrong:
+        shown = ", ".join(
+            f"{name!r} ({'missing' if name not in value else type(value[name]).__name__})" for name in wrong
+        )
+        raise ProtocolError(
+            f"the server's answer to {what} lacks {shown}: it is not a wosac-server's answer (the server is at "
+            "fault, not this client; its operator can tell why)"
+        )
+    return value

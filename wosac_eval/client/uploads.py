@@ -1,18 +1,17 @@
-"""`submit`: send a submission to a wosac-server through its resumable uploads, and follow it to its result.
+"""`submit`: send a submission to a wosac-server through its resumable uploads (tus 1.0.0), and follow it to
+its result.
 
-The file is sent in chunks (`PATCH /v1/uploads/{id}` at the offset the server holds), read a block
-at a time, never whole. A dropped connection, a server restart, a 5xx, a full disk (`507`) or a rate
-limit (`429`) is retried with exponential backoff (capped, jittered, `Retry-After` honoured) from
-the offset the server reports (`HEAD`, or the `Upload-Offset` of a `409`). The upload's id is kept
-in a small state file (see `state.py`), so running the same call again after any interruption (this
-process killed, the network, the server) asks the server for its offset and goes on from there;
-once complete, the file keeps the submission's id, and running it again follows that submission
-instead of uploading the file again.
+The file is sent in chunks (`client.tus.Sender`), read a block at a time, never whole. The upload's id
+is kept in a small state file (see `state.py`), so running the same call again after any interruption
+(this process killed, the network, the server) asks the server for its offset and goes on from there;
+once the upload is a submission, the file keeps the submission's id, and running it again follows that
+submission instead of uploading the file again.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import time
@@ -23,30 +22,43 @@ from wosac_eval.client.following import Follower, Progress, no_progress
 from wosac_eval.client.state import UploadState, default_state_dir, key_digest, prune
 from wosac_eval.client.transport import (
     NETWORK_ERRORS,
-    RETRYABLE_STATUS,
     ArgumentError,
     ProtocolError,
-    Retrier,
     RetryPolicy,
     Server,
     ServerUnavailable,
     SubmissionRefused,
     SubmitError,
     api_key,
-    call,
-    refused,
-    status_reason,
 )
+from wosac_eval.client.tus import TUS_VERSION, FileChanged, Sender, UploadGone
 
 DEFAULT_CHUNK_BYTES = 64 * 2**20
-BLOCK_BYTES = 2**20  # what is read from the file, and sent, at a time
 CHALLENGES = ("sim_agents", "scenario_gen")
 
 _logger = logging.getLogger("wosac_eval.client")
 
 
-class _UploadGone(Exception):
-    """The server no longer has the upload (404/410): expired, deleted, refused, or its bytes lost."""
+@dataclasses.dataclass(frozen=True)
+class SubmitOptions:
+    """Everything `submit` is told besides the file (see `submit` for each)."""
+
+    server: str
+    method: str
+    key: str | None = None
+    challenge: str = "sim_agents"
+    config: str | None = None
+    publish: bool = False
+    allow_partial: bool = False
+    output: str | os.PathLike | None = None
+    chunk_bytes: int = DEFAULT_CHUNK_BYTES
+    limit_rate: int | None = None
+    progress: Progress | None = None
+    log: Callable[[str], None] | None = None
+    state_dir: str | os.PathLike | None = None
+    retry: RetryPolicy = RetryPolicy()
+    timeout: float = 60.0
+    poll_s: tuple[float, float] = (0.5, 5.0)
 
 
 def submit(
@@ -108,11 +120,10 @@ def submit(
       ValueError (ArgumentError): a bad argument (no key, a missing or empty file, a bad URL), before
         anything is sent.
     """
-    run = _Run(
-        submission,
+    options = SubmitOptions(
         server=server,
-        key=key,
         method=method,
+        key=key,
         challenge=challenge,
         config=config,
         publish=publish,
@@ -127,97 +138,48 @@ def submit(
         timeout=timeout,
         poll_s=poll_s,
     )
-    return run.run(wait=wait, new=new)
+    return _Run(submission, options).run(wait=wait, new=new)
 
 
 class _Run:
     """One call of `submit`: the arguments checked, the state found, the upload resumed or started."""
 
-    def __init__(
-        self,
-        submission,
-        *,
-        server,
-        key,
-        method,
-        challenge,
-        config,
-        publish,
-        allow_partial,
-        output,
-        chunk_bytes,
-        limit_rate,
-        progress,
-        log,
-        state_dir,
-        retry,
-        timeout,
-        poll_s,
-    ):
-        if challenge not in CHALLENGES:
-            raise ArgumentError(f"challenge {challenge!r}: choose {' or '.join(CHALLENGES)}")
-        if not method or not str(method).strip():
-            raise ArgumentError("give the method's leaderboard name (method=...)")
-        if int(chunk_bytes) < 1:
-            raise ArgumentError(f"chunk_bytes must be >= 1, not {chunk_bytes}")
-        if limit_rate is not None and int(limit_rate) < 1:
-            raise ArgumentError(f"limit_rate must be >= 1 byte per second, not {limit_rate}")
-        self.file = Path(os.path.abspath(submission))
-        if not self.file.exists():
-            raise ArgumentError(f"{submission}: no such file")
-        if not self.file.is_file():
-            raise ArgumentError(
-                f"{submission}: not a file; send the submission as one file (a folder of shards: "
-                f"pack it first, e.g. tar czf {self.file.name}.tar.gz -C {self.file} .)"
-            )
+    def __init__(self, submission: str | os.PathLike, options: SubmitOptions):
+        _check(options)
+        self.file = _submission_file(submission)
         stat = self.file.stat()
-        if stat.st_size == 0:
-            raise ArgumentError(f"{submission}: the file is empty")
         self.size, self.mtime_ns = stat.st_size, stat.st_mtime_ns
-        self.key = api_key(key)
+        self.key = api_key(options.key)
         try:
-            self.server = Server(server, self.key, timeout)
+            self.server = Server(options.server, self.key, options.timeout, options.retry.answer_deadline_s)
         except ValueError as error:
             raise ArgumentError(str(error)) from None
         self.params = {
-            "method": str(method),
-            "challenge": challenge,
-            "config": config,
-            "publish": bool(publish),
-            "allow_partial": bool(allow_partial),
+            "method": str(options.method),
+            "challenge": options.challenge,
+            "config": options.config,
+            "publish": bool(options.publish),
+            "allow_partial": bool(options.allow_partial),
         }
-        self.output = output
-        self.chunk = int(chunk_bytes)
-        self.limit_rate = int(limit_rate) if limit_rate else None
-        self.block = max(4096, min(BLOCK_BYTES, self.limit_rate // 20)) if self.limit_rate else BLOCK_BYTES
-        self.progress = progress or no_progress
-        self.log = log or _logger.info
-        self.policy = retry
-        self.follower = Follower(self.server, self.progress, self.log, retry, poll_s)
-        folder = Path(state_dir) if state_dir is not None else default_state_dir()
-        try:
-            folder.mkdir(parents=True, exist_ok=True, mode=0o700)
-        except OSError as error:
-            raise ArgumentError(f"state dir {folder}: cannot create it ({error.strerror or error})") from None
-        if not os.access(folder, os.W_OK | os.X_OK):
-            raise ArgumentError(f"state dir {folder}: not writable")
-        prune(folder)
-        self.state = UploadState(
-            folder,
-            {
-                "server": self.server.url,
-                "key": key_digest(self.key),
-                "file": str(self.file),
-                "size": self.size,
-                "mtime_ns": self.mtime_ns,
-                **self.params,
-            },
+        self.output = options.output
+        self.progress = options.progress or no_progress
+        self.log = options.log or _logger.info
+        self.policy = options.retry
+        self.follower = Follower(self.server, self.progress, self.log, options.retry, options.poll_s)
+        self.sender = Sender(
+            self.server,
+            self.file,
+            self.size,
+            options.retry,
+            self.log,
+            self.progress,
+            int(options.chunk_bytes),
+            self.mtime_ns,
+            int(options.limit_rate) if options.limit_rate else None,
         )
-        self.sent = 0  # bytes sent in this run (a chunk sent again counts again)
-        self.patches = 0  # PATCH requests answered in this run
-        self.offset = 0  # the server's offset, as last known
-        self._rate_start = None
-        self._rate_bytes = 0
+        folder = _state_folder(options.state_dir)
+        identity = {"server": self.server.url, "key": key_digest(self.key), "file": str(self.file), "size": self.size}
+        self.state = UploadState(folder, {**identity, "mtime_ns": self.mtime_ns, **self.params})
 
     # -- the run -----------------------------------------------------------------------------------------
     def run(self, *, wait: bool, new: bool) -> dict:
@@ -233,15 +195,7 @@ class _Run:
                         f"(its lock: {self.state.lock_path}); let it finish, then run this again"
                     )
                 self.state.load()  # the run that held the lock may have finished it
-                try:
-                    status = self._earlier_submission(quiet=True) or self._upload()
-                except ServerUnavailable as error:
-                    if self.state.data.get("upload_id"):
-                        raise ServerUnavailable(
-                            f"{error}; the server keeps upload {self.state.data['upload_id']}: "
-                            "run the same command again to resume it"
-                        ) from None
-                    raise
+                status = self._earlier_submission(quiet=True) or self._upload_kept()
         if not wait:
             return status
         try:
@@ -251,11 +205,38 @@ class _Run:
                 f"{error}; submission {status['id']} goes on at the server: run the same command again to follow it"
             ) from None
 
+    def _upload_kept(self) -> dict:
+        """The upload, with what to do next said when it stops while the server keeps its bytes."""
+        try:
+            return self._upload()
+        except ServerUnavailable as error:
+            if self.state.data.get("upload_id"):
+                raise ServerUnavailable(
+                    f"{error}; the server keeps upload {self.state.data['upload_id']}: "
+                    "run the same command again to resume it"
+                ) from None
+            raise
+        except FileChanged:
+            self.state.forget()
+            raise
+        except SubmissionRefused as refusal:
+            if refusal.status == 429 and self.sender.offset == self.size:
+                raise SubmissionRefused(
+                    429,
+                    refusal.detail,
+                    "; the uploaded bytes stay on the server: run the same command again later to complete the upload",
+                ) from None
+            if refusal.status not in (403, 429) and self.sender.offset == self.size:
+                self.state.forget()  # refused for good at its last byte: the server dropped the upload
+            raise
+
     def _forget_earlier(self) -> None:
         upload_id = self.state.data.get("upload_id")
         if upload_id and not self.state.data.get("submission_id"):
             with contextlib.suppress(*NETWORK_ERRORS):
-                answer = self.server.request("DELETE", self.server.path(f"uploads/{upload_id}"))
+                answer = self.server.request(
+                    "DELETE", self.server.path(f"uploads/{upload_id}"), {"Tus-Resumable": TUS_VERSION}
+                )
                 if answer.status == 204:
                     self.log(f"deleted the earlier unfinished upload {upload_id}")
         if self.state.data:
@@ -282,7 +263,7 @@ class _Run:
         for restart in range(3):
             try:
                 return self._upload_once()
-            except _UploadGone as gone:
+            except UploadGone as gone:
                 self.state.forget()
                 if restart == 2:
                     raise SubmitError(f"{gone}, a third time; giving up") from None
@@ -291,45 +272,42 @@ class _Run:
 
     def _upload_once(self) -> dict:
         upload_id = self.state.data.get("upload_id")
+        submission_id = None
         if upload_id:
-            self.offset = self._head(upload_id)
+            submission_id = self.sender.head(upload_id)
             self.log(
-                f"resuming upload {upload_id} at byte {self.offset:,} of {self.size:,} "
-                f"({self.offset / self.size:.0%}), the server's offset"
+                f"resuming upload {upload_id} at byte {self.sender.offset:,} of {self.size:,} "
+                f"({self.sender.offset / self.size:.0%}), the server's offset"
             )
-            resumed_at = self.offset
         else:
             upload_id = self._create()
-            self.offset = resumed_at = 0
-        self.progress("upload", self.offset, self.size)
+        resumed_at = self.sender.offset
+        self.progress("upload", self.sender.offset, self.size)
         try:
-            while True:
-                self._send(upload_id)
-                self._check_unchanged(upload_id)
-                status = self._complete(upload_id)
-                if status is not None:
-                    break
+            if submission_id is None:
+                submission_id = self.sender.send(upload_id)
         except KeyboardInterrupt:
             self.log(
-                f"upload {upload_id} interrupted at byte {self.offset:,} of {self.size:,}; the server keeps "
+                f"upload {upload_id} interrupted at byte {self.sender.offset:,} of {self.size:,}; the server keeps "
                 "it (for 7 days by default): run the same command again to resume it"
             )
             raise
+        self.state.save(submission_id=submission_id)
+        status = self.follower.status(submission_id)
+        if status is None:
+            raise ProtocolError(f"the server named submission {submission_id} for upload {upload_id}, then denied it")
         resumed = f", resumed at byte {resumed_at:,}" if resumed_at else ""
         self.log(
             f"uploaded {self.file.name}: submission {status['id']}, {status['state']} "
-            f"(sent {self.sent:,} bytes in {self.patches} PATCH request(s) in this run{resumed})"
+            f"(sent {self.sender.sent:,} bytes in {self.sender.patches} PATCH request(s) in this run{resumed})"
         )
         return status
 
-    # -- the protocol ------------------------------------------------------------------------------------
     def _create(self) -> str:
-        answer = call(self, "creating the upload", "POST", "uploads", self.params, {"Upload-Length": str(self.size)})
-        if answer.status != 201:
-            raise refused(answer)
-        upload_id = answer.json().get("upload_id")
-        if not isinstance(upload_id, str) or not upload_id:
-            raise ProtocolError("the server's answer to creating an upload holds no upload_id")
+        metadata = {k: _metadata_value(v) for k, v in self.params.items() if v is not None}
+        metadata["partial"] = metadata.pop("allow_partial")
+        upload_id = self.sender.create({**metadata, "filename": self.file.name})
+        self.sender.offset = 0
         self.state.save(
             upload_id=upload_id,
             submission_id=None,
@@ -340,149 +318,46 @@ class _Run:
             created_at=time.time(),
             **self.params,
         )
-        self.log(f"upload {upload_id} created: {self.size:,} bytes to send in chunks of {self.chunk:,}")
+        self.log(f"upload {upload_id} created: {self.size:,} bytes to send in chunks of {self.sender.chunk:,}")
         return upload_id
 
-    def _head(self, upload_id: str, retrier: Retrier | None = None) -> int:
-        """The offset the server holds; _UploadGone when it no longer has the upload."""
-        answer = call(
-            self, "asking the server for the upload's offset", "HEAD", f"uploads/{upload_id}", retrier=retrier
+
+def _metadata_value(value: object) -> str:
+    return ("true" if value else "false") if isinstance(value, bool) else str(value)
+
+
+def _check(options: SubmitOptions) -> None:
+    if options.challenge not in CHALLENGES:
+        raise ArgumentError(f"challenge {options.challenge!r}: choose {' or '.join(CHALLENGES)}")
+    if not options.method or not str(options.method).strip():
+        raise ArgumentError("give the method's leaderboard name (method=...)")
+    if int(options.chunk_bytes) < 1:
+        raise ArgumentError(f"chunk_bytes must be >= 1, not {options.chunk_bytes}")
+    if options.limit_rate is not None and int(options.limit_rate) < 1:
+        raise ArgumentError(f"limit_rate must be >= 1 byte per second, not {options.limit_rate}")
+
+
+def _submission_file(submission: str | os.PathLike) -> Path:
+    file = Path(os.path.abspath(submission))
+    if not file.exists():
+        raise ArgumentError(f"{submission}: no such file")
+    if not file.is_file():
+        raise ArgumentError(
+            f"{submission}: not a file; send the submission as one file (a folder of shards: "
+            f"pack it first, e.g. tar czf {file.name}.tar.gz -C {file} .)"
         )
-        if answer.status in (404, 410):
-            raise _UploadGone(
-                f"the server no longer has upload {upload_id} ({answer.status}: expired, deleted, or its bytes lost)"
-            )
-        if answer.status != 200:
-            raise refused(answer)
-        declared = answer.headers.get("upload-length")
-        if declared is not None and declared != str(self.size):
-            raise _UploadGone(f"upload {upload_id} on the server was declared {declared} bytes long, not {self.size}")
-        return self._checked_offset(answer.offset(), "HEAD")
+    if file.stat().st_size == 0:
+        raise ArgumentError(f"{submission}: the file is empty")
+    return file
 
-    def _checked_offset(self, offset: int | None, what: str) -> int:
-        if offset is None or not 0 <= offset <= self.size:
-            raise ProtocolError(f"the server's {what} answer gives the offset {offset!r} for a {self.size}-byte upload")
-        return offset
 
-    def _send(self, upload_id: str) -> None:
-        """PATCH chunks from self.offset to the end, resyncing to the server's offset after any failure."""
-        path = self.server.path(f"uploads/{upload_id}")
-        retrier = Retrier(self.policy, self.log)
-        with open(self.file, "rb") as f:
-            while self.offset < self.size:
-                length = min(self.chunk, self.size - self.offset)
-                headers = {"Upload-Offset": str(self.offset), "Content-Type": "application/offset+octet-stream"}
-                try:
-                    answer = self.server.request("PATCH", path, headers, self._pieces(f, self.offset, length), length)
-                except NETWORK_ERRORS as error:
-                    retrier.network_failure(self.server, "uploading", error)
-                    self.offset = self._head(upload_id, retrier)  # a dropped PATCH's bytes that arrived are kept
-                    self.progress("upload", self.offset, self.size)
-                    continue
-                else:
-                    self.patches += 1
-                    held = answer.offset()
-                    if answer.status == 204:
-                        self.offset = self._checked_offset(held, "PATCH")
-                        retrier.reset()  # progress: the tries start again
-                        continue
-                    if answer.status in (404, 410):
-                        raise _UploadGone(
-                            f"the server no longer has upload {upload_id} ({answer.status}: {answer.detail()})"
-                        )
-                    if answer.status == 409 and held is not None and held != self.offset:
-                        self.log(
-                            f"the server holds {held:,} bytes of upload {upload_id}, not {self.offset:,}: "
-                            "going on from there"
-                        )
-                        self.offset = self._checked_offset(held, "PATCH")
-                        self.progress("upload", self.offset, self.size)
-                        continue
-                    if answer.status == 409:  # another request at work on it: an interrupted one, still being read
-                        reason, retry_after, refusal = f"409 {answer.detail()}", answer.retry_after(), None
-                    elif answer.status in RETRYABLE_STATUS:
-                        reason, retry_after, refusal = status_reason(answer)
-                    else:
-                        raise refused(answer)
-                self.progress("upload", self.offset, self.size)
-                retrier.wait("uploading", reason, retry_after, refusal)
-                self.offset = self._head(upload_id, retrier)
-                self.progress("upload", self.offset, self.size)
-
-    def _pieces(self, f, offset: int, length: int):
-        """The chunk's bytes, a block at a time, paced to limit_rate; progress as they go."""
-        f.seek(offset)
-        done = 0
-        while done < length:
-            data = f.read(min(self.block, length - done))
-            if not data:
-                raise SubmitError(f"{self.file} got shorter while it was being uploaded")
-            yield data
-            done += len(data)
-            self.sent += len(data)
-            self.progress("upload", offset + done, self.size)
-            if self.limit_rate:
-                self._pace(len(data), self.limit_rate)
-
-    def _pace(self, n: int, limit_rate: int) -> None:
-        now = time.monotonic()
-        if self._rate_start is None or now - self._rate_start > 10 + self._rate_bytes / limit_rate:
-            self._rate_start, self._rate_bytes = now, 0  # (re)start after a long pause: no burst to catch up
-        self._rate_bytes += n
-        ahead = self._rate_bytes / limit_rate - (time.monotonic() - self._rate_start)
-        if ahead > 0:
-            time.sleep(ahead)
-
-    def _check_unchanged(self, upload_id: str) -> None:
-        stat = self.file.stat()
-        if (stat.st_size, stat.st_mtime_ns) != (self.size, self.mtime_ns):
-            with contextlib.suppress(*NETWORK_ERRORS):
-                self.server.request("DELETE", self.server.path(f"uploads/{upload_id}"))
-            self.state.forget()
-            raise SubmitError(
-                f"{self.file} changed while it was being uploaded (its size or modification time); "
-                f"upload {upload_id} was deleted: run the command again to send the file as it is now"
-            )
-
-    def _complete(self, upload_id: str) -> dict | None:
-        """The queued submission's status; None when the server holds less than the whole file (self.offset set)."""
-        path = self.server.path(f"uploads/{upload_id}/complete")
-        timeout = 600 + self.size / 2**24  # the server checks the whole upload before it answers
-        retrier = Retrier(self.policy, self.log)
-        while True:
-            try:
-                answer = self.server.request("POST", path, timeout=timeout)
-            except NETWORK_ERRORS as error:
-                retrier.network_failure(self.server, "completing the upload", error)
-                continue
-            held = answer.offset()
-            if answer.status == 202:
-                status = answer.json()
-                if not isinstance(status.get("id"), str):
-                    raise ProtocolError("the server's answer to completing the upload holds no submission id")
-                self.state.save(submission_id=status["id"])
-                return status
-            if answer.status in (404, 410):
-                raise _UploadGone(f"the server no longer has upload {upload_id} ({answer.status}: {answer.detail()})")
-            if answer.status == 409 and held is not None and held < self.size:
-                self.log(f"the server holds {held:,} of {self.size:,} bytes of upload {upload_id}: sending the rest")
-                self.offset = held
-                return None
-            try:
-                if answer.status == 409:  # a complete of it at work (an interrupted one of ours)
-                    retrier.wait("completing the upload", f"409 {answer.detail()}", answer.retry_after())
-                elif answer.status in RETRYABLE_STATUS:
-                    retrier.wait("completing the upload", *status_reason(answer))
-                else:
-                    if answer.status not in (403, 429):  # refused for good: the server dropped the bytes
-                        self.state.forget()
-                    raise refused(answer)
-            except SubmissionRefused as refusal:
-                if refusal.status == 429:
-                    raise SubmissionRefused(
-                        429,
-                        refusal.detail,
-                        "; the uploaded bytes stay on the server: run the "
-                        "same command again later to complete the upload",
-                    ) from None
-                raise
+def _state_folder(state_dir: str | os.PathLike | None) -> Path:
+    folder = Path(state_dir) if state_dir is not None else default_state_dir()
+    try:
+        folder.mkdir(parents=True, exist_ok=True, mode=0o700)
+    except OSError as error:
+        raise ArgumentError(f"state dir {folder}: cannot create it ({error.strerror or error})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ArgumentError(f"state dir {folder}: not writable")
+    prune(folder)
+    return folder

@@ -89,10 +89,36 @@ def run_identity(
     }
 
 
+class JournalDamaged(ValueError):
+    """A journal of this run holding a record that is no scored scenario's row of it: damaged or altered."""
+
+
+def _checked_row(row: object, path: Path, number: int, keys: frozenset | None) -> dict:
+    """`row`, the record on line `number`, once it is a scored scenario's row like the run's others (a
+    scenario id, a meta-metric, the same fields as the first); else JournalDamaged saying what to do."""
+    why = None
+    if not isinstance(row, dict):
+        why = f"a {type(row).__name__}, not a row"
+    elif not isinstance(row.get("scenario_id"), str):
+        why = "no scenario_id"
+    elif not isinstance(row.get("metametric"), (int, float)) or isinstance(row.get("metametric"), bool):
+        why = f"scenario {row['scenario_id']!r} without a meta-metric"
+    elif keys is not None and frozenset(row) != keys:
+        why = f"scenario {row['scenario_id']!r} with other fields than the rows before it"
+    if why is None:
+        return row  # type: ignore[return-value]  # a dict, checked above
+    raise JournalDamaged(
+        f"the journal {path} holds a record that is not a scored scenario of this run (line {number}: {why}): "
+        "it was damaged or altered since the run wrote it. Run the same command with --restart to score "
+        "everything again (or delete the journal)"
+    )
+
+
 def _read(path: Path, identity: dict, offsets: dict[str, int]) -> tuple[dict[str, dict], int, str | None]:
     """(rows by scenario id, bytes of the file that hold them, why the journal was not used or None).
 
-    A row's `objects` are left in the file: `offsets` gets where its line starts."""
+    A row's `objects` are left in the file: `offsets` gets where its line starts. JournalDamaged for a
+    record of this run's journal that is not one of its rows."""
     rows: dict[str, dict] = {}
     good = 0
     with open(path, "rb") as f:
@@ -106,14 +132,18 @@ def _read(path: Path, identity: dict, offsets: dict[str, int]) -> tuple[dict[str
         if head.get("version") != VERSION or head.get("run") != identity:
             return {}, 0, "it was written by another run (other inputs, config, options or version)"
         good = len(header)
-        for line in f:
+        keys = None
+        for number, line in enumerate(f, start=2):
             if not line.endswith(b"\n"):
                 break  # cut short by a kill
             try:
-                row = json.loads(line)
+                record = json.loads(line)
             except ValueError:
                 break
-            if row.pop("objects", None) is not None:
+            objects = record.pop("objects", None) if isinstance(record, dict) else None
+            row = _checked_row(record, path, number, keys)
+            keys = frozenset(row)
+            if objects is not None:
                 offsets[row["scenario_id"]] = good
             rows[row["scenario_id"]] = row
             good += len(line)

@@ -1,13 +1,17 @@
-"""Query, path and header parameters shared by the routes, and the OpenAPI links between operations."""
+"""Query, path and header parameters shared by the routes, the request body as the service reads it,
+and the OpenAPI links between operations."""
 
 from __future__ import annotations
 
+from collections.abc import AsyncIterator
 from typing import Annotated
 
+from fastapi import Depends, Query, Request
 from fastapi import Path as PathParam
-from fastapi import Query
+from starlette.requests import ClientDisconnect
 
 from ..auth import METHOD_PATTERN
+from ..jobs import SubmissionParams
 from ..models import Challenge
 
 MAX_HEADER_INT = 2**62  # fits a BIGINT on every engine
@@ -27,6 +31,20 @@ MethodQ = Annotated[
 ]
 PublishQ = Annotated[bool, Query(description="Show the result on the public leaderboard.")]
 PartialQ = Annotated[bool, Query(description="Score only the scenarios the submission covers.")]
+
+
+def submission_params(
+    challenge: ChallengeQ = "sim_agents",
+    config: ConfigQ = None,
+    method: MethodQ = None,
+    publish: PublishQ = False,
+    allow_partial: PartialQ = False,
+) -> SubmissionParams:
+    """The five query parameters of a submission, declared once for every route that takes them."""
+    return SubmissionParams(challenge, config, method, publish, allow_partial)
+
+
+Params = Annotated[SubmissionParams, Depends(submission_params)]
 SubmissionId = Annotated[str, PathParam(description="Submission id (32 hex digits).")]
 UploadId = Annotated[str, PathParam(description="Upload id (32 hex digits).")]
 
@@ -51,3 +69,19 @@ OCTET_BODY = {
         "content": {"application/octet-stream": {"schema": {"type": "string", "format": "binary"}}},
     }
 }
+
+
+class ClientBody:
+    """The request's body for the service (`uploads.Body`): its chunks as they arrive; `cut` once the client
+    went away before its end."""
+
+    def __init__(self, request: Request):
+        self.request = request
+        self.cut = False
+
+    async def __aiter__(self) -> AsyncIterator[bytes]:
+        try:
+            async for chunk in self.request.stream():
+                yield chunk
+        except ClientDisconnect:
+            self.cut = True

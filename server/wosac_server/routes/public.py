@@ -5,8 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from .. import jobs
 from ..models import DiskHealth, Health, Leaderboard, LeaderboardEntry, iso
+from ..reading import ReadingDep
 from ..service import ServiceDep
 from .params import ChallengeQ, ConfigQ
 
@@ -36,11 +36,8 @@ async def healthz(svc: ServiceDep):
 
 
 @router.get("/v1/leaderboard", response_model=Leaderboard, tags=["leaderboard"], operation_id="leaderboard")
-def get_leaderboard(svc: ServiceDep, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None):
+def get_leaderboard(read: ReadingDep, challenge: ChallengeQ = "sim_agents", config: ConfigQ = None):
     """Best published result per method, one leaderboard per challenge and config (public, no key needed)."""
-    config = svc.config_for(challenge, config)
-    entries = [
-        LeaderboardEntry(**{**e, "finished_at": iso(e["finished_at"])})
-        for e in jobs.leaderboard(svc.store, config, challenge)
-    ]
+    config, rows = read.leaderboard(challenge, config)
+    entries = [LeaderboardEntry(**{**e, "finished_at": iso(e["finished_at"])}) for e in rows]
     return Leaderboard(challenge=challenge, config=config, entries=entries)

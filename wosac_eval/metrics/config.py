@@ -5,10 +5,11 @@ Each metric `X` in the config is scored into the output field
 Presets: "2025", "2024", "2023" (sim agents) and "scenario_gen_2025"
 (scenario generation: the 2025 weights, every metric but the traffic-light
 one pooled over all objects of the scene, `aggregate_objects`). They are data:
-the textproto files beside this module, named as the official package names
-its own (`challenge_2025_sim_agents_config.textproto`...); the same files lie
-beside `wosac_eval.compat.metrics`, where programs written for the official
-package look for them.
+textproto files named and laid out as the official package lays out its own,
+under the root of `wosac_eval.compat` (`CONFIG_ROOT`:
+`wdl_limited/sim_agents_metrics/challenge_2025_sim_agents_config.textproto`,
+the 2023 one under `legacy_configs/`), where programs written for the official
+package look for them; this loader reads that one copy of each.
 """
 
 from __future__ import annotations
@@ -25,12 +26,16 @@ from wosac_eval.protos import sim_agents_metrics_pb2
 
 SimAgentMetricsConfig = sim_agents_metrics_pb2.SimAgentMetricsConfig
 
-# Preset -> its file beside this module (the official package's names).
+# The official package's root as `wosac_eval.compat` lays it out: the presets live there once, at the official
+# relative paths, so that a program joining them to `waymo_open_dataset.__path__[0]` finds them. A path, not
+# an import: the metrics room reads the data without importing the compat room (which comes after it).
+CONFIG_ROOT = Path(__file__).resolve().parents[1] / "compat"
+# Preset -> its file under CONFIG_ROOT (the official package's names and folders).
 PRESET_FILES = {
-    "2025": "challenge_2025_sim_agents_config.textproto",
-    "2024": "challenge_2024_config.textproto",
-    "2023": "challenge_2023_config.textproto",
-    "scenario_gen_2025": "challenge_2025_scenario_gen_config.textproto",
+    "2025": "wdl_limited/sim_agents_metrics/challenge_2025_sim_agents_config.textproto",
+    "2024": "wdl_limited/sim_agents_metrics/challenge_2024_config.textproto",
+    "2023": "wdl_limited/sim_agents_metrics/legacy_configs/challenge_2023_config.textproto",
+    "scenario_gen_2025": "wdl_limited/sim_agents_metrics/challenge_2025_scenario_gen_config.textproto",
 }
 PRESET_NAMES = tuple(PRESET_FILES)
 DEFAULT_PRESET = "2025"
@@ -83,7 +88,12 @@ def preset(name: str) -> SimAgentMetricsConfig:
 
 @functools.cache
 def _preset_file(name: str) -> SimAgentMetricsConfig:
-    return _read_textproto(Path(__file__).with_name(PRESET_FILES[name]))
+    return _read_textproto(preset_path(name))
+
+
+def preset_path(name: str) -> Path:
+    """The textproto file of a preset (KeyError for an unknown name)."""
+    return CONFIG_ROOT / PRESET_FILES[name]
 
 
 def _read_textproto(path: Path) -> SimAgentMetricsConfig:

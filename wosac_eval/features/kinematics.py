@@ -1,4 +1,4 @@
-"""Speeds and accelerations from positions and headings by central differences.
+"""Speeds and accelerations from positions and headings by central differences; displacements.
 
 All arithmetic is float32 in the official order of operations; the functions
 take numpy or JAX arrays.
@@ -94,3 +94,13 @@ def kinematic_validity(valid: np.ndarray):
     """
     speed_valid = central_and(valid)
     return speed_valid, central_and(speed_valid)
+
+
+def displacement_error(x, y, z, ref_x, ref_y, ref_z):
+    """3D distance between positions and reference positions, float32 (the operands' broadcast shape `(...)`).
+
+    Each square is rounded before the sum, as officially (the norm of the stacked differences).
+    """
+    xp = array_namespace(x, y, z, ref_x, ref_y, ref_z)
+    dx, dy, dz = x - ref_x, y - ref_y, z - ref_z
+    return sqrt(rounded_square(dx, xp) + rounded_square(dy, xp) + rounded_square(dz, xp), xp)

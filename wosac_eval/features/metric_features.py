@@ -24,12 +24,12 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.samples import SampleBatch, sample_batch
 from wosac_eval.arrays.scenario import ScenarioArrays
-from wosac_eval.features import registry, road_edge, traffic_lights
+from wosac_eval.features import kinematics, registry, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_tail
 from wosac_eval.features.float32_sums import eigen_sum32
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.search_strategy import SearchStrategy
-from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
+from wosac_eval.features.xp import array_namespace, divide
 
 _F = np.float32
 TRAJECTORY_FIELDS = ("x", "y", "z", "heading", "length", "width", "height", "valid")
@@ -162,8 +162,7 @@ def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
     """
     xp = array_namespace(x, log_valid)
     e = slice(0, num_evaluated)
-    dx, dy, dz = (a[:, e] - a[:1, e] for a in (x, y, z))
-    displacement = sqrt(rounded_square(dx, xp) + rounded_square(dy, xp) + rounded_square(dz, xp), xp)
+    displacement = kinematics.displacement_error(x[:, e], y[:, e], z[:, e], x[:1, e], y[:1, e], z[:1, e])
     total = eigen_sum32(xp.where(log_valid, displacement, _F(0)))
     return divide(total, log_valid.sum(axis=-1).astype(_F))
 

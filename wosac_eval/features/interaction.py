@@ -7,6 +7,9 @@ evaluated objects against all objects: `(num_evaluated x num_objects)` pairs.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
+
 import numba
 import numpy as np
 
@@ -19,11 +22,30 @@ _F = np.float32
 EXTREMELY_LARGE_DISTANCE = _F(1e10)
 COLLISION_DISTANCE_THRESHOLD = 0.0
 CORNER_ROUNDING_FACTOR = 0.7
+# Set by `corner_rounding()`: the metrics always round by CORNER_ROUNDING_FACTOR, the official function by its argument.
+_ROUNDING = contextvars.ContextVar("wosac_eval_corner_rounding", default=CORNER_ROUNDING_FACTOR)
+
+
+@contextlib.contextmanager
+def corner_rounding(factor: float):
+    """Boxes' corners rounded by `factor` (0: sharp rectangles, 1: capsules) instead of 0.7 inside this block.
+
+    The official `compute_distance_to_nearest_object` takes the factor as an argument; the metrics use
+    0.7. A rounded box lies within its box for a factor in [0, 1], which the nearest-object search's
+    bounds rely on: other factors are refused.
+    """
+    if not 0 <= factor <= 1:
+        raise ValueError(f"the corner rounding factor must be between 0 and 1, got {factor}")
+    token = _ROUNDING.set(factor)
+    try:
+        yield
+    finally:
+        _ROUNDING.reset(token)
 
 
 def corner_radius(length, width):
-    """Radius of the rounded corners: `0.7 * min(length, width) / 2`, float32 `(...)`."""
-    return array_namespace(length, width).minimum(length, width) * _F(CORNER_ROUNDING_FACTOR) / _F(2)
+    """Radius of the rounded corners: `0.7 * min(length, width) / 2` (0.7: or `corner_rounding`'s), float32 `(...)`."""
+    return array_namespace(length, width).minimum(length, width) * _F(_ROUNDING.get()) / _F(2)
 
 
 def box_outlines(x, y, core_length, core_width, cos_h, sin_h):

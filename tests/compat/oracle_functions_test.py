@@ -141,7 +141,7 @@ def test_estimators_are_the_official_values_to_float32_rounding():
     once); the bits themselves are the next test's, which passes once issue #66 lands."""
     histogram = _Config.HistogramEstimate(min_val=-2, max_val=3, num_bins=7, additive_smoothing_pseudocount=0.1)
     log, sim = IN["est/log"], IN["est/sim"]
-    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=2e-6, atol=1e-6)  # noqa: E731
+    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=2e-6, atol=1e-6)
     close(estimators.histogram_estimate(histogram, log, sim), OUT["histogram"])
     bern = _Config.BernoulliEstimate(additive_smoothing_pseudocount=0.05)
     close(estimators.bernoulli_estimate(bern, log > 0, sim > 0.5), OUT["bernoulli"])

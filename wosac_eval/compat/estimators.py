@@ -23,6 +23,11 @@ _Config = sim_agents_metrics_pb2.SimAgentMetricsConfig
 _ESTIMATORS = ("histogram", "kernel_density", "bernoulli")
 
 
+# An empty bin without pseudo-count has a log-probability of -inf, as officially: no warning about it.
+def _quiet() -> np.errstate:
+    return np.errstate(divide="ignore", invalid="ignore")
+
+
 def _check_batches(log_samples: np.ndarray, sim_samples: np.ndarray) -> None:
     """The official check that both samples have the same batch size (its message, then the shapes)."""
     if np.ndim(log_samples) and np.ndim(sim_samples) and log_samples.shape[0] != sim_samples.shape[0]:
@@ -43,9 +48,10 @@ def histogram_estimate(config: _Config.HistogramEstimate, log_samples, sim_sampl
     """
     log, sim = float_array(log_samples, "log_samples"), float_array(sim_samples, "sim_samples")
     _check_batches(log, sim)
-    value = likelihoods.histogram_log_likelihood(
-        config.min_val, config.max_val, config.num_bins, config.additive_smoothing_pseudocount, log, sim
-    )
+    with _quiet():
+        value = likelihoods.histogram_log_likelihood(
+            config.min_val, config.max_val, config.num_bins, config.additive_smoothing_pseudocount, log, sim
+        )
     return compat_array(value, np.float32)
 
 
@@ -63,7 +69,8 @@ def kernel_density_estimate(config: _Config.KernelDensityEstimate, log_samples, 
         raise ValueError("Bandwidth needs to be positive for KernelDensity estimation.")
     log, sim = float_array(log_samples, "log_samples"), float_array(sim_samples, "sim_samples")
     _check_batches(log, sim)
-    return compat_array(likelihoods.kernel_density_log_likelihood(config.bandwidth, log, sim), np.float64)
+    with _quiet():
+        return compat_array(likelihoods.kernel_density_log_likelihood(config.bandwidth, log, sim), np.float64)
 
 
 def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples, sim_samples) -> np.ndarray:
@@ -78,7 +85,8 @@ def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples, sim_sampl
     """
     log, sim = _bernoulli_samples(log_samples, sim_samples)
     _check_batches(log, sim)
-    value = likelihoods.bernoulli_log_likelihood(config.additive_smoothing_pseudocount, log, sim)
+    with _quiet():
+        value = likelihoods.bernoulli_log_likelihood(config.additive_smoothing_pseudocount, log, sim)
     return compat_array(value, np.float32)
 
 
@@ -126,7 +134,8 @@ def log_likelihood_estimate_timeseries(feature_config: _Config.FeatureConfig, lo
         raise ValueError(f"`FeatureConfig` contains an invalid estimator. Found: {estimator}")
     if estimator == "bernoulli":
         _bernoulli_samples(log, sim)
-    value = likelihoods.timeseries_log_likelihood(feature_config, log, sim)
+    with _quiet():
+        value = likelihoods.timeseries_log_likelihood(feature_config, log, sim)
     return compat_array(value, np.float64 if estimator == "kernel_density" else np.float32)
 
 

@@ -171,6 +171,7 @@ def test_a_tensor_that_requires_grad_is_refused_by_name():
 
 
 @pytest.mark.jax
+@pytest.mark.slow  # JAX compiles each kernel's operations: about 30 s on empty caches
 def test_jax_arrays_give_the_numpy_bits():
     jnp = pytest.importorskip("jax.numpy", reason="JAX is not installed (the jax extra)")
     trajectory = ("central_diff", "central_logical_and", "displacement", "kinematics", "validity")

@@ -1,24 +1,20 @@
-"""The official module layout, so code written for waymo-open-dataset runs by changing its imports.
+"""The official sim-agents modules of waymo-open-dataset 1.6.7, without TensorFlow (docs/official-api.md).
 
-    waymo_open_dataset.protos.{scenario,sim_agents_submission,sim_agents_metrics}_pb2
-        -> wosac_eval.protos.{scenario,sim_agents_submission,sim_agents_metrics}_pb2
-    waymo_open_dataset.utils.sim_agents.submission_specs
-        -> wosac_eval.compat.submission_specs
-    waymo_open_dataset.utils.sim_agents.converters
-        -> wosac_eval.compat.converters
-    waymo_open_dataset.utils.sim_agents.visualizations
-        -> wosac_eval.compat.visualizations
+    waymo_open_dataset.protos.{scenario,map,sim_agents_submission,sim_agents_metrics}_pb2
+        -> wosac_eval.protos.*
+    waymo_open_dataset.utils.sim_agents.{submission_specs,converters,visualizations,test_utils}
+        -> wosac_eval.compat.{submission_specs,converters,visualizations,test_utils}
     waymo_open_dataset.utils.trajectory_utils
         -> wosac_eval.compat.trajectory_utils
-    waymo_open_dataset.wdl_limited.sim_agents_metrics.metric_features
-        -> wosac_eval.compat.metric_features
-    waymo_open_dataset.wdl_limited.sim_agents_metrics.metrics
-        -> wosac_eval.compat.metrics
+    waymo_open_dataset.wdl_limited.sim_agents_metrics.{metrics,metric_features,trajectory_features,
+        interaction_features,map_metric_features,traffic_light_features,estimators}
+        -> wosac_eval.compat.{...}
 
-Same names, arguments and return types (protobuf messages; numpy arrays of
-the official shapes and dtypes where the official code returns TensorFlow
-tensors), the same numbers (the features and metrics are wosac-eval's,
-bit-identical per step to the official ones), without TensorFlow. Each
-function is a thin shim over the library's own pipeline; new code can call
-`wosac_eval.score_scenario` and friends directly.
+Same names, arguments, defaults, constants and messages; numpy arrays of the official shapes and dtypes
+where the official code returns TensorFlow tensors; the same numbers (each function is a thin call of the
+library's own pipeline or kernel, bit-identical per step to the official features). The official configs lie
+under this package's folder at the official relative paths (`wdl_limited/sim_agents_metrics/...`).
+
+Programs keep their `waymo_open_dataset` imports after one line, `import wosac_eval.compat.official_names`
+(`official_finder`: what is served, worker processes, the rule when the official package is installed too).
 """

@@ -18,10 +18,15 @@ arrays back to callers that passed JAX arrays (`is_jax`).
 from __future__ import annotations
 
 import sys
+from typing import Any
 
 import numpy as np
 
 _F = np.float32
+# What the functions take: anything implementing `__array__` or `__dlpack__` (or a list), and what those with a
+# JAX path return: a numpy array (`CompatArray`) or a JAX array.
+ArrayIn = Any
+Array = Any
 
 
 class CompatArray(np.ndarray):
@@ -37,13 +42,13 @@ def compat_array(value, dtype=None) -> CompatArray:
     return np.asarray(value, dtype=dtype).view(CompatArray)
 
 
-def is_jax(*values) -> bool:
+def is_jax(*values: Any) -> bool:
     """True if any value is a JAX array (JAX is only looked up when someone imported it)."""
     jax = sys.modules.get("jax")
     return jax is not None and any(isinstance(v, jax.Array) for v in values)
 
 
-def host_array(value, name: str) -> np.ndarray:
+def host_array(value: ArrayIn, name: str) -> np.ndarray:
     """Any array in as a numpy array in host memory (no copy where none is needed).
 
     `__array__` first (numpy, TensorFlow, torch and JAX on the CPU, lists), then
@@ -81,7 +86,7 @@ def _from_dlpack(value) -> np.ndarray:
         return np.from_dlpack(value)  # numpy < 2.1: no device argument
 
 
-def float_array(value, name: str, keep_jax: bool = False):
+def float_array(value: ArrayIn, name: str, keep_jax: bool = False) -> Array:
     """`value` as float32 (numpy, or JAX where `keep_jax` and it is a JAX array).
 
     Raises:
@@ -97,7 +102,7 @@ def float_array(value, name: str, keep_jax: bool = False):
     return array.astype(_F, copy=False)
 
 
-def bool_array(value, name: str, keep_jax: bool = False):
+def bool_array(value: ArrayIn, name: str, keep_jax: bool = False) -> Array:
     """`value` as a bool array (numpy, or JAX where `keep_jax` and it is a JAX array).
 
     Raises:
@@ -133,6 +138,6 @@ def check_stackable(arrays, names=None) -> None:
             )
 
 
-def out(value, dtype=None):
+def out(value: Array, dtype=None) -> Array:
     """A result as the compat modules hand it out: a `CompatArray`, or a JAX array as it is."""
     return value if is_jax(value) else compat_array(value, dtype)

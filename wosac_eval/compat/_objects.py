@@ -111,7 +111,9 @@ def heading_tail(objects: Objects, order: np.ndarray) -> np.ndarray:
     return packet_tail((objects.num_objects, objects.num_steps))[order]
 
 
-def context(traj: dict, num_evaluated: int, search: PrunedSearch, tails: dict, seconds_per_step: float = 0.1):
+def context(
+    traj: dict, num_evaluated: int, search: PrunedSearch, tails: dict, seconds_per_step: float = 0.1
+) -> registry.FeatureContext:
     """The library's `FeatureContext` over `traj` (evaluated objects first), every step reported."""
     layout = FeatureLayout(
         num_evaluated=num_evaluated, first_step=0, seconds_per_step=seconds_per_step, displacement=False

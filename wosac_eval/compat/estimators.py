@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.compat._arrays import bool_array, compat_array, float_array, host_array
+from wosac_eval.compat._arrays import ArrayIn, bool_array, compat_array, float_array, host_array
 from wosac_eval.estimators import likelihoods
 from wosac_eval.protos import sim_agents_metrics_pb2
 
@@ -36,7 +36,7 @@ def _check_batches(log_samples: np.ndarray, sim_samples: np.ndarray) -> None:
         )
 
 
-def histogram_estimate(config: _Config.HistogramEstimate, log_samples, sim_samples) -> np.ndarray:
+def histogram_estimate(config: _Config.HistogramEstimate, log_samples: ArrayIn, sim_samples: ArrayIn) -> np.ndarray:
     """Log-likelihood of each log sample under the histogram of its batch's simulated samples.
 
     Args:
@@ -55,7 +55,9 @@ def histogram_estimate(config: _Config.HistogramEstimate, log_samples, sim_sampl
     return compat_array(value, np.float32)
 
 
-def kernel_density_estimate(config: _Config.KernelDensityEstimate, log_samples, sim_samples) -> np.ndarray:
+def kernel_density_estimate(
+    config: _Config.KernelDensityEstimate, log_samples: ArrayIn, sim_samples: ArrayIn
+) -> np.ndarray:
     """Gaussian kernel density log-likelihoods, shifted so that a Dirac sample scores 0.
 
     Args:
@@ -73,7 +75,7 @@ def kernel_density_estimate(config: _Config.KernelDensityEstimate, log_samples, 
         return compat_array(likelihoods.kernel_density_log_likelihood(config.bandwidth, log, sim), np.float64)
 
 
-def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples, sim_samples) -> np.ndarray:
+def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples: ArrayIn, sim_samples: ArrayIn) -> np.ndarray:
     """Log-probability of each boolean log sample under its batch's simulated frequency (with the pseudo-count).
 
     Args:
@@ -90,7 +92,7 @@ def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples, sim_sampl
     return compat_array(value, np.float32)
 
 
-def _bernoulli_samples(log_samples, sim_samples) -> tuple[np.ndarray, np.ndarray]:
+def _bernoulli_samples(log_samples: ArrayIn, sim_samples: ArrayIn) -> tuple[np.ndarray, np.ndarray]:
     """Both samples, which must be boolean (the official messages)."""
     out = []
     for value, name in ((log_samples, "log_samples"), (sim_samples, "sim_samples")):
@@ -105,14 +107,16 @@ def _check_rank(value: np.ndarray, rank: int) -> None:
         raise ValueError(f"Tensor  must have rank {rank}.  Received rank {value.ndim}, shape {value.shape}")
 
 
-def _values(feature_config: _Config.FeatureConfig, value, name: str) -> np.ndarray:
+def _values(feature_config: _Config.FeatureConfig, value: ArrayIn, name: str) -> np.ndarray:
     """Values as the config's estimator reads them: bool for Bernoulli (checked there), float32 otherwise."""
     if feature_config.WhichOneof("estimator") == "bernoulli":
         return host_array(value, name)
     return float_array(value, name)
 
 
-def log_likelihood_estimate_timeseries(feature_config: _Config.FeatureConfig, log_values, sim_values) -> np.ndarray:
+def log_likelihood_estimate_timeseries(
+    feature_config: _Config.FeatureConfig, log_values: ArrayIn, sim_values: ArrayIn
+) -> np.ndarray:
     """Log-likelihood of each logged value of a time series under the simulated ones, as the config says
     (per object or pooled over the scene's objects, per step or pooled over steps).
 
@@ -139,7 +143,9 @@ def log_likelihood_estimate_timeseries(feature_config: _Config.FeatureConfig, lo
     return compat_array(value, np.float64 if estimator == "kernel_density" else np.float32)
 
 
-def log_likelihood_estimate_scenario_level(feature_config: _Config.FeatureConfig, log_values, sim_values) -> np.ndarray:
+def log_likelihood_estimate_scenario_level(
+    feature_config: _Config.FeatureConfig, log_values: ArrayIn, sim_values: ArrayIn
+) -> np.ndarray:
     """Log-likelihood of one value per object (e.g. a rate) under the simulated ones.
 
     Args:

@@ -22,6 +22,7 @@ import math
 import numpy as np
 
 from wosac_eval.compat import _objects
+from wosac_eval.compat._arrays import ArrayIn
 from wosac_eval.features import interaction
 from wosac_eval.features.float32_math import packet_tail
 
@@ -37,15 +38,15 @@ MAXIMUM_TIME_TO_COLLISION = 5.0
 
 def compute_distance_to_nearest_object(
     *,
-    center_x,
-    center_y,
-    center_z,
-    length,
-    width,
-    height,
-    heading,
-    valid,
-    evaluated_object_mask,
+    center_x: ArrayIn,
+    center_y: ArrayIn,
+    center_z: ArrayIn,
+    length: ArrayIn,
+    width: ArrayIn,
+    height: ArrayIn,
+    heading: ArrayIn,
+    valid: ArrayIn,
+    evaluated_object_mask: ArrayIn,
     corner_rounding_factor: float = CORNER_ROUNDING_FACTOR,
 ) -> np.ndarray:
     """Signed distance from each evaluated object to the nearest other valid object (boxes with rounded corners).
@@ -80,7 +81,15 @@ def compute_distance_to_nearest_object(
 
 
 def compute_time_to_collision_with_object_in_front(
-    *, center_x, center_y, length, width, heading, valid, evaluated_object_mask, seconds_per_step: float
+    *,
+    center_x: ArrayIn,
+    center_y: ArrayIn,
+    length: ArrayIn,
+    width: ArrayIn,
+    heading: ArrayIn,
+    valid: ArrayIn,
+    evaluated_object_mask: ArrayIn,
+    seconds_per_step: float,
 ) -> np.ndarray:
     """Seconds until each evaluated object reaches the valid object it follows, at constant speeds, capped at
     `MAXIMUM_TIME_TO_COLLISION` (also where it follows nothing).
@@ -109,7 +118,7 @@ def compute_time_to_collision_with_object_in_front(
         return objects.result(found["time_to_collision"])
 
 
-def _followers_and_leaders(objects: _objects.Objects):
+def _followers_and_leaders(objects: _objects.Objects) -> tuple[dict, np.ndarray]:
     """The time-to-collision kernel's layout: the evaluated objects first, then every object that can be followed.
 
     Officially every evaluated object looks at all objects in the caller's order (ties to the first). The

@@ -15,10 +15,12 @@ anything implementing `__array__` or `__dlpack__`. Results: numpy arrays answeri
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from wosac_eval.compat import _objects
-from wosac_eval.compat._arrays import compat_array
+from wosac_eval.compat._arrays import ArrayIn, compat_array
 from wosac_eval.features import road_edge
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.spatial import pad_polylines
@@ -30,16 +32,16 @@ OFFROAD_DISTANCE_THRESHOLD = road_edge.OFFROAD_DISTANCE_THRESHOLD
 
 def compute_distance_to_road_edge(
     *,
-    center_x,
-    center_y,
-    center_z,
-    length,
-    width,
-    height,
-    heading,
-    valid,
-    evaluated_object_mask,
-    road_edge_polylines,
+    center_x: ArrayIn,
+    center_y: ArrayIn,
+    center_z: ArrayIn,
+    length: ArrayIn,
+    width: ArrayIn,
+    height: ArrayIn,
+    heading: ArrayIn,
+    valid: ArrayIn,
+    evaluated_object_mask: ArrayIn,
+    road_edge_polylines: Sequence,
 ) -> np.ndarray:
     """Signed distance from each evaluated box's most off-road bottom corner to the road edge.
 
@@ -77,7 +79,7 @@ def compute_distance_to_road_edge(
         return objects.result(found["distance_to_road_edge"])
 
 
-def tensorize_polylines(polylines, ids=None) -> tuple[np.ndarray, np.ndarray]:
+def tensorize_polylines(polylines: Sequence, ids: Sequence[int] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Polylines stacked and zero padded, with a validity flag per point.
 
     Polylines of fewer than two points are left out, with their ids.

@@ -80,7 +80,7 @@ def not_served_message(fullname: str) -> str:
 class _ServedPackage(importlib.abc.Loader):
     """An official package on the way to the served modules: a package over its compat folder, nothing else."""
 
-    def create_module(self, spec):
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None  # a plain module object; the import system sets its __path__ from the spec
 
     def exec_module(self, module) -> None:
@@ -90,10 +90,10 @@ class _ServedPackage(importlib.abc.Loader):
 class _ServedModule(importlib.abc.Loader):
     """An official module served by a wosac-eval module: the import returns that very module."""
 
-    def __init__(self, target: str):
+    def __init__(self, target: str) -> None:
         self.target = target
 
-    def create_module(self, spec):
+    def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None
 
     def exec_module(self, module) -> None:
@@ -106,7 +106,7 @@ class _ServedModule(importlib.abc.Loader):
 class _OfficialNames(importlib.abc.MetaPathFinder):
     """Finds every `waymo_open_dataset` name: a served module, a package on the way, or a clear refusal."""
 
-    def find_spec(self, fullname, path=None, target=None):
+    def find_spec(self, fullname: str, path=None, target=None) -> importlib.machinery.ModuleSpec | None:
         official = _official_name(fullname)
         if official is None:
             return None
@@ -125,10 +125,10 @@ class _Refusal(importlib.abc.MetaPathFinder):
     """Raises the conflict at the first `waymo_open_dataset` import (the environment's opt-in, which cannot
     raise while Python starts)."""
 
-    def __init__(self, error: OfficialPackageFound):
+    def __init__(self, error: OfficialPackageFound) -> None:
         self.error = error
 
-    def find_spec(self, fullname, path=None, target=None):
+    def find_spec(self, fullname: str, path=None, target=None) -> importlib.machinery.ModuleSpec | None:
         if _official_name(fullname) is not None:
             raise OfficialPackageFound(str(self.error))
         return None

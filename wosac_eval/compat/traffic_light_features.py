@@ -15,10 +15,13 @@ num_steps)`; anything implementing `__array__` or `__dlpack__`. Results: numpy a
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.compat import _objects
+from wosac_eval.compat._arrays import ArrayIn
 from wosac_eval.features import traffic_lights
 from wosac_eval.features.search import PrunedSearch
 
@@ -27,7 +30,14 @@ EXTREMELY_LARGE_DISTANCE = 1e10
 
 
 def compute_red_light_violation(
-    *, center_x, center_y, valid, evaluated_object_mask, lane_polylines, lane_ids, traffic_signals
+    *,
+    center_x: ArrayIn,
+    center_y: ArrayIn,
+    valid: ArrayIn,
+    evaluated_object_mask: ArrayIn,
+    lane_polylines: Sequence,
+    lane_ids: Sequence[int],
+    traffic_signals: Sequence[Sequence],
 ) -> np.ndarray:
     """Whether each evaluated object runs a red light at each step: it crosses the stop point of a signal that
     shows stop on the lane it is on.
@@ -71,7 +81,7 @@ def compute_red_light_violation(
         return objects.result(found["traffic_light_violation_per_step"])
 
 
-def signal_states(traffic_signals) -> TrafficSignals:
+def signal_states(traffic_signals: Sequence[Sequence]) -> TrafficSignals:
     """Per-step lists of signal states as the kernel's `TrafficSignals`: one column per signalled lane (a lane
     without a state at a step is unknown there, a later state of a lane at one step wins, as officially; a
     single unknown column when no step has a signal)."""

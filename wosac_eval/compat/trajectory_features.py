@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wosac_eval.compat._arrays import bool_array, check_stackable, float_array, is_jax, out, tf_shape
+from wosac_eval.compat._arrays import Array, ArrayIn, bool_array, check_stackable, float_array, is_jax, out, tf_shape
 from wosac_eval.features import kinematics
 from wosac_eval.features.xp import array_namespace
 
@@ -24,19 +24,19 @@ _F = np.float32
 _PADDED_STEPS = 2  # the official result of fewer than 3 steps: the two pads around no difference
 
 
-def _steps(t, name: str):
+def _steps(t: Array, name: str) -> int:
     if np.ndim(t) < 1:
         raise ValueError(f"{name} must have a steps axis (..., num_steps), got a scalar")
     return t.shape[-1]
 
 
-def _padded(inner, lead: tuple, pad_value, dtype, xp):
+def _padded(inner: Array, lead: tuple, pad_value, dtype, xp) -> Array:
     """`inner` `(..., n)` between one pad on each side along the last axis, as the official concatenation."""
     pad = xp.full(lead + (1,), pad_value, dtype=dtype)
     return xp.concatenate([pad, inner, pad], axis=-1)
 
 
-def central_diff(t, pad_value: float):
+def central_diff(t: ArrayIn, pad_value: float) -> Array:
     """(t[i+1] - t[i-1]) / 2 along the last axis, `pad_value` at both ends: float32 `(..., num_steps)`.
 
     Args:
@@ -54,7 +54,7 @@ def central_diff(t, pad_value: float):
     return out(_padded(inner, lead, _F(pad_value), _F, xp))
 
 
-def central_logical_and(t, pad_value: bool):
+def central_logical_and(t: ArrayIn, pad_value: bool) -> Array:
     """t[i-1] and t[i+1] along the last axis, `pad_value` at both ends: bool `(..., num_steps)`.
 
     Args:
@@ -71,7 +71,9 @@ def central_logical_and(t, pad_value: bool):
     return out(_padded(inner, lead, bool(pad_value), bool, xp))
 
 
-def compute_displacement_error(x, y, z, ref_x, ref_y, ref_z):
+def compute_displacement_error(
+    x: ArrayIn, y: ArrayIn, z: ArrayIn, ref_x: ArrayIn, ref_y: ArrayIn, ref_z: ArrayIn
+) -> Array:
     """3D distance between positions and reference positions: float32, the broadcast shape `(...)`.
 
     x, y, z share one shape, and ref_x, ref_y, ref_z one shape; the two shapes broadcast.
@@ -93,7 +95,9 @@ def compute_displacement_error(x, y, z, ref_x, ref_y, ref_z):
     return out(kinematics.displacement_error(*values))
 
 
-def compute_kinematic_features(x, y, z, heading, seconds_per_step: float):
+def compute_kinematic_features(
+    x: ArrayIn, y: ArrayIn, z: ArrayIn, heading: ArrayIn, seconds_per_step: float
+) -> tuple[Array, Array, Array, Array]:
     """Speeds and accelerations by central differences (everything counts as valid; mask afterwards).
 
     Args:
@@ -120,7 +124,7 @@ def compute_kinematic_features(x, y, z, heading, seconds_per_step: float):
     return tuple(out(f) for f in features)
 
 
-def compute_kinematic_validity(valid):
+def compute_kinematic_validity(valid: ArrayIn) -> tuple[Array, Array]:
     """Validity of the speeds (both neighbours valid) and of the accelerations (applied twice).
 
     Args:

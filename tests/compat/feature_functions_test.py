@@ -237,3 +237,22 @@ def test_leading_axes_compute_each_sample_as_one_official_call():
             for j in range(3):
                 one = call({k: (v if k == "evaluated_object_mask" else v[3 * i + j]) for k, v in boxes.items()})
                 np.testing.assert_array_equal(batched[i, j], one, err_msg=name)
+
+
+def test_the_map_tables_kept_between_calls_follow_the_polylines():
+    """The segment tables are kept for the last maps (a logger calls every step with the same polylines), by
+    their points: an edge moved in place gives the moved edge's distances."""
+    boxes = _boxes(3, 2)
+    corners = [(-50, -50), (50, -50), (50, 50)]
+    edge = [map_pb2.MapPoint(x=x, y=y) for x, y in corners]
+    first = map_metric_features.compute_distance_to_road_edge(**boxes, road_edge_polylines=[edge])
+    again = map_metric_features.compute_distance_to_road_edge(**boxes, road_edge_polylines=[edge])
+    np.testing.assert_array_equal(first, again)
+    for point in edge:
+        point.x -= 45.0  # moved in place, towards the boxes
+    moved = map_metric_features.compute_distance_to_road_edge(**boxes, road_edge_polylines=[edge])
+    fresh = [map_pb2.MapPoint(x=x - 45.0, y=y) for x, y in corners]
+    np.testing.assert_array_equal(
+        moved, map_metric_features.compute_distance_to_road_edge(**boxes, road_edge_polylines=[fresh])
+    )
+    assert (moved != first).all()

@@ -10,11 +10,12 @@ official function computes one call).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import numpy as np
 
 from wosac_eval.compat._arrays import bool_array, check_stackable, compat_array, float_array
-from wosac_eval.features import registry
+from wosac_eval.features import registry, road_edge, traffic_lights
 from wosac_eval.features.float32_math import packet_tail
 from wosac_eval.features.metric_features import FeatureLayout
 from wosac_eval.features.search import PrunedSearch
@@ -136,3 +137,41 @@ def polyline_array(polyline) -> np.ndarray:
     if array.ndim != 2 or array.shape[1] != 3:
         raise ValueError(f"a polyline must be map points or an array (num_points, 3), got shape {array.shape}")
     return array
+
+
+def polyline_arrays(polylines) -> list[np.ndarray]:
+    """Every polyline as float32 `(num_points, 3)` (`polyline_array`)."""
+    return [polyline_array(p) for p in polylines]
+
+
+def _key(arrays: list[np.ndarray]) -> tuple[bytes, tuple]:
+    """The polylines' points and lengths, hashable: the same map gives the same key."""
+    flat = np.concatenate(arrays) if arrays else np.zeros((0, 3), _F)
+    return np.ascontiguousarray(flat, _F).tobytes(), tuple(len(a) for a in arrays)
+
+
+def _split(points: bytes, lengths: tuple) -> list[np.ndarray]:
+    flat = np.frombuffer(points, _F).reshape(-1, 3)
+    return np.split(flat, np.cumsum(lengths)[:-1]) if lengths else []
+
+
+def road_edge_table(edges: list[np.ndarray]) -> road_edge.SegmentTable:
+    """The library's segment table of road edges, kept for the last few maps: a logger calls the official
+    functions every step with the same polylines, whose table (the search's bucket grid) costs more than the call."""
+    return _road_edge_table(*_key(edges))
+
+
+@functools.lru_cache(maxsize=4)
+def _road_edge_table(points: bytes, lengths: tuple) -> road_edge.SegmentTable:
+    return road_edge.build_segment_table(_split(points, lengths))
+
+
+def lane_table(lanes: list[np.ndarray], lane_ids) -> traffic_lights.LaneTable | None:
+    """The library's lane table (None when no lane has two points), kept for the last few maps as `road_edge_table`."""
+    points, lengths = _key(lanes)
+    return _lane_table(points, lengths, tuple(int(i) for i in lane_ids))
+
+
+@functools.lru_cache(maxsize=4)
+def _lane_table(points: bytes, lengths: tuple, lane_ids: tuple) -> traffic_lights.LaneTable | None:
+    return traffic_lights.build_lane_table(_split(points, lengths), list(lane_ids))

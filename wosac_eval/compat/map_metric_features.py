@@ -58,7 +58,7 @@ def compute_distance_to_road_edge(
       ValueError: 'Missing road edges.' without a road edge of two points or more; the official messages
         for unequal shapes and too few axes; a validity or a mask that does not fit the boxes.
     """
-    edges = [p for p in (_objects.polyline_array(p) for p in road_edge_polylines) if len(p) >= 2]
+    edges = [p for p in _objects.polyline_arrays(road_edge_polylines) if len(p) >= 2]
     if not edges:
         raise ValueError("Missing road edges.")
     named = {
@@ -72,7 +72,7 @@ def compute_distance_to_road_edge(
     }
     objects = _objects.read_objects(named, valid, evaluated_object_mask)
     order = objects.evaluated_first()
-    search = PrunedSearch(road_edge.build_segment_table(edges), None, None)
+    search = PrunedSearch(_objects.road_edge_table(edges), None, None)
     tails = {"heading_tail": _objects.heading_tail(objects, order)}
     found = _objects.context(objects.laid_out(order), len(objects.evaluated), search, tails)
     with np.errstate(invalid="ignore", over="ignore"):

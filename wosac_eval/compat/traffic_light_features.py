@@ -22,7 +22,6 @@ import numpy as np
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.compat import _objects
 from wosac_eval.compat._arrays import ArrayIn
-from wosac_eval.features import traffic_lights
 from wosac_eval.features.search import PrunedSearch
 
 # The official module's constant.
@@ -71,7 +70,7 @@ def compute_red_light_violation(
             f"[1,{signals.state.shape[0]},{signals.state.shape[1]}] (traffic_signals has "
             f"{signals.state.shape[0]} steps, the objects {objects.num_steps})"
         )
-    lanes = traffic_lights.build_lane_table([_objects.polyline_array(p) for p in lane_polylines], lane_ids)
+    lanes = _objects.lane_table(_objects.polyline_arrays(lane_polylines), lane_ids)
     if lanes is None:
         raise ValueError("Missing lanes: every lane polyline has fewer than two points.")
     order = objects.evaluated_first()

@@ -4,7 +4,7 @@
 returned for them (`scripts/oracle_feature_functions.py`, run with the official package): evaluated
 objects that are not the first ones, several corner rounding factors, leading axes, cyclic and padded road
 edges, signals on unknown lanes. The same calls through `wosac_eval.compat` give the same bits (the
-kernel density estimate, computed by sklearn officially, to float32 precision).
+kernel density estimate, computed by sklearn in float64 officially, to float32 precision).
 """
 
 from __future__ import annotations
@@ -136,23 +136,6 @@ def test_red_light_violation_is_the_official_bits():
     assert red.any()
 
 
-def test_estimators_are_the_official_values_to_float32_rounding():
-    """The library's estimators give the official values to the last bits (float64 log-probabilities rounded
-    once); the bits themselves are the next test's, which passes once issue #66 lands."""
-    histogram = _Config.HistogramEstimate(min_val=-2, max_val=3, num_bins=7, additive_smoothing_pseudocount=0.1)
-    log, sim = IN["est/log"], IN["est/sim"]
-    close = lambda a, b: np.testing.assert_allclose(a, b, rtol=2e-6, atol=1e-6)
-    close(estimators.histogram_estimate(histogram, log, sim), OUT["histogram"])
-    bern = _Config.BernoulliEstimate(additive_smoothing_pseudocount=0.05)
-    close(estimators.bernoulli_estimate(bern, log > 0, sim > 0.5), OUT["bernoulli"])
-    feature = _Config.FeatureConfig(histogram=histogram, independent_timesteps=False, aggregate_objects=True)
-    close(
-        estimators.log_likelihood_estimate_timeseries(feature, IN["est/series_log"], IN["est/series_sim"]),
-        OUT["timeseries/01"],
-    )
-
-
-@pytest.mark.xfail(reason="the estimators' arithmetic becomes TensorFlow's, bit for bit, in issue #66", strict=False)
 def test_estimators_are_the_official_values():
     histogram = _Config.HistogramEstimate(min_val=-2, max_val=3, num_bins=7, additive_smoothing_pseudocount=0.1)
     log, sim = IN["est/log"], IN["est/sim"]

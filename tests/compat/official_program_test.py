@@ -10,6 +10,8 @@ import json
 import os
 import subprocess
 import sys
+import sysconfig
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -82,6 +84,8 @@ def test_the_official_evaluator_runs_with_its_imports_unchanged(source, tmp_path
 @pytest.mark.slow  # two pools of fresh interpreters
 @pytest.mark.parametrize("method", ["spawn", "forkserver"])
 def test_an_evaluation_pool_serves_the_official_names_in_its_workers(method, tmp_path):
+    hook = Path(sysconfig.get_path("purelib")) / "wosac_eval_official_names.pth"
+    assert hook.is_file(), f"{hook} is missing: an installation older than the hook; reinstall (pip install -e .)"
     scenario = scene("repository")
     logged = converters.scenario_to_joint_scene(scenario)
     rollouts = sim_agents_submission_pb2.ScenarioRollouts(scenario_id=scenario.scenario_id, joint_scenes=[logged] * 32)

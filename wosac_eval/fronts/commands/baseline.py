@@ -11,13 +11,12 @@ Exit codes: 0 written and valid, 1 written but invalid (a bug: please report),
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, check_output_folder
+from wosac_eval.fronts.usage import UsageError, add_scenarios, add_workers, check_output_folder, default_workers
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -26,13 +25,7 @@ HELP = "Write a baseline submission (constant velocity, noisy log replay or IDM 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set, the policy, where to write, and the submission metadata."""
-    parser.add_argument(
-        "--scenarios",
-        nargs="+",
-        required=True,
-        metavar="PATH",
-        help="scenario TFRecord files, folders or globs (synthetic or real WOMD)",
-    )
+    add_scenarios(parser, "synthetic or real WOMD")
     parser.add_argument(
         "--policy",
         required=True,
@@ -54,13 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed of the rollouts (default 0)")
     parser.add_argument("--shards", type=int, default=4, metavar="N", help="number of binproto shards (default 4)")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(os.cpu_count() or 1, 4),
-        metavar="N",
-        help="simulation processes (default: CPU count, at most 4)",
-    )
+    add_workers(parser, "simulation processes (this machine's cores, at most 4, by default)", default_workers())
     meta = parser.add_argument_group("submission metadata")
     meta.add_argument("--method-name", help="unique_method_name (default: the policy name)")
     meta.add_argument("--account-name", default="demo@example.com", help="the email registered at waymo.com/open")
@@ -77,8 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
     from wosac_eval.validate import validate_submission
 
-    if args.shards < 1 or args.workers < 1:
-        raise UsageError("--shards and --workers must be >= 1")
+    if args.shards < 1:
+        raise UsageError("--shards must be >= 1")
     # An archive's folder, or the shard folder, is created when missing: it must be creatable.
     archive = str(args.output).endswith((".tar.gz", ".tgz", ".tar"))
     check_output_folder(Path(args.output).parent if archive else args.output, "--output")

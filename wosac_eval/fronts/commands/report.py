@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wosac_eval.fronts.usage import UsageError, check_input, check_output_file
+from wosac_eval.fronts.usage import UsageError, add_scenarios, check_input, check_output_file
 from wosac_eval.results.compare import CompareError, compare_results
 from wosac_eval.results.report import render_report, worst_scenarios
 from wosac_eval.scoring.result_reader import ResultError, load_result
@@ -29,9 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--top", type=int, default=10, metavar="K", help="worst scenarios listed per metric (default 10)"
     )
     parser.add_argument("--title", help="page title (default: from the result's file name)")
-    parser.add_argument(
-        "--scenarios", nargs="+", metavar="PATH", help="with --submission: the scenario set, to draw the worst scenes"
-    )
+    add_scenarios(parser, "with --submission, the scenario set, to draw the worst scenes", required=False)
     parser.add_argument(
         "--submission", metavar="PATH", help="with --scenarios: the scored submission, to draw the worst scenes"
     )

@@ -35,21 +35,17 @@ from pathlib import Path
 from typing import IO
 
 from wosac_eval.parse.archive import (
-    SHARD_NAME_MARKER,
     MemberReader,
-    is_ignored_name,
-    is_shard_name,
     iter_archive_members,
     iter_archive_shards,
-    not_a_shard_message,
     plain_shard_size,
     read_compressed_shard,
-    sniff_file,
-    uncompressed_tar_notice,
 )
 from wosac_eval.parse.decode import decode_message
+from wosac_eval.parse.decompress import sniff_file, uncompressed_tar_notice
 from wosac_eval.parse.errors import ArchiveError, ParseError, SizeLimitError
 from wosac_eval.parse.limits import InputLimits
+from wosac_eval.parse.member_names import SHARD_NAME_MARKER, is_ignored_name, is_shard_name, not_a_shard_message
 from wosac_eval.parse.shards import split_shard
 from wosac_eval.protos import sim_agents_submission_pb2
 

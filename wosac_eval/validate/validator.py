@@ -27,8 +27,8 @@ from google.protobuf.message import DecodeError
 
 from wosac_eval import challenges
 from wosac_eval.arrays.scenario import record_sim_agent_ids
-from wosac_eval.parse.archive import ArchiveNameWarning, UncompressedTarWarning
 from wosac_eval.parse.decode import decode_message
+from wosac_eval.parse.decompress import ArchiveNameWarning, UncompressedTarWarning
 from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMemberError
 from wosac_eval.parse.limits import InputLimits, ShardCensus
 from wosac_eval.parse.scenarios import ScenarioIndex, ScenarioSource, expand_scenario_paths, scenario_id_of

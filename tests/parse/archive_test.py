@@ -16,7 +16,7 @@ from wosac_eval.parse.decompress import ArchiveNameWarning
 from wosac_eval.parse.member_names import safe_member_name
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.shards import parse_submission_shard
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.parse.errors import (
     ArchiveError,
     InvalidShardError,

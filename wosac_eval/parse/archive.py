@@ -4,7 +4,7 @@ A submission file is a single shard (any name; `.binproto` by convention),
 optionally gzip/bzip2/xz-compressed as a whole (`submission.binproto.gz`), or
 a tar archive, plain or compressed (`.tar`, `.tar.gz`, `.tgz`, ...) whose
 regular members whose name contains ".binproto" are the shards, in archive
-order. (A folder of shards is walked by `parse.submission_source`.)
+order. (A folder of shards is walked by `parse.shard_walk`.)
 
 Which names are shards, skipped or refused: `parse.member_names`. What a file's
 bytes are (sniffed, whatever its name says) and their decompressed stream:

@@ -33,8 +33,9 @@ from wosac_eval.parse.errors import ParseError, SizeLimitError, UnsafeArchiveMem
 from wosac_eval.parse.limits import InputLimits, ShardCensus
 from wosac_eval.parse.scenarios import ScenarioIndex, ScenarioSource, expand_scenario_paths, scenario_id_of
 from wosac_eval.parse.shard_stream import IrregularShard, iter_top_level_fields
+from wosac_eval.parse.shard_walk import NotAShardError, ShardRef
 from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_text
-from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
+from wosac_eval.parse.submission_source import SubmissionSource
 from wosac_eval.parse.tfrecord import iter_records, read_record_at
 from wosac_eval.parse.wire import field_spans
 from wosac_eval.protos import sim_agents_submission_pb2

@@ -18,7 +18,7 @@ from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.sim import baselines, scenes
 from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
-from wosac_eval.validate.validator import check_shard, check_shard_whole
+from wosac_eval.validate.shard_checks import check_shard, check_shard_whole
 
 COPIES = 24  # scenarios of the large shard: ~1 MB each
 

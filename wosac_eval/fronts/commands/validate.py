@@ -25,7 +25,7 @@ from wosac_eval.fronts.usage import (
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.wire_walks import compile_walks
 from wosac_eval.runtime.executors import make_executor
-from wosac_eval.validate.validator import ScenarioSetError, load_sim_agents, validate_submission
+from wosac_eval.validate import ScenarioSetError, load_sim_agents, validate_submission
 
 NAME = "validate"
 HELP = "Check a submission (.tar.gz, .tar, folder or .binproto) against a scenario set and report every problem."

@@ -38,7 +38,7 @@ HELP = "Score a submission with the official WOSAC realism metrics and write res
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Inputs, challenge and config, output, where and how to compute (workers, engine, backend), input limits."""
+    """Inputs, challenge and config, output; then where and how to compute (`_add_run_options`)."""
     add_scenarios(parser)
     parser.add_argument(
         "--submission",
@@ -74,6 +74,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with --output: discard the journal of an interrupted run and score everything",
     )
+    _add_run_options(parser)
+
+
+def _add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Where and how to compute (workers, engine, backend), what to score and write, and the input limits."""
     add_workers(parser, "score scenarios in N processes of this machine")
     add_engine(parser, "one task per chunk of scenarios")
     parser.add_argument(

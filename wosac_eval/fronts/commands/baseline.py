@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
@@ -59,9 +60,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
+    # Here, not at the top: `wosac-eval --help` imports every command, and these load the scoring stack.
     from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.parse.errors import ParseError
-    from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
+    from wosac_eval.sim.baselines import DESCRIPTIONS, simulate_rollouts, write_submission
     from wosac_eval.validate import validate_submission
 
     if args.shards < 1:
@@ -78,31 +80,27 @@ def run(args: argparse.Namespace) -> int:
         method_link=args.method_link,
     )
     start = time.perf_counter()
-    count = [0]
+    count = 0
     bar = None
     if sys.stderr.isatty():  # a progress bar for people, never in pipes or CI logs
-        from tqdm import tqdm
+        from tqdm import tqdm  # only on a terminal
 
         bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
-    def progress(n: int) -> None:
-        """Counts simulated scenarios (and moves the bar)."""
-        count[0] += n
-        if bar is not None:
-            bar.update(n)
+    def counted(rollouts: Iterator[bytes]) -> Iterator[bytes]:
+        """The rollouts, counting the simulated scenarios (and moving the bar)."""
+        nonlocal count
+        for data in rollouts:
+            yield data
+            count += 1
+            if bar is not None:
+                bar.update(1)
 
     try:
-        out = make_submission(
-            args.scenarios,
-            args.policy,
-            args.output,
-            seed=args.seed,
-            num_shards=args.shards,
-            workers=args.workers,
-            metadata=metadata,
-            progress=progress,
-            challenge=args.challenge,
+        rollouts = simulate_rollouts(
+            args.scenarios, args.policy, seed=args.seed, challenge=args.challenge, workers=args.workers
         )
+        out = write_submission(counted(rollouts), args.output, metadata, args.shards, args.scenarios)
     except (ParseError, FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
     finally:
@@ -110,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     report = validate_submission(args.scenarios, out, challenge=args.challenge)
     elapsed = time.perf_counter() - start
-    print(f"wrote {out} ({args.policy}, {args.challenge}, {count[0]} scenarios, {elapsed:.1f} s)")
+    print(f"wrote {out} ({args.policy}, {args.challenge}, {count} scenarios, {elapsed:.1f} s)")
     if not report.ok:
         print(report.format_text(), file=sys.stderr)
         return 1

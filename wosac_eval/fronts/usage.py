@@ -169,20 +169,18 @@ def add_scenarios(parser: argparse.ArgumentParser, purpose: str = "", *, require
     )
 
 
-def add_workers(parser: argparse.ArgumentParser, what: str, default: int = 1) -> None:
-    """`--workers N` (at least 1): `what` the N processes of this machine do."""
+def add_workers(parser: argparse.ArgumentParser, what: str, *, per_core: bool = False) -> None:
+    """`--workers N` (at least 1): `what` the N processes of this machine do; by default 1, or with
+    `per_core` this machine's cores, at most 4 (the commands that simulate)."""
+    default = min(os.cpu_count() or 1, 4) if per_core else 1
+    said = f"this machine's cores, at most 4: {default} here" if per_core else str(default)
     parser.add_argument(
         "--workers",
         type=worker_count,
         default=default,
         metavar="N",
-        help=f"{what} (default {default}); the same results for any N",
+        help=f"{what} (default {said}); the same results for any N",
     )
-
-
-def default_workers() -> int:
-    """The default of commands that simulate: this machine's cores, at most 4."""
-    return min(os.cpu_count() or 1, 4)
 
 
 def add_engine(parser: argparse.ArgumentParser, ray_work: str) -> None:

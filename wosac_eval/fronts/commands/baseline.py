@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, add_scenarios, add_workers, check_output_folder, default_workers
+from wosac_eval.fronts.usage import UsageError, add_scenarios, add_workers, check_output_folder
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed of the rollouts (default 0)")
     parser.add_argument("--shards", type=int, default=4, metavar="N", help="number of binproto shards (default 4)")
-    add_workers(parser, "simulation processes (this machine's cores, at most 4, by default)", default_workers())
+    add_workers(parser, "simulation processes", per_core=True)
     meta = parser.add_argument_group("submission metadata")
     meta.add_argument("--method-name", help="unique_method_name (default: the policy name)")
     meta.add_argument("--account-name", default="demo@example.com", help="the email registered at waymo.com/open")

@@ -29,7 +29,7 @@ from wosac_eval.fronts.demo_pipeline import (
     leaderboard,
     run_demo,
 )
-from wosac_eval.fronts.usage import UsageError, add_workers, check_output_folder, default_workers
+from wosac_eval.fronts.usage import UsageError, add_workers, check_output_folder
 
 TITLES = {
     "sim_agents": "Sim agents (80 future steps; 2025 config)",
@@ -69,9 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="metrics config (a preset or a textproto path; default: each challenge's current one)",
     )
-    add_workers(
-        parser, "processes for simulation and scoring (this machine's cores, at most 4, by default)", default_workers()
-    )
+    add_workers(parser, "processes for simulation and scoring", per_core=True)
     parser.add_argument(
         "--gate",
         type=Path,

@@ -26,7 +26,8 @@ from pathlib import Path
 
 from isal import igzip
 
-from wosac_eval.parse.archive import iter_archive_members, sniff_file
+from wosac_eval.parse.archive import iter_archive_members
+from wosac_eval.parse.decompress import sniff_file
 from wosac_eval.parse.limits import InputLimits
 
 PIECE = 1 << 20  # what the walk asks for at a time (`submission_source._COPY_BYTES`)

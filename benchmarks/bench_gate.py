@@ -60,7 +60,8 @@ def main() -> None:
             lambda: stats.permutation_p_value(w - b, np.random.default_rng(0), n_perm=args.n_perm),
         )
         comparison = _timed(
-            "compare_results (all metrics)", lambda: compare_results(base, new, n_boot=args.n_boot, n_perm=args.n_perm)
+            "compare_results (all metrics)",
+            lambda: compare_results(base, new, settings=stats.PairedSettings(n_boot=args.n_boot, n_perm=args.n_perm)),
         )
         page = _timed("render_report with comparison", lambda: render_report(new, base, comparison))
         print(f"report size: {len(page) / 1024:.0f} KiB")

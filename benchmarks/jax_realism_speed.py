@@ -196,7 +196,7 @@ def womd_scenarios() -> tuple[list, list]:
     return [sc for sc, _ in found.values()], sorted({f for _, f in found.values()})
 
 
-def main() -> None:
+def _arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", default="16,64,256", help="comma-separated scenes per call (the batch sweep)")
     parser.add_argument("--repeat", type=int, default=3)
@@ -216,7 +216,11 @@ def main() -> None:
     )
     parser.add_argument("--file-path", action="store_true", help="also the file path's rows, for the distinct scenes")
     parser.add_argument("--workers", type=int, default=2, help="numpy workers of the file path's rows")
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = _arguments()
     sizes = [int(n) for n in args.scenes.split(",")]
     closed_sizes = [min(sizes)] if args.closed_over is None else [int(n) for n in args.closed_over.split(",") if int(n)]
     if args.womd:
@@ -244,60 +248,70 @@ def main() -> None:
         )
         print(HEADER, flush=True)
         for size in sorted(set(sizes) | set(closed_sizes)):
-            try:
-                batch = tiled(prepared, size)  # gathered on the device
-                resident = jax.device_put(tiled_rollouts(arrays, size))  # the rollouts live on the device
-                jax.block_until_ready(resident)
-                if size in sizes:
-                    for mode in args.modes.split(","):
-                        compile_s, seconds, cost = in_the_loop(batch, resident, mode, args.repeat)
-                        row(
-                            f"in the loop, {prepared.search} search, {mode} mode, prepared an argument",
-                            size,
-                            compile_s,
-                            seconds,
-                            cost,
-                        )
-                if size in closed_sizes:
-                    compile_s, seconds, cost, warned = closed_over(batch, resident, args.repeat)
-                    row(f"CLOSED OVER (constants), {prepared.search} search, float32", size, compile_s, seconds, cost)
-                    constants = sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(batch))
-                    why = (
-                        "yes"
-                        if warned
-                        else "no, under its threshold"
-                        if constants <= CLOSED_OVER_WARNING_BYTES
-                        else "no, it warns once per process"
-                    )
-                    print(
-                        f"  closed over: {constants / 1e6:.1f} MB of prepared arrays became constants; "
-                        f"realism warned: {why}",
-                        flush=True,
-                    )
-            except Exception as error:  # a batch too big for the device: say so, go on with the others
-                print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}", flush=True)
-            finally:
-                batch = resident = None
+            _size_rows(prepared, arrays, size, args, (size in sizes, size in closed_sizes))
         for size in [int(n) for n in args.cost_only.split(",") if n]:
             for mode in args.modes.split(","):
                 compile_s, cost = cost_only(prepared, arrays, size, mode)
                 row(f"compiled only, {prepared.search} search, {mode} mode", size, compile_s, None, cost)
     if args.file_path:
-        with tempfile.TemporaryDirectory() as tmp:
-            if shards is None:
-                shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
-            submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
-            print(f"file path, {n} distinct scenes per call:", flush=True)
-            paths = [("--backend jax (exact)", 1, "jax"), ("numpy, 1 worker", 1, "numpy")]
-            if args.workers > 1:
-                paths.append((f"numpy, {args.workers} workers", args.workers, "numpy"))
-            for label, workers, backend in paths:
+        _file_path_rows(scenarios, shards, args)
+
+
+def _size_rows(prepared, arrays, size: int, args: argparse.Namespace, which: tuple[bool, bool]) -> None:
+    """The rows of one batch size: in the loop in each mode, and/or closed over (`which`)."""
+    in_loop, closed = which
+    try:
+        batch = tiled(prepared, size)  # gathered on the device
+        resident = jax.device_put(tiled_rollouts(arrays, size))  # the rollouts live on the device
+        jax.block_until_ready(resident)
+        if in_loop:
+            for mode in args.modes.split(","):
+                compile_s, seconds, cost = in_the_loop(batch, resident, mode, args.repeat)
                 row(
-                    f"file path, {label}",
-                    n,
-                    float("nan"),
-                    _file_path(shards, submission, workers, args.repeat, backend),
+                    f"in the loop, {prepared.search} search, {mode} mode, prepared an argument",
+                    size,
+                    compile_s,
+                    seconds,
+                    cost,
                 )
+        if closed:
+            compile_s, seconds, cost, warned = closed_over(batch, resident, args.repeat)
+            row(f"CLOSED OVER (constants), {prepared.search} search, float32", size, compile_s, seconds, cost)
+            constants = sum(leaf.nbytes for leaf in jax.tree_util.tree_leaves(batch))
+            why = (
+                "yes"
+                if warned
+                else "no, under its threshold"
+                if constants <= CLOSED_OVER_WARNING_BYTES
+                else "no, it warns once per process"
+            )
+            print(
+                f"  closed over: {constants / 1e6:.1f} MB of prepared arrays became constants; realism warned: {why}",
+                flush=True,
+            )
+    except Exception as error:  # a batch too big for the device: say so, go on with the others
+        print(f"batch of {size} scenes: {type(error).__name__}: {str(error).splitlines()[0][:200]}", flush=True)
+    # The batch's device arrays go with this call, before the next size's are made.
+
+
+def _file_path_rows(scenarios: list, shards: list | None, args: argparse.Namespace) -> None:
+    """The file path's rows for the distinct scenes: --backend jax, and numpy in 1 and --workers processes."""
+    n = len(scenarios)
+    with tempfile.TemporaryDirectory() as tmp:
+        if shards is None:
+            shards = scenes.write_scenario_shards(scenarios, Path(tmp) / "scenarios")
+        submission = make_submission(shards, "idm", Path(tmp) / "idm.tar.gz")
+        print(f"file path, {n} distinct scenes per call:", flush=True)
+        paths = [("--backend jax (exact)", 1, "jax"), ("numpy, 1 worker", 1, "numpy")]
+        if args.workers > 1:
+            paths.append((f"numpy, {args.workers} workers", args.workers, "numpy"))
+        for label, workers, backend in paths:
+            row(
+                f"file path, {label}",
+                n,
+                float("nan"),
+                _file_path(shards, submission, workers, args.repeat, backend),
+            )
 
 
 if __name__ == "__main__":

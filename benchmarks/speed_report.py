@@ -54,7 +54,12 @@ class Section:
 
 
 def sections(repeat: str, sizes: list[str]) -> tuple[Section, ...]:
-    """Every section the report knows, in the order they run."""
+    """Every section the report knows, in the order they run: those it runs by default, then the others."""
+    return _default_sections(repeat, sizes) + _optional_sections(repeat)
+
+
+def _default_sections(repeat: str, sizes: list[str]) -> tuple[Section, ...]:
+    """The sections run without --with: one scenario, objects, workers, the backends."""
     return (
         Section("one-scenario", "One scenario on one core", "score_speed.py", ("--repeat", repeat), one_core=True),
         Section("objects", "Cost against objects and evaluated objects", "score_objects.py", one_core=True),
@@ -66,6 +71,12 @@ def sections(repeat: str, sizes: list[str]) -> tuple[Section, ...]:
             one_core=True,
         ),
         Section("backends", "numpy against JAX on the CPU", "score_backends.py", needs="jax"),
+    )
+
+
+def _optional_sections(repeat: str) -> tuple[Section, ...]:
+    """The sections run only when --with names them (longer, or needing an extra)."""
+    return (
         Section(
             "allocator",
             "The allocator",

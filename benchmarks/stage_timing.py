@@ -104,10 +104,12 @@ def median_time(fn, repeat: int):
     return statistics.median(runs), out
 
 
-def _road_edge_counts(
-    table: road_edge.SegmentTable, x, y, bottom, length, width, cos_h, sin_h, valid, repeat: int
-) -> dict:
-    """Queries (valid box corners), pairs the search evaluates exactly, and the floor's seconds."""
+def _road_edge_counts(table: road_edge.SegmentTable, boxes: tuple, repeat: int) -> dict:
+    """Queries (valid box corners), pairs the search evaluates exactly, and the floor's seconds.
+
+    boxes: the arguments the road-edge search was called with (x, y, bottom, length, width, cos_h,
+    sin_h, valid), as `TimedSearch` kept them."""
+    x, y, bottom, length, width, cos_h, sin_h, valid = boxes
     corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
     queries = np.asarray(corners, np.float32)[np.asarray(valid)].reshape(-1, 3)
     queries = np.ascontiguousarray(queries[np.isfinite(queries).all(axis=1)])
@@ -119,8 +121,12 @@ def _road_edge_counts(
     return {"queries": len(queries), "pairs evaluated": counts["pairs evaluated"], "floor seconds": floor}
 
 
-def _nearest_object_counts(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, repeat: int) -> dict:
-    """Queries (valid evaluated boxes), pairs evaluated exactly (counted), and the floor's seconds."""
+def _nearest_object_counts(boxes: tuple, repeat: int) -> dict:
+    """Queries (valid evaluated boxes), pairs evaluated exactly (counted), and the floor's seconds.
+
+    boxes: the arguments the nearest-object search was called with (x, y, length, width, cos_h, sin_h,
+    valid, num_evaluated), as `TimedSearch` kept them."""
+    x, y, length, width, cos_h, sin_h, valid, num_evaluated = boxes
     counts = {}
     interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated, counts)
     num_objects, num_steps = x.shape[-2:]
@@ -189,11 +195,11 @@ def stage_breakdown(raw_scenario: bytes, raw_rollouts: bytes, config, challenge:
     stages["estimators and metrics"], _ = median_time(lambda: scenario_metrics(config, log, sim), repeat)
     counts = {
         "road edge": {
-            **_road_edge_counts(context.road_edges, *timed.arguments["road_edge_distance"], repeat),
+            **_road_edge_counts(context.road_edges, timed.arguments["road_edge_distance"], repeat),
             "seconds": feature_seconds["road_edge_distance"],
         },
         "nearest object": {
-            **_nearest_object_counts(*timed.arguments["nearest_object"], repeat),
+            **_nearest_object_counts(timed.arguments["nearest_object"], repeat),
             "seconds": feature_seconds["nearest_object"],
         },
     }

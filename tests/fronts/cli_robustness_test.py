@@ -16,7 +16,7 @@ from pathlib import Path, PurePosixPath
 
 import pytest
 
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 
 from support.paths import REPO, require_shared
 from support.runs import WOSAC_EVAL, run_cli

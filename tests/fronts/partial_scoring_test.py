@@ -8,7 +8,7 @@ import json
 import tarfile
 
 from wosac_eval.arrays.submission_writer import SubmissionMetadata
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.sim import baselines, scenes
 
 from support.runs import run_cli

@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from wosac_eval.parse.archive import ArchiveNameWarning, safe_member_name
+from wosac_eval.parse.decompress import ArchiveNameWarning
+from wosac_eval.parse.member_names import safe_member_name
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.shards import parse_submission_shard
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.parse.errors import (
     ArchiveError,
     InvalidShardError,
@@ -292,7 +293,8 @@ def test_truncated_tar_gz_names_archive_and_member_after_streaming_earlier_ones(
 def test_member_pieces_name_a_truncated_member(tmp_path, shards, mode):
     """`MemberReader.read1` (how the walk copies a member to its file) gives the member's bytes, then refuses
     a member cut short naming archive and member, as reading it whole does."""
-    from wosac_eval.parse.archive import iter_archive_members, sniff_file
+    from wosac_eval.parse.archive import iter_archive_members
+    from wosac_eval.parse.decompress import sniff_file
 
     first_name, first_data = next(iter(shards.items()))
     late = random.Random(1).randbytes(1 << 20)
@@ -321,7 +323,7 @@ def test_isal_reads_what_zlib_reads_and_refuses_the_same_damage(tmp_path, shards
     """.tar.gz members are inflated by ISA-L (the `isal` dependency) when it is installed, and by zlib from
     a stream's first error on (ISA-L gives nothing of a deflate block it cannot finish): the same shards
     and the same refusals as zlib's reader alone, for a first member of one deflate block or many."""
-    from wosac_eval.parse import archive
+    from wosac_eval.parse import decompress
 
     pytest.importorskip("isal")
     first_name, first_data = next(iter(shards.items()))
@@ -351,10 +353,10 @@ def test_isal_reads_what_zlib_reads_and_refuses_the_same_damage(tmp_path, shards
                 out[name] = (got, str(refused))
         return out
 
-    assert isinstance(archive._open_decompressed(tmp_path / "full.tar.gz", "gzip"), archive._FastGzipFile)
+    assert isinstance(decompress.open_decompressed(tmp_path / "full.tar.gz", "gzip"), decompress.FastGzipFile)
     with_isal = outcomes()
-    monkeypatch.setattr(archive, "igzip", None)  # zlib alone, as without the dependency
-    assert not isinstance(archive._open_decompressed(tmp_path / "full.tar.gz", "gzip"), archive._FastGzipFile)
+    monkeypatch.setattr(decompress, "igzip", None)  # zlib alone, as without the dependency
+    assert not isinstance(decompress.open_decompressed(tmp_path / "full.tar.gz", "gzip"), decompress.FastGzipFile)
     assert outcomes() == with_isal
     assert with_isal["full.tar.gz"] == ([(f"submission/{n}", d) for n, d in members.items()], None)
     for name in ("cut.tar.gz", "trailer.tar.gz", "flipped.tar.gz"):

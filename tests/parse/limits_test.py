@@ -13,7 +13,7 @@ import re
 import pytest
 
 from wosac_eval.parse.archive import check_container
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.parse.errors import SizeLimitError
 from wosac_eval.parse.limits import InputLimits, _Census, check_message_counts
 from wosac_eval.protos import sim_agents_submission_pb2

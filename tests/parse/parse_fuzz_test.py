@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.shards import parse_submission_shard
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioSource, parse_scenario, scenario_id_of
 from wosac_eval.parse.tfrecord import frame_record, iter_records

@@ -11,13 +11,8 @@ from wosac_eval.parse.errors import ArchiveError, SizeLimitError
 from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.shards import split_shard
-from wosac_eval.parse.submission_source import (
-    NotAShardError,
-    SubmissionSource,
-    iter_shard_refs,
-    iter_submission_shards,
-    read_locator,
-)
+from wosac_eval.parse.shard_walk import NotAShardError, iter_shard_refs, iter_submission_shards
+from wosac_eval.parse.submission_source import SubmissionSource, read_locator
 from wosac_eval.results.scene_plot import scene_pictures
 from wosac_eval.scoring.submission import score_submission
 from wosac_eval.sim import baselines, scenes

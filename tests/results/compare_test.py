@@ -1,3 +1,4 @@
+import dataclasses
 import json
 
 import numpy as np
@@ -13,12 +14,13 @@ from wosac_eval.results.compare import (
     Gate,
     canonical_metric,
     compare_results,
-    format_table,
 )
+from wosac_eval.results.compare_text import format_table
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.scoring.result_reader import load_result
 from wosac_eval.results.synthetic_results import LIKELIHOODS, WEIGHTS_2025, result_json, synthetic_scenarios
 
-FAST = {"n_boot": 400, "n_perm": 400}
+FAST = PairedSettings(n_boot=400, n_perm=400)
 
 
 def _load(tmp_path, data, name, weights=None):
@@ -45,7 +47,7 @@ def _pair(
 
 def test_identical_results_show_no_difference(tmp_path):
     base, new = _pair(tmp_path)
-    c = compare_results(base, new, gates=[Gate.parse("metametric:0")], **FAST)
+    c = compare_results(base, new, gates=[Gate.parse("metametric:0")], settings=FAST)
     assert c.num_shared == 300
     assert all("no per-scenario values" in w for w in c.warnings)  # only the aggregate-only bucket note
     for m in c.metrics:
@@ -60,7 +62,7 @@ def test_identical_results_show_no_difference(tmp_path):
 def test_constant_improvement_is_detected_on_every_shifted_metric(tmp_path):
     shift = {f: 0.01 for f in LIKELIHOODS}
     base, new = _pair(tmp_path, new_kwargs={"shift": shift})
-    c = compare_results(base, new, **FAST)
+    c = compare_results(base, new, settings=FAST)
     mm = c.metric("metametric")
     assert mm.difference == pytest.approx(0.01, abs=1e-12)  # the 2025 weights sum to 1
     assert mm.ci_low == pytest.approx(0.01) and mm.ci_high == pytest.approx(0.01)
@@ -76,7 +78,7 @@ def test_lower_is_better_metrics_are_judged_the_right_way(tmp_path):
         tmp_path, new_kwargs={"shift": {"simulated_collision_rate": 0.01, "min_average_displacement_error": -0.2}}
     )
     c = compare_results(
-        base, new, gates=[Gate.parse("simulated_collision_rate:0.005"), Gate.parse("min_ade:0")], **FAST
+        base, new, gates=[Gate.parse("simulated_collision_rate:0.005"), Gate.parse("min_ade:0")], settings=FAST
     )
     rate = c.metric("simulated_collision_rate")
     assert rate.verdict == WORSE and rate.regression == pytest.approx(0.01)
@@ -89,7 +91,7 @@ def test_noisy_regression_fails_a_tight_gate_and_passes_a_loose_one(tmp_path):
     shift = {"collision_indication_likelihood": -0.04}  # weight 0.25: metametric -0.01
     base, new = _pair(tmp_path, new_kwargs={"shift": shift, "jitter": 0.02})
     c = compare_results(
-        base, new, gates=[Gate.parse("metametric:0.005"), Gate.parse("realism_meta_metric:0.02")], **FAST
+        base, new, gates=[Gate.parse("metametric:0.005"), Gate.parse("realism_meta_metric:0.02")], settings=FAST
     )
     mm = c.metric("metametric")
     assert mm.verdict == WORSE and mm.ci_low < -0.01 < mm.ci_high
@@ -100,7 +102,7 @@ def test_only_significant_gate_ignores_a_noise_level_regression(tmp_path):
     # Pure noise (no shift) in 30 scenarios: pick a seed whose estimate is slightly worse but not significant.
     for jitter_seed in range(50):
         base, new = _pair(tmp_path, n=30, new_kwargs={"jitter": 0.05, "jitter_seed": jitter_seed})
-        c = compare_results(base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")], **FAST)
+        c = compare_results(base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")], settings=FAST)
         mm = c.metric("metametric")
         if mm.regression > 0 and mm.verdict == NO_DIFFERENCE:
             break
@@ -108,7 +110,7 @@ def test_only_significant_gate_ignores_a_noise_level_regression(tmp_path):
         pytest.fail("no seed gave a non-significant regression")
     assert not c.passed
     lenient = compare_results(
-        base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")], only_significant=True, **FAST
+        base, new, metrics=["metametric"], gates=[Gate.parse("metametric:0")], only_significant=True, settings=FAST
     )
     assert lenient.passed and "not significant" in lenient.gates[0].reason
 
@@ -116,7 +118,7 @@ def test_only_significant_gate_ignores_a_noise_level_regression(tmp_path):
 def test_per_scenario_buckets_are_tested_when_weights_are_known(tmp_path):
     shift = {"collision_indication_likelihood": 0.045}  # interactive weights 0.1, 0.25, 0.1 -> +0.025
     base, new = _pair(tmp_path, new_kwargs={"shift": shift}, weights=WEIGHTS_2025)
-    c = compare_results(base, new, **FAST)
+    c = compare_results(base, new, settings=FAST)
     inter = c.metric("interactive_metrics")
     assert inter.paired and inter.difference == pytest.approx(0.045 * 0.25 / 0.45)
     assert inter.verdict == BETTER
@@ -126,7 +128,7 @@ def test_per_scenario_buckets_are_tested_when_weights_are_known(tmp_path):
 
 def test_aggregate_only_buckets_are_compared_without_statistics(tmp_path):
     base, new = _pair(tmp_path, new_kwargs={"shift": {"offroad_indication_likelihood": -0.02}})
-    c = compare_results(base, new, gates=[Gate.parse("map_based_metrics:0.001")], **FAST)
+    c = compare_results(base, new, gates=[Gate.parse("map_based_metrics:0.001")], settings=FAST)
     mb = c.metric("map_based_metrics")
     assert not mb.paired and mb.ci_low is None and mb.verdict == NOT_TESTED
     # Map-based weights 0.05, 0.25, 0.05: -0.02 on offroad moves the bucket by -0.02 * 0.25 / 0.35.
@@ -139,7 +141,7 @@ def test_different_scenario_sets_compare_the_shared_ones_and_warn(tmp_path):
     base, new = _pair(
         tmp_path, base_slice=slice(0, 200), new_slice=slice(50, 300), new_kwargs={"shift": {"metametric": 0.003}}
     )
-    c = compare_results(base, new, **FAST)
+    c = compare_results(base, new, settings=FAST)
     assert (c.num_shared, c.num_base_only, c.num_new_only) == (150, 50, 100)
     assert c.metric("metametric").difference == pytest.approx(0.003)
     assert any("scenario sets differ" in w and "50 only in base" in w and "100 only in new" in w for w in c.warnings)
@@ -148,24 +150,28 @@ def test_different_scenario_sets_compare_the_shared_ones_and_warn(tmp_path):
 def test_no_shared_scenario_is_an_error(tmp_path):
     base, new = _pair(tmp_path, base_slice=slice(0, 10), new_slice=slice(10, 20))
     with pytest.raises(CompareError, match="share no scenario"):
-        compare_results(base, new, **FAST)
+        compare_results(base, new, settings=FAST)
     base, new = _pair(tmp_path, base_slice=slice(0, 10), new_slice=slice(5, 20))
     with pytest.raises(CompareError, match="share only 5 scenarios"):
-        compare_results(base, new, min_shared=6, **FAST)
-    c = compare_results(base, new, **FAST)
+        compare_results(base, new, min_shared=6, settings=FAST)
+    c = compare_results(base, new, settings=FAST)
     assert any("only 5 shared scenarios" in w for w in c.warnings) and c.exact_permutation
 
 
 def test_different_configs_warn(tmp_path):
     base, new = _pair(tmp_path, new_config="2024")
-    c = compare_results(base, new, **FAST)
+    c = compare_results(base, new, settings=FAST)
     assert any("different configs" in w and "'2025'" in w and "'2024'" in w for w in c.warnings)
 
 
 def test_metric_selection_aliases_and_unknown_names(tmp_path):
     base, new = _pair(tmp_path, n=50)
     c = compare_results(
-        base, new, metrics=["realism_meta_metric", "min_ade"], gates=[Gate.parse("simulated_offroad_rate:0.01")], **FAST
+        base,
+        new,
+        metrics=["realism_meta_metric", "min_ade"],
+        gates=[Gate.parse("simulated_offroad_rate:0.01")],
+        settings=FAST,
     )
     assert [m.metric for m in c.metrics] == ["metametric", "min_average_displacement_error", "simulated_offroad_rate"]
     assert canonical_metric(" MetaMetric ") == "metametric"
@@ -183,8 +189,8 @@ def test_metric_selection_aliases_and_unknown_names(tmp_path):
 
 def test_holm_adjustment_changes_only_the_verdicts_basis(tmp_path):
     base, new = _pair(tmp_path, n=100, new_kwargs={"jitter": 0.03, "jitter_seed": 3})
-    raw = compare_results(base, new, **FAST)
-    holm = compare_results(base, new, adjust="holm", **FAST)
+    raw = compare_results(base, new, settings=FAST)
+    holm = compare_results(base, new, settings=dataclasses.replace(FAST, adjust="holm"))
     for a, b in zip(raw.metrics, holm.metrics):
         assert a.p_value == b.p_value and a.p_holm == b.p_holm
         if a.paired:
@@ -194,7 +200,7 @@ def test_holm_adjustment_changes_only_the_verdicts_basis(tmp_path):
 
 def test_json_and_table_outputs(tmp_path):
     base, new = _pair(tmp_path, n=60, new_kwargs={"shift": {"metametric": -0.01}})
-    c = compare_results(base, new, gates=[Gate.parse("metametric:0.005")], **FAST)
+    c = compare_results(base, new, gates=[Gate.parse("metametric:0.005")], settings=FAST)
     out = json.loads(json.dumps(c.to_json()))
     assert out["passed"] is False and out["scenarios"]["shared"] == 60
     assert [m["metric"] for m in out["metrics"]] == list(METRICS)
@@ -217,7 +223,7 @@ def test_json_and_table_outputs(tmp_path):
 
 def test_paired_base_and_new_are_means_over_shared_scenarios(tmp_path):
     base, new = _pair(tmp_path, base_slice=slice(0, 80), new_slice=slice(20, 100))
-    c = compare_results(base, new, metrics=["metametric"], **FAST)
+    c = compare_results(base, new, metrics=["metametric"], settings=FAST)
     shared = base.values["metametric"][20:80]
     assert c.metric("metametric").base == pytest.approx(float(np.mean(shared)))
 
@@ -226,7 +232,7 @@ def test_gate_on_a_metric_neither_file_has_fails_with_a_reason(tmp_path):
     data = result_json(synthetic_scenarios(20, seed=0))
     data["buckets"] = {}  # no aggregate buckets, and no weights to compute them per scenario
     base, new = _load(tmp_path, data, "base.json"), _load(tmp_path, data, "new.json")
-    c = compare_results(base, new, gates=[Gate.parse("kinematic_metrics:0.1")], **FAST)
+    c = compare_results(base, new, gates=[Gate.parse("kinematic_metrics:0.1")], settings=FAST)
     assert not c.passed and c.gates[0].regression is None
     assert "not in both results" in c.gates[0].reason
     assert any("kinematic_metrics: not in both results" in w for w in c.warnings)
@@ -236,7 +242,9 @@ def test_gate_on_a_metric_neither_file_has_fails_with_a_reason(tmp_path):
 def test_relative_gates_scale_with_the_baseline(tmp_path):
     base, new = _pair(tmp_path, n=80, new_kwargs={"shift": {"metametric": -0.01}})
     base_mean = float(base.values["metametric"].mean())  # about 0.45: a 0.01 drop is about 2.2%
-    c = compare_results(base, new, gates=[Gate.parse("metametric:2%"), Gate.parse("realism_meta_metric:3%")], **FAST)
+    c = compare_results(
+        base, new, gates=[Gate.parse("metametric:2%"), Gate.parse("realism_meta_metric:3%")], settings=FAST
+    )
     assert [g.passed for g in c.gates] == [False, True]
     assert c.gates[0].allowed == pytest.approx(0.02 * base_mean)
     assert c.gates[0].gate.spec == "metametric:2%" and c.gates[0].gate.relative

@@ -23,6 +23,7 @@ from wosac_eval.results.per_object_compare import (
     format_objects,
     load_objects,
 )
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.scoring.result_reader import load_result
 
 SCENARIO = SHARED / "womd" / "motion_data_one_scenario.tfrecord"
@@ -64,7 +65,7 @@ def demo(tmp_path_factory):
 def test_real_runs_objects_changes_are_the_objects_values(real, capsys):
     base_path, new_path = real
     base, new = load_result(base_path), load_result(new_path)
-    comparison = compare_objects(base, new, n_boot=200, n_perm=200)
+    comparison = compare_objects(base, new, settings=PairedSettings(n_boot=200, n_perm=200))
     b, n = load_objects(base), load_objects(new)
     assert comparison.num_matched == len(b) == len(n) and comparison.num_base_only == 0
     index = {int(o): i for i, o in enumerate(n.object_id)}
@@ -99,7 +100,7 @@ def test_real_runs_objects_changes_are_the_objects_values(real, capsys):
 def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     base_path, new_path = demo
     base, new = load_result(base_path), load_result(new_path)
-    comparison = compare_objects(base, new, top=200, seed=3, n_boot=500, n_perm=500)
+    comparison = compare_objects(base, new, top=200, settings=PairedSettings(seed=3, n_boot=500, n_perm=500))
     assert comparison.num_tests == len(comparison.strata) > 10
     b, n = load_objects(base), load_objects(new)
     # Recompute one stratum by hand: vehicles over every scene, the objects' meta-metric.
@@ -129,7 +130,9 @@ def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     for group in (True, False):
         sizes = [abs(s.difference) for s, g in zip(comparison.strata, significant) if g == group]
         assert sizes == sorted(sizes, reverse=True)
-    text = format_objects(compare_objects(base, new, top=5, n_boot=200, n_perm=200, metrics=["metametric"]))
+    text = format_objects(
+        compare_objects(base, new, top=5, settings=PairedSettings(n_boot=200, n_perm=200), metrics=["metametric"])
+    )
     assert "vehicles" in text and "strata that changed most" in text and "95% CI" in text
     capsys.readouterr()
     assert (

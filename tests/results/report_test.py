@@ -9,11 +9,12 @@ from PIL import Image
 
 from support import browser
 from wosac_eval.results.compare import compare_results
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.results.report import SECTIONS, render_report
 from wosac_eval.scoring.result_reader import load_result
 from wosac_eval.results.synthetic_results import WEIGHTS_2025, result_json, synthetic_scenarios
 
-FAST = {"n_boot": 300, "n_perm": 300}
+FAST = PairedSettings(n_boot=300, n_perm=300)
 
 
 class _Page(html.parser.HTMLParser):
@@ -71,7 +72,7 @@ def with_baseline(tmp_path_factory):
     """(path, html) of a report compared with a baseline; buckets only as aggregates."""
     tmp_path = tmp_path_factory.mktemp("report")
     result, base = _results(tmp_path)
-    page = render_report(result, base=base, comparison=compare_results(base, result, **FAST), top_k=5)
+    page = render_report(result, base=base, comparison=compare_results(base, result, settings=FAST), top_k=5)
     path = tmp_path / "report.html"
     path.write_text(page, encoding="utf-8")
     return path, page

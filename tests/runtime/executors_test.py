@@ -5,6 +5,10 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
+from wosac_eval.runtime.executors import LocalExecutor, make_executor
+
 # Forked workers of a script can run its own functions; the warm-up compiles numba's wire walks (as
 # `validate_submission` asks), and each worker says how many of their signatures it finds compiled.
 PROBE = textwrap.dedent("""
@@ -52,3 +56,13 @@ def test_without_workers_there_is_no_warm_up(tmp_path):
     seen = _probe(1, tmp_path)
     assert seen["calls"] == []  # the work runs here and compiles what it calls, as it always did
     assert {pid for run in seen["runs"] for pid, _ in run} == {seen["parent"]}
+
+
+def test_a_worker_count_under_one_is_refused_not_raised_to_one():
+    """`--workers` refuses such a count at the command line; a library caller's gets the same answer."""
+    for bad in (0, -2, 1.5, True):
+        with pytest.raises(ValueError, match=rf"workers must be a whole number >= 1, not {bad!r}"):
+            LocalExecutor(bad)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="workers must be a whole number >= 1"):
+            make_executor("local", workers=bad)  # type: ignore[arg-type]
+    assert LocalExecutor(3).parallelism == 3

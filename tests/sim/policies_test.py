@@ -8,7 +8,7 @@ import tarfile
 import numpy as np
 import pytest
 
-from wosac_eval.parse.submission_source import iter_submission_shards
+from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import map_pb2, sim_agents_submission_pb2
 from wosac_eval.sim import baselines, policies, scenes

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from wosac_eval.validate.findings import WARNING, ValidationReport, format_ids, make_finding, where
+from wosac_eval.validate.findings import WARNING, Location, ValidationReport, format_ids, make_finding, where
 
 
 def test_location_prefix_names_what_applies():
@@ -18,8 +18,10 @@ def test_location_prefix_names_what_applies():
 def test_report_keeps_counts_and_first_n_per_code():
     report = ValidationReport("sub.tar.gz", max_listed=2)
     for i in range(5):
-        report.add(make_finding("rollouts.wrong_count", f"found {i} joint scenes, expected 32", scenario_id=f"s{i}"))
-    report.add(make_finding("metadata.recommended", "method_link is empty", shard="a", severity=WARNING))
+        report.add(
+            make_finding("rollouts.wrong_count", f"found {i} joint scenes, expected 32", Location(scenario_id=f"s{i}"))
+        )
+    report.add(make_finding("metadata.recommended", "method_link is empty", Location("a"), severity=WARNING))
     assert not report.ok and report.error_count == 5 and report.warning_count == 1
     assert report.count("rollouts.wrong_count") == 5
     assert [f.scenario_id for f in report.findings("rollouts.wrong_count")] == ["s0", "s1"]
@@ -39,7 +41,7 @@ def test_warnings_alone_keep_a_submission_valid():
 
 def test_max_listed_zero_counts_only():
     report = ValidationReport(max_listed=0)
-    report.add(make_finding("shard.empty", "holds no scenario_rollouts", shard="x"))
+    report.add(make_finding("shard.empty", "holds no scenario_rollouts", Location("x")))
     assert report.count("shard.empty") == 1 and report.findings() == []
 
 
@@ -54,7 +56,7 @@ def test_long_id_lists_are_cut_with_a_count():
 
 
 def test_control_characters_in_names_cannot_forge_report_lines():
-    f = make_finding("coverage.unknown_scenario", "not in the scenario set", shard="a\nb", scenario_id="x\nERROR fake")
+    f = make_finding("coverage.unknown_scenario", "not in the scenario set", Location("a\nb", "x\nERROR fake"))
     assert "\n" not in f.message
     assert f.message == "'a\\nb': scenario 'x\\nERROR fake': not in the scenario set"
 
@@ -64,7 +66,7 @@ def test_hints_are_counted_per_group_and_merged_not_repeated():
         return make_finding(
             "rollouts.wrong_length",
             "field heading has 91 values, expected 80",
-            scenario_id="s",
+            Location(scenario_id="s"),
             field="heading",
             hint=hint,
         )

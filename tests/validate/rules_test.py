@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from wosac_eval.protos import sim_agents_submission_pb2
-from wosac_eval.validate import rules
+from wosac_eval.validate import coverage_rules, metadata_rules, rules
 from support.submissions import golden_submission, load_scenario
 
 SID = "637f20cafde22ff8"
@@ -79,7 +79,7 @@ def test_track_shorter_than_current_step_is_not_a_sim_agent(scenario):
 def test_golden_submissions_pass_every_rule(case):
     sub = golden_submission(case)
     ids = rules.sim_agent_ids(load_scenario(case.split("__")[0]))
-    assert rules.check_metadata(sub, "g") == []
+    assert metadata_rules.check_metadata(sub, "g") == []
     for r in sub.scenario_rollouts:
         assert rules.check_scenario_rollouts(r, ids, shard="g") == []
 
@@ -109,7 +109,7 @@ def test_golden_submissions_pass_every_rule(case):
 )
 def test_cleared_metadata_field_is_named(submission, field, code, fragment):
     submission.ClearField(field)
-    findings = rules.check_metadata(submission, "shard-7.binproto")
+    findings = metadata_rules.check_metadata(submission, "shard-7.binproto")
     assert codes(findings) == [code]
     (f,) = findings
     assert f.field == field and f.shard == "shard-7.binproto"
@@ -118,7 +118,7 @@ def test_cleared_metadata_field_is_named(submission, field, code, fragment):
 
 def test_method_link_is_only_a_warning(submission):
     submission.ClearField("method_link")
-    (f,) = rules.check_metadata(submission, "s")
+    (f,) = metadata_rules.check_metadata(submission, "s")
     assert (f.code, f.severity, f.field) == ("metadata.recommended", "warning", "method_link")
 
 
@@ -146,7 +146,7 @@ def test_method_link_is_only_a_warning(submission):
 )
 def test_invalid_metadata_value_is_named(submission, mutate, field, fragment):
     mutate(submission)
-    (f,) = rules.check_metadata(submission, "s")
+    (f,) = metadata_rules.check_metadata(submission, "s")
     assert (f.code, f.field) == ("metadata.invalid", field)
     assert fragment in f.message
 
@@ -154,15 +154,15 @@ def test_invalid_metadata_value_is_named(submission, mutate, field, fragment):
 @pytest.mark.parametrize("value", ["200K", "1.5B", "7000000", "3m", "12 M"])
 def test_parameter_counts_with_suffix_are_accepted(submission, value):
     submission.num_model_parameters = value
-    assert rules.check_metadata(submission, "s") == []
+    assert metadata_rules.check_metadata(submission, "s") == []
 
 
 def test_pretraining_needs_model_names(submission):
     submission.uses_public_model_pretraining = True
-    (f,) = rules.check_metadata(submission, "s")
+    (f,) = metadata_rules.check_metadata(submission, "s")
     assert f.field == "public_model_names" and "uses_public_model_pretraining is true" in f.message
     submission.public_model_names.append("llama-3-8b")
-    assert rules.check_metadata(submission, "s") == []
+    assert metadata_rules.check_metadata(submission, "s") == []
 
 
 def test_metadata_differing_between_shards_names_both(submission):
@@ -170,8 +170,8 @@ def test_metadata_differing_between_shards_names_both(submission):
     other.CopyFrom(submission)
     other.unique_method_name = "another-name"
     other.uses_lidar_data = True
-    findings = rules.check_metadata_consistency(
-        rules.metadata_of(submission), "a.binproto", rules.metadata_of(other), "b.binproto"
+    findings = metadata_rules.check_metadata_consistency(
+        metadata_rules.metadata_of(submission), "a.binproto", metadata_rules.metadata_of(other), "b.binproto"
     )
     assert [f.field for f in findings] == ["unique_method_name", "uses_lidar_data"]
     assert findings[0].message == "b.binproto: unique_method_name is 'another-name' but 'logreplay' in a.binproto"
@@ -181,17 +181,17 @@ def test_metadata_differing_between_shards_names_both(submission):
 
 
 def test_missing_scenarios_listed_in_scenario_set_order():
-    findings = rules.check_missing_scenarios(["a", "b", "c", "d"], {"b"})
+    findings = coverage_rules.check_missing_scenarios(["a", "b", "c", "d"], {"b"})
     assert [f.scenario_id for f in findings] == ["a", "c", "d"]
     assert findings[0].message == "scenario a: missing from the submission (3 scenario(s) of the set are missing)"
 
 
 def test_unknown_and_duplicate_scenario_messages():
     assert (
-        rules.unknown_scenario("zz", "s1", 4).message
+        coverage_rules.unknown_scenario("zz", "s1", 4).message
         == "s1: scenario zz: not in the scenario set (scenario_rollouts[4])"
     )
-    dup = rules.duplicate_scenario("ab", "s2", 0, ("s1", 3))
+    dup = coverage_rules.duplicate_scenario("ab", "s2", 0, ("s1", 3))
     assert (
         dup.message == "s2: scenario ab: submitted again at scenario_rollouts[0]; first in s1 at scenario_rollouts[3]"
     )

@@ -12,17 +12,13 @@ import numpy as np
 import pytest
 
 from wosac_eval.parse.limits import InputLimits
-from wosac_eval.parse.submission_source import (
-    ShardRef,
-    SubmissionSource,
-    iter_submission_shards,
-    read_locator,
-)
+from wosac_eval.parse.shard_walk import ShardRef, iter_submission_shards
+from wosac_eval.parse.submission_source import SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.sim import baselines, scenes
 from wosac_eval.sim.scene_recipes import SCENE_KINDS
 from wosac_eval.validate import validate_submission
-from wosac_eval.validate.validator import check_shard, check_shard_whole
+from wosac_eval.validate.shard_checks import check_shard, check_shard_whole
 
 COPIES = 24  # scenarios of the large shard: ~1 MB each
 

@@ -514,7 +514,6 @@ def test_report_lists_scenarios_a_partial_scorer_skips(tmp_path, scenario_file, 
     [
         (["--submission", "/no/such/file.tar.gz"], "no such submission file or folder"),
         (["--submission", "X", "--max-listed", "-1"], "--max-listed must be >= 0"),
-        (["--submission", "X", "--workers", "0"], "--workers >= 1"),
     ],
 )
 def test_usage_errors_exit_2(capsys, scenario_file, argv_tail, fragment):
@@ -538,6 +537,7 @@ def test_unreadable_scenario_set_exits_2(tmp_path, capsys, good_shards):
         ["validate"],
         ["validate", "--scenarios", "x"],
         ["validate", "--scenarios", "x", "--submission", "y", "--max-bytes", "lots"],
+        ["validate", "--scenarios", "x", "--submission", "y", "--workers", "0"],
     ],
 )
 def test_argparse_usage_errors_exit_2(argv):

@@ -1,4 +1,9 @@
-"""What every command shares before its work starts: usage errors and output paths checked up front.
+"""What every command shares before its work starts: its common options, usage errors and output paths
+checked up front.
+
+The options several commands take (`--scenarios`, `--workers`, `--engine` and `--ray-address`, the input
+limits `--max-bytes` and `--max-shard-bytes`) are declared here once, each with the one type that checks
+its value: a bad value is refused by the parser, in one line naming the option, before the command runs.
 
 A usage error is the user's to fix (a missing folder, an output that cannot be
 written, swapped arguments); the command line prints it as one line and exits 2
@@ -7,9 +12,17 @@ before any long work, so an hour of scoring is never lost to a typo in `-o`.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
+import re
 from pathlib import Path
+
+from wosac_eval.options import Engine
+
+# Kept light: every command imports this module, `compare` and `report` included (they load no scoring).
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d+)?)\s*([KMGT]i?B?|B)?\s*$", re.IGNORECASE)
+_UNITS = {"": 1, "B": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
 
 
 class UsageError(ValueError):
@@ -101,6 +114,7 @@ def _looks_like_submission(path: Path) -> bool:
 
 def scenario_set_hint(scenario_paths, submission: str | os.PathLike) -> str:
     """' (...swapped?)' when the scenario paths look like a submission and the submission like scenarios."""
+    # Here, not at the top: `compare` and `report` import this module and never read a TFRecord file.
     from wosac_eval.parse.tfrecord import looks_like_tfrecord
 
     suspicious = [str(p) for p in scenario_paths if Path(p).exists() and _looks_like_submission(Path(p))]
@@ -116,3 +130,98 @@ def scenario_set_hint(scenario_paths, submission: str | os.PathLike) -> str:
             "are --scenarios and --submission swapped?)"
         )
     return ""
+
+
+# --------------------------------------------------------------------------- the shared options
+
+
+def worker_count(text: str) -> int:
+    """`--workers N`: a whole number of processes, at least 1 (argparse's type: it names the option)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number of processes (e.g. 4)") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: give at least 1 process")
+    return value
+
+
+def size_in_bytes(text: str) -> int:
+    """'4096', '512M', '40G', '1.5TiB' -> bytes (binary multiples), positive."""
+    match = _SIZE.match(text)
+    if not match:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a size (e.g. 40G, 512M, 1048576)")
+    unit = (match.group(2) or "").upper()[:1]
+    value = int(float(match.group(1)) * _UNITS[unit])
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: the size must be positive")
+    return value
+
+
+def add_scenarios(parser: argparse.ArgumentParser, purpose: str = "", *, required: bool = True) -> None:
+    """`--scenarios PATH...`: the scenario set (TFRecord files, folders or globs); `purpose` ends its help."""
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        required=required,
+        metavar="PATH",
+        help="scenario TFRecord files, folders or globs" + (f": {purpose}" if purpose else ""),
+    )
+
+
+def add_workers(parser: argparse.ArgumentParser, what: str, *, per_core: bool = False) -> None:
+    """`--workers N` (at least 1): `what` the N processes of this machine do; by default 1, or with
+    `per_core` this machine's cores, at most 4 (the commands that simulate)."""
+    default = min(os.cpu_count() or 1, 4) if per_core else 1
+    said = f"this machine's cores, at most 4: {default} here" if per_core else str(default)
+    parser.add_argument(
+        "--workers",
+        type=worker_count,
+        default=default,
+        metavar="N",
+        help=f"{what} (default {said}); the same results for any N",
+    )
+
+
+def add_engine(parser: argparse.ArgumentParser, ray_work: str) -> None:
+    """`--engine local|ray` and `--ray-address`: where the work runs; `ray_work` says what a Ray task does."""
+    parser.add_argument(
+        "--engine",
+        choices=Engine.names(),
+        default=Engine.LOCAL.value,
+        help=f"local (this machine, --workers processes; default) or ray (a Ray cluster: {ray_work}; needs "
+        "`pip install 'wosac-eval[ray]'`); the same results",
+    )
+    parser.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="with --engine ray: the cluster to join (host:port or ray://host:10001; default $RAY_ADDRESS, "
+        "else a local Ray is started)",
+    )
+
+
+def add_input_limits(parser: argparse.ArgumentParser, max_total_bytes: int, max_member_bytes: int) -> None:
+    """`--max-bytes` and `--max-shard-bytes`: how far a submission may decompress (`parse.limits.InputLimits`,
+    whose defaults the caller passes: this module does not load the parser's limits)."""
+    parser.add_argument(
+        "--max-bytes",
+        type=size_in_bytes,
+        default=max_total_bytes,
+        metavar="SIZE",
+        help=f"refuse a submission that decompresses past SIZE in total (default {_shown(max_total_bytes)})",
+    )
+    parser.add_argument(
+        "--max-shard-bytes",
+        type=size_in_bytes,
+        default=max_member_bytes,
+        metavar="SIZE",
+        help=f"refuse a shard that decompresses past SIZE (default {_shown(max_member_bytes)})",
+    )
+
+
+def _shown(size: int) -> str:
+    """A size as the options take it: 64G, 4G, 512M (bytes when it is no whole multiple)."""
+    for unit in "TGMK":
+        if size % _UNITS[unit] == 0:
+            return f"{size // _UNITS[unit]}{unit}"
+    return str(size)

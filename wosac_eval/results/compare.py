@@ -11,13 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import textwrap
 from typing import Any
 
 import numpy as np
 
 from wosac_eval.metrics.registry import DISPLAY_ORDER
 from wosac_eval.results import stats
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.scoring.result_reader import ScoringResult, higher_is_better, shared_rows
 
 # Metrics in display order (the registry's).
@@ -215,11 +215,7 @@ def compare_results(
     new: ScoringResult,
     metrics: list[str] | None = None,
     gates: list[Gate] | None = None,
-    alpha: float = 0.05,
-    adjust: str = "none",
-    seed: int = 0,
-    n_boot: int = 5000,
-    n_perm: int = 5000,
+    settings: PairedSettings | None = None,
     min_shared: int = 1,
     only_significant: bool = False,
 ) -> Comparison:
@@ -229,27 +225,17 @@ def compare_results(
       metrics: metric names (aliases accepted, comma-separated lists too) to
         report; None for all. Gated metrics are always included.
       gates: regressions to fail on.
-      alpha: significance level of the verdicts.
-      adjust: "none" or "holm": verdicts from raw or Holm-adjusted p-values.
-      seed: seeds the bootstrap and permutation draws.
+      settings: the paired tests' settings (`stats.PairedSettings`: alpha, adjust, seed, n_boot,
+        n_perm); None: the defaults.
       min_shared: fewer shared scenarios than this is an error.
       only_significant: a gate fails only when its regression is also significant.
 
     Raises:
-      CompareError: no (or too few) shared scenarios, unknown metric, bad settings.
+      CompareError: no (or too few) shared scenarios, unknown metric, results of different challenges.
     """
-    if adjust not in ("none", "holm"):
-        raise CompareError(f"adjust must be 'none' or 'holm', got {adjust!r}")
-    if not 0 < alpha < 1:
-        raise CompareError(f"alpha must be between 0 and 1, got {alpha}")
-    if n_boot < 1 or n_perm < 1:
-        raise CompareError("n_boot and n_perm must be at least 1")
+    settings = PairedSettings() if settings is None else settings
     gates = list(gates or [])
-    names = [n for m in metrics or [] for n in m.split(",") if n.strip()]  # "--metric a,b" or repeated
-    wanted = [canonical_metric(n) for n in names] if names else list(METRICS)
-    wanted += [g.metric for g in gates if g.metric not in wanted]
-    wanted = [m for m in METRICS if m in wanted]  # display order, no duplicates
-
+    wanted = _wanted_metrics(metrics, gates)
     if base.challenge != new.challenge:
         raise CompareError(
             f"{base.path} is a {base.challenge} result and {new.path} a {new.challenge} result: "
@@ -261,7 +247,56 @@ def compare_results(
             f"the results were scored with different configs: base {base.config!r}, "
             f"new {new.config!r}; differences mix the simulator change with the config change"
         )
+    shared = _shared_scenarios(base, new, min_shared, warnings)
+    results, exact = _paired_metrics(base, new, shared, wanted, settings)
+    _unpaired_metrics(base, new, wanted, results, shared.sets_differ, warnings)
+    return Comparison(
+        base_path=base.path,
+        new_path=new.path,
+        base_config=base.config,
+        new_config=new.config,
+        challenge=new.challenge,
+        num_shared=int(shared.base_rows.size),
+        num_base_only=int(shared.base_only.size),
+        num_new_only=int(shared.new_only.size),
+        alpha=settings.alpha,
+        adjust=settings.adjust,
+        seed=settings.seed,
+        n_boot=settings.n_boot,
+        n_perm=settings.n_perm,
+        exact_permutation=exact,
+        metrics=[results[m] for m in wanted if m in results],
+        gates=[_apply_gate(g, results.get(g.metric), only_significant) for g in gates],
+        warnings=warnings,
+    )
 
+
+def _wanted_metrics(metrics: list[str] | None, gates: list[Gate]) -> list[str]:
+    """The metrics asked for ("--metric a,b" or repeated; all when none), and the gated ones, in display order."""
+    names = [n for m in metrics or [] for n in m.split(",") if n.strip()]
+    wanted = [canonical_metric(n) for n in names] if names else list(METRICS)
+    wanted += [g.metric for g in gates if g.metric not in wanted]
+    return [m for m in METRICS if m in wanted]  # display order, no duplicates
+
+
+@dataclasses.dataclass(frozen=True)
+class _Shared:
+    """The rows of the scenarios both results hold (paired, `result_reader.shared_rows`), and the rows of
+    each result's own."""
+
+    base_rows: np.ndarray
+    new_rows: np.ndarray
+    base_only: np.ndarray
+    new_only: np.ndarray
+
+    @property
+    def sets_differ(self) -> bool:
+        return bool(self.base_only.size or self.new_only.size)
+
+
+def _shared_scenarios(base: ScoringResult, new: ScoringResult, min_shared: int, warnings: list[str]) -> _Shared:
+    """The scenarios the comparison pairs; CompareError when there are too few, a warning when the sets or
+    the skipped scenarios differ, or the pairs are few."""
     base_rows, new_rows = shared_rows(base, new)
     n = int(base_rows.size)
     base_only = np.setdiff1d(np.arange(base.num_scenarios), base_rows)
@@ -288,32 +323,51 @@ def compare_results(
         warnings.append(
             f"the scorer skipped different scenarios: {len(skipped_base)} in base, {len(skipped_new)} in new"
         )
+    return _Shared(base_rows, new_rows, base_only, new_only)
 
+
+def _paired_metrics(
+    base: ScoringResult, new: ScoringResult, shared: _Shared, wanted: list[str], settings: PairedSettings
+) -> tuple[dict[str, MetricComparison], bool]:
+    """The metrics both results have per scenario, compared scenario by scenario (all metrics resampled
+    with the same draws), with their verdicts; and whether the permutation test was exact."""
     paired = [m for m in wanted if base.has_per_scenario(m) and new.has_per_scenario(m)]
     results: dict[str, MetricComparison] = {}
-    exact = False
-    if paired:
-        b = np.stack([base.per_scenario(m)[base_rows] for m in paired], axis=1)  # (shared, metrics)
-        w = np.stack([new.per_scenario(m)[new_rows] for m in paired], axis=1)
-        test = stats.paired_test(b, w, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
-        exact = test.exact_permutation
-        for j, m in enumerate(paired):
-            results[m] = MetricComparison(
-                metric=m,
-                higher_is_better=higher_is_better(m),
-                paired=True,
-                base=float(b[:, j].mean()),
-                new=float(w[:, j].mean()),
-                difference=float(test.mean_difference[j]),
-                ci_low=float(test.ci_low[j]),
-                ci_high=float(test.ci_high[j]),
-                p_value=float(test.p_value[j]),
-            )
-        holm = stats.holm_adjust(test.p_value)
-        for j, m in enumerate(paired):
-            p_holm = results[m].p_holm = float(holm[j])
-            results[m].verdict = _verdict(results[m], p_holm if adjust == "holm" else float(test.p_value[j]), alpha)
+    if not paired:
+        return results, False
+    b = np.stack([base.per_scenario(m)[shared.base_rows] for m in paired], axis=1)  # (shared, metrics)
+    w = np.stack([new.per_scenario(m)[shared.new_rows] for m in paired], axis=1)
+    test = settings.test(b, w)
+    for j, m in enumerate(paired):
+        results[m] = MetricComparison(
+            metric=m,
+            higher_is_better=higher_is_better(m),
+            paired=True,
+            base=float(b[:, j].mean()),
+            new=float(w[:, j].mean()),
+            difference=float(test.mean_difference[j]),
+            ci_low=float(test.ci_low[j]),
+            ci_high=float(test.ci_high[j]),
+            p_value=float(test.p_value[j]),
+        )
+    holm = stats.holm_adjust(test.p_value)
+    for j, m in enumerate(paired):
+        p_holm = results[m].p_holm = float(holm[j])
+        p = p_holm if settings.adjust == "holm" else float(test.p_value[j])
+        results[m].verdict = _verdict(results[m], p, settings.alpha)
+    return results, test.exact_permutation
 
+
+def _unpaired_metrics(
+    base: ScoringResult,
+    new: ScoringResult,
+    wanted: list[str],
+    results: dict[str, MetricComparison],
+    sets_differ: bool,
+    warnings: list[str],
+) -> None:
+    """Add to `results` the metrics the results have only as file aggregates (no interval, no p-value),
+    saying so in `warnings`; a metric neither has is left out, with a warning."""
     unpaired = [m for m in wanted if m not in results]
     for m in unpaired:
         bv, nv = base.headline(m), new.headline(m)
@@ -325,37 +379,11 @@ def compare_results(
         )
     if any(m in results for m in unpaired):
         aggregated = ", ".join(m for m in unpaired if m in results)
-        scope = (
-            "all of each file's scenarios"
-            if not (base_only.size or new_only.size)
-            else "each file's own scenarios (the sets differ!)"
-        )
+        scope = "all of each file's scenarios" if not sets_differ else "each file's own scenarios (the sets differ!)"
         warnings.append(
             f"no per-scenario values for {aggregated}: compared the files' aggregates over {scope}, "
             f"without interval or p-value"
         )
-
-    ordered = [results[m] for m in wanted if m in results]
-    outcomes = [_apply_gate(g, results.get(g.metric), only_significant) for g in gates]
-    return Comparison(
-        base_path=base.path,
-        new_path=new.path,
-        base_config=base.config,
-        new_config=new.config,
-        challenge=new.challenge,
-        num_shared=n,
-        num_base_only=int(base_only.size),
-        num_new_only=int(new_only.size),
-        alpha=alpha,
-        adjust=adjust,
-        seed=seed,
-        n_boot=n_boot,
-        n_perm=n_perm,
-        exact_permutation=exact,
-        metrics=ordered,
-        gates=outcomes,
-        warnings=warnings,
-    )
 
 
 def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) -> GateOutcome:
@@ -378,118 +406,3 @@ def _apply_gate(gate: Gate, m: MetricComparison | None, only_significant: bool) 
     if regression > 0:
         return GateOutcome(gate, regression, True, f"worse by {regression:.6g} <= allowed {allowed:.6g}", allowed)
     return GateOutcome(gate, regression, True, f"not worse (change {m.difference:+.6g})", allowed)
-
-
-# ---------------------------------------------------------------------------------------------
-# Terminal output
-
-
-def _fmt(x: float | None, signed: bool = False) -> str:
-    if x is None:
-        return "-"
-    x = round(x, 4) or 0.0  # no "-0.0000" for a change that rounds away
-    return f"{x:+.4f}" if signed else f"{x:.4f}"
-
-
-def _fmt_p(p: float | None) -> str:
-    if p is None:
-        return "-"
-    return "<0.0001" if p < 0.0001 else f"{p:.4f}"
-
-
-def _wrap(text: str) -> str:
-    return textwrap.fill(text, width=110, subsequent_indent="  ", break_on_hyphens=False)
-
-
-def format_table(c: Comparison) -> str:
-    """The comparison as a plain-text table with warnings, a multiple-testing note and the gates."""
-    conf = f"{round((1 - c.alpha) * 100):d}% CI"
-    header = ["metric", "best", "base", "new", "diff", conf, "p", "verdict"]
-    rows = []
-    for m in c.metrics:
-        ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
-        p = m.p_holm if c.adjust == "holm" else m.p_value
-        verdict = m.verdict.upper() if m.verdict == WORSE else m.verdict
-        rows.append(
-            [
-                m.metric,
-                "high" if m.higher_is_better else "low",
-                _fmt(m.base),
-                _fmt(m.new),
-                _fmt(m.difference, True),
-                ci,
-                _fmt_p(p),
-                verdict,
-            ]
-        )
-    widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
-    right = {2, 3, 4, 6}
-
-    def line(cells):
-        return "  ".join(
-            c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
-        ).rstrip()
-
-    out = [
-        f"base: {c.base_path}  (config {c.base_config})",
-        f"new:  {c.new_path}  (config {c.new_config})",
-        f"paired over {c.num_shared} shared scenarios; diff = new - base; "
-        f"seed {c.seed}, {c.n_boot} bootstrap resamples, "
-        + ("exact permutation test" if c.exact_permutation else f"{c.n_perm} random sign flips"),
-        "",
-        line(header),
-        line(["-" * w for w in widths]),
-    ]
-    out += [line(r) for r in rows]
-    tested = sum(1 for m in c.metrics if m.paired)
-    if tested > 1:
-        p_kind = "Holm-adjusted p-values" if c.adjust == "holm" else "unadjusted p-values"
-        out += [
-            "",
-            _wrap(
-                f"note: {tested} metrics tested at alpha={c.alpha:g} with {p_kind}."
-                + (
-                    ""
-                    if c.adjust == "holm"
-                    else f" With no real change, about {tested * c.alpha:.1f} of them can still come out"
-                    " better/worse by chance; use --adjust holm to control that."
-                )
-                + " The metrics are correlated (buckets are weighted means of the likelihoods)."
-            ),
-        ]
-    if c.warnings:
-        out += [""] + [_wrap(f"warning: {w}") for w in c.warnings]
-    if c.gates:
-        out.append("")
-        for g in c.gates:
-            out.append(f"gate {g.gate.spec}  {'PASS' if g.passed else 'FAIL'}  {g.reason}")
-        out.append("result: " + ("all gates passed" if c.passed else "GATE FAILED"))
-    return "\n".join(out)
-
-
-def format_markdown(c: Comparison) -> str:
-    """The comparison as GitHub-flavoured Markdown (for a CI job summary or a pull-request comment)."""
-    conf = f"{round((1 - c.alpha) * 100):d}% CI"
-    status = "" if not c.gates else (" — all gates passed" if c.passed else " — **gate failed**")
-    out = [
-        f"### WOSAC realism: `{c.new_path}` vs `{c.base_path}`{status}",
-        "",
-        f"Paired over {c.num_shared} shared scenarios (config `{c.new_config}`); diff = new - base.",
-        "",
-        f"| metric | better if | base | new | diff | {conf} | p | verdict |",
-        "| --- | --- | ---: | ---: | ---: | ---: | ---: | --- |",
-    ]
-    for m in c.metrics:
-        ci = f"[{_fmt(m.ci_low, True)}, {_fmt(m.ci_high, True)}]" if m.paired else "-"
-        p = m.p_holm if c.adjust == "holm" else m.p_value
-        verdict = f"**{m.verdict}**" if m.verdict in (BETTER, WORSE) else m.verdict
-        out.append(
-            f"| `{m.metric}` | {'higher' if m.higher_is_better else 'lower'} | {_fmt(m.base)} | "
-            f"{_fmt(m.new)} | {_fmt(m.difference, True)} | {ci} | {_fmt_p(p)} | {verdict} |"
-        )
-    if c.gates:
-        out.append("")
-        out += [f"- {'PASS' if g.passed else '**FAIL**'} `{g.gate.spec}`: {g.reason}" for g in c.gates]
-    for w in c.warnings:  # one quote block each: consecutive quoted lines would merge into one paragraph
-        out += ["", f"> warning: {w}"]
-    return "\n".join(out) + "\n"

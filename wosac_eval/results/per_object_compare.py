@@ -29,6 +29,7 @@ import numpy as np
 from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS, METRIC_NAMES
 from wosac_eval.results import stats
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.results.stratify import cohens_d, criticality_strata
 from wosac_eval.scoring.objects import read_objects
 from wosac_eval.scoring.result_reader import ScoringResult, default_bucket_weights
@@ -187,10 +188,7 @@ def compare_objects(
     *,
     metrics: list[str] | None = None,
     top: int = 10,
-    alpha: float = 0.05,
-    seed: int = 0,
-    n_boot: int = 5000,
-    n_perm: int = 5000,
+    settings: PairedSettings | None = None,
     base: ObjectTable | None = None,
     new: ObjectTable | None = None,
 ) -> PerObjectComparison:
@@ -199,7 +197,59 @@ def compare_objects(
     Args:
       metrics: of METRICS ("metametric" means `object_metametric`); None: all.
       top: objects listed each way, and strata listed.
+      settings: the paired tests' (`stats.PairedSettings`: alpha, seed, n_boot, n_perm; None: the
+        defaults). The strata are ranked by their raw p-values; the Holm-adjusted ones are listed beside
+        (`settings.adjust` is not used).
+      base, new: the results' per-object tables when the caller has read them (`load_objects`).
     """
+    settings = PairedSettings() if settings is None else settings
+    wanted = _wanted(metrics)
+    base = base if base is not None else load_objects(base_result)
+    new = new if new is not None else load_objects(new_result)
+    b_rows, n_rows = _match(base, new)
+    if b_rows.size == 0:
+        raise PerObjectError(f"{base_result.path} and {new_result.path} share no object (scenario_id, object_id)")
+    notes: list[str] = []
+    changes = _changed_objects(base, new, b_rows, n_rows, top)
+    # Strata: object type x criticality of the scene, one paired test per (stratum, metric) over scenes.
+    scene_ids, groups = np.unique(base.scenario_id[b_rows].astype(str), return_inverse=True)
+    strata_of_scenes = _scene_strata(base_result, new_result, scene_ids, notes)
+    matched = _Matched(base, new, b_rows, n_rows, groups, scene_ids.size)
+    rows = [
+        row
+        for kind in (k for k in (*ANALYSED_TYPES, "other") if (matched.types == k).any())
+        for metric in wanted
+        for row in _stratum_changes(matched, kind, metric, strata_of_scenes, settings)
+    ]
+    if rows:
+        holm = stats.holm_adjust(np.array([r.p_value for r in rows]))
+        rows = [dataclasses.replace(r, p_holm=float(p)) for r, p in zip(rows, holm)]
+    alpha = settings.alpha
+    # The significant ones first (a change, not noise: one scene never is), then by the size of the change.
+    ranked = sorted(
+        rows, key=lambda r: (not r.p_value < alpha, -abs(r.difference), r.object_type, r.criticality, r.metric)
+    )[:top]
+    notes.append(
+        f"{len(rows)} tests (object type x criticality x metric) at alpha={alpha:g}; p_holm controls the "
+        "family-wise error over all of them. The unit is the scene (the mean over its objects of the "
+        "stratum): objects of one scene are not independent."
+    )
+    if any(r.num_scenarios < 30 for r in ranked):
+        notes.append("strata with fewer than 30 scenes have rough intervals and p-values")
+    return PerObjectComparison(
+        int(b_rows.size),
+        len(base) - int(b_rows.size),
+        len(new) - int(n_rows.size),
+        alpha,
+        changes,
+        ranked,
+        len(rows),
+        notes,
+    )
+
+
+def _wanted(metrics: list[str] | None) -> list[str]:
+    """The metrics asked for, of METRICS, in its order; PerObjectError when none is one of them."""
     wanted = [OBJECT_METAMETRIC if m == "metametric" else m for m in (metrics or METRICS)]
     wanted = [m for m in METRICS if m in wanted]
     if not wanted:
@@ -207,15 +257,15 @@ def compare_objects(
             f"no per-object metric among {', '.join(metrics or [])}: the objects have "
             f"{', '.join(('metametric',) + LIKELIHOOD_FIELDS)}"
         )
-    base = base if base is not None else load_objects(base_result)
-    new = new if new is not None else load_objects(new_result)
-    b_rows, n_rows = _match(base, new)
-    if b_rows.size == 0:
-        raise PerObjectError(f"{base_result.path} and {new_result.path} share no object (scenario_id, object_id)")
-    notes: list[str] = []
-    types = base.object_type[b_rows]
+    return wanted
 
-    # The objects that changed most, on their meta-metric.
+
+def _changed_objects(
+    base: ObjectTable, new: ObjectTable, b_rows: np.ndarray, n_rows: np.ndarray, top: int
+) -> list[ObjectChange]:
+    """The matched objects whose meta-metric changed most: the `top` that fell most, then the `top` that
+    rose most (those not already listed), each with the likelihood that moved most."""
+    types = base.object_type[b_rows]
     b_meta, n_meta = base.values[OBJECT_METAMETRIC][b_rows], new.values[OBJECT_METAMETRIC][n_rows]
     diff = n_meta - b_meta
     finite = np.flatnonzero(np.isfinite(diff))
@@ -238,75 +288,82 @@ def compare_objects(
                 None if field is None else float(moved[field]),
             )
         )
+    return changes
 
-    # Strata: object type x criticality of the scene, one paired test per (stratum, metric) over scenes.
-    scene_ids, groups = np.unique(base.scenario_id[b_rows].astype(str), return_inverse=True)
-    strata_of_scenes: list[tuple[str, str, np.ndarray]] = [("all", "every scene", np.ones(scene_ids.size, bool))]
+
+def _scene_strata(
+    base_result: ScoringResult, new_result: ScoringResult, scene_ids: np.ndarray, notes: list[str]
+) -> list[tuple[str, str, np.ndarray]]:
+    """(name, description, mask over `scene_ids`) of every scene, and of the criticality terciles and the
+    long tail when a result carries criticality (the base's, else the new's); a note when neither does."""
+    strata: list[tuple[str, str, np.ndarray]] = [("all", "every scene", np.ones(scene_ids.size, bool))]
     source = base_result if base_result.criticality is not None else new_result
     if source.criticality is not None:
         score_of = dict(zip(source.scenario_ids.tolist(), source.criticality.tolist()))
         scores = np.array([score_of.get(s, np.nan) for s in scene_ids])
         if np.isfinite(scores).all() and scene_ids.size >= 3:
-            strata_of_scenes += [(n, d, m) for n, d, m in criticality_strata(scores) if n != "rest"]
+            strata += [(n, d, m) for n, d, m in criticality_strata(scores) if n != "rest"]
     else:
         notes.append("no criticality in either result: strata by object type only")
-    kinds = [k for k in (*ANALYSED_TYPES, "other") if (types == k).any()]
-    rows: list[StratumChange] = []
-    for kind in kinds:
-        of_kind = types == kind
-        for metric in wanted:
-            bv, nv = base.values[metric][b_rows], new.values[metric][n_rows]
-            both = of_kind & np.isfinite(bv) & np.isfinite(nv)
-            b_sum, count = _scene_means(groups[both], bv[both], scene_ids.size)
-            n_sum, _ = _scene_means(groups[both], nv[both], scene_ids.size)
-            for name, description, scene_mask in strata_of_scenes:
-                keep = scene_mask & (count > 0)
-                if not keep.any():
-                    continue
-                b_mean, n_mean = b_sum[keep] / count[keep], n_sum[keep] / count[keep]
-                test = stats.paired_test(b_mean, n_mean, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
-                rows.append(
-                    StratumChange(
-                        kind,
-                        name,
-                        description,
-                        metric,
-                        int(keep.sum()),
-                        int(count[keep].sum()),
-                        float(b_mean.mean()),
-                        float(n_mean.mean()),
-                        float(test.mean_difference[0]),
-                        float(test.ci_low[0]),
-                        float(test.ci_high[0]),
-                        float(test.p_value[0]),
-                        None,
-                        cohens_d(n_mean - b_mean),
-                    )
-                )
-    if rows:
-        holm = stats.holm_adjust(np.array([r.p_value for r in rows]))
-        rows = [dataclasses.replace(r, p_holm=float(p)) for r, p in zip(rows, holm)]
-    # The significant ones first (a change, not noise: one scene never is), then by the size of the change.
-    ranked = sorted(
-        rows, key=lambda r: (not r.p_value < alpha, -abs(r.difference), r.object_type, r.criticality, r.metric)
-    )[:top]
-    notes.append(
-        f"{len(rows)} tests (object type x criticality x metric) at alpha={alpha:g}; p_holm controls the "
-        "family-wise error over all of them. The unit is the scene (the mean over its objects of the "
-        "stratum): objects of one scene are not independent."
-    )
-    if any(r.num_scenarios < 30 for r in ranked):
-        notes.append("strata with fewer than 30 scenes have rough intervals and p-values")
-    return PerObjectComparison(
-        int(b_rows.size),
-        len(base) - int(b_rows.size),
-        len(new) - int(n_rows.size),
-        alpha,
-        changes,
-        ranked,
-        len(rows),
-        notes,
-    )
+    return strata
+
+
+@dataclasses.dataclass(frozen=True)
+class _Matched:
+    """The objects of both tables matched by (scenario_id, object_id): their rows in each, and the scene
+    (an index into the matched scenes, `num_scenes` of them) of each."""
+
+    base: ObjectTable
+    new: ObjectTable
+    b_rows: np.ndarray
+    n_rows: np.ndarray
+    groups: np.ndarray
+    num_scenes: int
+
+    @property
+    def types(self) -> np.ndarray:
+        return self.base.object_type[self.b_rows]
+
+
+def _stratum_changes(
+    matched: _Matched,
+    kind: str,
+    metric: str,
+    strata_of_scenes: list[tuple[str, str, np.ndarray]],
+    settings: PairedSettings,
+) -> list[StratumChange]:
+    """One object type's change on one metric in each scene stratum that holds such objects: per scene,
+    the mean over its objects, paired between the runs and tested over the scenes."""
+    bv, nv = matched.base.values[metric][matched.b_rows], matched.new.values[metric][matched.n_rows]
+    both = (matched.types == kind) & np.isfinite(bv) & np.isfinite(nv)
+    b_sum, count = _scene_means(matched.groups[both], bv[both], matched.num_scenes)
+    n_sum, _ = _scene_means(matched.groups[both], nv[both], matched.num_scenes)
+    rows = []
+    for name, description, scene_mask in strata_of_scenes:
+        keep = scene_mask & (count > 0)
+        if not keep.any():
+            continue
+        b_mean, n_mean = b_sum[keep] / count[keep], n_sum[keep] / count[keep]
+        test = settings.test(b_mean, n_mean)
+        rows.append(
+            StratumChange(
+                kind,
+                name,
+                description,
+                metric,
+                int(keep.sum()),
+                int(count[keep].sum()),
+                float(b_mean.mean()),
+                float(n_mean.mean()),
+                float(test.mean_difference[0]),
+                float(test.ci_low[0]),
+                float(test.ci_high[0]),
+                float(test.p_value[0]),
+                None,
+                cohens_d(n_mean - b_mean),
+            )
+        )
+    return rows
 
 
 def _f(x: float | None, signed: bool = False) -> str:

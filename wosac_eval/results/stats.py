@@ -39,6 +39,39 @@ _TIE_RELATIVE_TOLERANCE = 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
+class PairedSettings:
+    """How every paired comparison of two runs is tested and judged: the same settings for the comparison
+    per metric (`compare.compare_results`), per stratum (`stratify`) and per object (`per_object_compare`).
+
+    Attributes:
+      alpha: the significance level of the verdicts; the intervals are (1 - alpha) intervals.
+      adjust: "none" or "holm": verdicts from the raw or the Holm-adjusted p-values (the per-object
+        comparison ranks its strata by the raw ones, and lists the adjusted ones beside).
+      seed: seeds the bootstrap and the permutation draws.
+      n_boot: bootstrap resamples.
+      n_perm: random sign flips of the permutation test.
+    """
+
+    alpha: float = 0.05
+    adjust: str = "none"
+    seed: int = 0
+    n_boot: int = 5000
+    n_perm: int = 5000
+
+    def __post_init__(self) -> None:
+        if self.adjust not in ("none", "holm"):
+            raise ValueError(f"adjust must be 'none' or 'holm', got {self.adjust!r}")
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"alpha must be between 0 and 1, got {self.alpha}")
+        if self.n_boot < 1 or self.n_perm < 1:
+            raise ValueError("n_boot and n_perm must be at least 1")
+
+    def test(self, base: np.ndarray, new: np.ndarray) -> PairedTest:
+        """`paired_test` of `new - base` with these settings (intervals at 1 - alpha)."""
+        return paired_test(base, new, seed=self.seed, n_boot=self.n_boot, n_perm=self.n_perm, confidence=1 - self.alpha)
+
+
+@dataclasses.dataclass(frozen=True)
 class PairedTest:
     """Result of the paired tests for each metric, arrays of shape (num_metrics,)."""
 

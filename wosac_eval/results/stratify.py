@@ -25,6 +25,7 @@ import numpy as np
 from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE
 from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.results import stats
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.scoring.result_reader import ScoringResult, higher_is_better, shared_rows
 
 STRATIFY = ("criticality", "object_type")
@@ -94,21 +95,13 @@ def criticality_strata(scores: np.ndarray) -> list[tuple[str, str, np.ndarray]]:
 
 
 def _compare(
-    stratum: str,
-    description: str,
-    metric: str,
-    base: np.ndarray,
-    new: np.ndarray,
-    seed: int,
-    n_boot: int,
-    n_perm: int,
-    alpha: float,
+    stratum: str, description: str, metric: str, base: np.ndarray, new: np.ndarray, settings: PairedSettings
 ) -> StratumComparison:
     if base.size == 0:
         return StratumComparison(
             stratum, description, metric, 0, None, None, None, None, None, None, None, None, "n/a (no scenario)"
         )
-    test = stats.paired_test(base, new, seed=seed, n_boot=n_boot, n_perm=n_perm, confidence=1 - alpha)
+    test = settings.test(base, new)
     return StratumComparison(
         stratum,
         description,
@@ -126,14 +119,16 @@ def _compare(
     )
 
 
-def _with_verdicts(rows: list[StratumComparison], alpha: float, adjust: str) -> list[StratumComparison]:
+def _with_verdicts(rows: list[StratumComparison], settings: PairedSettings) -> list[StratumComparison]:
     p_values = {i: r.p_value for i, r in enumerate(rows) if r.p_value is not None}
     tested = list(p_values)
     adjusted = stats.holm_adjust(np.array(list(p_values.values()))) if tested else np.empty(0)
     out = list(rows)
     for i, p_holm in zip(tested, adjusted):
         r = rows[i]
-        if (p_holm if adjust == "holm" else p_values[i]) >= alpha or not r.difference:  # tested: a difference
+        if (
+            p_holm if settings.adjust == "holm" else p_values[i]
+        ) >= settings.alpha or not r.difference:  # tested: a difference
             verdict = "no significant difference"
         else:
             verdict = "better" if (r.difference > 0) == higher_is_better(r.metric) else "worse"
@@ -146,17 +141,14 @@ def stratified_comparison(
     new: ScoringResult,
     by: str,
     metrics: list[str],
-    *,
-    seed: int = 0,
-    n_boot: int = 5000,
-    n_perm: int = 5000,
-    alpha: float = 0.05,
-    adjust: str = "none",
+    settings: PairedSettings | None = None,
 ) -> Stratification:
     """Paired comparisons of `metrics` per stratum (see the module); raises StratifyError if impossible.
 
-    Verdicts come from the raw p-values, or from the Holm-adjusted ones with `adjust="holm"`.
+    settings: the paired tests' (`stats.PairedSettings`; None: the defaults). Verdicts come from the raw
+    p-values, or from the Holm-adjusted ones with `adjust="holm"`.
     """
+    settings = PairedSettings() if settings is None else settings
     if by not in STRATIFY:
         raise StratifyError(f"--stratify {by!r}: choose {' or '.join(STRATIFY)}")
     base_rows, new_rows = shared_rows(base, new)
@@ -176,7 +168,7 @@ def stratified_comparison(
                 raise StratifyError(f"metric {metric!r} has no per-scenario values in both results")
             b, n = base.per_scenario(metric)[base_rows], new.per_scenario(metric)[new_rows]
             for name, description, mask in criticality_strata(scores):
-                rows.append(_compare(name, description, metric, b[mask], n[mask], seed, n_boot, n_perm, alpha))
+                rows.append(_compare(name, description, metric, b[mask], n[mask], settings))
     else:
         kinds = [k for k in ANALYSED_TYPES if k in base.by_type and k in new.by_type]
         if not kinds:
@@ -198,15 +190,13 @@ def stratified_comparison(
                         metric,
                         b[both],
                         n[both],
-                        seed,
-                        n_boot,
-                        n_perm,
-                        alpha,
+                        settings,
                     )
                 )
         if not rows:
             raise StratifyError(f"no per-object-type values of {', '.join(metrics)} in both results")
-    rows = _with_verdicts(rows, alpha, adjust)
+    rows = _with_verdicts(rows, settings)
+    alpha = settings.alpha
     tested = sum(r.p_value is not None for r in rows)
     notes = [
         f"{tested} tests (strata x metrics) at alpha={alpha:g}: about {tested * alpha:.1f} can come out "

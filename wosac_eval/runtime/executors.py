@@ -56,7 +56,7 @@ class LocalExecutor:
     """This process (`workers <= 1`) or `workers` processes of this host.
 
     Args:
-      workers: processes; 1 runs everything in the calling process.
+      workers: processes, at least 1 (ValueError otherwise); 1 runs everything in the calling process.
       force_spawn: start fresh interpreters instead of forking (JAX work).
       initializer: called once in every worker process (e.g. the allocator settings).
       warm_up: called once in this process, before its first pool of workers starts: what each
@@ -72,7 +72,10 @@ class LocalExecutor:
         initializer: Callable[[], object] | None = None,
         warm_up: Callable[[], object] | None = None,
     ):
-        self.workers = max(1, int(workers))
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            # Refused, not raised to 1: a caller's 0 or -1 is a mistake to name, not a count to guess.
+            raise ValueError(f"workers must be a whole number >= 1, not {workers!r}")
+        self.workers = workers
         self.parallelism = self.workers
         self.force_spawn = force_spawn
         self.initializer = initializer

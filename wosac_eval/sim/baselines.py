@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import concurrent.futures as futures
 import os
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,8 @@ from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter
 from wosac_eval.parse.scenarios import iter_scenarios
-from wosac_eval.runtime.processes import worker_pool
+from wosac_eval.protos import scenario_pb2
+from wosac_eval.runtime.executors import LocalExecutor
 from wosac_eval.sim import policies
 
 PathLike = str | os.PathLike
@@ -40,28 +40,50 @@ def policy_rollouts(scenario, policy: str, seed: int = 0, challenge: str = "sim_
     return rollouts_from_arrays(scenario.scenario_id, ids, *np.moveaxis(traj, -1, 0), **sizes)
 
 
-def _simulate(args: tuple[bytes, str, int, str]) -> bytes:
-    from wosac_eval.protos import scenario_pb2
-
-    data, policy, seed, challenge = args
+def _simulate(_shared: None, task: tuple[bytes, str, int, str]) -> bytes:
+    """One scenario's rollouts, serialized (a worker task: the scenario's bytes, policy, seed, challenge)."""
+    data, policy, seed, challenge = task
     return rollouts_bytes(policy_rollouts(scenario_pb2.Scenario.FromString(data), policy, seed, challenge))
 
 
-def _map_bounded(tasks: Iterator, workers: int) -> Iterator[bytes]:
-    """`_simulate` over tasks in order; in worker processes with a bounded number in flight,
-    so that memory does not grow with the size of the scenario set."""
-    if workers <= 1:
-        for task in tasks:
-            yield _simulate(task)
-        return
-    with worker_pool(workers) as pool:
-        pending: list[futures.Future] = []
-        for task in tasks:
-            pending.append(pool.submit(_simulate, task))
-            if len(pending) >= 2 * workers:
-                yield pending.pop(0).result()
-        for future in pending:
-            yield future.result()
+def simulate_rollouts(
+    scenario_paths: PathLike | Iterable[PathLike],
+    policy: str,
+    *,
+    seed: int = 0,
+    challenge: str = "sim_agents",
+    workers: int = 1,
+) -> Iterator[bytes]:
+    """Each scenario's serialized `ScenarioRollouts` by `policy`, in the scenarios' order: simulated in
+    `workers` processes with a bounded number in flight, so that memory does not grow with the size of
+    the scenario set. `challenge="scenario_gen"` gives all 91 steps with box sizes and object types
+    (`policies.generate_scenario`)."""
+    challenge = challenges.as_challenge(challenge).value
+    if policy not in policies.POLICIES:
+        raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(policies.POLICIES)}")
+    tasks = ((s.scenario.SerializeToString(), policy, seed, challenge) for s in iter_scenarios(scenario_paths))
+    return LocalExecutor(workers).imap(_simulate, tasks)
+
+
+def write_submission(
+    rollouts: Iterable[bytes], output: PathLike, metadata: SubmissionMetadata, num_shards: int, source: object
+) -> Path:
+    """Appends serialized `ScenarioRollouts` to the shards of an official-layout submission at `output`
+    (streamed: one at a time); `source`, what they were made from, is named when there are none."""
+    try:
+        with SubmissionWriter(metadata, output, num_shards) as writer:
+            for data in rollouts:
+                writer.add(data)
+    except ValueError as error:
+        if "no scenario rollouts" in str(error):
+            raise ValueError(f"no scenarios found in {source}") from None
+        raise
+    return writer.path
+
+
+def default_metadata(policy: str) -> SubmissionMetadata:
+    """A baseline's submission metadata: its name as the method, its one-line description."""
+    return SubmissionMetadata(unique_method_name=policy.replace("_", "-"), description=DESCRIPTIONS[policy])
 
 
 def make_submission(
@@ -73,30 +95,14 @@ def make_submission(
     num_shards: int = 4,
     workers: int = 1,
     metadata: SubmissionMetadata | None = None,
-    progress: Callable[[int], None] | None = None,
     challenge: str = "sim_agents",
 ) -> Path:
     """Simulates `policy` on every scenario and writes an official-layout submission to `output`.
 
     `challenge="scenario_gen"` writes all 91 steps with box sizes and object
     types (`policies.generate_scenario`). Streams: scenarios are read,
-    simulated and appended to the shards one at a time.
+    simulated and appended to the shards one at a time (`simulate_rollouts`, `write_submission`:
+    a caller that follows the progress takes the two steps itself).
     """
-    challenge = challenges.as_challenge(challenge).value
-    if policy not in policies.POLICIES:
-        raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(policies.POLICIES)}")
-    metadata = metadata or SubmissionMetadata(
-        unique_method_name=policy.replace("_", "-"), description=DESCRIPTIONS[policy]
-    )
-    tasks = ((s.scenario.SerializeToString(), policy, seed, challenge) for s in iter_scenarios(scenario_paths))
-    try:
-        with SubmissionWriter(metadata, output, num_shards) as writer:
-            for data in _map_bounded(tasks, workers):
-                writer.add(data)
-                if progress:
-                    progress(1)
-    except ValueError as error:
-        if "no scenario rollouts" in str(error):
-            raise ValueError(f"no scenarios found in {scenario_paths}") from None
-        raise
-    return writer.path
+    rollouts = simulate_rollouts(scenario_paths, policy, seed=seed, challenge=challenge, workers=workers)
+    return write_submission(rollouts, output, metadata or default_metadata(policy), num_shards, scenario_paths)

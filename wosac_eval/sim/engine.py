@@ -13,6 +13,7 @@ Shapes: B batch entries (rollouts), A agents, S path samples, T steps.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -166,6 +167,33 @@ class Drivers:
 
 
 @dataclass
+class StopLines:
+    """The stop lines on each agent's path, and the signals that control them.
+
+    s: (B, A, K) arc lengths of the stop lines on each path (nan: none).
+    signal: (B, A, K) the column of `states` that controls each stop line, or ALWAYS_RED / NO_SIGNAL.
+    states: (T, G) TrafficSignalLaneState.State values of each signal group G at each step.
+    """
+
+    s: np.ndarray
+    signal: np.ndarray
+    states: np.ndarray
+
+    @classmethod
+    def of(cls, stops: Sequence[Sequence[Sequence[tuple[float, int]]]], states: np.ndarray) -> StopLines:
+        """From each batch entry's agents' stops, (arc length, signal column) each, in path order."""
+        shape = (len(stops), len(stops[0]) if stops else 0)
+        k = max(1, max((len(agent) for entry in stops for agent in entry), default=0))
+        s = np.full((*shape, k), np.nan)
+        signal = np.full((*shape, k), NO_SIGNAL, np.int64)
+        for b, entry in enumerate(stops):
+            for i, agent in enumerate(entry):
+                for j, (arc_length, column) in enumerate(agent):
+                    s[b, i, j], signal[b, i, j] = arc_length, column
+        return cls(s, signal, states)
+
+
+@dataclass
 class Rollout:
     """Simulated states, each (B, A, T)."""
 
@@ -181,9 +209,7 @@ def simulate(
     drivers: Drivers,
     s_init: np.ndarray,
     v_init: np.ndarray,
-    stop_s: np.ndarray,
-    stop_signal: np.ndarray,
-    signal_states: np.ndarray,
+    stop_lines: StopLines,
     num_steps: int,
     dt: float = 0.1,
 ) -> Rollout:
@@ -191,11 +217,9 @@ def simulate(
 
     Args:
       s_init, v_init: (B, A) initial arc length along the path and speed.
-      stop_s: (B, A, K) arc lengths of stop lines on each path (nan: none).
-      stop_signal: (B, A, K) column of `signal_states` controlling each stop line,
-        or ALWAYS_RED / NO_SIGNAL.
-      signal_states: (num_steps, G) TrafficSignalLaneState.State values.
+      stop_lines: the stop lines on the paths and their signals' states over the num_steps steps.
     """
+    stop_s, stop_signal = stop_lines.s, stop_lines.signal
     b, a = s_init.shape
     s = s_init.astype(float).copy()
     v = v_init.astype(float).copy()
@@ -204,7 +228,7 @@ def simulate(
     out_v = np.zeros((b, a, num_steps))
     not_self = ~np.eye(a, dtype=bool)[None]
     k = np.arange(LOOKAHEAD_POINTS) * LOOKAHEAD_SPACING_M
-    signal_states = np.asarray(signal_states).reshape(num_steps, -1)
+    signal_states = np.asarray(stop_lines.states).reshape(num_steps, -1)
     for t in range(num_steps):
         out_s[..., t], out_v[..., t] = s, v
         if t == num_steps - 1:

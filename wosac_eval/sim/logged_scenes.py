@@ -71,14 +71,9 @@ def simulate_agents(agents: list[AgentSpec], signal_states: dict[str, np.ndarray
         blind=blind,
         crash_pairs=crash,
     )
-    k = max(1, max(len(a.stops) for a in agents))
-    stop_s = np.full((1, n, k), np.nan)
-    stop_signal = np.full((1, n, k), engine.NO_SIGNAL, np.int64)
-    for i, a in enumerate(agents):
-        for j, (s, c) in enumerate(a.stops):
-            stop_s[0, i, j], stop_signal[0, i, j] = s, c
     states = np.stack(list(signal_states.values()), axis=1) if signal_states else np.zeros((NUM_STEPS, 0), np.int64)
-    return engine.simulate(paths, drivers, col("s_init"), col("v_init"), stop_s, stop_signal, states, NUM_STEPS, DT)
+    stop_lines = engine.StopLines.of([[a.stops for a in agents]], states)
+    return engine.simulate(paths, drivers, col("s_init"), col("v_init"), stop_lines, NUM_STEPS, DT)
 
 
 def colliding_pairs(x, y, heading, length, width, valid=None) -> list[tuple[int, int]]:

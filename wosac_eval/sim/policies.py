@@ -279,11 +279,55 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
     n, r = ctx.num_agents, num_rollouts
     if n == 0:
         return np.zeros((r, 0, NUM_FUTURE, 4))
-    pos = np.stack([ctx.x[:, CURRENT], ctx.y[:, CURRENT]], -1)
     speed = np.linalg.norm(ctx.velocity, axis=-1)
     heading = ctx.heading[:, CURRENT]
     matches = _match_lanes(ctx)
     min_length = float(np.max(speed)) * NUM_FUTURE * DT * 1.5 + 80.0
+    routes = _routes(ctx, rng, matches, r, min_length)
+    paths = engine.Paths.from_polylines(routes.polylines, 1.0, min_length, smooth_m=_SMOOTH_M)
+    drivers = _drivers(ctx, rng, routes.v0)
+    along = np.maximum(np.einsum("nd,nd->n", ctx.velocity, np.stack([np.cos(heading), np.sin(heading)], -1)), 0.0)
+    v_init = np.where(np.array([m is None for m in matches]), speed, along)
+    stop_lines = engine.StopLines.of(routes.stops, ctx.signals[CURRENT:])
+    out = engine.simulate(
+        paths, drivers, np.zeros((r, n)), np.broadcast_to(v_init, (r, n)), stop_lines, NUM_FUTURE + 1, DT
+    )
+    # Merge from the current position onto the lane centre over _BLEND_M metres of travel.
+    lateral = routes.lateral
+    s = out.s[..., 1:]
+    fade = np.exp(-s / _BLEND_M)
+    off = lateral[None, :, None] * fade
+    slope = -lateral[None, :, None] / _BLEND_M * fade
+    h_path = out.heading[..., 1:] + np.arctan(slope)
+    x = out.x[..., 1:] - np.sin(out.heading[..., 1:]) * off
+    y = out.y[..., 1:] + np.cos(out.heading[..., 1:]) * off
+    h0 = out.heading[..., 0] + np.arctan(-lateral[None] / _BLEND_M)
+    dh = geo.wrap_angle(heading[None] - h0)[..., None] * fade
+    return _hold(ctx, r, x, y, geo.wrap_angle(h_path + dh))
+
+
+@dataclass
+class _Routes:
+    """Each rollout's path for each agent, and what the agent does on it.
+
+    polylines, stops: [rollout][agent] the path, and its stop lines (arc length, signal column).
+    lateral: (num_agents,) the agent's offset from its lane's centre (0 off the lanes).
+    v0: (num_rollouts, num_agents) desired speed (0: parked).
+    """
+
+    polylines: list[list[np.ndarray]]
+    stops: list[list[list]]
+    lateral: np.ndarray
+    v0: np.ndarray
+
+
+def _routes(ctx: SimContext, rng: np.random.Generator, matches: list, r: int, min_length: float) -> _Routes:
+    """Each agent's route in each of the `r` rollouts: on from its lane (a random turn at each junction),
+    or straight ahead when it is on none; and its desired speed."""
+    n = ctx.num_agents
+    pos = np.stack([ctx.x[:, CURRENT], ctx.y[:, CURRENT]], -1)
+    speed = np.linalg.norm(ctx.velocity, axis=-1)
+    heading = ctx.heading[:, CURRENT]
     polylines: list[list[np.ndarray]] = [[np.empty((0, 2))] * n for _ in range(r)]  # each set below
     stops: list[list[list]] = [[[] for _ in range(n)] for _ in range(r)]
     lateral = np.zeros(n)
@@ -314,16 +358,14 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
             limit = min(limit, 6.0)
         queued = speed[i] > 0.5 or abs(lat) < 1.0  # stopped in the middle of a lane: waiting, not parked
         v0[:, i] = np.maximum(speed[i], limit * rng.uniform(0.75, 1.05, r)) if queued else 0.0
-    paths = engine.Paths.from_polylines(polylines, 1.0, min_length, smooth_m=_SMOOTH_M)
-    kmax = max(1, max(len(s) for row in stops for s in row))
-    stop_s = np.full((r, n, kmax), np.nan)
-    stop_signal = np.full((r, n, kmax), engine.NO_SIGNAL, np.int64)
-    for k in range(r):
-        for i in range(n):
-            for j, (s, c) in enumerate(stops[k][i]):
-                stop_s[k, i, j], stop_signal[k, i, j] = s, c
+    return _Routes(polylines, stops, lateral, v0)
+
+
+def _drivers(ctx: SimContext, rng: np.random.Generator, v0: np.ndarray) -> engine.Drivers:
+    """The IDM parameters of each agent in each rollout (pedestrians alike, vehicles drawn at random)."""
+    r, n = v0.shape
     is_ped = ctx.object_type == TYPE_PEDESTRIAN
-    drivers = engine.Drivers(
+    return engine.Drivers(
         length=np.broadcast_to(ctx.length, (r, n)).copy(),
         width=np.broadcast_to(ctx.width, (r, n)).copy(),
         v0=np.repeat(v0[..., None], NUM_FUTURE + 1, axis=-1),
@@ -338,31 +380,6 @@ def idm(ctx: SimContext, rng: np.random.Generator, num_rollouts: int = NUM_ROLLO
         blind=np.zeros((r, n, n), bool),
         crash_pairs=np.zeros((r, n, n), bool),
     )
-    along = np.maximum(np.einsum("nd,nd->n", ctx.velocity, np.stack([np.cos(heading), np.sin(heading)], -1)), 0.0)
-    v_init = np.where(np.array([m is None for m in matches]), speed, along)
-    signals = ctx.signals[CURRENT:]
-    out = engine.simulate(
-        paths,
-        drivers,
-        np.zeros((r, n)),
-        np.broadcast_to(v_init, (r, n)),
-        stop_s,
-        stop_signal,
-        signals,
-        NUM_FUTURE + 1,
-        DT,
-    )
-    # Merge from the current position onto the lane centre over _BLEND_M metres of travel.
-    s = out.s[..., 1:]
-    fade = np.exp(-s / _BLEND_M)
-    off = lateral[None, :, None] * fade
-    slope = -lateral[None, :, None] / _BLEND_M * fade
-    h_path = out.heading[..., 1:] + np.arctan(slope)
-    x = out.x[..., 1:] - np.sin(out.heading[..., 1:]) * off
-    y = out.y[..., 1:] + np.cos(out.heading[..., 1:]) * off
-    h0 = out.heading[..., 0] + np.arctan(-lateral[None] / _BLEND_M)
-    dh = geo.wrap_angle(heading[None] - h0)[..., None] * fade
-    return _hold(ctx, r, x, y, geo.wrap_angle(h_path + dh))
 
 
 POLICIES: dict[str, Callable[..., np.ndarray]] = {

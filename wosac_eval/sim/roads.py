@@ -13,7 +13,10 @@ world coordinates by the scene assembler. Conventions follow WOMD:
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -87,6 +90,93 @@ def _link(a: Lane, b: Lane) -> None:
     b.entry_lanes.append(a.id)
 
 
+# A line of the road at a lateral offset (m, positive to the left of the direction it runs in).
+LineAt = Callable[[float], np.ndarray]
+
+
+class _NetworkBuilder:
+    """The shape every road network shares, built in order: lanes, then the painted lines (lane markings,
+    stop bars), the road edges, the crosswalks with their pedestrian crossings, the sidewalks. Every map
+    feature takes the next id, in the order it is added."""
+
+    def __init__(self, first_id: int) -> None:
+        self.ids = _Ids(first_id)
+        self.lanes: dict[int, Lane] = {}
+        self.road_lines: list[tuple[int, int, np.ndarray]] = []
+        self.road_edges: list[tuple[int, int, np.ndarray]] = []
+        self.crosswalks: list[tuple[int, np.ndarray]] = []
+        self.crossings: list[Crossing] = []
+        self.sidewalks: list[np.ndarray] = []
+
+    def lane(self, polyline: np.ndarray, speed_limit_mph: float, **kind: Any) -> Lane:
+        """A new lane (`kind`: Lane's lane_type, signal_group, turn, interpolating)."""
+        lane = Lane(self.ids(), polyline, speed_limit_mph, **kind)
+        self.lanes[lane.id] = lane
+        return lane
+
+    def line(self, line_type: int, polyline: np.ndarray) -> None:
+        self.road_lines.append((self.ids(), line_type, polyline))
+
+    def lane_markings(self, line_at: LineAt, lanes_per_direction: int, lane_width: float) -> None:
+        """The double yellow between the directions and the broken white lines between lanes of one."""
+        self.line(ROAD_LINE_SOLID_DOUBLE_YELLOW, line_at(0.0))
+        for k in range(1, lanes_per_direction):
+            for side in (1.0, -1.0):
+                self.line(ROAD_LINE_BROKEN_SINGLE_WHITE, line_at(side * k * lane_width))
+
+    def stop_bar(self, inner: np.ndarray, outer: np.ndarray) -> None:
+        """A stop bar across the lanes of one approach, where their signalised lanes start."""
+        self.line(ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(inner, outer, 0.5))
+
+    def edge(self, polyline: np.ndarray) -> None:
+        """A road edge, the drivable area on its left."""
+        self.road_edges.append((self.ids(), ROAD_EDGE_BOUNDARY, polyline))
+
+    def crosswalk(self, polygon: np.ndarray, across: LineAt, half_width: float, signal_group: str | None) -> None:
+        """A crosswalk and its two crossings, one each way: from 12 m beyond the road's edge on one side to
+        as far on the other, along `across` (a point at a lateral offset from the crosswalk's centre),
+        pedestrians waiting 0.6 m before the road, during `signal_group`."""
+        self.crosswalks.append((self.ids(), polygon))
+        for sign in (1.0, -1.0):
+            path = geo.segment(across(-sign * (half_width + 12.0)), across(sign * (half_width + 12.0)), 0.5)
+            self.crossings.append(Crossing(path, wait_s=12.0 - 0.6, signal_group=signal_group))
+
+    def network(self, kind: str, signal_groups: list[str], half_width: float) -> RoadNetwork:
+        return RoadNetwork(
+            kind=kind,
+            lanes=self.lanes,
+            road_lines=self.road_lines,
+            road_edges=self.road_edges,
+            crosswalks=self.crosswalks,
+            crossings=self.crossings,
+            sidewalks=self.sidewalks,
+            signal_groups=signal_groups,
+            half_width=half_width,
+        )
+
+
+def _arm_frame(a: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors along arm `a` of a four-way intersection (pointing out, East-North-West-South for
+    a = 0..3) and to its left."""
+    theta = a * np.pi / 2
+    return np.array([np.cos(theta), np.sin(theta)]), np.array([-np.sin(theta), np.cos(theta)])
+
+
+def _on_arm(a: int, r: float, lat: float) -> np.ndarray:
+    """The point `r` metres out along arm `a`, `lat` metres to its left."""
+    u, nrm = _arm_frame(a)
+    return r * u + lat * nrm
+
+
+def _arm_line(a: int, r_from: float, r_to: float) -> LineAt:
+    """Arm `a`'s lines between `r_from` and `r_to` metres out, at any lateral offset."""
+
+    def line_at(lat: float) -> np.ndarray:
+        return geo.segment(_on_arm(a, r_from, lat), _on_arm(a, r_to, lat), LANE_SPACING_M)
+
+    return line_at
+
+
 def four_way_intersection(
     *,
     lanes_per_direction: int = 2,
@@ -103,78 +193,19 @@ def four_way_intersection(
     turning connector lanes cross the box; E-W connectors belong to signal group
     "EW", N-S connectors to "NS". Crosswalks lie between the box and the stop line.
     """
-    ids = _Ids(first_id)
+    build = _NetworkBuilder(first_id)
     n, w = lanes_per_direction, lane_width
     half = n * w  # half width of each road
     cw_near, cw_far = half + corner_radius + 0.5, half + corner_radius + 4.5
     r_stop = cw_far + 1.5
     r_end = r_stop + arm_length
-    lanes: dict[int, Lane] = {}
-
-    def frame(a: int):
-        theta = a * np.pi / 2
-        return np.array([np.cos(theta), np.sin(theta)]), np.array([-np.sin(theta), np.cos(theta)])
-
-    def at(a: int, r: float, lat: float) -> np.ndarray:
-        u, nrm = frame(a)
-        return r * u + lat * nrm
-
-    approach: dict[tuple[int, int], Lane] = {}
-    departure: dict[tuple[int, int], Lane] = {}
+    approach, departure = _arm_lanes(build, n, w, (r_stop, r_end), speed_limit_mph)
+    _connectors(build, n, approach, departure, speed_limit_mph)
     for a in range(4):
-        for k in range(n):
-            lat = (k + 0.5) * w
-            ap = Lane(
-                ids(),
-                geo.segment(at(a, r_end, lat), at(a, r_stop, lat), LANE_SPACING_M),
-                speed_limit_mph,
-                turn="approach",
-            )
-            de = Lane(
-                ids(),
-                geo.segment(at(a, r_stop, -lat), at(a, r_end, -lat), LANE_SPACING_M),
-                speed_limit_mph,
-                turn="departure",
-            )
-            approach[a, k], departure[a, k] = ap, de
-            lanes[ap.id], lanes[de.id] = ap, de
-
-    for a in range(4):
-        group = "EW" if a % 2 == 0 else "NS"
-        u_in = -frame(a)[0]
-        moves = [(k, (a + 2) % 4, k, "through") for k in range(n)]
-        moves.append((n - 1, (a + 1) % 4, n - 1, "right"))
-        moves.append((0, (a + 3) % 4, 0, "left"))
-        for k_in, b, k_out, turn in moves:
-            start = approach[a, k_in].polyline[-1]
-            end = departure[b, k_out].polyline[0]
-            if turn == "through":
-                poly = geo.segment(start, end, LANE_SPACING_M)
-            else:
-                poly = geo.bezier(start, u_in, end, frame(b)[0], LANE_SPACING_M)
-            conn = Lane(ids(), poly, speed_limit_mph, signal_group=group, turn=turn, interpolating=True)
-            lanes[conn.id] = conn
-            _link(approach[a, k_in], conn)
-            _link(conn, departure[b, k_out])
-
-    road_lines: list[tuple[int, int, np.ndarray]] = []
-    for a in range(4):
-        road_lines.append(
-            (ids(), ROAD_LINE_SOLID_DOUBLE_YELLOW, geo.segment(at(a, r_stop, 0.0), at(a, r_end, 0.0), LANE_SPACING_M))
-        )
-        for k in range(1, n):
-            for side in (1.0, -1.0):
-                line = geo.segment(at(a, r_stop, side * k * w), at(a, r_end, side * k * w), LANE_SPACING_M)
-                road_lines.append((ids(), ROAD_LINE_BROKEN_SINGLE_WHITE, line))
-
-    # Stop bars across the approach lanes, where the signalised connectors start.
-    for a in range(4):
-        road_lines.append(
-            (ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(at(a, r_stop, 0.0), at(a, r_stop, half), 0.5))
-        )
-
+        build.lane_markings(_arm_line(a, r_stop, r_end), n, w)
+    for a in range(4):  # across the approach lanes, where the signalised connectors start
+        build.stop_bar(_on_arm(a, r_stop, 0.0), _on_arm(a, r_stop, half))
     # One curb per quadrant, between arm a (its left side) and arm a+1 (its right side).
-    road_edges = []
     rc = corner_radius
     canonical = np.concatenate(
         [
@@ -184,34 +215,69 @@ def four_way_intersection(
         ]
     )
     for a in range(4):
-        road_edges.append((ids(), ROAD_EDGE_BOUNDARY, canonical @ geo.rotation(a * np.pi / 2).T))
-
-    crosswalks, crossings = [], []
+        build.edge(canonical @ geo.rotation(a * np.pi / 2).T)
+    mid = 0.5 * (cw_near + cw_far)
     for a in range(4):
-        poly = np.stack([at(a, cw_near, -half), at(a, cw_far, -half), at(a, cw_far, half), at(a, cw_near, half)])
-        crosswalks.append((ids(), poly))
-        mid = 0.5 * (cw_near + cw_far)
+        polygon = np.stack(
+            [_on_arm(a, cw_near, -half), _on_arm(a, cw_far, -half), _on_arm(a, cw_far, half), _on_arm(a, cw_near, half)]
+        )
         walk_group = "NS" if a % 2 == 0 else "EW"  # pedestrians walk with the parallel traffic
-        for sign in (1.0, -1.0):
-            path = geo.segment(at(a, mid, -sign * (half + 12.0)), at(a, mid, sign * (half + 12.0)), 0.5)
-            crossings.append(Crossing(path, wait_s=12.0 - 0.6, signal_group=walk_group))
-
-    sidewalks = []
-    for _, _, edge in road_edges:
+        build.crosswalk(polygon, functools.partial(_on_arm, a, mid), half, walk_group)
+    for _, _, edge in build.road_edges:
         offset = edge - 3.0 * geo.left_normals(edge)  # 3 m off the curb, on the right of the edge
-        sidewalks.append(geo.resample(offset, 0.5))
+        build.sidewalks.append(geo.resample(offset, 0.5))
+    return build.network("intersection", ["EW", "NS"], half)
 
-    return RoadNetwork(
-        kind="intersection",
-        lanes=lanes,
-        road_lines=road_lines,
-        road_edges=road_edges,
-        crosswalks=crosswalks,
-        crossings=crossings,
-        sidewalks=sidewalks,
-        signal_groups=["EW", "NS"],
-        half_width=half,
-    )
+
+def _arm_lanes(
+    build: _NetworkBuilder, n: int, w: float, span: tuple[float, float], speed_limit_mph: float
+) -> tuple[dict[tuple[int, int], Lane], dict[tuple[int, int], Lane]]:
+    """Each arm's `n` approach lanes (towards the centre, on its left) and `n` departure lanes, between
+    the stop line and the arm's end (`span`), by (arm, lane from the centre line)."""
+    r_stop, r_end = span
+    approach: dict[tuple[int, int], Lane] = {}
+    departure: dict[tuple[int, int], Lane] = {}
+    for a in range(4):
+        for k in range(n):
+            lat = (k + 0.5) * w
+            approach[a, k] = build.lane(
+                geo.segment(_on_arm(a, r_end, lat), _on_arm(a, r_stop, lat), LANE_SPACING_M),
+                speed_limit_mph,
+                turn="approach",
+            )
+            departure[a, k] = build.lane(
+                geo.segment(_on_arm(a, r_stop, -lat), _on_arm(a, r_end, -lat), LANE_SPACING_M),
+                speed_limit_mph,
+                turn="departure",
+            )
+    return approach, departure
+
+
+def _connectors(
+    build: _NetworkBuilder,
+    n: int,
+    approach: dict[tuple[int, int], Lane],
+    departure: dict[tuple[int, int], Lane],
+    speed_limit_mph: float,
+) -> None:
+    """The signalised lanes across the box: each approach lane straight on, the outer one right, the inner
+    one left, linked to their approach and departure lanes (E-W arms in group "EW", N-S in "NS")."""
+    for a in range(4):
+        group = "EW" if a % 2 == 0 else "NS"
+        u_in = -_arm_frame(a)[0]
+        moves = [(k, (a + 2) % 4, k, "through") for k in range(n)]
+        moves.append((n - 1, (a + 1) % 4, n - 1, "right"))
+        moves.append((0, (a + 3) % 4, 0, "left"))
+        for k_in, b, k_out, turn in moves:
+            start = approach[a, k_in].polyline[-1]
+            end = departure[b, k_out].polyline[0]
+            if turn == "through":
+                poly = geo.segment(start, end, LANE_SPACING_M)
+            else:
+                poly = geo.bezier(start, u_in, end, _arm_frame(b)[0], LANE_SPACING_M)
+            conn = build.lane(poly, speed_limit_mph, signal_group=group, turn=turn, interpolating=True)
+            _link(approach[a, k_in], conn)
+            _link(conn, departure[b, k_out])
 
 
 def corridor(
@@ -234,7 +300,7 @@ def corridor(
     it is red while pedestrians walk) and a departure lane. Optional parking
     strips and bike lanes lie between the outer lane and the road edge.
     """
-    ids = _Ids(first_id)
+    build = _NetworkBuilder(first_id)
     n, w = lanes_per_direction, lane_width
     s_ref = np.arange(0.0, length + 1e-9, LANE_SPACING_M)
     if abs(curvature) < 1e-9:
@@ -251,97 +317,82 @@ def corridor(
     half = half_lanes + bike_lane_width + parking_width
     s_mid = length / 2
     cw_near, cw_far = s_mid - 2.0, s_mid + 2.0
-    stop_gap = 1.5
-    lanes: dict[int, Lane] = {}
-
-    def split(poly: np.ndarray, s_cuts: list[float]) -> list[np.ndarray]:
-        s = geo.arc_lengths(poly)
-        pieces, bounds = [], [0.0, *s_cuts, s[-1]]
-        for lo, hi in zip(bounds[:-1], bounds[1:]):
-            keep = (s > lo) & (s < hi)
-            pts = np.concatenate(
-                [
-                    [np.array([np.interp(lo, s, poly[:, k]) for k in range(2)])],
-                    poly[keep],
-                    [np.array([np.interp(hi, s, poly[:, k]) for k in range(2)])],
-                ]
-            )
-            pieces.append(pts)
-        return pieces
-
-    for direction in (1, -1):
-        for k in range(n):
-            lat = -direction * (k + 0.5) * w
-            poly = offset_line(lat)
-            if direction < 0:
-                poly = poly[::-1]
-            # In travel coordinates the crosswalk spans [cw_near, cw_far] either way (it is centred).
-            cuts = [cw_near - stop_gap, cw_far + 0.5]
-            ap_poly, cross_poly, de_poly = split(poly, cuts)
-            ap = Lane(ids(), ap_poly, speed_limit_mph, turn="approach")
-            cr = Lane(ids(), cross_poly, speed_limit_mph, signal_group="PED", turn="through", interpolating=True)
-            de = Lane(ids(), de_poly, speed_limit_mph, turn="departure")
-            for lane in (ap, cr, de):
-                lanes[lane.id] = lane
-            _link(ap, cr)
-            _link(cr, de)
-        if bike_lane_width > 0:
-            lat = -direction * (half_lanes + bike_lane_width / 2)
-            poly = offset_line(lat)
-            if direction < 0:
-                poly = poly[::-1]
-            bike = Lane(ids(), poly, 15.0, lane_type=LANE_TYPE_BIKE_LANE, turn="bike")
-            lanes[bike.id] = bike
-
-    road_lines = [(ids(), ROAD_LINE_SOLID_DOUBLE_YELLOW, offset_line(0.0))]
-    for k in range(1, n):
-        for side in (1.0, -1.0):
-            road_lines.append((ids(), ROAD_LINE_BROKEN_SINGLE_WHITE, offset_line(side * k * w)))
+    _corridor_lanes(build, offset_line, (n, w, bike_lane_width), (cw_near, cw_far), speed_limit_mph)
+    build.lane_markings(offset_line, n, w)
     if bike_lane_width > 0 or parking_width > 0:
         for side in (1.0, -1.0):
-            road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, offset_line(side * half_lanes)))
-
-    # Stop bars across each direction's lanes, through the first points of its signalised lanes.
-    for direction in (1, -1):
+            build.line(ROAD_LINE_SOLID_SINGLE_WHITE, offset_line(side * half_lanes))
+    for direction in (1, -1):  # across each direction's lanes, through the first points of its signalised lanes
         starts = np.array(
             [
                 lane.polyline[0]
-                for lane in lanes.values()
+                for lane in build.lanes.values()
                 if lane.signal_group and np.sign(lane.polyline[-1, 0] - lane.polyline[0, 0]) == direction
             ]
         )
         across = starts[-1] - starts[0] if len(starts) > 1 else np.array([0.0, -direction])
         across = across / np.linalg.norm(across)
-        inner, outer = starts[0] - across * w / 2, starts[-1] + across * w / 2
-        road_lines.append((ids(), ROAD_LINE_SOLID_SINGLE_WHITE, geo.segment(inner, outer, 0.5)))
-
+        build.stop_bar(starts[0] - across * w / 2, starts[-1] + across * w / 2)
     # Right edge runs along +s (road on its left); the left edge runs back along -s.
-    road_edges = [
-        (ids(), ROAD_EDGE_BOUNDARY, offset_line(-half)),
-        (ids(), ROAD_EDGE_BOUNDARY, offset_line(half)[::-1]),
-    ]
-
+    build.edge(offset_line(-half))
+    build.edge(offset_line(half)[::-1])
     s_cw = geo.arc_lengths(ref)
     c_near = np.array([np.interp(cw_near, s_cw, ref[:, k]) for k in range(2)])
     c_far = np.array([np.interp(cw_far, s_cw, ref[:, k]) for k in range(2)])
     nrm = normal[int(round(s_mid / LANE_SPACING_M))]
     polygon = np.stack([c_near - half * nrm, c_far - half * nrm, c_far + half * nrm, c_near + half * nrm])
-    crosswalks = [(ids(), polygon)]
     centre = 0.5 * (c_near + c_far)
-    crossings = []
-    for sign in (1.0, -1.0):
-        path = geo.segment(centre - sign * (half + 12.0) * nrm, centre + sign * (half + 12.0) * nrm, 0.5)
-        crossings.append(Crossing(path, wait_s=12.0 - 0.6, signal_group="WALK"))
+    build.crosswalk(polygon, lambda lat: centre + lat * nrm, half, "WALK")
+    build.sidewalks += [geo.resample(offset_line(-half - 3.0), 0.5), geo.resample(offset_line(half + 3.0)[::-1], 0.5)]
+    return build.network("corridor", ["PED", "WALK"], half)
 
-    sidewalks = [geo.resample(offset_line(-half - 3.0), 0.5), geo.resample(offset_line(half + 3.0)[::-1], 0.5)]
-    return RoadNetwork(
-        kind="corridor",
-        lanes=lanes,
-        road_lines=road_lines,
-        road_edges=road_edges,
-        crosswalks=crosswalks,
-        crossings=crossings,
-        sidewalks=sidewalks,
-        signal_groups=["PED", "WALK"],
-        half_width=half,
-    )
+
+def _split(poly: np.ndarray, s_cuts: list[float]) -> list[np.ndarray]:
+    """A polyline cut at arc lengths `s_cuts`, each piece with the cut points at its ends."""
+    s = geo.arc_lengths(poly)
+    pieces, bounds = [], [0.0, *s_cuts, s[-1]]
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        keep = (s > lo) & (s < hi)
+        pts = np.concatenate(
+            [
+                [np.array([np.interp(lo, s, poly[:, k]) for k in range(2)])],
+                poly[keep],
+                [np.array([np.interp(hi, s, poly[:, k]) for k in range(2)])],
+            ]
+        )
+        pieces.append(pts)
+    return pieces
+
+
+def _corridor_lanes(
+    build: _NetworkBuilder,
+    offset_line: LineAt,
+    widths: tuple[int, float, float],
+    crosswalk: tuple[float, float],
+    speed_limit_mph: float,
+) -> None:
+    """Each direction's lanes, each an approach, a signalised lane over the crosswalk (group "PED") and a
+    departure, linked; then its bike lane (when `widths`' bike lane width is not 0).
+
+    widths: lanes per direction, lane width and bike lane width; crosswalk: its near and far arc lengths.
+    """
+    n, w, bike_lane_width = widths
+    cw_near, cw_far = crosswalk
+    stop_gap = 1.5
+    for direction in (1, -1):
+        for k in range(n):
+            poly = offset_line(-direction * (k + 0.5) * w)
+            if direction < 0:
+                poly = poly[::-1]
+            # In travel coordinates the crosswalk spans [cw_near, cw_far] either way (it is centred).
+            ap_poly, cross_poly, de_poly = _split(poly, [cw_near - stop_gap, cw_far + 0.5])
+            ap = build.lane(ap_poly, speed_limit_mph, turn="approach")
+            cr = build.lane(cross_poly, speed_limit_mph, signal_group="PED", turn="through", interpolating=True)
+            de = build.lane(de_poly, speed_limit_mph, turn="departure")
+            _link(ap, cr)
+            _link(cr, de)
+        if bike_lane_width > 0:
+            poly = offset_line(-direction * (n * w + bike_lane_width / 2))
+            if direction < 0:
+                poly = poly[::-1]
+            build.lane(poly, 15.0, lane_type=LANE_TYPE_BIKE_LANE, turn="bike")

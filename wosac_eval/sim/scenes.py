@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.protos import map_pb2, scenario_pb2
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim.logged_scenes import LoggedScene, build_scene
 from wosac_eval.sim.scene_specs import NUM_STEPS, TIMES, SceneSpec
@@ -41,15 +42,20 @@ def _map_points(spec: SceneSpec, xy_local: np.ndarray, target) -> None:
 
 def assemble(scene: LoggedScene, rng: np.random.Generator):
     """The `Scenario` proto of a simulated scene, in world coordinates."""
-    from wosac_eval.protos import map_pb2, scenario_pb2
-
     spec = scene.spec
-    net = spec.network
     sc = scenario_pb2.Scenario()
     sc.scenario_id = spec.scenario_id
     sc.timestamps_seconds.extend(np.round(TIMES, 6).tolist())
     sc.current_time_index = CURRENT_TIME_INDEX
+    _add_map(sc, spec)
+    _add_signal_states(sc, spec)
+    _add_tracks(sc, scene, rng)
+    return sc
 
+
+def _add_map(sc, spec: SceneSpec) -> None:
+    """The network's lanes, road lines, road edges and crosswalks, as map features."""
+    net = spec.network
     for lane in net.lanes.values():
         f = sc.map_features.add()
         f.id = lane.id
@@ -74,7 +80,10 @@ def assemble(scene: LoggedScene, rng: np.random.Generator):
         f.id = fid
         _map_points(spec, polygon, f.crosswalk.polygon)
 
-    signal_lanes = net.signal_lanes()
+
+def _add_signal_states(sc, spec: SceneSpec) -> None:
+    """Every step's state of every signalised lane, with its stop point (the lane's first point)."""
+    signal_lanes = spec.network.signal_lanes()
     for t in range(NUM_STEPS):
         dms = sc.dynamic_map_states.add()
         for lane in signal_lanes:
@@ -87,6 +96,11 @@ def assemble(scene: LoggedScene, rng: np.random.Generator):
             )
             _map_points(spec, lane.polyline[:1], _Single(ls.stop_point))
 
+
+def _add_tracks(sc, scene: LoggedScene, rng: np.random.Generator) -> None:
+    """The agents' tracks in a random order (as WOMD lists them), the SDC, the tracks to predict and the
+    objects of interest."""
+    spec = scene.spec
     n = len(spec.agents)
     order = rng.permutation(n)  # WOMD lists tracks in no particular order
     first_id = int(rng.integers(100, 3000))
@@ -126,7 +140,6 @@ def assemble(scene: LoggedScene, rng: np.random.Generator):
         req.difficulty = 1 + k % 2
     interesting = [position_of[i] for i, a in enumerate(spec.agents) if a.tags]
     sc.objects_of_interest.extend(sorted(interesting))
-    return sc
 
 
 class _Single:

@@ -115,14 +115,25 @@ def printable(name: str) -> str:
     return name if name.isprintable() else repr(name)
 
 
+@dataclass(frozen=True)
+class Location:
+    """Where a finding is: its shard, scenario, rollout (joint scene) and object; None where it does not
+    apply. The field a finding is about is not part of it: `make_finding` takes it beside."""
+
+    shard: str | None = None
+    scenario_id: str | None = None
+    rollout: int | None = None
+    object_id: int | None = None
+
+
+NOWHERE = Location()  # a finding about the submission as a whole
+
+
 def make_finding(
     code: str,
     detail: str,
+    location: Location = NOWHERE,
     *,
-    shard: str | None = None,
-    scenario_id: str | None = None,
-    rollout: int | None = None,
-    object_id: int | None = None,
     field: str | None = None,
     severity: str = ERROR,
     hint: str | None = None,
@@ -130,6 +141,7 @@ def make_finding(
     """A Finding whose message is '<location>: <detail>'."""
     if code not in CODES:
         raise KeyError(f"unknown finding code {code!r}")
+    shard, scenario_id, rollout, object_id = location.shard, location.scenario_id, location.rollout, location.object_id
     loc = where(shard, scenario_id, rollout, object_id)
     message = f"{loc}: {detail}" if loc else detail
     return Finding(code, message, shard, scenario_id, rollout, object_id, field, severity, hint)

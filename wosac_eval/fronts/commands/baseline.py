@@ -11,13 +11,13 @@ Exit codes: 0 written and valid, 1 written but invalid (a bug: please report),
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, check_output_folder
+from wosac_eval.fronts.usage import UsageError, add_scenarios, add_workers, check_output_folder
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -26,13 +26,7 @@ HELP = "Write a baseline submission (constant velocity, noisy log replay or IDM 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set, the policy, where to write, and the submission metadata."""
-    parser.add_argument(
-        "--scenarios",
-        nargs="+",
-        required=True,
-        metavar="PATH",
-        help="scenario TFRecord files, folders or globs (synthetic or real WOMD)",
-    )
+    add_scenarios(parser, "synthetic or real WOMD")
     parser.add_argument(
         "--policy",
         required=True,
@@ -54,13 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="random seed of the rollouts (default 0)")
     parser.add_argument("--shards", type=int, default=4, metavar="N", help="number of binproto shards (default 4)")
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(os.cpu_count() or 1, 4),
-        metavar="N",
-        help="simulation processes (default: CPU count, at most 4)",
-    )
+    add_workers(parser, "simulation processes", per_core=True)
     meta = parser.add_argument_group("submission metadata")
     meta.add_argument("--method-name", help="unique_method_name (default: the policy name)")
     meta.add_argument("--account-name", default="demo@example.com", help="the email registered at waymo.com/open")
@@ -72,13 +60,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate every scenario, write the shards, validate the result; 0 valid, 1 invalid (a bug), 2 usage error."""
+    # Here, not at the top: `wosac-eval --help` imports every command, and these load the scoring stack.
     from wosac_eval.arrays.submission_writer import SubmissionMetadata
     from wosac_eval.parse.errors import ParseError
-    from wosac_eval.sim.baselines import DESCRIPTIONS, make_submission
+    from wosac_eval.sim.baselines import DESCRIPTIONS, simulate_rollouts, write_submission
     from wosac_eval.validate import validate_submission
 
-    if args.shards < 1 or args.workers < 1:
-        raise UsageError("--shards and --workers must be >= 1")
+    if args.shards < 1:
+        raise UsageError("--shards must be >= 1")
     # An archive's folder, or the shard folder, is created when missing: it must be creatable.
     archive = str(args.output).endswith((".tar.gz", ".tgz", ".tar"))
     check_output_folder(Path(args.output).parent if archive else args.output, "--output")
@@ -91,31 +80,27 @@ def run(args: argparse.Namespace) -> int:
         method_link=args.method_link,
     )
     start = time.perf_counter()
-    count = [0]
+    count = 0
     bar = None
     if sys.stderr.isatty():  # a progress bar for people, never in pipes or CI logs
-        from tqdm import tqdm
+        from tqdm import tqdm  # only on a terminal
 
         bar = tqdm(unit="scenario", file=sys.stderr, leave=False, dynamic_ncols=True)
 
-    def progress(n: int) -> None:
-        """Counts simulated scenarios (and moves the bar)."""
-        count[0] += n
-        if bar is not None:
-            bar.update(n)
+    def counted(rollouts: Iterator[bytes]) -> Iterator[bytes]:
+        """The rollouts, counting the simulated scenarios (and moving the bar)."""
+        nonlocal count
+        for data in rollouts:
+            yield data
+            count += 1
+            if bar is not None:
+                bar.update(1)
 
     try:
-        out = make_submission(
-            args.scenarios,
-            args.policy,
-            args.output,
-            seed=args.seed,
-            num_shards=args.shards,
-            workers=args.workers,
-            metadata=metadata,
-            progress=progress,
-            challenge=args.challenge,
+        rollouts = simulate_rollouts(
+            args.scenarios, args.policy, seed=args.seed, challenge=args.challenge, workers=args.workers
         )
+        out = write_submission(counted(rollouts), args.output, metadata, args.shards, args.scenarios)
     except (ParseError, FileNotFoundError, ValueError) as error:
         raise UsageError(str(error)) from None
     finally:
@@ -123,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             bar.close()
     report = validate_submission(args.scenarios, out, challenge=args.challenge)
     elapsed = time.perf_counter() - start
-    print(f"wrote {out} ({args.policy}, {args.challenge}, {count[0]} scenarios, {elapsed:.1f} s)")
+    print(f"wrote {out} ({args.policy}, {args.challenge}, {count} scenarios, {elapsed:.1f} s)")
     if not report.ok:
         print(report.format_text(), file=sys.stderr)
         return 1

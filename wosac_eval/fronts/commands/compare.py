@@ -12,18 +12,11 @@ import sys
 
 from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.fronts.usage import UsageError, check_output_file
-from wosac_eval.results.compare import (
-    ALIASES,
-    METRICS,
-    CompareError,
-    Gate,
-    canonical_metric,
-    compare_results,
-    format_markdown,
-    format_table,
-)
+from wosac_eval.results.compare import ALIASES, METRICS, CompareError, Gate, canonical_metric, compare_results
+from wosac_eval.results.compare_text import format_markdown, format_table
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.results.stratify import STRATIFY, StratifyError, format_strata, stratified_comparison
-from wosac_eval.scoring.result_reader import ResultError, load_result
+from wosac_eval.scoring.result_reader import ResultError, ScoringResult, load_result
 
 NAME = "compare"
 HELP = (
@@ -113,12 +106,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _metrics_named(args: argparse.Namespace) -> list[str]:
+    """The --metric names (repeated or comma-separated), canonical; none without the option."""
+    return [canonical_metric(m.strip()) for spec in args.metric or [] for m in spec.split(",") if m.strip()]
+
+
+def _per_object(args: argparse.Namespace, base: ScoringResult, new: ScoringResult, settings: PairedSettings):
+    """The object-by-object comparison (with --per-object; None without it)."""
+    if not args.per_object:
+        return None
+    if args.top < 1:
+        raise UsageError("--top must be at least 1")
+    # Here, not at the top: the per-object tables need the features' modules (a second), which a plain
+    # `compare` of two result files never loads.
+    from wosac_eval.results.per_object_compare import compare_objects
+
+    return compare_objects(base, new, metrics=_metrics_named(args) or None, top=args.top, settings=settings)
+
+
 def _objects_markdown(objects) -> str:
     if objects is None:
         return ""
-    from wosac_eval.results.per_object_compare import format_objects_markdown
+    from wosac_eval.results.per_object_compare import format_objects_markdown  # loaded with compare_objects
 
     return "\n" + format_objects_markdown(objects)
+
+
+def _write(path: str, text: str) -> None:
+    try:
+        with open(path, "w", encoding="utf-8") as f:
+            f.write(text)
+    except OSError as e:
+        raise UsageError(f"cannot write {path}: {e.strerror}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -126,87 +145,34 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.json_output, "--json-output")
     check_output_file(args.markdown_output, "--markdown-output")
     try:
+        settings = PairedSettings(
+            alpha=args.alpha, adjust=args.adjust, seed=args.seed, n_boot=args.n_boot, n_perm=args.n_perm
+        )
         gates = [Gate.parse(g) for g in args.fail_if_worse]
         base = load_result(args.base)
         new = load_result(args.new)
         comparison = compare_results(
-            base,
-            new,
-            metrics=args.metric,
-            gates=gates,
-            alpha=args.alpha,
-            adjust=args.adjust,
-            seed=args.seed,
-            n_boot=args.n_boot,
-            n_perm=args.n_perm,
-            min_shared=args.min_shared,
-            only_significant=args.only_significant,
+            base, new, args.metric, gates, settings, min_shared=args.min_shared, only_significant=args.only_significant
         )
         strata = None
         if args.stratify:
-            wanted = [
-                canonical_metric(m.strip())
-                for spec in (args.metric or ["metametric"])
-                for m in spec.split(",")
-                if m.strip()
-            ]
-            strata = stratified_comparison(
-                base,
-                new,
-                args.stratify,
-                wanted,
-                seed=args.seed,
-                n_boot=args.n_boot,
-                n_perm=args.n_perm,
-                alpha=args.alpha,
-                adjust=args.adjust,
-            )
-        objects = None
-        if args.per_object:
-            if args.top < 1:
-                raise UsageError("--top must be at least 1")
-            from wosac_eval.results.per_object_compare import compare_objects
-
-            wanted_metrics = (
-                None
-                if not args.metric
-                else [canonical_metric(m.strip()) for spec in args.metric for m in spec.split(",") if m.strip()]
-            )
-            objects = compare_objects(
-                base,
-                new,
-                metrics=wanted_metrics,
-                top=args.top,
-                alpha=args.alpha,
-                seed=args.seed,
-                n_boot=args.n_boot,
-                n_perm=args.n_perm,
-            )
+            strata = stratified_comparison(base, new, args.stratify, _metrics_named(args) or ["metametric"], settings)
+        objects = _per_object(args, base, new, settings)
     except (ResultError, CompareError, StratifyError, ValueError) as e:
         raise UsageError(str(e)) from None
-
-    def as_json() -> dict:
-        return {
-            **comparison.to_json(),
-            **({"stratified": strata.to_json()} if strata else {}),
-            **({"per_object": objects.to_json()} if objects else {}),
-        }
-
-    outputs = [
-        (args.json_output, lambda: json.dumps(as_json(), indent=2) + "\n"),
-        (args.markdown_output, lambda: format_markdown(comparison) + _objects_markdown(objects)),
-    ]
-    for path, render in outputs:
-        if path:
-            try:
-                with open(path, "w", encoding="utf-8") as f:
-                    f.write(render())
-            except OSError as e:
-                raise UsageError(f"cannot write {path}: {e.strerror}") from None
+    document = {
+        **comparison.to_json(),
+        **({"stratified": strata.to_json()} if strata else {}),
+        **({"per_object": objects.to_json()} if objects else {}),
+    }
+    if args.json_output:
+        _write(args.json_output, json.dumps(document, indent=2) + "\n")
+    if args.markdown_output:
+        _write(args.markdown_output, format_markdown(comparison) + _objects_markdown(objects))
     if args.json:
         for w in comparison.warnings:  # also on stderr, where CI logs show them next to the JSON
             print(f"wosac-eval compare: warning: {w}", file=sys.stderr)
-        json.dump(as_json(), sys.stdout, indent=2)
+        json.dump(document, sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
         print(format_table(comparison))
@@ -214,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
             print()
             print(format_strata(strata))
         if objects:
-            from wosac_eval.results.per_object_compare import format_objects
+            from wosac_eval.results.per_object_compare import format_objects  # loaded with compare_objects
 
             print()
             print(format_objects(objects))

@@ -12,8 +12,7 @@ import json
 from pathlib import Path
 
 from wosac_eval.analysis.criticality_scores import COMPONENTS
-from wosac_eval.extras import ENGINES
-from wosac_eval.fronts.usage import UsageError, check_output_file
+from wosac_eval.fronts.usage import UsageError, add_engine, add_scenarios, add_workers, check_output_file
 
 NAME = "criticality"
 HELP = (
@@ -25,9 +24,7 @@ SHOWN = 10
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
-    )
+    add_scenarios(parser)
     parser.add_argument(
         "--output",
         "-o",
@@ -38,14 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--per-step", action="store_true", help="add each scenario's per-step criticality (columns step_0 .. step_90)"
     )
-    parser.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
-    parser.add_argument(
-        "--engine",
-        choices=ENGINES,
-        default="local",
-        help="local processes (default) or a Ray cluster (needs the ray extra)",
-    )
-    parser.add_argument("--ray-address", metavar="HOST:PORT", help="the Ray cluster to join (--engine ray)")
+    add_workers(parser, "processes rating scenarios")
+    add_engine(parser, "one task per batch of scenarios")
 
 
 def table_rows(result: dict) -> list[dict]:
@@ -99,8 +90,6 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(
                     "--output .parquet needs pyarrow (pip install pyarrow); .csv and .json need nothing"
                 ) from None
-    if args.workers < 1:
-        raise UsageError("--workers must be >= 1")
     try:
         result = scenario_set_criticality(
             args.scenarios,

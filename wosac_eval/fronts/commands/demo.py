@@ -29,7 +29,7 @@ from wosac_eval.fronts.demo_pipeline import (
     leaderboard,
     run_demo,
 )
-from wosac_eval.fronts.usage import UsageError, check_output_folder
+from wosac_eval.fronts.usage import UsageError, add_workers, check_output_folder
 
 TITLES = {
     "sim_agents": "Sim agents (80 future steps; 2025 config)",
@@ -69,13 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="metrics config (a preset or a textproto path; default: each challenge's current one)",
     )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=min(os.cpu_count() or 1, 4),
-        metavar="N",
-        help="processes for simulation and scoring (default: CPU count, at most 4)",
-    )
+    add_workers(parser, "processes for simulation and scoring", per_core=True)
     parser.add_argument(
         "--gate",
         type=Path,
@@ -112,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
     if args.gate is not None:
         check_output_folder(args.gate, "--gate")
         return run_gate_demo(args.gate)
-    if args.scenes < 1 or args.workers < 1:
-        raise UsageError("--scenes and --workers must be >= 1")
+    if args.scenes < 1:
+        raise UsageError("--scenes must be >= 1")
     workdir = args.workdir or default_workdir()
     check_output_folder(workdir, "--workdir")
     start = time.perf_counter()

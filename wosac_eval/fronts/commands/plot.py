@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, check_input, check_output_file
+from wosac_eval.fronts.usage import UsageError, add_scenarios, check_input, check_output_file
 
 NAME = "plot"
 HELP = (
@@ -31,9 +31,7 @@ def _rollout_list(text: str) -> list[int] | None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The scenario set and scenario, the submission, the output and what to show."""
-    parser.add_argument(
-        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
-    )
+    add_scenarios(parser)
     parser.add_argument(
         "--scenario", metavar="ID", help="the scenario to draw (default: the only one of the scenario set)"
     )

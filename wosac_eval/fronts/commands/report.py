@@ -9,9 +9,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wosac_eval.fronts.usage import UsageError, check_input, check_output_file
-from wosac_eval.results.compare import CompareError, compare_results
+from wosac_eval.fronts.usage import UsageError, add_scenarios, check_input, check_output_file
+from wosac_eval.results.compare import compare_results
 from wosac_eval.results.report import render_report, worst_scenarios
+from wosac_eval.results.stats import PairedSettings
 from wosac_eval.scoring.result_reader import ResultError, load_result
 
 NAME = "report"
@@ -29,9 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--top", type=int, default=10, metavar="K", help="worst scenarios listed per metric (default 10)"
     )
     parser.add_argument("--title", help="page title (default: from the result's file name)")
-    parser.add_argument(
-        "--scenarios", nargs="+", metavar="PATH", help="with --submission: the scenario set, to draw the worst scenes"
-    )
+    add_scenarios(parser, "with --submission, the scenario set, to draw the worst scenes", required=False)
     parser.add_argument(
         "--submission", metavar="PATH", help="with --scenarios: the scored submission, to draw the worst scenes"
     )
@@ -63,8 +62,9 @@ def run(args: argparse.Namespace) -> int:
         base = comparison = None
         if args.compare:
             base = load_result(args.compare)
-            comparison = compare_results(base, result, seed=args.seed, n_boot=args.n_boot, n_perm=args.n_perm)
-    except (ResultError, CompareError) as e:
+            settings = PairedSettings(seed=args.seed, n_boot=args.n_boot, n_perm=args.n_perm)
+            comparison = compare_results(base, result, settings=settings)
+    except (ResultError, ValueError) as e:  # CompareError is a ValueError, as a bad setting's error
         raise UsageError(str(e)) from None
     scenes = []
     if args.submission is not None and args.scenes:

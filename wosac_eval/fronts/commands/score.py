@@ -13,11 +13,21 @@ import sys
 from pathlib import Path
 
 from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.extras import BACKENDS, ENGINES, BackendUnavailableError, EngineUnavailableError
-from wosac_eval.fronts.usage import UsageError, check_input, check_output_file, scenario_set_hint
+from wosac_eval.extras import BACKENDS, BackendUnavailableError, EngineUnavailableError
+from wosac_eval.fronts.usage import (
+    UsageError,
+    add_engine,
+    add_input_limits,
+    add_scenarios,
+    add_workers,
+    check_input,
+    check_output_file,
+    scenario_set_hint,
+)
 from wosac_eval.metrics.config import PRESET_NAMES
 from wosac_eval.options import Backend, MetadataChecks
 from wosac_eval.parse.errors import ParseError
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.scoring.evaluation import RunOptions, resolve_evaluation
 from wosac_eval.scoring.journal import remove_journal
 from wosac_eval.scoring.submission import InvalidSubmissionError, score_submission
@@ -28,10 +38,8 @@ HELP = "Score a submission with the official WOSAC realism metrics and write res
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Inputs, challenge and config, output, and where and how to compute (workers, engine, backend)."""
-    parser.add_argument(
-        "--scenarios", nargs="+", required=True, metavar="PATH", help="scenario TFRecord files, folders or globs"
-    )
+    """Inputs, challenge and config, output; then where and how to compute (`_add_run_options`)."""
+    add_scenarios(parser)
     parser.add_argument(
         "--submission",
         required=True,
@@ -66,26 +74,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="with --output: discard the journal of an interrupted run and score everything",
     )
-    parser.add_argument(
-        "--workers",
-        type=int,
-        default=1,
-        metavar="N",
-        help="score scenarios in N processes of this machine (identical results)",
-    )
-    parser.add_argument(
-        "--engine",
-        choices=ENGINES,
-        default="local",
-        help="local (this machine, --workers processes; default) or ray (a Ray cluster, "
-        "needs `pip install 'wosac-eval[ray]'`); identical results",
-    )
-    parser.add_argument(
-        "--ray-address",
-        metavar="ADDR",
-        help="the Ray cluster to join (host:port or ray://host:10001; default $RAY_ADDRESS, "
-        "else a local Ray is started)",
-    )
+    _add_run_options(parser)
+
+
+def _add_run_options(parser: argparse.ArgumentParser) -> None:
+    """Where and how to compute (workers, engine, backend), what to score and write, and the input limits."""
+    add_workers(parser, "score scenarios in N processes of this machine")
+    add_engine(parser, "one task per chunk of scenarios")
     parser.add_argument(
         "--partial",
         action="store_true",
@@ -127,6 +122,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "parquet, R.objects.parquet, needs pyarrow), streamed as scenarios are scored; "
         'the result\'s "per_object" names the file',
     )
+
+    add_input_limits(parser, InputLimits.max_total_bytes, InputLimits.max_member_bytes)
 
 
 def _progress():
@@ -251,13 +248,12 @@ def run_options(args: argparse.Namespace) -> RunOptions:
         metadata_checks=MetadataChecks.ERROR if args.strict_metadata else MetadataChecks.WARN,
         select=args.select,
         analysis=not args.no_analysis,
+        limits=InputLimits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes),
     )
 
 
 def run(args: argparse.Namespace) -> int:
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
-    if args.workers < 1:
-        raise UsageError("--workers must be >= 1")
     check_output_file(args.output, "--output")
     check_input(args.submission, "--submission", "submission")
     try:  # everything asked is checked here, once, before any long work

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 from typing import TYPE_CHECKING
 
@@ -26,22 +25,13 @@ from wosac_eval.client import (
     SubmitError,
     submit,
 )
-from wosac_eval.fronts.usage import UsageError, check_output_file
+from wosac_eval.fronts.usage import UsageError, check_output_file, size_in_bytes
 
 if TYPE_CHECKING:
     from tqdm import tqdm
 
 NAME = "submit"
 HELP = "Upload a submission to a wosac-eval scoring service (resumable); with --wait, print its result."
-_SIZE = re.compile(r"^\s*(\d+)\s*([kmg]?)(i?b?)\s*$", re.I)
-
-
-def parse_size(text: str) -> int:
-    """A byte count: 1048576, 64M, 512k, 1G (binary multiples)."""
-    match = _SIZE.match(text)
-    if not match or int(match.group(1)) < 1:
-        raise argparse.ArgumentTypeError(f"{text!r}: give a positive number of bytes, e.g. 1048576, 512K, 64M, 1G")
-    return int(match.group(1)) * 1024 ** " kmg".index(match.group(2).lower() or " ")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,14 +95,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--chunk-bytes",
-        type=parse_size,
+        type=size_in_bytes,
         default=DEFAULT_CHUNK_BYTES,
         metavar="SIZE",
         help="bytes per upload request (default 64M; K, M, G accepted)",
     )
     parser.add_argument(
         "--limit-rate",
-        type=parse_size,
+        type=size_in_bytes,
         default=None,
         metavar="SIZE",
         help="send at most SIZE bytes per second (e.g. 10M)",

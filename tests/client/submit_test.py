@@ -169,7 +169,7 @@ def submission_id_of(stdout: str) -> str:
 
 @pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
 def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server, data):
-    from wosac_eval.client import follow, submit
+    from wosac_eval.client import ArgumentError, FollowOptions, SubmitOptions, follow, submit
 
     (key, method), state = new_key(scoring_server, "team-wait"), tmp_path / "state"
     done = submit_cli(
@@ -212,13 +212,19 @@ def test_submit_and_wait_gives_the_meta_metric_of_score(tmp_path, scoring_server
     # submission instead of uploading the file again.
     assert not any(key in p.read_text() for p in state.iterdir())
     lines: list[str] = []
-    status = submit(
-        data.full, server=scoring_server.url, key=key, method=method, wait=True, state_dir=state, log=lines.append
-    )
+    # The options as one object, a field replaced by name (`submit(path, server=..., ...)` works as well).
+    options = SubmitOptions(server=scoring_server.url, key=key, method=method, state_dir=state, log=print)
+    status = submit(data.full, options, wait=True, log=lines.append)
     assert status["id"] == figures["submission"] and status["state"] == "done"
     assert status["result"]["buckets"] == local
     assert any("was uploaded before" in line for line in lines) and not any("created" in line for line in lines)
     assert follow(status["id"], server=scoring_server.url, key=key)["result"] == status["result"]
+    followed = follow(status["id"], FollowOptions(server=scoring_server.url, key=key))
+    assert followed["result"] == status["result"]
+    with pytest.raises(ArgumentError, match="SubmitOptions.*'server'"):
+        submit(data.full, key=key, method=method, wait=True)
+    with pytest.raises(ArgumentError, match="FollowOptions.*'colour'"):
+        follow(status["id"], server=scoring_server.url, key=key, colour="red")
 
 
 def test_a_failed_job_prints_its_error_and_exits_1(tmp_path, scoring_server, data):

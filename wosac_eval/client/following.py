@@ -6,11 +6,13 @@ a file on request). `submit(..., wait=True)` follows the submission it uploaded;
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import os
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.client.transport import (
     ArgumentError,
@@ -22,6 +24,7 @@ from wosac_eval.client.transport import (
     SubmitError,
     api_key,
     call,
+    options_with,
     refused,
     required,
 )
@@ -46,26 +49,32 @@ Progress = Callable[[str, int, "int | None"], None]
 _logger = logging.getLogger("wosac_eval.client")
 
 
-def follow(
-    submission_id: str,
-    *,
-    server: str,
-    key: str | None = None,
-    output: str | os.PathLike | None = None,
-    progress: Progress | None = None,
-    log: Callable[[str], None] | None = None,
-    retry: RetryPolicy = RetryPolicy(),
-    timeout: float = 60.0,
-    poll_s: tuple[float, float] = (0.5, 5.0),
-) -> dict:
-    """Follow a submission already on the server until it is done or failed; as `submit(..., wait=True)`."""
+@dataclasses.dataclass(frozen=True)
+class FollowOptions:
+    """What `follow` is told besides the submission's id (the fields as `submit`'s of the same names)."""
+
+    server: str
+    key: str | None = None
+    output: str | os.PathLike | None = None
+    progress: Progress | None = None
+    log: Callable[[str], None] | None = None
+    retry: RetryPolicy = RetryPolicy()
+    timeout: float = 60.0
+    poll_s: tuple[float, float] = (0.5, 5.0)
+
+
+def follow(submission_id: str, options: FollowOptions | None = None, **fields: Any) -> dict:
+    """Follow a submission already on the server until it is done or failed; as `submit(..., wait=True)`.
+
+    The options are a `FollowOptions`, or its fields by name (`follow(id, server=URL, key=KEY)`), or both.
+    """
+    o = options_with(FollowOptions, options, fields)
     try:
-        server_ = Server(server, api_key(key), timeout, retry.answer_deadline_s)
+        server = Server(o.server, api_key(o.key), o.timeout, o.retry.answer_deadline_s)
     except ValueError as error:
         raise ArgumentError(str(error)) from None
-    return Follower(server_, progress or no_progress, log or _logger.info, retry, poll_s).follow(
-        submission_id, None, output
-    )
+    follower = Follower(server, o.progress or no_progress, o.log or _logger.info, o.retry, o.poll_s)
+    return follower.follow(submission_id, None, o.output)
 
 
 def no_progress(stage: str, done: int, total: int | None) -> None:

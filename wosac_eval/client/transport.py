@@ -8,6 +8,7 @@ after an early answer, or one left half-written by an interruption, is never reu
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import email.utils
 import http.client
 import json
@@ -19,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import BinaryIO
+from typing import Any, BinaryIO
 from urllib.parse import quote, urlencode, urlsplit
 
 from wosac_eval import __version__
@@ -460,3 +461,15 @@ def required(value: dict, fields: dict[str, type | tuple[type, ...]], what: str)
             "fault, not this client; its operator can tell why)"
         )
     return value
+
+
+def options_with(kind: type, given: Any, fields: dict) -> Any:
+    """`given` (an options dataclass of `kind`, or None) with `fields` replacing its fields.
+
+    Raises:
+      ArgumentError: a field `kind` does not have, or a required one missing (naming it).
+    """
+    try:
+        return dataclasses.replace(given, **fields) if given is not None else kind(**fields)
+    except TypeError as error:
+        raise ArgumentError(f"{kind.__name__}: {error}") from None

@@ -17,6 +17,7 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.client.following import Follower, Progress, no_progress
 from wosac_eval.client.state import UploadState, default_state_dir, key_digest, prune
@@ -30,6 +31,7 @@ from wosac_eval.client.transport import (
     SubmissionRefused,
     SubmitError,
     api_key,
+    options_with,
 )
 from wosac_eval.client.tus import TUS_VERSION, FileChanged, Sender, UploadGone
 
@@ -63,47 +65,37 @@ class SubmitOptions:
 
 def submit(
     submission: str | os.PathLike,
+    options: SubmitOptions | None = None,
     *,
-    server: str,
-    key: str | None = None,
-    method: str,
-    challenge: str = "sim_agents",
-    config: str | None = None,
-    publish: bool = False,
-    allow_partial: bool = False,
     wait: bool = False,
-    output: str | os.PathLike | None = None,
     new: bool = False,
-    chunk_bytes: int = DEFAULT_CHUNK_BYTES,
-    limit_rate: int | None = None,
-    progress: Progress | None = None,
-    log: Callable[[str], None] | None = None,
-    state_dir: str | os.PathLike | None = None,
-    retry: RetryPolicy = RetryPolicy(),
-    timeout: float = 60.0,
-    poll_s: tuple[float, float] = (0.5, 5.0),
+    **fields: Any,
 ) -> dict:
     """Upload `submission` to the wosac-server at `server`, resumably; with `wait`, follow it to its result.
 
+    The options are a `SubmitOptions`, or its fields by name (`submit(path, server=URL, key=KEY,
+    method=NAME)`), or both (the fields named replace the object's).
+
     Args:
       submission: the file (.tar.gz, .tar.bz2, .tar.xz, .tar, or one .binproto, optionally compressed).
-      server: the service's base URL, e.g. "https://wosac.example.org".
-      key: the API key (default: the WOSAC_API_KEY environment variable). Never written to disk.
-      method: the leaderboard name. challenge, config, publish, allow_partial: as the server's
-        upload parameters (config None: the challenge's current one).
+      options, fields (`SubmitOptions`):
+        server: the service's base URL, e.g. "https://wosac.example.org".
+        key: the API key (default: the WOSAC_API_KEY environment variable). Never written to disk.
+        method: the leaderboard name. challenge, config, publish, allow_partial: as the server's
+          upload parameters (config None: the challenge's current one).
+        output: with `wait`, write the result document (the same JSON as `wosac-eval score`) there.
+        chunk_bytes: bytes per PATCH request. limit_rate: at most this many bytes per second.
+        progress: progress(stage, done, total), stage "upload" (bytes) or "scoring" (scenarios).
+        log: called with one line per event (resumed, retrying, state changes); default: the
+          "wosac_eval.client" logger at INFO.
+        state_dir: where uploads are remembered (default $XDG_CACHE_HOME/wosac-eval/uploads, else
+          ~/.cache/wosac-eval/uploads).
+        retry: how long each request is retried (network errors, 5xx, 507, 429, 408).
+        timeout: seconds a connection may stay silent. poll_s: the first and longest wait between
+          two status requests while following the job.
       wait: follow the job until it is done or failed, and fetch its result.
-      output: with `wait`, write the result document (the same JSON as `wosac-eval score`) there.
       new: forget an earlier upload of this file (an unfinished one is deleted on the server) and
         upload it again.
-      chunk_bytes: bytes per PATCH request. limit_rate: at most this many bytes per second.
-      progress: progress(stage, done, total), stage "upload" (bytes) or "scoring" (scenarios).
-      log: called with one line per event (resumed, retrying, state changes); default: the
-        "wosac_eval.client" logger at INFO.
-      state_dir: where uploads are remembered (default $XDG_CACHE_HOME/wosac-eval/uploads, else
-        ~/.cache/wosac-eval/uploads).
-      retry: how long each request is retried (network errors, 5xx, 507, 429, 408).
-      timeout: seconds a connection may stay silent. poll_s: the first and longest wait between
-        two status requests while following the job.
 
     Returns:
       The submission's status (the server's JSON: id, state, progress, ...). With `wait`, its final
@@ -117,28 +109,10 @@ def submit(
         call again resumes.
       SubmitError: anything else that stops it (the file changed while uploading, another run is
         uploading the same file, an answer that is not the service's).
-      ValueError (ArgumentError): a bad argument (no key, a missing or empty file, a bad URL), before
-        anything is sent.
+      ValueError (ArgumentError): a bad argument (no key, a missing or empty file, a bad URL, an
+        option `SubmitOptions` does not have), before anything is sent.
     """
-    options = SubmitOptions(
-        server=server,
-        method=method,
-        key=key,
-        challenge=challenge,
-        config=config,
-        publish=publish,
-        allow_partial=allow_partial,
-        output=output,
-        chunk_bytes=chunk_bytes,
-        limit_rate=limit_rate,
-        progress=progress,
-        log=log,
-        state_dir=state_dir,
-        retry=retry,
-        timeout=timeout,
-        poll_s=poll_s,
-    )
-    return _Run(submission, options).run(wait=wait, new=new)
+    return _Run(submission, options_with(SubmitOptions, options, fields)).run(wait=wait, new=new)
 
 
 class _Run:

@@ -23,6 +23,7 @@ from wosac_eval.client import (
     ServerUnavailable,
     SubmissionFailed,
     SubmitError,
+    SubmitOptions,
     submit,
 )
 from wosac_eval.fronts.usage import UsageError, check_output_file, size_in_bytes
@@ -204,8 +205,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"no API key: pass --key, or set {KEY_ENV} (which keeps it out of the shell's history)")
     reporter = _Reporter()
     try:
-        status = submit(
-            args.submission,
+        options = SubmitOptions(
             server=args.server,
             key=key,
             method=args.method,
@@ -213,15 +213,14 @@ def run(args: argparse.Namespace) -> int:
             config=args.config,
             publish=args.publish,
             allow_partial=args.partial,
-            wait=args.wait,
             output=args.output,
-            new=args.new,
             chunk_bytes=args.chunk_bytes,
             limit_rate=args.limit_rate,
             progress=reporter.progress,
             log=reporter.log,
             state_dir=args.state_dir,
         )
+        status = submit(args.submission, options, wait=args.wait, new=args.new)
     except ArgumentError as error:
         raise UsageError(str(error)) from None
     except SubmissionFailed as failed:

@@ -5,10 +5,10 @@ A `Feature` entry names a per-step feature, its kernel (a function of a
 intermediates), the map parts its search reads on the device (`MapPart`:
 the arrays, how each is padded, the bucket sizes they count), and, for a
 feature registered beside the official ones, its metric (a
-`metrics.registry.Metric` carrying its config). Everything that computes or
-lists per-step features reads this module: `metric_features.per_step_features`
-(numpy and JAX alike), the JAX drivers' map arrays, padding and bucket keys,
-and the scorer through `metrics.registry`.
+`metric_table.Metric` carrying its config, a row of the metric table that the
+metrics read too). Everything that computes or lists per-step features reads
+this module: `metric_features.per_step_features` (numpy and JAX alike), the
+JAX drivers' map arrays, padding and bucket keys, and the scorer.
 
 Adding a feature is one `register(Feature(...))` call (see docs/extending.md);
 an official one is an entry in `OFFICIAL_FEATURES` (and its config field in
@@ -28,7 +28,7 @@ from wosac_eval.features import interaction, kinematics, road_edge
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.xp import array_namespace
-from wosac_eval.metrics import registry as metric_registry
+from wosac_eval.metric_table import Metric, register_metric, unregister_metric
 
 _F = np.float32
 
@@ -226,15 +226,15 @@ class Feature:
       dtype: "float32" or "bool".
       needs: the `MAP_PARTS` its search reads on the device (their arrays are built, padded and
         counted in bucket keys only when a registered feature needs them).
-      metric: a registered feature's metric (`metrics.registry.Metric` with `official=False` and its
-        `config_default`), or None (an official feature: its metric is a row of `metrics.registry.METRICS`).
+      metric: a registered feature's metric (`metric_table.Metric` with `official=False` and its
+        `config_default`), or None (an official feature: its metric is a row of `metric_table.METRICS`).
     """
 
     name: str
     kernel: Callable
     dtype: str = "float32"
     needs: tuple[str, ...] = ()
-    metric: metric_registry.Metric | None = None
+    metric: Metric | None = None
 
 
 # Kernels are module functions, never lambdas or `functools.partial`s: entries travel to worker processes
@@ -342,7 +342,7 @@ def register(feature: Feature) -> None:
     Raises:
       ValueError: the name is taken, the kernel is a lambda or a `functools.partial`, a need is not a
         `MAP_PARTS` name, or the metric is refused
-        (`metrics.registry.register_metric`).
+        (`metric_table.register_metric`).
     """
     if feature.name in {f.name for f in features()}:
         raise ValueError(f"feature {feature.name!r} is already registered")
@@ -360,7 +360,7 @@ def register(feature: Feature) -> None:
     if feature.metric is not None:
         if feature.metric.feature != feature.name:
             raise ValueError(f"feature {feature.name!r}: its metric scores {feature.metric.feature!r}")
-        metric_registry.register_metric(feature.metric)
+        register_metric(feature.metric)
     _REGISTERED.append(feature)
 
 
@@ -371,7 +371,7 @@ def unregister(name: str) -> None:
         raise KeyError(name)
     feature = _REGISTERED.pop(index)
     if feature.metric is not None:
-        metric_registry.unregister_metric(feature.metric.name)
+        unregister_metric(feature.metric.name)
 
 
 @contextlib.contextmanager

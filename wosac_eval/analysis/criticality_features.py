@@ -319,6 +319,6 @@ def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityF
 
 def compile_loops() -> None:
     """Compiles `pairwise_interaction`'s loop now (or loads it from numba's cache), for the argument types
-    scoring passes: called by `features.search.compile_searches`."""
+    scoring passes: called by `scoring.warm_up.compile_loops`."""
     f, b, i = np.zeros((2, 3)), np.ones((2, 3), bool), np.zeros(1, np.int64)
     _pair_entries(i, i + 1, f, f, f, f, b, b, f + 4, f + 2, f, f, np.full(3, np.inf), np.zeros(3))

@@ -21,7 +21,6 @@ import numpy as np
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import following, interaction, road_edge, traffic_lights
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
-from wosac_eval.parse import wire_walks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -69,15 +68,12 @@ class PrunedSearch:
 
 
 def compile_searches() -> float:
-    """Compiles the search loops, the protobuf wire walks (`parse.wire_walks`) and the criticality's loop
-    (`analysis.criticality_features`) now (or loads them from numba's cache); returns the seconds it took.
+    """Compiles the search loops now (or loads them from numba's cache); returns the seconds it took.
 
-    numba compiles a loop on its first call, once per installation (about half a minute for all of
-    them), and caches it on disk; a process that should not pay that in its first scenario (a
-    Docker image while it is built, a service before it takes jobs) calls this first.
+    numba compiles a loop on its first call, once per installation, and caches it on disk; with the
+    other rooms' loops, `scoring.warm_up.compile_loops` compiles them ahead of a first scenario.
     """
     start = time.perf_counter()
-    wire_walks.compile_walks()
     f = np.float32
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite, in 16 samples: enough
@@ -98,7 +94,4 @@ def compile_searches() -> float:
         traffic_lights.compiled_stop_line_crossings(
             x, zeros, ones > 0, line, line + [0, 1], line + [4, 0], np.ones((3, 1), bool)
         )
-    from wosac_eval.analysis import criticality_features  # scoring's default analysis has a loop of its own
-
-    criticality_features.compile_loops()
     return time.perf_counter() - start

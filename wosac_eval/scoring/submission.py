@@ -25,7 +25,6 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
-from wosac_eval.features.search import compile_searches
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
@@ -38,6 +37,7 @@ from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
 from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
+from wosac_eval.scoring.warm_up import compile_loops
 from wosac_eval.validate import validate_submission
 
 PathLike = str | os.PathLike
@@ -270,7 +270,7 @@ def score_submission(
         ray_address=run.ray_address,
         force_spawn=run.backend is Backend.JAX,
         initializer=keep_freed_memory,
-        warm_up=compile_searches,  # numba's loops compiled once here, not in every worker of a fresh installation
+        warm_up=compile_loops,  # numba's loops compiled once here, not in every worker of a fresh installation
     )
     opened: contextlib.AbstractContextManager[SubmissionSource]
     if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open

@@ -20,7 +20,7 @@ import numpy as np
 
 from wosac_eval.features import dense, registry
 from wosac_eval.features import metric_features as mf
-from wosac_eval.features.map_arrays import scene_map_arrays
+from wosac_eval.features.registry import scene_map_arrays
 from wosac_eval.features.search_strategy import SearchStrategy
 
 MIN_BUCKET = 8

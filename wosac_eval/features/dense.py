@@ -34,7 +34,7 @@ from jax import lax
 from wosac_eval.features import box_geometry, following, interaction, road_edge, traffic_lights
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
-from wosac_eval.features.spatial import strict_argmin
+from wosac_eval.features.spatial import NON_FINITE_PREFIX, strict_argmin
 from wosac_eval.features.xp import in_differentiable, nan_spreading_max, nan_spreading_min
 
 _F = np.float32
@@ -257,7 +257,6 @@ FALLBACK_CHUNK = 256
 LISTED_CHUNK = 1024
 # road_edge.cell_candidate_table
 CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance", "cell_near_clearance")
-NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 # `shared_segments`: the scene set's segments one table, and each scene's offset in it
 SHARED_PREFIX = "shared_"
 SHARED_SEGMENT_ARRAYS = ("start", "delta", "valid")

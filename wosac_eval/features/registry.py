@@ -24,9 +24,10 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from wosac_eval.features import interaction, kinematics, road_edge
+from wosac_eval.features import interaction, kinematics, map_arrays, road_edge
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
+from wosac_eval.features.spatial import NON_FINITE_PREFIX
 from wosac_eval.features.xp import array_namespace
 from wosac_eval.metric_table import Metric, register_metric, unregister_metric
 
@@ -92,18 +93,6 @@ class MapPart:
         return dict(self.arrays)
 
 
-def _map_builder(name: str) -> Callable:
-    """The builder `name` of `features.map_arrays` (imported on first use: the numpy path needs none)."""
-
-    def build(*args):
-        from wosac_eval.features import map_arrays
-
-        return getattr(map_arrays, name)(*args)
-
-    build.__name__ = name
-    return build
-
-
 _SEGMENT_ARRAYS = (
     "start",
     "delta",
@@ -117,19 +106,18 @@ _SEGMENT_ARRAYS = (
     "convex_before",
     "convex_after",
 )
-NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 
 MAP_PARTS: tuple[MapPart, ...] = (
     MapPart(
         "road_edges",
-        _map_builder("road_edge_segments"),
+        map_arrays.road_edge_segments,
         tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
         + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
         (Size("road_edge_segments", "start", fine=True),),
     ),
     MapPart(
         "red_lights",
-        _map_builder("red_light_arrays"),
+        map_arrays.red_light_arrays,
         (
             ("stop_start", Pad("signals", 1)),
             ("stop_delta", Pad("signals", 1)),
@@ -147,7 +135,7 @@ MAP_PARTS: tuple[MapPart, ...] = (
     # Rows past the grid are never looked up; its origin and shape are not padded.
     MapPart(
         "road_edge_cells",
-        _map_builder("road_edge_cells"),
+        map_arrays.road_edge_cells,
         (
             ("cell_origin", Pad(None)),
             ("cell_shape", Pad(None)),
@@ -411,3 +399,12 @@ def map_sizes(selected: tuple[Feature, ...] | None = None) -> tuple[Size, ...]:
 def map_padding(selected: tuple[Feature, ...] | None = None) -> dict[str, Pad]:
     """Every map array's `Pad`, by name."""
     return {name: pad for p in map_parts(selected) for name, pad in p.arrays}
+
+
+def scene_map_arrays(scenario, context, layout, num_steps: int, cells: bool = True, selected=None) -> dict:
+    """Every array of the map parts the features need (`map_parts`), unpadded: the parts' builders
+    (`features.map_arrays`) of one scene."""
+    out: dict = {}
+    for part in map_parts(features() if selected is None else selected):
+        out.update(part.build(scenario, context, layout, num_steps, cells))
+    return out

@@ -18,6 +18,7 @@ import gc
 import jax
 import numpy as np
 
+from wosac_eval.backends.host_search import HostSearch
 from wosac_eval.features import dense, registry
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features.registry import scene_map_arrays
@@ -275,7 +276,5 @@ def device_features(
     if host is None:
         search = dense.DenseSearch(maps)
     else:
-        from wosac_eval.backends.host_search import HostSearch
-
         search = HostSearch(host, scene)
     return mf.per_step_features(traj, layout, search, tails, features)

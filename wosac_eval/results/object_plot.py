@@ -19,7 +19,10 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import SHORT_NAMES
+from wosac_eval.estimators.likelihoods import histogram_bins, histogram_edges
+from wosac_eval.features.metric_features import scenario_features
 from wosac_eval.results.scene_plot import EVENT_KINDS
+from wosac_eval.scoring.scenario import resolve_config, scenario_inputs
 
 # (feature, title, unit) of each panel.
 PANELS = (
@@ -33,8 +36,6 @@ _LOG, _SIM = "#24292f", "#0969da"
 
 def _shade_bins(axis, values: np.ndarray, histogram) -> None:
     """Horizontal bands at the histogram's bins, each as dark as the share of `values` that falls in it."""
-    from wosac_eval.estimators.likelihoods import histogram_bins, histogram_edges
-
     edges = histogram_edges(histogram.min_val, histogram.max_val, histogram.num_bins).astype(np.float64)
     finite = values[np.isfinite(values)].astype(np.float32)
     if not finite.size:
@@ -56,9 +57,6 @@ def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: 
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
-
-    from wosac_eval.features.metric_features import scenario_features
-    from wosac_eval.scoring.scenario import resolve_config, scenario_inputs
 
     challenge = challenges.as_challenge(challenge)
     config = resolve_config(config, challenge)

@@ -27,6 +27,10 @@ import numpy as np
 from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
+from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.parse.scenarios import ScenarioIndex
+from wosac_eval.parse.submission_source import find_scenario_rollouts
+from wosac_eval.scoring.scenario import scenario_inputs
 
 FORMATS = (".png", ".gif", ".html")
 # (feature, label, marker, colour) of each event drawn.
@@ -122,9 +126,6 @@ def scene_view(scenario, rollouts=None, challenge="sim_agents") -> SceneView:
     Raises:
       ValueError: the rollouts do not fit the scenario (other scenario, steps, objects).
     """
-    from wosac_eval.features.metric_features import scenario_features
-    from wosac_eval.scoring.scenario import scenario_inputs
-
     challenge = challenges.as_challenge(challenge)
     arrays = scenario if isinstance(scenario, ScenarioArrays) else scenario_arrays(scenario)
     if rollouts is None:
@@ -580,9 +581,6 @@ def scene_pictures(
       limits), or a path (read under the default limits).
     Scenarios missing from the scenario set or the submission are left out.
     """
-    from wosac_eval.parse.scenarios import ScenarioIndex
-    from wosac_eval.parse.submission_source import find_scenario_rollouts
-
     index = scenarios if isinstance(scenarios, ScenarioIndex) else ScenarioIndex(scenarios)
     wanted = [sid for sid in scenario_ids if sid in index]
     rollouts = find_scenario_rollouts(submission, wanted)

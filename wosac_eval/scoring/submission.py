@@ -24,7 +24,10 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from wosac_eval.analysis import criticality_cache
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
+from wosac_eval.arrays.rollouts import rollout_arrays
+from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
@@ -37,6 +40,7 @@ from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
 from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
+from wosac_eval.scoring.scenario import prepare_jax_item, score_jax_items, score_scenario
 from wosac_eval.scoring.warm_up import compile_loops
 from wosac_eval.validate import validate_submission
 
@@ -103,10 +107,6 @@ def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
     scenario set is not parsed whole for each submission). With the analysis, the scene's criticality is
     the one an earlier run kept (`analysis.criticality_cache`, under the record's key), None when none did;
     without it both are None."""
-    from wosac_eval.analysis import criticality_cache
-    from wosac_eval.arrays.rollouts import rollout_arrays
-    from wosac_eval.arrays.scenario import record_arrays
-
     pairs = []
     for sid, locator in chunk.items:
         record = context.index.load_record(sid)
@@ -121,8 +121,6 @@ def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
 
 def _keep_criticality(pairs: list[tuple], criticality: list) -> None:
     """Keeps the scenes' criticality computed now (`analysis.criticality_cache`) for later runs."""
-    from wosac_eval.analysis import criticality_cache
-
     criticality_cache.keep(
         [
             (key, computed)
@@ -134,8 +132,6 @@ def _keep_criticality(pairs: list[tuple], criticality: list) -> None:
 
 def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     """Scores the scenarios of a chunk (a worker task); results in chunk order."""
-    from wosac_eval.scoring.scenario import score_jax_items, score_scenario
-
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
     if context.backend is Backend.JAX:
@@ -169,8 +165,6 @@ def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
 
 
 def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
-    from wosac_eval.scoring.scenario import prepare_jax_item
-
     items = [
         prepare_jax_item(scenario, rollouts, context.challenge, context.analysis, known)
         for scenario, rollouts, known, _ in pairs
@@ -182,8 +176,6 @@ def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
 
 def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
     """Rows, one at a time, in order: workers parse and prepare, this process feeds the device."""
-    from wosac_eval.scoring.scenario import score_jax_items
-
     items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
     for row in score_jax_items(
         items, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object

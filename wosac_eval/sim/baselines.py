@@ -14,6 +14,7 @@ from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter
 from wosac_eval.parse.scenarios import iter_scenarios
+from wosac_eval.protos import scenario_pb2
 from wosac_eval.runtime.processes import worker_pool
 from wosac_eval.sim import policies
 
@@ -41,8 +42,6 @@ def policy_rollouts(scenario, policy: str, seed: int = 0, challenge: str = "sim_
 
 
 def _simulate(args: tuple[bytes, str, int, str]) -> bytes:
-    from wosac_eval.protos import scenario_pb2
-
     data, policy, seed, challenge = args
     return rollouts_bytes(policy_rollouts(scenario_pb2.Scenario.FromString(data), policy, seed, challenge))
 

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.parse.tfrecord import write_records
+from wosac_eval.protos import map_pb2, scenario_pb2
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim.logged_scenes import LoggedScene, build_scene
 from wosac_eval.sim.scene_specs import NUM_STEPS, TIMES, SceneSpec
@@ -41,8 +43,6 @@ def _map_points(spec: SceneSpec, xy_local: np.ndarray, target) -> None:
 
 def assemble(scene: LoggedScene, rng: np.random.Generator):
     """The `Scenario` proto of a simulated scene, in world coordinates."""
-    from wosac_eval.protos import map_pb2, scenario_pb2
-
     spec = scene.spec
     net = spec.network
     sc = scenario_pb2.Scenario()
@@ -154,8 +154,6 @@ def write_scenario_shards(
     scenarios: list, directory: str | Path, num_shards: int = 1, prefix: str = "synthetic"
 ) -> list[Path]:
     """Writes scenarios as TFRecord shards named `<prefix>.tfrecord-0000k-of-0000n`."""
-    from wosac_eval.parse.tfrecord import write_records
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     num_shards = max(1, min(num_shards, len(scenarios)))

@@ -31,7 +31,9 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
+from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
 from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.parse import wire_walks
 from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS, VALID_FIELD_NUMBER
 from wosac_eval.validate.findings import WARNING, Finding, format_ids, make_finding
 
@@ -244,11 +246,7 @@ def _field_checks(rollouts: Any, fields: Sequence[str], n_trajectories: int, spe
     non-positive (finite, <= 0; box sizes only) masks, each shape (num_trajectories, len(fields)); the object
     ids, whether each is set, and whether an object_type is set (not TYPE_UNSET), shape (num_trajectories,);
     and the fields set that the challenge's evaluator does not read (`_ignored_fields`).
-    Read from the scenario's serialized bytes at once (`parse.wire_walks`, imported here: a process that
-    refuses a file before its rules run does not load the compiled walks)."""
-    from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
-    from wosac_eval.parse import wire_walks
-
+    Read from the scenario's serialized bytes at once (`parse.wire_walks`)."""
     data = wire_walks.message_bytes(rollouts)
     start, end, _, _ = trajectory_spans(data)
     if len(start) != n_trajectories:

@@ -37,7 +37,9 @@ from wosac_eval.parse.shards import parse_submission_shard, string_fields_are_te
 from wosac_eval.parse.submission_source import NotAShardError, ShardRef, SubmissionSource
 from wosac_eval.parse.tfrecord import iter_records, read_record_at
 from wosac_eval.parse.wire import field_spans
+from wosac_eval.parse.wire_walks import compile_walks
 from wosac_eval.protos import sim_agents_submission_pb2
+from wosac_eval.runtime.executors import LocalExecutor
 from wosac_eval.validate import rules
 from wosac_eval.validate.findings import WARNING, Finding, ValidationReport, make_finding
 
@@ -79,8 +81,6 @@ def load_sim_agents(
     agents: dict[str, np.ndarray] = {}
     try:
         if isinstance(scenarios, ScenarioIndex):
-            from wosac_eval.runtime.executors import LocalExecutor
-
             batches = _index_batches(scenarios)
             for (ids, _), found in zip(
                 batches,
@@ -446,9 +446,6 @@ def validate_submission(
     Raises ScenarioSetError when the scenario set cannot be read, FileNotFoundError
     when the submission path does not exist (both usage errors, not findings).
     """
-    from wosac_eval.parse.wire_walks import compile_walks
-    from wosac_eval.runtime.executors import LocalExecutor
-
     start = time.perf_counter()
     executor = executor or LocalExecutor(workers, warm_up=compile_walks)  # once here, not in each worker
     agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios, executor=executor)

@@ -18,7 +18,7 @@ from wosac_eval.features import (
     road_edge,
     traffic_lights,
 )
-from wosac_eval.features.road_edge import cell_tables, pruned_search, segments, signed_distance
+from wosac_eval.features.road_edge import cell_lists, cell_tables, pruned_search, segments, signed_distance
 from wosac_eval.parse import wire_walks as walks
 from wosac_eval.analysis import criticality_features
 from wosac_eval.scoring import warm_up
@@ -121,7 +121,7 @@ def test_cached_loops_are_named_after_the_kernels_digest():
     # Also the loops that call numba functions of another file (numba's cache checks the loop's file only).
     for loop in (
         pruned_search._search_lists,
-        pruned_search._query_cells,
+        cell_lists.query_cells,
         cell_tables._cell_table,
         interaction._nearest_object_search,
         following._followed_search,
@@ -144,8 +144,8 @@ def test_compile_loops_covers_what_scoring_calls():
 
     warm_up.compile_loops()
     loops = [
-        pruned_search._query_cells,
-        pruned_search._cell_lists,
+        cell_lists.query_cells,
+        cell_lists.cell_lists,
         pruned_search._search_lists,
         pruned_search._ring_searches,
         signed_distance._signed_distances,

@@ -315,7 +315,7 @@ def bucket_coordinate(value, origin, side):
     """Where a finite coordinate lies along one axis, in buckets from the grid's origin, clamped far
     beyond any grid (an integer conversion of a huge float is undefined). The side is a power of two
     (`bucket_grid`): multiplying by its inverse (hoisted out of callers' loops) is exact, where a
-    division per coordinate was most of `pruned_search._query_cells`' time."""
+    division per coordinate was most of `cell_lists.query_cells`' time."""
     return min(max((value - origin) * (1.0 / side), -1e15), 1e15)
 
 
@@ -331,7 +331,7 @@ def _bucket_range(start, delta, origin, side, num):
 @numba.njit
 def planar_squared(qx, qy, k, frame):
     """The squared planar distance (float64) from a point to segment k, in the segment's own frame (no
-    division). Its rounding, about 1e-16 of the coordinates, is far inside `pruned_search._rounding_margin`."""
+    division). Its rounding, about 1e-16 of the coordinates, is far inside `cell_lists.rounding_margin`."""
     tx, ty = qx - frame[k, 0], qy - frame[k, 1]
     along = tx * frame[k, 2] + ty * frame[k, 3]
     across = tx * frame[k, 3] - ty * frame[k, 2]

@@ -29,6 +29,7 @@ from wosac_eval.features import (
 )
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.ops import fma32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.spatial import NON_FINITE_PREFIX
 from wosac_eval.features.xp import array_namespace, divide
 
@@ -133,8 +134,9 @@ def test_time_to_collision_dense_equals_numpy():
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
+    boxes = {"x": x, "y": y, "length": length, "width": width, "heading": heading, "valid": valid}
     expected = following.time_to_collision(
-        x, y, length, width, heading, valid, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval
+        TimeToCollisionInputs(**boxes, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval)
     )
     assert (expected < following.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail

@@ -187,7 +187,8 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
         heading[None],
         heading[e, None],
     )
-    masked = following.followed_gaps(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    pairs = following.FollowedPairs(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    masked = following.followed_gaps(pairs)
     # The nearest followed object, as `following.all_objects_time_to_collision` picks it along its objects.
     if in_differentiable(jnp):  # gradients through the gap: JAX differentiates no custom reduction
         nearest = strict_argmin(masked, axis=1)

@@ -43,20 +43,7 @@ class PrunedSearch:
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         """`following.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
-        i = inputs
-        return following.time_to_collision(
-            i.x,
-            i.y,
-            i.length,
-            i.width,
-            i.heading,
-            i.valid,
-            num_evaluated=i.num_evaluated,
-            steps=i.steps,
-            speed=i.speed,
-            ego_tail=i.ego_tail,
-            pair_tail=i.pair_tail,
-        )
+        return following.time_to_collision(inputs)
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
@@ -87,8 +74,9 @@ def compile_searches() -> float:
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
+        boxes = {"x": x, "y": zeros, "length": ones * 4, "width": ones * 2, "heading": zeros, "valid": ones > 0}
         following.time_to_collision(
-            x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None)
+            TimeToCollisionInputs(**boxes, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None))
         )
         line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
         traffic_lights.compiled_stop_line_crossings(

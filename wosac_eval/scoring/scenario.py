@@ -155,13 +155,15 @@ def _row(
     config: SimAgentMetricsConfig,
     arrays: ScenarioArrays,
     rollout: RolloutArrays,
-    log,
-    sim,
     context,
+    features: tuple,
     analysis: bool,
     criticality: dict | None = None,
     per_object: bool = False,
 ) -> dict:
+    """A result row from the scene's (log, simulated) `features`, with the analysis and the per-object
+    values where asked."""
+    log, sim = features
     lls = metric_log_likelihoods(config, log, sim)
     row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
     if analysis:
@@ -200,7 +202,7 @@ def score_scenario(
         `analysis.criticality_cache`), instead of computing it.
     """
     message, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(message, arrays, rollout, log, sim, context, analysis, criticality, per_object=per_object)
+    return _row(message, arrays, rollout, context, (log, sim), analysis, criticality, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
@@ -293,9 +295,9 @@ def score_jax_items(
     next_out = 0
 
     def finish(done):
-        for (index, item), (log, sim) in done:
+        for (index, item), features in done:
             rows[index] = _row(
-                config, item.arrays, item.rollout, log, sim, item.context, analysis, item.criticality, per_object
+                config, item.arrays, item.rollout, item.context, features, analysis, item.criticality, per_object
             )
 
     def ready():

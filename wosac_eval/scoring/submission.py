@@ -31,6 +31,7 @@ from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
@@ -264,17 +265,7 @@ def score_submission(
         initializer=keep_freed_memory,
         warm_up=compile_loops,  # numba's loops compiled once here, not in every worker of a fresh installation
     )
-    opened: contextlib.AbstractContextManager[SubmissionSource]
-    if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open
-        opened = contextlib.nullcontext(submission)
-    elif journal is not None:
-        # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
-        # the archive up to them (`scoring.journal`).
-        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
-        opened = SubmissionSource(submission, run.limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
-    else:
-        opened = SubmissionSource(submission, run.limits)
-    with opened as source:
+    with _opened(submission, journal, run.limits) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
@@ -291,6 +282,20 @@ def score_submission(
         finally:
             if temporary:
                 remove_journal(journal)
+
+
+def _opened(
+    submission: PathLike | SubmissionSource, journal: PathLike | None, limits: InputLimits
+) -> contextlib.AbstractContextManager[SubmissionSource]:
+    """The submission to read, as a context: a handle the caller opened stays open; with a journal, an
+    archive's last members are kept beside it, so a run resumed late need not decompress the archive up
+    to them (`scoring.journal`)."""
+    if isinstance(submission, SubmissionSource):
+        return contextlib.nullcontext(submission)
+    if journal is not None:
+        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
+        return SubmissionSource(submission, limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
+    return SubmissionSource(submission, limits)
 
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:

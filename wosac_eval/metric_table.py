@@ -70,34 +70,98 @@ class Rate:
 
 
 METRICS = (
-    Metric("linear_speed", "kinematic", "linear_speed", False, "speed"),
-    Metric("linear_acceleration", "kinematic", "linear_acceleration", False, "acceleration"),
-    Metric("angular_speed", "kinematic", "angular_speed", False, "speed"),
-    Metric("angular_acceleration", "kinematic", "angular_acceleration", False, "acceleration"),
-    Metric("distance_to_nearest_object", "interactive", "distance_to_nearest_object", False, "valid"),
-    Metric("collision_indication", "interactive", "collision_per_step", True, "valid"),
-    Metric("time_to_collision", "interactive", "time_to_collision", False, "vehicle"),
-    Metric("distance_to_road_edge", "map_based", "distance_to_road_edge", False, "valid"),
-    Metric("offroad_indication", "map_based", "offroad_per_step", True, "valid"),
+    Metric(
+        name="linear_speed",
+        bucket="kinematic",
+        feature="linear_speed",
+        per_object=False,
+        mask="speed",
+    ),
+    Metric(
+        name="linear_acceleration",
+        bucket="kinematic",
+        feature="linear_acceleration",
+        per_object=False,
+        mask="acceleration",
+    ),
+    Metric(
+        name="angular_speed",
+        bucket="kinematic",
+        feature="angular_speed",
+        per_object=False,
+        mask="speed",
+    ),
+    Metric(
+        name="angular_acceleration",
+        bucket="kinematic",
+        feature="angular_acceleration",
+        per_object=False,
+        mask="acceleration",
+    ),
+    Metric(
+        name="distance_to_nearest_object",
+        bucket="interactive",
+        feature="distance_to_nearest_object",
+        per_object=False,
+        mask="valid",
+    ),
+    Metric(
+        name="collision_indication",
+        bucket="interactive",
+        feature="collision_per_step",
+        per_object=True,
+        mask="valid",
+    ),
+    Metric(
+        name="time_to_collision",
+        bucket="interactive",
+        feature="time_to_collision",
+        per_object=False,
+        mask="vehicle",
+    ),
+    Metric(
+        name="distance_to_road_edge",
+        bucket="map_based",
+        feature="distance_to_road_edge",
+        per_object=False,
+        mask="valid",
+    ),
+    Metric(
+        name="offroad_indication",
+        bucket="map_based",
+        feature="offroad_per_step",
+        per_object=True,
+        mask="valid",
+    ),
     # Pre-2025 configs have no traffic-light metric: it then counts as Bernoulli with weight 0.
     Metric(
-        "traffic_light_violation",
-        "map_based",
-        "traffic_light_violation_per_step",
-        True,
-        "vehicle",
+        name="traffic_light_violation",
+        bucket="map_based",
+        feature="traffic_light_violation_per_step",
+        per_object=True,
+        mask="vehicle",
         config_default="bernoulli {} metametric_weight: 0.0",
     ),
 )
 RATES = (
-    Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate", "Collision rate"),
-    Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate", "Offroad rate"),
+    Rate(
+        name="simulated_collision_rate",
+        feature="collision_per_step",
+        bucket_name="simulated_collision_rate",
+        title="Collision rate",
+    ),
+    Rate(
+        name="simulated_offroad_rate",
+        feature="offroad_per_step",
+        bucket_name="simulated_offroad_rate",
+        title="Offroad rate",
+    ),
     # The official rate counts red lights of every valid object, vehicle or not.
     Rate(
-        "simulated_traffic_light_violation_rate",
-        "traffic_light_violation_per_step",
-        "simulated_traffic_light_violation_rate",
-        "Red-light violation rate",
+        name="simulated_traffic_light_violation_rate",
+        feature="traffic_light_violation_per_step",
+        bucket_name="simulated_traffic_light_violation_rate",
+        title="Red-light violation rate",
     ),
 )
 

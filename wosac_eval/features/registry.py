@@ -109,41 +109,44 @@ _SEGMENT_ARRAYS = (
 
 MAP_PARTS: tuple[MapPart, ...] = (
     MapPart(
-        "road_edges",
-        map_arrays.road_edge_segments,
-        tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
-        + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
-        (Size("road_edge_segments", "start", fine=True),),
+        name="road_edges",
+        build=map_arrays.road_edge_segments,
+        arrays=tuple((name, Pad(size="road_edge_segments")) for name in _SEGMENT_ARRAYS)
+        + tuple((NON_FINITE_PREFIX + name, Pad(size=None)) for name in _SEGMENT_ARRAYS),
+        sizes=(Size(name="road_edge_segments", counted_by="start", fine=True),),
     ),
     MapPart(
-        "red_lights",
-        map_arrays.red_light_arrays,
-        (
-            ("stop_start", Pad("signals", 1)),
-            ("stop_delta", Pad("signals", 1)),
-            ("stop_point", Pad("signals", 1)),
-            ("stopping", Pad("signals", 1)),
+        name="red_lights",
+        build=map_arrays.red_light_arrays,
+        arrays=(
+            ("stop_start", Pad(size="signals", axis=1)),
+            ("stop_delta", Pad(size="signals", axis=1)),
+            ("stop_point", Pad(size="signals", axis=1)),
+            ("stopping", Pad(size="signals", axis=1)),
             # Padded signals' lane rank is neither a lane's nor a point's without lane (-1).
-            ("signal_lane_id", Pad("signals", 0, -2)),
-            ("lane_start", Pad("lane_segments")),
-            ("lane_delta", Pad("lane_segments")),
-            ("lane_valid", Pad("lane_segments")),
-            ("lane_id", Pad("lane_segments")),
+            ("signal_lane_id", Pad(size="signals", axis=0, fill=-2)),
+            ("lane_start", Pad(size="lane_segments")),
+            ("lane_delta", Pad(size="lane_segments")),
+            ("lane_valid", Pad(size="lane_segments")),
+            ("lane_id", Pad(size="lane_segments")),
         ),
-        (Size("signals", "signal_lane_id"), Size("lane_segments", "lane_start", fine=True)),
+        sizes=(
+            Size(name="signals", counted_by="signal_lane_id"),
+            Size(name="lane_segments", counted_by="lane_start", fine=True),
+        ),
     ),
     # Rows past the grid are never looked up; its origin and shape are not padded.
     MapPart(
-        "road_edge_cells",
-        map_arrays.road_edge_cells,
-        (
-            ("cell_origin", Pad(None)),
-            ("cell_shape", Pad(None)),
-            ("cell_candidates", Pad("road_edge_cells")),
-            ("cell_clearance", Pad("road_edge_cells")),
-            ("cell_near_clearance", Pad("road_edge_cells")),
+        name="road_edge_cells",
+        build=map_arrays.road_edge_cells,
+        arrays=(
+            ("cell_origin", Pad(size=None)),
+            ("cell_shape", Pad(size=None)),
+            ("cell_candidates", Pad(size="road_edge_cells")),
+            ("cell_clearance", Pad(size="road_edge_cells")),
+            ("cell_near_clearance", Pad(size="road_edge_cells")),
         ),
-        (Size("road_edge_cells", "cell_clearance", fine=True),),
+        sizes=(Size(name="road_edge_cells", counted_by="cell_clearance", fine=True),),
     ),
 )
 
@@ -308,16 +311,16 @@ def _red_light_violation(c: FeatureContext):
 
 
 OFFICIAL_FEATURES: tuple[Feature, ...] = (
-    Feature("linear_speed", _linear_speed),
-    Feature("linear_acceleration", _linear_acceleration),
-    Feature("angular_speed", _angular_speed),
-    Feature("angular_acceleration", _angular_acceleration),
-    Feature("distance_to_nearest_object", _nearest_object),
-    Feature("collision_per_step", _collision_per_step, "bool"),
-    Feature("time_to_collision", _time_to_collision),
-    Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
-    Feature("offroad_per_step", _offroad_per_step, "bool", needs=("road_edges", "road_edge_cells")),
-    Feature("traffic_light_violation_per_step", _red_light_violation, "bool", needs=("red_lights",)),
+    Feature(name="linear_speed", kernel=_linear_speed),
+    Feature(name="linear_acceleration", kernel=_linear_acceleration),
+    Feature(name="angular_speed", kernel=_angular_speed),
+    Feature(name="angular_acceleration", kernel=_angular_acceleration),
+    Feature(name="distance_to_nearest_object", kernel=_nearest_object),
+    Feature(name="collision_per_step", kernel=_collision_per_step, dtype="bool"),
+    Feature(name="time_to_collision", kernel=_time_to_collision),
+    Feature(name="distance_to_road_edge", kernel=_road_edge_distance, needs=("road_edges", "road_edge_cells")),
+    Feature(name="offroad_per_step", kernel=_offroad_per_step, dtype="bool", needs=("road_edges", "road_edge_cells")),
+    Feature(name="traffic_light_violation_per_step", kernel=_red_light_violation, dtype="bool", needs=("red_lights",)),
 )
 OFFICIAL_FEATURE_NAMES = tuple(f.name for f in OFFICIAL_FEATURES)
 

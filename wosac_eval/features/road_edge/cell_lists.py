@@ -11,18 +11,20 @@ bucket's, built once.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from wosac_eval.features.compiled import cached_loop
 from wosac_eval.features.road_edge.segments import (
+    Gather,
     SegmentTable,
     bucket_coordinate,
     bucket_of,
     gather_ring,
+    gather_workspace,
     planar_distance,
-    ring_buffer,
     rings_around,
 )
 
@@ -33,6 +35,24 @@ NOT_FOUND = OFF_GRID = -1
 NON_FINITE = -2
 
 
+class CellLists(NamedTuple):
+    """The candidate lists of the cells where queries fall, as the search reads them.
+
+    Attributes:
+      centre: float64 `(num_cells, 2)`; half_diagonal: float64 `(num_cells,)`.
+      begin, end: int64 `(num_cells,)`, where each cell's list lies in `segment` (int32) and `key`
+        (float64, sorted within a list); reach: float64 `(num_cells,)`, each cell's R (`cell_lists`).
+    """
+
+    centre: np.ndarray
+    half_diagonal: np.ndarray
+    begin: np.ndarray
+    end: np.ndarray
+    segment: np.ndarray
+    key: np.ndarray
+    reach: np.ndarray
+
+
 @numba.njit
 def rounding_margin(distance, length):
     """How far below the true distance the float32 selection distance can fall (generously)."""
@@ -40,43 +60,27 @@ def rounding_margin(distance, length):
 
 
 @numba.njit(error_model="numpy")
-def _cell_candidates(
-    cx,
-    cy,
-    half_diagonal,
-    min_reach,
-    frame,
-    length,
-    grid,
-    bucket_start,
-    bucket_segments,
-    seen,
-    tag,
-    ring,
-    out_segment,
-    out_key,
-):
-    """Every segment that can be nearest somewhere in a cell, by key; returns (count, clearance).
+def _cell_candidates(cx, cy, half_diagonal, min_reach, segments, buckets, gather, tag):
+    """Every segment that can be nearest somewhere in a cell, by key, into `gather.segment` and
+    `gather.key`; returns (count, clearance).
 
     For a point q within r of the centre c, segment k's planar distance is at least
     P_k(c) - r: segments with P_k(c) - h above R = min_k P_k(c) + h + slack are left out, and a
     query settles when what it found is nearer than what they can reach. The key of a listed
     segment is P_k(c) less its rounding margin; lists are sorted by key.
     """
-    side = grid[2]
-    bi, bj, first, last = rings_around(cx, cy, grid)
+    side = buckets.grid[2]
+    _, _, first, last = rings_around(cx, cy, buckets.grid)
     reach = np.inf  # R
     n = 0
     for r in range(first, last + 1):
         if r > first and (r - 1) * side - half_diagonal > reach:
             break
-        gathered = gather_ring(
-            cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring, out_segment, out_key, n
-        )
+        gathered = gather_ring(cx, cy, r, segments.frame, buckets, gather, tag, n)
         for p in range(n, gathered):
-            reach = min(reach, max(out_key[p] + half_diagonal + _LIST_SLACK, min_reach))
+            reach = min(reach, max(gather.key[p] + half_diagonal + _LIST_SLACK, min_reach))
         n = gathered
-    return _listed(n, reach, half_diagonal, length, out_segment, out_key), reach
+    return _listed(n, reach, half_diagonal, segments.length, gather.segment, gather.key), reach
 
 
 @numba.njit
@@ -102,12 +106,12 @@ def _listed(n, reach, half_diagonal, length, out_segment, out_key):
 
 
 @numba.njit
-def _cell_candidates_among(cx, cy, half_diagonal, frame, length, among, among_key, count, shift, out_segment, out_key):
-    """`_cell_candidates` of a cell inside a square whose list `among[:count]` holds every segment that
-    can be nearest in it (a cell's list is a subset of that of a square around it: its bounds are
-    tighter); returns (count, clearance).
+def _cell_candidates_among(cx, cy, half_diagonal, segments, among, count, shift, gather):
+    """`_cell_candidates` of a cell inside a square whose list `among.segment[:count]` holds every
+    segment that can be nearest in it (a cell's list is a subset of that of a square around it: its
+    bounds are tighter), into `gather.segment` and `gather.key`; returns (count, clearance).
 
-    `among_key` are the square's keys (sorted, each at most the segment's distance from the square's
+    `among.key` are the square's keys (sorted, each at most the segment's distance from the square's
     centre), `shift` the distance between the two centres: a segment's distance from the cell's centre
     is at least its key less `shift`, so the scan stops at the first whose key shows it can be
     neither listed nor nearer than the reach so far (nor can any after it).
@@ -115,19 +119,19 @@ def _cell_candidates_among(cx, cy, half_diagonal, frame, length, among, among_ke
     reach = np.inf
     n = 0
     for p in range(count):
-        if among_key[p] - shift - half_diagonal > reach:
+        if among.key[p] - shift - half_diagonal > reach:
             break
-        k = among[p]
-        d = planar_distance(cx, cy, k, frame)
+        k = among.segment[p]
+        d = planar_distance(cx, cy, k, segments.frame)
         reach = min(reach, d + half_diagonal + _LIST_SLACK)
-        out_segment[n] = k
-        out_key[n] = d
+        gather.segment[n] = k
+        gather.key[n] = d
         n += 1
-    return _listed(n, reach, half_diagonal, length, out_segment, out_key), reach
+    return _listed(n, reach, half_diagonal, segments.length, gather.segment, gather.key), reach
 
 
 @cached_loop
-def query_cells(queries, grid, bucket_start):
+def query_cells(queries, buckets):
     """The cell of each query, numbered as first met, and each cell's centre and half-diagonal.
 
     Cells are an 8th of the bucket side (`_CELLS_PER_BUCKET`: 1 m in 8 m buckets) where the 5 x 5
@@ -138,7 +142,7 @@ def query_cells(queries, grid, bucket_start):
       (cell int64 `(n,)`: `OFF_GRID` for a point off the grid, `NON_FINITE` for one with a NaN
       or infinite coordinate; centre float64 `(num_cells, 2)`; half-diagonal float64 `(num_cells,)`).
     """
-    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = buckets.grid
     n = queries.shape[0]
     cell = np.empty(n, np.int64)  # the bucket first, then the cell
     within = np.empty((n, 2), np.float64)  # where in its bucket a query lies, in [0, 1)
@@ -164,7 +168,7 @@ def query_cells(queries, grid, bucket_start):
     division = np.empty(num_blocks, np.int64)  # cells per bucket side
     for b in range(num_x * num_y):
         if block_of_bucket[b] >= 0:
-            near = _segments_around(b // num_y, b % num_y, 2, grid, bucket_start)
+            near = _segments_around(b // num_y, b % num_y, 2, buckets)
             division[block_of_bucket[b]] = _CELLS_PER_BUCKET if near else 1
     cell_id = np.full((num_blocks, _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), -1, np.int64)
     centre = np.empty((min(n, num_blocks * _CELLS_PER_BUCKET * _CELLS_PER_BUCKET), 2), np.float64)
@@ -193,9 +197,10 @@ def query_cells(queries, grid, bucket_start):
 
 
 @numba.njit
-def _segments_around(bi, bj, r, grid, bucket_start):
+def _segments_around(bi, bj, r, buckets):
     """Whether a bucket within `r` buckets of (bi, bj) lists a segment."""
-    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
+    origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = buckets.grid
+    bucket_start = buckets.start
     for i in range(max(bi - r, 0), min(bi + r, num_x - 1) + 1):
         for j in range(max(bj - r, 0), min(bj + r, num_y - 1) + 1):
             if bucket_start[i * num_y + j + 1] > bucket_start[i * num_y + j]:
@@ -220,85 +225,48 @@ def _parent_buckets(centre, half_diagonal, min_reach, grid):
 
 
 @cached_loop
-def cell_lists(centre, half_diagonal, min_reach, frame, length, grid, bucket_start, bucket_segments):
+def cell_lists(centre, half_diagonal, min_reach, segments, buckets):
     """The candidate list of each cell (`_cell_candidates`), one after the other.
 
+    Args:
+      centre: float64 `(num_cells, 2)`; half_diagonal, min_reach: float64 `(num_cells,)`.
+      segments: the table's `SearchedSegments`; buckets: its `Buckets`.
     Returns:
       (begin, end int64 `(num_cells,)`: where each cell's list lies in segment int32 and key
       float64 `(list entries,)`; reach float64 `(num_cells,)`: the R of each cell).
     """
-    num_cells, num_segments = centre.shape[0], frame.shape[0]
+    num_cells, num_segments = centre.shape[0], segments.frame.shape[0]
     begin, end = np.zeros(num_cells, np.int64), np.zeros(num_cells, np.int64)
     reach = np.empty(num_cells, np.float64)
     segment = np.empty(max(16, 32 * num_cells), np.int32)
     key = np.empty(segment.shape[0], np.float64)
-    seen = np.full(num_segments, -1, np.int64)
-    scratch_segment = np.empty(num_segments, np.int32)
-    scratch_key = np.empty(num_segments, np.float64)
-    ring = ring_buffer(grid)
-    origin_x, origin_y, side = grid[0], grid[1], grid[2]
-    parent = _parent_buckets(centre, half_diagonal, min_reach, grid)
-    order = np.argsort(parent)
-    bucket_list, bucket_key = np.empty(num_segments, np.int32), np.empty(num_segments, np.float64)
+    # The cells' gathers and their buckets' share which segments were seen (under tags of their own).
+    cell = gather_workspace(num_segments, buckets.grid)
+    bucket = Gather(cell.seen, cell.ring, np.empty(num_segments, np.int32), np.empty(num_segments, np.float64))
+    origin_x, origin_y, side, num_y = buckets.grid[0], buckets.grid[1], buckets.grid[2], buckets.grid[4]
+    parent = _parent_buckets(centre, half_diagonal, min_reach, buckets.grid)
     bucket_count, current, used = 0, -2, 0
     bucket_x = bucket_y = 0.0
-    for c in order:
+    for c in np.argsort(parent):
         if parent[c] >= 0 and parent[c] != current:
             current = parent[c]
-            bi, bj = current // grid[4], current % grid[4]
-            bucket_x, bucket_y = origin_x + (bi + 0.5) * side, origin_y + (bj + 0.5) * side
+            bucket_x, bucket_y = origin_x + (current // num_y + 0.5) * side, origin_y + (current % num_y + 0.5) * side
             bucket_count, _ = _cell_candidates(
-                bucket_x,
-                bucket_y,
-                side * math.sqrt(0.5),
-                0.0,
-                frame,
-                length,
-                grid,
-                bucket_start,
-                bucket_segments,
-                seen,
-                num_cells + c,
-                ring,
-                bucket_list,
-                bucket_key,
+                bucket_x, bucket_y, side * math.sqrt(0.5), 0.0, segments, buckets, bucket, num_cells + c
             )
         if parent[c] >= 0:
             shift = math.hypot(centre[c, 0] - bucket_x, centre[c, 1] - bucket_y)
             m, reach[c] = _cell_candidates_among(
-                centre[c, 0],
-                centre[c, 1],
-                half_diagonal[c],
-                frame,
-                length,
-                bucket_list,
-                bucket_key,
-                bucket_count,
-                shift,
-                scratch_segment,
-                scratch_key,
+                centre[c, 0], centre[c, 1], half_diagonal[c], segments, bucket, bucket_count, shift, cell
             )
         else:
             m, reach[c] = _cell_candidates(
-                centre[c, 0],
-                centre[c, 1],
-                half_diagonal[c],
-                min_reach[c],
-                frame,
-                length,
-                grid,
-                bucket_start,
-                bucket_segments,
-                seen,
-                c,
-                ring,
-                scratch_segment,
-                scratch_key,
+                centre[c, 0], centre[c, 1], half_diagonal[c], min_reach[c], segments, buckets, cell, c
             )
         while used + m > segment.shape[0]:
             segment, key = _grown(segment), _grown(key)
-        segment[used : used + m] = scratch_segment[:m]
-        key[used : used + m] = scratch_key[:m]
+        segment[used : used + m] = cell.segment[:m]
+        key[used : used + m] = cell.key[:m]
         begin[c], end[c] = used, used + m
         used += m
     return begin, end, segment[:used], key[:used], reach

@@ -31,6 +31,7 @@ from wosac_eval.features.compiled import cached_loop, compiled
 from wosac_eval.features.road_edge.cell_lists import (
     NON_FINITE,
     NOT_FOUND,
+    CellLists,
     cell_lists,
     query_cells,
     rounding_margin,
@@ -38,12 +39,12 @@ from wosac_eval.features.road_edge.cell_lists import (
 )
 from wosac_eval.features.road_edge.segments import (
     Z_STRETCH,
+    Gather,
     SegmentTable,
     planar_squared,
     ring_buckets,
     ring_buffer,
     rings_around,
-    search_grid,
     segment_distances,
 )
 from wosac_eval.features.spatial import non_finite_pick
@@ -75,14 +76,16 @@ def _selection(px, py, pz, k, start, delta):
 
 
 @cached_loop
-def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, seen, tag, ring, max_length):
-    """The nearest segment of one point by expanding rings of buckets around it (exact, any point).
+def _ring_search(px, py, pz, segments, buckets, gather, tag, max_length):
+    """The nearest segment of one point by expanding rings of buckets around it (exact, any point);
+    `gather.seen` marks the segments met (under `tag`), `gather.ring` holds a ring's buckets.
 
     Before ring r, every segment not met yet crosses only buckets r or more buckets away,
     so it is at least (r - 1) * side away in the plane: the search stops there.
     """
     if not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
         return NON_FINITE, 0
+    grid, ring, seen = buckets.grid, gather.ring, gather.seen
     side = grid[2]
     bi, bj, first, last = rings_around(np.float64(px), np.float64(py), grid)
     best, best_k, evaluated = np.float32(np.inf), NOT_FOUND, 0
@@ -90,12 +93,12 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
         if r > first and (r - 1) * side > best + rounding_margin(best, max_length):
             break
         for q in range(ring_buckets(bi, bj, r, grid, ring)):
-            for p in range(bucket_start[ring[q]], bucket_start[ring[q] + 1]):
-                k = bucket_segments[p]
+            for p in range(buckets.start[ring[q]], buckets.start[ring[q] + 1]):
+                k = buckets.segments[p]
                 if seen[k] == tag:
                     continue
                 seen[k] = tag
-                d = _selection(px, py, pz, k, start, delta)
+                d = _selection(px, py, pz, k, segments.start, segments.delta)
                 evaluated += 1
                 if d < best or (d == best and k < best_k):
                     best, best_k = d, k
@@ -103,10 +106,8 @@ def _ring_search(px, py, pz, start, delta, grid, bucket_start, bucket_segments, 
 
 
 @cached_loop
-def _search_lists(
-    queries, cell, centre, half_diagonal, begin, end, segment, key, reach, max_length, start, delta, frame, hint_stride
-):
-    """The nearest segment of each query among its cell's list.
+def _search_lists(queries, cell, lists, segments, max_length, hint_stride):
+    """The nearest segment of each query among its cell's list (`lists`: `cell_lists.CellLists`).
 
     The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
     the order `box_distance_to_road_edge` gives) is evaluated first: usually the answer, so that
@@ -121,6 +122,8 @@ def _search_lists(
       cell's list needs to settle all its queries, 0 where it does; the number of distances
       evaluated).
     """
+    centre, half_diagonal, begin, end, segment, key, reach = lists
+    start, delta, frame = segments.start, segments.delta, segments.frame
     out = np.empty(queries.shape[0], np.int64)
     needed = np.zeros(centre.shape[0], np.float64)
     evaluated = 0
@@ -166,26 +169,15 @@ def _search_lists(
 
 
 @cached_loop
-def _ring_searches(queries, found, start, delta, grid, bucket_start, bucket_segments, max_length):
+def _ring_searches(queries, found, segments, buckets, max_length):
     """`_ring_search` for every query `found` left `NOT_FOUND` (in place); returns the distances evaluated."""
-    seen = np.full(start.shape[0], -1, np.int64)
-    ring = ring_buffer(grid)
+    none = np.empty(0, np.int32), np.empty(0, np.float64)  # the ring search keeps no gathered list
+    gather = Gather(np.full(segments.start.shape[0], -1, np.int64), ring_buffer(buckets.grid), *none)
     evaluated = 0
     for i in range(queries.shape[0]):
         if found[i] == NOT_FOUND:
             found[i], count = _ring_search(
-                queries[i, 0],
-                queries[i, 1],
-                queries[i, 2],
-                start,
-                delta,
-                grid,
-                bucket_start,
-                bucket_segments,
-                seen,
-                i,
-                ring,
-                max_length,
+                queries[i, 0], queries[i, 1], queries[i, 2], segments, buckets, gather, i, max_length
             )
             evaluated += count
     return evaluated
@@ -205,37 +197,23 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
       int64 `(n,)`: a segment, `NOT_FOUND` when no segment is listed, `NON_FINITE` for a point
       with a NaN or infinite coordinate.
     """
-    grid = search_grid(table.bucket_origin, table.bucket_side, table.bucket_shape, table.segment_buckets)
-    cell, centre, half_diagonal = query_cells(queries, grid, table.bucket_start)
+    buckets, segments = table.buckets(), table.searched()
+    cell, centre, half_diagonal = query_cells(queries, buckets)
     cell, centre, half_diagonal = with_far_cells(queries, cell, centre, half_diagonal, table)
     max_length = float(table.length[table.bucket_segments].max(initial=0.0))
     work = {"cells": 0, "pairs evaluated": 0}
 
     def search(rows, cells, min_reach):
-        lists = cell_lists(
+        lists = CellLists(
             centre[cells],
             half_diagonal[cells],
-            min_reach,
-            table.frame,
-            table.length,
-            grid,
-            table.bucket_start,
-            table.bucket_segments,
+            *cell_lists(centre[cells], half_diagonal[cells], min_reach, segments, buckets),
         )
         number = np.full(len(centre) + 2, -1, np.int64)
         number[cells] = np.arange(len(cells))
         number[NON_FINITE] = NON_FINITE  # the codes of queries without a cell stay
         found, needed, evaluated = _search_lists(
-            queries[rows],
-            number[cell[rows]],
-            centre[cells],
-            half_diagonal[cells],
-            *lists,
-            max_length,
-            table.start,
-            table.delta,
-            table.frame,
-            hint_stride,
+            queries[rows], number[cell[rows]], lists, segments, max_length, hint_stride
         )
         work["cells"] += len(cells)
         work["pairs evaluated"] += evaluated
@@ -252,9 +230,7 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
             again = np.flatnonzero((found == NOT_FOUND) & np.isin(cell, grow))
             found[again] = search(again, grow, needed[grow])[0]
     if (found == NOT_FOUND).any():
-        work["pairs evaluated"] += _ring_searches(
-            queries, found, table.start, table.delta, grid, table.bucket_start, table.bucket_segments, max_length
-        )
+        work["pairs evaluated"] += _ring_searches(queries, found, segments, buckets, max_length)
     if counts is not None:
         counts.update(work)
     return found

@@ -65,9 +65,9 @@ RUN pip install --no-cache-dir --disable-pip-version-check --no-index --no-deps 
     && mkdir -p /data /scenarios "$NUMBA_CACHE_DIR" \
     && chown wosac:wosac /data "$NUMBA_CACHE_DIR"
 USER wosac
-# The compiled search loops, built once here into the image's numba cache (numba compiles a loop on
-# its first call; otherwise the first job of every container would take about half a minute more).
-RUN python3 -c "from wosac_eval.features.search import compile_searches; compile_searches()"
+# The compiled loops (searches, wire walks, criticality), built once here into the image's numba cache (numba
+# compiles a loop on its first call; otherwise the first job of every container would take half a minute more).
+RUN python3 -c "from wosac_eval.scoring.warm_up import compile_loops; compile_loops()"
 WORKDIR /data
 VOLUME ["/data"]
 EXPOSE 8000

@@ -62,7 +62,7 @@ def pytest_configure(config):
     core here), and caches them on disk beside the package. On a fresh installation (CI's, a newcomer's
     first run) every process that starts before one has written the cache compiles them too: both xdist
     workers, each process of a Ray cluster, the documents' commands (4 min more CPU in the README's test
-    command). So an xdist run's controller compiles them first (`compile_searches`; about 1 s when
+    command). So an xdist run's controller compiles them first (`scoring.warm_up.compile_loops`; about 1 s when
     cached), while the workers start, and the tests wait for it (`pytest_runtestloop` below). For the
     installed package (`-I`: not this tree beside it), which every process of the tests imports: the
     test processes, the console scripts they run (`support.runs`) and the service harness's servers."""
@@ -70,7 +70,7 @@ def pytest_configure(config):
         return
     if not getattr(config.option, "numprocesses", None):
         return
-    warm_up = "from wosac_eval.features.search import compile_searches; compile_searches()"
+    warm_up = "from wosac_eval.scoring.warm_up import compile_loops; compile_loops()"
     config.stash[_NUMBA_WARM_UPS] = [
         subprocess.Popen(
             [sys.executable, "-I", "-c", warm_up], cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL

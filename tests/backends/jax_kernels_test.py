@@ -16,9 +16,21 @@ import jax
 import jax.numpy as jnp
 
 from wosac_eval.backends import jax_backend, jax_driver
-from wosac_eval.features import box_geometry, dense, following, interaction, map_arrays, road_edge, traffic_lights
+from wosac_eval.features import (
+    box_geometry,
+    dense,
+    dense_chunks,
+    dense_road_edge,
+    following,
+    interaction,
+    map_arrays,
+    road_edge,
+    traffic_lights,
+)
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.ops import fma32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
+from wosac_eval.features.spatial import NON_FINITE_PREFIX
 from wosac_eval.features.xp import array_namespace, divide
 
 F = np.float32
@@ -122,8 +134,9 @@ def test_time_to_collision_dense_equals_numpy():
     length, width = np.full((objects, steps), F(4.5)), np.full((objects, steps), F(2.0))
     valid = rng.random((objects, steps)) < 0.9
     steps_eval = slice(1, steps)
+    boxes = {"x": x, "y": y, "length": length, "width": width, "heading": heading, "valid": valid}
     expected = following.time_to_collision(
-        x, y, length, width, heading, valid, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval
+        TimeToCollisionInputs(**boxes, num_evaluated=evaluated, seconds_per_step=0.1, steps=steps_eval)
     )
     assert (expected < following.MAXIMUM_TIME_TO_COLLISION).any()
     from wosac_eval.features.float32_math import packet_tail
@@ -163,19 +176,19 @@ def test_road_edge_dense_equals_numpy():
     ).astype(F)
     expected = road_edge.signed_distance_to_polylines(table, queries)
     segments = map_arrays.segment_table_arrays(table)
-    got = jitted(dense.signed_distance_to_road_edge, queries, segments)
+    got = jitted(dense_road_edge.signed_distance_to_road_edge, queries, segments)
     np.testing.assert_array_equal(got, expected)
     # Padded segments and a small chunk (several lax.map steps) change nothing.
     padded = {
-        k: v if k in dense.CELL_KEYS or k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, 64, 0)
+        k: v if k in dense_road_edge.CELL_KEYS or k.startswith(NON_FINITE_PREFIX) else jax_driver.pad_axis(v, 64, 0)
         for k, v in segments.items()
     }
-    old = dense.PAIRS_PER_CHUNK
-    dense.PAIRS_PER_CHUNK = 64 * 100
+    old = dense_chunks.PAIRS_PER_CHUNK
+    dense_chunks.PAIRS_PER_CHUNK = 64 * 100
     try:
-        np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
+        np.testing.assert_array_equal(jitted(dense_road_edge.signed_distance_to_road_edge, queries, padded), expected)
     finally:
-        dense.PAIRS_PER_CHUNK = old
+        dense_chunks.PAIRS_PER_CHUNK = old
 
 
 def random_road_edges(rng, count):
@@ -193,7 +206,7 @@ def random_road_edges(rng, count):
 
 def test_road_edge_segments_shared_by_a_stack_of_scenes_change_nothing():
     """`jax_driver.vmap_scenes` gathers every scene's candidates from one table of the stack's segments
-    (`dense.shared_segments`): each scene's distances are still its own, padding and fallback included."""
+    (`dense_road_edge.shared_segments`): each scene's distances are still its own, padding and fallback included."""
     rng = np.random.default_rng(11)
     scenes = []
     for count in (12, 20):
@@ -205,14 +218,16 @@ def test_road_edge_segments_shared_by_a_stack_of_scenes_change_nothing():
     arrays = [map_arrays.segment_table_arrays(table) for _, _, table in scenes]
     sizes = {k: max(a[k].shape[0] for a in arrays) for k in arrays[0]}
     padded = [
-        {k: v if k.startswith(dense.NON_FINITE_PREFIX) else jax_driver.pad_axis(v, sizes[k], 0) for k, v in a.items()}
+        {k: v if k.startswith(NON_FINITE_PREFIX) else jax_driver.pad_axis(v, sizes[k], 0) for k, v in a.items()}
         for a in arrays
     ]
     assert padded[0]["start"].shape[0] > len(scenes[0][2].start)  # the smaller scene is padded
     stack = jax_driver.stacked(padded)
-    _, axes = dense.shared_segments(stack)
+    _, axes = dense_road_edge.shared_segments(stack)
     assert axes["shared_start"] is None and axes["start"] == 0  # one table, not one per scene
-    got = jitted(jax_driver.vmap_scenes(dense.signed_distance_to_road_edge), np.stack([q for _, q, _ in scenes]), stack)
+    got = jitted(
+        jax_driver.vmap_scenes(dense_road_edge.signed_distance_to_road_edge), np.stack([q for _, q, _ in scenes]), stack
+    )
     for (expected, _, _), distances in zip(scenes, got):
         np.testing.assert_array_equal(distances, expected)
 
@@ -234,12 +249,12 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     far = rng.uniform([-5e3, -5e3, -50], [5e3, 5e3, 50], (200, 3))
     queries = np.concatenate([on_map, on_segments, elevated, far]).astype(F)
     expected = road_edge.signed_distance_to_polylines(table, queries)
-    monkeypatch.setattr(dense, "FALLBACK_CHUNK", 64)  # several fallback rounds
-    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, segments), expected)
-    seg = {k: v for k, v in segments.items() if k not in dense.CELL_KEYS}
-    cell = {k: segments[k] for k in dense.CELL_KEYS}
-    best, settled = jitted(dense._nearest_listed_segment, queries, seg, cell)
-    brute = jitted(dense._nearest_segment_all, queries, seg)
+    monkeypatch.setattr(dense_road_edge, "FALLBACK_CHUNK", 64)  # several fallback rounds
+    np.testing.assert_array_equal(jitted(dense_road_edge.signed_distance_to_road_edge, queries, segments), expected)
+    seg = {k: v for k, v in segments.items() if k not in dense_road_edge.CELL_KEYS}
+    cell = {k: segments[k] for k in dense_road_edge.CELL_KEYS}
+    best, settled = jitted(dense_road_edge._nearest_listed_segment, queries, seg, cell)
+    brute = jitted(dense_road_edge._nearest_segment_all, queries, seg)
     np.testing.assert_array_equal(best[settled], brute[settled])
     assert 0 < settled.sum() < len(queries)  # both the tables and the fallback ran
     print(f"{candidates} candidates per cell: {settled.mean():.1%} of the queries settled by the table")
@@ -247,13 +262,13 @@ def test_road_edge_cell_search_never_misses_the_nearest(monkeypatch, candidates)
     # Padded segments and grid rows change nothing; unneeded queries are never searched exhaustively.
     padded = {
         k: v
-        if k in ("cell_origin", "cell_shape") or k.startswith(dense.NON_FINITE_PREFIX)
+        if k in ("cell_origin", "cell_shape") or k.startswith(NON_FINITE_PREFIX)
         else jax_driver.pad_axis(v, len(v) + 50, 0)
         for k, v in segments.items()
     }
-    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, padded), expected)
+    np.testing.assert_array_equal(jitted(dense_road_edge.signed_distance_to_road_edge, queries, padded), expected)
     needed = rng.random(len(queries)) < 0.5
-    got = jitted(lambda q, n: dense.signed_distance_to_road_edge(q, segments, n), queries, needed)
+    got = jitted(lambda q, n: dense_road_edge.signed_distance_to_road_edge(q, segments, n), queries, needed)
     np.testing.assert_array_equal(got[needed], expected[needed])
 
 
@@ -404,7 +419,7 @@ def test_road_edge_of_a_non_finite_point_is_the_official_padding_pick():
     np.testing.assert_array_equal(got[:5], want[:5])
     assert np.isfinite(got[5]) and abs(got[5]) < 100
     segments = map_arrays.segment_table_arrays(table)
-    np.testing.assert_array_equal(jitted(dense.signed_distance_to_road_edge, queries, segments), got)
+    np.testing.assert_array_equal(jitted(dense_road_edge.signed_distance_to_road_edge, queries, segments), got)
 
 
 @pytest.mark.parametrize("challenge", ["sim_agents", "scenario_gen"])

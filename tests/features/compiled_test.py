@@ -16,12 +16,12 @@ from wosac_eval.features import (
     interaction,
     ops,
     road_edge,
-    search,
     traffic_lights,
 )
-from wosac_eval.features.road_edge import cell_tables, pruned_search, segments, signed_distance
+from wosac_eval.features.road_edge import cell_lists, cell_tables, pruned_search, segments, signed_distance
 from wosac_eval.parse import wire_walks as walks
 from wosac_eval.analysis import criticality_features
+from wosac_eval.scoring import warm_up
 
 F = np.float32
 
@@ -121,7 +121,7 @@ def test_cached_loops_are_named_after_the_kernels_digest():
     # Also the loops that call numba functions of another file (numba's cache checks the loop's file only).
     for loop in (
         pruned_search._search_lists,
-        pruned_search._query_cells,
+        cell_lists.query_cells,
         cell_tables._cell_table,
         interaction._nearest_object_search,
         following._followed_search,
@@ -130,8 +130,9 @@ def test_cached_loops_are_named_after_the_kernels_digest():
         assert loop.py_func.__qualname__.endswith(f"__kernels_{digest}")
 
 
-def test_compile_searches_covers_what_scoring_calls():
-    """After `compile_searches`, scoring and validating a scene compile nothing more (the same argument types)."""
+def test_compile_loops_covers_what_scoring_calls():
+    """After `scoring.warm_up.compile_loops`, scoring and validating a scene compile nothing more (the same
+    argument types)."""
     from wosac_eval.metrics.config import load_config
     from wosac_eval.scoring.scenario import score_scenario
     from wosac_eval.sim import scenes
@@ -141,10 +142,10 @@ def test_compile_searches_covers_what_scoring_calls():
     from wosac_eval.sim.baselines import policy_rollouts
     from wosac_eval.validate.rules import check_scenario_rollouts
 
-    search.compile_searches()
+    warm_up.compile_loops()
     loops = [
-        pruned_search._query_cells,
-        pruned_search._cell_lists,
+        cell_lists.query_cells,
+        cell_lists.cell_lists,
         pruned_search._search_lists,
         pruned_search._ring_searches,
         signed_distance._signed_distances,

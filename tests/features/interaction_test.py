@@ -7,6 +7,7 @@ import pytest
 
 from wosac_eval.features import following, interaction
 from wosac_eval.features.float32_math import cos32, sin32
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 
 F = np.float32
 
@@ -136,6 +137,12 @@ INNER = slice(1, 4)  # speeds need both neighbours
 T = np.arange(STEPS, dtype=F)
 
 
+def time_to_collision(x, y, length, width, heading, valid, **options):
+    """`following.time_to_collision` of these arrays (`options`: the other `TimeToCollisionInputs` fields)."""
+    boxes = {"x": x, "y": y, "length": length, "width": width, "heading": heading, "valid": valid}
+    return following.time_to_collision(TimeToCollisionInputs(**boxes, **options))
+
+
 def ttc(*tracks, num_evaluated=1, valid=None):
     """Tracks are (x(t), y(t), length, width, heading) with x, y arrays over STEPS."""
     x = np.stack([np.broadcast_to(np.asarray(tr[0], F), (STEPS,)) for tr in tracks])
@@ -143,7 +150,7 @@ def ttc(*tracks, num_evaluated=1, valid=None):
     length, width, heading = (np.stack([np.full(STEPS, tr[k], F) for tr in tracks]) for k in (2, 3, 4))
     if valid is None:
         valid = np.ones(x.shape, bool)
-    return following.time_to_collision(
+    return time_to_collision(
         x,
         y,
         length,
@@ -265,7 +272,7 @@ def test_all_steps_with_nan_speeds_at_the_ends():
     leader = (F(12) + F(2.5) * T, 0.0, 4.0, 2.0, 0.0)
     x = np.stack([FOLLOWER[0], leader[0]])
     zeros = np.zeros_like(x)
-    full = following.time_to_collision(
+    full = time_to_collision(
         x, zeros, zeros + 4, zeros + 2, zeros, np.ones(x.shape, bool), num_evaluated=1, seconds_per_step=DT
     )
     assert full.shape == (1, STEPS)
@@ -304,12 +311,12 @@ def test_chunks_over_samples_give_the_same_results(monkeypatch):
     whole_nearest = interaction.distance_to_nearest_object(*nearest_args)
     ttc_args = (x, y, length, width, heading, valid)
     ttc_options = {"num_evaluated": 4, "seconds_per_step": 0.1, "steps": steps}
-    whole_ttc = following.time_to_collision(*ttc_args, **ttc_options)
+    whole_ttc = time_to_collision(*ttc_args, **ttc_options)
     assert (whole_ttc < following.MAXIMUM_TIME_TO_COLLISION).any()
     monkeypatch.setattr(interaction, "PAIRS_PER_CHUNK", 4 * 12 * 91 * 2)  # two samples per chunk
     assert len(interaction._sample_chunks(5, 4 * 12 * 91)) == 3
     np.testing.assert_array_equal(interaction.distance_to_nearest_object(*nearest_args), whole_nearest)
-    np.testing.assert_array_equal(following.time_to_collision(*ttc_args, **ttc_options), whole_ttc)
+    np.testing.assert_array_equal(time_to_collision(*ttc_args, **ttc_options), whole_ttc)
 
 
 def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, speed):
@@ -325,7 +332,7 @@ def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, sp
         ahead, beside, yaw_diff = following.ego_frame_offsets(
             t(x), t(y), t(length), t(width), t(heading), ego_cos, ego_sin, num_evaluated
         )
-        out = following.all_objects_time_to_collision(
+        pairs = following.FollowedPairs(
             ahead,
             beside,
             yaw_diff,
@@ -333,9 +340,8 @@ def all_objects_reference(x, y, length, width, heading, valid, num_evaluated, sp
             t(length)[..., None, :],
             t(width)[..., None, :],
             t(valid)[..., None, :],
-            t(speed),
-            num_evaluated,
         )
+        out = following.all_objects_time_to_collision(pairs, t(speed), num_evaluated)
     return t(out)
 
 
@@ -353,9 +359,7 @@ def test_pruned_search_equals_all_objects_with_nan_and_infinite_speeds():
     speed[0, 3, 7] = np.nan
     speed[1, 0, 12] = np.inf
     speed[2, 5, 20] = -np.inf
-    got = following.time_to_collision(
-        x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1, speed=speed
-    )
+    got = time_to_collision(x, y, length, width, heading, valid, num_evaluated=4, seconds_per_step=0.1, speed=speed)
     want = all_objects_reference(x, y, length, width, heading, valid, 4, speed)
     assert (got < following.MAXIMUM_TIME_TO_COLLISION).any()
     np.testing.assert_array_equal(got, want)
@@ -372,7 +376,7 @@ def test_an_infinite_speed_where_nothing_is_followed_is_the_official_zero():
     speed[0, 2] = np.inf
     valid = np.ones(x.shape, bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        got = following.time_to_collision(
+        got = time_to_collision(
             x, zeros, zeros + 4, zeros + 2, zeros, valid, num_evaluated=1, seconds_per_step=0.1, speed=speed
         )
     want = all_objects_reference(x, zeros, zeros + 4, zeros + 2, zeros, valid, 1, speed)

@@ -37,12 +37,12 @@ def step_length(context: registry.FeatureContext):
 
 
 STEP_LENGTH = registry.Feature(
-    "step_length",
-    step_length,
+    name="step_length",
+    kernel=step_length,
     metric=metric_registry.Metric(
-        "step_length",
-        "kinematic",
-        "step_length",
+        name="step_length",
+        bucket="kinematic",
+        feature="step_length",
         per_object=False,
         mask="speed",
         official=False,

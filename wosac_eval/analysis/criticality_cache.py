@@ -33,6 +33,7 @@ from pathlib import Path
 
 import google_crc32c
 
+from wosac_eval import __version__
 from wosac_eval.runtime.cache_dirs import configured_cache
 
 ENV = "WOSAC_CRITICALITY_CACHE"
@@ -54,8 +55,6 @@ RATED_BY = ("wosac_eval.analysis.criticality_features", "wosac_eval.analysis.cri
 def code_version() -> str:
     """The version of the code that computes a scene's criticality, as it is installed: the package's
     version and the source of the modules `RATED_BY` names (read as files, not imported)."""
-    from wosac_eval import __version__
-
     digest = hashlib.sha256(__version__.encode())
     for name in RATED_BY:
         spec = importlib.util.find_spec(name)

@@ -38,6 +38,9 @@ import numpy as np
 from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
 from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.challenges import STEP_SECONDS
+from wosac_eval.features.metric_features import map_context
+from wosac_eval.features.road_edge import signed_distance_to_polylines
+from wosac_eval.features.search import PrunedSearch
 
 RATE_HALF_WINDOW = 2  # steps each side of a central difference
 MOVING_SPEED = 2.0  # m/s: the yaw of slower objects is mostly heading noise
@@ -278,9 +281,6 @@ def _grown(values, capacity):
 
 def map_events(log, movers: np.ndarray, context, signals) -> tuple[np.ndarray, np.ndarray]:
     """Per-step off-road distance (m, NaN between tested steps) and red-light running of the moving vehicles."""
-    from wosac_eval.features.road_edge import signed_distance_to_polylines
-    from wosac_eval.features.search import PrunedSearch
-
     steps = log.num_steps
     offroad, red = np.full(steps, np.nan), np.zeros(steps, dtype=bool)
     if not movers.any():
@@ -304,8 +304,6 @@ def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityF
 
     context: the scenario's `MapContext` when the caller has built it already (scoring has).
     """
-    from wosac_eval.features.metric_features import map_context
-
     log = scenario.log.take_ids(scenario.sim_agent_ids)
     types = np.asarray(log.object_type)
     moving = np.isin(types, (TYPE_VEHICLE, TYPE_CYCLIST))
@@ -319,6 +317,6 @@ def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityF
 
 def compile_loops() -> None:
     """Compiles `pairwise_interaction`'s loop now (or loads it from numba's cache), for the argument types
-    scoring passes: called by `features.search.compile_searches`."""
+    scoring passes: called by `scoring.warm_up.compile_loops`."""
     f, b, i = np.zeros((2, 3)), np.ones((2, 3), bool), np.zeros(1, np.int64)
     _pair_entries(i, i + 1, f, f, f, f, b, b, f + 4, f + 2, f, f, np.full(3, np.inf), np.zeros(3))

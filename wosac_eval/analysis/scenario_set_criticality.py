@@ -15,7 +15,16 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
+from wosac_eval.analysis import criticality_cache
+from wosac_eval.analysis.criticality_features import criticality_features
+from wosac_eval.analysis.criticality_scores import (
+    LONG_TAIL_QUANTILE,
+    scene_criticality,
+    set_histogram,
+    step_criticality,
+    with_rarity,
+)
+from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.runtime.executors import make_executor
 
@@ -34,11 +43,6 @@ class CriticalityTask:
 def rate_scenarios(index: ScenarioIndex, task: CriticalityTask) -> list[dict]:
     """The heuristic criticality of each scenario of a task (`scene_criticality`, plus `steps` if asked); a
     scene rated by an earlier run (`analysis.criticality_cache`) is not rated again unless `steps` are asked."""
-    from wosac_eval.analysis import criticality_cache
-    from wosac_eval.analysis.criticality_features import criticality_features
-    from wosac_eval.analysis.criticality_scores import scene_criticality, step_criticality
-    from wosac_eval.arrays.scenario import record_arrays
-
     out, computed = [], []
     for sid in task.scenario_ids:
         record = index.load_record(sid)

@@ -56,7 +56,7 @@ from wosac_eval.backends.jax_driver import (  # noqa: F401
     vmap_scenes,
 )
 from wosac_eval.features import metric_features as mf
-from wosac_eval.features.map_arrays import scene_map_arrays
+from wosac_eval.features.registry import scene_map_arrays
 
 EXACT_CPU_FLAG = "--xla_cpu_max_isa=AVX"  # XLA's CPU code without FMA: every float32 op rounded alone
 
@@ -145,7 +145,7 @@ class PreparedScenario:
 def map_arrays(
     scenario: ScenarioArrays, context: mf.MapContext, layout: mf.FeatureLayout, num_steps: int, cells: bool = True
 ) -> dict:
-    """The dense search's unpadded map arrays of a scenario (`features.map_arrays.scene_map_arrays`)."""
+    """The dense search's unpadded map arrays of a scenario (`features.registry.scene_map_arrays`)."""
     return scene_map_arrays(scenario, context, layout, num_steps, cells)
 
 

@@ -18,9 +18,10 @@ import gc
 import jax
 import numpy as np
 
-from wosac_eval.features import dense, registry
+from wosac_eval.backends.host_search import HostSearch
+from wosac_eval.features import dense, dense_road_edge, registry
 from wosac_eval.features import metric_features as mf
-from wosac_eval.features.map_arrays import scene_map_arrays
+from wosac_eval.features.registry import scene_map_arrays
 from wosac_eval.features.search_strategy import SearchStrategy
 
 MIN_BUCKET = 8
@@ -237,7 +238,7 @@ def stacked(scenes: list):
 def vmap_scenes(one):
     """`jax.vmap` of `one` over the leading scene axis of every argument, where each stack of padded
     map arrays (a dict with road-edge cell tables) enters with its segments shared
-    (`dense.shared_segments`): the same result, fewer bytes moved. Call it inside the `jit`."""
+    (`dense_road_edge.shared_segments`): the same result, fewer bytes moved. Call it inside the `jit`."""
 
     def batched(*args):
         shared, axes = zip(*map(_shared_maps, args))
@@ -247,11 +248,11 @@ def vmap_scenes(one):
 
 
 def _shared_maps(tree):
-    """(tree, its `in_axes`): 0 for every leaf, but `dense.shared_segments` for map arrays."""
+    """(tree, its `in_axes`): 0 for every leaf, but `dense_road_edge.shared_segments` for map arrays."""
     if not isinstance(tree, dict):
         return tree, 0
     if "cell_candidates" in tree:
-        return dense.shared_segments(tree)
+        return dense_road_edge.shared_segments(tree)
     pairs = {k: _shared_maps(v) for k, v in tree.items()}
     return {k: v for k, (v, _) in pairs.items()}, {k: axes for k, (_, axes) in pairs.items()}
 
@@ -275,7 +276,5 @@ def device_features(
     if host is None:
         search = dense.DenseSearch(maps)
     else:
-        from wosac_eval.backends.host_search import HostSearch
-
         search = HostSearch(host, scene)
     return mf.per_step_features(traj, layout, search, tails, features)

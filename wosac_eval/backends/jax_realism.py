@@ -26,6 +26,9 @@ bit-identical on CPU (with `jax_backend.exact_cpu()`), and needs x64 on while
 tracing. The default follows the trace: "exact" under x64, else "float32". The
 mode is recorded in what `realism` returns.
 
+The module is the public face and the device side: `prepare` (the host side) is `realism_prepare`'s, and
+`PreparedScenes` and `Realism` are `realism_types`'s.
+
 In a training step, pass `prepared` to your `jax.jit` as an argument: closed
 over, its arrays become constants of the compiled program (`realism_inputs`:
 `jit_step`, the rollouts' layout and checks).
@@ -34,26 +37,22 @@ over, its arrays become constants of the compiled program (`realism_inputs`:
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import functools
-from collections.abc import Mapping
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.arrays.samples import log_sample, official_object_order
-from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
-from wosac_eval.arrays.trajectories import index_of_ids
 from wosac_eval.backends import jax_driver
 from wosac_eval.backends.exact_rounding import exactly_rounded
 from wosac_eval.backends.host_search import HostSearches
-from wosac_eval.backends.jax_driver import SceneInputs, Sizes, device_features, padded_inputs, scene_inputs, stacked
+from wosac_eval.backends.jax_driver import device_features
 from wosac_eval.backends.realism_inputs import POSITIONS, SIZES, rollout_fields, take_scenes
+from wosac_eval.backends.realism_prepare import prepare
+from wosac_eval.backends.realism_types import PreparedScenes, Realism
 from wosac_eval.features import metric_features as mf
 from wosac_eval.features import registry
-from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.xp import float32_precision
 from wosac_eval.metrics.config import load_config
 from wosac_eval.metrics.registry import active_likelihood_fields, active_metrics
@@ -64,6 +63,8 @@ from wosac_eval.metrics.scenario_metrics import (
     scenario_fields,
 )
 from wosac_eval.options import Mode, Search
+
+__all__ = ["MODES", "SEARCHES", "PreparedScenes", "Realism", "features", "prepare", "realism", "resolve_mode"]
 
 _F = np.float32
 MODES = Mode.names()
@@ -92,275 +93,6 @@ def resolve_mode(mode: str | None = None) -> str:
 def _precision(mode: str):
     """The context the kernels are traced in for `mode` (see `xp.wide_float`)."""
     return float32_precision() if mode == "float32" else contextlib.nullcontext()
-
-
-@jax.tree_util.register_pytree_node_class
-@dataclasses.dataclass(frozen=True)
-class Realism(Mapping):
-    """What `realism` returns: field name -> `(num_scenes,)` array, and the precision it ran in.
-
-    A read-only mapping (`out["metametric"]`, `dict(out)`) and a pytree (it leaves `jit`, `vmap`,
-    `tree_map` with its mode), so a training step returns it or any of its values.
-
-    Attributes:
-      metrics: every `SimAgentMetrics` field (`metrics.scenario_metrics.SCENARIO_FIELDS`) -> array.
-      mode: "exact" or "float32" (see the module).
-      per_object: with `realism(..., per_object=True)`, every likelihood field -> float32
-        `(num_scenes, max_agents)` in the rollouts' column order (`prepared.sim_agent_ids`): each
-        evaluated object's likelihood (`scenario_metrics.per_object_likelihoods`), NaN in the other
-        columns; else None.
-      per_object_counts: the same fields -> int32 `(num_scenes, max_agents)`: each object's counted
-        samples, 0 in the other columns (the scene's field is the count-weighted geometric mean of
-        `per_object`); else None.
-    """
-
-    metrics: dict
-    mode: str
-    per_object: dict | None = None
-    per_object_counts: dict | None = None
-
-    def __getitem__(self, name):
-        return self.metrics[name]
-
-    def __iter__(self):
-        return iter(self.metrics)
-
-    def __len__(self) -> int:
-        return len(self.metrics)
-
-    def tree_flatten(self):
-        return (self.metrics, self.per_object, self.per_object_counts), (self.mode,)
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        metrics, per_object, counts = children
-        (mode,) = aux
-        return cls(metrics, mode, per_object=per_object, per_object_counts=counts)
-
-
-@jax.tree_util.register_pytree_node_class
-@dataclasses.dataclass(frozen=True)
-class PreparedScenes:
-    """Scenes ready for `realism`: a pytree whose leaves are device arrays.
-
-    Scenes of similar sizes form a group (`groups`): the scenes of a group are padded to the group's
-    largest and run as one `vmap`ped computation, so a small scene does not pay for the largest one.
-
-    Attributes:
-      arrays: per group, the device arrays (log, map, masks, column order) with a leading scene axis.
-      groups: per group, (indices of its scenes in `scenario_ids`, its padded `FeatureLayout`).
-      scenario_ids: the scenes' ids, in order.
-      agent_ids: per scene, the sim agents' ids in the column order `realism` expects.
-      challenge: "sim_agents" or "scenario_gen".
-      config: the metrics config preset or textproto path.
-      host_searches: the scenes' numpy searches where the searches run on the host (`prepare`'s
-        `search`), else None.
-    """
-
-    arrays: tuple
-    groups: tuple
-    scenario_ids: tuple
-    agent_ids: tuple
-    challenge: str
-    config: str
-    host_searches: HostSearches | None = None
-
-    @property
-    def search(self) -> str:
-        """Where the nearest-thing searches run: "host" (compiled, pruned) or "device" (fixed shapes)."""
-        return "device" if self.host_searches is None else "host"
-
-    def tree_flatten(self):
-        return (self.arrays,), (
-            self.groups,
-            self.scenario_ids,
-            self.agent_ids,
-            self.challenge,
-            self.config,
-            self.host_searches,
-        )
-
-    @classmethod
-    def tree_unflatten(cls, aux, children):
-        return cls(children[0], *aux)
-
-    @property
-    def layout(self) -> mf.FeatureLayout:
-        """The layout of the group with the most evaluated rows."""
-        return max((layout for _, layout in self.groups), key=lambda g: g.num_evaluated)
-
-    @property
-    def num_scenes(self) -> int:
-        return len(self.scenario_ids)
-
-    @property
-    def max_agents(self) -> int:
-        return max((len(ids) for ids in self.agent_ids), default=0)
-
-    @property
-    def num_steps(self) -> int:
-        return challenges.spec(self.challenge).num_simulation_steps
-
-    @property
-    def sim_agent_ids(self) -> np.ndarray:
-        """int64 `(num_scenes, max_agents)`: the object of each column of the rollout arrays, -1 for padding."""
-        out = np.full((self.num_scenes, self.max_agents), -1, dtype=np.int64)
-        for row, ids in zip(out, self.agent_ids):
-            row[: len(ids)] = ids
-        return out
-
-    @property
-    def rollout_shape(self) -> tuple:
-        """`(num_scenes, num_rollouts, max_agents, num_steps)` of the arrays `realism` takes."""
-        return (self.num_scenes, challenges.spec(self.challenge).num_rollouts, self.max_agents, self.num_steps)
-
-
-@dataclasses.dataclass(frozen=True)
-class RealismScene:
-    """One scene's host inputs for `realism`, unpadded.
-
-    Attributes:
-      inputs: the log as one sample, tails and map arrays (`jax_driver.SceneInputs`).
-      search: the scene's numpy search (`prepare`'s "host" search calls it back).
-      feature_valid: bool `(num_evaluated, num_steps)`, the log's feature validity.
-      object_type: int32 `(num_objects,)`, in the official order.
-      columns: int `(num_objects,)`, each object's column among the sim agents.
-    """
-
-    inputs: SceneInputs
-    search: PrunedSearch
-    feature_valid: np.ndarray
-    object_type: np.ndarray
-    columns: np.ndarray
-
-
-def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, search: str) -> RealismScene:
-    """The unpadded host arrays of one scene (see `prepare`)."""
-    evaluated = scenario.evaluated_ids(spec)
-    order = official_object_order(scenario.sim_agent_ids, evaluated)
-    log, feature_valid = log_sample(scenario, spec)
-    layout = mf.feature_layout(spec, len(evaluated))
-    context = mf.map_context(scenario)
-    pruned = PrunedSearch(
-        context.road_edges, context.lanes, mf.signals_from(scenario.signals, layout.first_red_light_step)
-    )
-    # The host search needs no cell tables (0.1-0.5 s per real scene to build).
-    inputs = scene_inputs(
-        scenario, {f: getattr(log, f) for f in mf.TRAJECTORY_FIELDS}, layout, context, cells=search == "device"
-    )
-    return RealismScene(
-        inputs=inputs,
-        search=pruned,
-        feature_valid=feature_valid[0],
-        object_type=np.asarray(log.object_type[0], np.int32),
-        columns=index_of_ids(scenario.sim_agent_ids, order),
-    )
-
-
-def prepare(
-    scenarios,
-    challenge: str = "sim_agents",
-    config: str | None = None,
-    min_sizes: tuple | None = None,
-    grouped: bool = True,
-    search: str = "auto",
-) -> PreparedScenes:
-    """Scenes (Scenario messages or `ScenarioArrays`) as a device-resident `PreparedScenes`, once.
-
-    Args:
-      challenge: "sim_agents" (80 future steps; SDC and tracks_to_predict evaluated) or "scenario_gen".
-      config: the metrics config (default: the challenge's leaderboard config, "2025" or
-        "scenario_gen_2025").
-      min_sizes: optional lower bounds of the padded sizes (objects, evaluated objects, road-edge
-        segments, signals, lane segments, road-edge grid cells; a shorter tuple bounds the first
-        ones): to share compiled functions between scene sets.
-      grouped: scenes of similar sizes are padded together, a program per group (the least padded
-        work per call); False pads every scene to the largest: one program, which compiles several
-        times faster and does more work per call (7 scenes of 6 to 9 evaluated objects on this
-        2-core CPU: 6 groups compile in 72 s and run a call in 2.5 s, one group in 14 s and 5.1 s).
-      search: where `realism` runs the nearest-thing searches (nearest object, followed object,
-        nearest road edge, lane of a red-light crossing). "host": the numpy file path's compiled,
-        pruned search, called back from the trace (`host_search.HostSearch`), the fast choice when
-        JAX runs on the CPU; "device": fixed-size candidate sets on the device (`dense.DenseSearch`),
-        the choice for an accelerator; "auto" (default): "host" when JAX's default backend is the
-        CPU, else "device". The features are the same either way (bit-identical in exact mode).
-    """
-    search = Search.parse(search).value
-    spec = challenges.spec(challenge)
-    config = config or spec.default_config
-    load_config(config)  # refused now if unknown
-    scenes = [s if isinstance(s, ScenarioArrays) else scenario_arrays(s) for s in scenarios]
-    if not scenes:
-        raise ValueError("prepare needs at least one scenario")
-    if search == "auto":
-        search = "host" if jax.default_backend() == "cpu" else "device"
-    inputs = [_scene_inputs(s, spec, search) for s in scenes]
-    max_agents = max(len(s.sim_agent_ids) for s in scenes)
-    floor = tuple(min_sizes or ())
-    members: dict[Sizes | None, list[int]] = {}
-    for k, scene in enumerate(inputs):
-        members.setdefault(_group_key(scene.inputs.sizes, floor) if grouped else None, []).append(k)
-    groups, arrays = [], []
-    for indices in members.values():
-        group_arrays, layout = _prepare_group(indices, [inputs[k] for k in indices], spec, floor, max_agents)
-        groups.append((tuple(indices), layout))
-        arrays.append(group_arrays)
-    host = HostSearches(tuple(scene.search for scene in inputs)) if search == "host" else None
-    return PreparedScenes(
-        arrays=tuple(arrays),
-        groups=tuple(groups),
-        scenario_ids=tuple(s.scenario_id for s in scenes),
-        agent_ids=tuple(tuple(int(i) for i in s.sim_agent_ids) for s in scenes),
-        challenge=spec.challenge.value,
-        config=str(config),
-        host_searches=host,
-    )
-
-
-def _group_key(sizes: Sizes, floor: tuple) -> Sizes:
-    """Scenes whose sizes round to the same powers of two (finer for map segments) share a group."""
-    return sizes.at_least(floor).rounded(minimum_objects=1, minimum_fine=1)
-
-
-def _prepare_group(
-    indices: list[int], scenes: list[RealismScene], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int
-):
-    """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
-    # Exact maxima (at least 1): a training loop compiles once per scene set, and every padded row costs.
-    exact = [scene.inputs.sizes for scene in scenes]
-    sizes = exact[0].with_counts(max(max(column), 1) for column in zip(*(s.as_tuple() for s in exact)))
-    sizes = sizes.at_least(floor)
-    sizes = dataclasses.replace(sizes, evaluated=min(sizes.evaluated, sizes.objects))  # the first object rows
-    n_obj, n_eval = sizes.objects, sizes.evaluated
-    layout = mf.feature_layout(spec, n_eval)
-    per_scene = []
-    for index, scene in zip(indices, scenes):
-        traj, tails, maps = padded_inputs(scene.inputs, sizes)
-        n, e = scene.inputs.num_objects, scene.inputs.layout.num_evaluated
-        columns = np.full(n_obj, max_agents, dtype=np.int32)  # padding reads the appended zero column
-        columns[:n] = scene.columns
-        feature_valid = np.zeros((n_eval, challenges.NUM_LOGGED_STEPS), bool)
-        feature_valid[:e] = scene.feature_valid
-        object_type = np.zeros(n_eval, np.int32)
-        object_type[: min(n, n_eval)] = scene.object_type[:n_eval]
-        per_scene.append(
-            {
-                "log": {f: a[0] for f, a in traj.items()},
-                "tails": tails,
-                "maps": maps,
-                "columns": columns,
-                "real": np.arange(n_obj) < n,
-                "evaluated": np.arange(n_eval) < e,
-                "feature_valid": feature_valid,
-                "object_type": object_type,
-                "scene": np.int32(index),  # the index of its host search
-                # 0, read at run time: the exact mode's rounding barriers (`exact_rounding`)
-                "opaque_zero": np.int32(0),
-            }
-        )
-    # 32-bit leaves only (lane ids are ranks): the same arrays serve x64 on and off.
-    arrays = jax.tree_util.tree_map(jnp.asarray, stacked(per_scene))
-    return arrays, layout
 
 
 def _gather_agents(values, columns):

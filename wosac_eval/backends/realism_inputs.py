@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import functools
 import warnings
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -23,9 +22,7 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.trajectories import index_of_ids
-
-if TYPE_CHECKING:  # the prepared scenes' class lives with `prepare`, which imports this module
-    from wosac_eval.backends.jax_realism import PreparedScenes
+from wosac_eval.backends.realism_types import PreparedScenes
 
 POSITIONS = ("x", "y", "z", "heading")
 SIZES = ("length", "width", "height")

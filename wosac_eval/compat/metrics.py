@@ -13,10 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from wosac_eval.compat.metric_features import as_internal
 from wosac_eval.compat.submission_specs import ChallengeType
 from wosac_eval.metrics.config import default_config, load_config
-from wosac_eval.metrics.scenario_metrics import bucket_metrics
+from wosac_eval.metrics.scenario_metrics import bucket_metrics, scenario_metrics
 from wosac_eval.protos import scenario_pb2, sim_agents_metrics_pb2, sim_agents_submission_pb2
+from wosac_eval.scoring.scenario import score_scenario
 
 
 def load_metrics_config(
@@ -33,8 +35,6 @@ def compute_scenario_metrics_for_bundle(
     challenge_type: ChallengeType = ChallengeType.SIM_AGENTS,
 ) -> sim_agents_metrics_pb2.SimAgentMetrics:
     """The scenario's metrics as a `SimAgentMetrics` message (likelihoods, meta-metric, ADE, rates)."""
-    from wosac_eval.scoring.scenario import score_scenario
-
     return sim_agents_metrics_pb2.SimAgentMetrics(
         **score_scenario(scenario, scenario_rollouts, config, challenge=challenge_type)
     )
@@ -74,8 +74,5 @@ def compute_scenario_metrics_for_features_bundle(
       sim_features: `metric_features.MetricFeatures` of the rollouts (n_samples=number of rollouts); any
         object with those fields works (numpy arrays, or anything `np.asarray` reads).
     """
-    from wosac_eval.compat.metric_features import as_internal
-    from wosac_eval.metrics.scenario_metrics import scenario_metrics
-
     values = scenario_metrics(config, as_internal(log_features), as_internal(sim_features))
     return sim_agents_metrics_pb2.SimAgentMetrics(scenario_id=scenario_id, **values)

@@ -94,7 +94,7 @@ def _raise_official_refusal(
     n_rollouts: int | None = None,
 ) -> None:
     """ValueError naming the first of the problems the official validator refuses, if any."""
-    from wosac_eval.validate import rules
+    from wosac_eval.validate import rules  # loads numba and scipy: 0.46 s the specs alone need not pay
 
     sim_agent_ids = challenges.sim_agent_ids(scenario)
     options: dict[str, Any] = {} if n_rollouts is None else {"n_rollouts": n_rollouts}

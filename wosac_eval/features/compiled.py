@@ -316,6 +316,7 @@ _KERNEL_MODULES = (
     "interaction",
     "road_edge/segments",
     "road_edge/pruned_search",
+    "road_edge/cell_lists",
     "road_edge/signed_distance",
     "road_edge/cell_tables",
     "traffic_lights",

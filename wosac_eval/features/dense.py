@@ -17,6 +17,9 @@ Time to collision stays all-pairs (evaluated objects x all objects, a cheap
 kernel, reduced as the pairs are computed), and so does the red-light lane
 search (over crossing points only).
 
+The road-edge search is `dense_road_edge`'s, the bounded pieces of work (`lax.map` chunks,
+`while_loop` fills) `dense_chunks`'s.
+
 Everything here expects float32 inputs that are already padded (invalid
 padding masked by the `valid` arrays). The float32 math rounds a few steps
 through `xp.wide_float` (float64 under x64; float32 in `xp.float32_precision()`).
@@ -32,39 +35,14 @@ import numpy as np
 from jax import lax
 
 from wosac_eval.features import box_geometry, following, interaction, road_edge, traffic_lights
+from wosac_eval.features.dense_chunks import chunked, fill_rows, rows_per_chunk
+from wosac_eval.features.dense_road_edge import signed_distance_to_road_edge
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.spatial import strict_argmin
 from wosac_eval.features.xp import in_differentiable, nan_spreading_max, nan_spreading_min
 
 _F = np.float32
-# Pairs evaluated at once in the chunked searches (bounds the working memory).
-PAIRS_PER_CHUNK = 1 << 22
-
-
-def _chunked(fn, xs, chunk: int):
-    """`fn` over the leading axis of the arrays `xs`, `chunk` rows at a time (via `lax.map`)."""
-    n = jax.tree_util.tree_leaves(xs)[0].shape[0]
-    if n <= chunk:
-        return fn(xs)
-    pad = (-n) % chunk
-    padded = jax.tree_util.tree_map(
-        lambda a: jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)]) if pad else a, xs
-    )
-    grouped = jax.tree_util.tree_map(lambda a: a.reshape((-1, chunk) + a.shape[1:]), padded)
-    out = lax.map(fn, grouped)
-    return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n], out)
-
-
-def _columns(xyz):
-    """x, y, z of float32 `(..., 3)`."""
-    return xyz[..., 0], xyz[..., 1], xyz[..., 2]
-
-
-def _rows_per_chunk(columns: int) -> int:
-    return max(1, PAIRS_PER_CHUNK // max(1, columns))
-
-
 # Boxes evaluated exactly per (evaluated object, step) before the bound decides: the pruned search
 # evaluates 1.3 per query on a real scene; rows these do not settle are searched against every box.
 NEAREST_OBJECT_CANDIDATES = 4
@@ -177,7 +155,7 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
         x, y, length, width, cos_h, sin_h, outlines, radius, valid, num_evaluated
     )
     every_box = lambda r: _nearest_object_all_pairs(outlines, radius, valid, rows[r], steps[r])  # noqa: E731
-    distance = _fill_rows(distance.reshape(-1), ~settled.reshape(-1), NEAREST_OBJECT_FALLBACK_CHUNK, every_box)
+    distance = fill_rows(distance.reshape(-1), ~settled.reshape(-1), NEAREST_OBJECT_FALLBACK_CHUNK, every_box)
     return distance.reshape(num_evaluated, num_steps)
 
 
@@ -209,7 +187,8 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
         heading[None],
         heading[e, None],
     )
-    masked = following.followed_gaps(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    pairs = following.FollowedPairs(ahead, beside, yaw_diff, pair_tail, length[None], width[None], valid[None])
+    masked = following.followed_gaps(pairs)
     # The nearest followed object, as `following.all_objects_time_to_collision` picks it along its objects.
     if in_differentiable(jnp):  # gradients through the gap: JAX differentiates no custom reduction
         nearest = strict_argmin(masked, axis=1)
@@ -250,194 +229,6 @@ def _first_lowest_and_first(a, b):
     )
 
 
-# Queries the cell tables do not settle are searched against every segment, this many at a time.
-FALLBACK_CHUNK = 256
-# Queries the first `road_edge.CELL_NEAR_CANDIDATES` segments of their cell do not settle are searched
-# against the cell's whole list, this many at a time.
-LISTED_CHUNK = 1024
-# road_edge.cell_candidate_table
-CELL_KEYS = ("cell_origin", "cell_shape", "cell_candidates", "cell_clearance", "cell_near_clearance")
-NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
-# `shared_segments`: the scene set's segments one table, and each scene's offset in it
-SHARED_PREFIX = "shared_"
-SHARED_SEGMENT_ARRAYS = ("start", "delta", "valid")
-SEGMENT_OFFSET = "segment_offset"
-
-
-def _nearest_segment_all(q, s):
-    """Index of the nearest valid segment (stretched selection distance, lowest index on ties)."""
-    d3 = road_edge.segment_distances(
-        *_columns(q[:, None, :]), *_columns(s["start"][None]), *_columns(s["delta"][None])
-    )[1]
-    return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
-
-
-def _query_cells(q, cells):
-    """(grid row of each query's cell, whether the query is on the grid): int32 and bool `(num_points,)`."""
-    side = _F(road_edge.CELL_SIDE)
-    cell = jnp.floor((q[:, :2] - cells["cell_origin"]) / side)  # a power of two: exact
-    inside = ((cell >= 0) & (cell < cells["cell_shape"].astype(_F))).all(axis=1)
-    cell = jnp.where(inside[:, None], cell, _F(0)).astype(jnp.int32)
-    return cell[:, 0] * cells["cell_shape"][1] + cell[:, 1], inside
-
-
-def _nearest_listed_segment(q, s, cells):
-    """(nearest segment among the query cell's listed ones, whether it is the nearest of all).
-
-    Settled when the query is on the grid and nearer to it than the cell's clearance
-    (`road_edge.cell_candidate_table`): no segment left out can be nearer, or tie at a lower index.
-    """
-    row, inside = _query_cells(q, cells)
-    return _nearest_of(q, s, cells["cell_candidates"][row], inside, cells["cell_clearance"][row])
-
-
-def _nearest_of(q, s, index, inside, clearance):
-    """(nearest of the segments `index` int `(num_points, k)` to each point, the lowest index on ties;
-    whether it is on the grid (`inside`) and nearer than `clearance` float32 `(num_points,)`)."""
-    table, offset = _gathered_segments(s)
-    index = index + offset
-    d3 = road_edge.segment_distances(
-        *_columns(q[:, None, :]), *_columns(table["start"][index]), *_columns(table["delta"][index])
-    )[1]
-    d3 = jnp.where(table["valid"][index], d3, jnp.inf)
-    big = jnp.iinfo(index.dtype).max
-    # Only which segment is picked: no gradient (JAX differentiates no reduction of a custom combiner).
-    best_d, best = lax.reduce((lax.stop_gradient(d3), index), (_F(np.inf), index.dtype.type(big)), _nearer, (1,))
-    settled = inside & (best_d < clearance)
-    return jnp.where(best == big, 0, best - offset), settled
-
-
-def _gathered_segments(s):
-    """(the start, delta and valid arrays the candidate lists gather from, the offset of this scene's
-    segments in them): the scene set's shared tables (`shared_segments`) where given, else its own."""
-    if SEGMENT_OFFSET in s:
-        return {k: s[SHARED_PREFIX + k] for k in SHARED_SEGMENT_ARRAYS}, s[SEGMENT_OFFSET]
-    return s, 0
-
-
-def shared_segments(maps: dict) -> tuple[dict, dict]:
-    """A stack of scenes' padded map arrays (leading scene axis) for `jax.vmap` with the road-edge
-    segments the candidate lists gather from shared: (maps, their `in_axes`).
-
-    Gathering a scene's own segments under `vmap` makes XLA build and store, for every point and
-    candidate, a (scene, segment) index pair; from one table of every scene's segments (a reshape:
-    no copy) and the scene's offset in it, each candidate is one index. The result is the same.
-    """
-    if "start" not in maps or "cell_candidates" not in maps:
-        return maps, dict.fromkeys(maps, 0)
-    scenes, count = maps["start"].shape[:2]
-    shared = {SHARED_PREFIX + k: maps[k].reshape((scenes * count,) + maps[k].shape[2:]) for k in SHARED_SEGMENT_ARRAYS}
-    offsets = jnp.arange(scenes, dtype=maps["cell_candidates"].dtype) * count
-    axes = {**dict.fromkeys(maps, 0), **dict.fromkeys(shared), SEGMENT_OFFSET: 0}
-    return {**maps, **shared, SEGMENT_OFFSET: offsets}, axes
-
-
-def _nearer(a, b):
-    """The nearer of two (distance, segment index) pairs, the lower index on ties, NaN winning: the NaN
-    minimum of the distances and the lowest index at it, as one reduction (no (points x k) array)."""
-    # lax operations only: the exact mode keeps a combiner of comparisons and selects as it is.
-    take = lax.lt(b[0], a[0]) | (lax.eq(b[0], a[0]) & lax.lt(b[1], a[1])) | lax.ne(b[0], b[0])
-    return lax.select(take, b[0], a[0]), lax.select(take, b[1], a[1])
-
-
-def _nearest_near_segment(q, s, cells):
-    """`_nearest_listed_segment` among the first `road_edge.CELL_NEAR_CANDIDATES` listed segments, settled
-    by their clearance (`cell_near_clearance`)."""
-    row, inside = _query_cells(q, cells)
-    index = cells["cell_candidates"][:, : road_edge.CELL_NEAR_CANDIDATES][row]
-    return _nearest_of(q, s, index, inside, cells["cell_near_clearance"][row])
-
-
-def _fill_rows(out, which, chunk: int, compute):
-    """`out` with the rows where `which` is True replaced by `compute(rows)`, `chunk` rows per round.
-
-    The rows are compacted to the front and computed in a `while_loop`, so the work follows their
-    number (small: the rest was settled by cheaper means), not the array's length.
-
-    Args:
-      out: `(n,)` array; which: bool `(n,)`; compute: int32 `(chunk,)` row indices -> `(chunk,)` values.
-    """
-    n = which.shape[0]
-    chunk = min(chunk, max(1, n))
-    # The number of rows up to each one (one prefix sum, no compacted copy of the indices): a round
-    # finds its rows, ranks done + 1 to done + chunk, by binary search in it.
-    place = jnp.cumsum(which, dtype=jnp.int32)
-    count = place[-1] if n else jnp.zeros((), jnp.int32)
-
-    def round_(carry):
-        done, out = carry
-        ranks = done + jnp.arange(1, chunk + 1, dtype=jnp.int32)
-        real = ranks <= count
-        rows = jnp.where(real, jnp.searchsorted(place, ranks, side="left").astype(jnp.int32), 0)
-        return done + chunk, out.at[jnp.where(real, rows, n)].set(compute(rows).astype(out.dtype), mode="drop")
-
-    return lax.while_loop(lambda carry: carry[0] < count, round_, (jnp.zeros((), jnp.int32), out))[1]
-
-
-def _nearest_segment(queries, s, cells, needed):
-    """Index of the nearest valid road-edge segment of each needed query, as the all-pairs search picks it.
-
-    Queries the first `road_edge.CELL_NEAR_CANDIDATES` segments of their cell settle (most) cost that
-    many exact distances; the others are compacted and searched against their cell's whole list
-    (`road_edge.CELL_CANDIDATES`) in a `while_loop`, LISTED_CHUNK at a time; those it does not settle
-    either (off the grid, far from every road edge, on another level, NaN) against every segment,
-    FALLBACK_CHUNK at a time. Unneeded queries get some segment.
-    """
-    best, settled = _chunked(
-        lambda q: _nearest_near_segment(q, s, cells),
-        queries,
-        _rows_per_chunk(min(road_edge.CELL_NEAR_CANDIDATES, cells["cell_candidates"].shape[-1])),
-    )
-
-    def whole_list(rows):  # -1: not settled by the whole list either
-        listed, listed_settled = _nearest_listed_segment(queries[rows], s, cells)
-        return jnp.where(listed_settled, listed, -1)
-
-    best = _fill_rows(best, needed & ~settled, LISTED_CHUNK, whole_list)
-    return _fill_rows(best, needed & (best < 0), FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
-
-
-def signed_distance_to_road_edge(queries, segments, needed=None):
-    """`road_edge.signed_distance_to_polylines` with fixed shapes (bit-identical on CPU).
-
-    Args:
-      queries: float32 `(num_points, 3)`.
-      segments: dict of the valid road-edge segments in official order, padded:
-        start, delta, prior_start, prior_delta, next_start, next_delta float32
-        `(num_segments, 3)`; valid, prior_valid, next_valid, convex_before,
-        convex_after bool `(num_segments,)`; and their cell table (`CELL_KEYS`, from
-        `road_edge.cell_candidate_table`).
-      needed: optional bool `(num_points,)`: the queries whose result is used (default all); the
-        others are not searched exhaustively when the table does not settle them (their value is
-        some segment's signed distance).
-    Returns:
-      float32 `(num_points,)`, negative on the road side.
-    """
-    cells = {k: jnp.asarray(segments[k]) for k in CELL_KEYS}
-    fallback = {
-        k[len(NON_FINITE_PREFIX) :]: jnp.asarray(v) for k, v in segments.items() if k.startswith(NON_FINITE_PREFIX)
-    }
-    s = {k: jnp.asarray(v) for k, v in segments.items() if k not in CELL_KEYS and not k.startswith(NON_FINITE_PREFIX)}
-    finite = jnp.isfinite(queries).all(axis=1)
-    needed = finite if needed is None else needed & finite
-    best = _nearest_segment(queries, s, cells, needed)
-    # A point with a NaN or infinite coordinate gets the official pick (`spatial.non_finite_pick`).
-    pick = {k: jnp.where(finite.reshape((-1,) + (1,) * (v.ndim - 1)), s[k][best], v) for k, v in fallback.items()}
-    rel_t, _, d2 = road_edge.segment_distances(*_columns(queries), *_columns(pick["start"]), *_columns(pick["delta"]))
-    xy = queries[:, :2]
-    sign = road_edge.corner_sign(
-        rel_t,
-        road_edge.segment_side(xy, pick["start"], pick["delta"]),
-        road_edge.segment_side(xy, pick["prior_start"], pick["prior_delta"]),
-        road_edge.segment_side(xy, pick["next_start"], pick["next_delta"]),
-        pick["convex_before"],
-        pick["convex_after"],
-        pick["prior_valid"],
-        pick["next_valid"],
-    )
-    return (sign * jnp.where(pick["valid"], d2, road_edge.EXTREMELY_LARGE_DISTANCE)).astype(_F)
-
-
 def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
     """Dense `traffic_lights.nearest_lane_segment`: index into the given segments.
 
@@ -452,7 +243,7 @@ def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
         d = traffic_lights.lane_measure(q[:, None, :], lane_start[None], lane_delta[None])
         return jnp.argmin(jnp.where(lane_valid[None], d, jnp.inf), axis=-1)
 
-    return _chunked(nearest, xy, _rows_per_chunk(lane_start.shape[0]))
+    return chunked(nearest, xy, rows_per_chunk(lane_start.shape[0]))
 
 
 # Red-light crossings whose lane is looked up at once; more are handled in further rounds.
@@ -487,7 +278,7 @@ def red_light_violation(xy, valid, m):
 
 def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
     """Whether each point's nearest lane is each signal's lane: bool `(num_points, num_signals)`, the lane
-    searched only for the `needed` points (False elsewhere), `chunk` points per round (`_fill_rows`).
+    searched only for the `needed` points (False elsewhere), `chunk` points per round (`fill_rows`).
 
     Args:
       points: float32 `(num_points, 2)`; needed: bool `(num_points,)`.
@@ -497,7 +288,7 @@ def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
     def lane_of(rows):
         return m["lane_id"][nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
 
-    lane_of_point = _fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, chunk, lane_of)
+    lane_of_point = fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, chunk, lane_of)
     return lane_of_point[:, None] == m["signal_lane_id"][None, :]
 
 

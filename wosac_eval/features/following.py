@@ -8,7 +8,9 @@ first (`num_evaluated` of them), then every other sim agent.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -18,6 +20,7 @@ from wosac_eval.features.compiled import cached_loop, compiled
 from wosac_eval.features.float32_math import HUGE_COS, HUGE_SIN, packet_sincos, packet_tail, sincos32
 from wosac_eval.features.interaction import EXTREMELY_LARGE_DISTANCE, unbounded_boxes
 from wosac_eval.features.kinematics import linear_speed
+from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.spatial import strict_argmin
 from wosac_eval.features.xp import array_namespace, errstate
 
@@ -95,21 +98,7 @@ def capped_time_to_collision(gap, closing):
     )
 
 
-def time_to_collision(
-    x,
-    y,
-    length,
-    width,
-    heading,
-    valid,
-    *,
-    num_evaluated: int,
-    seconds_per_step: float | None = None,
-    steps: slice = slice(None),
-    speed=None,
-    ego_tail=None,
-    pair_tail=None,
-):
+def time_to_collision(inputs: TimeToCollisionInputs):
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned
@@ -118,89 +107,99 @@ def time_to_collision(
     capped at 5 s, which is also returned when nothing is followed.
 
     Args:
-      x, y, length, width, heading: float32 `(..., num_objects, num_steps)`,
-        the whole trajectories (speeds need neighbouring steps).
-      valid: bool `(..., num_objects, num_steps)`.
-      num_evaluated: the evaluated objects, the first of the object axis.
-      seconds_per_step: the step's duration, for the speeds (needed when `speed` is not given).
-      steps: the steps to evaluate.
-      speed: float32 `(..., num_objects, num_steps)`, the planar speed, if
-        already computed.
-      ego_tail, pair_tail: the official ops' trailing packets, bool
-        `(len(steps), num_evaluated, 1)` and `(len(steps), num_evaluated,
-        num_objects)`; computed from the shapes when not given (they are given
-        for padded arrays).
+      inputs: the whole trajectories `(..., num_objects, num_steps)` (speeds need neighbouring steps),
+        the evaluated objects (the first of the object axis) and the steps to evaluate; the speeds
+        and the official ops' trailing packets are computed where not given (they are given for
+        padded arrays).
     Returns:
       float32 `(..., num_evaluated, len(steps))`.
     """
-    num_objects, num_steps = x.shape[-2:]
-    if speed is None:
-        if seconds_per_step is None:
-            raise ValueError("time_to_collision needs the speeds or the seconds per step")
-        with np.errstate(invalid="ignore", over="ignore"):
-            speed = linear_speed(x, y, np.zeros_like(x), seconds_per_step)
-    if ego_tail is None:
-        ego_tail = packet_tail((num_steps, num_evaluated, 1))[steps]
-    if pair_tail is None:
-        pair_tail = packet_tail((num_steps, num_evaluated, num_objects))[steps]
-    lead = x.shape[:-2]
-    flat = lambda a: np.ascontiguousarray(np.reshape(a, (-1, num_objects, num_steps)))  # noqa: E731
-    x, y, length, width, heading, speed, valid = map(flat, (x, y, length, width, heading, speed, valid))
-    reported = range(num_steps)[steps]
-    if reported.step != 1:
-        raise ValueError(f"time_to_collision takes a contiguous range of steps, not {steps}")
-    ego_tail = np.ascontiguousarray(np.broadcast_to(ego_tail, (len(reported), num_evaluated, 1))[..., 0])
-    pair_tail = np.ascontiguousarray(np.broadcast_to(pair_tail, (len(reported), num_evaluated, num_objects)))
+    i = _completed(inputs)
+    lead, num_evaluated = inputs.x.shape[:-2], i.num_evaluated
     with np.errstate(invalid="ignore", over="ignore"):
         # Only pairs that can be "following" need the other box's extents: its offsets are
         # non-negative and at most its half-diagonal, so a pair must be ahead of the front (the
         # float32 sign of a difference is exact), beside the path within that half-diagonal, and
         # aligned within 75 degrees.
-        reach = _F(0.5) * np.hypot(length, width) * _F(1 + 1e-5) + _F(1e-6)
+        reach = _F(0.5) * np.hypot(i.length, i.width) * _F(1 + 1e-5) + _F(1e-6)
         ttc = _followed_search(
-            x,
-            y,
-            length,
-            width,
-            heading,
-            speed,
-            valid,
+            i.x,
+            i.y,
+            i.length,
+            i.width,
+            i.heading,
+            i.speed,
+            i.valid,
             reach,
-            ego_tail,
-            pair_tail,
-            reported.start,
-            len(reported),
+            i.ego_tail,
+            i.pair_tail,
+            i.steps.start,
+            len(range(i.steps.start, i.steps.stop)),
             num_evaluated,
         )
-        # Steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite: the official
-        # all-objects search, whose gaps of -inf and NaN the pruning above would skip, and whose closing
-        # speed of +inf gives 0 s even where nothing is followed. A NaN speed needs no such step (the
-        # first and last steps of every track have one): any closing speed with it is NaN, hence the
-        # cap, in both searches alike.
-        at = lambda a: a[..., steps]  # noqa: E731
-        irregular = unbounded_boxes(*map(at, (x, y, heading, length, width))).any(axis=1) | np.isinf(at(speed)).any(
-            axis=1
-        )
-        rb, rst = np.nonzero(irregular)
-        if rb.size:
-            pick = lambda a: np.swapaxes(at(a), 1, 2)[rb, rst]  # noqa: E731  (pairs, objects)
-            # The ego frames, as the official op computes them (shape: steps, evaluated, 1).
-            ego_sin, ego_cos = sincos32(-pick(heading)[:, :num_evaluated, None], ego_tail[rst][..., None])
-            ahead, beside, yaw_diff = ego_frame_offsets(
-                pick(x), pick(y), pick(length), pick(width), pick(heading), ego_cos, ego_sin, num_evaluated
-            )
-            ttc[rb, :, rst] = all_objects_time_to_collision(
-                ahead,
-                beside,
-                yaw_diff,
-                pair_tail[rst],
-                pick(length)[:, None],
-                pick(width)[:, None],
-                pick(valid)[:, None],
-                pick(speed),
-                num_evaluated,
-            )
+        _search_irregular_steps(i, ttc)
     return ttc.reshape(*lead, num_evaluated, -1)
+
+
+def _completed(inputs: TimeToCollisionInputs) -> TimeToCollisionInputs:
+    """`inputs` with the speeds and the tails computed where not given, the arrays contiguous
+    `(batch, num_objects, num_steps)` (any leading axes flattened), the tails `(steps, num_evaluated)`
+    and `(steps, num_evaluated, num_objects)`, and the steps a range of step indices."""
+    i = inputs
+    num_objects, num_steps = i.x.shape[-2:]
+    speed = i.speed
+    if speed is None:
+        if i.seconds_per_step is None:
+            raise ValueError("time_to_collision needs the speeds or the seconds per step")
+        with np.errstate(invalid="ignore", over="ignore"):
+            speed = linear_speed(i.x, i.y, np.zeros_like(i.x), i.seconds_per_step)
+    reported = range(num_steps)[i.steps]
+    if reported.step != 1:
+        raise ValueError(f"time_to_collision takes a contiguous range of steps, not {i.steps}")
+    ego_tail = packet_tail((num_steps, i.num_evaluated, 1))[i.steps] if i.ego_tail is None else i.ego_tail
+    pair_tail = packet_tail((num_steps, i.num_evaluated, num_objects))[i.steps] if i.pair_tail is None else i.pair_tail
+    flat = lambda a: np.ascontiguousarray(np.reshape(a, (-1, num_objects, num_steps)))  # noqa: E731
+    return dataclasses.replace(
+        i,
+        x=flat(i.x),
+        y=flat(i.y),
+        length=flat(i.length),
+        width=flat(i.width),
+        heading=flat(i.heading),
+        valid=flat(i.valid),
+        speed=flat(speed),
+        steps=slice(reported.start, reported.stop),
+        ego_tail=np.ascontiguousarray(np.broadcast_to(ego_tail, (len(reported), i.num_evaluated, 1))[..., 0]),
+        pair_tail=np.ascontiguousarray(np.broadcast_to(pair_tail, (len(reported), i.num_evaluated, num_objects))),
+    )
+
+
+def _search_irregular_steps(i: TimeToCollisionInputs, ttc: np.ndarray) -> None:
+    """The steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite, searched
+    over all objects as officially, into `ttc` `(batch, num_evaluated, steps)`: the pruned search
+    would skip their gaps of -inf and NaN, and a closing speed of +inf gives 0 s even where nothing is
+    followed. A NaN speed needs no such step (the first and last steps of every track have one): any
+    closing speed with it is NaN, hence the cap, in both searches alike. `i`: `_completed` inputs."""
+    at = lambda a: a[..., i.steps]  # noqa: E731
+    irregular = unbounded_boxes(*map(at, (i.x, i.y, i.heading, i.length, i.width))).any(axis=1)
+    rb, rst = np.nonzero(irregular | np.isinf(at(i.speed)).any(axis=1))
+    if not rb.size:
+        return
+    pick = lambda a: np.swapaxes(at(a), 1, 2)[rb, rst]  # noqa: E731  (pairs, objects)
+    n = i.num_evaluated
+    # The ego frames, as the official op computes them (shape: steps, evaluated, 1).
+    ego_sin, ego_cos = sincos32(-pick(i.heading)[:, :n, None], i.ego_tail[rst][..., None])
+    length, width = pick(i.length), pick(i.width)
+    ahead, beside, yaw_diff = ego_frame_offsets(
+        pick(i.x), pick(i.y), length, width, pick(i.heading), ego_cos, ego_sin, n
+    )
+    ttc[rb, :, rst] = all_objects_time_to_collision(
+        FollowedPairs(
+            ahead, beside, yaw_diff, i.pair_tail[rst], length[:, None], width[:, None], pick(i.valid)[:, None]
+        ),
+        pick(i.speed),
+        n,
+    )
 
 
 _frame_offsets = compiled(frame_offsets)
@@ -285,37 +284,54 @@ def _followed_search(
     return out
 
 
-def followed_gaps(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid):
+class FollowedPairs(NamedTuple):
+    """Each (evaluated object, other object) pair as the followed-object test reads it (numpy or JAX).
+
+    Attributes:
+      ahead_of_front, beside_path, yaw_diff: float32 `(..., num_evaluated, num_objects)` (`ego_frame_offsets`).
+      pair_tail: bool `(..., num_evaluated, num_objects)`, the official ops' trailing packets.
+      length, width: float32 `(..., 1, num_objects)`, the other object's box; valid: bool `(..., 1, num_objects)`.
+    (Any layout of the pairs, each array broadcast to one shape.)
+    """
+
+    ahead_of_front: Any
+    beside_path: Any
+    yaw_diff: Any
+    pair_tail: Any
+    length: Any
+    width: Any
+    valid: Any
+
+
+def followed_gaps(pairs: FollowedPairs):
     """The gap to each other object, 1e10 more where it is not followed: float32, the pairs' shape `(...)`.
 
-    Elementwise (numpy or JAX, pairs in any layout): the arguments as `all_objects_time_to_collision`'s,
-    broadcast to one shape. Pairs not followed are pushed 1e10 away, not removed: -inf and NaN gaps
-    stay what they are.
+    Elementwise (numpy or JAX, pairs in any layout). Pairs not followed are pushed 1e10 away, not
+    removed: -inf and NaN gaps stay what they are.
     """
-    xp = array_namespace(ahead_of_front, yaw_diff)
+    p = pairs
+    xp = array_namespace(p.ahead_of_front, p.yaw_diff)
     with errstate(xp, invalid="ignore", over="ignore"):
-        yaw_sin, yaw_cos = sincos32(yaw_diff, pair_tail)
-        long_distance, following = following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, length, width)
-        followed = valid & following & (yaw_diff <= MAX_HEADING_DIFF)
+        yaw_sin, yaw_cos = sincos32(p.yaw_diff, p.pair_tail)
+        long_distance, following = following_gap(
+            p.ahead_of_front, p.beside_path, p.yaw_diff, yaw_cos, yaw_sin, p.length, p.width
+        )
+        followed = p.valid & following & (p.yaw_diff <= MAX_HEADING_DIFF)
         return long_distance + xp.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
 
 
-def all_objects_time_to_collision(
-    ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid, speed, num_evaluated: int
-):
+def all_objects_time_to_collision(pairs: FollowedPairs, speed, num_evaluated: int):
     """The official computation over every object (numpy or JAX): the JAX kernel, and numpy's
     steps with non-finite or huge values, where the pruned search would skip -inf and NaN gaps.
 
     Args:
-      ahead_of_front, beside_path, yaw_diff: float32 `(..., num_evaluated, num_objects)` (`ego_frame_offsets`).
-      pair_tail: bool `(..., num_evaluated, num_objects)`, the official ops' trailing packets.
-      length, width: float32 `(..., 1, num_objects)`; valid: bool `(..., 1, num_objects)`.
+      pairs: `(..., num_evaluated, num_objects)` (see `FollowedPairs`).
       speed: float32 `(..., num_objects)`.
     Returns:
       float32 `(..., num_evaluated)`.
     """
-    xp = array_namespace(ahead_of_front, speed)
-    masked = followed_gaps(ahead_of_front, beside_path, yaw_diff, pair_tail, length, width, valid)
+    xp = array_namespace(pairs.ahead_of_front, speed)
+    masked = followed_gaps(pairs)
     with errstate(xp, invalid="ignore", over="ignore"):
         # The nearest is the first strict minimum (ties to the lowest object index, NaN never).
         ahead = strict_argmin(masked)

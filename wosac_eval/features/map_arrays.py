@@ -1,8 +1,9 @@
 """The unpadded map arrays of one scene for the dense searches (`features.dense.DenseSearch`), numpy.
 
-Each builder is a `registry.MapPart`'s: it takes (scenario, `metric_features.MapContext`,
-`metric_features.FeatureLayout`, number of steps, whether the road-edge cell table is wanted) and
-returns arrays by name; `registry.MapPart.arrays` says how each is padded.
+Each builder is a `registry.MapPart`'s (`registry.scene_map_arrays` runs those the features need): it
+takes (scenario, `metric_features.MapContext`, `metric_features.FeatureLayout`, number of steps, whether
+the road-edge cell table is wanted) and returns arrays by name; `registry.MapPart.arrays` says how each
+is padded.
 """
 
 from __future__ import annotations
@@ -10,18 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from wosac_eval.features import road_edge, traffic_lights
-from wosac_eval.features.registry import NON_FINITE_PREFIX, features, map_parts
-from wosac_eval.features.spatial import non_finite_pick
+from wosac_eval.features.spatial import NON_FINITE_PREFIX, non_finite_pick
 
 _F = np.float32
-
-
-def scene_map_arrays(scenario, context, layout, num_steps: int, cells: bool = True, selected=None) -> dict:
-    """Every array of the map parts the features need (`registry.map_parts`), unpadded."""
-    out: dict = {}
-    for part in map_parts(features() if selected is None else selected):
-        out.update(part.build(scenario, context, layout, num_steps, cells))
-    return out
 
 
 def segment_table_arrays(table: road_edge.SegmentTable, cells: bool = True) -> dict:
@@ -80,9 +72,7 @@ def segments_at(table: road_edge.SegmentTable, idx: np.ndarray) -> dict:
 def red_light_arrays(scenario, context, layout, num_steps: int, cells: bool) -> dict:
     """Stop lines `(steps, num_signals, ...)` of the signals that can be violated, from the first
     red-light step on, and the lane segments."""
-    from wosac_eval.features.metric_features import signals_from  # metric_features imports the registry
-
-    signals = signals_from(scenario.signals, layout.first_red_light_step)
+    signals = traffic_lights.signals_from(scenario.signals, layout.first_red_light_step)
     return stop_line_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)
 
 

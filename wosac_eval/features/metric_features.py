@@ -29,6 +29,7 @@ from wosac_eval.features.float32_math import packet_tail
 from wosac_eval.features.float32_sums import eigen_sum32
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.features.search_strategy import SearchStrategy
+from wosac_eval.features.traffic_lights import signals_from
 from wosac_eval.features.xp import array_namespace, divide
 
 _F = np.float32
@@ -233,13 +234,6 @@ def map_context(scenario: ScenarioArrays) -> MapContext:
         road_edges=road_edge.build_segment_table(scenario.road_edges),
         lanes=traffic_lights.build_lane_table(scenario.lanes, scenario.lane_ids),
     )
-
-
-def signals_from(signals, start: int):
-    """The signal states from step `start` on (None stays None)."""
-    if signals is None:
-        return None
-    return dataclasses.replace(signals, state=signals.state[start:], stop_point=signals.stop_point[start:])
 
 
 def trajectory_arrays(batch: SampleBatch) -> dict:

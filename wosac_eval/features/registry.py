@@ -5,10 +5,10 @@ A `Feature` entry names a per-step feature, its kernel (a function of a
 intermediates), the map parts its search reads on the device (`MapPart`:
 the arrays, how each is padded, the bucket sizes they count), and, for a
 feature registered beside the official ones, its metric (a
-`metrics.registry.Metric` carrying its config). Everything that computes or
-lists per-step features reads this module: `metric_features.per_step_features`
-(numpy and JAX alike), the JAX drivers' map arrays, padding and bucket keys,
-and the scorer through `metrics.registry`.
+`metric_table.Metric` carrying its config, a row of the metric table that the
+metrics read too). Everything that computes or lists per-step features reads
+this module: `metric_features.per_step_features` (numpy and JAX alike), the
+JAX drivers' map arrays, padding and bucket keys, and the scorer.
 
 Adding a feature is one `register(Feature(...))` call (see docs/extending.md);
 an official one is an entry in `OFFICIAL_FEATURES` (and its config field in
@@ -24,11 +24,12 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from wosac_eval.features import interaction, kinematics, road_edge
+from wosac_eval.features import interaction, kinematics, map_arrays, road_edge
 from wosac_eval.features.float32_math import sincos32
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
+from wosac_eval.features.spatial import NON_FINITE_PREFIX
 from wosac_eval.features.xp import array_namespace
-from wosac_eval.metrics import registry as metric_registry
+from wosac_eval.metric_table import Metric, register_metric, unregister_metric
 
 _F = np.float32
 
@@ -92,18 +93,6 @@ class MapPart:
         return dict(self.arrays)
 
 
-def _map_builder(name: str) -> Callable:
-    """The builder `name` of `features.map_arrays` (imported on first use: the numpy path needs none)."""
-
-    def build(*args):
-        from wosac_eval.features import map_arrays
-
-        return getattr(map_arrays, name)(*args)
-
-    build.__name__ = name
-    return build
-
-
 _SEGMENT_ARRAYS = (
     "start",
     "delta",
@@ -117,45 +106,47 @@ _SEGMENT_ARRAYS = (
     "convex_before",
     "convex_after",
 )
-NON_FINITE_PREFIX = "non_finite_"  # the segment arrays of `spatial.non_finite_pick`, shape (1, ...)
 
 MAP_PARTS: tuple[MapPart, ...] = (
     MapPart(
-        "road_edges",
-        _map_builder("road_edge_segments"),
-        tuple((name, Pad("road_edge_segments")) for name in _SEGMENT_ARRAYS)
-        + tuple((NON_FINITE_PREFIX + name, Pad(None)) for name in _SEGMENT_ARRAYS),
-        (Size("road_edge_segments", "start", fine=True),),
+        name="road_edges",
+        build=map_arrays.road_edge_segments,
+        arrays=tuple((name, Pad(size="road_edge_segments")) for name in _SEGMENT_ARRAYS)
+        + tuple((NON_FINITE_PREFIX + name, Pad(size=None)) for name in _SEGMENT_ARRAYS),
+        sizes=(Size(name="road_edge_segments", counted_by="start", fine=True),),
     ),
     MapPart(
-        "red_lights",
-        _map_builder("red_light_arrays"),
-        (
-            ("stop_start", Pad("signals", 1)),
-            ("stop_delta", Pad("signals", 1)),
-            ("stop_point", Pad("signals", 1)),
-            ("stopping", Pad("signals", 1)),
+        name="red_lights",
+        build=map_arrays.red_light_arrays,
+        arrays=(
+            ("stop_start", Pad(size="signals", axis=1)),
+            ("stop_delta", Pad(size="signals", axis=1)),
+            ("stop_point", Pad(size="signals", axis=1)),
+            ("stopping", Pad(size="signals", axis=1)),
             # Padded signals' lane rank is neither a lane's nor a point's without lane (-1).
-            ("signal_lane_id", Pad("signals", 0, -2)),
-            ("lane_start", Pad("lane_segments")),
-            ("lane_delta", Pad("lane_segments")),
-            ("lane_valid", Pad("lane_segments")),
-            ("lane_id", Pad("lane_segments")),
+            ("signal_lane_id", Pad(size="signals", axis=0, fill=-2)),
+            ("lane_start", Pad(size="lane_segments")),
+            ("lane_delta", Pad(size="lane_segments")),
+            ("lane_valid", Pad(size="lane_segments")),
+            ("lane_id", Pad(size="lane_segments")),
         ),
-        (Size("signals", "signal_lane_id"), Size("lane_segments", "lane_start", fine=True)),
+        sizes=(
+            Size(name="signals", counted_by="signal_lane_id"),
+            Size(name="lane_segments", counted_by="lane_start", fine=True),
+        ),
     ),
     # Rows past the grid are never looked up; its origin and shape are not padded.
     MapPart(
-        "road_edge_cells",
-        _map_builder("road_edge_cells"),
-        (
-            ("cell_origin", Pad(None)),
-            ("cell_shape", Pad(None)),
-            ("cell_candidates", Pad("road_edge_cells")),
-            ("cell_clearance", Pad("road_edge_cells")),
-            ("cell_near_clearance", Pad("road_edge_cells")),
+        name="road_edge_cells",
+        build=map_arrays.road_edge_cells,
+        arrays=(
+            ("cell_origin", Pad(size=None)),
+            ("cell_shape", Pad(size=None)),
+            ("cell_candidates", Pad(size="road_edge_cells")),
+            ("cell_clearance", Pad(size="road_edge_cells")),
+            ("cell_near_clearance", Pad(size="road_edge_cells")),
         ),
-        (Size("road_edge_cells", "cell_clearance", fine=True),),
+        sizes=(Size(name="road_edge_cells", counted_by="cell_clearance", fine=True),),
     ),
 )
 
@@ -226,15 +217,15 @@ class Feature:
       dtype: "float32" or "bool".
       needs: the `MAP_PARTS` its search reads on the device (their arrays are built, padded and
         counted in bucket keys only when a registered feature needs them).
-      metric: a registered feature's metric (`metrics.registry.Metric` with `official=False` and its
-        `config_default`), or None (an official feature: its metric is a row of `metrics.registry.METRICS`).
+      metric: a registered feature's metric (`metric_table.Metric` with `official=False` and its
+        `config_default`), or None (an official feature: its metric is a row of `metric_table.METRICS`).
     """
 
     name: str
     kernel: Callable
     dtype: str = "float32"
     needs: tuple[str, ...] = ()
-    metric: metric_registry.Metric | None = None
+    metric: Metric | None = None
 
 
 # Kernels are module functions, never lambdas or `functools.partial`s: entries travel to worker processes
@@ -320,16 +311,16 @@ def _red_light_violation(c: FeatureContext):
 
 
 OFFICIAL_FEATURES: tuple[Feature, ...] = (
-    Feature("linear_speed", _linear_speed),
-    Feature("linear_acceleration", _linear_acceleration),
-    Feature("angular_speed", _angular_speed),
-    Feature("angular_acceleration", _angular_acceleration),
-    Feature("distance_to_nearest_object", _nearest_object),
-    Feature("collision_per_step", _collision_per_step, "bool"),
-    Feature("time_to_collision", _time_to_collision),
-    Feature("distance_to_road_edge", _road_edge_distance, needs=("road_edges", "road_edge_cells")),
-    Feature("offroad_per_step", _offroad_per_step, "bool", needs=("road_edges", "road_edge_cells")),
-    Feature("traffic_light_violation_per_step", _red_light_violation, "bool", needs=("red_lights",)),
+    Feature(name="linear_speed", kernel=_linear_speed),
+    Feature(name="linear_acceleration", kernel=_linear_acceleration),
+    Feature(name="angular_speed", kernel=_angular_speed),
+    Feature(name="angular_acceleration", kernel=_angular_acceleration),
+    Feature(name="distance_to_nearest_object", kernel=_nearest_object),
+    Feature(name="collision_per_step", kernel=_collision_per_step, dtype="bool"),
+    Feature(name="time_to_collision", kernel=_time_to_collision),
+    Feature(name="distance_to_road_edge", kernel=_road_edge_distance, needs=("road_edges", "road_edge_cells")),
+    Feature(name="offroad_per_step", kernel=_offroad_per_step, dtype="bool", needs=("road_edges", "road_edge_cells")),
+    Feature(name="traffic_light_violation_per_step", kernel=_red_light_violation, dtype="bool", needs=("red_lights",)),
 )
 OFFICIAL_FEATURE_NAMES = tuple(f.name for f in OFFICIAL_FEATURES)
 
@@ -342,7 +333,7 @@ def register(feature: Feature) -> None:
     Raises:
       ValueError: the name is taken, the kernel is a lambda or a `functools.partial`, a need is not a
         `MAP_PARTS` name, or the metric is refused
-        (`metrics.registry.register_metric`).
+        (`metric_table.register_metric`).
     """
     if feature.name in {f.name for f in features()}:
         raise ValueError(f"feature {feature.name!r} is already registered")
@@ -360,7 +351,7 @@ def register(feature: Feature) -> None:
     if feature.metric is not None:
         if feature.metric.feature != feature.name:
             raise ValueError(f"feature {feature.name!r}: its metric scores {feature.metric.feature!r}")
-        metric_registry.register_metric(feature.metric)
+        register_metric(feature.metric)
     _REGISTERED.append(feature)
 
 
@@ -371,7 +362,7 @@ def unregister(name: str) -> None:
         raise KeyError(name)
     feature = _REGISTERED.pop(index)
     if feature.metric is not None:
-        metric_registry.unregister_metric(feature.metric.name)
+        unregister_metric(feature.metric.name)
 
 
 @contextlib.contextmanager
@@ -411,3 +402,12 @@ def map_sizes(selected: tuple[Feature, ...] | None = None) -> tuple[Size, ...]:
 def map_padding(selected: tuple[Feature, ...] | None = None) -> dict[str, Pad]:
     """Every map array's `Pad`, by name."""
     return {name: pad for p in map_parts(selected) for name, pad in p.arrays}
+
+
+def scene_map_arrays(scenario, context, layout, num_steps: int, cells: bool = True, selected=None) -> dict:
+    """Every array of the map parts the features need (`map_parts`), unpadded: the parts' builders
+    (`features.map_arrays`) of one scene."""
+    out: dict = {}
+    for part in map_parts(features() if selected is None else selected):
+        out.update(part.build(scenario, context, layout, num_steps, cells))
+    return out

@@ -21,7 +21,6 @@ import numpy as np
 from wosac_eval.arrays.scenario import TrafficSignals
 from wosac_eval.features import following, interaction, road_edge, traffic_lights
 from wosac_eval.features.search_strategy import TimeToCollisionInputs
-from wosac_eval.parse import wire_walks
 
 
 @dataclasses.dataclass(frozen=True)
@@ -44,20 +43,7 @@ class PrunedSearch:
 
     def time_to_collision(self, inputs: TimeToCollisionInputs):
         """`following.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
-        i = inputs
-        return following.time_to_collision(
-            i.x,
-            i.y,
-            i.length,
-            i.width,
-            i.heading,
-            i.valid,
-            num_evaluated=i.num_evaluated,
-            steps=i.steps,
-            speed=i.speed,
-            ego_tail=i.ego_tail,
-            pair_tail=i.pair_tail,
-        )
+        return following.time_to_collision(inputs)
 
     def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
         """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
@@ -69,15 +55,12 @@ class PrunedSearch:
 
 
 def compile_searches() -> float:
-    """Compiles the search loops, the protobuf wire walks (`parse.wire_walks`) and the criticality's loop
-    (`analysis.criticality_features`) now (or loads them from numba's cache); returns the seconds it took.
+    """Compiles the search loops now (or loads them from numba's cache); returns the seconds it took.
 
-    numba compiles a loop on its first call, once per installation (about half a minute for all of
-    them), and caches it on disk; a process that should not pay that in its first scenario (a
-    Docker image while it is built, a service before it takes jobs) calls this first.
+    numba compiles a loop on its first call, once per installation, and caches it on disk; with the
+    other rooms' loops, `scoring.warm_up.compile_loops` compiles them ahead of a first scenario.
     """
     start = time.perf_counter()
-    wire_walks.compile_walks()
     f = np.float32
     table = road_edge.build_segment_table([np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0]], f)])
     # Boxes near the edge, on another level, far off the map, and not finite, in 16 samples: enough
@@ -91,14 +74,12 @@ def compile_searches() -> float:
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
+        boxes = {"x": x, "y": zeros, "length": ones * 4, "width": ones * 2, "heading": zeros, "valid": ones > 0}
         following.time_to_collision(
-            x, zeros, ones * 4, ones * 2, zeros, ones > 0, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None)
+            TimeToCollisionInputs(**boxes, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None))
         )
         line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
         traffic_lights.compiled_stop_line_crossings(
             x, zeros, ones > 0, line, line + [0, 1], line + [4, 0], np.ones((3, 1), bool)
         )
-    from wosac_eval.analysis import criticality_features  # scoring's default analysis has a loop of its own
-
-    criticality_features.compile_loops()
     return time.perf_counter() - start

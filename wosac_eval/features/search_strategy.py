@@ -17,19 +17,21 @@ import dataclasses
 from typing import Any, Protocol, runtime_checkable
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, kw_only=True)
 class TimeToCollisionInputs:
     """What the time-to-collision search reads: whole trajectories (speeds need neighbouring steps) and
     the steps to report.
 
     Attributes:
       x, y, length, width, heading, speed: float32 `(samples, num_objects, num_steps)`; speed is the
-        planar speed.
+        planar speed (None: `following.time_to_collision` computes it, over `seconds_per_step`).
       valid: bool `(samples, num_objects, num_steps)`.
       num_evaluated: the evaluated objects, the first of the object axis.
-      steps: the reported steps, a contiguous range of the step axis.
+      steps: the reported steps, a contiguous range of the step axis (default all).
       ego_tail, pair_tail: the official ops' trailing packets, bool `(len(steps), num_evaluated, 1)` and
-        `(len(steps), num_evaluated, num_objects)`, from the real (unpadded) shapes.
+        `(len(steps), num_evaluated, num_objects)`, from the real (unpadded) shapes (None:
+        `following.time_to_collision` computes them from the arrays' shapes; the searches are given them).
+      seconds_per_step: the step's duration, for the speeds where `speed` is None.
     """
 
     x: Any
@@ -37,12 +39,15 @@ class TimeToCollisionInputs:
     length: Any
     width: Any
     heading: Any
-    speed: Any
     valid: Any
     num_evaluated: int
-    steps: slice
-    ego_tail: Any
-    pair_tail: Any
+    speed: Any = None
+    steps: slice = dataclasses.field(
+        default_factory=lambda: slice(None)
+    )  # unhashable before Python 3.12: no plain default
+    ego_tail: Any = None
+    pair_tail: Any = None
+    seconds_per_step: float | None = None
 
 
 @runtime_checkable

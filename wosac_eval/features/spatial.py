@@ -113,6 +113,10 @@ def nonzero(mask: np.ndarray) -> tuple[np.ndarray, ...]:
     return np.unravel_index(np.flatnonzero(mask), mask.shape)
 
 
+# The dense search's arrays of the segment `non_finite_pick` chooses, shape (1, ...), carry this prefix.
+NON_FINITE_PREFIX = "non_finite_"
+
+
 def non_finite_pick(valid: np.ndarray) -> int:
     """The segment the official search picks for a point with a NaN or infinite coordinate.
 

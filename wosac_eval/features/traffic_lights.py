@@ -58,6 +58,13 @@ class LaneTable:
         return cKDTree(self.start[self.tree_segment].astype(np.float64))
 
 
+def signals_from(signals: TrafficSignals | None, start: int) -> TrafficSignals | None:
+    """The signal states from step `start` on (None stays None)."""
+    if signals is None:
+        return None
+    return dataclasses.replace(signals, state=signals.state[start:], stop_point=signals.stop_point[start:])
+
+
 def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     kept = [(np.asarray(p, _F)[:, :2], i) for p, i in zip(lanes, lane_ids) if len(p) >= 2]
     if not kept:

@@ -2,101 +2,30 @@
 
 Like the official metrics package, a metric is a config field `X` (its
 estimator and meta-metric weight) scored into the output `X_likelihood` from
-one feature of `MetricFeatures`. The official metrics are the rows of
-`METRICS` (their configs are fields of the official `SimAgentMetricsConfig`);
-a feature registered beside them (`features.registry.register`) brings its
-own metric, whose config (estimator, bounds, weight) is its `config_default`
-textproto, since the official proto has no field for it (`active_metrics`,
-`metric_config`). Everything that lists metrics (the scorer, the presets,
-result files, compare / report, the service) reads this module.
+one feature of `MetricFeatures`. The rows themselves (`Metric`, `Rate`,
+`METRICS`, `RATES` and the metrics registered beside the official ones:
+`register_metric`, `active_metrics`) are the metric table, `wosac_eval.metric_table`,
+which the features read too; this module hands them on and derives from them
+the result's fields, buckets and directions. A feature registered beside the
+official ones (`features.registry.register`) brings its own metric, whose
+config (estimator, bounds, weight) is its `config_default` textproto, since
+the official proto has no field for it (`metric_config`). Everything that
+lists metrics (the scorer, the presets, result files, compare / report, the
+service) reads this module.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import functools
-
-from wosac_eval.options import Mask
-
-BUCKETS = ("kinematic", "interactive", "map_based")
-
-
-@dataclasses.dataclass(frozen=True)
-class Metric:
-    """One likelihood metric.
-
-    Attributes:
-      name: the config field; the output is `<name>_likelihood`.
-      bucket: the leaderboard bucket it is weighted into.
-      feature: the `MetricFeatures` field it scores.
-      per_object: True for an indicator (did the event happen at any valid
-        step: one Bernoulli sample per object), False for a per-step time series.
-      mask: which logged steps count: "valid", "speed" (both neighbours
-        valid), "acceleration" (two steps each side), "vehicle" (valid
-        vehicles only).
-      config_default: a `SimAgentMetricsConfig.FeatureConfig` textproto (e.g. `"bernoulli {}
-        metametric_weight: 0.0"`): for an official metric, what a config that omits the field gets
-        (`config.with_defaults`; None: omitting it is an error); for a registered one, its config.
-      official: a field of the official config and result messages (`METRICS`); False for a metric
-        registered beside them (`register_metric`).
-    """
-
-    name: str
-    bucket: str
-    feature: str
-    per_object: bool
-    mask: Mask | str  # a name or a member; a `Mask` once constructed (`__post_init__`)
-    config_default: str | None = None
-    official: bool = True
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "mask", Mask.parse(self.mask))  # a mask no kernel computes is refused here
-
-    @property
-    def output(self) -> str:
-        return f"{self.name}_likelihood"
-
-
-@dataclasses.dataclass(frozen=True)
-class Rate:
-    """A simulated event rate: the share of (rollout, evaluated object) pairs with the event at a valid step."""
-
-    name: str
-    feature: str
-    bucket_name: str  # its name among the leaderboard buckets (the same)
-    title: str  # as the HTML report labels it
-
-
-METRICS = (
-    Metric("linear_speed", "kinematic", "linear_speed", False, "speed"),
-    Metric("linear_acceleration", "kinematic", "linear_acceleration", False, "acceleration"),
-    Metric("angular_speed", "kinematic", "angular_speed", False, "speed"),
-    Metric("angular_acceleration", "kinematic", "angular_acceleration", False, "acceleration"),
-    Metric("distance_to_nearest_object", "interactive", "distance_to_nearest_object", False, "valid"),
-    Metric("collision_indication", "interactive", "collision_per_step", True, "valid"),
-    Metric("time_to_collision", "interactive", "time_to_collision", False, "vehicle"),
-    Metric("distance_to_road_edge", "map_based", "distance_to_road_edge", False, "valid"),
-    Metric("offroad_indication", "map_based", "offroad_per_step", True, "valid"),
-    # Pre-2025 configs have no traffic-light metric: it then counts as Bernoulli with weight 0.
-    Metric(
-        "traffic_light_violation",
-        "map_based",
-        "traffic_light_violation_per_step",
-        True,
-        "vehicle",
-        config_default="bernoulli {} metametric_weight: 0.0",
-    ),
-)
-RATES = (
-    Rate("simulated_collision_rate", "collision_per_step", "simulated_collision_rate", "Collision rate"),
-    Rate("simulated_offroad_rate", "offroad_per_step", "simulated_offroad_rate", "Offroad rate"),
-    # The official rate counts red lights of every valid object, vehicle or not.
-    Rate(
-        "simulated_traffic_light_violation_rate",
-        "traffic_light_violation_per_step",
-        "simulated_traffic_light_violation_rate",
-        "Red-light violation rate",
-    ),
+from wosac_eval.metric_table import (  # noqa: F401  (the registry's API: its users import these from here)
+    BUCKETS,
+    METRICS,
+    RATES,
+    Metric,
+    Rate,
+    active_metrics,
+    default_feature_config,
+    register_metric,
+    unregister_metric,
 )
 
 METRIC_NAMES = tuple(m.name for m in METRICS)
@@ -142,42 +71,6 @@ DISPLAY_ORDER = (
 )
 
 
-# Metrics registered beside the official ones (`register_metric`), in registration order.
-_REGISTERED: list[Metric] = []
-
-
-def register_metric(metric: Metric) -> None:
-    """Adds a non-official metric: scored with its own `config_default` after the official ones.
-
-    Raises:
-      ValueError: the name is taken, it is marked official, has no config, or its bucket is unknown.
-    """
-    if metric.official or metric.config_default is None:
-        raise ValueError(
-            f"a registered metric ({metric.name}) is not official and carries its config "
-            f"(official=False, config_default=...)"
-        )
-    if metric.name in {m.name for m in active_metrics()}:
-        raise ValueError(f"metric {metric.name!r} is already registered")
-    if metric.bucket not in BUCKETS:
-        raise ValueError(f"metric {metric.name!r}: bucket must be one of {', '.join(BUCKETS)}, got {metric.bucket!r}")
-    default_feature_config(metric)  # a config that does not parse is refused now
-    _REGISTERED.append(metric)
-
-
-def unregister_metric(name: str) -> None:
-    """Removes a metric added by `register_metric` (KeyError if there is none of that name)."""
-    index = next((k for k, m in enumerate(_REGISTERED) if m.name == name), None)
-    if index is None:
-        raise KeyError(name)
-    del _REGISTERED[index]
-
-
-def active_metrics() -> tuple[Metric, ...]:
-    """The official metrics, then the registered ones: what the scorer computes."""
-    return METRICS + tuple(_REGISTERED)
-
-
 def active_likelihood_fields() -> tuple[str, ...]:
     return tuple(m.output for m in active_metrics())
 
@@ -191,24 +84,6 @@ def metric_config(config, metric: Metric):
     """The `FeatureConfig` a metric is scored with: the official config's field, or a registered
     metric's own `config_default` (the official proto has no field for it)."""
     return getattr(config, metric.name) if metric.official else default_feature_config(metric)
-
-
-def default_feature_config(metric: Metric):
-    """The metric's `config_default` as a `FeatureConfig` message (a fresh copy), or None."""
-    if metric.config_default is None:
-        return None
-    message = _parsed_config(metric.config_default)
-    return type(message).FromString(message.SerializeToString())
-
-
-@functools.cache
-def _parsed_config(text: str):
-    # Imported here: this module lists names for light readers (compare, report) that need no protobuf.
-    from google.protobuf import text_format
-
-    from wosac_eval.protos import sim_agents_metrics_pb2
-
-    return text_format.Parse(text, sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig())
 
 
 def higher_is_better(field: str) -> bool:

@@ -12,7 +12,7 @@ wins, a repeated float may be packed or not, an unset field reads as its default
 enum's value out of range is an unknown field. They read the bytes a message was parsed from, or its
 serialisation (`message_bytes`); malformed bytes raise ValueError (but in `rollouts_census`, which counts
 before any parse: there they end a level's walk). Compiled once per installation
-and cached on disk by numba, like the search loops (`features.search.compile_searches`).
+and cached on disk by numba, like the search loops (`scoring.warm_up.compile_loops` compiles both).
 """
 
 from __future__ import annotations
@@ -309,7 +309,7 @@ def _bool_fields(data, starts, ends, number):
 
 def compile_walks() -> None:
     """Compiles the walks now (or loads them from numba's cache), for the argument types scoring and
-    validation pass: called by `features.search.compile_searches`."""
+    validation pass: called by `scoring.warm_up.compile_loops` (and validation's pools)."""
     message = varint((1 << 3) | WIRE_BYTES) + varint(10) + varint((2 << 3) | WIRE_BYTES) + varint(8) + bytes(8)
     data = message_bytes(message)
     start, end, _ = message_spans(data, *whole(data), 1)

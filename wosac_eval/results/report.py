@@ -35,6 +35,7 @@ from wosac_eval.results.report_plots import (
     rate_plot,
     scatter_plot,
 )
+from wosac_eval.results.worst_objects import worst_objects
 from wosac_eval.scoring.result_reader import (
     BUCKET_FIELDS,
     RATE_FIELDS,
@@ -222,8 +223,6 @@ def _worst_section(result: ScoringResult, top_k: int) -> str:
 
 def _worst_objects_section(result: ScoringResult, top_k: int) -> str:
     """Per bucket, the objects contributing most to its gap from 1, with the fields that sink them."""
-    from wosac_eval.results.worst_objects import worst_objects
-
     try:
         worst = worst_objects(result, top_k)
     except FileNotFoundError:

@@ -123,6 +123,6 @@ def make_executor(
     `warm_up`: a local pool's (`LocalExecutor`); a Ray cluster's workers start on their own nodes."""
     if check_engine(engine) is Engine.LOCAL:
         return LocalExecutor(workers, force_spawn=force_spawn, initializer=initializer, warm_up=warm_up)
-    from wosac_eval.runtime.ray_executor import RayExecutor
+    from wosac_eval.runtime.ray_executor import RayExecutor  # the ray extra, loaded for the Ray engine alone
 
     return RayExecutor(ray_address, initializer=initializer)

@@ -21,6 +21,7 @@ import numpy as np
 
 from wosac_eval.challenges import CHALLENGE_NAMES as CHALLENGES
 from wosac_eval.metrics.buckets import metametric_weights, weighted_bucket
+from wosac_eval.metrics.config import load_config
 
 # The metric schema comes from the one registry: fields, buckets, directions.
 from wosac_eval.metrics.registry import (  # noqa: F401  (re-exported to compare and report)
@@ -227,14 +228,10 @@ def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
 def default_bucket_weights(config: str) -> dict[str, float] | None:
     """Metametric weights of the config, by config field name, or None if unavailable.
 
-    Comes from the metrics package's config loader; None when that loader is not
-    installed or the config cannot be found (then per-scenario weighted buckets are
-    only available when the result file carries them).
+    Comes from the metrics package's config loader; None when the config cannot be
+    found (then per-scenario weighted buckets are only available when the result
+    file carries them).
     """
-    try:
-        from wosac_eval.metrics.config import load_config  # provided by the metrics package
-    except ImportError:
-        return None
     try:
         proto = load_config(config)
     except (ValueError, OSError):  # an unknown name, or a textproto path that is not on this machine

@@ -12,11 +12,17 @@ import os
 import numpy as np
 
 from wosac_eval import challenges
+from wosac_eval.analysis.by_object_type import by_object_type
+from wosac_eval.analysis.criticality_scores import scenario_criticality
+from wosac_eval.analysis.driving_scores import driving_scores
+from wosac_eval.arrays.object_types import SHORT_NAMES
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.extras import check_backend
 from wosac_eval.features.metric_features import map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
+from wosac_eval.metrics.per_object import EVENTS, per_object_metrics
+from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
 from wosac_eval.options import Backend
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
@@ -107,10 +113,6 @@ def scenario_analysis(
       result's assembly adds the rarity), "driving": the SDC's driving scores (or None),
       "by_object_type": the metrics per object type}. `criticality`: the scene's, when computed already.
     """
-    from wosac_eval.analysis.by_object_type import by_object_type
-    from wosac_eval.analysis.criticality_scores import scenario_criticality
-    from wosac_eval.analysis.driving_scores import driving_scores
-
     if criticality is None:
         criticality = scenario_criticality(scenario, context)
     return {
@@ -127,10 +129,6 @@ def object_records(scenario_id: str, values) -> list[dict]:
     `<metric>_count` (the object's weight in the scene's field), `num_rollouts`, and per event (collision,
     offroad, traffic_light_violation) `<event>_rollouts` (rollouts where the object has it) and
     `<event>_first_step` (its earliest step over the rollouts, null if none)."""
-    from wosac_eval.arrays.object_types import SHORT_NAMES
-    from wosac_eval.metrics.per_object import EVENTS
-    from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
-
     likelihood = {f: values.likelihood[f].astype(np.float64).tolist() for f in LIKELIHOOD_FIELDS}
     count = {f: values.count[f].tolist() for f in LIKELIHOOD_FIELDS}
     flagged = {e: values.flags[e].sum(axis=0).tolist() for e in EVENTS}
@@ -157,20 +155,20 @@ def _row(
     config: SimAgentMetricsConfig,
     arrays: ScenarioArrays,
     rollout: RolloutArrays,
-    log,
-    sim,
     context,
+    features: tuple,
     analysis: bool,
     criticality: dict | None = None,
     per_object: bool = False,
 ) -> dict:
+    """A result row from the scene's (log, simulated) `features`, with the analysis and the per-object
+    values where asked."""
+    log, sim = features
     lls = metric_log_likelihoods(config, log, sim)
     row = {"scenario_id": arrays.scenario_id, **scenario_metrics(config, log, sim, lls)}
     if analysis:
         row.update(scenario_analysis(config, arrays, rollout, log, sim, lls, context, criticality))
     if per_object:
-        from wosac_eval.metrics.per_object import per_object_metrics
-
         row["objects"] = object_records(arrays.scenario_id, per_object_metrics(config, log, sim, lls))
     return row
 
@@ -204,7 +202,7 @@ def score_scenario(
         `analysis.criticality_cache`), instead of computing it.
     """
     message, arrays, rollout, context, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
-    return _row(message, arrays, rollout, log, sim, context, analysis, criticality, per_object=per_object)
+    return _row(message, arrays, rollout, context, (log, sim), analysis, criticality, per_object=per_object)
 
 
 def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
@@ -216,7 +214,7 @@ def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend:
     try:
         context = map_context(arrays)
         if backend is Backend.JAX:
-            from wosac_eval.backends import jax_backend
+            from wosac_eval.backends import jax_backend  # the jax extra, loaded for the jax backend alone
 
             log, sim = jax_backend.scenario_features(arrays, rollout, context, challenge=challenge)
         else:
@@ -237,8 +235,6 @@ def score_scenario_per_object(
     """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
     `metrics.per_object.PerObjectMetrics` (likelihoods and their weights per object, each rollout's
     collision, off-road and red-light flags and first steps)."""
-    from wosac_eval.metrics.per_object import per_object_metrics
-
     message, _, _, _, log, sim = _scored_features(scenario, rollouts, config, challenge, backend)
     return per_object_metrics(message, log, sim)
 
@@ -263,7 +259,7 @@ class JaxItem:
 def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False, criticality: dict | None = None) -> JaxItem:
     """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs (and, with
     `analysis`, the scene's criticality: `criticality` when known already, else computed)."""
-    from wosac_eval.backends import jax_backend
+    from wosac_eval.backends import jax_backend  # the jax extra, loaded for the jax backend alone
 
     arrays, rollout = scenario_inputs(scenario, rollouts, challenge)
     try:
@@ -274,8 +270,6 @@ def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False, crit
     if not analysis:
         criticality = None
     elif criticality is None:
-        from wosac_eval.analysis.criticality_scores import scenario_criticality
-
         criticality = scenario_criticality(arrays, context)
     return JaxItem(arrays, rollout, context, prepared, criticality)
 
@@ -293,7 +287,7 @@ def score_jax_items(
 
     Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
     """
-    from wosac_eval.backends import jax_backend
+    from wosac_eval.backends import jax_backend  # the jax extra, loaded for the jax backend alone
 
     config = resolve_config(config, challenges.as_challenge(challenge))
     pipeline = jax_backend.FeaturePipeline(max_batch=max_batch)
@@ -301,9 +295,9 @@ def score_jax_items(
     next_out = 0
 
     def finish(done):
-        for (index, item), (log, sim) in done:
+        for (index, item), features in done:
             rows[index] = _row(
-                config, item.arrays, item.rollout, log, sim, item.context, analysis, item.criticality, per_object
+                config, item.arrays, item.rollout, item.context, features, analysis, item.criticality, per_object
             )
 
     def ready():

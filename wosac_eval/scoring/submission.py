@@ -24,11 +24,14 @@ import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 
+from wosac_eval.analysis import criticality_cache
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
-from wosac_eval.features.search import compile_searches
+from wosac_eval.arrays.rollouts import rollout_arrays
+from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
+from wosac_eval.parse.limits import InputLimits
 from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
@@ -38,6 +41,8 @@ from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
 from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
 from wosac_eval.scoring.result import result_document
+from wosac_eval.scoring.scenario import prepare_jax_item, score_jax_items, score_scenario
+from wosac_eval.scoring.warm_up import compile_loops
 from wosac_eval.validate import validate_submission
 
 PathLike = str | os.PathLike
@@ -103,10 +108,6 @@ def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
     scenario set is not parsed whole for each submission). With the analysis, the scene's criticality is
     the one an earlier run kept (`analysis.criticality_cache`, under the record's key), None when none did;
     without it both are None."""
-    from wosac_eval.analysis import criticality_cache
-    from wosac_eval.arrays.rollouts import rollout_arrays
-    from wosac_eval.arrays.scenario import record_arrays
-
     pairs = []
     for sid, locator in chunk.items:
         record = context.index.load_record(sid)
@@ -121,8 +122,6 @@ def _pairs(context: ScoringContext, chunk: ScoringChunk) -> list[tuple]:
 
 def _keep_criticality(pairs: list[tuple], criticality: list) -> None:
     """Keeps the scenes' criticality computed now (`analysis.criticality_cache`) for later runs."""
-    from wosac_eval.analysis import criticality_cache
-
     criticality_cache.keep(
         [
             (key, computed)
@@ -134,8 +133,6 @@ def _keep_criticality(pairs: list[tuple], criticality: list) -> None:
 
 def score_chunk(context: ScoringContext, chunk: ScoringChunk) -> list[dict]:
     """Scores the scenarios of a chunk (a worker task); results in chunk order."""
-    from wosac_eval.scoring.scenario import score_jax_items, score_scenario
-
     config = SimAgentMetricsConfig.FromString(context.config)
     pairs = _pairs(context, chunk)
     if context.backend is Backend.JAX:
@@ -169,8 +166,6 @@ def prepare_chunk(context: ScoringContext, chunk: ScoringChunk) -> list:
 
 
 def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
-    from wosac_eval.scoring.scenario import prepare_jax_item
-
     items = [
         prepare_jax_item(scenario, rollouts, context.challenge, context.analysis, known)
         for scenario, rollouts, known, _ in pairs
@@ -182,8 +177,6 @@ def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
 
 def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
     """Rows, one at a time, in order: workers parse and prepare, this process feeds the device."""
-    from wosac_eval.scoring.scenario import score_jax_items
-
     items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
     for row in score_jax_items(
         items, config, challenge=context.challenge, analysis=context.analysis, per_object=context.per_object
@@ -270,19 +263,9 @@ def score_submission(
         ray_address=run.ray_address,
         force_spawn=run.backend is Backend.JAX,
         initializer=keep_freed_memory,
-        warm_up=compile_searches,  # numba's loops compiled once here, not in every worker of a fresh installation
+        warm_up=compile_loops,  # numba's loops compiled once here, not in every worker of a fresh installation
     )
-    opened: contextlib.AbstractContextManager[SubmissionSource]
-    if isinstance(submission, SubmissionSource):  # a handle the caller opened stays open
-        opened = contextlib.nullcontext(submission)
-    elif journal is not None:
-        # With a journal, an archive's last members are kept beside it: a run resumed late need not decompress
-        # the archive up to them (`scoring.journal`).
-        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
-        opened = SubmissionSource(submission, run.limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
-    else:
-        opened = SubmissionSource(submission, run.limits)
-    with opened as source:
+    with _opened(submission, journal, run.limits) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
         if objects is not None:
             if not per_object:
@@ -299,6 +282,20 @@ def score_submission(
         finally:
             if temporary:
                 remove_journal(journal)
+
+
+def _opened(
+    submission: PathLike | SubmissionSource, journal: PathLike | None, limits: InputLimits
+) -> contextlib.AbstractContextManager[SubmissionSource]:
+    """The submission to read, as a context: a handle the caller opened stays open; with a journal, an
+    archive's last members are kept beside it, so a run resumed late need not decompress the archive up
+    to them (`scoring.journal`)."""
+    if isinstance(submission, SubmissionSource):
+        return contextlib.nullcontext(submission)
+    if journal is not None:
+        tail_dir, tail_bytes = members_path(journal), members_budget(submission, journal)
+        return SubmissionSource(submission, limits, tail_dir=tail_dir, tail_bytes=tail_bytes)
+    return SubmissionSource(submission, limits)
 
 
 def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.parse.tfrecord import write_records
 from wosac_eval.protos import map_pb2, scenario_pb2
 from wosac_eval.sim import geometry as geo
 from wosac_eval.sim.logged_scenes import LoggedScene, build_scene
@@ -167,8 +168,6 @@ def write_scenario_shards(
     scenarios: list, directory: str | Path, num_shards: int = 1, prefix: str = "synthetic"
 ) -> list[Path]:
     """Writes scenarios as TFRecord shards named `<prefix>.tfrecord-0000k-of-0000n`."""
-    from wosac_eval.parse.tfrecord import write_records
-
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     num_shards = max(1, min(num_shards, len(scenarios)))

@@ -32,7 +32,9 @@ import numpy as np
 
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import PROTO_NAMES, TYPE_UNSET
+from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
 from wosac_eval.challenges import CURRENT_TIME_INDEX
+from wosac_eval.parse import wire_walks
 from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS, VALID_FIELD_NUMBER
 from wosac_eval.validate.findings import WARNING, Finding, Location, format_ids, make_finding
 

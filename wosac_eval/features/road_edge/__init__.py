@@ -1,10 +1,10 @@
 """Signed distance from box corners to the road edge; offroad.
 
-Four modules, used in this order:
+Five modules, used in this order:
 - `segments`: the segment table of a scenario's road edges (official order, neighbours, the planar
   bucket grid) and the float32 kernels of the signed distance, shared by numpy, JAX and numba;
 - `pruned_search`: the compiled search of the numpy path for the nearest segment (`nearest_segments`),
-  exact by proven bounds;
+  exact by proven bounds, over the candidate lists of the cells where queries fall (`cell_lists`);
 - `signed_distance`: the signed distance of points and of box corners from those segments
   (`signed_distance_to_polylines`, `box_distance_to_road_edge`);
 - `cell_tables`: per-cell candidate lists with a clearance, for the fixed-shape search on a device

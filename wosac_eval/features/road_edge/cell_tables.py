@@ -11,6 +11,7 @@ query near a road edge needs only those; built once per scene on the host
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -18,10 +19,10 @@ from wosac_eval.features.compiled import cached_loop
 from wosac_eval.features.road_edge.segments import (
     bucket_grid,
     gather_ring,
+    gather_workspace,
     planar_squared,
-    ring_buffer,
     rings_around,
-    search_grid,
+    search_buckets,
     segment_frames,
 )
 from wosac_eval.features.spatial import column_bounds
@@ -81,22 +82,10 @@ def cell_candidate_table(
     shape = np.ceil((high + _CELL_BORDER - origin) / side).astype(np.int64)
     if not np.isfinite(origin).all() or shape[0] * shape[1] > _MAX_CELLS:
         return unsettling_cell_table(k)  # every query searches all segments: exact, slower
-    buckets = bucket_grid(start, delta, np.ones(len(start), bool))
-    grid = search_grid(
-        buckets["bucket_origin"], buckets["bucket_side"], buckets["bucket_shape"], buckets["segment_buckets"]
-    )
+    buckets = search_buckets(bucket_grid(start, delta, np.ones(len(start), bool)))
+    cells = CellGrid(float(origin[0]), float(origin[1]), int(shape[0]), int(shape[1]), float(side))
     candidates, clearance, near_clearance = _cell_table(
-        segment_frames(start, delta),
-        float(origin[0]),
-        float(origin[1]),
-        int(shape[0]),
-        int(shape[1]),
-        float(side),
-        int(k),
-        int(min(near, k)),
-        grid,
-        buckets["bucket_start"],
-        buckets["bucket_segments"],
+        segment_frames(start, delta), cells, int(k), int(min(near, k)), buckets
     )
     return {
         "origin": origin.astype(_F),
@@ -118,8 +107,18 @@ def unsettling_cell_table(k: int = CELL_CANDIDATES) -> dict:
     }
 
 
+class CellGrid(NamedTuple):
+    """The planar grid of a cell table: its lower corner, cells along x and y, and the cells' side (m)."""
+
+    origin_x: float
+    origin_y: float
+    num_x: int
+    num_y: int
+    side: float
+
+
 @cached_loop
-def _cell_table(frame, origin_x, origin_y, num_x, num_y, side, k, near, grid, bucket_start, bucket_segments):
+def _cell_table(frame, cells, k, near, buckets):
     """`cell_candidate_table`'s lists and both clearances (float64), group of cells by group.
 
     A group of `_GROUP_CELLS` x `_GROUP_CELLS` cells gathers, ring by ring of buckets around its
@@ -133,14 +132,14 @@ def _cell_table(frame, origin_x, origin_y, num_x, num_y, side, k, near, grid, bu
     `near` nearest and every other segment is at least the (near+1)-th nearest's distance away.
     """
     num_segments = frame.shape[0]
+    origin_x, origin_y, num_x, num_y, side = cells
+    grid = buckets.grid
     bucket_side = grid[2]
     candidates = np.empty((num_x * num_y, max(k, 1)), np.int32)
     clearance = np.empty(num_x * num_y, np.float64)
     near_clearance = np.empty(num_x * num_y, np.float64)
-    seen = np.full(num_segments, -1, np.int64)
-    ring = ring_buffer(grid)
-    gathered = np.empty(num_segments, np.int32)
-    gathered_distance = np.empty(num_segments, np.float64)
+    gather = gather_workspace(num_segments, grid)
+    gathered, gathered_distance = gather.segment, gather.key
     squared = np.empty(num_segments, np.float64)
     half_diagonal = side * math.sqrt(0.5)
     group_half = _GROUP_CELLS * half_diagonal
@@ -150,28 +149,12 @@ def _cell_table(frame, origin_x, origin_y, num_x, num_y, side, k, near, grid, bu
             bx = origin_x + (gx + 0.5 * _GROUP_CELLS) * side
             by = origin_y + (gy + 0.5 * _GROUP_CELLS) * side
             # The segments around the group's centre by rings of buckets, until L is passed.
-            bi, bj, first, last = rings_around(bx, by, grid)
+            _, _, first, last = rings_around(bx, by, grid)
             m, nearest_beyond = 0, np.inf  # D(b)
             for r in range(first, last + 1):
                 if r > first and (r - 1) * bucket_side > nearest_beyond + 2.0 * group_half:
                     break  # every segment not met yet is at least (r - 1) * bucket_side away
-                m = gather_ring(
-                    bx,
-                    by,
-                    bi,
-                    bj,
-                    r,
-                    frame,
-                    grid,
-                    bucket_start,
-                    bucket_segments,
-                    seen,
-                    tag,
-                    ring,
-                    gathered,
-                    gathered_distance,
-                    m,
-                )
+                m = gather_ring(bx, by, r, frame, buckets, gather, tag, m)
                 if m > k:
                     nearest_beyond = np.partition(gathered_distance[:m], k)[k]
             tag += 1

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -66,6 +68,29 @@ class SegmentTable:
     segment_buckets: np.ndarray  # int64 (4,): first and last bucket along x, then along y
     bucket_start: np.ndarray  # int64 (num_buckets + 1,): where each bucket's list begins in
     bucket_segments: np.ndarray  # int32: valid segments crossing each bucket, bucket by bucket
+
+    def sides(self) -> SegmentSides:
+        """The arrays the compiled signed distance reads."""
+        return SegmentSides(
+            self.start,
+            self.delta,
+            self.valid,
+            self.prior,
+            self.next,
+            self.prior_valid,
+            self.next_valid,
+            self.convex_before,
+            self.convex_after,
+        )
+
+    def searched(self) -> SearchedSegments:
+        """The arrays the compiled searches read."""
+        return SearchedSegments(self.start, self.delta, self.frame, self.length)
+
+    def buckets(self) -> Buckets:
+        """The bucket grid as the compiled searches read it."""
+        names = ("bucket_origin", "bucket_side", "bucket_shape", "segment_buckets", "bucket_start", "bucket_segments")
+        return search_buckets({k: getattr(self, k) for k in names})
 
 
 def _cross(ax, ay, bx, by):
@@ -230,6 +255,82 @@ def bucket_grid(start: np.ndarray, delta: np.ndarray, valid: np.ndarray) -> dict
     }
 
 
+class SearchedSegments(NamedTuple):
+    """The segment arrays the compiled searches read, a `SegmentTable`'s (`SegmentTable.searched`).
+
+    Attributes:
+      start, delta: float32 `(S, 3)`; frame: float64 `(S, 7)` (`segment_frames`); length: float64 `(S,)`.
+    """
+
+    start: np.ndarray
+    delta: np.ndarray
+    frame: np.ndarray
+    length: np.ndarray
+
+
+class SegmentSides(NamedTuple):
+    """The segment arrays the compiled signed distance reads (which side of a segment and of its corners
+    a point is on), a `SegmentTable`'s (`SegmentTable.sides`): see there."""
+
+    start: np.ndarray
+    delta: np.ndarray
+    valid: np.ndarray
+    prior: np.ndarray
+    next: np.ndarray
+    prior_valid: np.ndarray
+    next_valid: np.ndarray
+    convex_before: np.ndarray
+    convex_after: np.ndarray
+
+
+class Buckets(NamedTuple):
+    """The bucket grid as the compiled loops read it.
+
+    Attributes:
+      grid: `search_grid`'s tuple of 9 (origin, side, buckets along x and y, the occupied range).
+      start: int64 `(num_buckets + 1,)`; segments: int32: each bucket's segments,
+        `segments[start[b]:start[b + 1]]`.
+    """
+
+    grid: tuple
+    start: np.ndarray
+    segments: np.ndarray
+
+
+class Gather(NamedTuple):
+    """The workspace of segments gathered ring by ring (`gather_ring`).
+
+    Attributes:
+      seen: int64 `(S,)`, the tag under which each segment was last gathered.
+      ring: the buckets of one ring (`ring_buffer`).
+      segment: int32 `(S,)`, the gathered segments; key: float64 `(S,)`, their planar distances.
+    """
+
+    seen: np.ndarray
+    ring: np.ndarray
+    segment: np.ndarray
+    key: np.ndarray
+
+
+@numba.njit
+def gather_workspace(num_segments, grid):
+    """A `Gather` for `num_segments` segments of the grid, no segment seen yet."""
+    return Gather(
+        np.full(num_segments, -1, np.int64),
+        ring_buffer(grid),
+        np.empty(num_segments, np.int32),
+        np.empty(num_segments, np.float64),
+    )
+
+
+def search_buckets(grid: Mapping) -> Buckets:
+    """The `Buckets` of `bucket_grid`'s arrays (which a `SegmentTable` carries too: `SegmentTable.buckets`)."""
+    origin, side, shape, occupied = (
+        grid[k] for k in ("bucket_origin", "bucket_side", "bucket_shape", "segment_buckets")
+    )
+    return Buckets(search_grid(origin, side, shape, occupied), grid["bucket_start"], grid["bucket_segments"])
+
+
 def search_grid(origin, side, shape, occupied) -> tuple:
     """The bucket grid as the compiled loops read it, a tuple of 9: origin x, origin y and side (float), buckets
     along x and y, then the first and last bucket holding a segment along x and along y (int); from the
@@ -315,7 +416,7 @@ def bucket_coordinate(value, origin, side):
     """Where a finite coordinate lies along one axis, in buckets from the grid's origin, clamped far
     beyond any grid (an integer conversion of a huge float is undefined). The side is a power of two
     (`bucket_grid`): multiplying by its inverse (hoisted out of callers' loops) is exact, where a
-    division per coordinate was most of `pruned_search._query_cells`' time."""
+    division per coordinate was most of `cell_lists.query_cells`' time."""
     return min(max((value - origin) * (1.0 / side), -1e15), 1e15)
 
 
@@ -331,7 +432,7 @@ def _bucket_range(start, delta, origin, side, num):
 @numba.njit
 def planar_squared(qx, qy, k, frame):
     """The squared planar distance (float64) from a point to segment k, in the segment's own frame (no
-    division). Its rounding, about 1e-16 of the coordinates, is far inside `pruned_search._rounding_margin`."""
+    division). Its rounding, about 1e-16 of the coordinates, is far inside `cell_lists.rounding_margin`."""
     tx, ty = qx - frame[k, 0], qy - frame[k, 1]
     along = tx * frame[k, 2] + ty * frame[k, 3]
     across = tx * frame[k, 3] - ty * frame[k, 2]
@@ -346,17 +447,17 @@ def planar_distance(cx, cy, k, frame):
 
 
 @numba.njit
-def gather_ring(
-    cx, cy, bi, bj, r, frame, grid, bucket_start, bucket_segments, seen, tag, ring, out_segment, out_key, n
-):
-    """Appends the segments of the buckets r rings around bucket (bi, bj) not met yet (`seen` is not
-    `tag`), with their planar distance from (cx, cy), to `out_segment` and `out_key` from `n`;
+def gather_ring(cx, cy, r, frame, buckets, gather, tag, n):
+    """Appends the segments of the buckets r rings around the bucket of (cx, cy) not met yet (`gather.seen`
+    is not `tag`), with their planar distance from (cx, cy), to `gather.segment` and `gather.key` from `n`;
     returns the new count. Before ring r, a segment not met yet is at least (r - 1) buckets away."""
+    grid, ring = buckets.grid, gather.ring
+    bi, bj = bucket_of(cx, grid[0], grid[2]), bucket_of(cy, grid[1], grid[2])  # as `rings_around` finds them
     for q in range(ring_buckets(bi, bj, r, grid, ring)):
-        for p in range(bucket_start[ring[q]], bucket_start[ring[q] + 1]):
-            k = bucket_segments[p]
-            if seen[k] != tag:
-                seen[k] = tag
-                out_segment[n], out_key[n] = k, planar_distance(cx, cy, k, frame)
+        for p in range(buckets.start[ring[q]], buckets.start[ring[q] + 1]):
+            k = buckets.segments[p]
+            if gather.seen[k] != tag:
+                gather.seen[k] = tag
+                gather.segment[n], gather.key[n] = k, planar_distance(cx, cy, k, frame)
                 n += 1
     return n

@@ -25,11 +25,11 @@ _corner_sign = compiled(corner_sign)
 
 
 @cached_loop
-def _signed_distances(
-    queries, segment, start, delta, valid, prior, next_, prior_valid, next_valid, convex_before, convex_after, group
-):
-    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`): the largest of
-    each `group` of consecutive points (numpy's maximum: NaN passes on), float32 `(n // group,)`."""
+def _signed_distances(queries, segment, sides, group):
+    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`; `sides`: the
+    table's `SegmentSides`): the largest of each `group` of consecutive points (numpy's maximum: NaN
+    passes on), float32 `(n // group,)`."""
+    start, delta, valid, prior, next_, prior_valid, next_valid, convex_before, convex_after = sides
     out = np.empty(queries.shape[0] // group, np.float32)
     for i in range(queries.shape[0]):
         px, py, pz, k = queries[i, 0], queries[i, 1], queries[i, 2], segment[i]
@@ -79,20 +79,7 @@ def signed_distance_to_segments(table: SegmentTable, queries: np.ndarray, segmen
     Returns:
       float32 `(num_points // group,)`.
     """
-    return _signed_distances(
-        queries,
-        segment,
-        table.start,
-        table.delta,
-        table.valid,
-        table.prior,
-        table.next,
-        table.prior_valid,
-        table.next_valid,
-        table.convex_before,
-        table.convex_after,
-        group,
-    )
+    return _signed_distances(queries, segment, table.sides(), group)
 
 
 def box_distance_to_road_edge(

@@ -21,6 +21,24 @@ from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2 as sub_pb2
 from wosac_eval.sim import scenes
 from wosac_eval.sim.baselines import policy_rollouts
 
+
+@dataclasses.dataclass(frozen=True)
+class Layout:
+    scenes: int
+    shards: int
+    seed: int
+
+    def copies(self, k: int) -> range:
+        """The copies (scenario indices) of shard k: contiguous, balanced."""
+        return range(k * self.scenes // self.shards, (k + 1) * self.scenes // self.shards)
+
+    def scenario_shard(self, k: int) -> str:
+        return f"validation.tfrecord-{k:05d}-of-{self.shards:05d}"
+
+    def submission_shard(self, k: int) -> str:
+        return f"submission.binproto-{k:05d}-of-{self.shards:05d}"
+
+
 PLACEHOLDER = b"<full-scale-id!>"  # 16 bytes, as a WOMD scenario id: copies patch these in place
 
 # The real scenes of ../shared/womd and the golden submission used as each one's rollouts.

@@ -24,7 +24,7 @@ from pathlib import Path
 import google_crc32c
 
 from bench_env import VALIDATION_SET
-from full_scale_bases import Base, base_pool, scenario_id
+from full_scale_bases import Base, Layout, base_pool, scenario_id
 from full_scale_watch import GiB, MiB, disk_free, folder_bytes
 from wosac_eval.arrays.submission_writer import SubmissionMetadata
 from wosac_eval.protos import sim_agents_submission_pb2 as sub_pb2
@@ -39,23 +39,6 @@ METHOD = "full-scale-benchmark"
 def _mask(crc: int) -> int:
     """A CRC32C rotated and offset as the TFRecord format stores it."""
     return (((crc >> 15) | (crc << 17)) + 0xA282EAD8) & 0xFFFFFFFF
-
-
-@dataclasses.dataclass(frozen=True)
-class Layout:
-    scenes: int
-    shards: int
-    seed: int
-
-    def copies(self, k: int) -> range:
-        """The copies (scenario indices) of shard k: contiguous, balanced."""
-        return range(k * self.scenes // self.shards, (k + 1) * self.scenes // self.shards)
-
-    def scenario_shard(self, k: int) -> str:
-        return f"validation.tfrecord-{k:05d}-of-{self.shards:05d}"
-
-    def submission_shard(self, k: int) -> str:
-        return f"submission.binproto-{k:05d}-of-{self.shards:05d}"
 
 
 SG_DESCRIPTION = (

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from bench_env import REPO
 from full_scale_bases import base_pool, scenario_id
-from full_scale_build import Layout
+from full_scale_bases import Layout
 from full_scale_watch import MiB, Run, by_depth, digest_result, run_watched, same_as
 
 CRITICALITY_CACHE = "criticality.sqlite3"  # in WORKDIR/runs: emptied before every path but cli-again

@@ -17,13 +17,9 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from bench_env import REPO
-from full_scale_bases import scenario_id
-
-if TYPE_CHECKING:  # full_scale_build imports this module
-    from full_scale_build import Layout
+from full_scale_bases import Layout, scenario_id
 
 MiB = 1 << 20
 GiB = 1 << 30

@@ -64,7 +64,6 @@ WIDE_FUNCTIONS = {
     "wosac_eval/backends/jax_realism.py:realism": "public (docs/jax.md): the rollouts' arrays by field",
     "wosac_eval/backends/jax_realism.py:features": "public (docs/jax.md): the rollouts' arrays by field",
     "wosac_eval/backends/soft_realism.py:soft_realism": "public (docs/jax.md): the rollouts' arrays by field",
-    "wosac_eval/scoring/submission.py:score_submission": "per_object and objects join RunOptions (issue 64, item 4)",
     # Not regrouped yet: the box arrays of the nearest-object and road-edge searches (a `Boxes` of x, y,
     # length, width, cos, sin, valid through the search strategies), the scalar kernels that `compiled`
     # flattens for numba, and the compiled loops over them (their speed measured by score_speed.py).

@@ -16,9 +16,10 @@ module instead of restating them.
 from __future__ import annotations
 
 import dataclasses
-import enum
 
 import numpy as np
+
+from wosac_eval.options import Choice
 
 CURRENT_TIME_INDEX = 10  # the 11th step is "now"
 NUM_LOGGED_STEPS = 91
@@ -26,14 +27,15 @@ NUM_ROLLOUTS = 32
 STEP_SECONDS = 0.1
 
 
-class Challenge(str, enum.Enum):
-    """A challenge; its value is the name used on the command line, in results and in the service."""
+class Challenge(Choice):
+    """A challenge; its value is the name used on the command line, in results and in the service.
+
+    A front turns what it was given into a member once (`as_challenge`); below it every function passes
+    the member on, and a function of the library's public face takes any `ChallengeLike`.
+    """
 
     SIM_AGENTS = "sim_agents"
     SCENARIO_GEN = "scenario_gen"
-
-    def __str__(self) -> str:
-        return self.value
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,9 +90,11 @@ SPECS = {
     ),
 }
 CHALLENGE_NAMES = tuple(c.value for c in Challenge)
+# What names a challenge where a user gives one: the member, its name, its spec, or the official enum.
+ChallengeLike = Challenge | str | ChallengeSpec
 
 
-def as_challenge(value: Challenge | str | ChallengeSpec) -> Challenge:
+def as_challenge(value: ChallengeLike) -> Challenge:
     """A `Challenge` from itself, its spec, its name (`sim_agents`), or the official enum's name or value."""
     if isinstance(value, ChallengeSpec):
         return value.challenge
@@ -105,7 +109,7 @@ def as_challenge(value: Challenge | str | ChallengeSpec) -> Challenge:
     raise ValueError(f"unknown challenge {value!r}: choose one of {', '.join(CHALLENGE_NAMES)}")
 
 
-def spec(challenge: Challenge | str | ChallengeSpec = Challenge.SIM_AGENTS) -> ChallengeSpec:
+def spec(challenge: ChallengeLike = Challenge.SIM_AGENTS) -> ChallengeSpec:
     """The spec of a challenge (given as in `as_challenge`)."""
     return SPECS[as_challenge(challenge)]
 
@@ -155,7 +159,7 @@ def predicted_among(track_ids, sdc_track_index: int, predicted_track_indices) ->
     return np.array(sorted(found), dtype=np.int64)
 
 
-def evaluated_ids(sim_agents: np.ndarray, predicted: np.ndarray, challenge) -> np.ndarray:
+def evaluated_ids(sim_agents: np.ndarray, predicted: np.ndarray, challenge: ChallengeLike) -> np.ndarray:
     """The evaluated objects, in the official order, int64 `(num_evaluated,)`.
 
     Sim agents: the sorted SDC and `tracks_to_predict`. Scenario gen: every sim

@@ -56,8 +56,9 @@ from .supervision import parent_pid_argument, tie_to_supervisor
 log = logging.getLogger("wosac_server.worker")
 
 
-def evaluation_of(job: dict, settings: Settings) -> Evaluation:
-    """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits)."""
+def evaluation_of(job: dict, settings: Settings, objects: Path) -> Evaluation:
+    """The job's evaluation, resolved as every front resolves one (the library's rules, the service's limits);
+    its per-object values go to `objects` (the scene pages read them)."""
     options = RunOptions(
         limits=settings.input_limits(),
         engine=Engine.RAY if settings.ray_address else Engine.LOCAL,
@@ -65,6 +66,8 @@ def evaluation_of(job: dict, settings: Settings) -> Evaluation:
         workers=settings.score_threads,
         allow_partial=bool(job["allow_partial"]),
         metadata_checks=MetadataChecks.parse(settings.metadata_checks),
+        per_object=True,
+        objects=objects,
     )
     return resolve_evaluation(job["challenge"], job["config"], options)
 
@@ -388,7 +391,7 @@ class Worker:
     def _score(self, job: dict, index: ScenarioIndex, submission_path: Path) -> tuple[dict, int]:
         """(the job's result, stored; the scenarios this attempt scored), its pictures drawn."""
         settings, job_id = self.settings, job["id"]
-        evaluation = evaluation_of(job, settings)
+        evaluation = evaluation_of(job, settings, settings.objects_path(job_id))
         journal = settings.journal_path(job_id)
         resumed = journal_rows(journal)
         if resumed:
@@ -410,8 +413,6 @@ class Worker:
                     progress=self._progress_of(job_id),
                     evaluation=evaluation,
                     journal=journal,
-                    per_object=True,
-                    objects=settings.objects_path(job_id),
                 ),
             )
             # The objects file is the server's own (scene pages): the result served stays the document of

@@ -121,7 +121,7 @@ def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
 
 def rollout_arrays(
     rollouts: sim_agents_submission_pb2.ScenarioRollouts,
-    challenge: challenges.Challenge | str = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     wire_bytes: bytes | None = None,
 ) -> RolloutArrays:
     """Stacks the joint scenes of a `ScenarioRollouts` (read from its wire bytes at once).

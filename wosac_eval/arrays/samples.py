@@ -118,7 +118,7 @@ def _sim_agents_composite(
     )
 
 
-def log_sample(scenario: ScenarioArrays, challenge=challenges.Challenge.SIM_AGENTS):
+def log_sample(scenario: ScenarioArrays, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS):
     """(trajectories `(1, num_objects, 91)`, feature validity `(1, num_evaluated, 91)`) of the log."""
     spec = challenges.spec(challenge)
     evaluated = scenario.evaluated_ids(spec)
@@ -140,7 +140,10 @@ def log_sample(scenario: ScenarioArrays, challenge=challenges.Challenge.SIM_AGEN
 
 
 def rollout_samples(
-    scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS, with_log: bool = False
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
+    with_log: bool = False,
 ):
     """(trajectories `(num_rollouts, num_objects, 91)`, feature validity `(num_rollouts, num_evaluated, 91)`);
     with `with_log`, the log's sample first (`log_sample`; one composite for all samples, sim agents)."""
@@ -186,7 +189,9 @@ def rollout_samples(
 
 
 def sample_batch(
-    scenario: ScenarioArrays, rollouts: RolloutArrays, challenge=challenges.Challenge.SIM_AGENTS
+    scenario: ScenarioArrays,
+    rollouts: RolloutArrays,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> SampleBatch:
     """The log as sample 0, then one sample per rollout."""
     spec = challenges.spec(challenge)

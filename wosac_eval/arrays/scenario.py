@@ -59,7 +59,7 @@ class ScenarioArrays:
     signals: TrafficSignals | None
     sdc_id: int = -1
 
-    def evaluated_ids(self, challenge="sim_agents") -> np.ndarray:
+    def evaluated_ids(self, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS) -> np.ndarray:
         """The objects a challenge evaluates, in the official order, int64 `(num_evaluated,)`."""
         return challenges.evaluated_ids(self.sim_agent_ids, self.predicted_ids, challenge)
 

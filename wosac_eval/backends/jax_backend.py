@@ -153,7 +153,7 @@ def prepare(
     scenario: ScenarioArrays,
     rollouts: RolloutArrays,
     context: mf.MapContext | None = None,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> PreparedScenario:
     """Host-side inputs of one scenario: the log as sample 0, then one sample per rollout."""
     context = context or mf.map_context(scenario)
@@ -286,14 +286,17 @@ def scenario_features(
     scenario: ScenarioArrays,
     rollouts: RolloutArrays,
     context: mf.MapContext | None = None,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> tuple[mf.MetricFeatures, mf.MetricFeatures]:
     """JAX counterpart of `metric_features.scenario_features` (same results on CPU)."""
     return prepared_features([prepare(scenario, rollouts, context, challenge)])[0]
 
 
 def scenarios_features(
-    pairs, max_batch: int = 8, min_bucket: Sizes | tuple | None = None, challenge=challenges.Challenge.SIM_AGENTS
+    pairs,
+    max_batch: int = 8,
+    min_bucket: Sizes | tuple | None = None,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> list[tuple[mf.MetricFeatures, mf.MetricFeatures]]:
     """Features of many (ScenarioArrays, RolloutArrays) pairs, batched by bucket."""
     return prepared_features(

@@ -70,7 +70,7 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, sear
 
 def prepare(
     scenarios,
-    challenge: str = "sim_agents",
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     config: str | None = None,
     min_sizes: tuple | None = None,
     grouped: bool = True,

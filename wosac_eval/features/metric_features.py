@@ -245,7 +245,7 @@ def scenario_features(
     scenario: ScenarioArrays,
     rollouts: RolloutArrays,
     context: MapContext | None = None,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> tuple[MetricFeatures, MetricFeatures]:
     """(log features, simulated features) of one scenario, with the numpy (pruned) search.
 

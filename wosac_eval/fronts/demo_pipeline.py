@@ -16,6 +16,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from wosac_eval.challenges import Challenge, ChallengeLike, as_challenge
 from wosac_eval.runtime.cache_dirs import user_cache_dir
 from wosac_eval.sim import scenes
 
@@ -87,10 +88,11 @@ class PolicyResult:
     seconds: float
 
 
-def challenge_folder(workdir: Path, kind: str, challenge: str) -> Path:
+def challenge_folder(workdir: Path, kind: str, challenge: ChallengeLike) -> Path:
     """`workdir/kind` for sim agents, `workdir/kind/scenario_gen` for scenario gen."""
     folder = Path(workdir) / kind
-    return folder if challenge == "sim_agents" else folder / challenge
+    challenge = as_challenge(challenge)
+    return folder if challenge is Challenge.SIM_AGENTS else folder / challenge.value
 
 
 def run_demo(
@@ -101,7 +103,7 @@ def run_demo(
     policies: tuple[str, ...] = DEMO_POLICIES,
     config: str | None = None,
     workers: int = 1,
-    challenge: str = "sim_agents",
+    challenge: ChallengeLike = Challenge.SIM_AGENTS,
     log=None,
 ) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
@@ -151,7 +153,7 @@ def run_demo(
     return rows
 
 
-def leaderboard(rows: list[PolicyResult], challenge: str = "sim_agents") -> str:
+def leaderboard(rows: list[PolicyResult], challenge: ChallengeLike = Challenge.SIM_AGENTS) -> str:
     """A plain-text table of the policies, best meta-metric first."""
     columns = [(key, label) for key, label in BUCKETS if not (challenge == "scenario_gen" and key == "min_ade")]
     header = ["policy"] + [label for _, label in columns]

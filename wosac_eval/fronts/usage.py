@@ -1,9 +1,11 @@
 """What every command shares before its work starts: its common options, usage errors and output paths
 checked up front.
 
-The options several commands take (`--scenarios`, `--workers`, `--engine` and `--ray-address`, the input
-limits `--max-bytes` and `--max-shard-bytes`) are declared here once, each with the one type that checks
-its value: a bad value is refused by the parser, in one line naming the option, before the command runs.
+The options several commands take (`--challenge`, `--scenarios`, `--workers`, `--engine` and
+`--ray-address`, the input limits `--max-bytes` and `--max-shard-bytes`) are declared here once, each with
+the one type that checks its value: a bad value is refused by the parser, in one line naming the option,
+before the command runs, and a choice becomes its enum member there (`Challenge`, `Engine`), which the
+command passes on.
 
 A usage error is the user's to fix (a missing folder, an output that cannot be
 written, swapped arguments); the command line prints it as one line and exits 2
@@ -18,6 +20,7 @@ import os
 import re
 from pathlib import Path
 
+from wosac_eval.challenges import CHALLENGE_NAMES, Challenge, as_challenge
 from wosac_eval.options import Engine
 
 # Kept light: every command imports this module, `compare` and `report` included (they load no scoring).
@@ -156,6 +159,26 @@ def size_in_bytes(text: str) -> int:
     if value <= 0:
         raise argparse.ArgumentTypeError(f"{text!r}: the size must be positive")
     return value
+
+
+def challenge_named(text: str) -> Challenge:
+    """`--challenge NAME`: the `Challenge` it names (argparse's type: a bad name is refused naming the option)."""
+    try:
+        return as_challenge(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+def add_challenge(parser: argparse.ArgumentParser, help_text: str, *, choices: tuple[str, ...] = ()) -> None:
+    """`--challenge sim_agents|scenario_gen` (default sim_agents), a `Challenge` member once parsed;
+    `choices`: more names the command takes beside the challenges' (kept as given, e.g. "both")."""
+    parser.add_argument(
+        "--challenge",
+        type=(lambda text: text if text in choices else challenge_named(text)) if choices else challenge_named,
+        default=choices[0] if choices else Challenge.SIM_AGENTS,
+        metavar="|".join(choices + CHALLENGE_NAMES),
+        help=help_text,
+    )
 
 
 def add_scenarios(parser: argparse.ArgumentParser, purpose: str = "", *, required: bool = True) -> None:

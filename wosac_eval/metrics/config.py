@@ -46,18 +46,18 @@ PRESET_CHALLENGE = {
 }
 
 
-def default_config(challenge=challenges.Challenge.SIM_AGENTS) -> str:
+def default_config(challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS) -> str:
     """The preset of a challenge's current leaderboard ("2025" or "scenario_gen_2025")."""
     return challenges.spec(challenge).default_config
 
 
-def preset_fits(name: str, challenge) -> bool:
+def preset_fits(name: str, challenge: challenges.ChallengeLike) -> bool:
     """False only for a preset made for the other challenge (a textproto may serve either)."""
     made_for = PRESET_CHALLENGE.get(str(name))
     return made_for is None or made_for == challenges.as_challenge(challenge)
 
 
-def config_name_for(challenge, config: str | os.PathLike | None = None) -> str:
+def config_name_for(challenge: challenges.ChallengeLike, config: str | os.PathLike | None = None) -> str:
     """The config a challenge is scored with: the one asked for, or the challenge's current preset.
 
     A preset of the other challenge is refused (its metrics would be pooled, or not, against the

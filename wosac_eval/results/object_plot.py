@@ -75,7 +75,14 @@ class _ObjectScene:
         return np.asarray(self.log.valid)[0, self.e]
 
 
-def object_png(scenario, rollouts, object_id: int, challenge="sim_agents", dpi: int = 100, config=None) -> bytes:
+def object_png(
+    scenario,
+    rollouts,
+    object_id: int,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
+    dpi: int = 100,
+    config=None,
+) -> bytes:
     """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
 
     `config`: the metrics config whose histogram bins are shaded (default: the challenge's current one).

@@ -79,7 +79,9 @@ def _event_starts(flags: np.ndarray) -> np.ndarray:
     return np.argwhere(flags & ~before)
 
 
-def scene_view(scenario, rollouts=None, challenge="sim_agents") -> SceneView:
+def scene_view(
+    scenario, rollouts=None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
+) -> SceneView:
     """The view of a scenario (a `Scenario` or its arrays) and optionally its rollouts (message or arrays).
 
     Raises:

@@ -163,7 +163,11 @@ def write_scene(
 
 
 def scene_pictures(
-    scenarios, submission, scenario_ids: Sequence[str], challenge="sim_agents", dpi: int = 80
+    scenarios,
+    submission,
+    scenario_ids: Sequence[str],
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
+    dpi: int = 80,
 ) -> list[tuple[str, bytes]]:
     """(scenario_id, PNG) of each scenario the submission holds, in the given order (for reports).
 

@@ -48,6 +48,10 @@ class RunOptions:
       analysis: with False, rows carry the official metrics only (no criticality, driving scores or
         per-type metrics, and no `analysis` summary): a little faster.
       limits: how far the submission may expand when read (`parse.limits.InputLimits`; None: the defaults).
+      per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
+        `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
+        memory, and the document's `per_object` names it; without, each row carries its `objects`.
+      objects: the per-object file of `per_object` (None: in the rows).
     """
 
     backend: Backend = Backend.NUMPY
@@ -59,6 +63,8 @@ class RunOptions:
     select: str | None = None
     analysis: bool = True
     limits: InputLimits = InputLimits()
+    per_object: bool = False
+    objects: str | os.PathLike | None = None
 
     def __post_init__(self) -> None:
         # The one boundary: names become members (frozen, so set through object.__setattr__).
@@ -73,6 +79,8 @@ class RunOptions:
             object.__setattr__(self, "limits", InputLimits())
         if not isinstance(self.limits, InputLimits):
             raise ValueError(f"limits must be an InputLimits, not {type(self.limits).__name__}")
+        if self.objects is not None and not self.per_object:
+            raise ValueError("objects= names the per-object file: it needs per_object=True")
 
     @classmethod
     def of(cls, caller: str, **values: Any) -> RunOptions:
@@ -111,7 +119,7 @@ class Evaluation:
 
 
 def resolve_evaluation(
-    challenge="sim_agents",
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     config: str | os.PathLike | None = None,
     options: RunOptions | None = None,
     **option_values: Any,
@@ -140,7 +148,7 @@ def resolve_evaluation(
 def evaluation_for(
     caller: str,
     evaluation: Evaluation | None,
-    challenge,
+    challenge: challenges.ChallengeLike | None,
     config: str | os.PathLike | None,
     option_values: dict[str, Any],
 ) -> Evaluation:
@@ -150,7 +158,9 @@ def evaluation_for(
     (a ValueError naming each), never silently ignored. `challenge` None is "sim_agents".
     """
     if evaluation is None:
-        return resolve_evaluation("sim_agents" if challenge is None else challenge, config, **option_values)
+        return resolve_evaluation(
+            challenges.Challenge.SIM_AGENTS if challenge is None else challenge, config, **option_values
+        )
     asked = RunOptions.of(caller, **option_values)
     conflicts = []
     if challenge is not None and challenges.as_challenge(challenge) != evaluation.challenge:

@@ -70,12 +70,11 @@ def _size_mtime(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def run_identity(
-    evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike], per_object: bool = False
-) -> dict:
+def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
     """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
     return {
-        **({"per_object": True} if per_object else {}),  # rows with their objects (absent: as before)
+        # Rows with their objects (absent: as before). Where the objects are written is not the rows' matter.
+        **({"per_object": True} if evaluation.options.per_object else {}),
         "package": __version__,
         "challenge": evaluation.challenge.value,
         "config": evaluation.config_name,

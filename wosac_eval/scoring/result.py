@@ -109,7 +109,7 @@ def validation_summary(report) -> dict:
 
 
 def result_document(
-    challenge,
+    challenge: challenges.ChallengeLike,
     config_name: str,
     config: SimAgentMetricsConfig,
     per_scenario: list[dict],

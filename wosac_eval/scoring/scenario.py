@@ -31,7 +31,7 @@ PathLike = str | os.PathLike
 ConfigLike = str | PathLike | SimAgentMetricsConfig | None
 
 
-def resolve_config(config: ConfigLike, challenge) -> SimAgentMetricsConfig:
+def resolve_config(config: ConfigLike, challenge: challenges.ChallengeLike) -> SimAgentMetricsConfig:
     """A config message from a preset name, a textproto path or a message; None: the challenge's default."""
     if isinstance(config, SimAgentMetricsConfig):
         return config
@@ -41,7 +41,7 @@ def resolve_config(config: ConfigLike, challenge) -> SimAgentMetricsConfig:
 def scenario_inputs(
     scenario: scenario_pb2.Scenario | ScenarioArrays,
     rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
-    challenge,
+    challenge: challenges.ChallengeLike,
 ) -> tuple[ScenarioArrays, RolloutArrays]:
     """The arrays of a (scenario, rollouts) pair, checked to belong together."""
     arrays = scenario if isinstance(scenario, ScenarioArrays) else scenario_arrays(scenario)
@@ -53,7 +53,7 @@ def scenario_inputs(
     return arrays, rollouts
 
 
-def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge) -> None:
+def check_rollouts_fit(scenario: ScenarioArrays, rollouts: RolloutArrays, challenge: challenges.ChallengeLike) -> None:
     """The rollouts have the challenge's steps (and boxes) and exactly the scenario's sim agents in every rollout.
 
     Raises:
@@ -178,7 +178,7 @@ def score_scenario(
     rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
     config: ConfigLike = None,
     *,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     backend: str = "numpy",
     analysis: bool = False,
     per_object: bool = False,
@@ -205,7 +205,7 @@ def score_scenario(
     return _row(message, arrays, rollout, context, (log, sim), analysis, criticality, per_object=per_object)
 
 
-def _scored_features(scenario, rollouts, config: ConfigLike, challenge, backend: str):
+def _scored_features(scenario, rollouts, config: ConfigLike, challenge: challenges.ChallengeLike, backend: str):
     """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
     backend = check_backend(backend)
     challenge = challenges.as_challenge(challenge)
@@ -229,7 +229,7 @@ def score_scenario_per_object(
     rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
     config: ConfigLike = None,
     *,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     backend: str = "numpy",
 ):
     """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
@@ -256,7 +256,9 @@ class JaxItem:
     criticality: dict | None = None
 
 
-def prepare_jax_item(scenario, rollouts, challenge, analysis: bool = False, criticality: dict | None = None) -> JaxItem:
+def prepare_jax_item(
+    scenario, rollouts, challenge: challenges.ChallengeLike, analysis: bool = False, criticality: dict | None = None
+) -> JaxItem:
     """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs (and, with
     `analysis`, the scene's criticality: `criticality` when known already, else computed)."""
     from wosac_eval.backends import jax_backend  # the jax extra, loaded for the jax backend alone
@@ -279,7 +281,7 @@ def score_jax_items(
     config: ConfigLike = None,
     max_batch: int = 8,
     *,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     analysis: bool = False,
     per_object: bool = False,
 ):
@@ -318,7 +320,7 @@ def score_scenarios_jax(
     config: ConfigLike = None,
     max_batch: int = 8,
     *,
-    challenge=challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     analysis: bool = False,
     per_object: bool = False,
 ) -> list[dict]:

@@ -23,11 +23,13 @@ import dataclasses
 import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.analysis import criticality_cache
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import record_arrays
+from wosac_eval.challenges import Challenge, ChallengeLike
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.options import Backend, Engine
 from wosac_eval.parse.decode import decode_message
@@ -78,7 +80,7 @@ class ScoringContext:
 
     Attributes:
       config: the serialized `SimAgentMetricsConfig`.
-      challenge: the challenge's name.
+      challenge: the challenge.
       backend: `Backend` numpy or jax.
       index: where each scenario of the set is.
       analysis: add each scenario's criticality, driving scores and per-type metrics to its row.
@@ -86,7 +88,7 @@ class ScoringContext:
     """
 
     config: bytes
-    challenge: str
+    challenge: Challenge
     backend: Backend
     index: ScenarioIndex
     analysis: bool = True
@@ -214,13 +216,11 @@ def score_submission(
     submission: PathLike | SubmissionSource,
     config: str | PathLike | None = None,
     *,
-    challenge=None,
+    challenge: ChallengeLike | None = None,
     progress: Progress | None = None,
     evaluation: Evaluation | None = None,
     journal: PathLike | None = None,
-    per_object: bool = False,
-    objects: PathLike | None = None,
-    **options,
+    **options: Any,
 ) -> dict:
     """Validate and score a submission; returns the `result.json` document.
 
@@ -237,19 +237,19 @@ def score_submission(
         a challenge, config or option also given must agree with it (else a ValueError names each).
       **options: the run's options by name (`scoring.evaluation.RunOptions`: backend "numpy" or "jax",
         engine "local" or "ray", ray_address, workers, allow_partial, metadata_checks "warn" or "error",
-        select "top:0.1" or "top:100", analysis, limits), checked before any work.
+        select "top:0.1" or "top:100", analysis, limits, per_object, objects), checked before any work.
+        per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
+        `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
+        memory, and the document's `per_object` names it (write the result beside it); without, each row
+        carries its `objects` (for small sets: they are all in the returned document). The objects come
+        from the journal (a temporary one beside the file when there is no `journal`), so a resumed run
+        writes the same file.
       journal: a file where each finished scenario's row is recorded as it is scored
         (`scoring.journal`); when it holds rows of the same run (same inputs, config and options),
         those scenarios are not scored again, and the result is the one an uninterrupted run gives.
         It is left in place (with its validation, PATH.validated, and an archive's last members,
         PATH.members): remove them once the result is stored
         (`scoring.journal.remove_journal`).
-      per_object: also give every evaluated object's values (`scoring.scenario.object_records`): with
-        `objects`, streamed to that file (`.jsonl` or `.parquet`, `scoring.objects`), never all held in
-        memory, and the document's `per_object` names it (write the result beside it); without, each row
-        carries its `objects` (for small sets: they are all in the returned document).
-      objects: the per-object file (see `per_object`); its objects come from the journal (a temporary
-        one beside it when there is no `journal`), so a resumed run writes the same file.
     Raises:
       InvalidSubmissionError: the submission is invalid and `allow_partial` is False.
       ValueError: an argument cannot be resolved (unknown config, a preset of the other challenge...).
@@ -267,18 +267,17 @@ def score_submission(
     )
     with _opened(submission, journal, run.limits) as source:
         index = scenario_paths if isinstance(scenario_paths, ScenarioIndex) else ScenarioIndex(scenario_paths)
+        objects = run.objects
         if objects is not None:
-            if not per_object:
-                raise ValueError("objects= names the per-object file: it needs per_object=True")
             format_of(objects)  # a suffix that chooses no format is refused before any work
         temporary = journal is None  # the objects wait in a journal of this run only
         if journal is None:
-            if not (per_object and objects is not None):
-                return _score(index, source, evaluation, executor, progress, None, per_object, None)
+            if objects is None:
+                return _score(index, source, evaluation, executor, progress, None)
             journal = Path(objects).with_name(f".{Path(objects).name}.{os.getpid()}.journal")
         try:
-            with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths, per_object)) as record:
-                return _score(index, source, evaluation, executor, progress, record, per_object, objects)
+            with ScoringJournal(journal, run_identity(evaluation, source.path, index.paths)) as record:
+                return _score(index, source, evaluation, executor, progress, record)
         finally:
             if temporary:
                 remove_journal(journal)
@@ -347,17 +346,16 @@ def _score(
     executor,
     progress: Progress | None,
     journal: ScoringJournal | None,
-    per_object: bool = False,
-    objects: PathLike | None = None,
 ) -> dict:
     """Validate (recording where each scenario is), select, score on the executor (but what the journal
     holds), assemble; per-object values go through the journal (see `score_submission`)."""
+    per_object, objects = evaluation.options.per_object, evaluation.options.objects
     report = _validated(index, source, evaluation, executor, journal)
     selection, histogram, selected = _selection(evaluation, index, executor)
     total = sum(1 for sid in index if report.is_scenario_valid(sid) and (selected is None or sid in selected))
     context = ScoringContext(
         config=evaluation.config.SerializeToString(),
-        challenge=evaluation.challenge.value,
+        challenge=evaluation.challenge,
         backend=evaluation.options.backend,
         index=index,
         analysis=evaluation.options.analysis,

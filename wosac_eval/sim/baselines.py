@@ -12,6 +12,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.messages import rollouts_bytes, rollouts_from_arrays
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.submission_writer import SubmissionMetadata, SubmissionWriter
+from wosac_eval.challenges import Challenge, ChallengeLike
 from wosac_eval.parse.scenarios import iter_scenarios
 from wosac_eval.protos import scenario_pb2
 from wosac_eval.runtime.executors import LocalExecutor
@@ -28,7 +29,9 @@ DESCRIPTIONS = {
 }
 
 
-def policy_rollouts(scenario, policy: str, seed: int = 0, challenge: str = "sim_agents") -> RolloutArrays:
+def policy_rollouts(
+    scenario, policy: str, seed: int = 0, challenge: ChallengeLike = Challenge.SIM_AGENTS
+) -> RolloutArrays:
     """A policy's 32 rollouts of a scenario (all 91 steps with boxes and types for scenario gen)."""
     if challenges.spec(challenge).submits_boxes:
         ids, traj, boxes, types = policies.generate_scenario(scenario, policy, seed)
@@ -51,14 +54,14 @@ def simulate_rollouts(
     policy: str,
     *,
     seed: int = 0,
-    challenge: str = "sim_agents",
+    challenge: ChallengeLike = Challenge.SIM_AGENTS,
     workers: int = 1,
 ) -> Iterator[bytes]:
     """Each scenario's serialized `ScenarioRollouts` by `policy`, in the scenarios' order: simulated in
     `workers` processes with a bounded number in flight, so that memory does not grow with the size of
     the scenario set. `challenge="scenario_gen"` gives all 91 steps with box sizes and object types
     (`policies.generate_scenario`)."""
-    challenge = challenges.as_challenge(challenge).value
+    challenge = challenges.as_challenge(challenge)
     if policy not in policies.POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(policies.POLICIES)}")
     tasks = ((s.scenario.SerializeToString(), policy, seed, challenge) for s in iter_scenarios(scenario_paths))
@@ -95,7 +98,7 @@ def make_submission(
     num_shards: int = 4,
     workers: int = 1,
     metadata: SubmissionMetadata | None = None,
-    challenge: str = "sim_agents",
+    challenge: ChallengeLike = Challenge.SIM_AGENTS,
 ) -> Path:
     """Simulates `policy` on every scenario and writes an official-layout submission to `output`.
 

@@ -14,6 +14,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+from wosac_eval.challenges import Challenge, ChallengeLike, as_challenge
+
 ERROR = "error"
 WARNING = "warning"
 
@@ -209,11 +211,13 @@ class ValidationReport:
     reason, so a partial scorer can list what it skipped.
     """
 
-    def __init__(self, submission: str = "", max_listed: int = 20, challenge: str = "sim_agents") -> None:
+    def __init__(
+        self, submission: str = "", max_listed: int = 20, challenge: ChallengeLike = Challenge.SIM_AGENTS
+    ) -> None:
         if max_listed < 0:
             raise ValueError("max_listed must be >= 0")
         self.submission = submission
-        self.challenge = challenge
+        self.challenge = as_challenge(challenge)
         self.max_listed = max_listed
         self.groups: dict[str, FindingGroup] = {}
         self.stats = ValidationStats()

@@ -75,10 +75,7 @@ def _field_checks(
     rollouts: Any, fields: Sequence[str], n_trajectories: int, spec: challenges.ChallengeSpec
 ) -> _FieldChecks:
     """The checks of every trajectory of `rollouts` (`_FieldChecks`), read from the scenario's serialized
-    bytes at once (`parse.wire_walks`, imported here: a process that refuses a file before its rules run
-    does not load the compiled walks)."""
-    from wosac_eval.arrays.rollouts import trajectory_headers, trajectory_spans
-    from wosac_eval.parse import wire_walks
+    bytes at once (`parse.wire_walks`)."""
 
     data = wire_walks.message_bytes(rollouts)
     start, end, _, _ = trajectory_spans(data)

@@ -227,7 +227,7 @@ def validate_submission(
     executor = executor or LocalExecutor(workers, warm_up=compile_walks)  # once here, not in each worker
     agents = sim_agents if sim_agents is not None else load_sim_agents(scenarios, executor=executor)
     source = submission if isinstance(submission, SubmissionSource) else SubmissionSource(submission, options.limits)
-    report = ValidationReport(str(source), max_listed=options.max_listed, challenge=options.challenge.value)
+    report = ValidationReport(str(source), max_listed=options.max_listed, challenge=options.challenge)
     report.stats.scenarios_expected = len(agents)
     run = _Validation(agents, report, progress, options.metadata_checks, source.limits.max_scenarios)
     if not source.path.exists():
@@ -274,7 +274,7 @@ def _check_shards(source: SubmissionSource, run: _Validation, executor: Executor
             listed.append(ref.name)
             yield ref
 
-    shared = (run.agents, options.max_listed, options.challenge.value, source.limits)
+    shared = (run.agents, options.max_listed, options.challenge, source.limits)
     for result in executor.imap(_check_shard_task, remember(shards), shared, ahead=0):
         run.merge(result)
         name = listed.popleft()  # results come back in shard order

@@ -16,8 +16,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
-from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, add_scenarios, add_workers, check_output_folder
+from wosac_eval.fronts.usage import UsageError, add_challenge, add_scenarios, add_workers, check_output_folder
 from wosac_eval.sim.policies import POLICIES
 
 NAME = "baseline"
@@ -33,12 +32,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=sorted(POLICIES),
         help="constant_velocity | log_replay_noise (needs the logged future) | idm",
     )
-    parser.add_argument(
-        "--challenge",
-        choices=CHALLENGE_NAMES,
-        default="sim_agents",
-        help="sim_agents (80 future steps; default) or scenario_gen (all 91 steps with box sizes "
-        "and object types: the policy's future after the logged or straight-line history)",
+    add_challenge(
+        parser,
+        "sim_agents (80 future steps; default) or scenario_gen (all 91 steps with box sizes and object types: the "
+        "policy's future after the logged or straight-line history)",
     )
     parser.add_argument(
         "--output",

@@ -20,7 +20,7 @@ import os
 import time
 from pathlib import Path
 
-from wosac_eval.challenges import CHALLENGE_NAMES
+from wosac_eval.challenges import Challenge
 from wosac_eval.fronts.demo_pipeline import (
     DEMO_POLICIES,
     DEMO_SCENES,
@@ -29,7 +29,7 @@ from wosac_eval.fronts.demo_pipeline import (
     leaderboard,
     run_demo,
 )
-from wosac_eval.fronts.usage import UsageError, add_workers, check_output_folder
+from wosac_eval.fronts.usage import UsageError, add_challenge, add_workers, check_output_folder
 
 TITLES = {
     "sim_agents": "Sim agents (80 future steps; 2025 config)",
@@ -58,12 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="POLICY",
         help=f"policies to run (default: {' '.join(DEMO_POLICIES)})",
     )
-    parser.add_argument(
-        "--challenge",
-        choices=("both",) + CHALLENGE_NAMES,
-        default="both",
-        help="which challenge's leaderboard to make (default both)",
-    )
+    add_challenge(parser, "which challenge's leaderboard to make (default both)", choices=("both",))
     parser.add_argument(
         "--config",
         default=None,
@@ -111,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
     workdir = args.workdir or default_workdir()
     check_output_folder(workdir, "--workdir")
     start = time.perf_counter()
-    chosen = CHALLENGE_NAMES if args.challenge == "both" else (args.challenge,)
+    chosen = tuple(Challenge) if args.challenge == "both" else (args.challenge,)
     tables = []
     try:
         for challenge in chosen:

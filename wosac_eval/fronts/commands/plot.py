@@ -10,8 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from wosac_eval.challenges import CHALLENGE_NAMES
-from wosac_eval.fronts.usage import UsageError, add_scenarios, check_input, check_output_file
+from wosac_eval.fronts.usage import UsageError, add_challenge, add_scenarios, check_input, check_output_file
 
 NAME = "plot"
 HELP = (
@@ -38,12 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--submission", metavar="PATH", help="the submission whose rollouts to draw (default: the log alone)"
     )
-    parser.add_argument(
-        "--challenge",
-        choices=CHALLENGE_NAMES,
-        default="sim_agents",
-        help="the submission's challenge (default sim_agents)",
-    )
+    add_challenge(parser, "the submission's challenge (default sim_agents)")
     parser.add_argument(
         "--output",
         "-o",

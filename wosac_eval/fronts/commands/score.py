@@ -12,10 +12,10 @@ import os
 import sys
 from pathlib import Path
 
-from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import BACKENDS, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import (
     UsageError,
+    add_challenge,
     add_engine,
     add_input_limits,
     add_scenarios,
@@ -46,12 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="the submission: .tar.gz, .tar, a folder of shards or one .binproto",
     )
-    parser.add_argument(
-        "--challenge",
-        choices=CHALLENGE_NAMES,
-        default="sim_agents",
-        help="sim_agents (80 future steps; default) or scenario_gen (91 steps of every object "
-        "with box sizes and types)",
+    add_challenge(
+        parser,
+        "sim_agents (80 future steps; default) or scenario_gen (91 steps of every object with box sizes and types)",
     )
     parser.add_argument(
         "--config",
@@ -237,8 +234,9 @@ def write_result(result: dict, path: Path) -> None:
         temp.unlink(missing_ok=True)
 
 
-def run_options(args: argparse.Namespace) -> RunOptions:
-    """The run's options as the command line gives them (checked by `RunOptions`)."""
+def run_options(args: argparse.Namespace, objects: Path | None = None) -> RunOptions:
+    """The run's options as the command line gives them (checked by `RunOptions`); `objects`: the
+    per-object file of --per-object (`_objects`)."""
     return RunOptions(
         backend=args.backend,
         engine=args.engine,
@@ -249,6 +247,8 @@ def run_options(args: argparse.Namespace) -> RunOptions:
         select=args.select,
         analysis=not args.no_analysis,
         limits=InputLimits(max_member_bytes=args.max_shard_bytes, max_total_bytes=args.max_bytes),
+        per_object=objects is not None,
+        objects=objects,
     )
 
 
@@ -256,8 +256,9 @@ def run(args: argparse.Namespace) -> int:
     """Validate and score the submission, write the result; 0 scored, 1 invalid submission, 2 usage error."""
     check_output_file(args.output, "--output")
     check_input(args.submission, "--submission", "submission")
+    objects = _objects(args)
     try:  # everything asked is checked here, once, before any long work
-        evaluation = resolve_evaluation(args.challenge, args.config, run_options(args))
+        evaluation = resolve_evaluation(args.challenge, args.config, run_options(args, objects))
     except (BackendUnavailableError, EngineUnavailableError, ValueError) as error:
         raise UsageError(str(error)) from None
     if evaluation.options.backend is Backend.JAX:
@@ -268,7 +269,6 @@ def run(args: argparse.Namespace) -> int:
 
         keep_compiled_programs()  # before the first compilation (exact_cpu's probe), when JAX reads it
         exact_cpu()
-    objects = _objects(args)
     journal = _journal(args)
     update, bar = _progress()
     try:
@@ -278,8 +278,6 @@ def run(args: argparse.Namespace) -> int:
             progress=update,
             evaluation=evaluation,
             journal=journal,
-            per_object=objects is not None,
-            objects=objects,
         )
     except InvalidSubmissionError as error:
         print(error.report.format_text(), file=sys.stderr)

@@ -26,7 +26,7 @@ from wosac_eval.client import (
     SubmitOptions,
     submit,
 )
-from wosac_eval.fronts.usage import UsageError, check_output_file, size_in_bytes
+from wosac_eval.fronts.usage import UsageError, add_challenge, check_output_file, size_in_bytes
 
 if TYPE_CHECKING:
     from tqdm import tqdm
@@ -55,12 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"the API key (wosac_...; default: ${KEY_ENV}, which keeps it out of the shell's history)",
     )
     parser.add_argument("--method", required=True, metavar="NAME", help="the leaderboard name of the method")
-    parser.add_argument(
-        "--challenge",
-        choices=("sim_agents", "scenario_gen"),
-        default="sim_agents",
-        help="sim_agents (default) or scenario_gen",
-    )
+    add_challenge(parser, "sim_agents (default) or scenario_gen")
     parser.add_argument(
         "--config",
         default=None,

@@ -11,10 +11,10 @@ import argparse
 import json
 import sys
 
-from wosac_eval.challenges import CHALLENGE_NAMES
 from wosac_eval.extras import EngineUnavailableError
 from wosac_eval.fronts.usage import (
     UsageError,
+    add_challenge,
     add_engine,
     add_input_limits,
     add_scenarios,
@@ -40,12 +40,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="PATH",
         help="the submission: .tar.gz, .tar, a folder of shards or one .binproto",
     )
-    parser.add_argument(
-        "--challenge",
-        choices=CHALLENGE_NAMES,
-        default="sim_agents",
-        help="the challenge's rules: sim_agents (80 future steps; default) or scenario_gen "
-        "(91 steps with box sizes and object types)",
+    add_challenge(
+        parser,
+        "the challenge's rules: sim_agents (80 future steps; default) or scenario_gen (91 steps with box sizes "
+        "and object types)",
     )
     parser.add_argument("--json", action="store_true", help="print the report as JSON on stdout")
     parser.add_argument(

@@ -148,6 +148,20 @@ FOLDER_MARKERS = {
 # ... and by the fixtures it uses.
 FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
 SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the fast tier) leaves out
+# The CI tier: whole-system runs that CI makes once per run (`pytest --ci`), left out of a plain `pytest`
+# (the README's command): Ray clusters, browsers, Docker, and what is explicitly marked `ci` (the documents'
+# blocks, the full-scale paths compared, numerical gradient checks). Each is also `slow`.
+CI_MARKERS = ("ray", "browser", "docker", "ci")
+_CI_LEFT_OUT = pytest.StashKey[int]()
+
+
+def pytest_addoption(parser):
+    parser.addoption(
+        "--ci",
+        action="store_true",
+        help="also run the CI tier (marker `ci`: Ray clusters, browsers, Docker, the documents' blocks, "
+        "the full-scale paths): a run that names no path and no -m leaves it out",
+    )
 
 
 def _markers(item) -> set[str]:
@@ -160,6 +174,8 @@ def _markers(item) -> set[str]:
     names.update(mark.name for mark in item.iter_markers())
     if names.intersection(SLOW_MARKERS):
         names.add("slow")
+    if names.intersection(CI_MARKERS):
+        names.update(("ci", "slow"))
     return names
 
 
@@ -170,8 +186,22 @@ def pytest_itemcollected(item):
         item.add_marker(name)
 
 
+def leaves_out_the_ci_tier(config) -> bool:
+    """A plain run (the README's command: no path, no -m, no --ci) leaves the CI tier out; naming a file, a
+    folder or a marker selects as pytest always does."""
+    whole_run = config.args_source is pytest.Config.ArgsSource.TESTPATHS
+    return whole_run and not config.option.markexpr and not config.getoption("--ci")
+
+
 def pytest_collection_modifyitems(config, items):
-    """Tests that start JAX run last: JAX runs threads, and later tests fork worker processes."""
+    """The CI tier left out of a plain run (above); tests that start JAX run last: JAX runs threads, and
+    later tests fork worker processes."""
+    if leaves_out_the_ci_tier(config):
+        left_out = [item for item in items if item.get_closest_marker("ci") is not None]
+        if left_out:
+            config.hook.pytest_deselected(items=left_out)
+            items[:] = [item for item in items if item.get_closest_marker("ci") is None]
+        config.stash[_CI_LEFT_OUT] = len(left_out)
     items.sort(key=lambda item: item.get_closest_marker("jax") is not None)
 
 
@@ -238,6 +268,11 @@ def _processes_left_behind() -> list[str]:
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
+    if config.stash.get(_CI_LEFT_OUT, 0):
+        terminalreporter.line(
+            f"{config.stash[_CI_LEFT_OUT]} tests of the CI tier left out (Ray clusters, browsers, Docker, the "
+            "documents' blocks, the full-scale paths): `pytest -n auto --ci` runs them too, as CI does"
+        )
     leaks = config.stash.get(_LEAKS_KEY, None)
     if not leaks:
         return

@@ -74,14 +74,14 @@ def reader_folder(run_root):
     return folder, json.loads(status.read_text())
 
 
-@pytest.mark.slow
+@pytest.mark.ci  # the CI tier (pytest --ci): the documents' blocks run as a reader runs them
 def test_every_readme_block_runs(reader_folder):
     _, status = reader_folder
     assert status["returncode"] == 0, status["output"]
     print(status["output"].splitlines()[-1])
 
 
-@pytest.mark.slow
+@pytest.mark.ci
 @pytest.mark.parametrize(
     "page", [pytest.param(page, marks=[pytest.mark.ray] if page in RAY_PAGES else []) for page in PAGES]
 )

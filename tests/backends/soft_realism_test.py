@@ -81,6 +81,7 @@ def test_gradients_are_finite_and_non_zero():
         assert int(jnp.count_nonzero(g)) > 1000, name
 
 
+@pytest.mark.ci  # a numerical gradient check (a minute of XLA compiling): the CI tier's
 def test_check_grads_of_a_shifted_agent():
     prepared, arrays = demo()
     # The rollouts' column of the first evaluated object (official row 0).

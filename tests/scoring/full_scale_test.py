@@ -86,7 +86,7 @@ def _check_workload(build) -> None:
                 assert shard.HasField(flag), flag
 
 
-@pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
+@pytest.mark.ci  # among the longest outside Ray, browser and JAX (--durations): the CI tier's
 def test_every_path_gives_the_same_result(tmp_path):
     require_shared("womd")
     require_shared("golden")

@@ -11,7 +11,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
     Challenge: SIM_AGENTS, SCENARIO_GEN
   Arrays in
     read_scenarios(paths) -> iterator of Scenario messages
-    sim_agent_ids(scenario) -> int64 (num_sim_agents,): the objects to simulate
+    sim_agent_ids(scenario) -> int64 `(num_objects,)`: the objects to simulate
     rollouts_from_arrays(scenario_id, object_id, x, y, z, heading, *, length, width, height, object_type)
         -> RolloutArrays, scored as they are by score_scenario
     rollouts_message(rollouts) -> ScenarioRollouts; joint_scene(object_id, x, y, z, heading) -> JointScene

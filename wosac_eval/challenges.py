@@ -115,7 +115,7 @@ def spec(challenge: ChallengeLike = Challenge.SIM_AGENTS) -> ChallengeSpec:
 
 
 def sim_agent_ids(scenario) -> np.ndarray:
-    """Ids of the tracks valid at the current step, in track order, int64 `(num_sim_agents,)`.
+    """Ids of the tracks valid at the current step, in track order, int64 `(num_objects,)`.
 
     Both challenges simulate exactly these objects. A track too short to have
     a current step has no valid state there.
@@ -130,14 +130,14 @@ def sim_agents_among(track_ids, valid_at_current) -> np.ndarray:
     """`sim_agent_ids` of tracks given as arrays (a message or its wire bytes read alike).
 
     Args:
-      track_ids: int `(num_tracks,)`; valid_at_current: bool `(num_tracks,)`, false for a track
+      track_ids: int `(num_objects,)`; valid_at_current: bool `(num_objects,)`, false for a track
         without a current step.
     """
     return np.asarray(track_ids, np.int64).reshape(-1)[np.asarray(valid_at_current, bool).reshape(-1)]
 
 
 def predicted_ids(scenario) -> np.ndarray:
-    """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_predicted,)`."""
+    """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_evaluated,)`."""
     return predicted_among(
         [t.id for t in scenario.tracks], scenario.sdc_track_index, [r.track_index for r in scenario.tracks_to_predict]
     )

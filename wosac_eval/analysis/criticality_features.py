@@ -137,15 +137,15 @@ _DISC = np.array([-1.0, 0.0, 1.0], dtype=np.float32)  # rear, middle and front d
 
 
 def _disc_offsets(heading, length, width) -> tuple[np.ndarray, np.ndarray]:
-    """The x and y offsets `(entries,)` from a box's centre to its front disc (the rear one is opposite)."""
+    """The x and y offsets `(batch,)` from a box's centre to its front disc (the rear one is opposite)."""
     offset = np.maximum(length - width, 0.0) / 2
     return np.cos(heading) * offset, np.sin(heading) * offset
 
 
 def disc_pairs(dxc, dyc, heading_a, length_a, width_a, heading_b, length_b, width_b):
-    """Centre-to-centre vectors of every (disc of a, disc of b) pair, `(entries, 3, 3)` x and y, and the radii sum.
+    """Centre-to-centre vectors of every (disc of a, disc of b) pair, `(batch, 3, 3)` x and y, and the radii sum.
 
-    dxc, dyc: `(entries,)` from a's centre to b's; the rest `(entries,)`.
+    dxc, dyc: `(batch,)` from a's centre to b's; the rest `(batch,)`.
     """
     oxa, oya = _disc_offsets(heading_a, length_a, width_a)
     oxb, oyb = _disc_offsets(heading_b, length_b, width_b)
@@ -155,7 +155,7 @@ def disc_pairs(dxc, dyc, heading_a, length_a, width_a, heading_b, length_b, widt
 
 
 def disc_gap(dx, dy, radius) -> np.ndarray:
-    """The gap between two boxes as three discs each (0 when they touch), `(entries,)`."""
+    """The gap between two boxes as three discs each (0 when they touch), `(batch,)`."""
     return np.maximum(np.sqrt((dx * dx + dy * dy).min(axis=(1, 2))) - radius[:, 0, 0], 0.0)
 
 

@@ -50,7 +50,7 @@ COMPONENTS = ("at_fault_collision", "collision", "offroad", "red_light", "progre
 
 
 def route_progress(route_x: np.ndarray, route_y: np.ndarray, x, y) -> np.ndarray:
-    """Arc length along a polyline `(points,)` of the point nearest to each (x, y), float64 like `x`."""
+    """Arc length along a polyline `(num_points,)` of the point nearest to each (x, y), float64 like `x`."""
     x, y = np.asarray(x, np.float64)[..., None], np.asarray(y, np.float64)[..., None]
     sx, sy = route_x[:-1], route_y[:-1]
     dx, dy = np.diff(route_x), np.diff(route_y)
@@ -82,7 +82,7 @@ _PARTNER_SLACK = 1e-6
 
 
 def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
-    """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(entries,)`.
+    """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(batch,)`.
 
     Its partner is the nearest other object (three discs each, the lowest row among ties); a partner whose
     centre is behind the SDC's rear bumper rear-ended it. `sdc` is the SDC's row in each entry's rollout.
@@ -123,7 +123,7 @@ def rollouts_at_fault(
 ) -> np.ndarray:
     """Whether the SDC is at fault in any of its collision entries, per rollout, bool `(num_rollouts,)`.
 
-    rollout, step: the entries `(entries,)`, rollout by rollout, steps ascending (`np.nonzero`'s order);
+    rollout, step: the entries `(batch,)`, rollout by rollout, steps ascending (`np.nonzero`'s order);
     sdc_rows: the SDC's row in each rollout `(num_rollouts,)`. The entries are tested in rounds, each
     rollout's first entry, then its next 4, 16, ...: a rollout found at fault is not tested further (a
     poor policy's SDC collides at most of its steps, and one entry at fault decides its rollout).

@@ -178,8 +178,8 @@ def rollouts_from_arrays(
 
 
 def _packed_float_blocks(values: np.ndarray, field_numbers: tuple[int, ...]) -> np.ndarray:
-    """Wire bytes of packed float fields, uint8 `(num_trajectories, bytes)`, from float32
-    `(num_trajectories, fields, num_steps)`."""
+    """Wire bytes of packed float fields, uint8 `(num_trajectories, num_bytes)`, from float32
+    `(num_trajectories, num_fields, num_steps)`."""
     count, fields, steps = values.shape
     headers = packed_headers(steps, field_numbers)
     out = np.empty((count, fields, headers.shape[1] + 4 * steps), dtype=np.uint8)

@@ -1,4 +1,4 @@
-"""A `ScenarioRollouts` message as columnar arrays `(num_rollouts, num_agents, num_steps)`."""
+"""A `ScenarioRollouts` message as columnar arrays `(num_rollouts, num_objects, num_steps)`."""
 
 from __future__ import annotations
 
@@ -21,11 +21,11 @@ class RolloutArrays:
 
     Attributes:
       scenario_id: the scenario these rollouts continue.
-      object_id: int64 `(num_rollouts, num_agents)`, agent order of each rollout.
-      x, y, z, heading: float32 `(num_rollouts, num_agents, num_steps)`.
-      length, width, height: float32 `(num_rollouts, num_agents, num_steps)`,
+      object_id: int64 `(num_rollouts, num_objects)`, agent order of each rollout.
+      x, y, z, heading: float32 `(num_rollouts, num_objects, num_steps)`.
+      length, width, height: float32 `(num_rollouts, num_objects, num_steps)`,
         the submitted box sizes (scenario gen), or None (sim agents: the log's).
-      object_type: int32 `(num_rollouts, num_agents)`, the submitted types, or None.
+      object_type: int32 `(num_rollouts, num_objects)`, the submitted types, or None.
     """
 
     scenario_id: str
@@ -61,7 +61,7 @@ class RolloutArrays:
         """Raises ValueError naming the field whose shape or dtype disagrees; returns self."""
         shape = np.shape(self.x)
         if len(shape) != 3:
-            raise ValueError(f"RolloutArrays.x must be (num_rollouts, num_agents, num_steps), got {shape}")
+            raise ValueError(f"RolloutArrays.x must be (num_rollouts, num_objects, num_steps), got {shape}")
         for name in ("y", "z", "heading") + (BOX_FIELDS if self.has_boxes else ()):
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"RolloutArrays.{name} has shape {np.shape(getattr(self, name))}, x has {shape}")

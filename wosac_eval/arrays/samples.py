@@ -68,7 +68,7 @@ def official_object_order(scene_ids, evaluated_ids) -> np.ndarray:
 
 
 def _official_orders(object_ids: np.ndarray, evaluated_ids) -> np.ndarray:
-    """`official_object_order` of each rollout's ids `(num_rollouts, num_agents)`; rollouts that list
+    """`official_object_order` of each rollout's ids `(num_rollouts, num_objects)`; rollouts that list
     their agents as the first one does (the usual case) share its order."""
     first = official_object_order(object_ids[0], evaluated_ids)
     if (object_ids == object_ids[0]).all():
@@ -77,7 +77,7 @@ def _official_orders(object_ids: np.ndarray, evaluated_ids) -> np.ndarray:
 
 
 def _rollout_columns(rollouts: RolloutArrays, orders: np.ndarray):
-    """A gather `(num_rollouts, num_agents, ...) -> (num_rollouts, len(order), ...)` per rollout's order."""
+    """A gather `(num_rollouts, num_objects, ...) -> (num_rollouts, len(order), ...)` per rollout's order."""
     if (rollouts.object_id == rollouts.object_id[0]).all() and (orders == orders[0]).all():
         cols = index_of_ids(rollouts.object_id[0], orders[0])[None]  # usually every rollout lists the same
     else:

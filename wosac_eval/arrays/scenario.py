@@ -38,9 +38,9 @@ class ScenarioArrays:
       scenario_id: the scenario's id.
       log: logged trajectories of every track, `(num_objects, 91)`, in track order.
       sim_agent_ids: ids of tracks valid at the current step (must be simulated),
-        in track order, int64 `(num_sim_agents,)`.
+        in track order, int64 `(num_objects,)`.
       predicted_ids: sorted ids of the SDC and `tracks_to_predict`, int64
-        `(num_predicted,)`: the objects the sim agents challenge evaluates.
+        `(num_evaluated,)`: the objects the sim agents challenge evaluates.
       road_edges: road-edge polylines, each float32 `(num_points, 3)`.
       lane_ids: int64 `(num_lanes,)`, surface-street lanes only.
       lanes: the matching lane centre polylines, each float32 `(num_points, 3)`.
@@ -114,7 +114,7 @@ def _int32(varints: np.ndarray) -> np.ndarray:
 
 def _current_validity(data, track_start, track_end) -> np.ndarray:
     """Whether each track has a valid state at the current step (false for a track without one), bool
-    `(num_tracks,)`; each track's own states count, as in a parse."""
+    `(num_objects,)`; each track's own states count, as in a parse."""
     state_start, state_end, owner = walks.message_spans(data, track_start, track_end, 3)
     first_of_track = np.searchsorted(owner, np.arange(len(track_start)))
     current = np.flatnonzero(np.arange(len(owner)) - first_of_track[owner] == challenges.CURRENT_TIME_INDEX)

@@ -68,7 +68,7 @@ class ObjectTrajectories:
         return int(self.x.shape[-1])
 
     def take_objects(self, indices: np.ndarray) -> ObjectTrajectories:
-        """Selects objects by position (`(num_selected,)`), in the given order."""
+        """Selects objects by position (`indices`, int: the new object axis), in the given order."""
         indices = np.asarray(indices, dtype=np.int64)
         fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in TIME_SERIES}
         return ObjectTrajectories(

@@ -67,7 +67,7 @@ class HostSearch:
         )
 
     def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
-        """float32 `(samples, num_evaluated, steps)` (see `PrunedSearch.nearest_object`)."""
+        """float32 `(num_samples, num_evaluated, num_steps)` (see `PrunedSearch.nearest_object`)."""
         shape = x.shape[:-2] + (num_evaluated,) + x.shape[-1:]
         return self._call(
             "nearest_object",

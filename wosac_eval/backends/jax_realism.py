@@ -96,7 +96,8 @@ def _precision(mode: str):
 
 
 def _gather_agents(values, columns):
-    """`(num_rollouts, max_agents, steps)` user columns -> `(num_rollouts, num_objects, steps)` official rows."""
+    """`(num_rollouts, max_agents, num_steps)` user columns -> `(num_rollouts, num_objects, num_steps)` official
+    rows."""
     padded = jnp.concatenate([values, jnp.zeros_like(values[:, :1])], axis=1)
     return jnp.take(padded, columns, axis=1)
 

@@ -100,7 +100,7 @@ def soft_histogram_counts(samples, edges: np.ndarray, width, weights=None):
 
 
 def _log_probability_of_bins(counts, pseudocount, log_bins):
-    """log p(bin of each logged value) from soft counts plus the pseudo-count, float32 `(batch, n)`."""
+    """log p(bin of each logged value) from soft counts plus the pseudo-count, float32 `(batch, num_log_samples)`."""
     counts = counts + _F(pseudocount)
     log_prob = jnp.log(counts) - jnp.log(counts.sum(axis=1, keepdims=True))
     return jnp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)

@@ -2,7 +2,7 @@
 library's kernels (`features.registry`), and map polylines read from messages or arrays.
 
 The official functions take `(num_objects, num_steps)` arrays and a mask of the evaluated objects; the
-kernels take `(samples, objects, steps)` with the evaluated objects first. Any leading axes of the
+kernels take `(num_samples, num_objects, num_steps)` with the evaluated objects first. Any leading axes of the
 arrays are flattened into the samples axis and restored on the way out (each sample is computed as the
 official function computes one call).
 """
@@ -38,8 +38,8 @@ class Objects:
     """The official arguments, read and checked.
 
     Attributes:
-      arrays: float32 `(samples, num_objects, num_steps)` by the kernels' names ("x", "y", ...).
-      valid: bool `(samples, num_objects, num_steps)`.
+      arrays: float32 `(num_samples, num_objects, num_steps)` by the kernels' names ("x", "y", ...).
+      valid: bool `(num_samples, num_objects, num_steps)`.
       evaluated: int64 `(num_evaluated,)`, the evaluated objects' positions in ascending order.
       lead: the leading axes the samples axis stands for.
     """
@@ -69,7 +69,7 @@ class Objects:
         return traj
 
     def result(self, value) -> np.ndarray:
-        """A kernel's `(samples, num_evaluated, num_steps)` with the leading axes back."""
+        """A kernel's `(num_samples, num_evaluated, num_steps)` with the leading axes back."""
         return compat_array(np.reshape(value, self.lead + np.shape(value)[1:]))
 
 

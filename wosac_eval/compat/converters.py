@@ -60,7 +60,7 @@ def scenario_to_joint_scene(
 
 
 def _stacked(trajectories, field: str, dtype) -> np.ndarray:
-    """One field of every submitted trajectory as `(n_objects, n_steps)` (`(n_objects,)` for scalars)."""
+    """One field of every submitted trajectory as `(num_objects, num_steps)` (`(num_objects,)` for scalars)."""
     values = [getattr(t, field) for t in trajectories]
     if values and not np.isscalar(values[0]):
         lengths = {len(v) for v in values}

@@ -31,7 +31,7 @@ def _steps(t: Array, name: str) -> int:
 
 
 def _padded(inner: Array, lead: tuple, pad_value, dtype, xp) -> Array:
-    """`inner` `(..., n)` between one pad on each side along the last axis, as the official concatenation."""
+    """`inner` `(..., num_steps)` between one pad on each side along the last axis, as the official concatenation."""
     pad = xp.full(lead + (1,), pad_value, dtype=dtype)
     return xp.concatenate([pad, inner, pad], axis=-1)
 

@@ -34,12 +34,12 @@ class ObjectTrajectories:
     As officially, the shapes are documented, not enforced.
 
     Attributes:
-      x, y, z: box centres, float32 `(..., n_objects, n_steps)` (the scenario's frame).
-      heading: yaw in radians, float32 `(..., n_objects, n_steps)`.
-      length, width, height: box sizes, float32 `(..., n_objects, n_steps)`.
-      valid: bool `(..., n_objects, n_steps)`.
-      object_id: int32 `(..., n_objects)`, the tracks' ids.
-      object_type: int32 `(..., n_objects)`, `scenario_pb2.Track.ObjectType` values.
+      x, y, z: box centres, float32 `(..., num_objects, num_steps)` (the scenario's frame).
+      heading: yaw in radians, float32 `(..., num_objects, num_steps)`.
+      length, width, height: box sizes, float32 `(..., num_objects, num_steps)`.
+      valid: bool `(..., num_objects, num_steps)`.
+      object_id: int32 `(..., num_objects)`, the tracks' ids.
+      object_type: int32 `(..., num_objects)`, `scenario_pb2.Track.ObjectType` values.
     """
 
     x: np.ndarray

@@ -90,7 +90,7 @@ def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: fl
 
 
 def add_all_current_objects(axis, x, y, yaw, length, width, color_idx) -> list:
-    """Adds one box per object (each argument `(n_objects,)`) to `axis`; returns the added patches."""
+    """Adds one box per object (each argument `(num_objects,)`) to `axis`; returns the added patches."""
     x, y, yaw, length, width, color_idx = (np.asarray(v) for v in (x, y, yaw, length, width, color_idx))
     return [
         axis.add_patch(get_bbox_patch(x[i], y[i], yaw[i], length[i], width[i], color_idx[i])) for i in range(x.shape[0])
@@ -106,8 +106,8 @@ def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, l
     Args:
       fig, axis: the figure and the axis to draw on.
       scenario: the scenario whose map is drawn.
-      x, y, yaw, length, width: `(n_objects, n_steps)`.
-      color_idx: `(n_objects, n_steps)` indices into `WAYMO_COLORS` (None: the first colour).
+      x, y, yaw, length, width: `(num_objects, num_steps)`.
+      color_idx: `(num_objects, num_steps)` indices into `WAYMO_COLORS` (None: the first colour).
     """
     import matplotlib.pyplot as plt
     from matplotlib import animation

@@ -97,7 +97,8 @@ def _interior_edges(edges: np.ndarray) -> np.ndarray:
 
 
 def _count(mask, weights, xp):
-    """The true values of each row of `mask` (`(batch, n, ...)`, summed over `n`), or the sum of their weights."""
+    """The true values of each row of `mask` (`(batch, num_values, ...)`, summed over axis 1), or the sum of
+    their weights."""
     if weights is not None:
         return xp.sum(xp.where(mask, weights, 0), axis=1)
     if is_numpy(xp) and mask.shape[0] == 1:
@@ -107,7 +108,7 @@ def _count(mask, weights, xp):
 
 
 def check_batches(log_samples, sim_samples) -> None:
-    """Raises ValueError naming both shapes unless both are `(batch, samples)` with the same batch.
+    """Raises ValueError naming both shapes unless both are `(batch, num_samples)` with the same batch.
 
     The official estimators refuse such inputs; broadcasting would silently
     score the wrong populations.
@@ -290,7 +291,8 @@ def populations(config: FeatureConfig, log_values, sim_values, object_mask=None)
 
 
 def per_step(config: FeatureConfig, scored, num_objects: int, num_steps: int):
-    """An estimator's `(batch, n)` output for `populations(config, ...)` back as `(num_objects, num_steps)`."""
+    """An estimator's `(batch, num_log_samples)` output for `populations(config, ...)` back as
+    `(num_objects, num_steps)`."""
     if config.aggregate_objects:
         return scored.reshape(num_steps, num_objects).T
     return scored.reshape(num_objects, num_steps)
@@ -321,9 +323,9 @@ def timeseries_log_likelihood(
       log_values: `(num_objects, num_steps)`.
       sim_values: `(num_rollouts, num_objects, num_steps)`.
       object_mask: as for `populations`.
-      estimate: the estimator of one batch of populations, `(config, log (batch, n), sim (batch, m),
-        sim weights or None, num_rows) -> (batch, n)` (`official_estimate`'s signature); default the
-        official one (the soft surrogate passes its own).
+      estimate: the estimator of one batch of populations, `official_estimate`'s signature: (config, log
+        `(batch, num_log_samples)`, sim `(batch, num_sim_samples)`, sim weights or None, num_rows) ->
+        `(batch, num_log_samples)`; default the official one (the soft surrogate passes its own).
     Returns:
       float32 `(num_objects, num_steps)`.
     """

@@ -51,7 +51,7 @@ NEAREST_OBJECT_FALLBACK_CHUNK = 128
 
 
 def _nearest_object_all_pairs(outlines, radius, valid, rows, steps):
-    """The official all-pairs nearest-object distance of the boxes `rows` at `steps` (each `(chunk,)`).
+    """The official all-pairs nearest-object distance of the boxes `rows` at `steps` (each `(batch,)`).
 
     Every pair; the self pair offset by 1e10 (a NaN box stays NaN), invalid pairs 1e10, the minimum
     passing NaN on, capped at 1e10. `outlines`, `radius`, `valid`: `(num_objects, num_steps, ...)`.
@@ -68,7 +68,7 @@ def _nearest_object_all_pairs(outlines, radius, valid, rows, steps):
 
 def _lowest_k(values, count: int):
     """The `count` lowest of `values` along the last axis, ascending, the lower index first on ties:
-    (values, indices), each `(..., count)`. By `count` minimum passes: XLA's CPU `top_k` sorts whole
+    (values, indices), each with `count` along the last axis. By `count` minimum passes: XLA's CPU `top_k` sorts whole
     rows when its results feed more than one computation (4x slower here); `values` has no NaN."""
     columns = jnp.arange(values.shape[-1])
     lowest, picks = [], []
@@ -93,14 +93,14 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     k = NEAREST_OBJECT_CANDIDATES
     e = slice(0, num_evaluated)
     reach = interaction.bounding_reach(length, width, valid)
-    dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (evaluated, objects, steps)
+    dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (num_evaluated, num_objects, num_steps)
     lower = jnp.sqrt(dx * dx + dy * dy) * interaction.BOUND_SCALE - (
         (reach[e, None] + reach[None]) + interaction.BOUND_MARGIN
     )
     self_pair = jnp.eye(num_evaluated, x.shape[0], dtype=bool)[..., None]
     # NaN and the self pair never guide the search; -0 ranks as +0 (the loop's order).
     lower = jnp.where(jnp.isnan(lower) | self_pair, jnp.inf, jnp.where(lower == 0, _F(0), lower))
-    lower = jnp.moveaxis(lower, 1, -1)  # (evaluated, steps, objects)
+    lower = jnp.moveaxis(lower, 1, -1)  # (num_evaluated, num_steps, num_objects)
     lowest, pick = _lowest_k(lower, k + 1)
     # The candidates' outlines and radii in one gather of rows (one per box and step), not one per value.
     num_objects, num_steps = x.shape
@@ -200,8 +200,8 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
 
 
 def _strict_argmin_and_value(values):
-    """`spatial.strict_argmin` along axis 1 of `values` `(rows, n, ...)` and the value it picks, in one
-    reduction: the pairs are never stored, only reduced as they are computed. int32 and float32 `(rows, ...)`."""
+    """`spatial.strict_argmin` along axis 1 of `values` `(batch, num_values, ...)` and the value it picks, in one
+    reduction: the pairs are never stored, only reduced as they are computed. int32 and float32 `(batch, ...)`."""
     n = values.shape[1]
     index = lax.broadcasted_iota(jnp.int32, values.shape, 1)
     candidates = jnp.where(jnp.isnan(values), _F(np.inf), values)
@@ -264,7 +264,7 @@ def red_light_violation(xy, valid, m):
       m: padded map arrays: stop_start, stop_delta, stop_point float32
         `(num_steps, num_signals, 2)`, stopping bool `(num_steps, num_signals)`,
         signal_lane_id int `(num_signals,)`; lane_start, lane_delta float32
-        `(num_lane_segments, 2)`, lane_valid bool and lane_id int `(num_lane_segments,)`.
+        `(num_segments, 2)`, lane_valid bool and lane_id int `(num_segments,)`.
     Returns:
       bool `(..., num_objects, num_steps)`.
     """

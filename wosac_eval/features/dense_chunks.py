@@ -41,7 +41,8 @@ def fill_rows(out, which, chunk: int, compute):
     number (small: the rest was settled by cheaper means), not the array's length.
 
     Args:
-      out: `(n,)` array; which: bool `(n,)`; compute: int32 `(chunk,)` row indices -> `(chunk,)` values.
+      out: `(num_values,)` array; which: bool `(num_values,)`; compute: int32 `(batch,)` row indices ->
+        `(batch,)` values.
     """
     n = which.shape[0]
     chunk = min(chunk, max(1, n))

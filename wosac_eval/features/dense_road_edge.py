@@ -60,7 +60,7 @@ def _nearest_listed_segment(q, s, cells):
 
 
 def _nearest_of(q, s, index, inside, clearance):
-    """(nearest of the segments `index` int `(num_points, k)` to each point, the lowest index on ties;
+    """(nearest of the segments `index` int `(num_points, num_candidates)` to each point, the lowest index on ties;
     whether it is on the grid (`inside`) and nearer than `clearance` float32 `(num_points,)`)."""
     table, offset = _gathered_segments(s)
     index = index + offset

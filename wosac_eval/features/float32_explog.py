@@ -262,7 +262,7 @@ def row_exp32(x):
     packets of the row by Eigen's `pexp`, its trailing values by `expf` (numpy or JAX).
 
     Args:
-      x: float32 `(..., n)`.
+      x: float32 `(..., num_values)`.
     """
     xp = array_namespace(x)
     x = xp.asarray(x, _F)

@@ -91,7 +91,7 @@ def packet_sum32(values):
     """One leaf of the official reduction (rows of up to `LEAF` values, all real), numpy or JAX.
 
     Args:
-      values: float32 `(..., n)`.
+      values: float32 `(..., num_values)`.
     Returns:
       float32 `(...)`.
     """
@@ -185,7 +185,7 @@ def split_sum32(values, axis=-1):
     precision, instead of a float64 sum.
 
     Args:
-      values: float32 `(..., n, ...)` (numpy or JAX), finite values for an accurate result.
+      values: float32 `(..., num_values, ...)` (numpy or JAX), finite values for an accurate result.
     Returns:
       float32, `values` without `axis`.
     """

@@ -143,8 +143,8 @@ def time_to_collision(inputs: TimeToCollisionInputs):
 
 def _completed(inputs: TimeToCollisionInputs) -> TimeToCollisionInputs:
     """`inputs` with the speeds and the tails computed where not given, the arrays contiguous
-    `(batch, num_objects, num_steps)` (any leading axes flattened), the tails `(steps, num_evaluated)`
-    and `(steps, num_evaluated, num_objects)`, and the steps a range of step indices."""
+    `(batch, num_objects, num_steps)` (any leading axes flattened), the tails `(num_steps, num_evaluated)`
+    and `(num_steps, num_evaluated, num_objects)`, and the steps a range of step indices."""
     i = inputs
     num_objects, num_steps = i.x.shape[-2:]
     speed = i.speed
@@ -176,7 +176,7 @@ def _completed(inputs: TimeToCollisionInputs) -> TimeToCollisionInputs:
 
 def _search_irregular_steps(i: TimeToCollisionInputs, ttc: np.ndarray) -> None:
     """The steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite, searched
-    over all objects as officially, into `ttc` `(batch, num_evaluated, steps)`: the pruned search
+    over all objects as officially, into `ttc` `(batch, num_evaluated, num_steps)`: the pruned search
     would skip their gaps of -inf and NaN, and a closing speed of +inf gives 0 s even where nothing is
     followed. A NaN speed needs no such step (the first and last steps of every track have one): any
     closing speed with it is NaN, hence the cap, in both searches alike. `i`: `_completed` inputs."""
@@ -229,10 +229,10 @@ def _followed_search(
     Args:
       x, y, length, width, heading, speed, reach: float32 `(batch, num_objects, num_steps)`;
         valid bool, the same.
-      ego_tail: bool `(steps, num_evaluated)`, pair_tail bool `(steps, num_evaluated, num_objects)`:
+      ego_tail: bool `(num_steps, num_evaluated)`, pair_tail bool `(num_steps, num_evaluated, num_objects)`:
         the official ops' trailing packets.
     Returns:
-      float32 `(batch, num_evaluated, steps)`.
+      float32 `(batch, num_evaluated, num_steps)`.
     """
     batch, num_objects, num_steps = x.shape
     out = np.full((batch, num_evaluated, num_reported), MAXIMUM_TIME_TO_COLLISION, np.float32)

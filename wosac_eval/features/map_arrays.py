@@ -70,7 +70,7 @@ def segments_at(table: road_edge.SegmentTable, idx: np.ndarray) -> dict:
 
 
 def red_light_arrays(scenario, context, layout, num_steps: int, cells: bool) -> dict:
-    """Stop lines `(steps, num_signals, ...)` of the signals that can be violated, from the first
+    """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, from the first
     red-light step on, and the lane segments."""
     signals = traffic_lights.signals_from(scenario.signals, layout.first_red_light_step)
     return stop_line_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)

@@ -10,7 +10,7 @@ strategy: `PrunedSearch` (numpy, compiled loops over proven bounds,
 road-edge search takes the boxes and places their corners itself (in its own
 order, with the same kernel). The displacement error is computed here.
 
-Feature arrays have shape `(num_samples, num_evaluated, num_reported_steps)`:
+Feature arrays have shape `(num_samples, num_evaluated, num_steps)`:
 the 80 future steps for sim agents, all 91 for scenario gen.
 """
 

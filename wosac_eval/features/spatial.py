@@ -19,8 +19,8 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bou
     large enough for the group.
 
     Args:
-      tree: k-d tree over `(num_points, d)`.
-      q: float64 `(num_queries, d)`.
+      tree: k-d tree over `(num_points, num_dims)`.
+      q: float64 query points `(batch, num_dims)`.
     Returns:
       (query_index, point_index), int64 `(num_pairs,)` each, sorted by query.
     """
@@ -75,7 +75,7 @@ def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
 
 
 def finite_rows(a: np.ndarray) -> np.ndarray:
-    """`np.isfinite(a).all(axis=1)` of `(n, k)` with a few columns, column by column: numpy reduces
+    """`np.isfinite(a).all(axis=1)` of `(num_points, num_dims)` with a few columns, column by column: numpy reduces
     along a short last axis row by row, about 20 times slower (measured, 20,000 x 3)."""
     finite = np.isfinite(a[:, 0])
     for k in range(1, a.shape[1]):
@@ -84,14 +84,15 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
 
 
 def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lowest, highest) of each column of `(n, k)`, `(k,)` each; column by column (`finite_rows`)."""
+    """(lowest, highest) of each column of `(num_points, num_dims)`, `(num_dims,)` each; column by column
+    (`finite_rows`)."""
     return (np.array([a[:, k].min() for k in range(a.shape[1])]), np.array([a[:, k].max() for k in range(a.shape[1])]))
 
 
 def pad_polylines(polylines, num_points: int):
     """Polylines stacked and zero padded.
 
-    Returns float `(num_polylines, num_points, dims)` and bool valid `(num_polylines, num_points)`.
+    Returns float `(num_polylines, num_points, num_dims)` and bool valid `(num_polylines, num_points)`.
     """
     lengths = np.array([len(p) for p in polylines], np.int64)
     flat = np.concatenate(polylines)
@@ -136,7 +137,7 @@ def strict_argmin(values, axis: int = -1):
 
     TensorFlow's argmin on the CPU: NaN is never chosen, and a row with no
     value below 3.4e38 (all NaN or +inf) gives 0. int `(...)` from float32
-    `(..., n)` (n along `axis`), numpy or JAX (whose own argmin picks the first NaN).
+    `(..., num_values)` (the values along `axis`), numpy or JAX (whose own argmin picks the first NaN).
     """
     xp = array_namespace(values)
     candidates = xp.where(xp.isnan(values), xp.inf, values)

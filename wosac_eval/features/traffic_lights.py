@@ -141,8 +141,8 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
 def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     """For each (step, signal): the lane segment nearest the stop point.
 
-    Returns (segment_start, segment_delta, lane_known), float32 `(steps, signals, 2)`
-    twice and bool `(steps, signals)`.
+    Returns (segment_start, segment_delta, lane_known), float32 `(num_steps, num_signals, 2)`
+    twice and bool `(num_steps, num_signals)`.
     """
     match = table.lane_ids[None, :] == signals.lane_id[:, None]  # (signals, lanes)
     lane_known = match.any(axis=1)
@@ -151,10 +151,10 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_valid = np.zeros(pts.shape[:2], bool)
     seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
     start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]  # (signals, S, 2)
-    stop = np.ascontiguousarray(signals.stop_point, _F)  # (steps, signals, 2)
+    stop = np.ascontiguousarray(signals.stop_point, _F)  # (num_steps, num_signals, 2)
     # A signal's stop point rarely moves: it is measured where it differs from the step before (told apart
     # by its bits), and each step takes the measure of its signal's last change: every step's values.
-    bits = stop.view(np.int64)[..., 0]  # (steps, signals)
+    bits = stop.view(np.int64)[..., 0]  # (num_steps, num_signals)
     changed = np.ones(bits.shape, bool)
     changed[1:] = bits[1:] != bits[:-1]
     step_at, signal_at = np.nonzero(changed)
@@ -163,7 +163,7 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_at_change = np.zeros(bits.shape, np.int64)
     seg_at_change[step_at, signal_at] = np.argmin(d, axis=-1)
     last_change = np.maximum.accumulate(np.where(changed, np.arange(len(bits))[:, None], 0), axis=0)
-    seg = seg_at_change[last_change, np.arange(bits.shape[1])[None, :]]  # (steps, signals)
+    seg = seg_at_change[last_change, np.arange(bits.shape[1])[None, :]]  # (num_steps, num_signals)
     sig = np.arange(len(signals.lane_id))[None, :]
     seg_start = pts[sig, seg]
     seg_delta = pts[sig, seg + 1] - seg_start

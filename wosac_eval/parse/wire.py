@@ -39,7 +39,8 @@ def varint(value: int) -> bytes:
 
 
 def packed_headers(num_steps: int, field_numbers=(2, 3, 4, 5)) -> np.ndarray:
-    """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8 `(fields, header)`."""
+    """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8
+    `(num_fields, num_bytes)`."""
     length = varint(4 * num_steps)
     return np.array([[(number << 3) | 2, *length] for number in field_numbers], dtype=np.uint8)
 

@@ -143,9 +143,9 @@ def message_spans(data, starts, ends, numbers):
     each parent message, in wire order.
 
     Args:
-      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_parents,)`, the parents' spans in it.
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_records,)`, the parents' spans in it.
     Returns:
-      (start, end, parent): int64 `(num_found,)`, the values' spans and the index of their parent.
+      (start, end, parent): int64 `(num_values,)`, the values' spans and the index of their parent.
     """
     return _message_spans(data, starts, ends, np.atleast_1d(np.asarray(numbers, np.int64)))
 

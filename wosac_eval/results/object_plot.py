@@ -58,7 +58,7 @@ class _ObjectScene:
     arrays, rollouts: the scenario's arrays and the rollouts' (`scoring.scenario.scenario_inputs`).
     log, sim: the metric features of the log and of the rollouts (`scenario_features`).
     e: the object's index among the evaluated ones.
-    steps: the logged step index of each simulated step, shape (num_steps,).
+    steps: the logged step index of each simulated step, shape `(num_steps,)`.
     """
 
     object_id: int
@@ -71,7 +71,7 @@ class _ObjectScene:
 
     @property
     def log_valid(self) -> np.ndarray:
-        """Whether the log has the object at each simulated step, shape (num_steps,)."""
+        """Whether the log has the object at each simulated step, shape `(num_steps,)`."""
         return np.asarray(self.log.valid)[0, self.e]
 
 

@@ -74,7 +74,7 @@ class SceneView:
 
 
 def _event_starts(flags: np.ndarray) -> np.ndarray:
-    """(sample, object, step) of the first step of every run of True in bool `(samples, objects, steps)`."""
+    """(sample, object, step) of the first step of every run of True in bool `(num_samples, num_objects, num_steps)`."""
     before = np.concatenate([np.zeros_like(flags[..., :1]), flags[..., :-1]], axis=-1)
     return np.argwhere(flags & ~before)
 

@@ -43,7 +43,7 @@ _PALETTE = (
 
 
 def _box_corners(x, y, heading, length, width) -> np.ndarray:
-    """Corners `(num_boxes, 4, 2)` of boxes centred at x, y (all `(num_boxes,)`)."""
+    """Corners `(num_objects, 4, 2)` of boxes centred at x, y (all `(num_objects,)`)."""
     c, s = np.cos(heading), np.sin(heading)
     half = np.stack([length, width], axis=-1)[:, None, :] / 2 * np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]])
     return np.stack(

@@ -125,7 +125,7 @@ class ScoringResult:
 
 
 def shared_rows(base: ScoringResult, new: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
-    """Row indices `(base_rows, new_rows)`, int64 `(num_shared,)` each, of the scenarios both results hold,
+    """Row indices `(base_rows, new_rows)`, int64 `(num_scenarios,)` each, of the scenarios both results hold,
     in base order: `base.values[m][base_rows]` pairs with `new.values[m][new_rows]`."""
     in_new = {sid: i for i, sid in enumerate(new.scenario_ids)}
     base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in in_new], dtype=np.int64)

@@ -29,7 +29,7 @@ from wosac_eval.sim.scene_specs import (
 class LoggedScene:
     """A simulated scene in the local frame.
 
-    x, y, heading, speed, valid: (num_objects, NUM_STEPS).
+    x, y, heading, speed, valid: `(num_objects, 91)`.
     """
 
     spec: SceneSpec
@@ -79,7 +79,7 @@ def simulate_agents(agents: list[AgentSpec], signal_states: dict[str, np.ndarray
 def colliding_pairs(x, y, heading, length, width, valid=None) -> list[tuple[int, int]]:
     """Pairs (i < j) of objects whose boxes overlap at some step where both are valid.
 
-    x, y, heading, valid: (num_objects, num_steps); length, width: (num_objects,).
+    x, y, heading, valid: `(num_objects, num_steps)`; length, width: `(num_objects,)`.
     """
     n, t = x.shape
     corners = geo.box_corners(x, y, heading, length[:, None], width[:, None])  # (n, t, 4, 2)

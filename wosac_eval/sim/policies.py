@@ -2,7 +2,7 @@
 
 Each policy maps a `SimContext` (what a policy may see: the first 11 steps of
 every track, the map, traffic signals) to simulated futures of every sim agent,
-an array of shape (num_rollouts, num_sim_agents, 80, 4) holding
+an array of shape `(num_rollouts, num_objects, 80, 4)` holding
 center_x, center_y, center_z, heading for steps 11..90.
 
 * ``constant_velocity``: every agent keeps its current velocity and heading
@@ -311,8 +311,8 @@ class _Routes:
     """Each rollout's path for each agent, and what the agent does on it.
 
     polylines, stops: [rollout][agent] the path, and its stop lines (arc length, signal column).
-    lateral: (num_agents,) the agent's offset from its lane's centre (0 off the lanes).
-    v0: (num_rollouts, num_agents) desired speed (0: parked).
+    lateral: `(num_objects,)` the agent's offset from its lane's centre (0 off the lanes).
+    v0: `(num_rollouts, num_objects)` desired speed (0: parked).
     """
 
     polylines: list[list[np.ndarray]]

@@ -44,7 +44,7 @@ def load_sim_agents(
     progress: Callable[[int], Any] | None = None,
     executor=None,
 ) -> dict[str, np.ndarray]:
-    """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
+    """scenario_id -> sorted sim agent ids, shape `(num_objects,)`, in scenario-set order.
 
     Streams the scenarios (or, from a ScenarioIndex, loads them by batches in
     the executor's workers) and keeps only the ids of objects valid at step

@@ -139,7 +139,7 @@ def query_cells(queries, buckets):
     would each list a wide ring of segments).
 
     Returns:
-      (cell int64 `(n,)`: `OFF_GRID` for a point off the grid, `NON_FINITE` for one with a NaN
+      (cell int64 `(num_points,)`: `OFF_GRID` for a point off the grid, `NON_FINITE` for one with a NaN
       or infinite coordinate; centre float64 `(num_cells, 2)`; half-diagonal float64 `(num_cells,)`).
     """
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = buckets.grid

@@ -72,7 +72,7 @@ def cell_candidate_table(
       start, delta: float32 `(num_segments, 3)`, the segments the indices refer to (all valid).
     Returns:
       origin float32 `(2,)`, shape int32 `(2,)` (cells along x, y), candidates int32
-      `(num_cells, k)` (cell `ix * shape[1] + iy`; nearest first; rows with fewer segments repeat
+      `(num_cells, num_candidates)` (cell `ix * shape[1] + iy`; nearest first; rows with fewer segments repeat
       their first), clearance and near_clearance float32 `(num_cells,)` (near_clearance <= clearance).
     """
     start, delta = np.ascontiguousarray(start, _F), np.ascontiguousarray(delta, _F)

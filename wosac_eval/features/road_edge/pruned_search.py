@@ -117,7 +117,7 @@ def _search_lists(queries, cell, lists, segments, max_length, hint_stride):
     the nearest of those evaluated, and the bounds cover every segment that could beat it.)
 
     Returns:
-      (int64 `(n,)`: the segment, `NOT_FOUND` where the list does not settle it (or the query
+      (int64 `(num_points,)`: the segment, `NOT_FOUND` where the list does not settle it (or the query
       has no cell), `NON_FINITE` for a NaN or infinite point; float64 `(num_cells,)`: the R a
       cell's list needs to settle all its queries, 0 where it does; the number of distances
       evaluated).
@@ -187,14 +187,14 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
     """The nearest valid segment of each point (stretched selection distance, lowest index on ties).
 
     Args:
-      queries: float32 `(n, 3)`, contiguous.
+      queries: float32 `(num_points, 3)`, contiguous.
       counts: a dict that gets the work done: "cells" (candidate lists built; none where the queries
         are scattered, fewer than `SPARSE_QUERIES_PER_CELL` per cell: each then searches the rings of
         buckets around it), "pairs evaluated" (selection distances computed).
       hint_stride: each query starts from the answer of the query this many before it (a hint only:
         the result does not depend on it; it saves work where that query is near).
     Returns:
-      int64 `(n,)`: a segment, `NOT_FOUND` when no segment is listed, `NON_FINITE` for a point
+      int64 `(num_points,)`: a segment, `NOT_FOUND` when no segment is listed, `NON_FINITE` for a point
       with a NaN or infinite coordinate.
     """
     buckets, segments = table.buckets(), table.searched()

@@ -98,7 +98,7 @@ def _cross(ax, ay, bx, by):
 
 
 def segment_frames(start, delta):
-    """float64 `(S, 7)`: each segment's start (x, y), planar unit direction (x, y), planar length, and
+    """float64 `(num_segments, 7)`: each segment's start (x, y), planar unit direction (x, y), planar length, and
     lowest and highest z; a segment of no planar length gets the direction (1, 0) (`pruned_search._distance_bound`)."""
     dx, dy = delta[:, 0].astype(np.float64), delta[:, 1].astype(np.float64)
     length = np.hypot(dx, dy)
@@ -259,7 +259,8 @@ class SearchedSegments(NamedTuple):
     """The segment arrays the compiled searches read, a `SegmentTable`'s (`SegmentTable.searched`).
 
     Attributes:
-      start, delta: float32 `(S, 3)`; frame: float64 `(S, 7)` (`segment_frames`); length: float64 `(S,)`.
+      start, delta: float32 `(num_segments, 3)`; frame: float64 `(num_segments, 7)` (`segment_frames`);
+        length: float64 `(num_segments,)`.
     """
 
     start: np.ndarray
@@ -301,9 +302,9 @@ class Gather(NamedTuple):
     """The workspace of segments gathered ring by ring (`gather_ring`).
 
     Attributes:
-      seen: int64 `(S,)`, the tag under which each segment was last gathered.
+      seen: int64 `(num_segments,)`, the tag under which each segment was last gathered.
       ring: the buckets of one ring (`ring_buffer`).
-      segment: int32 `(S,)`, the gathered segments; key: float64 `(S,)`, their planar distances.
+      segment: int32 `(num_segments,)`, the gathered segments; key: float64 `(num_segments,)`, their planar distances.
     """
 
     seen: np.ndarray

@@ -26,7 +26,7 @@ _corner_sign = compiled(corner_sign)
 
 @cached_loop
 def _signed_distances(queries, segment, sides, group):
-    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`; `sides`: the
+    """Signed planar distance of each point to its nearest segment (`segment`, `(num_points,)`; `sides`: the
     table's `SegmentSides`): the largest of each `group` of consecutive points (numpy's maximum: NaN
     passes on), float32 `(n // group,)`."""
     start, delta, valid, prior, next_, prior_valid, next_valid, convex_before, convex_after = sides
@@ -116,8 +116,8 @@ _box_corners = compiled(box_corners)
 
 @cached_loop
 def _box_corner_queries(x, y, bottom, length, width, cos_h, sin_h, valid):
-    """The 4 corners (x, y, bottom) of each valid box, float32 `(4 * num_valid, 3)`, and the valid boxes'
-    flat indices, int64 `(num_valid,)`, in their flat order; the arguments are arrays of one shape `(...)`."""
+    """The 4 corners (x, y, bottom) of each valid box, float32 with 3 columns (4 rows a box), and the valid
+    boxes' flat indices, int64, in their flat order; the arguments are arrays of one shape `(...)`."""
     flat = valid.reshape(-1)
     keep = np.flatnonzero(flat)
     queries = np.empty((4 * keep.shape[0], 3), np.float32)

@@ -5,6 +5,8 @@
   `TYPE_CHECKING` included), and no modules import each other in a circle.
 - No module over 500 lines, no function over 80 lines, none with more than 8 parameters, in
   `wosac_eval/`, `server/` and `benchmarks/`.
+- Every function of `wosac_eval/` annotates each parameter and its return (mypy's
+  `disallow_untyped_defs` for the package, pyproject.toml; checked here too, where a reader looks).
 - One vocabulary of axis names: every backticked shape in the docstrings of `wosac_eval/` and `server/`
   names its axes from the tables of docs/extending.md's "Axis names" (numbers and `...` besides).
 """
@@ -309,6 +311,40 @@ def test_no_function_has_more_than_8_parameters(part):
         f"object): { ({k: v for k, v in wide.items() if k not in kept}) }"
     )
     assert not kept - set(wide), f"now within the cap: drop them from WIDE_FUNCTIONS: {sorted(kept - set(wide))}"
+
+
+# --- Annotations ---------------------------------------------------------------------------------------
+
+
+def unannotated(path: Path) -> list[str]:
+    """`file:line name (what)` of every function of a file that leaves a parameter (but `self` and `cls`) or
+    its return unannotated."""
+    found = []
+    where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        a = node.args
+        params = [*a.posonlyargs, *a.args, *a.kwonlyargs, *(p for p in (a.vararg, a.kwarg) if p is not None)]
+        missing = [p.arg for p in params if p.annotation is None and p.arg not in ("self", "cls")]
+        missing += ["return"] if node.returns is None else []
+        if missing:
+            found.append(f"{where}:{node.lineno} {node.name} ({', '.join(missing)})")
+    return found
+
+
+def test_the_annotation_check_sees_what_it_checks(tmp_path):
+    """A missing parameter, `*args` or return annotation is reported; `self` needs none."""
+    source = tmp_path / "module.py"
+    source.write_text("class A:\n    def f(self, x: int, *args) -> int: ...\ndef g(y: str): ...\n")
+    names = sorted(entry.split(" ", 1)[1] for entry in unannotated(source))
+    assert names == ["f (args)", "g (return)"]
+
+
+def test_every_function_of_the_package_is_annotated():
+    files = [ROOT / f for f in package_files()]
+    missing = [entry for p in files for entry in unannotated(p)]
+    assert not missing, f"annotate every parameter and the return of these ({len(missing)}): {missing[:50]}"
 
 
 # --- Axis names ----------------------------------------------------------------------------------------

@@ -22,6 +22,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 __version__ = "0.3.0"
 _API = {
@@ -44,7 +45,7 @@ _API = {
 __all__ = sorted(_API)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name in _API:
         return getattr(importlib.import_module(_API[name]), name)
     raise AttributeError(f"module 'wosac_eval' has no attribute {name!r}")

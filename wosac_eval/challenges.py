@@ -16,6 +16,7 @@ module instead of restating them.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -114,7 +115,7 @@ def spec(challenge: ChallengeLike = Challenge.SIM_AGENTS) -> ChallengeSpec:
     return SPECS[as_challenge(challenge)]
 
 
-def sim_agent_ids(scenario) -> np.ndarray:
+def sim_agent_ids(scenario: Any) -> np.ndarray:
     """Ids of the tracks valid at the current step, in track order, int64 `(num_objects,)`.
 
     Both challenges simulate exactly these objects. A track too short to have
@@ -126,7 +127,7 @@ def sim_agent_ids(scenario) -> np.ndarray:
     )
 
 
-def sim_agents_among(track_ids, valid_at_current) -> np.ndarray:
+def sim_agents_among(track_ids: Any, valid_at_current: Any) -> np.ndarray:
     """`sim_agent_ids` of tracks given as arrays (a message or its wire bytes read alike).
 
     Args:
@@ -136,20 +137,20 @@ def sim_agents_among(track_ids, valid_at_current) -> np.ndarray:
     return np.asarray(track_ids, np.int64).reshape(-1)[np.asarray(valid_at_current, bool).reshape(-1)]
 
 
-def predicted_ids(scenario) -> np.ndarray:
+def predicted_ids(scenario: Any) -> np.ndarray:
     """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_evaluated,)`."""
     return predicted_among(
         [t.id for t in scenario.tracks], scenario.sdc_track_index, [r.track_index for r in scenario.tracks_to_predict]
     )
 
 
-def predicted_among(track_ids, sdc_track_index: int, predicted_track_indices) -> np.ndarray:
+def predicted_among(track_ids: Any, sdc_track_index: int, predicted_track_indices: Any) -> np.ndarray:
     """`predicted_ids` of tracks given as arrays: the ids at `sdc_track_index` and at each of the
     `predicted_track_indices`, indexed as the message's repeated field is (from the end when negative;
     IndexError past either end)."""
     ids = np.asarray(track_ids, np.int64).reshape(-1)
 
-    def track_id(index, field: str) -> int:
+    def track_id(index: int, field: str) -> int:
         if not -len(ids) <= int(index) < len(ids):
             raise IndexError(f"{field} {int(index)} is not the index of a track (there are {len(ids)})")
         return int(ids[int(index)])

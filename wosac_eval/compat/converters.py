@@ -8,6 +8,8 @@ official features are computed from (numpy arrays, official dtypes).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval import challenges
@@ -59,7 +61,7 @@ def scenario_to_joint_scene(
     return scene
 
 
-def _stacked(trajectories, field: str, dtype) -> np.ndarray:
+def _stacked(trajectories: Any, field: str, dtype: Any) -> np.ndarray:
     """One field of every submitted trajectory as `(num_objects, num_steps)` (`(num_objects,)` for scalars)."""
     values = [getattr(t, field) for t in trajectories]
     if values and not np.isscalar(values[0]):

@@ -82,7 +82,7 @@ def _official(features: _features.MetricFeatures) -> MetricFeatures:
     return MetricFeatures(**values)
 
 
-def as_internal(features) -> _features.MetricFeatures:
+def as_internal(features: Any) -> _features.MetricFeatures:
     """Any object with the `MetricFeatures` fields (numpy arrays, or anything `np.asarray` reads, e.g.
     TensorFlow tensors) as wosac-eval's own `MetricFeatures`."""
     fields: dict[str, Any] = {

@@ -16,6 +16,7 @@ take the arrays as they are (`tf.convert_to_tensor`), or use numpy (e.g.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -64,7 +65,7 @@ class ObjectTrajectories:
             **{f: getattr(self, f) for f in _PER_OBJECT},
         )
 
-    def gather_objects(self, object_indices) -> ObjectTrajectories:
+    def gather_objects(self, object_indices: Any) -> ObjectTrajectories:
         """The objects at the given positions, in that order (a position may repeat).
 
         Args:
@@ -90,7 +91,7 @@ class ObjectTrajectories:
             **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT},
         )
 
-    def gather_objects_by_id(self, object_ids) -> ObjectTrajectories:
+    def gather_objects_by_id(self, object_ids: Any) -> ObjectTrajectories:
         """The objects with the given ids, in the order of `object_ids`.
 
         Args:
@@ -113,7 +114,7 @@ class ObjectTrajectories:
         )
 
 
-def _positions_of_ids(ids, wanted) -> np.ndarray:
+def _positions_of_ids(ids: np.ndarray, wanted: Any) -> np.ndarray:
     """Position in `ids` of each of `wanted`, as the official gather by id finds them."""
     ids, wanted = np.asarray(ids), np.asarray(wanted)
     if ids.ndim != 1 or wanted.ndim != 1:

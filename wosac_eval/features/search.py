@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import numpy as np
 
@@ -37,20 +38,40 @@ class PrunedSearch:
     lanes: traffic_lights.LaneTable | None
     signals: TrafficSignals | None
 
-    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+    def nearest_object(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        cos_h: np.ndarray,
+        sin_h: np.ndarray,
+        valid: np.ndarray,
+        num_evaluated: int,
+    ) -> Any:
         """`interaction.distance_to_nearest_object`: float32 `(num_samples, num_evaluated, num_steps)`."""
         return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs):
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
         """`following.time_to_collision`: float32 `(num_samples, num_evaluated, len(inputs.steps))`."""
         return following.time_to_collision(inputs)
 
-    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+    def road_edge_distance(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        bottom: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        cos_h: np.ndarray,
+        sin_h: np.ndarray,
+        valid: np.ndarray,
+    ) -> Any:
         """`road_edge.box_distance_to_road_edge`: float32 `(num_samples, num_objects, num_steps)`, -1e10 where
         invalid."""
         return road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, self.road_edges)
 
-    def red_light_violation(self, x, y, valid):
+    def red_light_violation(self, x: np.ndarray, y: np.ndarray, valid: np.ndarray) -> Any:
         """`traffic_lights.red_light_violation`: bool `(num_samples, num_objects, num_steps)`."""
         return traffic_lights.red_light_violation(x, y, valid, self.lanes, self.signals)
 

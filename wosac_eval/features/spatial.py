@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.features.xp import array_namespace
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bound: int = 4):
+def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of: Any, measure: Any = None, k_bound: int = 4) -> Any:
     """(query, tree point) pairs within a search radius of each query.
 
     The radius is `radius_of(bound)`, where `bound` is the smallest exact
@@ -54,7 +56,7 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bou
     return qi[order], pi[order].astype(np.int64)
 
 
-def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
+def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray) -> Any:
     """Per group (contiguous, sorted): the position of the minimum value, ties to the lowest `tie`.
 
     Returns (group ids present, positions into the pair arrays).
@@ -89,7 +91,7 @@ def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([a[:, k].min() for k in range(a.shape[1])]), np.array([a[:, k].max() for k in range(a.shape[1])]))
 
 
-def pad_polylines(polylines, num_points: int):
+def pad_polylines(polylines: Any, num_points: int) -> Any:
     """Polylines stacked and zero padded.
 
     Returns float `(num_polylines, num_points, num_dims)` and bool valid `(num_polylines, num_points)`.
@@ -132,7 +134,7 @@ def non_finite_pick(valid: np.ndarray) -> int:
     return int(padding[0]) if padding.size else 0
 
 
-def strict_argmin(values, axis: int = -1):
+def strict_argmin(values: Any, axis: int = -1) -> Any:
     """Index of the first value below every earlier one, starting from float32's largest finite value.
 
     TensorFlow's argmin on the CPU: NaN is never chosen, and a row with no

@@ -18,7 +18,7 @@ from wosac_eval.metrics.registry import METRIC_NAMES
 Value = TypeVar("Value")  # a float, or a float64 `(num_scenarios,)` array
 
 
-def metametric_weights(config) -> dict[str, float]:
+def metametric_weights(config: Any) -> dict[str, float]:
     """Every metric's meta-metric weight in a `SimAgentMetricsConfig` (0 for a metric it leaves unset)."""
     return {m: getattr(config, m).metametric_weight for m in METRIC_NAMES}
 

@@ -16,6 +16,8 @@ service) reads this module.
 
 from __future__ import annotations
 
+from typing import Any
+
 from wosac_eval.metric_table import (  # noqa: F401  (the registry's API: its users import these from here)
     BUCKETS,
     METRICS,
@@ -80,7 +82,7 @@ def active_buckets() -> dict[str, tuple[str, ...]]:
     return {bucket: tuple(m.name for m in active_metrics() if m.bucket == bucket) for bucket in BUCKETS}
 
 
-def metric_config(config, metric: Metric):
+def metric_config(config: Any, metric: Metric) -> Any:
     """The `FeatureConfig` a metric is scored with: the official config's field, or a registered
     metric's own `config_default` (the official proto has no field for it)."""
     return getattr(config, metric.name) if metric.official else default_feature_config(metric)

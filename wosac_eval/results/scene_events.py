@@ -5,6 +5,7 @@ per-step features the scores come from). Drawn by `scene_painter`, written by `s
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -80,7 +81,7 @@ def _event_starts(flags: np.ndarray) -> np.ndarray:
 
 
 def scene_view(
-    scenario, rollouts=None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
+    scenario: Any, rollouts: Any = None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
 ) -> SceneView:
     """The view of a scenario (a `Scenario` or its arrays) and optionally its rollouts (message or arrays).
 

@@ -195,7 +195,7 @@ def _column(scenarios: list[dict], field: str, ids: list[str], path: str) -> np.
     raise AssertionError("unreachable: the fast check failed but no value is at fault")
 
 
-def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
+def _analysis_columns(scenarios: list[dict], ids: list[str], path: str) -> Any:
     """The rows' criticality scores (None unless every row has one) and per-type values (NaN where absent)."""
     criticality = None
     if ids and all(isinstance(e.get("criticality"), dict) for e in scenarios):
@@ -334,7 +334,7 @@ def _objects_file(data: dict, path: str) -> str | None:
     return str(Path(path).parent / entry["objects"])
 
 
-def load_result(path: str | Path, **kwargs) -> ScoringResult:
+def load_result(path: str | Path, **kwargs: Any) -> ScoringResult:
     """Reads and validates a result JSON file (see `parse_result`)."""
     path = str(path)
     try:

@@ -73,7 +73,7 @@ def left_normals(polyline: np.ndarray) -> np.ndarray:
     return np.stack([-t[:, 1], t[:, 0]], axis=1)
 
 
-def box_corners(x, y, heading, length, width) -> np.ndarray:
+def box_corners(x: np.ndarray, y: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
     """Corners of oriented boxes, shape `(..., 4, 2)` for inputs broadcastable to `(...)`."""
     x, y, heading, length, width = np.broadcast_arrays(*(np.asarray(a, float) for a in (x, y, heading, length, width)))
     c, s = np.cos(heading), np.sin(heading)

@@ -11,7 +11,7 @@ query near a road edge needs only those; built once per scene on the host
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -118,7 +118,7 @@ class CellGrid(NamedTuple):
 
 
 @cached_loop
-def _cell_table(frame, cells, k, near, buckets):
+def _cell_table(frame: Any, cells: Any, k: Any, near: Any, buckets: Any) -> Any:
     """`cell_candidate_table`'s lists and both clearances (float64), group of cells by group.
 
     A group of `_GROUP_CELLS` x `_GROUP_CELLS` cells gathers, ring by ring of buckets around its

@@ -16,11 +16,16 @@ module instead of restating them.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wosac_eval.options import Choice
+
+if TYPE_CHECKING:  # the message type alone: the protobuf modules load when a message is parsed
+    from wosac_eval.protos import scenario_pb2
 
 CURRENT_TIME_INDEX = 10  # the 11th step is "now"
 NUM_LOGGED_STEPS = 91
@@ -115,7 +120,7 @@ def spec(challenge: ChallengeLike = Challenge.SIM_AGENTS) -> ChallengeSpec:
     return SPECS[as_challenge(challenge)]
 
 
-def sim_agent_ids(scenario: Any) -> np.ndarray:
+def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
     """Ids of the tracks valid at the current step, in track order, int64 `(num_objects,)`.
 
     Both challenges simulate exactly these objects. A track too short to have
@@ -127,7 +132,7 @@ def sim_agent_ids(scenario: Any) -> np.ndarray:
     )
 
 
-def sim_agents_among(track_ids: Any, valid_at_current: Any) -> np.ndarray:
+def sim_agents_among(track_ids: ArrayLike, valid_at_current: ArrayLike) -> np.ndarray:
     """`sim_agent_ids` of tracks given as arrays (a message or its wire bytes read alike).
 
     Args:
@@ -137,14 +142,14 @@ def sim_agents_among(track_ids: Any, valid_at_current: Any) -> np.ndarray:
     return np.asarray(track_ids, np.int64).reshape(-1)[np.asarray(valid_at_current, bool).reshape(-1)]
 
 
-def predicted_ids(scenario: Any) -> np.ndarray:
+def predicted_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
     """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_evaluated,)`."""
     return predicted_among(
         [t.id for t in scenario.tracks], scenario.sdc_track_index, [r.track_index for r in scenario.tracks_to_predict]
     )
 
 
-def predicted_among(track_ids: Any, sdc_track_index: int, predicted_track_indices: Any) -> np.ndarray:
+def predicted_among(track_ids: ArrayLike, sdc_track_index: int, predicted_track_indices: Iterable[int]) -> np.ndarray:
     """`predicted_ids` of tracks given as arrays: the ids at `sdc_track_index` and at each of the
     `predicted_track_indices`, indexed as the message's repeated field is (from the end when negative;
     IndexError past either end)."""

@@ -69,7 +69,7 @@ class Objects:
         traj["valid"] = self.valid[:, order] if valid is None else valid
         return traj
 
-    def result(self, value: np.ndarray) -> np.ndarray:
+    def result(self, value: Any) -> Any:
         """A kernel's `(num_samples, num_evaluated, num_steps)` with the leading axes back."""
         return compat_array(np.reshape(value, self.lead + np.shape(value)[1:]))
 

@@ -31,6 +31,7 @@ import itertools
 import math
 import textwrap
 import types
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeGuard
 
@@ -77,7 +78,7 @@ def _clip(v: Any, low: Any, high: Any) -> Any:
     return v if (v < high) | (v != v) else high
 
 
-def _is_kernel(value: np.ndarray) -> bool:
+def _is_kernel(value: object) -> bool:
     """A plain function of the feature kernels (inlined into the kernel calling it)."""
     return (
         isinstance(value, types.FunctionType)
@@ -260,7 +261,7 @@ def _folded(node: ast.expr) -> ast.expr:
     return node
 
 
-def _map_field(value: np.ndarray, transform: Any) -> Any:
+def _map_field(value: Any, transform: Callable[[ast.expr], ast.expr]) -> Any:
     if isinstance(value, ast.expr):
         return transform(value)
     if isinstance(value, list):

@@ -175,14 +175,14 @@ def build_segment_table(polylines: Any) -> SegmentTable:
 
 
 def segment_distances(
-    px: np.ndarray,
-    py: np.ndarray,
+    px: Any,
+    py: Any,
     pz: Any,
-    sx: np.ndarray,
-    sy: np.ndarray,
+    sx: Any,
+    sy: Any,
     sz: Any,
-    dx: np.ndarray,
-    dy: np.ndarray,
+    dx: Any,
+    dy: Any,
     dz: Any,
 ) -> Any:
     """Projection parameter, stretched 3D distance and planar distance, float32.
@@ -215,9 +215,7 @@ def segment_side(query_xy: Any, start: Any, delta: Any) -> Any:
     )
 
 
-def side_of_segment(
-    px: np.ndarray, py: np.ndarray, sx: np.ndarray, sy: np.ndarray, dx: np.ndarray, dy: np.ndarray
-) -> Any:
+def side_of_segment(px: Any, py: Any, sx: Any, sy: Any, dx: Any, dy: Any) -> Any:
     """`segment_side` on separate coordinates (an elementwise `ops` kernel)."""
     return ops.sign((px - sx) * dy - (py - sy) * dx)
 

@@ -5,12 +5,17 @@
   `TYPE_CHECKING` included), and no modules import each other in a circle.
 - No module over 500 lines, no function over 80 lines, none with more than 8 parameters, in
   `wosac_eval/`, `server/` and `benchmarks/`.
+- Every function of `wosac_eval/` annotates each parameter and its return (mypy's
+  `disallow_untyped_defs` for the package, pyproject.toml; checked here too, where a reader looks).
+- One vocabulary of axis names: every backticked shape in the docstrings of `wosac_eval/` and `server/`
+  names its axes from the tables of docs/extending.md's "Axis names" (numbers and `...` besides).
 """
 
 from __future__ import annotations
 
 import ast
 import functools
+import re
 from pathlib import Path
 
 import pytest
@@ -18,6 +23,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = "wosac_eval"
 LAYOUT = ROOT / "docs" / "development.md"
+AXES_DOC = ROOT / "docs" / "extending.md"  # its "Axis names" tables: the vocabulary of shapes in docstrings
 MAX_MODULE_LINES = 500  # a module a reader takes in at one sitting; past it, it holds more than one thing
 MAX_FUNCTION_LINES = 80  # a function read at once, on one screen or two
 MAX_PARAMETERS = 8  # past it, what travels together goes as one dataclass, named tuple or options object
@@ -305,3 +311,113 @@ def test_no_function_has_more_than_8_parameters(part):
         f"object): { ({k: v for k, v in wide.items() if k not in kept}) }"
     )
     assert not kept - set(wide), f"now within the cap: drop them from WIDE_FUNCTIONS: {sorted(kept - set(wide))}"
+
+
+# --- Annotations ---------------------------------------------------------------------------------------
+
+
+def unannotated(path: Path) -> list[str]:
+    """`file:line name (what)` of every function of a file that leaves a parameter (but `self` and `cls`) or
+    its return unannotated."""
+    found = []
+    where = path.relative_to(ROOT) if path.is_relative_to(ROOT) else path
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        a = node.args
+        params = [*a.posonlyargs, *a.args, *a.kwonlyargs, *(p for p in (a.vararg, a.kwarg) if p is not None)]
+        missing = [p.arg for p in params if p.annotation is None and p.arg not in ("self", "cls")]
+        missing += ["return"] if node.returns is None else []
+        if missing:
+            found.append(f"{where}:{node.lineno} {node.name} ({', '.join(missing)})")
+    return found
+
+
+def test_the_annotation_check_sees_what_it_checks(tmp_path):
+    """A missing parameter, `*args` or return annotation is reported; `self` needs none."""
+    source = tmp_path / "module.py"
+    source.write_text("class A:\n    def f(self, x: int, *args) -> int: ...\ndef g(y: str): ...\n")
+    names = sorted(entry.split(" ", 1)[1] for entry in unannotated(source))
+    assert names == ["f (args)", "g (return)"]
+
+
+def test_every_function_of_the_package_is_annotated():
+    files = [ROOT / f for f in package_files()]
+    missing = [entry for p in files for entry in unannotated(p)]
+    assert not missing, f"annotate every parameter and the return of these ({len(missing)}): {missing[:50]}"
+
+
+# --- Axis names ----------------------------------------------------------------------------------------
+
+_SPAN = re.compile(r"`([^`]*)`")  # a backticked span of a docstring
+_TUPLE = re.compile(r"(?<![\w.\])])\(([^()]*)\)")  # parentheses not closing a call or an index
+_AXIS = re.compile(r"\.\.\.|[A-Za-z_]\w*|\d+")
+# Words that mark a tuple as a shape besides the vocabulary itself: the retired spellings of its axes.
+_RETIRED = {"samples", "objects", "steps", "agents", "rollouts", "signals", "evaluated", "scenes", "entries"}
+
+
+@functools.cache
+def axis_names() -> frozenset[str]:
+    """The names of the tables of docs/extending.md's "Axis names" section (their first column)."""
+    section = AXES_DOC.read_text().split("## Axis names\n", 1)[1].split("\n## ", 1)[0]
+    return frozenset(re.findall(r"^\| `([a-z_]+)` \|", section, re.MULTILINE))
+
+
+def shape_axes(docstring: str):
+    """(line offset, axes) of every backticked tuple of the docstring that reads as a shape: all its parts
+    names, numbers or `...`, and one of them a number, `...`, a count (`num_`, `n_`, `max_`), a listed name
+    or a retired one, or a single part with its comma, `(num_objects,)`. Value tuples such as `(low, high)`
+    are not shapes."""
+    for span in _SPAN.finditer(docstring):
+        for found in _TUPLE.finditer(span.group(1)):
+            parts = [p.strip() for p in found.group(1).split(",")]
+            single = len(parts) == 2 and parts[1] == ""
+            parts = parts[:-1] if single else parts
+            if len(parts) < 2 and not single or not all(_AXIS.fullmatch(p) for p in parts):
+                continue
+            marked = [p for p in parts if p in axis_names() or p in _RETIRED or p == "..." or p.isdigit()]
+            if single or marked or any(p.startswith(("num_", "n_", "max_")) for p in parts):
+                yield docstring.count("\n", 0, span.start()), parts
+
+
+def odd_axes(path: Path) -> list[str]:
+    """`file:line: axis` of every axis of a docstring shape that is neither listed, a number nor `...`."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if not isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        first = node.body[0] if node.body else None
+        if not (isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant)):
+            continue
+        if not isinstance(first.value.value, str):
+            continue
+        for offset, parts in shape_axes(first.value.value):
+            odd = [p for p in parts if not (p in axis_names() or p == "..." or p.isdigit())]
+            found += [f"{path.relative_to(ROOT)}:{first.value.lineno + offset}: {p}" for p in odd]
+    return found
+
+
+def test_the_axis_names_are_listed():
+    """The vocabulary's tables hold the axes of the trajectories (and no retired spelling)."""
+    assert {"num_rollouts", "num_samples", "num_objects", "num_evaluated", "num_steps", "batch"} <= axis_names()
+    assert not axis_names() & _RETIRED
+
+
+def test_the_axis_check_sees_what_it_checks():
+    """Shapes are found in backticks, value tuples and calls are not; odd axes are reported."""
+    doc = "x: `(num_samples, n_objects, steps)`; y: `(num_pairs,)`\n`(low, high)`, `f(a, b)`, (samples, steps)"
+    assert [parts for _, parts in shape_axes(doc)] == [["num_samples", "n_objects", "steps"], ["num_pairs"]]
+    assert [parts for _, parts in shape_axes("`(..., num_objects, 91)` and `(batch,)`")] == [
+        ["...", "num_objects", "91"],
+        ["batch"],
+    ]
+
+
+@pytest.mark.parametrize("folder", ["wosac_eval", "server"])
+def test_docstring_shapes_use_the_axis_names(folder):
+    files = [
+        p for p in sorted((ROOT / folder).rglob("*.py")) if not p.relative_to(ROOT).as_posix().startswith(GENERATED)
+    ]
+    assert files, folder
+    odd = [entry for p in files for entry in odd_axes(p)]
+    assert not odd, f'name these axes from docs/extending.md\'s "Axis names" (or list a new one there): {odd}'

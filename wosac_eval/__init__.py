@@ -11,7 +11,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
     Challenge: SIM_AGENTS, SCENARIO_GEN
   Arrays in
     read_scenarios(paths) -> iterator of Scenario messages
-    sim_agent_ids(scenario) -> int64 (num_sim_agents,): the objects to simulate
+    sim_agent_ids(scenario) -> int64 `(num_objects,)`: the objects to simulate
     rollouts_from_arrays(scenario_id, object_id, x, y, z, heading, *, length, width, height, object_type)
         -> RolloutArrays, scored as they are by score_scenario
     rollouts_message(rollouts) -> ScenarioRollouts; joint_scene(object_id, x, y, z, heading) -> JointScene
@@ -22,6 +22,7 @@ Public API (imported lazily, so `import wosac_eval.<module>` stays light):
 from __future__ import annotations
 
 import importlib
+from typing import Any
 
 __version__ = "0.3.0"
 _API = {
@@ -44,7 +45,7 @@ _API = {
 __all__ = sorted(_API)
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name in _API:
         return getattr(importlib.import_module(_API[name]), name)
     raise AttributeError(f"module 'wosac_eval' has no attribute {name!r}")

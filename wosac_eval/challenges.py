@@ -16,10 +16,16 @@ module instead of restating them.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wosac_eval.options import Choice
+
+if TYPE_CHECKING:  # the message type alone: the protobuf modules load when a message is parsed
+    from wosac_eval.protos import scenario_pb2
 
 CURRENT_TIME_INDEX = 10  # the 11th step is "now"
 NUM_LOGGED_STEPS = 91
@@ -114,8 +120,8 @@ def spec(challenge: ChallengeLike = Challenge.SIM_AGENTS) -> ChallengeSpec:
     return SPECS[as_challenge(challenge)]
 
 
-def sim_agent_ids(scenario) -> np.ndarray:
-    """Ids of the tracks valid at the current step, in track order, int64 `(num_sim_agents,)`.
+def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
+    """Ids of the tracks valid at the current step, in track order, int64 `(num_objects,)`.
 
     Both challenges simulate exactly these objects. A track too short to have
     a current step has no valid state there.
@@ -126,30 +132,30 @@ def sim_agent_ids(scenario) -> np.ndarray:
     )
 
 
-def sim_agents_among(track_ids, valid_at_current) -> np.ndarray:
+def sim_agents_among(track_ids: ArrayLike, valid_at_current: ArrayLike) -> np.ndarray:
     """`sim_agent_ids` of tracks given as arrays (a message or its wire bytes read alike).
 
     Args:
-      track_ids: int `(num_tracks,)`; valid_at_current: bool `(num_tracks,)`, false for a track
+      track_ids: int `(num_objects,)`; valid_at_current: bool `(num_objects,)`, false for a track
         without a current step.
     """
     return np.asarray(track_ids, np.int64).reshape(-1)[np.asarray(valid_at_current, bool).reshape(-1)]
 
 
-def predicted_ids(scenario) -> np.ndarray:
-    """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_predicted,)`."""
+def predicted_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
+    """Sorted ids of the SDC and of every `tracks_to_predict` entry, int64 `(num_evaluated,)`."""
     return predicted_among(
         [t.id for t in scenario.tracks], scenario.sdc_track_index, [r.track_index for r in scenario.tracks_to_predict]
     )
 
 
-def predicted_among(track_ids, sdc_track_index: int, predicted_track_indices) -> np.ndarray:
+def predicted_among(track_ids: ArrayLike, sdc_track_index: int, predicted_track_indices: Iterable[int]) -> np.ndarray:
     """`predicted_ids` of tracks given as arrays: the ids at `sdc_track_index` and at each of the
     `predicted_track_indices`, indexed as the message's repeated field is (from the end when negative;
     IndexError past either end)."""
     ids = np.asarray(track_ids, np.int64).reshape(-1)
 
-    def track_id(index, field: str) -> int:
+    def track_id(index: int, field: str) -> int:
         if not -len(ids) <= int(index) < len(ids):
             raise IndexError(f"{field} {int(index)} is not the index of a track (there are {len(ids)})")
         return int(ids[int(index)])

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 from google.protobuf import text_format
 
@@ -202,7 +203,7 @@ def active_metrics() -> tuple[Metric, ...]:
     return METRICS + tuple(_REGISTERED)
 
 
-def default_feature_config(metric: Metric):
+def default_feature_config(metric: Metric) -> Any:
     """The metric's `config_default` as a `FeatureConfig` message (a fresh copy), or None."""
     if metric.config_default is None:
         return None
@@ -211,5 +212,5 @@ def default_feature_config(metric: Metric):
 
 
 @functools.cache
-def _parsed_config(text: str):
+def _parsed_config(text: str) -> Any:
     return text_format.Parse(text, sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig())

@@ -31,6 +31,7 @@ NaN where no object qualifies, inf (time to collision) or 0 where no pair does.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numba
 import numpy as np
@@ -104,7 +105,9 @@ def _worst(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.where(np.isneginf(masked), np.nan, masked)
 
 
-def kinematic_volatility(log, moving_types: np.ndarray):
+def kinematic_volatility(
+    log: Any, moving_types: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per-step braking, jerk and yaw acceleration of the objects of `moving_types`, and the behaviour histogram.
 
     Returns:
@@ -136,16 +139,25 @@ def kinematic_volatility(log, moving_types: np.ndarray):
 _DISC = np.array([-1.0, 0.0, 1.0], dtype=np.float32)  # rear, middle and front disc along the length
 
 
-def _disc_offsets(heading, length, width) -> tuple[np.ndarray, np.ndarray]:
-    """The x and y offsets `(entries,)` from a box's centre to its front disc (the rear one is opposite)."""
+def _disc_offsets(heading: Any, length: Any, width: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The x and y offsets `(batch,)` from a box's centre to its front disc (the rear one is opposite)."""
     offset = np.maximum(length - width, 0.0) / 2
     return np.cos(heading) * offset, np.sin(heading) * offset
 
 
-def disc_pairs(dxc, dyc, heading_a, length_a, width_a, heading_b, length_b, width_b):
-    """Centre-to-centre vectors of every (disc of a, disc of b) pair, `(entries, 3, 3)` x and y, and the radii sum.
+def disc_pairs(
+    dxc: Any,
+    dyc: Any,
+    heading_a: Any,
+    length_a: Any,
+    width_a: Any,
+    heading_b: np.ndarray,
+    length_b: np.ndarray,
+    width_b: np.ndarray,
+) -> tuple[Any, Any, Any]:
+    """Centre-to-centre vectors of every (disc of a, disc of b) pair, `(batch, 3, 3)` x and y, and the radii sum.
 
-    dxc, dyc: `(entries,)` from a's centre to b's; the rest `(entries,)`.
+    dxc, dyc: `(batch,)` from a's centre to b's; the rest `(batch,)`.
     """
     oxa, oya = _disc_offsets(heading_a, length_a, width_a)
     oxb, oyb = _disc_offsets(heading_b, length_b, width_b)
@@ -154,12 +166,14 @@ def disc_pairs(dxc, dyc, heading_a, length_a, width_a, heading_b, length_b, widt
     return dx, dy, ((width_a + width_b) / 2)[:, None, None]
 
 
-def disc_gap(dx, dy, radius) -> np.ndarray:
-    """The gap between two boxes as three discs each (0 when they touch), `(entries,)`."""
+def disc_gap(dx: Any, dy: Any, radius: Any) -> np.ndarray:
+    """The gap between two boxes as three discs each (0 when they touch), `(batch,)`."""
     return np.maximum(np.sqrt((dx * dx + dy * dy).min(axis=(1, 2))) - radius[:, 0, 0], 0.0)
 
 
-def interacting_pairs(x, y, valid, pedestrian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def interacting_pairs(
+    x: np.ndarray, y: np.ndarray, valid: Any, pedestrian: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """The pairs of objects that can interact: (first, second) int `(num_pairs,)`, first < second, in
     `np.triu_indices` order, both valid at some step, not both pedestrians, and whose valid positions'
     bounding boxes come within PAIR_RANGE (farther paths never interact: most pairs of a large scene,
@@ -180,7 +194,7 @@ def interacting_pairs(x, y, valid, pedestrian: np.ndarray) -> tuple[np.ndarray, 
     return i[keep], j[keep]
 
 
-def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
+def pairwise_interaction(log: Any, velocity: Any, pedestrian: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-step least time to collision, most closing speed and worst near miss over pairs of objects.
 
     Returns:
@@ -209,7 +223,22 @@ def pairwise_interaction(log, velocity, pedestrian: np.ndarray):
 
 
 @numba.njit(cache=True, error_model="numpy")  # float division by zero gives inf or NaN, as numpy's
-def _pair_entries(pair_a, pair_b, x, y, vx, vy, v_valid, moving, length, width, offset_x, offset_y, ttc, closing):
+def _pair_entries(
+    pair_a: Any,
+    pair_b: Any,
+    x: Any,
+    y: Any,
+    vx: Any,
+    vy: Any,
+    v_valid: Any,
+    moving: Any,
+    length: Any,
+    width: Any,
+    offset_x: Any,
+    offset_y: Any,
+    ttc: Any,
+    closing: Any,
+) -> Any:
     """The (pair, step) entries that can matter, as `pairwise_interaction` defines them, pair by pair and step
     by step: lowers `ttc` and raises `closing` in place; returns each entry's step, disc gap and relative speed
     (for the near miss). The arithmetic is numpy's on float64, operation by operation (NaN and ties alike)."""
@@ -273,13 +302,13 @@ def _pair_entries(pair_a, pair_b, x, y, vx, vy, v_valid, moving, length, width, 
 
 
 @numba.njit(inline="always")
-def _grown(values, capacity):
+def _grown(values: Any, capacity: Any) -> Any:
     out = np.empty(capacity, values.dtype)
     out[: values.shape[0]] = values
     return out
 
 
-def map_events(log, movers: np.ndarray, context, signals) -> tuple[np.ndarray, np.ndarray]:
+def map_events(log: Any, movers: np.ndarray, context: Any, signals: Any) -> tuple[np.ndarray, np.ndarray]:
     """Per-step off-road distance (m, NaN between tested steps) and red-light running of the moving vehicles."""
     steps = log.num_steps
     offroad, red = np.full(steps, np.nan), np.zeros(steps, dtype=bool)
@@ -299,7 +328,7 @@ def map_events(log, movers: np.ndarray, context, signals) -> tuple[np.ndarray, n
     return offroad, red
 
 
-def criticality_features(scenario: ScenarioArrays, context=None) -> CriticalityFeatures:
+def criticality_features(scenario: ScenarioArrays, context: Any = None) -> CriticalityFeatures:
     """The per-step criticality series and behaviour histogram of a scenario's logged sim agents.
 
     context: the scenario's `MapContext` when the caller has built it already (scoring has).

@@ -35,6 +35,8 @@ where it is highest.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.analysis.criticality_features import BEHAVIOUR_BINS, CriticalityFeatures, criticality_features
@@ -69,7 +71,7 @@ SUSTAINED_STEPS = 3
 LONG_TAIL_QUANTILE = 0.9  # the long tail of a set: its most critical decile
 
 
-def logistic(values, component: str):
+def logistic(values: Any, component: str) -> np.ndarray:
     """A raw value (or array) mapped to [0, 1]: 0.5 at the component's threshold, NaN to 0."""
     threshold, width, lower_is_worse = THRESHOLDS[component]
     x = np.asarray(values, dtype=np.float64)
@@ -127,7 +129,7 @@ def step_criticality(features: CriticalityFeatures) -> np.ndarray:
 class BehaviourHistogram:
     """The (acceleration, yaw rate) counts of a scenario set, and the rarity of a scene against them."""
 
-    def __init__(self, counts: np.ndarray | None = None):
+    def __init__(self, counts: np.ndarray | None = None) -> None:
         if counts is None:
             counts = np.zeros((len(BEHAVIOUR_BINS[0]) - 1, len(BEHAVIOUR_BINS[1]) - 1), dtype=np.int64)
         self.counts = np.asarray(counts, dtype=np.int64)
@@ -186,7 +188,7 @@ def scene_criticality(features: CriticalityFeatures) -> dict:
     }
 
 
-def scenario_criticality(scenario, context=None) -> dict:
+def scenario_criticality(scenario: Any, context: Any = None) -> dict:
     """`scene_criticality` of a scenario's log (`ScenarioArrays`; `context` its `MapContext` if built already)."""
     return scene_criticality(criticality_features(scenario, context))
 

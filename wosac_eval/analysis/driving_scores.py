@@ -25,6 +25,8 @@ realism metrics, not part of them.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.analysis.criticality_features import disc_gap, disc_pairs
@@ -49,8 +51,8 @@ WEIGHTS = {"progress": 5.0, "ttc": 5.0, "comfort": 2.0}
 COMPONENTS = ("at_fault_collision", "collision", "offroad", "red_light", "progress", "ttc_below", "comfortable")
 
 
-def route_progress(route_x: np.ndarray, route_y: np.ndarray, x, y) -> np.ndarray:
-    """Arc length along a polyline `(points,)` of the point nearest to each (x, y), float64 like `x`."""
+def route_progress(route_x: np.ndarray, route_y: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Arc length along a polyline `(num_points,)` of the point nearest to each (x, y), float64 like `x`."""
     x, y = np.asarray(x, np.float64)[..., None], np.asarray(y, np.float64)[..., None]
     sx, sy = route_x[:-1], route_y[:-1]
     dx, dy = np.diff(route_x), np.diff(route_y)
@@ -81,8 +83,8 @@ def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays) -> tuple[np.nd
 _PARTNER_SLACK = 1e-6
 
 
-def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
-    """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(entries,)`.
+def at_fault(rollouts: RolloutArrays, sizes: Any, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
+    """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(batch,)`.
 
     Its partner is the nearest other object (three discs each, the lowest row among ties); a partner whose
     centre is behind the SDC's rear bumper rear-ended it. `sdc` is the SDC's row in each entry's rollout.
@@ -119,11 +121,15 @@ def at_fault(rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarr
 
 
 def rollouts_at_fault(
-    rollouts: RolloutArrays, sizes, rollout: np.ndarray, step: np.ndarray, sdc_rows: np.ndarray
+    rollouts: RolloutArrays,
+    sizes: tuple[np.ndarray, np.ndarray],
+    rollout: np.ndarray,
+    step: np.ndarray,
+    sdc_rows: np.ndarray,
 ) -> np.ndarray:
     """Whether the SDC is at fault in any of its collision entries, per rollout, bool `(num_rollouts,)`.
 
-    rollout, step: the entries `(entries,)`, rollout by rollout, steps ascending (`np.nonzero`'s order);
+    rollout, step: the entries `(batch,)`, rollout by rollout, steps ascending (`np.nonzero`'s order);
     sdc_rows: the SDC's row in each rollout `(num_rollouts,)`. The entries are tested in rounds, each
     rollout's first entry, then its next 4, 16, ...: a rollout found at fault is not tested further (a
     poor policy's SDC collides at most of its steps, and one entry at fault decides its rollout).

@@ -12,6 +12,7 @@ import math
 import os
 import re
 from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -75,7 +76,7 @@ def scenario_set_criticality(
     ray_address: str | None = None,
     per_step: bool = False,
     progress: Callable[[int, int], None] | None = None,
-    executor=None,
+    executor: Any = None,
 ) -> dict:
     """Every scenario's criticality against the set, most critical first.
 

@@ -13,8 +13,10 @@ faster than filling a message value by value.
 from __future__ import annotations
 
 import warnings
+from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.parse.wire import packed_headers, varint
@@ -30,7 +32,7 @@ _JOINT_SCENE_KEY = varint((2 << 3) | 2)  # ScenarioRollouts.joint_scenes
 _TRAJECTORY_KEY = varint((1 << 3) | 2)  # JointScene.simulated_trajectories
 
 
-def _as_float32(name: str, value, shape: tuple[int, ...], scenario_id: str) -> np.ndarray:
+def _as_float32(name: str, value: Any, shape: tuple[int, ...], scenario_id: str) -> np.ndarray:
     """value broadcast to `shape` as float32, or a ValueError naming the field and both shapes."""
     array = np.asarray(value)
     if array.dtype.kind not in "fiu":
@@ -105,7 +107,17 @@ def _warn_if_not_finite(scenario_id: str, name: str, value: np.ndarray, object_i
 
 
 def rollouts_from_arrays(
-    scenario_id: str, object_id, x, y, z, heading, *, length=None, width=None, height=None, object_type=None
+    scenario_id: str,
+    object_id: ArrayLike,
+    x: ArrayLike,
+    y: ArrayLike,
+    z: ArrayLike,
+    heading: ArrayLike,
+    *,
+    length: Any = None,
+    width: Any = None,
+    height: Any = None,
+    object_type: Any = None,
 ) -> RolloutArrays:
     """Rollouts of one scenario from a simulator's arrays, checked.
 
@@ -120,9 +132,8 @@ def rollouts_from_arrays(
     Returns:
       `RolloutArrays` (float32), for `score_scenario` or `rollouts_message`.
     Raises:
-      ValueError naming the scenario, rollout, object and field of the first shape or value at fault
-      (repeated ids, a box size without the others). Zero or negative sizes are scored as given, as
-      the official evaluator does; so are NaN and inf values, with a `NonFiniteValueWarning`.
+      ValueError naming the scenario, rollout, object and field of the first shape or value at fault (repeated ids, a
+      box size without the others). Sizes <= 0, NaN and inf are scored as given, as officially (NaN and inf warn).
     """
     scenario_id = str(scenario_id)
     shape = _coordinates_shape(scenario_id, {"x": x, "y": y, "z": z, "heading": heading})
@@ -178,8 +189,8 @@ def rollouts_from_arrays(
 
 
 def _packed_float_blocks(values: np.ndarray, field_numbers: tuple[int, ...]) -> np.ndarray:
-    """Wire bytes of packed float fields, uint8 `(num_trajectories, bytes)`, from float32
-    `(num_trajectories, fields, num_steps)`."""
+    """Wire bytes of packed float fields, uint8 `(num_trajectories, num_bytes)`, from float32
+    `(num_trajectories, num_fields, num_steps)`."""
     count, fields, steps = values.shape
     headers = packed_headers(steps, field_numbers)
     out = np.empty((count, fields, headers.shape[1] + 4 * steps), dtype=np.uint8)
@@ -242,12 +253,21 @@ def rollouts_message(rollouts: RolloutArrays) -> sim_agents_submission_pb2.Scena
 
 
 def joint_scene(
-    object_id, x, y, z, heading, *, length=None, width=None, height=None, object_type=None
+    object_id: Any,
+    x: Any,
+    y: Any,
+    z: Any,
+    heading: Any,
+    *,
+    length: Any = None,
+    width: Any = None,
+    height: Any = None,
+    object_type: Any = None,
 ) -> sim_agents_submission_pb2.JointScene:
     """One rollout as a `JointScene`: coordinates `(num_objects, num_steps)`, ids `(num_objects,)`, checked as in
     `rollouts_from_arrays` (sizes broadcastable to `(num_objects, num_steps)`, types `(num_objects,)`)."""
 
-    def one(value):
+    def one(value: Any) -> Any:
         return None if value is None else np.asarray(value)[np.newaxis]
 
     arrays = rollouts_from_arrays(

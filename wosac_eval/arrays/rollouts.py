@@ -1,8 +1,9 @@
-"""A `ScenarioRollouts` message as columnar arrays `(num_rollouts, num_agents, num_steps)`."""
+"""A `ScenarioRollouts` message as columnar arrays `(num_rollouts, num_objects, num_steps)`."""
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -21,11 +22,11 @@ class RolloutArrays:
 
     Attributes:
       scenario_id: the scenario these rollouts continue.
-      object_id: int64 `(num_rollouts, num_agents)`, agent order of each rollout.
-      x, y, z, heading: float32 `(num_rollouts, num_agents, num_steps)`.
-      length, width, height: float32 `(num_rollouts, num_agents, num_steps)`,
+      object_id: int64 `(num_rollouts, num_objects)`, agent order of each rollout.
+      x, y, z, heading: float32 `(num_rollouts, num_objects, num_steps)`.
+      length, width, height: float32 `(num_rollouts, num_objects, num_steps)`,
         the submitted box sizes (scenario gen), or None (sim agents: the log's).
-      object_type: int32 `(num_rollouts, num_agents)`, the submitted types, or None.
+      object_type: int32 `(num_rollouts, num_objects)`, the submitted types, or None.
     """
 
     scenario_id: str
@@ -61,7 +62,7 @@ class RolloutArrays:
         """Raises ValueError naming the field whose shape or dtype disagrees; returns self."""
         shape = np.shape(self.x)
         if len(shape) != 3:
-            raise ValueError(f"RolloutArrays.x must be (num_rollouts, num_agents, num_steps), got {shape}")
+            raise ValueError(f"RolloutArrays.x must be (num_rollouts, num_objects, num_steps), got {shape}")
         for name in ("y", "z", "heading") + (BOX_FIELDS if self.has_boxes else ()):
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"RolloutArrays.{name} has shape {np.shape(getattr(self, name))}, x has {shape}")
@@ -73,7 +74,7 @@ class RolloutArrays:
         return self
 
 
-def _length_error(rollouts, r: int, field: str, num_steps: int) -> ValueError:
+def _length_error(rollouts: RolloutArrays, r: int, field: str, num_steps: int) -> ValueError:
     official = (
         "; the official scorer fails on such a scenario too"
         if field in BOX_FIELDS
@@ -82,7 +83,14 @@ def _length_error(rollouts, r: int, field: str, num_steps: int) -> ValueError:
     return ValueError(f"scenario {rollouts.scenario_id} rollout {r}: {field} lengths differ from {num_steps}{official}")
 
 
-def _raise_for_the_first_odd_scene(rollouts, per_scene, scene, wrong_length, fields, num_steps: int):
+def _raise_for_the_first_odd_scene(
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts,
+    per_scene: np.ndarray,
+    scene: np.ndarray,
+    wrong_length: Any,
+    fields: Any,
+    num_steps: int,
+) -> None:
     """The error of the first joint scene whose number of trajectories differs from the first one's, or
     in which a field (the first such, in `fields` order) has a length other than `num_steps`."""
     odd = (per_scene != per_scene[0]) | (np.bincount(scene, wrong_length.any(axis=1), len(per_scene)) > 0)
@@ -95,7 +103,7 @@ def _raise_for_the_first_odd_scene(rollouts, per_scene, scene, wrong_length, fie
         raise _length_error(rollouts, r, fields[int(np.argmax(wrong_length[scene == r].any(axis=0)))], num_steps)
 
 
-def trajectory_spans(data: np.ndarray):
+def trajectory_spans(data: np.ndarray) -> tuple[Any, Any, Any, int]:
     """The `SimulatedTrajectory` messages of a serialised `ScenarioRollouts` (joint_scenes is field 2,
     their simulated_trajectories field 1): (starts, ends, joint scene of each) int64 `(num_trajectories,)`,
     and the number of joint scenes."""
@@ -104,7 +112,7 @@ def trajectory_spans(data: np.ndarray):
     return start, end, scene, len(scene_start)
 
 
-def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray):
+def trajectory_headers(data: np.ndarray, start: np.ndarray, end: np.ndarray) -> tuple[Any, Any, Any, Any]:
     """object_id int64, whether it is set (bool), object_type int32 (TYPE_UNSET where unset) and whether it
     is set (bool: `HasField`) of each trajectory span, `(num_trajectories,)`: varint fields 6 (int32) and 10
     (a closed enum)."""

@@ -17,6 +17,8 @@ objects first, in the official order:
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +57,7 @@ class SampleBatch:
         return int(self.evaluated_ids.shape[0])
 
 
-def official_object_order(scene_ids, evaluated_ids) -> np.ndarray:
+def official_object_order(scene_ids: Any, evaluated_ids: np.ndarray) -> np.ndarray:
     """Evaluated ids, then the other ids in the order the official code visits them.
 
     The official code lists the non-evaluated agents by iterating a Python set
@@ -67,8 +69,8 @@ def official_object_order(scene_ids, evaluated_ids) -> np.ndarray:
     return np.array([int(i) for i in evaluated_ids] + list(others), dtype=np.int64)
 
 
-def _official_orders(object_ids: np.ndarray, evaluated_ids) -> np.ndarray:
-    """`official_object_order` of each rollout's ids `(num_rollouts, num_agents)`; rollouts that list
+def _official_orders(object_ids: np.ndarray, evaluated_ids: np.ndarray) -> np.ndarray:
+    """`official_object_order` of each rollout's ids `(num_rollouts, num_objects)`; rollouts that list
     their agents as the first one does (the usual case) share its order."""
     first = official_object_order(object_ids[0], evaluated_ids)
     if (object_ids == object_ids[0]).all():
@@ -76,8 +78,8 @@ def _official_orders(object_ids: np.ndarray, evaluated_ids) -> np.ndarray:
     return np.stack([first] + [official_object_order(ids, evaluated_ids) for ids in object_ids[1:]])
 
 
-def _rollout_columns(rollouts: RolloutArrays, orders: np.ndarray):
-    """A gather `(num_rollouts, num_agents, ...) -> (num_rollouts, len(order), ...)` per rollout's order."""
+def _rollout_columns(rollouts: RolloutArrays, orders: np.ndarray) -> Callable[[Any], Any]:
+    """A gather `(num_rollouts, num_objects, ...) -> (num_rollouts, len(order), ...)` per rollout's order."""
     if (rollouts.object_id == rollouts.object_id[0]).all() and (orders == orders[0]).all():
         cols = index_of_ids(rollouts.object_id[0], orders[0])[None]  # usually every rollout lists the same
     else:
@@ -118,7 +120,9 @@ def _sim_agents_composite(
     )
 
 
-def log_sample(scenario: ScenarioArrays, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS):
+def log_sample(
+    scenario: ScenarioArrays, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
+) -> tuple[Any, np.ndarray]:
     """(trajectories `(1, num_objects, 91)`, feature validity `(1, num_evaluated, 91)`) of the log."""
     spec = challenges.spec(challenge)
     evaluated = scenario.evaluated_ids(spec)
@@ -144,7 +148,7 @@ def rollout_samples(
     rollouts: RolloutArrays,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     with_log: bool = False,
-):
+) -> tuple[Any, np.ndarray]:
     """(trajectories `(num_rollouts, num_objects, 91)`, feature validity `(num_rollouts, num_evaluated, 91)`);
     with `with_log`, the log's sample first (`log_sample`; one composite for all samples, sim agents)."""
     spec = challenges.spec(challenge)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -38,9 +39,9 @@ class ScenarioArrays:
       scenario_id: the scenario's id.
       log: logged trajectories of every track, `(num_objects, 91)`, in track order.
       sim_agent_ids: ids of tracks valid at the current step (must be simulated),
-        in track order, int64 `(num_sim_agents,)`.
+        in track order, int64 `(num_objects,)`.
       predicted_ids: sorted ids of the SDC and `tracks_to_predict`, int64
-        `(num_predicted,)`: the objects the sim agents challenge evaluates.
+        `(num_evaluated,)`: the objects the sim agents challenge evaluates.
       road_edges: road-edge polylines, each float32 `(num_points, 3)`.
       lane_ids: int64 `(num_lanes,)`, surface-street lanes only.
       lanes: the matching lane centre polylines, each float32 `(num_points, 3)`.
@@ -70,7 +71,7 @@ def track_trajectories(scenario: scenario_pb2.Scenario) -> ObjectTrajectories:
     return _track_trajectories(scenario.scenario_id, *_with_whole(walks.message_bytes(scenario)))
 
 
-def _with_whole(data: np.ndarray):
+def _with_whole(data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return (data, *walks.whole(data))
 
 
@@ -99,7 +100,7 @@ _LANE_TYPES = walks.enum_size(map_pb2.LaneCenter.LaneType.DESCRIPTOR)
 _SIGNAL_STATES = walks.enum_size(map_pb2.TrafficSignalLaneState.State.DESCRIPTOR)
 
 
-def _fields(data, starts, ends, layout):
+def _fields(data: Any, starts: Any, ends: Any, layout: Any) -> Any:
     """`walks.scalar_fields` of records with `layout`."""
     numbers = np.array([field[0] for field in layout], np.int64)
     wire_types = np.array([field[1] for field in layout], np.int64)
@@ -112,9 +113,9 @@ def _int32(varints: np.ndarray) -> np.ndarray:
     return varints.astype(np.int32).astype(np.int64)
 
 
-def _current_validity(data, track_start, track_end) -> np.ndarray:
+def _current_validity(data: Any, track_start: Any, track_end: Any) -> np.ndarray:
     """Whether each track has a valid state at the current step (false for a track without one), bool
-    `(num_tracks,)`; each track's own states count, as in a parse."""
+    `(num_objects,)`; each track's own states count, as in a parse."""
     state_start, state_end, owner = walks.message_spans(data, track_start, track_end, 3)
     first_of_track = np.searchsorted(owner, np.arange(len(track_start)))
     current = np.flatnonzero(np.arange(len(owner)) - first_of_track[owner] == challenges.CURRENT_TIME_INDEX)
@@ -124,7 +125,7 @@ def _current_validity(data, track_start, track_end) -> np.ndarray:
     return validity
 
 
-def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajectories:
+def _track_trajectories(scenario_id: str, data: Any, starts: Any, ends: Any) -> ObjectTrajectories:
     track_start, track_end, _ = walks.message_spans(data, starts, ends, 2)
     _, header, _ = _fields(
         data, track_start, track_end, ((1, walks.WIRE_VARINT), (2, walks.WIRE_VARINT, _OBJECT_TYPES))
@@ -153,7 +154,7 @@ def _track_trajectories(scenario_id: str, data, starts, ends) -> ObjectTrajector
     )
 
 
-def _polylines(data, starts, ends, field_number: int) -> list:
+def _polylines(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, field_number: int) -> list[np.ndarray]:
     """float32 `(num_points, 3)` of the `repeated MapPoint` field `field_number` of each parent span."""
     point_start, point_end, owner = walks.message_spans(data, starts, ends, field_number)
     xyz, _, _ = _fields(data, point_start, point_end, _POINT_LAYOUT)
@@ -161,7 +162,7 @@ def _polylines(data, starts, ends, field_number: int) -> list:
     return np.split(xyz.astype(np.float32), np.cumsum(counts)[:-1]) if len(starts) else []
 
 
-def _map_polylines(data, starts, ends):
+def _map_polylines(data: Any, starts: Any, ends: Any) -> tuple[Any, Any, Any]:
     """(road-edge polylines, surface-street lane ids, their lane polylines), in map-feature order."""
     feature_start, feature_end, _ = walks.message_spans(data, starts, ends, 8)
     _, feature_id, _ = _fields(data, feature_start, feature_end, ((1, walks.WIRE_VARINT),))
@@ -179,7 +180,7 @@ def _map_polylines(data, starts, ends):
 _FEATURE_DATA = tuple(f.number for f in map_pb2.MapFeature.DESCRIPTOR.oneofs_by_name["feature_data"].fields)
 
 
-def _merges_submessages(data, starts, ends) -> bool:
+def _merges_submessages(data: Any, starts: Any, ends: Any) -> bool:
     """Whether a map feature holds more than one of its (oneof) feature_data fields, or a signal's lane
     state more than one stop_point: a parse merges (or replaces) those, the walks would not."""
     feature_start, feature_end, _ = walks.message_spans(data, starts, ends, 8)
@@ -190,7 +191,7 @@ def _merges_submessages(data, starts, ends) -> bool:
     return np.bincount(walks.message_spans(data, entry_start, entry_end, 3)[2], minlength=1).max() > 1
 
 
-def _traffic_signals(data, starts, ends) -> TrafficSignals | None:
+def _traffic_signals(data: Any, starts: Any, ends: Any) -> TrafficSignals | None:
     step_start, step_end, _ = walks.message_spans(data, starts, ends, 7)
     if not len(step_start):
         return None
@@ -260,7 +261,7 @@ def record_sim_agent_ids(record: bytes, source: ScenarioSource | str = "a Scenar
         raise ParseError(f"{source}: not a valid Scenario message: {error}") from error
 
 
-def _wire_arrays(scenario_id: str, data, starts, ends) -> ScenarioArrays:
+def _wire_arrays(scenario_id: str, data: Any, starts: Any, ends: Any) -> ScenarioArrays:
     log = _track_trajectories(scenario_id, data, starts, ends)
     # Every track has the log's steps (`_track_trajectories` refuses others): its current state is a column.
     current = challenges.CURRENT_TIME_INDEX

@@ -17,6 +17,7 @@ import tarfile
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from isal import igzip
 
@@ -43,7 +44,7 @@ class SubmissionMetadata:
     num_model_parameters: str = "0"
     acknowledge_complies_with_closed_loop_requirement: bool = True
 
-    def fill(self, message) -> None:
+    def fill(self, message: sim_agents_submission_pb2.SimAgentsChallengeSubmission) -> None:
         message.submission_type = sim_agents_submission_pb2.SimAgentsChallengeSubmission.SIM_AGENTS_SUBMISSION
         message.account_name = self.account_name
         message.unique_method_name = self.unique_method_name
@@ -85,7 +86,7 @@ def write_submission(rollouts: list, metadata: SubmissionMetadata, output: str |
     return writer.path
 
 
-def _rollouts_bytes(rollouts) -> bytes:
+def _rollouts_bytes(rollouts: RolloutArrays | bytes | sim_agents_submission_pb2.ScenarioRollouts) -> bytes:
     if isinstance(rollouts, bytes):
         return rollouts
     if isinstance(rollouts, RolloutArrays):
@@ -108,7 +109,7 @@ class SubmissionWriter:
     anything else a folder of `<method>.binproto-0000k-of-0000n` files.
     """
 
-    def __init__(self, metadata: SubmissionMetadata, output: str | os.PathLike, num_shards: int = 4):
+    def __init__(self, metadata: SubmissionMetadata, output: str | os.PathLike, num_shards: int = 4) -> None:
         if num_shards < 1:
             raise ValueError("num_shards must be >= 1")
         self.metadata = metadata
@@ -120,7 +121,7 @@ class SubmissionWriter:
         # Open while scenes are added; `__exit__` closes them.
         self._files = [open(Path(self._tmp.name) / f"part-{k}", "wb") for k in range(num_shards)]  # noqa: SIM115
 
-    def add(self, rollouts) -> None:
+    def add(self, rollouts: bytes) -> None:
         """Appends one scenario's rollouts: `RolloutArrays`, a `ScenarioRollouts` message or its bytes."""
         data = _rollouts_bytes(rollouts)
         shard = self._files[self.count % self.num_shards]
@@ -130,7 +131,7 @@ class SubmissionWriter:
     def __enter__(self) -> SubmissionWriter:
         return self
 
-    def __exit__(self, exc_type, exc, tb) -> None:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
         try:
             if exc_type is None:
                 self._finish()
@@ -180,5 +181,5 @@ class SubmissionWriter:
 ARCHIVE_LEVEL = 3
 
 
-def _gzip_writer(raw):
+def _gzip_writer(raw: Any) -> igzip.IGzipFile:
     return igzip.GzipFile(fileobj=raw, mode="wb", mtime=0, compresslevel=ARCHIVE_LEVEL)

@@ -8,6 +8,7 @@ rounding is what makes our features bit-identical to the official ones.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +69,7 @@ class ObjectTrajectories:
         return int(self.x.shape[-1])
 
     def take_objects(self, indices: np.ndarray) -> ObjectTrajectories:
-        """Selects objects by position (`(num_selected,)`), in the given order."""
+        """Selects objects by position (`indices`, int: the new object axis), in the given order."""
         indices = np.asarray(indices, dtype=np.int64)
         fields = {f: np.take(getattr(self, f), indices, axis=-2) for f in TIME_SERIES}
         return ObjectTrajectories(
@@ -77,7 +78,7 @@ class ObjectTrajectories:
             object_type=np.take(self.object_type, indices, axis=-1),
         )
 
-    def take_ids(self, object_ids) -> ObjectTrajectories:
+    def take_ids(self, object_ids: Any) -> ObjectTrajectories:
         """Selects objects by id, in the order of `object_ids`; `object_id` must be `(num_objects,)`."""
         return self.take_objects(index_of_ids(self.object_id, object_ids))
 
@@ -86,14 +87,14 @@ class ObjectTrajectories:
         return dataclasses.replace(self, **{f: getattr(self, f)[..., steps] for f in TIME_SERIES})
 
 
-def stack_samples(parts) -> ObjectTrajectories:
+def stack_samples(parts: Any) -> ObjectTrajectories:
     """The samples of each part, one after the other (same objects and steps)."""
     return ObjectTrajectories(
         **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(ObjectTrajectories)}
     )
 
 
-def index_of_ids(ids: np.ndarray, wanted) -> np.ndarray:
+def index_of_ids(ids: np.ndarray, wanted: Any) -> np.ndarray:
     """Positions in `ids` of each id in `wanted`; raises KeyError naming any that is absent."""
     ids = np.asarray(ids)
     wanted = np.asarray(wanted, dtype=ids.dtype)

@@ -30,6 +30,8 @@ from __future__ import annotations
 import collections
 import functools
 import re
+from collections.abc import Callable
+from typing import Any
 
 import jax
 import numpy as np
@@ -81,7 +83,7 @@ INLINED = frozenset(
 )
 
 
-def exactly_rounded(fn):
+def exactly_rounded(fn: Callable[..., Any]) -> Callable[..., Any]:
     """`fn(*args)` as `rewritten(zero, *args)`: every float32 multiply, division, root and transcendental
     rounded once from float64 operands no compiler can shrink back.
 
@@ -91,7 +93,7 @@ def exactly_rounded(fn):
     """
 
     @functools.wraps(fn)
-    def rewritten(zero, *args):
+    def rewritten(zero: Any, *args: Any) -> Any:
         closed, out_shape = jax.make_jaxpr(fn, return_shape=True)(*args)
         out = _eval(closed.jaxpr, closed.consts, jax.tree_util.tree_leaves(args), _as_int64(zero))
         return jax.tree_util.tree_unflatten(jax.tree_util.tree_structure(out_shape), out)
@@ -99,35 +101,35 @@ def exactly_rounded(fn):
     return rewritten
 
 
-def _as_int64(zero):
+def _as_int64(zero: jax.Array) -> jax.Array:
     return lax.convert_element_type(zero, np.int64)
 
 
-def _is_float32(aval) -> bool:
+def _is_float32(aval: Any) -> bool:
     return getattr(aval, "dtype", None) == np.float32
 
 
-def opaque_float64(value, zero):
+def opaque_float64(value: Any, zero: Any) -> jax.Array:
     """`value` as float64, through an XOR with the run-time `zero`: the same number, but no compiler
     can tell it is a widened float32 (and shrink the float64 operation it feeds back to float32)."""
     bits = lax.bitcast_convert_type(lax.convert_element_type(value, np.float64), np.int64)
     return lax.bitcast_convert_type(bits ^ zero, np.float64)
 
 
-def _widened(eqn, invals, zero):
+def _widened(eqn: Any, invals: Any, zero: Any) -> jax.Array:
     """The equation's float32 result computed in float64 from opaque operands and rounded once."""
     wide = [opaque_float64(value, zero) if _is_float32(var.aval) else value for var, value in zip(eqn.invars, invals)]
     return lax.convert_element_type(eqn.primitive.bind(*wide, **eqn.params), np.float32)
 
 
-def _closed(closed_jaxpr, zero_dtype=np.int64):
+def _closed(closed_jaxpr: Any, zero_dtype: type[np.integer] = np.int64) -> Any:
     """A ClosedJaxpr taking the run-time zero first, then the same operands, whose body is rewritten."""
     shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype, weak_type=a.weak_type) for a in closed_jaxpr.in_avals]
     body = lambda z, *a: _eval(closed_jaxpr.jaxpr, closed_jaxpr.consts, list(a), z)  # noqa: E731
     return jax.make_jaxpr(body)(jax.ShapeDtypeStruct((), zero_dtype), *shapes)
 
 
-def _loop(eqn, invals, zero):
+def _loop(eqn: Any, invals: Any, zero: Any) -> Any:
     """A scan, while loop or conditional whose bodies are rewritten and read the zero as a new operand."""
     params, name = dict(eqn.params), eqn.primitive.name
     if name == "scan":
@@ -155,7 +157,7 @@ def _holds_program(params: dict) -> bool:
     return any(isinstance(v, jex.ClosedJaxpr) for v in values)
 
 
-def _inner(eqn):
+def _inner(eqn: Any) -> tuple[Any, Any]:
     """The body of an inlined call: (jaxpr, consts)."""
     for key in ("jaxpr", "call_jaxpr", "fun_jaxpr"):
         body = eqn.params.get(key)
@@ -166,7 +168,7 @@ def _inner(eqn):
     raise NotImplementedError(f"exact mode: no body found in {eqn.primitive.name}")
 
 
-def _exact_combiner(eqn) -> bool:
+def _exact_combiner(eqn: Any) -> bool:
     """A reduction whose combiner (a closed jaxpr) is exact as it is: no float32 operation of `WIDENED`,
     no program inside (e.g. a minimum with its index by comparisons and selects)."""
     if eqn.primitive.name != "reduce":
@@ -180,10 +182,10 @@ def _exact_combiner(eqn) -> bool:
     )
 
 
-def _eval(jaxpr, consts, args: list, zero) -> list:
+def _eval(jaxpr: Any, consts: Any, args: list, zero: Any) -> list:
     env: dict = {}
 
-    def read(v):
+    def read(v: Any) -> Any:
         return v.val if isinstance(v, jex.Literal) else env[v]
 
     env.update(zip(jaxpr.constvars, consts))

@@ -18,6 +18,9 @@ have no derivative, as the features a nearest search picks have none.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import Any
+
 import jax
 import numpy as np
 
@@ -30,14 +33,14 @@ _F = np.float32
 class HostSearches:
     """The numpy searches of a scene set, by scene index. Compared by identity (static data of a jit)."""
 
-    def __init__(self, searches: tuple[PrunedSearch, ...]):
+    def __init__(self, searches: tuple[PrunedSearch, ...]) -> None:
         self.searches = tuple(searches)
 
 
-def _host(searches: HostSearches, method: str, dtype, arguments):
+def _host(searches: HostSearches, method: str, dtype: Any, arguments: Any) -> Callable[..., Any]:
     """The host side of a callback: the scene's `PrunedSearch.method` of `arguments(numpy arrays)`."""
 
-    def call(scene, *arrays):
+    def call(scene: Any, *arrays: Any) -> np.ndarray:
         search = searches.searches[int(scene)]
         # NaN and inf in a submission are scored as given, as officially: they spread without warnings.
         with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
@@ -56,18 +59,20 @@ class HostSearch:
       scene: int32 scalar (traced): the index of this scene's search.
     """
 
-    def __init__(self, searches: HostSearches, scene):
+    def __init__(self, searches: HostSearches, scene: Any) -> None:
         self.searches = searches
         self.scene = scene
 
-    def _call(self, method: str, shape: tuple, dtype, arrays: tuple, arguments=tuple):
+    def _call(self, method: str, shape: tuple, dtype: Any, arrays: tuple, arguments: Any = tuple) -> Any:
         host = _host(self.searches, method, dtype, arguments)
         return jax.pure_callback(
             host, jax.ShapeDtypeStruct(shape, dtype), self.scene, *arrays, vmap_method="sequential"
         )
 
-    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
-        """float32 `(samples, num_evaluated, steps)` (see `PrunedSearch.nearest_object`)."""
+    def nearest_object(
+        self, x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int
+    ) -> Any:
+        """float32 `(num_samples, num_evaluated, num_steps)` (see `PrunedSearch.nearest_object`)."""
         shape = x.shape[:-2] + (num_evaluated,) + x.shape[-1:]
         return self._call(
             "nearest_object",
@@ -77,14 +82,14 @@ class HostSearch:
             lambda arrays: (*arrays, num_evaluated),
         )
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs):
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
         """float32 `(samples, num_evaluated, len(steps))` (see `PrunedSearch.time_to_collision`)."""
         i = inputs
         shape = i.x.shape[:-2] + (i.num_evaluated, len(range(*i.steps.indices(i.x.shape[-1]))))
         # The evaluated count and the slice are static; the tails are arrays of the prepared scene.
         arrays = (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid, i.ego_tail, i.pair_tail)
 
-        def on_host(host):
+        def on_host(host: Any) -> Any:
             x, y, length, width, heading, speed, valid, ego_tail, pair_tail = host
             return (
                 TimeToCollisionInputs(
@@ -104,10 +109,12 @@ class HostSearch:
 
         return self._call("time_to_collision", shape, _F, arrays, on_host)
 
-    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+    def road_edge_distance(
+        self, x: Any, y: Any, bottom: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any
+    ) -> Any:
         """float32 `x.shape`, -1e10 where invalid (see `PrunedSearch.road_edge_distance`)."""
         return self._call("road_edge_distance", x.shape, _F, (x, y, bottom, length, width, cos_h, sin_h, valid))
 
-    def red_light_violation(self, x, y, valid):
+    def red_light_violation(self, x: Any, y: Any, valid: Any) -> Any:
         """bool `x.shape` (see `PrunedSearch.red_light_violation`)."""
         return self._call("red_light_violation", x.shape, np.bool_, (x, y, valid))

@@ -31,6 +31,7 @@ import dataclasses
 import functools
 import os
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import numpy as np
@@ -94,7 +95,7 @@ def exact_cpu() -> None:
         )
 
 
-def fma_contraction(device=None) -> bool:
+def fma_contraction(device: Any = None) -> bool:
     """True when XLA fuses `a * b + c` into one rounding on `device` (default: JAX's default device).
 
     With fusion, float32 results differ from numpy (and the official code) in
@@ -170,10 +171,10 @@ def prepare(
 
 
 @functools.cache
-def _features_fn(layout: mf.FeatureLayout, features: tuple):
+def _features_fn(layout: mf.FeatureLayout, features: tuple) -> Any:
     """Jitted features (`features`, registry entries) of a stack of scenarios (leading axis) of one bucket."""
 
-    def one_scene(traj, tails, maps):
+    def one_scene(traj: Any, tails: Any, maps: Any) -> Any:
         return device_features(traj, tails, maps, layout, features)
 
     # Traced under x64: every float32 product, quotient, root and transcendental rounded once from
@@ -183,7 +184,7 @@ def _features_fn(layout: mf.FeatureLayout, features: tuple):
     return jax.jit(exactly_rounded(vmap_scenes(one_scene)))
 
 
-def _features_program(layout: mf.FeatureLayout, features: tuple, args) -> Callable:
+def _features_program(layout: mf.FeatureLayout, features: tuple, args: Any) -> Callable:
     """`_features_fn(layout, features)` for `args`, kept between runs (`program_cache`) when every kernel
     is this package's."""
     jitted = _features_fn(layout, features)
@@ -212,7 +213,7 @@ class FeaturePipeline:
     Usage: `for tag, (log, sim) in pipeline.add(tag, p)` ... then `pipeline.finish()` likewise.
     """
 
-    def __init__(self, max_batch: int = 8, min_bucket: Sizes | tuple | None = None, in_flight: int = 1):
+    def __init__(self, max_batch: int = 8, min_bucket: Sizes | tuple | None = None, in_flight: int = 1) -> None:
         self.max_batch, self.min_bucket, self.in_flight = max_batch, min_bucket, in_flight
         self.groups: dict[BucketKey, list] = {}
         self.dispatched: list = []
@@ -222,7 +223,7 @@ class FeaturePipeline:
         # A shorter lower bound (no grid cells, say) leaves the other sizes as they are.
         return p.inputs.bucket_key(self.min_bucket)
 
-    def add(self, tag, p: PreparedScenario) -> list:
+    def add(self, tag: Any, p: PreparedScenario) -> list:
         """Queues a scenario; returns the (tag, (log, sim)) of the batches now collected."""
         key = self._key(p)
         group = self.groups.setdefault(key, [])
@@ -293,7 +294,7 @@ def scenario_features(
 
 
 def scenarios_features(
-    pairs,
+    pairs: Any,
     max_batch: int = 8,
     min_bucket: Sizes | tuple | None = None,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,

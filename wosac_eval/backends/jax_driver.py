@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+from typing import Any
 
 import jax
 import numpy as np
@@ -37,7 +38,7 @@ def memory_maps() -> tuple[int, int] | None:
         return None
 
 
-def drop_programs_near_map_limit(pending=(), share: float = 0.5) -> bool:
+def drop_programs_near_map_limit(pending: Any = (), share: float = 0.5) -> bool:
     """Drops JAX's compiled programs (`jax.clear_caches()`) once this process's memory mappings pass `share`
     of the kernel's limit, after `pending` (arrays still computing) is ready; True if it did.
 
@@ -90,12 +91,12 @@ class Sizes:
     def as_tuple(self) -> tuple[int, ...]:
         return (self.objects, self.evaluated, *(n for _, n in self.map))
 
-    def with_counts(self, counts) -> Sizes:
+    def with_counts(self, counts: Any) -> Sizes:
         """These names with `counts` in `as_tuple()` order."""
         counts = tuple(counts)
         return Sizes(counts[0], counts[1], tuple((name, n) for (name, _), n in zip(self.map, counts[2:])))
 
-    def at_least(self, floor) -> Sizes:
+    def at_least(self, floor: Any) -> Sizes:
         """Each size at least `floor`'s (a `Sizes`, or a tuple in `as_tuple()` order; a shorter tuple
         bounds the first sizes only)."""
         floor = floor.as_tuple() if isinstance(floor, Sizes) else tuple(floor)
@@ -175,7 +176,7 @@ class SceneInputs:
 
 
 def scene_inputs(
-    scenario,
+    scenario: Any,
     traj: dict,
     layout: mf.FeatureLayout,
     context: mf.MapContext,
@@ -197,7 +198,7 @@ def scene_inputs(
     )
 
 
-def pad_axis(a: np.ndarray, size: int, axis: int, value=0) -> np.ndarray:
+def pad_axis(a: np.ndarray, size: int, axis: int, value: float = 0) -> np.ndarray:
     a = np.asarray(a)
     if a.shape[axis] == size:
         return a
@@ -230,24 +231,24 @@ def padded_inputs(inputs: SceneInputs, sizes: Sizes) -> tuple[dict, dict, dict]:
     )
 
 
-def stacked(scenes: list):
+def stacked(scenes: list) -> Any:
     """Per-scene pytrees (dicts of numpy arrays, or tuples of them) with a leading scene axis (numpy)."""
     return jax.tree_util.tree_map(lambda *leaves: np.stack(leaves), *scenes)
 
 
-def vmap_scenes(one):
+def vmap_scenes(one: Any) -> Any:
     """`jax.vmap` of `one` over the leading scene axis of every argument, where each stack of padded
     map arrays (a dict with road-edge cell tables) enters with its segments shared
     (`dense_road_edge.shared_segments`): the same result, fewer bytes moved. Call it inside the `jit`."""
 
-    def batched(*args):
+    def batched(*args: Any) -> Any:
         shared, axes = zip(*map(_shared_maps, args))
         return jax.vmap(one, in_axes=axes)(*shared)
 
     return batched
 
 
-def _shared_maps(tree):
+def _shared_maps(tree: Any) -> Any:
     """(tree, its `in_axes`): 0 for every leaf, but `dense_road_edge.shared_segments` for map arrays."""
     if not isinstance(tree, dict):
         return tree, 0
@@ -263,8 +264,8 @@ def device_features(
     maps: dict,
     layout: mf.FeatureLayout,
     features: tuple[registry.Feature, ...],
-    host=None,
-    scene=None,
+    host: Any = None,
+    scene: SceneInputs | None = None,
 ) -> dict:
     """`metric_features.per_step_features` of one padded scene on the device (traced).
 

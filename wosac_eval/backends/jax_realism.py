@@ -38,6 +38,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -90,13 +91,14 @@ def resolve_mode(mode: str | None = None) -> str:
     return mode
 
 
-def _precision(mode: str):
+def _precision(mode: str) -> Any:
     """The context the kernels are traced in for `mode` (see `xp.wide_float`)."""
     return float32_precision() if mode == "float32" else contextlib.nullcontext()
 
 
-def _gather_agents(values, columns):
-    """`(num_rollouts, max_agents, steps)` user columns -> `(num_rollouts, num_objects, steps)` official rows."""
+def _gather_agents(values: Any, columns: Any) -> Any:
+    """`(num_rollouts, max_agents, num_steps)` user columns -> `(num_rollouts, num_objects, num_steps)` official
+    rows."""
     padded = jnp.concatenate([values, jnp.zeros_like(values[:, :1])], axis=1)
     return jnp.take(padded, columns, axis=1)
 
@@ -153,14 +155,14 @@ def scene_trajectories(spec: challenges.ChallengeSpec, a: dict, rollouts: dict) 
 
 
 def _scene_realism(
-    config,
+    config: Any,
     spec: challenges.ChallengeSpec,
     layout: mf.FeatureLayout,
     a: dict,
     rollouts: dict,
     host: HostSearches | None,
     features: tuple,
-):
+) -> Any:
     """Every `scenario_fields()` value of one prepared scene (leading scene axis removed) and its rollouts."""
     both = scene_features(spec, layout, a, rollouts, host, features)
     values = metric_values(config, both.samples(slice(0, 1)), both.samples(slice(1, None)), object_mask=a["evaluated"])
@@ -168,14 +170,14 @@ def _scene_realism(
 
 
 def _scene_realism_per_object(
-    config,
+    config: Any,
     spec: challenges.ChallengeSpec,
     layout: mf.FeatureLayout,
     a: dict,
     rollouts: dict,
     host: HostSearches | None,
     features: tuple,
-):
+) -> Any:
     """`_scene_realism`'s fields, and each likelihood field per object in the rollouts' columns:
     (fields, {field: float32 `(max_agents,)`}, {field: int32 `(max_agents,)`}); one set of log-likelihoods."""
     both = scene_features(spec, layout, a, rollouts, host, features)
@@ -187,7 +189,7 @@ def _scene_realism_per_object(
     # Evaluated rows to their users' columns; other rows to the dropped column `max_agents`.
     rows = jnp.where(a["evaluated"], a["columns"][: layout.num_evaluated], max_agents)
 
-    def to_columns(v, fill):
+    def to_columns(v: Any, fill: Any) -> Any:
         return jnp.full((max_agents + 1,), fill, v.dtype).at[rows].set(v)[:max_agents]
 
     return (
@@ -209,12 +211,12 @@ def _realism_fn(
     per_object: bool = False,
     features: tuple = (),
     metrics: tuple = (),
-):
+) -> Any:
     config = load_config(config_name)
     spec = challenges.spec(challenge)
     scene = _scene_realism_per_object if per_object else _scene_realism
 
-    def one(a, rollouts):
+    def one(a: Any, rollouts: Any) -> Any:
         with _precision(mode):  # read while tracing; the mode is part of this function's cache key
             return scene(config, spec, layout, a, rollouts, host, features)
 
@@ -222,8 +224,10 @@ def _realism_fn(
 
 
 @functools.lru_cache(maxsize=32)
-def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None, features: tuple):
-    def one(a, rollouts):
+def _features_fn(
+    challenge: str, layout: mf.FeatureLayout, mode: str, host: HostSearches | None, features: tuple
+) -> Any:
+    def one(a: Any, rollouts: Any) -> Any:
         with _precision(mode):
             both = scene_features(challenges.spec(challenge), layout, a, rollouts, host, features)
         return {k: v for k, v in both.as_dict().items() if k != "object_id"}
@@ -231,7 +235,7 @@ def _features_fn(challenge: str, layout: mf.FeatureLayout, mode: str, host: Host
     return jax.jit(_scenes_in_mode(one, mode))
 
 
-def _scenes_in_mode(one, mode: str):
+def _scenes_in_mode(one: Any, mode: str) -> Any:
     """`one` over the stacked scenes (`jax_driver.vmap_scenes`); in exact mode rewritten by `exact_rounding`
     (exact on any device). The rewrite wraps the `vmap`: batching the unrewritten program is faster."""
     batched = jax_driver.vmap_scenes(one)
@@ -243,14 +247,14 @@ def _scenes_in_mode(one, mode: str):
 
 def realism(
     prepared: PreparedScenes,
-    x,
-    y,
-    z,
-    heading,
+    x: Any,
+    y: Any,
+    z: Any,
+    heading: Any,
     *,
-    length=None,
-    width=None,
-    height=None,
+    length: Any = None,
+    width: Any = None,
+    height: Any = None,
     mode: str | None = None,
     per_object: bool = False,
 ) -> Realism:
@@ -295,7 +299,7 @@ def realism(
     return Realism(in_scene_order(prepared, parts), mode)
 
 
-def in_scene_order(prepared: PreparedScenes, parts: list):
+def in_scene_order(prepared: PreparedScenes, parts: list) -> Any:
     """Group results (pytrees with a leading scene axis) put back in the order of `prepared.scenario_ids`."""
     if len(parts) == 1:
         return parts[0]
@@ -304,7 +308,16 @@ def in_scene_order(prepared: PreparedScenes, parts: list):
 
 
 def features(
-    prepared: PreparedScenes, x, y, z, heading, *, length=None, width=None, height=None, mode: str | None = None
+    prepared: PreparedScenes,
+    x: Any,
+    y: Any,
+    z: Any,
+    heading: Any,
+    *,
+    length: Any = None,
+    width: Any = None,
+    height: Any = None,
+    mode: str | None = None,
 ) -> mf.MetricFeatures:
     """The per-step features behind `realism` (same arguments), a `MetricFeatures` of device arrays.
 

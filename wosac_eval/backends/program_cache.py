@@ -35,6 +35,7 @@ import tempfile
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -75,7 +76,7 @@ def is_ours(function: Callable) -> bool:
     return module == PACKAGE or module.startswith(PACKAGE + ".")
 
 
-def program_digest(name: str, static: str, args) -> str:
+def program_digest(name: str, static: str, args: Any) -> str:
     """The file name of program `name` traced for `static` (a stable text of its static facts) and the
     shapes and dtypes of `args` (a pytree of arrays), by this code on this platform, with the JAX settings
     that change what a trace gives (x64, the default matmul precision)."""
@@ -89,7 +90,7 @@ def program_digest(name: str, static: str, args) -> str:
     return hashlib.sha256(text.encode()).hexdigest()
 
 
-def kept(name: str, static: str, jitted: jax.stages.Wrapped, args) -> Callable:
+def kept(name: str, static: str, jitted: jax.stages.Wrapped, args: Any) -> Callable:
     """A callable that computes `jitted(*args)` (and on arguments of the same shapes): read back from the
     cache when this program was kept, else traced by exporting `jitted` and kept. With the cache off,
     `jitted` itself. Call it in the JAX context `jitted` is meant for (x64 on or off) and with `args`."""
@@ -121,7 +122,7 @@ def _serializer() -> bool:
     return False
 
 
-def _read(path: Path):
+def _read(path: Path) -> Any:
     """The program kept at `path`, or None when absent or unreadable (warned, then traced anew)."""
     try:
         data = path.read_bytes()
@@ -141,7 +142,7 @@ def _read(path: Path):
     return exported
 
 
-def _write(folder: Path, name: str, exported) -> None:
+def _write(folder: Path, name: str, exported: Any) -> None:
     """Keeps `exported` as `folder/name`, whole or not at all (a temporary file renamed), then drops the
     least recently used files past `MAX_BYTES`."""
     try:

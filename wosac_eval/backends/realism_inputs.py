@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import functools
 import warnings
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +34,7 @@ def take_scenes(fields: dict, indices: tuple) -> dict:
     return {k: jnp.take(jnp.asarray(v), rows, axis=0) for k, v in fields.items()}
 
 
-def _device_array(value):
+def _device_array(value: Any) -> Any:
     """A JAX array or tracer as it is; another `__dlpack__` producer (torch, CuPy) without a copy."""
     if isinstance(value, jax.Array) or not hasattr(value, "__dlpack__") or isinstance(value, np.ndarray):
         return value
@@ -75,7 +76,7 @@ def _warn_if_closed_over(prepared: PreparedScenes) -> None:
     )
 
 
-def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
+def jit_step(step: Any, prepared: PreparedScenes, **jit_kwargs: Any) -> Any:
     """`jax.jit(step)` with `prepared` bound as its first argument, so the prepared scenes are an argument
     of the compiled program, not constants of it.
 
@@ -88,7 +89,7 @@ def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
     jitted = jax.jit(step, **jit_kwargs)
 
     @functools.wraps(step)
-    def bound(*args, **kwargs):
+    def bound(*args: Any, **kwargs: Any) -> Any:
         return jitted(prepared, *args, **kwargs)
 
     # Attributes on a function: mypy types `functools.wraps`' result without them.
@@ -97,7 +98,7 @@ def jit_step(step, prepared: PreparedScenes, **jit_kwargs):
     return bound
 
 
-def rollout_fields(prepared: PreparedScenes, x, y, z, heading, sizes: dict) -> dict:
+def rollout_fields(prepared: PreparedScenes, x: Any, y: Any, z: Any, heading: Any, sizes: dict) -> dict:
     """The rollout arrays by field, checked (shapes; box sizes exactly for scenario gen)."""
     _warn_if_closed_over(prepared)
     spec = challenges.spec(prepared.challenge)
@@ -145,7 +146,7 @@ def stack_rollouts(prepared: PreparedScenes, rollouts: list) -> dict:
     return out
 
 
-def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:
+def waymax_columns(prepared: PreparedScenes, object_ids: Any) -> np.ndarray:
     """Where each sim agent sits on a Waymax-style object axis, int32 `(num_scenes, max_agents)`.
 
     Args:
@@ -169,7 +170,7 @@ def waymax_columns(prepared: PreparedScenes, object_ids) -> np.ndarray:
     return out
 
 
-def from_waymax(prepared: PreparedScenes, columns, x, y, z, yaw, **sizes) -> dict:
+def from_waymax(prepared: PreparedScenes, columns: Any, x: Any, y: Any, z: Any, yaw: Any, **sizes: Any) -> dict:
     """Waymax-style trajectories `(num_scenes, num_rollouts, num_objects, 91)` -> `realism`'s arguments.
 
     Picks the sim agents' columns (`waymax_columns`) and, for sim agents, the 80 steps after the

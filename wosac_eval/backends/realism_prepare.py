@@ -8,6 +8,7 @@ per group of similar scenes and stacked into the device arrays of a `PreparedSce
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -69,7 +70,7 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, sear
 
 
 def prepare(
-    scenarios,
+    scenarios: Any,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     config: str | None = None,
     min_sizes: tuple | None = None,
@@ -135,7 +136,7 @@ def _group_key(sizes: Sizes, floor: tuple) -> Sizes:
 
 def _prepare_group(
     indices: list[int], scenes: list[RealismScene], spec: challenges.ChallengeSpec, floor: tuple, max_agents: int
-):
+) -> Any:
     """The stacked device arrays of a group's scenes, padded to the group's largest, and its layout."""
     # Exact maxima (at least 1): a training loop compiles once per scene set, and every padded row costs.
     exact = [scene.inputs.sizes for scene in scenes]

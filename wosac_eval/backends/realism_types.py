@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
+from typing import Any
 
 import jax
 import numpy as np
@@ -39,20 +40,20 @@ class Realism(Mapping):
     per_object: dict | None = None
     per_object_counts: dict | None = None
 
-    def __getitem__(self, name):
+    def __getitem__(self, name: str) -> Any:
         return self.metrics[name]
 
-    def __iter__(self):
+    def __iter__(self) -> Any:
         return iter(self.metrics)
 
     def __len__(self) -> int:
         return len(self.metrics)
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> Any:
         return (self.metrics, self.per_object, self.per_object_counts), (self.mode,)
 
     @classmethod
-    def tree_unflatten(cls, aux, children):
+    def tree_unflatten(cls, aux: Any, children: Any) -> Any:
         metrics, per_object, counts = children
         (mode,) = aux
         return cls(metrics, mode, per_object=per_object, per_object_counts=counts)
@@ -90,7 +91,7 @@ class PreparedScenes:
         """Where the nearest-thing searches run: "host" (compiled, pruned) or "device" (fixed shapes)."""
         return "device" if self.host_searches is None else "host"
 
-    def tree_flatten(self):
+    def tree_flatten(self) -> Any:
         return (self.arrays,), (
             self.groups,
             self.scenario_ids,
@@ -101,7 +102,7 @@ class PreparedScenes:
         )
 
     @classmethod
-    def tree_unflatten(cls, aux, children):
+    def tree_unflatten(cls, aux: Any, children: Any) -> Any:
         return cls(children[0], *aux)
 
     @property

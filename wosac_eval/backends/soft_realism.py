@@ -52,6 +52,7 @@ official ones (continuous already). The searches must run on the device:
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -72,13 +73,13 @@ SOFT_MODE = "soft"  # `Realism.mode` of what `soft_realism` returns
 DEFAULT_TEMPERATURE = 0.1
 
 
-def _safe_sigmoid(z):
+def _safe_sigmoid(z: Any) -> Any:
     """sigmoid(z), 0 for NaN, with a finite gradient everywhere."""
     nan = jnp.isnan(z)
     return jnp.where(nan, _F(0), jax.nn.sigmoid(jnp.where(nan, _F(0), z)))
 
 
-def soft_histogram_counts(samples, edges: np.ndarray, width, weights=None):
+def soft_histogram_counts(samples: Any, edges: np.ndarray, width: Any, weights: Any = None) -> Any:
     """The smooth `likelihoods.histogram_counts`: `(batch, num_bins)`, float32.
 
     A sample is below interior edge e with the weight sigmoid((e - s) / width); bin k holds the
@@ -99,14 +100,22 @@ def soft_histogram_counts(samples, edges: np.ndarray, width, weights=None):
     return cumulative[:, 1:] - cumulative[:, :-1]
 
 
-def _log_probability_of_bins(counts, pseudocount, log_bins):
-    """log p(bin of each logged value) from soft counts plus the pseudo-count, float32 `(batch, n)`."""
+def _log_probability_of_bins(counts: Any, pseudocount: Any, log_bins: Any) -> Any:
+    """log p(bin of each logged value) from soft counts plus the pseudo-count, float32 `(batch, num_log_samples)`."""
     counts = counts + _F(pseudocount)
     log_prob = jnp.log(counts) - jnp.log(counts.sum(axis=1, keepdims=True))
     return jnp.take_along_axis(log_prob, log_bins, axis=1).astype(_F)
 
 
-def soft_estimate(config, log_samples, sim_samples, sim_weights=None, num_rows=None, *, temperature):
+def soft_estimate(
+    config: Any,
+    log_samples: Any,
+    sim_samples: Any,
+    sim_weights: Any = None,
+    num_rows: int | None = None,
+    *,
+    temperature: float | jax.Array,
+) -> Any:
     """The smooth twin of the official estimator of `config` (`likelihoods.official_estimate`'s signature;
     `num_rows` is not needed: the soft estimates follow no packet boundaries).
 
@@ -139,7 +148,7 @@ SOFT_CROSSING_FLOOR = 1e-6
 SOFT_LANE_SEARCH_CHUNK = 256
 
 
-def soft_stop_line_crossings(x, y, valid, m: dict, temperature):
+def soft_stop_line_crossings(x: Any, y: Any, valid: Any, m: dict, temperature: float | jax.Array) -> Any:
     """The soft `traffic_lights.stop_line_crossings`: float32 `(..., num_objects, num_steps, num_signals)`.
 
     max(0, sigmoid(a_now / temperature) - sigmoid(a_before / temperature)) where the signal shows stop
@@ -169,7 +178,7 @@ def soft_stop_line_crossings(x, y, valid, m: dict, temperature):
     return jnp.where(counts, crossed, _F(0))
 
 
-def soft_red_light_crossings(x, y, valid, m: dict, temperature):
+def soft_red_light_crossings(x: Any, y: Any, valid: Any, m: dict, temperature: float | jax.Array) -> Any:
     """The soft red-light violations per signal: float32 `(..., num_objects, num_steps, num_signals)`, in [0, 1].
 
     `soft_stop_line_crossings` of the signals on the object's nearest lane (the official lane match of
@@ -186,7 +195,7 @@ def soft_red_light_crossings(x, y, valid, m: dict, temperature):
     return jnp.where(on_lane, flat, _F(0)).reshape(crossings.shape)
 
 
-def _soft_red_light_feature(traj: dict, m: dict, layout, temperature):
+def _soft_red_light_feature(traj: dict, m: dict, layout: Any, temperature: float | jax.Array) -> Any:
     """`soft_red_light_crossings` over the official window of `registry`'s red-light feature (from one
     step before the first reported one, where there is one): `(samples, num_evaluated, reported steps,
     num_signals)`."""
@@ -197,7 +206,7 @@ def _soft_red_light_feature(traj: dict, m: dict, layout, temperature):
     return red[..., 1:, :] if layout.first_step > 0 else red
 
 
-def soft_events(sim, red_light_violation, temperature) -> dict:
+def soft_events(sim: Any, red_light_violation: Any, temperature: float | jax.Array) -> dict:
     """The soft per-step event of each indicator feature, float32 `(num_rollouts, num_evaluated, num_steps)`.
 
     Collision: sigmoid((threshold - distance to the nearest object) / temperature), offroad:
@@ -214,12 +223,12 @@ def soft_events(sim, red_light_violation, temperature) -> dict:
     }
 
 
-def soft_any_over_time(events, mask):
+def soft_any_over_time(events: Any, mask: Any) -> Any:
     """Whether the event happened at a step of `mask`, smoothly: the largest soft event, `(..., num_evaluated)`."""
     return jnp.max(jnp.where(mask, events, _F(0)), axis=-1)
 
 
-def soft_any_crossing(crossings, mask):
+def soft_any_crossing(crossings: Any, mask: Any) -> Any:
     """`soft_any_over_time` of soft crossings `(..., num_steps, num_signals)`: the largest over the signals
     at each step, then over one step or two consecutive ones, at most 1, `(...)`.
 
@@ -234,12 +243,14 @@ def soft_any_crossing(crossings, mask):
     return jnp.minimum(jnp.max(events + following, axis=-1), _F(1))
 
 
-def _soft_any(feature: str):
+def _soft_any(feature: str) -> Any:
     """The soft `any over time` of an indicator feature."""
     return soft_any_crossing if feature == "traffic_light_violation_per_step" else soft_any_over_time
 
 
-def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperature) -> dict:
+def soft_log_likelihoods(
+    config: Any, log: Any, sim: Any, events: dict, object_mask: Any, temperature: float | jax.Array
+) -> dict:
     """`scenario_metrics.metric_log_likelihoods` with the soft estimators and indicators."""
     masks = validity_masks(log)
     estimate = functools.partial(soft_estimate, temperature=temperature)
@@ -263,8 +274,14 @@ def soft_log_likelihoods(config, log, sim, events: dict, object_mask, temperatur
 
 
 def _scene_soft_realism(
-    config, spec: challenges.ChallengeSpec, layout, a: dict, rollouts: dict, temperature, features: tuple
-):
+    config: Any,
+    spec: challenges.ChallengeSpec,
+    layout: Any,
+    a: dict,
+    rollouts: dict,
+    temperature: float | jax.Array,
+    features: tuple,
+) -> Any:
     """Every SCENARIO_FIELDS value of one prepared scene, soft (leading scene axis removed)."""
     traj = jr.scene_trajectories(spec, a, rollouts)
     both = jr.trajectory_features(layout, a, traj, None, features)
@@ -283,12 +300,14 @@ def _scene_soft_realism(
 
 
 @functools.lru_cache(maxsize=32)
-def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
+def _soft_fn(config_name: str, challenge: str, layout: Any, features: tuple) -> Any:
     config = load_config(config_name)
     spec = challenges.spec(challenge)
 
-    def scenes(a, rollouts, temperature):  # the temperature shared by the scenes, their segments too
-        def one(a, rollouts):
+    def scenes(
+        a: Any, rollouts: Any, temperature: float | jax.Array
+    ) -> Any:  # the temperature shared by the scenes, their segments too
+        def one(a: Any, rollouts: Any) -> Any:
             with float32_precision(), differentiable():  # read while tracing
                 return _scene_soft_realism(config, spec, layout, a, rollouts, temperature, features)
 
@@ -299,15 +318,15 @@ def _soft_fn(config_name: str, challenge: str, layout, features: tuple):
 
 def soft_realism(
     prepared: jr.PreparedScenes,
-    x,
-    y,
-    z,
-    heading,
+    x: Any,
+    y: Any,
+    z: Any,
+    heading: Any,
     *,
-    length=None,
-    width=None,
-    height=None,
-    temperature=DEFAULT_TEMPERATURE,
+    length: Any = None,
+    width: Any = None,
+    height: Any = None,
+    temperature: float | jax.Array = DEFAULT_TEMPERATURE,
 ) -> jr.Realism:
     """A smooth surrogate of every `SimAgentMetrics` field per scene, differentiable in the rollouts.
 

@@ -91,7 +91,7 @@ class Follower:
         log: Callable[[str], None],
         retry: RetryPolicy,
         poll_s: tuple[float, float],
-    ):
+    ) -> None:
         self.server, self.progress, self.log, self.policy = server, progress, log, retry
         self.poll_min, self.poll_max = poll_s
 
@@ -106,7 +106,7 @@ class Follower:
         required(status["progress"], {"scenarios_done": int}, f"asking for submission {submission_id}'s progress")
         return status
 
-    def follow(self, submission_id: str, status: dict | None, output) -> dict:
+    def follow(self, submission_id: str, status: dict | None, output: Any) -> dict:
         """Poll until the job is done or failed (`status`: its status as the caller last saw and said it)."""
         seen, interval, said = None, self.poll_min, status is not None
         try:
@@ -140,7 +140,7 @@ class Follower:
             raise SubmissionFailed(status)
         return self._with_result(status, output)
 
-    def _with_result(self, status: dict, output) -> dict:
+    def _with_result(self, status: dict, output: Any) -> dict:
         """The status with its result's figures ("result"); the whole result document written to `output`."""
         route = f"submissions/{status['id']}/results"
         answer = call(self, "fetching the result's summary", "GET", route + "/summary")

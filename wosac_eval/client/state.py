@@ -14,6 +14,7 @@ import json
 import os
 import time
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.runtime.cache_dirs import user_cache_dir
 
@@ -32,7 +33,7 @@ def key_digest(key: str) -> str:
 class UploadState:
     """The state file of one upload; `data` is what it holds (upload_id, submission_id, what was sent)."""
 
-    def __init__(self, folder: Path, identity: dict):
+    def __init__(self, folder: Path, identity: dict) -> None:
         self.folder = folder
         digest = hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:40]
         self.path = folder / f"{digest}.json"
@@ -47,7 +48,7 @@ class UploadState:
         self.data = value if isinstance(value, dict) else {}
         return self.data
 
-    def save(self, **fields) -> None:
+    def save(self, **fields: Any) -> None:
         """Merge `fields` and write the file atomically (temporary file, fsync, rename), private to the user."""
         self.data.update(fields, updated_at=time.time())
         self.folder.mkdir(parents=True, exist_ok=True, mode=0o700)
@@ -65,7 +66,7 @@ class UploadState:
             self.path.unlink()
 
     @contextlib.contextmanager
-    def locked(self):
+    def locked(self) -> Any:
         """Hold this upload's lock file for the block: a second run on the same upload is refused at once
         (yields False to it) instead of racing the first for the server's offset. Released by the
         kernel when the process dies, however it dies."""

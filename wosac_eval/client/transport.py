@@ -38,7 +38,7 @@ class SubmitError(Exception):
 class SubmissionRefused(SubmitError):
     """The server refused a request (4xx): `status` and its one-sentence reason, `detail`."""
 
-    def __init__(self, status: int, detail: str, hint: str = ""):
+    def __init__(self, status: int, detail: str, hint: str = "") -> None:
         self.status = status
         self.detail = detail
         super().__init__(f"the server refused it ({status}): {detail}{hint}")
@@ -47,7 +47,7 @@ class SubmissionRefused(SubmitError):
 class SubmissionFailed(SubmitError):
     """The job ended `failed`; `status` is its final status (`error`, `validation_report`)."""
 
-    def __init__(self, status: dict):
+    def __init__(self, status: dict) -> None:
         self.status = status
         super().__init__(f"submission {status['id']} failed: {status.get('error') or 'no reason given'}")
 
@@ -285,7 +285,7 @@ class _Watchdog:
     """Ends a connection whose exchange outlives its deadline (its socket shut down: a blocked read returns),
     and says so as AnswerTooSlow."""
 
-    def __init__(self, deadline: float | None):
+    def __init__(self, deadline: float | None) -> None:
         self.deadline, self.fired = deadline, threading.Event()
         self.sock: socket.socket | None = None
         self.started = time.monotonic()
@@ -325,14 +325,16 @@ class _Watchdog:
             self.timer.cancel()
 
 
-def _query_value(value) -> str:
+def _query_value(value: Any) -> str:
     return ("true" if value else "false") if isinstance(value, bool) else str(value)
 
 
 class Retrier:
     """Counts the failures of one request (or of a run of chunks without progress) against a policy."""
 
-    def __init__(self, policy: RetryPolicy, log: Callable[[str], None], sleep: Callable[[float], None] = time.sleep):
+    def __init__(
+        self, policy: RetryPolicy, log: Callable[[str], None], sleep: Callable[[float], None] = time.sleep
+    ) -> None:
         self.policy, self.log, self.sleep = policy, log, sleep
         self.reset()
 
@@ -421,7 +423,7 @@ def api_key(key: str | None) -> str:
 
 
 def call(
-    owner,
+    owner: Any,
     what: str,
     method: str,
     route: str,

@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import google_crc32c
 
@@ -218,7 +219,7 @@ class Sender:
                 f"upload {upload_id} was deleted: run the command again to send the file as it is now"
             )
 
-    def _crc32c(self, f, offset: int, length: int) -> str:
+    def _crc32c(self, f: Any, offset: int, length: int) -> str:
         """The chunk's CRC32C (read once before it is sent: the header goes first), base64."""
         checksum = google_crc32c.Checksum()
         f.seek(offset)
@@ -231,7 +232,7 @@ class Sender:
             done += len(data)
         return base64.b64encode(checksum.digest()).decode()
 
-    def _pieces(self, f, offset: int, length: int) -> Iterator[bytes]:
+    def _pieces(self, f: Any, offset: int, length: int) -> Iterator[bytes]:
         """The chunk's bytes, a block at a time, paced to limit_rate; progress as they go."""
         f.seek(offset)
         done = 0

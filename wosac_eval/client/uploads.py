@@ -118,7 +118,7 @@ def submit(
 class _Run:
     """One call of `submit`: the arguments checked, the state found, the upload resumed or started."""
 
-    def __init__(self, submission: str | os.PathLike, options: SubmitOptions):
+    def __init__(self, submission: str | os.PathLike, options: SubmitOptions) -> None:
         _check(options)
         self.file = _submission_file(submission)
         stat = self.file.stat()

@@ -37,7 +37,7 @@ class CompatArray(np.ndarray):
         return np.array(self.view(np.ndarray), copy=True)
 
 
-def compat_array(value, dtype=None) -> CompatArray:
+def compat_array(value: Any, dtype: Any = None) -> CompatArray:
     """`value` (array-like) as a `CompatArray`, of `dtype` when given."""
     return np.asarray(value, dtype=dtype).view(CompatArray)
 
@@ -76,7 +76,7 @@ def host_array(value: ArrayIn, name: str) -> np.ndarray:
     raise ValueError(f"{name}: cannot read a {type(value).__name__} as an array ({'; '.join(refusals)})")
 
 
-def _from_dlpack(value) -> np.ndarray:
+def _from_dlpack(value: Any) -> np.ndarray:
     """`np.from_dlpack` asking the producer for a copy on the CPU (numpy >= 2.1; older numpy reads CPU memory)."""
     try:
         return np.from_dlpack(value, device="cpu")
@@ -118,12 +118,12 @@ def bool_array(value: ArrayIn, name: str, keep_jax: bool = False) -> Array:
     return array
 
 
-def tf_shape(shape) -> str:
+def tf_shape(shape: Any) -> str:
     """A shape as TensorFlow's messages write it: `[4,5]`."""
     return "[" + ",".join(str(n) for n in shape) + "]"
 
 
-def check_stackable(arrays, names=None) -> None:
+def check_stackable(arrays: Any, names: Any = None) -> None:
     """ValueError with the official message (TensorFlow's stack) unless all arrays have one shape.
 
     `names` (optional) are added after the official text, naming the arguments at fault.
@@ -138,6 +138,6 @@ def check_stackable(arrays, names=None) -> None:
             )
 
 
-def out(value: Array, dtype=None) -> Array:
+def out(value: Array, dtype: Any = None) -> Array:
     """A result as the compat modules hand it out: a `CompatArray`, or a JAX array as it is."""
     return value if is_jax(value) else compat_array(value, dtype)

@@ -2,7 +2,7 @@
 library's kernels (`features.registry`), and map polylines read from messages or arrays.
 
 The official functions take `(num_objects, num_steps)` arrays and a mask of the evaluated objects; the
-kernels take `(samples, objects, steps)` with the evaluated objects first. Any leading axes of the
+kernels take `(num_samples, num_objects, num_steps)` with the evaluated objects first. Any leading axes of the
 arrays are flattened into the samples axis and restored on the way out (each sample is computed as the
 official function computes one call).
 """
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 import numpy as np
 
@@ -38,8 +39,8 @@ class Objects:
     """The official arguments, read and checked.
 
     Attributes:
-      arrays: float32 `(samples, num_objects, num_steps)` by the kernels' names ("x", "y", ...).
-      valid: bool `(samples, num_objects, num_steps)`.
+      arrays: float32 `(num_samples, num_objects, num_steps)` by the kernels' names ("x", "y", ...).
+      valid: bool `(num_samples, num_objects, num_steps)`.
       evaluated: int64 `(num_evaluated,)`, the evaluated objects' positions in ascending order.
       lead: the leading axes the samples axis stands for.
     """
@@ -68,12 +69,12 @@ class Objects:
         traj["valid"] = self.valid[:, order] if valid is None else valid
         return traj
 
-    def result(self, value) -> np.ndarray:
-        """A kernel's `(samples, num_evaluated, num_steps)` with the leading axes back."""
+    def result(self, value: Any) -> Any:
+        """A kernel's `(num_samples, num_evaluated, num_steps)` with the leading axes back."""
         return compat_array(np.reshape(value, self.lead + np.shape(value)[1:]))
 
 
-def read_objects(named: dict, valid, evaluated_object_mask) -> Objects:
+def read_objects(named: dict, valid: np.ndarray, evaluated_object_mask: Any) -> Objects:
     """The official arguments checked as the official functions check them (their messages where they have
     one), and clearly where they would silently misalign (a validity or a mask of another size).
 
@@ -127,7 +128,7 @@ def no_search() -> PrunedSearch:
     return PrunedSearch(road_edges=None, lanes=None, signals=None)  # type: ignore[arg-type]
 
 
-def polyline_array(polyline) -> np.ndarray:
+def polyline_array(polyline: Any) -> np.ndarray:
     """A polyline as float32 `(num_points, 3)`: map points (`MapPoint`s, or anything with x, y and z) as the
     official code reads them (float64 values rounded to float32), or an array-like `(num_points, 3)`."""
     points = list(polyline)
@@ -139,7 +140,7 @@ def polyline_array(polyline) -> np.ndarray:
     return array
 
 
-def polyline_arrays(polylines) -> list[np.ndarray]:
+def polyline_arrays(polylines: Any) -> list[np.ndarray]:
     """Every polyline as float32 `(num_points, 3)` (`polyline_array`)."""
     return [polyline_array(p) for p in polylines]
 
@@ -166,7 +167,7 @@ def _road_edge_table(points: bytes, lengths: tuple) -> road_edge.SegmentTable:
     return road_edge.build_segment_table(_split(points, lengths))
 
 
-def lane_table(lanes: list[np.ndarray], lane_ids) -> traffic_lights.LaneTable | None:
+def lane_table(lanes: list[np.ndarray], lane_ids: Any) -> traffic_lights.LaneTable | None:
     """The library's lane table (None when no lane has two points), kept for the last few maps as `road_edge_table`."""
     points, lengths = _key(lanes)
     return _lane_table(points, lengths, tuple(int(i) for i in lane_ids))

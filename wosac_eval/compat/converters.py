@@ -8,6 +8,8 @@ official features are computed from (numpy arrays, official dtypes).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval import challenges
@@ -59,8 +61,8 @@ def scenario_to_joint_scene(
     return scene
 
 
-def _stacked(trajectories, field: str, dtype) -> np.ndarray:
-    """One field of every submitted trajectory as `(n_objects, n_steps)` (`(n_objects,)` for scalars)."""
+def _stacked(trajectories: Any, field: str, dtype: Any) -> np.ndarray:
+    """One field of every submitted trajectory as `(num_objects, num_steps)` (`(num_objects,)` for scalars)."""
     values = [getattr(t, field) for t in trajectories]
     if values and not np.isscalar(values[0]):
         lengths = {len(v) for v in values}

@@ -1,7 +1,7 @@
 """`waymo_open_dataset.wdl_limited.sim_agents_metrics.estimators`, without TensorFlow.
 
     log_likelihood = estimators.log_likelihood_estimate_timeseries(
-        config.linear_speed, log_values=log_speed, sim_values=sim_speed)  # (n_objects, n_steps)
+        config.linear_speed, log_values=log_speed, sim_values=sim_speed)  # (num_objects, num_steps)
     likelihood = np.exp(log_likelihood)
 
 Each function runs the library's own estimator (`wosac_eval.estimators.likelihoods`, the one the metrics
@@ -41,10 +41,10 @@ def histogram_estimate(config: _Config.HistogramEstimate, log_samples: ArrayIn, 
 
     Args:
       config: the bins (min_val, max_val, num_bins) and the additive smoothing pseudo-count.
-      log_samples: float `(batch_size, log_sample_size)`.
-      sim_samples: float `(batch_size, sim_sample_size)`.
+      log_samples: float `(batch, num_log_samples)`.
+      sim_samples: float `(batch, num_sim_samples)`.
     Returns:
-      float32 `(batch_size, log_sample_size)`.
+      float32 `(batch, num_log_samples)`.
     """
     log, sim = float_array(log_samples, "log_samples"), float_array(sim_samples, "sim_samples")
     _check_batches(log, sim)
@@ -62,10 +62,10 @@ def kernel_density_estimate(
 
     Args:
       config: the bandwidth (positive).
-      log_samples: float `(batch_size, log_sample_size)`.
-      sim_samples: float `(batch_size, sim_sample_size)`.
+      log_samples: float `(batch, num_log_samples)`.
+      sim_samples: float `(batch, num_sim_samples)`.
     Returns:
-      float64 `(batch_size, log_sample_size)`, as the official (values rounded through float32).
+      float64 `(batch, num_log_samples)`, as the official (values rounded through float32).
     """
     if config.bandwidth <= 0:
         raise ValueError("Bandwidth needs to be positive for KernelDensity estimation.")
@@ -80,10 +80,10 @@ def bernoulli_estimate(config: _Config.BernoulliEstimate, log_samples: ArrayIn, 
 
     Args:
       config: the additive smoothing pseudo-count.
-      log_samples: bool `(batch_size, log_sample_size)`.
-      sim_samples: bool `(batch_size, sim_sample_size)`.
+      log_samples: bool `(batch, num_log_samples)`.
+      sim_samples: bool `(batch, num_sim_samples)`.
     Returns:
-      float32 `(batch_size, log_sample_size)`.
+      float32 `(batch, num_log_samples)`.
     """
     log, sim = _bernoulli_samples(log_samples, sim_samples)
     _check_batches(log, sim)
@@ -122,10 +122,10 @@ def log_likelihood_estimate_timeseries(
 
     Args:
       feature_config: the feature's estimator, `independent_timesteps` and `aggregate_objects`.
-      log_values: `(n_objects, n_steps)`.
-      sim_values: `(n_rollouts, n_objects, n_steps)`.
+      log_values: `(num_objects, num_steps)`.
+      sim_values: `(num_rollouts, num_objects, num_steps)`.
     Returns:
-      `(n_objects, n_steps)`, float32 (float64 for a kernel density estimate).
+      `(num_objects, num_steps)`, float32 (float64 for a kernel density estimate).
     """
     log, sim = _values(feature_config, log_values, "log_values"), _values(feature_config, sim_values, "sim_values")
     _check_rank(log, 2)
@@ -150,10 +150,10 @@ def log_likelihood_estimate_scenario_level(
 
     Args:
       feature_config: the feature's estimator.
-      log_values: `(n_objects,)`.
-      sim_values: `(n_rollouts, n_objects)`.
+      log_values: `(num_objects,)`.
+      sim_values: `(num_rollouts, num_objects)`.
     Returns:
-      `(n_objects,)`, float32 (float64 for a kernel density estimate).
+      `(num_objects,)`, float32 (float64 for a kernel density estimate).
     """
     log, sim = _values(feature_config, log_values, "log_values"), _values(feature_config, sim_values, "sim_values")
     _check_rank(log, 1)

@@ -88,7 +88,7 @@ def tensorize_polylines(polylines: Sequence, ids: Sequence[int] | None = None) -
       polylines: lists of map points (or arrays `(num_points, 3)`).
       ids: an integer id per polyline; None: all 0.
     Returns:
-      float32 `(num_polylines, max_length, 4)` (x, y, z, valid: 1 or 0), and int32 `(num_polylines,)`;
+      float32 `(num_polylines, max_points, 4)` (x, y, z, valid: 1 or 0), and int32 `(num_polylines,)`;
       `(0,)` and `(0,)` when no polyline is kept, as officially.
 
     Raises:

@@ -42,19 +42,19 @@ class MetricFeatures:
     `n_steps` is 80 (sim agents: the simulated future) or 91 (scenario gen).
 
     Attributes:
-      object_id: int32 `(n_objects,)`, shared by all samples.
-      object_type: int32 `(n_samples, n_objects)`.
-      valid: bool `(n_samples, n_objects, n_steps)`, the steps that count.
-      average_displacement_error: float32 `(n_samples, n_objects)`, mean 3D distance to the log over
+      object_id: int32 `(num_objects,)`, shared by all samples.
+      object_type: int32 `(num_samples, num_objects)`.
+      valid: bool `(num_samples, num_objects, num_steps)`, the steps that count.
+      average_displacement_error: float32 `(num_samples, num_objects)`, mean 3D distance to the log over
         its valid steps (0 for scenario gen).
       linear_speed, linear_acceleration, angular_speed, angular_acceleration: float32
-        `(n_samples, n_objects, n_steps)`, finite differences (m/s, m/s², rad/s, rad/s²).
-      distance_to_nearest_object: float32 `(n_samples, n_objects, n_steps)`, signed, in metres.
-      collision_per_step: bool `(n_samples, n_objects, n_steps)`.
-      time_to_collision: float32 `(n_samples, n_objects, n_steps)`, seconds, with the object in front.
-      distance_to_road_edge: float32 `(n_samples, n_objects, n_steps)`, signed (positive off the road).
-      offroad_per_step: bool `(n_samples, n_objects, n_steps)`.
-      traffic_light_violation_per_step: bool `(n_samples, n_objects, n_steps)`.
+        `(num_samples, num_objects, num_steps)`, finite differences (m/s, m/s², rad/s, rad/s²).
+      distance_to_nearest_object: float32 `(num_samples, num_objects, num_steps)`, signed, in metres.
+      collision_per_step: bool `(num_samples, num_objects, num_steps)`.
+      time_to_collision: float32 `(num_samples, num_objects, num_steps)`, seconds, with the object in front.
+      distance_to_road_edge: float32 `(num_samples, num_objects, num_steps)`, signed (positive off the road).
+      offroad_per_step: bool `(num_samples, num_objects, num_steps)`.
+      traffic_light_violation_per_step: bool `(num_samples, num_objects, num_steps)`.
     """
 
     object_id: np.ndarray
@@ -82,7 +82,7 @@ def _official(features: _features.MetricFeatures) -> MetricFeatures:
     return MetricFeatures(**values)
 
 
-def as_internal(features) -> _features.MetricFeatures:
+def as_internal(features: Any) -> _features.MetricFeatures:
     """Any object with the `MetricFeatures` fields (numpy arrays, or anything `np.asarray` reads, e.g.
     TensorFlow tensors) as wosac-eval's own `MetricFeatures`."""
     fields: dict[str, Any] = {

@@ -11,6 +11,8 @@ The same messages as the official functions (`SimAgentMetrics`,
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.compat.metric_features import as_internal
@@ -63,7 +65,7 @@ def aggregate_metrics_to_buckets(
 
 
 def compute_scenario_metrics_for_features_bundle(
-    config: sim_agents_metrics_pb2.SimAgentMetricsConfig, scenario_id: str, log_features, sim_features
+    config: sim_agents_metrics_pb2.SimAgentMetricsConfig, scenario_id: str, log_features: Any, sim_features: Any
 ) -> sim_agents_metrics_pb2.SimAgentMetrics:
     """The scenario's `SimAgentMetrics` from its features (`metric_features.compute_scenario_rollouts_features`).
 

@@ -28,7 +28,9 @@ import importlib.machinery
 import importlib.util
 import os
 import sys
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 PACKAGE = "waymo_open_dataset"
 ENVIRONMENT = "WOSAC_EVAL_OFFICIAL_NAMES"
@@ -83,7 +85,7 @@ class _ServedPackage(importlib.abc.Loader):
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None  # a plain module object; the import system sets its __path__ from the spec
 
-    def exec_module(self, module) -> None:
+    def exec_module(self, module: Any) -> None:
         module.__file__ = None  # as the official package, a namespace package, has none
 
 
@@ -96,7 +98,7 @@ class _ServedModule(importlib.abc.Loader):
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None
 
-    def exec_module(self, module) -> None:
+    def exec_module(self, module: Any) -> None:
         # The import system returns what sys.modules holds under the name once the loader is done (the
         # language reference, "Loaders": a module may replace itself there), so the official name and the
         # wosac-eval name are one module object, and the wosac-eval module's own attributes stay its own.
@@ -106,7 +108,9 @@ class _ServedModule(importlib.abc.Loader):
 class _OfficialNames(importlib.abc.MetaPathFinder):
     """Finds every `waymo_open_dataset` name: a served module, a package on the way, or a clear refusal."""
 
-    def find_spec(self, fullname: str, path=None, target=None) -> importlib.machinery.ModuleSpec | None:
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: Any = None
+    ) -> importlib.machinery.ModuleSpec | None:
         official = _official_name(fullname)
         if official is None:
             return None
@@ -128,7 +132,9 @@ class _Refusal(importlib.abc.MetaPathFinder):
     def __init__(self, error: OfficialPackageFound) -> None:
         self.error = error
 
-    def find_spec(self, fullname: str, path=None, target=None) -> importlib.machinery.ModuleSpec | None:
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None = None, target: Any = None
+    ) -> importlib.machinery.ModuleSpec | None:
         if _official_name(fullname) is not None:
             raise OfficialPackageFound(str(self.error))
         return None
@@ -143,7 +149,7 @@ def installed() -> bool:
     return any(isinstance(f, _OfficialNames) for f in sys.meta_path)
 
 
-def _holds_code(spec) -> bool:
+def _holds_code(spec: Any) -> bool:
     """True for a module or a package with Python modules in its folder or in the official subfolders."""
     if spec.origin and spec.origin.endswith(_CODE_SUFFIXES):
         return True

@@ -76,7 +76,7 @@ _OFFICIAL_REFUSALS = ("rollouts.wrong_count", "rollouts.missing_sim_agents", "ro
 _CHECKED_FIELDS = ("center_x", "center_y", "center_z", "heading")  # the official checks only these lengths
 
 
-def _refused_by_official(finding, sim_agent_ids) -> bool:
+def _refused_by_official(finding: Any, sim_agent_ids: Any) -> bool:
     if finding.severity != "error":
         return False
     if finding.code == "rollouts.wrong_length":
@@ -89,7 +89,7 @@ def _refused_by_official(finding, sim_agent_ids) -> bool:
 def _raise_official_refusal(
     rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     scenario: scenario_pb2.Scenario,
-    challenge_type,
+    challenge_type: Any,
     what: str,
     n_rollouts: int | None = None,
 ) -> None:

@@ -14,6 +14,8 @@ fewer than 3 steps every result has 2 steps, all padding, as the official concat
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.compat._arrays import Array, ArrayIn, bool_array, check_stackable, float_array, is_jax, out, tf_shape
@@ -30,8 +32,8 @@ def _steps(t: Array, name: str) -> int:
     return t.shape[-1]
 
 
-def _padded(inner: Array, lead: tuple, pad_value, dtype, xp) -> Array:
-    """`inner` `(..., n)` between one pad on each side along the last axis, as the official concatenation."""
+def _padded(inner: Array, lead: tuple, pad_value: Any, dtype: Any, xp: Any) -> Array:
+    """`inner` `(..., num_steps)` between one pad on each side along the last axis, as the official concatenation."""
     pad = xp.full(lead + (1,), pad_value, dtype=dtype)
     return xp.concatenate([pad, inner, pad], axis=-1)
 

@@ -16,6 +16,7 @@ take the arrays as they are (`tf.convert_to_tensor`), or use numpy (e.g.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -34,12 +35,12 @@ class ObjectTrajectories:
     As officially, the shapes are documented, not enforced.
 
     Attributes:
-      x, y, z: box centres, float32 `(..., n_objects, n_steps)` (the scenario's frame).
-      heading: yaw in radians, float32 `(..., n_objects, n_steps)`.
-      length, width, height: box sizes, float32 `(..., n_objects, n_steps)`.
-      valid: bool `(..., n_objects, n_steps)`.
-      object_id: int32 `(..., n_objects)`, the tracks' ids.
-      object_type: int32 `(..., n_objects)`, `scenario_pb2.Track.ObjectType` values.
+      x, y, z: box centres, float32 `(..., num_objects, num_steps)` (the scenario's frame).
+      heading: yaw in radians, float32 `(..., num_objects, num_steps)`.
+      length, width, height: box sizes, float32 `(..., num_objects, num_steps)`.
+      valid: bool `(..., num_objects, num_steps)`.
+      object_id: int32 `(..., num_objects)`, the tracks' ids.
+      object_type: int32 `(..., num_objects)`, `scenario_pb2.Track.ObjectType` values.
     """
 
     x: np.ndarray
@@ -64,7 +65,7 @@ class ObjectTrajectories:
             **{f: getattr(self, f) for f in _PER_OBJECT},
         )
 
-    def gather_objects(self, object_indices) -> ObjectTrajectories:
+    def gather_objects(self, object_indices: Any) -> ObjectTrajectories:
         """The objects at the given positions, in that order (a position may repeat).
 
         Args:
@@ -90,7 +91,7 @@ class ObjectTrajectories:
             **{f: np.take(compat_array(getattr(self, f)), indices, axis=-1) for f in _PER_OBJECT},
         )
 
-    def gather_objects_by_id(self, object_ids) -> ObjectTrajectories:
+    def gather_objects_by_id(self, object_ids: Any) -> ObjectTrajectories:
         """The objects with the given ids, in the order of `object_ids`.
 
         Args:
@@ -113,7 +114,7 @@ class ObjectTrajectories:
         )
 
 
-def _positions_of_ids(ids, wanted) -> np.ndarray:
+def _positions_of_ids(ids: np.ndarray, wanted: Any) -> np.ndarray:
     """Position in `ids` of each of `wanted`, as the official gather by id finds them."""
     ids, wanted = np.asarray(ids), np.asarray(wanted)
     if ids.ndim != 1 or wanted.ndim != 1:

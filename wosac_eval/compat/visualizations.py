@@ -18,11 +18,14 @@ events instead.
 
 from __future__ import annotations
 
-from typing import TypedDict
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 
 from wosac_eval.protos import map_pb2, scenario_pb2
+
+if TYPE_CHECKING:  # the type alone: matplotlib is imported when a function draws
+    from matplotlib.axes import Axes
 
 # The official palette (RGB in [0, 1]): blue, green, amber, coral, purple, navy.
 WAYMO_COLORS = (
@@ -44,12 +47,12 @@ _BOX_ALPHA = 0.5
 _FRAME_MS = 100  # one 10 Hz step per frame: real time
 
 
-def _plot_polyline(axis, polyline, fmt: str, alpha: float) -> None:
+def _plot_polyline(axis: Axes, polyline: Any, fmt: str, alpha: float) -> None:
     if len(polyline):
         axis.plot([p.x for p in polyline], [p.y for p in polyline], fmt, alpha=alpha)
 
 
-def add_map(axis, scenario: scenario_pb2.Scenario) -> None:
+def add_map(axis: Axes, scenario: scenario_pb2.Scenario) -> None:
     """Draws the scenario's road edges and road lines on `axis` (other map features are not drawn)."""
     for feature in scenario.map_features:
         kind = feature.WhichOneof("feature_data")
@@ -59,17 +62,17 @@ def add_map(axis, scenario: scenario_pb2.Scenario) -> None:
             add_road_line(axis, feature.road_line)
 
 
-def add_road_edge(axis, road_edge: map_pb2.RoadEdge) -> None:
+def add_road_edge(axis: Axes, road_edge: map_pb2.RoadEdge) -> None:
     """Draws one road edge: a black dashed line."""
     _plot_polyline(axis, road_edge.polyline, **_EDGE_STYLE)
 
 
-def add_road_line(axis, road_line: map_pb2.RoadLine) -> None:
+def add_road_line(axis: Axes, road_line: map_pb2.RoadLine) -> None:
     """Draws one road line: a black dashed line at half opacity."""
     _plot_polyline(axis, road_line.polyline, **_LINE_STYLE)
 
 
-def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: float, color_idx: int = 0):
+def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: float, color_idx: int = 0) -> Any:
     """A `matplotlib.patches.Rectangle` for one box (not yet added to an axis).
 
     Args:
@@ -89,15 +92,27 @@ def get_bbox_patch(x: float, y: float, bbox_yaw: float, length: float, width: fl
     return patches.Rectangle(corner, length, width, angle=float(np.rad2deg(bbox_yaw)), color=colour)
 
 
-def add_all_current_objects(axis, x, y, yaw, length, width, color_idx) -> list:
-    """Adds one box per object (each argument `(n_objects,)`) to `axis`; returns the added patches."""
+def add_all_current_objects(
+    axis: Axes, x: np.ndarray, y: np.ndarray, yaw: Any, length: np.ndarray, width: np.ndarray, color_idx: Any
+) -> list:
+    """Adds one box per object (each argument `(num_objects,)`) to `axis`; returns the added patches."""
     x, y, yaw, length, width, color_idx = (np.asarray(v) for v in (x, y, yaw, length, width, color_idx))
     return [
         axis.add_patch(get_bbox_patch(x[i], y[i], yaw[i], length[i], width[i], color_idx[i])) for i in range(x.shape[0])
     ]
 
 
-def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, length, width, color_idx=None):
+def get_animated_states(
+    fig: Any,
+    axis: Axes,
+    scenario: scenario_pb2.Scenario,
+    x: np.ndarray,
+    y: np.ndarray,
+    yaw: Any,
+    length: np.ndarray,
+    width: np.ndarray,
+    color_idx: Any = None,
+) -> Any:
     """A `matplotlib.animation.FuncAnimation` of the boxes over the scenario's map, one frame per step.
 
     As officially, `fig` is closed first (so a notebook shows the animation, not a second, static
@@ -106,8 +121,8 @@ def get_animated_states(fig, axis, scenario: scenario_pb2.Scenario, x, y, yaw, l
     Args:
       fig, axis: the figure and the axis to draw on.
       scenario: the scenario whose map is drawn.
-      x, y, yaw, length, width: `(n_objects, n_steps)`.
-      color_idx: `(n_objects, n_steps)` indices into `WAYMO_COLORS` (None: the first colour).
+      x, y, yaw, length, width: `(num_objects, num_steps)`.
+      color_idx: `(num_objects, num_steps)` indices into `WAYMO_COLORS` (None: the first colour).
     """
     import matplotlib.pyplot as plt
     from matplotlib import animation

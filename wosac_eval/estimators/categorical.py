@@ -46,7 +46,7 @@ class BinCounts:
     def num_bins(self) -> int:
         return int(self.counts.shape[1])
 
-    def official_size(self):
+    def official_size(self) -> Any:
         """The number of values of the official counts tensor (its `log` op's packets follow it)."""
         return None if self.num_rows is None else self.num_rows * self.num_bins
 
@@ -69,7 +69,7 @@ def log_probabilities(batches: Sequence[BinCounts]) -> list:
     ]
 
 
-def _row_exp_sums(shifted: list, xp) -> list:
+def _row_exp_sums(shifted: list, xp: Any) -> list:
     """sum(exp(row)) of every row, `(batch,)` per batch: the rows of one width in one reduction
     (a row's packets and trailing values depend on its width only)."""
     widths = sorted({rows.shape[1] for rows in shifted})
@@ -82,7 +82,7 @@ def _row_exp_sums(shifted: list, xp) -> list:
     return totals
 
 
-def _split(values, lengths: Sequence[int]) -> list:
+def _split(values: Any, lengths: Sequence[int]) -> list:
     """`values` cut into consecutive pieces of `lengths`."""
     ends = np.cumsum(lengths)
     return [values[end - length : end] for end, length in zip(ends, lengths)]

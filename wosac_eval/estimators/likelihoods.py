@@ -62,7 +62,7 @@ def histogram_bins(values: np.ndarray, edges: np.ndarray) -> np.ndarray:
     return bins
 
 
-def histogram_counts(samples, edges: np.ndarray, weights=None):
+def histogram_counts(samples: Any, edges: np.ndarray, weights: Any = None) -> Any:
     """How many samples of each row fall in each bin of `histogram_bins`: `(batch, num_bins)`.
 
     Bin k and those before it hold the samples below interior edge k + 1, so the counts are the
@@ -96,8 +96,9 @@ def _interior_edges(edges: np.ndarray) -> np.ndarray:
     return np.asarray(edges, dtype=_F)[1:-1]
 
 
-def _count(mask, weights, xp):
-    """The true values of each row of `mask` (`(batch, n, ...)`, summed over `n`), or the sum of their weights."""
+def _count(mask: Any, weights: Any, xp: Any) -> Any:
+    """The true values of each row of `mask` (`(batch, num_values, ...)`, summed over axis 1), or the sum of
+    their weights."""
     if weights is not None:
         return xp.sum(xp.where(mask, weights, 0), axis=1)
     if is_numpy(xp) and mask.shape[0] == 1:
@@ -106,8 +107,8 @@ def _count(mask, weights, xp):
     return xp.sum(mask, axis=1, dtype=np.int32)
 
 
-def check_batches(log_samples, sim_samples) -> None:
-    """Raises ValueError naming both shapes unless both are `(batch, samples)` with the same batch.
+def check_batches(log_samples: Any, sim_samples: Any) -> None:
+    """Raises ValueError naming both shapes unless both are `(batch, num_samples)` with the same batch.
 
     The official estimators refuse such inputs; broadcasting would silently
     score the wrong populations.
@@ -121,7 +122,11 @@ def check_batches(log_samples, sim_samples) -> None:
 
 
 def histogram_bin_counts(
-    histogram, log_samples: np.ndarray, sim_samples: np.ndarray, sim_weights=None, num_rows=None
+    histogram: Any,
+    log_samples: np.ndarray,
+    sim_samples: np.ndarray,
+    sim_weights: Any = None,
+    num_rows: int | None = None,
 ) -> BinCounts:
     """The official histogram estimate's inputs to its categorical distribution (`categorical.BinCounts`).
 
@@ -144,7 +149,9 @@ def histogram_bin_counts(
     return BinCounts(counts, histogram_bins(log_samples, edges), num_rows)
 
 
-def bernoulli_bin_counts(bernoulli, log_samples, sim_samples, sim_weights=None, num_rows=None) -> BinCounts:
+def bernoulli_bin_counts(
+    bernoulli: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
+) -> BinCounts:
     """The Bernoulli estimate's: a two-bin histogram over booleans, bins [-0.5, 0.5) and [0.5, 1.5]."""
     histogram = _Config.HistogramEstimate(
         min_val=-0.5, max_val=1.5, num_bins=2, additive_smoothing_pseudocount=bernoulli.additive_smoothing_pseudocount
@@ -153,14 +160,14 @@ def bernoulli_bin_counts(bernoulli, log_samples, sim_samples, sim_weights=None, 
 
 
 def histogram_log_likelihood(
-    min_val,
-    max_val,
-    num_bins,
-    pseudocount,
+    min_val: Any,
+    max_val: Any,
+    num_bins: Any,
+    pseudocount: Any,
     log_samples: np.ndarray,
     sim_samples: np.ndarray,
-    sim_weights=None,
-    num_rows=None,
+    sim_weights: Any = None,
+    num_rows: int | None = None,
 ) -> np.ndarray:
     """Per-population histogram log-likelihoods, the official float32 values: `(batch, num_log_samples)`.
 
@@ -172,13 +179,17 @@ def histogram_log_likelihood(
     return log_probabilities([histogram_bin_counts(histogram, log_samples, sim_samples, sim_weights, num_rows)])[0]
 
 
-def bernoulli_log_likelihood(pseudocount, log_samples, sim_samples, sim_weights=None, num_rows=None) -> np.ndarray:
+def bernoulli_log_likelihood(
+    pseudocount: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
+) -> np.ndarray:
     """Per-population Bernoulli log-likelihoods, the official float32 values (see `bernoulli_bin_counts`)."""
     bernoulli = _Config.BernoulliEstimate(additive_smoothing_pseudocount=pseudocount)
     return log_probabilities([bernoulli_bin_counts(bernoulli, log_samples, sim_samples, sim_weights, num_rows)])[0]
 
 
-def kernel_density_log_likelihood(bandwidth, log_samples, sim_samples, sim_weights=None) -> np.ndarray:
+def kernel_density_log_likelihood(
+    bandwidth: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None
+) -> np.ndarray:
     """Gaussian KDE log-density, shifted so that a Dirac sample scores 0 (`sim_weights` as for histograms).
 
     The official metrics cannot score a kernel density estimate (their estimator returns float64, which
@@ -244,12 +255,14 @@ def official_estimates(configs: Sequence[FeatureConfig], populations: Sequence[P
     return scored
 
 
-def official_estimate(config: FeatureConfig, log_samples, sim_samples, sim_weights=None, num_rows=None):
+def official_estimate(
+    config: FeatureConfig, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
+) -> Any:
     """The official estimator of `config` on one batch of populations (`official_estimates`' one)."""
     return official_estimates([config], [Populations(log_samples, sim_samples, sim_weights, num_rows)])[0]
 
 
-def populations(config: FeatureConfig, log_values, sim_values, object_mask=None) -> Populations:
+def populations(config: FeatureConfig, log_values: Any, sim_values: Any, object_mask: Any = None) -> Populations:
     """A feature's per-step values as the populations its config estimates.
 
     Args:
@@ -289,15 +302,20 @@ def populations(config: FeatureConfig, log_values, sim_values, object_mask=None)
     return Populations(log_values.reshape(n_objects * n_steps, 1), sim, None, real_rows)
 
 
-def per_step(config: FeatureConfig, scored, num_objects: int, num_steps: int):
-    """An estimator's `(batch, n)` output for `populations(config, ...)` back as `(num_objects, num_steps)`."""
+def per_step(config: FeatureConfig, scored: Any, num_objects: int, num_steps: int) -> Any:
+    """An estimator's `(batch, num_log_samples)` output for `populations(config, ...)` back as
+    `(num_objects, num_steps)`."""
     if config.aggregate_objects:
         return scored.reshape(num_steps, num_objects).T
     return scored.reshape(num_objects, num_steps)
 
 
 def timeseries_log_likelihoods(
-    configs: Sequence[FeatureConfig], log_values: Sequence, sim_values: Sequence, object_mask=None, estimate=None
+    configs: Sequence[FeatureConfig],
+    log_values: Sequence,
+    sim_values: Sequence,
+    object_mask: Any = None,
+    estimate: Any = None,
 ) -> list:
     """`timeseries_log_likelihood` of several features (one config, log and simulated values each), at once.
 
@@ -313,7 +331,7 @@ def timeseries_log_likelihoods(
 
 
 def timeseries_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask: Any = None, estimate: Any = None
 ) -> np.ndarray:
     """Log-likelihood of each logged value.
 
@@ -321,9 +339,9 @@ def timeseries_log_likelihood(
       log_values: `(num_objects, num_steps)`.
       sim_values: `(num_rollouts, num_objects, num_steps)`.
       object_mask: as for `populations`.
-      estimate: the estimator of one batch of populations, `(config, log (batch, n), sim (batch, m),
-        sim weights or None, num_rows) -> (batch, n)` (`official_estimate`'s signature); default the
-        official one (the soft surrogate passes its own).
+      estimate: the estimator of one batch of populations, `official_estimate`'s signature: (config, log
+        `(batch, num_log_samples)`, sim `(batch, num_sim_samples)`, sim weights or None, num_rows) ->
+        `(batch, num_log_samples)`; default the official one (the soft surrogate passes its own).
     Returns:
       float32 `(num_objects, num_steps)`.
     """
@@ -331,14 +349,14 @@ def timeseries_log_likelihood(
 
 
 def scenario_level_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask=None, estimate=None
+    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask: Any = None, estimate: Any = None
 ) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
     check_scenario_level(log_values, sim_values)
     return timeseries_log_likelihood(config, log_values[:, None], sim_values[..., None], object_mask, estimate)[:, 0]
 
 
-def check_scenario_level(log_values, sim_values) -> None:
+def check_scenario_level(log_values: Any, sim_values: Any) -> None:
     """Raises ValueError naming both shapes unless they are `(num_objects,)` and `(num_rollouts, num_objects)`."""
     if np.ndim(log_values) != 1 or np.ndim(sim_values) != 2 or np.shape(sim_values)[1] != np.shape(log_values)[0]:
         raise ValueError(

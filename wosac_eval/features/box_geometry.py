@@ -16,6 +16,8 @@ and array functions below them lay the corners along a last axis of 4 (or 8).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features import ops
@@ -26,7 +28,7 @@ _F = np.float32
 _ZERO, _HALF, _ONE, _MINUS_ONE, _INF = _F(0), _F(0.5), _F(1), _F(-1), _F(np.inf)
 
 
-def box_corners(x, y, length, width, cos_h, sin_h):
+def box_corners(x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any) -> Any:
     """The 4 corners of upright boxes, counter-clockwise: front-left, rear-left, rear-right, front-right.
 
     Args:
@@ -51,21 +53,21 @@ def box_corners(x, y, length, width, cos_h, sin_h):
     )
 
 
-def box_corners_xy(x, y, length, width, cos_h, sin_h):
+def box_corners_xy(x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any) -> Any:
     """`box_corners` with the corners along a last axis: (corners_x, corners_y), float32 `(..., 4)`."""
     xp = array_namespace(x, cos_h)
     c = box_corners(x, y, length, width, cos_h, sin_h)
     return xp.stack(c[:4], axis=-1), xp.stack(c[4:], axis=-1)
 
 
-def box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h):
+def box_bottom_corners(x: Any, y: Any, bottom: Any, length: Any, width: Any, cos_h: Any, sin_h: Any) -> Any:
     """The 4 corners of upright boxes (`box_corners`) at the height `bottom`: float32 `(..., 4, 3)`."""
     xp = array_namespace(x, cos_h)
     cx, cy = box_corners_xy(x, y, length, width, cos_h, sin_h)
     return xp.stack([cx, cy, xp.broadcast_to(bottom[..., None], cx.shape)], axis=-1)
 
 
-def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
+def heading_cos_sin(heading: Any, steps: slice = slice(None), tail: Any = None) -> Any:
     """cos and sin of headings, rounded as the official box-corner code rounds them.
 
     Args:
@@ -83,7 +85,7 @@ def heading_cos_sin(heading, steps: slice = slice(None), tail=None):
     return cos, sin
 
 
-def _first_lowest(v0, v1, v2, v3):
+def _first_lowest(v0: Any, v1: Any, v2: Any, v3: Any) -> Any:
     """Index of the lowest of 4 values, as numpy's argmin picks it: the first minimum, or the first NaN."""
     take = (v1 < v0) | (ops.isnan(v1) & ~ops.isnan(v0))
     at, lowest = ops.where(take, 1, 0), ops.where(take, v1, v0)
@@ -93,7 +95,7 @@ def _first_lowest(v0, v1, v2, v3):
     return ops.where(take, 3, at)
 
 
-def _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3):
+def _from_lowest(x0: Any, x1: Any, x2: Any, x3: Any, y0: Any, y1: Any, y2: Any, y3: Any) -> Any:
     """The corners rotated to start at the lowest one, and the unit direction x, y of the edge leaving it.
 
     A box of zero size (a logged placeholder state, scored as is in scenario gen) has no edge:
@@ -119,7 +121,7 @@ def _from_lowest(x0, x1, x2, x3, y0, y1, y2, y3):
     return rx0, rx1, rx2, rx3, ry0, ry1, ry2, ry3, ops.divide(ex, length), ops.divide(ey, length)
 
 
-def corner_outline(x0, x1, x2, x3, y0, y1, y2, y3):
+def corner_outline(x0: Any, x1: Any, x2: Any, x3: Any, y0: Any, y1: Any, y2: Any, y3: Any) -> Any:
     """What the Minkowski difference needs of one box, from its ccw corners, computed once per box.
 
     Returns:
@@ -152,13 +154,13 @@ def corner_outline(x0, x1, x2, x3, y0, y1, y2, y3):
     )
 
 
-def box_outline(x, y, length, width, cos_h, sin_h):
+def box_outline(x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any) -> Any:
     """`corner_outline` of upright boxes (`box_corners`)."""
     x0, x1, x2, x3, y0, y1, y2, y3 = box_corners(x, y, length, width, cos_h, sin_h)
     return corner_outline(x0, x1, x2, x3, y0, y1, y2, y3)
 
 
-def _merged_vertex(j, a, b, b_turns_left):
+def _merged_vertex(j: Any, a: Any, b: Any, b_turns_left: Any) -> Any:
     """Vertex j (0..7) of A + (-B) from the outlines: both edge sequences start at their lowest vertex
     and merge by angle; whose edge comes first depends on the turn between the lowest edges."""
     a_order = (0, 0, 1, 1, 2, 2, 3, 3)[j]
@@ -171,7 +173,7 @@ def _merged_vertex(j, a, b, b_turns_left):
     )
 
 
-def minkowski_vertices(a, b):
+def minkowski_vertices(a: Any, b: Any) -> Any:
     """Vertices of A + (-B), counter-clockwise, from `corner_outline`s of A and B (broadcast together).
 
     Returns:
@@ -189,7 +191,7 @@ def minkowski_vertices(a, b):
     return x0, x1, x2, x3, x4, x5, x6, x7, y0, y1, y2, y3, y4, y5, y6, y7
 
 
-def _edge_to_origin(x0, y0, x1, y1):
+def _edge_to_origin(x0: Any, y0: Any, x1: Any, y1: Any) -> Any:
     """For the polygon edge from vertex 0 to vertex 1: (whether the origin is on its inner side,
     the distance from the origin to the edge where it projects onto it, else +inf, and the squared
     distance from the origin to vertex 0)."""
@@ -206,7 +208,7 @@ def _edge_to_origin(x0, y0, x1, y1):
     return signed_perpendicular <= _ZERO, edge_distance, vx * vx + vy * vy
 
 
-def octagon_signed_distance(m):
+def octagon_signed_distance(m: Any) -> Any:
     """Signed distance from the origin to convex ccw octagons (negative inside), float32 `(...)`.
 
     Args:
@@ -236,7 +238,7 @@ def octagon_signed_distance(m):
     return ops.where(inside, -nearest, nearest)
 
 
-def minkowski_difference(ax, ay, bx, by):
+def minkowski_difference(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
     """Vertices of A + (-B) for boxes given by ccw corners, counter-clockwise.
 
     Args:
@@ -250,7 +252,7 @@ def minkowski_difference(ax, ay, bx, by):
     return xp.stack(m[:8], axis=-1), xp.stack(m[8:], axis=-1)
 
 
-def origin_signed_distance(px, py):
+def origin_signed_distance(px: Any, py: Any) -> Any:
     """Signed distance from the origin to convex ccw octagons (negative inside), such as
     `minkowski_difference`'s.
 

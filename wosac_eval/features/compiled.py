@@ -31,6 +31,7 @@ import itertools
 import math
 import textwrap
 import types
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TypeGuard
 
@@ -71,13 +72,13 @@ assert not _MISSING, f"features.compiled lacks the scalar form of ops.{_MISSING}
 
 
 @numba.njit(inline="always")
-def _clip(v, low, high):
+def _clip(v: Any, low: Any, high: Any) -> Any:
     """numpy's clip of one value: the maximum with `low`, then the minimum with `high` (NaN passes on)."""
     v = v if (v > low) | (v != v) else low
     return v if (v < high) | (v != v) else high
 
 
-def _is_kernel(value) -> bool:
+def _is_kernel(value: object) -> bool:
     """A plain function of the feature kernels (inlined into the kernel calling it)."""
     return (
         isinstance(value, types.FunctionType)
@@ -97,7 +98,7 @@ def _syntax(kernel: types.FunctionType) -> ast.FunctionDef:
 class _Flattener:
     """Builds one flat function from a kernel: see the module doc."""
 
-    def __init__(self):
+    def __init__(self) -> None:
         self.names = itertools.count()
         self.namespace = {"np": np, "math": math, "_clip": _clip}
         self.statements: list[ast.stmt] = []
@@ -105,7 +106,7 @@ class _Flattener:
     def fresh(self, name: str) -> str:
         return f"{name}__{next(self.names)}"
 
-    def global_name(self, kernel, name: str) -> str:
+    def global_name(self, kernel: Any, name: str) -> str:
         """A module-level value the kernel reads, under a name unique to its module."""
         value = kernel.__globals__[name] if name in kernel.__globals__ else getattr(builtins, name)
         if value is np or value is math:
@@ -114,7 +115,7 @@ class _Flattener:
         self.namespace[unique] = value
         return unique
 
-    def inline(self, kernel, arguments: list[ast.expr]) -> ast.expr:
+    def inline(self, kernel: Any, arguments: list[ast.expr]) -> ast.expr:
         """Appends the kernel's statements, its parameters bound to `arguments`; returns its result."""
         function = _syntax(kernel)
         params = [a.arg for a in function.args.args]
@@ -150,7 +151,7 @@ class _Flattener:
         self.statements.append(ast.Assign(targets=[ast.Name(fresh, ast.Store())], value=value, lineno=0))
         return fresh
 
-    def statement(self, kernel, statement: ast.stmt, local: dict) -> None:
+    def statement(self, kernel: Any, statement: ast.stmt, local: dict) -> None:
         if isinstance(statement, ast.Assign) and len(statement.targets) == 1:
             value = self.expression(kernel, statement.value, local)
             target = statement.targets[0]
@@ -181,7 +182,7 @@ class _Flattener:
             return ast.Tuple([self.target(e, local) for e in node.elts], ast.Store())
         raise TypeError(f"cannot assign to {ast.unparse(node)!r} in a compiled kernel")
 
-    def expression(self, kernel, node: ast.expr, local: dict) -> ast.expr:
+    def expression(self, kernel: Any, node: ast.expr, local: dict) -> ast.expr:
         if isinstance(node, ast.Call) and not node.keywords and not any(isinstance(a, ast.Starred) for a in node.args):
             arguments = [self.expression(kernel, a, local) for a in node.args]
             func = node.func
@@ -260,7 +261,7 @@ def _folded(node: ast.expr) -> ast.expr:
     return node
 
 
-def _map_field(value, transform):
+def _map_field(value: Any, transform: Callable[[ast.expr], ast.expr]) -> Any:
     if isinstance(value, ast.expr):
         return transform(value)
     if isinstance(value, list):
@@ -295,7 +296,7 @@ def flat_source(kernel: types.FunctionType) -> tuple[str, dict]:
 
 
 @functools.cache
-def compiled(kernel: types.FunctionType, inline: bool = False):
+def compiled(kernel: types.FunctionType, inline: bool = False) -> Any:
     """`kernel` (written with `features.ops`) as a numba function of scalars (see the module doc).
 
     A call compiles to a call; with `inline`, numba copies the kernel into its callers, where the
@@ -326,7 +327,7 @@ KERNELS_DIGEST = hashlib.sha256(
 ).hexdigest()
 
 
-def cached_loop(function):
+def cached_loop(function: Any) -> Any:
     """`numba.njit(cache=True)` for a loop calling compiled kernels or numba functions of other files, named
     after the digest of their sources (`KERNELS_DIGEST`)."""
     function.__qualname__ = f"{function.__qualname__}__kernels_{KERNELS_DIGEST[:16]}"

@@ -28,6 +28,7 @@ through `xp.wide_float` (float64 under x64; float32 in `xp.float32_precision()`)
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -50,8 +51,8 @@ NEAREST_OBJECT_CANDIDATES = 4
 NEAREST_OBJECT_FALLBACK_CHUNK = 128
 
 
-def _nearest_object_all_pairs(outlines, radius, valid, rows, steps):
-    """The official all-pairs nearest-object distance of the boxes `rows` at `steps` (each `(chunk,)`).
+def _nearest_object_all_pairs(outlines: Any, radius: Any, valid: Any, rows: Any, steps: Any) -> Any:
+    """The official all-pairs nearest-object distance of the boxes `rows` at `steps` (each `(batch,)`).
 
     Every pair; the self pair offset by 1e10 (a NaN box stays NaN), invalid pairs 1e10, the minimum
     passing NaN on, capped at 1e10. `outlines`, `radius`, `valid`: `(num_objects, num_steps, ...)`.
@@ -66,9 +67,9 @@ def _nearest_object_all_pairs(outlines, radius, valid, rows, steps):
     return jnp.minimum(nan_spreading_min(d, axis=1), interaction.EXTREMELY_LARGE_DISTANCE)
 
 
-def _lowest_k(values, count: int):
+def _lowest_k(values: Any, count: int) -> Any:
     """The `count` lowest of `values` along the last axis, ascending, the lower index first on ties:
-    (values, indices), each `(..., count)`. By `count` minimum passes: XLA's CPU `top_k` sorts whole
+    (values, indices), each with `count` along the last axis. By `count` minimum passes: XLA's CPU `top_k` sorts whole
     rows when its results feed more than one computation (4x slower here); `values` has no NaN."""
     columns = jnp.arange(values.shape[-1])
     lowest, picks = [], []
@@ -80,7 +81,18 @@ def _lowest_k(values, count: int):
     return jnp.stack(lowest, axis=-1), jnp.stack(picks, axis=-1)
 
 
-def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radius, valid, num_evaluated: int):
+def _nearest_object_candidates(
+    x: Any,
+    y: Any,
+    length: Any,
+    width: Any,
+    cos_h: Any,
+    sin_h: Any,
+    outlines: Any,
+    radius: Any,
+    valid: Any,
+    num_evaluated: int,
+) -> Any:
     """(distance, settled), float32 and bool `(num_evaluated, num_steps)`: the pruned search's
     answer from the `NEAREST_OBJECT_CANDIDATES` boxes of lowest bound, and where it is proven.
 
@@ -93,14 +105,14 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     k = NEAREST_OBJECT_CANDIDATES
     e = slice(0, num_evaluated)
     reach = interaction.bounding_reach(length, width, valid)
-    dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (evaluated, objects, steps)
+    dx, dy = x[None] - x[e, None], y[None] - y[e, None]  # (num_evaluated, num_objects, num_steps)
     lower = jnp.sqrt(dx * dx + dy * dy) * interaction.BOUND_SCALE - (
         (reach[e, None] + reach[None]) + interaction.BOUND_MARGIN
     )
     self_pair = jnp.eye(num_evaluated, x.shape[0], dtype=bool)[..., None]
     # NaN and the self pair never guide the search; -0 ranks as +0 (the loop's order).
     lower = jnp.where(jnp.isnan(lower) | self_pair, jnp.inf, jnp.where(lower == 0, _F(0), lower))
-    lower = jnp.moveaxis(lower, 1, -1)  # (evaluated, steps, objects)
+    lower = jnp.moveaxis(lower, 1, -1)  # (num_evaluated, num_steps, num_objects)
     lowest, pick = _lowest_k(lower, k + 1)
     # The candidates' outlines and radii in one gather of rows (one per box and step), not one per value.
     num_objects, num_steps = x.shape
@@ -127,7 +139,9 @@ def _nearest_object_candidates(x, y, length, width, cos_h, sin_h, outlines, radi
     return distance, settled | ~valid[e]
 
 
-def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+def nearest_object_distance(
+    x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int
+) -> Any:
     """Dense `interaction.distance_to_nearest_object` for one sample.
 
     Each (evaluated object, step) evaluates its `NEAREST_OBJECT_CANDIDATES` boxes of lowest bound
@@ -159,7 +173,19 @@ def nearest_object_distance(x, y, length, width, cos_h, sin_h, valid, num_evalua
     return distance.reshape(num_evaluated, num_steps)
 
 
-def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, pair_tail, num_evaluated: int):
+def time_to_collision(
+    x: Any,
+    y: Any,
+    length: Any,
+    width: Any,
+    heading: Any,
+    speed: Any,
+    valid: Any,
+    *,
+    ego_tail: Any,
+    pair_tail: Any,
+    num_evaluated: int,
+) -> Any:
     """Dense `following.time_to_collision` for one sample, object-major: the pairs are
     `(num_evaluated, num_objects, num_steps)`, in the trajectories' own layout (no transposed copy of
     them), with the official kernels' elementwise arithmetic and the same nearest followed object.
@@ -199,9 +225,9 @@ def time_to_collision(x, y, length, width, heading, speed, valid, *, ego_tail, p
     return following.capped_time_to_collision(gap, closing)
 
 
-def _strict_argmin_and_value(values):
-    """`spatial.strict_argmin` along axis 1 of `values` `(rows, n, ...)` and the value it picks, in one
-    reduction: the pairs are never stored, only reduced as they are computed. int32 and float32 `(rows, ...)`."""
+def _strict_argmin_and_value(values: Any) -> Any:
+    """`spatial.strict_argmin` along axis 1 of `values` `(batch, num_values, ...)` and the value it picks, in one
+    reduction: the pairs are never stored, only reduced as they are computed. int32 and float32 `(batch, ...)`."""
     n = values.shape[1]
     index = lax.broadcasted_iota(jnp.int32, values.shape, 1)
     candidates = jnp.where(jnp.isnan(values), _F(np.inf), values)
@@ -215,7 +241,7 @@ def _strict_argmin_and_value(values):
     return jnp.where(below, pick, 0), jnp.where(below, picked, first)
 
 
-def _first_lowest_and_first(a, b):
+def _first_lowest_and_first(a: Any, b: Any) -> Any:
     """`_strict_argmin_and_value`'s combiner: the lower candidate (the lower index on ties) with its value,
     and the lower index with its value (comparisons and selects only: the exact mode keeps it as it is)."""
     take = lax.lt(b[0], a[0]) | (lax.eq(b[0], a[0]) & lax.lt(b[1], a[1]))
@@ -229,7 +255,7 @@ def _first_lowest_and_first(a, b):
     )
 
 
-def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
+def nearest_lane_segment(xy: Any, lane_start: Any, lane_delta: Any, lane_valid: Any) -> Any:
     """Dense `traffic_lights.nearest_lane_segment`: index into the given segments.
 
     Args:
@@ -239,7 +265,7 @@ def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
       int `(num_points,)`.
     """
 
-    def nearest(q):
+    def nearest(q: Any) -> Any:
         d = traffic_lights.lane_measure(q[:, None, :], lane_start[None], lane_delta[None])
         return jnp.argmin(jnp.where(lane_valid[None], d, jnp.inf), axis=-1)
 
@@ -250,7 +276,7 @@ def nearest_lane_segment(xy, lane_start, lane_delta, lane_valid):
 LANE_SEARCH_CHUNK = 64
 
 
-def red_light_violation(xy, valid, m):
+def red_light_violation(xy: Any, valid: Any, m: Any) -> Any:
     """Dense `traffic_lights.red_light_violation` for one scene, without leaving the device.
 
     The lane search runs only on the points that crossed a stopped signal's
@@ -264,7 +290,7 @@ def red_light_violation(xy, valid, m):
       m: padded map arrays: stop_start, stop_delta, stop_point float32
         `(num_steps, num_signals, 2)`, stopping bool `(num_steps, num_signals)`,
         signal_lane_id int `(num_signals,)`; lane_start, lane_delta float32
-        `(num_lane_segments, 2)`, lane_valid bool and lane_id int `(num_lane_segments,)`.
+        `(num_segments, 2)`, lane_valid bool and lane_id int `(num_segments,)`.
     Returns:
       bool `(..., num_objects, num_steps)`.
     """
@@ -276,7 +302,7 @@ def red_light_violation(xy, valid, m):
     return (flat_suspect & on_lane).any(axis=-1).reshape(suspect.shape[:-1])
 
 
-def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
+def on_signal_lane(points: Any, needed: Any, m: Any, chunk: int = LANE_SEARCH_CHUNK) -> Any:
     """Whether each point's nearest lane is each signal's lane: bool `(num_points, num_signals)`, the lane
     searched only for the `needed` points (False elsewhere), `chunk` points per round (`fill_rows`).
 
@@ -285,20 +311,20 @@ def on_signal_lane(points, needed, m, chunk: int = LANE_SEARCH_CHUNK):
       m: the padded map arrays of `red_light_violation`.
     """
 
-    def lane_of(rows):
+    def lane_of(rows: Any) -> Any:
         return m["lane_id"][nearest_lane_segment(points[rows], m["lane_start"], m["lane_delta"], m["lane_valid"])]
 
     lane_of_point = fill_rows(jnp.full(needed.shape, -1, m["lane_id"].dtype), needed, chunk, lane_of)
     return lane_of_point[:, None] == m["signal_lane_id"][None, :]
 
 
-def _nan_spreading_max_last(a):
+def _nan_spreading_max_last(a: Any) -> Any:
     """`xp.nan_spreading_max(a, axis=-1)` as one reduction: the maximum and whether a NaN is met."""
     top, nan = lax.reduce((a, jnp.isnan(a)), (_F(-np.inf), False), _max_and_any, (a.ndim - 1,))
     return jnp.where(nan, _F(np.nan), top)
 
 
-def _max_and_any(a, b):
+def _max_and_any(a: Any, b: Any) -> Any:
     return lax.max(a[0], b[0]), lax.bitwise_or(a[1], b[1])
 
 
@@ -312,13 +338,15 @@ class DenseSearch:
     `red_light_violation`).
     """
 
-    def __init__(self, m: dict):
+    def __init__(self, m: dict) -> None:
         self.m = m
 
-    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+    def nearest_object(
+        self, x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int
+    ) -> Any:
         boxes = (x, y, length, width, cos_h, sin_h, valid)
 
-        def per_sample(sample):
+        def per_sample(sample: Any) -> Any:
             # The sample read in place: mapped over as `lax.map`'s operands, arrays with a scene axis
             # before the samples (under `vmap`) would be copied with that axis moved behind them first.
             x, y, length, width, cos_h, sin_h, valid = (
@@ -328,7 +356,7 @@ class DenseSearch:
 
         return lax.map(per_sample, jnp.arange(x.shape[0]))
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs):
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
         i = inputs
         # The tails (official shapes, step-major) object-major as the pairs: one scene's, not per sample.
         per_sample = functools.partial(
@@ -340,7 +368,9 @@ class DenseSearch:
         at = lambda a: a[..., i.steps]  # noqa: E731
         return jax.vmap(per_sample)(*map(at, (i.x, i.y, i.length, i.width, i.heading, i.speed, i.valid)))
 
-    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+    def road_edge_distance(
+        self, x: Any, y: Any, bottom: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any
+    ) -> Any:
         corners = box_geometry.box_bottom_corners(x, y, bottom, length, width, cos_h, sin_h)
         needed = jnp.broadcast_to(valid[..., None], corners.shape[:-1]).reshape(-1)
         edge = signed_distance_to_road_edge(corners.reshape(-1, 3), self.m, needed)
@@ -349,5 +379,5 @@ class DenseSearch:
         edge = nan_spreading_max(edge, axis=-1) if in_differentiable(jnp) else _nan_spreading_max_last(edge)
         return jnp.where(valid, edge, -road_edge.EXTREMELY_LARGE_DISTANCE)
 
-    def red_light_violation(self, x, y, valid):
+    def red_light_violation(self, x: Any, y: Any, valid: Any) -> Any:
         return red_light_violation(jnp.stack([x, y], axis=-1), valid, self.m)

@@ -3,6 +3,8 @@ and the few rows a cheaper pass left unsettled filled in a `while_loop` (`fill_r
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 from jax import lax
@@ -11,7 +13,7 @@ from jax import lax
 PAIRS_PER_CHUNK = 1 << 22
 
 
-def chunked(fn, xs, chunk: int):
+def chunked(fn: Any, xs: Any, chunk: int) -> Any:
     """`fn` over the leading axis of the arrays `xs`, `chunk` rows at a time (via `lax.map`)."""
     n = jax.tree_util.tree_leaves(xs)[0].shape[0]
     if n <= chunk:
@@ -25,7 +27,7 @@ def chunked(fn, xs, chunk: int):
     return jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[2:])[:n], out)
 
 
-def xyz_columns(xyz):
+def xyz_columns(xyz: Any) -> Any:
     """x, y, z of float32 `(..., 3)`."""
     return xyz[..., 0], xyz[..., 1], xyz[..., 2]
 
@@ -34,14 +36,15 @@ def rows_per_chunk(columns: int) -> int:
     return max(1, PAIRS_PER_CHUNK // max(1, columns))
 
 
-def fill_rows(out, which, chunk: int, compute):
+def fill_rows(out: Any, which: Any, chunk: int, compute: Any) -> Any:
     """`out` with the rows where `which` is True replaced by `compute(rows)`, `chunk` rows per round.
 
     The rows are compacted to the front and computed in a `while_loop`, so the work follows their
     number (small: the rest was settled by cheaper means), not the array's length.
 
     Args:
-      out: `(n,)` array; which: bool `(n,)`; compute: int32 `(chunk,)` row indices -> `(chunk,)` values.
+      out: `(num_values,)` array; which: bool `(num_values,)`; compute: int32 `(batch,)` row indices ->
+        `(batch,)` values.
     """
     n = which.shape[0]
     chunk = min(chunk, max(1, n))
@@ -50,7 +53,7 @@ def fill_rows(out, which, chunk: int, compute):
     place = jnp.cumsum(which, dtype=jnp.int32)
     count = place[-1] if n else jnp.zeros((), jnp.int32)
 
-    def round_(carry):
+    def round_(carry: Any) -> Any:
         done, out = carry
         ranks = done + jnp.arange(1, chunk + 1, dtype=jnp.int32)
         real = ranks <= count

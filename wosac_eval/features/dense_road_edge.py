@@ -9,6 +9,8 @@ against the cell's whole list, the rare ones left against everything, in `while_
 
 from __future__ import annotations
 
+from typing import Any
+
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
@@ -32,7 +34,7 @@ SHARED_SEGMENT_ARRAYS = ("start", "delta", "valid")
 SEGMENT_OFFSET = "segment_offset"
 
 
-def _nearest_segment_all(q, s):
+def _nearest_segment_all(q: Any, s: Any) -> Any:
     """Index of the nearest valid segment (stretched selection distance, lowest index on ties)."""
     d3 = road_edge.segment_distances(
         *xyz_columns(q[:, None, :]), *xyz_columns(s["start"][None]), *xyz_columns(s["delta"][None])
@@ -40,7 +42,7 @@ def _nearest_segment_all(q, s):
     return jnp.argmin(jnp.where(s["valid"][None], d3, jnp.inf), axis=-1)
 
 
-def _query_cells(q, cells):
+def _query_cells(q: Any, cells: Any) -> Any:
     """(grid row of each query's cell, whether the query is on the grid): int32 and bool `(num_points,)`."""
     side = _F(road_edge.CELL_SIDE)
     cell = jnp.floor((q[:, :2] - cells["cell_origin"]) / side)  # a power of two: exact
@@ -49,7 +51,7 @@ def _query_cells(q, cells):
     return cell[:, 0] * cells["cell_shape"][1] + cell[:, 1], inside
 
 
-def _nearest_listed_segment(q, s, cells):
+def _nearest_listed_segment(q: Any, s: Any, cells: Any) -> Any:
     """(nearest segment among the query cell's listed ones, whether it is the nearest of all).
 
     Settled when the query is on the grid and nearer to it than the cell's clearance
@@ -59,8 +61,8 @@ def _nearest_listed_segment(q, s, cells):
     return _nearest_of(q, s, cells["cell_candidates"][row], inside, cells["cell_clearance"][row])
 
 
-def _nearest_of(q, s, index, inside, clearance):
-    """(nearest of the segments `index` int `(num_points, k)` to each point, the lowest index on ties;
+def _nearest_of(q: Any, s: Any, index: Any, inside: Any, clearance: Any) -> Any:
+    """(nearest of the segments `index` int `(num_points, num_candidates)` to each point, the lowest index on ties;
     whether it is on the grid (`inside`) and nearer than `clearance` float32 `(num_points,)`)."""
     table, offset = _gathered_segments(s)
     index = index + offset
@@ -75,7 +77,7 @@ def _nearest_of(q, s, index, inside, clearance):
     return jnp.where(best == big, 0, best - offset), settled
 
 
-def _gathered_segments(s):
+def _gathered_segments(s: Any) -> Any:
     """(the start, delta and valid arrays the candidate lists gather from, the offset of this scene's
     segments in them): the scene set's shared tables (`shared_segments`) where given, else its own."""
     if SEGMENT_OFFSET in s:
@@ -100,7 +102,7 @@ def shared_segments(maps: dict) -> tuple[dict, dict]:
     return {**maps, **shared, SEGMENT_OFFSET: offsets}, axes
 
 
-def _nearer(a, b):
+def _nearer(a: Any, b: Any) -> Any:
     """The nearer of two (distance, segment index) pairs, the lower index on ties, NaN winning: the NaN
     minimum of the distances and the lowest index at it, as one reduction (no (points x k) array)."""
     # lax operations only: the exact mode keeps a combiner of comparisons and selects as it is.
@@ -108,7 +110,7 @@ def _nearer(a, b):
     return lax.select(take, b[0], a[0]), lax.select(take, b[1], a[1])
 
 
-def _nearest_near_segment(q, s, cells):
+def _nearest_near_segment(q: Any, s: Any, cells: Any) -> Any:
     """`_nearest_listed_segment` among the first `road_edge.CELL_NEAR_CANDIDATES` listed segments, settled
     by their clearance (`cell_near_clearance`)."""
     row, inside = _query_cells(q, cells)
@@ -116,7 +118,7 @@ def _nearest_near_segment(q, s, cells):
     return _nearest_of(q, s, index, inside, cells["cell_near_clearance"][row])
 
 
-def _nearest_segment(queries, s, cells, needed):
+def _nearest_segment(queries: Any, s: Any, cells: Any, needed: Any) -> Any:
     """Index of the nearest valid road-edge segment of each needed query, as the all-pairs search picks it.
 
     Queries the first `road_edge.CELL_NEAR_CANDIDATES` segments of their cell settle (most) cost that
@@ -131,7 +133,7 @@ def _nearest_segment(queries, s, cells, needed):
         rows_per_chunk(min(road_edge.CELL_NEAR_CANDIDATES, cells["cell_candidates"].shape[-1])),
     )
 
-    def whole_list(rows):  # -1: not settled by the whole list either
+    def whole_list(rows: Any) -> Any:  # -1: not settled by the whole list either
         listed, listed_settled = _nearest_listed_segment(queries[rows], s, cells)
         return jnp.where(listed_settled, listed, -1)
 
@@ -139,7 +141,7 @@ def _nearest_segment(queries, s, cells, needed):
     return fill_rows(best, needed & (best < 0), FALLBACK_CHUNK, lambda rows: _nearest_segment_all(queries[rows], s))
 
 
-def signed_distance_to_road_edge(queries, segments, needed=None):
+def signed_distance_to_road_edge(queries: Any, segments: Any, needed: Any = None) -> Any:
     """`road_edge.signed_distance_to_polylines` with fixed shapes (bit-identical on CPU).
 
     Args:

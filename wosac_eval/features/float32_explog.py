@@ -27,6 +27,8 @@ mode); inside `xp.float32_precision()` the library functions are the device's ow
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features.float32_sums import PACKET, flushed_to_zero
@@ -123,12 +125,12 @@ _EXPF_OVERFLOW = _F(float.fromhex("0x1.62e42ep6"))
 _EXPF_UNDERFLOW = _F(-float.fromhex("0x1.9fe368p6"))
 
 
-def _plain(xp) -> bool:
+def _plain(xp: Any) -> bool:
     """True where the device's own float32 `log`/`exp` stand in for the C library's (see the module)."""
     return in_differentiable(xp) or in_float32_precision(xp)
 
 
-def libm_logf(x):
+def libm_logf(x: Any) -> Any:
     """glibc's `logf` of float32 values (numpy or JAX), bit for bit."""
     xp = array_namespace(x)
     x = flushed_to_zero(xp.asarray(x, _F), xp)
@@ -153,7 +155,7 @@ def libm_logf(x):
     return xp.where(x == _F(1), _F(0), out)
 
 
-def libm_expf(x):
+def libm_expf(x: Any) -> Any:
     """glibc's `expf` of float32 values (numpy or JAX), bit for bit."""
     xp = array_namespace(x)
     x = flushed_to_zero(xp.asarray(x, _F), xp)
@@ -174,7 +176,7 @@ def libm_expf(x):
     return xp.where(xp.isnan(x), x, out)
 
 
-def _ldexp32(y, m, xp):
+def _ldexp32(y: Any, m: Any, xp: Any) -> Any:
     """Eigen's `pldexp`: y * 2**m in four float32 products (no overflow on the way), m clamped to +-278."""
     e = xp.clip(m, _F(-278), _F(278)).astype(np.int32)
     b = e >> 2
@@ -183,7 +185,7 @@ def _ldexp32(y, m, xp):
     return out * bitcast((e - 3 * b + 127) << 23, _F, xp)
 
 
-def packet_exp32(x):
+def packet_exp32(x: Any) -> Any:
     """Eigen's packet `exp` of float32 values (numpy or JAX)."""
     xp = array_namespace(x)
     x = flushed_to_zero(xp.asarray(x, _F), xp)
@@ -204,7 +206,7 @@ def packet_exp32(x):
     return xp.where(x < _F(-104), _F(0), out)
 
 
-def packet_log32(x):
+def packet_log32(x: Any) -> Any:
     """Eigen's packet `log` of float32 values (numpy or JAX)."""
     xp = array_namespace(x)
     x = flushed_to_zero(xp.asarray(x, _F), xp)
@@ -230,7 +232,7 @@ def packet_log32(x):
     return xp.where(x == 0, _F(-np.inf), out)
 
 
-def tensor_log32(x, count=None):
+def tensor_log32(x: Any, count: int | None = None) -> Any:
     """The official `tf.math.log` of a float32 tensor, element by element (numpy or JAX).
 
     The op runs packets over the flattened tensor and the C library on its trailing values.
@@ -251,18 +253,18 @@ def tensors_log32(tensors: list, counts: list) -> list:
     return _by_packets(tensors, counts, packet_log32, libm_logf)
 
 
-def tensor_exp32(x, count=None):
+def tensor_exp32(x: Any, count: int | None = None) -> Any:
     """The official `tf.exp` of a float32 tensor, element by element (as `tensor_log32`); a lone
     scalar is the C library's `expf`."""
     return _by_packets([x], [count], packet_exp32, libm_expf)[0]
 
 
-def row_exp32(x):
+def row_exp32(x: Any) -> Any:
     """exp of each row as the official reductions of `exp(x)` along the last axis see it: whole
     packets of the row by Eigen's `pexp`, its trailing values by `expf` (numpy or JAX).
 
     Args:
-      x: float32 `(..., n)`.
+      x: float32 `(..., num_values)`.
     """
     xp = array_namespace(x)
     x = xp.asarray(x, _F)
@@ -273,7 +275,7 @@ def row_exp32(x):
     return xp.where(in_packet, packet_exp32(x), libm_expf(x))
 
 
-def _by_packets(tensors: list, counts: list, packet, libm) -> list:
+def _by_packets(tensors: list, counts: list, packet: Any, libm: Any) -> list:
     """Each tensor's values by `packet`, but its official tensor's trailing `size % PACKET` by `libm`."""
     xp = array_namespace(*tensors, *counts)
     flats = [xp.asarray(t, _F).reshape(-1) for t in tensors]

@@ -21,6 +21,8 @@ marks those elements for a given official tensor shape.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features import ops
@@ -54,7 +56,7 @@ _HUGE = {True: 25966.0, False: 18838.0}
 HUGE_SIN, HUGE_COS = _F(_HUGE[True]), _F(_HUGE[False])
 
 
-def packet_sincos(x):
+def packet_sincos(x: Any) -> Any:
     """(sin, cos) of float32 values by Eigen's packet algorithm, one shared reduction (an `ops` kernel).
 
     The quadrant is the integer the rounding trick leaves in y; its low two bits decide which
@@ -83,7 +85,7 @@ def packet_sincos(x):
     return ops.where(sin_negative, -sin_out, sin_out), ops.where(cos_negative, -cos_out, cos_out)
 
 
-def _packet_sincos(x):
+def _packet_sincos(x: Any) -> Any:
     """`packet_sincos` of an array, with the correctly rounded value where the packet code takes its
     slow exact reduction (huge finite values)."""
     xp = array_namespace(x)
@@ -101,12 +103,12 @@ def _packet_sincos(x):
     return tuple(out)
 
 
-def _libm(x, sine: bool):
+def _libm(x: Any, sine: bool) -> Any:
     xp = array_namespace(x)
     return (xp.sin if sine else xp.cos)(xp.asarray(x, wide_float(xp))).astype(_F)
 
 
-def packet_tail(shape) -> np.ndarray:
+def packet_tail(shape: Any) -> np.ndarray:
     """Mask of the elements an official op of this shape evaluates with libm.
 
     Args:
@@ -120,7 +122,7 @@ def packet_tail(shape) -> np.ndarray:
     return mask.reshape(shape)
 
 
-def sincos32(x: np.ndarray, libm_mask: np.ndarray | None = None):
+def sincos32(x: np.ndarray, libm_mask: np.ndarray | None = None) -> Any:
     """(sin, cos) of float32 values, rounded as the official evaluator rounds them.
 
     Args:

@@ -18,6 +18,8 @@ TensorFlow's threads run with the CPU's denormals-are-zero mode: a subnormal val
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features.xp import array_namespace, divide, errstate, is_numpy, opaque
@@ -29,7 +31,7 @@ _BLOCK = 4 * PACKET  # four accumulators
 LEAF = PACKET * 1024  # longer rows are reduced as a tree of halves
 
 
-def eigen_sum32(values, count=None):
+def eigen_sum32(values: Any, count: int | None = None) -> Any:
     """Each row's float32 sum in the order of the official `tf.reduce_sum` of that row.
 
     Each row is summed as a tensor of its own (a full reduction, or `reduce_sum(x, axis=-1)` of
@@ -54,13 +56,13 @@ def eigen_sum32(values, count=None):
     return _tree_traced(values, count, n, xp)
 
 
-def flushed_to_zero(x, xp):
+def flushed_to_zero(x: Any, xp: Any) -> Any:
     """`x` with its subnormal values as zero of the same sign: TensorFlow's flush-to-zero and
     denormals-are-zero modes, for an operand or a result."""
     return xp.where(xp.abs(x) < TINY, x * _F(0), x)
 
 
-def eigen_mean32(values, count=None):
+def eigen_mean32(values: Any, count: int | None = None) -> Any:
     """The official `tf.reduce_mean` of each row: `eigen_sum32` divided by the number of values.
 
     TensorFlow's mean is the sum divided by the count as a float32 (`count`: as for
@@ -73,7 +75,7 @@ def eigen_mean32(values, count=None):
         return divide(eigen_sum32(values, count), xp.asarray(n).astype(_F))
 
 
-def _ceil_div(a, b):
+def _ceil_div(a: Any, b: Any) -> Any:
     """a / b rounded up, for ints and traced integers."""
     return -(-a // b)
 
@@ -87,11 +89,11 @@ def _tree_numpy(values: np.ndarray) -> np.ndarray:
     return (_F(0) + _tree_numpy(values[..., :split])) + _tree_numpy(values[..., split:])
 
 
-def packet_sum32(values):
+def packet_sum32(values: Any) -> Any:
     """One leaf of the official reduction (rows of up to `LEAF` values, all real), numpy or JAX.
 
     Args:
-      values: float32 `(..., n)`.
+      values: float32 `(..., num_values)`.
     Returns:
       float32 `(...)`.
     """
@@ -117,13 +119,13 @@ def packet_sum32(values):
     return tail + _horizontal_sum(acc)
 
 
-def _horizontal_sum(acc):
+def _horizontal_sum(acc: Any) -> Any:
     """Eigen's `predux` of an AVX packet: the two 128-bit halves added, then ((h0+h2) + (h1+h3))."""
     halves = acc[..., :4] + acc[..., 4:]
     return (halves[..., 0] + halves[..., 2]) + (halves[..., 1] + halves[..., 3])
 
 
-def _tree_traced(values, count, n: int, xp):
+def _tree_traced(values: Any, count: int, n: int, xp: Any) -> Any:
     """`_tree_numpy` for a traced count: both shapes of the tree computed, the one `count` needs kept."""
     if n <= LEAF:
         return _leaf_traced(values, count, xp)
@@ -136,7 +138,7 @@ def _tree_traced(values, count, n: int, xp):
     return xp.where(count > LEAF, (_F(0) + left) + right, whole)
 
 
-def _shifted(values, start, xp):
+def _shifted(values: Any, start: Any, xp: Any) -> Any:
     """`values[..., start:]`, zero-padded to `values`' length, for a traced `start`."""
     from jax import lax  # JAX is imported only by its callers (the numpy path never reaches here)
 
@@ -145,7 +147,7 @@ def _shifted(values, start, xp):
     return lax.dynamic_slice_in_dim(padded, start, n, axis=-1)
 
 
-def _leaf_traced(values, count, xp):
+def _leaf_traced(values: Any, count: int, xp: Any) -> Any:
     """`packet_sum32` of each row's first `count` values, for a traced `count` (up to `LEAF`)."""
     from jax import lax  # see `_shifted`
 
@@ -158,7 +160,7 @@ def _leaf_traced(values, count, xp):
     in_blocks = xp.where(index < blocked, padded, _F(0))
     blocks = xp.moveaxis(in_blocks.reshape(values.shape[:-1] + (size // _BLOCK, 4, PACKET)), -3, 0)
 
-    def add_block(lanes, block):
+    def add_block(lanes: Any, block: Any) -> Any:
         return lanes + block, None
 
     # A scan keeps the blocks' order: a reduction would let XLA reassociate the sums.
@@ -175,7 +177,7 @@ def _leaf_traced(values, count, xp):
     return tail + _horizontal_sum(acc)
 
 
-def split_sum32(values, axis=-1):
+def split_sum32(values: Any, axis: int = -1) -> Any:
     """Float32 sum along `axis`, as if summed exactly and rounded (nearly always), in any order.
 
     Each value is split at a power-of-two scale above the row's total magnitude: the high parts
@@ -185,7 +187,7 @@ def split_sum32(values, axis=-1):
     precision, instead of a float64 sum.
 
     Args:
-      values: float32 `(..., n, ...)` (numpy or JAX), finite values for an accurate result.
+      values: float32 `(..., num_values, ...)` (numpy or JAX), finite values for an accurate result.
     Returns:
       float32, `values` without `axis`.
     """

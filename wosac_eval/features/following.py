@@ -31,7 +31,18 @@ SMALL_OVERLAP_THRESHOLD = _F(0.5)
 MAXIMUM_TIME_TO_COLLISION = _F(5.0)
 
 
-def frame_offsets(x, y, x_ego, y_ego, ego_cos, ego_sin, ego_length, ego_width, heading, heading_ego):
+def frame_offsets(
+    x: Any,
+    y: Any,
+    x_ego: Any,
+    y_ego: Any,
+    ego_cos: Any,
+    ego_sin: Any,
+    ego_length: Any,
+    ego_width: Any,
+    heading: Any,
+    heading_ego: Any,
+) -> Any:
     """Where an object lies in an evaluated object's frame (an `ops` kernel, per pair).
 
     Args: float32 `(...)`; `ego_cos`, `ego_sin` of minus the evaluated object's heading.
@@ -45,7 +56,9 @@ def frame_offsets(x, y, x_ego, y_ego, ego_cos, ego_sin, ego_length, ego_width, h
     return (rel_x - ego_length / _F(2), ops.absolute(rel_y) - ego_width / _F(2), ops.absolute(heading - heading_ego))
 
 
-def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evaluated: int):
+def ego_frame_offsets(
+    x: Any, y: Any, length: Any, width: Any, heading: Any, ego_cos: Any, ego_sin: Any, num_evaluated: int
+) -> Any:
     """`frame_offsets` of every object in each evaluated object's frame.
 
     Args:
@@ -70,7 +83,15 @@ def ego_frame_offsets(x, y, length, width, heading, ego_cos, ego_sin, num_evalua
     )
 
 
-def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other_length, other_width):
+def following_gap(
+    ahead_of_front: Any,
+    beside_path: Any,
+    yaw_diff: Any,
+    yaw_cos: Any,
+    yaw_sin: Any,
+    other_length: Any,
+    other_width: Any,
+) -> Any:
     """Longitudinal gap to the other box and whether it is being followed (an `ops` kernel).
 
     Args: float32 `(...)` per (evaluated, other) pair; `yaw_cos`, `yaw_sin` of
@@ -91,14 +112,14 @@ def following_gap(ahead_of_front, beside_path, yaw_diff, yaw_cos, yaw_sin, other
     return long_distance, following
 
 
-def capped_time_to_collision(gap, closing):
+def capped_time_to_collision(gap: Any, closing: Any) -> Any:
     """gap / closing speed, capped at 5 s; 5 s when not closing in (an `ops` kernel). float32 `(...)`."""
     return ops.where(
         closing > _F(0), ops.minimum(ops.divide(gap, closing), MAXIMUM_TIME_TO_COLLISION), MAXIMUM_TIME_TO_COLLISION
     )
 
 
-def time_to_collision(inputs: TimeToCollisionInputs):
+def time_to_collision(inputs: TimeToCollisionInputs) -> Any:
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned
@@ -143,8 +164,8 @@ def time_to_collision(inputs: TimeToCollisionInputs):
 
 def _completed(inputs: TimeToCollisionInputs) -> TimeToCollisionInputs:
     """`inputs` with the speeds and the tails computed where not given, the arrays contiguous
-    `(batch, num_objects, num_steps)` (any leading axes flattened), the tails `(steps, num_evaluated)`
-    and `(steps, num_evaluated, num_objects)`, and the steps a range of step indices."""
+    `(batch, num_objects, num_steps)` (any leading axes flattened), the tails `(num_steps, num_evaluated)`
+    and `(num_steps, num_evaluated, num_objects)`, and the steps a range of step indices."""
     i = inputs
     num_objects, num_steps = i.x.shape[-2:]
     speed = i.speed
@@ -176,7 +197,7 @@ def _completed(inputs: TimeToCollisionInputs) -> TimeToCollisionInputs:
 
 def _search_irregular_steps(i: TimeToCollisionInputs, ttc: np.ndarray) -> None:
     """The steps where a box is NaN, infinite or huge (valid or not) or a speed is infinite, searched
-    over all objects as officially, into `ttc` `(batch, num_evaluated, steps)`: the pruned search
+    over all objects as officially, into `ttc` `(batch, num_evaluated, num_steps)`: the pruned search
     would skip their gaps of -inf and NaN, and a closing speed of +inf gives 0 s even where nothing is
     followed. A NaN speed needs no such step (the first and last steps of every track have one): any
     closing speed with it is NaN, hence the cap, in both searches alike. `i`: `_completed` inputs."""
@@ -209,7 +230,7 @@ _packet_sincos = compiled(packet_sincos)
 
 
 @numba.njit
-def _sincos32(x, libm):
+def _sincos32(x: Any, libm: Any) -> Any:
     """`float32_math.sincos32` of one value; `libm`: it is in the official op's trailing packet."""
     sin, cos = _packet_sincos(x)
     huge_finite = math.isfinite(x) and abs(x) >= HUGE_COS
@@ -222,17 +243,29 @@ def _sincos32(x, libm):
 
 @cached_loop
 def _followed_search(
-    x, y, length, width, heading, speed, valid, reach, ego_tail, pair_tail, first, num_reported, num_evaluated
-):
+    x: Any,
+    y: Any,
+    length: Any,
+    width: Any,
+    heading: Any,
+    speed: Any,
+    valid: Any,
+    reach: Any,
+    ego_tail: Any,
+    pair_tail: Any,
+    first: Any,
+    num_reported: Any,
+    num_evaluated: Any,
+) -> Any:
     """Time to collision with the nearest followed object, at `num_reported` steps from `first` (compiled).
 
     Args:
       x, y, length, width, heading, speed, reach: float32 `(batch, num_objects, num_steps)`;
         valid bool, the same.
-      ego_tail: bool `(steps, num_evaluated)`, pair_tail bool `(steps, num_evaluated, num_objects)`:
+      ego_tail: bool `(num_steps, num_evaluated)`, pair_tail bool `(num_steps, num_evaluated, num_objects)`:
         the official ops' trailing packets.
     Returns:
-      float32 `(batch, num_evaluated, steps)`.
+      float32 `(batch, num_evaluated, num_steps)`.
     """
     batch, num_objects, num_steps = x.shape
     out = np.full((batch, num_evaluated, num_reported), MAXIMUM_TIME_TO_COLLISION, np.float32)
@@ -303,7 +336,7 @@ class FollowedPairs(NamedTuple):
     valid: Any
 
 
-def followed_gaps(pairs: FollowedPairs):
+def followed_gaps(pairs: FollowedPairs) -> Any:
     """The gap to each other object, 1e10 more where it is not followed: float32, the pairs' shape `(...)`.
 
     Elementwise (numpy or JAX, pairs in any layout). Pairs not followed are pushed 1e10 away, not
@@ -320,7 +353,7 @@ def followed_gaps(pairs: FollowedPairs):
         return long_distance + xp.where(followed, _F(0), EXTREMELY_LARGE_DISTANCE)
 
 
-def all_objects_time_to_collision(pairs: FollowedPairs, speed, num_evaluated: int):
+def all_objects_time_to_collision(pairs: FollowedPairs, speed: Any, num_evaluated: int) -> Any:
     """The official computation over every object (numpy or JAX): the JAX kernel, and numpy's
     steps with non-finite or huge values, where the pruned search would skip -inf and NaN gaps.
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+from typing import Any
 
 import numba
 import numpy as np
@@ -27,7 +28,7 @@ _ROUNDING = contextvars.ContextVar("wosac_eval_corner_rounding", default=CORNER_
 
 
 @contextlib.contextmanager
-def corner_rounding(factor: float):
+def corner_rounding(factor: float) -> Any:
     """Boxes' corners rounded by `factor` (0: sharp rectangles, 1: capsules) instead of 0.7 inside this block.
 
     The official `compute_distance_to_nearest_object` takes the factor as an argument; the metrics use
@@ -43,17 +44,17 @@ def corner_rounding(factor: float):
         _ROUNDING.reset(token)
 
 
-def corner_radius(length, width):
+def corner_radius(length: Any, width: Any) -> Any:
     """Radius of the rounded corners: `0.7 * min(length, width) / 2` (0.7: or `corner_rounding`'s), float32 `(...)`."""
     return array_namespace(length, width).minimum(length, width) * _F(_ROUNDING.get()) / _F(2)
 
 
-def box_outlines(x, y, core_length, core_width, cos_h, sin_h):
+def box_outlines(x: Any, y: Any, core_length: Any, core_width: Any, cos_h: Any, sin_h: Any) -> Any:
     """`box_geometry.box_outline` of rounded boxes' cores, computed once per box (an `ops` kernel)."""
     return box_outline(x, y, core_length, core_width, cos_h, sin_h)
 
 
-def outline_distance(a, b, radius_a, radius_b):
+def outline_distance(a: Any, b: Any, radius_a: Any, radius_b: Any) -> Any:
     """Signed distance between rounded boxes from their cores' outlines and corner radii (an `ops` kernel).
 
     A box of zero size (a logged placeholder state, scored as is in scenario
@@ -62,7 +63,7 @@ def outline_distance(a, b, radius_a, radius_b):
     return (octagon_signed_distance(minkowski_vertices(a, b)) - radius_a) - radius_b
 
 
-def rounded_box_distance(a, b):
+def rounded_box_distance(a: Any, b: Any) -> Any:
     """Signed distance between rounded boxes given as (x, y, core_length, core_width, cos, sin, radius).
 
     Args:
@@ -76,21 +77,21 @@ def rounded_box_distance(a, b):
 
 
 def box_pair_distance(
-    x_a,
-    y_a,
-    core_length_a,
-    core_width_a,
-    cos_a,
-    sin_a,
-    radius_a,
-    x_b,
-    y_b,
-    core_length_b,
-    core_width_b,
-    cos_b,
-    sin_b,
-    radius_b,
-):
+    x_a: Any,
+    y_a: Any,
+    core_length_a: Any,
+    core_width_a: Any,
+    cos_a: Any,
+    sin_a: Any,
+    radius_a: Any,
+    x_b: Any,
+    y_b: Any,
+    core_length_b: Any,
+    core_width_b: Any,
+    cos_b: Any,
+    sin_b: Any,
+    radius_b: Any,
+) -> Any:
     """`rounded_box_distance` of boxes given value by value (an `ops` kernel over pairs)."""
     return rounded_box_distance(
         (x_a, y_a, core_length_a, core_width_a, cos_a, sin_a, radius_a),
@@ -106,7 +107,7 @@ _box_pair_distance_inline = compiled(box_pair_distance, True)
 
 
 @numba.njit
-def _bounds_of_step(step_x, step_y, step_reach, e, lower):
+def _bounds_of_step(step_x: Any, step_y: Any, step_reach: Any, e: Any, lower: Any) -> None:
     """Lower bounds of the distance from box e to each box of one step (`lower`, in place): centre
     distance less both bounding radii, with float32 margins; +inf for e itself and unsearched boxes.
     A NaN bound is +inf and -0 is +0 (neither changes what the bounds select, see `_lowest`)."""
@@ -122,7 +123,7 @@ _INF_BITS, _FLIP = np.int32(0x7F800000), np.int32(0x7FFFFFFF)
 
 
 @numba.njit
-def _lowest(lower):
+def _lowest(lower: Any) -> Any:
     """The first index of the lowest of `lower` (from `_bounds_of_step`: no NaN, no -0), -1 if none is
     below +inf: what a scan keeping the first strict minimum picks. The lowest is found by an integer
     minimum over the values' bits, ordered as the floats (negative ones flipped), which the compiler
@@ -141,8 +142,11 @@ def _lowest(lower):
     return -1
 
 
+# fmt: off
+# (to `fmt: on`: the loop's ten parameters on two lines; one a line would take it past the 80-line cap)
 @cached_loop
-def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, reach, apart, num_evaluated):
+def _nearest_object_search(x: Any, y: Any, core_length: Any, core_width: Any, cos_h: Any, sin_h: Any, radius: Any,
+                           reach: Any, apart: Any, num_evaluated: int) -> Any:
     """The nearest valid other box of each evaluated box, over the boxes not set `apart`.
 
     The distance between two rounded boxes is at least the distance between
@@ -220,6 +224,7 @@ def _nearest_object_search(x, y, core_length, core_width, cos_h, sin_h, radius, 
                         d = d if (d < pair) | (d != d) else pair  # numpy's minimum: NaN passes on
                 out[b, e, t] = d
     return out, evaluated
+# fmt: on
 
 
 BOUND_SCALE, BOUND_MARGIN = _F(1 - 1e-5), _F(1e-3)  # the centre distance's float32 rounding, with margin
@@ -230,13 +235,13 @@ BOUND_SCALE, BOUND_MARGIN = _F(1 - 1e-5), _F(1e-3)  # the centre distance's floa
 PAIRS_PER_CHUNK = 1 << 21
 
 
-def _sample_chunks(num_samples: int, pairs_per_sample: int):
+def _sample_chunks(num_samples: int, pairs_per_sample: int) -> Any:
     """Slices of the samples axis holding at most `PAIRS_PER_CHUNK` pairs (at least one sample)."""
     step = max(1, PAIRS_PER_CHUNK // max(1, pairs_per_sample))
     return [slice(i, i + step) for i in range(0, max(num_samples, 1), step)]
 
 
-def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
+def _by_samples(fn: Any, arrays: Any, num_evaluated: int, **kwargs: Any) -> Any:
     """Runs `fn` over chunks of the flattened leading (samples) axes and joins the results."""
     lead, (num_objects, num_steps) = arrays[0].shape[:-2], arrays[0].shape[-2:]
     flat = [np.reshape(a, (-1,) + a.shape[-2:]) for a in arrays]
@@ -249,8 +254,16 @@ def _by_samples(fn, arrays, num_evaluated: int, **kwargs):
 
 
 def distance_to_nearest_object(
-    x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, counts: dict | None = None
-):
+    x: Any,
+    y: Any,
+    length: Any,
+    width: Any,
+    cos_h: Any,
+    sin_h: Any,
+    valid: Any,
+    num_evaluated: int,
+    counts: dict | None = None,
+) -> Any:
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of
@@ -276,7 +289,9 @@ def distance_to_nearest_object(
     return out
 
 
-def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluated: int, work: dict):
+def _nearest_object_chunk(
+    x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int, work: dict
+) -> Any:
     e = num_evaluated
     radius = corner_radius(length, width)
     reach = bounding_reach(length, width, valid)
@@ -300,7 +315,7 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
         pair = (exhaustive[:, :e, None] | exhaustive[:, None]) & valid[:, :e, None] & valid[:, None]
         ub, ue, uo, us = nonzero(pair)
 
-        def box(i):
+        def box(i: Any) -> Any:
             return (
                 x[ub, i, us],
                 y[ub, i, us],
@@ -318,7 +333,7 @@ def _nearest_object_chunk(x, y, length, width, cos_h, sin_h, valid, num_evaluate
     return distance
 
 
-def bounding_reach(length, width, valid):
+def bounding_reach(length: Any, width: Any, valid: Any) -> Any:
     """The bounding radius of each valid box (half its diagonal), -inf for an invalid one: float32 `(...)`.
 
     The nearest-object bound of a pair is their centres' distance less both reaches
@@ -328,7 +343,7 @@ def bounding_reach(length, width, valid):
     return xp.where(valid, _F(0.5) * xp.hypot(length, width), _F(-np.inf)).astype(_F)
 
 
-def exhaustive_boxes(x, y, length, width, cos_h, sin_h):
+def exhaustive_boxes(x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any) -> Any:
     """Boxes whose valid pairs the nearest-object search evaluates all, the self pair too: bool `(...)`.
 
     A box with a NaN, an infinity or a huge value (`unbounded_boxes`) has no usable bound, and its
@@ -344,7 +359,7 @@ def exhaustive_boxes(x, y, length, width, cos_h, sin_h):
 BOUNDED_MAGNITUDE = _F(1e6)
 
 
-def unbounded_boxes(*values):
+def unbounded_boxes(*values: Any) -> Any:
     """Boxes with a value that is NaN, infinite or beyond `BOUNDED_MAGNITUDE`: bool, the values' shape `(...)`.
 
     The pruned searches skip pairs by bounds that only hold for finite,

@@ -6,6 +6,8 @@ take numpy or JAX arrays.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features.xp import array_namespace, divide, rounded_square, sqrt
@@ -62,7 +64,7 @@ def linear_speed(x: np.ndarray, y: np.ndarray, z: np.ndarray, seconds_per_step: 
     return divide(sqrt(squares[0] + squares[1] + squares[2], xp), _F(seconds_per_step))
 
 
-def kinematic_features(x, y, z, heading, seconds_per_step: float):
+def kinematic_features(x: Any, y: Any, z: Any, heading: Any, seconds_per_step: float) -> Any:
     """Linear speed, linear acceleration, angular speed, angular acceleration.
 
     Args:
@@ -84,7 +86,7 @@ def kinematic_features(x, y, z, heading, seconds_per_step: float):
     return speed, acceleration, angular_speed, angular_acceleration
 
 
-def kinematic_validity(valid: np.ndarray):
+def kinematic_validity(valid: np.ndarray) -> Any:
     """Validity of speeds (one central step) and accelerations (two steps).
 
     Args:
@@ -96,7 +98,7 @@ def kinematic_validity(valid: np.ndarray):
     return speed_valid, central_and(speed_valid)
 
 
-def displacement_error(x, y, z, ref_x, ref_y, ref_z):
+def displacement_error(x: Any, y: Any, z: Any, ref_x: Any, ref_y: Any, ref_z: Any) -> Any:
     """3D distance between positions and reference positions, float32 (the operands' broadcast shape `(...)`).
 
     Each square is rounded before the sum, as officially (the norm of the stacked differences).

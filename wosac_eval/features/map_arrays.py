@@ -8,6 +8,8 @@ is padded.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features import road_edge, traffic_lights
@@ -21,7 +23,7 @@ def segment_table_arrays(table: road_edge.SegmentTable, cells: bool = True) -> d
     return {**_segments(table), **_cells(table, cells)}
 
 
-def road_edge_segments(scenario, context, layout, num_steps: int, cells: bool) -> dict:
+def road_edge_segments(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
     return _segments(context.road_edges)
 
 
@@ -35,7 +37,7 @@ def _segments(table: road_edge.SegmentTable) -> dict:
     }
 
 
-def road_edge_cells(scenario, context, layout, num_steps: int, cells: bool) -> dict:
+def road_edge_cells(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
     return _cells(context.road_edges, cells)
 
 
@@ -69,14 +71,14 @@ def segments_at(table: road_edge.SegmentTable, idx: np.ndarray) -> dict:
     }
 
 
-def red_light_arrays(scenario, context, layout, num_steps: int, cells: bool) -> dict:
-    """Stop lines `(steps, num_signals, ...)` of the signals that can be violated, from the first
+def red_light_arrays(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
+    """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, from the first
     red-light step on, and the lane segments."""
     signals = traffic_lights.signals_from(scenario.signals, layout.first_red_light_step)
     return stop_line_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)
 
 
-def stop_line_arrays(signals, lanes: traffic_lights.LaneTable | None, num_steps: int) -> dict:
+def stop_line_arrays(signals: Any, lanes: traffic_lights.LaneTable | None, num_steps: int) -> dict:
     """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, and the lane segments."""
     none = {
         "stop_start": np.zeros((num_steps, 0, 2), _F),

@@ -10,13 +10,14 @@ strategy: `PrunedSearch` (numpy, compiled loops over proven bounds,
 road-edge search takes the boxes and places their corners itself (in its own
 order, with the same kernel). The displacement error is computed here.
 
-Feature arrays have shape `(num_samples, num_evaluated, num_reported_steps)`:
+Feature arrays have shape `(num_samples, num_evaluated, num_steps)`:
 the 80 future steps for sim agents, all 91 for scenario gen.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -83,7 +84,7 @@ class MetricFeatures:
             extra={k: v[rows] for k, v in self.extra.items()},
         )
 
-    def feature(self, name: str):
+    def feature(self, name: str) -> Any:
         """A per-step feature by name: an official field or a registered one."""
         return self.extra[name] if name in self.extra else getattr(self, name)
 
@@ -151,7 +152,7 @@ def official_tails(num_objects: int, num_evaluated: int, num_steps: int, first_s
     }
 
 
-def average_displacement_error(x, y, z, log_valid, num_evaluated: int):
+def average_displacement_error(x: Any, y: Any, z: Any, log_valid: Any, num_evaluated: int) -> Any:
     """Mean 3D distance to sample 0 (the log) over the log's valid steps, float32 `(num_samples, num_evaluated)`.
 
     Summed in the official order (`eigen_sum32`), so it is bit-identical to

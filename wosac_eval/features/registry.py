@@ -21,6 +21,7 @@ import contextlib
 import dataclasses
 import functools
 from collections.abc import Callable, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -167,22 +168,22 @@ class FeatureContext:
     feature's value, computed once.
     """
 
-    def __init__(self, traj: dict, layout, search, tails: dict, features: tuple[Feature, ...]):
+    def __init__(self, traj: dict, layout: Any, search: Any, tails: dict, features: tuple[Feature, ...]) -> None:
         self.traj, self.layout, self.search, self.tails = traj, layout, search, tails
         self.xp = array_namespace(traj["x"])
         self._features = {f.name: f for f in features}
         self._values: dict = {}
 
-    def __getitem__(self, name: str):
+    def __getitem__(self, name: str) -> Any:
         if name not in self._values:
             self._values[name] = self._features[name].kernel(self)
         return self._values[name]
 
-    def reported(self, a):
+    def reported(self, a: Any) -> Any:
         """`a`'s reported steps (its last axis)."""
         return a[..., self.layout.reported]
 
-    def evaluated(self, a):
+    def evaluated(self, a: Any) -> Any:
         """`a`'s evaluated objects (axis 1 of `(num_samples, num_objects, ...)`)."""
         return a[:, : self.layout.num_evaluated]
 
@@ -231,31 +232,31 @@ class Feature:
 # Kernels are module functions, never lambdas or `functools.partial`s: entries travel to worker processes
 # (pickled by name, they come back as the same function), and the JAX programs are found by the entries'
 # equality, which a partial loses in the round trip (each batch a worker prepared was traced anew).
-def _linear_speed(c: FeatureContext):
+def _linear_speed(c: FeatureContext) -> Any:
     return c.reported(c.kinematics[0])
 
 
-def _linear_acceleration(c: FeatureContext):
+def _linear_acceleration(c: FeatureContext) -> Any:
     return c.reported(c.kinematics[1])
 
 
-def _angular_speed(c: FeatureContext):
+def _angular_speed(c: FeatureContext) -> Any:
     return c.reported(c.kinematics[2])
 
 
-def _angular_acceleration(c: FeatureContext):
+def _angular_acceleration(c: FeatureContext) -> Any:
     return c.reported(c.kinematics[3])
 
 
-def _collision_per_step(c: FeatureContext):
+def _collision_per_step(c: FeatureContext) -> bool:
     return c["distance_to_nearest_object"] < _F(interaction.COLLISION_DISTANCE_THRESHOLD)
 
 
-def _offroad_per_step(c: FeatureContext):
+def _offroad_per_step(c: FeatureContext) -> bool:
     return c["distance_to_road_edge"] > _F(road_edge.OFFROAD_DISTANCE_THRESHOLD)
 
 
-def _nearest_object(c: FeatureContext):
+def _nearest_object(c: FeatureContext) -> Any:
     sin_h, cos_h = c.heading_sincos
     x, y = c.box_centres
     t = c.traj
@@ -271,7 +272,7 @@ def _nearest_object(c: FeatureContext):
     )
 
 
-def _time_to_collision(c: FeatureContext):
+def _time_to_collision(c: FeatureContext) -> Any:
     t = c.traj
     planar_speed = kinematics.linear_speed(t["x"], t["y"], c.xp.zeros_like(t["x"]), c.layout.seconds_per_step)
     return c.search.time_to_collision(
@@ -291,7 +292,7 @@ def _time_to_collision(c: FeatureContext):
     )
 
 
-def _road_edge_distance(c: FeatureContext):
+def _road_edge_distance(c: FeatureContext) -> Any:
     t = c.traj
     pick = lambda a: c.reported(c.evaluated(a))  # noqa: E731
     sin_h, cos_h = (c.evaluated(a) for a in c.heading_sincos)
@@ -302,7 +303,7 @@ def _road_edge_distance(c: FeatureContext):
     )
 
 
-def _red_light_violation(c: FeatureContext):
+def _red_light_violation(c: FeatureContext) -> Any:
     t, n = c.traj, c.layout.num_evaluated
     # A crossing is found between a step and the one before: one step earlier where there is one.
     lights = slice(c.layout.first_red_light_step, None)
@@ -366,7 +367,7 @@ def unregister(name: str) -> None:
 
 
 @contextlib.contextmanager
-def registered(feature: Feature):
+def registered(feature: Feature) -> Any:
     """`register(feature)` for the duration of a `with` block (tests, experiments)."""
     register(feature)
     try:
@@ -404,7 +405,9 @@ def map_padding(selected: tuple[Feature, ...] | None = None) -> dict[str, Pad]:
     return {name: pad for p in map_parts(selected) for name, pad in p.arrays}
 
 
-def scene_map_arrays(scenario, context, layout, num_steps: int, cells: bool = True, selected=None) -> dict:
+def scene_map_arrays(
+    scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool = True, selected: Any = None
+) -> dict:
     """Every array of the map parts the features need (`map_parts`), unpadded: the parts' builders
     (`features.map_arrays`) of one scene."""
     out: dict = {}

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from typing import Any
 
 import numpy as np
 
@@ -37,20 +38,41 @@ class PrunedSearch:
     lanes: traffic_lights.LaneTable | None
     signals: TrafficSignals | None
 
-    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
-        """`interaction.distance_to_nearest_object`: float32 `(samples, num_evaluated, steps)`."""
+    def nearest_object(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        cos_h: np.ndarray,
+        sin_h: np.ndarray,
+        valid: np.ndarray,
+        num_evaluated: int,
+    ) -> Any:
+        """`interaction.distance_to_nearest_object`: float32 `(num_samples, num_evaluated, num_steps)`."""
         return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs):
-        """`following.time_to_collision`: float32 `(samples, num_evaluated, len(inputs.steps))`."""
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
+        """`following.time_to_collision`: float32 `(num_samples, num_evaluated, len(inputs.steps))`."""
         return following.time_to_collision(inputs)
 
-    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
-        """`road_edge.box_distance_to_road_edge`: float32 `(samples, objects, steps)`, -1e10 where invalid."""
+    def road_edge_distance(
+        self,
+        x: np.ndarray,
+        y: np.ndarray,
+        bottom: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        cos_h: np.ndarray,
+        sin_h: np.ndarray,
+        valid: np.ndarray,
+    ) -> Any:
+        """`road_edge.box_distance_to_road_edge`: float32 `(num_samples, num_objects, num_steps)`, -1e10 where
+        invalid."""
         return road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, self.road_edges)
 
-    def red_light_violation(self, x, y, valid):
-        """`traffic_lights.red_light_violation`: bool `(samples, objects, steps)`."""
+    def red_light_violation(self, x: np.ndarray, y: np.ndarray, valid: np.ndarray) -> Any:
+        """`traffic_lights.red_light_violation`: bool `(num_samples, num_objects, num_steps)`."""
         return traffic_lights.red_light_violation(x, y, valid, self.lanes, self.signals)
 
 
@@ -66,11 +88,11 @@ def compile_searches() -> float:
     # Boxes near the edge, on another level, far off the map, and not finite, in 16 samples: enough
     # queries a cell for the cell lists (scoring's case); the centres alone are the scattered case.
     centres = np.array([[2, 1, 0], [5, -1, 9], [4000, 3000, 0], [np.nan, 0, 0]], f)
-    x, y, z = np.broadcast_to(centres.T[:, None, :, None], (3, 16, 4, 1))  # each (samples, objects, steps)
+    x, y, z = np.broadcast_to(centres.T[:, None, :, None], (3, 16, 4, 1))  # each (num_samples, num_objects, num_steps)
     size, turn = np.ones((16, 4, 1), f) * 2, np.ones((16, 4, 1), f) * 0.6  # length = width, cos = sin
     road_edge.box_distance_to_road_edge(x, y, z, size, size, turn, turn, np.ones((16, 4, 1), bool), table)
     road_edge.signed_distance_to_polylines(table, centres)
-    x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (samples, objects, steps): a follower and its leader
+    x = np.array([[[0, 1, 2], [6, 7, 8]]], f)  # (num_samples, num_objects, num_steps): a follower and its leader
     zeros, ones = np.zeros_like(x), np.ones_like(x)
     with np.errstate(invalid="ignore"):
         interaction.distance_to_nearest_object(x, zeros, ones * 4, ones * 2, ones, zeros, ones > 0, 2)
@@ -78,7 +100,7 @@ def compile_searches() -> float:
         following.time_to_collision(
             TimeToCollisionInputs(**boxes, num_evaluated=2, seconds_per_step=0.1, steps=slice(1, None))
         )
-        line = np.zeros((3, 1, 2), f)  # (steps, signals, 2): a stop line across the road at x = 4
+        line = np.zeros((3, 1, 2), f)  # (num_steps, num_signals, 2): a stop line across the road at x = 4
         traffic_lights.compiled_stop_line_crossings(
             x, zeros, ones > 0, line, line + [0, 1], line + [4, 0], np.ones((3, 1), bool)
         )

@@ -23,9 +23,9 @@ class TimeToCollisionInputs:
     the steps to report.
 
     Attributes:
-      x, y, length, width, heading, speed: float32 `(samples, num_objects, num_steps)`; speed is the
+      x, y, length, width, heading, speed: float32 `(num_samples, num_objects, num_steps)`; speed is the
         planar speed (None: `following.time_to_collision` computes it, over `seconds_per_step`).
-      valid: bool `(samples, num_objects, num_steps)`.
+      valid: bool `(num_samples, num_objects, num_steps)`.
       num_evaluated: the evaluated objects, the first of the object axis.
       steps: the reported steps, a contiguous range of the step axis (default all).
       ego_tail, pair_tail: the official ops' trailing packets, bool `(len(steps), num_evaluated, 1)` and
@@ -54,30 +54,34 @@ class TimeToCollisionInputs:
 class SearchStrategy(Protocol):
     """The searches of `metric_features.per_step_features` over one scenario's map (numpy or JAX arrays)."""
 
-    def nearest_object(self, x, y, length, width, cos_h, sin_h, valid, num_evaluated: int):
+    def nearest_object(
+        self, x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int
+    ) -> None:
         """Distance from each evaluated box to the nearest other valid box.
 
-        x, y, length, width, cos_h, sin_h: float32 and valid bool, `(samples, num_objects, steps)`.
-        Returns float32 `(samples, num_evaluated, steps)` (`interaction.distance_to_nearest_object`).
+        x, y, length, width, cos_h, sin_h: float32 and valid bool, `(num_samples, num_objects, num_steps)`.
+        Returns float32 `(num_samples, num_evaluated, num_steps)` (`interaction.distance_to_nearest_object`).
         """
         ...
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs):
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> None:
         """Seconds until each evaluated object hits the object it follows, capped at 5 s.
 
-        Returns float32 `(samples, num_evaluated, len(inputs.steps))` (`following.time_to_collision`).
+        Returns float32 `(num_samples, num_evaluated, len(inputs.steps))` (`following.time_to_collision`).
         """
         ...
 
-    def road_edge_distance(self, x, y, bottom, length, width, cos_h, sin_h, valid):
+    def road_edge_distance(
+        self, x: Any, y: Any, bottom: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any
+    ) -> None:
         """Signed distance of each box's most off-road bottom corner to the road edge.
 
-        All float32 (valid bool) `(samples, objects, steps)`; returns float32 of that shape, -1e10
+        All float32 (valid bool) `(num_samples, num_objects, num_steps)`; returns float32 of that shape, -1e10
         where invalid (`road_edge.box_distance_to_road_edge`).
         """
         ...
 
-    def red_light_violation(self, x, y, valid):
+    def red_light_violation(self, x: Any, y: Any, valid: Any) -> None:
         """Whether each object runs a red light at each step: x, y float32 and valid bool
-        `(samples, objects, steps)`; returns bool of that shape (`traffic_lights.red_light_violation`)."""
+        `(num_samples, num_objects, num_steps)`; returns bool of that shape (`traffic_lights.red_light_violation`)."""
         ...

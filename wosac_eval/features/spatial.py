@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from wosac_eval.features.xp import array_namespace
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bound: int = 4):
+def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of: Any, measure: Any = None, k_bound: int = 4) -> Any:
     """(query, tree point) pairs within a search radius of each query.
 
     The radius is `radius_of(bound)`, where `bound` is the smallest exact
@@ -19,8 +21,8 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bou
     large enough for the group.
 
     Args:
-      tree: k-d tree over `(num_points, d)`.
-      q: float64 `(num_queries, d)`.
+      tree: k-d tree over `(num_points, num_dims)`.
+      q: float64 query points `(batch, num_dims)`.
     Returns:
       (query_index, point_index), int64 `(num_pairs,)` each, sorted by query.
     """
@@ -54,7 +56,7 @@ def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of, measure=None, k_bou
     return qi[order], pi[order].astype(np.int64)
 
 
-def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
+def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray) -> Any:
     """Per group (contiguous, sorted): the position of the minimum value, ties to the lowest `tie`.
 
     Returns (group ids present, positions into the pair arrays).
@@ -75,7 +77,7 @@ def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray):
 
 
 def finite_rows(a: np.ndarray) -> np.ndarray:
-    """`np.isfinite(a).all(axis=1)` of `(n, k)` with a few columns, column by column: numpy reduces
+    """`np.isfinite(a).all(axis=1)` of `(num_points, num_dims)` with a few columns, column by column: numpy reduces
     along a short last axis row by row, about 20 times slower (measured, 20,000 x 3)."""
     finite = np.isfinite(a[:, 0])
     for k in range(1, a.shape[1]):
@@ -84,14 +86,15 @@ def finite_rows(a: np.ndarray) -> np.ndarray:
 
 
 def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lowest, highest) of each column of `(n, k)`, `(k,)` each; column by column (`finite_rows`)."""
+    """(lowest, highest) of each column of `(num_points, num_dims)`, `(num_dims,)` each; column by column
+    (`finite_rows`)."""
     return (np.array([a[:, k].min() for k in range(a.shape[1])]), np.array([a[:, k].max() for k in range(a.shape[1])]))
 
 
-def pad_polylines(polylines, num_points: int):
+def pad_polylines(polylines: Any, num_points: int) -> Any:
     """Polylines stacked and zero padded.
 
-    Returns float `(num_polylines, num_points, dims)` and bool valid `(num_polylines, num_points)`.
+    Returns float `(num_polylines, num_points, num_dims)` and bool valid `(num_polylines, num_points)`.
     """
     lengths = np.array([len(p) for p in polylines], np.int64)
     flat = np.concatenate(polylines)
@@ -131,12 +134,12 @@ def non_finite_pick(valid: np.ndarray) -> int:
     return int(padding[0]) if padding.size else 0
 
 
-def strict_argmin(values, axis: int = -1):
+def strict_argmin(values: Any, axis: int = -1) -> Any:
     """Index of the first value below every earlier one, starting from float32's largest finite value.
 
     TensorFlow's argmin on the CPU: NaN is never chosen, and a row with no
     value below 3.4e38 (all NaN or +inf) gives 0. int `(...)` from float32
-    `(..., n)` (n along `axis`), numpy or JAX (whose own argmin picks the first NaN).
+    `(..., num_values)` (the values along `axis`), numpy or JAX (whose own argmin picks the first NaN).
     """
     xp = array_namespace(values)
     candidates = xp.where(xp.isnan(values), xp.inf, values)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -65,7 +66,7 @@ def signals_from(signals: TrafficSignals | None, start: int) -> TrafficSignals |
     return dataclasses.replace(signals, state=signals.state[start:], stop_point=signals.stop_point[start:])
 
 
-def build_lane_table(lanes, lane_ids) -> LaneTable | None:
+def build_lane_table(lanes: Any, lane_ids: Any) -> LaneTable | None:
     kept = [(np.asarray(p, _F)[:, :2], i) for p, i in zip(lanes, lane_ids) if len(p) >= 2]
     if not kept:
         return None
@@ -86,7 +87,7 @@ def build_lane_table(lanes, lane_ids) -> LaneTable | None:
     )
 
 
-def lane_measure(xy, start, delta):
+def lane_measure(xy: Any, start: Any, delta: Any) -> Any:
     """The official nearest-lane measure |p + clamp(t) d| in float32.
 
     Args:
@@ -123,7 +124,7 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
         return out
     xy32 = np.asarray(xy, _F)
 
-    def measure(rows, points):
+    def measure(rows: Any, points: Any) -> Any:
         seg = table.tree_segment[points]
         return lane_measure(xy32[rows], table.start[seg], table.delta[seg])
 
@@ -138,11 +139,11 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def stop_point_segments(table: LaneTable, signals: TrafficSignals):
+def stop_point_segments(table: LaneTable, signals: TrafficSignals) -> Any:
     """For each (step, signal): the lane segment nearest the stop point.
 
-    Returns (segment_start, segment_delta, lane_known), float32 `(steps, signals, 2)`
-    twice and bool `(steps, signals)`.
+    Returns (segment_start, segment_delta, lane_known), float32 `(num_steps, num_signals, 2)`
+    twice and bool `(num_steps, num_signals)`.
     """
     match = table.lane_ids[None, :] == signals.lane_id[:, None]  # (signals, lanes)
     lane_known = match.any(axis=1)
@@ -151,10 +152,10 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_valid = np.zeros(pts.shape[:2], bool)
     seg_valid[:, :-1] = table.valid.reshape(len(table.lane_ids), -1)[lane_index]
     start, delta = pts[:, :-1], pts[:, 1:] - pts[:, :-1]  # (signals, S, 2)
-    stop = np.ascontiguousarray(signals.stop_point, _F)  # (steps, signals, 2)
+    stop = np.ascontiguousarray(signals.stop_point, _F)  # (num_steps, num_signals, 2)
     # A signal's stop point rarely moves: it is measured where it differs from the step before (told apart
     # by its bits), and each step takes the measure of its signal's last change: every step's values.
-    bits = stop.view(np.int64)[..., 0]  # (steps, signals)
+    bits = stop.view(np.int64)[..., 0]  # (num_steps, num_signals)
     changed = np.ones(bits.shape, bool)
     changed[1:] = bits[1:] != bits[:-1]
     step_at, signal_at = np.nonzero(changed)
@@ -163,14 +164,14 @@ def stop_point_segments(table: LaneTable, signals: TrafficSignals):
     seg_at_change = np.zeros(bits.shape, np.int64)
     seg_at_change[step_at, signal_at] = np.argmin(d, axis=-1)
     last_change = np.maximum.accumulate(np.where(changed, np.arange(len(bits))[:, None], 0), axis=0)
-    seg = seg_at_change[last_change, np.arange(bits.shape[1])[None, :]]  # (steps, signals)
+    seg = seg_at_change[last_change, np.arange(bits.shape[1])[None, :]]  # (num_steps, num_signals)
     sig = np.arange(len(signals.lane_id))[None, :]
     seg_start = pts[sig, seg]
     seg_delta = pts[sig, seg + 1] - seg_start
     return seg_start, seg_delta, np.broadcast_to(lane_known, seg.shape)
 
 
-def line_parameter(px, py, sx, sy, dx, dy, squared):
+def line_parameter(px: Any, py: Any, sx: Any, sy: Any, dx: Any, dy: Any, squared: Any) -> Any:
     """Where a point projects on a segment's line, in segment lengths (0 on a segment of no length).
 
     An elementwise `ops` kernel: `squared` is dx * dx + dy * dy; all float32 `(...)`.
@@ -180,7 +181,7 @@ def line_parameter(px, py, sx, sy, dx, dy, squared):
     return ops.where(squared == _F(0), _F(0), ops.divide(along, squared))
 
 
-def _stop_lines(seg_start, seg_delta, stop_point, xp):
+def _stop_lines(seg_start: Any, seg_delta: Any, stop_point: Any, xp: Any) -> Any:
     """The stop lines' segments and where the stop points lie on them: (sx, sy, dx, dy, squared,
     stop_t), float32 `(num_steps, num_signals)` each (`stop_line_crossings`)."""
     sx, sy, dx, dy = seg_start[..., 0], seg_start[..., 1], seg_delta[..., 0], seg_delta[..., 1]
@@ -190,7 +191,7 @@ def _stop_lines(seg_start, seg_delta, stop_point, xp):
     return sx, sy, dx, dy, squared, stop_t
 
 
-def stop_line_crossings(xy, valid, seg_start, seg_delta, stop_point, stopping):
+def stop_line_crossings(xy: Any, valid: Any, seg_start: Any, seg_delta: Any, stop_point: Any, stopping: Any) -> Any:
     """Crossings of stopped signals' lines: every red-light condition but the object's lane.
 
     The lane search runs only where this is true, which is rare. (numpy and JAX arrays; numpy's
@@ -222,7 +223,9 @@ _line_parameter = compiled(line_parameter, True)
 
 
 @cached_loop
-def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
+def _crossings(
+    x: Any, y: Any, valid: Any, sx: Any, sy: Any, dx: Any, dy: Any, squared: Any, stop_t: Any, stopping: Any
+) -> Any:
     """`stop_line_crossings` of x, y, valid `(batch, num_objects, num_steps)` and the signals' segments
     (sx, sy, dx, dy, squared, stop_t, stopping: `(num_steps, num_signals)`), compiled, each line
     parameter computed once; also whether each box crossed any line, `(batch, num_objects, num_steps)`."""
@@ -246,7 +249,9 @@ def _crossings(x, y, valid, sx, sy, dx, dy, squared, stop_t, stopping):
     return out, crossed_any
 
 
-def compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point, stopping):
+def compiled_stop_line_crossings(
+    x: Any, y: Any, valid: Any, seg_start: Any, seg_delta: Any, stop_point: Any, stopping: Any
+) -> Any:
     """`stop_line_crossings` by `_crossings`: x, y float32 and valid `(..., num_objects, num_steps)`; and
     whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
     lines = [np.ascontiguousarray(a, _F) for a in _stop_lines(seg_start, seg_delta, stop_point, np)]
@@ -257,7 +262,9 @@ def compiled_stop_line_crossings(x, y, valid, seg_start, seg_delta, stop_point, 
     return out.reshape(np.shape(valid) + (lines[0].shape[1],)), crossed_any.reshape(np.shape(valid))
 
 
-def red_light_violation(x, y, valid, lanes: LaneTable | None, signals: TrafficSignals | None) -> np.ndarray:
+def red_light_violation(
+    x: Any, y: Any, valid: Any, lanes: LaneTable | None, signals: TrafficSignals | None
+) -> np.ndarray:
     """Per-step red-light violations of the given objects.
 
     Args:

@@ -10,11 +10,12 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import sys
+from typing import Any
 
 import numpy as np
 
 
-def array_namespace(*arrays):
+def array_namespace(*arrays: Any) -> Any:
     """`jax.numpy` if any argument is a JAX array or tracer, else `numpy`."""
     jax = sys.modules.get("jax")
     if jax is not None:
@@ -24,11 +25,11 @@ def array_namespace(*arrays):
     return np
 
 
-def is_numpy(xp) -> bool:
+def is_numpy(xp: Any) -> bool:
     return xp is np
 
 
-def bitcast(x, dtype, xp):
+def bitcast(x: Any, dtype: Any, xp: Any) -> Any:
     """Reinterprets the bits of `x` as `dtype` (same item size)."""
     if is_numpy(xp):
         return x.view(dtype)
@@ -37,7 +38,7 @@ def bitcast(x, dtype, xp):
     return lax.bitcast_convert_type(x, dtype)
 
 
-def errstate(xp, **kwargs):
+def errstate(xp: Any, **kwargs: Any) -> Any:
     """`np.errstate` for numpy; JAX has no floating-point warnings to silence."""
     return np.errstate(**kwargs) if is_numpy(xp) else contextlib.nullcontext()
 
@@ -47,7 +48,7 @@ _FLOAT32_PRECISION = contextvars.ContextVar("wosac_eval_float32_precision", defa
 
 
 @contextlib.contextmanager
-def float32_precision():
+def float32_precision() -> Any:
     """JAX kernels traced inside this block use float32 where the exact arithmetic needs float64.
 
     The exact mode rounds a few steps through float64 (libm `sin`/`cos`, a fused multiply-add, the
@@ -63,7 +64,7 @@ def float32_precision():
         _FLOAT32_PRECISION.reset(token)
 
 
-def in_float32_precision(xp) -> bool:
+def in_float32_precision(xp: Any) -> bool:
     """True for JAX code traced inside `float32_precision()`."""
     return not is_numpy(xp) and _FLOAT32_PRECISION.get()
 
@@ -73,7 +74,7 @@ _DIFFERENTIABLE = contextvars.ContextVar("wosac_eval_differentiable", default=Fa
 
 
 @contextlib.contextmanager
-def differentiable():
+def differentiable() -> Any:
     """JAX kernels traced inside this block give real gradients (the soft surrogate, `soft_realism`).
 
     The exact arithmetic hides some operations from XLA (bit tricks around squares and divisors,
@@ -89,18 +90,18 @@ def differentiable():
         _DIFFERENTIABLE.reset(token)
 
 
-def in_differentiable(xp) -> bool:
+def in_differentiable(xp: Any) -> bool:
     """True for JAX code traced inside `differentiable()`."""
     return not is_numpy(xp) and _DIFFERENTIABLE.get()
 
 
-def _stop_gradient(v):
+def _stop_gradient(v: Any) -> Any:
     from jax import lax
 
     return lax.stop_gradient(v)
 
 
-def wide_float(xp):
+def wide_float(xp: Any) -> Any:
     """The dtype of the steps the official arithmetic rounds through float64, for `xp`.
 
     numpy: float64. JAX: float64 when x64 is on while tracing, float32 inside
@@ -122,7 +123,7 @@ def _jax_x64() -> bool:
     return bool(jax.config.read("jax_enable_x64"))
 
 
-def through_float64(xp, dtype) -> bool:
+def through_float64(xp: Any, dtype: Any) -> bool:
     """True where a float32 square root or division is computed in float64 and rounded once.
 
     XLA's float32 square root and division are not correctly rounded on every device (on an NVIDIA
@@ -134,7 +135,7 @@ def through_float64(xp, dtype) -> bool:
     return not is_numpy(xp) and np.dtype(dtype) == np.float32 and not _FLOAT32_PRECISION.get() and _jax_x64()
 
 
-def sqrt(v, xp):
+def sqrt(v: Any, xp: Any) -> Any:
     """Square root, correctly rounded also for float32 under JAX with x64 (see `through_float64`)."""
     v = xp.asarray(v)
     if in_differentiable(xp):  # the value of sqrt(0) and sqrt(< 0), without their inf or NaN gradient
@@ -145,7 +146,7 @@ def sqrt(v, xp):
     return xp.sqrt(v)
 
 
-def divide(a, b):
+def divide(a: Any, b: Any) -> Any:
     """a / b, correctly rounded under JAX too.
 
     XLA rewrites a division by a broadcast value (a scalar, or a row shared by
@@ -176,7 +177,7 @@ def divide(a, b):
     return a / lax.bitcast_convert_type(b_bits, b.dtype)
 
 
-def rounded_square(a, xp):
+def rounded_square(a: Any, xp: Any) -> Any:
     """`a * a` rounded to its float type on its own: never fused with the addition it feeds.
 
     XLA on a GPU (and on a CPU with FMA, without `exact_cpu()`) contracts `a * a + c` into one fused
@@ -196,7 +197,7 @@ def rounded_square(a, xp):
     return lax.bitcast_convert_type(bits & ~sign, square.dtype)
 
 
-def opaque(value, xp):
+def opaque(value: Any, xp: Any) -> Any:
     """`value`, hidden from XLA's algebraic simplifier under JAX.
 
     XLA folds float expressions such as `(a + c) - c` into `a`, which is
@@ -210,13 +211,13 @@ def opaque(value, xp):
     return lax.optimization_barrier(xp.asarray(value))
 
 
-def nan_spreading_min(a, axis=None):
+def nan_spreading_min(a: Any, axis: int | None = None) -> Any:
     """`a.min(axis)` passing NaN on, as numpy and TensorFlow do (XLA's vectorised CPU reductions drop it)."""
     xp = array_namespace(a)
     return a.min(axis=axis) if is_numpy(xp) else xp.where(xp.isnan(a).any(axis=axis), xp.nan, a.min(axis=axis))
 
 
-def nan_spreading_max(a, axis=None):
+def nan_spreading_max(a: Any, axis: int | None = None) -> Any:
     """`a.max(axis)` passing NaN on (see `nan_spreading_min`)."""
     xp = array_namespace(a)
     return a.max(axis=axis) if is_numpy(xp) else xp.where(xp.isnan(a).any(axis=axis), xp.nan, a.max(axis=axis))

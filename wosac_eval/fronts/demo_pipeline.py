@@ -15,6 +15,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.challenges import Challenge, ChallengeLike, as_challenge
 from wosac_eval.runtime.cache_dirs import user_cache_dir
@@ -104,7 +105,7 @@ def run_demo(
     config: str | None = None,
     workers: int = 1,
     challenge: ChallengeLike = Challenge.SIM_AGENTS,
-    log=None,
+    log: Any = None,
 ) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
 

@@ -19,6 +19,7 @@ import contextlib
 import os
 import re
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.challenges import CHALLENGE_NAMES, Challenge, as_challenge
 from wosac_eval.options import Engine
@@ -59,7 +60,7 @@ def check_output_file(path: str | os.PathLike | None, option: str) -> None:
         _probe_create(target, path, option)
 
 
-def _probe_create(target: Path, path, option: str) -> None:
+def _probe_create(target: Path, path: str | os.PathLike, option: str) -> None:
     """Create and remove the file, for folders whose permissions tell nothing (e.g. /proc, a read-only mount)."""
     try:
         fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
@@ -115,7 +116,7 @@ def _looks_like_submission(path: Path) -> bool:
     return path.name.endswith(_SUBMISSION_SUFFIXES)
 
 
-def scenario_set_hint(scenario_paths, submission: str | os.PathLike) -> str:
+def scenario_set_hint(scenario_paths: Any, submission: str | os.PathLike) -> str:
     """' (...swapped?)' when the scenario paths look like a submission and the submission like scenarios."""
     # Here, not at the top: `compare` and `report` import this module and never read a TFRecord file.
     from wosac_eval.parse.tfrecord import looks_like_tfrecord

@@ -11,14 +11,17 @@ same arithmetic, element by element.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from wosac_eval.metrics.registry import METRIC_NAMES
+
+if TYPE_CHECKING:  # the message type alone
+    from wosac_eval.protos import sim_agents_metrics_pb2
 
 Value = TypeVar("Value")  # a float, or a float64 `(num_scenarios,)` array
 
 
-def metametric_weights(config) -> dict[str, float]:
+def metametric_weights(config: sim_agents_metrics_pb2.SimAgentMetricsConfig) -> dict[str, float]:
     """Every metric's meta-metric weight in a `SimAgentMetricsConfig` (0 for a metric it leaves unset)."""
     return {m: getattr(config, m).metametric_weight for m in METRIC_NAMES}
 

@@ -16,6 +16,8 @@ service) reads this module.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from wosac_eval.metric_table import (  # noqa: F401  (the registry's API: its users import these from here)
     BUCKETS,
     METRICS,
@@ -27,6 +29,9 @@ from wosac_eval.metric_table import (  # noqa: F401  (the registry's API: its us
     register_metric,
     unregister_metric,
 )
+
+if TYPE_CHECKING:  # the message type alone
+    from wosac_eval.protos import sim_agents_metrics_pb2
 
 METRIC_NAMES = tuple(m.name for m in METRICS)
 METRIC_BUCKETS = {bucket: tuple(m.name for m in METRICS if m.bucket == bucket) for bucket in BUCKETS}
@@ -80,7 +85,9 @@ def active_buckets() -> dict[str, tuple[str, ...]]:
     return {bucket: tuple(m.name for m in active_metrics() if m.bucket == bucket) for bucket in BUCKETS}
 
 
-def metric_config(config, metric: Metric):
+def metric_config(
+    config: sim_agents_metrics_pb2.SimAgentMetricsConfig, metric: Metric
+) -> sim_agents_metrics_pb2.SimAgentMetricsConfig.FeatureConfig:
     """The `FeatureConfig` a metric is scored with: the official config's field, or a registered
     metric's own `config_default` (the official proto has no field for it)."""
     return getattr(config, metric.name) if metric.official else default_feature_config(metric)

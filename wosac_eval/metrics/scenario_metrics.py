@@ -10,6 +10,8 @@ works on numpy or JAX arrays (under `jax.jit`, with x64 enabled);
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_VEHICLE
@@ -44,12 +46,12 @@ def scenario_fields() -> tuple[str, ...]:
     return SCENARIO_FIELDS + active_likelihood_fields()[len(LIKELIHOOD_FIELDS) :]
 
 
-def _weights(config) -> dict[str, float]:
+def _weights(config: Any) -> dict[str, float]:
     """Every active metric's meta-metric weight (a registered metric's from its own config)."""
     return {m.name: metric_config(config, m).metametric_weight for m in active_metrics()}
 
 
-def _padded_sum(values, axis, dtype):
+def _padded_sum(values: Any, axis: int, dtype: Any) -> Any:
     """The sum of padded values (zeros in the padding) along `axis` (None: all): in `dtype` (float64),
     or in JAX's float32 precision `split_sum32`, which rounds as that float64 sum nearly always does."""
     if dtype == np.float32 and in_float32_precision(array_namespace(values)):
@@ -57,7 +59,7 @@ def _padded_sum(values, axis, dtype):
     return values.sum(axis=axis, dtype=dtype)
 
 
-def _any_over_time(per_step, valid):
+def _any_over_time(per_step: Any, valid: Any) -> Any:
     return (per_step & valid).any(axis=-1)
 
 
@@ -70,7 +72,7 @@ def validity_masks(log: MetricFeatures) -> dict:
 
 
 def metric_log_likelihoods(
-    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, object_mask=None
+    config: SimAgentMetricsConfig, log: MetricFeatures, sim: MetricFeatures, object_mask: Any = None
 ) -> dict:
     """Each metric's log-likelihoods and the mask they count under, numpy or JAX.
 
@@ -101,7 +103,7 @@ def metric_values(
     log: MetricFeatures,
     sim: MetricFeatures,
     log_likelihoods: dict | None = None,
-    object_mask=None,
+    object_mask: Any = None,
 ) -> dict:
     """Every `SCENARIO_FIELDS` value as a 0-d float32 array (the meta-metric float64), numpy or JAX.
 
@@ -137,7 +139,7 @@ def metric_values(
     return out
 
 
-def _mean_log_likelihoods(scored: list, real):
+def _mean_log_likelihoods(scored: list, real: Any) -> Any:
     """Each metric's mean log-likelihood, float32 `(num_metrics,)`, in the official order of operations.
 
     An indicator is averaged over objects (`tf.reduce_mean`), a time series over its valid (object, step)
@@ -166,7 +168,7 @@ def _mean_log_likelihoods(scored: list, real):
     return xp.stack(means)
 
 
-def _rollout_major(values, real):
+def _rollout_major(values: Any, real: Any) -> Any:
     """`(values flattened, count)`: a `(num_rollouts, num_objects)` array as the official tensor of its real
     objects lies in memory, rollout after rollout, followed by the padding (`real`: None, no padding)."""
     if real is None:
@@ -185,7 +187,7 @@ def per_object_likelihoods(
     log: MetricFeatures,
     sim: MetricFeatures,
     log_likelihoods: dict | None = None,
-    object_mask=None,
+    object_mask: Any = None,
 ) -> dict:
     """Each likelihood field per evaluated object, and the weight it has in the scene's field; numpy or JAX.
 

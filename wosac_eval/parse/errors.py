@@ -44,7 +44,7 @@ class ArchiveError(ParseError):
     shard: the shard (file of a folder) it is about, when the message names one.
     """
 
-    def __init__(self, message: str, *, shard: str | None = None):
+    def __init__(self, message: str, *, shard: str | None = None) -> None:
         super().__init__(message)
         self.shard = shard
 

@@ -16,6 +16,7 @@ refuses a real submission and bounds the parse at a fraction of the shard.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from wosac_eval.parse import wire_walks
 from wosac_eval.parse.errors import SizeLimitError
@@ -74,7 +75,7 @@ _SUBMISSION_ROLLOUTS = 1  # SimAgentsChallengeSubmission.scenario_rollouts
 class _Census:
     """Counts the fields of the walked levels of one shard, refusing past the limits."""
 
-    def __init__(self, shard: str, size: int, limits: InputLimits):
+    def __init__(self, shard: str, size: int, limits: InputLimits) -> None:
         self.shard, self.limits = shard, limits
         self.budget = limits.message_allowance + size // limits.message_bytes
         self.messages = 0
@@ -92,7 +93,7 @@ class _Census:
             "trajectory carries its steps); refused before parsing"
         )
 
-    def fields(self, data: bytes, start: int, end: int, where: str):
+    def fields(self, data: bytes, start: int, end: int, where: str) -> Any:
         """(field number, value start, value end) of each length-delimited field in data[start:end]; every
         field counts as one message. Malformed bytes end the walk (the parser reports them)."""
         pos = start
@@ -157,7 +158,7 @@ class ShardCensus:
       shard: its name; size: its size in bytes (the budget); limits: default `InputLimits()`.
     """
 
-    def __init__(self, shard: str, size: int, limits: InputLimits | None = None):
+    def __init__(self, shard: str, size: int, limits: InputLimits | None = None) -> None:
         self._census = _Census(shard, size, InputLimits() if limits is None else limits)
         self._size = size
         self.scenarios = 0

@@ -25,7 +25,7 @@ import shutil
 import tempfile
 from collections.abc import Callable, Generator, Iterable, Iterator
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from wosac_eval.parse.archive import MemberReader, iter_archive_members
 from wosac_eval.parse.decode import decode_message
@@ -76,7 +76,7 @@ class SubmissionSource:
         spool_dir: PathLike | None = None,
         tail_dir: PathLike | None = None,
         tail_bytes: int = 0,
-    ):
+    ) -> None:
         self.path = Path(path)
         self._given = os.fspath(path)  # as the user wrote it, for reports
         self.limits = InputLimits() if limits is None else limits
@@ -97,7 +97,7 @@ class SubmissionSource:
     def __enter__(self) -> SubmissionSource:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self.close()
 
     def __str__(self) -> str:
@@ -301,7 +301,7 @@ class SubmissionSource:
 class _BytesReader:
     """A shard's bytes, read as a `MemberReader` is."""
 
-    def __init__(self, name: str, data: bytes):
+    def __init__(self, name: str, data: bytes) -> None:
         self.name, self.data, self.position = name, data, 0
 
     def skip(self, size: int) -> None:
@@ -333,7 +333,7 @@ def read_locator(locator: RolloutsLocator) -> bytes:
 
 
 def find_scenario_rollouts(
-    submission: PathLike | SubmissionSource, scenario_ids, limits: InputLimits | None = None
+    submission: PathLike | SubmissionSource, scenario_ids: Any, limits: InputLimits | None = None
 ) -> dict:
     """The `ScenarioRollouts` of the given scenarios in a submission (file, folder, archive or an open
     `SubmissionSource`), by id; shards are split on the wire and only the wanted entries are parsed."""

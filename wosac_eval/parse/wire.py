@@ -11,6 +11,8 @@ this module stays light for the processes that only split or check files.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 COORDINATE_FIELDS = ("center_x", "center_y", "center_z", "heading")
@@ -38,8 +40,9 @@ def varint(value: int) -> bytes:
             return bytes(out)
 
 
-def packed_headers(num_steps: int, field_numbers=(2, 3, 4, 5)) -> np.ndarray:
-    """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8 `(fields, header)`."""
+def packed_headers(num_steps: int, field_numbers: Any = (2, 3, 4, 5)) -> np.ndarray:
+    """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8
+    `(num_fields, num_bytes)`."""
     length = varint(4 * num_steps)
     return np.array([[(number << 3) | 2, *length] for number in field_numbers], dtype=np.uint8)
 

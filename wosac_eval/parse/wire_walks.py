@@ -17,6 +17,8 @@ and cached on disk by numba, like the search loops (`scoring.warm_up.compile_loo
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 
@@ -25,13 +27,13 @@ from wosac_eval.parse.wire import varint
 WIRE_VARINT, WIRE_FIXED64, WIRE_BYTES, WIRE_FIXED32 = 0, 1, 2, 5
 
 
-def message_bytes(message) -> np.ndarray:
+def message_bytes(message: Any) -> np.ndarray:
     """The wire bytes of a message (or bytes, or any buffer, as they are), as uint8 `(num_bytes,)` for the
     walks."""
     return np.frombuffer(message.SerializeToString() if hasattr(message, "SerializeToString") else message, np.uint8)
 
 
-def enum_size(enum_descriptor) -> int:
+def enum_size(enum_descriptor: Any) -> int:
     """n for a closed enum whose values are 0 to n - 1 (`scalar_fields`'s `enum_sizes`)."""
     numbers = sorted(v.number for v in enum_descriptor.values)
     if numbers != list(range(len(numbers))):
@@ -47,7 +49,7 @@ def whole(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 # The helpers of the walks are inlined: a call per field (to a function that may raise) costs 20 times
 # the field's work (measured).
 @numba.njit(inline="always")
-def _varint(data, pos, end):
+def _varint(data: Any, pos: Any, end: Any) -> Any:
     """(value as int64, two's complement for negative int32/int64 fields; next offset)."""
     if pos < end and data[pos] < 0x80:  # one byte: keys, lengths of small messages, flags, enums
         return np.int64(data[pos]), pos + 1
@@ -55,7 +57,7 @@ def _varint(data, pos, end):
 
 
 @numba.njit(inline="always")
-def _long_varint(data, pos, end):
+def _long_varint(data: Any, pos: Any, end: Any) -> Any:
     value = np.uint64(0)
     shift = np.uint64(0)
     while True:
@@ -70,7 +72,7 @@ def _long_varint(data, pos, end):
 
 
 @numba.njit(inline="always")
-def _value_end(data, pos, end, wire_type):
+def _value_end(data: Any, pos: Any, end: Any, wire_type: Any) -> Any:
     """The offset just past a field's value, whose key ended at `pos`."""
     if wire_type == WIRE_VARINT:
         return _varint(data, pos, end)[1]
@@ -91,7 +93,7 @@ def _value_end(data, pos, end, wire_type):
 
 
 @numba.njit(inline="always")
-def _key(data, pos, end):
+def _key(data: Any, pos: Any, end: Any) -> Any:
     """(field number, wire type, offset after the key)."""
     key, pos = _varint(data, pos, end)
     if key >> 3 == 0:
@@ -99,7 +101,7 @@ def _key(data, pos, end):
     return key >> 3, key & 7, pos
 
 
-def _aligned(data: np.ndarray):
+def _aligned(data: np.ndarray) -> Any:
     """The bytes as float64 and float32 arrays starting at each offset modulo 8 and 4, so that a compiled
     walk reads the value at any offset `pos` as `f64[pos % 8][pos // 8]` (no copy)."""
     if len(data) < 8:  # too short to hold a double at every offset (read-only, as the walks' other arrays)
@@ -110,7 +112,7 @@ def _aligned(data: np.ndarray):
 
 
 @numba.njit(inline="always")
-def _slots(numbers):
+def _slots(numbers: Any) -> Any:
     """Field number -> column in `numbers` (-1 for the others)."""
     slot = np.full(numbers.max() + 1 if numbers.shape[0] else 1, -1, np.int64)
     for j in range(numbers.shape[0]):
@@ -119,7 +121,16 @@ def _slots(numbers):
 
 
 @numba.njit(cache=True)
-def _spans_of(data, starts, ends, numbers, out_start, out_end, out_parent, fill):
+def _spans_of(
+    data: Any,
+    starts: Any,
+    ends: Any,
+    numbers: Any,
+    out_start: Any,
+    out_end: Any,
+    out_parent: Any,
+    fill: Any,
+) -> Any:
     """Counts (and, with `fill`, records) the occurrences of the length-delimited fields `numbers`."""
     slot = _slots(numbers)
     n = 0
@@ -138,20 +149,20 @@ def _spans_of(data, starts, ends, numbers, out_start, out_end, out_parent, fill)
     return n
 
 
-def message_spans(data, starts, ends, numbers):
+def message_spans(data: np.ndarray, starts: Any, ends: Any, numbers: int | tuple[int, ...] | np.ndarray) -> Any:
     """Every occurrence of the length-delimited fields `numbers` (one number, or several: a oneof's) in
     each parent message, in wire order.
 
     Args:
-      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_parents,)`, the parents' spans in it.
+      data: uint8 `(num_bytes,)`; starts, ends: int64 `(num_records,)`, the parents' spans in it.
     Returns:
-      (start, end, parent): int64 `(num_found,)`, the values' spans and the index of their parent.
+      (start, end, parent): int64 `(num_values,)`, the values' spans and the index of their parent.
     """
     return _message_spans(data, starts, ends, np.atleast_1d(np.asarray(numbers, np.int64)))
 
 
 @numba.njit(cache=True)
-def _message_spans(data, starts, ends, numbers):
+def _message_spans(data: Any, starts: Any, ends: Any, numbers: Any) -> Any:
     empty = np.empty(0, np.int64)
     n = _spans_of(data, starts, ends, numbers, empty, empty, empty, False)
     out_start, out_end, out_parent = np.empty(n, np.int64), np.empty(n, np.int64), np.empty(n, np.int64)
@@ -159,7 +170,9 @@ def _message_spans(data, starts, ends, numbers):
     return out_start, out_end, out_parent
 
 
-def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
+def scalar_fields(
+    data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: np.ndarray, wire_types: Any, enum_sizes: Any
+) -> Any:
     """The scalar fields `numbers` (declared with `wire_types`) of each record, the last occurrence winning.
 
     `enum_sizes`: for a field of a closed (proto2) enum whose values are 0 to n - 1, n; 0 for other
@@ -188,7 +201,16 @@ def scalar_fields(data, starts, ends, numbers, wire_types, enum_sizes):
 
 
 @numba.njit(cache=True)
-def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes):
+def _scalar_fields(
+    data: Any,
+    f64: Any,
+    f32: Any,
+    starts: Any,
+    ends: Any,
+    numbers: Any,
+    wire_types: Any,
+    enum_sizes: Any,
+) -> Any:
     n, m = starts.shape[0], numbers.shape[0]
     real = np.zeros((n, m), np.float64)
     integer = np.zeros((n, m), np.int64)
@@ -219,14 +241,14 @@ def _scalar_fields(data, f64, f32, starts, ends, numbers, wire_types, enum_sizes
 
 
 @numba.njit(inline="always")
-def _any_finite_non_positive(block):
+def _any_finite_non_positive(block: Any) -> bool:
     for v in block:  # noqa: SIM110 - numba compiles loops, not `any(generator)`
         if np.isfinite(v) and v <= 0:
             return True
     return False
 
 
-def float_fields(data, starts, ends, numbers, num_values: int):
+def float_fields(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: np.ndarray, num_values: int) -> Any:
     """The repeated float fields `numbers` of each record (packed or not), their first `num_values` values.
 
     Returns:
@@ -238,7 +260,7 @@ def float_fields(data, starts, ends, numbers, num_values: int):
 
 
 @numba.njit(cache=True)
-def _float_fields(data, f32, starts, ends, numbers, num_values):
+def _float_fields(data: Any, f32: Any, starts: Any, ends: Any, numbers: Any, num_values: Any) -> Any:
     n, m = starts.shape[0], numbers.shape[0]
     values = np.zeros((n, m, num_values), np.float32)
     count = np.zeros((n, m), np.int64)
@@ -274,7 +296,7 @@ def _float_fields(data, f32, starts, ends, numbers, num_values):
     return values, count, non_finite, non_positive
 
 
-def bool_fields(data, starts, ends, number: int):
+def bool_fields(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, number: int) -> Any:
     """The repeated bool field `number` of each record (packed or not), as a parse reads it (a varint, true
     unless 0).
 
@@ -285,7 +307,7 @@ def bool_fields(data, starts, ends, number: int):
 
 
 @numba.njit(cache=True)
-def _bool_fields(data, starts, ends, number):
+def _bool_fields(data: Any, starts: Any, ends: Any, number: Any) -> Any:
     n = starts.shape[0]
     count = np.zeros(n, np.int64)
     any_false = np.zeros(n, np.bool_)
@@ -323,7 +345,9 @@ def compile_walks() -> None:
 CENSUS_OK, CENSUS_MESSAGES, CENSUS_JOINT_SCENES, CENSUS_OBJECTS = 0, 1, 2, 3
 
 
-def rollouts_census(data, start: int, end: int, messages: int, budget: int, max_joint_scenes: int, max_objects: int):
+def rollouts_census(
+    data: bytes, start: int, end: int, messages: int, budget: int, max_joint_scenes: int, max_objects: int
+) -> Any:
     """Counts the messages of one serialized `ScenarioRollouts`, data[start:end], and of its joint scenes, as
     `parse.limits` counts them (every field of both levels is one message), stopping at the first limit passed.
 
@@ -339,7 +363,7 @@ def rollouts_census(data, start: int, end: int, messages: int, budget: int, max_
 
 
 @numba.njit(inline="always")
-def _census_key(data, pos, end):
+def _census_key(data: Any, pos: Any, end: Any) -> Any:
     """The lenient key step: (field number, -1 for one past 2^60; wire type; next offset)."""
     key, shift, big = 0, 0, False
     while True:
@@ -356,7 +380,7 @@ def _census_key(data, pos, end):
 
 
 @numba.njit(inline="always")
-def _census_value(data, pos, end, wire_type):
+def _census_value(data: Any, pos: Any, end: Any, wire_type: Any) -> Any:
     """The lenient value step: (value start, value end, next offset), or next offset -1 where the walk stops."""
     if wire_type == WIRE_BYTES:
         length, shift, big = 0, 0, False
@@ -385,7 +409,15 @@ def _census_value(data, pos, end, wire_type):
 
 
 @numba.njit(cache=True)
-def _rollouts_census(data, start, end, messages, budget, max_joint_scenes, max_objects):
+def _rollouts_census(
+    data: Any,
+    start: int,
+    end: int,
+    messages: Any,
+    budget: Any,
+    max_joint_scenes: Any,
+    max_objects: Any,
+) -> Any:
     pos, joint_scenes = start, 0
     while pos < end:
         number, wire_type, pos = _census_key(data, pos, end)

@@ -18,6 +18,7 @@ import warnings
 from typing import Any
 
 import numpy as np
+from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection
 from matplotlib.figure import Figure
@@ -40,7 +41,7 @@ PANELS = (
 _LOG, _SIM = "#24292f", "#0969da"
 
 
-def _shade_bins(axis, values: np.ndarray, histogram) -> None:
+def _shade_bins(axis: Axes, values: np.ndarray, histogram: Any) -> None:
     """Horizontal bands at the histogram's bins, each as dark as the share of `values` that falls in it."""
     edges = histogram_edges(histogram.min_val, histogram.max_val, histogram.num_bins).astype(np.float64)
     finite = values[np.isfinite(values)].astype(np.float32)
@@ -58,7 +59,7 @@ class _ObjectScene:
     arrays, rollouts: the scenario's arrays and the rollouts' (`scoring.scenario.scenario_inputs`).
     log, sim: the metric features of the log and of the rollouts (`scenario_features`).
     e: the object's index among the evaluated ones.
-    steps: the logged step index of each simulated step, shape (num_steps,).
+    steps: the logged step index of each simulated step, shape `(num_steps,)`.
     """
 
     object_id: int
@@ -71,17 +72,17 @@ class _ObjectScene:
 
     @property
     def log_valid(self) -> np.ndarray:
-        """Whether the log has the object at each simulated step, shape (num_steps,)."""
+        """Whether the log has the object at each simulated step, shape `(num_steps,)`."""
         return np.asarray(self.log.valid)[0, self.e]
 
 
 def object_png(
-    scenario,
-    rollouts,
+    scenario: Any,
+    rollouts: Any,
     object_id: int,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     dpi: int = 100,
-    config=None,
+    config: Any = None,
 ) -> bytes:
     """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
 
@@ -123,7 +124,7 @@ def object_png(
     return buffer.getvalue()
 
 
-def _map_panel(ax, scene: _ObjectScene) -> None:
+def _map_panel(ax: Any, scene: _ObjectScene) -> None:
     """The map: lanes and road edges, the other objects' logs (grey), every rollout of the object (thin),
     its log (dashed) and where each rollout's events start; its legend counts the rollouts with each."""
     arrays, sim_arrays, object_id = scene.arrays, scene.rollouts, scene.object_id
@@ -173,7 +174,7 @@ def _map_panel(ax, scene: _ObjectScene) -> None:
     ax.legend(handles=handles, fontsize=7, loc="upper left", framealpha=0.85)
 
 
-def _mark_event_starts(ax, scene: _ObjectScene, rollout_xy: list) -> dict[str, int]:
+def _mark_event_starts(ax: Any, scene: _ObjectScene, rollout_xy: list) -> dict[str, int]:
     """Mark where each rollout's first event of each kind is (steps the log has the object); the number of
     rollouts with one, per kind."""
     counts = {}
@@ -189,7 +190,7 @@ def _mark_event_starts(ax, scene: _ObjectScene, rollout_xy: list) -> dict[str, i
     return counts
 
 
-def _feature_panel(axis, scene: _ObjectScene, panel: tuple[str, str, str], metric) -> None:
+def _feature_panel(axis: Axes, scene: _ObjectScene, panel: tuple[str, str, str], metric: Any) -> None:
     """One feature over the simulated steps: each rollout (thin), their median, the log (dashed), over the
     shaded bins of its likelihood's histogram (when the metric has one)."""
     feature, title, unit = panel

@@ -75,7 +75,7 @@ code{font-size:.85rem}
 """
 
 
-def _esc(x) -> str:
+def _esc(x: object) -> str:
     return html.escape(str(x), quote=True)
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import io
+from typing import Any
 
 import numpy as np
 
@@ -16,7 +17,7 @@ RATE_LABELS = {rate.name: rate.title for rate in RATES}
 BASE_COLOR, NEW_COLOR = "#9aa5b1", "#1f6feb"
 
 
-def png(fig, tight: bool = True) -> str:
+def png(fig: Any, tight: bool = True) -> str:
     """The figure as an `<img>` with a base64 PNG data URI.
 
     `tight` crops to the drawn content, at the cost of one more drawing pass
@@ -31,7 +32,7 @@ def png(fig, tight: bool = True) -> str:
     return f'<img alt="plot" src="data:image/png;base64,{data}">'
 
 
-def figure(width: float, height: float):
+def figure(width: float, height: float) -> Any:
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width, height))
@@ -54,7 +55,7 @@ def present_values(result: ScoringResult, metric: str) -> np.ndarray:
     return values
 
 
-def _legend_above(ax) -> None:
+def _legend_above(ax: Any) -> None:
     """The legend above the axes, outside them: inside it would cover a bar whatever corner it took."""
     ax.legend(loc="lower left", bbox_to_anchor=(0.0, 1.0), ncol=2, fontsize=8, frameon=False, borderaxespad=0.2)
 
@@ -64,7 +65,7 @@ def bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     return png(fig) if fig is not None else ""
 
 
-def bucket_figure(result: ScoringResult, base: ScoringResult | None):
+def bucket_figure(result: ScoringResult, base: ScoringResult | None) -> Any:
     """Horizontal bars of the bucket scores (this run, and the baseline's beside them); None without buckets."""
     names = [b for b in SCORE_BUCKETS if result.headline(b) is not None]
     if not names:

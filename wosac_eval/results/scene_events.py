@@ -5,6 +5,7 @@ per-step features the scores come from). Drawn by `scene_painter`, written by `s
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 import numpy as np
 
@@ -74,13 +75,13 @@ class SceneView:
 
 
 def _event_starts(flags: np.ndarray) -> np.ndarray:
-    """(sample, object, step) of the first step of every run of True in bool `(samples, objects, steps)`."""
+    """(sample, object, step) of the first step of every run of True in bool `(num_samples, num_objects, num_steps)`."""
     before = np.concatenate([np.zeros_like(flags[..., :1]), flags[..., :-1]], axis=-1)
     return np.argwhere(flags & ~before)
 
 
 def scene_view(
-    scenario, rollouts=None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
+    scenario: Any, rollouts: Any = None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
 ) -> SceneView:
     """The view of a scenario (a `Scenario` or its arrays) and optionally its rollouts (message or arrays).
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -42,8 +43,10 @@ _PALETTE = (
 )
 
 
-def _box_corners(x, y, heading, length, width) -> np.ndarray:
-    """Corners `(num_boxes, 4, 2)` of boxes centred at x, y (all `(num_boxes,)`)."""
+def _box_corners(
+    x: np.ndarray, y: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray
+) -> np.ndarray:
+    """Corners `(num_objects, 4, 2)` of boxes centred at x, y (all `(num_objects,)`)."""
     c, s = np.cos(heading), np.sin(heading)
     half = np.stack([length, width], axis=-1)[:, None, :] / 2 * np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]])
     return np.stack(
@@ -71,7 +74,7 @@ class ScenePainter:
         rollouts: Sequence[int] | None = None,
         density: bool = False,
         size: tuple[float, float] = (8.0, 7.0),
-    ):
+    ) -> None:
         self.view = view
         total = view.rollouts.num_rollouts if view.rollouts is not None else 0
         chosen = list(range(min(3, total))) if rollouts is None or not total else list(rollouts)
@@ -282,7 +285,7 @@ class ScenePainter:
             )
         )
 
-    def _rollout_boxes(self, r: int, k: int, step: int):
+    def _rollout_boxes(self, r: int, k: int, step: int) -> Any:
         sim, scenario = self.view.rollouts, self.view.scenario
         if sim is None:
             raise ValueError("the view has no rollouts to draw")
@@ -310,7 +313,7 @@ class ScenePainter:
         self.figure.savefig(buffer, format="png", dpi=dpi, metadata={"Software": None})
         return buffer.getvalue()
 
-    def frames(self, steps: Sequence[int], dpi: int):
+    def frames(self, steps: Sequence[int], dpi: int) -> Any:
         """The figure at each step as a PIL image: the static layer is drawn once, each step's artists over it."""
         self.show_step(steps[0])
         canvas = FigureCanvasAgg(self.figure)

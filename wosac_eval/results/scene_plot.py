@@ -66,7 +66,7 @@ def scene_png(
     rollouts: Sequence[int] | None = None,
     density: bool = False,
     dpi: int = 100,
-    size=(8.0, 7.0),
+    size: Any = (8.0, 7.0),
 ) -> bytes:
     """A PNG of the view at one step (default: the last event, else the last step)."""
     painter = ScenePainter(view, rollouts, density, size)
@@ -163,8 +163,8 @@ def write_scene(
 
 
 def scene_pictures(
-    scenarios,
-    submission,
+    scenarios: Any,
+    submission: Any,
     scenario_ids: Sequence[str],
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     dpi: int = 80,

@@ -5,7 +5,7 @@ Both tests work on paired differences `d = new - base`, shape
 column per metric. Every metric is resampled with the same scenario draws, so
 the intervals of related metrics (a bucket and its likelihoods) stay coherent.
 
-- Bootstrap: resample scenarios with replacement, `(n_boot, num_scenarios)`
+- Bootstrap: resample scenarios with replacement, `(num_resamples, num_scenarios)`
   index draws, and take the 2.5 / 97.5 percentiles of the resampled means.
 - Permutation: the paired (sign-flip) test. Under "no difference" each
   scenario's difference is as likely to have either sign, so flipping signs at
@@ -73,7 +73,7 @@ class PairedSettings:
 
 @dataclasses.dataclass(frozen=True)
 class PairedTest:
-    """Result of the paired tests for each metric, arrays of shape (num_metrics,)."""
+    """Result of the paired tests for each metric, arrays of shape `(num_metrics,)`."""
 
     mean_difference: np.ndarray
     ci_low: np.ndarray

@@ -104,7 +104,7 @@ def result_json(
     }
 
 
-def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwargs) -> dict[str, Any]:
+def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwargs: Any) -> dict[str, Any]:
     """`result_json(synthetic_scenarios(...))`: a whole synthetic result."""
     return result_json(synthetic_scenarios(num_scenarios, seed, **kwargs), config=config)
 
@@ -112,7 +112,7 @@ def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwar
 GATE_DEMO_TITLE = "WOSAC realism: my-sim (PR) vs baseline (main)"
 
 
-def write_gate_demo_results(folder, num_scenarios: int = 2000):
+def write_gate_demo_results(folder: Any, num_scenarios: int = 2000) -> Any:
     """Writes `folder`/baseline.json and `folder`/new.json and returns their paths.
 
     Synthetic results of `num_scenarios` scenarios: in the new run the

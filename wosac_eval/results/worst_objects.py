@@ -19,6 +19,7 @@ import dataclasses
 import heapq
 import itertools
 import math
+from typing import Any
 
 from wosac_eval.metrics.registry import BUCKET_MEMBERS
 from wosac_eval.scoring.objects import count_column, read_objects
@@ -42,7 +43,7 @@ class WorstObject:
     fields: tuple
 
 
-def _scene_contributions(records: list[dict], fields: dict, weights: dict, scene_field: dict, n: int):
+def _scene_contributions(records: list[dict], fields: dict, weights: dict, scene_field: dict, n: int) -> Any:
     """(bucket, contribution, fields) of every object of one scene."""
     totals = {f: sum(r[count_column(f)] for r in records) for f in scene_field}
     for record in records:

@@ -71,7 +71,7 @@ class LocalExecutor:
         force_spawn: bool = False,
         initializer: Callable[[], object] | None = None,
         warm_up: Callable[[], object] | None = None,
-    ):
+    ) -> None:
         if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
             # Refused, not raised to 1: a caller's 0 or -1 is a mistake to name, not a count to guess.
             raise ValueError(f"workers must be a whole number >= 1, not {workers!r}")

@@ -30,10 +30,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import Any
 
 
 def worker_pool(
-    max_workers: int, *, force_spawn: bool = False, initializer: Callable | None = None, initargs: tuple = (), **kwargs
+    max_workers: int,
+    *,
+    force_spawn: bool = False,
+    initializer: Callable | None = None,
+    initargs: tuple = (),
+    **kwargs: Any,
 ) -> futures.ProcessPoolExecutor:
     """A `ProcessPoolExecutor` with a start method that is safe for this process, whose workers end
     when this process does (`initializer(*initargs)` runs in each worker, as in the executor)."""

@@ -47,7 +47,7 @@ _CACHE: dict[str, Any] = {}
 _INITIALIZED: set = set()
 
 
-def _shared_value(box: list):
+def _shared_value(box: list) -> Any:
     ref = box[0]
     key = ref.hex()
     if key not in _CACHE:
@@ -57,7 +57,7 @@ def _shared_value(box: list):
 
 
 @ray.remote(max_retries=MAX_RETRIES, retry_exceptions=False)
-def _task(fn: Callable, initializer: Callable | None, box: list, item: Any):
+def _task(fn: Callable, initializer: Callable | None, box: list, item: Any) -> Any:
     if initializer is not None and initializer not in _INITIALIZED:
         initializer()
         _INITIALIZED.add(initializer)
@@ -140,7 +140,7 @@ def _client_advice(where: str, error: Exception) -> str:
 
 
 @contextlib.contextmanager
-def _stderr_kept(keep: list):
+def _stderr_kept(keep: list) -> Any:
     """Collects what this process writes to file descriptor 2 (Ray's C++ logging included) into `keep`."""
     sys.stderr.flush()
     saved = os.dup(2)
@@ -236,7 +236,7 @@ def _replay(logged: list[str], drop_ray_log: bool = False) -> None:
 class RayExecutor:
     """Ray tasks on the cluster at `address` (see `connect`)."""
 
-    def __init__(self, address: str | None = None, *, initializer: Callable[[], object] | None = None):
+    def __init__(self, address: str | None = None, *, initializer: Callable[[], object] | None = None) -> None:
         connect(address)
         self.initializer = initializer
         self.parallelism = max(1, int(ray.cluster_resources().get("CPU", 1)))
@@ -259,7 +259,7 @@ class RayExecutor:
                 ray.cancel(ref)
 
 
-def _result(ref):
+def _result(ref: Any) -> Any:
     try:
         return ray.get(ref)
     except ray.exceptions.RayTaskError as error:

@@ -46,7 +46,7 @@ import shutil
 import time
 from collections.abc import Iterable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from wosac_eval import __version__
 
@@ -70,7 +70,7 @@ def _size_mtime(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def run_identity(evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
+def run_identity(evaluation: Any, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
     """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
     return {
         # Rows with their objects (absent: as before). Where the objects are written is not the rows' matter.
@@ -162,7 +162,7 @@ class ScoringJournal:
       reason: why it was set aside.
     """
 
-    def __init__(self, path: os.PathLike | str, identity: dict):
+    def __init__(self, path: os.PathLike | str, identity: dict) -> None:
         self.path = Path(path)
         self.identity = identity
         self.done: dict[str, dict] = {}
@@ -230,7 +230,7 @@ class ScoringJournal:
             return None
         return kept["report"], kept["records"]
 
-    def keep_validation(self, report, records) -> None:
+    def keep_validation(self, report: Any, records: Any) -> None:
         """Keep a passed validation (its report and `SubmissionSource.records()`) for a resumed run."""
         path = validated_path(self.path)
         temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
@@ -263,7 +263,7 @@ class ScoringJournal:
     def __enter__(self) -> ScoringJournal:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: Any) -> None:
         self.close()
 
 

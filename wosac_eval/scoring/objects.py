@@ -22,6 +22,7 @@ import json
 import os
 from collections.abc import Iterable, Iterator
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.metrics.per_object import EVENTS
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
@@ -62,7 +63,7 @@ def columns() -> dict[str, str]:
     return out
 
 
-def _parquet_schema():
+def _parquet_schema() -> Any:
     import pyarrow
 
     kinds = {"string": pyarrow.string(), "int": pyarrow.int64(), "float": pyarrow.float64()}

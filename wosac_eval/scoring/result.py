@@ -25,6 +25,7 @@ field, a renamed one) makes a new version (an entry of
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -43,12 +44,12 @@ def summarize(config: SimAgentMetricsConfig, per_scenario: list[dict]) -> dict:
     return {"aggregate": aggregate, "buckets": bucket_metrics(config, aggregate)}
 
 
-def _mean(values) -> float | None:
-    values = [v for v in values if v is not None]
-    return float(np.mean(values)) if values else None
+def _mean(values: Iterable[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return float(np.mean(present)) if present else None
 
 
-def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
+def finish_analysis(per_scenario: list[dict], histogram: Any = None) -> dict:
     """Completes every row's criticality with its rarity, and summarises the analyses.
 
     Rarity is rated against `histogram` (a `BehaviourHistogram`; default: that of the scored set).
@@ -89,7 +90,7 @@ def finish_analysis(per_scenario: list[dict], histogram=None) -> dict:
     return summary
 
 
-def validation_summary(report) -> dict:
+def validation_summary(report: Any) -> dict:
     """Counts and, per finding code, its severity, count and first message: what was ignored or skipped."""
     groups = report.to_dict()["groups"]
     return {
@@ -113,11 +114,11 @@ def result_document(
     config_name: str,
     config: SimAgentMetricsConfig,
     per_scenario: list[dict],
-    report,
+    report: Any,
     *,
     selection: dict | None = None,
     selected: set | None = None,
-    histogram=None,
+    histogram: Any = None,
 ) -> dict:
     """The result document of scored scenarios and the submission's validation report.
 

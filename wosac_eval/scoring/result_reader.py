@@ -125,7 +125,7 @@ class ScoringResult:
 
 
 def shared_rows(base: ScoringResult, new: ScoringResult) -> tuple[np.ndarray, np.ndarray]:
-    """Row indices `(base_rows, new_rows)`, int64 `(num_shared,)` each, of the scenarios both results hold,
+    """Row indices `(base_rows, new_rows)`, int64 `(num_scenarios,)` each, of the scenarios both results hold,
     in base order: `base.values[m][base_rows]` pairs with `new.values[m][new_rows]`."""
     in_new = {sid: i for i, sid in enumerate(new.scenario_ids)}
     base_rows = np.array([i for i, sid in enumerate(base.scenario_ids) if sid in in_new], dtype=np.int64)
@@ -195,7 +195,7 @@ def _column(scenarios: list[dict], field: str, ids: list[str], path: str) -> np.
     raise AssertionError("unreachable: the fast check failed but no value is at fault")
 
 
-def _analysis_columns(scenarios: list[dict], ids: list[str], path: str):
+def _analysis_columns(scenarios: list[dict], ids: list[str], path: str) -> Any:
     """The rows' criticality scores (None unless every row has one) and per-type values (NaN where absent)."""
     criticality = None
     if ids and all(isinstance(e.get("criticality"), dict) for e in scenarios):
@@ -334,7 +334,7 @@ def _objects_file(data: dict, path: str) -> str | None:
     return str(Path(path).parent / entry["objects"])
 
 
-def load_result(path: str | Path, **kwargs) -> ScoringResult:
+def load_result(path: str | Path, **kwargs: Any) -> ScoringResult:
     """Reads and validates a result JSON file (see `parse_result`)."""
     path = str(path)
     try:

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from typing import Any
 
 import numpy as np
 
@@ -100,10 +101,10 @@ def scenario_analysis(
     config: SimAgentMetricsConfig,
     scenario: ScenarioArrays,
     rollouts: RolloutArrays,
-    log,
-    sim,
+    log: Any,
+    sim: Any,
     log_likelihoods: dict,
-    context,
+    context: Any,
     criticality: dict | None = None,
 ) -> dict:
     """What a result row carries beside the official metrics, from the same features.
@@ -122,7 +123,7 @@ def scenario_analysis(
     }
 
 
-def object_records(scenario_id: str, values) -> list[dict]:
+def object_records(scenario_id: str, values: Any) -> list[dict]:
     """A scene's per-object values (`metrics.per_object.PerObjectMetrics`) as JSON-ready records, one per
     evaluated object in the official order: `scenario_id`, `object_id`, `object_type` (vehicle, pedestrian,
     cyclist or other), every likelihood field (null where the object has no counted sample) and its
@@ -155,7 +156,7 @@ def _row(
     config: SimAgentMetricsConfig,
     arrays: ScenarioArrays,
     rollout: RolloutArrays,
-    context,
+    context: Any,
     features: tuple,
     analysis: bool,
     criticality: dict | None = None,
@@ -205,7 +206,13 @@ def score_scenario(
     return _row(message, arrays, rollout, context, (log, sim), analysis, criticality, per_object=per_object)
 
 
-def _scored_features(scenario, rollouts, config: ConfigLike, challenge: challenges.ChallengeLike, backend: str):
+def _scored_features(
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: RolloutArrays,
+    config: ConfigLike,
+    challenge: challenges.ChallengeLike,
+    backend: str,
+) -> Any:
     """What scoring one pair starts from: (config message, arrays, rollouts, map context, log, sim features)."""
     backend = check_backend(backend)
     challenge = challenges.as_challenge(challenge)
@@ -231,7 +238,7 @@ def score_scenario_per_object(
     *,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     backend: str = "numpy",
-):
+) -> Any:
     """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
     `metrics.per_object.PerObjectMetrics` (likelihoods and their weights per object, each rollout's
     collision, off-road and red-light flags and first steps)."""
@@ -257,7 +264,11 @@ class JaxItem:
 
 
 def prepare_jax_item(
-    scenario, rollouts, challenge: challenges.ChallengeLike, analysis: bool = False, criticality: dict | None = None
+    scenario: scenario_pb2.Scenario,
+    rollouts: RolloutArrays,
+    challenge: challenges.ChallengeLike,
+    analysis: bool = False,
+    criticality: dict | None = None,
 ) -> JaxItem:
     """The host part of jax-backend scoring of one pair: arrays, map context, padded-ready inputs (and, with
     `analysis`, the scene's criticality: `criticality` when known already, else computed)."""
@@ -277,14 +288,14 @@ def prepare_jax_item(
 
 
 def score_jax_items(
-    items,
+    items: Any,
     config: ConfigLike = None,
     max_batch: int = 8,
     *,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     analysis: bool = False,
     per_object: bool = False,
-):
+) -> Any:
     """Rows of a stream of `JaxItem`s, in stream order, the device computing while the host finishes rows.
 
     Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
@@ -296,13 +307,13 @@ def score_jax_items(
     rows: dict[int, dict] = {}
     next_out = 0
 
-    def finish(done):
+    def finish(done: Any) -> None:
         for (index, item), features in done:
             rows[index] = _row(
                 config, item.arrays, item.rollout, item.context, features, analysis, item.criticality, per_object
             )
 
-    def ready():
+    def ready() -> Any:
         nonlocal next_out
         while next_out in rows:
             yield rows.pop(next_out)
@@ -316,7 +327,7 @@ def score_jax_items(
 
 
 def score_scenarios_jax(
-    pairs,
+    pairs: Any,
     config: ConfigLike = None,
     max_batch: int = 8,
     *,

@@ -56,7 +56,7 @@ class InvalidSubmissionError(ValueError):
     """The submission failed validation; `.report` says every reason. `.metadata` is True when it is
     refused for its metadata, which partial scoring never goes past."""
 
-    def __init__(self, report):
+    def __init__(self, report: Any) -> None:
         self.report = report
         self.metadata = report.metadata_error_count > 0
         # What is wrong, in a few words (the service's job says "the submission is invalid: <reason>").
@@ -68,7 +68,7 @@ class InvalidSubmissionError(ValueError):
         super().__init__(f"invalid submission: {self.reason}; run `wosac-eval validate` for the full report")
 
 
-def refuses(report, allow_partial: bool) -> bool:
+def refuses(report: Any, allow_partial: bool) -> bool:
     """Whether an invalid submission is refused: always without partial scoring; with it, for metadata
     errors (partial scoring scores the valid scenarios and lists the others, never ignores the metadata)."""
     return not report.ok and (not allow_partial or report.metadata_error_count > 0)
@@ -177,7 +177,7 @@ def _jax_items(context: ScoringContext, pairs: list[tuple]) -> list:
     return items
 
 
-def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator[list[dict]]:
+def _jax_pipeline(executor: Any, chunks: Any, context: ScoringContext, config: Any) -> Iterator[list[dict]]:
     """Rows, one at a time, in order: workers parse and prepare, this process feeds the device."""
     items = (item for prepared in executor.imap(prepare_chunk, chunks, context) for item in prepared)
     for row in score_jax_items(
@@ -187,7 +187,7 @@ def _jax_pipeline(executor, chunks, context: ScoringContext, config) -> Iterator
 
 
 def _scored_rollouts(
-    source: SubmissionSource, index: ScenarioIndex, report, selected: set[str] | None, done=()
+    source: SubmissionSource, index: ScenarioIndex, report: Any, selected: set[str] | None, done: Any = ()
 ) -> Iterator[tuple[str, RolloutsLocator | None]]:
     """(scenario_id, rollouts locator) of every valid (and selected) scenario, once each, in submission order;
     the locator is None for a scenario in `done` (a resumed run does not read what it finished)."""
@@ -297,7 +297,9 @@ def _opened(
     return SubmissionSource(submission, limits)
 
 
-def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[dict | None, list | None, set | None]:
+def _selection(
+    evaluation: Evaluation, index: ScenarioIndex, executor: Any
+) -> tuple[dict | None, list | None, set | None]:
     """(what the result says of the selection, the criticality histogram, the selected ids), or Nones."""
     rule = evaluation.options.select
     if rule is None:
@@ -314,8 +316,12 @@ def _selection(evaluation: Evaluation, index: ScenarioIndex, executor) -> tuple[
 
 
 def _validated(
-    index: ScenarioIndex, source: SubmissionSource, evaluation: Evaluation, executor, journal: ScoringJournal | None
-):
+    index: ScenarioIndex,
+    source: SubmissionSource,
+    evaluation: Evaluation,
+    executor: Any,
+    journal: ScoringJournal | None,
+) -> Any:
     """The submission's validation report, refusing an invalid one; from the journal when an earlier run
     of the same inputs passed it (a resumed run does not walk the whole submission again)."""
     kept = None if journal is None else journal.validation()
@@ -343,7 +349,7 @@ def _score(
     index: ScenarioIndex,
     source: SubmissionSource,
     evaluation: Evaluation,
-    executor,
+    executor: Any,
     progress: Progress | None,
     journal: ScoringJournal | None,
 ) -> dict:

@@ -30,7 +30,7 @@ DESCRIPTIONS = {
 
 
 def policy_rollouts(
-    scenario, policy: str, seed: int = 0, challenge: ChallengeLike = Challenge.SIM_AGENTS
+    scenario: scenario_pb2.Scenario, policy: str, seed: int = 0, challenge: ChallengeLike = Challenge.SIM_AGENTS
 ) -> RolloutArrays:
     """A policy's 32 rollouts of a scenario (all 91 steps with boxes and types for scenario gen)."""
     if challenges.spec(challenge).submits_boxes:

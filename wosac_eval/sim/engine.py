@@ -15,6 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -277,7 +278,9 @@ def simulate(
     return Rollout(x_y[..., 0], x_y[..., 1], hdg, out_v, out_s)
 
 
-def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _agent_gaps(
+    paths: Paths, s: Any, v: np.ndarray, xy: np.ndarray, heading: np.ndarray, d: Drivers, k: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Gap along each agent's path to every other agent that touches it, and that agent's speed along it.
 
     Agents crossing the path are also tested where they will be in PREDICTION_S
@@ -305,7 +308,16 @@ def _agent_gaps(paths: Paths, s, v, xy, heading, d: Drivers, k: np.ndarray) -> t
     return gap, speed
 
 
-def _touching(pts_all, pts_heading_all, xy, xy_j, heading, d: Drivers, k: np.ndarray, pairs: np.ndarray):
+def _touching(
+    pts_all: Any,
+    pts_heading_all: Any,
+    xy: np.ndarray,
+    xy_j: Any,
+    heading: np.ndarray,
+    d: Drivers,
+    k: np.ndarray,
+    pairs: np.ndarray,
+) -> Any:
     """Gaps (B, i, j) from each agent's nose along its lookahead points to agents placed at
     `xy_j` (B, A, 2), and the cosine between j's heading and the path where it touches;
     only for the (i, j) where `pairs` (broadcastable to (B, i, j)) is True.
@@ -369,7 +381,7 @@ def _turn_speed(paths: Paths, s: np.ndarray, d: Drivers, k: np.ndarray) -> np.nd
     return np.sqrt(v_bend**2 + 2.0 * d.b_comf[..., None] * k).min(axis=-1)
 
 
-def idm(v, v0, gap, lead_v, d: Drivers) -> np.ndarray:
+def idm(v: np.ndarray, v0: Any, gap: Any, lead_v: Any, d: Drivers) -> np.ndarray:
     """Intelligent-driver-model acceleration (B, A); free road when `gap` is inf."""
     v0 = np.maximum(v0, 0.1)
     free = np.where(v <= v0, d.a_max * (1.0 - (v / v0) ** 4), -d.b_comf * (1.0 - (v0 / np.maximum(v, 1e-3)) ** 2))

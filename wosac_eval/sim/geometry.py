@@ -1,6 +1,6 @@
 """Small planar geometry helpers for the synthetic scene generator and the baselines.
 
-Polylines are float arrays of shape (num_points, 2); headings are radians,
+Polylines are float arrays of shape `(num_points, 2)`; headings are radians,
 counter-clockwise from +x (East), as in WOMD.
 """
 
@@ -22,7 +22,7 @@ def rotation(theta: float) -> np.ndarray:
 
 
 def arc_lengths(polyline: np.ndarray) -> np.ndarray:
-    """Cumulative arc length at each vertex, shape (num_points,)."""
+    """Cumulative arc length at each vertex, shape `(num_points,)`."""
     seg = np.linalg.norm(np.diff(polyline, axis=0), axis=1)
     return np.concatenate([[0.0], np.cumsum(seg)])
 
@@ -55,26 +55,26 @@ def bezier(p0: np.ndarray, d0: np.ndarray, p1: np.ndarray, d1: np.ndarray, spaci
 
 
 def arc(center: ArrayLike, radius: float, angle_from: float, angle_to: float, spacing: float) -> np.ndarray:
-    """Circular arc from `angle_from` to `angle_to` (either direction), shape (num_points, 2)."""
+    """Circular arc from `angle_from` to `angle_to` (either direction), shape `(num_points, 2)`."""
     n = max(int(np.ceil(abs(angle_to - angle_from) * radius / spacing)), 2)
     a = np.linspace(angle_from, angle_to, n + 1)
     return np.asarray(center, float) + radius * np.stack([np.cos(a), np.sin(a)], axis=1)
 
 
 def tangents(polyline: np.ndarray) -> np.ndarray:
-    """Unit tangent at each vertex (central differences), shape (num_points, 2)."""
+    """Unit tangent at each vertex (central differences), shape `(num_points, 2)`."""
     d = np.gradient(polyline, axis=0)
     return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
 
 
 def left_normals(polyline: np.ndarray) -> np.ndarray:
-    """Unit normal pointing to the left of travel at each vertex, shape (num_points, 2)."""
+    """Unit normal pointing to the left of travel at each vertex, shape `(num_points, 2)`."""
     t = tangents(polyline)
     return np.stack([-t[:, 1], t[:, 0]], axis=1)
 
 
-def box_corners(x, y, heading, length, width) -> np.ndarray:
-    """Corners of oriented boxes, shape (..., 4, 2) for inputs broadcastable to (...)."""
+def box_corners(x: np.ndarray, y: np.ndarray, heading: np.ndarray, length: np.ndarray, width: np.ndarray) -> np.ndarray:
+    """Corners of oriented boxes, shape `(..., 4, 2)` for inputs broadcastable to `(...)`."""
     x, y, heading, length, width = np.broadcast_arrays(*(np.asarray(a, float) for a in (x, y, heading, length, width)))
     c, s = np.cos(heading), np.sin(heading)
     signs = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], float)
@@ -89,9 +89,9 @@ def boxes_overlap(corners_a: np.ndarray, corners_b: np.ndarray) -> np.ndarray:
     """Separating-axis test for pairs of convex quadrilaterals.
 
     Args:
-      corners_a, corners_b: (..., 4, 2) corners of boxes, broadcastable.
+      corners_a, corners_b: `(..., 4, 2)` corners of boxes, broadcastable.
     Returns:
-      (...) boolean, True where the two boxes intersect with positive area.
+      `(...)` boolean, True where the two boxes intersect with positive area.
     """
     corners_a, corners_b = np.broadcast_arrays(corners_a, corners_b)
     overlap = np.ones(corners_a.shape[:-2], bool)

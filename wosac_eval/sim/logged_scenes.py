@@ -8,6 +8,7 @@ steps, late appearances, early exits) and the evaluated objects (the SDC and up 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -29,7 +30,7 @@ from wosac_eval.sim.scene_specs import (
 class LoggedScene:
     """A simulated scene in the local frame.
 
-    x, y, heading, speed, valid: (num_objects, NUM_STEPS).
+    x, y, heading, speed, valid: `(num_objects, 91)`.
     """
 
     spec: SceneSpec
@@ -42,14 +43,16 @@ class LoggedScene:
     tracks_to_predict: list[int]
 
 
-def simulate_agents(agents: list[AgentSpec], signal_states: dict[str, np.ndarray], blind_pairs=()) -> engine.Rollout:
+def simulate_agents(
+    agents: list[AgentSpec], signal_states: dict[str, np.ndarray], blind_pairs: Any = ()
+) -> engine.Rollout:
     """Runs the logged world: one batch entry, every agent of the scene."""
     n = len(agents)
     lengths = [geo.arc_lengths(a.path)[-1] for a in agents]
     min_length = max(max(lengths), max(a.s_init for a in agents) + 20.0 * NUM_STEPS * DT + 60.0)
     paths = engine.Paths.from_polylines([[a.path for a in agents]], PATH_SPACING_M, min_length)
 
-    def col(attr, dtype=float):
+    def col(attr: Any, dtype: Any = float) -> np.ndarray:
         return np.array([[getattr(a, attr) for a in agents]], dtype=dtype)
 
     blind = np.zeros((1, n, n), bool)
@@ -76,10 +79,17 @@ def simulate_agents(agents: list[AgentSpec], signal_states: dict[str, np.ndarray
     return engine.simulate(paths, drivers, col("s_init"), col("v_init"), stop_lines, NUM_STEPS, DT)
 
 
-def colliding_pairs(x, y, heading, length, width, valid=None) -> list[tuple[int, int]]:
+def colliding_pairs(
+    x: np.ndarray,
+    y: np.ndarray,
+    heading: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    valid: np.ndarray | None = None,
+) -> list[tuple[int, int]]:
     """Pairs (i < j) of objects whose boxes overlap at some step where both are valid.
 
-    x, y, heading, valid: (num_objects, num_steps); length, width: (num_objects,).
+    x, y, heading, valid: `(num_objects, num_steps)`; length, width: `(num_objects,)`.
     """
     n, t = x.shape
     corners = geo.box_corners(x, y, heading, length[:, None], width[:, None])  # (n, t, 4, 2)

@@ -2,7 +2,7 @@
 
 Each policy maps a `SimContext` (what a policy may see: the first 11 steps of
 every track, the map, traffic signals) to simulated futures of every sim agent,
-an array of shape (num_rollouts, num_sim_agents, 80, 4) holding
+an array of shape `(num_rollouts, num_objects, 80, 4)` holding
 center_x, center_y, center_z, heading for steps 11..90.
 
 * ``constant_velocity``: every agent keeps its current velocity and heading
@@ -22,6 +22,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -79,7 +80,7 @@ class SimContext:
         return len(self.object_ids)
 
 
-def context_from_scenario(scenario) -> SimContext:
+def context_from_scenario(scenario: Any) -> SimContext:
     """Extracts the sim agents (tracks valid at step 10) and the map of a `Scenario` proto."""
     tracks = [t for t in scenario.tracks if len(t.states) > CURRENT and t.states[CURRENT].valid]
     n = len(tracks)
@@ -134,7 +135,7 @@ def context_from_scenario(scenario) -> SimContext:
     )
 
 
-def _hold(ctx: SimContext, num_rollouts: int, x, y, heading) -> np.ndarray:
+def _hold(ctx: SimContext, num_rollouts: int, x: np.ndarray, y: np.ndarray, heading: np.ndarray) -> np.ndarray:
     """Stacks (R, N, 80) x, y, heading with z held at its current value into (R, N, 80, 4)."""
     z = np.broadcast_to(ctx.z[:, CURRENT][None, :, None], x.shape)
     return np.stack([x, y, z, heading], axis=-1)
@@ -206,7 +207,7 @@ _BLEND_M = 15.0  # distance over which an agent merges onto its lane centre
 _SMOOTH_M = 6.0  # heading smoothing along lanes (real lane polylines are noisy)
 
 
-def _lane_segments(ctx: SimContext):
+def _lane_segments(ctx: SimContext) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     ids, starts, ends = [], [], []
     for lane in ctx.lanes.values():
         ids.append(np.full(len(lane.polyline) - 1, lane.id))
@@ -248,7 +249,9 @@ def _match_lanes(ctx: SimContext) -> list[tuple[int, int, float] | None]:
     return out
 
 
-def _route(ctx: SimContext, lane_id: int, seg: int, start: np.ndarray, rng: np.random.Generator, min_length: float):
+def _route(
+    ctx: SimContext, lane_id: int, seg: int, start: np.ndarray, rng: np.random.Generator, min_length: float
+) -> Any:
     """Polyline from `start` along lane `lane_id` (from segment `seg`) and random successors,
     the (arc length, signal column) of the signal-controlled lanes it enters, and the lane ids taken."""
     column = {lid: c for c, lid in enumerate(ctx.signal_lanes)}
@@ -311,8 +314,8 @@ class _Routes:
     """Each rollout's path for each agent, and what the agent does on it.
 
     polylines, stops: [rollout][agent] the path, and its stop lines (arc length, signal column).
-    lateral: (num_agents,) the agent's offset from its lane's centre (0 off the lanes).
-    v0: (num_rollouts, num_agents) desired speed (0: parked).
+    lateral: `(num_objects,)` the agent's offset from its lane's centre (0 off the lanes).
+    v0: `(num_rollouts, num_objects)` desired speed (0: parked).
     """
 
     polylines: list[list[np.ndarray]]
@@ -389,7 +392,7 @@ POLICIES: dict[str, Callable[..., np.ndarray]] = {
 }
 
 
-def simulate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS):
+def simulate_scenario(scenario: Any, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS) -> Any:
     """(object ids (N,), trajectories (R, N, 80, 4)) of one scenario under `policy` (sim agents)."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(POLICIES)}")
@@ -397,7 +400,7 @@ def simulate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = 
     return ctx.object_ids, POLICIES[policy](ctx, _rng(scenario, policy, seed), num_rollouts)
 
 
-def _rng(scenario, policy: str, seed: int) -> np.random.Generator:
+def _rng(scenario: Any, policy: str, seed: int) -> np.random.Generator:
     return np.random.default_rng([seed, zlib.crc32(scenario.scenario_id.encode()), sorted(POLICIES).index(policy)])
 
 
@@ -450,7 +453,7 @@ def _history_noise(rng: np.random.Generator, num_rollouts: int, n: int, noise_m:
 SCENARIO_GEN_HISTORY = {"constant_velocity": "straight", "log_replay_noise": "logged_noise", "idm": "logged"}
 
 
-def generate_scenario(scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS):
+def generate_scenario(scenario: Any, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS) -> Any:
     """A scenario-gen baseline: (object ids (N,), trajectories (R, N, 91, 4), box sizes (N, 91, 3)
     length / width / height, object types (N,)).
 

@@ -77,7 +77,7 @@ class RoadNetwork:
 class _Ids:
     """Sequential map-feature ids, so that every feature id in a scene is unique."""
 
-    def __init__(self, start: int):
+    def __init__(self, start: int) -> None:
         self.next = start
 
     def __call__(self) -> int:

@@ -21,6 +21,7 @@ the logged motion is physically plausible and collision-free unless the recipe s
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -137,7 +138,9 @@ class SceneBuilder:
     def columns(self) -> dict[str, int]:
         return {g: i for i, g in enumerate(self.signal_states)}
 
-    def vehicle(self, path, s_init, v_init, v_des, stops=(), *, cyclist=False, **kw) -> AgentSpec:
+    def vehicle(
+        self, path: Any, s_init: Any, v_init: Any, v_des: Any, stops: Any = (), *, cyclist: bool = False, **kw: Any
+    ) -> AgentSpec:
         rng = self.rng
         length, width, height = _cyclist_size(rng) if cyclist else _vehicle_size(rng)
         v0 = np.full(NUM_STEPS, v_des)
@@ -168,11 +171,11 @@ class SceneBuilder:
         *,
         v_des: float,
         stopped_front: bool,
-        weave=0.12,
-        cyclist=False,
-        lateral=0.0,
-        min_s=0.0,
-    ):
+        weave: float = 0.12,
+        cyclist: bool = False,
+        lateral: float = 0.0,
+        min_s: float = 0.0,
+    ) -> Any:
         """Spawns `count` vehicles in one lane chain, front to back, spaced like IDM traffic."""
         path, stops = _chain(self.network, lane_ids)
         path = _weave(_offset_path(geo.resample(path, PATH_SPACING_M), lateral), self.rng, weave)
@@ -205,7 +208,7 @@ class SceneBuilder:
             spawned.append(spec)
         return spawned
 
-    def pedestrian(self, path, s_init, v_des, stops=(), **kw) -> AgentSpec:
+    def pedestrian(self, path: Any, s_init: Any, v_des: Any, stops: Any = (), **kw: Any) -> AgentSpec:
         length, width, height = _pedestrian_size(self.rng)
         spec = AgentSpec(
             object_type=TYPE_PEDESTRIAN,
@@ -229,7 +232,7 @@ class SceneBuilder:
         self.agents.append(spec)
         return spec
 
-    def sidewalk_walkers(self, count: int):
+    def sidewalk_walkers(self, count: int) -> None:
         for _ in range(count):
             walk = self.network.sidewalks[self.rng.integers(len(self.network.sidewalks))]
             if self.rng.random() < 0.5:
@@ -243,7 +246,7 @@ class SceneBuilder:
             else:
                 self.pedestrian(path, self.rng.uniform(0, max(total - 20.0, 1.0)), v_des)
 
-    def crossing_walkers(self, count: int):
+    def crossing_walkers(self, count: int) -> None:
         columns = self.columns
         for _ in range(count):
             crossing = self.network.crossings[self.rng.integers(len(self.network.crossings))]
@@ -251,7 +254,7 @@ class SceneBuilder:
             stops = [(crossing.wait_s, columns[crossing.signal_group])] if crossing.signal_group in columns else []
             self.pedestrian(path, self.rng.uniform(0.0, crossing.wait_s - 0.5), self.rng.uniform(1.1, 1.6), stops)
 
-    def parked(self, path: np.ndarray, count: int):
+    def parked(self, path: np.ndarray, count: int) -> None:
         total = geo.arc_lengths(path)[-1]
         slots = np.sort(self.rng.choice(np.arange(8.0, total - 8.0, 7.5), size=count, replace=False))
         for s in slots:
@@ -264,7 +267,9 @@ class SceneBuilder:
 # Recipes.
 
 
-def _intersection_traffic(b: SceneBuilder, density: float, stopped_bias: float = 0.4, skip: frozenset = frozenset()):
+def _intersection_traffic(
+    b: SceneBuilder, density: float, stopped_bias: float = 0.4, skip: frozenset = frozenset()
+) -> None:
     net = b.network
     weights = {"through": 0.6, "left": 0.2, "right": 0.2}
     approaches = [ln for ln in net.lanes_of_turn("approach") if ln.id not in skip]
@@ -295,7 +300,7 @@ def _corridor_traffic(
     v_range: tuple[float, float],
     stopped_front_p: float = 0.3,
     skip: frozenset = frozenset(),
-):
+) -> None:
     net = b.network
     for lane in [ln for ln in net.lanes_of_turn("approach") if ln.id not in skip]:
         route = _route_from(net, lane.id, b.rng, {})
@@ -313,7 +318,7 @@ def _corridor_traffic(
             )
 
 
-def _signal_states(network: roads.RoadNetwork, rng: np.random.Generator, require=None) -> dict[str, np.ndarray]:
+def _signal_states(network: roads.RoadNetwork, rng: np.random.Generator, require: Any = None) -> dict[str, np.ndarray]:
     """Draws signal programs until `require(states)` holds (so recipes get the phase they need)."""
     program = signals.intersection_program if network.kind == "intersection" else signals.midblock_program
     for _ in range(200):
@@ -323,11 +328,13 @@ def _signal_states(network: roads.RoadNetwork, rng: np.random.Generator, require
     raise RuntimeError("no signal program satisfies the recipe")
 
 
-def _new_scene(kind: str, rng: np.random.Generator, network: roads.RoadNetwork, require=None) -> SceneBuilder:
+def _new_scene(kind: str, rng: np.random.Generator, network: roads.RoadNetwork, require: Any = None) -> SceneBuilder:
     return SceneBuilder(rng, network, _signal_states(network, rng, require))
 
 
-def _recipe_intersection(rng, *, density=0.55, lanes=None, peds=(3, 8)) -> SceneBuilder:
+def _recipe_intersection(
+    rng: np.random.Generator, *, density: float = 0.55, lanes: Any = None, peds: Any = (3, 8)
+) -> SceneBuilder:
     net = roads.four_way_intersection(
         lanes_per_direction=int(lanes or rng.integers(1, 3)),
         arm_length=rng.uniform(55.0, 75.0),
@@ -340,7 +347,7 @@ def _recipe_intersection(rng, *, density=0.55, lanes=None, peds=(3, 8)) -> Scene
     return b
 
 
-def _recipe_red_light(rng) -> SceneBuilder:
+def _recipe_red_light(rng: np.random.Generator) -> SceneBuilder:
     net = roads.four_way_intersection(lanes_per_direction=2, arm_length=rng.uniform(60.0, 75.0))
     red_window = (TIMES > 1.5) & (TIMES < 6.0)
     b = _new_scene("red_light", rng, net, require=lambda st: signals.is_stop(st["EW"][red_window]).all())
@@ -358,7 +365,7 @@ def _recipe_red_light(rng) -> SceneBuilder:
     return b
 
 
-def _recipe_dense_following(rng) -> SceneBuilder:
+def _recipe_dense_following(rng: np.random.Generator) -> SceneBuilder:
     net = roads.corridor(
         lanes_per_direction=int(rng.integers(2, 4)),
         length=rng.uniform(200.0, 240.0),
@@ -379,7 +386,7 @@ def _recipe_dense_following(rng) -> SceneBuilder:
     return b
 
 
-def _recipe_offroad(rng) -> SceneBuilder:
+def _recipe_offroad(rng: np.random.Generator) -> SceneBuilder:
     net = roads.corridor(lanes_per_direction=2, length=rng.uniform(250.0, 280.0))
     b = _new_scene("offroad", rng, net)
     approach = [ln for ln in net.lanes_of_turn("approach") if ln.polyline[0, 0] < 0]  # eastbound
@@ -404,12 +411,12 @@ def _recipe_offroad(rng) -> SceneBuilder:
     return b
 
 
-def _recipe_occlusion(rng) -> SceneBuilder:
+def _recipe_occlusion(rng: np.random.Generator) -> SceneBuilder:
     b = _recipe_intersection(rng, density=0.7, peds=(4, 9))
     return b
 
 
-def _recipe_collision(rng) -> SceneBuilder:
+def _recipe_collision(rng: np.random.Generator) -> SceneBuilder:
     net = roads.corridor(lanes_per_direction=2, length=rng.uniform(200.0, 230.0))
     b = _new_scene("collision", rng, net, require=lambda st: not signals.is_stop(st["PED"][:70]).any())
     approach = [ln for ln in net.lanes_of_turn("approach") if ln.polyline[0, 0] < 0]
@@ -430,11 +437,11 @@ def _recipe_collision(rng) -> SceneBuilder:
     return b
 
 
-def _recipe_large_coordinates(rng) -> SceneBuilder:
+def _recipe_large_coordinates(rng: np.random.Generator) -> SceneBuilder:
     return _recipe_intersection(rng, density=0.9, lanes=2)
 
 
-def _recipe_heading_wrap(rng) -> SceneBuilder:
+def _recipe_heading_wrap(rng: np.random.Generator) -> SceneBuilder:
     net = roads.corridor(lanes_per_direction=2, length=rng.uniform(200.0, 230.0), parking_width=2.4)
     b = _new_scene("heading_wrap", rng, net)
     _corridor_traffic(b, (2, 5), (9.0, 14.0))
@@ -446,13 +453,13 @@ def _recipe_heading_wrap(rng) -> SceneBuilder:
     return b
 
 
-def _recipe_pedestrians(rng) -> SceneBuilder:
+def _recipe_pedestrians(rng: np.random.Generator) -> SceneBuilder:
     b = _recipe_intersection(rng, density=0.35, lanes=2, peds=(10, 16))
     b.crossing_walkers(int(rng.integers(6, 12)))
     return b
 
 
-def _recipe_cyclists(rng) -> SceneBuilder:
+def _recipe_cyclists(rng: np.random.Generator) -> SceneBuilder:
     net = roads.corridor(
         lanes_per_direction=1,
         length=rng.uniform(200.0, 230.0),

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hashlib
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -33,7 +34,7 @@ def _ground(spec: SceneSpec, xy_local: np.ndarray) -> np.ndarray:
     return spec.ground_z + xy_local @ spec.slope
 
 
-def _map_points(spec: SceneSpec, xy_local: np.ndarray, target) -> None:
+def _map_points(spec: SceneSpec, xy_local: np.ndarray, target: Any) -> None:
     world = np.round(_to_world(spec, xy_local), 4).tolist()
     z = np.round(_ground(spec, xy_local), 4).tolist()
     for (x, y), zz in zip(world, z):
@@ -41,7 +42,7 @@ def _map_points(spec: SceneSpec, xy_local: np.ndarray, target) -> None:
         p.x, p.y, p.z = x, y, zz
 
 
-def assemble(scene: LoggedScene, rng: np.random.Generator):
+def assemble(scene: LoggedScene, rng: np.random.Generator) -> Any:
     """The `Scenario` proto of a simulated scene, in world coordinates."""
     spec = scene.spec
     sc = scenario_pb2.Scenario()
@@ -54,7 +55,7 @@ def assemble(scene: LoggedScene, rng: np.random.Generator):
     return sc
 
 
-def _add_map(sc, spec: SceneSpec) -> None:
+def _add_map(sc: Any, spec: SceneSpec) -> None:
     """The network's lanes, road lines, road edges and crosswalks, as map features."""
     net = spec.network
     for lane in net.lanes.values():
@@ -82,7 +83,7 @@ def _add_map(sc, spec: SceneSpec) -> None:
         _map_points(spec, polygon, f.crosswalk.polygon)
 
 
-def _add_signal_states(sc, spec: SceneSpec) -> None:
+def _add_signal_states(sc: Any, spec: SceneSpec) -> None:
     """Every step's state of every signalised lane, with its stop point (the lane's first point)."""
     signal_lanes = spec.network.signal_lanes()
     for t in range(NUM_STEPS):
@@ -98,7 +99,7 @@ def _add_signal_states(sc, spec: SceneSpec) -> None:
             _map_points(spec, lane.polyline[:1], _Single(ls.stop_point))
 
 
-def _add_tracks(sc, scene: LoggedScene, rng: np.random.Generator) -> None:
+def _add_tracks(sc: Any, scene: LoggedScene, rng: np.random.Generator) -> None:
     """The agents' tracks in a random order (as WOMD lists them), the SDC, the tracks to predict and the
     objects of interest."""
     spec = scene.spec
@@ -146,14 +147,14 @@ def _add_tracks(sc, scene: LoggedScene, rng: np.random.Generator) -> None:
 class _Single:
     """Adapter so that `_map_points` can fill one MapPoint like a repeated field."""
 
-    def __init__(self, point):
+    def __init__(self, point: Any) -> None:
         self.point = point
 
-    def add(self):
+    def add(self) -> Any:
         return self.point
 
 
-def generate_scene(seed: int, index: int, kind: str | None = None):
+def generate_scene(seed: int, index: int, kind: str | None = None) -> Any:
     """Scenario proto number `index` of the synthetic set `seed`."""
     scene = build_scene(seed, index, kind)
     return assemble(scene, np.random.default_rng([seed, index, 1]))

@@ -21,10 +21,10 @@ def two_phase_program(
     """States over time of two conflicting phases (A then B), each green-yellow-red.
 
     Args:
-      times: (num_steps,) seconds.
+      times: `(num_steps,)` seconds.
       offset_s: where in the cycle time 0 falls.
     Returns:
-      Two (num_steps,) int arrays: the states of phase A and of phase B.
+      Two `(num_steps,)` int arrays: the states of phase A and of phase B.
     """
     cycle = green_a_s + green_b_s + 2 * (YELLOW_S + ALL_RED_S)
     tc = (np.asarray(times) + offset_s) % cycle

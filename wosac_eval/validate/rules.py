@@ -14,7 +14,7 @@ Three families:
   warnings.
 
 The per-value checks are vectorised over a whole scenario: its trajectories
-are flattened to shape (num_trajectories,) (32 joint scenes x num_objects), the
+are flattened to shape `(num_trajectories,)` (32 joint scenes x num_objects), the
 fields of every trajectory are read from the scenario's serialized bytes at once
 (`parse.wire_walks`: value counts, non-finite and non-positive values, object ids
 and types), and lengths, finiteness and object ids are
@@ -44,7 +44,7 @@ TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
 
 
 def sim_agent_ids(scenario: Any) -> np.ndarray:
-    """Sorted unique ids of the scenario's objects valid at the current step, shape (num_sim_agents,).
+    """Sorted unique ids of the scenario's objects valid at the current step, shape `(num_objects,)`.
 
     A track too short to have a current step has no valid state there.
     """
@@ -56,9 +56,9 @@ class _FieldChecks:
     """What the wire says of each trajectory of a scenario, in joint-scene order.
 
     counts, non_finite, non_positive: per trajectory and field, its number of values and whether one is
-      not finite, or (box sizes only) finite and <= 0, each shape (num_trajectories, num_fields).
+      not finite, or (box sizes only) finite and <= 0, each shape `(num_trajectories, num_fields)`.
     ids, has_id, has_type: the object id, whether it is set, and whether an object_type is set (not
-      TYPE_UNSET), each shape (num_trajectories,).
+      TYPE_UNSET), each shape `(num_trajectories,)`.
     ignored: the fields set that the challenge's evaluator does not read (`_ignored_fields`).
     """
 
@@ -193,8 +193,8 @@ def check_scene_object_ids(
 ) -> list[Finding]:
     """Object-id rules on one joint scene: no trajectory without an id, no duplicate, exactly the sim agents.
 
-    ids, has_id: the scene's trajectories' object ids and whether each is set, shape (num_trajectories,).
-    sim_agent_ids: sorted unique int64 ids, shape (num_sim_agents,), or None when
+    ids, has_id: the scene's trajectories' object ids and whether each is set, shape `(num_trajectories,)`.
+    sim_agent_ids: sorted unique int64 ids, shape `(num_objects,)`, or None when
     the scenario is unknown (then only missing ids and duplicates are checked).
     """
     out: list[Finding] = []
@@ -245,7 +245,7 @@ class _Scenario:
     and what the wire says of them.
 
     starts: the flat index of each scene's first trajectory, and the total, shape (num_scenes + 1,).
-    rollout_of: each trajectory's joint scene, shape (num_trajectories,).
+    rollout_of: each trajectory's joint scene, shape `(num_trajectories,)`.
     """
 
     location: Location  # its shard and scenario
@@ -284,9 +284,9 @@ def check_scenario_rollouts(
     and height and an object_type. Fields the challenge ignores are reported once, as a warning.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
-    (num_sim_agents,); None when the scenario is not in the scenario set.
+    `(num_objects,)`; None when the scenario is not in the scenario set.
     All joint scenes are checked together: the trajectories of the scenario
-    are flattened to shape (num_trajectories,), `rollout_of` maps each to its
+    are flattened to shape `(num_trajectories,)`, `rollout_of` maps each to its
     joint scene, and the checks run on whole arrays.
     wire_bytes: the serialized `rollouts` it was parsed from, when the caller has them (the checks read
     the wire; without them the message is serialized again).

@@ -33,7 +33,7 @@ def _record_sim_agents(record: bytes, source: ScenarioSource) -> np.ndarray:
     return np.unique(record_sim_agent_ids(record, source))
 
 
-def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
+def _sim_agents_of(_shared: Any, item: tuple[str, list[int]]) -> list[np.ndarray]:
     """Sorted sim agent ids of the scenarios at these offsets of one scenario file (a worker task)."""
     path, offsets = item
     return [_record_sim_agents(read_record_at(path, offset), ScenarioSource(Path(path), offset)) for offset in offsets]
@@ -42,9 +42,9 @@ def _sim_agents_of(_shared, item: tuple[str, list[int]]) -> list[np.ndarray]:
 def load_sim_agents(
     scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
     progress: Callable[[int], Any] | None = None,
-    executor=None,
+    executor: Any = None,
 ) -> dict[str, np.ndarray]:
-    """scenario_id -> sorted sim agent ids, shape (num_sim_agents,), in scenario-set order.
+    """scenario_id -> sorted sim agent ids, shape `(num_objects,)`, in scenario-set order.
 
     Streams the scenarios (or, from a ScenarioIndex, loads them by batches in
     the executor's workers) and keeps only the ids of objects valid at step

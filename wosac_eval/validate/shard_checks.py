@@ -41,7 +41,7 @@ def validate_scenario_rollouts(
     types for scenario gen) on one ScenarioRollouts.
 
     sim_agent_ids: ids of the scenario's objects valid at step 10, shape
-    (num_sim_agents,), or None for a scenario outside the scenario set.
+    `(num_objects,)`, or None for a scenario outside the scenario set.
     wire_bytes: the bytes the message was parsed from (`rules.check_scenario_rollouts`).
     """
     return rules.check_scenario_rollouts(

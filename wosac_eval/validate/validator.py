@@ -103,7 +103,7 @@ class _Validation:
         progress: Callable[[int], Any] | None,
         metadata_checks: str = "error",
         max_scenarios: int = InputLimits.max_scenarios,
-    ):
+    ) -> None:
         self.agents = agents
         self.max_scenarios = max_scenarios
         self.metadata_checks = metadata_checks

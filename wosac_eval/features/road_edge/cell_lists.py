@@ -11,7 +11,7 @@ bucket's, built once.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -50,17 +50,26 @@ class CellLists(NamedTuple):
     end: np.ndarray
     segment: np.ndarray
     key: np.ndarray
-    reach: np.ndarray
+    reach: Any
 
 
 @numba.njit
-def rounding_margin(distance, length):
+def rounding_margin(distance: Any, length: Any) -> Any:
     """How far below the true distance the float32 selection distance can fall (generously)."""
     return 1e-3 + 1e-5 * (distance + 2.0 * length)
 
 
 @numba.njit(error_model="numpy")
-def _cell_candidates(cx, cy, half_diagonal, min_reach, segments, buckets, gather, tag):
+def _cell_candidates(
+    cx: Any,
+    cy: Any,
+    half_diagonal: Any,
+    min_reach: Any,
+    segments: Any,
+    buckets: Any,
+    gather: Any,
+    tag: Any,
+) -> Any:
     """Every segment that can be nearest somewhere in a cell, by key, into `gather.segment` and
     `gather.key`; returns (count, clearance).
 
@@ -84,7 +93,7 @@ def _cell_candidates(cx, cy, half_diagonal, min_reach, segments, buckets, gather
 
 
 @numba.njit
-def _listed(n, reach, half_diagonal, length, out_segment, out_key):
+def _listed(n: Any, reach: Any, half_diagonal: Any, length: Any, out_segment: Any, out_key: Any) -> Any:
     """Keeps the gathered segments (first n of `out_segment`, their centre distances in `out_key`)
     that can be nearest in the cell, keyed and sorted; returns their count.
 
@@ -106,7 +115,16 @@ def _listed(n, reach, half_diagonal, length, out_segment, out_key):
 
 
 @numba.njit
-def _cell_candidates_among(cx, cy, half_diagonal, segments, among, count, shift, gather):
+def _cell_candidates_among(
+    cx: Any,
+    cy: Any,
+    half_diagonal: Any,
+    segments: Any,
+    among: Any,
+    count: int,
+    shift: Any,
+    gather: Any,
+) -> Any:
     """`_cell_candidates` of a cell inside a square whose list `among.segment[:count]` holds every
     segment that can be nearest in it (a cell's list is a subset of that of a square around it: its
     bounds are tighter), into `gather.segment` and `gather.key`; returns (count, clearance).
@@ -131,7 +149,7 @@ def _cell_candidates_among(cx, cy, half_diagonal, segments, among, count, shift,
 
 
 @cached_loop
-def query_cells(queries, buckets):
+def query_cells(queries: Any, buckets: Any) -> Any:
     """The cell of each query, numbered as first met, and each cell's centre and half-diagonal.
 
     Cells are an 8th of the bucket side (`_CELLS_PER_BUCKET`: 1 m in 8 m buckets) where the 5 x 5
@@ -139,7 +157,7 @@ def query_cells(queries, buckets):
     would each list a wide ring of segments).
 
     Returns:
-      (cell int64 `(n,)`: `OFF_GRID` for a point off the grid, `NON_FINITE` for one with a NaN
+      (cell int64 `(num_points,)`: `OFF_GRID` for a point off the grid, `NON_FINITE` for one with a NaN
       or infinite coordinate; centre float64 `(num_cells, 2)`; half-diagonal float64 `(num_cells,)`).
     """
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = buckets.grid
@@ -197,7 +215,7 @@ def query_cells(queries, buckets):
 
 
 @numba.njit
-def _segments_around(bi, bj, r, buckets):
+def _segments_around(bi: Any, bj: Any, r: Any, buckets: Any) -> bool:
     """Whether a bucket within `r` buckets of (bi, bj) lists a segment."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = buckets.grid
     bucket_start = buckets.start
@@ -209,7 +227,7 @@ def _segments_around(bi, bj, r, buckets):
 
 
 @numba.njit
-def _parent_buckets(centre, half_diagonal, min_reach, grid):
+def _parent_buckets(centre: Any, half_diagonal: Any, min_reach: Any, grid: Any) -> Any:
     """The bucket of each cell smaller than a bucket, which takes its segments among those of its bucket
     (listed once for all its cells), else -1: int64 `(num_cells,)`."""
     origin_x, origin_y, side = grid[0], grid[1], grid[2]
@@ -225,7 +243,7 @@ def _parent_buckets(centre, half_diagonal, min_reach, grid):
 
 
 @cached_loop
-def cell_lists(centre, half_diagonal, min_reach, segments, buckets):
+def cell_lists(centre: Any, half_diagonal: Any, min_reach: Any, segments: Any, buckets: Any) -> Any:
     """The candidate list of each cell (`_cell_candidates`), one after the other.
 
     Args:
@@ -273,7 +291,7 @@ def cell_lists(centre, half_diagonal, min_reach, segments, buckets):
 
 
 @numba.njit
-def _grown(a):
+def _grown(a: Any) -> Any:
     """`a` in an array twice as long (first axis), its rows kept."""
     out = np.empty((2 * a.shape[0],) + a.shape[1:], a.dtype)
     out[: a.shape[0]] = a
@@ -283,7 +301,9 @@ def _grown(a):
 _FAR_CELL_RATIO = 1024.0  # a cell off the grid is about this many times smaller than its distance to the map
 
 
-def with_far_cells(queries, cell, centre, half_diagonal, table: SegmentTable):
+def with_far_cells(
+    queries: np.ndarray, cell: np.ndarray, centre: np.ndarray, half_diagonal: np.ndarray, table: SegmentTable
+) -> Any:
     """`query_cells` with cells for the finite points off the grid (placeholder states, a rollout
     gone kilometres away): squares of a power-of-two side, about 1/1024 of their distance to
     the map and at least a bucket, so one list serves the points near one another."""

@@ -11,7 +11,7 @@ query near a road edge needs only those; built once per scene on the host
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -72,7 +72,7 @@ def cell_candidate_table(
       start, delta: float32 `(num_segments, 3)`, the segments the indices refer to (all valid).
     Returns:
       origin float32 `(2,)`, shape int32 `(2,)` (cells along x, y), candidates int32
-      `(num_cells, k)` (cell `ix * shape[1] + iy`; nearest first; rows with fewer segments repeat
+      `(num_cells, num_candidates)` (cell `ix * shape[1] + iy`; nearest first; rows with fewer segments repeat
       their first), clearance and near_clearance float32 `(num_cells,)` (near_clearance <= clearance).
     """
     start, delta = np.ascontiguousarray(start, _F), np.ascontiguousarray(delta, _F)
@@ -118,7 +118,7 @@ class CellGrid(NamedTuple):
 
 
 @cached_loop
-def _cell_table(frame, cells, k, near, buckets):
+def _cell_table(frame: Any, cells: Any, k: Any, near: Any, buckets: Any) -> Any:
     """`cell_candidate_table`'s lists and both clearances (float64), group of cells by group.
 
     A group of `_GROUP_CELLS` x `_GROUP_CELLS` cells gathers, ring by ring of buckets around its

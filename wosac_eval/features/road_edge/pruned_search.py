@@ -23,6 +23,7 @@ distances of the found segments, for points and boxes, are in `signed_distance`.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -60,7 +61,7 @@ _segment_distances = compiled(segment_distances)
 
 
 @numba.njit
-def _distance_bound(qx, qy, qz, k, frame):
+def _distance_bound(qx: Any, qy: Any, qz: Any, k: int, frame: Any) -> Any:
     """A lower bound of the squared selection distance from a point to segment k (float64, no division):
     the squared planar distance to the segment plus the stretched squared height gap to its z range
     (every point of the segment is at least that far in each)."""
@@ -69,14 +70,16 @@ def _distance_bound(qx, qy, qz, k, frame):
 
 
 @numba.njit
-def _selection(px, py, pz, k, start, delta):
+def _selection(px: Any, py: Any, pz: Any, k: int, start: Any, delta: Any) -> Any:
     return _segment_distances(px, py, pz, start[k, 0], start[k, 1], start[k, 2], delta[k, 0], delta[k, 1], delta[k, 2])[
         1
     ]
 
 
 @cached_loop
-def _ring_search(px, py, pz, segments, buckets, gather, tag, max_length):
+def _ring_search(
+    px: float, py: float, pz: float, segments: Any, buckets: Any, gather: Any, tag: Any, max_length: Any
+) -> Any:
     """The nearest segment of one point by expanding rings of buckets around it (exact, any point);
     `gather.seen` marks the segments met (under `tag`), `gather.ring` holds a ring's buckets.
 
@@ -106,7 +109,7 @@ def _ring_search(px, py, pz, segments, buckets, gather, tag, max_length):
 
 
 @cached_loop
-def _search_lists(queries, cell, lists, segments, max_length, hint_stride):
+def _search_lists(queries: Any, cell: Any, lists: Any, segments: Any, max_length: Any, hint_stride: Any) -> Any:
     """The nearest segment of each query among its cell's list (`lists`: `cell_lists.CellLists`).
 
     The nearest segment of the query `hint_stride` before (the same corner of a nearby box, in
@@ -117,7 +120,7 @@ def _search_lists(queries, cell, lists, segments, max_length, hint_stride):
     the nearest of those evaluated, and the bounds cover every segment that could beat it.)
 
     Returns:
-      (int64 `(n,)`: the segment, `NOT_FOUND` where the list does not settle it (or the query
+      (int64 `(num_points,)`: the segment, `NOT_FOUND` where the list does not settle it (or the query
       has no cell), `NON_FINITE` for a NaN or infinite point; float64 `(num_cells,)`: the R a
       cell's list needs to settle all its queries, 0 where it does; the number of distances
       evaluated).
@@ -169,7 +172,7 @@ def _search_lists(queries, cell, lists, segments, max_length, hint_stride):
 
 
 @cached_loop
-def _ring_searches(queries, found, segments, buckets, max_length):
+def _ring_searches(queries: Any, found: Any, segments: Any, buckets: Any, max_length: Any) -> Any:
     """`_ring_search` for every query `found` left `NOT_FOUND` (in place); returns the distances evaluated."""
     none = np.empty(0, np.int32), np.empty(0, np.float64)  # the ring search keeps no gathered list
     gather = Gather(np.full(segments.start.shape[0], -1, np.int64), ring_buffer(buckets.grid), *none)
@@ -183,18 +186,20 @@ def _ring_searches(queries, found, segments, buckets, max_length):
     return evaluated
 
 
-def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, hint_stride: int = 1) -> np.ndarray:
+def _nearest_segments(
+    queries: np.ndarray, table: SegmentTable, counts: dict | None = None, hint_stride: int = 1
+) -> np.ndarray:
     """The nearest valid segment of each point (stretched selection distance, lowest index on ties).
 
     Args:
-      queries: float32 `(n, 3)`, contiguous.
+      queries: float32 `(num_points, 3)`, contiguous.
       counts: a dict that gets the work done: "cells" (candidate lists built; none where the queries
         are scattered, fewer than `SPARSE_QUERIES_PER_CELL` per cell: each then searches the rings of
         buckets around it), "pairs evaluated" (selection distances computed).
       hint_stride: each query starts from the answer of the query this many before it (a hint only:
         the result does not depend on it; it saves work where that query is near).
     Returns:
-      int64 `(n,)`: a segment, `NOT_FOUND` when no segment is listed, `NON_FINITE` for a point
+      int64 `(num_points,)`: a segment, `NOT_FOUND` when no segment is listed, `NON_FINITE` for a point
       with a NaN or infinite coordinate.
     """
     buckets, segments = table.buckets(), table.searched()
@@ -203,7 +208,7 @@ def _nearest_segments(queries, table: SegmentTable, counts: dict | None = None, 
     max_length = float(table.length[table.bucket_segments].max(initial=0.0))
     work = {"cells": 0, "pairs evaluated": 0}
 
-    def search(rows, cells, min_reach):
+    def search(rows: np.ndarray | slice, cells: np.ndarray, min_reach: Any) -> Any:
         lists = CellLists(
             centre[cells],
             half_diagonal[cells],

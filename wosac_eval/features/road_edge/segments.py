@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Mapping
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numba
 import numpy as np
@@ -93,12 +93,12 @@ class SegmentTable:
         return search_buckets({k: getattr(self, k) for k in names})
 
 
-def _cross(ax, ay, bx, by):
+def _cross(ax: Any, ay: Any, bx: Any, by: Any) -> Any:
     return ax * by - ay * bx
 
 
-def segment_frames(start, delta):
-    """float64 `(S, 7)`: each segment's start (x, y), planar unit direction (x, y), planar length, and
+def segment_frames(start: np.ndarray, delta: np.ndarray) -> np.ndarray:
+    """float64 `(num_segments, 7)`: each segment's start (x, y), planar unit direction (x, y), planar length, and
     lowest and highest z; a segment of no planar length gets the direction (1, 0) (`pruned_search._distance_bound`)."""
     dx, dy = delta[:, 0].astype(np.float64), delta[:, 1].astype(np.float64)
     length = np.hypot(dx, dy)
@@ -121,7 +121,7 @@ def segment_frames(start, delta):
     )
 
 
-def build_segment_table(polylines) -> SegmentTable:
+def build_segment_table(polylines: Any) -> SegmentTable:
     """Pads polylines to a common length, precomputes segment neighbours and buckets.
 
     Args:
@@ -174,7 +174,17 @@ def build_segment_table(polylines) -> SegmentTable:
     )
 
 
-def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
+def segment_distances(
+    px: Any,
+    py: Any,
+    pz: Any,
+    sx: Any,
+    sy: Any,
+    sz: Any,
+    dx: Any,
+    dy: Any,
+    dz: Any,
+) -> Any:
     """Projection parameter, stretched 3D distance and planar distance, float32.
 
     Elementwise (broadcasting) over points p, segment starts s and segment
@@ -192,7 +202,7 @@ def segment_distances(px, py, pz, sx, sy, sz, dx, dy, dz):
     return rel_t, ops.sqrt(planar2 + oz * oz), ops.sqrt(planar2)
 
 
-def segment_side(query_xy, start, delta):
+def segment_side(query_xy: Any, start: Any, delta: Any) -> Any:
     """Sign of the cross product: +1 on the right (off-road) side of a segment.
 
     Args:
@@ -205,12 +215,21 @@ def segment_side(query_xy, start, delta):
     )
 
 
-def side_of_segment(px, py, sx, sy, dx, dy):
+def side_of_segment(px: Any, py: Any, sx: Any, sy: Any, dx: Any, dy: Any) -> Any:
     """`segment_side` on separate coordinates (an elementwise `ops` kernel)."""
     return ops.sign((px - sx) * dy - (py - sy) * dx)
 
 
-def corner_sign(rel_t, n, n_prior, n_next, convex_before, convex_after, prior_valid, next_valid):
+def corner_sign(
+    rel_t: Any,
+    n: Any,
+    n_prior: Any,
+    n_next: Any,
+    convex_before: Any,
+    convex_after: Any,
+    prior_valid: Any,
+    next_valid: Any,
+) -> Any:
     """Side of the nearest segment, corrected where the point projects past an end.
 
     Past an end the sign follows the corner with the neighbour segment: on a
@@ -259,7 +278,8 @@ class SearchedSegments(NamedTuple):
     """The segment arrays the compiled searches read, a `SegmentTable`'s (`SegmentTable.searched`).
 
     Attributes:
-      start, delta: float32 `(S, 3)`; frame: float64 `(S, 7)` (`segment_frames`); length: float64 `(S,)`.
+      start, delta: float32 `(num_segments, 3)`; frame: float64 `(num_segments, 7)` (`segment_frames`);
+        length: float64 `(num_segments,)`.
     """
 
     start: np.ndarray
@@ -301,9 +321,9 @@ class Gather(NamedTuple):
     """The workspace of segments gathered ring by ring (`gather_ring`).
 
     Attributes:
-      seen: int64 `(S,)`, the tag under which each segment was last gathered.
+      seen: int64 `(num_segments,)`, the tag under which each segment was last gathered.
       ring: the buckets of one ring (`ring_buffer`).
-      segment: int32 `(S,)`, the gathered segments; key: float64 `(S,)`, their planar distances.
+      segment: int32 `(num_segments,)`, the gathered segments; key: float64 `(num_segments,)`, their planar distances.
     """
 
     seen: np.ndarray
@@ -313,7 +333,7 @@ class Gather(NamedTuple):
 
 
 @numba.njit
-def gather_workspace(num_segments, grid):
+def gather_workspace(num_segments: Any, grid: Any) -> Any:
     """A `Gather` for `num_segments` segments of the grid, no segment seen yet."""
     return Gather(
         np.full(num_segments, -1, np.int64),
@@ -331,7 +351,7 @@ def search_buckets(grid: Mapping) -> Buckets:
     return Buckets(search_grid(origin, side, shape, occupied), grid["bucket_start"], grid["bucket_segments"])
 
 
-def search_grid(origin, side, shape, occupied) -> tuple:
+def search_grid(origin: np.ndarray, side: Any, shape: Any, occupied: Any) -> tuple:
     """The bucket grid as the compiled loops read it, a tuple of 9: origin x, origin y and side (float), buckets
     along x and y, then the first and last bucket holding a segment along x and along y (int); from the
     `bucket_origin`, `bucket_side`, `bucket_shape` and `segment_buckets` of `bucket_grid` or a `SegmentTable`."""
@@ -339,7 +359,9 @@ def search_grid(origin, side, shape, occupied) -> tuple:
 
 
 @numba.njit(cache=True)
-def _bucket_lists(start, delta, listed, origin_x, origin_y, side, num_x, num_y):
+def _bucket_lists(
+    start: Any, delta: Any, listed: Any, origin_x: Any, origin_y: Any, side: Any, num_x: Any, num_y: Any
+) -> Any:
     """(list starts `(num_buckets + 1,)`, segments bucket by bucket, the occupied range [x0, x1, y0, y1])."""
     counts = np.zeros(num_x * num_y + 1, np.int64)
     occupied = np.array([num_x, -1, num_y, -1], np.int64)
@@ -369,14 +391,14 @@ def _bucket_lists(start, delta, listed, origin_x, origin_y, side, num_x, num_y):
 
 
 @numba.njit
-def ring_buffer(grid):
+def ring_buffer(grid: Any) -> np.ndarray:
     """Room for the buckets of one ring within the grid's occupied range (`ring_buckets`)."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
     return np.empty(2 * (max(x1 - x0, 0) + max(y1 - y0, 0)) + 4, np.int64)
 
 
 @numba.njit
-def rings_around(x, y, grid):
+def rings_around(x: Any, y: Any, grid: Any) -> Any:
     """The bucket (bi, bj) of a point and the first and last rings around it that meet the
     occupied range (`ring_buckets`)."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
@@ -385,7 +407,7 @@ def rings_around(x, y, grid):
 
 
 @numba.njit
-def ring_buckets(bi, bj, r, grid, out):
+def ring_buckets(bi: Any, bj: Any, r: Any, grid: Any, out: Any) -> Any:
     """The buckets r steps (Chebyshev) from bucket (bi, bj) within the occupied range, into `out`;
     returns their count."""
     origin_x, origin_y, side, num_x, num_y, x0, x1, y0, y1 = grid
@@ -406,13 +428,13 @@ def ring_buckets(bi, bj, r, grid, out):
 
 
 @numba.njit
-def bucket_of(value, origin, side):
+def bucket_of(value: Any, origin: Any, side: Any) -> Any:
     """The bucket index along one axis of a finite coordinate (`bucket_coordinate`'s floor)."""
     return int(math.floor(bucket_coordinate(value, origin, side)))
 
 
 @numba.njit
-def bucket_coordinate(value, origin, side):
+def bucket_coordinate(value: Any, origin: Any, side: Any) -> Any:
     """Where a finite coordinate lies along one axis, in buckets from the grid's origin, clamped far
     beyond any grid (an integer conversion of a huge float is undefined). The side is a power of two
     (`bucket_grid`): multiplying by its inverse (hoisted out of callers' loops) is exact, where a
@@ -421,7 +443,7 @@ def bucket_coordinate(value, origin, side):
 
 
 @numba.njit
-def _bucket_range(start, delta, origin, side, num):
+def _bucket_range(start: Any, delta: Any, origin: Any, side: Any, num: Any) -> Any:
     """Buckets along one axis overlapped by a segment (clamped to the grid)."""
     low, high = min(start, start + delta), max(start, start + delta)
     first = bucket_of(np.float64(low), origin, side)
@@ -430,7 +452,7 @@ def _bucket_range(start, delta, origin, side, num):
 
 
 @numba.njit
-def planar_squared(qx, qy, k, frame):
+def planar_squared(qx: Any, qy: Any, k: int, frame: Any) -> Any:
     """The squared planar distance (float64) from a point to segment k, in the segment's own frame (no
     division). Its rounding, about 1e-16 of the coordinates, is far inside `cell_lists.rounding_margin`."""
     tx, ty = qx - frame[k, 0], qy - frame[k, 1]
@@ -441,13 +463,13 @@ def planar_squared(qx, qy, k, frame):
 
 
 @numba.njit
-def planar_distance(cx, cy, k, frame):
+def planar_distance(cx: Any, cy: Any, k: int, frame: Any) -> Any:
     """Planar distance (float64) from a point to segment k: a lower bound of its selection distance."""
     return math.sqrt(planar_squared(cx, cy, k, frame))
 
 
 @numba.njit
-def gather_ring(cx, cy, r, frame, buckets, gather, tag, n):
+def gather_ring(cx: Any, cy: Any, r: Any, frame: Any, buckets: Buckets, gather: Any, tag: Any, n: Any) -> Any:
     """Appends the segments of the buckets r rings around the bucket of (cx, cy) not met yet (`gather.seen`
     is not `tag`), with their planar distance from (cx, cy), to `gather.segment` and `gather.key` from `n`;
     returns the new count. Before ring r, a segment not met yet is at least (r - 1) buckets away."""

@@ -5,6 +5,8 @@ the nearest segment and its neighbours, and the most off-road corner of each box
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from wosac_eval.features.box_geometry import box_corners
@@ -25,8 +27,8 @@ _corner_sign = compiled(corner_sign)
 
 
 @cached_loop
-def _signed_distances(queries, segment, sides, group):
-    """Signed planar distance of each point to its nearest segment (`segment`, `(n,)`; `sides`: the
+def _signed_distances(queries: Any, segment: Any, sides: Any, group: Any) -> Any:
+    """Signed planar distance of each point to its nearest segment (`segment`, `(num_points,)`; `sides`: the
     table's `SegmentSides`): the largest of each `group` of consecutive points (numpy's maximum: NaN
     passes on), float32 `(n // group,)`."""
     start, delta, valid, prior, next_, prior_valid, next_valid, convex_before, convex_after = sides
@@ -63,13 +65,13 @@ def signed_distance_to_polylines(table: SegmentTable, queries: np.ndarray) -> np
     return _signed_distance_groups(table, np.ascontiguousarray(queries, _F).reshape(-1, 3), 1)
 
 
-def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None):
+def _signed_distance_groups(table: SegmentTable, queries: np.ndarray, group: int, counts: dict | None = None) -> Any:
     # The same corner of the box before is the hint (`_nearest_segments`).
     segment = nearest_segments(table, queries, counts, hint_stride=group)
     return signed_distance_to_segments(table, queries, segment, group)
 
 
-def signed_distance_to_segments(table: SegmentTable, queries: np.ndarray, segment: np.ndarray, group: int = 1):
+def signed_distance_to_segments(table: SegmentTable, queries: np.ndarray, segment: np.ndarray, group: int = 1) -> Any:
     """Signed planar distance of each point to its given segment, the largest of each `group` of
     consecutive points (NaN passes on).
 
@@ -83,7 +85,16 @@ def signed_distance_to_segments(table: SegmentTable, queries: np.ndarray, segmen
 
 
 def box_distance_to_road_edge(
-    x, y, bottom, length, width, cos_h, sin_h, valid, table: SegmentTable, counts: dict | None = None
+    x: np.ndarray,
+    y: np.ndarray,
+    bottom: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    cos_h: np.ndarray,
+    sin_h: np.ndarray,
+    valid: np.ndarray,
+    table: SegmentTable,
+    counts: dict | None = None,
 ) -> np.ndarray:
     """Signed distance of the most off-road bottom corner of each box.
 
@@ -115,9 +126,18 @@ _box_corners = compiled(box_corners)
 
 
 @cached_loop
-def _box_corner_queries(x, y, bottom, length, width, cos_h, sin_h, valid):
-    """The 4 corners (x, y, bottom) of each valid box, float32 `(4 * num_valid, 3)`, and the valid boxes'
-    flat indices, int64 `(num_valid,)`, in their flat order; the arguments are arrays of one shape `(...)`."""
+def _box_corner_queries(
+    x: Any,
+    y: Any,
+    bottom: Any,
+    length: Any,
+    width: Any,
+    cos_h: Any,
+    sin_h: Any,
+    valid: Any,
+) -> Any:
+    """The 4 corners (x, y, bottom) of each valid box, float32 with 3 columns (4 rows a box), and the valid
+    boxes' flat indices, int64, in their flat order; the arguments are arrays of one shape `(...)`."""
     flat = valid.reshape(-1)
     keep = np.flatnonzero(flat)
     queries = np.empty((4 * keep.shape[0], 3), np.float32)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.fronts.usage import UsageError, check_output_file
@@ -111,7 +112,7 @@ def _metrics_named(args: argparse.Namespace) -> list[str]:
     return [canonical_metric(m.strip()) for spec in args.metric or [] for m in spec.split(",") if m.strip()]
 
 
-def _per_object(args: argparse.Namespace, base: ScoringResult, new: ScoringResult, settings: PairedSettings):
+def _per_object(args: argparse.Namespace, base: ScoringResult, new: ScoringResult, settings: PairedSettings) -> Any:
     """The object-by-object comparison (with --per-object; None without it)."""
     if not args.per_object:
         return None
@@ -124,7 +125,7 @@ def _per_object(args: argparse.Namespace, base: ScoringResult, new: ScoringResul
     return compare_objects(base, new, metrics=_metrics_named(args) or None, top=args.top, settings=settings)
 
 
-def _objects_markdown(objects) -> str:
+def _objects_markdown(objects: Any) -> str:
     if objects is None:
         return ""
     from wosac_eval.results.per_object_compare import format_objects_markdown  # loaded with compare_objects

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.fronts.usage import UsageError, add_challenge, add_scenarios, check_input, check_output_file
 
@@ -76,7 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _pick_scenario(index, wanted: str | None) -> str:
+def _pick_scenario(index: Any, wanted: str | None) -> str:
     ids = list(index)
     if wanted is not None:
         if wanted not in index:

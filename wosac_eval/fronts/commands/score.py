@@ -11,6 +11,7 @@ import json
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 from wosac_eval.extras import BACKENDS, BackendUnavailableError, EngineUnavailableError
 from wosac_eval.fronts.usage import (
@@ -123,7 +124,7 @@ def _add_run_options(parser: argparse.ArgumentParser) -> None:
     add_input_limits(parser, InputLimits.max_total_bytes, InputLimits.max_member_bytes)
 
 
-def _progress():
+def _progress() -> Any:
     """A tqdm bar on stderr when it is a terminal: (update callback, bar), or (None, None)."""
     if not sys.stderr.isatty():
         return None, None

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from typing import Any
 
 from wosac_eval.extras import EngineUnavailableError
 from wosac_eval.fronts.usage import (
@@ -58,7 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_input_limits(parser, InputLimits.max_total_bytes, InputLimits.max_member_bytes)
 
 
-def _progress_bar(total: int | None, what: str):
+def _progress_bar(total: int | None, what: str) -> Any:
     """A tqdm bar on stderr when stdout is a terminal (never in pipes or CI logs), else None."""
     if not sys.stdout.isatty():
         return None

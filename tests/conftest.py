@@ -152,7 +152,6 @@ SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the 
 # (the README's command): Ray clusters, browsers, Docker, and what is explicitly marked `ci` (the documents'
 # blocks, the full-scale paths compared, numerical gradient checks). Each is also `slow`.
 CI_MARKERS = ("ray", "browser", "docker", "ci")
-_CI_LEFT_OUT = pytest.StashKey[int]()
 
 
 def pytest_addoption(parser):
@@ -201,7 +200,6 @@ def pytest_collection_modifyitems(config, items):
         if left_out:
             config.hook.pytest_deselected(items=left_out)
             items[:] = [item for item in items if item.get_closest_marker("ci") is None]
-        config.stash[_CI_LEFT_OUT] = len(left_out)
     items.sort(key=lambda item: item.get_closest_marker("jax") is not None)
 
 
@@ -268,10 +266,10 @@ def _processes_left_behind() -> list[str]:
 
 
 def pytest_terminal_summary(terminalreporter, exitstatus, config):
-    if config.stash.get(_CI_LEFT_OUT, 0):
+    if leaves_out_the_ci_tier(config):  # (under xdist the workers collect: the controller names no count)
         terminalreporter.line(
-            f"{config.stash[_CI_LEFT_OUT]} tests of the CI tier left out (Ray clusters, browsers, Docker, the "
-            "documents' blocks, the full-scale paths): `pytest -n auto --ci` runs them too, as CI does"
+            "the CI tier was left out (Ray clusters, browsers, Docker, the documents' blocks, the full-scale "
+            "paths): `pytest -n auto --ci` runs it too, as CI does"
         )
     leaks = config.stash.get(_LEAKS_KEY, None)
     if not leaks:

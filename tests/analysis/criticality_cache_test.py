@@ -56,6 +56,7 @@ def plant(path, braking: float) -> None:
             db.execute("UPDATE scenes SET criticality = ? WHERE scenario_id = ?", (json.dumps(row), sid))
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_second_run_takes_every_scene_from_the_cache_and_writes_the_same_document(
     scene_set, without_cache, tmp_path, monkeypatch
 ):
@@ -112,6 +113,7 @@ def test_the_jax_backend_reads_and_fills_the_same_cache(scene_set, without_cache
     assert {row["criticality"]["components"]["braking"] for row in planted["scenarios"]} == {0.375}
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_worker_processes_share_the_cache_on_the_command_line(scene_set, without_cache, tmp_path):
     scenarios, submission = scene_set
     path = tmp_path / "criticality.sqlite3"

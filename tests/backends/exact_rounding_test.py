@@ -43,11 +43,13 @@ def lowered(challenge: str, mode: str) -> str:
 
 
 @pytest.mark.parametrize("challenge", CHALLENGES)
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_the_exact_mode_program_leaves_no_float32_rounding_to_the_compiler(challenge):
     assert float32_hazards(lowered(challenge, "exact")) == {}
 
 
 @pytest.mark.parametrize("challenge", CHALLENGES)
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_the_check_finds_the_hazards_of_the_float32_mode(challenge):
     hazards = float32_hazards(lowered(challenge, "float32"))
     assert hazards["multiply"] > 100 and hazards["divide"] > 0 and hazards["sqrt"] > 0, hazards

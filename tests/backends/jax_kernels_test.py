@@ -481,6 +481,7 @@ print(jax_backend.fma_contraction(), control, differing)
 """
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_speeds_stay_exact_where_xla_fuses_multiply_adds():
     """Without `exact_cpu()` XLA fuses `a * b + c` on a CPU with FMA (as on a GPU): the squares of a speed
     are still rounded one by one, so the kinematic features equal numpy's bit for bit."""

@@ -36,6 +36,7 @@ def padded(values, fill=F(3.5)):
     return np.concatenate([values, np.full(PAD, fill, F)])
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_sums_and_means_behind_padding():
     keys = ["1", "33", "321", "8192", "8193", "16385"]
     inputs = [(padded(oracle.case("sum", k)["in"]), np.int32(int(k))) for k in keys]

@@ -42,6 +42,7 @@ def _files(folder):
     return sorted(folder.glob("*" + program_cache.SUFFIX))
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_kept_program_is_read_back_with_the_same_features(programs, monkeypatch):
     before = dict(program_cache.stats)
     golden.assert_features_equal(_features(), _numpy(), "traced and kept")
@@ -55,6 +56,7 @@ def test_a_kept_program_is_read_back_with_the_same_features(programs, monkeypatc
     assert _files(programs) == [kept]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_damaged_file_is_traced_anew_and_rewritten(programs, monkeypatch):
     _features()
     (kept,) = _files(programs)
@@ -77,6 +79,7 @@ def step_length(context: registry.FeatureContext):
     return context.reported(xp.concatenate([xp.zeros_like(moved[..., :1]), moved], axis=-1))
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_feature_from_outside_the_package_is_never_kept(programs):
     assert program_cache.is_ours(registry.features()[0].kernel)
     assert not program_cache.is_ours(step_length)
@@ -101,6 +104,7 @@ def test_the_file_name_follows_the_static_facts_and_the_shapes():
     assert name != program_cache.program_digest("features", "layout A", (args[0], {"x": np.zeros((2, 3), np.float64)}))
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_the_code_version_follows_the_package_sources(tmp_path):
     """A copy of the package with one kernel changed has another code version (so its programs are new)."""
     import shutil

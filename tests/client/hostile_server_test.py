@@ -69,6 +69,7 @@ def url(server) -> str:
     return f"http://127.0.0.1:{server.server_address[1]}"
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_an_answer_that_trickles_stops_at_its_deadline(hostile):
     hostile.trickle = True
     start = time.monotonic()

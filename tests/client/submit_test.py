@@ -237,6 +237,7 @@ def test_a_failed_job_prints_its_error_and_exits_1(tmp_path, scoring_server, dat
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGKILL], ids=["ctrl-c", "kill"])
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_an_interrupted_upload_goes_on_from_the_servers_offset(tmp_path, api_server, big_file, sig):
     (key, method), state, size = (
         new_key(api_server, f"team-{sig.name.lower()}"),

@@ -62,6 +62,7 @@ KERNELS = {
 
 
 @pytest.mark.parametrize("name", sorted(KERNELS))
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_compiled_kernel_equals_numpy_bit_for_bit(name):
     kernel, arity, scale = KERNELS[name]
     rng = np.random.default_rng(abs(hash(name)) % 2**32)

@@ -49,6 +49,7 @@ def test_every_row_carries_the_analysis(runs):
     assert summary["by_object_type"]["vehicle"]["num_scenarios"] == 8
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_criticality_table_ranks_the_set_like_the_result_rows(runs, tmp_path):
     done = run_cli("criticality", "--scenarios", *runs["scenarios"], "-o", str(tmp_path / "c.csv"), "--per-step")
     assert done.returncode == 0, done.stderr
@@ -78,6 +79,7 @@ def test_criticality_writes_parquet(runs, tmp_path):
     assert table.num_rows == 8 and table.column("rank").to_pylist() == list(range(1, 9))
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_criticality_refuses_bad_outputs_at_once(runs, tmp_path):
     for output, message in (
         (tmp_path / "c.txt", "the suffix chooses the format"),
@@ -100,6 +102,7 @@ def test_selection_rules():
     assert select_scenarios(ranked, "top:40") == [f"s{i}" for i in range(10)]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_score_select_scores_the_long_tail_only(runs, tmp_path):
     ranked = scenario_set_criticality(runs["scenarios"])["scenarios"]
     done = run_cli(
@@ -134,6 +137,7 @@ def test_score_select_scores_the_long_tail_only(runs, tmp_path):
 @pytest.mark.parametrize(
     "by, strata", [("criticality", {"low", "mid", "high", "long tail", "rest"}), ("object_type", {"vehicle"})]
 )
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_compare_stratified(runs, tmp_path, by, strata):
     done = run_cli(
         "compare",
@@ -169,6 +173,7 @@ def test_compare_stratified(runs, tmp_path, by, strata):
     assert table.returncode == 0 and f"stratified by {by.replace('_', ' ')}" in table.stdout
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_compare_stratified_refuses_results_without_the_analysis(runs, tmp_path):
     old = json.loads(runs["idm.json"].read_text())
     for row in old["scenarios"]:
@@ -179,6 +184,7 @@ def test_compare_stratified_refuses_results_without_the_analysis(runs, tmp_path)
         assert done.returncode == 2 and "score them again" in done.stderr, done.stderr
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_report_shows_realism_against_criticality(runs, tmp_path):
     done = run_cli("report", str(runs["idm.json"]), "--html", str(tmp_path / "r.html"))
     assert done.returncode == 0, done.stderr

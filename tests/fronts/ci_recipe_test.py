@@ -47,6 +47,7 @@ def _run_gate(tmp_path, submission, baseline, gates):
     return proc, summary
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_gate_script_fails_on_a_regression_and_still_writes_the_report(tmp_path):
     baseline = tmp_path / "baseline.json"
     assert (
@@ -81,6 +82,7 @@ def test_gate_script_fails_on_a_regression_and_still_writes_the_report(tmp_path)
     )
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_gate_script_without_baseline_scores_and_reports(tmp_path):
     proc, summary = _run_gate(tmp_path, _submission("logreplay_noise05"), tmp_path / "missing.json", "metametric:0.005")
     assert proc.returncode == 0, proc.stdout + proc.stderr

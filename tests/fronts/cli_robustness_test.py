@@ -50,6 +50,7 @@ def test_version():
     assert proc.stdout.strip().startswith(f"wosac-eval {wosac_eval.__version__} ")
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_unwritable_output_is_refused_before_any_work(tmp_path, scene_and_submission):
     scenarios, submission = scene_and_submission
     missing = tmp_path / "missing" / "r.json"
@@ -60,6 +61,7 @@ def test_unwritable_output_is_refused_before_any_work(tmp_path, scene_and_submis
     assert_one_clean_error(proc, "is a folder")
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_other_outputs_are_checked_first(tmp_path, scene_and_submission):
     scenarios, _ = scene_and_submission
     nowhere = tmp_path / "nowhere"
@@ -147,6 +149,7 @@ def test_archive_bytes_given_as_a_shard_are_recognised(tmp_path, scene_and_submi
     assert "the name does not say so, but this is a gzip-compressed tar" in proc.stdout
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_official_test_submission_scores_with_metadata_warnings(tmp_path):
     """The official test submission has no account or flags: local scoring lists them, validate refuses."""
     shared = require_shared("womd")
@@ -279,6 +282,7 @@ def test_score_with_a_binary_config_names_the_file(tmp_path, scene_and_submissio
     assert "codec" not in proc.stderr
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_command_loads_only_its_own_modules():
     """`wosac-eval compare` and `report` read result files: they start without the scoring stack, which
     `score` loads; `--help` still lists every command."""

@@ -7,6 +7,8 @@ import io
 import json
 import tarfile
 
+import pytest
+
 from wosac_eval.arrays.submission_writer import SubmissionMetadata
 from wosac_eval.parse.shard_walk import iter_submission_shards
 from wosac_eval.sim import baselines, scenes
@@ -18,6 +20,7 @@ def _scenarios(tmp_path):
     return scenes.write_scenario_shards(scenes.generate_scenes(3, seed=0), tmp_path / "scenarios", 1)
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_partial_never_goes_past_metadata_errors(tmp_path):
     paths = _scenarios(tmp_path)
     anonymous = SubmissionMetadata(unique_method_name="cv", account_name="")
@@ -39,6 +42,7 @@ def test_partial_never_goes_past_metadata_errors(tmp_path):
     assert run_cli(*args[:-3], "-o", str(tmp_path / "r.json"), "--partial").returncode == 0  # warnings only
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_partial_scores_the_shards_before_a_cut_off_end(tmp_path):
     paths = _scenarios(tmp_path)
     whole = baselines.make_submission(paths, "constant_velocity", tmp_path / "cv.tar.gz", num_shards=3)

@@ -11,6 +11,7 @@ from support.runs import run_score
 
 
 @pytest.mark.parametrize("workers", [1, 2])
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_score_matches_golden(tmp_path, workers):
     shared = require_shared()
     case = "637f20cafde22ff8__official_test_submission"
@@ -34,6 +35,7 @@ def test_score_matches_golden(tmp_path, workers):
         assert value == golden["buckets"][field], field
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_score_refuses_incomplete_submission_and_partial_lists_skipped(tmp_path):
     shared = require_shared()
     args = [

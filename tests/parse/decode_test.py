@@ -6,6 +6,8 @@ import subprocess
 import sys
 import textwrap
 
+import pytest
+
 # Each run is a process of its own: it lowers its address-space limit to `mapped + margin` bytes
 # and prints, line by line, what each parse gave.
 _PROGRAM = textwrap.dedent("""
@@ -40,6 +42,7 @@ _PROGRAM = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_parse_refused_for_memory_is_a_memory_error_and_damaged_bytes_stay_a_decode_error(tmp_path):
     # Where upb's first refused allocation lands depends on the margin, and at some margins upb
     # itself crashes (SIGSEGV) instead of failing the parse: a process of the service's jobs ended

@@ -97,6 +97,7 @@ def test_real_runs_objects_changes_are_the_objects_values(real, capsys):
     assert out["objects"]["matched"] == len(b) and out["changed_strata"][0]["label"]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     base_path, new_path = demo
     base, new = load_result(base_path), load_result(new_path)

@@ -84,6 +84,7 @@ def test_contributions_split_each_bucket_gap_exactly(scored):
         assert objects == everything[bucket][:3]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_report_renders_the_worst_objects_section(scored, tmp_path, capsys):
     result = load_result(scored)
     page = _Page(render_report(result, top_k=4))

@@ -118,6 +118,7 @@ def test_a_run_resumed_late_reads_the_members_it_kept_not_the_archive(workload, 
     assert not members_path(journal).exists()
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_journal_of_another_run_is_set_aside(workload, uninterrupted, tmp_path, caplog):
     scenarios, submission = workload
     journal = tmp_path / "run.journal"
@@ -166,6 +167,7 @@ def test_cli_interrupted_then_run_again_writes_the_same_document(workload, unint
     assert not [p for p in os.listdir(tmp_path) if p.endswith(".tmp")]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_cli_restart_discards_the_journal(workload, uninterrupted, tmp_path):
     scenarios, submission = workload
     output = tmp_path / "result.json"
@@ -209,6 +211,7 @@ def test_a_refused_submission_keeps_no_member(workload, tmp_path):
     assert not members_path(journal).exists()
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_resumed_run_whose_kept_members_are_gone_streams_them_again(workload, uninterrupted, tmp_path):
     import shutil
 

@@ -58,6 +58,7 @@ def _by_scenario(path) -> dict[str, list[dict]]:
     return grouped
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_objects_equal_score_scenario_per_object(demo, scored):
     scenarios, submission = demo
     result, path = scored

@@ -96,6 +96,7 @@ def test_todays_score_writes_the_saved_document_with_its_version(tmp_path):
                 assert row[field] == value, (case, field)
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_compare_and_report_read_a_saved_document_beside_a_current_one(tmp_path, capsys):
     current = _write(tmp_path / "current.json", {"schema_version": SCHEMA_VERSION, **_saved()})
     assert main(["compare", str(SAVED_V1), str(current), "--n-boot", "200", "--n-perm", "200"]) == 0

@@ -409,6 +409,7 @@ def _peak_rss_mb(pid: int) -> float:
 
 
 @pytest.mark.skipif(not os.path.exists("/proc/self/status"), reason="needs Linux /proc to read peak RSS")
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_large_upload_is_streamed_not_held_in_memory(make_server):
     server = make_server(workers=0, max_upload_bytes=400 * 2**20)
     key = server.key("bulk")

@@ -51,6 +51,7 @@ def test_expansion_bombs_are_refused_at_upload_and_nothing_is_kept(make_server):
     assert list((server.data_dir / "submissions").iterdir()) == []
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_message_bombs_fail_their_job_with_bounded_memory(make_server, scoring_data):
     server = make_server(workers=1, scenarios=scoring_data.scenarios)
     with server.client(server.key("message-bomber")) as c:
@@ -64,6 +65,7 @@ def test_message_bombs_fail_their_job_with_bounded_memory(make_server, scoring_d
             assert 0 < peak < 512 * MiB, peak
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_job_over_its_memory_limit_fails_with_the_reason_and_the_worker_goes_on(make_server, scoring_data):
     # An address-space limit below what the worker has mapped already: the job's first large
     # allocation fails in the job's own process.

@@ -180,6 +180,7 @@ def _peak_rss_bytes(pid: int) -> int:
     raise AssertionError("no VmHWM in /proc status")
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_ten_clients_fetching_a_result_at_once_do_not_grow_the_api(make_server):
     """The whole JSON of a 1 MB result, to ten clients at once that read it slowly: streamed from the stored
     files, the API process's peak RSS grows by a few MB at most (not by the result times its readers)."""

@@ -120,6 +120,7 @@ def test_a_request_past_its_deadline_is_closed_however_fast_its_body_comes(make_
     assert list((server.data_dir / "uploads").glob("*.body")) == []
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_past_the_connection_cap_the_oldest_waiting_connection_makes_room(make_server):
     # An open-file limit of 256: 64 kept aside, 2 x 64 for accept bursts, the cap is (256 - 192) / 2 = 32
     # connections; 400 half-open ones come.
@@ -155,6 +156,7 @@ def test_past_the_connection_cap_the_oldest_waiting_connection_makes_room(make_s
     assert "waited longest for a request" in log
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_when_every_connection_is_busy_a_reserve_still_answers_bodiless_requests(make_server):
     # A cap of 8 with a reserve of 2: six uploads in progress fill the rest, none of them idle.
     server = make_server(workers=0, max_connections=8, body_grace_s=60)

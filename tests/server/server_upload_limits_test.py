@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import os
 
+import pytest
+
 from wosac_server.settings import GiB, load_settings
 
 MiB = 2**20
@@ -16,6 +18,7 @@ def test_default_limits_take_a_whole_validation_set():
     assert settings.max_upload_bytes == 64 * GiB and settings.max_single_upload_bytes == 16 * GiB
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_a_single_request_past_its_limit_is_413_naming_the_resumable_client(make_server):
     server = make_server(workers=0, max_single_upload_bytes=MiB, max_upload_bytes=4 * MiB)
     body = os.urandom(2 * MiB)

@@ -60,6 +60,7 @@ def test_demo_runs_end_to_end_and_ranks_the_baselines(tmp_path):
     assert result["buckets"]["realism_meta_metric"] == metas["constant_velocity"]
 
 
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_baseline_command_writes_a_valid_submission(tmp_path):
     from wosac_eval.sim import scenes
 

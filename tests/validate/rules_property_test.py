@@ -13,6 +13,7 @@ import math
 import os
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -198,11 +199,13 @@ def _check(r, known, challenge):
 
 @settings(max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")), deadline=None)
 @given(r=scenario_rollouts(), known=st.booleans())
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_vectorised_rules_match_reference(r, known):
     _check(r, known, "sim_agents")
 
 
 @settings(max_examples=int(os.environ.get("WOSAC_FUZZ_EXAMPLES", "150")), deadline=None)
 @given(r=scenario_rollouts("scenario_gen"), known=st.booleans())
+@pytest.mark.slow  # over 2 s in the full run (--durations): out of the fast tier
 def test_vectorised_scenario_gen_rules_match_reference(r, known):
     _check(r, known, "scenario_gen")

@@ -46,9 +46,14 @@ import shutil
 import time
 from collections.abc import Iterable
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import TYPE_CHECKING, Any, BinaryIO
 
 from wosac_eval import __version__
+
+if TYPE_CHECKING:  # what `submission` passes in; imported here they would load the parse, validate and scoring rooms
+    from wosac_eval.parse.shard_walk import ShardRef
+    from wosac_eval.scoring.evaluation import Evaluation
+    from wosac_eval.validate.findings import ValidationReport
 
 MAGIC = "wosac-eval scoring"
 VERSION = 1
@@ -70,7 +75,9 @@ def _size_mtime(path: Path) -> list[int]:
     return [stat.st_size, stat.st_mtime_ns]
 
 
-def run_identity(evaluation: Any, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]) -> dict:
+def run_identity(
+    evaluation: Evaluation, submission_path: os.PathLike | str, scenario_paths: Iterable[os.PathLike]
+) -> dict:
     """What a run's rows depend on: equal identities give equal rows (the JSON-ready dict)."""
     return {
         # Rows with their objects (absent: as before). Where the objects are written is not the rows' matter.
@@ -230,7 +237,9 @@ class ScoringJournal:
             return None
         return kept["report"], kept["records"]
 
-    def keep_validation(self, report: Any, records: Any) -> None:
+    def keep_validation(
+        self, report: ValidationReport, records: list[tuple[ShardRef, list[tuple[str, tuple[int, int]]]]]
+    ) -> None:
         """Keep a passed validation (its report and `SubmissionSource.records()`) for a resumed run."""
         path = validated_path(self.path)
         temp = path.with_name(f".{path.name}.{os.getpid()}.tmp")

@@ -26,16 +26,19 @@ field, a renamed one) makes a new version (an entry of
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from wosac_eval import challenges
-from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, set_histogram, with_rarity
+from wosac_eval.analysis.criticality_scores import LONG_TAIL_QUANTILE, BehaviourHistogram, set_histogram, with_rarity
 from wosac_eval.arrays.object_types import ANALYSED_TYPES
 from wosac_eval.metrics.config import SimAgentMetricsConfig
 from wosac_eval.metrics.scenario_metrics import aggregate_metrics, bucket_metrics
 from wosac_eval.scoring.result_reader import SCHEMA_VERSION  # the newest layout, beside every earlier one's
+
+if TYPE_CHECKING:  # the report `submission` passes in; importing it here would load the validation room
+    from wosac_eval.validate.findings import ValidationReport
 
 
 def summarize(config: SimAgentMetricsConfig, per_scenario: list[dict]) -> dict:
@@ -49,7 +52,7 @@ def _mean(values: Iterable[float | None]) -> float | None:
     return float(np.mean(present)) if present else None
 
 
-def finish_analysis(per_scenario: list[dict], histogram: Any = None) -> dict:
+def finish_analysis(per_scenario: list[dict], histogram: BehaviourHistogram | None = None) -> dict:
     """Completes every row's criticality with its rarity, and summarises the analyses.
 
     Rarity is rated against `histogram` (a `BehaviourHistogram`; default: that of the scored set).
@@ -90,7 +93,7 @@ def finish_analysis(per_scenario: list[dict], histogram: Any = None) -> dict:
     return summary
 
 
-def validation_summary(report: Any) -> dict:
+def validation_summary(report: ValidationReport) -> dict:
     """Counts and, per finding code, its severity, count and first message: what was ignored or skipped."""
     groups = report.to_dict()["groups"]
     return {
@@ -114,11 +117,11 @@ def result_document(
     config_name: str,
     config: SimAgentMetricsConfig,
     per_scenario: list[dict],
-    report: Any,
+    report: ValidationReport,
     *,
     selection: dict | None = None,
     selected: set | None = None,
-    histogram: Any = None,
+    histogram: BehaviourHistogram | None = None,
 ) -> dict:
     """The result document of scored scenarios and the submission's validation report.
 

@@ -255,7 +255,7 @@ def weighted_buckets(values: dict[str, np.ndarray], weights: dict[str, float]) -
 
 
 def parse_result(
-    data: Any,
+    data: object,
     path: str = "<result>",
     weights_for: Callable[[str], dict[str, float] | None] = default_bucket_weights,
 ) -> ScoringResult:

@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from typing import Any
+from collections.abc import Iterable, Iterator
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -20,13 +21,16 @@ from wosac_eval.arrays.object_types import SHORT_NAMES
 from wosac_eval.arrays.rollouts import RolloutArrays, rollout_arrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.extras import check_backend
-from wosac_eval.features.metric_features import map_context, scenario_features
+from wosac_eval.features.metric_features import MapContext, MetricFeatures, map_context, scenario_features
 from wosac_eval.metrics.config import SimAgentMetricsConfig, config_name_for, load_config
-from wosac_eval.metrics.per_object import EVENTS, per_object_metrics
+from wosac_eval.metrics.per_object import EVENTS, PerObjectMetrics, per_object_metrics
 from wosac_eval.metrics.registry import LIKELIHOOD_FIELDS
 from wosac_eval.metrics.scenario_metrics import metric_log_likelihoods, scenario_metrics
 from wosac_eval.options import Backend
 from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+
+if TYPE_CHECKING:  # the jax extra: loaded for the jax backend alone (in the functions that use it)
+    from wosac_eval.backends.jax_backend import PreparedScenario
 
 PathLike = str | os.PathLike
 ConfigLike = str | PathLike | SimAgentMetricsConfig | None
@@ -101,10 +105,10 @@ def scenario_analysis(
     config: SimAgentMetricsConfig,
     scenario: ScenarioArrays,
     rollouts: RolloutArrays,
-    log: Any,
-    sim: Any,
+    log: MetricFeatures,
+    sim: MetricFeatures,
     log_likelihoods: dict,
-    context: Any,
+    context: MapContext,
     criticality: dict | None = None,
 ) -> dict:
     """What a result row carries beside the official metrics, from the same features.
@@ -123,7 +127,7 @@ def scenario_analysis(
     }
 
 
-def object_records(scenario_id: str, values: Any) -> list[dict]:
+def object_records(scenario_id: str, values: PerObjectMetrics) -> list[dict]:
     """A scene's per-object values (`metrics.per_object.PerObjectMetrics`) as JSON-ready records, one per
     evaluated object in the official order: `scenario_id`, `object_id`, `object_type` (vehicle, pedestrian,
     cyclist or other), every likelihood field (null where the object has no counted sample) and its
@@ -238,7 +242,7 @@ def score_scenario_per_object(
     *,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     backend: str = "numpy",
-) -> Any:
+) -> PerObjectMetrics:
     """The values per evaluated object behind `score_scenario`'s fields (same arguments): a
     `metrics.per_object.PerObjectMetrics` (likelihoods and their weights per object, each rollout's
     collision, off-road and red-light flags and first steps)."""
@@ -258,8 +262,8 @@ class JaxItem:
 
     arrays: ScenarioArrays
     rollout: RolloutArrays
-    context: object
-    prepared: object
+    context: MapContext
+    prepared: PreparedScenario
     criticality: dict | None = None
 
 
@@ -288,14 +292,14 @@ def prepare_jax_item(
 
 
 def score_jax_items(
-    items: Any,
+    items: Iterable[JaxItem],
     config: ConfigLike = None,
     max_batch: int = 8,
     *,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     analysis: bool = False,
     per_object: bool = False,
-) -> Any:
+) -> Iterator[dict]:
     """Rows of a stream of `JaxItem`s, in stream order, the device computing while the host finishes rows.
 
     Yields each row as soon as it and every earlier one are done (`jax_backend.FeaturePipeline`).
@@ -313,7 +317,7 @@ def score_jax_items(
                 config, item.arrays, item.rollout, item.context, features, analysis, item.criticality, per_object
             )
 
-    def ready() -> Any:
+    def ready() -> Iterator[dict]:
         nonlocal next_out
         while next_out in rows:
             yield rows.pop(next_out)
@@ -327,7 +331,7 @@ def score_jax_items(
 
 
 def score_scenarios_jax(
-    pairs: Any,
+    pairs: Iterable[tuple[scenario_pb2.Scenario, RolloutArrays]],
     config: ConfigLike = None,
     max_batch: int = 8,
     *,

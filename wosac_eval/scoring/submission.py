@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any
 
 from wosac_eval.analysis import criticality_cache
+from wosac_eval.analysis.criticality_scores import BehaviourHistogram
 from wosac_eval.analysis.scenario_set_criticality import scenario_set_criticality, select_scenarios
 from wosac_eval.arrays.rollouts import rollout_arrays
 from wosac_eval.arrays.scenario import record_arrays
@@ -38,7 +39,7 @@ from wosac_eval.parse.scenarios import ScenarioIndex
 from wosac_eval.parse.submission_source import RolloutsLocator, SubmissionSource, read_locator
 from wosac_eval.protos import sim_agents_submission_pb2
 from wosac_eval.runtime.allocator import keep_freed_memory
-from wosac_eval.runtime.executors import make_executor
+from wosac_eval.runtime.executors import Executor, make_executor
 from wosac_eval.scoring.evaluation import Evaluation, evaluation_for
 from wosac_eval.scoring.journal import ScoringJournal, members_budget, members_path, remove_journal, run_identity
 from wosac_eval.scoring.objects import format_of, write_objects
@@ -46,6 +47,7 @@ from wosac_eval.scoring.result import result_document
 from wosac_eval.scoring.scenario import prepare_jax_item, score_jax_items, score_scenario
 from wosac_eval.scoring.warm_up import compile_loops
 from wosac_eval.validate import validate_submission
+from wosac_eval.validate.findings import ValidationReport
 
 PathLike = str | os.PathLike
 Progress = Callable[[int, int], None]
@@ -56,7 +58,7 @@ class InvalidSubmissionError(ValueError):
     """The submission failed validation; `.report` says every reason. `.metadata` is True when it is
     refused for its metadata, which partial scoring never goes past."""
 
-    def __init__(self, report: Any) -> None:
+    def __init__(self, report: ValidationReport) -> None:
         self.report = report
         self.metadata = report.metadata_error_count > 0
         # What is wrong, in a few words (the service's job says "the submission is invalid: <reason>").
@@ -68,7 +70,7 @@ class InvalidSubmissionError(ValueError):
         super().__init__(f"invalid submission: {self.reason}; run `wosac-eval validate` for the full report")
 
 
-def refuses(report: Any, allow_partial: bool) -> bool:
+def refuses(report: ValidationReport, allow_partial: bool) -> bool:
     """Whether an invalid submission is refused: always without partial scoring; with it, for metadata
     errors (partial scoring scores the valid scenarios and lists the others, never ignores the metadata)."""
     return not report.ok and (not allow_partial or report.metadata_error_count > 0)
@@ -298,8 +300,8 @@ def _opened(
 
 
 def _selection(
-    evaluation: Evaluation, index: ScenarioIndex, executor: Any
-) -> tuple[dict | None, list | None, set | None]:
+    evaluation: Evaluation, index: ScenarioIndex, executor: Executor
+) -> tuple[dict | None, BehaviourHistogram | None, set | None]:
     """(what the result says of the selection, the criticality histogram, the selected ids), or Nones."""
     rule = evaluation.options.select
     if rule is None:

@@ -17,7 +17,7 @@ TensorFlow's CPU `log`, `exp` and summation order (`features.float32_explog`,
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -29,6 +29,9 @@ from wosac_eval.protos import sim_agents_metrics_pb2
 _F = np.float32
 _Config = sim_agents_metrics_pb2.SimAgentMetricsConfig
 FeatureConfig = _Config.FeatureConfig
+# An estimator of one batch of populations, `official_estimate`'s signature: (config, log samples, sim samples,
+# sim weights or None, num_rows) -> log-likelihoods; the arrays numpy or JAX.
+Estimate = Callable[[FeatureConfig, Any, Any, Any, Any], Any]
 
 
 def histogram_edges(min_val: float, max_val: float, num_bins: int) -> np.ndarray:
@@ -122,7 +125,7 @@ def check_batches(log_samples: Any, sim_samples: Any) -> None:
 
 
 def histogram_bin_counts(
-    histogram: Any,
+    histogram: _Config.HistogramEstimate,
     log_samples: np.ndarray,
     sim_samples: np.ndarray,
     sim_weights: Any = None,
@@ -150,7 +153,11 @@ def histogram_bin_counts(
 
 
 def bernoulli_bin_counts(
-    bernoulli: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
+    bernoulli: _Config.BernoulliEstimate,
+    log_samples: Any,
+    sim_samples: Any,
+    sim_weights: Any = None,
+    num_rows: int | None = None,
 ) -> BinCounts:
     """The Bernoulli estimate's: a two-bin histogram over booleans, bins [-0.5, 0.5) and [0.5, 1.5]."""
     histogram = _Config.HistogramEstimate(
@@ -160,10 +167,10 @@ def bernoulli_bin_counts(
 
 
 def histogram_log_likelihood(
-    min_val: Any,
-    max_val: Any,
-    num_bins: Any,
-    pseudocount: Any,
+    min_val: float,
+    max_val: float,
+    num_bins: int,
+    pseudocount: float,
     log_samples: np.ndarray,
     sim_samples: np.ndarray,
     sim_weights: Any = None,
@@ -180,7 +187,7 @@ def histogram_log_likelihood(
 
 
 def bernoulli_log_likelihood(
-    pseudocount: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
+    pseudocount: float, log_samples: Any, sim_samples: Any, sim_weights: Any = None, num_rows: int | None = None
 ) -> np.ndarray:
     """Per-population Bernoulli log-likelihoods, the official float32 values (see `bernoulli_bin_counts`)."""
     bernoulli = _Config.BernoulliEstimate(additive_smoothing_pseudocount=pseudocount)
@@ -188,7 +195,7 @@ def bernoulli_log_likelihood(
 
 
 def kernel_density_log_likelihood(
-    bandwidth: Any, log_samples: Any, sim_samples: Any, sim_weights: Any = None
+    bandwidth: float, log_samples: Any, sim_samples: Any, sim_weights: Any = None
 ) -> np.ndarray:
     """Gaussian KDE log-density, shifted so that a Dirac sample scores 0 (`sim_weights` as for histograms).
 
@@ -315,7 +322,7 @@ def timeseries_log_likelihoods(
     log_values: Sequence,
     sim_values: Sequence,
     object_mask: Any = None,
-    estimate: Any = None,
+    estimate: Estimate | None = None,
 ) -> list:
     """`timeseries_log_likelihood` of several features (one config, log and simulated values each), at once.
 
@@ -331,7 +338,11 @@ def timeseries_log_likelihoods(
 
 
 def timeseries_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask: Any = None, estimate: Any = None
+    config: FeatureConfig,
+    log_values: np.ndarray,
+    sim_values: np.ndarray,
+    object_mask: Any = None,
+    estimate: Estimate | None = None,
 ) -> np.ndarray:
     """Log-likelihood of each logged value.
 
@@ -349,7 +360,11 @@ def timeseries_log_likelihood(
 
 
 def scenario_level_log_likelihood(
-    config: FeatureConfig, log_values: np.ndarray, sim_values: np.ndarray, object_mask: Any = None, estimate: Any = None
+    config: FeatureConfig,
+    log_values: np.ndarray,
+    sim_values: np.ndarray,
+    object_mask: Any = None,
+    estimate: Estimate | None = None,
 ) -> np.ndarray:
     """Log-likelihood of one value per object (`(num_objects,)` vs `(num_rollouts, num_objects)`)."""
     check_scenario_level(log_values, sim_values)

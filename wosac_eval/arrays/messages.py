@@ -114,10 +114,10 @@ def rollouts_from_arrays(
     z: ArrayLike,
     heading: ArrayLike,
     *,
-    length: Any = None,
-    width: Any = None,
-    height: Any = None,
-    object_type: Any = None,
+    length: ArrayLike | None = None,
+    width: ArrayLike | None = None,
+    height: ArrayLike | None = None,
+    object_type: ArrayLike | None = None,
 ) -> RolloutArrays:
     """Rollouts of one scenario from a simulator's arrays, checked.
 
@@ -171,8 +171,8 @@ def rollouts_from_arrays(
         raise ValueError(f"scenario {scenario_id}: object_type given without length, width and height")
     boxes = {}
     if given:
-        for name, value in sizes.items():
-            boxes[name] = _as_float32(name, value, shape, scenario_id)
+        for name, size in sizes.items():
+            boxes[name] = _as_float32(name, size, shape, scenario_id)
             # Zero, negative and non-finite sizes are scored as given, as the official evaluator does
             # (logged boxes are 0 on a track's invalid steps).
             _warn_if_not_finite(scenario_id, name, boxes[name], ids)
@@ -182,7 +182,7 @@ def rollouts_from_arrays(
             )
         except ValueError:
             raise ValueError(
-                f"scenario {scenario_id}: object_type has shape {np.shape(object_type)}, expected "
+                f"scenario {scenario_id}: object_type has shape {np.asarray(object_type).shape}, expected "
                 f"({shape[1]},) or {shape[:2]}"
             ) from None
     return RolloutArrays(scenario_id=scenario_id, object_id=ids, **coordinates, **boxes).validate()
@@ -253,21 +253,21 @@ def rollouts_message(rollouts: RolloutArrays) -> sim_agents_submission_pb2.Scena
 
 
 def joint_scene(
-    object_id: Any,
-    x: Any,
-    y: Any,
-    z: Any,
-    heading: Any,
+    object_id: ArrayLike,
+    x: ArrayLike,
+    y: ArrayLike,
+    z: ArrayLike,
+    heading: ArrayLike,
     *,
-    length: Any = None,
-    width: Any = None,
-    height: Any = None,
-    object_type: Any = None,
+    length: ArrayLike | None = None,
+    width: ArrayLike | None = None,
+    height: ArrayLike | None = None,
+    object_type: ArrayLike | None = None,
 ) -> sim_agents_submission_pb2.JointScene:
     """One rollout as a `JointScene`: coordinates `(num_objects, num_steps)`, ids `(num_objects,)`, checked as in
     `rollouts_from_arrays` (sizes broadcastable to `(num_objects, num_steps)`, types `(num_objects,)`)."""
 
-    def one(value: Any) -> Any:
+    def one(value: ArrayLike | None) -> Any:  # Any: an array where given (x, y, z, heading always are)
         return None if value is None else np.asarray(value)[np.newaxis]
 
     arrays = rollouts_from_arrays(

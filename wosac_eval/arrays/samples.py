@@ -57,7 +57,7 @@ class SampleBatch:
         return int(self.evaluated_ids.shape[0])
 
 
-def official_object_order(scene_ids: Any, evaluated_ids: np.ndarray) -> np.ndarray:
+def official_object_order(scene_ids: np.ndarray, evaluated_ids: np.ndarray) -> np.ndarray:
     """Evaluated ids, then the other ids in the order the official code visits them.
 
     The official code lists the non-evaluated agents by iterating a Python set

@@ -8,9 +8,10 @@ rounding is what makes our features bit-identical to the official ones.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 TIME_SERIES = ("x", "y", "z", "heading", "length", "width", "height", "valid")  # the per-step fields
 
@@ -78,7 +79,7 @@ class ObjectTrajectories:
             object_type=np.take(self.object_type, indices, axis=-1),
         )
 
-    def take_ids(self, object_ids: Any) -> ObjectTrajectories:
+    def take_ids(self, object_ids: ArrayLike) -> ObjectTrajectories:
         """Selects objects by id, in the order of `object_ids`; `object_id` must be `(num_objects,)`."""
         return self.take_objects(index_of_ids(self.object_id, object_ids))
 
@@ -87,14 +88,14 @@ class ObjectTrajectories:
         return dataclasses.replace(self, **{f: getattr(self, f)[..., steps] for f in TIME_SERIES})
 
 
-def stack_samples(parts: Any) -> ObjectTrajectories:
+def stack_samples(parts: Sequence[ObjectTrajectories]) -> ObjectTrajectories:
     """The samples of each part, one after the other (same objects and steps)."""
     return ObjectTrajectories(
         **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in dataclasses.fields(ObjectTrajectories)}
     )
 
 
-def index_of_ids(ids: np.ndarray, wanted: Any) -> np.ndarray:
+def index_of_ids(ids: np.ndarray, wanted: ArrayLike) -> np.ndarray:
     """Positions in `ids` of each id in `wanted`; raises KeyError naming any that is absent."""
     ids = np.asarray(ids)
     wanted = np.asarray(wanted, dtype=ids.dtype)

@@ -16,7 +16,7 @@ refuses a real submission and bounds the parse at a fraction of the shard.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from collections.abc import Iterator
 
 from wosac_eval.parse import wire_walks
 from wosac_eval.parse.errors import SizeLimitError
@@ -93,7 +93,7 @@ class _Census:
             "trajectory carries its steps); refused before parsing"
         )
 
-    def fields(self, data: bytes, start: int, end: int, where: str) -> Any:
+    def fields(self, data: bytes, start: int, end: int, where: str) -> Iterator[tuple[int, int, int]]:
         """(field number, value start, value end) of each length-delimited field in data[start:end]; every
         field counts as one message. Malformed bytes end the walk (the parser reports them)."""
         pos = start

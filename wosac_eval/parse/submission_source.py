@@ -333,7 +333,7 @@ def read_locator(locator: RolloutsLocator) -> bytes:
 
 
 def find_scenario_rollouts(
-    submission: PathLike | SubmissionSource, scenario_ids: Any, limits: InputLimits | None = None
+    submission: PathLike | SubmissionSource, scenario_ids: Iterable[str], limits: InputLimits | None = None
 ) -> dict:
     """The `ScenarioRollouts` of the given scenarios in a submission (file, folder, archive or an open
     `SubmissionSource`), by id; shards are split on the wire and only the wanted entries are parsed."""

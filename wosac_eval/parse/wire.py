@@ -11,7 +11,7 @@ this module stays light for the processes that only split or check files.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -40,7 +40,7 @@ def varint(value: int) -> bytes:
             return bytes(out)
 
 
-def packed_headers(num_steps: int, field_numbers: Any = (2, 3, 4, 5)) -> np.ndarray:
+def packed_headers(num_steps: int, field_numbers: Iterable[int] = (2, 3, 4, 5)) -> np.ndarray:
     """Wire headers (tag, byte length) of packed float fields with `num_steps` values each, uint8
     `(num_fields, num_bytes)`."""
     length = varint(4 * num_steps)

@@ -17,23 +17,27 @@ and cached on disk by numba, like the search loops (`scoring.warm_up.compile_loo
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numba
 import numpy as np
 
 from wosac_eval.parse.wire import varint
 
+if TYPE_CHECKING:  # the walks read bytes; protobuf's classes only name what callers pass
+    from google.protobuf.descriptor import EnumDescriptor
+    from google.protobuf.message import Message
+
 WIRE_VARINT, WIRE_FIXED64, WIRE_BYTES, WIRE_FIXED32 = 0, 1, 2, 5
 
 
-def message_bytes(message: Any) -> np.ndarray:
+def message_bytes(message: Message | bytes | bytearray | memoryview) -> np.ndarray:
     """The wire bytes of a message (or bytes, or any buffer, as they are), as uint8 `(num_bytes,)` for the
     walks."""
     return np.frombuffer(message.SerializeToString() if hasattr(message, "SerializeToString") else message, np.uint8)
 
 
-def enum_size(enum_descriptor: Any) -> int:
+def enum_size(enum_descriptor: EnumDescriptor) -> int:
     """n for a closed enum whose values are 0 to n - 1 (`scalar_fields`'s `enum_sizes`)."""
     numbers = sorted(v.number for v in enum_descriptor.values)
     if numbers != list(range(len(numbers))):
@@ -149,7 +153,9 @@ def _spans_of(
     return n
 
 
-def message_spans(data: np.ndarray, starts: Any, ends: Any, numbers: int | tuple[int, ...] | np.ndarray) -> Any:
+def message_spans(
+    data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: int | tuple[int, ...] | np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every occurrence of the length-delimited fields `numbers` (one number, or several: a oneof's) in
     each parent message, in wire order.
 
@@ -171,8 +177,13 @@ def _message_spans(data: Any, starts: Any, ends: Any, numbers: Any) -> Any:
 
 
 def scalar_fields(
-    data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: np.ndarray, wire_types: Any, enum_sizes: Any
-) -> Any:
+    data: np.ndarray,
+    starts: np.ndarray,
+    ends: np.ndarray,
+    numbers: np.ndarray,
+    wire_types: np.ndarray,
+    enum_sizes: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scalar fields `numbers` (declared with `wire_types`) of each record, the last occurrence winning.
 
     `enum_sizes`: for a field of a closed (proto2) enum whose values are 0 to n - 1, n; 0 for other
@@ -248,7 +259,9 @@ def _any_finite_non_positive(block: Any) -> bool:
     return False
 
 
-def float_fields(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: np.ndarray, num_values: int) -> Any:
+def float_fields(
+    data: np.ndarray, starts: np.ndarray, ends: np.ndarray, numbers: np.ndarray, num_values: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The repeated float fields `numbers` of each record (packed or not), their first `num_values` values.
 
     Returns:
@@ -296,7 +309,7 @@ def _float_fields(data: Any, f32: Any, starts: Any, ends: Any, numbers: Any, num
     return values, count, non_finite, non_positive
 
 
-def bool_fields(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, number: int) -> Any:
+def bool_fields(data: np.ndarray, starts: np.ndarray, ends: np.ndarray, number: int) -> tuple[np.ndarray, np.ndarray]:
     """The repeated bool field `number` of each record (packed or not), as a parse reads it (a varint, true
     unless 0).
 
@@ -347,7 +360,7 @@ CENSUS_OK, CENSUS_MESSAGES, CENSUS_JOINT_SCENES, CENSUS_OBJECTS = 0, 1, 2, 3
 
 def rollouts_census(
     data: bytes, start: int, end: int, messages: int, budget: int, max_joint_scenes: int, max_objects: int
-) -> Any:
+) -> tuple[int, int, int, int]:
     """Counts the messages of one serialized `ScenarioRollouts`, data[start:end], and of its joint scenes, as
     `parse.limits` counts them (every field of both levels is one message), stopping at the first limit passed.
 

@@ -11,6 +11,7 @@ the scenario set, which the scorer needs for partial scoring.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -149,7 +150,7 @@ def make_finding(
     return Finding(code, message, shard, scenario_id, rollout, object_id, field, severity, hint)
 
 
-def format_ids(ids: Any, limit: int = 20) -> str:
+def format_ids(ids: Iterable[object], limit: int = 20) -> str:
     """'[1, 2, 3]' or '[1, 2, ... (+40 more)]' so one message stays one line."""
     ids = list(ids)
     shown = ", ".join(str(i) for i in ids[:limit])
@@ -237,7 +238,7 @@ class ValidationReport:
         if finding.severity == ERROR and finding.scenario_id is not None:
             self.invalid_scenarios.setdefault(finding.scenario_id, finding.message)
 
-    def extend(self, findings: Any) -> None:
+    def extend(self, findings: Iterable[Finding]) -> None:
         for f in findings:
             self.add(f)
 

@@ -8,9 +8,12 @@ Local scoring needs none of it (`scoring` grades these findings as warnings unle
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from wosac_eval.validate.findings import WARNING, Finding, Location, make_finding
+
+if TYPE_CHECKING:  # the messages checked; the checks read their fields and need no import of the classes
+    from wosac_eval.protos.sim_agents_submission_pb2 import SimAgentsChallengeSubmission
 
 SIM_AGENTS_SUBMISSION = 1  # SimAgentsChallengeSubmission.SubmissionType
 
@@ -40,7 +43,7 @@ def _blank(text: str) -> bool:
     return not text.strip()
 
 
-def check_metadata(submission: Any, shard: str | None = None) -> list[Finding]:
+def check_metadata(submission: SimAgentsChallengeSubmission, shard: str | None = None) -> list[Finding]:
     """Metadata rules on one shard's `SimAgentsChallengeSubmission`."""
     out: list[Finding] = []
 
@@ -112,7 +115,7 @@ def check_metadata(submission: Any, shard: str | None = None) -> list[Finding]:
     return out
 
 
-def metadata_of(submission: Any) -> dict[str, Any]:
+def metadata_of(submission: SimAgentsChallengeSubmission) -> dict[str, Any]:
     """The metadata fields of a shard as plain values (None where unset), to compare shards."""
     values: dict[str, Any] = {}
     for field in METADATA_FIELDS:

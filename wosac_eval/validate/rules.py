@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -38,12 +38,15 @@ from wosac_eval.parse import wire_walks
 from wosac_eval.parse.wire import BOX_FIELDS, TRAJECTORY_FIELD_NUMBERS, VALID_FIELD_NUMBER
 from wosac_eval.validate.findings import WARNING, Finding, Location, format_ids, make_finding
 
+if TYPE_CHECKING:  # the messages checked; the checks read their fields and need no import of the classes
+    from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
+
 N_ROLLOUTS = challenges.NUM_ROLLOUTS  # joint scenes required per scenario
 N_SIMULATION_STEPS = challenges.spec("sim_agents").num_simulation_steps  # 8 s at 10 Hz after the current step
 TRAJECTORY_FIELDS = ("center_x", "center_y", "center_z", "heading")
 
 
-def sim_agent_ids(scenario: Any) -> np.ndarray:
+def sim_agent_ids(scenario: scenario_pb2.Scenario) -> np.ndarray:
     """Sorted unique ids of the scenario's objects valid at the current step, shape `(num_objects,)`.
 
     A track too short to have a current step has no valid state there.
@@ -270,11 +273,11 @@ class _Scenario:
 
 
 def check_scenario_rollouts(
-    rollouts: Any,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts,
     sim_agent_ids: Sequence[int] | np.ndarray | None,
     *,
     shard: str | None = None,
-    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     n_rollouts: int | None = None,
     n_steps: int | None = None,
     wire_bytes: bytes | memoryview | None = None,

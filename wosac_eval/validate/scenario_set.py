@@ -18,7 +18,7 @@ from wosac_eval.arrays.scenario import record_sim_agent_ids
 from wosac_eval.parse.errors import ParseError
 from wosac_eval.parse.scenarios import ScenarioIndex, ScenarioSource, expand_scenario_paths, scenario_id_of
 from wosac_eval.parse.tfrecord import iter_records, read_record_at
-from wosac_eval.runtime.executors import LocalExecutor
+from wosac_eval.runtime.executors import Executor, LocalExecutor
 
 PathLike = str | os.PathLike
 
@@ -42,7 +42,7 @@ def _sim_agents_of(_shared: Any, item: tuple[str, list[int]]) -> list[np.ndarray
 def load_sim_agents(
     scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
     progress: Callable[[int], Any] | None = None,
-    executor: Any = None,
+    executor: Executor | None = None,
 ) -> dict[str, np.ndarray]:
     """scenario_id -> sorted sim agent ids, shape `(num_objects,)`, in scenario-set order.
 

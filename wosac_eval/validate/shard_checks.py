@@ -31,10 +31,10 @@ from wosac_eval.validate.findings import Finding, ValidationReport
 
 
 def validate_scenario_rollouts(
-    rollouts_msg: Any,
-    sim_agent_ids: Any,
+    rollouts_msg: sim_agents_submission_pb2.ScenarioRollouts,
+    sim_agent_ids: np.ndarray | None,
     shard: str | None,
-    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     wire_bytes: bytes | memoryview | None = None,
 ) -> list[Finding]:
     """The per-scenario rules (32 joint scenes, sim agents, 80 or 91 finite values per field, boxes and
@@ -140,7 +140,7 @@ def check_shard(
     shard: ShardRef,
     agents: dict[str, np.ndarray],
     max_listed: int,
-    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     limits: InputLimits | None = None,
 ) -> ShardResult:
     """Parse one shard and apply the rules that need nothing from other shards: metadata and rollouts.
@@ -158,7 +158,7 @@ def check_shard_whole(
     shard: ShardRef,
     agents: dict[str, np.ndarray],
     max_listed: int,
-    challenge: Any = challenges.Challenge.SIM_AGENTS,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     limits: InputLimits | None = None,
 ) -> ShardResult:
     """`check_shard` with the shard parsed whole: the reference the streamed check equals, and the judge of

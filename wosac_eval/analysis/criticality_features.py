@@ -37,9 +37,10 @@ import numba
 import numpy as np
 
 from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
-from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.arrays.scenario import ScenarioArrays, TrafficSignals
+from wosac_eval.arrays.trajectories import ObjectTrajectories
 from wosac_eval.challenges import STEP_SECONDS
-from wosac_eval.features.metric_features import map_context
+from wosac_eval.features.metric_features import MapContext, map_context
 from wosac_eval.features.road_edge import signed_distance_to_polylines
 from wosac_eval.features.search import PrunedSearch
 
@@ -106,8 +107,8 @@ def _worst(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
 
 
 def kinematic_volatility(
-    log: Any, moving_types: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    log: ObjectTrajectories, moving_types: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Per-step braking, jerk and yaw acceleration of the objects of `moving_types`, and the behaviour histogram.
 
     Returns:
@@ -146,15 +147,15 @@ def _disc_offsets(heading: Any, length: Any, width: Any) -> tuple[np.ndarray, np
 
 
 def disc_pairs(
-    dxc: Any,
-    dyc: Any,
-    heading_a: Any,
-    length_a: Any,
-    width_a: Any,
+    dxc: np.ndarray,
+    dyc: np.ndarray,
+    heading_a: np.ndarray,
+    length_a: np.ndarray,
+    width_a: np.ndarray,
     heading_b: np.ndarray,
     length_b: np.ndarray,
     width_b: np.ndarray,
-) -> tuple[Any, Any, Any]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre-to-centre vectors of every (disc of a, disc of b) pair, `(batch, 3, 3)` x and y, and the radii sum.
 
     dxc, dyc: `(batch,)` from a's centre to b's; the rest `(batch,)`.
@@ -166,13 +167,13 @@ def disc_pairs(
     return dx, dy, ((width_a + width_b) / 2)[:, None, None]
 
 
-def disc_gap(dx: Any, dy: Any, radius: Any) -> np.ndarray:
+def disc_gap(dx: np.ndarray, dy: np.ndarray, radius: np.ndarray) -> np.ndarray:
     """The gap between two boxes as three discs each (0 when they touch), `(batch,)`."""
     return np.maximum(np.sqrt((dx * dx + dy * dy).min(axis=(1, 2))) - radius[:, 0, 0], 0.0)
 
 
 def interacting_pairs(
-    x: np.ndarray, y: np.ndarray, valid: Any, pedestrian: np.ndarray
+    x: np.ndarray, y: np.ndarray, valid: np.ndarray, pedestrian: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """The pairs of objects that can interact: (first, second) int `(num_pairs,)`, first < second, in
     `np.triu_indices` order, both valid at some step, not both pedestrians, and whose valid positions'
@@ -183,7 +184,7 @@ def interacting_pairs(
     `(num_objects,)`.
     """
     i, j = np.triu_indices(x.shape[0], k=1)
-    valid_xy = valid.any(axis=1)
+    valid_xy = np.asarray(valid.any(axis=1))  # an array: numpy's stubs allow a scalar
     with np.errstate(invalid="ignore"):
         low_x, high_x = (np.where(valid, x, np.inf).min(axis=1), np.where(valid, x, -np.inf).max(axis=1))
         low_y, high_y = (np.where(valid, y, np.inf).min(axis=1), np.where(valid, y, -np.inf).max(axis=1))
@@ -194,7 +195,9 @@ def interacting_pairs(
     return i[keep], j[keep]
 
 
-def pairwise_interaction(log: Any, velocity: Any, pedestrian: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def pairwise_interaction(
+    log: ObjectTrajectories, velocity: tuple[np.ndarray, np.ndarray, np.ndarray], pedestrian: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per-step least time to collision, most closing speed and worst near miss over pairs of objects.
 
     Returns:
@@ -308,7 +311,9 @@ def _grown(values: Any, capacity: Any) -> Any:
     return out
 
 
-def map_events(log: Any, movers: np.ndarray, context: Any, signals: Any) -> tuple[np.ndarray, np.ndarray]:
+def map_events(
+    log: ObjectTrajectories, movers: np.ndarray, context: MapContext, signals: TrafficSignals | None
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-step off-road distance (m, NaN between tested steps) and red-light running of the moving vehicles."""
     steps = log.num_steps
     offroad, red = np.full(steps, np.nan), np.zeros(steps, dtype=bool)
@@ -328,7 +333,7 @@ def map_events(log: Any, movers: np.ndarray, context: Any, signals: Any) -> tupl
     return offroad, red
 
 
-def criticality_features(scenario: ScenarioArrays, context: Any = None) -> CriticalityFeatures:
+def criticality_features(scenario: ScenarioArrays, context: MapContext | None = None) -> CriticalityFeatures:
     """The per-step criticality series and behaviour histogram of a scenario's logged sim agents.
 
     context: the scenario's `MapContext` when the caller has built it already (scoring has).

@@ -35,11 +35,12 @@ where it is highest.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wosac_eval.analysis.criticality_features import BEHAVIOUR_BINS, CriticalityFeatures, criticality_features
+from wosac_eval.arrays.scenario import ScenarioArrays
+from wosac_eval.features.metric_features import MapContext
 
 # component -> (threshold, width, lower_is_worse)
 THRESHOLDS = {
@@ -71,7 +72,7 @@ SUSTAINED_STEPS = 3
 LONG_TAIL_QUANTILE = 0.9  # the long tail of a set: its most critical decile
 
 
-def logistic(values: Any, component: str) -> np.ndarray:
+def logistic(values: ArrayLike, component: str) -> np.ndarray:
     """A raw value (or array) mapped to [0, 1]: 0.5 at the component's threshold, NaN to 0."""
     threshold, width, lower_is_worse = THRESHOLDS[component]
     x = np.asarray(values, dtype=np.float64)
@@ -188,7 +189,7 @@ def scene_criticality(features: CriticalityFeatures) -> dict:
     }
 
 
-def scenario_criticality(scenario: Any, context: Any = None) -> dict:
+def scenario_criticality(scenario: ScenarioArrays, context: MapContext | None = None) -> dict:
     """`scene_criticality` of a scenario's log (`ScenarioArrays`; `context` its `MapContext` if built already)."""
     return scene_criticality(criticality_features(scenario, context))
 

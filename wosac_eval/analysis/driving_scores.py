@@ -25,8 +25,6 @@ realism metrics, not part of them.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from wosac_eval.analysis.criticality_features import disc_gap, disc_pairs
@@ -83,7 +81,13 @@ def _box_sizes(scenario: ScenarioArrays, rollouts: RolloutArrays) -> tuple[np.nd
 _PARTNER_SLACK = 1e-6
 
 
-def at_fault(rollouts: RolloutArrays, sizes: Any, rollout: np.ndarray, step: np.ndarray, sdc: np.ndarray) -> np.ndarray:
+def at_fault(
+    rollouts: RolloutArrays,
+    sizes: tuple[np.ndarray, np.ndarray],
+    rollout: np.ndarray,
+    step: np.ndarray,
+    sdc: np.ndarray,
+) -> np.ndarray:
     """Whether the SDC is at fault in its collision, per (rollout, simulated step) entry, bool `(batch,)`.
 
     Its partner is the nearest other object (three discs each, the lowest row among ties); a partner whose

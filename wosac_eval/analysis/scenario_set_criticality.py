@@ -12,7 +12,6 @@ import math
 import os
 import re
 from collections.abc import Callable, Iterable
-from typing import Any
 
 import numpy as np
 
@@ -27,7 +26,7 @@ from wosac_eval.analysis.criticality_scores import (
 )
 from wosac_eval.arrays.scenario import record_arrays
 from wosac_eval.parse.scenarios import ScenarioIndex
-from wosac_eval.runtime.executors import make_executor
+from wosac_eval.runtime.executors import Executor, make_executor
 
 PathLike = str | os.PathLike
 SCENARIOS_PER_TASK = 16
@@ -76,7 +75,7 @@ def scenario_set_criticality(
     ray_address: str | None = None,
     per_step: bool = False,
     progress: Callable[[int, int], None] | None = None,
-    executor: Any = None,
+    executor: Executor | None = None,
 ) -> dict:
     """Every scenario's criticality against the set, most critical first.
 

@@ -4,7 +4,7 @@ a note on multiple testing and the gates), and GitHub-flavoured Markdown for a C
 from __future__ import annotations
 
 import textwrap
-from typing import Any
+from collections.abc import Sequence
 
 from wosac_eval.results.compare import BETTER, WORSE, Comparison
 
@@ -50,7 +50,7 @@ def format_table(c: Comparison) -> str:
     widths = [max(len(r[i]) for r in [header] + rows) for i in range(len(header))]
     right = {2, 3, 4, 6}
 
-    def line(cells: Any) -> Any:
+    def line(cells: Sequence[str]) -> str:
         return "  ".join(
             c.rjust(w) if i in right else c.ljust(w) for i, (c, w) in enumerate(zip(cells, widths))
         ).rstrip()

@@ -26,10 +26,13 @@ from matplotlib.lines import Line2D
 
 from wosac_eval import challenges
 from wosac_eval.arrays.object_types import SHORT_NAMES
+from wosac_eval.arrays.rollouts import RolloutArrays
+from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.estimators.likelihoods import histogram_bins, histogram_edges
 from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 from wosac_eval.results.scene_events import EVENT_KINDS
-from wosac_eval.scoring.scenario import resolve_config, scenario_inputs
+from wosac_eval.scoring.scenario import ConfigLike, resolve_config, scenario_inputs
 
 # (feature, title, unit) of each panel.
 PANELS = (
@@ -77,12 +80,12 @@ class _ObjectScene:
 
 
 def object_png(
-    scenario: Any,
-    rollouts: Any,
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays,
     object_id: int,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     dpi: int = 100,
-    config: Any = None,
+    config: ConfigLike = None,
 ) -> bytes:
     """The picture of one evaluated object's rollouts against its log (see the module), as PNG bytes.
 

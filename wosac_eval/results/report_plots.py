@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import base64
 import io
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -13,11 +13,14 @@ from wosac_eval.metrics.registry import RATES, SCORE_BUCKETS
 from wosac_eval.results.compare import BETTER, WORSE, Comparison
 from wosac_eval.scoring.result_reader import BUCKET_ALIASES, RATE_FIELDS, ScoringResult, shared_rows
 
+if TYPE_CHECKING:  # matplotlib is loaded when a plot is drawn (in the functions that draw)
+    from matplotlib.figure import Figure
+
 RATE_LABELS = {rate.name: rate.title for rate in RATES}
 BASE_COLOR, NEW_COLOR = "#9aa5b1", "#1f6feb"
 
 
-def png(fig: Any, tight: bool = True) -> str:
+def png(fig: Figure, tight: bool = True) -> str:
     """The figure as an `<img>` with a base64 PNG data URI.
 
     `tight` crops to the drawn content, at the cost of one more drawing pass
@@ -32,7 +35,7 @@ def png(fig: Any, tight: bool = True) -> str:
     return f'<img alt="plot" src="data:image/png;base64,{data}">'
 
 
-def figure(width: float, height: float) -> Any:
+def figure(width: float, height: float) -> Any:  # a Figure; Any: the drawing code is not typed for matplotlib's stubs
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width, height))
@@ -65,7 +68,7 @@ def bucket_plot(result: ScoringResult, base: ScoringResult | None) -> str:
     return png(fig) if fig is not None else ""
 
 
-def bucket_figure(result: ScoringResult, base: ScoringResult | None) -> Any:
+def bucket_figure(result: ScoringResult, base: ScoringResult | None) -> Any:  # a Figure or None (see `figure`)
     """Horizontal bars of the bucket scores (this run, and the baseline's beside them); None without buckets."""
     names = [b for b in SCORE_BUCKETS if result.headline(b) is not None]
     if not names:

@@ -5,7 +5,6 @@ per-step features the scores come from). Drawn by `scene_painter`, written by `s
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
 
 import numpy as np
 
@@ -13,6 +12,7 @@ from wosac_eval import challenges
 from wosac_eval.arrays.rollouts import RolloutArrays
 from wosac_eval.arrays.scenario import ScenarioArrays, scenario_arrays
 from wosac_eval.features.metric_features import scenario_features
+from wosac_eval.protos import scenario_pb2, sim_agents_submission_pb2
 from wosac_eval.scoring.scenario import scenario_inputs
 
 # (feature, label, marker, colour) of each event drawn.
@@ -81,7 +81,9 @@ def _event_starts(flags: np.ndarray) -> np.ndarray:
 
 
 def scene_view(
-    scenario: Any, rollouts: Any = None, challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS
+    scenario: scenario_pb2.Scenario | ScenarioArrays,
+    rollouts: sim_agents_submission_pb2.ScenarioRollouts | RolloutArrays | None = None,
+    challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
 ) -> SceneView:
     """The view of a scenario (a `Scenario` or its arrays) and optionally its rollouts (message or arrays).
 

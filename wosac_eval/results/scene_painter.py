@@ -6,7 +6,7 @@ and the metric events where they start. The static layer is drawn once; each ste
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -313,7 +313,7 @@ class ScenePainter:
         self.figure.savefig(buffer, format="png", dpi=dpi, metadata={"Software": None})
         return buffer.getvalue()
 
-    def frames(self, steps: Sequence[int], dpi: int) -> Any:
+    def frames(self, steps: Sequence[int], dpi: int) -> Iterator[Image.Image]:
         """The figure at each step as a PIL image: the static layer is drawn once, each step's artists over it."""
         self.show_step(steps[0])
         canvas = FigureCanvasAgg(self.figure)

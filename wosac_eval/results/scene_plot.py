@@ -20,13 +20,13 @@ import base64
 import html
 import io
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from wosac_eval import challenges
-from wosac_eval.parse.scenarios import ScenarioIndex
-from wosac_eval.parse.submission_source import find_scenario_rollouts
+from wosac_eval.parse.scenarios import PathLike, ScenarioIndex
+from wosac_eval.parse.submission_source import SubmissionSource, find_scenario_rollouts
 from wosac_eval.results.scene_events import EVENT_KINDS, SceneEvent, SceneView, scene_view
 from wosac_eval.results.scene_painter import ScenePainter
 
@@ -66,7 +66,7 @@ def scene_png(
     rollouts: Sequence[int] | None = None,
     density: bool = False,
     dpi: int = 100,
-    size: Any = (8.0, 7.0),
+    size: tuple[float, float] = (8.0, 7.0),
 ) -> bytes:
     """A PNG of the view at one step (default: the last event, else the last step)."""
     painter = ScenePainter(view, rollouts, density, size)
@@ -163,8 +163,8 @@ def write_scene(
 
 
 def scene_pictures(
-    scenarios: Any,
-    submission: Any,
+    scenarios: ScenarioIndex | PathLike | Iterable[PathLike],
+    submission: PathLike | SubmissionSource,
     scenario_ids: Sequence[str],
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     dpi: int = 80,

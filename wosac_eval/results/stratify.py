@@ -228,7 +228,7 @@ def format_strata(s: Stratification) -> str:
         "verdict",
     ]
 
-    def f(x: float | None, signed: bool = False) -> Any:
+    def f(x: float | None, signed: bool = False) -> str:
         return "-" if x is None else (f"{x:+.4f}" if signed else f"{x:.4f}")
 
     body = [

@@ -10,6 +10,9 @@ noise when asked).
 
 from __future__ import annotations
 
+import json
+import os
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -112,16 +115,13 @@ def synthetic_result(num_scenarios: int, seed: int, config: str = "2025", **kwar
 GATE_DEMO_TITLE = "WOSAC realism: my-sim (PR) vs baseline (main)"
 
 
-def write_gate_demo_results(folder: Any, num_scenarios: int = 2000) -> Any:
+def write_gate_demo_results(folder: str | os.PathLike[str], num_scenarios: int = 2000) -> tuple[Path, Path]:
     """Writes `folder`/baseline.json and `folder`/new.json and returns their paths.
 
     Synthetic results of `num_scenarios` scenarios: in the new run the
     collision likelihood and rate improve, the offroad likelihood gets worse,
     and 10 scenarios were skipped (for trying `compare` / `report`).
     """
-    import json
-    from pathlib import Path
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     base = synthetic_scenarios(num_scenarios, seed=0)

@@ -150,6 +150,7 @@ def run(args: argparse.Namespace) -> int:
     if args.object is not None:
         from wosac_eval.results.object_plot import object_png
 
+        assert rollouts is not None  # --object needs --submission, whose rollouts were found (both checked above)
         try:
             picture = object_png(scenario, rollouts, args.object, args.challenge)
         except ValueError as error:  # e.g. an object that is not evaluated

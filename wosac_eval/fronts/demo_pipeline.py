@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from wosac_eval.challenges import Challenge, ChallengeLike, as_challenge
 from wosac_eval.runtime.cache_dirs import user_cache_dir
@@ -105,7 +105,7 @@ def run_demo(
     config: str | None = None,
     workers: int = 1,
     challenge: ChallengeLike = Challenge.SIM_AGENTS,
-    log: Any = None,
+    log: Callable[[str], object] | None = None,
 ) -> list[PolicyResult]:
     """Generates (or loads) the scenes, runs, validates and scores each policy; returns the rows.
 

@@ -18,8 +18,8 @@ import argparse
 import contextlib
 import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
 
 from wosac_eval.challenges import CHALLENGE_NAMES, Challenge, as_challenge
 from wosac_eval.options import Engine
@@ -116,7 +116,7 @@ def _looks_like_submission(path: Path) -> bool:
     return path.name.endswith(_SUBMISSION_SUFFIXES)
 
 
-def scenario_set_hint(scenario_paths: Any, submission: str | os.PathLike) -> str:
+def scenario_set_hint(scenario_paths: Sequence[str | os.PathLike], submission: str | os.PathLike) -> str:
     """' (...swapped?)' when the scenario paths look like a submission and the submission like scenarios."""
     # Here, not at the top: `compare` and `report` import this module and never read a TFRecord file.
     from wosac_eval.parse.tfrecord import looks_like_tfrecord

@@ -381,7 +381,7 @@ def _turn_speed(paths: Paths, s: np.ndarray, d: Drivers, k: np.ndarray) -> np.nd
     return np.sqrt(v_bend**2 + 2.0 * d.b_comf[..., None] * k).min(axis=-1)
 
 
-def idm(v: np.ndarray, v0: Any, gap: Any, lead_v: Any, d: Drivers) -> np.ndarray:
+def idm(v: np.ndarray, v0: np.ndarray, gap: np.ndarray, lead_v: np.ndarray, d: Drivers) -> np.ndarray:
     """Intelligent-driver-model acceleration (B, A); free road when `gap` is inf."""
     v0 = np.maximum(v0, 0.1)
     free = np.where(v <= v0, d.a_max * (1.0 - (v / v0) ** 4), -d.b_comf * (1.0 - (v0 / np.maximum(v, 1e-3)) ** 2))

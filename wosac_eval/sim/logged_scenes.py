@@ -7,10 +7,11 @@ steps, late appearances, early exits) and the evaluated objects (the SDC and up 
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN, TYPE_VEHICLE
 from wosac_eval.challenges import CURRENT_TIME_INDEX
@@ -44,7 +45,7 @@ class LoggedScene:
 
 
 def simulate_agents(
-    agents: list[AgentSpec], signal_states: dict[str, np.ndarray], blind_pairs: Any = ()
+    agents: list[AgentSpec], signal_states: dict[str, np.ndarray], blind_pairs: Iterable[tuple[int, int]] = ()
 ) -> engine.Rollout:
     """Runs the logged world: one batch entry, every agent of the scene."""
     n = len(agents)
@@ -52,7 +53,7 @@ def simulate_agents(
     min_length = max(max(lengths), max(a.s_init for a in agents) + 20.0 * NUM_STEPS * DT + 60.0)
     paths = engine.Paths.from_polylines([[a.path for a in agents]], PATH_SPACING_M, min_length)
 
-    def col(attr: Any, dtype: Any = float) -> np.ndarray:
+    def col(attr: str, dtype: DTypeLike = float) -> np.ndarray:
         return np.array([[getattr(a, attr) for a in agents]], dtype=dtype)
 
     blind = np.zeros((1, n, n), bool)

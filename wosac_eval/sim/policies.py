@@ -22,7 +22,7 @@ from __future__ import annotations
 import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,9 @@ from wosac_eval.arrays.object_types import TYPE_CYCLIST, TYPE_PEDESTRIAN
 from wosac_eval.challenges import CURRENT_TIME_INDEX, NUM_ROLLOUTS, STEP_SECONDS
 from wosac_eval.sim import engine
 from wosac_eval.sim import geometry as geo
+
+if TYPE_CHECKING:  # the policies read a scenario's fields; they need no import of its class
+    from wosac_eval.protos import scenario_pb2
 
 # The challenge's timing, from the one place that defines it.
 CURRENT = CURRENT_TIME_INDEX
@@ -80,7 +83,7 @@ class SimContext:
         return len(self.object_ids)
 
 
-def context_from_scenario(scenario: Any) -> SimContext:
+def context_from_scenario(scenario: scenario_pb2.Scenario) -> SimContext:
     """Extracts the sim agents (tracks valid at step 10) and the map of a `Scenario` proto."""
     tracks = [t for t in scenario.tracks if len(t.states) > CURRENT and t.states[CURRENT].valid]
     n = len(tracks)
@@ -392,7 +395,9 @@ POLICIES: dict[str, Callable[..., np.ndarray]] = {
 }
 
 
-def simulate_scenario(scenario: Any, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS) -> Any:
+def simulate_scenario(
+    scenario: scenario_pb2.Scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS
+) -> tuple[np.ndarray, np.ndarray]:
     """(object ids (N,), trajectories (R, N, 80, 4)) of one scenario under `policy` (sim agents)."""
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose from {', '.join(POLICIES)}")
@@ -453,7 +458,9 @@ def _history_noise(rng: np.random.Generator, num_rollouts: int, n: int, noise_m:
 SCENARIO_GEN_HISTORY = {"constant_velocity": "straight", "log_replay_noise": "logged_noise", "idm": "logged"}
 
 
-def generate_scenario(scenario: Any, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS) -> Any:
+def generate_scenario(
+    scenario: scenario_pb2.Scenario, policy: str, seed: int = 0, num_rollouts: int = NUM_ROLLOUTS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """A scenario-gen baseline: (object ids (N,), trajectories (R, N, 91, 4), box sizes (N, 91, 3)
     length / width / height, object types (N,)).
 

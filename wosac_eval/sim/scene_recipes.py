@@ -175,7 +175,7 @@ class SceneBuilder:
         cyclist: bool = False,
         lateral: float = 0.0,
         min_s: float = 0.0,
-    ) -> Any:
+    ) -> list[AgentSpec]:
         """Spawns `count` vehicles in one lane chain, front to back, spaced like IDM traffic."""
         path, stops = _chain(self.network, lane_ids)
         path = _weave(_offset_path(geo.resample(path, PATH_SPACING_M), lateral), self.rng, weave)
@@ -208,7 +208,7 @@ class SceneBuilder:
             spawned.append(spec)
         return spawned
 
-    def pedestrian(self, path: Any, s_init: Any, v_des: Any, stops: Any = (), **kw: Any) -> AgentSpec:
+    def pedestrian(self, path: np.ndarray, s_init: float, v_des: float, stops: Any = (), **kw: Any) -> AgentSpec:
         length, width, height = _pedestrian_size(self.rng)
         spec = AgentSpec(
             object_type=TYPE_PEDESTRIAN,

@@ -42,7 +42,7 @@ def _map_points(spec: SceneSpec, xy_local: np.ndarray, target: Any) -> None:
         p.x, p.y, p.z = x, y, zz
 
 
-def assemble(scene: LoggedScene, rng: np.random.Generator) -> Any:
+def assemble(scene: LoggedScene, rng: np.random.Generator) -> scenario_pb2.Scenario:
     """The `Scenario` proto of a simulated scene, in world coordinates."""
     spec = scene.spec
     sc = scenario_pb2.Scenario()
@@ -147,20 +147,20 @@ def _add_tracks(sc: Any, scene: LoggedScene, rng: np.random.Generator) -> None:
 class _Single:
     """Adapter so that `_map_points` can fill one MapPoint like a repeated field."""
 
-    def __init__(self, point: Any) -> None:
+    def __init__(self, point: map_pb2.MapPoint) -> None:
         self.point = point
 
-    def add(self) -> Any:
+    def add(self) -> map_pb2.MapPoint:
         return self.point
 
 
-def generate_scene(seed: int, index: int, kind: str | None = None) -> Any:
+def generate_scene(seed: int, index: int, kind: str | None = None) -> scenario_pb2.Scenario:
     """Scenario proto number `index` of the synthetic set `seed`."""
     scene = build_scene(seed, index, kind)
     return assemble(scene, np.random.default_rng([seed, index, 1]))
 
 
-def generate_scenes(n: int, seed: int = 0) -> list:
+def generate_scenes(n: int, seed: int = 0) -> list[scenario_pb2.Scenario]:
     """`n` synthetic `Scenario` protos, identical for identical `(n, seed)`."""
     return [generate_scene(seed, i) for i in range(n)]
 

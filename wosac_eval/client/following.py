@@ -106,7 +106,7 @@ class Follower:
         required(status["progress"], {"scenarios_done": int}, f"asking for submission {submission_id}'s progress")
         return status
 
-    def follow(self, submission_id: str, status: dict | None, output: Any) -> dict:
+    def follow(self, submission_id: str, status: dict | None, output: str | os.PathLike | None) -> dict:
         """Poll until the job is done or failed (`status`: its status as the caller last saw and said it)."""
         seen, interval, said = None, self.poll_min, status is not None
         try:

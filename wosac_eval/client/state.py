@@ -13,6 +13,7 @@ import hashlib
 import json
 import os
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -66,7 +67,7 @@ class UploadState:
             self.path.unlink()
 
     @contextlib.contextmanager
-    def locked(self) -> Any:
+    def locked(self) -> Iterator[bool]:
         """Hold this upload's lock file for the block: a second run on the same upload is refused at once
         (yields False to it) instead of racing the first for the server's offset. Released by the
         kernel when the process dies, however it dies."""

@@ -20,7 +20,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any, BinaryIO
+from typing import Any, BinaryIO, Protocol
 from urllib.parse import quote, urlencode, urlsplit
 
 from wosac_eval import __version__
@@ -422,8 +422,19 @@ def api_key(key: str | None) -> str:
     return key
 
 
+class CallOwner(Protocol):
+    """What `call` asks of the object it requests for (a `tus.Sender`, a `following.Follower`)."""
+
+    @property
+    def server(self) -> Server: ...
+    @property
+    def policy(self) -> RetryPolicy: ...
+    @property
+    def log(self) -> Callable[[str], None]: ...
+
+
 def call(
-    owner: Any,
+    owner: CallOwner,
     what: str,
     method: str,
     route: str,

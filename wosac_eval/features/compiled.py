@@ -106,7 +106,7 @@ class _Flattener:
     def fresh(self, name: str) -> str:
         return f"{name}__{next(self.names)}"
 
-    def global_name(self, kernel: Any, name: str) -> str:
+    def global_name(self, kernel: types.FunctionType, name: str) -> str:
         """A module-level value the kernel reads, under a name unique to its module."""
         value = kernel.__globals__[name] if name in kernel.__globals__ else getattr(builtins, name)
         if value is np or value is math:
@@ -115,7 +115,7 @@ class _Flattener:
         self.namespace[unique] = value
         return unique
 
-    def inline(self, kernel: Any, arguments: list[ast.expr]) -> ast.expr:
+    def inline(self, kernel: types.FunctionType, arguments: list[ast.expr]) -> ast.expr:
         """Appends the kernel's statements, its parameters bound to `arguments`; returns its result."""
         function = _syntax(kernel)
         params = [a.arg for a in function.args.args]
@@ -151,7 +151,7 @@ class _Flattener:
         self.statements.append(ast.Assign(targets=[ast.Name(fresh, ast.Store())], value=value, lineno=0))
         return fresh
 
-    def statement(self, kernel: Any, statement: ast.stmt, local: dict) -> None:
+    def statement(self, kernel: types.FunctionType, statement: ast.stmt, local: dict) -> None:
         if isinstance(statement, ast.Assign) and len(statement.targets) == 1:
             value = self.expression(kernel, statement.value, local)
             target = statement.targets[0]
@@ -182,7 +182,7 @@ class _Flattener:
             return ast.Tuple([self.target(e, local) for e in node.elts], ast.Store())
         raise TypeError(f"cannot assign to {ast.unparse(node)!r} in a compiled kernel")
 
-    def expression(self, kernel: Any, node: ast.expr, local: dict) -> ast.expr:
+    def expression(self, kernel: types.FunctionType, node: ast.expr, local: dict) -> ast.expr:
         if isinstance(node, ast.Call) and not node.keywords and not any(isinstance(a, ast.Starred) for a in node.args):
             arguments = [self.expression(kernel, a, local) for a in node.args]
             func = node.func
@@ -327,7 +327,7 @@ KERNELS_DIGEST = hashlib.sha256(
 ).hexdigest()
 
 
-def cached_loop(function: Any) -> Any:
+def cached_loop(function: Callable[..., Any]) -> Any:  # Any: numba's dispatcher
     """`numba.njit(cache=True)` for a loop calling compiled kernels or numba functions of other files, named
     after the digest of their sources (`KERNELS_DIGEST`)."""
     function.__qualname__ = f"{function.__qualname__}__kernels_{KERNELS_DIGEST[:16]}"

@@ -12,8 +12,12 @@ from typing import Any
 
 import numpy as np
 
+from wosac_eval.arrays.scenario import ScenarioArrays, TrafficSignals
 from wosac_eval.features import road_edge, traffic_lights
 from wosac_eval.features.spatial import NON_FINITE_PREFIX, non_finite_pick
+
+# The map context and the layout are `metric_features`' `MapContext` and `FeatureLayout` (Any below):
+# `metric_features` imports this module, and an import back would close a circle.
 
 _F = np.float32
 
@@ -23,7 +27,7 @@ def segment_table_arrays(table: road_edge.SegmentTable, cells: bool = True) -> d
     return {**_segments(table), **_cells(table, cells)}
 
 
-def road_edge_segments(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
+def road_edge_segments(scenario: ScenarioArrays, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
     return _segments(context.road_edges)
 
 
@@ -37,7 +41,7 @@ def _segments(table: road_edge.SegmentTable) -> dict:
     }
 
 
-def road_edge_cells(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
+def road_edge_cells(scenario: ScenarioArrays, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
     return _cells(context.road_edges, cells)
 
 
@@ -71,14 +75,14 @@ def segments_at(table: road_edge.SegmentTable, idx: np.ndarray) -> dict:
     }
 
 
-def red_light_arrays(scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
+def red_light_arrays(scenario: ScenarioArrays, context: Any, layout: Any, num_steps: int, cells: bool) -> dict:
     """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, from the first
     red-light step on, and the lane segments."""
     signals = traffic_lights.signals_from(scenario.signals, layout.first_red_light_step)
     return stop_line_arrays(signals, context.lanes, num_steps - layout.first_red_light_step)
 
 
-def stop_line_arrays(signals: Any, lanes: traffic_lights.LaneTable | None, num_steps: int) -> dict:
+def stop_line_arrays(signals: TrafficSignals | None, lanes: traffic_lights.LaneTable | None, num_steps: int) -> dict:
     """Stop lines `(num_steps, num_signals, ...)` of the signals that can be violated, and the lane segments."""
     none = {
         "stop_start": np.zeros((num_steps, 0, 2), _F),

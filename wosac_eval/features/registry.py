@@ -20,8 +20,8 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-from collections.abc import Callable, Mapping
-from typing import Any
+from collections.abc import Callable, Iterator, Mapping
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -31,6 +31,12 @@ from wosac_eval.features.search_strategy import TimeToCollisionInputs
 from wosac_eval.features.spatial import NON_FINITE_PREFIX
 from wosac_eval.features.xp import array_namespace
 from wosac_eval.metric_table import Metric, register_metric, unregister_metric
+
+if TYPE_CHECKING:  # the scene's arrays, read by the builders
+    from wosac_eval.arrays.scenario import ScenarioArrays
+
+# The map context and the layout are `metric_features`' `MapContext` and `FeatureLayout` (Any below):
+# `metric_features` imports this module, and an import back would close a circle.
 
 _F = np.float32
 
@@ -367,7 +373,7 @@ def unregister(name: str) -> None:
 
 
 @contextlib.contextmanager
-def registered(feature: Feature) -> Any:
+def registered(feature: Feature) -> Iterator[Feature]:
     """`register(feature)` for the duration of a `with` block (tests, experiments)."""
     register(feature)
     try:
@@ -406,7 +412,12 @@ def map_padding(selected: tuple[Feature, ...] | None = None) -> dict[str, Pad]:
 
 
 def scene_map_arrays(
-    scenario: Any, context: Any, layout: Any, num_steps: int, cells: bool = True, selected: Any = None
+    scenario: ScenarioArrays,
+    context: Any,
+    layout: Any,
+    num_steps: int,
+    cells: bool = True,
+    selected: tuple[Feature, ...] | None = None,
 ) -> dict:
     """Every array of the map parts the features need (`map_parts`), unpadded: the parts' builders
     (`features.map_arrays`) of one scene."""

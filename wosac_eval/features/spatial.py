@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -10,7 +11,13 @@ from scipy.spatial import cKDTree
 from wosac_eval.features.xp import array_namespace
 
 
-def tree_candidates(tree: cKDTree, q: np.ndarray, radius_of: Any, measure: Any = None, k_bound: int = 4) -> Any:
+def tree_candidates(
+    tree: cKDTree,
+    q: np.ndarray,
+    radius_of: Callable[[np.ndarray], np.ndarray],
+    measure: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    k_bound: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
     """(query, tree point) pairs within a search radius of each query.
 
     The radius is `radius_of(bound)`, where `bound` is the smallest exact
@@ -91,7 +98,7 @@ def column_bounds(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return (np.array([a[:, k].min() for k in range(a.shape[1])]), np.array([a[:, k].max() for k in range(a.shape[1])]))
 
 
-def pad_polylines(polylines: Any, num_points: int) -> Any:
+def pad_polylines(polylines: Sequence[np.ndarray], num_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Polylines stacked and zero padded.
 
     Returns float `(num_polylines, num_points, num_dims)` and bool valid `(num_polylines, num_points)`.

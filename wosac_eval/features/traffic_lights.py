@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from collections.abc import Iterable
 from typing import Any
 
 import numpy as np
@@ -66,7 +67,7 @@ def signals_from(signals: TrafficSignals | None, start: int) -> TrafficSignals |
     return dataclasses.replace(signals, state=signals.state[start:], stop_point=signals.stop_point[start:])
 
 
-def build_lane_table(lanes: Any, lane_ids: Any) -> LaneTable | None:
+def build_lane_table(lanes: Iterable[np.ndarray], lane_ids: Iterable[int]) -> LaneTable | None:
     kept = [(np.asarray(p, _F)[:, :2], i) for p, i in zip(lanes, lane_ids) if len(p) >= 2]
     if not kept:
         return None

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any, NamedTuple
 
 import numba
@@ -121,7 +121,7 @@ def segment_frames(start: np.ndarray, delta: np.ndarray) -> np.ndarray:
     )
 
 
-def build_segment_table(polylines: Any) -> SegmentTable:
+def build_segment_table(polylines: Iterable[np.ndarray]) -> SegmentTable:
     """Pads polylines to a common length, precomputes segment neighbours and buckets.
 
     Args:

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
 
 import numpy as np
 
@@ -48,11 +47,11 @@ class PrunedSearch:
         sin_h: np.ndarray,
         valid: np.ndarray,
         num_evaluated: int,
-    ) -> Any:
+    ) -> np.ndarray:
         """`interaction.distance_to_nearest_object`: float32 `(num_samples, num_evaluated, num_steps)`."""
         return interaction.distance_to_nearest_object(x, y, length, width, cos_h, sin_h, valid, num_evaluated)
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> np.ndarray:
         """`following.time_to_collision`: float32 `(num_samples, num_evaluated, len(inputs.steps))`."""
         return following.time_to_collision(inputs)
 
@@ -66,12 +65,12 @@ class PrunedSearch:
         cos_h: np.ndarray,
         sin_h: np.ndarray,
         valid: np.ndarray,
-    ) -> Any:
+    ) -> np.ndarray:
         """`road_edge.box_distance_to_road_edge`: float32 `(num_samples, num_objects, num_steps)`, -1e10 where
         invalid."""
         return road_edge.box_distance_to_road_edge(x, y, bottom, length, width, cos_h, sin_h, valid, self.road_edges)
 
-    def red_light_violation(self, x: np.ndarray, y: np.ndarray, valid: np.ndarray) -> Any:
+    def red_light_violation(self, x: np.ndarray, y: np.ndarray, valid: np.ndarray) -> np.ndarray:
         """`traffic_lights.red_light_violation`: bool `(num_samples, num_objects, num_steps)`."""
         return traffic_lights.red_light_violation(x, y, valid, self.lanes, self.signals)
 

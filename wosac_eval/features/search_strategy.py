@@ -56,7 +56,7 @@ class SearchStrategy(Protocol):
 
     def nearest_object(
         self, x: Any, y: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any, num_evaluated: int
-    ) -> None:
+    ) -> Any:
         """Distance from each evaluated box to the nearest other valid box.
 
         x, y, length, width, cos_h, sin_h: float32 and valid bool, `(num_samples, num_objects, num_steps)`.
@@ -64,7 +64,7 @@ class SearchStrategy(Protocol):
         """
         ...
 
-    def time_to_collision(self, inputs: TimeToCollisionInputs) -> None:
+    def time_to_collision(self, inputs: TimeToCollisionInputs) -> Any:
         """Seconds until each evaluated object hits the object it follows, capped at 5 s.
 
         Returns float32 `(num_samples, num_evaluated, len(inputs.steps))` (`following.time_to_collision`).
@@ -73,7 +73,7 @@ class SearchStrategy(Protocol):
 
     def road_edge_distance(
         self, x: Any, y: Any, bottom: Any, length: Any, width: Any, cos_h: Any, sin_h: Any, valid: Any
-    ) -> None:
+    ) -> Any:
         """Signed distance of each box's most off-road bottom corner to the road edge.
 
         All float32 (valid bool) `(num_samples, num_objects, num_steps)`; returns float32 of that shape, -1e10
@@ -81,7 +81,7 @@ class SearchStrategy(Protocol):
         """
         ...
 
-    def red_light_violation(self, x: Any, y: Any, valid: Any) -> None:
+    def red_light_violation(self, x: Any, y: Any, valid: Any) -> Any:
         """Whether each object runs a red light at each step: x, y float32 and valid bool
         `(num_samples, num_objects, num_steps)`; returns bool of that shape (`traffic_lights.red_light_violation`)."""
         ...

@@ -30,7 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import jax
@@ -95,7 +95,7 @@ def exact_cpu() -> None:
         )
 
 
-def fma_contraction(device: Any = None) -> bool:
+def fma_contraction(device: jax.Device | None = None) -> bool:
     """True when XLA fuses `a * b + c` into one rounding on `device` (default: JAX's default device).
 
     With fusion, float32 results differ from numpy (and the official code) in
@@ -294,7 +294,7 @@ def scenario_features(
 
 
 def scenarios_features(
-    pairs: Any,
+    pairs: Iterable[tuple[ScenarioArrays, RolloutArrays]],
     max_batch: int = 8,
     min_bucket: Sizes | tuple | None = None,
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,

@@ -14,11 +14,13 @@ from __future__ import annotations
 
 import dataclasses
 import gc
+from collections.abc import Iterable
 from typing import Any
 
 import jax
 import numpy as np
 
+from wosac_eval.arrays.scenario import ScenarioArrays
 from wosac_eval.backends.host_search import HostSearch
 from wosac_eval.features import dense, dense_road_edge, registry
 from wosac_eval.features import metric_features as mf
@@ -91,12 +93,12 @@ class Sizes:
     def as_tuple(self) -> tuple[int, ...]:
         return (self.objects, self.evaluated, *(n for _, n in self.map))
 
-    def with_counts(self, counts: Any) -> Sizes:
+    def with_counts(self, counts: Iterable[int]) -> Sizes:
         """These names with `counts` in `as_tuple()` order."""
         counts = tuple(counts)
         return Sizes(counts[0], counts[1], tuple((name, n) for (name, _), n in zip(self.map, counts[2:])))
 
-    def at_least(self, floor: Any) -> Sizes:
+    def at_least(self, floor: Sizes | Iterable[int]) -> Sizes:
         """Each size at least `floor`'s (a `Sizes`, or a tuple in `as_tuple()` order; a shorter tuple
         bounds the first sizes only)."""
         floor = floor.as_tuple() if isinstance(floor, Sizes) else tuple(floor)
@@ -176,7 +178,7 @@ class SceneInputs:
 
 
 def scene_inputs(
-    scenario: Any,
+    scenario: ScenarioArrays,
     traj: dict,
     layout: mf.FeatureLayout,
     context: mf.MapContext,

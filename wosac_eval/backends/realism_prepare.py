@@ -8,6 +8,7 @@ per group of similar scenes and stacked into the device arrays of a `PreparedSce
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterable
 from typing import Any
 
 import jax
@@ -25,6 +26,7 @@ from wosac_eval.features import metric_features as mf
 from wosac_eval.features.search import PrunedSearch
 from wosac_eval.metrics.config import load_config
 from wosac_eval.options import Search
+from wosac_eval.protos import scenario_pb2
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,7 +72,7 @@ def _scene_inputs(scenario: ScenarioArrays, spec: challenges.ChallengeSpec, sear
 
 
 def prepare(
-    scenarios: Any,
+    scenarios: Iterable[scenario_pb2.Scenario | ScenarioArrays],
     challenge: challenges.ChallengeLike = challenges.Challenge.SIM_AGENTS,
     config: str | None = None,
     min_sizes: tuple | None = None,

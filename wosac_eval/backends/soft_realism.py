@@ -63,8 +63,9 @@ from wosac_eval.backends import jax_driver, realism_inputs
 from wosac_eval.backends import jax_realism as jr
 from wosac_eval.estimators import likelihoods
 from wosac_eval.features import dense, interaction, ops, registry, road_edge, traffic_lights
+from wosac_eval.features.metric_features import MetricFeatures
 from wosac_eval.features.xp import differentiable, float32_precision
-from wosac_eval.metrics.config import load_config
+from wosac_eval.metrics.config import SimAgentMetricsConfig, load_config
 from wosac_eval.metrics.registry import METRICS, RATES
 from wosac_eval.metrics.scenario_metrics import SCENARIO_FIELDS, metric_values, validity_masks
 
@@ -108,7 +109,7 @@ def _log_probability_of_bins(counts: Any, pseudocount: Any, log_bins: Any) -> An
 
 
 def soft_estimate(
-    config: Any,
+    config: likelihoods.FeatureConfig,
     log_samples: Any,
     sim_samples: Any,
     sim_weights: Any = None,
@@ -206,7 +207,7 @@ def _soft_red_light_feature(traj: dict, m: dict, layout: Any, temperature: float
     return red[..., 1:, :] if layout.first_step > 0 else red
 
 
-def soft_events(sim: Any, red_light_violation: Any, temperature: float | jax.Array) -> dict:
+def soft_events(sim: MetricFeatures, red_light_violation: Any, temperature: float | jax.Array) -> dict:
     """The soft per-step event of each indicator feature, float32 `(num_rollouts, num_evaluated, num_steps)`.
 
     Collision: sigmoid((threshold - distance to the nearest object) / temperature), offroad:
@@ -249,7 +250,12 @@ def _soft_any(feature: str) -> Any:
 
 
 def soft_log_likelihoods(
-    config: Any, log: Any, sim: Any, events: dict, object_mask: Any, temperature: float | jax.Array
+    config: SimAgentMetricsConfig,
+    log: MetricFeatures,
+    sim: MetricFeatures,
+    events: dict,
+    object_mask: Any,
+    temperature: float | jax.Array,
 ) -> dict:
     """`scenario_metrics.metric_log_likelihoods` with the soft estimators and indicators."""
     masks = validity_masks(log)

@@ -28,6 +28,7 @@ import importlib.machinery
 import importlib.util
 import os
 import sys
+import types
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -85,7 +86,7 @@ class _ServedPackage(importlib.abc.Loader):
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None  # a plain module object; the import system sets its __path__ from the spec
 
-    def exec_module(self, module: Any) -> None:
+    def exec_module(self, module: types.ModuleType) -> None:
         module.__file__ = None  # as the official package, a namespace package, has none
 
 
@@ -98,7 +99,7 @@ class _ServedModule(importlib.abc.Loader):
     def create_module(self, spec: importlib.machinery.ModuleSpec) -> None:
         return None
 
-    def exec_module(self, module: Any) -> None:
+    def exec_module(self, module: types.ModuleType) -> None:
         # The import system returns what sys.modules holds under the name once the loader is done (the
         # language reference, "Loaders": a module may replace itself there), so the official name and the
         # wosac-eval name are one module object, and the wosac-eval module's own attributes stay its own.
@@ -109,7 +110,7 @@ class _OfficialNames(importlib.abc.MetaPathFinder):
     """Finds every `waymo_open_dataset` name: a served module, a package on the way, or a clear refusal."""
 
     def find_spec(
-        self, fullname: str, path: Sequence[str] | None = None, target: Any = None
+        self, fullname: str, path: Sequence[str] | None = None, target: types.ModuleType | None = None
     ) -> importlib.machinery.ModuleSpec | None:
         official = _official_name(fullname)
         if official is None:
@@ -133,7 +134,7 @@ class _Refusal(importlib.abc.MetaPathFinder):
         self.error = error
 
     def find_spec(
-        self, fullname: str, path: Sequence[str] | None = None, target: Any = None
+        self, fullname: str, path: Sequence[str] | None = None, target: types.ModuleType | None = None
     ) -> importlib.machinery.ModuleSpec | None:
         if _official_name(fullname) is not None:
             raise OfficialPackageFound(str(self.error))

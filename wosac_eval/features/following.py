@@ -119,7 +119,7 @@ def capped_time_to_collision(gap: Any, closing: Any) -> Any:
     )
 
 
-def time_to_collision(inputs: TimeToCollisionInputs) -> Any:
+def time_to_collision(inputs: TimeToCollisionInputs) -> np.ndarray:
     """Seconds until each evaluated object hits the object it follows, at constant speeds.
 
     The followed object is the nearest valid one ahead, roughly aligned

@@ -254,16 +254,16 @@ def _by_samples(fn: Any, arrays: Any, num_evaluated: int, **kwargs: Any) -> Any:
 
 
 def distance_to_nearest_object(
-    x: Any,
-    y: Any,
-    length: Any,
-    width: Any,
-    cos_h: Any,
-    sin_h: Any,
-    valid: Any,
+    x: np.ndarray,
+    y: np.ndarray,
+    length: np.ndarray,
+    width: np.ndarray,
+    cos_h: np.ndarray,
+    sin_h: np.ndarray,
+    valid: np.ndarray,
     num_evaluated: int,
     counts: dict | None = None,
-) -> Any:
+) -> np.ndarray:
     """Signed distance between rounded boxes, to the nearest other valid object.
 
     Boxes are rectangles whose corners are rounded by a radius of

@@ -63,7 +63,7 @@ def tree_candidates(
     return qi[order], pi[order].astype(np.int64)
 
 
-def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray) -> Any:
+def first_minimum(group: np.ndarray, value: np.ndarray, tie: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per group (contiguous, sorted): the position of the minimum value, ties to the lowest `tie`.
 
     Returns (group ids present, positions into the pair arrays).

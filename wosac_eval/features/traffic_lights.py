@@ -140,7 +140,7 @@ def nearest_lane_segment(table: LaneTable, xy: np.ndarray) -> np.ndarray:
     return out
 
 
-def stop_point_segments(table: LaneTable, signals: TrafficSignals) -> Any:
+def stop_point_segments(table: LaneTable, signals: TrafficSignals) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each (step, signal): the lane segment nearest the stop point.
 
     Returns (segment_start, segment_delta, lane_known), float32 `(num_steps, num_signals, 2)`
@@ -251,8 +251,14 @@ def _crossings(
 
 
 def compiled_stop_line_crossings(
-    x: Any, y: Any, valid: Any, seg_start: Any, seg_delta: Any, stop_point: Any, stopping: Any
-) -> Any:
+    x: np.ndarray,
+    y: np.ndarray,
+    valid: np.ndarray,
+    seg_start: np.ndarray,
+    seg_delta: np.ndarray,
+    stop_point: np.ndarray,
+    stopping: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """`stop_line_crossings` by `_crossings`: x, y float32 and valid `(..., num_objects, num_steps)`; and
     whether each box crossed any line, bool `(..., num_objects, num_steps)`."""
     lines = [np.ascontiguousarray(a, _F) for a in _stop_lines(seg_start, seg_delta, stop_point, np)]
@@ -264,7 +270,7 @@ def compiled_stop_line_crossings(
 
 
 def red_light_violation(
-    x: Any, y: Any, valid: Any, lanes: LaneTable | None, signals: TrafficSignals | None
+    x: np.ndarray, y: np.ndarray, valid: np.ndarray, lanes: LaneTable | None, signals: TrafficSignals | None
 ) -> np.ndarray:
     """Per-step red-light violations of the given objects.
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Iterable, Mapping
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, SupportsFloat
 
 import numba
 import numpy as np
@@ -351,7 +351,7 @@ def search_buckets(grid: Mapping) -> Buckets:
     return Buckets(search_grid(origin, side, shape, occupied), grid["bucket_start"], grid["bucket_segments"])
 
 
-def search_grid(origin: np.ndarray, side: Any, shape: Any, occupied: Any) -> tuple:
+def search_grid(origin: np.ndarray, side: SupportsFloat, shape: np.ndarray, occupied: np.ndarray) -> tuple:
     """The bucket grid as the compiled loops read it, a tuple of 9: origin x, origin y and side (float), buckets
     along x and y, then the first and last bucket holding a segment along x and along y (int); from the
     `bucket_origin`, `bucket_side`, `bucket_shape` and `segment_buckets` of `bucket_grid` or a `SegmentTable`."""

@@ -15,11 +15,13 @@ from __future__ import annotations
 
 import functools
 import warnings
+from collections.abc import Callable
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wosac_eval import challenges
 from wosac_eval.arrays.trajectories import index_of_ids
@@ -76,7 +78,7 @@ def _warn_if_closed_over(prepared: PreparedScenes) -> None:
     )
 
 
-def jit_step(step: Any, prepared: PreparedScenes, **jit_kwargs: Any) -> Any:
+def jit_step(step: Callable[..., Any], prepared: PreparedScenes, **jit_kwargs: Any) -> Any:
     """`jax.jit(step)` with `prepared` bound as its first argument, so the prepared scenes are an argument
     of the compiled program, not constants of it.
 
@@ -146,7 +148,7 @@ def stack_rollouts(prepared: PreparedScenes, rollouts: list) -> dict:
     return out
 
 
-def waymax_columns(prepared: PreparedScenes, object_ids: Any) -> np.ndarray:
+def waymax_columns(prepared: PreparedScenes, object_ids: ArrayLike) -> np.ndarray:
     """Where each sim agent sits on a Waymax-style object axis, int32 `(num_scenes, max_agents)`.
 
     Args:

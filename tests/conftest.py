@@ -147,10 +147,10 @@ FOLDER_MARKERS = {
 }
 # ... and by the fixtures it uses.
 FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
-SLOW_MARKERS = ("ray", "browser", "docker")  # what `pytest -m "not slow"` (the fast tier) leaves out
 # The CI tier: whole-system runs that CI makes once per run (`pytest --ci`), left out of a plain `pytest`
 # (the README's command): Ray clusters, browsers, Docker, and what is explicitly marked `ci` (the documents'
-# blocks, the full-scale paths compared, numerical gradient checks). Each is also `slow`.
+# blocks, the full-scale paths compared, numerical gradient checks). Each is also `slow`: out of the fast
+# tier (`pytest -m "not slow"`).
 CI_MARKERS = ("ray", "browser", "docker", "ci")
 
 
@@ -171,8 +171,6 @@ def _markers(item) -> set[str]:
         if fixture in item.fixturenames:
             names.update(marks)
     names.update(mark.name for mark in item.iter_markers())
-    if names.intersection(SLOW_MARKERS):
-        names.add("slow")
     if names.intersection(CI_MARKERS):
         names.update(("ci", "slow"))
     return names

@@ -149,7 +149,8 @@ FOLDER_MARKERS = {
 FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
 # The CI tier: whole-system runs that CI makes once per run (`pytest --ci`), left out of a plain `pytest`
 # (the README's command): Ray clusters, browsers, Docker, and what is explicitly marked `ci` (the documents'
-# blocks, the full-scale paths compared, numerical gradient checks). Each is also `slow`: out of the fast
+# blocks, the full-scale paths compared, numerical gradient checks, the service end to end, the JAX backends
+# over every golden case). Each is also `slow`: out of the fast
 # tier (`pytest -m "not slow"`).
 CI_MARKERS = ("ray", "browser", "docker", "ci")
 
@@ -267,7 +268,8 @@ def pytest_terminal_summary(terminalreporter, exitstatus, config):
     if leaves_out_the_ci_tier(config):  # (under xdist the workers collect: the controller names no count)
         terminalreporter.line(
             "the CI tier was left out (Ray clusters, browsers, Docker, the documents' blocks, the full-scale "
-            "paths): `pytest -n auto --ci` runs it too, as CI does"
+            "paths, the service end to end, the JAX backends over every golden case): `pytest -n auto --ci` "
+            "runs it too, as CI does"
         )
     leaks = config.stash.get(_LEAKS_KEY, None)
     if not leaks:

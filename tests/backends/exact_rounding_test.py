@@ -97,7 +97,7 @@ print("bit-identical")
 """
 
 
-@pytest.mark.slow
+@pytest.mark.ci  # a process compiling both challenges' programs anew with other flags (1-2 min): the CI tier's
 def test_exact_features_stay_bit_identical_where_the_compiler_fuses_multiply_adds(tmp_path):
     if "fma" not in open("/proc/cpuinfo").read().split():
         pytest.skip("this CPU has no fused multiply-add: XLA cannot contract here")

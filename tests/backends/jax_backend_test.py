@@ -58,7 +58,7 @@ def test_fine_buckets_pad_at_most_a_third(n, expected):
     assert jax_backend.fine_bucket(n) == expected
 
 
-@pytest.mark.slow  # an XLA compilation per bucket of sizes: minutes on 2 cores
+@pytest.mark.ci  # every golden case (an XLA compilation per set's buckets: minutes on 2 cores): the CI tier's
 @pytest.mark.parametrize("case_set, case", CASES)
 def test_features_bit_identical_to_official_and_numpy(case_set, case):
     golden.skip_if_absent(case_set, case)
@@ -67,7 +67,7 @@ def test_features_bit_identical_to_official_and_numpy(case_set, case):
     golden.assert_features_equal(ours, golden.as_feature_dict(_numpy(case_set, case)), f"{case} vs numpy")
 
 
-@pytest.mark.slow  # an XLA compilation per golden case's buckets: minutes on 2 cores
+@pytest.mark.ci  # every golden case, as above: the CI tier's
 @pytest.mark.parametrize("case_set, case", CASES)
 def test_metrics_match_official(case_set, case):
     golden.skip_if_absent(case_set, case)

@@ -202,8 +202,8 @@ def numpy_per_object(prepared, challenge: str) -> dict:
     "challenge, mode, search, grouped",
     [
         ("sim_agents", "exact", "device", False),
-        ("scenario_gen", "float32", "device", False),
-        ("sim_agents", "float32", "device", True),
+        # Grouped: the three programs test_realism_equals_the_file_path compiled for the plain values.
+        ("scenario_gen", "float32", "device", True),
     ],
 )
 def test_per_object_values_equal_the_numpy_path(challenge, mode, search, grouped):
@@ -393,9 +393,9 @@ def test_the_mode_is_explicit_and_recorded():
         jax_realism.realism(prepared, **arrays, mode="exact")
     with pytest.raises(ValueError, match="unknown mode .*: choose one of exact, float32"):
         jax_realism.realism(prepared, **arrays, mode="float16")
-    with jax.enable_x64(True):
-        exact = jax_realism.realism(prepared, **arrays)
-        also_float32 = jax_realism.realism(prepared, **arrays, mode="float32")
+    with jax.enable_x64(True):  # jitted: an eager call compiles each of its operations, every run
+        exact = _step(prepared, arrays)  # the program test_realism_equals_the_file_path compiled
+        also_float32 = jax.jit(lambda p, a: jax_realism.realism(p, **a, mode="float32"))(prepared, arrays)
     assert (exact.mode, also_float32.mode) == ("exact", "float32")
     assert exact["metametric"].dtype == np.float64
     assert set(exact) == set(SCENARIO_FIELDS) and dict(exact).keys() == exact.keys()
@@ -419,9 +419,9 @@ class DlpackOnly:
 
 def test_any_dlpack_array_is_taken():
     prepared, arrays = prepared_set("sim_agents")
-    with jax.enable_x64(True):  # the program test_the_mode_is_explicit_and_recorded compiled already
+    with jax.enable_x64(True):  # an eager call: DLPack producers are taken at the call, not by a jit
         got = as_numpy(jax_realism.realism(prepared, **{k: DlpackOnly(v) for k, v in arrays.items()}))
-        want = as_numpy(jax_realism.realism(prepared, **arrays))
+    want = in_jit("exact", prepared, arrays)  # the program test_realism_equals_the_file_path compiled
     assert (got.mode, want.mode) == ("exact", "exact")
     for field in SCENARIO_FIELDS:
         np.testing.assert_array_equal(got[field], want[field], err_msg=field)
@@ -479,8 +479,7 @@ def test_waymax_style_arrays_in():
                 waymax[wk][s, :, col, 11:] = arrays[k][s, :, a]
     columns = jax_realism.waymax_columns(prepared, object_ids)
     picked = jax_realism.from_waymax(prepared, columns, **waymax)
-    got = as_numpy(jax_realism.realism(prepared, **picked))
-    want = as_numpy(jax_realism.realism(prepared, **arrays))
+    got, want = in_jit("float32", prepared, picked), in_jit("float32", prepared, arrays)  # one program
     for field in SCENARIO_FIELDS:
         np.testing.assert_array_equal(got[field], want[field], err_msg=field)
     with pytest.raises(ValueError, match="not among the Waymax objects"):
@@ -510,6 +509,7 @@ def golden_runs() -> list:
     return runs
 
 
+@pytest.mark.ci  # eight programs of the golden sets' shapes (4 minutes of compiling on 2 cores): the CI tier's
 @pytest.mark.parametrize("case_set, mode, search", golden_runs())
 def test_every_golden_case_matches_the_official_metrics(case_set, mode, search):
     """All cases of a golden set (real WOMD scenes with ../shared; synthetic oracle cases always) in one

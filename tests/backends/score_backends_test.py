@@ -14,7 +14,7 @@ from support.runs import run_score
 CASE = "637f20cafde22ff8__official_test_submission"
 
 
-@pytest.mark.slow  # XLA compiling for real golden scenes: about a minute on 2 cores
+@pytest.mark.ci  # XLA compiling for real golden scenes in the CLI's processes: about a minute on 2 cores
 @pytest.mark.parametrize("workers", [1, 2])
 def test_cli_jax_backend_matches_golden_and_numpy(tmp_path, workers):
     shared = require_shared()

@@ -113,6 +113,7 @@ def test_host_searches_and_bad_temperatures_are_refused():
         jax_realism.soft_realism(host, **arrays)
 
 
+@pytest.mark.ci  # every golden case of both challenges (two programs and their compiling): the CI tier's
 @pytest.mark.parametrize("set_name", ["shared", "shared_scenario_gen"])
 def test_golden_cases_within_5e3_at_temperature_0_01(set_name):
     case_set = next(s for s in golden.SETS if s.name == set_name)

@@ -37,8 +37,9 @@ def _run(pattern: str, out) -> dict:
     return json.loads(result[-1][len("RESULT ") :])
 
 
+# The repository's small scene in the full run; the real WOMD scene (16 s on 2 cores) in the CI tier.
 @pytest.mark.slow  # among the longest outside Ray, browser and JAX (--durations): the full run's
-@pytest.mark.parametrize("source", ["repository", "womd"])
+@pytest.mark.parametrize("source", ["repository", pytest.param("womd", marks=pytest.mark.ci)])
 def test_the_tutorial_runs_to_its_end_with_only_its_imports_changed(source, tmp_path):
     from wosac_eval import read_scenarios, score_scenario
     from wosac_eval.arrays.rollouts import rollout_arrays

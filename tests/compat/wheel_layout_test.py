@@ -46,7 +46,7 @@ def fresh_environment(folder, wheel: str):
     return python, site
 
 
-@pytest.mark.slow  # builds the wheel (10-30 s) and starts a pool from a fresh installation
+@pytest.mark.ci  # builds the wheel (10-30 s) and starts a pool from a fresh installation: the CI tier's
 def test_the_wheel_carries_the_layout_and_its_installation_serves_spawn_workers(tmp_path):
     wheel = build_wheel(tmp_path)
     names = zipfile.ZipFile(wheel).namelist()

@@ -134,7 +134,7 @@ def _run_document(commands: list[tuple[str, str]], scratch: Path, scenarios: lis
     assert "my-team" in listed.stdout, listed.stdout + listed.stderr
 
 
-@pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
+@pytest.mark.ci  # the documents' blocks, as tests/readme_test.py's: the CI tier's
 def test_every_documented_wosac_server_line_runs(tmp_path):
     scenarios = demo_data(tmp_path / "demo").scenarios
     commands = documented_commands()

@@ -18,6 +18,9 @@ from support.bombs import empty_rollouts_bomb, empty_trajectories_bomb, members_
 from support.runs import WOSAC_SERVER
 from support.server_harness import as_submission, tar_bytes
 
+# The service end to end (the red team's attacks on a running service): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 MiB = 1 << 20
 
 

@@ -22,6 +22,9 @@ import pytest
 
 from support.server_harness import canonical, resumed_and_scored, wait_gone, wait_logged
 
+# The service end to end (disks filled under a running service): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 MiB = 2**20
 DISK_MIB = 64
 

@@ -18,6 +18,9 @@ import pytest
 from support.processes import alive, processes_of
 from support.server_harness import as_submission, canonical, tar_bytes
 
+# The service end to end (jobs through real workers: killed, restarted, retried): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 RUNNING = ("validating", "scoring")
 
 

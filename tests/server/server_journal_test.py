@@ -15,6 +15,9 @@ import pytest
 
 from support.server_harness import canonical, resumed_and_scored, wait_gone
 
+# The service end to end (a job's worker killed mid-job and resumed): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 N = 16
 
 

@@ -17,7 +17,8 @@ import pytest
 from support.processes import processes_of, wait_gone
 from support.server_harness import Server, wait_healthy
 
-pytestmark = pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+# The service end to end (signals at every moment of its start-up): the CI tier's (`pytest --ci`).
+pytestmark = [pytest.mark.ci, pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")]
 
 # Seconds after `serve` started: from before it starts its workers to after uvicorn serves (its
 # start-up takes ~1 s on a 2-core machine) ...

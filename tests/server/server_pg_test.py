@@ -7,6 +7,9 @@ import pytest
 
 from support.server_harness import canonical
 
+# The service end to end (the service on a real PostgreSQL server): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 
 @pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_service_on_postgresql_scores_and_survives_restart(

@@ -16,6 +16,9 @@ from support.results import synthetic_result
 from support.server_harness import as_submission, canonical, wait_gone
 from wosac_server import jobs, results
 
+# The service end to end (scored jobs' results stored, streamed and served): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 ROWS = 5_000
 
 

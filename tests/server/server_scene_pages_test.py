@@ -13,6 +13,9 @@ import subprocess
 import httpx
 import pytest
 
+# The service end to end (a scored job's scene and object pages): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 PNG = b"\x89PNG\r\n\x1a\n"
 
 

@@ -13,6 +13,9 @@ import pytest
 
 from support.server_harness import as_submission
 
+# The service end to end (slow and stalled clients of a running service): the CI tier's (`pytest --ci`).
+pytestmark = pytest.mark.ci
+
 MiB = 1 << 20
 
 

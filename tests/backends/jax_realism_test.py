@@ -60,12 +60,13 @@ def traced_as(mode: str):
 # One jitted step for every test: JAX compiles it once per scene set, rollout shapes and x64 state
 # (its cache key), so tests that score the same scenes share the compilation.
 _step = jax.jit(lambda prepared, a: jax_realism.realism(prepared, **a))
+_step_per_object = jax.jit(lambda prepared, a: jax_realism.realism(prepared, **a, per_object=True))
 
 
-def in_jit(mode: str, prepared, arrays: dict):
+def in_jit(mode: str, prepared, arrays: dict, per_object: bool = False):
     """`realism` as a training step calls it: inside the caller's own `jax.jit`, x64 as `mode` needs."""
     with traced_as(mode):
-        out = _step(prepared, arrays)
+        out = (_step_per_object if per_object else _step)(prepared, arrays)
     assert out.mode == mode
     return as_numpy(out)
 
@@ -113,10 +114,12 @@ def as_numpy(tree):
 @pytest.mark.parametrize("challenge, mode", CHALLENGE_MODES)
 def test_realism_equals_the_file_path(challenge, mode):
     """In float32 mode (a training loop's) the scenes come in three groups by size (`prepare`'s
-    default), each scene's values put back in its place and equal to one group's within 1e-6."""
+    default), each scene's values put back in its place and equal to one group's within 1e-6. The grouped
+    programs are the per-object ones (their scene fields are these): compiled once, for this test and
+    test_per_object_values_equal_the_numpy_path."""
     scs, rollouts = scene_set(challenge)
     grouped = mode == "float32"
-    got = in_jit(mode, *prepared_set(challenge, grouped=grouped))
+    got = in_jit(mode, *prepared_set(challenge, grouped=grouped), per_object=grouped)
     one_group = in_jit(mode, *prepared_set(challenge)) if grouped else got
     for s, (sc, ro) in enumerate(zip(scs, rollouts)):
         expected = score_scenario(sc, ro, challenge=challenge)
@@ -180,8 +183,6 @@ def test_values_in_padding_columns_are_ignored(challenge, mode):
         np.testing.assert_array_equal(a[field], c[field], err_msg=field)
 
 
-_step_per_object = jax.jit(lambda prepared, a: jax_realism.realism(prepared, **a, per_object=True))
-
 
 def numpy_per_object(prepared, challenge: str) -> dict:
     """The numpy path's per-object values of the scene set in `realism`'s columns: field -> (float32 values
@@ -209,10 +210,11 @@ def numpy_per_object(prepared, challenge: str) -> dict:
 def test_per_object_values_equal_the_numpy_path(challenge, mode, search, grouped):
     """`realism(..., per_object=True)` inside a plain `jax.jit`: each evaluated object's likelihood and count
     in its rollout column, equal to the numpy path's (within the metrics' tolerance; bit-identical in exact
-    mode on CPU), NaN and 0 in the other columns; the scene fields as without it. Grouped: three programs,
-    their columns put back in scene order."""
+    mode on CPU), NaN and 0 in the other columns; the scene fields as without it (one group's, within 1e-6
+    when grouped, as test_realism_equals_the_file_path checks). Grouped: three programs, their columns put
+    back in scene order."""
     prepared, arrays = prepared_set(challenge, grouped=grouped, search=search)
-    plain = in_jit(mode, prepared, arrays)
+    plain = in_jit(mode, *prepared_set(challenge, search=search))
     assert plain.per_object is None and plain.per_object_counts is None
     with traced_as(mode):
         got = as_numpy(_step_per_object(prepared, arrays))

@@ -71,6 +71,7 @@ def test_criticality_table_ranks_the_set_like_the_result_rows(runs, tmp_path):
     )
 
 
+@pytest.mark.slow  # its module's fixture scores the demo's policies first (10 s): out of the fast tier
 def test_criticality_writes_parquet(runs, tmp_path):
     pq = pytest.importorskip("pyarrow.parquet", reason="pyarrow (the test extra) writes .parquet")
     done = run_cli("criticality", "--scenarios", *runs["scenarios"], "-o", str(tmp_path / "c.parquet"))
@@ -192,6 +193,7 @@ def test_report_shows_realism_against_criticality(runs, tmp_path):
     assert 'id="criticality"' in html and "worst long-tail scenario" in html
 
 
+@pytest.mark.slow  # its module's fixture scores the demo's policies first (10 s): out of the fast tier
 def test_no_analysis_leaves_the_official_fields_alone(runs, tmp_path):
     done = run_cli(
         "score",

@@ -181,6 +181,7 @@ def test_demo_strata_are_paired_tests_over_scenes(demo, capsys):
     assert "#### Per object: the strata that changed most" in text and text.count("| `synthetic-") == 6
 
 
+@pytest.mark.slow  # its module's fixture scores the demo's policies first (6 s): out of the fast tier
 def test_results_without_objects_are_refused(demo, tmp_path, capsys):
     base_path, new_path = demo
     plain = tmp_path / "plain.json"

@@ -160,7 +160,8 @@ def pytest_addoption(parser):
         "--ci",
         action="store_true",
         help="also run the CI tier (marker `ci`: Ray clusters, browsers, Docker, the documents' blocks, "
-        "the full-scale paths): a run that names no path and no -m leaves it out",
+        "the full-scale paths, the service end to end, the JAX backends over every golden case): a run "
+        "that names no path and no -m leaves it out",
     )
 
 

@@ -183,7 +183,6 @@ def test_values_in_padding_columns_are_ignored(challenge, mode):
         np.testing.assert_array_equal(a[field], c[field], err_msg=field)
 
 
-
 def numpy_per_object(prepared, challenge: str) -> dict:
     """The numpy path's per-object values of the scene set in `realism`'s columns: field -> (float32 values
     `(num_scenes, max_agents)`, NaN where no evaluated object; int32 counts, 0 there)."""

@@ -57,7 +57,9 @@ def run_documents(scratch, names: list[str]) -> subprocess.CompletedProcess:
         command = ["unshare", "-n", "bash", "-c", f"ip link set lo up && exec {quoted}"]
     else:
         command = inner + ["--skip-ray"]
-    return subprocess.run(command, capture_output=True, text=True, timeout=1500)
+    # Ray's workers at nice 0, as in tests/ray_cluster/loopback.py (why there).
+    env = {**os.environ, "RAY_worker_niceness": "0"}
+    return subprocess.run(command, capture_output=True, text=True, timeout=1500, env=env)
 
 
 @pytest.fixture(scope="session")

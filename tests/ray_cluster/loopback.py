@@ -52,6 +52,10 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]
+    # Ray starts its workers at nice 15 (its `worker_niceness`): beside CI's other tests on two cores they got
+    # a few per cent of a core, and a scoring run of minutes passed its 10-minute limit (twice on 2026-12-07,
+    # `test_cli_without_address_starts_a_local_ray`, the workers' logs showing them alive and slowly working).
+    # At nice 0 they share the cores as the tests' other processes do.
     with tempfile.TemporaryDirectory() as scratch:
         # Not in the repository: the checks' working folder goes on their Ray workers' sys.path (Ray does
         # that), where they would import the tree beside the installed package.
@@ -61,7 +65,7 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
             capture_output=True,
             text=True,
             timeout=timeout,
-            env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1"},
+            env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1", "RAY_worker_niceness": "0"},
         )
     # A failure's report from its start (what failed, then the logs it carries), else the output's tail.
     failures = done.stdout.partition("= FAILURES =")[2]

@@ -202,7 +202,7 @@ def numpy_per_object(prepared, challenge: str) -> dict:
     "challenge, mode, search, grouped",
     [
         ("sim_agents", "exact", "device", False),
-        # Grouped: the three programs test_realism_equals_the_file_path compiled for the plain values.
+        # Grouped: the three per-object programs test_realism_equals_the_file_path compiled.
         ("scenario_gen", "float32", "device", True),
     ],
 )

@@ -150,8 +150,7 @@ FIXTURE_MARKERS = {"shared": ("shared",), "postgres_server": ("postgres",)}
 # The CI tier: whole-system runs that CI makes once per run (`pytest --ci`), left out of a plain `pytest`
 # (the README's command): Ray clusters, browsers, Docker, and what is explicitly marked `ci` (the documents'
 # blocks, the full-scale paths compared, numerical gradient checks, the service end to end, the JAX backends
-# over every golden case). Each is also `slow`: out of the fast
-# tier (`pytest -m "not slow"`).
+# over every golden case). Each is also `slow`: out of the fast tier (`pytest -m "not slow"`).
 CI_MARKERS = ("ray", "browser", "docker", "ci")
 
 

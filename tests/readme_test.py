@@ -19,6 +19,7 @@ import sys
 import pytest
 
 from support.paths import REPO
+from support.processes import RAY_TEST_ENV
 from support.readme_blocks import document_blocks, documents, readme_blocks, uses_ray
 
 RUNNER = REPO / "tests" / "support" / "readme_blocks.py"
@@ -57,9 +58,7 @@ def run_documents(scratch, names: list[str]) -> subprocess.CompletedProcess:
         command = ["unshare", "-n", "bash", "-c", f"ip link set lo up && exec {quoted}"]
     else:
         command = inner + ["--skip-ray"]
-    # Ray's workers at nice 0, as in tests/ray_cluster/loopback.py (why there).
-    env = {**os.environ, "RAY_worker_niceness": "0"}
-    return subprocess.run(command, capture_output=True, text=True, timeout=1500, env=env)
+    return subprocess.run(command, capture_output=True, text=True, timeout=1500, env={**os.environ, **RAY_TEST_ENV})
 
 
 @pytest.fixture(scope="session")

@@ -21,6 +21,7 @@ import tempfile
 import pytest
 
 from support.paths import REPO
+from support.processes import RAY_TEST_ENV
 from support.runs import console_script
 
 # The checks' pytest, the installed script: `python -m pytest` run in the repository would import this tree
@@ -52,10 +53,6 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
     # `; exit $?`: bash stays the namespace's first process (it reaps what `ray start` leaves to it)
     inner = f"ip link set lo up && {checks}; exit $?"
     flags = ["-n", "-p", "--kill-child", "--mount-proc"] if own_pids else ["-n"]
-    # Ray starts its workers at nice 15 (its `worker_niceness`): beside CI's other tests on two cores they got
-    # a few per cent of a core, and a scoring run of minutes passed its 10-minute limit (twice on 2026-12-07,
-    # `test_cli_without_address_starts_a_local_ray`, the workers' logs showing them alive and slowly working).
-    # At nice 0 they share the cores as the tests' other processes do.
     with tempfile.TemporaryDirectory() as scratch:
         # Not in the repository: the checks' working folder goes on their Ray workers' sys.path (Ray does
         # that), where they would import the tree beside the installed package.
@@ -65,7 +62,7 @@ def run_checks(module: str, *, timeout: float, own_pids: bool = False) -> str:
             capture_output=True,
             text=True,
             timeout=timeout,
-            env={**os.environ, "RAY_DISABLE_USAGE_STATS": "1", "RAY_worker_niceness": "0"},
+            env={**os.environ, **RAY_TEST_ENV},
         )
     # A failure's report from its start (what failed, then the logs it carries), else the output's tail.
     failures = done.stdout.partition("= FAILURES =")[2]

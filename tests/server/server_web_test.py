@@ -218,9 +218,8 @@ def padded_submission(data, path, pad_bytes: int):
     return path
 
 
-# Every PATCH's Upload-Offset the page sends, recorded in the page (the browser's own requests, not mocked).
-# The page's tus client as the server sees it: the offsets its PATCHes start at (`sentOffsets`) and the
-# offsets the server answered to its HEADs (`headOffsets`).
+# The page's tus client as the server sees it, recorded in the page (the browser's own requests, not mocked):
+# the Upload-Offset of every PATCH it sends (`sentOffsets`) and of every HEAD's answer (`headOffsets`).
 RECORD_OFFSETS = """(() => { window.sentOffsets = []; window.headOffsets = [];
     const set = XMLHttpRequest.prototype.setRequestHeader, open = XMLHttpRequest.prototype.open;
     XMLHttpRequest.prototype.setRequestHeader = function (name, value) {

@@ -6,6 +6,13 @@ from __future__ import annotations
 import os
 import time
 
+# Ray's settings for every Ray process the tests start (the loopback checks, the documents' Ray blocks): no
+# usage stats sent, and the workers at nice 0. Ray starts its workers at nice 15 (its `worker_niceness`): beside
+# CI's other tests on two cores they got a few per cent of a core, and a scoring run of minutes passed its
+# 10-minute limit (twice on 2026-12-07, `test_cli_without_address_starts_a_local_ray`, the workers' logs showing
+# them alive and slowly working). At nice 0 they share the cores as the tests' other processes do.
+RAY_TEST_ENV = {"RAY_DISABLE_USAGE_STATS": "1", "RAY_worker_niceness": "0"}
+
 
 def _status(pid: int | str) -> dict[str, str]:
     """The fields of /proc/<pid>/status (State, PPid...); empty when the process is gone."""

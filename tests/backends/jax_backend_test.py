@@ -26,11 +26,26 @@ CASES = golden.all_cases()
 
 
 @lru_cache(maxsize=None)
+def _set_prepared(case_set) -> dict:
+    """Every case of a set prepared for the device: case -> `PreparedScenario`."""
+    return {c: jax_backend.prepare(*golden.inputs(case_set, c), challenge=case_set.challenge) for c in case_set.cases}
+
+
+@lru_cache(maxsize=None)
+def _set_floor(case_set) -> tuple[int, ...]:
+    """The largest of each bucket size among a set's cases (`Sizes.as_tuple()` order): as `min_bucket`, every
+    case falls in one bucket, so a set compiles one program per batch size instead of one per bucket its
+    cases fall in (about 12 s each on 2 cores). Padding changes no bit
+    (test_padding_to_larger_buckets_changes_nothing); the natural buckets are the alone calls' below."""
+    sizes = [p.bucket_key.sizes.as_tuple() for p in _set_prepared(case_set).values()]
+    return tuple(max(column) for column in zip(*sizes))
+
+
+@lru_cache(maxsize=None)
 def _set_features(case_set) -> dict:
-    """Every case of a set in one batched call: case -> (log, sim)."""
-    names = case_set.cases
-    pairs = [golden.inputs(case_set, case) for case in names]
-    return dict(zip(names, jax_backend.scenarios_features(pairs, challenge=case_set.challenge)))
+    """Every case of a set in one batched call, padded to the set's floor: case -> (log, sim)."""
+    prepared = _set_prepared(case_set)
+    return dict(zip(prepared, jax_backend.prepared_features(list(prepared.values()), min_bucket=_set_floor(case_set))))
 
 
 def _numpy(case_set, case):
@@ -58,53 +73,51 @@ def test_fine_buckets_pad_at_most_a_third(n, expected):
     assert jax_backend.fine_bucket(n) == expected
 
 
-@pytest.mark.ci  # every golden case (an XLA compilation per set's buckets: minutes on 2 cores): the CI tier's
+# One test per case for the features and the metrics from them: the set's programs compile in one xdist
+# worker, not in both (two tests of a case ran on either).
+@pytest.mark.ci  # every golden case (a program or two per set, about 15 s each on 2 cores): the CI tier's
 @pytest.mark.parametrize("case_set, case", CASES)
-def test_features_bit_identical_to_official_and_numpy(case_set, case):
+def test_features_and_metrics_bit_identical_to_official_and_numpy(case_set, case):
     golden.skip_if_absent(case_set, case)
     ours = _set_features(case_set)[case]
     golden.assert_features_equal(ours, golden.expected_features(case_set, case), case)
     golden.assert_features_equal(ours, golden.as_feature_dict(_numpy(case_set, case)), f"{case} vs numpy")
-
-
-@pytest.mark.ci  # every golden case, as above: the CI tier's
-@pytest.mark.parametrize("case_set, case", CASES)
-def test_metrics_match_official(case_set, case):
-    golden.skip_if_absent(case_set, case)
-    log, sim = _set_features(case_set)[case]
+    log, sim = ours
     for config_name in case_set.configs:
         config = golden.config(case_set, config_name)
         expected = golden.expected_metrics(case_set, case, config_name)
-        ours = scenario_metrics(config, log, sim)
+        metrics = scenario_metrics(config, log, sim)
         # The official float32 values, bit for bit (the JAX features are; the metrics are numpy's).
         for field, value in expected.items():
             if field != "buckets":
-                np.testing.assert_array_equal(np.float32(ours[field]), np.float32(value), f"{config_name}: {field}")
+                np.testing.assert_array_equal(np.float32(metrics[field]), np.float32(value), f"{config_name}: {field}")
         for field, value in expected["buckets"].items():
-            got = np.float32(bucket_metrics(config, ours)[field])
+            got = np.float32(bucket_metrics(config, metrics)[field])
             np.testing.assert_array_equal(got, np.float32(value), f"buckets.{field}")
 
 
 ORACLE = golden.SETS[2]
 
 
-@pytest.mark.slow  # an XLA compilation per golden case's buckets: minutes on 2 cores
+@pytest.mark.slow  # two programs of the set's bucket (batches of 8 and of 1): 25 s of compiling on 2 cores
 def test_batched_call_equals_per_scenario_calls():
     batched = _set_features(ORACLE)
-    # Two scenes that share a bucket with others in the batched call, scored alone.
+    # Two scenes of the batched call scored alone, in the same bucket: a batch of one.
     for case in ORACLE.cases[:2]:
-        alone = jax_backend.scenario_features(*golden.inputs(ORACLE, case))
+        (alone,) = jax_backend.prepared_features([_set_prepared(ORACLE)[case]], min_bucket=_set_floor(ORACLE))
         golden.assert_features_equal(alone, golden.as_feature_dict(batched[case]), f"{case} alone vs batched")
 
 
 @pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_padding_to_larger_buckets_changes_nothing():
     case = next(c for c in ORACLE.cases if "red-light" in c)
-    key = jax_backend.prepare(*golden.inputs(ORACLE, case)).bucket_key
+    key = _set_prepared(ORACLE)[case].bucket_key
     larger = key.sizes.with_counts(2 * k for k in key.sizes.as_tuple())  # objects, evaluated, every map size
     padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
+    tight = jax_backend.scenario_features(*golden.inputs(ORACLE, case))  # its own bucket
+    golden.assert_features_equal(padded, golden.as_feature_dict(tight), f"{case} padded to {larger}")
     golden.assert_features_equal(
-        padded, golden.as_feature_dict(_set_features(ORACLE)[case]), f"{case} padded to {larger}"
+        tight, golden.as_feature_dict(_set_features(ORACLE)[case]), f"{case} in the set's bucket"
     )
 
 

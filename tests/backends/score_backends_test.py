@@ -107,7 +107,8 @@ def test_unknown_backend_is_rejected():
 
 @pytest.mark.slow  # over 4.5 s on 2 cores (--durations): the full run's, not the fast tier's
 def test_pipelined_jax_file_path_equals_numpy_on_demo_scenes(tmp_path):
-    """Workers prepare on the host, this process feeds the device: the whole document equals numpy's."""
+    """Workers prepare on the host, this process feeds the device: the whole document equals numpy's. (The
+    scenes of tests/analysis/criticality_cache_test.py's JAX run: the same programs, compiled once.)"""
     from wosac_eval.scoring.submission import score_submission
     from wosac_eval.sim import scenes
     from wosac_eval.sim.baselines import make_submission

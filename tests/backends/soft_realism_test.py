@@ -11,7 +11,7 @@ non-zero at every crossing, and the red-light values go to the official ones.
 
 from __future__ import annotations
 
-from functools import cache
+from functools import cache, partial
 
 import jax
 import jax.numpy as jnp
@@ -47,9 +47,25 @@ def demo():
 _soft = jax.jit(lambda prepared, a, t: jax_realism.soft_realism(prepared, **a, temperature=t))
 
 
+@partial(jax.jit, static_argnums=0)
+def soft_and_gradients(field: str, prepared, arrays: dict, temperature):
+    """The soft outputs and the gradients of the sum of their `field` in x, y, z and heading: one program per
+    scene set and field, which the value tests share with the gradient tests (a forward program of their
+    own would be one more to compile, 12-16 s on 2 cores)."""
+
+    def total(x, y, z, heading):
+        out = jax_realism.soft_realism(prepared, x, y, z, heading, temperature=temperature)
+        return out[field].sum(), out
+
+    (_, out), grads = jax.value_and_grad(total, argnums=(0, 1, 2, 3), has_aux=True)(
+        arrays["x"], arrays["y"], arrays["z"], arrays["heading"]
+    )
+    return out, grads
+
+
 def test_same_fields_as_realism_and_soft_mode():
     prepared, arrays = demo()
-    out = _soft(prepared, arrays, 0.1)
+    out, _ = soft_and_gradients("metametric", prepared, arrays, 0.1)
     assert out.mode == "soft"
     assert set(out) == set(SCENARIO_FIELDS)
     assert all(np.shape(out[f]) == (1,) and np.isfinite(np.asarray(out[f])).all() for f in SCENARIO_FIELDS)
@@ -60,20 +76,15 @@ def test_goes_to_the_official_value_as_the_temperature_goes_to_zero():
     official = float(
         jax.jit(lambda p, a: jax_realism.realism(p, **a, mode="float32"))(prepared, arrays)["metametric"][0]
     )
-    gaps = [abs(float(_soft(prepared, arrays, t)["metametric"][0]) - official) for t in TEMPERATURES]
+    soft = [soft_and_gradients("metametric", prepared, arrays, t)[0]["metametric"][0] for t in TEMPERATURES]
+    gaps = [abs(float(value) - official) for value in soft]
     assert gaps[0] > gaps[1] > gaps[2], gaps
     assert gaps[2] <= GAP_AT_SMALLEST, gaps
 
 
 def test_gradients_are_finite_and_non_zero():
     prepared, arrays = demo()
-
-    def metametric(x, y, z, heading):
-        return jax_realism.soft_realism(prepared, x, y, z, heading, temperature=0.1)["metametric"].sum()
-
-    grads = jax.jit(jax.grad(metametric, argnums=(0, 1, 2, 3)))(
-        arrays["x"], arrays["y"], arrays["z"], arrays["heading"]
-    )
+    _, grads = soft_and_gradients("metametric", prepared, arrays, 0.1)
     for name, g in zip(("x", "y", "z", "heading"), grads):
         assert bool(jnp.isfinite(g).all()), name
     # IDM keeps z constant: the 3D speed's derivative in dz (dz / speed) is 0, so z's gradient is mostly 0.
@@ -146,11 +157,9 @@ def red_light_case():
 def test_red_light_gradients_are_finite_and_non_zero_at_the_crossings():
     prepared, arrays, expected, _ = red_light_case()
 
-    def red_light_likelihood(x, y, temperature):
-        out = jax_realism.soft_realism(prepared, x, y, arrays["z"], arrays["heading"], temperature=temperature)
-        return out["traffic_light_violation_likelihood"].sum()
+    def gradient(temperature):  # in x and y
+        return soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, temperature)[1][:2]
 
-    gradient = jax.jit(jax.grad(red_light_likelihood, argnums=(0, 1)))
     # A crossing at reported step t moves with the positions at t - 1 and t (the rollouts start at
     # the first reported step); objects are the rollouts' columns of the official rows.
     crossings = list(zip(*np.nonzero(expected["sim_traffic_light_violation_per_step"] & expected["sim_valid"])))
@@ -160,12 +169,12 @@ def test_red_light_gradients_are_finite_and_non_zero_at_the_crossings():
     def moves(grads, r, k, t):
         return any(bool((g[0, r, columns[k], max(t - 1, 0) : t + 1] != 0).any()) for g in grads)
 
-    grads = gradient(arrays["x"], arrays["y"], 1.0)
+    grads = gradient(1.0)
     assert all(bool(jnp.isfinite(g).all()) for g in grads)
     assert all(moves(grads, r, k, t) for r, k, t in crossings)
     # Cooler, a sure crossing (sigmoids saturated in float32, or two steps' weights past 1) may pass no
     # gradient, as a deep overlap passes none to the collision flag: each crossing object still moves it.
-    grads = gradient(arrays["x"], arrays["y"], 0.1)
+    grads = gradient(0.1)
     assert all(bool(jnp.isfinite(g).all()) for g in grads)
     for k in {k for _, k, _ in crossings}:
         assert any(moves(grads, r, k_, t) for r, k_, t in crossings if k_ == k), k
@@ -174,7 +183,7 @@ def test_red_light_gradients_are_finite_and_non_zero_at_the_crossings():
 def test_red_light_values_go_to_the_official_ones():
     prepared, arrays, _, official = red_light_case()
     temperatures = (*TEMPERATURES, 1e-3)
-    outs = [_soft(prepared, arrays, t) for t in temperatures]
+    outs = [soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, t)[0] for t in temperatures]
     for field in RED_LIGHT_FIELDS:
         gaps = [abs(float(out[field][0]) - official[field]) for out in outs]
         assert gaps == sorted(gaps, reverse=True), (field, gaps)

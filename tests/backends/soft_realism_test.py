@@ -63,14 +63,6 @@ def soft_and_gradients(field: str, prepared, arrays: dict, temperature):
     return out, grads
 
 
-def test_same_fields_as_realism_and_soft_mode():
-    prepared, arrays = demo()
-    out, _ = soft_and_gradients("metametric", prepared, arrays, 0.1)
-    assert out.mode == "soft"
-    assert set(out) == set(SCENARIO_FIELDS)
-    assert all(np.shape(out[f]) == (1,) and np.isfinite(np.asarray(out[f])).all() for f in SCENARIO_FIELDS)
-
-
 def test_goes_to_the_official_value_as_the_temperature_goes_to_zero():
     prepared, arrays = demo()
     official = float(
@@ -82,9 +74,13 @@ def test_goes_to_the_official_value_as_the_temperature_goes_to_zero():
     assert gaps[2] <= GAP_AT_SMALLEST, gaps
 
 
-def test_gradients_are_finite_and_non_zero():
+# A test per scene set for its outputs and their gradients: one program, traced (5-10 s) in one xdist worker.
+def test_same_fields_as_realism_and_gradients_finite_and_non_zero():
     prepared, arrays = demo()
-    _, grads = soft_and_gradients("metametric", prepared, arrays, 0.1)
+    out, grads = soft_and_gradients("metametric", prepared, arrays, 0.1)
+    assert out.mode == "soft"
+    assert set(out) == set(SCENARIO_FIELDS)
+    assert all(np.shape(out[f]) == (1,) and np.isfinite(np.asarray(out[f])).all() for f in SCENARIO_FIELDS)
     for name, g in zip(("x", "y", "z", "heading"), grads):
         assert bool(jnp.isfinite(g).all()), name
     # IDM keeps z constant: the 3D speed's derivative in dz (dz / speed) is 0, so z's gradient is mostly 0.
@@ -154,8 +150,10 @@ def red_light_case():
     return prepared, arrays, expected, golden.expected_metrics(case_set, RED_LIGHT_CASE, "2025")
 
 
-def test_red_light_gradients_are_finite_and_non_zero_at_the_crossings():
-    prepared, arrays, expected, _ = red_light_case()
+def test_red_light_gradients_at_the_crossings_and_values_to_the_official_ones():
+    """The red-light likelihood's gradient is finite and non-zero at every crossing, and the red-light values
+    go to the official ones as the temperature goes to 0 (one program, as above)."""
+    prepared, arrays, expected, official = red_light_case()
 
     def gradient(temperature):  # in x and y
         return soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, temperature)[1][:2]
@@ -178,10 +176,6 @@ def test_red_light_gradients_are_finite_and_non_zero_at_the_crossings():
     assert all(bool(jnp.isfinite(g).all()) for g in grads)
     for k in {k for _, k, _ in crossings}:
         assert any(moves(grads, r, k_, t) for r, k_, t in crossings if k_ == k), k
-
-
-def test_red_light_values_go_to_the_official_ones():
-    prepared, arrays, _, official = red_light_case()
     temperatures = (*TEMPERATURES, 1e-3)
     outs = [soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, t)[0] for t in temperatures]
     for field in RED_LIGHT_FIELDS:

@@ -35,8 +35,8 @@ def _set_prepared(case_set) -> dict:
 def _set_floor(case_set) -> tuple[int, ...]:
     """The largest of each bucket size among a set's cases (`Sizes.as_tuple()` order): as `min_bucket`, every
     case falls in one bucket, so a set compiles one program per batch size instead of one per bucket its
-    cases fall in (about 12 s each on 2 cores). Padding changes no bit
-    (test_padding_to_larger_buckets_changes_nothing); the natural buckets are the alone calls' below."""
+    cases fall in (about 12 s each on 2 cores). Padding changes no bit, and a case in its own bucket is
+    checked against the set's: test_padding_to_larger_buckets_changes_nothing."""
     sizes = [p.bucket_key.sizes.as_tuple() for p in _set_prepared(case_set).values()]
     return tuple(max(column) for column in zip(*sizes))
 

@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 import pickle
-from functools import lru_cache
+from functools import lru_cache, reduce
 
 import numpy as np
 import pytest
 
 from wosac_eval.backends import jax_backend
+from wosac_eval.backends.jax_driver import Sizes
 
 from support import golden
 from wosac_eval.features.metric_features import scenario_features
@@ -32,13 +33,12 @@ def _set_prepared(case_set) -> dict:
 
 
 @lru_cache(maxsize=None)
-def _set_floor(case_set) -> tuple[int, ...]:
-    """The largest of each bucket size among a set's cases (`Sizes.as_tuple()` order): as `min_bucket`, every
-    case falls in one bucket, so a set compiles one program per batch size instead of one per bucket its
-    cases fall in (about 12 s each on 2 cores). Padding changes no bit, and a case in its own bucket is
-    checked against the set's: test_padding_to_larger_buckets_changes_nothing."""
-    sizes = [p.bucket_key.sizes.as_tuple() for p in _set_prepared(case_set).values()]
-    return tuple(max(column) for column in zip(*sizes))
+def _set_floor(case_set) -> Sizes:
+    """The largest of each bucket size among a set's cases (`Sizes.at_least`): as `min_bucket`, every case
+    falls in one bucket, so a set compiles one program per batch size instead of one per bucket its cases
+    fall in (about 12 s each on 2 cores). Padding changes no bit, and a case in its own bucket is checked
+    against the set's: test_padding_to_larger_buckets_changes_nothing."""
+    return reduce(Sizes.at_least, (p.bucket_key.sizes for p in _set_prepared(case_set).values()))
 
 
 @lru_cache(maxsize=None)
@@ -113,7 +113,7 @@ def test_padding_to_larger_buckets_changes_nothing():
     case = next(c for c in ORACLE.cases if "red-light" in c)
     key = _set_prepared(ORACLE)[case].bucket_key
     larger = key.sizes.with_counts(2 * k for k in key.sizes.as_tuple())  # objects, evaluated, every map size
-    padded = jax_backend.scenarios_features([golden.inputs(ORACLE, case)], min_bucket=larger)[0]
+    (padded,) = jax_backend.prepared_features([_set_prepared(ORACLE)[case]], min_bucket=larger)
     tight = jax_backend.scenario_features(*golden.inputs(ORACLE, case))  # its own bucket
     golden.assert_features_equal(padded, golden.as_feature_dict(tight), f"{case} padded to {larger}")
     golden.assert_features_equal(

@@ -154,9 +154,11 @@ def test_red_light_gradients_at_the_crossings_and_values_to_the_official_ones():
     """The red-light likelihood's gradient is finite and non-zero at every crossing, and the red-light values
     go to the official ones as the temperature goes to 0 (one program, as above)."""
     prepared, arrays, expected, official = red_light_case()
-
-    def gradient(temperature):  # in x and y
-        return soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, temperature)[1][:2]
+    temperatures = (*TEMPERATURES, 1e-3)
+    outs, gradients = zip(
+        *(soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, t) for t in temperatures)
+    )
+    in_x_and_y = {t: g[:2] for t, g in zip(temperatures, gradients)}
 
     # A crossing at reported step t moves with the positions at t - 1 and t (the rollouts start at
     # the first reported step); objects are the rollouts' columns of the official rows.
@@ -167,17 +169,15 @@ def test_red_light_gradients_at_the_crossings_and_values_to_the_official_ones():
     def moves(grads, r, k, t):
         return any(bool((g[0, r, columns[k], max(t - 1, 0) : t + 1] != 0).any()) for g in grads)
 
-    grads = gradient(1.0)
+    grads = in_x_and_y[1.0]
     assert all(bool(jnp.isfinite(g).all()) for g in grads)
     assert all(moves(grads, r, k, t) for r, k, t in crossings)
     # Cooler, a sure crossing (sigmoids saturated in float32, or two steps' weights past 1) may pass no
     # gradient, as a deep overlap passes none to the collision flag: each crossing object still moves it.
-    grads = gradient(0.1)
+    grads = in_x_and_y[0.1]
     assert all(bool(jnp.isfinite(g).all()) for g in grads)
     for k in {k for _, k, _ in crossings}:
         assert any(moves(grads, r, k_, t) for r, k_, t in crossings if k_ == k), k
-    temperatures = (*TEMPERATURES, 1e-3)
-    outs = [soft_and_gradients("traffic_light_violation_likelihood", prepared, arrays, t)[0] for t in temperatures]
     for field in RED_LIGHT_FIELDS:
         gaps = [abs(float(out[field][0]) - official[field]) for out in outs]
         assert gaps == sorted(gaps, reverse=True), (field, gaps)
